@@ -1,0 +1,303 @@
+"""Bag I/O: the only module that imports rosbags.
+
+The bag contract (each topic name is an option):
+
+- ``/tak/counts``: ``geometry_msgs/msg/Vector3Stamped``, x, y, z = channel codes N.
+- ``/tak/temp_code``: ``sensor_msgs/msg/Temperature``, ``temperature`` = raw code N_t.
+- ``/tak/reference``: ``geometry_msgs/msg/Vector3Stamped``, true specific force (m/s^2),
+  calibration runs only, published at least whenever it changes.
+- ``/tak/imu/data_raw``: ``sensor_msgs/msg/Imu`` written by ``apply``.
+
+Both rosbag2 storages (mcap, sqlite3) are read; bags are written to a temporary directory
+beside the target and renamed into place, so a failed write leaves nothing behind.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+
+from tak_thermo_ros.core.record import NANOSECONDS, ChannelRecord
+from tak_thermo_ros.errors import BagError
+from tak_thermo_ros.progress import Progress
+
+TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+VECTOR3_STAMPED = 'geometry_msgs/msg/Vector3Stamped'
+TEMPERATURE = 'sensor_msgs/msg/Temperature'
+IMU = 'sensor_msgs/msg/Imu'
+NOMINAL_SCALE_KEY = 'tak_thermo_ros.nominal_scale'
+"""Bag metadata ``custom_data`` key: nominal K0 per axis as ``'x,y,z'`` (counts per m/s^2)."""
+STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
+
+_Header = TYPESTORE.types['std_msgs/msg/Header']
+_Time = TYPESTORE.types['builtin_interfaces/msg/Time']
+_Vector3 = TYPESTORE.types['geometry_msgs/msg/Vector3']
+_Vector3Stamped = TYPESTORE.types[VECTOR3_STAMPED]
+_Quaternion = TYPESTORE.types['geometry_msgs/msg/Quaternion']
+_Temperature = TYPESTORE.types[TEMPERATURE]
+_Imu = TYPESTORE.types[IMU]
+
+
+@dataclass(frozen=True)
+class Topics:
+    """Topic names of the bag contract."""
+
+    counts: str = '/tak/counts'
+    temp_code: str = '/tak/temp_code'
+    reference: str = '/tak/reference'
+    imu: str = '/tak/imu/data_raw'
+
+
+def _header(stamp_ns: int, frame_id: str):
+    sec, nanosec = divmod(int(stamp_ns), NANOSECONDS)
+    return _Header(stamp=_Time(sec=sec, nanosec=nanosec), frame_id=frame_id)
+
+
+def _stamp_ns(header) -> int:
+    return header.stamp.sec * NANOSECONDS + header.stamp.nanosec
+
+
+class _TopicReader:
+    """Messages of one topic, deserialised, with a progress count."""
+
+    def __init__(self, reader: Reader, path: Path, topic: str, msgtype: str, *, required: bool) -> None:
+        self.connections = [c for c in reader.connections if c.topic == topic]
+        self.topic = topic
+        if not self.connections and required:
+            available = ', '.join(sorted({c.topic for c in reader.connections})) or 'none'
+            msg = f'{path}: topic {topic} not found (topics in the bag: {available})'
+            raise BagError(msg)
+        for connection in self.connections:
+            if connection.msgtype != msgtype:
+                msg = f'{path}: topic {topic} has type {connection.msgtype}, expected {msgtype}'
+                raise BagError(msg)
+        self.msgtype = msgtype
+        self.count = sum(c.msgcount for c in self.connections)
+        self.reader = reader
+
+    def messages(self, progress: Progress) -> Iterator[object]:
+        if not self.connections:
+            return
+        deserialize = TYPESTORE.deserialize_cdr
+        msgtype = self.msgtype
+        for step, (_, _, raw) in enumerate(self.reader.messages(connections=self.connections)):
+            yield deserialize(raw, msgtype)
+            if step % 4096 == 4095:
+                progress.advance(4096)
+
+
+def read_record(path: str | os.PathLike[str], *, topics: Topics = Topics(),
+                require_reference: bool = False, progress: bool = True) -> ChannelRecord:
+    """Read the counts, temperature-code and (optional) reference streams of a bag.
+
+    :raises BagError: missing bag or topic, wrong type, empty topic, unreadable or truncated file.
+    """
+    path = Path(path)
+    if not path.exists():
+        msg = f'{path}: no such bag'
+        raise BagError(msg)
+    try:
+        with Reader(path) as reader:
+            counts_topic = _TopicReader(reader, path, topics.counts, VECTOR3_STAMPED, required=True)
+            temp_topic = _TopicReader(reader, path, topics.temp_code, TEMPERATURE, required=True)
+            nominal_scale = _nominal_scale(reader, path)
+            reference_topic = _TopicReader(reader, path, topics.reference, VECTOR3_STAMPED,
+                                           required=require_reference)
+            for topic in (counts_topic, temp_topic, *((reference_topic,) if require_reference else ())):
+                if topic.count == 0:
+                    msg = f'{path}: no messages on {topic.topic}'
+                    raise BagError(msg)
+            total = counts_topic.count + temp_topic.count + reference_topic.count
+            with Progress(total, f'reading {path.name}', enabled=None if progress else False) as bar:
+                counts_stamp, counts, frame_id = _read_vectors(counts_topic, bar, path, check_frame=True)
+                temp_stamp = np.empty(temp_topic.count, dtype=np.int64)
+                temp_code = np.empty(temp_topic.count)
+                filled = 0
+                for filled, message in enumerate(temp_topic.messages(bar), start=1):
+                    temp_stamp[filled - 1] = _stamp_ns(message.header)
+                    temp_code[filled - 1] = message.temperature
+                if filled != temp_topic.count:
+                    msg = f'{path}: {temp_topic.topic} holds {filled} of the {temp_topic.count} messages its index lists (truncated bag?)'
+                    raise BagError(msg)
+                reference_stamp, reference, _ = _read_vectors(reference_topic, bar, path, check_frame=False)
+    except BagError:
+        raise
+    except Exception as err:  # rosbags and the storage libraries raise many kinds
+        detail = str(err).splitlines()[0] if str(err) else type(err).__name__
+        msg = f'{path}: cannot read bag ({detail})'
+        raise BagError(msg) from None
+    return ChannelRecord(counts_stamp_ns=counts_stamp, counts=counts, temp_stamp_ns=temp_stamp,
+                         temp_code=temp_code, reference_stamp_ns=reference_stamp,
+                         reference=reference, frame_id=frame_id, nominal_scale=nominal_scale)
+
+
+def _nominal_scale(reader: Reader, path: Path) -> tuple[float, float, float] | None:
+    custom = getattr(getattr(reader, 'metadata', None), 'custom', None) or {}
+    text = custom.get(NOMINAL_SCALE_KEY)
+    if text is None:
+        return None
+    try:
+        values = tuple(float(v) for v in str(text).split(','))
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(v > 0 for v in values):
+        msg = f'{path}: metadata {NOMINAL_SCALE_KEY} must be three positive numbers, got {text!r}'
+        raise BagError(msg)
+    return values  # type: ignore[return-value]
+
+
+def _read_vectors(topic: _TopicReader, bar: Progress, path: Path, *,
+                  check_frame: bool) -> tuple[np.ndarray, np.ndarray, str]:
+    stamps = np.empty(topic.count, dtype=np.int64)
+    values = np.empty((topic.count, 3))
+    frame_id = ''
+    filled = 0
+    for filled, message in enumerate(topic.messages(bar), start=1):
+        row = filled - 1
+        header = message.header
+        stamps[row] = header.stamp.sec * NANOSECONDS + header.stamp.nanosec
+        vector = message.vector
+        values[row, 0] = vector.x
+        values[row, 1] = vector.y
+        values[row, 2] = vector.z
+        if row == 0:
+            frame_id = header.frame_id
+        elif check_frame and header.frame_id != frame_id:
+            msg = (f'{path}: frame_id on {topic.topic} changes from {frame_id!r} to '
+                   f'{header.frame_id!r} at message {filled}; one frame per run is supported')
+            raise BagError(msg)
+    if filled != topic.count:
+        msg = f'{path}: {topic.topic} holds {filled} of the {topic.count} messages its index lists (truncated bag?)'
+        raise BagError(msg)
+    return stamps, values, frame_id
+
+
+class _AtomicBag:
+    """A Writer into a temporary directory that is renamed to ``path`` on success."""
+
+    def __init__(self, path: str | os.PathLike[str], storage: str) -> None:
+        self.path = Path(path)
+        if storage not in STORAGES:
+            msg = f'unknown storage {storage!r} (mcap or sqlite3)'
+            raise BagError(msg)
+        if self.path.exists():
+            msg = f'{self.path}: exists already, not overwriting'
+            raise BagError(msg)
+        parent = self.path.parent
+        if not parent.is_dir():
+            msg = f'{self.path}: directory {parent} does not exist'
+            raise BagError(msg)
+        self.staging = Path(tempfile.mkdtemp(prefix=f'.{self.path.name}.', suffix='.partial', dir=parent))
+        # rosbags writes the bag *into* a path that must not exist yet; its files are named after it.
+        self.inner = self.staging / self.path.name
+        self.writer = Writer(self.inner, version=9, storage_plugin=STORAGES[storage])
+
+    def __enter__(self) -> Writer:
+        self.writer.open()
+        return self.writer
+
+    def __exit__(self, exc_type, exc, traceback) -> None:
+        try:
+            self.writer.close()
+            if exc_type is None:
+                os.rename(self.inner, self.path)
+        finally:
+            shutil.rmtree(self.staging, ignore_errors=True)
+
+
+def write_record(path: str | os.PathLike[str], record: ChannelRecord, *, topics: Topics = Topics(),
+                 storage: str = 'mcap') -> None:
+    """Write a run in the bag contract (messages in stamp order, bag time = header stamp)."""
+    serialize = TYPESTORE.serialize_cdr
+    events: list[tuple[int, int, int]] = []  # (stamp, stream, row): streams 0 temp, 1 ref, 2 counts
+    events += [(int(s), 0, i) for i, s in enumerate(record.temp_stamp_ns)]
+    events += [(int(s), 1, i) for i, s in enumerate(record.reference_stamp_ns)]
+    events += [(int(s), 2, i) for i, s in enumerate(record.counts_stamp_ns)]
+    events.sort()
+    with _AtomicBag(path, storage) as writer:
+        counts_conn = writer.add_connection(topics.counts, VECTOR3_STAMPED, typestore=TYPESTORE)
+        temp_conn = writer.add_connection(topics.temp_code, TEMPERATURE, typestore=TYPESTORE)
+        reference_conn = (writer.add_connection(topics.reference, VECTOR3_STAMPED, typestore=TYPESTORE)
+                          if record.has_reference else None)
+        if record.nominal_scale is not None:
+            writer.set_custom_data(NOMINAL_SCALE_KEY, ','.join(repr(float(v)) for v in record.nominal_scale))
+        for stamp, stream, row in events:
+            header = _header(stamp, record.frame_id)
+            if stream == 0:
+                message = _Temperature(header=header, temperature=float(record.temp_code[row]), variance=0.0)
+                writer.write(temp_conn, stamp, serialize(message, TEMPERATURE))
+            elif stream == 1:
+                x, y, z = (float(v) for v in record.reference[row])
+                message = _Vector3Stamped(header=header, vector=_Vector3(x=x, y=y, z=z))
+                writer.write(reference_conn, stamp, serialize(message, VECTOR3_STAMPED))
+            else:
+                x, y, z = (float(v) for v in record.counts[row])
+                message = _Vector3Stamped(header=header, vector=_Vector3(x=x, y=y, z=z))
+                writer.write(counts_conn, stamp, serialize(message, VECTOR3_STAMPED))
+
+
+def imu_covariances(variance: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Orientation, angular-velocity and linear-acceleration covariances of the Imu output.
+
+    REP 145: ``[0] = -1`` marks orientation and angular velocity as not provided.
+    """
+    orientation = np.zeros(9)
+    orientation[0] = -1.0
+    angular = np.zeros(9)
+    angular[0] = -1.0
+    linear = np.zeros(9)
+    linear[0], linear[4], linear[8] = variance
+    return orientation, angular, linear
+
+
+def write_imu(path: str | os.PathLike[str], stamp_ns: np.ndarray, frame_id: str,
+              acceleration: np.ndarray, variance: tuple[float, float, float], *,
+              topic: str = Topics.imu, storage: str = 'mcap') -> None:
+    """Write corrected specific force as ``sensor_msgs/msg/Imu`` (REP 103 axes, m/s^2)."""
+    serialize = TYPESTORE.serialize_cdr
+    orientation_cov, angular_cov, linear_cov = imu_covariances(variance)
+    identity = _Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
+    zero = _Vector3(x=0.0, y=0.0, z=0.0)
+    with _AtomicBag(path, storage) as writer:
+        connection = writer.add_connection(topic, IMU, typestore=TYPESTORE)
+        for stamp, (x, y, z) in zip(stamp_ns.tolist(), acceleration.tolist()):
+            message = _Imu(header=_header(stamp, frame_id), orientation=identity,
+                           orientation_covariance=orientation_cov, angular_velocity=zero,
+                           angular_velocity_covariance=angular_cov,
+                           linear_acceleration=_Vector3(x=x, y=y, z=z),
+                           linear_acceleration_covariance=linear_cov)
+            writer.write(connection, stamp, serialize(message, IMU))
+
+
+def read_imu(path: str | os.PathLike[str], *, topic: str = Topics.imu) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray]:
+    """Read an Imu topic: stamps ``(k,)``, linear acceleration ``(k, 3)``, frame ids, covariances ``(k, 9)``."""
+    path = Path(path)
+    stamps, values, frames, covariances = [], [], [], []
+    try:
+        with Reader(path) as reader:
+            connections = [c for c in reader.connections if c.topic == topic]
+            if not connections:
+                msg = f'{path}: topic {topic} not found'
+                raise BagError(msg)
+            for connection, _, raw in reader.messages(connections=connections):
+                message = TYPESTORE.deserialize_cdr(raw, connection.msgtype)
+                stamps.append(_stamp_ns(message.header))
+                acc = message.linear_acceleration
+                values.append((acc.x, acc.y, acc.z))
+                frames.append(message.header.frame_id)
+                covariances.append(np.asarray(message.linear_acceleration_covariance))
+    except BagError:
+        raise
+    except Exception as err:
+        msg = f'{path}: cannot read bag ({err})'
+        raise BagError(msg) from None
+    return (np.asarray(stamps, dtype=np.int64), np.asarray(values).reshape(-1, 3), frames,
+            np.asarray(covariances).reshape(-1, 9))

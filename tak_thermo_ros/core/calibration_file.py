@@ -1,0 +1,284 @@
+"""The calibration file: a ROS 2 parameters YAML that the node loads unchanged.
+
+Layout::
+
+    compensator:
+      ros__parameters:
+        calibration:
+          version: 1
+          temp_code_ref: 8200.0
+          temp_code_min: 7600.0
+          temp_code_max: 9300.0
+          x: {scale: 255.1, offset: -12.3, offset_span: 41.0,
+              offset_shape: [b1, b2, b3], scale_shape: [a1, a2], residual_rms: 1.9}
+          y: {...}
+          z: {...}
+
+ROS 2 parameters cannot hold empty lists, so a polynomial without temperature dependence is
+written ``[0.0]``. Optional keys: ``residual_rms`` (counts; feeds the Imu covariance),
+``scale_observable`` (``false`` when the scale was held at nominal), ``notes`` (list of
+strings). Later model terms go under ``calibration`` beside the axes.
+
+:func:`calibration_from_mapping` is the single validator: the command-line tools call it on
+the YAML, the node on its ``calibration.*`` parameters.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import yaml
+
+from tak_thermo_ros.core.model import AXES, CALIBRATION_VERSION, AxisModel, Calibration
+from tak_thermo_ros.errors import CalibrationError
+
+NODE_NAME = 'compensator'
+AXIS_KEYS = ('scale', 'offset', 'offset_span', 'offset_shape', 'scale_shape')
+OPTIONAL_AXIS_KEYS = ('residual_rms', 'scale_observable')
+TOP_KEYS = ('version', 'temp_code_ref', 'temp_code_min', 'temp_code_max')
+MAX_ORDER = 8
+
+
+def _number(value: Any, key: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        msg = f'{key}: expected a number, got {type(value).__name__} {value!r}'
+        raise CalibrationError(msg)
+    number = float(value)
+    if not math.isfinite(number):
+        msg = f'{key}: must be finite, got {number}'
+        raise CalibrationError(msg)
+    return number
+
+
+def _coefficients(value: Any, key: str) -> tuple[float, ...]:
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if not isinstance(value, (list, tuple)):
+        msg = f'{key}: expected a list of numbers, got {type(value).__name__} {value!r}'
+        raise CalibrationError(msg)
+    if not 1 <= len(value) <= MAX_ORDER:
+        msg = f'{key}: expected 1 to {MAX_ORDER} coefficients, got {len(value)}'
+        raise CalibrationError(msg)
+    return tuple(_number(item, f'{key}[{i}]') for i, item in enumerate(value))
+
+
+def _axis_from_mapping(raw: Any, key: str) -> AxisModel:
+    if not isinstance(raw, Mapping):
+        msg = f'{key}: expected a mapping with keys {", ".join(AXIS_KEYS)}'
+        raise CalibrationError(msg)
+    for name in AXIS_KEYS:
+        if name not in raw:
+            msg = f'{key}.{name}: missing'
+            raise CalibrationError(msg)
+    unknown = sorted(set(raw) - set(AXIS_KEYS) - set(OPTIONAL_AXIS_KEYS))
+    if unknown:
+        msg = f'{key}.{unknown[0]}: unknown key'
+        raise CalibrationError(msg)
+    scale = _number(raw['scale'], f'{key}.scale')
+    if scale <= 0.0:
+        msg = f'{key}.scale: must be > 0, got {scale}'
+        raise CalibrationError(msg)
+    offset_span = _number(raw['offset_span'], f'{key}.offset_span')
+    if offset_span < 0.0:
+        msg = f'{key}.offset_span: must be >= 0 (the sign lives in offset_shape), got {offset_span}'
+        raise CalibrationError(msg)
+    residual_rms = None
+    if 'residual_rms' in raw:
+        residual_rms = _number(raw['residual_rms'], f'{key}.residual_rms')
+        if residual_rms < 0.0:
+            msg = f'{key}.residual_rms: must be >= 0, got {residual_rms}'
+            raise CalibrationError(msg)
+    scale_observable = raw.get('scale_observable', True)
+    if not isinstance(scale_observable, bool):
+        msg = f'{key}.scale_observable: expected true or false, got {scale_observable!r}'
+        raise CalibrationError(msg)
+    return AxisModel(
+        scale=scale,
+        offset=_number(raw['offset'], f'{key}.offset'),
+        offset_span=offset_span,
+        offset_shape=_coefficients(raw['offset_shape'], f'{key}.offset_shape'),
+        scale_shape=_coefficients(raw['scale_shape'], f'{key}.scale_shape'),
+        residual_rms=residual_rms,
+        scale_observable=scale_observable,
+    )
+
+
+def check_scale_positive(calibration: Calibration, *, key: str = 'calibration') -> None:
+    """Raise unless ``F_c(n) > 0`` over the whole calibrated range on every axis."""
+    n_low, n_high = calibration.code_offset_range()
+    grid = np.linspace(n_low, n_high, 1001)
+    for name, axis in zip(AXES, calibration.axes):
+        factor = axis.scale_factor(grid)
+        if not np.all(factor > 0.0):
+            worst = float(grid[int(np.argmin(factor))]) + calibration.temp_code_ref
+            msg = (f'{key}.{name}.scale_shape: F_c <= 0 inside the calibrated range '
+                   f'(at temperature code {worst:.1f})')
+            raise CalibrationError(msg)
+
+
+def calibration_from_mapping(raw: Any, *, key: str = 'calibration') -> Calibration:
+    """Validate a ``calibration`` mapping and build the :class:`Calibration`.
+
+    :param raw: the mapping under ``calibration`` (from YAML or from node parameters).
+    :param key: dotted prefix used in messages.
+    :raises CalibrationError: naming the first wrong key.
+    """
+    if not isinstance(raw, Mapping):
+        msg = f'{key}: expected a mapping'
+        raise CalibrationError(msg)
+    for name in (*TOP_KEYS, *AXES):
+        if name not in raw:
+            msg = f'{key}.{name}: missing'
+            raise CalibrationError(msg)
+    version = raw['version']
+    if isinstance(version, bool) or not isinstance(version, (int, float)) or version != CALIBRATION_VERSION:
+        msg = f'{key}.version: unknown version {version!r} (this tool reads version {CALIBRATION_VERSION})'
+        raise CalibrationError(msg)
+    ref = _number(raw['temp_code_ref'], f'{key}.temp_code_ref')
+    low = _number(raw['temp_code_min'], f'{key}.temp_code_min')
+    high = _number(raw['temp_code_max'], f'{key}.temp_code_max')
+    if low >= high:
+        msg = f'{key}.temp_code_min: must be below temp_code_max, got {low} >= {high}'
+        raise CalibrationError(msg)
+    notes = raw.get('notes', [])
+    if isinstance(notes, str) or not isinstance(notes, (list, tuple)) or not all(
+            isinstance(note, str) for note in notes):
+        msg = f'{key}.notes: expected a list of strings'
+        raise CalibrationError(msg)
+    axes = tuple(_axis_from_mapping(raw[name], f'{key}.{name}') for name in AXES)
+    calibration = Calibration(temp_code_ref=ref, temp_code_min=low, temp_code_max=high,
+                              axes=axes, version=CALIBRATION_VERSION,  # type: ignore[arg-type]
+                              notes=tuple(notes))
+    check_scale_positive(calibration, key=key)
+    return calibration
+
+
+def calibration_to_mapping(calibration: Calibration) -> dict[str, Any]:
+    """The ``calibration`` mapping of a :class:`Calibration` (plain floats, lists)."""
+    mapping: dict[str, Any] = {
+        'version': int(calibration.version),
+        'temp_code_ref': float(calibration.temp_code_ref),
+        'temp_code_min': float(calibration.temp_code_min),
+        'temp_code_max': float(calibration.temp_code_max),
+    }
+    if calibration.notes:
+        mapping['notes'] = list(calibration.notes)
+    for name, axis in zip(AXES, calibration.axes):
+        entry: dict[str, Any] = {
+            'scale': float(axis.scale),
+            'offset': float(axis.offset),
+            'offset_span': float(axis.offset_span),
+            'offset_shape': [float(c) for c in axis.offset_shape],
+            'scale_shape': [float(c) for c in axis.scale_shape],
+        }
+        if axis.residual_rms is not None:
+            entry['residual_rms'] = float(axis.residual_rms)
+        if not axis.scale_observable:
+            entry['scale_observable'] = False
+        mapping[name] = entry
+    return mapping
+
+
+def flatten_parameters(mapping: Mapping[str, Any], prefix: str = 'calibration') -> dict[str, Any]:
+    """Flatten nested mappings into ROS 2 parameter names (``calibration.x.scale``)."""
+    flat: dict[str, Any] = {}
+    for name, value in mapping.items():
+        dotted = f'{prefix}.{name}'
+        if isinstance(value, Mapping):
+            flat.update(flatten_parameters(value, dotted))
+        else:
+            flat[dotted] = value
+    return flat
+
+
+def nest_parameters(flat: Mapping[str, Any], prefix: str = 'calibration') -> dict[str, Any]:
+    """Inverse of :func:`flatten_parameters`: rebuild the mapping under ``prefix``."""
+    nested: dict[str, Any] = {}
+    start = prefix + '.'
+    for dotted, value in flat.items():
+        if not dotted.startswith(start):
+            continue
+        parts = dotted[len(start):].split('.')
+        node = nested
+        for part in parts[:-1]:
+            node = node.setdefault(part, {})
+        node[parts[-1]] = value
+    return nested
+
+
+def load_calibration(path: str | os.PathLike[str]) -> Calibration:
+    """Read and validate a calibration parameters YAML.
+
+    :raises CalibrationError: one line naming the file and the wrong key.
+    """
+    path = Path(path)
+    try:
+        document = yaml.safe_load(path.read_text(encoding='utf-8'))
+    except FileNotFoundError:
+        msg = f'{path}: no such calibration file'
+        raise CalibrationError(msg) from None
+    except (OSError, UnicodeDecodeError) as err:
+        msg = f'{path}: cannot read calibration file ({err})'
+        raise CalibrationError(msg) from None
+    except yaml.YAMLError as err:
+        mark = getattr(err, 'problem_mark', None)
+        where = f' at line {mark.line + 1}' if mark is not None else ''
+        msg = f'{path}: not valid YAML{where}'
+        raise CalibrationError(msg) from None
+    try:
+        if not isinstance(document, Mapping) or not document:
+            msg = f'expected a mapping {NODE_NAME}: ros__parameters: calibration: ...'
+            raise CalibrationError(msg)
+        node_key = NODE_NAME if NODE_NAME in document else next(iter(document))
+        section = document[node_key]
+        if not isinstance(section, Mapping) or 'ros__parameters' not in section:
+            msg = f'{node_key}.ros__parameters: missing'
+            raise CalibrationError(msg)
+        parameters = section['ros__parameters']
+        if not isinstance(parameters, Mapping) or 'calibration' not in parameters:
+            msg = f'{node_key}.ros__parameters.calibration: missing'
+            raise CalibrationError(msg)
+        return calibration_from_mapping(parameters['calibration'])
+    except CalibrationError as err:
+        msg = f'{path}: {err}'
+        raise CalibrationError(msg) from None
+
+
+def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
+    """Write a text file atomically: a temporary file beside it, then a rename."""
+    path = Path(path)
+    handle, temporary = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.partial',
+                                         dir=path.parent if str(path.parent) else '.')
+    try:
+        with os.fdopen(handle, 'w', encoding='utf-8') as stream:
+            stream.write(text)
+            stream.flush()
+            os.fsync(stream.fileno())
+        os.replace(temporary, path)
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise
+
+
+def calibration_yaml(calibration: Calibration, *, extra_parameters: Mapping[str, Any] | None = None,
+                     header: str = '') -> str:
+    """The calibration file's text."""
+    parameters: dict[str, Any] = dict(extra_parameters or {})
+    parameters['calibration'] = calibration_to_mapping(calibration)
+    document = {NODE_NAME: {'ros__parameters': parameters}}
+    body = yaml.safe_dump(document, sort_keys=False, default_flow_style=None, width=100)
+    comment = ''.join(f'# {line}\n' for line in header.splitlines())
+    return comment + body
+
+
+def save_calibration(path: str | os.PathLike[str], calibration: Calibration, *,
+                     header: str = '') -> None:
+    """Validate (by a round trip) and write the calibration file atomically."""
+    text = calibration_yaml(calibration, header=header)
+    calibration_from_mapping(yaml.safe_load(text)[NODE_NAME]['ros__parameters']['calibration'])
+    write_text_atomic(path, text)

@@ -1,0 +1,151 @@
+"""The paper's channel model and its calibration values.
+
+Per axis, with ``n = N_t - N_t,ref`` (temperature-sensor code counted from normal
+conditions) and ``f`` the specific force along the axis in m/s^2::
+
+    N = K0 * F_c(n) * f + dNs0 + D * F_s(n)
+    F_c(n) = 1 + a1 n + ... + ap n^p
+    F_s(n) = b1 n + ... + bq n^q
+
+``K0`` (``scale``) is counts per m/s^2 per conversion cycle at normal conditions, ``dNs0``
+(``offset``) the output-referred zero offset at normal conditions, ``D`` (``offset_span``) the
+largest change of the offset over the calibrated range, ``F_s`` normalised so that
+``max |F_s| = 1`` over that range.
+
+Polynomials are stored lowest order first, without their constant term, and are always
+evaluated with Horner's scheme in the same operation order (see :func:`horner_no_constant`),
+so that the vectorised and the per-sample correction paths give the same float64 results.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Sequence
+
+import numpy as np
+
+from tak_thermo_ros.errors import CalibrationError
+
+AXES: tuple[str, str, str] = ('x', 'y', 'z')
+CALIBRATION_VERSION = 1
+
+
+def horner_no_constant(coeffs: Sequence[float], n):
+    """Evaluate ``c1 n + c2 n^2 + ... + ck n^k`` by Horner's scheme.
+
+    Works on a Python float or a numpy array with the same operation order, hence with
+    bit-identical results.
+
+    :param coeffs: ``(c1, ..., ck)``, lowest order first.
+    :param n: scalar or array.
+    """
+    value = 0.0 * n
+    for coefficient in reversed(coeffs):
+        value = (value + coefficient) * n
+    return value
+
+
+@dataclass(frozen=True)
+class AxisModel:
+    """Calibrated correction link of one axis.
+
+    :param scale: ``K0``, counts per (m/s^2) per conversion cycle at normal conditions, > 0.
+    :param offset: ``dNs0``, output-referred offset at normal conditions, counts.
+    :param offset_span: ``D``, largest change of the offset over the calibrated range, counts.
+    :param offset_shape: ``(b1, ..., bq)`` of ``F_s``, per code power.
+    :param scale_shape: ``(a1, ..., ap)`` of ``F_c``, per code power. ``(0.0,)`` means
+        no temperature dependence of the scale (ROS 2 parameters cannot hold empty lists).
+    :param residual_rms: RMS of the fit residual in counts, or ``None`` when unknown.
+    :param scale_observable: ``False`` when the calibration data could not separate scale
+        from offset on this axis and the scale was held at its nominal value.
+    """
+
+    scale: float
+    offset: float
+    offset_span: float
+    offset_shape: tuple[float, ...]
+    scale_shape: tuple[float, ...] = (0.0,)
+    residual_rms: float | None = None
+    scale_observable: bool = True
+
+    @classmethod
+    def from_polynomials(cls, *, scale: float, offset: float, offset_coeffs: Sequence[float],
+                         scale_coeffs: Sequence[float], code_offset_range: tuple[float, float],
+                         residual_rms: float | None = None,
+                         scale_observable: bool = True) -> AxisModel:
+        """Build an axis from raw polynomial coefficients, normalising ``F_s`` as the paper does.
+
+        :param offset_coeffs: ``(c1, ..., cq)`` of ``dNs(n) - dNs0 = c1 n + ... + cq n^q``.
+        :param scale_coeffs: ``(a1, ..., ap)`` of ``F_c``.
+        :param code_offset_range: ``(n_min, n_max)`` over which ``max |F_s| = 1``.
+        """
+        grid = np.linspace(code_offset_range[0], code_offset_range[1], 2001)
+        span = float(np.max(np.abs(horner_no_constant(tuple(offset_coeffs), grid))))
+        shape = tuple(float(c) / span for c in offset_coeffs) if span > 0.0 else tuple(
+            0.0 for _ in offset_coeffs)
+        return cls(scale=float(scale), offset=float(offset), offset_span=span,
+                   offset_shape=shape or (0.0,),
+                   scale_shape=tuple(float(a) for a in scale_coeffs) or (0.0,),
+                   residual_rms=residual_rms, scale_observable=scale_observable)
+
+    def offset_drift(self, n):
+        """``dNs(n) - dNs0 = D * F_s(n)`` in counts (scalar or array)."""
+        return self.offset_span * horner_no_constant(self.offset_shape, n)
+
+    def scale_factor(self, n):
+        """``F_c(n)`` (scalar or array)."""
+        return horner_no_constant(self.scale_shape, n) + 1.0
+
+    def forward(self, specific_force, n):
+        """Channel code ``N`` (unrounded) for specific force ``f`` at code offset ``n``."""
+        return (self.scale * self.scale_factor(n) * specific_force
+                + (self.offset + self.offset_drift(n)))
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """The whole correction link: three axes and the calibrated temperature-code range.
+
+    :param temp_code_ref: ``N_t,ref``, the temperature code at normal conditions.
+    :param temp_code_min: lower end of the calibrated range of ``N_t``.
+    :param temp_code_max: upper end of the calibrated range of ``N_t``.
+    :param axes: the models of axes x, y, z.
+    :param version: calibration file format version.
+    :param notes: free-text remarks recorded with the calibration (e.g. what was held).
+    """
+
+    temp_code_ref: float
+    temp_code_min: float
+    temp_code_max: float
+    axes: tuple[AxisModel, AxisModel, AxisModel]
+    version: int = CALIBRATION_VERSION
+    notes: tuple[str, ...] = field(default=())
+
+    def __post_init__(self) -> None:
+        if len(self.axes) != 3:
+            msg = f'calibration needs 3 axes, got {len(self.axes)}'
+            raise CalibrationError(msg)
+
+    def axis(self, name: str) -> AxisModel:
+        """Return the model of axis ``'x'``, ``'y'`` or ``'z'``."""
+        return self.axes[AXES.index(name)]
+
+    def in_range(self, temp_code: float) -> bool:
+        """Tell whether a temperature code lies inside the calibrated range."""
+        return self.temp_code_min <= temp_code <= self.temp_code_max
+
+    def code_offset_range(self) -> tuple[float, float]:
+        """The calibrated range as ``(n_min, n_max)`` with ``n = N_t - N_t,ref``."""
+        return (self.temp_code_min - self.temp_code_ref, self.temp_code_max - self.temp_code_ref)
+
+    def nominal(self) -> Calibration:
+        """The same unit with every temperature term off (nominal scale and offset only)."""
+        flat = tuple(replace(axis, offset_span=0.0, offset_shape=(0.0,), scale_shape=(0.0,))
+                     for axis in self.axes)
+        return replace(self, axes=flat)  # type: ignore[arg-type]
+
+    def forward(self, specific_force: np.ndarray, temp_code: np.ndarray) -> np.ndarray:
+        """Forward model: unrounded codes ``(k, 3)`` for specific force ``(k, 3)`` in m/s^2."""
+        n = np.asarray(temp_code, dtype=float) - self.temp_code_ref
+        force = np.asarray(specific_force, dtype=float)
+        return np.column_stack([axis.forward(force[:, i], n) for i, axis in enumerate(self.axes)])

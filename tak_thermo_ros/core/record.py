@@ -1,0 +1,166 @@
+"""The three streams of the bag contract as arrays, and their alignment on the counts stream.
+
+Temperature codes may come at a lower rate than counts, and the reference is published at
+least whenever it changes: both are *held* (the last value at or before the counts stamp).
+Alignment uses header stamps, not bag receive times.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+COUNTS_MIN = -32768.0
+COUNTS_MAX = 32767.0
+NANOSECONDS = 1_000_000_000
+
+
+@dataclass(frozen=True)
+class ChannelRecord:
+    """One recorded run.
+
+    :param counts_stamp_ns: ``(k,)`` int64 header stamps of the counts messages.
+    :param counts: ``(k, 3)`` channel codes N.
+    :param temp_stamp_ns: ``(m,)`` int64 stamps of the temperature-code messages.
+    :param temp_code: ``(m,)`` raw temperature-sensor codes N_t.
+    :param reference_stamp_ns: ``(r,)`` int64 stamps of the reference messages (may be empty).
+    :param reference: ``(r, 3)`` true specific force along the sensor axes, m/s^2.
+    :param frame_id: frame of the counts messages (the first one's).
+    :param nominal_scale: nominal ``K0`` per axis (counts per m/s^2) that the recorder knows
+        from the code resolution, or ``None``.
+    """
+
+    counts_stamp_ns: np.ndarray
+    counts: np.ndarray
+    temp_stamp_ns: np.ndarray
+    temp_code: np.ndarray
+    reference_stamp_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    reference: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    frame_id: str = ''
+    nominal_scale: tuple[float, float, float] | None = None
+
+    @property
+    def has_reference(self) -> bool:
+        """Whether the run carries a reference (a calibration run)."""
+        return len(self.reference_stamp_ns) > 0
+
+
+DROP_REASONS = ('non_finite', 'non_integer', 'saturated')
+"""Why a counts sample is never corrected, in the order the checks run."""
+
+
+def counts_problem(x: float, y: float, z: float) -> str | None:
+    """Why one counts sample cannot be corrected, or ``None``; the node's per-message check.
+
+    Same rules, same order as the vectorised :func:`counts_problems`.
+    """
+    for value in (x, y, z):
+        if value != value or value in (float('inf'), float('-inf')):
+            return 'non_finite'
+    for value in (x, y, z):
+        if value != round(value):
+            return 'non_integer'
+    for value in (x, y, z):
+        if value <= COUNTS_MIN or value >= COUNTS_MAX:
+            return 'saturated'
+    return None
+
+
+def counts_problems(counts: np.ndarray) -> dict[str, np.ndarray]:
+    """Masks ``(k,)`` per reason of :data:`DROP_REASONS`, each excluding earlier reasons."""
+    finite = np.all(np.isfinite(counts), axis=1)
+    safe = np.where(np.isfinite(counts), counts, 0.0)
+    integer = np.all(safe == np.round(safe), axis=1)
+    rail = np.any((safe <= COUNTS_MIN) | (safe >= COUNTS_MAX), axis=1)
+    return {'non_finite': ~finite,
+            'non_integer': finite & ~integer,
+            'saturated': finite & integer & rail}
+
+
+def hold_last_index(source_stamp_ns: np.ndarray, target_stamp_ns: np.ndarray) -> np.ndarray:
+    """Index of the last source sample at or before each target stamp, ``-1`` where none.
+
+    The source stamps need not be sorted; ties keep the later-recorded sample.
+    """
+    order = np.argsort(source_stamp_ns, kind='stable')
+    position = np.searchsorted(source_stamp_ns[order], target_stamp_ns, side='right') - 1
+    return np.where(position >= 0, order[np.maximum(position, 0)], -1)
+
+
+@dataclass(frozen=True)
+class AlignedSamples:
+    """Counts samples with the held temperature code and reference, usable ones only.
+
+    :param stamp_ns: ``(k,)`` stamps of the kept counts samples.
+    :param counts: ``(k, 3)`` codes.
+    :param temp_code: ``(k,)`` held temperature codes.
+    :param reference: ``(k, 3)`` held reference, or ``None`` without a reference stream.
+    :param dropped: reason -> number of counts samples left out.
+    """
+
+    stamp_ns: np.ndarray
+    counts: np.ndarray
+    temp_code: np.ndarray
+    reference: np.ndarray | None
+    dropped: dict[str, int]
+
+    def __len__(self) -> int:
+        return len(self.stamp_ns)
+
+    @property
+    def time_s(self) -> np.ndarray:
+        """Seconds since the first kept sample."""
+        if len(self.stamp_ns) == 0:
+            return np.zeros(0)
+        return (self.stamp_ns - self.stamp_ns[0]) * 1e-9
+
+
+def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: float = 0.0,
+          drop_saturated: bool = True) -> AlignedSamples:
+    """Hold temperature code and reference on the counts stamps and keep usable samples.
+
+    Counts samples are left out, and counted by reason, when: no temperature code has
+    arrived yet (``before_first_temp_code``); no reference yet (``before_first_reference``);
+    within ``settle_time_s`` after a reference change (``settling``); and for the reasons of
+    :func:`counts_problems`: a code is NaN or infinite (``non_finite``), not a whole number
+    (``non_integer``), or at a 16-bit rail (``saturated``, unless ``drop_saturated`` is false).
+    """
+    stamps = record.counts_stamp_ns
+    counts = record.counts
+    keep = np.ones(len(stamps), dtype=bool)
+    dropped: dict[str, int] = {}
+
+    def leave_out(reason: str, mask: np.ndarray) -> None:
+        newly = mask & keep
+        if newly.any():
+            dropped[reason] = dropped.get(reason, 0) + int(np.count_nonzero(newly))
+            keep[newly] = False
+
+    for reason, mask in counts_problems(counts).items():
+        if reason != 'saturated' or drop_saturated:
+            leave_out(reason, mask)
+    temp_index = hold_last_index(record.temp_stamp_ns, stamps)
+    leave_out('before_first_temp_code', temp_index < 0)
+    reference = None
+    if use_reference and record.has_reference:
+        reference_index = hold_last_index(record.reference_stamp_ns, stamps)
+        leave_out('before_first_reference', reference_index < 0)
+        if settle_time_s > 0.0:
+            leave_out('settling', _within_settle_time(record, stamps, settle_time_s))
+        reference = record.reference[reference_index[keep]]
+    return AlignedSamples(stamp_ns=stamps[keep], counts=counts[keep],
+                          temp_code=record.temp_code[temp_index[keep]].astype(float),
+                          reference=reference, dropped=dropped)
+
+
+def _within_settle_time(record: ChannelRecord, stamps: np.ndarray, settle_time_s: float) -> np.ndarray:
+    order = np.argsort(record.reference_stamp_ns, kind='stable')
+    ref_stamps = record.reference_stamp_ns[order]
+    values = record.reference[order]
+    changed = np.ones(len(values), dtype=bool)
+    changed[1:] = np.any(values[1:] != values[:-1], axis=1)
+    change_stamps = ref_stamps[changed]
+    last_change = np.searchsorted(change_stamps, stamps, side='right') - 1
+    since = np.where(last_change >= 0, stamps - change_stamps[np.maximum(last_change, 0)], -1)
+    return (since >= 0) & (since < int(settle_time_s * NANOSECONDS))

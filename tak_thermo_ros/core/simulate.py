@@ -1,0 +1,331 @@
+"""Thermal-chamber simulator: the paper's protocol, seeded and deterministic.
+
+The chamber holds plateaus joined by ramps; the board (ADC and temperature sensor) follows
+the chamber through a first-order lag; the temperature code is a rounded affine function of
+board temperature; a turntable cycles through the six +/-g positions and tilted ones, so
+every axis also sees 0 g and mixed inputs; the channel codes follow the paper's model with
+white noise, rounded to 16-bit two's complement with saturation.
+
+Every number lives in a :class:`Scenario`, loadable from YAML (all keys optional).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import yaml
+
+from tak_thermo_ros.core.model import AXES, AxisModel, Calibration
+from tak_thermo_ros.core.record import COUNTS_MAX, COUNTS_MIN, NANOSECONDS, ChannelRecord
+from tak_thermo_ros.errors import ScenarioError
+
+STANDARD_GRAVITY = 9.80665
+
+_SQRT1_2 = math.sqrt(0.5)
+_SQRT1_3 = math.sqrt(1.0 / 3.0)
+DEFAULT_POSITIONS: tuple[tuple[float, float, float], ...] = (
+    (1.0, 0.0, 0.0), (-1.0, 0.0, 0.0),
+    (0.0, 1.0, 0.0), (0.0, -1.0, 0.0),
+    (0.0, 0.0, 1.0), (0.0, 0.0, -1.0),
+    (_SQRT1_2, _SQRT1_2, 0.0), (0.0, -_SQRT1_2, _SQRT1_2),
+    (-_SQRT1_2, 0.0, -_SQRT1_2), (_SQRT1_3, _SQRT1_3, _SQRT1_3),
+)
+"""Turntable positions: the direction of 'up' in the sensor frame (specific force / g)."""
+
+
+@dataclass(frozen=True)
+class AxisTruth:
+    """The true channel of one axis (raw polynomial coefficients in ``n = N_t - N_t,ref``).
+
+    :param scale: ``K0``, counts per m/s^2 per cycle.
+    :param offset: ``dNs0``, counts.
+    :param offset_coeffs: ``(c1, ...)``: ``dNs(n) - dNs0 = c1 n + c2 n^2 + ...``, counts.
+    :param scale_coeffs: ``(a1, ...)`` of ``F_c(n) = 1 + a1 n + ...``.
+    :param noise_counts: standard deviation of the white noise, counts.
+    """
+
+    scale: float
+    offset: float
+    offset_coeffs: tuple[float, ...]
+    scale_coeffs: tuple[float, ...]
+    noise_counts: float = 1.5
+
+
+DEFAULT_UNIT: tuple[AxisTruth, AxisTruth, AxisTruth] = (
+    AxisTruth(255.1, -12.3, (0.05, 1.5e-5, 2.0e-8), (2.0e-6, 1.0e-9)),
+    AxisTruth(254.3, 8.7, (-0.04, 2.0e-5, -1.0e-8), (-1.5e-6, 2.0e-9)),
+    AxisTruth(256.0, 3.1, (0.03, -1.0e-5, 3.0e-8), (1.0e-6, -1.0e-9)),
+)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A simulated chamber run. Times in seconds, temperatures in Celsius.
+
+    :param sample_rate_hz: counts messages per second (one per conversion cycle).
+    :param temp_code_every: a temperature-code message every this many counts messages.
+    :param start_celsius: chamber and board temperature at power-on.
+    :param plateaus_celsius: chamber plateaus, in order.
+    :param plateau_hours: duration of each plateau.
+    :param ramp_celsius_per_minute: chamber ramp rate between plateaus.
+    :param board_lag_s: time constant of the board's first-order lag behind the chamber.
+    :param temp_code_ref: temperature code at ``reference_celsius``.
+    :param codes_per_celsius: temperature-sensor gain.
+    :param reference_celsius: normal conditions.
+    :param dwell_s: time the turntable holds each position.
+    :param positions: unit 'up' vectors in the sensor frame.
+    :param gravity: local gravity, m/s^2.
+    :param unit: the true channels of axes x, y, z.
+    :param seed: random seed of the noise.
+    :param frame_id: frame of the counts messages.
+    :param start_time_s: stamp of the first sample, seconds since the epoch.
+    :param nominal_scale: the data-sheet ``K0`` per axis recorded in the bag, counts per m/s^2.
+    """
+
+    sample_rate_hz: float = 1.0
+    temp_code_every: int = 5
+    start_celsius: float = 20.0
+    plateaus_celsius: tuple[float, ...] = (5.0, 15.0, 20.0, 30.0, 35.0)
+    plateau_hours: float = 3.0
+    ramp_celsius_per_minute: float = 0.5
+    board_lag_s: float = 600.0
+    temp_code_ref: float = 8200.0
+    codes_per_celsius: float = 40.0
+    reference_celsius: float = 20.0
+    dwell_s: float = 60.0
+    positions: tuple[tuple[float, float, float], ...] = DEFAULT_POSITIONS
+    gravity: float = STANDARD_GRAVITY
+    unit: tuple[AxisTruth, AxisTruth, AxisTruth] = DEFAULT_UNIT
+    seed: int = 0
+    frame_id: str = 'tak_imu'
+    start_time_s: float = 1_700_000_000.0
+    nominal_scale: tuple[float, float, float] = (255.0, 255.0, 255.0)
+
+    def __post_init__(self) -> None:
+        checks = (
+            (self.sample_rate_hz > 0, 'sample_rate_hz', 'must be > 0'),
+            (self.temp_code_every >= 1, 'temp_code_every', 'must be >= 1'),
+            (len(self.plateaus_celsius) >= 1, 'plateaus_celsius', 'needs at least one plateau'),
+            (self.plateau_hours > 0, 'plateau_hours', 'must be > 0'),
+            (self.ramp_celsius_per_minute > 0, 'ramp_celsius_per_minute', 'must be > 0'),
+            (self.board_lag_s >= 0, 'board_lag_s', 'must be >= 0'),
+            (self.codes_per_celsius != 0, 'codes_per_celsius', 'must not be 0'),
+            (self.dwell_s > 0, 'dwell_s', 'must be > 0'),
+            (len(self.positions) >= 1, 'positions', 'needs at least one position'),
+            (len(self.nominal_scale) == 3 and all(k > 0 for k in self.nominal_scale),
+             'nominal_scale', 'needs three values > 0'),
+            (all(axis.scale > 0 for axis in self.unit), 'unit.*.scale', 'must be > 0'),
+            (all(axis.noise_counts >= 0 for axis in self.unit), 'unit.*.noise_counts', 'must be >= 0'),
+        )
+        for ok, key, problem in checks:
+            if not ok:
+                msg = f'{key}: {problem}'
+                raise ScenarioError(msg)
+
+    def duration_s(self) -> float:
+        """Total length of the run."""
+        temps = (self.start_celsius, *self.plateaus_celsius)
+        ramps = sum(abs(b - a) for a, b in zip(temps[:-1], temps[1:])) / self.ramp_celsius_per_minute * 60.0
+        return ramps + len(self.plateaus_celsius) * self.plateau_hours * 3600.0
+
+    def truth(self) -> Calibration:
+        """The true correction link, normalised over the codes this run can reach."""
+        low, high = min(self.start_celsius, *self.plateaus_celsius), max(self.start_celsius, *self.plateaus_celsius)
+        codes = sorted(self.temp_code_ref + self.codes_per_celsius * (t - self.reference_celsius) for t in (low, high))
+        n_range = (codes[0] - self.temp_code_ref, codes[1] - self.temp_code_ref)
+        axes = tuple(AxisModel.from_polynomials(scale=a.scale, offset=a.offset, offset_coeffs=a.offset_coeffs,
+                                                scale_coeffs=a.scale_coeffs, code_offset_range=n_range,
+                                                residual_rms=a.noise_counts)
+                     for a in self.unit)
+        return Calibration(temp_code_ref=self.temp_code_ref, temp_code_min=codes[0],
+                           temp_code_max=codes[1], axes=axes)  # type: ignore[arg-type]
+
+
+@dataclass(frozen=True)
+class SimulatedRun:
+    """A simulated run: the bag contents plus the hidden truth.
+
+    :param record: what the bag holds.
+    :param board_celsius: ``(k,)`` true board temperature at each counts sample.
+    :param chamber_celsius: ``(k,)`` chamber temperature at each counts sample.
+    :param true_temp_code: ``(k,)`` unrounded temperature code at each counts sample.
+    :param specific_force: ``(k, 3)`` true input at each counts sample.
+    :param truth: the true calibration.
+    """
+
+    record: ChannelRecord
+    board_celsius: np.ndarray
+    chamber_celsius: np.ndarray
+    true_temp_code: np.ndarray
+    specific_force: np.ndarray
+    truth: Calibration
+    scenario: Scenario = field(repr=False, default_factory=Scenario)
+
+
+def chamber_profile(scenario: Scenario, time_s: np.ndarray) -> np.ndarray:
+    """Chamber temperature: ramps at the set rate between plateaus, plateaus held."""
+    knots_t = [0.0]
+    knots_c = [scenario.start_celsius]
+    for plateau in scenario.plateaus_celsius:
+        ramp = abs(plateau - knots_c[-1]) / scenario.ramp_celsius_per_minute * 60.0
+        knots_t += [knots_t[-1] + ramp, knots_t[-1] + ramp + scenario.plateau_hours * 3600.0]
+        knots_c += [plateau, plateau]
+    return np.interp(time_s, knots_t, knots_c)
+
+
+def first_order_lag(signal: np.ndarray, time_s: np.ndarray, tau_s: float, initial: float) -> np.ndarray:
+    """Exact discretisation of ``tau dy/dt = u - y`` for a piecewise-constant input."""
+    if tau_s <= 0.0:
+        return signal.astype(float).copy()
+    steps = np.diff(time_s, prepend=time_s[0])
+    out = np.empty(len(signal))
+    value = initial
+    decay = np.exp(-steps / tau_s)
+    for k in range(len(signal)):
+        value = signal[k] + (value - signal[k]) * decay[k]
+        out[k] = value
+    return out
+
+
+def simulate(scenario: Scenario | None = None) -> SimulatedRun:
+    """Simulate one run of the scenario (deterministic for a given seed)."""
+    scenario = scenario or Scenario()
+    rng = np.random.default_rng(scenario.seed)
+    count = int(math.floor(scenario.duration_s() * scenario.sample_rate_hz)) + 1
+    time_s = np.arange(count) / scenario.sample_rate_hz
+    chamber = chamber_profile(scenario, time_s)
+    board = first_order_lag(chamber, time_s, scenario.board_lag_s, scenario.start_celsius)
+    true_code = scenario.temp_code_ref + scenario.codes_per_celsius * (board - scenario.reference_celsius)
+
+    positions = np.asarray(scenario.positions, dtype=float)
+    position_index = (np.floor(time_s / scenario.dwell_s).astype(np.int64)) % len(positions)
+    force = scenario.gravity * positions[position_index]
+
+    truth = scenario.truth()
+    n_true = true_code - scenario.temp_code_ref
+    exact = np.column_stack([
+        AxisModel.from_polynomials(scale=a.scale, offset=a.offset, offset_coeffs=a.offset_coeffs,
+                                   scale_coeffs=a.scale_coeffs, code_offset_range=(-1.0, 1.0)
+                                   ).forward(force[:, i], n_true)
+        for i, a in enumerate(scenario.unit)])
+    noise = rng.standard_normal((count, 3)) * np.array([a.noise_counts for a in scenario.unit])
+    counts = np.clip(np.round(exact + noise), COUNTS_MIN, COUNTS_MAX)
+
+    stamps = np.round((scenario.start_time_s + time_s) * NANOSECONDS).astype(np.int64)
+    temp_rows = np.arange(0, count, scenario.temp_code_every)
+    changes = np.flatnonzero(np.diff(position_index, prepend=-1) != 0)
+    record = ChannelRecord(
+        counts_stamp_ns=stamps, counts=counts,
+        temp_stamp_ns=stamps[temp_rows], temp_code=np.round(true_code[temp_rows]),
+        reference_stamp_ns=stamps[changes], reference=force[changes],
+        frame_id=scenario.frame_id, nominal_scale=tuple(scenario.nominal_scale))  # type: ignore[arg-type]
+    return SimulatedRun(record=record, board_celsius=board, chamber_celsius=chamber,
+                        true_temp_code=true_code, specific_force=force, truth=truth,
+                        scenario=scenario)
+
+
+def _tuple_of_floats(value: Any, key: str) -> tuple[float, ...]:
+    if not isinstance(value, (list, tuple)) or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+        msg = f'{key}: expected a list of numbers'
+        raise ScenarioError(msg)
+    return tuple(float(v) for v in value)
+
+
+def scenario_from_mapping(raw: Mapping[str, Any], *, base: Scenario | None = None) -> Scenario:
+    """Override ``base`` (default :class:`Scenario`) with the keys of a mapping.
+
+    :raises ScenarioError: naming an unknown or ill-typed key.
+    """
+    base = base or Scenario()
+    if not isinstance(raw, Mapping):
+        msg = 'scenario: expected a mapping of keys to values'
+        raise ScenarioError(msg)
+    known = {f.name: f for f in fields(Scenario)}
+    changes: dict[str, Any] = {}
+    for key, value in raw.items():
+        if key not in known:
+            msg = f'{key}: unknown scenario key (known: {", ".join(known)})'
+            raise ScenarioError(msg)
+        current = getattr(base, key)
+        if key == 'unit':
+            changes[key] = _unit_from_mapping(value, base.unit)
+        elif key == 'positions':
+            if not isinstance(value, list) or not all(isinstance(p, list) and len(p) == 3 for p in value):
+                msg = 'positions: expected a list of [x, y, z] unit vectors'
+                raise ScenarioError(msg)
+            vectors = tuple(_tuple_of_floats(p, 'positions') for p in value)
+            for p in vectors:
+                if not math.isclose(math.hypot(*p), 1.0, rel_tol=1e-6):
+                    msg = f'positions: {list(p)} is not a unit vector'
+                    raise ScenarioError(msg)
+            changes[key] = vectors
+        elif isinstance(current, tuple):
+            changes[key] = _tuple_of_floats(value, key)
+        elif isinstance(current, str):
+            if not isinstance(value, str):
+                msg = f'{key}: expected a string'
+                raise ScenarioError(msg)
+            changes[key] = value
+        elif isinstance(current, int):
+            if isinstance(value, bool) or not isinstance(value, int):
+                msg = f'{key}: expected an integer'
+                raise ScenarioError(msg)
+            changes[key] = value
+        else:
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                msg = f'{key}: expected a finite number'
+                raise ScenarioError(msg)
+            changes[key] = float(value)
+    return replace(base, **changes)
+
+
+def _unit_from_mapping(raw: Any, base: tuple[AxisTruth, ...]) -> tuple[AxisTruth, ...]:
+    if not isinstance(raw, Mapping):
+        msg = 'unit: expected a mapping with axes x, y, z'
+        raise ScenarioError(msg)
+    axes = list(base)
+    known = {f.name for f in fields(AxisTruth)}
+    for name, values in raw.items():
+        if name not in AXES:
+            msg = f'unit.{name}: unknown axis (x, y or z)'
+            raise ScenarioError(msg)
+        if not isinstance(values, Mapping):
+            msg = f'unit.{name}: expected a mapping'
+            raise ScenarioError(msg)
+        changes: dict[str, Any] = {}
+        for key, value in values.items():
+            if key not in known:
+                msg = f'unit.{name}.{key}: unknown key (known: {", ".join(sorted(known))})'
+                raise ScenarioError(msg)
+            if key in ('offset_coeffs', 'scale_coeffs'):
+                changes[key] = _tuple_of_floats(value, f'unit.{name}.{key}')
+            elif isinstance(value, bool) or not isinstance(value, (int, float)):
+                msg = f'unit.{name}.{key}: expected a number'
+                raise ScenarioError(msg)
+            else:
+                changes[key] = float(value)
+        axes[AXES.index(name)] = replace(axes[AXES.index(name)], **changes)
+    return tuple(axes)
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read a scenario YAML; a missing key keeps its default."""
+    path = Path(path)
+    try:
+        raw = yaml.safe_load(path.read_text(encoding='utf-8'))
+    except FileNotFoundError:
+        msg = f'{path}: no such scenario file'
+        raise ScenarioError(msg) from None
+    except (OSError, yaml.YAMLError) as err:
+        msg = f'{path}: cannot read scenario ({type(err).__name__})'
+        raise ScenarioError(msg) from None
+    try:
+        return scenario_from_mapping(raw or {})
+    except ScenarioError as err:
+        msg = f'{path}: {err}'
+        raise ScenarioError(msg) from None

@@ -1,0 +1,27 @@
+"""The exceptions users see: one base class, one subclass per concern.
+
+Every message names the thing that is wrong (file, key, topic) in one line; the command-line
+tools print it without a traceback and exit non-zero.
+"""
+
+from __future__ import annotations
+
+
+class TakError(Exception):
+    """Base of every error raised on purpose by tak_thermo_ros."""
+
+
+class CalibrationError(TakError):
+    """A calibration (parameters YAML or in-memory values) is invalid."""
+
+
+class ScenarioError(TakError):
+    """A simulator scenario is invalid."""
+
+
+class FitError(TakError):
+    """The data cannot determine the requested model (ill-posed fit)."""
+
+
+class BagError(TakError):
+    """A bag cannot be read or written as the bag contract requires."""
