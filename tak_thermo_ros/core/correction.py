@@ -64,8 +64,11 @@ class Corrector:
         return temp_code - self._ref
 
     def correct_sample(self, counts_x: float, counts_y: float, counts_z: float,
-                       temp_code: float) -> tuple[float, float, float]:
-        """Specific force (m/s^2) of one sample from plain floats; the node's path."""
+                       temp_code: float, *, stamp_s: float = 0.0) -> tuple[float, float, float]:
+        """Specific force (m/s^2) of one sample from plain floats; the node's path.
+
+        :param stamp_s: the sample's stamp in seconds (for model terms with memory).
+        """
         n = self.code_offset(temp_code)
         result = []
         for counts, (scale, offset, span, shape_s, shape_c) in zip(
@@ -79,8 +82,12 @@ class Corrector:
             result.append((counts - (offset + span * drift)) / (scale * (factor + 1.0)))
         return result[0], result[1], result[2]
 
-    def correct(self, counts: np.ndarray, temp_code: np.ndarray) -> np.ndarray:
-        """Specific force ``(k, 3)`` in m/s^2 from codes ``(k, 3)`` and temperature codes ``(k,)``."""
+    def correct(self, counts: np.ndarray, temp_code: np.ndarray, *,
+                stamp_s: np.ndarray | None = None) -> np.ndarray:
+        """Specific force ``(k, 3)`` in m/s^2 from codes ``(k, 3)`` and temperature codes ``(k,)``.
+
+        :param stamp_s: ``(k,)`` stamps in seconds (for model terms with memory).
+        """
         counts = np.asarray(counts, dtype=float)
         n = self.code_offset(np.asarray(temp_code, dtype=float))
         out = np.empty_like(counts)
