@@ -140,7 +140,8 @@ def read_record(path: str | os.PathLike[str], *, topics: Topics = Topics(),
 
 
 def _nominal_scale(reader: Reader, path: Path) -> tuple[float, float, float] | None:
-    custom = getattr(getattr(reader, 'metadata', None), 'custom', None) or {}
+    metadata = getattr(reader.storage, 'metadata', None)  # rosbags' parsed metadata.yaml
+    custom = getattr(metadata, 'custom', None) or {}
     text = custom.get(NOMINAL_SCALE_KEY)
     if text is None:
         return None

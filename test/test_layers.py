@@ -1,0 +1,58 @@
+"""The maths imports neither rclpy nor rosbags; bag I/O and the node stay in their modules."""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parents[1] / 'tak_thermo_ros'
+
+BLOCKER = '''
+import importlib.abc, sys
+class Block(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.split('.')[0] in ('rclpy', 'rosbags'):
+            raise ImportError(f'{name} is blocked for this test')
+        return None
+sys.meta_path.insert(0, Block())
+import pkgutil, importlib
+import tak_thermo_ros.core as core
+for module in pkgutil.walk_packages(core.__path__, 'tak_thermo_ros.core.'):
+    importlib.import_module(module.name)
+import tak_thermo_ros.cli
+assert 'rclpy' not in sys.modules and 'rosbags' not in sys.modules
+print('ok')
+'''
+
+
+def test_core_imports_without_rclpy_and_rosbags():
+    """Every core module (and the CLI's top level) imports with rclpy and rosbags unavailable."""
+    result = subprocess.run([sys.executable, '-c', BLOCKER], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip().endswith('ok')
+
+
+def _imported_roots(path: Path) -> set[str]:
+    tree = ast.parse(path.read_text(encoding='utf-8'))
+    roots = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            roots.update(alias.name.split('.')[0] for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            roots.add(node.module.split('.')[0])
+    return roots
+
+
+def test_only_bagio_imports_rosbags_and_only_node_imports_rclpy():
+    """rosbags appears in bagio.py alone; rclpy and ROS message packages in node.py alone."""
+    for path in PACKAGE.rglob('*.py'):
+        roots = _imported_roots(path)
+        relative = path.relative_to(PACKAGE).as_posix()
+        if 'rosbags' in roots:
+            assert relative == 'bagio.py', f'{relative} imports rosbags'
+        ros_runtime = roots & {'rclpy', 'sensor_msgs', 'geometry_msgs', 'diagnostic_msgs', 'std_msgs',
+                               'builtin_interfaces', 'rcl_interfaces'}
+        if ros_runtime:
+            assert relative == 'node.py', f'{relative} imports {sorted(ros_runtime)}'
