@@ -25,6 +25,7 @@ import numpy as np
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
+from tak_thermo_ros.core.online import imu_covariances as online_imu_covariances
 from tak_thermo_ros.core.record import NANOSECONDS, ChannelRecord
 from tak_thermo_ros.errors import BagError
 from tak_thermo_ros.progress import Progress
@@ -248,15 +249,11 @@ def write_record(path: str | os.PathLike[str], record: ChannelRecord, *, topics:
 def imu_covariances(variance: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Orientation, angular-velocity and linear-acceleration covariances of the Imu output.
 
-    REP 145: ``[0] = -1`` marks orientation and angular velocity as not provided.
+    REP 145: ``[0] = -1`` marks orientation and angular velocity as not provided. The layout
+    is :func:`tak_thermo_ros.core.online.imu_covariances`, shared with the node.
     """
-    orientation = np.zeros(9)
-    orientation[0] = -1.0
-    angular = np.zeros(9)
-    angular[0] = -1.0
-    linear = np.zeros(9)
-    linear[0], linear[4], linear[8] = variance
-    return orientation, angular, linear
+    orientation, angular, linear = online_imu_covariances(variance)
+    return np.array(orientation), np.array(angular), np.array(linear)
 
 
 def write_imu(path: str | os.PathLike[str], stamp_ns: np.ndarray, frame_id: str,

@@ -6,15 +6,22 @@ no traceback reaches the user.
 
 from __future__ import annotations
 
-import argparse
-import json
-import sys
-from pathlib import Path
-from typing import Callable, Sequence
+import os
+
+# Small least-squares problems on a 2-core machine run fastest single-threaded; competing
+# OpenBLAS threads made `diagnose` up to 8x slower. Set before numpy loads; a user's value wins.
+os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Callable, Sequence  # noqa: E402
 
 from tak_thermo_ros.core.calibration_file import load_calibration, save_calibration, write_text_atomic
 from tak_thermo_ros.core.correction import Corrector, OutOfRange, acceleration_variance
-from tak_thermo_ros.core.fit import fit_calibration
+from tak_thermo_ros.core.effects import seconds_from_ns
+from tak_thermo_ros.core.fit import fit_model
 from tak_thermo_ros.core.model import AXES
 from tak_thermo_ros.core.record import align
 from tak_thermo_ros.core.simulate import STANDARD_GRAVITY, Scenario, load_scenario, simulate
@@ -76,11 +83,13 @@ def cmd_fit(args: argparse.Namespace) -> int:
         nominal = tuple(args.nominal_scale * 3 if len(args.nominal_scale) == 1 else args.nominal_scale)
         if len(nominal) != 3:
             raise TakError('--nominal-scale takes one value or three (x y z)')
-    result = fit_calibration(samples, bias_order=args.bias_order, scale_order=args.scale_order,
-                             temp_code_ref=args.temp_code_ref, nominal_scale=nominal)
+    effects = [spec.strip() for spec in (args.effects or '').split(',') if spec.strip()]
+    result = fit_model(samples, effects=effects, bias_order=args.bias_order, scale_order=args.scale_order,
+                       temp_code_ref=args.temp_code_ref, nominal_scale=nominal)
     calibration = result.calibration
     header = (f'tak_thermo_ros calibration fitted from {args.bag}\n'
-              f'{result.samples} samples, bias order {args.bias_order}, scale order {args.scale_order}\n'
+              f'{result.samples} samples, bias order {args.bias_order}, scale order {args.scale_order}'
+              f'{", effects " + ", ".join(e.name for e in calibration.effects) if calibration.effects else ""}\n'
               f'load with: ros2 run tak_thermo_ros compensator --ros-args --params-file {Path(args.output).name}')
     save_calibration(args.output, calibration, header=header)
     print(f'fitted {result.samples} samples from {args.bag}')
@@ -90,8 +99,15 @@ def cmd_fit(args: argparse.Namespace) -> int:
           f'reference {calibration.temp_code_ref:g}')
     for name, axis, stats in zip(AXES, calibration.axes, result.axes):
         print(f'  {name}: residual RMS {stats.residual_rms:.3f} counts '
-              f'({stats.residual_rms / axis.scale * 1000.0:.3f} mm/s^2); scale {axis.scale:.4f} counts/(m/s^2), '
+              f'({stats.residual_rms / axis.scale * 1000.0:.3f} mm/s^2); scale {axis.scale:.4f} counts/(m/s^2)'
+              f'{"" if axis.scale_observable else " (held)"}, '
               f'offset {axis.offset:.3f}, offset span {axis.offset_span:.3f} counts')
+    for effect in calibration.effects:
+        errors = result.parameter_errors
+        shown = ', '.join(f'{p.name} {p.value:.4g}' + (f' +- {errors[effect.name + "." + p.name]:.2g}'
+                                                       if effect.name + '.' + p.name in errors else '')
+                          + (f' {p.unit}' if p.unit else '') for p in effect.parameters)
+        print(f'  effect {effect.name}: {shown}')
     for note in calibration.notes:
         print(f'note: {note}')
     print(f'wrote {args.output}')
@@ -105,7 +121,7 @@ def cmd_apply(args: argparse.Namespace) -> int:
     record = read_record(args.bag, topics=_topics(args), progress=not args.no_progress)
     samples = align(record, use_reference=False)
     corrector = Corrector(calibration, out_of_range=OutOfRange(args.out_of_range))
-    acceleration = corrector.correct(samples.counts, samples.temp_code)
+    acceleration = corrector.correct(samples.counts, samples.temp_code, stamp_s=seconds_from_ns(samples.stamp_ns))
     write_imu(args.output, samples.stamp_ns, record.frame_id, acceleration,
               acceleration_variance(calibration), topic=args.imu_topic, storage=args.storage)
     print(f'wrote {len(samples)} Imu messages on {args.imu_topic} to {args.output}')
@@ -125,6 +141,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
     record = read_record(args.bag, topics=_topics(args), progress=not args.no_progress)
     samples = align(record, use_reference=False)
     result = validate_gravity(calibration, samples.counts, samples.temp_code, gravity=args.gravity,
+                              stamp_s=seconds_from_ns(samples.stamp_ns),
                               out_of_range=OutOfRange(args.out_of_range))
     before, after = result.before, result.after
     print(f'|g| error over {len(samples)} samples of {args.bag} (gravity {args.gravity:g} m/s^2):')
@@ -140,6 +157,82 @@ def cmd_validate(args: argparse.Namespace) -> int:
                     'before': before.as_dict(), 'after': after.as_dict()}
         write_text_atomic(args.json, json.dumps(document, indent=2) + '\n')
         print(f'wrote {args.json}')
+    return 0
+
+
+def cmd_import_csv(args: argparse.Namespace) -> int:
+    """Convert a delimited log of a static thermal run into a bag."""
+    from tak_thermo_ros.bagio import write_record
+    from tak_thermo_ros.core.csv_log import CsvImportOptions, delimiter_from_option, read_csv_log
+    options = CsvImportOptions(
+        acc_columns=tuple(args.acc_columns), temp_column=args.temp_column, time_column=args.time_column,
+        time_unit=args.time_unit, acc_unit=args.acc_unit, acc_resolution=args.acc_resolution,
+        temp_resolution=args.temp_resolution, gravity=args.gravity,
+        reference=tuple(args.reference) if args.reference else None,
+        delimiter=delimiter_from_option(args.delimiter) if args.delimiter else None, frame_id=args.frame_id)
+    log = read_csv_log(args.log, options)
+    record = log.record
+    write_record(args.output, record, topics=_topics(args), storage=args.storage)
+    print(f'read {args.log}: {log.rows} rows ({log.delimiter_name}-delimited), {log.duration_s:.1f} s '
+          f'at {(log.rows - 1) / max(log.duration_s, 1e-9):.3g} Hz')
+    print(f'acceleration {" ".join(options.acc_columns)} in {options.acc_unit}: counts = round(a / '
+          f'{options.acc_resolution:g} m/s^2), {record.counts.min():.0f}..{record.counts.max():.0f}; '
+          f'nominal scale {options.nominal_scale:g} counts/(m/s^2) (bag metadata)')
+    print(f'temperature {options.temp_column}: {log.temperature.min():.2f}..{log.temperature.max():.2f} C, '
+          f'codes = round(T / {options.temp_resolution:g} C) = {record.temp_code.min():.0f}..{record.temp_code.max():.0f}')
+    x, y, z = (float(v) for v in log.reference)
+    if log.reference_estimated:
+        dx, dy, dz = (float(v) for v in log.mean_direction)
+        print(f'reference (static run): mean measured direction ({dx:.5f}, {dy:.5f}, {dz:.5f}) scaled to gravity '
+              f'{options.gravity:g} m/s^2 = ({x:.4f}, {y:.4f}, {z:.4f}) m/s^2 in the sensor frame '
+              f'(largest deviation {log.max_tilt_deg:.2f} deg), written once at the start')
+    else:
+        print(f'reference (given): ({x:.4f}, {y:.4f}, {z:.4f}) m/s^2 in the sensor frame, written once at the start')
+    print(f'wrote {args.output} ({args.storage})')
+    return 0
+
+
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    """Compare a calibration with a run: noise floor, residual views, the missing effect."""
+    from tak_thermo_ros.bagio import read_record
+    from tak_thermo_ros.core.diagnose import diagnose
+    calibration = load_calibration(args.params)
+    record = read_record(args.bag, topics=_topics(args), require_reference=True, progress=not args.no_progress)
+    samples = align(record, settle_time_s=args.settle_time)
+    verbose = not args.no_progress and sys.stderr.isatty()
+
+    def progress(text: str) -> None:
+        if verbose:
+            print(f'cross-validating {text} ...', file=sys.stderr)
+
+    candidates = [spec.strip() for spec in args.candidates.split(',') if spec.strip()] if args.candidates else None
+    result = diagnose(calibration, samples, candidates=candidates, folds=args.folds, progress=progress)
+    print(f'diagnosed {len(samples)} samples of {args.bag} against {args.params} '
+          f'(model: {result.ladder[0].label})')
+    if samples.dropped:
+        print(f'left out: {_describe_dropped(samples.dropped)}')
+    for name, axis in zip(AXES, result.axes):
+        print(f'  {name}: residual RMS {axis.rms:.3f} counts, noise floor {axis.noise_floor:.3f}; held-out '
+              f'{axis.heldout_rms:.3f} ({axis.heldout_rms / axis.noise_floor:.2f}x the floor)')
+    if result.candidates:
+        print('candidates, best first (held-out RMS x y z in counts; share of the excess over the floor removed):')
+        for candidate in result.candidates:
+            rms = ' '.join(f'{v:8.3f}' for v in candidate.rms_after)
+            print(f'  {candidate.effect:<20} {rms}  {round(100.0 * candidate.explained):5d}%')
+    for name, reason in result.skipped.items():
+        print(f'  {name:<20} not tried: {reason}')
+    if len(result.ladder) > 1:
+        print('model ladder (held-out RMS x y z): ' + '; '.join(
+            f'{step.label}: {" ".join(f"{v:.3f}" for v in step.heldout_rms)}' for step in result.ladder))
+    print(f'verdict: {result.verdict}')
+    print(result.message)
+    if args.json:
+        write_text_atomic(args.json, json.dumps(result.as_dict(), indent=2) + '\n')
+        print(f'wrote {args.json}')
+    if args.report:
+        from tak_thermo_ros.report import write_report
+        files = write_report(result, samples, args.report, source=Path(args.bag).name, gravity=args.gravity)
+        print(f'wrote {files.html} ({len(files.figures)} figures)')
     return 0
 
 
@@ -165,6 +258,9 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument('--nominal-scale', type=float, nargs='+', metavar='K0',
                      help='nominal counts per m/s^2 (one value or x y z), held for an axis that sees one '
                           'input only; default: the bag metadata written by simulate / import-csv')
+    fit.add_argument('--effects', metavar='NAME[,NAME...]',
+                     help='effects to fit beyond the paper\'s model: thermal_lag, hysteresis, scale_nonlinearity, '
+                          'cross_axis, warmup, temperature_shape, or module:Class (see docs/effects.md)')
     fit.add_argument('--settle-time', type=float, default=0.0, metavar='SECONDS',
                      help='leave out samples this long after each reference change (turntable settling)')
     _add_topic_options(fit)
@@ -187,6 +283,46 @@ def build_parser() -> argparse.ArgumentParser:
     _out_of_range(val)
     _add_topic_options(val)
     val.set_defaults(handler=cmd_validate)
+    imp = commands.add_parser('import-csv', help='convert a delimited log of a static thermal run into a bag')
+    imp.add_argument('log', metavar='LOG.csv')
+    imp.add_argument('-o', '--output', required=True, metavar='OUT_BAG')
+    imp.add_argument('--acc-columns', nargs=3, required=True, metavar=('X', 'Y', 'Z'),
+                     help='the acceleration columns along the sensor axes x, y, z')
+    imp.add_argument('--temp-column', required=True, help='the temperature column (degrees Celsius)')
+    imp.add_argument('--time-column', default='timestamp', help='the time column (default: timestamp)')
+    imp.add_argument('--time-unit', choices=['s', 'ms', 'us', 'ns'], default='s', help='unit of the time column (default s)')
+    imp.add_argument('--acc-unit', choices=['m/s^2', 'g'], default='m/s^2',
+                     help='unit of the acceleration columns (1 g = 9.80665 m/s^2; default m/s^2)')
+    imp.add_argument('--acc-resolution', type=float, default=1e-3, metavar='M/S^2',
+                     help='m/s^2 per channel count: counts = round(a / resolution) (default 0.001); '
+                          'the nominal scale 1/resolution goes into the bag metadata')
+    imp.add_argument('--temp-resolution', type=float, default=0.01, metavar='CELSIUS',
+                     help='degrees per temperature code: N_t = round(T / resolution) (default 0.01)')
+    imp.add_argument('--gravity', type=float, default=STANDARD_GRAVITY,
+                     help='local gravity, m/s^2: magnitude of the estimated reference (default 9.80665)')
+    imp.add_argument('--reference', type=float, nargs=3, metavar=('X', 'Y', 'Z'),
+                     help='the specific force in the sensor frame, m/s^2, if known (default: the mean '
+                          'measured direction scaled to --gravity)')
+    imp.add_argument('--delimiter', help='field delimiter: tab, comma, semicolon or one character '
+                                         '(default: sniffed from the header line)')
+    imp.add_argument('--frame-id', default='imu', help='frame_id of the counts messages (default imu)')
+    imp.add_argument('--storage', choices=['mcap', 'sqlite3'], default='mcap')
+    _add_topic_options(imp)
+    imp.set_defaults(handler=cmd_import_csv)
+    diag = commands.add_parser('diagnose', help='compare a calibration with a run and find the missing effect')
+    diag.add_argument('bag', metavar='BAG')
+    diag.add_argument('--params', required=True, metavar='PARAMS.yaml')
+    diag.add_argument('--json', metavar='OUT.json', help='write the verdict, RMS, floor and candidates as JSON')
+    diag.add_argument('--report', metavar='DIR', help='write PNG figures and report.html into DIR')
+    diag.add_argument('--candidates', metavar='NAME[,NAME...]',
+                      help='effects to try (default: every library effect the calibration lacks); '
+                           'module:Class for a user-defined effect (see docs/effects.md)')
+    diag.add_argument('--folds', type=int, default=5, help='cross-validation folds (default 5)')
+    diag.add_argument('--settle-time', type=float, default=0.0, metavar='SECONDS',
+                      help='leave out samples this long after each reference change (as for fit)')
+    diag.add_argument('--gravity', type=float, default=STANDARD_GRAVITY, help='local gravity for the |g| figure, m/s^2')
+    _add_topic_options(diag)
+    diag.set_defaults(handler=cmd_diagnose)
     return parser
 
 

@@ -25,3 +25,7 @@ class FitError(TakError):
 
 class BagError(TakError):
     """A bag cannot be read or written as the bag contract requires."""
+
+
+class LogError(TakError):
+    """A delimited (CSV) log cannot be imported into the bag contract."""

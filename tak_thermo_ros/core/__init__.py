@@ -7,7 +7,7 @@ from tak_thermo_ros.core.calibration_file import (
     save_calibration,
 )
 from tak_thermo_ros.core.correction import Corrector, OutOfRange, acceleration_variance
-from tak_thermo_ros.core.fit import FitResult, fit_calibration, residual_counts
+from tak_thermo_ros.core.fit import FitResult, fit_calibration, fit_model, residual_counts
 from tak_thermo_ros.core.model import AXES, AxisModel, Calibration
 from tak_thermo_ros.core.plus_minus import fit_plus_minus, plus_minus
 from tak_thermo_ros.core.record import AlignedSamples, ChannelRecord, align
@@ -31,6 +31,7 @@ __all__ = [
     'calibration_from_mapping',
     'calibration_to_mapping',
     'fit_calibration',
+    'fit_model',
     'fit_plus_minus',
     'load_calibration',
     'load_scenario',

@@ -19,6 +19,16 @@ written ``[0.0]``. Optional keys: ``residual_rms`` (counts; feeds the Imu covari
 ``scale_observable`` (``false`` when the scale was held at nominal), ``notes`` (list of
 strings). Later model terms go under ``calibration`` beside the axes.
 
+Effects (``tak_thermo_ros.core.effects``) go under ``calibration.effects.<name>.<param>``, one
+float per parameter (no lists, so that every value is one ROS 2 parameter); a user-defined
+effect also stores where its class lives::
+
+          effects:
+            thermal_lag: {tau_s: 1790.0, slope_x: 0.0012, slope_y: -0.0004, slope_z: 0.031}
+            my_effect: {class: 'mymodule:MyEffect', amplitude_x: 1.2, ...}
+
+A calibration without effects has no ``effects`` key.
+
 :func:`calibration_from_mapping` is the single validator: the command-line tools call it on
 the YAML, the node on its ``calibration.*`` parameters.
 """
@@ -35,7 +45,7 @@ import numpy as np
 import yaml
 
 from tak_thermo_ros.core.model import AXES, CALIBRATION_VERSION, AxisModel, Calibration
-from tak_thermo_ros.errors import CalibrationError
+from tak_thermo_ros.errors import CalibrationError, FitError
 
 NODE_NAME = 'compensator'
 AXIS_KEYS = ('scale', 'offset', 'offset_span', 'offset_shape', 'scale_shape')
@@ -108,6 +118,54 @@ def _axis_from_mapping(raw: Any, key: str) -> AxisModel:
     )
 
 
+def effects_from_mapping(raw: Any, *, key: str = 'calibration.effects') -> tuple:
+    """Validate the ``effects`` mapping and build the effects, in the mapping's order.
+
+    :raises CalibrationError: naming the first wrong key (unknown effect, class that cannot be
+        imported, missing, non-finite or out-of-bounds parameter).
+    """
+    from tak_thermo_ros.core.effects import resolve_effect
+    if not isinstance(raw, Mapping) or not raw:
+        msg = f'{key}: expected a mapping of effect names to their parameters'
+        raise CalibrationError(msg)
+    effects = []
+    for name, entry in raw.items():
+        entry_key = f'{key}.{name}'
+        if not isinstance(entry, Mapping):
+            msg = f'{entry_key}: expected a mapping of parameter names to numbers'
+            raise CalibrationError(msg)
+        spec = entry.get('class', name)
+        if not isinstance(spec, str):
+            msg = f'{entry_key}.class: expected a string module:Class'
+            raise CalibrationError(msg)
+        try:
+            cls = resolve_effect(spec)
+        except FitError as err:
+            where = f'{entry_key}.class' if 'class' in entry else entry_key
+            msg = f'{where}: {err}'
+            raise CalibrationError(msg) from None
+        if cls.name != name:
+            msg = f'{entry_key}.class: {spec} is the effect {cls.name!r}, not {name!r}'
+            raise CalibrationError(msg)
+        values = {param: value for param, value in entry.items() if param != 'class'}
+        effects.append(cls.from_values(values, key=entry_key, complete=True))
+    return tuple(effects)
+
+
+def effects_to_mapping(effects: Any) -> dict[str, Any]:
+    """The ``effects`` mapping of fitted effects (plain floats; ``class`` for user-defined ones)."""
+    from tak_thermo_ros.core.effects import effect_spec
+    mapping: dict[str, Any] = {}
+    for effect in effects:
+        entry: dict[str, Any] = {}
+        spec = effect_spec(type(effect))
+        if spec != effect.name:
+            entry['class'] = spec
+        entry.update({name: float(value) for name, value in effect.values.items()})
+        mapping[effect.name] = entry
+    return mapping
+
+
 def check_scale_positive(calibration: Calibration, *, key: str = 'calibration') -> None:
     """Raise unless ``F_c(n) > 0`` over the whole calibrated range on every axis."""
     n_low, n_high = calibration.code_offset_range()
@@ -151,9 +209,10 @@ def calibration_from_mapping(raw: Any, *, key: str = 'calibration') -> Calibrati
         msg = f'{key}.notes: expected a list of strings'
         raise CalibrationError(msg)
     axes = tuple(_axis_from_mapping(raw[name], f'{key}.{name}') for name in AXES)
+    effects = effects_from_mapping(raw['effects'], key=f'{key}.effects') if 'effects' in raw else ()
     calibration = Calibration(temp_code_ref=ref, temp_code_min=low, temp_code_max=high,
                               axes=axes, version=CALIBRATION_VERSION,  # type: ignore[arg-type]
-                              notes=tuple(notes))
+                              notes=tuple(notes), effects=effects)
     check_scale_positive(calibration, key=key)
     return calibration
 
@@ -181,6 +240,8 @@ def calibration_to_mapping(calibration: Calibration) -> dict[str, Any]:
         if not axis.scale_observable:
             entry['scale_observable'] = False
         mapping[name] = entry
+    if calibration.effects:
+        mapping['effects'] = effects_to_mapping(calibration.effects)
     return mapping
 
 
@@ -255,6 +316,9 @@ def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
     handle, temporary = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.partial',
                                          dir=path.parent if str(path.parent) else '.')
     try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(temporary, 0o666 & ~umask)  # mkstemp makes it owner-only; a normal file is wanted
         with os.fdopen(handle, 'w', encoding='utf-8') as stream:
             stream.write(text)
             stream.flush()

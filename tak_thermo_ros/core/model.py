@@ -20,11 +20,14 @@ so that the vectorised and the per-sample correction paths give the same float64
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
 from tak_thermo_ros.errors import CalibrationError
+
+if TYPE_CHECKING:
+    from tak_thermo_ros.core.effects.base import Effect
 
 AXES: tuple[str, str, str] = ('x', 'y', 'z')
 CALIBRATION_VERSION = 1
@@ -112,6 +115,8 @@ class Calibration:
     :param axes: the models of axes x, y, z.
     :param version: calibration file format version.
     :param notes: free-text remarks recorded with the calibration (e.g. what was held).
+    :param effects: fitted effects beyond the paper's model (``tak_thermo_ros.core.effects``),
+        each name at most once; the correction applies them in this order.
     """
 
     temp_code_ref: float
@@ -120,11 +125,23 @@ class Calibration:
     axes: tuple[AxisModel, AxisModel, AxisModel]
     version: int = CALIBRATION_VERSION
     notes: tuple[str, ...] = field(default=())
+    effects: tuple[Effect, ...] = field(default=())
 
     def __post_init__(self) -> None:
         if len(self.axes) != 3:
             msg = f'calibration needs 3 axes, got {len(self.axes)}'
             raise CalibrationError(msg)
+        from tak_thermo_ros.core.effects.base import Effect
+        names = set()
+        for effect in self.effects:
+            if not isinstance(effect, Effect):
+                msg = f'calibration.effects: expected Effect instances, got {type(effect).__name__}'
+                raise CalibrationError(msg)
+            if effect.name in names:
+                msg = f'calibration.effects.{effect.name}: given twice'
+                raise CalibrationError(msg)
+            names.add(effect.name)
+        object.__setattr__(self, 'effects', tuple(self.effects))
 
     def axis(self, name: str) -> AxisModel:
         """Return the model of axis ``'x'``, ``'y'`` or ``'z'``."""
@@ -139,13 +156,27 @@ class Calibration:
         return (self.temp_code_min - self.temp_code_ref, self.temp_code_max - self.temp_code_ref)
 
     def nominal(self) -> Calibration:
-        """The same unit with every temperature term off (nominal scale and offset only)."""
+        """The same unit with every temperature term and effect off (nominal scale and offset only)."""
         flat = tuple(replace(axis, offset_span=0.0, offset_shape=(0.0,), scale_shape=(0.0,))
                      for axis in self.axes)
-        return replace(self, axes=flat)  # type: ignore[arg-type]
+        return replace(self, axes=flat, effects=())  # type: ignore[arg-type]
 
-    def forward(self, specific_force: np.ndarray, temp_code: np.ndarray) -> np.ndarray:
-        """Forward model: unrounded codes ``(k, 3)`` for specific force ``(k, 3)`` in m/s^2."""
+    def without_effects(self) -> Calibration:
+        """The paper's model of the same unit (effects dropped)."""
+        return replace(self, effects=())
+
+    def forward(self, specific_force: np.ndarray, temp_code: np.ndarray, *,
+                stamp_s: np.ndarray | None = None) -> np.ndarray:
+        """Forward model: unrounded codes ``(k, 3)`` for specific force ``(k, 3)`` in m/s^2.
+
+        Polynomials are evaluated beyond the calibrated range as well (no clamping).
+
+        :param stamp_s: ``(k,)`` stamps in seconds, needed by effects with memory.
+        """
+        if self.effects:
+            from tak_thermo_ros.core.correction import Corrector, OutOfRange
+            return Corrector(self, out_of_range=OutOfRange.EXTRAPOLATE).predict_counts(
+                specific_force, temp_code, stamp_s=stamp_s)
         n = np.asarray(temp_code, dtype=float) - self.temp_code_ref
         force = np.asarray(specific_force, dtype=float)
         return np.column_stack([axis.forward(force[:, i], n) for i, axis in enumerate(self.axes)])

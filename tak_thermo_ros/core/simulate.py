@@ -6,6 +6,13 @@ board temperature; a turntable cycles through the six +/-g positions and tilted 
 every axis also sees 0 g and mixed inputs; the channel codes follow the paper's model with
 white noise, rounded to 16-bit two's complement with saturation.
 
+Effects beyond the paper's model can be hidden in a run (all off by default): ``effects`` maps
+library effect names (``tak_thermo_ros.core.effects``) to their true parameters, and the SAME
+effect classes that fit and correct add their forward contribution, driven by the true
+(unrounded) temperature code and the sample stamps (power-on = the first sample).
+``supply_voltage_drift`` adds an offset that follows an unobserved, slowly varying supply
+voltage (not in the bag, not correlated with temperature): the case no library effect explains.
+
 Every number lives in a :class:`Scenario`, loadable from YAML (all keys optional).
 """
 
@@ -16,12 +23,15 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Mapping
 
+from tak_thermo_ros.core.effects import resolve_effect
+from tak_thermo_ros.core.effects.base import Effect, seconds_from_ns
+
 import numpy as np
 import yaml
 
 from tak_thermo_ros.core.model import AXES, AxisModel, Calibration
 from tak_thermo_ros.core.record import COUNTS_MAX, COUNTS_MIN, NANOSECONDS, ChannelRecord
-from tak_thermo_ros.errors import ScenarioError
+from tak_thermo_ros.errors import CalibrationError, FitError, ScenarioError
 
 STANDARD_GRAVITY = 9.80665
 
@@ -35,6 +45,24 @@ DEFAULT_POSITIONS: tuple[tuple[float, float, float], ...] = (
     (-_SQRT1_2, 0.0, -_SQRT1_2), (_SQRT1_3, _SQRT1_3, _SQRT1_3),
 )
 """Turntable positions: the direction of 'up' in the sensor frame (specific force / g)."""
+
+SUPPLY_AXIS_WEIGHTS: tuple[float, float, float] = (1.0, -0.7, 0.5)
+"""Sensitivity of axes x, y, z to the unobserved supply voltage, relative to x."""
+SUPPLY_PERIODS_HOURS: tuple[float, float] = (0.4, 2.0)
+"""The supply voltage is three sinusoids with periods drawn from this range and random phases."""
+
+PROFILES: dict[str, dict[str, Any]] = {
+    'paper': {},
+    'cycle': {'plateaus_celsius': (5.0, 35.0, 10.0, 30.0, 20.0), 'ramp_celsius_per_minute': 0.5},
+    'fast_ramps': {'plateaus_celsius': (5.0, 35.0, 5.0, 35.0), 'ramp_celsius_per_minute': 2.0},
+}
+"""Scenario overrides for temperature profiles: ``replace(Scenario(), **PROFILES['cycle'])``.
+
+``paper``: the paper's staircase (one cooling ramp, then heating only). ``cycle``: alternating
+heating and cooling onto plateaus, visiting temperatures from both sides (tells hysteresis,
+which persists on plateaus, from lag, which decays). ``fast_ramps``: full-range heating and
+cooling ramps at 2 C/min (a lag's loop opening grows with the ramp rate).
+"""
 
 
 @dataclass(frozen=True)
@@ -84,6 +112,12 @@ class Scenario:
     :param frame_id: frame of the counts messages.
     :param start_time_s: stamp of the first sample, seconds since the epoch.
     :param nominal_scale: the data-sheet ``K0`` per axis recorded in the bag, counts per m/s^2.
+    :param effects: hidden effects, effect name -> its true parameters (a parameter left out
+        takes its default; amplitudes default to 0), e.g.
+        ``{'thermal_lag': {'tau_s': 1800.0, 'slope_z': 0.03}}``. Off (empty) by default.
+    :param supply_voltage_drift: RMS on axis x, counts, of an offset driven by an unobserved
+        supply voltage (three slow sinusoids, periods 0.4-2 h, random phases from the seed;
+        axes y and z see it with weights -0.7 and 0.5). 0 = off.
     """
 
     sample_rate_hz: float = 1.0
@@ -104,8 +138,16 @@ class Scenario:
     frame_id: str = 'tak_imu'
     start_time_s: float = 1_700_000_000.0
     nominal_scale: tuple[float, float, float] = (255.0, 255.0, 255.0)
+    effects: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
+    supply_voltage_drift: float = 0.0
 
     def __post_init__(self) -> None:
+        if not isinstance(self.effects, Mapping):
+            msg = 'effects: expected a mapping of effect names to their parameters'
+            raise ScenarioError(msg)
+        object.__setattr__(self, 'effects', {str(name): dict(values) if isinstance(values, Mapping) else values
+                                             for name, values in self.effects.items()})
+        self.effect_instances()
         checks = (
             (self.sample_rate_hz > 0, 'sample_rate_hz', 'must be > 0'),
             (self.temp_code_every >= 1, 'temp_code_every', 'must be >= 1'),
@@ -120,11 +162,34 @@ class Scenario:
              'nominal_scale', 'needs three values > 0'),
             (all(axis.scale > 0 for axis in self.unit), 'unit.*.scale', 'must be > 0'),
             (all(axis.noise_counts >= 0 for axis in self.unit), 'unit.*.noise_counts', 'must be >= 0'),
+            (math.isfinite(self.supply_voltage_drift) and self.supply_voltage_drift >= 0,
+             'supply_voltage_drift', 'must be a finite number >= 0 (counts)'),
         )
         for ok, key, problem in checks:
             if not ok:
                 msg = f'{key}: {problem}'
                 raise ScenarioError(msg)
+
+    def effect_instances(self) -> tuple[Effect, ...]:
+        """The hidden effects as effect objects with their true parameters.
+
+        :raises ScenarioError: naming ``effects.<name>`` or ``effects.<name>.<parameter>``.
+        """
+        instances = []
+        for name, values in self.effects.items():
+            if not isinstance(values, Mapping):
+                msg = f'effects.{name}: expected a mapping of parameter names to numbers'
+                raise ScenarioError(msg)
+            try:
+                cls = resolve_effect(name)
+            except FitError as err:
+                msg = f'effects.{name}: {err}'
+                raise ScenarioError(msg) from None
+            try:
+                instances.append(cls.from_values(values, key=f'effects.{name}', complete=False))
+            except CalibrationError as err:
+                raise ScenarioError(str(err)) from None
+        return tuple(instances)
 
     def duration_s(self) -> float:
         """Total length of the run."""
@@ -142,7 +207,8 @@ class Scenario:
                                                 residual_rms=a.noise_counts)
                      for a in self.unit)
         return Calibration(temp_code_ref=self.temp_code_ref, temp_code_min=codes[0],
-                           temp_code_max=codes[1], axes=axes)  # type: ignore[arg-type]
+                           temp_code_max=codes[1], axes=axes,  # type: ignore[arg-type]
+                           effects=self.effect_instances())
 
 
 @dataclass(frozen=True)
@@ -213,9 +279,10 @@ def simulate(scenario: Scenario | None = None) -> SimulatedRun:
                                    ).forward(force[:, i], n_true)
         for i, a in enumerate(scenario.unit)])
     noise = rng.standard_normal((count, 3)) * np.array([a.noise_counts for a in scenario.unit])
+    stamps = np.round((scenario.start_time_s + time_s) * NANOSECONDS).astype(np.int64)
+    exact = exact + hidden_terms(scenario, force, true_code, seconds_from_ns(stamps), time_s)
     counts = np.clip(np.round(exact + noise), COUNTS_MIN, COUNTS_MAX)
 
-    stamps = np.round((scenario.start_time_s + time_s) * NANOSECONDS).astype(np.int64)
     temp_rows = np.arange(0, count, scenario.temp_code_every)
     changes = np.flatnonzero(np.diff(position_index, prepend=-1) != 0)
     record = ChannelRecord(
@@ -226,6 +293,48 @@ def simulate(scenario: Scenario | None = None) -> SimulatedRun:
     return SimulatedRun(record=record, board_celsius=board, chamber_celsius=chamber,
                         true_temp_code=true_code, specific_force=force, truth=truth,
                         scenario=scenario)
+
+
+def supply_voltage(scenario: Scenario, time_s: np.ndarray) -> np.ndarray:
+    """The unobserved supply-voltage signal, RMS about 1 (dimensionless), seeded."""
+    rng = np.random.default_rng([scenario.seed, 7])
+    low, high = SUPPLY_PERIODS_HOURS
+    periods = rng.uniform(low, high, size=3) * 3600.0
+    phases = rng.uniform(0.0, 2.0 * math.pi, size=3)
+    signal = sum(np.sin(2.0 * math.pi * time_s / period + phase) for period, phase in zip(periods, phases))
+    return signal / math.sqrt(1.5)
+
+
+def hidden_terms(scenario: Scenario, force: np.ndarray, true_code: np.ndarray, stamp_s: np.ndarray,
+                 time_s: np.ndarray) -> np.ndarray:
+    """Counts ``(k, 3)`` that the scenario's hidden effects and supply drift add to the channels."""
+    extra = np.zeros((len(time_s), 3))
+    for effect in scenario.effect_instances():
+        if effect.kind == 'input':
+            extra += effect.input_counts(force)
+        else:
+            extra += effect.offsets(stamp_s, true_code)
+    if scenario.supply_voltage_drift > 0.0:
+        extra += (scenario.supply_voltage_drift * supply_voltage(scenario, time_s))[:, None] * np.array(
+            SUPPLY_AXIS_WEIGHTS)
+    return extra
+
+
+def _effects_from_mapping(raw: Any) -> dict[str, dict[str, float]]:
+    if not isinstance(raw, Mapping):
+        msg = 'effects: expected a mapping of effect names to their parameters'
+        raise ScenarioError(msg)
+    effects: dict[str, dict[str, float]] = {}
+    for name, values in raw.items():
+        if not isinstance(values, Mapping):
+            msg = f'effects.{name}: expected a mapping of parameter names to numbers'
+            raise ScenarioError(msg)
+        for parameter, value in values.items():
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                msg = f'effects.{name}.{parameter}: expected a finite number'
+                raise ScenarioError(msg)
+        effects[str(name)] = {str(k): float(v) for k, v in values.items()}
+    return effects
 
 
 def _tuple_of_floats(value: Any, key: str) -> tuple[float, ...]:
@@ -254,6 +363,8 @@ def scenario_from_mapping(raw: Mapping[str, Any], *, base: Scenario | None = Non
         current = getattr(base, key)
         if key == 'unit':
             changes[key] = _unit_from_mapping(value, base.unit)
+        elif key == 'effects':
+            changes[key] = _effects_from_mapping(value)
         elif key == 'positions':
             if not isinstance(value, list) or not all(isinstance(p, list) and len(p) == 3 for p in value):
                 msg = 'positions: expected a list of [x, y, z] unit vectors'

@@ -61,10 +61,14 @@ class GravityValidation:
 
 def validate_gravity(calibration: Calibration, counts: np.ndarray, temp_code: np.ndarray, *,
                      gravity: float = STANDARD_GRAVITY,
-                     out_of_range: OutOfRange = OutOfRange.CLAMP) -> GravityValidation:
-    """Compare |g| from the three channels with local gravity, before and after correction."""
+                     out_of_range: OutOfRange = OutOfRange.CLAMP,
+                     stamp_s: np.ndarray | None = None) -> GravityValidation:
+    """Compare |g| from the three channels with local gravity, before and after correction.
+
+    :param stamp_s: ``(k,)`` stamps in seconds, needed by effects with memory.
+    """
     corrector = Corrector(calibration, out_of_range=out_of_range)
-    after = corrector.correct(counts, temp_code)
+    after = corrector.correct(counts, temp_code, stamp_s=stamp_s)
     before = Corrector(calibration.nominal(), out_of_range=out_of_range).correct(counts, temp_code)
     return GravityValidation(gravity=gravity,
                              magnitude_before=np.linalg.norm(before, axis=1),

@@ -1,0 +1,478 @@
+"""Benchmark of the ``compensator`` node against a bare relay node, in the same run.
+
+Both nodes run as their own process with the same layout (a Vector3Stamped and a Temperature
+subscription, an Imu publisher, reliable QoS of depth 100); the relay copies the counts into
+the Imu without any maths. This process drives them and receives their output.
+
+Figures:
+
+- throughput: closed loop (at most ``WINDOW`` messages in flight, below the QoS depth, so
+  nothing is lost), messages per second; and the node's capacity, messages per CPU second
+  of the node process (independent of whether this driver or the node is the bottleneck).
+  Both nodes run side by side (own domains) and their rounds alternate, so that a change in
+  the machine's load hits both; the ratios are medians over the rounds of the ratio within
+  a round;
+- latency at 1 kHz: counts stamp (system clock at publication) to Imu receipt, p50/p99,
+  for both nodes; the *added* latency is the compensator's minus the relay's;
+- soak: one million messages through the compensator, resident memory (VmRSS) growth;
+- the per-message cost of the node's own work, measured in-process (core + message fill).
+
+Usage: ``python bench/bench_node.py [--quick]``; writes ``bench/results/node.json`` (with
+``--quick``: ``node_quick.json``, a smoke run, not the figures); exits 3
+(as every ``bench/bench_*.py``) when a target is missed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import io
+import json
+import os
+import pstats
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+RESULTS = REPO / 'bench' / 'results' / 'node.json'
+WINDOW = 50
+DEPTH = 100
+TEMP_EVERY = 100
+TARGET_MISSED = 3
+NANOSECONDS = 1_000_000_000
+
+
+# -- the relay node (run as: bench_node.py relay --ros-args ...) ---------------------------------
+
+def relay_main() -> int:
+    """A bare relay: same subscriptions and publisher as the compensator, no maths."""
+    import rclpy
+    from geometry_msgs.msg import Vector3Stamped
+    from rclpy.executors import ExternalShutdownException
+    from rclpy.node import Node
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import Imu, Temperature
+
+    class Relay(Node):
+        def __init__(self) -> None:
+            super().__init__('relay')
+            qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DEPTH, reliability=ReliabilityPolicy.RELIABLE)
+            self._temp = self.create_subscription(Temperature, 'tak/temp_code', self._on_temperature, qos)
+            self._imu = Imu()
+            self._imu.orientation.w = 1.0
+            self._imu.orientation_covariance = (-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+            self._imu.angular_velocity_covariance = (-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+            self._imu.linear_acceleration_covariance = (1e-4, 0.0, 0.0, 0.0, 1e-4, 0.0, 0.0, 0.0, 1e-4)
+            self._acceleration = self._imu.linear_acceleration
+            self._publisher = self.create_publisher(Imu, 'tak/imu/data_raw', qos)
+            self._publish = self._publisher.publish
+            self._counts = self.create_subscription(Vector3Stamped, 'tak/counts', self._on_counts, qos)
+
+        def _on_temperature(self, message: Temperature) -> None:
+            pass
+
+        def _on_counts(self, message: Vector3Stamped) -> None:
+            self._imu.header = message.header
+            vector = message.vector
+            acceleration = self._acceleration
+            acceleration.x, acceleration.y, acceleration.z = vector.x, vector.y, vector.z
+            self._publish(self._imu)
+
+    rclpy.init()
+    node = Relay()
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+# -- the driver -------------------------------------------------------------------------------
+
+def rss_kb(pid: int) -> int:
+    """Resident set size of a process, kB."""
+    for line in Path(f'/proc/{pid}/status').read_text().splitlines():
+        if line.startswith('VmRSS:'):
+            return int(line.split()[1])
+    raise RuntimeError('no VmRSS')
+
+
+def cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a process."""
+    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+class Driver:
+    """Publishes counts and temperature codes, receives Imu, in this process."""
+
+    def __init__(self, domain: int, name: str = 'bench_driver') -> None:
+        import rclpy
+        from geometry_msgs.msg import Vector3Stamped
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import Imu, Temperature
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.node = rclpy.create_node(name, context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DEPTH, reliability=ReliabilityPolicy.RELIABLE)
+        self.counts_publisher = self.node.create_publisher(Vector3Stamped, 'tak/counts', qos)
+        self.temp_publisher = self.node.create_publisher(Temperature, 'tak/temp_code', qos)
+        self.subscription = self.node.create_subscription(Imu, 'tak/imu/data_raw', self._on_imu, qos)
+        self.counts = Vector3Stamped()
+        self.counts.header.frame_id = 'tak_imu'
+        self.temperature = Temperature()
+        self.received = 0
+        self.latencies_ns: list[int] | None = None
+
+    def _on_imu(self, message) -> None:
+        self.received += 1
+        if self.latencies_ns is not None:
+            stamp = message.header.stamp
+            self.latencies_ns.append(time.time_ns() - (stamp.sec * NANOSECONDS + stamp.nanosec))
+
+    def spin_until(self, condition, timeout: float) -> None:
+        deadline = time.monotonic() + timeout
+        while not condition():
+            if time.monotonic() > deadline:
+                raise RuntimeError('timed out')
+            self.executor.spin_once(timeout_sec=0.01)
+
+    def matched(self) -> bool:
+        return (self.counts_publisher.get_subscription_count() >= 1
+                and self.temp_publisher.get_subscription_count() >= 1
+                and self.subscription.get_publisher_count() >= 1)
+
+    def publish(self, k: int, stamp_ns: int) -> None:
+        if k % TEMP_EVERY == 0:
+            self.temperature.header.stamp.sec, self.temperature.header.stamp.nanosec = divmod(stamp_ns, NANOSECONDS)
+            self.temperature.temperature = 8200.0 + (k // TEMP_EVERY) % 200
+            self.temp_publisher.publish(self.temperature)
+        header = self.counts.header
+        header.stamp.sec, header.stamp.nanosec = divmod(stamp_ns, NANOSECONDS)
+        vector = self.counts.vector
+        vector.x, vector.y, vector.z = float(k % 2000 - 1000), 500.0, 2500.0
+        self.counts_publisher.publish(self.counts)
+
+    def warm_up(self) -> None:
+        """Send until the node answers (its Imu writer matched us too); then drain."""
+        self.spin_until(self.matched, 30.0)
+        k = 0
+        deadline = time.monotonic() + 30.0
+        while self.received == 0:
+            if time.monotonic() > deadline:
+                raise RuntimeError('the node never answered')
+            self.publish(0, time.time_ns())
+            k += 1
+            end = time.monotonic() + 0.2
+            while self.received == 0 and time.monotonic() < end:
+                self.executor.spin_once(timeout_sec=0.01)
+        # Some of the first messages may be dropped (a counts message before the first
+        # temperature code reached the node): drain, then count from here.
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            self.executor.spin_once(timeout_sec=0.05)
+        self.sent = self.received = 0
+
+    def closed_loop(self, count: int, on_progress=None) -> float:
+        """Send ``count`` messages, at most WINDOW in flight; messages per second."""
+        start_sent, start_received = self.sent, self.received
+        spin_once = self.executor.spin_once
+        started = time.perf_counter()
+        k = 0
+        while k < count:
+            while k < count and self.sent - self.received < WINDOW:
+                self.publish(k, time.time_ns())
+                self.sent += 1
+                k += 1
+            spin_once(timeout_sec=0.1)
+            if on_progress is not None and k % 50_000 == 0:
+                on_progress(k)
+        target = start_received + count
+        self.spin_until(lambda: self.received >= target, 30.0)
+        elapsed = time.perf_counter() - started
+        assert self.sent - start_sent == count and self.received - start_received == count
+        return count / elapsed
+
+    def paced(self, count: int, rate_hz: float) -> list[int]:
+        """Send ``count`` messages at ``rate_hz``; latencies (ns) of the answers."""
+        self.latencies_ns = []
+        period_ns = int(NANOSECONDS / rate_hz)
+        next_ns = time.monotonic_ns()
+        spin_once = self.executor.spin_once
+        target = self.received + count
+        for k in range(count):
+            while True:
+                wait = next_ns - time.monotonic_ns()
+                if wait <= 0:
+                    break
+                spin_once(timeout_sec=wait / NANOSECONDS)
+            self.publish(k, time.time_ns())
+            self.sent += 1
+            next_ns += period_ns
+        # Open loop: a node that falls more than the QoS depth behind loses messages; wait until
+        # everything arrived or nothing more arrives for 2 s, and report the loss.
+        last, idle_since = self.received, time.monotonic()
+        while self.received < target and time.monotonic() - idle_since < 2.0:
+            spin_once(timeout_sec=0.05)
+            if self.received != last:
+                last, idle_since = self.received, time.monotonic()
+        self.lost = target - self.received
+        self.received = self.sent = 0
+        latencies, self.latencies_ns = self.latencies_ns, None
+        return latencies
+
+    def close(self) -> None:
+        import rclpy
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+def start(kind: str, params: Path, env: dict[str, str], log: Path) -> subprocess.Popen:
+    """The node under test in its own process (and session)."""
+    if kind == 'relay':
+        command = [sys.executable, str(Path(__file__).resolve()), 'relay', '--ros-args']
+    else:
+        command = [sys.executable, '-m', 'tak_thermo_ros.node', '--ros-args', '--params-file', str(params),
+                   '-p', 'qos:=reliable', '-p', f'qos_depth:={DEPTH}']
+    return subprocess.Popen(command, env=env, stdout=open(log, 'wb'), stderr=subprocess.STDOUT,
+                            stdin=subprocess.DEVNULL, start_new_session=True)
+
+
+def stop(process: subprocess.Popen) -> int:
+    if process.poll() is None:
+        os.killpg(process.pid, signal.SIGINT)
+        try:
+            process.wait(10)
+        except subprocess.TimeoutExpired:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+    return process.returncode
+
+
+def percentile(values: list[int], q: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(round(q / 100.0 * (len(ordered) - 1))))] / 1000.0
+
+
+class Subject:
+    """One node under test: its process and the driver talking to it (own domain)."""
+
+    def __init__(self, kind: str, params: Path, env: dict[str, str], workdir: Path) -> None:
+        self.kind = kind
+        self.process = start(kind, params, env, workdir / f'{kind}.log')
+        self.driver = Driver(int(env['ROS_DOMAIN_ID']), f'bench_driver_{kind}')
+        self.rates: list[float] = []
+        self.capacities: list[float] = []
+        self.latencies: list[int] = []
+        self.lost = 0
+        self.soak: dict | None = None
+
+    def warm_up(self) -> None:
+        self.driver.warm_up()
+        self.driver.closed_loop(5_000)
+
+    def throughput_round(self, count: int) -> None:
+        cpu_before = cpu_s(self.process.pid)
+        self.rates.append(self.driver.closed_loop(count))
+        self.capacities.append(count / max(cpu_s(self.process.pid) - cpu_before, 1e-9))
+
+    def latency_chunk(self, count: int) -> None:
+        self.latencies += self.driver.paced(count, 1000.0)
+        self.lost += self.driver.lost
+
+    def run_soak(self, count: int) -> None:
+        pid = self.process.pid
+        rss_start = rss_kb(pid)
+        samples = [(0, rss_start)]
+        rate = self.driver.closed_loop(count, lambda k: samples.append((k, rss_kb(pid))))
+        samples.append((count, rss_kb(pid)))
+        self.soak = {'messages': count, 'rate_msgs_per_s': rate, 'rss_start_kb': rss_start,
+                     'rss_end_kb': samples[-1][1], 'rss_growth_kb': samples[-1][1] - rss_start,
+                     'rss_max_kb': max(kb for _, kb in samples), 'rss_samples_kb': samples}
+
+    def close(self) -> int:
+        try:
+            self.driver.close()
+        finally:
+            code = stop(self.process)
+        return code
+
+    def summary(self) -> dict:
+        latencies = self.latencies
+        result = {
+            'throughput_msgs_per_s': statistics.median(self.rates), 'throughput_rounds': self.rates,
+            'capacity_msgs_per_cpu_s': statistics.median(self.capacities), 'capacity_rounds': self.capacities,
+            'latency_us': {'p50': percentile(latencies, 50), 'p90': percentile(latencies, 90),
+                           'p99': percentile(latencies, 99), 'max': max(latencies) / 1000.0,
+                           'mean': statistics.fmean(latencies) / 1000.0, 'count': len(latencies),
+                           'lost': self.lost},
+        }
+        if self.soak is not None:
+            result['soak'] = self.soak
+        return result
+
+
+def measure(params: Path, workdir: Path, *, throughput_count: int, latency_count: int, rounds: int,
+            soak_count: int) -> tuple[dict, dict]:
+    """Relay and compensator side by side (own domains), rounds interleaved, then the soak."""
+    home = workdir / 'ros_home'
+    home.mkdir(exist_ok=True)
+    subjects = []
+    try:
+        for index, kind in enumerate(('relay', 'compensator')):
+            env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+                   'ROS_DOMAIN_ID': str(1 + (os.getpid() + 37 * index) % 100), 'ROS_HOME': str(home),
+                   'ROS_LOG_DIR': str(home / 'log'), 'RCUTILS_COLORIZED_OUTPUT': '0'}
+            subjects.append(Subject(kind, params, env, workdir))
+        for subject in subjects:
+            subject.warm_up()
+        for _ in range(rounds):
+            for subject in subjects:
+                subject.throughput_round(throughput_count)
+        chunks = 4
+        for _ in range(chunks):
+            for subject in subjects:
+                subject.latency_chunk(latency_count // chunks)
+        subjects[1].run_soak(soak_count)
+    finally:
+        codes = [subject.close() for subject in subjects]
+    relay, compensator = (subject.summary() for subject in subjects)
+    relay['exit_code'], compensator['exit_code'] = codes
+    return relay, compensator
+
+
+def in_process_cost(params: Path, count: int = 200_000) -> dict:
+    """Microseconds per message of the node's own work, without DDS: core + message fill."""
+    from geometry_msgs.msg import Vector3Stamped
+    from sensor_msgs.msg import Imu
+
+    from tak_thermo_ros.core.calibration_file import load_calibration
+    from tak_thermo_ros.core.online import OnlineCompensator
+    core = OnlineCompensator(load_calibration(params))
+    core.process_temperature(8300.0, 0.0)
+    message = Vector3Stamped()
+    message.vector.x, message.vector.y, message.vector.z = 100.0, -200.0, 2500.0
+    imu = Imu()
+    acceleration = imu.linear_acceleration
+    process = core.process_counts
+
+    def compensator_path() -> None:
+        for k in range(count):
+            stamp = message.header.stamp
+            vector = message.vector
+            result = process(stamp.sec, k, vector.x, vector.y, vector.z, 0.5)
+            if result.__class__ is tuple:
+                imu.header = message.header
+                acceleration.x, acceleration.y, acceleration.z = result
+            if core.notices:
+                core.take_notices()
+
+    def relay_path() -> None:
+        for _ in range(count):
+            imu.header = message.header
+            vector = message.vector
+            acceleration.x, acceleration.y, acceleration.z = vector.x, vector.y, vector.z
+
+    timings = {}
+    for name, path in (('relay_callback_us', relay_path), ('compensator_callback_us', compensator_path)):
+        best = float('inf')
+        for _ in range(3):
+            started = time.perf_counter()
+            path()
+            best = min(best, time.perf_counter() - started)
+        timings[name] = best / count * 1e6
+    timings['added_us'] = timings['compensator_callback_us'] - timings['relay_callback_us']
+    profiler = cProfile.Profile()
+    profiler.runcall(compensator_path)
+    text = io.StringIO()
+    pstats.Stats(profiler, stream=text).sort_stats('tottime').print_stats(6)
+    timings['profile_top'] = [line.strip() for line in text.getvalue().splitlines()
+                              if line.strip() and ('{' in line or '.py' in line)][:6]
+    return timings
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--quick', action='store_true', help='small counts (a smoke run, not the figures)')
+    args = parser.parse_args()
+    throughput_count = 5_000 if args.quick else 10_000
+    latency_count = 2_000 if args.quick else 10_000
+    soak_count = 20_000 if args.quick else 1_000_000
+    rounds = 2 if args.quick else 10
+
+    from tak_thermo_ros.core.calibration_file import save_calibration
+    from tak_thermo_ros.core.simulate import Scenario
+
+    with tempfile.TemporaryDirectory(prefix='bench_node_') as tmp:
+        workdir = Path(tmp)
+        params = workdir / 'params.yaml'
+        save_calibration(params, Scenario().truth())
+        os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_HOME=str(workdir / 'ros_home'),
+                          ROS_LOG_DIR=str(workdir / 'ros_home' / 'log'))
+        started = time.time()
+        relay, compensator = measure(params, workdir, throughput_count=throughput_count,
+                                     latency_count=latency_count, rounds=rounds, soak_count=soak_count)
+        for name, result in (('relay', relay), ('compensator', compensator)):
+            print(f'{name:12s} {result["throughput_msgs_per_s"]:8.0f} msg/s closed loop, '
+                  f'{result["capacity_msgs_per_cpu_s"]:8.0f} msg/CPU-s, latency at 1 kHz p50 '
+                  f'{result["latency_us"]["p50"]:.0f} us p99 {result["latency_us"]["p99"]:.0f} us '
+                  f'({result["latency_us"]["lost"]} lost)', flush=True)
+        cost = in_process_cost(params)
+        figures = {
+            # Median over the rounds of the ratio within a round (the two ran back to back).
+            'throughput_ratio': statistics.median(
+                c / r for c, r in zip(compensator['throughput_rounds'], relay['throughput_rounds'])),
+            'capacity_ratio': statistics.median(
+                c / r for c, r in zip(compensator['capacity_rounds'], relay['capacity_rounds'])),
+            'added_latency_p50_us': compensator['latency_us']['p50'] - relay['latency_us']['p50'],
+            'added_latency_p99_us': compensator['latency_us']['p99'] - relay['latency_us']['p99'],
+            'soak_rss_growth_mb': compensator['soak']['rss_growth_kb'] / 1024.0,
+            'soak_messages': compensator['soak']['messages'],
+            'in_process_added_us_per_message': cost['added_us'],
+        }
+        document = {'quick': args.quick, 'cpus': os.cpu_count(), 'python': sys.version.split()[0],
+                    'wall_s': time.time() - started, 'window': WINDOW, 'depth': DEPTH,
+                    'temp_code_every': TEMP_EVERY, 'figures': figures, 'relay': relay,
+                    'compensator': compensator, 'in_process': cost,
+                    'targets': {'throughput_ratio': '>= 0.9', 'added_latency_p99_us': '<= 50',
+                                'soak_rss_growth_mb': '< 10'}}
+    results = RESULTS.with_name('node_quick.json') if args.quick else RESULTS
+    results.parent.mkdir(parents=True, exist_ok=True)
+    results.write_text(json.dumps(document, indent=2) + '\n', encoding='utf-8')
+    print(f'throughput ratio {figures["throughput_ratio"]:.3f} (closed loop), capacity ratio '
+          f'{figures["capacity_ratio"]:.3f} (messages per node CPU second); target >= 0.9')
+    print(f'added latency at 1 kHz: p50 {figures["added_latency_p50_us"]:+.1f} us, p99 '
+          f'{figures["added_latency_p99_us"]:+.1f} us (target <= 50 us); node work in-process '
+          f'{cost["compensator_callback_us"]:.2f} us vs relay {cost["relay_callback_us"]:.2f} us per message')
+    soak = compensator['soak']
+    print(f'soak: {soak["messages"]} messages at {soak["rate_msgs_per_s"]:.0f} msg/s, RSS '
+          f'{soak["rss_start_kb"] / 1024:.1f} -> {soak["rss_end_kb"] / 1024:.1f} MB '
+          f'(growth {figures["soak_rss_growth_mb"]:+.2f} MB, target < 10)')
+    print(f'wrote {results}')
+    missed = [name for name, held in (
+        ('throughput ratio >= 0.9', figures['throughput_ratio'] >= 0.9),
+        ('added latency p99 <= 50 us', figures['added_latency_p99_us'] <= 50.0),
+        ('soak RSS growth < 10 MB', figures['soak_rss_growth_mb'] < 10.0)) if not held]
+    if missed:
+        print(f'target missed: {"; ".join(missed)}')
+        return TARGET_MISSED
+    return 0
+
+
+if __name__ == '__main__':
+    if len(sys.argv) > 1 and sys.argv[1] == 'relay':
+        sys.exit(relay_main())
+    sys.exit(main())

@@ -1,0 +1,360 @@
+"""Import a delimited (CSV/TSV) log of a static thermal run into the bag contract.
+
+Most users calibrate the way PX4 and ArduPilot do: the board lies still in one orientation and
+the temperature is swept; the log comes as a delimited text file with a time column, three
+acceleration columns and a temperature column. This module turns such a log into a
+:class:`~tak_thermo_ros.core.record.ChannelRecord` (pure: no rosbags; ``bagio.write_record``
+writes it).
+
+Units and rounding
+------------------
+- Time: the ``time_unit`` column (``s``, ``ms``, ``us``, ``ns``) becomes int64 nanoseconds.
+  Integer text is converted exactly; decimal text through :class:`decimal.Decimal`, rounded
+  to the nearest nanosecond. Stamps must strictly increase.
+- Acceleration: the columns in ``m/s^2`` or ``g`` (``1 g = 9.80665 m/s^2``, the standard
+  value, whatever the local gravity) become channel codes
+  ``N = round(a / acc_resolution)`` with ``acc_resolution`` in m/s^2 per count (round half to
+  even). The nominal scale written to the bag is ``1 / acc_resolution`` counts per m/s^2 on each
+  axis; ``fit`` holds an axis's scale at that value when the axis sees one input only.
+  Every code must stay strictly inside the 16-bit range (``-32768 < N < 32767``; the rails
+  count as saturated): a value beyond it is an error naming the column and the row.
+- Temperature: the column in degrees Celsius becomes the sensor code
+  ``N_t = round(T / temp_resolution)``, ``temp_resolution`` in degrees per code.
+- Reference (the true specific force, m/s^2, sensor frame): the run is static, so it is one
+  constant vector, written once at the first stamp. Unless given explicitly, it is estimated
+  as the mean measured direction scaled to local gravity,
+  ``g_local * mean(a) / |mean(a)|``: this takes the tilt from the data and attributes the
+  error of the mean magnitude to the channel. A component of the mean offset perpendicular to
+  gravity is indistinguishable from tilt on a single orientation and ends in the reference.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+from decimal import Decimal, InvalidOperation
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+
+from tak_thermo_ros.core.record import COUNTS_MAX, COUNTS_MIN, ChannelRecord
+from tak_thermo_ros.core.simulate import STANDARD_GRAVITY
+from tak_thermo_ros.errors import LogError
+
+TIME_UNITS: dict[str, int] = {'s': 1_000_000_000, 'ms': 1_000_000, 'us': 1_000, 'ns': 1}
+"""Nanoseconds per unit of the time column."""
+ACC_UNITS: dict[str, float] = {'m/s^2': 1.0, 'g': STANDARD_GRAVITY}
+"""m/s^2 per unit of the acceleration columns."""
+DELIMITERS = ('\t', ',', ';')
+"""Delimiters that are sniffed from the header line when none is given."""
+STATIC_TOLERANCE_DEG = 10.0
+"""A sample whose direction is further than this from the mean direction means the board moved."""
+
+_DELIMITER_NAMES = {'\t': 'tab', ',': 'comma', ';': 'semicolon', ' ': 'space', '|': 'pipe'}
+
+
+@dataclass(frozen=True)
+class CsvImportOptions:
+    """How to read a delimited log.
+
+    :param acc_columns: names of the x, y, z acceleration columns (sensor frame).
+    :param temp_column: name of the temperature column (degrees Celsius).
+    :param time_column: name of the time column.
+    :param time_unit: unit of the time column, one of :data:`TIME_UNITS`.
+    :param acc_unit: unit of the acceleration columns, one of :data:`ACC_UNITS`.
+    :param acc_resolution: m/s^2 per count of the channel code.
+    :param temp_resolution: degrees Celsius per temperature-sensor code.
+    :param gravity: local gravity, m/s^2 (magnitude of the estimated reference).
+    :param reference: the specific force in the sensor frame, m/s^2, when known; ``None``
+        estimates it from the mean measured direction.
+    :param delimiter: field delimiter; ``None`` sniffs tab, comma or semicolon from the header.
+    :param frame_id: frame written on the counts messages.
+    """
+
+    acc_columns: tuple[str, str, str]
+    temp_column: str
+    time_column: str = 'timestamp'
+    time_unit: str = 's'
+    acc_unit: str = 'm/s^2'
+    acc_resolution: float = 1e-3
+    temp_resolution: float = 0.01
+    gravity: float = STANDARD_GRAVITY
+    reference: tuple[float, float, float] | None = None
+    delimiter: str | None = None
+    frame_id: str = 'imu'
+
+    def __post_init__(self) -> None:
+        checks = (
+            (len(self.acc_columns) == 3, 'acc_columns', f'needs three names (x y z), got {len(self.acc_columns)}'),
+            (self.time_unit in TIME_UNITS, 'time_unit',
+             f'{self.time_unit!r} is not one of {", ".join(TIME_UNITS)}'),
+            (self.acc_unit in ACC_UNITS, 'acc_unit', f'{self.acc_unit!r} is not one of {", ".join(ACC_UNITS)}'),
+            (math.isfinite(self.acc_resolution) and self.acc_resolution > 0, 'acc_resolution',
+             f'must be a positive number of m/s^2 per count, got {self.acc_resolution:g}'),
+            (math.isfinite(self.temp_resolution) and self.temp_resolution > 0, 'temp_resolution',
+             f'must be a positive number of degrees per code, got {self.temp_resolution:g}'),
+            (math.isfinite(self.gravity) and self.gravity > 0, 'gravity',
+             f'must be a positive number of m/s^2, got {self.gravity:g}'),
+            (self.reference is None or (len(self.reference) == 3 and all(math.isfinite(v) for v in self.reference)
+                                        and any(v != 0.0 for v in self.reference)),
+             'reference', 'needs three finite numbers, not all zero (m/s^2)'),
+            (self.delimiter is None or len(self.delimiter) == 1, 'delimiter',
+             f'must be one character, got {self.delimiter!r}'),
+        )
+        for ok, key, problem in checks:
+            if not ok:
+                msg = f'{key}: {problem}'
+                raise LogError(msg)
+
+    @property
+    def nominal_scale(self) -> float:
+        """Counts per m/s^2 implied by the resolution."""
+        return 1.0 / self.acc_resolution
+
+
+@dataclass(frozen=True)
+class ImportedLog:
+    """A delimited log turned into the bag contract, with what the import found.
+
+    :param record: the run as the bag contract holds it.
+    :param rows: number of data rows.
+    :param delimiter: the delimiter used.
+    :param header: the column names.
+    :param acceleration: ``(k, 3)`` measured acceleration, m/s^2 (before rounding to codes).
+    :param temperature: ``(k,)`` temperature, degrees Celsius (before rounding to codes).
+    :param reference: ``(3,)`` the constant reference, m/s^2, sensor frame.
+    :param mean_direction: ``(3,)`` unit vector of the mean measured acceleration.
+    :param reference_estimated: ``True`` when the reference is the mean direction scaled to
+        gravity, ``False`` when it was given.
+    :param max_tilt_deg: largest angle between a sample and the mean direction, degrees.
+    """
+
+    record: ChannelRecord
+    rows: int
+    delimiter: str
+    header: tuple[str, ...]
+    acceleration: np.ndarray
+    temperature: np.ndarray
+    reference: np.ndarray
+    mean_direction: np.ndarray
+    reference_estimated: bool
+    max_tilt_deg: float
+
+    @property
+    def duration_s(self) -> float:
+        """Time from the first to the last row, seconds."""
+        stamps = self.record.counts_stamp_ns
+        return float(stamps[-1] - stamps[0]) * 1e-9
+
+    @property
+    def delimiter_name(self) -> str:
+        """The delimiter in words (``tab``, ``comma``, ...)."""
+        return _DELIMITER_NAMES.get(self.delimiter, repr(self.delimiter))
+
+
+def delimiter_from_option(text: str) -> str:
+    """The delimiter character of a command-line value: ``tab``, ``\\t``, ``comma``, ``,`` ..."""
+    names = {'tab': '\t', '\\t': '\t', 'comma': ',', 'semicolon': ';', 'space': ' ', 'pipe': '|'}
+    character = names.get(text.lower(), text)
+    if len(character) != 1:
+        msg = f'--delimiter: expected one character or tab/comma/semicolon, got {text!r}'
+        raise LogError(msg)
+    return character
+
+
+def read_csv_log(path: str | Path, options: CsvImportOptions) -> ImportedLog:
+    """Read and convert a delimited log file (UTF-8, a byte-order mark is skipped).
+
+    :raises LogError: one line naming the file and the row or column that is wrong.
+    """
+    path = Path(path)
+    try:
+        with path.open(encoding='utf-8-sig', newline='') as stream:
+            return parse_csv_log(stream, options, source=str(path))
+    except FileNotFoundError:
+        msg = f'{path}: no such log file'
+        raise LogError(msg) from None
+    except UnicodeDecodeError as err:
+        msg = f'{path}: not a UTF-8 text file (byte {err.start})'
+        raise LogError(msg) from None
+
+
+def parse_csv_log(lines: Iterable[str], options: CsvImportOptions, *, source: str = '<log>') -> ImportedLog:
+    """Convert the lines of a delimited log (header line first) into the bag contract.
+
+    :param lines: the text, one line per item (a file object serves).
+    :param options: columns, units and resolutions.
+    :param source: the name used in messages.
+    :raises LogError: missing column, non-numeric field, time not increasing, a constant
+        column (no temperature sweep, a stuck axis), a value beyond the 16-bit code range,
+        a board that moved, or an empty file; one line naming the row or column.
+    """
+    iterator = iter(lines)
+    header_line, skipped = _first_non_blank(iterator)
+    if header_line is None:
+        msg = f'{source}: empty file (no header line)'
+        raise LogError(msg)
+    delimiter = options.delimiter or _sniff_delimiter(header_line, source)
+    header = tuple(name.strip() for name in next(csv.reader([header_line], delimiter=delimiter)))
+    wanted = (options.time_column, *options.acc_columns, options.temp_column)
+    index = []
+    for name in wanted:
+        if name not in header:
+            msg = (f'{source}: no column {name!r} (columns: {", ".join(header)}; '
+                   f'{_DELIMITER_NAMES.get(delimiter, repr(delimiter))}-delimited)')
+            raise LogError(msg)
+        index.append(header.index(name))
+
+    time_factor = TIME_UNITS[options.time_unit]
+    stamps: list[int] = []
+    values: list[tuple[float, float, float, float]] = []
+    line_numbers: list[int] = []
+    reader = csv.reader(iterator, delimiter=delimiter)
+    for fields in reader:
+        if not fields or all(not field.strip() for field in fields):
+            continue
+        row = len(stamps) + 1
+        line = reader.line_num + skipped
+        where = f'{source}: row {row} (line {line})'
+        if len(fields) != len(header):
+            msg = f'{where}: {len(fields)} fields, the header has {len(header)}'
+            raise LogError(msg)
+        stamps.append(_stamp_ns(fields[index[0]].strip(), time_factor, where, options.time_column))
+        values.append(tuple(_number(fields[i].strip(), where, name)  # type: ignore[misc]
+                            for i, name in zip(index[1:], wanted[1:])))
+        line_numbers.append(line)
+    if not stamps:
+        msg = f'{source}: no data rows after the header'
+        raise LogError(msg)
+
+    stamp_ns = _stamps_array(stamps, source, line_numbers, options.time_column)
+    table = np.asarray(values, dtype=float)
+    acceleration = table[:, :3] * ACC_UNITS[options.acc_unit]
+    temperature = table[:, 3]
+    _check_not_constant(table, wanted[1:], source)
+    counts = np.round(acceleration / options.acc_resolution)
+    _check_code_range(counts, acceleration, options, source, line_numbers)
+    temp_code = np.round(temperature / options.temp_resolution)
+    if np.all(temp_code == temp_code[0]):
+        msg = (f'{source}: column {options.temp_column!r} varies by only {np.ptp(temperature):g} C, less than '
+               f'one code of {options.temp_resolution:g} C: no temperature sweep at this --temp-resolution')
+        raise LogError(msg)
+
+    mean = acceleration.mean(axis=0)
+    magnitude = float(np.linalg.norm(mean))
+    if magnitude < 0.1 * options.gravity and options.reference is None:
+        msg = (f'{source}: mean acceleration |{magnitude:.4g}| m/s^2 is far below gravity: not a static run '
+               f'(or the acceleration unit is wrong); give the reference explicitly')
+        raise LogError(msg)
+    direction = mean / magnitude if magnitude > 0.0 else np.zeros(3)
+    norms = np.linalg.norm(acceleration, axis=1)
+    cosine = np.clip((acceleration @ direction) / np.where(norms > 0.0, norms, 1.0), -1.0, 1.0)
+    tilt = np.degrees(np.arccos(cosine))
+    worst = int(np.argmax(tilt))
+    if options.reference is None and tilt[worst] > STATIC_TOLERANCE_DEG:
+        msg = (f'{source}: row {worst + 1} (line {line_numbers[worst]}): the measured direction is '
+               f'{tilt[worst]:.1f} deg from the mean direction: the board moved, the log is not one static '
+               f'orientation (split it, or give the reference)')
+        raise LogError(msg)
+    if options.reference is None:
+        reference = options.gravity * direction
+    else:
+        reference = np.asarray(options.reference, dtype=float)
+
+    record = ChannelRecord(
+        counts_stamp_ns=stamp_ns, counts=counts, temp_stamp_ns=stamp_ns.copy(), temp_code=temp_code,
+        reference_stamp_ns=stamp_ns[:1].copy(), reference=reference.reshape(1, 3),
+        frame_id=options.frame_id, nominal_scale=(options.nominal_scale,) * 3)
+    return ImportedLog(record=record, rows=len(stamp_ns), delimiter=delimiter, header=header,
+                       acceleration=acceleration, temperature=temperature, reference=reference,
+                       mean_direction=direction, reference_estimated=options.reference is None,
+                       max_tilt_deg=float(tilt[worst]))
+
+
+def _first_non_blank(iterator) -> tuple[str | None, int]:
+    """The first non-blank line and how many lines it took to reach it."""
+    for number, line in enumerate(iterator, start=1):
+        if line.strip():
+            return line.rstrip('\r\n'), number
+    return None, 0
+
+
+def _sniff_delimiter(header_line: str, source: str) -> str:
+    counts = {d: header_line.count(d) for d in DELIMITERS}
+    best = max(DELIMITERS, key=lambda d: counts[d])
+    if counts[best] == 0:
+        msg = (f'{source}: cannot tell the delimiter from the header line (no tab, comma or semicolon); '
+               f'give --delimiter')
+        raise LogError(msg)
+    return best
+
+
+def _stamp_ns(text: str, factor: int, where: str, column: str) -> int:
+    try:
+        return int(text) * factor
+    except ValueError:
+        pass
+    try:
+        value = Decimal(text)
+    except InvalidOperation:
+        value = Decimal('NaN')
+    if not value.is_finite():
+        msg = f'{where}, column {column!r}: {text!r} is not a number'
+        raise LogError(msg)
+    return int((value * factor).to_integral_value())
+
+
+def _number(text: str, where: str, column: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        msg = f'{where}, column {column!r}: {text!r} is not a finite number'
+        raise LogError(msg)
+    return value
+
+
+def _stamps_array(stamps: list[int], source: str, line_numbers: list[int], column: str) -> np.ndarray:
+    if max(abs(stamps[0]), abs(stamps[-1])) >= 2 ** 63:
+        msg = f'{source}: column {column!r} does not fit int64 nanoseconds (wrong --time-unit?)'
+        raise LogError(msg)
+    stamp_ns = np.asarray(stamps, dtype=np.int64)
+    steps = np.diff(stamp_ns)
+    bad = np.flatnonzero(steps <= 0)
+    if bad.size:
+        row = int(bad[0]) + 1  # 0-based index of the later sample
+        how = 'goes backwards' if steps[bad[0]] < 0 else 'repeats'
+        msg = (f'{source}: row {row + 1} (line {line_numbers[row]}): time {how} in column {column!r} '
+               f'({stamp_ns[row]} ns after {stamp_ns[row - 1]} ns); stamps must increase')
+        raise LogError(msg)
+    return stamp_ns
+
+
+def _check_not_constant(table: np.ndarray, names: tuple[str, ...], source: str) -> None:
+    if len(table) < 2:
+        msg = f'{source}: one data row only; a thermal run needs a temperature sweep'
+        raise LogError(msg)
+    for column, name in enumerate(names):
+        if np.all(table[:, column] == table[0, column]):
+            what = ('no temperature sweep to calibrate from' if column == 3
+                    else 'a stuck or disconnected axis')
+            msg = (f'{source}: column {name!r} is constant ({table[0, column]:g}) over all {len(table)} rows: '
+                   f'{what}')
+            raise LogError(msg)
+
+
+def _check_code_range(counts: np.ndarray, acceleration: np.ndarray, options: CsvImportOptions,
+                      source: str, line_numbers: list[int]) -> None:
+    outside = (counts <= COUNTS_MIN) | (counts >= COUNTS_MAX)
+    if not outside.any():
+        return
+    row, axis = (int(v) for v in np.argwhere(outside)[0])
+    needed = float(np.max(np.abs(acceleration))) / (COUNTS_MAX - 1.0)
+    msg = (f'{source}: row {row + 1} (line {line_numbers[row]}), column {options.acc_columns[axis]!r}: '
+           f'{acceleration[row, axis]:g} m/s^2 is {counts[row, axis]:.0f} counts at a resolution of '
+           f'{options.acc_resolution:g} m/s^2 per count: at or beyond the 16-bit range, it would saturate; '
+           f'use an acceleration resolution of at least {needed:.3g} m/s^2 per count')
+    raise LogError(msg)

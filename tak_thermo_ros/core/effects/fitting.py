@@ -1,0 +1,553 @@
+"""Fitting the base model together with effects (variable projection).
+
+Per axis the model is linear in the base coefficients, the input effects' amplitudes and the
+offset effects' amplitudes once the offset effects' shape parameters are fixed. So:
+
+1. the base model alone is fitted first (:func:`~tak_thermo_ros.core.fit.fit_calibration` on
+   the training samples: the same checks, reference code and notes as a plain fit);
+2. each offset effect's shape parameter is searched on a coarse log grid, then refined by a
+   bounded Brent search, minimising ``sum_axes ln RSS_axis`` with every amplitude profiled out
+   by least squares (QR projection onto the fixed columns);
+3. a discrete complexity (the number of knots of ``temperature_shape``) is chosen by blocked
+   cross-validation: the training samples cut into contiguous blocks, dealt round-robin into
+   folds, each fold predicted from a fit on the others;
+4. with several searched effects, step 2-3 is repeated once with all the others in place;
+5. the final least squares gives every amplitude; standard errors come from the Fisher
+   information of amplitudes and shape parameters together (shape derivatives numerically).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Sequence
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from tak_thermo_ros.core.calibration_file import check_scale_positive
+from tak_thermo_ros.core.effects import resolve_effect
+from tak_thermo_ros.core.effects.base import AXIS_NAMES, INPUT, Effect, seconds_from_ns
+from tak_thermo_ros.core.fit import (
+    AxisFit,
+    FitResult,
+    fit_calibration,
+    residual_counts,
+    single_input_axes,
+)
+from tak_thermo_ros.core.model import AxisModel, Calibration
+from tak_thermo_ros.core.record import AlignedSamples
+from tak_thermo_ros.errors import CalibrationError, FitError
+
+GRID_POINTS = 9
+"""Coarse grid of a shape-parameter search before the bounded refinement."""
+CV_BLOCKS = 20
+CV_FOLDS = 5
+RANK_TOLERANCE = 1e-9
+SHAPE_STEP = 0.01
+"""Step (in the searched coordinate: ln of the parameter on a log scale) of the numerical shape derivative."""
+
+
+@dataclass
+class _Offset:
+    """An offset effect during the fit."""
+
+    effect: Effect
+    mode: str  # 'fixed', 'search' or 'structure'
+    searched: tuple[tuple[str, float, float, bool], ...] = ()
+    structures: Sequence[Effect] = ()
+    basis: np.ndarray | None = None  # whole series
+    done: bool = False
+    cache: dict = field(default_factory=dict)
+
+
+def _subset(samples: AlignedSamples, mask: np.ndarray) -> AlignedSamples:
+    return AlignedSamples(stamp_ns=samples.stamp_ns[mask], counts=samples.counts[mask],
+                          temp_code=samples.temp_code[mask],
+                          reference=None if samples.reference is None else samples.reference[mask],
+                          dropped=dict(samples.dropped))
+
+
+def _template(cls: type[Effect]) -> Effect | None:
+    try:
+        return cls.from_values({}, complete=False)
+    except CalibrationError:
+        return None
+
+
+class _Projection:
+    """Least squares with fixed columns per axis, and the profiled RSS for extra columns."""
+
+    def __init__(self, fixed: list[np.ndarray], targets: list[np.ndarray], names: list[list[str]]) -> None:
+        self.fixed = fixed
+        self.targets = targets
+        self.names = names
+        self.bases = []
+        for i, (design, target) in enumerate(zip(fixed, targets)):
+            norms = np.sqrt(np.mean(design ** 2, axis=0))
+            norms[norms == 0.0] = 1.0
+            q, r = np.linalg.qr(design / norms)
+            diagonal = np.abs(np.diag(r))
+            if diagonal.size and diagonal.min() < RANK_TOLERANCE * diagonal.max():
+                culprit = names[i][int(np.argmin(diagonal))]
+                msg = (f'axis {AXIS_NAMES[i]}: the data cannot separate {culprit} from the other model terms '
+                       f'(the inputs and temperatures of this run do not excite it)')
+                raise FitError(msg)
+            perpendicular = target - q @ (q.T @ target)
+            self.bases.append((q, perpendicular, float(perpendicular @ perpendicular)))
+
+    def rss(self, extra: np.ndarray | None) -> tuple[np.ndarray, list[np.ndarray]]:
+        """Per-axis RSS with ``extra`` columns ``(k, b)`` (shared by the axes) added, and per axis
+        the least-squares coefficients of those columns."""
+        out = np.empty(3)
+        coefficients = []
+        for i, (q, perpendicular, total) in enumerate(self.bases):
+            if extra is None or extra.shape[1] == 0:
+                out[i] = total
+                coefficients.append(np.zeros(0))
+                continue
+            residual = extra - q @ (q.T @ extra)
+            gram = residual.T @ residual
+            z = residual.T @ perpendicular
+            solution = np.linalg.pinv(gram, rcond=1e-12, hermitian=True) @ z
+            out[i] = max(total - float(z @ solution), 1e-300)
+            coefficients.append(solution)
+        return out, coefficients
+
+
+def _normalised(columns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    norms = np.sqrt(np.mean(columns ** 2, axis=0))
+    norms[norms == 0.0] = 1.0
+    return columns / norms, norms
+
+
+INVALID = 1e300
+"""Objective of a shape whose amplitudes leave their bounds (the search stays inside them)."""
+VISIBLE = 0.05
+"""A shape is searched only where the training samples see at least this fraction of each basis
+signal's largest magnitude over the whole series (else its amplitude would be extrapolation,
+e.g. a warm-up that decayed before the first training sample)."""
+
+
+def _amplitudes_within_bounds(effect: Effect, amplitudes: list[np.ndarray]) -> bool:
+    """Whether least-squares amplitudes (per axis, in basis order) respect the effect's bounds."""
+    bounds = {parameter.name: (parameter.min, parameter.max) for parameter in effect.parameters}
+    for names, values in zip(effect.amplitude_names(), amplitudes):
+        for name, value in zip(names, values):
+            low, high = bounds[name]
+            if not low <= float(value) <= high:
+                return False
+    return True
+
+
+class _CrossValidation:
+    """Blocked cross-validation: ``sum_axes ln(held-out SSE)`` for extra columns.
+
+    The training samples are cut into contiguous blocks dealt round-robin into folds; each fold
+    is predicted from the normal equations of the other blocks. The per-block Gram matrices of
+    the fixed columns are computed once; a candidate adds only its own products.
+    """
+
+    def __init__(self, fixed: list[np.ndarray], targets: list[np.ndarray]) -> None:
+        count = len(targets[0])
+        self.blocks = [slice(int(b[0]), int(b[-1]) + 1) for b in
+                       np.array_split(np.arange(count), min(CV_BLOCKS, max(count // 10, CV_FOLDS)))]
+        self.axes = []
+        for design, target in zip(fixed, targets):
+            design = _normalised(design)[0]
+            grams = [design[b].T @ design[b] for b in self.blocks]
+            moments = [design[b].T @ target[b] for b in self.blocks]
+            self.axes.append((design, target, grams, moments))
+
+    def score(self, extra: np.ndarray) -> tuple[float, list[np.ndarray]]:
+        """The cross-validation score with ``extra`` (normalised) columns added, and per axis the
+        coefficients of those columns fitted on all training samples."""
+        score = 0.0
+        full_coefficients = []
+        width = extra.shape[1]
+        for design, target, grams, moments in self.axes:
+            fixed_width = design.shape[1]
+            block_grams, block_moments = [], []
+            for b, gram_ff, moment_f in zip(self.blocks, grams, moments):
+                columns = extra[b]
+                cross = design[b].T @ columns
+                gram = np.block([[gram_ff, cross], [cross.T, columns.T @ columns]])
+                block_grams.append(gram)
+                block_moments.append(np.concatenate([moment_f, columns.T @ target[b]]))
+            gram_total, moment_total = sum(block_grams), sum(block_moments)
+            full_coefficients.append(np.linalg.lstsq(gram_total, moment_total, rcond=1e-13)[0][fixed_width:])
+            sse = 0.0
+            for fold in range(CV_FOLDS):
+                held = range(fold, len(self.blocks), CV_FOLDS)
+                gram = gram_total - sum(block_grams[i] for i in held)
+                moment = moment_total - sum(block_moments[i] for i in held)
+                beta = np.linalg.lstsq(gram, moment, rcond=1e-13)[0]
+                for i in held:
+                    b = self.blocks[i]
+                    error = target[b] - design[b] @ beta[:fixed_width]
+                    if width:
+                        error = error - extra[b] @ beta[fixed_width:]
+                    sse += float(error @ error)
+            score += math.log(max(sse, 1e-300))
+        return score, full_coefficients
+
+
+def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_order: int = 3,
+                     scale_order: int = 2, temp_code_ref: float | None = None,
+                     nominal_scale: tuple[float, float, float] | None = None,
+                     train_mask: np.ndarray | None = None) -> FitResult:
+    """The implementation of :func:`tak_thermo_ros.core.fit.fit_model`."""
+    if train_mask is None:
+        mask = np.ones(len(samples), dtype=bool)
+    else:
+        mask = np.asarray(train_mask, dtype=bool)
+        if mask.shape != (len(samples),):
+            msg = f'train_mask: expected {len(samples)} booleans, got shape {mask.shape}'
+            raise FitError(msg)
+    train = _subset(samples, mask) if not mask.all() else samples
+    base = fit_calibration(train, bias_order=bias_order, scale_order=scale_order,
+                           temp_code_ref=temp_code_ref, nominal_scale=nominal_scale)
+    chosen: list[tuple[Effect | None, type[Effect], bool]] = []
+    names_seen: set[str] = set()
+    for spec in effects:
+        if isinstance(spec, Effect):
+            cls, effect, fixed = resolve_effect(type(spec)), spec, True
+        else:
+            cls = resolve_effect(spec)
+            effect, fixed = _template(cls), False
+        if cls.name in names_seen:
+            msg = f'effect {cls.name}: given twice'
+            raise FitError(msg)
+        names_seen.add(cls.name)
+        chosen.append((effect, cls, fixed))
+    if not chosen:
+        return base
+
+    calibration0 = base.calibration
+    ref, low, high = calibration0.temp_code_ref, calibration0.temp_code_min, calibration0.temp_code_max
+    n_scale = max(abs(low - ref), abs(high - ref), 1.0)
+    held = single_input_axes(train)
+    code_all = np.clip(samples.temp_code, low, high)  # what the corrector's clamp policy gives
+    stamp_all = seconds_from_ns(samples.stamp_ns)
+    time_train = stamp_all[mask]
+    code_train = code_all[mask]
+    force = train.reference
+    counts = train.counts
+    u = (code_train - ref) / n_scale
+    powers = [np.ones_like(u)]
+    for _ in range(max(bias_order, scale_order)):
+        powers.append(powers[-1] * u)
+
+    # Fixed columns per axis: base model, then the input effects' amplitudes.
+    input_effects = [(effect, cls) for effect, cls, _ in chosen if cls.kind == INPUT]
+    fixed, targets, names = [], [], []
+    base_counts = []
+    for i in range(3):
+        if held[i]:
+            columns = [powers[j] for j in range(bias_order + 1)]
+            column_names = ['the offset polynomial'] * len(columns)
+            target = counts[:, i] - calibration0.axes[i].scale * force[:, i]
+        else:
+            columns = [force[:, i] * powers[j] for j in range(scale_order + 1)]
+            columns += [powers[j] for j in range(bias_order + 1)]
+            column_names = ['the scale polynomial'] * (scale_order + 1) + ['the offset polynomial'] * (bias_order + 1)
+            target = counts[:, i]
+        base_counts.append(len(columns))
+        for effect, cls in input_effects:
+            for name, column in (effect or cls()).input_columns(i, force):
+                columns.append(column)
+                column_names.append(f'{cls.name} ({name})')
+        fixed.append(np.column_stack(columns))
+        targets.append(target)
+        names.append(column_names)
+    projection = _Projection(fixed, targets, names)
+
+    # Offset effects.
+    offsets: list[_Offset] = []
+    for effect, cls, fixed_shape in chosen:
+        if cls.kind == INPUT:
+            continue
+        if fixed_shape:
+            entry = _Offset(effect=effect, mode='fixed')
+        else:
+            structures = cls.structures(time_train, code_train)
+            if structures is not None:
+                if not structures:
+                    msg = f'effect {cls.name}: the temperature codes of this run do not span a range'
+                    raise FitError(msg)
+                entry = _Offset(effect=structures[0], mode='structure', structures=structures)
+            else:
+                if effect is None:
+                    msg = f'effect {cls.name}: its parameters have no defaults to start a search from'
+                    raise FitError(msg)
+                space = cls.search_space(time_train, code_train)
+                varies = effect.shape_varies()
+                searched = tuple((name, *space[name]) for name in effect.shape_names()
+                                 if varies.get(name, True) and name in space
+                                 and all(math.isfinite(v) for v in space[name][:2]))
+                entry = _Offset(effect=effect, mode='search' if searched else 'fixed', searched=searched)
+        if entry.mode == 'fixed':
+            entry.basis = entry.effect.basis(stamp_all, code_all)
+            entry.done = True
+        offsets.append(entry)
+
+    def extra_columns(skip: _Offset | None = None, with_basis: np.ndarray | None = None) -> np.ndarray:
+        return extra_and_norms(skip, with_basis)[0]
+
+    def extra_and_norms(skip: _Offset | None = None,
+                        with_basis: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        blocks = [entry.basis[mask] for entry in offsets if entry is not skip and entry.done]
+        if with_basis is not None:
+            blocks.append(with_basis[mask])
+        if not blocks:
+            return np.zeros((int(mask.sum()), 0)), np.zeros(0)
+        return _normalised(np.column_stack(blocks))
+
+    def visible(phi: np.ndarray) -> bool:
+        whole = np.max(np.abs(phi), axis=0)
+        seen = np.max(np.abs(phi[mask]), axis=0) if mask.any() else np.zeros_like(whole)
+        return bool(np.all(seen >= VISIBLE * whole))
+
+    def profiled(entry: _Offset, candidate: Effect) -> float:
+        """``sum_axes ln RSS`` with the candidate's basis, or INVALID when its amplitudes leave their bounds."""
+        phi = basis_of(entry, candidate)
+        if not visible(phi):
+            return INVALID
+        columns, norms = extra_and_norms(skip=entry, with_basis=phi)
+        rss, coefficients = projection.rss(columns)
+        width = phi.shape[1]
+        amplitudes = [c[-width:] / norms[-width:] for c in coefficients]
+        if not _amplitudes_within_bounds(candidate, amplitudes):
+            return INVALID
+        return float(np.sum(np.log(rss)))
+
+    def basis_of(entry: _Offset, effect: Effect, *, exact: bool = False) -> np.ndarray:
+        key = (exact, tuple(sorted(effect.values.items())))
+        if key not in entry.cache:
+            entry.cache[key] = (effect.basis if exact else effect.search_basis)(stamp_all, code_all)
+        return entry.cache[key]
+
+    def search(entry: _Offset) -> None:
+        if entry.mode == 'structure':
+            validation = _CrossValidation(fixed, targets)
+            best = None
+            for candidate in entry.structures:
+                phi = basis_of(entry, candidate)
+                if not visible(phi):
+                    continue
+                columns, norms = extra_and_norms(skip=entry, with_basis=phi)
+                score, coefficients = validation.score(columns)
+                width = phi.shape[1]
+                if not _amplitudes_within_bounds(candidate, [c[-width:] / norms[-width:] for c in coefficients]):
+                    continue
+                if best is None or score < best[0]:
+                    best = (score, candidate, phi)
+            if best is None:
+                msg = f'effect {entry.effect.name}: no candidate keeps its amplitudes within their bounds'
+                raise FitError(msg)
+            entry.effect, entry.basis = best[1], basis_of(entry, best[1], exact=True)
+            entry.done = True
+            return
+        for name, low_value, high_value, log in entry.searched:
+            to_value = (lambda s: math.exp(s)) if log else (lambda s: s)
+            a, b = (math.log(low_value), math.log(high_value)) if log else (low_value, high_value)
+
+            def objective(s: float, name=name, to_value=to_value) -> float:
+                return profiled(entry, entry.effect.replace(**{name: to_value(s)}))
+
+            grid = np.linspace(a, b, GRID_POINTS)
+            values = [objective(s) for s in grid]
+            j = int(np.argmin(values))
+            if values[j] >= INVALID:
+                msg = (f'effect {entry.effect.name}: no {name} in {low_value:g}..{high_value:g} keeps its '
+                       f'amplitudes within their bounds on these samples')
+                raise FitError(msg)
+            best_s, best_value = float(grid[j]), values[j]
+            lo, hi = float(grid[max(j - 1, 0)]), float(grid[min(j + 1, GRID_POINTS - 1)])
+            result = minimize_scalar(objective, bounds=(lo, hi), method='bounded',
+                                     options={'xatol': 1e-3 if log else 1e-3 * (b - a)})
+            if result.fun < best_value:
+                best_s = float(result.x)
+            entry.effect = entry.effect.replace(**{name: to_value(best_s)})
+        entry.basis = basis_of(entry, entry.effect, exact=True)
+        entry.done = True
+
+    pending = [entry for entry in offsets if entry.mode != 'fixed']
+    for entry in pending:
+        search(entry)
+    if len(pending) > 1:
+        for entry in pending:
+            search(entry)
+
+    # Final least squares over the training samples.
+    extra_raw = np.column_stack([entry.basis[mask] for entry in offsets]) if offsets else np.zeros((len(u), 0))
+    betas, residual_sums, designs = [], [], []
+    for i in range(3):
+        design = np.column_stack([fixed[i], extra_raw])
+        norms = np.sqrt(np.mean(design ** 2, axis=0))
+        norms[norms == 0.0] = 1.0
+        solution, _, rank, singular = np.linalg.lstsq(design / norms, targets[i], rcond=None)
+        if rank < design.shape[1]:
+            offender = _first_dependent(design / norms, names[i] + _offset_column_names(offsets))
+            msg = (f'axis {AXIS_NAMES[i]}: the data cannot separate {offender} from the other model terms '
+                   f'(the inputs and temperatures of this run do not excite it)')
+            raise FitError(msg)
+        beta = solution / norms
+        betas.append(beta)
+        residual = targets[i] - design @ beta
+        residual_sums.append(float(residual @ residual))
+        designs.append((design, norms))
+
+    # Assemble the calibration.
+    axes_models = []
+    for i in range(3):
+        beta = betas[i]
+        if held[i]:
+            axes_models.append(AxisModel.from_polynomials(
+                scale=calibration0.axes[i].scale, offset=beta[0],
+                offset_coeffs=[beta[j] / n_scale ** j for j in range(1, bias_order + 1)], scale_coeffs=(),
+                code_offset_range=(low - ref, high - ref), scale_observable=False))
+            continue
+        scale = beta[0]
+        if not scale > 0.0:
+            msg = f'axis {AXIS_NAMES[i]}: fitted scale {scale:g} counts per m/s^2 is not positive'
+            raise FitError(msg)
+        axes_models.append(AxisModel.from_polynomials(
+            scale=scale, offset=beta[scale_order + 1],
+            offset_coeffs=[beta[scale_order + 1 + j] / n_scale ** j for j in range(1, bias_order + 1)],
+            scale_coeffs=[beta[j] / (scale * n_scale ** j) for j in range(1, scale_order + 1)],
+            code_offset_range=(low - ref, high - ref)))
+
+    fitted: dict[str, Effect] = {}
+    for effect, cls in input_effects:
+        values = {}
+        for i in range(3):
+            position = base_counts[i]
+            for other, other_cls in input_effects:
+                columns = (other or other_cls()).input_columns(i, force[:1])
+                if other_cls is cls:
+                    for k, (name, _) in enumerate(columns):
+                        values[name] = float(betas[i][position + k])
+                position += len(columns)
+        fitted[cls.name] = _build(cls, values)
+    for index, entry in enumerate(offsets):
+        values = {name: entry.effect[name] for name in entry.effect.shape_names()}
+        for i in range(3):
+            position = fixed[i].shape[1] + sum(o.basis.shape[1] for o in offsets[:index])
+            for k, name in enumerate(entry.effect.amplitude_names()[i]):
+                values[name] = float(betas[i][position + k])
+        fitted[entry.effect.name] = _build(type(entry.effect), values)
+    ordered = tuple(fitted[cls.name] for _, cls, _ in chosen)
+
+    calibration = Calibration(temp_code_ref=ref, temp_code_min=low, temp_code_max=high,
+                              axes=tuple(axes_models), notes=calibration0.notes,  # type: ignore[arg-type]
+                              effects=ordered)
+    residual = residual_counts(calibration, samples)[mask]
+    count = int(mask.sum())
+    shape_count = sum(len(entry.searched) + (1 if entry.mode == 'structure' else 0) for entry in offsets)
+    stats, final_axes = [], []
+    for i, axis in enumerate(calibration.axes):
+        rss = float(np.sum(residual[:, i] ** 2))
+        rms = math.sqrt(rss / count)
+        parameters = fixed[i].shape[1] + extra_raw.shape[1] + shape_count
+        bic = count * math.log(max(rss, 1e-300) / count) + parameters * math.log(count)
+        stats.append(AxisFit(residual_rms=rms, parameters=parameters, bic=bic))
+        final_axes.append(replace(axis, residual_rms=rms))
+    calibration = replace(calibration, axes=tuple(final_axes))
+    try:
+        check_scale_positive(calibration, key='fit')
+    except CalibrationError as err:
+        raise FitError(str(err)) from None
+    errors = _standard_errors(offsets, input_effects, designs, residual_sums, betas, fixed, force,
+                              stamp_all, code_all, mask)
+    return FitResult(calibration=calibration, axes=tuple(stats),  # type: ignore[arg-type]
+                     samples=count, dropped=dict(samples.dropped), parameter_errors=errors)
+
+
+def _build(cls: type[Effect], values: dict[str, float]) -> Effect:
+    try:
+        return cls.from_values(values, key=f'effect {cls.name}', complete=True)
+    except CalibrationError as err:
+        msg = f'fitted {err}'
+        raise FitError(msg) from None
+
+
+def _offset_column_names(offsets: list[_Offset]) -> list[str]:
+    names = []
+    for entry in offsets:
+        names += [entry.effect.name] * entry.basis.shape[1]
+    return names
+
+
+def _first_dependent(design: np.ndarray, names: list[str]) -> str:
+    """The first column (by name) that makes the design rank-deficient."""
+    for end in range(1, design.shape[1] + 1):
+        if np.linalg.matrix_rank(design[:, :end]) < end:
+            return names[end - 1]
+    return names[-1]
+
+
+def _standard_errors(offsets, input_effects, designs, residual_sums, betas, fixed, force,
+                     stamp_all, code_all, mask) -> dict[str, float]:
+    """Standard errors from the Fisher information of amplitudes and shape parameters together."""
+    count = int(mask.sum())
+    shape_parameters = []  # (entry index, name, log, value)
+    for index, entry in enumerate(offsets):
+        for name, _, _, log in entry.searched:
+            shape_parameters.append((index, name, log, entry.effect[name]))
+    blocks = [design.shape[1] for design, _ in designs]
+    size = sum(blocks) + len(shape_parameters)
+    fisher = np.zeros((size, size))
+    variances = []
+    # Derivatives of every axis's model with respect to each searched shape coordinate.
+    derivatives = np.zeros((3, count, len(shape_parameters)))
+    for column, (index, name, log, value) in enumerate(shape_parameters):
+        entry = offsets[index]
+        step = SHAPE_STEP if log else SHAPE_STEP * max(abs(value), 1.0)
+        values = [(value * math.exp(h) if log else value + h) for h in (step, -step)]
+        upper, lower = (entry.effect.replace(**{name: v}).basis(stamp_all, code_all)[mask] for v in values)
+        slope = (upper - lower) / (2.0 * step)
+        for i in range(3):
+            position = fixed[i].shape[1] + sum(o.basis.shape[1] for o in offsets[:index])
+            coefficients = betas[i][position:position + entry.basis.shape[1]]
+            derivatives[i, :, column] = slope @ coefficients
+    offset = 0
+    for i, (design, norms) in enumerate(designs):
+        dof = max(count - design.shape[1] - len(shape_parameters), 1)
+        variance = residual_sums[i] / dof
+        variances.append(variance)
+        jacobian = np.column_stack([design / norms, derivatives[i]])
+        information = jacobian.T @ jacobian / variance
+        width = design.shape[1]
+        rows = list(range(offset, offset + width)) + list(range(sum(blocks), size))
+        fisher[np.ix_(rows, rows)] += information
+        offset += width
+    covariance = np.linalg.pinv(fisher, rcond=1e-14, hermitian=True)
+    deviation = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+    errors: dict[str, float] = {}
+    offset = 0
+    for i, (design, norms) in enumerate(designs):
+        names = _amplitude_layout(i, offsets, input_effects, fixed, force)
+        for position, label in names.items():
+            errors[label] = float(deviation[offset + position] / norms[position])
+        offset += design.shape[1]
+    for column, (index, name, log, value) in enumerate(shape_parameters):
+        sigma = float(deviation[sum(blocks) + column])
+        errors[f'{offsets[index].effect.name}.{name}'] = value * sigma if log else sigma
+    return errors
+
+
+def _amplitude_layout(axis: int, offsets, input_effects, fixed, force) -> dict[int, str]:
+    """Design column -> ``'<effect>.<amplitude>'`` for one axis."""
+    layout = {}
+    position = fixed[axis].shape[1] - sum(len((e or c()).input_columns(axis, force[:1])) for e, c in input_effects)
+    for effect, cls in input_effects:
+        for name, _ in (effect or cls()).input_columns(axis, force[:1]):
+            layout[position] = f'{cls.name}.{name}'
+            position += 1
+    position = fixed[axis].shape[1]
+    for entry in offsets:
+        for name in entry.effect.amplitude_names()[axis]:
+            layout[position] = f'{entry.effect.name}.{name}'
+            position += 1
+    return layout

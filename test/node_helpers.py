@@ -1,0 +1,249 @@
+"""Helpers for tests that run the real ``compensator`` node and talk to it with rclpy.
+
+The node runs as a subprocess in its own session (stopped by SIGINT to its group, then
+SIGKILL); the test process has its own rclpy context on the same, test-specific, domain.
+Every wait is on a condition (matched endpoints, a message received, a log line), never a
+fixed sleep.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import rclpy
+from geometry_msgs.msg import Vector3Stamped
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Imu, Temperature
+
+NANOSECONDS = 1_000_000_000
+RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+
+
+def domain_id(index: int) -> int:
+    """A ROS domain for test ``index``, from the process id: in 1..100 (safe for Fast DDS ports)."""
+    return 1 + (os.getpid() * 7 + index * 31) % 100
+
+
+def ros_environment(tmp_path: Path, domain: int) -> dict[str, str]:
+    """Environment of a ROS process confined to this host, this domain and ``tmp_path``."""
+    home = tmp_path / 'ros_home'
+    home.mkdir(exist_ok=True)
+    return {
+        **os.environ,
+        'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+        'ROS_DOMAIN_ID': str(domain),
+        'ROS_HOME': str(home),
+        'ROS_LOG_DIR': str(home / 'log'),
+        'RCUTILS_COLORIZED_OUTPUT': '0',
+        'PYTHONUNBUFFERED': '1',
+    }
+
+
+def node_command(*ros_args: str) -> list[str]:
+    """Command line running the node module with this interpreter."""
+    return [sys.executable, '-m', 'tak_thermo_ros.node', '--ros-args', *ros_args]
+
+
+class NodeProcess:
+    """A node subprocess in its own session, its output in a file.
+
+    :param command: the command line.
+    :param env: its environment.
+    :param log_path: file collecting stdout and stderr.
+    :param cwd: working directory (default: this one).
+    """
+
+    def __init__(self, command: Sequence[str], env: dict[str, str], log_path: Path, *,
+                 cwd: Path | None = None) -> None:
+        self.log_path = log_path
+        self._log = open(log_path, 'wb')  # noqa: SIM115 - closed in stop()
+        self.process = subprocess.Popen(list(command), env=env, stdout=self._log, stderr=subprocess.STDOUT,
+                                        stdin=subprocess.DEVNULL, start_new_session=True, cwd=cwd)
+
+    def log(self) -> str:
+        """Everything the node printed so far."""
+        return self.log_path.read_text(encoding='utf-8', errors='replace')
+
+    def stop(self, timeout: float = 10.0) -> int:
+        """SIGINT to the process group, SIGKILL after ``timeout``; the exit code."""
+        if self.process.poll() is None:
+            try:
+                os.killpg(self.process.pid, signal.SIGINT)
+            except ProcessLookupError:
+                pass
+            try:
+                self.process.wait(timeout)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.process.pid, signal.SIGKILL)
+                self.process.wait()
+        self._log.close()
+        return self.process.returncode
+
+    def __enter__(self) -> NodeProcess:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.stop()
+
+
+def run_to_exit(command: Sequence[str], env: dict[str, str], timeout: float = 60.0) -> subprocess.CompletedProcess:
+    """Run a command that should exit by itself (in its own session, killed on timeout)."""
+    with subprocess.Popen(list(command), env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                          stdin=subprocess.DEVNULL, start_new_session=True) as process:
+        try:
+            out, err = process.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            os.killpg(process.pid, signal.SIGKILL)
+            out, err = process.communicate()
+        return subprocess.CompletedProcess(process.args, process.returncode, out, err)
+
+
+def wait_until(condition: Callable[[], bool], timeout: float, *, step: Callable[[], None] | None = None,
+               what: str = 'condition') -> None:
+    """Call ``step`` (or sleep briefly) until ``condition()`` holds; fail after ``timeout`` s."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            msg = f'timed out after {timeout} s waiting for {what}'
+            raise AssertionError(msg)
+        if step is not None:
+            step()
+        else:
+            time.sleep(0.01)
+
+
+def header_stamp(message: Any, stamp_ns: int) -> None:
+    """Set a message's header stamp from integer nanoseconds."""
+    message.header.stamp.sec, message.header.stamp.nanosec = divmod(int(stamp_ns), NANOSECONDS)
+
+
+def stamp_of(message: Any) -> int:
+    """A message's header stamp in integer nanoseconds."""
+    return message.header.stamp.sec * NANOSECONDS + message.header.stamp.nanosec
+
+
+class Harness:
+    """The test side: publishers of counts and temperature codes, subscribers of the outputs.
+
+    :param domain: ROS domain id (the node's).
+    :param namespace: namespace of the node under test (topics are relative to it).
+    """
+
+    def __init__(self, domain: int, *, namespace: str = '') -> None:
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.node = rclpy.create_node('compensator_test', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        prefix = f'/{namespace.strip("/")}/' if namespace.strip('/') else '/'
+        self.counts = self.node.create_publisher(Vector3Stamped, prefix + 'tak/counts', RELIABLE)
+        self.temperature = self.node.create_publisher(Temperature, prefix + 'tak/temp_code', RELIABLE)
+        self.imu: list[Imu] = []
+        self.imu_subscription = self.node.create_subscription(Imu, prefix + 'tak/imu/data_raw',
+                                                              self.imu.append, RELIABLE)
+        self.temperatures_sent = 0
+        self.diagnostics: list[Any] = []
+        from diagnostic_msgs.msg import DiagnosticArray
+        self.diagnostics_subscription = self.node.create_subscription(
+            DiagnosticArray, '/diagnostics', self.diagnostics.append, 10)
+
+    def spin_once(self) -> None:
+        """Handle what is ready (waiting at most 10 ms)."""
+        self.executor.spin_once(timeout_sec=0.01)
+
+    def wait(self, condition: Callable[[], bool], timeout: float = 20.0, what: str = 'condition') -> None:
+        """Spin until ``condition()`` holds."""
+        wait_until(condition, timeout, step=self.spin_once, what=what)
+
+    def wait_matched(self, timeout: float = 30.0) -> None:
+        """Wait until the node's endpoints are matched with ours."""
+        self.wait(lambda: (self.counts.get_subscription_count() >= 1
+                           and self.temperature.get_subscription_count() >= 1
+                           and self.imu_subscription.get_publisher_count() >= 1
+                           and self.diagnostics_subscription.get_publisher_count() >= 1),
+                  timeout, 'the compensator node to match the test endpoints')
+        # Discovery is not symmetric: the node's Imu writer may match our reader later than our
+        # reader matched it. The node reports its matched count in diagnostics.
+        self.wait(lambda: self.latest_status() is not None
+                  and int(status_values(self.latest_status()).get('imu_subscribers', '0')) >= 1,
+                  timeout, 'the compensator Imu publisher to match the test subscription')
+
+    def send_temperature(self, stamp_ns: int, code: float) -> None:
+        """Publish one temperature code."""
+        message = Temperature()
+        header_stamp(message, stamp_ns)
+        message.temperature = float(code)
+        self.temperature.publish(message)
+        self.temperatures_sent += 1
+
+    def send_temperature_and_wait(self, stamp_ns: int, code: float, timeout: float = 10.0) -> None:
+        """Publish one temperature code and wait until the node's diagnostics show it taken.
+
+        The code and the next counts message travel on different topics: waiting makes sure the
+        node has the code before that counts message arrives.
+        """
+        self.send_temperature(stamp_ns, code)
+        sent = self.temperatures_sent
+        self.wait(lambda: self.latest_status() is not None
+                  and int(status_values(self.latest_status())['temperature_messages']) >= sent,
+                  timeout, 'the node to take the temperature code')
+
+    def send_counts(self, stamp_ns: int, x: float, y: float, z: float, frame_id: str = 'tak_imu') -> None:
+        """Publish one counts message."""
+        message = Vector3Stamped()
+        header_stamp(message, stamp_ns)
+        message.header.frame_id = frame_id
+        message.vector.x, message.vector.y, message.vector.z = float(x), float(y), float(z)
+        self.counts.publish(message)
+
+    def set_parameters(self, values: dict[str, Any], *, atomically: bool = False,
+                       node_name: str = '/compensator') -> list[Any]:
+        """Call the node's SetParameters (or SetParametersAtomically) service; the results."""
+        from rcl_interfaces.srv import SetParameters, SetParametersAtomically
+        from rclpy.parameter import Parameter
+        kind, service = ((SetParametersAtomically, 'set_parameters_atomically') if atomically
+                         else (SetParameters, 'set_parameters'))
+        client = self.node.create_client(kind, f'{node_name}/{service}')
+        try:
+            self.wait(client.service_is_ready, 20.0, f'service {node_name}/{service}')
+            request = kind.Request(parameters=[Parameter(name, value=value).to_parameter_msg()
+                                               for name, value in values.items()])
+            future = client.call_async(request)
+            self.wait(future.done, 20.0, f'the answer of {node_name}/{service}')
+        finally:
+            self.node.destroy_client(client)
+        response = future.result()
+        return [response.result] if atomically else list(response.results)
+
+    def latest_status(self) -> Any | None:
+        """The last diagnostics status of the compensator received, or ``None``."""
+        for array_message in reversed(self.diagnostics):
+            for status in array_message.status:
+                if 'temperature compensation' in status.name:
+                    return status
+        return None
+
+    def close(self) -> None:
+        """Tear the test node and context down."""
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+    def __enter__(self) -> Harness:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+def status_values(status: Any) -> dict[str, str]:
+    """A diagnostics status's key/value pairs as a dict."""
+    return {pair.key: pair.value for pair in status.values}

@@ -1,0 +1,282 @@
+"""The real ``compensator`` node, talked to with real rclpy from the test process."""
+
+from __future__ import annotations
+
+import ast
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from node_helpers import (
+    NANOSECONDS,
+    Harness,
+    NodeProcess,
+    domain_id,
+    node_command,
+    ros_environment,
+    run_to_exit,
+    stamp_of,
+    status_values,
+    wait_until,
+)
+from tak_thermo_ros import cli
+from tak_thermo_ros.bagio import read_imu, read_record, write_record
+from tak_thermo_ros.core.calibration_file import calibration_yaml, load_calibration, write_text_atomic
+from tak_thermo_ros.core.correction import Corrector, OutOfRange
+from tak_thermo_ros.core.online import ONLINE_DROP_REASONS
+from tak_thermo_ros.core.simulate import Scenario, simulate
+
+REPO = Path(__file__).resolve().parent.parent
+START_NS = 1_700_000_000 * NANOSECONDS
+CALIBRATION = Scenario().truth()  # temperature-code range 7600..8800, reference 8200
+
+
+@pytest.fixture
+def ros_env(tmp_path, monkeypatch, request):
+    """Environment of this test's ROS processes (also applied to the test process)."""
+    index = sum(ord(c) for c in request.node.name)
+    env = ros_environment(tmp_path, domain_id(index))
+    for key in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_DOMAIN_ID', 'ROS_HOME', 'ROS_LOG_DIR'):
+        monkeypatch.setenv(key, env[key])
+    return env
+
+
+def write_params(path: Path, calibration=CALIBRATION, **parameters) -> Path:
+    """A params file: the calibration and the node's parameters."""
+    write_text_atomic(path, calibration_yaml(calibration, extra_parameters=parameters))
+    return path
+
+
+def acceleration(message) -> tuple[float, float, float]:
+    """The linear acceleration of an Imu message."""
+    a = message.linear_acceleration
+    return a.x, a.y, a.z
+
+
+def test_bad_input_cases_have_their_defined_behaviour(tmp_path, ros_env):
+    """Waiting, bad counts, odd stamps, out of range, stale: published or dropped, logged, counted."""
+    params = write_params(tmp_path / 'params.yaml', qos='reliable', temp_timeout=30.0,
+                          stale_temperature='drop')
+    clamp = Corrector(CALIBRATION, out_of_range=OutOfRange.CLAMP)
+    extrapolate = Corrector(CALIBRATION, out_of_range=OutOfRange.EXTRAPOLATE)
+    with NodeProcess(node_command('--params-file', str(params)), ros_env, tmp_path / 'node.log') as node, \
+            Harness(int(ros_env['ROS_DOMAIN_ID'])) as ros:
+        ros.wait_matched()
+
+        def status_with(condition):
+            ros.wait(lambda: ros.latest_status() is not None and condition(status_values(ros.latest_status())),
+                     10.0, 'a diagnostics status')
+            return ros.latest_status()
+
+        # No temperature code yet: nothing published, WARN naming the resolved topic.
+        ros.send_counts(START_NS, 100.0, -50.0, 2500.0)
+        status = status_with(lambda v: v['dropped.waiting_for_temperature'] == '1')
+        assert status.level == b'\x01' and 'waiting for temperature code on /tak/temp_code' in status.message
+        wait_until(lambda: 'waiting for temperature code on /tak/temp_code' in node.log(), 10.0, what='the WARN')
+        assert '[WARN]' in next(line for line in node.log().splitlines() if 'waiting for temperature' in line)
+
+        # A code in range; good counts, every kind of bad counts, a duplicate and a backwards stamp.
+        ros.send_temperature_and_wait(START_NS, 8300.0)
+        sent = [
+            (START_NS + 1, (100.0, -50.0, 2500.0)),
+            (START_NS + 2, (math.nan, 0.0, 0.0)),
+            (START_NS + 3, (0.0, math.inf, 0.0)),
+            (START_NS + 4, (0.0, 0.0, -math.inf)),
+            (START_NS + 5, (1.5, 0.0, 0.0)),
+            (START_NS + 6, (32767.0, 0.0, 0.0)),
+            (START_NS + 7, (0.0, -32768.0, 0.0)),
+            (START_NS + 7, (101.0, -51.0, 2501.0)),   # duplicate stamp: passed through
+            (START_NS + 3, (102.0, -52.0, 2502.0)),   # backwards: passed through
+            (START_NS + 8, (103.0, -53.0, 2503.0)),
+        ]
+        for stamp, (x, y, z) in sent:
+            ros.send_counts(stamp, x, y, z)
+        good = [(stamp, xyz) for stamp, xyz in sent if xyz[0] in (100.0, 101.0, 102.0, 103.0)]
+        ros.wait(lambda: len(ros.imu) == len(good), 10.0, 'the Imu of the good counts')
+        assert [stamp_of(m) for m in ros.imu] == [stamp for stamp, _ in good]
+        for message, (_, xyz) in zip(ros.imu, good):
+            assert acceleration(message) == clamp.correct_sample(*xyz, 8300.0, stamp_s=0.0)
+            assert message.header.frame_id == 'tak_imu'
+            assert all(math.isfinite(v) for v in acceleration(message))
+
+        # Out of range: WARN with the code and the range, clamped by default, extrapolated on request.
+        ros.send_temperature_and_wait(START_NS + 9, 9500.0)
+        ros.send_counts(START_NS + 10, 200.0, 200.0, 200.0)
+        ros.wait(lambda: len(ros.imu) == len(good) + 1, 10.0, 'the out-of-range Imu')
+        assert acceleration(ros.imu[-1]) == clamp.correct_sample(200.0, 200.0, 200.0, 9500.0)
+        assert acceleration(ros.imu[-1]) == clamp.correct_sample(200.0, 200.0, 200.0, 8800.0)
+        wait_until(lambda: 'temperature code 9500 outside the calibrated range 7600..8800' in node.log(),
+                   10.0, what='the out-of-range WARN')
+        assert [r.successful for r in ros.set_parameters({'out_of_range': 'extrapolate'})] == [True]
+        ros.send_temperature_and_wait(START_NS + 11, 9500.0)
+        ros.send_counts(START_NS + 12, 200.0, 200.0, 200.0)
+        ros.wait(lambda: len(ros.imu) == len(good) + 2, 10.0, 'the extrapolated Imu')
+        assert acceleration(ros.imu[-1]) == extrapolate.correct_sample(200.0, 200.0, 200.0, 9500.0)
+        assert acceleration(ros.imu[-1]) != acceleration(ros.imu[-2])
+        rejected = ros.set_parameters({'out_of_range': 'wrap'})[0]
+        assert not rejected.successful and 'out_of_range' in rejected.reason
+
+        # Stale code (older than temp_timeout, now 0.3 s): diagnostics ERROR; 'drop' drops, 'hold' holds.
+        assert [r.successful for r in ros.set_parameters({'temp_timeout': 0.3})] == [True]
+        ros.send_temperature_and_wait(START_NS + 13, 8000.0)
+        status = status_with(lambda v: 'stale' in ros.latest_status().message)
+        assert status.level == b'\x02'
+        ros.send_counts(START_NS + 14, 300.0, 300.0, 300.0)
+        status_with(lambda v: v['dropped.stale_temperature'] == '1')
+        assert len(ros.imu) == len(good) + 2
+        assert [r.successful for r in ros.set_parameters({'stale_temperature': 'hold'})] == [True]
+        ros.send_counts(START_NS + 15, 300.0, 300.0, 300.0)
+        ros.wait(lambda: len(ros.imu) == len(good) + 3, 10.0, 'the Imu with the held code')
+        assert acceleration(ros.imu[-1]) == extrapolate.correct_sample(300.0, 300.0, 300.0, 8000.0)
+        status = status_with(lambda v: v['received'] == '15')
+        assert status.level == b'\x02'
+        assert 'is stale' in node.log() and '[ERROR]' in node.log()
+
+        # Every counts message published or counted as dropped with its reason.
+        values = status_values(status)
+        dropped = {reason: int(values[f'dropped.{reason}']) for reason in ONLINE_DROP_REASONS}
+        assert dropped == {'non_finite': 3, 'non_integer': 1, 'saturated': 2,
+                           'waiting_for_temperature': 1, 'stale_temperature': 1}
+        assert int(values['published']) == len(ros.imu) == 7
+        assert int(values['received']) == int(values['published']) + sum(dropped.values())
+        assert int(values['dropped']) == sum(dropped.values())
+        assert (values['time_backwards'], values['duplicate_stamps']) == ('1', '1')
+        assert values['out_of_range'] == '2'
+        assert node.stop() == 0
+    assert 'Traceback' not in node.log()
+
+
+def play(ros: Harness, record) -> None:
+    """Publish a run in stamp order (codes before counts at equal stamps), losing nothing.
+
+    Before each temperature code, every counts message sent so far has been answered, so the
+    node has corrected it with the code in force when it was recorded.
+    """
+    events = sorted([(int(s), 0, i) for i, s in enumerate(record.temp_stamp_ns)]
+                    + [(int(s), 2, i) for i, s in enumerate(record.counts_stamp_ns)])
+    sent = 0
+    for stamp, stream, row in events:
+        if stream == 0:
+            ros.wait(lambda: len(ros.imu) >= sent, 20.0, f'the node to catch up ({len(ros.imu)} of {sent})')
+            ros.send_temperature(stamp, record.temp_code[row])
+        else:
+            ros.wait(lambda: len(ros.imu) >= sent - 50, 20.0, f"the node to catch up ({len(ros.imu)} of {sent})")
+            ros.send_counts(stamp, *record.counts[row], frame_id=record.frame_id)
+            sent += 1
+    ros.wait(lambda: len(ros.imu) >= sent, 20.0, 'the last Imu')
+
+
+SHORT_RUN = Scenario(sample_rate_hz=10.0, plateaus_celsius=(10.0, 30.0), plateau_hours=0.01,
+                     ramp_celsius_per_minute=10.0, board_lag_s=5.0, dwell_s=2.0)
+"""About 250 s of chamber run, 2521 counts messages."""
+
+
+def test_node_output_equals_tak_calib_apply(tmp_path, ros_env):
+    """A bag played into the node gives apply's Imu for every message, float64-equal."""
+    bag, params, corrected = tmp_path / 'run.mcap', tmp_path / 'tak_params.yaml', tmp_path / 'imu.mcap'
+    write_record(bag, simulate(SHORT_RUN).record)
+    assert cli.main(['fit', str(bag), '-o', str(params), '--no-progress']) == 0
+    assert cli.main(['apply', str(bag), '--params', str(params), '-o', str(corrected), '--no-progress']) == 0
+    stamps, expected, frames, covariances = read_imu(corrected)
+    record = read_record(bag, progress=False)
+    with NodeProcess(node_command('--params-file', str(params), '-p', 'qos:=reliable'), ros_env,
+                     tmp_path / 'node.log') as node, Harness(int(ros_env['ROS_DOMAIN_ID'])) as ros:
+        ros.wait_matched()
+        play(ros, record)
+        assert node.stop() == 0
+    assert len(ros.imu) == len(stamps) == len(record.counts)
+    np.testing.assert_array_equal([stamp_of(m) for m in ros.imu], stamps)
+    got = np.array([acceleration(m) for m in ros.imu])
+    assert got.dtype == np.float64 and np.array_equal(got, expected)
+    assert [m.header.frame_id for m in ros.imu] == frames
+    np.testing.assert_array_equal([m.linear_acceleration_covariance for m in ros.imu], covariances)
+    first = ros.imu[0]
+    assert (first.orientation.x, first.orientation.y, first.orientation.z, first.orientation.w) == (0, 0, 0, 1)
+    assert first.orientation_covariance[0] == -1.0 and first.angular_velocity_covariance[0] == -1.0
+    assert (first.angular_velocity.x, first.angular_velocity.y, first.angular_velocity.z) == (0, 0, 0)
+
+
+def test_runtime_calibration_update_accepted_and_rejected(tmp_path, ros_env):
+    """A valid update is swapped in for the next message; a bad one is refused with its key."""
+    params = write_params(tmp_path / 'params.yaml', qos='reliable')
+    x = CALIBRATION.axes[0]
+    updated = replace(CALIBRATION, axes=(replace(x, offset=x.offset + 5.0), *CALIBRATION.axes[1:]))
+    moved = replace(updated, temp_code_min=7000.0, temp_code_max=9400.0)
+    with NodeProcess(node_command('--params-file', str(params)), ros_env, tmp_path / 'node.log') as node, \
+            Harness(int(ros_env['ROS_DOMAIN_ID'])) as ros:
+        ros.wait_matched()
+        ros.send_temperature_and_wait(START_NS, 9000.0)
+
+        def corrected(stamp_offset: int):
+            ros.send_counts(START_NS + stamp_offset, 500.0, -500.0, 2500.0)
+            ros.wait(lambda: len(ros.imu) == stamp_offset, 10.0, 'an Imu')
+            return acceleration(ros.imu[-1])
+
+        assert corrected(1) == Corrector(CALIBRATION).correct_sample(500.0, -500.0, 2500.0, 9000.0)
+        results = ros.set_parameters({'calibration.x.offset': x.offset + 5.0})
+        assert [r.successful for r in results] == [True]
+        assert corrected(2) == Corrector(updated).correct_sample(500.0, -500.0, 2500.0, 9000.0)
+
+        bad = ros.set_parameters({'calibration.x.scale': -1.0})[0]
+        assert not bad.successful and 'calibration.x.scale' in bad.reason and '> 0' in bad.reason
+        bad = ros.set_parameters({'calibration.y.scale_shape': [0.5]})[0]
+        assert not bad.successful and 'calibration.y.scale_shape: F_c <= 0' in bad.reason
+        bad = ros.set_parameters({'calibration.temp_code_min': 9000.0, 'calibration.temp_code_max': 7000.0},
+                                 atomically=True)[0]
+        assert not bad.successful and 'calibration.temp_code_min' in bad.reason
+        assert corrected(3) == Corrector(updated).correct_sample(500.0, -500.0, 2500.0, 9000.0)
+
+        both = ros.set_parameters({'calibration.temp_code_min': 7000.0, 'calibration.temp_code_max': 9400.0},
+                                  atomically=True)[0]
+        assert both.successful
+        assert corrected(4) == Corrector(moved).correct_sample(500.0, -500.0, 2500.0, 9000.0)
+        assert Corrector(moved).correct_sample(500.0, -500.0, 2500.0, 9000.0) != Corrector(
+            updated).correct_sample(500.0, -500.0, 2500.0, 9000.0)
+        read_only = ros.set_parameters({'qos': 'sensor_data'})[0]
+        assert not read_only.successful
+        ros.wait(lambda: ros.latest_status() is not None
+                 and status_values(ros.latest_status())['calibration_updates'] == '2', 10.0, 'the diagnostics')
+        assert status_values(ros.latest_status())['calibrated_range'] == '7000..9400'
+        assert node.stop() == 0
+    log = node.log()
+    assert 'parameter update rejected' in log and 'Traceback' not in log
+
+
+@pytest.mark.parametrize('case', ['params_file', 'calibration_file', 'missing', 'qos'])
+def test_bad_calibration_refused_at_startup(tmp_path, ros_env, case):
+    """A bad calibration (or parameter): exit code 2 and one line naming the key, no traceback."""
+    bad = CALIBRATION.axes[1]
+    text = calibration_yaml(CALIBRATION).replace(f'scale: {bad.scale!r}', 'scale: -3.0')
+    path = tmp_path / 'bad.yaml'
+    path.write_text(text, encoding='utf-8')
+    args = {'params_file': ['--params-file', str(path)],
+            'calibration_file': ['-p', f'calibration_file:={path}'],
+            'missing': ['-p', 'qos:=reliable'],
+            'qos': ['--params-file', str(write_params(tmp_path / 'good.yaml', qos='fast'))]}[case]
+    result = run_to_exit(node_command(*args), ros_env)
+    lines = (result.stdout + result.stderr).strip().splitlines()
+    assert result.returncode == 2
+    assert len(lines) == 1, lines
+    assert 'Traceback' not in lines[0] and '[FATAL]' in lines[0]
+    expected = {'missing': 'calibration: missing for node /compensator',
+                'qos': "qos: expected one of 'sensor_data', 'reliable', got 'fast'"}.get(
+        case, 'calibration.y.scale: must be > 0')
+    assert expected in lines[0]
+
+
+def test_launch_file_and_example_config():
+    """The launch file parses; the example config is a valid calibration with the node's defaults."""
+    from tak_thermo_ros.node import _tunables
+    source = (REPO / 'launch' / 'compensator.launch.py').read_text(encoding='utf-8')
+    tree = ast.parse(source)
+    compile(tree, 'compensator.launch.py', 'exec')
+    assert any(isinstance(n, ast.FunctionDef) and n.name == 'generate_launch_description' for n in tree.body)
+    config = REPO / 'config' / 'compensator.yaml'
+    load_calibration(config)
+    parameters = yaml.safe_load(config.read_text(encoding='utf-8'))['/**/compensator']['ros__parameters']
+    defaults = {name: default for name, (default, _, _) in _tunables().items()}
+    assert {k: v for k, v in parameters.items() if k != 'calibration'} == defaults

@@ -1,0 +1,276 @@
+"""The node's logic without ROS: OnlineCompensator, one message at a time."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from tak_thermo_ros.bagio import imu_covariances as bag_imu_covariances
+from tak_thermo_ros.core.correction import Corrector, OutOfRange, acceleration_variance
+from tak_thermo_ros.core.online import (
+    ONLINE_DROP_REASONS,
+    Level,
+    OnlineCompensator,
+    StaleTemperature,
+    imu_covariances,
+)
+from tak_thermo_ros.core.record import counts_problems
+from tak_thermo_ros.core.simulate import Scenario
+
+CALIBRATION = Scenario().truth()  # temperature-code range 7600..8800
+SEC = 1_700_000_000
+
+
+def make(**kwargs) -> OnlineCompensator:
+    """A compensator on the default unit, topic '/tak/temp_code'."""
+    return OnlineCompensator(CALIBRATION, temp_topic='/tak/temp_code', **kwargs)
+
+
+def kinds(core: OnlineCompensator) -> list[str]:
+    """The kinds of the notices due (and empty the list)."""
+    return [notice.kind for notice in core.take_notices()]
+
+
+def balanced(core: OnlineCompensator) -> bool:
+    """received == published + sum(dropped)."""
+    return core.received == core.published + sum(core.dropped.values())
+
+
+def test_waiting_for_temperature_publishes_nothing_and_warns_with_topic():
+    """Before the first code: dropped as waiting, a WARN naming the topic, status WARN."""
+    core = make()
+    assert core.waiting_for_temperature
+    assert core.process_counts(SEC, 0, 10.0, 20.0, 30.0, now_s=0.0) == 'waiting_for_temperature'
+    notices = core.take_notices()
+    assert [(n.level, n.kind) for n in notices] == [(Level.WARN, 'waiting_for_temperature')]
+    assert 'waiting for temperature code on /tak/temp_code' in notices[0].text
+    assert core.process_counts(SEC, 1, 10.0, 20.0, 30.0, now_s=1.0) == 'waiting_for_temperature'
+    assert kinds(core) == []  # throttled ...
+    core.tick(6.0)
+    notices = core.take_notices()
+    assert len(notices) == 1 and '1 more since the last report' in notices[0].text  # ... never silent
+    status = core.status(6.0)
+    assert status.level is Level.WARN and 'waiting for temperature code on /tak/temp_code' in status.message
+    assert status.value('dropped.waiting_for_temperature') == '2' and status.value('published') == '0'
+    assert core.process_temperature(8200.0, now_s=6.5)
+    assert not core.waiting_for_temperature
+    assert isinstance(core.process_counts(SEC, 2, 10.0, 20.0, 30.0, now_s=6.6), tuple)
+    assert balanced(core)
+
+
+@pytest.mark.parametrize(('counts', 'reason'), [
+    ((math.nan, 0.0, 0.0), 'non_finite'),
+    ((0.0, math.inf, 0.0), 'non_finite'),
+    ((0.0, 0.0, -math.inf), 'non_finite'),
+    ((0.5, 0.0, 0.0), 'non_integer'),
+    ((0.0, 12.25, 1.5), 'non_integer'),
+    ((32767.0, 0.0, 0.0), 'saturated'),
+    ((0.0, -32768.0, 0.0), 'saturated'),
+    ((math.nan, 32767.0, 0.5), 'non_finite'),
+    ((0.5, 32767.0, 0.0), 'non_integer'),
+])
+def test_bad_counts_dropped_by_reason_as_apply_drops_them(counts, reason):
+    """NaN, infinite, non-integer and saturated counts: dropped with apply's reason, never numbers."""
+    core = make()
+    core.process_temperature(8200.0, now_s=0.0)
+    assert core.process_counts(SEC, 0, *counts, now_s=0.1) == reason
+    offline = counts_problems(np.array([counts]))
+    assert [name for name, mask in offline.items() if mask[0]] == [reason]
+    assert core.dropped[reason] == 1 and core.published == 0 and balanced(core)
+
+
+def test_backwards_and_duplicate_stamps_pass_through_counted():
+    """A stamp equal to or before the previous one is published and counted."""
+    core = make()
+    core.process_temperature(8200.0, now_s=0.0)
+    stamps = [(SEC, 0), (SEC, 100), (SEC, 100), (SEC - 1, 999_999_999), (SEC, 200), (SEC, 200)]
+    results = [core.process_counts(sec, nsec, 1.0, 2.0, 3.0, now_s=0.1) for sec, nsec in stamps]
+    assert all(isinstance(r, tuple) for r in results)
+    assert (core.duplicate_stamps, core.time_backwards, core.published) == (2, 1, 6)
+    status = core.status(0.2)
+    assert status.level is Level.WARN and 'passed through' in status.message
+    assert core.status(0.3).level is Level.OK  # the level covers what is new since the last status
+
+
+@pytest.mark.parametrize('policy', list(StaleTemperature))
+def test_stale_temperature_error_and_policy(policy):
+    """A code older than temp_timeout: status ERROR; hold corrects with it, drop drops."""
+    core = make(stale_temperature=policy, temp_timeout_s=0.5)
+    core.process_temperature(8400.0, now_s=10.0)
+    fresh = core.process_counts(SEC, 0, 100.0, 200.0, 300.0, now_s=10.5)
+    assert fresh == Corrector(CALIBRATION).correct_sample(100.0, 200.0, 300.0, 8400.0)
+    assert core.status(10.5).level is Level.OK
+    late = core.process_counts(SEC, 1, 100.0, 200.0, 300.0, now_s=10.6)
+    notices = core.take_notices()
+    assert [(n.level, n.kind) for n in notices] == [(Level.ERROR, 'stale_temperature')]
+    assert '0.60 s old > temp_timeout 0.5 s' in notices[0].text
+    if policy is StaleTemperature.HOLD:
+        assert late == fresh and 'holding the last code 8400' in notices[0].text
+    else:
+        assert late == 'stale_temperature' and core.dropped['stale_temperature'] == 1
+    status = core.status(10.7)
+    assert status.level is Level.ERROR and 'temperature code stale' in status.message
+    assert core.is_stale(10.7)
+    core.process_temperature(8401.0, now_s=11.0)
+    assert [n.level for n in core.take_notices()] == [Level.OK]  # "fresh again"
+    assert not core.is_stale(11.0) and isinstance(core.process_counts(SEC, 2, 1.0, 1.0, 1.0, 11.1), tuple)
+    core.status(11.1)
+    assert core.status(11.2).level is Level.OK and balanced(core)
+
+
+def test_stale_reported_by_tick_without_counts():
+    """The periodic tick reports a stale code even when no counts arrive."""
+    core = make(temp_timeout_s=1.0)
+    core.process_temperature(8200.0, now_s=0.0)
+    core.tick(0.5)
+    assert kinds(core) == []
+    core.tick(1.5)
+    assert kinds(core) == ['stale_temperature']
+
+
+@pytest.mark.parametrize('policy', list(OutOfRange))
+def test_out_of_range_clamped_or_extrapolated_and_never_silent(policy):
+    """Outside the calibrated range: the Corrector's policy, counted, WARN with code and range."""
+    core = make(out_of_range=policy, temp_timeout_s=100.0)
+    core.process_temperature(9500.0, now_s=0.0)
+    result = core.process_counts(SEC, 0, 200.0, 200.0, 200.0, now_s=0.1)
+    reference = Corrector(CALIBRATION, out_of_range=policy)
+    assert result == reference.correct_sample(200.0, 200.0, 200.0, 9500.0)
+    at_edge = Corrector(CALIBRATION).correct_sample(200.0, 200.0, 200.0, 8800.0)
+    assert (result == at_edge) is (policy is OutOfRange.CLAMP)
+    notices = core.take_notices()
+    assert len(notices) == 1 and notices[0].level is Level.WARN
+    assert 'temperature code 9500 outside the calibrated range 7600..8800' in notices[0].text
+    assert ('clamped' if policy is OutOfRange.CLAMP else 'extrapolating') in notices[0].text
+    for k in range(1, 4):
+        core.process_counts(SEC, k, 200.0, 200.0, 200.0, now_s=0.1 + k)
+    assert kinds(core) == []
+    core.process_counts(SEC, 9, 200.0, 200.0, 200.0, now_s=5.2)
+    notices = core.take_notices()
+    assert len(notices) == 1 and '(5 samples so far; 3 more since the last report)' in notices[0].text
+    status = core.status(5.3)
+    assert status.level is Level.WARN and status.value('out_of_range') == '5'
+    assert status.value('out_of_range_policy') == policy.value
+    core.process_temperature(8000.0, now_s=5.4)
+    core.process_counts(SEC, 10, 200.0, 200.0, 200.0, now_s=5.5)
+    assert core.out_of_range == 5 and kinds(core) == []
+
+
+def test_non_finite_temperature_code_ignored_and_counted():
+    """A NaN or infinite code is refused; the last good code stays in force."""
+    core = make()
+    core.process_temperature(8300.0, now_s=0.0)
+    assert not core.process_temperature(math.nan, now_s=0.1)
+    assert not core.process_temperature(-math.inf, now_s=0.2)
+    assert core.temp_code == 8300.0 and core.temperature_rejected == 2
+    assert kinds(core) == ['temperature_rejected']
+    result = core.process_counts(SEC, 0, 5.0, 6.0, 7.0, now_s=0.3)
+    assert result == Corrector(CALIBRATION).correct_sample(5.0, 6.0, 7.0, 8300.0)
+    assert core.status(0.4).value('temperature_rejected') == '2'
+
+
+def test_online_equals_vectorised_correction_bit_for_bit():
+    """process_counts gives Corrector.correct's float64 values, in and out of range."""
+    rng = np.random.default_rng(3)
+    counts = np.round(rng.uniform(-3000.0, 3000.0, (500, 3)))
+    codes = np.round(rng.uniform(7400.0, 9000.0, 500))
+    for policy in OutOfRange:
+        core = make(out_of_range=policy)
+        online = []
+        for k, ((x, y, z), code) in enumerate(zip(counts.tolist(), codes.tolist())):
+            core.process_temperature(code, now_s=k * 0.01)
+            online.append(core.process_counts(SEC, k, x, y, z, now_s=k * 0.01))
+        offline = Corrector(CALIBRATION, out_of_range=policy).correct(counts, codes)
+        assert np.array_equal(np.array(online), offline)
+        assert core.out_of_range == Corrector(CALIBRATION).out_of_range_count(codes) > 0
+
+
+def test_counters_balance_and_appear_in_status():
+    """Over a random mix of inputs: received == published + dropped, and the status says so."""
+    rng = np.random.default_rng(7)
+    core = make(stale_temperature=StaleTemperature.DROP, temp_timeout_s=0.05)
+    now = 0.0
+    bad = [math.nan, math.inf, 0.5, 32767.0, -32768.0]
+    for k in range(3000):
+        now += float(rng.uniform(0.0, 0.02))
+        if rng.random() < 0.1:
+            core.process_temperature(float(rng.choice([8000.0, 9000.0, math.nan])), now_s=now)
+        x, y, z = (float(v) for v in np.round(rng.uniform(-100.0, 100.0, 3)))
+        if rng.random() < 0.05:
+            x = float(rng.choice(bad))
+        stamp = SEC * 1_000_000_000 + k * 1_000_000 - int(rng.integers(0, 3)) * 1_000_000
+        core.process_counts(*divmod(stamp, 1_000_000_000), x, y, z, now_s=now)
+    assert balanced(core)
+    assert all(core.dropped[reason] > 0 for reason in ONLINE_DROP_REASONS)
+    assert core.time_backwards > 0 and core.duplicate_stamps > 0 and core.out_of_range > 0
+    values = dict(core.status(now).values)
+    dropped = sum(int(values[f'dropped.{reason}']) for reason in ONLINE_DROP_REASONS)
+    assert int(values['received']) == 3000 == int(values['published']) + dropped
+    assert int(values['dropped']) == dropped
+
+
+def test_swap_calibration_takes_effect_on_the_next_message():
+    """A new calibration is used from the next message on, with its own range and covariance."""
+    core = make()
+    core.process_temperature(9000.0, now_s=0.0)
+    before = core.process_counts(SEC, 0, 50.0, 60.0, 70.0, now_s=0.1)
+    assert core.out_of_range == 1
+    x = CALIBRATION.axes[0]
+    wider = replace(CALIBRATION, temp_code_max=9400.0,
+                    axes=(replace(x, offset=x.offset + 1.0, residual_rms=3.0), *CALIBRATION.axes[1:]))
+    core.swap_calibration(wider)
+    after = core.process_counts(SEC, 1, 50.0, 60.0, 70.0, now_s=0.2)
+    assert after == Corrector(wider).correct_sample(50.0, 60.0, 70.0, 9000.0) != before
+    assert core.out_of_range == 1  # 9000 lies inside the new range
+    assert core.variance == acceleration_variance(wider) != acceleration_variance(CALIBRATION)
+    assert core.calibration_updates == 1 and core.calibration is wider
+    assert core.out_of_range_policy is OutOfRange.CLAMP
+
+
+@pytest.mark.parametrize('change', [
+    {'temp_timeout_s': 0.0}, {'temp_timeout_s': math.nan}, {'temp_timeout_s': -1.0},
+    {'stale_temperature': 'forget'}, {'out_of_range': 'wrap'},
+    {'out_of_range': OutOfRange.EXTRAPOLATE, 'temp_timeout_s': math.inf},
+])
+def test_bad_policy_change_refused_and_nothing_changes(change):
+    """An invalid policy change raises and leaves every policy as it was."""
+    core = make(temp_timeout_s=2.0)
+    corrector = core.corrector
+    with pytest.raises(ValueError):
+        core.set_policies(**change)
+    assert core.corrector is corrector and core.out_of_range_policy is OutOfRange.CLAMP
+    assert core.temp_timeout_s == 2.0 and core.stale_policy is StaleTemperature.HOLD
+
+
+def test_status_ok_when_all_is_well_and_lists_every_counter():
+    """Fresh code, good counts: OK; every drop reason has a key."""
+    core = make()
+    core.process_temperature(8200.0, now_s=0.0)
+    core.process_counts(SEC, 0, 1.0, 2.0, 3.0, now_s=0.1)
+    status = core.status(0.2, imu_subscribers=2)
+    assert status.level is Level.OK and status.message == 'correcting'
+    keys = dict(status.values)
+    assert {f'dropped.{reason}' for reason in ONLINE_DROP_REASONS} <= set(keys)
+    assert keys['imu_subscribers'] == '2' and keys['calibrated_range'] == '7600..8800'
+    assert keys['temperature_code'] == '8200' and keys['published'] == '1'
+
+
+def test_no_counts_yet_is_a_warning():
+    """A status before any counts message is WARN (is the driver running?)."""
+    core = make()
+    core.process_temperature(8200.0, now_s=0.0)
+    status = core.status(0.1)
+    assert status.level is Level.WARN and 'no counts messages yet' in status.message
+
+
+def test_imu_covariance_layout_shared_with_the_bag_writer():
+    """The node's covariances are the ones tak_calib apply writes (REP 145)."""
+    variance = acceleration_variance(CALIBRATION)
+    orientation, angular, linear = imu_covariances(variance)
+    assert orientation[0] == angular[0] == -1.0 and not any(orientation[1:]) and not any(angular[1:])
+    assert (linear[0], linear[4], linear[8]) == variance and variance[0] > 0.0
+    for ours, bags in zip((orientation, angular, linear), bag_imu_covariances(variance)):
+        assert np.array_equal(np.array(ours), bags)
