@@ -185,15 +185,25 @@ def fit_calibration(samples: AlignedSamples, *, bias_order: int = 3, scale_order
     calibration = Calibration(temp_code_ref=ref, temp_code_min=low, temp_code_max=high,
                               axes=tuple(axes_models), notes=tuple(notes))  # type: ignore[arg-type]
     residual = residual_counts(calibration, samples)
+    parameters = [bias_order + 1 if held[i] else bias_order + scale_order + 2 for i in range(3)]
+    return finish_fit(calibration, residual, parameters, dropped=samples.dropped)
+
+
+def finish_fit(calibration: Calibration, residual: np.ndarray, parameters: Sequence[int], *,
+               dropped: dict[str, int], parameter_errors: dict[str, float] | None = None) -> FitResult:
+    """Per-axis residual RMS and BIC, the RMS recorded in the calibration, ``F_c > 0`` checked.
+
+    :param residual: ``(k, 3)`` residual in counts over the samples the fit used.
+    :param parameters: number of fitted parameters per axis.
+    """
+    count = len(residual)
     stats = []
     final_axes = []
     for i, axis in enumerate(calibration.axes):
         rss = float(np.sum(residual[:, i] ** 2))
-        rms = math.sqrt(rss / len(samples))
-        k = len(samples)
-        parameters = bias_order + 1 if held[i] else bias_order + scale_order + 2
-        bic = k * math.log(max(rss, 1e-300) / k) + parameters * math.log(k)
-        stats.append(AxisFit(residual_rms=rms, parameters=parameters, bic=bic))
+        rms = math.sqrt(rss / count)
+        bic = count * math.log(max(rss, 1e-300) / count) + parameters[i] * math.log(count)
+        stats.append(AxisFit(residual_rms=rms, parameters=parameters[i], bic=bic))
         final_axes.append(replace(axis, residual_rms=rms))
     calibration = replace(calibration, axes=tuple(final_axes))
     try:
@@ -201,7 +211,7 @@ def fit_calibration(samples: AlignedSamples, *, bias_order: int = 3, scale_order
     except CalibrationError as err:
         raise FitError(str(err)) from None
     return FitResult(calibration=calibration, axes=tuple(stats),  # type: ignore[arg-type]
-                     samples=len(samples), dropped=dict(samples.dropped))
+                     samples=count, dropped=dict(dropped), parameter_errors=dict(parameter_errors or {}))
 
 
 def _fit_offset_only(counts: np.ndarray, force: np.ndarray, powers: list[np.ndarray], scale: float,

@@ -19,18 +19,17 @@ offset effects' amplitudes once the offset effects' shape parameters are fixed. 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from tak_thermo_ros.core.calibration_file import check_scale_positive
 from tak_thermo_ros.core.effects import resolve_effect
 from tak_thermo_ros.core.effects.base import AXIS_NAMES, INPUT, Effect, seconds_from_ns
 from tak_thermo_ros.core.fit import (
-    AxisFit,
     FitResult,
+    finish_fit,
     fit_calibration,
     residual_counts,
     single_input_axes,
@@ -443,25 +442,11 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
                               axes=tuple(axes_models), notes=calibration0.notes,  # type: ignore[arg-type]
                               effects=ordered)
     residual = residual_counts(calibration, samples)[mask]
-    count = int(mask.sum())
     shape_count = sum(len(entry.searched) + (1 if entry.mode == 'structure' else 0) for entry in offsets)
-    stats, final_axes = [], []
-    for i, axis in enumerate(calibration.axes):
-        rss = float(np.sum(residual[:, i] ** 2))
-        rms = math.sqrt(rss / count)
-        parameters = fixed[i].shape[1] + extra_raw.shape[1] + shape_count
-        bic = count * math.log(max(rss, 1e-300) / count) + parameters * math.log(count)
-        stats.append(AxisFit(residual_rms=rms, parameters=parameters, bic=bic))
-        final_axes.append(replace(axis, residual_rms=rms))
-    calibration = replace(calibration, axes=tuple(final_axes))
-    try:
-        check_scale_positive(calibration, key='fit')
-    except CalibrationError as err:
-        raise FitError(str(err)) from None
+    parameters = [fixed[i].shape[1] + extra_raw.shape[1] + shape_count for i in range(3)]
     errors = _standard_errors(offsets, input_effects, designs, residual_sums, betas, fixed, force,
                               stamp_all, code_all, mask)
-    return FitResult(calibration=calibration, axes=tuple(stats),  # type: ignore[arg-type]
-                     samples=count, dropped=dict(samples.dropped), parameter_errors=errors)
+    return finish_fit(calibration, residual, parameters, dropped=samples.dropped, parameter_errors=errors)
 
 
 def _build(cls: type[Effect], values: dict[str, float]) -> Effect:
