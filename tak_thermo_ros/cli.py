@@ -205,7 +205,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         if verbose:
             print(f'cross-validating {text} ...', file=sys.stderr)
 
-    candidates = [spec.strip() for spec in args.candidates.split(',') if spec.strip()] if args.candidates else None
+    candidates = expand_candidates(args.candidates) if args.candidates else None
     result = diagnose(calibration, samples, candidates=candidates, folds=args.folds, progress=progress)
     print(f'diagnosed {len(samples)} samples of {args.bag} against {args.params} '
           f'(model: {result.ladder[0].label})')
@@ -234,6 +234,16 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         files = write_report(result, samples, args.report, source=Path(args.bag).name, gravity=args.gravity)
         print(f'wrote {files.html} ({len(files.figures)} figures)')
     return 0
+
+
+def expand_candidates(text: str) -> list[str]:
+    """``--candidates`` as a list: comma-separated specs, ``library`` = every library effect."""
+    from tak_thermo_ros.core.effects import LIBRARY
+    candidates: list[str] = []
+    for spec in (part.strip() for part in text.split(',')):
+        names = list(LIBRARY) if spec == 'library' else [spec] if spec else []
+        candidates += [name for name in names if name not in candidates]
+    return candidates
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -316,7 +326,8 @@ def build_parser() -> argparse.ArgumentParser:
     diag.add_argument('--report', metavar='DIR', help='write PNG figures and report.html into DIR')
     diag.add_argument('--candidates', metavar='NAME[,NAME...]',
                       help='effects to try (default: every library effect the calibration lacks); '
-                           'module:Class for a user-defined effect (see docs/effects.md)')
+                           "module:Class for a user-defined effect (see docs/effects.md); 'library' "
+                           "stands for every library effect, e.g. library,mymodule:MyEffect")
     diag.add_argument('--folds', type=int, default=5, help='cross-validation folds (default 5)')
     diag.add_argument('--settle-time', type=float, default=0.0, metavar='SECONDS',
                       help='leave out samples this long after each reference change (as for fit)')

@@ -146,3 +146,12 @@ def test_usage_errors_exit_2(capsys):
     with pytest.raises(SystemExit) as exit_info:
         main(['fit'])
     assert exit_info.value.code == 2
+
+
+def test_diagnose_candidates_expand_library():
+    """--candidates: comma-separated, 'library' stands for every library effect, no repeats."""
+    from tak_thermo_ros.cli import expand_candidates
+    from tak_thermo_ros.core.effects import LIBRARY
+    assert expand_candidates('mymodule:Creep') == ['mymodule:Creep']
+    assert expand_candidates('library, mymodule:Creep,thermal_lag') == [*LIBRARY, 'mymodule:Creep']
+    assert expand_candidates('hysteresis,,library') == ['hysteresis', *[n for n in LIBRARY if n != 'hysteresis']]

@@ -22,7 +22,7 @@ REAL_LOG = Path(__file__).resolve().parents[1] / 'data' / 'tofupilot-imu-thermal
 OPTIONS = CsvImportOptions(acc_columns=('imu.acc.x', 'imu.acc.y', 'imu.acc.z'), temp_column='imu.temperature',
                            time_unit='us')
 SETTLE_S = 60.0
-"""The start-up minute is left out (``tak_calib fit --settle-time 60``; docs/real_imu.md says why)."""
+"""The start-up minute is left out (``tak_calib fit --settle-time 60``; README, "On a real IMU", says why)."""
 BLOCKS = 10
 T_975_DOF_9 = 2.262
 """Student's t, two-sided 95 %, 9 degrees of freedom (10 blocks, paired)."""

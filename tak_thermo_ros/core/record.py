@@ -8,6 +8,7 @@ Alignment uses header stamps, not bag receive times.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from math import isfinite
 
 import numpy as np
 
@@ -55,9 +56,8 @@ def counts_problem(x: float, y: float, z: float) -> str | None:
 
     Same rules, same order as the vectorised :func:`counts_problems`.
     """
-    for value in (x, y, z):
-        if value != value or value in (float('inf'), float('-inf')):
-            return 'non_finite'
+    if not (isfinite(x) and isfinite(y) and isfinite(z)):
+        return 'non_finite'
     for value in (x, y, z):
         if value != round(value):
             return 'non_integer'
