@@ -35,7 +35,6 @@ the YAML, the node on its ``calibration.*`` parameters.
 
 from __future__ import annotations
 
-import math
 import os
 import tempfile
 from pathlib import Path
@@ -44,7 +43,7 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
-from tak_thermo_ros.core.model import AXES, CALIBRATION_VERSION, AxisModel, Calibration
+from tak_thermo_ros.core.model import AXES, CALIBRATION_VERSION, AxisModel, Calibration, finite_number
 from tak_thermo_ros.errors import CalibrationError, FitError
 
 NODE_NAME = 'compensator'
@@ -52,17 +51,6 @@ AXIS_KEYS = ('scale', 'offset', 'offset_span', 'offset_shape', 'scale_shape')
 OPTIONAL_AXIS_KEYS = ('residual_rms', 'scale_observable')
 TOP_KEYS = ('version', 'temp_code_ref', 'temp_code_min', 'temp_code_max')
 MAX_ORDER = 8
-
-
-def _number(value: Any, key: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        msg = f'{key}: expected a number, got {type(value).__name__} {value!r}'
-        raise CalibrationError(msg)
-    number = float(value)
-    if not math.isfinite(number):
-        msg = f'{key}: must be finite, got {number}'
-        raise CalibrationError(msg)
-    return number
 
 
 def _coefficients(value: Any, key: str) -> tuple[float, ...]:
@@ -74,7 +62,7 @@ def _coefficients(value: Any, key: str) -> tuple[float, ...]:
     if not 1 <= len(value) <= MAX_ORDER:
         msg = f'{key}: expected 1 to {MAX_ORDER} coefficients, got {len(value)}'
         raise CalibrationError(msg)
-    return tuple(_number(item, f'{key}[{i}]') for i, item in enumerate(value))
+    return tuple(finite_number(item, f'{key}[{i}]') for i, item in enumerate(value))
 
 
 def _axis_from_mapping(raw: Any, key: str) -> AxisModel:
@@ -89,17 +77,17 @@ def _axis_from_mapping(raw: Any, key: str) -> AxisModel:
     if unknown:
         msg = f'{key}.{unknown[0]}: unknown key'
         raise CalibrationError(msg)
-    scale = _number(raw['scale'], f'{key}.scale')
+    scale = finite_number(raw['scale'], f'{key}.scale')
     if scale <= 0.0:
         msg = f'{key}.scale: must be > 0, got {scale}'
         raise CalibrationError(msg)
-    offset_span = _number(raw['offset_span'], f'{key}.offset_span')
+    offset_span = finite_number(raw['offset_span'], f'{key}.offset_span')
     if offset_span < 0.0:
         msg = f'{key}.offset_span: must be >= 0 (the sign lives in offset_shape), got {offset_span}'
         raise CalibrationError(msg)
     residual_rms = None
     if 'residual_rms' in raw:
-        residual_rms = _number(raw['residual_rms'], f'{key}.residual_rms')
+        residual_rms = finite_number(raw['residual_rms'], f'{key}.residual_rms')
         if residual_rms < 0.0:
             msg = f'{key}.residual_rms: must be >= 0, got {residual_rms}'
             raise CalibrationError(msg)
@@ -109,7 +97,7 @@ def _axis_from_mapping(raw: Any, key: str) -> AxisModel:
         raise CalibrationError(msg)
     return AxisModel(
         scale=scale,
-        offset=_number(raw['offset'], f'{key}.offset'),
+        offset=finite_number(raw['offset'], f'{key}.offset'),
         offset_span=offset_span,
         offset_shape=_coefficients(raw['offset_shape'], f'{key}.offset_shape'),
         scale_shape=_coefficients(raw['scale_shape'], f'{key}.scale_shape'),
@@ -197,9 +185,9 @@ def calibration_from_mapping(raw: Any, *, key: str = 'calibration') -> Calibrati
     if isinstance(version, bool) or not isinstance(version, (int, float)) or version != CALIBRATION_VERSION:
         msg = f'{key}.version: unknown version {version!r} (this tool reads version {CALIBRATION_VERSION})'
         raise CalibrationError(msg)
-    ref = _number(raw['temp_code_ref'], f'{key}.temp_code_ref')
-    low = _number(raw['temp_code_min'], f'{key}.temp_code_min')
-    high = _number(raw['temp_code_max'], f'{key}.temp_code_max')
+    ref = finite_number(raw['temp_code_ref'], f'{key}.temp_code_ref')
+    low = finite_number(raw['temp_code_min'], f'{key}.temp_code_min')
+    high = finite_number(raw['temp_code_max'], f'{key}.temp_code_max')
     if low >= high:
         msg = f'{key}.temp_code_min: must be below temp_code_max, got {low} >= {high}'
         raise CalibrationError(msg)

@@ -19,6 +19,8 @@ so that the vectorised and the per-sample correction paths give the same float64
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Sequence
 
@@ -31,6 +33,18 @@ if TYPE_CHECKING:
 
 AXES: tuple[str, str, str] = ('x', 'y', 'z')
 CALIBRATION_VERSION = 1
+
+
+def finite_number(value: object, key: str) -> float:
+    """A finite float from a number (Python or numpy; not a bool), or a one-line error naming ``key``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+        msg = f'{key}: expected a number, got {type(value).__name__} {value!r}'
+        raise CalibrationError(msg)
+    number = float(value)
+    if not math.isfinite(number):
+        msg = f'{key}: must be finite, got {number}'
+        raise CalibrationError(msg)
+    return number
 
 
 def horner_no_constant(coeffs: Sequence[float], n):

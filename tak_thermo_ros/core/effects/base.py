@@ -34,6 +34,7 @@ from typing import Any, ClassVar, Mapping, Sequence
 
 import numpy as np
 
+from tak_thermo_ros.core.model import finite_number
 from tak_thermo_ros.errors import CalibrationError
 
 AXIS_NAMES: tuple[str, str, str] = ('x', 'y', 'z')
@@ -95,17 +96,6 @@ class Parameter:
     vary: bool = True
     unit: str = ''
     linear: bool = True
-
-
-def _check_number(value: Any, key: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-        msg = f'{key}: expected a number, got {type(value).__name__} {value!r}'
-        raise CalibrationError(msg)
-    number = float(value)
-    if not math.isfinite(number):
-        msg = f'{key}: must be finite, got {number}'
-        raise CalibrationError(msg)
-    return number
 
 
 class Effect:
@@ -198,7 +188,7 @@ class Effect:
                     raise CalibrationError(msg)
                 checked[name] = float(spec.default)
                 continue
-            number = _check_number(values[name], f'{key}.{name}')
+            number = finite_number(values[name], f'{key}.{name}')
             if not spec.min <= number <= spec.max:
                 msg = f'{key}.{name}: {number:g} is outside [{spec.min:g}, {spec.max:g}] {spec.unit}'.rstrip()
                 raise CalibrationError(msg)
