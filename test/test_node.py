@@ -175,11 +175,20 @@ SHORT_RUN = Scenario(sample_rate_hz=10.0, plateaus_celsius=(10.0, 30.0), plateau
 """About 250 s of chamber run, 2521 counts messages."""
 
 
-def test_node_output_equals_tak_calib_apply(tmp_path, ros_env):
-    """A bag played into the node gives apply's Imu for every message, float64-equal."""
+HIDDEN_EFFECTS = {'thermal_lag': {'tau_s': 30.0, 'slope_x': 0.05, 'slope_z': -0.04},
+                  'warmup': {'tau_s': 40.0, 'amplitude_x': 20.0, 'amplitude_y': -15.0},
+                  'cross_axis': {'c_xy': 2.0, 'c_zx': -1.5}}
+"""Effects with memory (lag, warm-up) and an input effect, for the node's online state."""
+
+
+@pytest.mark.parametrize('effects', [{}, HIDDEN_EFFECTS], ids=['base', 'with_effects'])
+def test_node_output_equals_tak_calib_apply(tmp_path, ros_env, effects):
+    """A bag played into the node gives apply's Imu for every message, float64-equal, effects included."""
     bag, params, corrected = tmp_path / 'run.mcap', tmp_path / 'tak_params.yaml', tmp_path / 'imu.mcap'
-    write_record(bag, simulate(SHORT_RUN).record)
-    assert cli.main(['fit', str(bag), '-o', str(params), '--no-progress']) == 0
+    write_record(bag, simulate(replace(SHORT_RUN, effects=effects)).record)
+    effect_options = ['--effects', ','.join(effects)] if effects else []
+    assert cli.main(['fit', str(bag), '-o', str(params), '--no-progress', *effect_options]) == 0
+    assert [e.name for e in load_calibration(params).effects] == list(effects)
     assert cli.main(['apply', str(bag), '--params', str(params), '-o', str(corrected), '--no-progress']) == 0
     stamps, expected, frames, covariances = read_imu(corrected)
     record = read_record(bag, progress=False)
