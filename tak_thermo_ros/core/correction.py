@@ -21,7 +21,7 @@ import math
 import numpy as np
 
 from tak_thermo_ros.core.effects.link import EffectLink
-from tak_thermo_ros.core.model import Calibration
+from tak_thermo_ros.core.model import Calibration, correction_terms, offset_and_gain
 
 BLOCK_SAMPLES = 16384
 """Samples per block of :meth:`Corrector.correct` (its scratch arrays stay in the CPU cache)."""
@@ -51,12 +51,7 @@ class Corrector:
         self._low = float(calibration.temp_code_min)
         self._high = float(calibration.temp_code_max)
         self._clamp = self.out_of_range is OutOfRange.CLAMP
-        # Per axis: (K0, dNs0, D, reversed F_s coefficients, reversed F_c coefficients).
-        self._axes = tuple(
-            (float(a.scale), float(a.offset), float(a.offset_span),
-             tuple(float(c) for c in reversed(a.offset_shape)),
-             tuple(float(c) for c in reversed(a.scale_shape)))
-            for a in calibration.axes)
+        self._axes = correction_terms(calibration)
         # Effects (tak_thermo_ros.core.effects) take their own link; without them, the path below.
         self._effect_link = EffectLink(calibration, clamp=self._clamp) if calibration.effects else None
 
@@ -84,8 +79,10 @@ class Corrector:
             return self._effect_link.correct_sample(counts_x, counts_y, counts_z, temp_code, stamp_s)
         n = self.code_offset(temp_code)
         x_axis, y_axis, z_axis = self._axes
-        return (_correct_axis(counts_x, n, *x_axis), _correct_axis(counts_y, n, *y_axis),
-                _correct_axis(counts_z, n, *z_axis))
+        offset_x, gain_x = offset_and_gain(n, *x_axis)
+        offset_y, gain_y = offset_and_gain(n, *y_axis)
+        offset_z, gain_z = offset_and_gain(n, *z_axis)
+        return (counts_x - offset_x) / gain_x, (counts_y - offset_y) / gain_y, (counts_z - offset_z) / gain_z
 
     def correct(self, counts: np.ndarray, temp_code: np.ndarray, *,
                 stamp_s: np.ndarray | None = None) -> np.ndarray:
@@ -110,7 +107,7 @@ class Corrector:
 
     def _correct_block(self, counts: np.ndarray, temp_code: np.ndarray, out: np.ndarray,
                        scratch: np.ndarray) -> None:
-        """:meth:`correct` of one block into ``out``: per axis the operations of :func:`_correct_axis`."""
+        """:meth:`correct` of one block into ``out``: per axis the operations of ``offset_and_gain``, in place."""
         n, drift, factor, centred = scratch
         if self._clamp:
             np.clip(temp_code, self._low, self._high, out=n)
@@ -161,24 +158,8 @@ class Corrector:
         return int(np.count_nonzero((temp_code < self._low) | (temp_code > self._high)))
 
 
-def _correct_axis(counts: float, n: float, scale: float, offset: float, span: float,
-                  shape_s: tuple[float, ...], shape_c: tuple[float, ...]) -> float:
-    """One axis of one sample, ``(N - (dNs0 + D F_s(n))) / (K0 F_c(n))``, in plain floats.
-
-    ``shape_s`` and ``shape_c`` are the coefficients of ``F_s`` and ``F_c`` highest order
-    first (Horner). :meth:`Corrector._correct_block` runs the same operations on arrays.
-    """
-    drift = 0.0 * n
-    for coefficient in shape_s:
-        drift = (drift + coefficient) * n
-    factor = 0.0 * n
-    for coefficient in shape_c:
-        factor = (factor + coefficient) * n
-    return (counts - (offset + span * drift)) / (scale * (factor + 1.0))
-
-
 def _horner_into(shape: tuple[float, ...], n: np.ndarray, out: np.ndarray) -> None:
-    """``out = c1 n + ... + ck n^k`` in place, coefficients highest first, as :func:`_correct_axis`."""
+    """``out = c1 n + ... + ck n^k`` in place, coefficients highest first, as ``offset_and_gain``."""
     np.multiply(0.0, n, out=out)
     for coefficient in shape:
         np.add(out, coefficient, out=out)

@@ -62,6 +62,35 @@ def horner_no_constant(coeffs: Sequence[float], n):
     return value
 
 
+AxisTerms = tuple[float, float, float, tuple[float, ...], tuple[float, ...]]
+"""One axis as the correction evaluates it: ``(K0, dNs0, D, F_s coefficients, F_c coefficients)``,
+the coefficients highest order first (Horner), all plain floats."""
+
+
+def correction_terms(calibration: Calibration) -> tuple[AxisTerms, AxisTerms, AxisTerms]:
+    """The three axes' :data:`AxisTerms`: what every correction path precomputes."""
+    return tuple(  # type: ignore[return-value]
+        (float(a.scale), float(a.offset), float(a.offset_span),
+         tuple(float(c) for c in reversed(a.offset_shape)),
+         tuple(float(c) for c in reversed(a.scale_shape)))
+        for a in calibration.axes)
+
+
+def offset_and_gain(n, scale: float, offset: float, span: float, shape_s: tuple[float, ...],
+                    shape_c: tuple[float, ...]):
+    """``(dNs0 + D F_s(n), K0 F_c(n))`` of one axis (float or array, same operations in the same order).
+
+    The one evaluation of the paper's polynomials that the correction paths share.
+    """
+    drift = 0.0 * n
+    for coefficient in shape_s:
+        drift = (drift + coefficient) * n
+    factor = 0.0 * n
+    for coefficient in shape_c:
+        factor = (factor + coefficient) * n
+    return offset + span * drift, scale * (factor + 1.0)
+
+
 @dataclass(frozen=True)
 class AxisModel:
     """Calibrated correction link of one axis.

@@ -25,7 +25,7 @@ import numpy as np
 from tak_thermo_ros.core.effects.base import INPUT, OFFSET
 from tak_thermo_ros.core.effects.cross_axis import CrossAxis
 from tak_thermo_ros.core.effects.scale_nonlinearity import ScaleNonlinearity
-from tak_thermo_ros.core.model import Calibration
+from tak_thermo_ros.core.model import Calibration, correction_terms, offset_and_gain
 from tak_thermo_ros.errors import CalibrationError
 
 FIXED_POINT_ITERATIONS = 6
@@ -66,11 +66,7 @@ class EffectLink:
         self._ref = float(calibration.temp_code_ref)
         self._low = float(calibration.temp_code_min)
         self._high = float(calibration.temp_code_max)
-        self._axes = tuple(
-            (float(a.scale), float(a.offset), float(a.offset_span),
-             tuple(float(c) for c in reversed(a.offset_shape)),
-             tuple(float(c) for c in reversed(a.scale_shape)))
-            for a in calibration.axes)
+        self._axes = correction_terms(calibration)
         self._offset_effects = tuple(e for e in calibration.effects if e.kind == OFFSET)
         self._amplitudes = tuple(tuple(tuple(float(a) for a in axis) for axis in e.amplitudes())
                                  for e in self._offset_effects)
@@ -108,17 +104,8 @@ class EffectLink:
             raise CalibrationError(msg)
 
     def _base(self, n):
-        """Per axis ``(dNs(n), G(n))`` (Horner, same order for floats and arrays)."""
-        terms = []
-        for scale, offset, span, shape_s, shape_c in self._axes:
-            drift = 0.0 * n
-            for coefficient in shape_s:
-                drift = (drift + coefficient) * n
-            factor = 0.0 * n
-            for coefficient in shape_c:
-                factor = (factor + coefficient) * n
-            terms.append((offset + span * drift, scale * (factor + 1.0)))
-        return terms
+        """Per axis ``(dNs(n), G(n))`` (the shared evaluation, floats and arrays alike)."""
+        return [offset_and_gain(n, *terms) for terms in self._axes]
 
     def _solve(self, y: tuple, gain: tuple):
         solve = _solver(gain, self._cross)
