@@ -25,7 +25,6 @@ import argparse
 import json
 import math
 import os
-import platform
 import subprocess
 import sys
 import time
@@ -34,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchlib import machine, stretched, tak_calib_command
 from tak_thermo_ros.core.calibration_file import save_calibration, write_text_atomic
 from tak_thermo_ros.core.diagnose import diagnose
 from tak_thermo_ros.core.effects import LIBRARY, seconds_from_ns
@@ -51,29 +51,7 @@ def bench_scenario(hours: float, rate_hz: float) -> Scenario:
     """The paper's protocol stretched to ``hours`` at ``rate_hz``, with a thermal lag hidden."""
     base = Scenario(sample_rate_hz=rate_hz, temp_code_every=5,
                     effects={'thermal_lag': {'tau_s': 1800.0, 'slope_x': 0.03, 'slope_y': -0.02, 'slope_z': 0.04}})
-    ramps_s = base.duration_s() - len(base.plateaus_celsius) * base.plateau_hours * 3600.0
-    return replace(base, plateau_hours=(hours * 3600.0 - ramps_s) / 3600.0 / len(base.plateaus_celsius))
-
-
-def tak_calib_command() -> list[str]:
-    """``tak_calib`` of this interpreter's environment (the console script, else ``-m``)."""
-    script = Path(sys.executable).parent / 'tak_calib'
-    return [str(script)] if script.exists() else [sys.executable, '-m', 'tak_thermo_ros.cli']
-
-
-def machine() -> dict[str, object]:
-    """What the figures were measured on, and how busy it was."""
-    model = ''
-    try:
-        for line in Path('/proc/cpuinfo').read_text().splitlines():
-            if line.startswith('model name'):
-                model = line.split(':', 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {'cpus': os.cpu_count(), 'cpu_model': model, 'python': platform.python_version(),
-            'numpy': np.__version__, 'load_average_1min': os.getloadavg()[0],
-            'OPENBLAS_NUM_THREADS': os.environ.get('OPENBLAS_NUM_THREADS', '(unset)')}
+    return stretched(base, hours)
 
 
 def bench_speed(workdir: Path, hours: float, rate_hz: float) -> dict[str, object]:

@@ -21,18 +21,16 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import resource
 import statistics
 import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
 
+from benchlib import machine, stretched, tak_calib_command
 from tak_thermo_ros.core.calibration_file import write_text_atomic
 from tak_thermo_ros.core.simulate import Scenario
 
@@ -60,13 +58,7 @@ print(json.dumps({'seconds': time.perf_counter() - start, 'messages': messages})
 
 def bench_scenario(hours: float, rate_hz: float) -> Scenario:
     """The default chamber protocol stretched to ``hours`` at ``rate_hz`` counts messages."""
-    base = Scenario(sample_rate_hz=rate_hz, temp_code_every=10)
-    ramps_s = base.duration_s() - len(base.plateaus_celsius) * base.plateau_hours * 3600.0
-    plateau_hours = (hours * 3600.0 - ramps_s) / 3600.0 / len(base.plateaus_celsius)
-    if plateau_hours <= 0.0:
-        msg = f'--hours {hours:g}: shorter than the ramps of the protocol ({ramps_s / 3600.0:g} h)'
-        raise SystemExit(msg)
-    return replace(base, plateau_hours=plateau_hours)
+    return stretched(Scenario(sample_rate_hz=rate_hz, temp_code_every=10), hours)
 
 
 def bag_path(workdir: Path, hours: float, rate_hz: float, storage: str) -> Path:
@@ -110,30 +102,6 @@ def run_child(command: list[str]) -> tuple[float, float, int, str]:
             raise SystemExit(msg)
     # Linux reports ru_maxrss in KiB.
     return wall, usage.ru_utime + usage.ru_stime, int(usage.ru_maxrss) * 1024, stdout.decode()
-
-
-def tak_calib_command() -> list[str]:
-    """``tak_calib`` of this interpreter's environment (the console script, else ``-m``)."""
-    script = Path(sys.executable).parent / 'tak_calib'
-    if script.exists():
-        return [str(script)]
-    return [sys.executable, '-m', 'tak_thermo_ros.cli']
-
-
-def machine() -> dict[str, object]:
-    """What the figures were measured on."""
-    model = ''
-    try:
-        for line in Path('/proc/cpuinfo').read_text().splitlines():
-            if line.startswith('model name'):
-                model = line.split(':', 1)[1].strip()
-                break
-    except OSError:
-        pass
-    from importlib.metadata import version
-    return {'cpus': os.cpu_count(), 'cpu_model': model, 'python': platform.python_version(),
-            'numpy': np.__version__, 'rosbags': version('rosbags'),
-            'platform': platform.platform()}
 
 
 def main(argv: list[str] | None = None) -> int:

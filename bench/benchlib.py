@@ -1,0 +1,49 @@
+"""What the benchmark scripts share: how to call ``tak_calib``, and what machine measured it.
+
+Imported by the ``bench_*.py`` scripts, which run with this directory on ``sys.path``.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import sys
+from dataclasses import replace
+from importlib.metadata import version
+from pathlib import Path
+
+import numpy as np
+
+from tak_thermo_ros.core.simulate import Scenario
+
+
+def tak_calib_command() -> list[str]:
+    """``tak_calib`` of this interpreter's environment (the console script, else ``-m``)."""
+    script = Path(sys.executable).parent / 'tak_calib'
+    return [str(script)] if script.exists() else [sys.executable, '-m', 'tak_thermo_ros.cli']
+
+
+def machine() -> dict[str, object]:
+    """What the figures were measured on, and how busy it was."""
+    model = ''
+    try:
+        for line in Path('/proc/cpuinfo').read_text().splitlines():
+            if line.startswith('model name'):
+                model = line.split(':', 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {'cpus': os.cpu_count(), 'cpu_model': model, 'python': platform.python_version(),
+            'numpy': np.__version__, 'rosbags': version('rosbags'), 'platform': platform.platform(),
+            'load_average_1min': os.getloadavg()[0],
+            'OPENBLAS_NUM_THREADS': os.environ.get('OPENBLAS_NUM_THREADS', '(unset)')}
+
+
+def stretched(base: Scenario, hours: float) -> Scenario:
+    """``base`` with its plateaus lengthened (or shortened) so that the whole run lasts ``hours``."""
+    ramps_s = base.duration_s() - len(base.plateaus_celsius) * base.plateau_hours * 3600.0
+    plateau_hours = (hours * 3600.0 - ramps_s) / 3600.0 / len(base.plateaus_celsius)
+    if plateau_hours <= 0.0:
+        msg = f'--hours {hours:g}: shorter than the ramps of the protocol ({ramps_s / 3600.0:g} h)'
+        raise SystemExit(msg)
+    return replace(base, plateau_hours=plateau_hours)
