@@ -15,6 +15,28 @@ SHORT = Scenario(plateau_hours=0.5, ramp_celsius_per_minute=1.0, board_lag_s=300
 """The paper's five plateaus, shortened: about 3 h of 1 Hz samples."""
 
 
+CREEP_MODULE = '''
+from tak_thermo_ros.core.effects import Effect, ParameterSpec
+
+
+class Creep(Effect):
+    """Offset creeping linearly with time since power-on: rate_i counts per hour."""
+
+    name = 'creep'
+    summary = 'The offset creeps linearly with time since power-on, whatever the temperature.'
+    confirm = 'A long run at constant temperature: the offset keeps moving at a constant rate.'
+    needs_stamps = True
+    amplitude = ParameterSpec('rate', 0.0, -100.0, 100.0, 'counts/h')
+
+    def start(self, stamp_s, temp_code):
+        return stamp_s
+
+    def step(self, state, stamp_s, temp_code):
+        return state, ((stamp_s - state) / 3600.0,)
+'''
+"""Source of a user-defined effect module (the README's worked example) for the tests to write."""
+
+
 def noise_floor(scenario: Scenario) -> np.ndarray:
     """Per-axis RMS of white noise plus code rounding, counts."""
     return np.array([math.sqrt(axis.noise_counts ** 2 + 1.0 / 12.0) for axis in scenario.unit])

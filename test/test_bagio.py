@@ -143,22 +143,13 @@ def test_directory_without_metadata(tmp_path):
         read_record(tmp_path / 'run', progress=False)
 
 
-def test_truncated_mcap(tmp_path, tiny_record):
-    """An mcap file cut in the middle is refused, not half read."""
-    write_record(tmp_path / 'run', tiny_record, storage='mcap')
-    data_file = tmp_path / 'run' / 'run.mcap'
-    content = data_file.read_bytes()
-    data_file.write_bytes(content[: len(content) // 2])
-    with pytest.raises(BagError, match=r'run: (cannot read bag|.*truncated)'):
-        read_record(tmp_path / 'run', progress=False)
-
-
-def test_truncated_sqlite3(tmp_path, tiny_record):
-    """A sqlite3 file cut in the middle is refused, not half read."""
-    write_record(tmp_path / 'run', tiny_record, storage='sqlite3')
-    data_file = tmp_path / 'run' / 'run.db3'
-    content = data_file.read_bytes()
-    data_file.write_bytes(content[: len(content) // 2])
+@pytest.mark.parametrize(('storage', 'data_file'), [('mcap', 'run.mcap'), ('sqlite3', 'run.db3')])
+def test_truncated_bag(tmp_path, tiny_record, storage, data_file):
+    """A storage file cut in the middle is refused, not half read, in both storages."""
+    write_record(tmp_path / 'run', tiny_record, storage=storage)
+    path = tmp_path / 'run' / data_file
+    content = path.read_bytes()
+    path.write_bytes(content[: len(content) // 2])
     with pytest.raises(BagError, match=r'run: (cannot read bag|.*truncated)'):
         read_record(tmp_path / 'run', progress=False)
 

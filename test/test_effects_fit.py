@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
+from conftest import CREEP_MODULE
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.core.correction import Corrector
 from tak_thermo_ros.core.effects import LIBRARY, seconds_from_ns
@@ -141,30 +142,9 @@ def test_an_effect_the_run_cannot_excite_is_a_fit_error():
         fit_model(samples, effects=['lag'], nominal_scale=scenario.nominal_scale)
 
 
-USER_MODULE = '''
-from tak_thermo_ros.core.effects import Effect, ParameterSpec
-
-
-class Creep(Effect):
-    """Offset creeping linearly with time since power-on: rate_i counts per hour."""
-
-    name = 'creep'
-    summary = 'The offset creeps linearly with time since power-on.'
-    confirm = 'A long run at constant temperature: the offset keeps moving.'
-    needs_stamps = True
-    amplitude = ParameterSpec('rate', 0.0, -100.0, 100.0, 'counts/h')
-
-    def start(self, stamp_s, temp_code):
-        return stamp_s
-
-    def step(self, state, stamp_s, temp_code):
-        return state, ((stamp_s - state) / 3600.0,)
-'''
-
-
 def test_user_defined_effect_through_the_command_line(tmp_path, monkeypatch, capsys):
     """tak_calib fit --effects module:Class fits a user effect, stores its class, and validate reads it."""
-    (tmp_path / 'user_creep.py').write_text(USER_MODULE)
+    (tmp_path / 'user_creep.py').write_text(CREEP_MODULE)
     monkeypatch.chdir(tmp_path)
     scenario = replace(RUN, seed=8, sample_rate_hz=0.2, effects={'user_creep:Creep': {'rate_z': 2.0}})
     (tmp_path / 'scenario.yaml').write_text(yaml.safe_dump({

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
+from conftest import CREEP_MODULE
 from tak_thermo_ros.core.calibration_file import (
     calibration_from_mapping,
     calibration_to_mapping,
@@ -32,25 +33,7 @@ EXAMPLES = {
     'scale_nonlinearity': {'k2_x': 0.05, 'k2_y': -0.03, 'k2_z': 0.02},
 }
 
-USER_MODULE = '''
-from tak_thermo_ros.core.effects import Effect, ParameterSpec
-
-
-class Creep(Effect):
-    """Offset creeping linearly with time since power-on: rate_i counts per hour."""
-
-    name = 'creep'
-    summary = 'The offset creeps linearly with time.'
-    confirm = 'A long run at constant temperature.'
-    needs_stamps = True
-    amplitude = ParameterSpec('rate', 0.0, -100.0, 100.0, 'counts/h')
-
-    def start(self, stamp_s, temp_code):
-        return stamp_s
-
-    def step(self, state, stamp_s, temp_code):
-        return state, ((stamp_s - state) / 3600.0,)
-
+USER_MODULE = CREEP_MODULE + '''
 
 class NotAnEffect:
     name = 'nothing'
