@@ -20,10 +20,9 @@ from typing import Callable, Sequence  # noqa: E402
 
 from tak_thermo_ros.core.calibration_file import load_calibration, save_calibration, write_text_atomic
 from tak_thermo_ros.core.correction import Corrector, OutOfRange, acceleration_variance
-from tak_thermo_ros.core.effects import seconds_from_ns
 from tak_thermo_ros.core.fit import fit_model
 from tak_thermo_ros.core.model import AXES
-from tak_thermo_ros.core.record import align
+from tak_thermo_ros.core.record import AlignedSamples, ChannelRecord, align
 from tak_thermo_ros.core.simulate import STANDARD_GRAVITY, Scenario, load_scenario, simulate
 from tak_thermo_ros.core.validate import validate_gravity
 from tak_thermo_ros.errors import TakError
@@ -69,20 +68,31 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _read_samples(args: argparse.Namespace, *, calibration_run: bool,
+                  settle_time_s: float = 0.0) -> tuple[ChannelRecord, AlignedSamples]:
+    """Read the bag named by ``args.bag`` and align its streams on the counts stamps.
+
+    :param calibration_run: the reference stream is required and held on the samples.
+    """
+    from tak_thermo_ros.bagio import read_record
+    record = read_record(args.bag, topics=_topics(args), require_reference=calibration_run,
+                         progress=not args.no_progress)
+    return record, align(record, use_reference=calibration_run, settle_time_s=settle_time_s)
+
+
 def _describe_dropped(dropped: dict[str, int]) -> str:
     return ', '.join(f'{count} {reason.replace("_", " ")}' for reason, count in sorted(dropped.items()))
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
     """Fit the correction link to a calibration bag."""
-    from tak_thermo_ros.bagio import read_record
-    record = read_record(args.bag, topics=_topics(args), require_reference=True, progress=not args.no_progress)
-    samples = align(record, settle_time_s=args.settle_time)
+    record, samples = _read_samples(args, calibration_run=True, settle_time_s=args.settle_time)
     nominal = record.nominal_scale
     if args.nominal_scale is not None:
         nominal = tuple(args.nominal_scale * 3 if len(args.nominal_scale) == 1 else args.nominal_scale)
         if len(nominal) != 3:
-            raise TakError('--nominal-scale takes one value or three (x y z)')
+            msg = f'--nominal-scale takes one value or three (x y z), got {len(args.nominal_scale)}'
+            raise TakError(msg)
     effects = [spec.strip() for spec in (args.effects or '').split(',') if spec.strip()]
     result = fit_model(samples, effects=effects, bias_order=args.bias_order, scale_order=args.scale_order,
                        temp_code_ref=args.temp_code_ref, nominal_scale=nominal)
@@ -116,12 +126,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 def cmd_apply(args: argparse.Namespace) -> int:
     """Correct a bag's counts and write Imu messages."""
-    from tak_thermo_ros.bagio import read_record, write_imu
+    from tak_thermo_ros.bagio import write_imu
     calibration = load_calibration(args.params)
-    record = read_record(args.bag, topics=_topics(args), progress=not args.no_progress)
-    samples = align(record, use_reference=False)
+    record, samples = _read_samples(args, calibration_run=False)
     corrector = Corrector(calibration, out_of_range=OutOfRange(args.out_of_range))
-    acceleration = corrector.correct(samples.counts, samples.temp_code, stamp_s=seconds_from_ns(samples.stamp_ns))
+    acceleration = corrector.correct(samples.counts, samples.temp_code, stamp_s=samples.stamp_s)
     write_imu(args.output, samples.stamp_ns, record.frame_id, acceleration,
               acceleration_variance(calibration), topic=args.imu_topic, storage=args.storage)
     print(f'wrote {len(samples)} Imu messages on {args.imu_topic} to {args.output}')
@@ -136,12 +145,10 @@ def cmd_apply(args: argparse.Namespace) -> int:
 
 def cmd_validate(args: argparse.Namespace) -> int:
     """|g| from the three channels before and after correction."""
-    from tak_thermo_ros.bagio import read_record
     calibration = load_calibration(args.params)
-    record = read_record(args.bag, topics=_topics(args), progress=not args.no_progress)
-    samples = align(record, use_reference=False)
+    _, samples = _read_samples(args, calibration_run=False)
     result = validate_gravity(calibration, samples.counts, samples.temp_code, gravity=args.gravity,
-                              stamp_s=seconds_from_ns(samples.stamp_ns),
+                              stamp_s=samples.stamp_s,
                               out_of_range=OutOfRange(args.out_of_range))
     before, after = result.before, result.after
     print(f'|g| error over {len(samples)} samples of {args.bag} (gravity {args.gravity:g} m/s^2):')
@@ -194,11 +201,9 @@ def cmd_import_csv(args: argparse.Namespace) -> int:
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     """Compare a calibration with a run: noise floor, residual views, the missing effect."""
-    from tak_thermo_ros.bagio import read_record
     from tak_thermo_ros.core.diagnose import diagnose
     calibration = load_calibration(args.params)
-    record = read_record(args.bag, topics=_topics(args), require_reference=True, progress=not args.no_progress)
-    samples = align(record, settle_time_s=args.settle_time)
+    _, samples = _read_samples(args, calibration_run=True, settle_time_s=args.settle_time)
     verbose = not args.no_progress and sys.stderr.isatty()
 
     def progress(text: str) -> None:
@@ -253,7 +258,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     sim = commands.add_parser('simulate', help='simulate a thermal-chamber run into a bag')
     sim.add_argument('out_bag', metavar='OUT_BAG')
-    sim.add_argument('--scenario', metavar='FILE.yaml', help='scenario overrides (see config/scenario_example.yaml)')
+    sim.add_argument('--scenario', metavar='FILE.yaml', help='scenario overrides, every key optional (README: The simulator)')
     sim.add_argument('--seed', type=int, help='random seed (overrides the scenario)')
     sim.add_argument('--storage', choices=['mcap', 'sqlite3'], default='mcap')
     _add_topic_options(sim)

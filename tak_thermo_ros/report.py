@@ -44,7 +44,6 @@ from tak_thermo_ros.core.diagnose import (  # noqa: E402
     Diagnosis,
     binned_means,
 )
-from tak_thermo_ros.core.effects import seconds_from_ns  # noqa: E402
 from tak_thermo_ros.core.model import AXES  # noqa: E402
 from tak_thermo_ros.core.record import AlignedSamples  # noqa: E402
 from tak_thermo_ros.core.simulate import STANDARD_GRAVITY  # noqa: E402
@@ -382,7 +381,7 @@ def gravity_series(diagnosis: Diagnosis, samples: AlignedSamples,
                    gravity: float) -> list[tuple[str, np.ndarray]]:
     """``|g| - g`` in m/s^2 (:func:`validate_gravity`): nominal scale and offset only, the
     current model, and the model with the ladder's effects."""
-    stamps = seconds_from_ns(samples.stamp_ns)
+    stamps = samples.stamp_s
     current = validate_gravity(diagnosis.calibration, samples.counts, samples.temp_code, gravity=gravity,
                                stamp_s=stamps)
     series = [('nominal scale and offset only', current.magnitude_before - gravity),

@@ -73,9 +73,8 @@ def residual_counts(calibration: Calibration, samples: AlignedSamples) -> np.nda
         raise FitError(msg)
     corrector = Corrector(calibration)
     if calibration.effects:
-        from tak_thermo_ros.core.effects.base import seconds_from_ns
         return samples.counts - corrector.predict_counts(samples.reference, samples.temp_code,
-                                                         stamp_s=seconds_from_ns(samples.stamp_ns))
+                                                         stamp_s=samples.stamp_s)
     error = corrector.correct(samples.counts, samples.temp_code) - samples.reference
     n = corrector.code_offset(samples.temp_code)
     gain = np.column_stack([axis.scale * axis.scale_factor(n) for axis in calibration.axes])

@@ -35,9 +35,8 @@ from dataclasses import dataclass
 from typing import Callable
 
 from tak_thermo_ros.core.correction import Corrector, OutOfRange, acceleration_variance
-from tak_thermo_ros.core.effects.base import seconds
 from tak_thermo_ros.core.model import Calibration
-from tak_thermo_ros.core.record import DROP_REASONS, NANOSECONDS, counts_problem
+from tak_thermo_ros.core.record import DROP_REASONS, NANOSECONDS, counts_problem, seconds
 
 WAITING_FOR_TEMPERATURE = 'waiting_for_temperature'
 STALE_TEMPERATURE = 'stale_temperature'

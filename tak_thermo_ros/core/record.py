@@ -17,6 +17,22 @@ COUNTS_MAX = 32767.0
 NANOSECONDS = 1_000_000_000
 
 
+def seconds_from_ns(stamp_ns: np.ndarray) -> np.ndarray:
+    """Float seconds ``sec + nanosec * 1e-9`` of int64 nanosecond stamps, ``(k,)``.
+
+    The same floats as :func:`seconds` gives per message, so that model terms with memory see
+    identical stamps offline and in the node.
+    """
+    stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
+    sec = stamp_ns // NANOSECONDS
+    return sec.astype(float) + (stamp_ns - sec * NANOSECONDS).astype(float) * 1e-9
+
+
+def seconds(sec: int, nanosec: int) -> float:
+    """Float seconds of one ``builtin_interfaces/Time`` (``sec``, ``nanosec``)."""
+    return float(sec) + float(nanosec) * 1e-9
+
+
 @dataclass(frozen=True)
 class ChannelRecord:
     """One recorded run.
@@ -107,6 +123,11 @@ class AlignedSamples:
 
     def __len__(self) -> int:
         return len(self.stamp_ns)
+
+    @property
+    def stamp_s(self) -> np.ndarray:
+        """Stamps as float seconds (:func:`seconds_from_ns`), what the correction takes."""
+        return seconds_from_ns(self.stamp_ns)
 
     @property
     def time_s(self) -> np.ndarray:

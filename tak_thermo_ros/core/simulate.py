@@ -24,13 +24,13 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from tak_thermo_ros.core.effects import resolve_effect
-from tak_thermo_ros.core.effects.base import Effect, seconds_from_ns
+from tak_thermo_ros.core.effects.base import Effect
 
 import numpy as np
 import yaml
 
 from tak_thermo_ros.core.model import AXES, AxisModel, Calibration
-from tak_thermo_ros.core.record import COUNTS_MAX, COUNTS_MIN, NANOSECONDS, ChannelRecord
+from tak_thermo_ros.core.record import COUNTS_MAX, COUNTS_MIN, NANOSECONDS, ChannelRecord, seconds_from_ns
 from tak_thermo_ros.errors import CalibrationError, FitError, ScenarioError
 
 STANDARD_GRAVITY = 9.80665

@@ -40,25 +40,6 @@ from tak_thermo_ros.errors import CalibrationError
 AXIS_NAMES: tuple[str, str, str] = ('x', 'y', 'z')
 OFFSET = 'offset'
 INPUT = 'input'
-NANOSECONDS = 1_000_000_000
-
-
-def seconds_from_ns(stamp_ns: np.ndarray) -> np.ndarray:
-    """Float seconds ``sec + nanosec * 1e-9`` of int64 nanosecond stamps, ``(k,)``.
-
-    The same floats as :func:`seconds` gives per message, so that effects with memory see
-    identical stamps offline and in the node.
-    """
-    stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
-    sec = stamp_ns // NANOSECONDS
-    return sec.astype(float) + (stamp_ns - sec * NANOSECONDS).astype(float) * 1e-9
-
-
-def seconds(sec: int, nanosec: int) -> float:
-    """Float seconds of one ``builtin_interfaces/Time`` (``sec``, ``nanosec``)."""
-    return float(sec) + float(nanosec) * 1e-9
-
-
 @dataclass(frozen=True)
 class ParameterSpec:
     """Declaration of one parameter.

@@ -26,7 +26,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from tak_thermo_ros.core.effects import resolve_effect
-from tak_thermo_ros.core.effects.base import AXIS_NAMES, INPUT, Effect, seconds_from_ns
+from tak_thermo_ros.core.effects.base import AXIS_NAMES, INPUT, Effect
 from tak_thermo_ros.core.fit import (
     FitResult,
     finish_fit,
@@ -227,7 +227,7 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
     n_scale = max(abs(low - ref), abs(high - ref), 1.0)
     held = single_input_axes(train)
     code_all = np.clip(samples.temp_code, low, high)  # what the corrector's clamp policy gives
-    stamp_all = seconds_from_ns(samples.stamp_ns)
+    stamp_all = samples.stamp_s
     time_train = stamp_all[mask]
     code_train = code_all[mask]
     force = train.reference
