@@ -25,7 +25,7 @@ import numpy as np
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
-from tak_thermo_ros.core.online import imu_covariances as online_imu_covariances
+from tak_thermo_ros.core.correction import imu_covariances
 from tak_thermo_ros.core.record import NANOSECONDS, ChannelRecord
 from tak_thermo_ros.errors import BagError
 from tak_thermo_ros.progress import Progress
@@ -246,22 +246,12 @@ def write_record(path: str | os.PathLike[str], record: ChannelRecord, *, topics:
                 writer.write(counts_conn, stamp, serialize(message, VECTOR3_STAMPED))
 
 
-def imu_covariances(variance: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Orientation, angular-velocity and linear-acceleration covariances of the Imu output.
-
-    REP 145: ``[0] = -1`` marks orientation and angular velocity as not provided. The layout
-    is :func:`tak_thermo_ros.core.online.imu_covariances`, shared with the node.
-    """
-    orientation, angular, linear = online_imu_covariances(variance)
-    return np.array(orientation), np.array(angular), np.array(linear)
-
-
 def write_imu(path: str | os.PathLike[str], stamp_ns: np.ndarray, frame_id: str,
               acceleration: np.ndarray, variance: tuple[float, float, float], *,
               topic: str = Topics.imu, storage: str = 'mcap') -> None:
     """Write corrected specific force as ``sensor_msgs/msg/Imu`` (REP 103 axes, m/s^2)."""
     serialize = TYPESTORE.serialize_cdr
-    orientation_cov, angular_cov, linear_cov = imu_covariances(variance)
+    orientation_cov, angular_cov, linear_cov = (np.array(c) for c in imu_covariances(variance))
     identity = _Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
     zero = _Vector3(x=0.0, y=0.0, z=0.0)
     with _AtomicBag(path, storage) as writer:

@@ -40,9 +40,9 @@ from tak_thermo_ros.core.calibration_file import (
     load_calibration,
     nest_parameters,
 )
-from tak_thermo_ros.core.correction import OutOfRange
+from tak_thermo_ros.core.correction import OutOfRange, imu_covariances
 from tak_thermo_ros.core.model import Calibration
-from tak_thermo_ros.core.online import Level, OnlineCompensator, StaleTemperature, imu_covariances
+from tak_thermo_ros.core.online import Level, OnlineCompensator, StaleTemperature
 from tak_thermo_ros.errors import CalibrationError, TakError
 
 COUNTS_TOPIC = 'tak/counts'

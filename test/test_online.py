@@ -8,14 +8,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from tak_thermo_ros.bagio import imu_covariances as bag_imu_covariances
-from tak_thermo_ros.core.correction import Corrector, OutOfRange, acceleration_variance
+from tak_thermo_ros.core.correction import Corrector, OutOfRange, acceleration_variance, imu_covariances
 from tak_thermo_ros.core.online import (
     ONLINE_DROP_REASONS,
     Level,
     OnlineCompensator,
     StaleTemperature,
-    imu_covariances,
 )
 from tak_thermo_ros.core.record import counts_problems
 from tak_thermo_ros.core.simulate import Scenario
@@ -266,11 +264,9 @@ def test_no_counts_yet_is_a_warning():
     assert status.level is Level.WARN and 'no counts messages yet' in status.message
 
 
-def test_imu_covariance_layout_shared_with_the_bag_writer():
-    """The node's covariances are the ones tak_calib apply writes (REP 145)."""
+def test_imu_covariance_layout():
+    """REP 145 markers and the fit's diagonal (one layout for node and apply; test_node compares their output)."""
     variance = acceleration_variance(CALIBRATION)
     orientation, angular, linear = imu_covariances(variance)
     assert orientation[0] == angular[0] == -1.0 and not any(orientation[1:]) and not any(angular[1:])
     assert (linear[0], linear[4], linear[8]) == variance and variance[0] > 0.0
-    for ours, bags in zip((orientation, angular, linear), bag_imu_covariances(variance)):
-        assert np.array_equal(np.array(ours), bags)

@@ -176,3 +176,16 @@ def acceleration_variance(calibration: Calibration) -> tuple[float, float, float
         rms = axis.residual_rms
         variances.append(0.0 if rms is None or not math.isfinite(rms) else (rms / axis.scale) ** 2)
     return variances[0], variances[1], variances[2]
+
+
+def imu_covariances(variance: tuple[float, float, float]) -> tuple[tuple[float, ...], tuple[float, ...],
+                                                                   tuple[float, ...]]:
+    """Orientation, angular-velocity and linear-acceleration covariances of the Imu output.
+
+    The one layout for the node and ``tak_calib apply``. REP 145: ``[0] = -1`` marks orientation and angular velocity as not provided; the linear
+    acceleration covariance is diagonal, from the fit residual (all zero when unknown).
+    """
+    not_provided = (-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    x, y, z = (float(v) for v in variance)
+    linear = (x, 0.0, 0.0, 0.0, y, 0.0, 0.0, 0.0, z)
+    return not_provided, not_provided, linear

@@ -96,19 +96,6 @@ class Status:
         return dict(self.values)[key]
 
 
-def imu_covariances(variance: tuple[float, float, float]) -> tuple[tuple[float, ...], tuple[float, ...],
-                                                                   tuple[float, ...]]:
-    """Orientation, angular-velocity and linear-acceleration covariances of the Imu output.
-
-    REP 145: ``[0] = -1`` marks orientation and angular velocity as not provided; the linear
-    acceleration covariance is diagonal, from the fit residual (all zero when unknown).
-    """
-    not_provided = (-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    x, y, z = (float(v) for v in variance)
-    linear = (x, 0.0, 0.0, 0.0, y, 0.0, 0.0, 0.0, z)
-    return not_provided, not_provided, linear
-
-
 class _Throttle:
     """First report at once, then at most one per period, counting what was held back."""
 
