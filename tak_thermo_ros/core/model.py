@@ -190,10 +190,6 @@ class Calibration:
         """Return the model of axis ``'x'``, ``'y'`` or ``'z'``."""
         return self.axes[AXES.index(name)]
 
-    def in_range(self, temp_code: float) -> bool:
-        """Tell whether a temperature code lies inside the calibrated range."""
-        return self.temp_code_min <= temp_code <= self.temp_code_max
-
     def code_offset_range(self) -> tuple[float, float]:
         """The calibrated range as ``(n_min, n_max)`` with ``n = N_t - N_t,ref``."""
         return (self.temp_code_min - self.temp_code_ref, self.temp_code_max - self.temp_code_ref)
@@ -203,10 +199,6 @@ class Calibration:
         flat = tuple(replace(axis, offset_span=0.0, offset_shape=(0.0,), scale_shape=(0.0,))
                      for axis in self.axes)
         return replace(self, axes=flat, effects=())  # type: ignore[arg-type]
-
-    def without_effects(self) -> Calibration:
-        """The paper's model of the same unit (effects dropped)."""
-        return replace(self, effects=())
 
     def forward(self, specific_force: np.ndarray, temp_code: np.ndarray, *,
                 stamp_s: np.ndarray | None = None) -> np.ndarray:

@@ -290,9 +290,6 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
             entry.done = True
         offsets.append(entry)
 
-    def extra_columns(skip: _Offset | None = None, with_basis: np.ndarray | None = None) -> np.ndarray:
-        return extra_and_norms(skip, with_basis)[0]
-
     def extra_and_norms(skip: _Offset | None = None,
                         with_basis: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         blocks = [entry.basis[mask] for entry in offsets if entry is not skip and entry.done]
