@@ -26,7 +26,8 @@ from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 from tak_thermo_ros.core.correction import imu_covariances
-from tak_thermo_ros.core.record import NANOSECONDS, ChannelRecord
+from tak_thermo_ros.core.model import InputKind
+from tak_thermo_ros.core.record import NANOSECONDS, ChannelRecord, DriverRecord
 from tak_thermo_ros.errors import BagError
 from tak_thermo_ros.progress import Progress
 
@@ -49,12 +50,41 @@ _Imu = TYPESTORE.types[IMU]
 
 @dataclass(frozen=True)
 class Topics:
-    """Topic names of the bag contract."""
+    """Topic names of the bag contract (counts input) and of a driver bag (Imu input)."""
 
     counts: str = '/tak/counts'
     temp_code: str = '/tak/temp_code'
     reference: str = '/tak/reference'
     imu: str = '/tak/imu/data_raw'
+    raw_imu: str = '/imu/data_raw'
+    temperature: str = '/imu/temperature'
+    reference_rate: str = '/tak/reference_rate'
+    compensated_imu: str = '/imu/data_compensated'
+
+
+def bag_input_kind(path: str | os.PathLike[str], *, topics: Topics = Topics()) -> InputKind:
+    """Which contract a bag follows: the paper's counts topic, or a driver's Imu topic.
+
+    :raises BagError: missing bag, or neither topic in it.
+    """
+    path = Path(path)
+    if not path.exists():
+        msg = f'{path}: no such bag'
+        raise BagError(msg)
+    try:
+        with Reader(path) as reader:
+            names = {c.topic for c in reader.connections}
+    except Exception as err:  # rosbags and the storage libraries raise many kinds
+        detail = str(err).splitlines()[0] if str(err) else type(err).__name__
+        msg = f'{path}: cannot read bag ({detail})'
+        raise BagError(msg) from None
+    if topics.counts in names:
+        return InputKind.COUNTS
+    if topics.raw_imu in names:
+        return InputKind.IMU
+    msg = (f'{path}: topic {topics.counts} not found (channel codes), nor {topics.raw_imu} (a driver\'s Imu) '
+           f'(topics in the bag: {", ".join(sorted(names)) or "none"})')
+    raise BagError(msg)
 
 
 def _header(stamp_ns: int, frame_id: str):
@@ -138,6 +168,91 @@ def read_record(path: str | os.PathLike[str], *, topics: Topics = Topics(),
     return ChannelRecord(counts_stamp_ns=counts_stamp, counts=counts, temp_stamp_ns=temp_stamp,
                          temp_code=temp_code, reference_stamp_ns=reference_stamp,
                          reference=reference, frame_id=frame_id, nominal_scale=nominal_scale)
+
+
+def read_driver_record(path: str | os.PathLike[str], *, topics: Topics = Topics(),
+                       progress: bool = True) -> DriverRecord:
+    """Read a driver bag: the Imu, the temperature (degrees C) and the optional references.
+
+    :raises BagError: missing bag or topic, wrong type, empty topic, a frame_id that changes,
+        unreadable or truncated file.
+    """
+    path = Path(path)
+    if not path.exists():
+        msg = f'{path}: no such bag'
+        raise BagError(msg)
+    try:
+        with Reader(path) as reader:
+            imu_topic = _TopicReader(reader, path, topics.raw_imu, IMU, required=True)
+            temp_topic = _TopicReader(reader, path, topics.temperature, TEMPERATURE, required=True)
+            reference_topic = _TopicReader(reader, path, topics.reference, VECTOR3_STAMPED, required=False)
+            rate_topic = _TopicReader(reader, path, topics.reference_rate, VECTOR3_STAMPED, required=False)
+            for topic in (imu_topic, temp_topic):
+                if topic.count == 0:
+                    msg = f'{path}: no messages on {topic.topic}'
+                    raise BagError(msg)
+            total = imu_topic.count + temp_topic.count + reference_topic.count + rate_topic.count
+            with Progress(total, f'reading {path.name}', enabled=None if progress else False) as bar:
+                imu = _read_imu_messages(imu_topic, bar, path)
+                temp_stamp, temperature = _read_temperatures(temp_topic, bar, path)
+                reference_stamp, reference, _ = _read_vectors(reference_topic, bar, path, check_frame=False)
+                rate_stamp, rate, _ = _read_vectors(rate_topic, bar, path, check_frame=False)
+    except BagError:
+        raise
+    except Exception as err:  # rosbags and the storage libraries raise many kinds
+        detail = str(err).splitlines()[0] if str(err) else type(err).__name__
+        msg = f'{path}: cannot read bag ({detail})'
+        raise BagError(msg) from None
+    stamps, accel, gyro, orientation, orientation_covariance, frame_id = imu
+    return DriverRecord(stamp_ns=stamps, accel=accel, gyro=gyro, orientation=orientation,
+                        orientation_covariance=orientation_covariance, temp_stamp_ns=temp_stamp,
+                        temperature=temperature, reference_stamp_ns=reference_stamp, reference=reference,
+                        rate_reference_stamp_ns=rate_stamp, rate_reference=rate, frame_id=frame_id)
+
+
+def _read_temperatures(topic: _TopicReader, bar: Progress, path: Path) -> tuple[np.ndarray, np.ndarray]:
+    stamps = np.empty(topic.count, dtype=np.int64)
+    values = np.empty(topic.count)
+    filled = 0
+    for filled, message in enumerate(topic.messages(bar), start=1):
+        stamps[filled - 1] = _stamp_ns(message.header)
+        values[filled - 1] = message.temperature
+    if filled != topic.count:
+        msg = f'{path}: {topic.topic} holds {filled} of the {topic.count} messages its index lists (truncated bag?)'
+        raise BagError(msg)
+    return stamps, values
+
+
+def _read_imu_messages(topic: _TopicReader, bar: Progress, path: Path):
+    count = topic.count
+    stamps = np.empty(count, dtype=np.int64)
+    accel = np.empty((count, 3))
+    gyro = np.empty((count, 3))
+    orientation = np.empty((count, 4))
+    orientation_covariance = np.empty((count, 9))
+    frame_id = ''
+    filled = 0
+    for filled, message in enumerate(topic.messages(bar), start=1):
+        row = filled - 1
+        header = message.header
+        stamps[row] = header.stamp.sec * NANOSECONDS + header.stamp.nanosec
+        acc = message.linear_acceleration
+        rate = message.angular_velocity
+        quaternion = message.orientation
+        accel[row] = (acc.x, acc.y, acc.z)
+        gyro[row] = (rate.x, rate.y, rate.z)
+        orientation[row] = (quaternion.x, quaternion.y, quaternion.z, quaternion.w)
+        orientation_covariance[row] = message.orientation_covariance
+        if row == 0:
+            frame_id = header.frame_id
+        elif header.frame_id != frame_id:
+            msg = (f'{path}: frame_id on {topic.topic} changes from {frame_id!r} to '
+                   f'{header.frame_id!r} at message {filled}; one frame per run is supported')
+            raise BagError(msg)
+    if filled != count:
+        msg = f'{path}: {topic.topic} holds {filled} of the {count} messages its index lists (truncated bag?)'
+        raise BagError(msg)
+    return stamps, accel, gyro, orientation, orientation_covariance, frame_id
 
 
 def _nominal_scale(reader: Reader, path: Path) -> tuple[float, float, float] | None:
@@ -246,19 +361,78 @@ def write_record(path: str | os.PathLike[str], record: ChannelRecord, *, topics:
                 writer.write(counts_conn, stamp, serialize(message, VECTOR3_STAMPED))
 
 
+def write_driver_record(path: str | os.PathLike[str], record: DriverRecord, *, topics: Topics = Topics(),
+                        storage: str = 'mcap') -> None:
+    """Write a driver run (Imu, temperature in C, references if any) in stamp order."""
+    serialize = TYPESTORE.serialize_cdr
+    events: list[tuple[int, int, int]] = []  # (stamp, stream, row): 0 temperature, 1 ref, 2 rate ref, 3 Imu
+    events += [(int(s), 0, i) for i, s in enumerate(record.temp_stamp_ns)]
+    events += [(int(s), 1, i) for i, s in enumerate(record.reference_stamp_ns)]
+    events += [(int(s), 2, i) for i, s in enumerate(record.rate_reference_stamp_ns)]
+    events += [(int(s), 3, i) for i, s in enumerate(record.stamp_ns)]
+    events.sort()
+    zero_covariance = np.zeros(9)
+    with _AtomicBag(path, storage) as writer:
+        imu_conn = writer.add_connection(topics.raw_imu, IMU, typestore=TYPESTORE)
+        temp_conn = writer.add_connection(topics.temperature, TEMPERATURE, typestore=TYPESTORE)
+        reference_conn = (writer.add_connection(topics.reference, VECTOR3_STAMPED, typestore=TYPESTORE)
+                          if len(record.reference_stamp_ns) else None)
+        rate_conn = (writer.add_connection(topics.reference_rate, VECTOR3_STAMPED, typestore=TYPESTORE)
+                     if len(record.rate_reference_stamp_ns) else None)
+        for stamp, stream, row in events:
+            header = _header(stamp, record.frame_id)
+            if stream == 0:
+                message = _Temperature(header=header, temperature=float(record.temperature[row]), variance=0.0)
+                writer.write(temp_conn, stamp, serialize(message, TEMPERATURE))
+            elif stream in (1, 2):
+                values = record.reference if stream == 1 else record.rate_reference
+                x, y, z = (float(v) for v in values[row])
+                message = _Vector3Stamped(header=header, vector=_Vector3(x=x, y=y, z=z))
+                writer.write(reference_conn if stream == 1 else rate_conn, stamp,
+                             serialize(message, VECTOR3_STAMPED))
+            else:
+                qx, qy, qz, qw = (float(v) for v in record.orientation[row])
+                ax, ay, az = (float(v) for v in record.accel[row])
+                gx, gy, gz = (float(v) for v in record.gyro[row])
+                message = _Imu(header=header, orientation=_Quaternion(x=qx, y=qy, z=qz, w=qw),
+                               orientation_covariance=np.asarray(record.orientation_covariance[row], dtype=float),
+                               angular_velocity=_Vector3(x=gx, y=gy, z=gz),
+                               angular_velocity_covariance=zero_covariance,
+                               linear_acceleration=_Vector3(x=ax, y=ay, z=az),
+                               linear_acceleration_covariance=zero_covariance)
+                writer.write(imu_conn, stamp, serialize(message, IMU))
+
+
 def write_imu(path: str | os.PathLike[str], stamp_ns: np.ndarray, frame_id: str,
               acceleration: np.ndarray, variance: tuple[float, float, float], *,
-              topic: str = Topics.imu, storage: str = 'mcap') -> None:
-    """Write corrected specific force as ``sensor_msgs/msg/Imu`` (REP 103 axes, m/s^2)."""
+              topic: str = Topics.imu, storage: str = 'mcap', angular_velocity: np.ndarray | None = None,
+              angular_variance: tuple[float, float, float] | None = None,
+              orientation: np.ndarray | None = None, orientation_covariance: np.ndarray | None = None) -> None:
+    """Write corrected samples as ``sensor_msgs/msg/Imu`` (REP 103 axes, m/s^2, rad/s).
+
+    Counts input: the specific force only, orientation and angular velocity marked not
+    provided (:func:`~tak_thermo_ros.core.correction.imu_covariances`). Driver input: also the
+    corrected angular velocity, and the driver's orientation and its covariance passed through
+    per message.
+    """
     serialize = TYPESTORE.serialize_cdr
-    orientation_cov, angular_cov, linear_cov = (np.array(c) for c in imu_covariances(variance))
+    orientation_cov, angular_cov, linear_cov = (np.array(c) for c in imu_covariances(variance, angular_variance))
     identity = _Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
     zero = _Vector3(x=0.0, y=0.0, z=0.0)
+    rates = angular_velocity.tolist() if angular_velocity is not None else None
+    quaternions = orientation.tolist() if orientation is not None else None
     with _AtomicBag(path, storage) as writer:
         connection = writer.add_connection(topic, IMU, typestore=TYPESTORE)
-        for stamp, (x, y, z) in zip(stamp_ns.tolist(), acceleration.tolist()):
-            message = _Imu(header=_header(stamp, frame_id), orientation=identity,
-                           orientation_covariance=orientation_cov, angular_velocity=zero,
+        for row, (stamp, (x, y, z)) in enumerate(zip(stamp_ns.tolist(), acceleration.tolist())):
+            rate = zero if rates is None else _Vector3(x=rates[row][0], y=rates[row][1], z=rates[row][2])
+            if quaternions is None:
+                quaternion, covariance = identity, orientation_cov
+            else:
+                qx, qy, qz, qw = quaternions[row]
+                quaternion = _Quaternion(x=qx, y=qy, z=qz, w=qw)
+                covariance = np.asarray(orientation_covariance[row], dtype=float)
+            message = _Imu(header=_header(stamp, frame_id), orientation=quaternion,
+                           orientation_covariance=covariance, angular_velocity=rate,
                            angular_velocity_covariance=angular_cov,
                            linear_acceleration=_Vector3(x=x, y=y, z=z),
                            linear_acceleration_covariance=linear_cov)
@@ -289,3 +463,59 @@ def read_imu(path: str | os.PathLike[str], *, topic: str = Topics.imu) -> tuple[
         raise BagError(msg) from None
     return (np.asarray(stamps, dtype=np.int64), np.asarray(values).reshape(-1, 3), frames,
             np.asarray(covariances).reshape(-1, 9))
+
+
+@dataclass(frozen=True)
+class ImuMessages:
+    """An Imu topic read back as arrays (what ``apply`` wrote, or what the node published).
+
+    :param stamp_ns: ``(k,)`` header stamps.
+    :param frame_ids: frame of each message.
+    :param orientation: ``(k, 4)`` ``(x, y, z, w)``.
+    :param orientation_covariance: ``(k, 9)``.
+    :param angular_velocity: ``(k, 3)`` rad/s.
+    :param angular_velocity_covariance: ``(k, 9)``.
+    :param linear_acceleration: ``(k, 3)`` m/s^2.
+    :param linear_acceleration_covariance: ``(k, 9)``.
+    """
+
+    stamp_ns: np.ndarray
+    frame_ids: list[str]
+    orientation: np.ndarray
+    orientation_covariance: np.ndarray
+    angular_velocity: np.ndarray
+    angular_velocity_covariance: np.ndarray
+    linear_acceleration: np.ndarray
+    linear_acceleration_covariance: np.ndarray
+
+
+def read_imu_messages(path: str | os.PathLike[str], *, topic: str) -> ImuMessages:
+    """Every field of an Imu topic that the correction touches or passes through."""
+    path = Path(path)
+    rows: list[tuple] = []
+    try:
+        with Reader(path) as reader:
+            connections = [c for c in reader.connections if c.topic == topic]
+            if not connections:
+                msg = f'{path}: topic {topic} not found'
+                raise BagError(msg)
+            for connection, _, raw in reader.messages(connections=connections):
+                m = TYPESTORE.deserialize_cdr(raw, connection.msgtype)
+                q, w, a = m.orientation, m.angular_velocity, m.linear_acceleration
+                rows.append((_stamp_ns(m.header), m.header.frame_id, (q.x, q.y, q.z, q.w),
+                             np.asarray(m.orientation_covariance), (w.x, w.y, w.z),
+                             np.asarray(m.angular_velocity_covariance), (a.x, a.y, a.z),
+                             np.asarray(m.linear_acceleration_covariance)))
+    except BagError:
+        raise
+    except Exception as err:
+        msg = f'{path}: cannot read bag ({err})'
+        raise BagError(msg) from None
+    columns = list(zip(*rows)) if rows else [()] * 8
+    return ImuMessages(stamp_ns=np.asarray(columns[0], dtype=np.int64), frame_ids=list(columns[1]),
+                       orientation=np.asarray(columns[2], dtype=float).reshape(-1, 4),
+                       orientation_covariance=np.asarray(columns[3], dtype=float).reshape(-1, 9),
+                       angular_velocity=np.asarray(columns[4], dtype=float).reshape(-1, 3),
+                       angular_velocity_covariance=np.asarray(columns[5], dtype=float).reshape(-1, 9),
+                       linear_acceleration=np.asarray(columns[6], dtype=float).reshape(-1, 3),
+                       linear_acceleration_covariance=np.asarray(columns[7], dtype=float).reshape(-1, 9))

@@ -18,31 +18,60 @@ import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Callable, Sequence  # noqa: E402
 
-from tak_thermo_ros.core.calibration_file import load_calibration, save_calibration, write_text_atomic
-from tak_thermo_ros.core.correction import Corrector, OutOfRange, acceleration_variance
-from tak_thermo_ros.core.fit import fit_model
-from tak_thermo_ros.core.model import AXES
-from tak_thermo_ros.core.record import AlignedSamples, ChannelRecord, align
+from dataclasses import dataclass, replace  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from tak_thermo_ros.core.calibration_file import load_unit, save_unit, write_text_atomic
+from tak_thermo_ros.core.correction import OutOfRange, UnitCorrector, acceleration_variance
+from tak_thermo_ros.core.fit import FitResult, fit_model
+from tak_thermo_ros.core.model import AXES, InputKind, UnitCalibration
+from tak_thermo_ros.core.record import AlignedSamples, ChannelRecord, DriverRecord, align
 from tak_thermo_ros.core.simulate import STANDARD_GRAVITY, Scenario, load_scenario, simulate
-from tak_thermo_ros.core.validate import validate_gravity
-from tak_thermo_ros.errors import TakError
+from tak_thermo_ros.core.static_run import STATIC_TOLERANCE_DEG, static_reference
+from tak_thermo_ros.core.validate import validate_gravity, validate_rate
+from tak_thermo_ros.errors import FitError, TakError
 
 EXIT_ERROR = 2
 
 
+UNITS = {(InputKind.COUNTS, 'accel'): 'counts', (InputKind.IMU, 'accel'): 'm/s^2', (InputKind.IMU, 'gyro'): 'rad/s'}
+"""The unit of a sensor's residuals and offsets, by input kind."""
+SENSOR_NAMES = {'accel': 'accelerometer', 'gyro': 'gyroscope'}
+
+
 def _topics(args: argparse.Namespace):
     from tak_thermo_ros.bagio import Topics
-    return Topics(counts=args.counts_topic, temp_code=args.temp_topic,
-                  reference=args.reference_topic, imu=getattr(args, 'imu_topic', Topics.imu))
+    defaults = Topics()
+    return Topics(counts=args.counts_topic, temp_code=args.temp_topic or defaults.temp_code,
+                  reference=args.reference_topic, imu=getattr(args, 'imu_topic', None) or defaults.imu,
+                  raw_imu=args.raw_imu_topic, temperature=args.temp_topic or defaults.temperature,
+                  reference_rate=args.reference_rate_topic,
+                  compensated_imu=getattr(args, 'imu_topic', None) or defaults.compensated_imu)
 
 
 def _add_topic_options(parser: argparse.ArgumentParser, *, imu: bool = False) -> None:
-    parser.add_argument('--counts-topic', default='/tak/counts', help='channel codes (Vector3Stamped)')
-    parser.add_argument('--temp-topic', default='/tak/temp_code', help='temperature-sensor codes (Temperature)')
-    parser.add_argument('--reference-topic', default='/tak/reference', help='true specific force (Vector3Stamped)')
+    group = parser.add_argument_group('topics (the input kind is taken from the bag: counts topic or driver Imu)')
+    group.add_argument('--counts-topic', default='/tak/counts', help='channel codes (Vector3Stamped)')
+    group.add_argument('--raw-imu-topic', default='/imu/data_raw', help="a driver's Imu (default /imu/data_raw)")
+    group.add_argument('--temp-topic', help='temperature (Temperature): codes /tak/temp_code with counts, '
+                                            'degrees C /imu/temperature with a driver Imu')
+    group.add_argument('--reference-topic', default='/tak/reference', help='true specific force (Vector3Stamped)')
+    group.add_argument('--reference-rate-topic', default='/tak/reference_rate',
+                       help='true angular rate, rad/s (Vector3Stamped; driver bags)')
     if imu:
-        parser.add_argument('--imu-topic', default='/tak/imu/data_raw', help='corrected output (Imu)')
+        group.add_argument('--imu-topic', help='corrected output (Imu): default /tak/imu/data_raw with counts, '
+                                               '/imu/data_compensated with a driver Imu')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar even on a terminal')
+
+
+def _add_static_options(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group('driver bags without reference topics (a static run)')
+    group.add_argument('--gravity', type=float, default=STANDARD_GRAVITY,
+                       help='local gravity, m/s^2: the magnitude of the estimated specific-force reference')
+    group.add_argument('--latitude', type=float, metavar='DEG',
+                       help="adds the Earth rate's vertical component (Omega_E sin(latitude), along the "
+                            'measured up direction) to the rate reference; default zero')
 
 
 def _out_of_range(parser: argparse.ArgumentParser) -> None:
@@ -68,103 +97,275 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _read_samples(args: argparse.Namespace, *, calibration_run: bool,
-                  settle_time_s: float = 0.0) -> tuple[ChannelRecord, AlignedSamples]:
-    """Read the bag named by ``args.bag`` and align its streams on the counts stamps.
+@dataclass(frozen=True)
+class SensorRun:
+    """One sensor's streams of a bag, aligned on its stamps.
 
-    :param calibration_run: the reference stream is required and held on the samples.
+    :param sensor: ``'accel'`` or ``'gyro'``.
+    :param record: the streams.
+    :param samples: the usable samples, reference held (calibration runs).
     """
-    from tak_thermo_ros.bagio import read_record
-    record = read_record(args.bag, topics=_topics(args), require_reference=calibration_run,
-                         progress=not args.no_progress)
-    return record, align(record, use_reference=calibration_run, settle_time_s=settle_time_s)
+
+    sensor: str
+    record: ChannelRecord
+    samples: AlignedSamples
+
+
+@dataclass(frozen=True)
+class BagRun:
+    """A bag read for fit, diagnose or validate: one :class:`SensorRun` per sensor.
+
+    :param input_kind: counts (the paper's bag contract) or a driver's Imu.
+    :param sensors: the accelerometer, then (driver bags) the gyroscope.
+    :param reference_lines: how the reference was obtained, one line each (driver bags).
+    """
+
+    input_kind: InputKind
+    sensors: tuple[SensorRun, ...]
+    reference_lines: tuple[str, ...] = ()
+
+    def sensor(self, name: str) -> SensorRun:
+        """The run of ``'accel'`` or ``'gyro'``."""
+        return next(run for run in self.sensors if run.sensor == name)
+
+
+def _read_run(args: argparse.Namespace, *, calibration_run: bool, settle_time_s: float = 0.0) -> BagRun:
+    """Read the bag named by ``args.bag``, whichever contract it follows, and align its streams.
+
+    :param calibration_run: the reference is required (counts bags) or estimated (driver
+        bags without reference topics: a static run), and held on the samples.
+    """
+    from tak_thermo_ros.bagio import bag_input_kind, read_driver_record, read_record
+    topics = _topics(args)
+    kind = bag_input_kind(args.bag, topics=topics)
+    if kind is InputKind.COUNTS:
+        record = read_record(args.bag, topics=topics, require_reference=calibration_run,
+                             progress=not args.no_progress)
+        samples = align(record, use_reference=calibration_run, settle_time_s=settle_time_s)
+        return BagRun(kind, (SensorRun('accel', record, samples),))
+    driver = read_driver_record(args.bag, topics=topics, progress=not args.no_progress)
+    driver, lines = _with_references(driver, args, topics)
+    runs = []
+    for sensor in ('accel', 'gyro'):
+        record = driver.channel(sensor)
+        runs.append(SensorRun(sensor, record, align(record, use_reference=True, settle_time_s=settle_time_s)))
+    return BagRun(kind, tuple(runs), tuple(lines))
+
+
+def _with_references(driver: DriverRecord, args: argparse.Namespace, topics) -> tuple[DriverRecord, list[str]]:
+    """The driver record with both references: recorded, or those of a static run."""
+    lines = []
+    if len(driver.reference_stamp_ns) and len(driver.rate_reference_stamp_ns):
+        return driver, [f'reference: {topics.reference} and {topics.reference_rate} as recorded']
+    finite = np.all(np.isfinite(driver.accel), axis=1)
+    gravity = getattr(args, 'gravity', STANDARD_GRAVITY)
+    latitude = getattr(args, 'latitude', None)
+    static = static_reference(driver.accel[finite], gravity=gravity, latitude_deg=latitude)
+    first = driver.stamp_ns[:1].copy()
+    if len(driver.reference_stamp_ns):
+        lines.append(f'reference: {topics.reference} as recorded')
+    else:
+        if static.magnitude < 0.1 * gravity:
+            msg = (f'{args.bag}: no {topics.reference} and the mean acceleration |{static.magnitude:.4g}| m/s^2 is '
+                   f'far below gravity: not a static run; record the reference')
+            raise TakError(msg)
+        if static.max_tilt_deg > STATIC_TOLERANCE_DEG:
+            msg = (f'{args.bag}: no {topics.reference} and the board moved (a sample {static.max_tilt_deg:.1f} deg '
+                   f'from the mean direction): a static run needs one orientation; record the reference')
+            raise TakError(msg)
+        x, y, z = (float(v) for v in static.specific_force)
+        lines.append(f'reference (static run): mean measured direction scaled to gravity {gravity:g} m/s^2 = '
+                     f'({x:.4f}, {y:.4f}, {z:.4f}) m/s^2 (largest deviation {static.max_tilt_deg:.2f} deg)')
+        driver = replace(driver, reference_stamp_ns=first, reference=static.specific_force.reshape(1, 3))
+    if len(driver.rate_reference_stamp_ns):
+        lines.append(f'rate reference: {topics.reference_rate} as recorded')
+    else:
+        x, y, z = (float(v) for v in static.rate)
+        lines.append(f'rate reference (static run): zero' if latitude is None else
+                     f'rate reference (static run): the Earth rate\'s vertical component at latitude {latitude:g} deg '
+                     f'= ({x:.3e}, {y:.3e}, {z:.3e}) rad/s')
+        driver = replace(driver, rate_reference_stamp_ns=first, rate_reference=static.rate.reshape(1, 3))
+    return driver, lines
 
 
 def _describe_dropped(dropped: dict[str, int]) -> str:
     return ', '.join(f'{count} {reason.replace("_", " ")}' for reason, count in sorted(dropped.items()))
 
 
-def cmd_fit(args: argparse.Namespace) -> int:
-    """Fit the correction link to a calibration bag."""
-    record, samples = _read_samples(args, calibration_run=True, settle_time_s=args.settle_time)
+def _nominal(args: argparse.Namespace, record: ChannelRecord) -> tuple[float, float, float] | None:
     nominal = record.nominal_scale
-    if args.nominal_scale is not None:
+    if args.nominal_scale is not None and record.input_kind == InputKind.COUNTS.value:
         nominal = tuple(args.nominal_scale * 3 if len(args.nominal_scale) == 1 else args.nominal_scale)
         if len(nominal) != 3:
             msg = f'--nominal-scale takes one value or three (x y z), got {len(args.nominal_scale)}'
             raise TakError(msg)
-    effects = [spec.strip() for spec in (args.effects or '').split(',') if spec.strip()]
-    result = fit_model(samples, effects=effects, bias_order=args.bias_order, scale_order=args.scale_order,
-                       temp_code_ref=args.temp_code_ref, nominal_scale=nominal)
-    calibration = result.calibration
+    return nominal
+
+
+def _effect_list(text: str | None) -> list[str]:
+    return [spec.strip() for spec in (text or '').split(',') if spec.strip()]
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    """Fit the correction link to a calibration bag (counts, or a driver's Imu: both sensors)."""
+    run = _read_run(args, calibration_run=True, settle_time_s=args.settle_time)
+    effects = {'accel': _effect_list(args.effects), 'gyro': _effect_list(args.gyro_effects)}
+    if run.input_kind is InputKind.COUNTS and effects['gyro']:
+        msg = f'--gyro-effects: {args.bag} holds channel codes of the accelerometer only'
+        raise TakError(msg)
+    results: dict[str, FitResult] = {}
+    for sensor_run in run.sensors:
+        try:
+            results[sensor_run.sensor] = fit_model(
+                sensor_run.samples, effects=effects[sensor_run.sensor], bias_order=args.bias_order,
+                scale_order=args.scale_order, temp_code_ref=args.temp_code_ref,
+                nominal_scale=_nominal(args, sensor_run.record))
+        except FitError as err:
+            if run.input_kind is InputKind.COUNTS:
+                raise
+            msg = f'{SENSOR_NAMES[sensor_run.sensor]}: {err}'
+            raise FitError(msg) from None
+    unit = UnitCalibration(run.input_kind, results['accel'].calibration,
+                           results['gyro'].calibration if 'gyro' in results else None)
+    applied = ', '.join(f'{sensor} {", ".join(e.name for e in calibration.effects)}'
+                        for sensor, calibration in unit.sensors if calibration.effects)
     header = (f'tak_thermo_ros calibration fitted from {args.bag}\n'
-              f'{result.samples} samples, bias order {args.bias_order}, scale order {args.scale_order}'
-              f'{", effects " + ", ".join(e.name for e in calibration.effects) if calibration.effects else ""}\n'
+              f'{results["accel"].samples} samples, bias order {args.bias_order}, scale order {args.scale_order}'
+              f'{", effects " + applied if applied else ""}\n'
               f'load with: ros2 run tak_thermo_ros compensator --ros-args --params-file {Path(args.output).name}')
-    save_calibration(args.output, calibration, header=header)
-    print(f'fitted {result.samples} samples from {args.bag}')
-    if result.dropped:
-        print(f'left out: {_describe_dropped(result.dropped)}')
-    print(f'calibrated temperature-code range {calibration.temp_code_min:g}..{calibration.temp_code_max:g}, '
-          f'reference {calibration.temp_code_ref:g}')
-    for name, axis, stats in zip(AXES, calibration.axes, result.axes):
-        print(f'  {name}: residual RMS {stats.residual_rms:.3f} counts '
-              f'({stats.residual_rms / axis.scale * 1000.0:.3f} mm/s^2); scale {axis.scale:.4f} counts/(m/s^2)'
-              f'{"" if axis.scale_observable else " (held)"}, '
-              f'offset {axis.offset:.3f}, offset span {axis.offset_span:.3f} counts')
-    for effect in calibration.effects:
-        errors = result.parameter_errors
-        shown = ', '.join(f'{p.name} {p.value:.4g}' + (f' +- {errors[effect.name + "." + p.name]:.2g}'
-                                                       if effect.name + '.' + p.name in errors else '')
-                          + (f' {p.unit}' if p.unit else '') for p in effect.parameters)
-        print(f'  effect {effect.name}: {shown}')
-    for note in calibration.notes:
-        print(f'note: {note}')
+    save_unit(args.output, unit, header=header)
+    print(f'fitted {results["accel"].samples} samples from {args.bag}'
+          f'{" (driver Imu: accelerometer and gyroscope)" if run.input_kind is InputKind.IMU else ""}')
+    for line in run.reference_lines:
+        print(line)
+    for sensor_run in run.sensors:
+        sensor, result = sensor_run.sensor, results[sensor_run.sensor]
+        calibration = result.calibration
+        unit_name = UNITS[run.input_kind, sensor]
+        prefix = '' if run.input_kind is InputKind.COUNTS else f'{SENSOR_NAMES[sensor]}: '
+        if result.dropped:
+            print(f'{prefix}left out: {_describe_dropped(result.dropped)}')
+        if run.input_kind is InputKind.COUNTS:
+            print(f'calibrated temperature-code range {calibration.temp_code_min:g}..{calibration.temp_code_max:g}, '
+                  f'reference {calibration.temp_code_ref:g}')
+        elif sensor == 'accel':
+            print(f'calibrated temperature range {calibration.temp_code_min:g}..{calibration.temp_code_max:g} C, '
+                  f'reference {calibration.temp_code_ref:g} C')
+        if prefix:
+            print(prefix.rstrip())
+        for name, axis, stats in zip(AXES, calibration.axes, result.axes):
+            print(f'  {name}: residual RMS {_amount(stats.residual_rms, unit_name)}'
+                  f'{_in_si(stats.residual_rms / axis.scale, unit_name)}; '
+                  f'scale {axis.scale:.6g}{" counts/(m/s^2)" if unit_name == "counts" else ""}'
+                  f'{"" if axis.scale_observable else " (held)"}, '
+                  f'offset {_amount(axis.offset, unit_name)}, offset span {_amount(axis.offset_span, unit_name)}')
+        for effect in calibration.effects:
+            errors = result.parameter_errors
+            shown = ', '.join(f'{p.name} {p.value:.4g}' + (f' +- {errors[effect.name + "." + p.name]:.2g}'
+                                                           if effect.name + '.' + p.name in errors else '')
+                              + (f' {p.unit}' if p.unit else '') for p in effect.parameters)
+            print(f'  effect {effect.name}: {shown}')
+        for note in calibration.notes:
+            print(f'note: {prefix}{note}')
     print(f'wrote {args.output}')
     return 0
 
 
+def _amount(value: float, unit: str) -> str:
+    """A residual or offset in a sensor's unit (counts to three decimals, SI to four digits)."""
+    if unit == 'counts':
+        return f'{value:.3f} counts'
+    if unit == 'rad/s':
+        return f'{value:.4g} rad/s ({value * 180.0 / 3.141592653589793:.4g} deg/s)'
+    return f'{value:.4g} {unit}'
+
+
+def _in_si(value: float, unit: str) -> str:
+    return f' ({value * 1000.0:.3f} mm/s^2)' if unit == 'counts' else ''
+
+
 def cmd_apply(args: argparse.Namespace) -> int:
-    """Correct a bag's counts and write Imu messages."""
-    from tak_thermo_ros.bagio import write_imu
-    calibration = load_calibration(args.params)
-    record, samples = _read_samples(args, calibration_run=False)
-    corrector = Corrector(calibration, out_of_range=OutOfRange(args.out_of_range))
-    acceleration = corrector.correct(samples.counts, samples.temp_code, stamp_s=samples.stamp_s)
-    write_imu(args.output, samples.stamp_ns, record.frame_id, acceleration,
-              acceleration_variance(calibration), topic=args.imu_topic, storage=args.storage)
-    print(f'wrote {len(samples)} Imu messages on {args.imu_topic} to {args.output}')
+    """Correct a bag's counts or driver Imu and write Imu messages."""
+    from tak_thermo_ros.bagio import bag_input_kind, read_driver_record, read_record, write_imu
+    unit = load_unit(args.params)
+    topics = _topics(args)
+    kind = bag_input_kind(args.bag, topics=topics)
+    if kind is not unit.input_kind:
+        msg = (f'{args.params} is a {unit.input_kind.value} calibration, {args.bag} holds '
+               f'{"channel codes" if kind is InputKind.COUNTS else "a driver Imu"}')
+        raise TakError(msg)
+    driver = None
+    if kind is InputKind.COUNTS:
+        record = read_record(args.bag, topics=topics, require_reference=False, progress=not args.no_progress)
+        output_topic = topics.imu
+    else:
+        driver = read_driver_record(args.bag, topics=topics, progress=not args.no_progress)
+        record = driver.six_channels()
+        output_topic = topics.compensated_imu
+    samples = align(record, use_reference=False)
+    corrector = UnitCorrector(unit, out_of_range=OutOfRange(args.out_of_range))
+    corrected = corrector.correct(samples.counts, samples.temp_code, stamp_s=samples.stamp_s)
+    extra = {}
+    if driver is not None:
+        kept = samples.rows
+        extra = dict(angular_velocity=corrected[:, 3:6], angular_variance=acceleration_variance(unit.gyro),
+                     orientation=driver.orientation[kept], orientation_covariance=driver.orientation_covariance[kept])
+    write_imu(args.output, samples.stamp_ns, record.frame_id, corrected[:, :3], acceleration_variance(unit.accel),
+              topic=output_topic, storage=args.storage, **extra)
+    print(f'wrote {len(samples)} Imu messages on {output_topic} to {args.output}')
     if samples.dropped:
-        print(f'dropped counts messages: {_describe_dropped(samples.dropped)}')
+        print(f'dropped {"counts" if driver is None else "Imu"} messages: {_describe_dropped(samples.dropped)}')
     outside = corrector.out_of_range_count(samples.temp_code)
     if outside:
-        print(f'warning: {outside} samples had a temperature code outside the calibrated range '
-              f'{calibration.temp_code_min:g}..{calibration.temp_code_max:g} ({args.out_of_range})')
+        low, high = unit.accel.temp_code_min, unit.accel.temp_code_max
+        what = 'temperature code' if kind is InputKind.COUNTS else 'temperature'
+        print(f'warning: {outside} samples had a {what} outside the calibrated range '
+              f'{low:g}..{high:g} ({args.out_of_range})')
     return 0
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
-    """|g| from the three channels before and after correction."""
-    calibration = load_calibration(args.params)
-    _, samples = _read_samples(args, calibration_run=False)
-    result = validate_gravity(calibration, samples.counts, samples.temp_code, gravity=args.gravity,
-                              stamp_s=samples.stamp_s,
-                              out_of_range=OutOfRange(args.out_of_range))
+    """|g| from the three accelerometer channels (and the gyroscope's rate error) before and after correction."""
+    unit = load_unit(args.params)
+    run = _read_run(args, calibration_run=unit.input_kind is InputKind.IMU)
+    _check_kind(args, unit, run)
+    accel = run.sensor('accel').samples
+    result = validate_gravity(unit.accel, accel.counts, accel.temp_code, gravity=args.gravity,
+                              stamp_s=accel.stamp_s, out_of_range=OutOfRange(args.out_of_range))
     before, after = result.before, result.after
-    print(f'|g| error over {len(samples)} samples of {args.bag} (gravity {args.gravity:g} m/s^2):')
+    print(f'|g| error over {len(accel)} samples of {args.bag} (gravity {args.gravity:g} m/s^2):')
     print(f'  before (nominal scale and offset): RMS {before.rms:.5f} m/s^2 ({before.rms / args.gravity * 1e3:.3f} mg), '
           f'max {before.max:.5f} m/s^2')
     print(f'  after  (full correction link):     RMS {after.rms:.5f} m/s^2 ({after.rms / args.gravity * 1e3:.3f} mg), '
           f'max {after.max:.5f} m/s^2')
     if result.out_of_range:
-        print(f'warning: {result.out_of_range} samples outside the calibrated temperature-code range ({args.out_of_range})')
+        print(f'warning: {result.out_of_range} samples outside the calibrated temperature range ({args.out_of_range})')
+    document = {'bag': str(args.bag), 'params': str(args.params), 'gravity': args.gravity,
+                'samples': len(accel), 'out_of_range': result.out_of_range,
+                'before': before.as_dict(), 'after': after.as_dict()}
+    if unit.gyro is not None:
+        for line in run.reference_lines:
+            if line.startswith('rate reference'):
+                print(line)
+        gyro = run.sensor('gyro').samples
+        rate = validate_rate(unit.gyro, gyro.counts, gyro.temp_code, gyro.reference, stamp_s=gyro.stamp_s,
+                             out_of_range=OutOfRange(args.out_of_range))
+        print(f'gyroscope bias error over {len(gyro)} samples (rate minus reference, per axis x y z):')
+        for label, stats in (('before (nominal scale and offset)', rate.before), ('after  (full correction link)', rate.after)):
+            print(f'  {label}: RMS ' + ' '.join(f'{v:.3e}' for v in stats.rms) + ' rad/s; mean '
+                  + ' '.join(f'{v:+.3e}' for v in stats.mean) + ' rad/s')
+        document['gyro'] = {'samples': len(gyro), 'before': rate.before.as_dict(), 'after': rate.after.as_dict()}
     if args.json:
-        document = {'bag': str(args.bag), 'params': str(args.params), 'gravity': args.gravity,
-                    'samples': len(samples), 'out_of_range': result.out_of_range,
-                    'before': before.as_dict(), 'after': after.as_dict()}
         write_text_atomic(args.json, json.dumps(document, indent=2) + '\n')
         print(f'wrote {args.json}')
     return 0
+
+
+def _check_kind(args: argparse.Namespace, unit: UnitCalibration, run: BagRun) -> None:
+    if run.input_kind is not unit.input_kind:
+        msg = (f'{args.params} is a {unit.input_kind.value} calibration, {args.bag} holds '
+               f'{"channel codes" if run.input_kind is InputKind.COUNTS else "a driver Imu"}')
+        raise TakError(msg)
 
 
 def cmd_import_csv(args: argparse.Namespace) -> int:
@@ -200,44 +401,69 @@ def cmd_import_csv(args: argparse.Namespace) -> int:
 
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
-    """Compare a calibration with a run: noise floor, residual views, the missing effect."""
+    """Compare a calibration with a run: noise floor, residual views, the missing effect, per sensor."""
     from tak_thermo_ros.core.diagnose import diagnose
-    calibration = load_calibration(args.params)
-    _, samples = _read_samples(args, calibration_run=True, settle_time_s=args.settle_time)
+    unit = load_unit(args.params)
+    run = _read_run(args, calibration_run=True, settle_time_s=args.settle_time)
+    _check_kind(args, unit, run)
     verbose = not args.no_progress and sys.stderr.isatty()
-
-    def progress(text: str) -> None:
-        if verbose:
-            print(f'cross-validating {text} ...', file=sys.stderr)
-
     candidates = expand_candidates(args.candidates) if args.candidates else None
-    result = diagnose(calibration, samples, candidates=candidates, folds=args.folds, progress=progress)
-    print(f'diagnosed {len(samples)} samples of {args.bag} against {args.params} '
-          f'(model: {result.ladder[0].label})')
-    if samples.dropped:
-        print(f'left out: {_describe_dropped(samples.dropped)}')
-    for name, axis in zip(AXES, result.axes):
-        print(f'  {name}: residual RMS {axis.rms:.3f} counts, noise floor {axis.noise_floor:.3f}; held-out '
-              f'{axis.heldout_rms:.3f} ({axis.heldout_rms / axis.noise_floor:.2f}x the floor)')
-    if result.candidates:
-        print('candidates, best first (held-out RMS x y z in counts; share of the excess over the floor removed):')
-        for candidate in result.candidates:
-            rms = ' '.join(f'{v:8.3f}' for v in candidate.rms_after)
-            print(f'  {candidate.effect:<20} {rms}  {round(100.0 * candidate.explained):5d}%')
-    for name, reason in result.skipped.items():
-        print(f'  {name:<20} not tried: {reason}')
-    if len(result.ladder) > 1:
-        print('model ladder (held-out RMS x y z): ' + '; '.join(
-            f'{step.label}: {" ".join(f"{v:.3f}" for v in step.heldout_rms)}' for step in result.ladder))
-    print(f'verdict: {result.verdict}')
-    print(result.message)
+    for line in run.reference_lines:
+        print(line)
+    results = {}
+    for sensor_run in run.sensors:
+        sensor, samples = sensor_run.sensor, sensor_run.samples
+        unit_name = UNITS[run.input_kind, sensor]
+        label = '' if run.input_kind is InputKind.COUNTS else f'{SENSOR_NAMES[sensor]}: '
+
+        def progress(text: str, label: str = label) -> None:
+            if verbose:
+                print(f'{label}cross-validating {text} ...', file=sys.stderr)
+
+        result = diagnose(unit.sensor(sensor), samples, candidates=candidates, folds=args.folds, progress=progress)
+        results[sensor] = result
+        print(f'{label}diagnosed {len(samples)} samples of {args.bag} against {args.params} '
+              f'(model: {result.ladder[0].label})')
+        if samples.dropped:
+            print(f'left out: {_describe_dropped(samples.dropped)}')
+        for name, axis in zip(AXES, result.axes):
+            print(f'  {name}: residual RMS {axis.rms:.4g} {unit_name}, noise floor {axis.noise_floor:.4g}; held-out '
+                  f'{axis.heldout_rms:.4g} ({axis.heldout_rms / axis.noise_floor:.2f}x the floor)')
+        if result.candidates:
+            print(f'candidates, best first (held-out RMS x y z in {unit_name}; share of the excess over the floor removed):')
+            for candidate in result.candidates:
+                rms = ' '.join(f'{v:8.4g}' for v in candidate.rms_after)
+                print(f'  {candidate.effect:<20} {rms}  {round(100.0 * candidate.explained):5d}%')
+        for name, reason in result.skipped.items():
+            print(f'  {name:<20} not tried: {reason}')
+        if len(result.ladder) > 1:
+            print('model ladder (held-out RMS x y z): ' + '; '.join(
+                f'{step.label}: {" ".join(f"{v:.4g}" for v in step.heldout_rms)}' for step in result.ladder))
+        print(f'{label}verdict: {result.verdict}')
+        print(result.message)
     if args.json:
-        write_text_atomic(args.json, json.dumps(result.as_dict(), indent=2) + '\n')
+        document = results['accel'].as_dict()
+        if run.input_kind is InputKind.IMU:
+            document['sensors'] = {sensor: {**result.as_dict(), 'unit': UNITS[run.input_kind, sensor]}
+                                   for sensor, result in results.items()}
+        write_text_atomic(args.json, json.dumps(document, indent=2) + '\n')
         print(f'wrote {args.json}')
     if args.report:
-        from tak_thermo_ros.report import write_report
-        files = write_report(result, samples, args.report, source=Path(args.bag).name, gravity=args.gravity)
-        print(f'wrote {files.html} ({len(files.figures)} figures)')
+        from tak_thermo_ros.report import write_report, write_sensor_index
+        if run.input_kind is InputKind.COUNTS:
+            files = write_report(results['accel'], run.sensor('accel').samples, args.report,
+                                 source=Path(args.bag).name, gravity=args.gravity)
+            print(f'wrote {files.html} ({len(files.figures)} figures)')
+        else:
+            pages = {}
+            for sensor, result in results.items():
+                files = write_report(result, run.sensor(sensor).samples, Path(args.report) / sensor,
+                                     source=f'{Path(args.bag).name}, {SENSOR_NAMES[sensor]}', gravity=args.gravity,
+                                     sensor=sensor, unit=UNITS[run.input_kind, sensor])
+                pages[sensor] = (files, result)
+            index = write_sensor_index(pages, args.report, source=Path(args.bag).name)
+            print(f'wrote {index} (accelerometer and gyroscope, '
+                  f'{sum(len(files.figures) for files, _ in pages.values())} figures)')
     return 0
 
 
@@ -276,8 +502,11 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument('--effects', metavar='NAME[,NAME...]',
                      help='effects to fit beyond the paper\'s model: thermal_lag, hysteresis, scale_nonlinearity, '
                           'cross_axis, warmup, temperature_shape, or module:Class (see docs/effects.md)')
+    fit.add_argument('--gyro-effects', metavar='NAME[,NAME...]',
+                     help='effects to fit on the gyroscope (driver bags), the same names as --effects')
     fit.add_argument('--settle-time', type=float, default=0.0, metavar='SECONDS',
                      help='leave out samples this long after each reference change (turntable settling)')
+    _add_static_options(fit)
     _add_topic_options(fit)
     fit.set_defaults(handler=cmd_fit)
 
@@ -295,6 +524,9 @@ def build_parser() -> argparse.ArgumentParser:
     val.add_argument('--params', required=True, metavar='PARAMS.yaml')
     val.add_argument('--gravity', type=float, default=STANDARD_GRAVITY, help='local gravity, m/s^2')
     val.add_argument('--json', metavar='OUT.json', help='also write the figures as JSON')
+    val.add_argument('--latitude', type=float, metavar='DEG',
+                     help="driver bags without a rate reference: the Earth rate's vertical component at this "
+                          'latitude is the true rate (default: zero)')
     _out_of_range(val)
     _add_topic_options(val)
     val.set_defaults(handler=cmd_validate)
@@ -336,7 +568,10 @@ def build_parser() -> argparse.ArgumentParser:
     diag.add_argument('--folds', type=int, default=5, help='cross-validation folds (default 5)')
     diag.add_argument('--settle-time', type=float, default=0.0, metavar='SECONDS',
                       help='leave out samples this long after each reference change (as for fit)')
-    diag.add_argument('--gravity', type=float, default=STANDARD_GRAVITY, help='local gravity for the |g| figure, m/s^2')
+    diag.add_argument('--gravity', type=float, default=STANDARD_GRAVITY,
+                      help='local gravity for the |g| figure and a static reference, m/s^2')
+    diag.add_argument('--latitude', type=float, metavar='DEG',
+                      help="driver bags without a rate reference: add the Earth rate's vertical component")
     _add_topic_options(diag)
     diag.set_defaults(handler=cmd_diagnose)
     return parser

@@ -532,18 +532,33 @@ def _gravity_table(series: list[tuple[str, np.ndarray]], gravity: float) -> str:
             f'<th>max (m/s^2)</th></tr>{rows}</table>')
 
 
+def _relabel(fig: Figure, unit: str) -> Figure:
+    """A driver sensor's figure: residuals in ``unit``, the temperature in degrees C."""
+    for text in fig.findobj(matplotlib.text.Text):
+        label = text.get_text()
+        changed = (label.replace('(counts)', f'({unit})').replace('temperature code $N_t$', 'temperature (C)')
+                   .replace('$dN_t/dt$ (codes per minute)', '$dT/dt$ (C per minute)')
+                   .replace('Residual N - model', 'Residual y - model'))
+        if changed != label:
+            text.set_text(changed)
+    return fig
+
+
 def write_report(diagnosis: Diagnosis, samples: AlignedSamples, directory: str | Path, *,
-                 source: str = '', gravity: float = STANDARD_GRAVITY) -> ReportFiles:
+                 source: str = '', gravity: float = STANDARD_GRAVITY, sensor: str = 'accel',
+                 unit: str = 'counts') -> ReportFiles:
     """Write the figures and ``report.html`` into ``directory`` (created if needed).
 
     :param diagnosis: what :func:`tak_thermo_ros.core.diagnose.diagnose` found on ``samples``.
     :param samples: the same aligned run.
     :param source: the bag's name, shown in the title.
     :param gravity: local gravity for the |g| figure, m/s^2.
+    :param sensor: ``'accel'`` or ``'gyro'`` (no |g| figure for a gyroscope).
+    :param unit: the unit of the residuals: ``counts``, or a driver's ``m/s^2`` / ``rad/s``.
     """
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    series = gravity_series(diagnosis, samples, gravity)
+    series = gravity_series(diagnosis, samples, gravity) if sensor == 'accel' else []
     figures = [
         ('residual_time.png', figure_residual_time(diagnosis),
          'The residual against time. Grey band: &plusmn; the noise floor; red: stretches where the residual '
@@ -564,15 +579,16 @@ def write_report(diagnosis: Diagnosis, samples: AlignedSamples, directory: str |
         ('ladder.png', figure_ladder(diagnosis),
          'Left: the model ladder, held-out RMS over the noise floor as each effect is added. '
          'Right: every candidate effect added to the current model, scored on held-out time blocks.'),
-        ('gravity.png', figure_gravity(diagnosis, series, gravity),
-         '|g| from the three channels minus local gravity: with nominal scale and offset only, with the '
-         'current model, and with the suspected effect added.'),
     ]
+    if sensor == 'accel':
+        figures.append(('gravity.png', figure_gravity(diagnosis, series, gravity),
+                        '|g| from the three channels minus local gravity: with nominal scale and offset only, '
+                        'with the current model, and with the suspected effect added.'))
     paths = []
     blocks = {}
     for name, fig, caption in figures:
         path = directory / name
-        data = _png_bytes(fig, path)
+        data = _png_bytes(fig if unit == 'counts' else _relabel(fig, unit), path)
         paths.append(path)
         encoded = base64.b64encode(data).decode('ascii')
         blocks[name] = (f'<figure><img alt="{name}" src="data:image/png;base64,{encoded}">'
@@ -591,6 +607,8 @@ def write_report(diagnosis: Diagnosis, samples: AlignedSamples, directory: str |
         for step in diagnosis.ladder)
     stride_text = ('on all samples' if diagnosis.cv_stride == 1 else
                    f'on every {diagnosis.cv_stride}th sample')
+    gravity_section = (f"<h2>|g| before and after</h2>\n{blocks['gravity.png']}\n"
+                       f'<div class="card">{_gravity_table(series, gravity)}</div>') if sensor == 'accel' else ''
     page = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>
 <style>{_CSS}</style></head><body><main>
@@ -599,9 +617,9 @@ def write_report(diagnosis: Diagnosis, samples: AlignedSamples, directory: str |
 model: {html.escape(diagnosis.ladder[0].label)};
 written {stamp} by tak_calib diagnose</div>
 <div class="verdict {kind}"><b>{html.escape(headline)}</b>{html.escape(diagnosis.message)}</div>
-<div class="card"><b>Residual against the noise floor</b> (counts; the floor is estimated from successive differences
+<div class="card"><b>Residual against the noise floor</b> ({unit}; the floor is estimated from successive differences
 of the residual and includes the code rounding)
-{_axes_table(diagnosis)}</div>
+{_axes_table(diagnosis).replace('RMS (counts)', f'RMS ({unit})')}</div>
 {_effect_card(diagnosis)}
 <h2>Where the model fails</h2>
 {blocks['residual_time.png']}
@@ -611,7 +629,7 @@ of the residual and includes the code rounding)
 {blocks['residual_inputs.png']}
 <h2>Which effect explains it</h2>
 {blocks['ladder.png']}
-<div class="card"><b>Model ladder</b>: held-out RMS per axis, counts (over the floor)
+<div class="card"><b>Model ladder</b>: held-out RMS per axis, {unit} (over the floor)
 <table><tr><th>model</th><th>x</th><th>y</th><th>z</th></tr>{ladder_rows}</table>
 <b>Candidates</b>, best first
 {_candidates_table(diagnosis)}
@@ -620,11 +638,38 @@ of the residual and includes the code rounding)
 whole series), {stride_text}. An effect joins the ladder when it removes at least half of the
 held-out excess variance over the floor that the rung below leaves, by far more than noise could; the
 ladder's first effect is named when the ladder removes at least three quarters of the excess.</p></div>
-<h2>|g| before and after</h2>
-{blocks['gravity.png']}
-<div class="card">{_gravity_table(series, gravity)}</div>
+{gravity_section}
 </main></body></html>
 """
     html_path = directory / 'report.html'
     _write_atomic(html_path, page.encode('utf-8'))
     return ReportFiles(html=html_path, figures=tuple(paths))
+
+
+def write_sensor_index(pages: dict[str, tuple[ReportFiles, Diagnosis]], directory: str | Path, *,
+                       source: str = '') -> Path:
+    """``report.html`` of a driver bag: each sensor's verdict, and its own report embedded.
+
+    :param pages: sensor -> (its report files, written into ``directory/<sensor>``, its diagnosis).
+    """
+    directory = Path(directory)
+    names = {'accel': 'Accelerometer', 'gyro': 'Gyroscope'}
+    sections = []
+    for sensor, (files, diagnosis) in pages.items():
+        kind = ('v-none' if diagnosis.verdict == VERDICT_NONE else
+                'v-unexplained' if diagnosis.verdict == VERDICT_UNEXPLAINED else 'v-effect')
+        relative = files.html.relative_to(directory).as_posix()
+        sections.append(
+            f'<h2>{names.get(sensor, sensor)}</h2>'
+            f'<div class="verdict {kind}"><b>Verdict: {html.escape(diagnosis.verdict)}</b>'
+            f'{html.escape(diagnosis.message)}</div>'
+            f'<p><a href="{html.escape(relative)}">{html.escape(relative)}</a> (the whole report of this sensor)</p>'
+            f'<iframe src="{html.escape(relative)}" style="width:100%;height:900px;border:1px solid #ccc"></iframe>')
+    title = f'Model diagnosis{": " + source if source else ""}'
+    page = (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>'
+            f'<style>{_CSS}</style></head><body><main><h1>{html.escape(title)}</h1>'
+            f'<div class="sub">a driver bag: the accelerometer and the gyroscope, each diagnosed on its own</div>'
+            + ''.join(sections) + '</main></body></html>\n')
+    path = directory / 'report.html'
+    _write_atomic(path, page.encode('utf-8'))
+    return path

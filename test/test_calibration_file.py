@@ -62,7 +62,7 @@ DELETE = object()
 BAD_FILES = [
     ('calibration.x.scale', DELETE, r'calibration\.x\.scale: missing'),
     ('calibration.version', DELETE, r'calibration\.version: missing'),
-    ('calibration.version', 2, r'calibration\.version: unknown version 2'),
+    ('calibration.version', 3, r'calibration\.version: unknown version 3'),
     ('calibration.temp_code_ref', 'warm', r'calibration\.temp_code_ref: expected a number'),
     ('calibration.y.offset', float('nan'), r'calibration\.y\.offset: must be finite'),
     ('calibration.z.offset_span', float('inf'), r'calibration\.z\.offset_span: must be finite'),

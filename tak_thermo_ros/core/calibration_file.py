@@ -36,20 +36,31 @@ the YAML, the node on its ``calibration.*`` parameters.
 from __future__ import annotations
 
 import os
+import re
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 import yaml
 
-from tak_thermo_ros.core.model import AXES, CALIBRATION_VERSION, AxisModel, Calibration, finite_number
+from tak_thermo_ros.core.model import (
+    AXES,
+    CALIBRATION_VERSION,
+    SENSORS,
+    UNIT_CALIBRATION_VERSION,
+    AxisModel,
+    Calibration,
+    InputKind,
+    UnitCalibration,
+    finite_number,
+)
 from tak_thermo_ros.errors import CalibrationError, FitError
 
 NODE_NAME = 'compensator'
 AXIS_KEYS = ('scale', 'offset', 'offset_span', 'offset_shape', 'scale_shape')
 OPTIONAL_AXIS_KEYS = ('residual_rms', 'scale_observable')
-TOP_KEYS = ('version', 'temp_code_ref', 'temp_code_min', 'temp_code_max')
 MAX_ORDER = 8
 
 
@@ -167,29 +178,83 @@ def check_scale_positive(calibration: Calibration, *, key: str = 'calibration') 
             raise CalibrationError(msg)
 
 
-def calibration_from_mapping(raw: Any, *, key: str = 'calibration') -> Calibration:
-    """Validate a ``calibration`` mapping and build the :class:`Calibration`.
+@dataclass(frozen=True)
+class Limits:
+    """What a calibration of one input kind may hold: bounds that follow from the physics.
 
-    :param raw: the mapping under ``calibration`` (from YAML or from node parameters).
-    :param key: dotted prefix used in messages.
-    :raises CalibrationError: naming the first wrong key.
+    :param value: largest ``|offset|``, ``offset_span`` and ``residual_rms``, output units
+        (counts: the 16-bit code range; imu: m/s^2 or rad/s far beyond any MEMS full scale).
+    :param scale: open interval of ``K0`` (counts: counts per m/s^2; imu: a driver's factory
+        scale is off by percent, not by a factor of two).
+    :param temperature: interval of the temperature input (counts: codes; imu: degrees C,
+        from absolute zero to a soldering iron).
+    :param temperature_name: the keys' stem in the file (``temp_code`` or ``temperature``).
     """
+
+    value: float
+    scale: tuple[float, float]
+    temperature: tuple[float, float]
+    temperature_name: str
+
+
+LIMITS = {
+    InputKind.COUNTS: Limits(value=65536.0, scale=(0.0, 1.0e6), temperature=(-1.0e7, 1.0e7),
+                             temperature_name='temp_code'),
+    InputKind.IMU: Limits(value=1.0e4, scale=(0.5, 2.0), temperature=(-273.15, 1000.0),
+                          temperature_name='temperature'),
+}
+
+
+def _check_limits(calibration: Calibration, limits: Limits, key: str) -> None:
+    """Everything later computed from the calibration is finite, and the values are physical."""
+    for end, value in (('ref', calibration.temp_code_ref), ('min', calibration.temp_code_min),
+                       ('max', calibration.temp_code_max)):
+        if not limits.temperature[0] <= value <= limits.temperature[1]:
+            msg = (f'{key}.{limits.temperature_name}_{end}: {value:g} is outside '
+                   f'{limits.temperature[0]:g}..{limits.temperature[1]:g}')
+            raise CalibrationError(msg)
+    n_low, n_high = calibration.code_offset_range()
+    grid = np.linspace(n_low, n_high, 1001)
+    for name, axis in zip(AXES, calibration.axes):
+        low, high = limits.scale
+        if not low < axis.scale < high:
+            msg = f'{key}.{name}.scale: {axis.scale:g} is outside {low:g}..{high:g} (exclusive)'
+            raise CalibrationError(msg)
+        for field_name in ('offset', 'offset_span', 'residual_rms'):
+            value = getattr(axis, field_name)
+            if value is not None and abs(value) > limits.value:
+                msg = f'{key}.{name}.{field_name}: |{value:g}| is beyond {limits.value:g}'
+                raise CalibrationError(msg)
+        with np.errstate(all='ignore'):
+            drift = axis.offset_drift(grid)
+            gain = axis.scale * axis.scale_factor(grid)
+        if not (np.all(np.isfinite(drift)) and np.all(np.abs(drift) <= 2.0 * limits.value)):
+            msg = f'{key}.{name}.offset_shape: the offset drift leaves +-{2.0 * limits.value:g} in the calibrated range'
+            raise CalibrationError(msg)
+        if not np.all(np.isfinite(gain)):
+            msg = f'{key}.{name}.scale_shape: the scale is not finite in the calibrated range'
+            raise CalibrationError(msg)
+
+
+def _link_from_mapping(raw: Any, key: str, input_kind: InputKind, *, extra_keys: tuple[str, ...]) -> Calibration:
+    """One sensor's :class:`Calibration` from its mapping (temperature range, axes, effects)."""
+    limits = LIMITS[input_kind]
+    stem = limits.temperature_name
+    range_keys = (f'{stem}_ref', f'{stem}_min', f'{stem}_max')
     if not isinstance(raw, Mapping):
         msg = f'{key}: expected a mapping'
         raise CalibrationError(msg)
-    for name in (*TOP_KEYS, *AXES):
+    for name in (*range_keys, *AXES):
         if name not in raw:
             msg = f'{key}.{name}: missing'
             raise CalibrationError(msg)
-    version = raw['version']
-    if isinstance(version, bool) or not isinstance(version, (int, float)) or version != CALIBRATION_VERSION:
-        msg = f'{key}.version: unknown version {version!r} (this tool reads version {CALIBRATION_VERSION})'
+    unknown = sorted(str(name) for name in set(raw) - {*range_keys, *AXES, 'notes', 'effects', *extra_keys})
+    if unknown:
+        msg = f'{key}.{unknown[0]}: unknown key'
         raise CalibrationError(msg)
-    ref = finite_number(raw['temp_code_ref'], f'{key}.temp_code_ref')
-    low = finite_number(raw['temp_code_min'], f'{key}.temp_code_min')
-    high = finite_number(raw['temp_code_max'], f'{key}.temp_code_max')
+    ref, low, high = (finite_number(raw[name], f'{key}.{name}') for name in range_keys)
     if low >= high:
-        msg = f'{key}.temp_code_min: must be below temp_code_max, got {low} >= {high}'
+        msg = f'{key}.{range_keys[1]}: must be below {range_keys[2]}, got {low} >= {high}'
         raise CalibrationError(msg)
     notes = raw.get('notes', [])
     if isinstance(notes, str) or not isinstance(notes, (list, tuple)) or not all(
@@ -201,17 +266,17 @@ def calibration_from_mapping(raw: Any, *, key: str = 'calibration') -> Calibrati
     calibration = Calibration(temp_code_ref=ref, temp_code_min=low, temp_code_max=high,
                               axes=axes, version=CALIBRATION_VERSION,  # type: ignore[arg-type]
                               notes=tuple(notes), effects=effects)
+    _check_limits(calibration, limits, key)
     check_scale_positive(calibration, key=key)
     return calibration
 
 
-def calibration_to_mapping(calibration: Calibration) -> dict[str, Any]:
-    """The ``calibration`` mapping of a :class:`Calibration` (plain floats, lists)."""
+def _link_to_mapping(calibration: Calibration, input_kind: InputKind) -> dict[str, Any]:
+    stem = LIMITS[input_kind].temperature_name
     mapping: dict[str, Any] = {
-        'version': int(calibration.version),
-        'temp_code_ref': float(calibration.temp_code_ref),
-        'temp_code_min': float(calibration.temp_code_min),
-        'temp_code_max': float(calibration.temp_code_max),
+        f'{stem}_ref': float(calibration.temp_code_ref),
+        f'{stem}_min': float(calibration.temp_code_min),
+        f'{stem}_max': float(calibration.temp_code_max),
     }
     if calibration.notes:
         mapping['notes'] = list(calibration.notes)
@@ -231,6 +296,83 @@ def calibration_to_mapping(calibration: Calibration) -> dict[str, Any]:
     if calibration.effects:
         mapping['effects'] = effects_to_mapping(calibration.effects)
     return mapping
+
+
+def _version(raw: Mapping[str, Any], key: str) -> int:
+    if 'version' not in raw:
+        msg = f'{key}.version: missing'
+        raise CalibrationError(msg)
+    version = raw['version']
+    if (isinstance(version, bool) or not isinstance(version, (int, float))
+            or version not in (CALIBRATION_VERSION, UNIT_CALIBRATION_VERSION)):
+        msg = (f'{key}.version: unknown version {version!r} (this tool reads versions '
+               f'{CALIBRATION_VERSION} and {UNIT_CALIBRATION_VERSION})')
+        raise CalibrationError(msg)
+    return int(version)
+
+
+def unit_from_mapping(raw: Any, *, key: str = 'calibration') -> UnitCalibration:
+    """Validate a ``calibration`` mapping of either version and build the :class:`UnitCalibration`.
+
+    The single validator: the command-line tools call it on the YAML, the node on its
+    ``calibration.*`` parameters at start-up and on every run-time update.
+
+    - version 1 (the paper's counts input, accelerometer only): ``temp_code_ref/min/max``,
+      ``x``, ``y``, ``z``, optional ``notes`` and ``effects``;
+    - version 2 (``input: imu``, a driver's Imu and a temperature in degrees C): ``accel`` and
+      ``gyro``, each with ``temperature_ref/min/max``, ``x``, ``y``, ``z``, optional ``notes``
+      and ``effects``.
+
+    :raises CalibrationError: naming the first wrong key.
+    """
+    if not isinstance(raw, Mapping):
+        msg = f'{key}: expected a mapping'
+        raise CalibrationError(msg)
+    if _version(raw, key) == CALIBRATION_VERSION:
+        return UnitCalibration(InputKind.COUNTS, _link_from_mapping(raw, key, InputKind.COUNTS,
+                                                                    extra_keys=('version',)))
+    unknown = sorted(str(name) for name in set(raw) - {'version', 'input', *SENSORS})
+    if unknown:
+        msg = f'{key}.{unknown[0]}: unknown key'
+        raise CalibrationError(msg)
+    if raw.get('input') != InputKind.IMU.value:
+        msg = f'{key}.input: expected {InputKind.IMU.value!r} with version {UNIT_CALIBRATION_VERSION}, got {raw.get("input")!r}'
+        raise CalibrationError(msg)
+    for sensor in SENSORS:
+        if sensor not in raw:
+            msg = f'{key}.{sensor}: missing'
+            raise CalibrationError(msg)
+    accel, gyro = (_link_from_mapping(raw[sensor], f'{key}.{sensor}', InputKind.IMU, extra_keys=())
+                   for sensor in SENSORS)
+    return UnitCalibration(InputKind.IMU, accel, gyro)
+
+
+def unit_to_mapping(unit: UnitCalibration) -> dict[str, Any]:
+    """The ``calibration`` mapping of a :class:`UnitCalibration` (plain floats, lists)."""
+    if unit.input_kind is InputKind.COUNTS:
+        return {'version': CALIBRATION_VERSION, **_link_to_mapping(unit.accel, InputKind.COUNTS)}
+    mapping: dict[str, Any] = {'version': UNIT_CALIBRATION_VERSION, 'input': unit.input_kind.value}
+    for sensor, calibration in unit.sensors:
+        mapping[sensor] = _link_to_mapping(calibration, unit.input_kind)
+    return mapping
+
+
+def calibration_from_mapping(raw: Any, *, key: str = 'calibration') -> Calibration:
+    """Validate a version-1 ``calibration`` mapping (counts input) and build its :class:`Calibration`.
+
+    :raises CalibrationError: naming the first wrong key, or when the mapping is a driver
+        calibration (version 2: use :func:`unit_from_mapping`).
+    """
+    unit = unit_from_mapping(raw, key=key)
+    if unit.input_kind is not InputKind.COUNTS:
+        msg = f'{key}.version: a driver calibration (accel and gyro); this use takes version {CALIBRATION_VERSION}'
+        raise CalibrationError(msg)
+    return unit.accel
+
+
+def calibration_to_mapping(calibration: Calibration) -> dict[str, Any]:
+    """The version-1 ``calibration`` mapping of a counts-input :class:`Calibration`."""
+    return unit_to_mapping(UnitCalibration(InputKind.COUNTS, calibration))
 
 
 def flatten_parameters(mapping: Mapping[str, Any], prefix: str = 'calibration') -> dict[str, Any]:
@@ -260,19 +402,61 @@ def nest_parameters(flat: Mapping[str, Any], prefix: str = 'calibration') -> dic
     return nested
 
 
-def load_calibration(path: str | os.PathLike[str]) -> Calibration:
-    """Read and validate a calibration parameters YAML.
+class _ParameterLoader(yaml.SafeLoader):
+    """YAML as ROS 2's parameter parser (rcl_yaml_param_parser) reads numbers.
+
+    PyYAML follows YAML 1.1, where ``2.55e2`` and ``1e-9`` (no dot, or no exponent sign) are
+    strings; rcl reads them as doubles. This loader reads them as rcl does, so that
+    ``tak_calib`` and the node agree on every file.
+    """
+
+
+_ParameterLoader.add_implicit_resolver(
+    'tag:yaml.org,2002:float',
+    re.compile(r'''^(?:[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?(?:[eE][-+]?[0-9]+)?
+                |[-+]?\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+                |[-+]?\.(?:inf|Inf|INF)
+                |\.(?:nan|NaN|NAN))$''', re.X),
+    list('-+0123456789.'))
+
+
+def _check_uniform_lists(node: Any, key: str) -> None:
+    """rcl refuses a parameter array that mixes integers and doubles: so does this parser."""
+    if isinstance(node, Mapping):
+        for name, value in node.items():
+            _check_uniform_lists(value, f'{key}.{name}')
+    elif isinstance(node, list):
+        kinds = {type(item) for item in node}
+        if int in kinds and float in kinds:
+            msg = (f'{key}: a list mixes integers and floats, which ROS 2 parameters refuse; '
+                   f'write every number with a decimal point (0.0, not 0)')
+            raise CalibrationError(msg)
+
+
+def parse_parameters_yaml(text: str) -> Any:
+    """The document of a parameters YAML, numbers read as ROS 2 reads them.
+
+    :raises yaml.YAMLError: when the text is not YAML.
+    """
+    return yaml.load(text, Loader=_ParameterLoader)  # noqa: S506 (a SafeLoader subclass)
+
+
+def load_unit(path: str | os.PathLike[str]) -> UnitCalibration:
+    """Read and validate a calibration parameters YAML of either version.
 
     :raises CalibrationError: one line naming the file and the wrong key.
     """
     path = Path(path)
     try:
-        document = yaml.safe_load(path.read_text(encoding='utf-8'))
+        document = parse_parameters_yaml(path.read_text(encoding='utf-8'))
     except FileNotFoundError:
         msg = f'{path}: no such calibration file'
         raise CalibrationError(msg) from None
+    except IsADirectoryError:
+        msg = f'{path}: is a directory, not a calibration file'
+        raise CalibrationError(msg) from None
     except (OSError, UnicodeDecodeError) as err:
-        msg = f'{path}: cannot read calibration file ({err})'
+        msg = f'{path}: cannot read calibration file ({getattr(err, "strerror", None) or err})'
         raise CalibrationError(msg) from None
     except yaml.YAMLError as err:
         mark = getattr(err, 'problem_mark', None)
@@ -292,10 +476,23 @@ def load_calibration(path: str | os.PathLike[str]) -> Calibration:
         if not isinstance(parameters, Mapping) or 'calibration' not in parameters:
             msg = f'{node_key}.ros__parameters.calibration: missing'
             raise CalibrationError(msg)
-        return calibration_from_mapping(parameters['calibration'])
+        _check_uniform_lists(parameters['calibration'], 'calibration')
+        return unit_from_mapping(parameters['calibration'])
     except CalibrationError as err:
         msg = f'{path}: {err}'
         raise CalibrationError(msg) from None
+
+
+def load_calibration(path: str | os.PathLike[str]) -> Calibration:
+    """Read and validate a version-1 calibration file (the paper's counts input).
+
+    :raises CalibrationError: one line naming the file and the wrong key.
+    """
+    unit = load_unit(path)
+    if unit.input_kind is not InputKind.COUNTS:
+        msg = f'{path}: a driver calibration (accel and gyro); this use takes a counts calibration (version 1)'
+        raise CalibrationError(msg)
+    return unit.accel
 
 
 def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
@@ -317,20 +514,32 @@ def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
         raise
 
 
-def calibration_yaml(calibration: Calibration, *, extra_parameters: Mapping[str, Any] | None = None,
-                     header: str = '') -> str:
-    """The calibration file's text."""
+def unit_yaml(unit: UnitCalibration, *, extra_parameters: Mapping[str, Any] | None = None,
+              header: str = '') -> str:
+    """The calibration file's text, either version."""
     parameters: dict[str, Any] = dict(extra_parameters or {})
-    parameters['calibration'] = calibration_to_mapping(calibration)
+    parameters['calibration'] = unit_to_mapping(unit)
     document = {NODE_NAME: {'ros__parameters': parameters}}
     body = yaml.safe_dump(document, sort_keys=False, default_flow_style=None, width=100)
     comment = ''.join(f'# {line}\n' for line in header.splitlines())
     return comment + body
 
 
+def calibration_yaml(calibration: Calibration, *, extra_parameters: Mapping[str, Any] | None = None,
+                     header: str = '') -> str:
+    """The text of a version-1 calibration file (counts input)."""
+    return unit_yaml(UnitCalibration(InputKind.COUNTS, calibration), extra_parameters=extra_parameters,
+                     header=header)
+
+
+def save_unit(path: str | os.PathLike[str], unit: UnitCalibration, *, header: str = '') -> None:
+    """Validate (by a round trip through the one parser) and write the calibration file atomically."""
+    text = unit_yaml(unit, header=header)
+    unit_from_mapping(parse_parameters_yaml(text)[NODE_NAME]['ros__parameters']['calibration'])
+    write_text_atomic(path, text)
+
+
 def save_calibration(path: str | os.PathLike[str], calibration: Calibration, *,
                      header: str = '') -> None:
-    """Validate (by a round trip) and write the calibration file atomically."""
-    text = calibration_yaml(calibration, header=header)
-    calibration_from_mapping(yaml.safe_load(text)[NODE_NAME]['ros__parameters']['calibration'])
-    write_text_atomic(path, text)
+    """Validate and write a version-1 calibration file (counts input) atomically."""
+    save_unit(path, UnitCalibration(InputKind.COUNTS, calibration), header=header)

@@ -21,7 +21,7 @@ import math
 import numpy as np
 
 from tak_thermo_ros.core.effects.link import EffectLink
-from tak_thermo_ros.core.model import Calibration, correction_terms, offset_and_gain
+from tak_thermo_ros.core.model import Calibration, UnitCalibration, correction_terms, offset_and_gain
 
 BLOCK_SAMPLES = 16384
 """Samples per block of :meth:`Corrector.correct` (its scratch arrays stay in the CPU cache)."""
@@ -166,10 +166,61 @@ def _horner_into(shape: tuple[float, ...], n: np.ndarray, out: np.ndarray) -> No
         np.multiply(out, n, out=out)
 
 
-def acceleration_variance(calibration: Calibration) -> tuple[float, float, float]:
-    """Per-axis variance of the corrected specific force, (m/s^2)^2, from the fit residual.
+class UnitCorrector:
+    """The correction of a whole IMU: one :class:`Corrector` per sensor, the same policy.
 
-    Zero where the residual is unknown (REP 145: an all-zero covariance means unknown).
+    With a driver calibration, :meth:`correct` and :meth:`correct_sample` take and return six
+    channels (accel x y z, gyro x y z); with a counts calibration, three (the accelerometer).
+
+    :param unit: the calibration of the unit.
+    :param out_of_range: policy for temperatures outside the calibrated range.
+    """
+
+    def __init__(self, unit: UnitCalibration, *, out_of_range: OutOfRange = OutOfRange.CLAMP) -> None:
+        self.unit = unit
+        self.correctors = tuple(Corrector(calibration, out_of_range=out_of_range)
+                                for _, calibration in unit.sensors)
+        self._accel = self.correctors[0]
+        self._gyro = self.correctors[1] if len(self.correctors) > 1 else None
+
+    @property
+    def channels(self) -> int:
+        """3 (accelerometer) or 6 (accelerometer and gyroscope)."""
+        return 3 * len(self.correctors)
+
+    def reset(self) -> None:
+        """Forget the online state of effects with memory, on every sensor."""
+        for corrector in self.correctors:
+            corrector.reset()
+
+    def correct(self, values: np.ndarray, temperature: np.ndarray, *,
+                stamp_s: np.ndarray | None = None) -> np.ndarray:
+        """Corrected ``(k, channels)`` from raw ``(k, channels)`` and the temperature input ``(k,)``."""
+        return np.hstack([corrector.correct(values[:, 3 * i:3 * i + 3], temperature, stamp_s=stamp_s)
+                          for i, corrector in enumerate(self.correctors)])
+
+    def correct_sample(self, values: tuple[float, ...], temperature: float, *,
+                       stamp_s: float = 0.0) -> tuple[float, ...]:
+        """One sample of 3 or 6 plain floats; the node's path, bit-identical to :meth:`correct`."""
+        accel = self._accel.correct_sample(values[0], values[1], values[2], temperature, stamp_s=stamp_s)
+        if self._gyro is None:
+            return accel
+        return accel + self._gyro.correct_sample(values[3], values[4], values[5], temperature, stamp_s=stamp_s)
+
+    def out_of_range_count(self, temperature: np.ndarray) -> int:
+        """How many temperatures lie outside the calibrated range of any sensor."""
+        temperature = np.asarray(temperature, dtype=float)
+        outside = np.zeros(len(temperature), dtype=bool)
+        for _, calibration in self.unit.sensors:
+            outside |= (temperature < calibration.temp_code_min) | (temperature > calibration.temp_code_max)
+        return int(np.count_nonzero(outside))
+
+
+def acceleration_variance(calibration: Calibration) -> tuple[float, float, float]:
+    """Per-axis variance of the corrected output of one sensor, from the fit residual.
+
+    (m/s^2)^2 for an accelerometer, (rad/s)^2 for a gyroscope. Zero where the residual is
+    unknown (REP 145: an all-zero covariance means unknown).
     """
     variances = []
     for axis in calibration.axes:
@@ -178,14 +229,22 @@ def acceleration_variance(calibration: Calibration) -> tuple[float, float, float
     return variances[0], variances[1], variances[2]
 
 
-def imu_covariances(variance: tuple[float, float, float]) -> tuple[tuple[float, ...], tuple[float, ...],
-                                                                   tuple[float, ...]]:
+def imu_covariances(variance: tuple[float, float, float],
+                    angular_variance: tuple[float, float, float] | None = None,
+                    ) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
     """Orientation, angular-velocity and linear-acceleration covariances of the Imu output.
 
-    The one layout for the node and ``tak_calib apply``. REP 145: ``[0] = -1`` marks orientation and angular velocity as not provided; the linear
-    acceleration covariance is diagonal, from the fit residual (all zero when unknown).
+    The one layout for the node and ``tak_calib apply``. REP 145: ``[0] = -1`` marks a
+    quantity as not provided: the orientation always here (a driver's own orientation
+    covariance is passed through by the caller), the angular velocity when there is no
+    gyroscope calibration (``angular_variance`` None). Provided quantities get a diagonal
+    covariance from the fit residual (all zero when unknown).
     """
     not_provided = (-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    x, y, z = (float(v) for v in variance)
-    linear = (x, 0.0, 0.0, 0.0, y, 0.0, 0.0, 0.0, z)
-    return not_provided, not_provided, linear
+
+    def diagonal(values: tuple[float, float, float]) -> tuple[float, ...]:
+        x, y, z = (float(v) for v in values)
+        return (x, 0.0, 0.0, 0.0, y, 0.0, 0.0, 0.0, z)
+
+    angular = not_provided if angular_variance is None else diagonal(angular_variance)
+    return not_provided, angular, diagonal(variance)

@@ -19,6 +19,7 @@ so that the vectorised and the per-sample correction paths give the same float64
 
 from __future__ import annotations
 
+import enum
 import math
 
 from dataclasses import dataclass, field, replace
@@ -33,6 +34,19 @@ if TYPE_CHECKING:
 
 AXES: tuple[str, str, str] = ('x', 'y', 'z')
 CALIBRATION_VERSION = 1
+UNIT_CALIBRATION_VERSION = 2
+SENSORS: tuple[str, str] = ('accel', 'gyro')
+"""The two three-axis sensors of an IMU: accelerometer and gyroscope."""
+
+
+class InputKind(str, enum.Enum):
+    """What the correction link takes in place of the paper's codes."""
+
+    COUNTS = 'counts'
+    """The paper: channel codes N (whole numbers) and a temperature-sensor code N_t."""
+    IMU = 'imu'
+    """A ROS 2 driver: ``sensor_msgs/msg/Imu`` values (m/s^2, rad/s, already scaled by the
+    factory) in place of N, and the temperature in degrees Celsius in place of N_t."""
 
 
 def finite_number(value: object, key: str) -> float:
@@ -215,3 +229,46 @@ class Calibration:
         n = np.asarray(temp_code, dtype=float) - self.temp_code_ref
         force = np.asarray(specific_force, dtype=float)
         return np.column_stack([axis.forward(force[:, i], n) for i, axis in enumerate(self.axes)])
+
+
+@dataclass(frozen=True)
+class UnitCalibration:
+    """The correction of a whole IMU: one :class:`Calibration` per three-axis sensor.
+
+    Every sensor follows the paper's link ``y = K F_c(T) u + b0 + D F_s(T)``: with
+    :attr:`InputKind.COUNTS`, ``y`` is the channel code and ``T`` the temperature-sensor code
+    (the accelerometer only, file version 1); with :attr:`InputKind.IMU`, ``y`` is the driver's
+    value (m/s^2 or rad/s, nominal ``K = 1``) and ``T`` the temperature in degrees Celsius, for
+    the accelerometer and the gyroscope (file version 2).
+
+    :param input_kind: what the link takes in.
+    :param accel: the accelerometer's link.
+    :param gyro: the gyroscope's link (required with :attr:`InputKind.IMU`, absent with counts).
+    """
+
+    input_kind: InputKind
+    accel: Calibration
+    gyro: Calibration | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, 'input_kind', InputKind(self.input_kind))
+        if self.input_kind is InputKind.IMU and self.gyro is None:
+            msg = 'calibration.gyro: missing (a driver-input calibration corrects both sensors)'
+            raise CalibrationError(msg)
+        if self.input_kind is InputKind.COUNTS and self.gyro is not None:
+            msg = 'calibration.gyro: the counts input (file version 1) has an accelerometer only'
+            raise CalibrationError(msg)
+
+    @property
+    def sensors(self) -> tuple[tuple[str, Calibration], ...]:
+        """``(name, calibration)`` of every sensor present, accelerometer first."""
+        present = (('accel', self.accel), ('gyro', self.gyro))
+        return tuple((name, calibration) for name, calibration in present if calibration is not None)
+
+    def sensor(self, name: str) -> Calibration:
+        """The calibration of sensor ``'accel'`` or ``'gyro'``."""
+        calibration = {'accel': self.accel, 'gyro': self.gyro}.get(name)
+        if calibration is None:
+            msg = f'calibration.{name}: not in this calibration'
+            raise CalibrationError(msg)
+        return calibration

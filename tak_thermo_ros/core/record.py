@@ -46,6 +46,8 @@ class ChannelRecord:
     :param frame_id: frame of the counts messages (the first one's).
     :param nominal_scale: nominal ``K0`` per axis (counts per m/s^2) that the recorder knows
         from the code resolution, or ``None``.
+    :param input_kind: ``'counts'`` (the paper's whole-number codes, checked for rails) or
+        ``'imu'`` (a driver's values in SI units and the temperature in degrees Celsius).
     """
 
     counts_stamp_ns: np.ndarray
@@ -56,6 +58,7 @@ class ChannelRecord:
     reference: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     frame_id: str = ''
     nominal_scale: tuple[float, float, float] | None = None
+    input_kind: str = 'counts'
 
     @property
     def has_reference(self) -> bool:
@@ -83,9 +86,29 @@ def counts_problem(x: float, y: float, z: float) -> str | None:
     return None
 
 
-def counts_problems(counts: np.ndarray) -> dict[str, np.ndarray]:
-    """Masks ``(k,)`` per reason of :data:`DROP_REASONS`, each excluding earlier reasons."""
+def values_problem(*values: float) -> str | None:
+    """Why one driver sample (any number of channels) cannot be corrected, or ``None``.
+
+    Driver values are already in SI units: only a NaN or an infinity is refused
+    (``non_finite``), as by :func:`counts_problems` with ``whole_codes=False``.
+    """
+    for value in values:
+        if not isfinite(value):
+            return 'non_finite'
+    return None
+
+
+def counts_problems(counts: np.ndarray, *, whole_codes: bool = True) -> dict[str, np.ndarray]:
+    """Masks ``(k,)`` per reason of :data:`DROP_REASONS`, each excluding earlier reasons.
+
+    :param counts: ``(k, c)`` values, one row per sample.
+    :param whole_codes: the paper's codes (whole numbers inside the 16-bit range); ``False``
+        for a driver's values, where only ``non_finite`` applies.
+    """
     finite = np.all(np.isfinite(counts), axis=1)
+    if not whole_codes:
+        nothing = np.zeros(len(counts), dtype=bool)
+        return {'non_finite': ~finite, 'non_integer': nothing, 'saturated': nothing.copy()}
     safe = np.where(np.isfinite(counts), counts, 0.0)
     integer = np.all(safe == np.round(safe), axis=1)
     rail = np.any((safe <= COUNTS_MIN) | (safe >= COUNTS_MAX), axis=1)
@@ -113,6 +136,7 @@ class AlignedSamples:
     :param temp_code: ``(k,)`` held temperature codes.
     :param reference: ``(k, 3)`` held reference, or ``None`` without a reference stream.
     :param dropped: reason -> number of counts samples left out.
+    :param rows: ``(k,)`` index of each kept sample in the record's stream, or ``None``.
     """
 
     stamp_ns: np.ndarray
@@ -120,6 +144,7 @@ class AlignedSamples:
     temp_code: np.ndarray
     reference: np.ndarray | None
     dropped: dict[str, int]
+    rows: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.stamp_ns)
@@ -158,7 +183,7 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
             dropped[reason] = dropped.get(reason, 0) + int(np.count_nonzero(newly))
             keep[newly] = False
 
-    for reason, mask in counts_problems(counts).items():
+    for reason, mask in counts_problems(counts, whole_codes=record.input_kind == 'counts').items():
         if reason != 'saturated' or drop_saturated:
             leave_out(reason, mask)
     temp_index = hold_last_index(record.temp_stamp_ns, stamps)
@@ -172,7 +197,7 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
         reference = record.reference[reference_index[keep]]
     return AlignedSamples(stamp_ns=stamps[keep], counts=counts[keep],
                           temp_code=record.temp_code[temp_index[keep]].astype(float),
-                          reference=reference, dropped=dropped)
+                          reference=reference, dropped=dropped, rows=np.flatnonzero(keep))
 
 
 def _within_settle_time(record: ChannelRecord, stamps: np.ndarray, settle_time_s: float) -> np.ndarray:
@@ -185,3 +210,57 @@ def _within_settle_time(record: ChannelRecord, stamps: np.ndarray, settle_time_s
     last_change = np.searchsorted(change_stamps, stamps, side='right') - 1
     since = np.where(last_change >= 0, stamps - change_stamps[np.maximum(last_change, 0)], -1)
     return (since >= 0) & (since < int(settle_time_s * NANOSECONDS))
+
+
+@dataclass(frozen=True)
+class DriverRecord:
+    """A run recorded from a ROS 2 IMU driver (``sensor_msgs/msg/Imu`` plus a temperature).
+
+    :param stamp_ns: ``(k,)`` header stamps of the Imu messages.
+    :param accel: ``(k, 3)`` linear acceleration (specific force) as the driver gave it, m/s^2.
+    :param gyro: ``(k, 3)`` angular velocity as the driver gave it, rad/s.
+    :param orientation: ``(k, 4)`` orientation quaternion ``(x, y, z, w)``, passed through.
+    :param orientation_covariance: ``(k, 9)``, passed through.
+    :param temp_stamp_ns: ``(m,)`` stamps of the temperature messages.
+    :param temperature: ``(m,)`` temperature in degrees Celsius.
+    :param reference_stamp_ns: ``(r,)`` stamps of the specific-force reference (may be empty).
+    :param reference: ``(r, 3)`` true specific force along the sensor axes, m/s^2.
+    :param rate_reference_stamp_ns: ``(s,)`` stamps of the angular-rate reference (may be empty).
+    :param rate_reference: ``(s, 3)`` true angular rate along the sensor axes, rad/s.
+    :param frame_id: frame of the Imu messages.
+    """
+
+    stamp_ns: np.ndarray
+    accel: np.ndarray
+    gyro: np.ndarray
+    orientation: np.ndarray
+    orientation_covariance: np.ndarray
+    temp_stamp_ns: np.ndarray
+    temperature: np.ndarray
+    reference_stamp_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    reference: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    rate_reference_stamp_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    rate_reference: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    frame_id: str = ''
+
+    def channel(self, sensor: str) -> ChannelRecord:
+        """One sensor's three channels as a :class:`ChannelRecord` (nominal scale 1)."""
+        if sensor == 'accel':
+            values, ref_stamps, reference = self.accel, self.reference_stamp_ns, self.reference
+        elif sensor == 'gyro':
+            values, ref_stamps, reference = self.gyro, self.rate_reference_stamp_ns, self.rate_reference
+        else:
+            msg = f'unknown sensor {sensor!r} (accel or gyro)'
+            raise ValueError(msg)
+        return ChannelRecord(counts_stamp_ns=self.stamp_ns, counts=values, temp_stamp_ns=self.temp_stamp_ns,
+                             temp_code=self.temperature, reference_stamp_ns=ref_stamps, reference=reference,
+                             frame_id=self.frame_id, nominal_scale=(1.0, 1.0, 1.0), input_kind='imu')
+
+    def six_channels(self) -> ChannelRecord:
+        """Both sensors side by side, ``(k, 6)`` (accel x y z, gyro x y z), without reference.
+
+        What ``apply`` aligns: a message is corrected or dropped whole, as in the node.
+        """
+        return ChannelRecord(counts_stamp_ns=self.stamp_ns, counts=np.hstack([self.accel, self.gyro]),
+                             temp_stamp_ns=self.temp_stamp_ns, temp_code=self.temperature,
+                             frame_id=self.frame_id, input_kind='imu')

@@ -74,3 +74,61 @@ def validate_gravity(calibration: Calibration, counts: np.ndarray, temp_code: np
                              magnitude_before=np.linalg.norm(before, axis=1),
                              magnitude_after=np.linalg.norm(after, axis=1),
                              out_of_range=corrector.out_of_range_count(temp_code))
+
+
+@dataclass(frozen=True)
+class RateError:
+    """Per-axis statistics of ``omega_hat - omega_ref``, rad/s: the gyroscope's bias error.
+
+    :param rms: ``(3,)`` RMS per axis x, y, z.
+    :param mean: ``(3,)`` mean per axis (the bias left after correction).
+    :param max: ``(3,)`` largest absolute error per axis.
+    """
+
+    rms: tuple[float, float, float]
+    mean: tuple[float, float, float]
+    max: tuple[float, float, float]
+
+    @classmethod
+    def of(cls, error: np.ndarray) -> RateError:
+        """Statistics of an ``(k, 3)`` error series."""
+        def triple(values: np.ndarray) -> tuple[float, float, float]:
+            return float(values[0]), float(values[1]), float(values[2])
+        return cls(rms=triple(np.sqrt(np.mean(error ** 2, axis=0))), mean=triple(np.mean(error, axis=0)),
+                   max=triple(np.max(np.abs(error), axis=0)))
+
+    def as_dict(self) -> dict[str, dict[str, float]]:
+        """JSON-ready form, per axis."""
+        return {name: {'rms': self.rms[i], 'mean': self.mean[i], 'max': self.max[i]}
+                for i, name in enumerate(('x', 'y', 'z'))}
+
+
+@dataclass(frozen=True)
+class RateValidation:
+    """The gyroscope's rate error before and after correction.
+
+    :param before: with the nominal scale and offset only.
+    :param after: with the whole correction link.
+    :param out_of_range: samples outside the calibrated temperature range.
+    """
+
+    before: RateError
+    after: RateError
+    out_of_range: int
+
+
+def validate_rate(calibration: Calibration, rate: np.ndarray, temperature: np.ndarray,
+                  reference: np.ndarray, *, out_of_range: OutOfRange = OutOfRange.CLAMP,
+                  stamp_s: np.ndarray | None = None) -> RateValidation:
+    """Compare the corrected angular rate with the reference (zero on a static run), per axis.
+
+    :param rate: ``(k, 3)`` the driver's angular velocity, rad/s.
+    :param temperature: ``(k,)`` held temperature.
+    :param reference: ``(k, 3)`` held true rate, rad/s.
+    :param stamp_s: ``(k,)`` stamps in seconds, needed by effects with memory.
+    """
+    corrector = Corrector(calibration, out_of_range=out_of_range)
+    after = corrector.correct(rate, temperature, stamp_s=stamp_s)
+    before = Corrector(calibration.nominal(), out_of_range=out_of_range).correct(rate, temperature)
+    return RateValidation(before=RateError.of(before - reference), after=RateError.of(after - reference),
+                          out_of_range=corrector.out_of_range_count(temperature))
