@@ -81,13 +81,20 @@ def _out_of_range(parser: argparse.ArgumentParser) -> None:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    """Simulate a chamber run into a bag."""
-    from tak_thermo_ros.bagio import write_record
+    """Simulate a chamber run into a bag (the paper's counts, or a driver's Imu)."""
+    from tak_thermo_ros.bagio import write_driver_record, write_record
     scenario = load_scenario(args.scenario) if args.scenario else Scenario()
     if args.seed is not None:
-        from dataclasses import replace
         scenario = replace(scenario, seed=args.seed)
     run = simulate(scenario)
+    if run.driver is not None:
+        driver = run.driver
+        write_driver_record(args.out_bag, driver, topics=_topics(args), storage=args.storage)
+        print(f'wrote {args.out_bag}: {len(driver.stamp_ns)} Imu, {len(driver.temp_stamp_ns)} temperature, '
+              f'{len(driver.reference_stamp_ns)} reference changes, {scenario.duration_s() / 3600.0:.2f} h at '
+              f'{scenario.sample_rate_hz:g} Hz ({args.storage}); temperature '
+              f'{driver.temperature.min():.2f}..{driver.temperature.max():.2f} C')
+        return 0
     write_record(args.out_bag, run.record, topics=_topics(args), storage=args.storage)
     record = run.record
     print(f'wrote {args.out_bag}: {len(record.counts_stamp_ns)} counts, {len(record.temp_stamp_ns)} temperature codes, '

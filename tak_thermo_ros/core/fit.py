@@ -146,7 +146,7 @@ def fit_calibration(samples: AlignedSamples, *, bias_order: int = 3, scale_order
                 raise FitError(msg)
             axes_models.append(_fit_offset_only(samples.counts[:, i], force, powers, float(nominal_scale[i]),
                                                 bias_order, n_scale, (low - ref, high - ref), name))
-            held_inputs.append(f'{name} {force[0]:.4g} m/s^2 at {nominal_scale[i]:g} counts/(m/s^2)')
+            held_inputs.append(f'{name} input {force[0]:.4g} at nominal scale {nominal_scale[i]:g}')
             continue
         # Filled and scaled in place (same values as column_stack then divide): a 15-hour run
         # at 100 Hz has 5.4 million rows, and each copy of the design matrix costs 300 MB.

@@ -29,8 +29,15 @@ from tak_thermo_ros.core.effects.base import Effect
 import numpy as np
 import yaml
 
-from tak_thermo_ros.core.model import AXES, AxisModel, Calibration
-from tak_thermo_ros.core.record import COUNTS_MAX, COUNTS_MIN, NANOSECONDS, ChannelRecord, seconds_from_ns
+from tak_thermo_ros.core.model import AXES, AxisModel, Calibration, InputKind, UnitCalibration
+from tak_thermo_ros.core.record import (
+    COUNTS_MAX,
+    COUNTS_MIN,
+    NANOSECONDS,
+    ChannelRecord,
+    DriverRecord,
+    seconds_from_ns,
+)
 from tak_thermo_ros.errors import CalibrationError, FitError, ScenarioError
 
 STANDARD_GRAVITY = 9.80665
@@ -89,6 +96,27 @@ DEFAULT_UNIT: tuple[AxisTruth, AxisTruth, AxisTruth] = (
     AxisTruth(256.0, 3.1, (0.03, -1.0e-5, 3.0e-8), (1.0e-6, -1.0e-9)),
 )
 
+DEFAULT_DRIVER_ACCEL: tuple[AxisTruth, AxisTruth, AxisTruth] = (
+    AxisTruth(1.0021, 0.051, (2.0e-3, 1.2e-5, 1.0e-7), (1.1e-4, 1.5e-6), noise_counts=0.004),
+    AxisTruth(0.9983, -0.034, (-1.6e-3, 1.6e-5, -8.0e-8), (-0.9e-4, 2.0e-6), noise_counts=0.004),
+    AxisTruth(1.0012, 0.082, (1.2e-3, -0.8e-5, 2.4e-7), (0.6e-4, -1.0e-6), noise_counts=0.005),
+)
+"""A MEMS accelerometer as its driver reports it: m/s^2 (factory scale about 1), drift per degree C."""
+
+DEFAULT_DRIVER_GYRO: tuple[AxisTruth, AxisTruth, AxisTruth] = (
+    AxisTruth(1.0013, 0.0021, (3.0e-4, 2.0e-6, -3.0e-8), (5.0e-5, 1.0e-7), noise_counts=0.0008),
+    AxisTruth(0.9991, -0.0013, (-2.2e-4, 3.0e-6, 2.0e-8), (-4.0e-5, 2.0e-7), noise_counts=0.0008),
+    AxisTruth(1.0024, 0.0030, (1.5e-4, -2.5e-6, 4.0e-8), (3.0e-5, -1.5e-7), noise_counts=0.0009),
+)
+"""A MEMS gyroscope as its driver reports it: rad/s; bias drift of about 0.4 deg/s over 25 C."""
+
+RATE_TABLE_POSITIONS: tuple[tuple[float, float, float], ...] = tuple(
+    tuple(sign * (1.0 if j == i else 0.0) for j in range(3))  # type: ignore[misc]
+    for i in range(3) for sign in (1.0, -1.0) for _ in range(3))
+RATE_TABLE_RATES: tuple[float, ...] = (0.0, 1.0, -1.0) * 6
+"""A rate table: each axis up and down, resting then turning at +-1 rad/s about the vertical
+(the axis that is up), so every gyroscope axis sees three rates and the accelerometer +-g."""
+
 
 @dataclass(frozen=True)
 class Scenario:
@@ -118,6 +146,18 @@ class Scenario:
     :param supply_voltage_drift: RMS on axis x, counts, of an offset driven by an unobserved
         supply voltage (three slow sinusoids, periods 0.4-2 h, random phases from the seed;
         axes y and z see it with weights -0.7 and 0.5). 0 = off.
+    :param output: ``'counts'`` (the paper's bag contract) or ``'imu'`` (a driver bag:
+        ``sensor_msgs/msg/Imu`` in m/s^2 and rad/s, the temperature in degrees C).
+    :param accel_unit: with ``output: imu``, the accelerometer in driver units (polynomials in
+        degrees C from ``reference_celsius``; ``noise_counts`` in m/s^2).
+    :param gyro_unit: with ``output: imu``, the gyroscope (rad/s).
+    :param gyro_effects: hidden effects on the gyroscope, as ``effects`` (which, with
+        ``output: imu``, act on the accelerometer).
+    :param table_rates: rotation rate about the up direction at each position, rad/s (empty:
+        a table that only tilts); the angular-rate reference is ``rate * position``.
+    :param temperature_resolution_celsius: the driver's temperature quantum, degrees C.
+    :param record_references: with ``output: imu``, write the reference topics (a calibration
+        run on a table); ``false``: a bag as ``ros2 bag record`` of the driver alone gives.
     """
 
     sample_rate_hz: float = 1.0
@@ -140,14 +180,33 @@ class Scenario:
     nominal_scale: tuple[float, float, float] = (255.0, 255.0, 255.0)
     effects: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
     supply_voltage_drift: float = 0.0
+    output: str = 'counts'
+    accel_unit: tuple[AxisTruth, AxisTruth, AxisTruth] = DEFAULT_DRIVER_ACCEL
+    gyro_unit: tuple[AxisTruth, AxisTruth, AxisTruth] = DEFAULT_DRIVER_GYRO
+    gyro_effects: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
+    table_rates: tuple[float, ...] = ()
+    temperature_resolution_celsius: float = 1.0 / 256.0
+    record_references: bool = True
 
     def __post_init__(self) -> None:
-        if not isinstance(self.effects, Mapping):
-            msg = 'effects: expected a mapping of effect names to their parameters'
-            raise ScenarioError(msg)
-        object.__setattr__(self, 'effects', {str(name): dict(values) if isinstance(values, Mapping) else values
-                                             for name, values in self.effects.items()})
+        for key in ('effects', 'gyro_effects'):
+            value = getattr(self, key)
+            if not isinstance(value, Mapping):
+                msg = f'{key}: expected a mapping of effect names to their parameters'
+                raise ScenarioError(msg)
+            object.__setattr__(self, key, {str(name): dict(values) if isinstance(values, Mapping) else values
+                                           for name, values in value.items()})
         self.effect_instances()
+        self.effect_instances('gyro_effects')
+        if self.output not in ('counts', 'imu'):
+            msg = f"output: expected 'counts' or 'imu', got {self.output!r}"
+            raise ScenarioError(msg)
+        if self.table_rates and len(self.table_rates) != len(self.positions):
+            msg = f'table_rates: expected one rate per position ({len(self.positions)}), got {len(self.table_rates)}'
+            raise ScenarioError(msg)
+        if not (math.isfinite(self.temperature_resolution_celsius) and self.temperature_resolution_celsius > 0):
+            msg = 'temperature_resolution_celsius: must be a finite number > 0'
+            raise ScenarioError(msg)
         checks = (
             (self.sample_rate_hz > 0, 'sample_rate_hz', 'must be > 0'),
             (self.temp_code_every >= 1, 'temp_code_every', 'must be >= 1'),
@@ -170,23 +229,23 @@ class Scenario:
                 msg = f'{key}: {problem}'
                 raise ScenarioError(msg)
 
-    def effect_instances(self) -> tuple[Effect, ...]:
-        """The hidden effects as effect objects with their true parameters.
+    def effect_instances(self, key: str = 'effects') -> tuple[Effect, ...]:
+        """The hidden effects (``effects`` or ``gyro_effects``) as effect objects with their true parameters.
 
         :raises ScenarioError: naming ``effects.<name>`` or ``effects.<name>.<parameter>``.
         """
         instances = []
-        for name, values in self.effects.items():
+        for name, values in getattr(self, key).items():
             if not isinstance(values, Mapping):
-                msg = f'effects.{name}: expected a mapping of parameter names to numbers'
+                msg = f'{key}.{name}: expected a mapping of parameter names to numbers'
                 raise ScenarioError(msg)
             try:
                 cls = resolve_effect(name)
             except FitError as err:
-                msg = f'effects.{name}: {err}'
+                msg = f'{key}.{name}: {err}'
                 raise ScenarioError(msg) from None
             try:
-                instances.append(cls.from_values(values, key=f'effects.{name}', complete=False))
+                instances.append(cls.from_values(values, key=f'{key}.{name}', complete=False))
             except CalibrationError as err:
                 raise ScenarioError(str(err)) from None
         return tuple(instances)
@@ -210,6 +269,21 @@ class Scenario:
                            temp_code_max=codes[1], axes=axes,  # type: ignore[arg-type]
                            effects=self.effect_instances())
 
+    def driver_truth(self) -> UnitCalibration:
+        """The true links of a driver-output run, in degrees C from ``reference_celsius``."""
+        low, high = min(self.start_celsius, *self.plateaus_celsius), max(self.start_celsius, *self.plateaus_celsius)
+        n_range = (low - self.reference_celsius, high - self.reference_celsius)
+
+        def link(unit: tuple[AxisTruth, ...], key: str) -> Calibration:
+            axes = tuple(AxisModel.from_polynomials(scale=a.scale, offset=a.offset, offset_coeffs=a.offset_coeffs,
+                                                    scale_coeffs=a.scale_coeffs, code_offset_range=n_range,
+                                                    residual_rms=a.noise_counts)
+                         for a in unit)
+            return Calibration(temp_code_ref=self.reference_celsius, temp_code_min=low, temp_code_max=high,
+                               axes=axes, effects=self.effect_instances(key))  # type: ignore[arg-type]
+
+        return UnitCalibration(InputKind.IMU, link(self.accel_unit, 'effects'), link(self.gyro_unit, 'gyro_effects'))
+
 
 @dataclass(frozen=True)
 class SimulatedRun:
@@ -220,7 +294,11 @@ class SimulatedRun:
     :param chamber_celsius: ``(k,)`` chamber temperature at each counts sample.
     :param true_temp_code: ``(k,)`` unrounded temperature code at each counts sample.
     :param specific_force: ``(k, 3)`` true input at each counts sample.
-    :param truth: the true calibration.
+    :param truth: the true calibration (counts output; the accelerometer's with ``output: imu``).
+    :param driver: with ``output: imu``, what the driver bag holds (``record`` is then its
+        accelerometer channel).
+    :param angular_rate: ``(k, 3)`` true angular rate, rad/s (``output: imu``).
+    :param unit_truth: with ``output: imu``, the true links of both sensors.
     """
 
     record: ChannelRecord
@@ -230,6 +308,9 @@ class SimulatedRun:
     specific_force: np.ndarray
     truth: Calibration
     scenario: Scenario = field(repr=False, default_factory=Scenario)
+    driver: DriverRecord | None = None
+    angular_rate: np.ndarray | None = None
+    unit_truth: UnitCalibration | None = None
 
 
 def chamber_profile(scenario: Scenario, time_s: np.ndarray) -> np.ndarray:
@@ -260,6 +341,8 @@ def first_order_lag(signal: np.ndarray, time_s: np.ndarray, tau_s: float, initia
 def simulate(scenario: Scenario | None = None) -> SimulatedRun:
     """Simulate one run of the scenario (deterministic for a given seed)."""
     scenario = scenario or Scenario()
+    if scenario.output == 'imu':
+        return _simulate_driver(scenario)
     rng = np.random.default_rng(scenario.seed)
     count = int(math.floor(scenario.duration_s() * scenario.sample_rate_hz)) + 1
     time_s = np.arange(count) / scenario.sample_rate_hz
@@ -305,19 +388,80 @@ def supply_voltage(scenario: Scenario, time_s: np.ndarray) -> np.ndarray:
     return signal / math.sqrt(1.5)
 
 
+def _simulate_driver(scenario: Scenario) -> SimulatedRun:
+    """A driver bag: the Imu in SI units, the temperature in degrees C, on a tilt and rate table."""
+    rng = np.random.default_rng(scenario.seed)
+    count = int(math.floor(scenario.duration_s() * scenario.sample_rate_hz)) + 1
+    time_s = np.arange(count) / scenario.sample_rate_hz
+    chamber = chamber_profile(scenario, time_s)
+    board = first_order_lag(chamber, time_s, scenario.board_lag_s, scenario.start_celsius)
+    n_true = board - scenario.reference_celsius
+    positions = np.asarray(scenario.positions, dtype=float)
+    position_index = (np.floor(time_s / scenario.dwell_s).astype(np.int64)) % len(positions)
+    force = scenario.gravity * positions[position_index]
+    rates = np.asarray(scenario.table_rates or (0.0,) * len(positions), dtype=float)
+    rate = rates[position_index][:, None] * positions[position_index]
+    stamps = np.round((scenario.start_time_s + time_s) * NANOSECONDS).astype(np.int64)
+    stamp_s = seconds_from_ns(stamps)
+
+    def channels(unit: tuple[AxisTruth, ...], key: str, inputs: np.ndarray) -> np.ndarray:
+        exact = np.column_stack([
+            AxisModel.from_polynomials(scale=a.scale, offset=a.offset, offset_coeffs=a.offset_coeffs,
+                                       scale_coeffs=a.scale_coeffs, code_offset_range=(-1.0, 1.0)
+                                       ).forward(inputs[:, i], n_true)
+            for i, a in enumerate(unit)])
+        exact += _effect_terms(scenario.effect_instances(key), inputs, board, stamp_s)
+        if scenario.supply_voltage_drift > 0.0 and key == 'effects':
+            exact += _supply_terms(scenario, time_s)
+        return exact + rng.standard_normal((count, 3)) * np.array([a.noise_counts for a in unit])
+
+    accel = channels(scenario.accel_unit, 'effects', force)
+    gyro = channels(scenario.gyro_unit, 'gyro_effects', rate)
+    temp_rows = np.arange(0, count, scenario.temp_code_every)
+    quantum = scenario.temperature_resolution_celsius
+    step = np.flatnonzero(np.diff(position_index, prepend=-1) != 0)
+    if not scenario.record_references:
+        step = step[:0]
+    orientation = np.zeros((count, 4))
+    orientation[:, 3] = 1.0
+    orientation_covariance = np.zeros((count, 9))
+    orientation_covariance[:, 0] = -1.0  # REP 145: the driver gives no orientation
+    driver = DriverRecord(
+        stamp_ns=stamps, accel=accel, gyro=gyro, orientation=orientation,
+        orientation_covariance=orientation_covariance, temp_stamp_ns=stamps[temp_rows],
+        temperature=np.round(board[temp_rows] / quantum) * quantum,
+        reference_stamp_ns=stamps[step], reference=force[step],
+        rate_reference_stamp_ns=stamps[step], rate_reference=rate[step], frame_id=scenario.frame_id)
+    unit_truth = scenario.driver_truth()
+    return SimulatedRun(record=driver.channel('accel'), board_celsius=board, chamber_celsius=chamber,
+                        true_temp_code=board, specific_force=force, truth=unit_truth.accel,
+                        scenario=scenario, driver=driver, angular_rate=rate, unit_truth=unit_truth)
+
+
+def _effect_terms(effects: tuple[Effect, ...], inputs: np.ndarray, temperature: np.ndarray,
+                  stamp_s: np.ndarray) -> np.ndarray:
+    """What hidden effects add to three channels, ``(k, 3)``, driven by the true temperature."""
+    extra = np.zeros((len(stamp_s), 3))
+    for effect in effects:
+        if effect.kind == 'input':
+            extra += effect.input_counts(inputs)
+        else:
+            extra += effect.offsets(stamp_s, temperature)
+    return extra
+
+
 def hidden_terms(scenario: Scenario, force: np.ndarray, true_code: np.ndarray, stamp_s: np.ndarray,
                  time_s: np.ndarray) -> np.ndarray:
     """Counts ``(k, 3)`` that the scenario's hidden effects and supply drift add to the channels."""
-    extra = np.zeros((len(time_s), 3))
-    for effect in scenario.effect_instances():
-        if effect.kind == 'input':
-            extra += effect.input_counts(force)
-        else:
-            extra += effect.offsets(stamp_s, true_code)
+    extra = _effect_terms(scenario.effect_instances(), force, true_code, stamp_s)
     if scenario.supply_voltage_drift > 0.0:
-        extra += (scenario.supply_voltage_drift * supply_voltage(scenario, time_s))[:, None] * np.array(
-            SUPPLY_AXIS_WEIGHTS)
+        extra += _supply_terms(scenario, time_s)
     return extra
+
+
+def _supply_terms(scenario: Scenario, time_s: np.ndarray) -> np.ndarray:
+    """The offset ``(k, 3)`` that the unobserved supply voltage adds."""
+    return (scenario.supply_voltage_drift * supply_voltage(scenario, time_s))[:, None] * np.array(SUPPLY_AXIS_WEIGHTS)
 
 
 def _effects_from_mapping(raw: Any) -> dict[str, dict[str, float]]:
@@ -361,9 +505,9 @@ def scenario_from_mapping(raw: Mapping[str, Any], *, base: Scenario | None = Non
             msg = f'{key}: unknown scenario key (known: {", ".join(known)})'
             raise ScenarioError(msg)
         current = getattr(base, key)
-        if key == 'unit':
-            changes[key] = _unit_from_mapping(value, base.unit)
-        elif key == 'effects':
+        if key in ('unit', 'accel_unit', 'gyro_unit'):
+            changes[key] = _unit_from_mapping(value, getattr(base, key))
+        elif key in ('effects', 'gyro_effects'):
             changes[key] = _effects_from_mapping(value)
         elif key == 'positions':
             if not isinstance(value, list) or not all(isinstance(p, list) and len(p) == 3 for p in value):
@@ -380,6 +524,11 @@ def scenario_from_mapping(raw: Mapping[str, Any], *, base: Scenario | None = Non
         elif isinstance(current, str):
             if not isinstance(value, str):
                 msg = f'{key}: expected a string'
+                raise ScenarioError(msg)
+            changes[key] = value
+        elif isinstance(current, bool):
+            if not isinstance(value, bool):
+                msg = f'{key}: expected true or false'
                 raise ScenarioError(msg)
             changes[key] = value
         elif isinstance(current, int):
