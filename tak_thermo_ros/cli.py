@@ -339,6 +339,8 @@ def build_parser() -> argparse.ArgumentParser:
     diag.add_argument('--gravity', type=float, default=STANDARD_GRAVITY, help='local gravity for the |g| figure, m/s^2')
     _add_topic_options(diag)
     diag.set_defaults(handler=cmd_diagnose)
+    from tak_thermo_ros.fleet import add_fleet_parser
+    add_fleet_parser(commands, fit)
     return parser
 
 
