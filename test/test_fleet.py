@@ -48,7 +48,7 @@ OFFSET_SPREAD = 3.0
 DEFECT_OFFSET = 150.0
 """How far the defective unit's x offset lies from the design value: 50 x the batch spread."""
 DEFECT = 'unit3'
-FIT_OPTIONS = ['--bias-order', '2', '--settle-time', '4']
+FIT_OPTIONS = ['--bias-order', '4', '--settle-time', '4']
 """Non-default fit options: the fleet must hand them to every unit's fit."""
 
 
@@ -109,7 +109,7 @@ def test_every_unit_gets_the_file_tak_calib_fit_writes_for_its_bag_alone(batch, 
         fleet = out / 'units' / bag.name / 'params.yaml'
         assert fleet.read_text() == alone.read_text()
         assert yaml.safe_load(fleet.read_text()) == yaml.safe_load(alone.read_text())
-        assert 'bias order 2' in fleet.read_text()
+        assert 'bias order 4' in fleet.read_text()
 
 
 def test_the_defective_unit_is_flagged_for_its_x_offset(local_run):
