@@ -73,7 +73,10 @@ def _strip_figure(metrics: list[str], document: dict[str, Any]) -> bytes:
         ax.ticklabel_format(axis='y', style='sci', scilimits=(-3, 4), useOffset=False)
     for ax in list(axes.flat)[count:]:
         ax.set_visible(False)
-    fig.tight_layout()
+    # Fixed margins: tight_layout measured every tick label and took a third of the report's time.
+    width, height = fig.get_size_inches()
+    fig.subplots_adjust(left=0.75 / width, right=1.0 - 0.1 / width, bottom=0.15 / height, top=1.0 - 0.45 / height,
+                        wspace=0.5, hspace=0.55)
     buffer = io.BytesIO()
     fig.savefig(buffer, dpi=DPI, format='png')
     plt.close(fig)
