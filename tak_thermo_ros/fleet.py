@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import copy
 import io
 import json
 import logging
@@ -33,7 +34,7 @@ import time
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Sequence, TextIO
+from typing import Any, Sequence, TextIO
 
 from tak_thermo_ros.core.calibration_file import NODE_NAME, write_text_atomic
 from tak_thermo_ros.core.correction import OutOfRange
@@ -255,8 +256,7 @@ def _connect(scheduler: str | None, workers: int) -> tuple[Any, Any]:
 
 
 def run_batch(tasks: Sequence[UnitTask], *, scheduler: str | None = None, workers: int = DEFAULT_WORKERS,
-              progress: TextIO | None = None,
-              on_done: Callable[[UnitOutcome, int], None] | None = None) -> list[UnitOutcome]:
+              progress: TextIO | None = None) -> list[UnitOutcome]:
     """Run every unit on Dask; the outcomes in the order of ``tasks``.
 
     :param scheduler: address of a running Dask scheduler; ``None`` = a local cluster.
@@ -280,8 +280,6 @@ def run_batch(tasks: Sequence[UnitTask], *, scheduler: str | None = None, worker
             detail = f': {outcome.error}' if outcome.error else ''
             print(f'[{done}/{len(tasks)}] {outcome.unit} {outcome.status} {outcome.seconds:.1f} s{detail}',
                   file=stream, flush=True)
-            if on_done is not None:
-                on_done(outcome, done)
     finally:
         client.close()
         if cluster is not None:
@@ -333,7 +331,8 @@ def fleet_document(outcomes: Sequence[UnitOutcome], *, flag_sigma: float,
             row.update(coefficients=None, residual_rms=None, verdict=None, validation_rms=None,
                        validation_rms_before=None, metrics={}, flags=[])
         row['flagged'] = bool(row['flags'])
-        row['files'] = {name: os.path.relpath(path, start=Path(path).parents[2]) for name, path in outcome.files.items()}
+        row['files'] = {name: os.path.relpath(path, start=Path(path).parents[2])
+                        for name, path in outcome.files.items()}
         rows.append(row)
     return {
         'options': dict(options or {}),
@@ -390,10 +389,11 @@ def cmd_fit_fleet(args: argparse.Namespace, fit_actions: Sequence[argparse.Actio
         raise TakError(msg)
     tasks = _tasks(args, fit_actions, out_dir / 'units')
     out_dir.mkdir(parents=True, exist_ok=True)
-    where = f'scheduler {args.scheduler}' if args.scheduler else f'a local cluster of {args.workers or DEFAULT_WORKERS} workers'
+    workers = args.workers or DEFAULT_WORKERS
+    where = f'scheduler {args.scheduler}' if args.scheduler else f'a local cluster of {workers} workers'
     print(f'fit-fleet: {len(tasks)} units on {where}', file=sys.stderr, flush=True)
     start = time.perf_counter()
-    outcomes = run_batch(tasks, scheduler=args.scheduler, workers=args.workers or DEFAULT_WORKERS)
+    outcomes = run_batch(tasks, scheduler=args.scheduler, workers=workers)
     options = {key: value for key, value in vars(args).items() if key not in ('handler', 'command', 'bags', 'validate')}
     document = fleet_document(outcomes, flag_sigma=args.flag_sigma, options=options)
     document['wall_seconds'] = round(time.perf_counter() - start, 3)
@@ -410,7 +410,8 @@ def cmd_fit_fleet(args: argparse.Namespace, fit_actions: Sequence[argparse.Actio
     print(f'wrote {fleet_json}')
     print(f'wrote {html_path}')
     if document['units_ok'] == 0:
-        msg = f'all {document["units_total"]} units failed (first: {outcomes[0].unit}: {outcomes[0].error}); see {fleet_json}'
+        msg = (f'all {document["units_total"]} units failed (first: {outcomes[0].unit}: {outcomes[0].error}); '
+               f'see {fleet_json}')
         raise TakError(msg)
     return 0
 
@@ -427,7 +428,8 @@ def add_fleet_parser(commands: Any, fit_parser: argparse.ArgumentParser) -> argp
                     'write OUT_DIR/units/<unit>/, OUT_DIR/fleet.json and OUT_DIR/fleet.html (see docs/fleet.md). '
                     'Exit status 0 when at least one unit was calibrated (failed units are listed in fleet.json), '
                     '2 when none was.')
-    fleet.add_argument('bags', nargs='+', metavar='BAG', help='one calibration bag per unit (the unit is named after it)')
+    fleet.add_argument('bags', nargs='+', metavar='BAG',
+                       help='one calibration bag per unit (the unit is named after it)')
     fleet.add_argument('-o', '--output', required=True, metavar='OUT_DIR')
     fleet.add_argument('--validate', nargs='+', metavar='BAG',
                        help='one validation bag per unit, in the order of the BAGs (|g| error after correction)')
@@ -447,7 +449,8 @@ def add_fleet_parser(commands: Any, fit_parser: argparse.ArgumentParser) -> argp
     diagnose.add_argument('--out-of-range', choices=[p.value for p in OutOfRange], default=OutOfRange.CLAMP.value,
                           help='validate: temperature codes outside the calibrated range (default clamp)')
     fit_group = fleet.add_argument_group('fit options (passed to tak_calib fit for every unit)')
-    fit_actions = [action for action in fit_parser._actions
+    # Copies of fit's own option actions (argparse offers no public way to share them).
+    fit_actions = [copy.copy(action) for action in fit_parser._actions
                    if action.option_strings and action.dest not in NOT_PASSED_TO_FIT]
     for action in fit_actions:
         fit_group._add_action(action)

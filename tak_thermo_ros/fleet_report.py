@@ -152,7 +152,8 @@ def write_fleet_report(document: dict[str, Any], path: str | Path) -> Path:
 <html lang="en"><head><meta charset="utf-8"><title>Fleet calibration</title>
 <style>{_CSS}</style></head><body><main>
 <h1>Fleet calibration: {document['units_total']} units</h1>
-<div class="sub">{document['units_ok']} calibrated, {document['units_failed']} failed, {document['units_flagged']} flagged;
+<div class="sub">{document['units_ok']} calibrated, {document['units_failed']} failed,
+{document['units_flagged']} flagged;
 majority verdict {html.escape(str(document['majority_verdict']))}; written {stamp} by tak_calib fit-fleet</div>
 <div class="card"><b>Flagged units</b>{_flags_list(document)}
 <p class="sub">{html.escape(document['flag_rule'])}.</p></div>

@@ -35,7 +35,7 @@ from tak_thermo_ros.core.fleet import (
     majority_verdict,
     robust_spread,
 )
-from tak_thermo_ros.core.simulate import DEFAULT_UNIT, Scenario, simulate
+from tak_thermo_ros.core.simulate import DEFAULT_UNIT, simulate
 from tak_thermo_ros.fleet import unit_names
 
 BIN = Path(sys.executable).parent
