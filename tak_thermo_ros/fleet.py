@@ -449,9 +449,12 @@ def add_fleet_parser(commands: Any, fit_parser: argparse.ArgumentParser) -> argp
     diagnose.add_argument('--out-of-range', choices=[p.value for p in OutOfRange], default=OutOfRange.CLAMP.value,
                           help='validate: temperature codes outside the calibrated range (default clamp)')
     fit_group = fleet.add_argument_group('fit options (passed to tak_calib fit for every unit)')
-    # Copies of fit's own option actions (argparse offers no public way to share them).
+    # Copies of fit's own option actions (argparse offers no public way to share them). One whose
+    # name fit-fleet already uses is left out rather than breaking every command (a test checks).
+    taken = set(fleet._option_string_actions)
     fit_actions = [copy.copy(action) for action in fit_parser._actions
-                   if action.option_strings and action.dest not in NOT_PASSED_TO_FIT]
+                   if action.option_strings and action.dest not in NOT_PASSED_TO_FIT
+                   and not taken.intersection(action.option_strings)]
     for action in fit_actions:
         fit_group._add_action(action)
     fleet.set_defaults(handler=lambda args: cmd_fit_fleet(args, fit_actions))

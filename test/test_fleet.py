@@ -204,6 +204,16 @@ def test_validation_bags_must_pair_with_the_bags(batch, tmp_path, capsys):
     assert not (tmp_path / 'out').exists()
 
 
+def test_every_fit_option_is_a_fleet_option():
+    """The fit options are taken over from fit itself, none lost to a name clash."""
+    from tak_thermo_ros.cli import build_parser
+    commands = next(action for action in build_parser()._actions if action.dest == 'command')
+    fit, fleet = commands.choices['fit'], commands.choices['fit-fleet']
+    fleet_options = {option for action in fleet._actions for option in action.option_strings}
+    fit_options = {option for action in fit._actions for option in action.option_strings}
+    assert fit_options - fleet_options == {'--no-progress'}
+
+
 def _kill_group(process: subprocess.Popen) -> None:
     try:
         os.killpg(process.pid, signal.SIGTERM)
