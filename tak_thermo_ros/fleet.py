@@ -61,7 +61,8 @@ FLEET_HTML = 'fleet.html'
 DEFAULT_WORKERS = 2
 NOT_PASSED_TO_FIT = ('help', 'bag', 'output', 'no_progress')
 """``tak_calib fit`` options that fit-fleet sets itself; every other fit option is passed through."""
-TOPIC_OPTIONS = ('counts_topic', 'temp_topic', 'reference_topic')
+TOPIC_OPTIONS = ('counts_topic', 'raw_imu_topic', 'temp_topic', 'reference_topic', 'reference_rate_topic', 'latitude')
+"""Options of fit that diagnose and validate take too (topics; a static driver bag's latitude)."""
 
 _CLI_LOCK = threading.Lock()
 """``cli.main`` prints to ``sys.stdout``: units in threads of one worker process take turns."""
@@ -359,12 +360,15 @@ def _tasks(args: argparse.Namespace, fit_actions: Sequence[argparse.Action], uni
         raise TakError(msg)
     topics: list[str] = []
     for dest in TOPIC_OPTIONS:
-        topics.append(f'--{dest.replace("_", "-")}={getattr(args, dest)}')
+        if getattr(args, dest, None) is not None:
+            topics.append(f'--{dest.replace("_", "-")}={getattr(args, dest)}')
     diagnose = [*topics, f'--settle-time={args.settle_time}', f'--folds={args.folds}', f'--gravity={args.gravity}']
     if args.candidates:
         diagnose.append(f'--candidates={args.candidates}')
     validate = [*topics, f'--gravity={args.gravity}', f'--out-of-range={args.out_of_range}']
     fit_options = pass_through(fit_actions, args)
+    if args.gravity != STANDARD_GRAVITY:  # fit's own --gravity (a static driver bag's reference) is fleet's
+        fit_options += (f'--gravity={args.gravity}',)
     return [UnitTask(unit=name, bag=bag, validation_bag=check, directory=str(units_dir / name),
                      fit_options=fit_options, diagnose_options=tuple(diagnose), validate_options=tuple(validate))
             for name, bag, check in zip(unit_names(args.bags), bags, validation)]
