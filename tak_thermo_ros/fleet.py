@@ -43,6 +43,7 @@ from tak_thermo_ros.core.fleet import (
     MIN_UNITS_FOR_SPREAD,
     batch_spreads,
     calibration_metrics,
+    diagnosis_verdict,
     flag_units,
     majority_verdict,
 )
@@ -232,6 +233,15 @@ def _option_argv(action: argparse.Action, value: Any) -> list[str]:
     return [f'{option}={value}']
 
 
+def _link_coefficients(link: dict[str, Any], stem: str) -> dict[str, Any]:
+    """One link's coefficients for the fleet table (``stem``: ``temp_code`` or ``temperature``)."""
+    return {**{axis: {key: link[axis][key] for key in ('scale', 'offset', 'offset_span', 'offset_shape', 'scale_shape')}
+               for axis in AXES},
+            'effects': link.get('effects', {}),
+            f'{stem}_ref': link[f'{stem}_ref'],
+            f'{stem}_range': [link[f'{stem}_min'], link[f'{stem}_max']]}
+
+
 def pass_through(actions: Sequence[argparse.Action], args: argparse.Namespace) -> tuple[str, ...]:
     """``args``' values of ``actions`` as command-line words (``str(float)`` round-trips exactly)."""
     words: list[str] = []
@@ -307,7 +317,7 @@ def fleet_document(outcomes: Sequence[UnitOutcome], *, flag_sigma: float,
     """The ``fleet.json`` document: the batch's spread and one row per unit with its flags."""
     succeeded = [o for o in outcomes if o.status == STATUS_OK]
     table = {o.unit: unit_metrics(o) for o in succeeded}
-    verdicts = {o.unit: (o.diagnosis or {}).get('verdict') for o in succeeded}
+    verdicts = {o.unit: diagnosis_verdict(o.diagnosis) for o in succeeded}
     flags = flag_units(table, verdicts, k=flag_sigma)
     rows = []
     for outcome in outcomes:
@@ -316,13 +326,14 @@ def fleet_document(outcomes: Sequence[UnitOutcome], *, flag_sigma: float,
                                'seconds': round(outcome.seconds, 3), 'worker': outcome.worker}
         if outcome.status == STATUS_OK and outcome.calibration is not None:
             calibration = outcome.calibration
-            row['coefficients'] = {
-                **{axis: {key: calibration[axis][key] for key in
-                          ('scale', 'offset', 'offset_span', 'offset_shape', 'scale_shape')} for axis in AXES},
-                'effects': calibration.get('effects', {}),
-                'temp_code_ref': calibration['temp_code_ref'],
-                'temp_code_range': [calibration['temp_code_min'], calibration['temp_code_max']]}
-            row['residual_rms'] = {axis: calibration[axis].get('residual_rms') for axis in AXES}
+            if 'accel' in calibration:  # a driver calibration: both sensors
+                row['coefficients'] = {sensor: _link_coefficients(calibration[sensor], 'temperature')
+                                       for sensor in ('accel', 'gyro')}
+                row['residual_rms'] = {sensor: {axis: calibration[sensor][axis].get('residual_rms') for axis in AXES}
+                                       for sensor in ('accel', 'gyro')}
+            else:
+                row['coefficients'] = _link_coefficients(calibration, 'temp_code')
+                row['residual_rms'] = {axis: calibration[axis].get('residual_rms') for axis in AXES}
             row['verdict'] = verdicts[outcome.unit]
             row['validation_rms'] = (outcome.validation or {}).get('after', {}).get('rms')
             row['validation_rms_before'] = (outcome.validation or {}).get('before', {}).get('rms')

@@ -102,6 +102,13 @@ def _number(value: Any, digits: int = 4) -> str:
     return '' if value is None else f'{value:.{digits}g}'
 
 
+def _per_sensor(values: dict[str, Any], show) -> str:
+    """``show`` of one link, or of each sensor of a driver calibration (``accel ... / gyro ...``)."""
+    if 'accel' in values:
+        return ' / '.join(f'{sensor} {show(values[sensor])}' for sensor in ('accel', 'gyro'))
+    return show(values)
+
+
 def _units_table(document: dict[str, Any]) -> str:
     rows = []
     for row in document['units']:
@@ -110,10 +117,10 @@ def _units_table(document: dict[str, Any]) -> str:
                         f'<td class="l" colspan="9">{html.escape(row["error"] or "")}</td></tr>')
             continue
         coefficients = row['coefficients']
-        scales = ' '.join(_number(coefficients[axis]['scale'], 6) for axis in AXES)
-        offsets = ' '.join(_number(coefficients[axis]['offset']) for axis in AXES)
-        spans = ' '.join(_number(coefficients[axis]['offset_span']) for axis in AXES)
-        residual = ' '.join(_number(row['residual_rms'][axis], 3) for axis in AXES)
+        scales = _per_sensor(coefficients, lambda link: ' '.join(_number(link[axis]['scale'], 6) for axis in AXES))
+        offsets = _per_sensor(coefficients, lambda link: ' '.join(_number(link[axis]['offset']) for axis in AXES))
+        spans = _per_sensor(coefficients, lambda link: ' '.join(_number(link[axis]['offset_span']) for axis in AXES))
+        residual = _per_sensor(row['residual_rms'], lambda rms: ' '.join(_number(rms[axis], 3) for axis in AXES))
         flags = ', '.join(html.escape(flag['metric']) for flag in row['flags'])
         css = 'bad' if row['flags'] else 'good'
         rows.append(f'<tr><td>{html.escape(row["unit"])}</td><td class="good">ok</td><td>{scales}</td>'

@@ -164,8 +164,16 @@ def calibration_metrics(calibration: Mapping[str, Any]) -> dict[str, float]:
 
     Per axis: ``scale``, ``offset``, ``offset_span``, ``residual_rms``, and every polynomial
     coefficient as ``offset_shape[i]`` / ``scale_shape[i]`` (``i`` = power of the code offset);
-    per effect: ``effects.<name>.<parameter>``.
+    per effect: ``effects.<name>.<parameter>``. A driver calibration (version 2) has them per
+    sensor, prefixed ``accel.`` and ``gyro.``.
     """
+    if 'accel' in calibration:
+        return {f'{sensor}.{name}': value for sensor in ('accel', 'gyro')
+                for name, value in _link_metrics(calibration.get(sensor) or {}).items()}
+    return _link_metrics(calibration)
+
+
+def _link_metrics(calibration: Mapping[str, Any]) -> dict[str, float]:
     metrics: dict[str, float] = {}
     for axis in AXES:
         entry = calibration.get(axis, {})
@@ -180,3 +188,13 @@ def calibration_metrics(calibration: Mapping[str, Any]) -> dict[str, float]:
             if parameter != 'class':
                 metrics[f'effects.{name}.{parameter}'] = float(value)
     return metrics
+
+
+def diagnosis_verdict(diagnosis: Mapping[str, Any] | None) -> str | None:
+    """A unit's verdict from its ``diagnose --json``: per sensor for a driver bag (``accel none, gyro thermal_lag``)."""
+    if not diagnosis:
+        return None
+    sensors = diagnosis.get('sensors')
+    if isinstance(sensors, Mapping):
+        return ', '.join(f'{name} {entry.get("verdict")}' for name, entry in sensors.items())
+    return diagnosis.get('verdict')
