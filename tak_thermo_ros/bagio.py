@@ -18,6 +18,7 @@ import os
 import shutil
 import tempfile
 from dataclasses import dataclass
+from itertools import islice
 from pathlib import Path
 from typing import Iterator
 
@@ -25,9 +26,10 @@ import numpy as np
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
+from tak_thermo_ros.cdr import MessageArrays, decode_messages
 from tak_thermo_ros.core.correction import imu_covariances
 from tak_thermo_ros.core.record import NANOSECONDS, ChannelRecord
-from tak_thermo_ros.errors import BagError
+from tak_thermo_ros.errors import BagError, CdrError
 from tak_thermo_ros.progress import Progress
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
@@ -37,6 +39,11 @@ IMU = 'sensor_msgs/msg/Imu'
 NOMINAL_SCALE_KEY = 'tak_thermo_ros.nominal_scale'
 """Bag metadata ``custom_data`` key: nominal K0 per axis as ``'x,y,z'`` (counts per m/s^2)."""
 STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
+DECODERS = ('block', 'rosbags')
+"""``block``: raw messages decoded chunk by chunk into arrays (:mod:`tak_thermo_ros.cdr`);
+``rosbags``: one ``deserialize_cdr`` call per message (the reference)."""
+CHUNK_MESSAGES = 65536
+"""Raw messages the block decoder reads and decodes at once."""
 
 _Header = TYPESTORE.types['std_msgs/msg/Header']
 _Time = TYPESTORE.types['builtin_interfaces/msg/Time']
@@ -94,13 +101,67 @@ class _TopicReader:
             if step % 4096 == 4095:
                 progress.advance(4096)
 
+    def arrays(self, progress: Progress, path: Path, chunk: int = CHUNK_MESSAGES) -> Iterator[MessageArrays]:
+        """The topic's messages decoded ``chunk`` at a time by :func:`tak_thermo_ros.cdr.decode_messages`."""
+        if not self.connections:
+            return
+        raws = (raw for _, _, raw in self.reader.messages(connections=self.connections))
+        first_index = 0
+        while batch := list(islice(raws, chunk)):
+            try:
+                arrays = decode_messages(batch, self.msgtype, first_index=first_index)
+            except CdrError as err:
+                raise CdrError(f'{path}: {self.topic} {err}', err.index) from None
+            first_index += len(batch)
+            progress.advance(len(batch))
+            yield arrays
+
+
+def iter_topic_arrays(source: str | os.PathLike[str] | Reader, topic: str, msgtype: str, *,
+                      chunk: int = CHUNK_MESSAGES) -> Iterator[MessageArrays]:
+    """Decode one topic of a bag chunk by chunk into arrays (rosbags reads the storage only).
+
+    :param source: a bag directory, or a :class:`rosbags.rosbag2.Reader` that is open.
+    :param msgtype: the topic's expected type, one of :data:`tak_thermo_ros.cdr.SCHEMAS`.
+    :param chunk: raw messages decoded at once.
+    :returns: one :class:`~tak_thermo_ros.cdr.MessageArrays` per chunk, in bag order.
+    :raises BagError: missing bag or topic, wrong type, malformed message
+        (:class:`~tak_thermo_ros.errors.CdrError`), unreadable file.
+    """
+    if chunk < 1:
+        msg = f'chunk must be at least 1 message, got {chunk}'
+        raise ValueError(msg)
+    quiet = Progress(0, topic, enabled=False)
+    if isinstance(source, Reader):
+        path = Path(source.path)
+        yield from _TopicReader(source, path, topic, msgtype, required=True).arrays(quiet, path, chunk)
+        return
+    path = Path(source)
+    if not path.exists():
+        msg = f'{path}: no such bag'
+        raise BagError(msg)
+    try:
+        with Reader(path) as reader:
+            yield from _TopicReader(reader, path, topic, msgtype, required=True).arrays(quiet, path, chunk)
+    except BagError:
+        raise
+    except Exception as err:  # rosbags and the storage libraries raise many kinds
+        detail = str(err).splitlines()[0] if str(err) else type(err).__name__
+        msg = f'{path}: cannot read bag ({detail})'
+        raise BagError(msg) from None
+
 
 def read_record(path: str | os.PathLike[str], *, topics: Topics = Topics(),
-                require_reference: bool = False, progress: bool = True) -> ChannelRecord:
+                require_reference: bool = False, progress: bool = True,
+                decoder: str = 'block') -> ChannelRecord:
     """Read the counts, temperature-code and (optional) reference streams of a bag.
 
+    :param decoder: one of :data:`DECODERS`; both give the same arrays.
     :raises BagError: missing bag or topic, wrong type, empty topic, unreadable or truncated file.
     """
+    if decoder not in DECODERS:
+        msg = f'decoder must be one of {DECODERS}, got {decoder!r}'
+        raise ValueError(msg)
     path = Path(path)
     if not path.exists():
         msg = f'{path}: no such bag'
@@ -118,17 +179,11 @@ def read_record(path: str | os.PathLike[str], *, topics: Topics = Topics(),
                     raise BagError(msg)
             total = counts_topic.count + temp_topic.count + reference_topic.count
             with Progress(total, f'reading {path.name}', enabled=None if progress else False) as bar:
-                counts_stamp, counts, frame_id = _read_vectors(counts_topic, bar, path, check_frame=True)
-                temp_stamp = np.empty(temp_topic.count, dtype=np.int64)
-                temp_code = np.empty(temp_topic.count)
-                filled = 0
-                for filled, message in enumerate(temp_topic.messages(bar), start=1):
-                    temp_stamp[filled - 1] = _stamp_ns(message.header)
-                    temp_code[filled - 1] = message.temperature
-                if filled != temp_topic.count:
-                    msg = f'{path}: {temp_topic.topic} holds {filled} of the {temp_topic.count} messages its index lists (truncated bag?)'
-                    raise BagError(msg)
-                reference_stamp, reference, _ = _read_vectors(reference_topic, bar, path, check_frame=False)
+                counts_stamp, counts, frame_id = _read_vectors(counts_topic, bar, path, check_frame=True,
+                                                               decoder=decoder)
+                temp_stamp, temp_code = _read_temperatures(temp_topic, bar, path, decoder=decoder)
+                reference_stamp, reference, _ = _read_vectors(reference_topic, bar, path, check_frame=False,
+                                                              decoder=decoder)
     except BagError:
         raise
     except Exception as err:  # rosbags and the storage libraries raise many kinds
@@ -156,8 +211,67 @@ def _nominal_scale(reader: Reader, path: Path) -> tuple[float, float, float] | N
     return values  # type: ignore[return-value]
 
 
+def _read_temperatures(topic: _TopicReader, bar: Progress, path: Path, *,
+                       decoder: str) -> tuple[np.ndarray, np.ndarray]:
+    temp_stamp = np.empty(topic.count, dtype=np.int64)
+    temp_code = np.empty(topic.count)
+    filled = 0
+    if decoder == 'block':
+        for arrays in topic.arrays(bar, path):
+            rows = _fill_rows(topic, path, filled, len(arrays))
+            temp_stamp[rows] = arrays['stamp_ns']
+            temp_code[rows] = arrays['temperature']
+            filled = rows.stop
+    else:
+        for filled, message in enumerate(topic.messages(bar), start=1):
+            temp_stamp[filled - 1] = _stamp_ns(message.header)
+            temp_code[filled - 1] = message.temperature
+    if filled != topic.count:
+        msg = f'{path}: {topic.topic} holds {filled} of the {topic.count} messages its index lists (truncated bag?)'
+        raise BagError(msg)
+    return temp_stamp, temp_code
+
+
+def _fill_rows(topic: _TopicReader, path: Path, filled: int, count: int) -> slice:
+    """Rows ``filled`` to ``filled + count`` of a topic's arrays, refused beyond the index's count."""
+    if filled + count > topic.count:
+        msg = f'{path}: {topic.topic} holds more than the {topic.count} messages its index lists'
+        raise BagError(msg)
+    return slice(filled, filled + count)
+
+
+def _read_vector_arrays(topic: _TopicReader, bar: Progress, path: Path, *,
+                        check_frame: bool) -> tuple[np.ndarray, np.ndarray, str]:
+    stamps = np.empty(topic.count, dtype=np.int64)
+    values = np.empty((topic.count, 3))
+    frame_id = ''
+    filled = 0
+    for arrays in topic.arrays(bar, path):
+        rows = _fill_rows(topic, path, filled, len(arrays))
+        codes, labels = arrays['frame_id'], arrays.labels['frame_id']
+        if filled == 0 and len(codes):
+            frame_id = labels[codes[0]]
+        if check_frame:
+            expected = labels.index(frame_id) if frame_id in labels else -1
+            changed = np.flatnonzero(codes != expected)
+            if changed.size:
+                row = int(changed[0])
+                msg = (f'{path}: frame_id on {topic.topic} changes from {frame_id!r} to '
+                       f'{labels[codes[row]]!r} at message {filled + row + 1}; one frame per run is supported')
+                raise BagError(msg)
+        stamps[rows] = arrays['stamp_ns']
+        values[rows] = arrays['vector']
+        filled = rows.stop
+    if filled != topic.count:
+        msg = f'{path}: {topic.topic} holds {filled} of the {topic.count} messages its index lists (truncated bag?)'
+        raise BagError(msg)
+    return stamps, values, frame_id
+
+
 def _read_vectors(topic: _TopicReader, bar: Progress, path: Path, *,
-                  check_frame: bool) -> tuple[np.ndarray, np.ndarray, str]:
+                  check_frame: bool, decoder: str = 'rosbags') -> tuple[np.ndarray, np.ndarray, str]:
+    if decoder == 'block':
+        return _read_vector_arrays(topic, bar, path, check_frame=check_frame)
     stamps = np.empty(topic.count, dtype=np.int64)
     values = np.empty((topic.count, 3))
     frame_id = ''
