@@ -101,10 +101,11 @@ class _TopicReader:
             if step % 4096 == 4095:
                 progress.advance(4096)
 
-    def arrays(self, progress: Progress, path: Path, chunk: int = CHUNK_MESSAGES) -> Iterator[MessageArrays]:
-        """The topic's messages decoded ``chunk`` at a time by :func:`tak_thermo_ros.cdr.decode_messages`."""
+    def arrays(self, progress: Progress, path: Path, chunk: int | None = None) -> Iterator[MessageArrays]:
+        """The topic's messages decoded ``chunk`` (default :data:`CHUNK_MESSAGES`) at a time."""
         if not self.connections:
             return
+        chunk = chunk or CHUNK_MESSAGES
         raws = (raw for _, _, raw in self.reader.messages(connections=self.connections))
         first_index = 0
         while batch := list(islice(raws, chunk)):
@@ -118,17 +119,17 @@ class _TopicReader:
 
 
 def iter_topic_arrays(source: str | os.PathLike[str] | Reader, topic: str, msgtype: str, *,
-                      chunk: int = CHUNK_MESSAGES) -> Iterator[MessageArrays]:
+                      chunk: int | None = None) -> Iterator[MessageArrays]:
     """Decode one topic of a bag chunk by chunk into arrays (rosbags reads the storage only).
 
     :param source: a bag directory, or a :class:`rosbags.rosbag2.Reader` that is open.
     :param msgtype: the topic's expected type, one of :data:`tak_thermo_ros.cdr.SCHEMAS`.
-    :param chunk: raw messages decoded at once.
+    :param chunk: raw messages decoded at once (default :data:`CHUNK_MESSAGES`).
     :returns: one :class:`~tak_thermo_ros.cdr.MessageArrays` per chunk, in bag order.
     :raises BagError: missing bag or topic, wrong type, malformed message
         (:class:`~tak_thermo_ros.errors.CdrError`), unreadable file.
     """
-    if chunk < 1:
+    if chunk is not None and chunk < 1:
         msg = f'chunk must be at least 1 message, got {chunk}'
         raise ValueError(msg)
     quiet = Progress(0, topic, enabled=False)
