@@ -357,11 +357,14 @@ def _decode_block(builder: _Builder, layout: _Layout, members: np.ndarray, block
     structured = np.dtype({'names': names, 'formats': formats, 'offsets': offsets,
                            'itemsize': block.shape[1]})
     records = np.ascontiguousarray(block).reshape(-1).view(structured)
+    rows: np.ndarray | slice = members
+    if len(members) and int(members[-1]) - int(members[0]) + 1 == len(members):  # ascending, no gaps
+        rows = slice(int(members[0]), int(members[-1]) + 1)
     for field, _ in layout.numbers:
-        builder.arrays[field.name][members] = records[field.name]
+        builder.arrays[field.name][rows] = records[field.name]
     for field, offset, count in layout.strings:
         if count == 0:
-            builder.arrays[field.name][members] = builder.code(field.name, '')
+            builder.arrays[field.name][rows] = builder.code(field.name, '')
             continue
         text_bytes = block[:, offset:offset + count]
         if np.all(text_bytes == text_bytes[0]):
@@ -379,7 +382,7 @@ def _decode_block(builder: _Builder, layout: _Layout, members: np.ndarray, block
                 bad[position] = True
                 index = first_index + int(members[np.flatnonzero(inverse == position)].min())
                 failures.append(_fail(index, f'{field.name} is not UTF-8 ({err.reason})'))
-        builder.arrays[field.name][members] = np.where(bad[inverse], 0, codes[inverse])
+        builder.arrays[field.name][rows] = np.where(bad[inverse], 0, codes[inverse])
 
 
 def _decode_single(builder: _Builder, fields: tuple[Field, ...], raw: bytes, member: int,
