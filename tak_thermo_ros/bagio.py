@@ -133,17 +133,16 @@ def iter_topic_arrays(source: str | os.PathLike[str] | Reader, topic: str, msgty
         msg = f'chunk must be at least 1 message, got {chunk}'
         raise ValueError(msg)
     quiet = Progress(0, topic, enabled=False)
-    if isinstance(source, Reader):
-        path = Path(source.path)
-        yield from _TopicReader(source, path, topic, msgtype, required=True).arrays(quiet, path, chunk)
-        return
-    path = Path(source)
+    path = Path(source.path if isinstance(source, Reader) else source)
     if not path.exists():
         msg = f'{path}: no such bag'
         raise BagError(msg)
     try:
-        with Reader(path) as reader:
-            yield from _TopicReader(reader, path, topic, msgtype, required=True).arrays(quiet, path, chunk)
+        if isinstance(source, Reader):
+            yield from _TopicReader(source, path, topic, msgtype, required=True).arrays(quiet, path, chunk)
+        else:
+            with Reader(path) as reader:
+                yield from _TopicReader(reader, path, topic, msgtype, required=True).arrays(quiet, path, chunk)
     except BagError:
         raise
     except Exception as err:  # rosbags and the storage libraries raise many kinds
