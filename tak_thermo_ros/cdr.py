@@ -298,21 +298,17 @@ def decode_messages(raws: Sequence[bytes | memoryview], msgtype: str, *, first_i
     if count == 0:
         return builder.finish()
     lengths = np.fromiter(map(len, raws), dtype=np.int64, count=count)
-    buffer = np.frombuffer(b''.join(raws), dtype=np.uint8)
     failures: list[CdrError] = []
     if np.all(lengths == lengths[0]):
-        groups = [(np.arange(count), buffer.reshape(count, int(lengths[0])))]
+        rows = np.frombuffer(b''.join(raws), dtype=np.uint8).reshape(count, int(lengths[0]))
+        _decode_group(builder, fields, np.arange(count), rows, first_index, failures)
     else:
-        starts = np.zeros(count, dtype=np.int64)
-        np.cumsum(lengths[:-1], out=starts[1:])
         order = np.argsort(lengths, kind='stable')
         bounds = np.flatnonzero(np.diff(lengths[order])) + 1
-        groups = []
         for members in np.split(order, bounds):
-            length = int(lengths[members[0]])
-            groups.append((members, buffer[starts[members][:, None] + np.arange(length)]))
-    for members, rows in groups:
-        _decode_group(builder, fields, members, rows, first_index, failures)
+            joined = b''.join([raws[member] for member in members.tolist()])
+            rows = np.frombuffer(joined, dtype=np.uint8).reshape(len(members), int(lengths[members[0]]))
+            _decode_group(builder, fields, members, rows, first_index, failures)
     if failures:
         raise min(failures, key=lambda err: err.index)
     return builder.finish()
