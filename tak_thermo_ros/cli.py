@@ -1,7 +1,10 @@
 """``tak_calib``: simulate chamber runs, fit, apply and validate the correction link.
 
 Every deliberate failure prints one line ``tak_calib: error: ...`` and exits with status 2;
-no traceback reaches the user.
+no traceback reaches the user (``tak_calib --debug`` shows it). Interrupted by SIGINT or
+SIGTERM, it removes what it was writing and exits with 130 or 143. Every output obeys one
+overwrite rule (:mod:`tak_thermo_ros.core.files`): an existing output is refused unless
+``--force``, and only regular files, bags and report directories are ever replaced.
 """
 
 from __future__ import annotations
@@ -14,11 +17,15 @@ os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 
 import argparse  # noqa: E402
 import json  # noqa: E402
+import signal  # noqa: E402
 import sys  # noqa: E402
+import traceback  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Callable, Sequence  # noqa: E402
 
-from tak_thermo_ros.core.calibration_file import load_calibration, save_calibration, write_text_atomic
+from tak_thermo_ros import options as bounds
+from tak_thermo_ros.core.calibration_file import load_calibration, save_calibration
+from tak_thermo_ros.core.files import BAG, FILE, REPORT, atomic_directory, check_output, write_text_atomic
 from tak_thermo_ros.core.correction import Corrector, OutOfRange, acceleration_variance
 from tak_thermo_ros.core.fit import fit_model
 from tak_thermo_ros.core.model import AXES
@@ -28,6 +35,18 @@ from tak_thermo_ros.core.validate import validate_gravity
 from tak_thermo_ros.errors import TakError
 
 EXIT_ERROR = 2
+EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 143
+
+OUTPUTS: dict[str, tuple[tuple[str, str, str], ...]] = {
+    'simulate': (('out_bag', BAG, 'OUT_BAG'),),
+    'fit': (('output', FILE, '-o'),),
+    'apply': (('output', BAG, '-o'),),
+    'validate': (('json', FILE, '--json'),),
+    'import-csv': (('output', BAG, '-o'),),
+    'diagnose': (('json', FILE, '--json'), ('report', REPORT, '--report')),
+}
+"""Each command's outputs: ``(argument, kind, option)``, checked before any work is done."""
 
 
 def _topics(args: argparse.Namespace):
@@ -43,6 +62,11 @@ def _add_topic_options(parser: argparse.ArgumentParser, *, imu: bool = False) ->
     if imu:
         parser.add_argument('--imu-topic', default='/tak/imu/data_raw', help='corrected output (Imu)')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar even on a terminal')
+    parser.add_argument('--force', action='store_true',
+                        help='replace an existing output (a regular file, a bag or a report directory; '
+                             'nothing else is ever replaced)')
+    parser.add_argument('--debug', action='store_true', default=argparse.SUPPRESS,
+                        help='show the traceback of an error')
 
 
 def _out_of_range(parser: argparse.ArgumentParser) -> None:
@@ -59,7 +83,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         from dataclasses import replace
         scenario = replace(scenario, seed=args.seed)
     run = simulate(scenario)
-    write_record(args.out_bag, run.record, topics=_topics(args), storage=args.storage)
+    write_record(args.out_bag, run.record, topics=_topics(args), storage=args.storage, force=args.force)
     record = run.record
     print(f'wrote {args.out_bag}: {len(record.counts_stamp_ns)} counts, {len(record.temp_stamp_ns)} temperature codes, '
           f'{len(record.reference_stamp_ns)} reference changes, {scenario.duration_s() / 3600.0:.2f} h '
@@ -84,9 +108,34 @@ def _describe_dropped(dropped: dict[str, int]) -> str:
     return ', '.join(f'{count} {reason.replace("_", " ")}' for reason, count in sorted(dropped.items()))
 
 
+def _print_ignored_temp_codes(samples: AlignedSamples, topic: str) -> None:
+    """One line per reason a temperature code was ignored (not held), if any was."""
+    words = {'non_finite': 'non-finite', 'implausible': 'implausible (|code| >= 1e7)'}
+    for reason, count in sorted(samples.ignored_temp_codes.items()):
+        print(f'ignored {count} {words.get(reason, reason)} temperature codes on {topic} (the last good code held)')
+
+
+def _require_finite(values, what: str) -> None:
+    """Refuse to print or write a non-finite number with exit 0."""
+    import numpy as np
+    bad = int(np.count_nonzero(~np.isfinite(np.asarray(values, dtype=float))))
+    if bad:
+        msg = f'{what}: {bad} values are not finite (NaN or infinite); nothing written'
+        raise TakError(msg)
+
+
+def _json_text(document: object, path: str) -> str:
+    try:
+        return json.dumps(document, indent=2, allow_nan=False) + '\n'
+    except ValueError:
+        msg = f'{path}: the figures hold a non-finite number (NaN or infinite); not written'
+        raise TakError(msg) from None
+
+
 def cmd_fit(args: argparse.Namespace) -> int:
     """Fit the correction link to a calibration bag."""
     record, samples = _read_samples(args, calibration_run=True, settle_time_s=args.settle_time)
+    _print_ignored_temp_codes(samples, args.temp_topic)
     nominal = record.nominal_scale
     if args.nominal_scale is not None:
         nominal = tuple(args.nominal_scale * 3 if len(args.nominal_scale) == 1 else args.nominal_scale)
@@ -131,9 +180,11 @@ def cmd_apply(args: argparse.Namespace) -> int:
     record, samples = _read_samples(args, calibration_run=False)
     corrector = Corrector(calibration, out_of_range=OutOfRange(args.out_of_range))
     acceleration = corrector.correct(samples.counts, samples.temp_code, stamp_s=samples.stamp_s)
+    _require_finite(acceleration, f'{args.output}: corrected specific force')
     write_imu(args.output, samples.stamp_ns, record.frame_id, acceleration,
-              acceleration_variance(calibration), topic=args.imu_topic, storage=args.storage)
+              acceleration_variance(calibration), topic=args.imu_topic, storage=args.storage, force=args.force)
     print(f'wrote {len(samples)} Imu messages on {args.imu_topic} to {args.output}')
+    _print_ignored_temp_codes(samples, args.temp_topic)
     if samples.dropped:
         print(f'dropped counts messages: {_describe_dropped(samples.dropped)}')
     outside = corrector.out_of_range_count(samples.temp_code)
@@ -151,6 +202,10 @@ def cmd_validate(args: argparse.Namespace) -> int:
                               stamp_s=samples.stamp_s,
                               out_of_range=OutOfRange(args.out_of_range))
     before, after = result.before, result.after
+    _require_finite([before.rms, before.max, after.rms, after.max], f'{args.bag}: |g| error')
+    _print_ignored_temp_codes(samples, args.temp_topic)
+    if samples.dropped:
+        print(f'left out: {_describe_dropped(samples.dropped)}')
     print(f'|g| error over {len(samples)} samples of {args.bag} (gravity {args.gravity:g} m/s^2):')
     print(f'  before (nominal scale and offset): RMS {before.rms:.5f} m/s^2 ({before.rms / args.gravity * 1e3:.3f} mg), '
           f'max {before.max:.5f} m/s^2')
@@ -162,7 +217,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
         document = {'bag': str(args.bag), 'params': str(args.params), 'gravity': args.gravity,
                     'samples': len(samples), 'out_of_range': result.out_of_range,
                     'before': before.as_dict(), 'after': after.as_dict()}
-        write_text_atomic(args.json, json.dumps(document, indent=2) + '\n')
+        write_text_atomic(args.json, _json_text(document, args.json))
         print(f'wrote {args.json}')
     return 0
 
@@ -179,7 +234,7 @@ def cmd_import_csv(args: argparse.Namespace) -> int:
         delimiter=delimiter_from_option(args.delimiter) if args.delimiter else None, frame_id=args.frame_id)
     log = read_csv_log(args.log, options)
     record = log.record
-    write_record(args.output, record, topics=_topics(args), storage=args.storage)
+    write_record(args.output, record, topics=_topics(args), storage=args.storage, force=args.force)
     print(f'read {args.log}: {log.rows} rows ({log.delimiter_name}-delimited), {log.duration_s:.1f} s '
           f'at {(log.rows - 1) / max(log.duration_s, 1e-9):.3g} Hz')
     print(f'acceleration {" ".join(options.acc_columns)} in {options.acc_unit}: counts = round(a / '
@@ -216,6 +271,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
           f'(model: {result.ladder[0].label})')
     if samples.dropped:
         print(f'left out: {_describe_dropped(samples.dropped)}')
+    _print_ignored_temp_codes(samples, args.temp_topic)
     for name, axis in zip(AXES, result.axes):
         print(f'  {name}: residual RMS {axis.rms:.3f} counts, noise floor {axis.noise_floor:.3f}; held-out '
               f'{axis.heldout_rms:.3f} ({axis.heldout_rms / axis.noise_floor:.2f}x the floor)')
@@ -232,12 +288,14 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     print(f'verdict: {result.verdict}')
     print(result.message)
     if args.json:
-        write_text_atomic(args.json, json.dumps(result.as_dict(), indent=2) + '\n')
+        write_text_atomic(args.json, _json_text(result.as_dict(), args.json))
         print(f'wrote {args.json}')
     if args.report:
         from tak_thermo_ros.report import write_report
-        files = write_report(result, samples, args.report, source=Path(args.bag).name, gravity=args.gravity)
-        print(f'wrote {files.html} ({len(files.figures)} figures)')
+        check_output(args.report, REPORT, force=args.force, option='--report')
+        with atomic_directory(args.report) as staging:
+            files = write_report(result, samples, staging, source=Path(args.bag).name, gravity=args.gravity)
+        print(f'wrote {Path(args.report) / files.html.name} ({len(files.figures)} figures)')
     return 0
 
 
@@ -254,12 +312,13 @@ def expand_candidates(text: str) -> list[str]:
 def build_parser() -> argparse.ArgumentParser:
     """The ``tak_calib`` argument parser."""
     parser = argparse.ArgumentParser(prog='tak_calib', description=__doc__.splitlines()[0])
+    parser.add_argument('--debug', action='store_true', help='show the traceback of an error')
     commands = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
 
     sim = commands.add_parser('simulate', help='simulate a thermal-chamber run into a bag')
     sim.add_argument('out_bag', metavar='OUT_BAG')
     sim.add_argument('--scenario', metavar='FILE.yaml', help='scenario overrides, every key optional (README: The simulator)')
-    sim.add_argument('--seed', type=int, help='random seed (overrides the scenario)')
+    sim.add_argument('--seed', type=bounds.seed, help='random seed, 0 .. 2**63-1 (overrides the scenario)')
     sim.add_argument('--storage', choices=['mcap', 'sqlite3'], default='mcap')
     _add_topic_options(sim)
     sim.set_defaults(handler=cmd_simulate)
@@ -267,16 +326,16 @@ def build_parser() -> argparse.ArgumentParser:
     fit = commands.add_parser('fit', help='fit the correction link to a calibration bag')
     fit.add_argument('bag', metavar='BAG')
     fit.add_argument('-o', '--output', required=True, metavar='PARAMS.yaml')
-    fit.add_argument('--bias-order', type=int, default=3, help='order q of F_s (default 3)')
-    fit.add_argument('--scale-order', type=int, default=2, help='order p of F_c (default 2; 0 = no scale drift)')
-    fit.add_argument('--temp-code-ref', type=float, help='N_t,ref (default: middle of the calibrated range)')
-    fit.add_argument('--nominal-scale', type=float, nargs='+', metavar='K0',
+    fit.add_argument('--bias-order', type=bounds.polynomial_order, default=3, help='order q of F_s (default 3)')
+    fit.add_argument('--scale-order', type=bounds.polynomial_order, default=2, help='order p of F_c (default 2; 0 = no scale drift)')
+    fit.add_argument('--temp-code-ref', type=bounds.temp_code, help='N_t,ref (default: middle of the calibrated range)')
+    fit.add_argument('--nominal-scale', type=bounds.positive, nargs='+', metavar='K0',
                      help='nominal counts per m/s^2 (one value or x y z), held for an axis that sees one '
                           'input only; default: the bag metadata written by simulate / import-csv')
     fit.add_argument('--effects', metavar='NAME[,NAME...]',
                      help='effects to fit beyond the paper\'s model: thermal_lag, hysteresis, scale_nonlinearity, '
                           'cross_axis, warmup, temperature_shape, or module:Class (see docs/effects.md)')
-    fit.add_argument('--settle-time', type=float, default=0.0, metavar='SECONDS',
+    fit.add_argument('--settle-time', type=bounds.seconds_not_negative, default=0.0, metavar='SECONDS',
                      help='leave out samples this long after each reference change (turntable settling)')
     _add_topic_options(fit)
     fit.set_defaults(handler=cmd_fit)
@@ -293,7 +352,8 @@ def build_parser() -> argparse.ArgumentParser:
     val = commands.add_parser('validate', help='|g| from the three channels before and after correction')
     val.add_argument('bag', metavar='BAG')
     val.add_argument('--params', required=True, metavar='PARAMS.yaml')
-    val.add_argument('--gravity', type=float, default=STANDARD_GRAVITY, help='local gravity, m/s^2')
+    val.add_argument('--gravity', type=bounds.gravity, default=STANDARD_GRAVITY,
+                     help=f'local gravity, m/s^2 ({bounds.GRAVITY_MIN:g}..{bounds.GRAVITY_MAX:g})')
     val.add_argument('--json', metavar='OUT.json', help='also write the figures as JSON')
     _out_of_range(val)
     _add_topic_options(val)
@@ -308,14 +368,15 @@ def build_parser() -> argparse.ArgumentParser:
     imp.add_argument('--time-unit', choices=['s', 'ms', 'us', 'ns'], default='s', help='unit of the time column (default s)')
     imp.add_argument('--acc-unit', choices=['m/s^2', 'g'], default='m/s^2',
                      help='unit of the acceleration columns (1 g = 9.80665 m/s^2; default m/s^2)')
-    imp.add_argument('--acc-resolution', type=float, default=1e-3, metavar='M/S^2',
+    imp.add_argument('--acc-resolution', type=bounds.positive, default=1e-3, metavar='M/S^2',
                      help='m/s^2 per channel count: counts = round(a / resolution) (default 0.001); '
                           'the nominal scale 1/resolution goes into the bag metadata')
-    imp.add_argument('--temp-resolution', type=float, default=0.01, metavar='CELSIUS',
+    imp.add_argument('--temp-resolution', type=bounds.positive, default=0.01, metavar='CELSIUS',
                      help='degrees per temperature code: N_t = round(T / resolution) (default 0.01)')
-    imp.add_argument('--gravity', type=float, default=STANDARD_GRAVITY,
-                     help='local gravity, m/s^2: magnitude of the estimated reference (default 9.80665)')
-    imp.add_argument('--reference', type=float, nargs=3, metavar=('X', 'Y', 'Z'),
+    imp.add_argument('--gravity', type=bounds.gravity, default=STANDARD_GRAVITY,
+                     help=f'local gravity, m/s^2 ({bounds.GRAVITY_MIN:g}..{bounds.GRAVITY_MAX:g}): magnitude of the '
+                          'estimated reference (default 9.80665)')
+    imp.add_argument('--reference', type=bounds.specific_force, nargs=3, metavar=('X', 'Y', 'Z'),
                      help='the specific force in the sensor frame, m/s^2, if known (default: the mean '
                           'measured direction scaled to --gravity)')
     imp.add_argument('--delimiter', help='field delimiter: tab, comma, semicolon or one character '
@@ -333,13 +394,37 @@ def build_parser() -> argparse.ArgumentParser:
                       help='effects to try (default: every library effect the calibration lacks); '
                            "module:Class for a user-defined effect (see docs/effects.md); 'library' "
                            "stands for every library effect, e.g. library,mymodule:MyEffect")
-    diag.add_argument('--folds', type=int, default=5, help='cross-validation folds (default 5)')
-    diag.add_argument('--settle-time', type=float, default=0.0, metavar='SECONDS',
+    diag.add_argument('--folds', type=bounds.folds, default=5,
+                      help=f'cross-validation folds, 2..{bounds.MAX_FOLDS} (default 5)')
+    diag.add_argument('--settle-time', type=bounds.seconds_not_negative, default=0.0, metavar='SECONDS',
                       help='leave out samples this long after each reference change (as for fit)')
-    diag.add_argument('--gravity', type=float, default=STANDARD_GRAVITY, help='local gravity for the |g| figure, m/s^2')
+    diag.add_argument('--gravity', type=bounds.gravity, default=STANDARD_GRAVITY,
+                      help=f'local gravity for the |g| figure, m/s^2 ({bounds.GRAVITY_MIN:g}..{bounds.GRAVITY_MAX:g})')
     _add_topic_options(diag)
     diag.set_defaults(handler=cmd_diagnose)
     return parser
+
+
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, handled like SIGINT (the partial output is removed), exit status 143."""
+
+
+def _raise_terminated(signum: int, frame: object) -> None:
+    raise _Terminated
+
+
+def _check_outputs(args: argparse.Namespace) -> None:
+    """Apply the overwrite rule to every output of the command before any work is done."""
+    for name, kind, option in OUTPUTS.get(args.command, ()):
+        path = getattr(args, name, None)
+        if path is not None:
+            check_output(path, kind, force=args.force, option=option)
+
+
+def _report(message: str, err: BaseException, debug: bool) -> None:
+    if debug:
+        traceback.print_exception(err)
+    print(f'tak_calib: error: {message}', file=sys.stderr)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -347,18 +432,39 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     handler: Callable[[argparse.Namespace], int] = args.handler
+    debug = bool(getattr(args, 'debug', False))
+    previous = None
     try:
+        previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    except ValueError:  # not the main thread: SIGTERM keeps its meaning
+        previous = None
+    try:
+        _check_outputs(args)
         return handler(args)
     except TakError as err:
-        print(f'tak_calib: error: {err}', file=sys.stderr)
+        _report(str(err), err, debug)
         return EXIT_ERROR
     except OSError as err:
         where = f'{err.filename}: ' if err.filename else ''
-        print(f'tak_calib: error: {where}{err.strerror or err}', file=sys.stderr)
+        _report(f'{where}{err.strerror or err}', err, debug)
         return EXIT_ERROR
+    except MemoryError as err:
+        _report('out of memory', err, debug)
+        return EXIT_ERROR
+    except _Terminated:
+        print('tak_calib: terminated', file=sys.stderr)
+        return EXIT_TERMINATED
     except KeyboardInterrupt:
         print('tak_calib: interrupted', file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
+    except Exception as err:  # a bug: still one line for the user, the traceback with --debug
+        detail = str(err).splitlines()[0] if str(err) else ''
+        _report(f'internal error, please report it: {type(err).__name__}: {detail} '
+                f'(tak_calib --debug shows the traceback)', err, debug)
+        return EXIT_ERROR
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == '__main__':

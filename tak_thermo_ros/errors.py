@@ -29,3 +29,11 @@ class BagError(TakError):
 
 class LogError(TakError):
     """A delimited (CSV) log cannot be imported into the bag contract."""
+
+
+class OutputError(TakError):
+    """An output cannot be written where asked (a special file, an existing output, a full disk)."""
+
+
+class EffectError(TakError):
+    """A user-defined effect raised or returned values that are not finite or of a wrong shape."""

@@ -15,6 +15,12 @@ import numpy as np
 COUNTS_MIN = -32768.0
 COUNTS_MAX = 32767.0
 NANOSECONDS = 1_000_000_000
+TEMP_CODE_LIMIT = 1e7
+"""Largest magnitude of a plausible temperature-sensor code (beyond any 24-bit code, 2**23).
+
+A code at or beyond it is a corrupted message, not a temperature: it is ignored like a
+non-finite one (the last good code stays held).
+"""
 
 
 def seconds_from_ns(stamp_ns: np.ndarray) -> np.ndarray:
@@ -94,6 +100,46 @@ def counts_problems(counts: np.ndarray) -> dict[str, np.ndarray]:
             'saturated': finite & integer & rail}
 
 
+STAMP_DROP_REASONS = ('duplicate_stamp', 'time_backwards')
+"""Why a counts sample is left out for its header stamp, checked before :data:`DROP_REASONS`."""
+TEMP_CODE_PROBLEMS = ('non_finite', 'implausible')
+"""Why a temperature code is ignored (not held)."""
+
+
+def temp_code_problem(temp_code: float) -> str | None:
+    """Why one temperature code is ignored, or ``None``: NaN or infinite (``non_finite``), or
+    of magnitude :data:`TEMP_CODE_LIMIT` or more (``implausible``)."""
+    if not isfinite(temp_code):
+        return 'non_finite'
+    if abs(temp_code) >= TEMP_CODE_LIMIT:
+        return 'implausible'
+    return None
+
+
+def temp_code_problems(temp_code: np.ndarray) -> dict[str, np.ndarray]:
+    """Masks ``(m,)`` per reason of :data:`TEMP_CODE_PROBLEMS`; same rules as :func:`temp_code_problem`."""
+    temp_code = np.asarray(temp_code, dtype=float)
+    finite = np.isfinite(temp_code)
+    return {'non_finite': ~finite,
+            'implausible': finite & (np.abs(np.where(finite, temp_code, 0.0)) >= TEMP_CODE_LIMIT)}
+
+
+def stamp_problems(stamp_ns: np.ndarray) -> dict[str, np.ndarray]:
+    """Masks ``(k,)`` per reason of :data:`STAMP_DROP_REASONS`, in bag (arrival) order.
+
+    A counts sample whose header stamp equals the previous counts message's (whatever became
+    of that one) is a ``duplicate_stamp``; one stamped earlier is ``time_backwards``. The node
+    applies the same rule per message.
+    """
+    stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
+    duplicate = np.zeros(len(stamp_ns), dtype=bool)
+    backwards = np.zeros(len(stamp_ns), dtype=bool)
+    if len(stamp_ns) > 1:
+        duplicate[1:] = stamp_ns[1:] == stamp_ns[:-1]
+        backwards[1:] = stamp_ns[1:] < stamp_ns[:-1]
+    return {'duplicate_stamp': duplicate, 'time_backwards': backwards}
+
+
 def hold_last_index(source_stamp_ns: np.ndarray, target_stamp_ns: np.ndarray) -> np.ndarray:
     """Index of the last source sample at or before each target stamp, ``-1`` where none.
 
@@ -113,6 +159,8 @@ class AlignedSamples:
     :param temp_code: ``(k,)`` held temperature codes.
     :param reference: ``(k, 3)`` held reference, or ``None`` without a reference stream.
     :param dropped: reason -> number of counts samples left out.
+    :param ignored_temp_codes: reason of :data:`TEMP_CODE_PROBLEMS` -> number of temperature
+        codes that were ignored (not held), reasons with none left out.
     """
 
     stamp_ns: np.ndarray
@@ -120,6 +168,7 @@ class AlignedSamples:
     temp_code: np.ndarray
     reference: np.ndarray | None
     dropped: dict[str, int]
+    ignored_temp_codes: dict[str, int] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.stamp_ns)
@@ -141,11 +190,17 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
           drop_saturated: bool = True) -> AlignedSamples:
     """Hold temperature code and reference on the counts stamps and keep usable samples.
 
-    Counts samples are left out, and counted by reason, when: no temperature code has
-    arrived yet (``before_first_temp_code``); no reference yet (``before_first_reference``);
-    within ``settle_time_s`` after a reference change (``settling``); and for the reasons of
-    :func:`counts_problems`: a code is NaN or infinite (``non_finite``), not a whole number
-    (``non_integer``), or at a 16-bit rail (``saturated``, unless ``drop_saturated`` is false).
+    Counts samples are left out, and counted by reason, in this order: the header stamp is
+    not later than the previous counts message's (:func:`stamp_problems`: ``duplicate_stamp``,
+    ``time_backwards``); for the reasons of :func:`counts_problems`: a code is NaN or infinite
+    (``non_finite``), not a whole number (``non_integer``), or at a 16-bit rail (``saturated``,
+    unless ``drop_saturated`` is false); no temperature code has arrived yet
+    (``before_first_temp_code``); no reference yet (``before_first_reference``); within
+    ``settle_time_s`` after a reference change (``settling``).
+
+    A temperature code that is NaN, infinite or implausibly large (:func:`temp_code_problem`)
+    is never held: the previous good code stays, as in the node; the ignored codes are counted
+    in :attr:`AlignedSamples.ignored_temp_codes`.
     """
     stamps = record.counts_stamp_ns
     counts = record.counts
@@ -158,10 +213,23 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
             dropped[reason] = dropped.get(reason, 0) + int(np.count_nonzero(newly))
             keep[newly] = False
 
+    for reason, mask in stamp_problems(stamps).items():
+        leave_out(reason, mask)
     for reason, mask in counts_problems(counts).items():
         if reason != 'saturated' or drop_saturated:
             leave_out(reason, mask)
-    temp_index = hold_last_index(record.temp_stamp_ns, stamps)
+    ignored: dict[str, int] = {}
+    usable = np.ones(len(record.temp_code), dtype=bool)
+    for reason, mask in temp_code_problems(record.temp_code).items():
+        if mask.any():
+            ignored[reason] = int(np.count_nonzero(mask))
+            usable &= ~mask
+    usable_rows = np.flatnonzero(usable)
+    if len(usable_rows):
+        held = hold_last_index(record.temp_stamp_ns[usable_rows], stamps)
+        temp_index = np.where(held >= 0, usable_rows[np.maximum(held, 0)], -1)
+    else:
+        temp_index = np.full(len(stamps), -1)
     leave_out('before_first_temp_code', temp_index < 0)
     reference = None
     if use_reference and record.has_reference:
@@ -172,7 +240,7 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
         reference = record.reference[reference_index[keep]]
     return AlignedSamples(stamp_ns=stamps[keep], counts=counts[keep],
                           temp_code=record.temp_code[temp_index[keep]].astype(float),
-                          reference=reference, dropped=dropped)
+                          reference=reference, dropped=dropped, ignored_temp_codes=ignored)
 
 
 def _within_settle_time(record: ChannelRecord, stamps: np.ndarray, settle_time_s: float) -> np.ndarray:
