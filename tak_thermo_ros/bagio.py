@@ -248,6 +248,12 @@ class _AtomicBag:
             raise self._failure(failure) from failure
 
 
+def _chunked(*columns: np.ndarray, size: int = 65_536) -> Iterator[tuple]:
+    """Rows of equally long arrays as tuples of Python numbers, converted ``size`` at a time."""
+    for start in range(0, len(columns[0]), size):
+        yield from zip(*(column[start:start + size].tolist() for column in columns))
+
+
 def write_record(path: str | os.PathLike[str], record: ChannelRecord, *, topics: Topics = Topics(),
                  storage: str = 'mcap', force: bool = False) -> None:
     """Write a run in the bag contract (messages in stamp order, bag time = header stamp).
@@ -255,11 +261,15 @@ def write_record(path: str | os.PathLike[str], record: ChannelRecord, *, topics:
     :param force: replace an existing bag at ``path`` (:func:`tak_thermo_ros.core.files.check_output`).
     """
     serialize = TYPESTORE.serialize_cdr
-    events: list[tuple[int, int, int]] = []  # (stamp, stream, row): streams 0 temp, 1 ref, 2 counts
-    events += [(int(s), 0, i) for i, s in enumerate(record.temp_stamp_ns)]
-    events += [(int(s), 1, i) for i, s in enumerate(record.reference_stamp_ns)]
-    events += [(int(s), 2, i) for i, s in enumerate(record.counts_stamp_ns)]
-    events.sort()
+    # Messages in (stamp, stream, row) order, streams 0 temp, 1 ref, 2 counts; as arrays, so that
+    # a long run costs a few bytes per message here, not Python tuples.
+    parts = (record.temp_stamp_ns, record.reference_stamp_ns, record.counts_stamp_ns)
+    stamps = np.concatenate([np.asarray(part, dtype=np.int64) for part in parts])
+    streams = np.concatenate([np.full(len(part), stream, dtype=np.int8) for stream, part in enumerate(parts)])
+    rows = np.concatenate([np.arange(len(part), dtype=np.int64) for part in parts])
+    order = np.lexsort((rows, streams, stamps))
+    stamps, streams, rows = stamps[order], streams[order], rows[order]
+    del order
     with _AtomicBag(path, storage, force=force) as writer:
         counts_conn = writer.add_connection(topics.counts, VECTOR3_STAMPED, typestore=TYPESTORE)
         temp_conn = writer.add_connection(topics.temp_code, TEMPERATURE, typestore=TYPESTORE)
@@ -267,7 +277,7 @@ def write_record(path: str | os.PathLike[str], record: ChannelRecord, *, topics:
                           if record.has_reference else None)
         if record.nominal_scale is not None:
             writer.set_custom_data(NOMINAL_SCALE_KEY, ','.join(repr(float(v)) for v in record.nominal_scale))
-        for stamp, stream, row in events:
+        for stamp, stream, row in _chunked(stamps, streams, rows):
             header = _header(stamp, record.frame_id)
             if stream == 0:
                 message = _Temperature(header=header, temperature=float(record.temp_code[row]), variance=0.0)
