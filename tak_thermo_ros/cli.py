@@ -309,9 +309,18 @@ def expand_candidates(text: str) -> list[str]:
     return candidates
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with the tool's one-line error: ``tak_calib: error: ...``, exit status 2."""
+
+    def error(self, message: str):  # type: ignore[override]
+        command = self.prog.removeprefix('tak_calib').strip()
+        where = f'{command}: ' if command else ''
+        self.exit(EXIT_ERROR, f'tak_calib: error: {where}{message} (see {self.prog} --help)\n')
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``tak_calib`` argument parser."""
-    parser = argparse.ArgumentParser(prog='tak_calib', description=__doc__.splitlines()[0])
+    parser = _Parser(prog='tak_calib', description=__doc__.splitlines()[0])
     parser.add_argument('--debug', action='store_true', help='show the traceback of an error')
     commands = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
 
