@@ -338,7 +338,7 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument('--bias-order', type=bounds.polynomial_order, default=3, help='order q of F_s (default 3)')
     fit.add_argument('--scale-order', type=bounds.polynomial_order, default=2, help='order p of F_c (default 2; 0 = no scale drift)')
     fit.add_argument('--temp-code-ref', type=bounds.temp_code, help='N_t,ref (default: middle of the calibrated range)')
-    fit.add_argument('--nominal-scale', type=bounds.positive, nargs='+', metavar='K0',
+    fit.add_argument('--nominal-scale', type=bounds.nominal_scale, nargs='+', metavar='K0',
                      help='nominal counts per m/s^2 (one value or x y z), held for an axis that sees one '
                           'input only; default: the bag metadata written by simulate / import-csv')
     fit.add_argument('--effects', metavar='NAME[,NAME...]',

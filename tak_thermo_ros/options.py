@@ -11,7 +11,8 @@ follows from the physics or from what the code downstream can represent:
   with a margin);
 - a temperature code lies within +-:data:`~tak_thermo_ros.core.record.TEMP_CODE_LIMIT` (beyond
   any 24-bit sensor code);
-- times (``--settle-time``) are finite and not negative; resolutions and scales are positive;
+- times (``--settle-time``) are finite and not negative; resolutions are positive; a nominal
+  scale lies within 0 .. :data:`MAX_NOMINAL_SCALE` counts per m/s^2;
 - polynomial orders lie within 0 .. :data:`MAX_ORDER`; cross-validation needs 2 folds or more;
 - a random seed is a whole number 0 .. 2**63 - 1.
 """
@@ -34,6 +35,8 @@ MAX_FOLDS = 100
 """Most cross-validation folds ``diagnose`` accepts."""
 MAX_SEED = 2 ** 63 - 1
 """Largest random seed."""
+MAX_NOMINAL_SCALE = 1e7
+"""Largest nominal scale, counts per m/s^2 (a 24-bit channel over +-2 g has 4e5)."""
 MAX_SPECIFIC_FORCE = 1000.0
 """Largest specific-force component accepted as a reference, m/s^2 (about 100 g)."""
 
@@ -100,7 +103,9 @@ seconds_not_negative = float_within(0.0, math.inf, 's')
 temp_code = float_within(-TEMP_CODE_LIMIT, TEMP_CODE_LIMIT, '(temperature-sensor code)')
 """``--temp-code-ref``."""
 positive = float_within(0.0, math.inf, low_open=True)
-"""Resolutions and nominal scales."""
+"""Resolutions."""
+nominal_scale = float_within(0.0, MAX_NOMINAL_SCALE, 'counts per m/s^2', low_open=True)
+"""``--nominal-scale``."""
 specific_force = float_within(-MAX_SPECIFIC_FORCE, MAX_SPECIFIC_FORCE, 'm/s^2')
 """``--reference`` components."""
 polynomial_order = int_within(0, MAX_ORDER)

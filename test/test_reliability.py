@@ -450,6 +450,14 @@ def test_the_last_representable_stamp_is_accepted():
     assert log.record.counts_stamp_ns[-1] == MAX_STAMP_NS
 
 
+def test_a_temperature_code_beyond_any_sensor_code_names_row_and_column():
+    """A temperature resolution so fine that the codes leave +-1e7: refused at the import,
+    not written as codes that every command would ignore."""
+    options = replace(CSV_OPTIONS, temp_resolution=1e-6)
+    with pytest.raises(LogError, match=r"log.csv: row 1 \(line 2\), column 'temp': 20 C is a temperature code of 2e\+07"):
+        parse_csv_log(_csv(['1', '2', '3']), options, source='log.csv')
+
+
 def test_csv_rows_are_converted_in_chunks(monkeypatch):
     """Chunk boundaries change nothing: the same arrays with chunks of 3 rows as with one chunk."""
     from tak_thermo_ros.core import csv_log
@@ -475,7 +483,7 @@ def test_csv_import_onto_dev_null_is_refused(tmp_path, capsys):
     assert stat.S_ISCHR(after.st_mode) and after.st_ino == before.st_ino and after.st_rdev == before.st_rdev
 
 
-def test_a_bag_record_with_a_nan_stamp_free_write_is_refused_by_the_storage_only(tmp_path):
+def test_write_record_refuses_an_existing_bag_unless_force(tmp_path):
     """write_record with an existing bag and force=False raises BagError naming the path."""
     record = ChannelRecord(counts_stamp_ns=np.array([1, 2], dtype=np.int64), counts=np.zeros((2, 3)),
                            temp_stamp_ns=np.array([1], dtype=np.int64), temp_code=np.array([8000.0]))

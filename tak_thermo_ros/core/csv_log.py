@@ -41,7 +41,7 @@ from typing import Iterable
 
 import numpy as np
 
-from tak_thermo_ros.core.record import COUNTS_MAX, COUNTS_MIN, ChannelRecord
+from tak_thermo_ros.core.record import COUNTS_MAX, COUNTS_MIN, TEMP_CODE_LIMIT, ChannelRecord
 from tak_thermo_ros.core.simulate import STANDARD_GRAVITY
 from tak_thermo_ros.errors import LogError
 
@@ -269,6 +269,7 @@ def parse_csv_log(lines: Iterable[str], options: CsvImportOptions, *, source: st
     counts = np.round(acceleration / options.acc_resolution)
     _check_code_range(counts, acceleration, options, source, line_numbers)
     temp_code = np.round(temperature / options.temp_resolution)
+    _check_temp_code_range(temp_code, temperature, options, source, line_numbers)
     if np.all(temp_code == temp_code[0]):
         msg = (f'{source}: column {options.temp_column!r} varies by only {np.ptp(temperature):g} C, less than '
                f'one code of {options.temp_resolution:g} C: no temperature sweep at this --temp-resolution')
@@ -397,4 +398,18 @@ def _check_code_range(counts: np.ndarray, acceleration: np.ndarray, options: Csv
            f'{acceleration[row, axis]:g} m/s^2 is {counts[row, axis]:.0f} counts at a resolution of '
            f'{options.acc_resolution:g} m/s^2 per count: at or beyond the 16-bit range, it would saturate; '
            f'use an acceleration resolution of at least {needed:.3g} m/s^2 per count')
+    raise LogError(msg)
+
+
+def _check_temp_code_range(temp_code: np.ndarray, temperature: np.ndarray, options: CsvImportOptions,
+                           source: str, line_numbers: np.ndarray) -> None:
+    """Every temperature code must be a plausible sensor code (``|N_t| < TEMP_CODE_LIMIT``)."""
+    outside = np.abs(temp_code) >= TEMP_CODE_LIMIT
+    if not outside.any():
+        return
+    row = int(np.flatnonzero(outside)[0])
+    msg = (f'{source}: row {row + 1} (line {line_numbers[row]}), column {options.temp_column!r}: '
+           f'{temperature[row]:g} C is a temperature code of {temp_code[row]:.3g} at a resolution of '
+           f'{options.temp_resolution:g} C per code, beyond any sensor code (|code| < {TEMP_CODE_LIMIT:g}); '
+           f'use a larger --temp-resolution')
     raise LogError(msg)
