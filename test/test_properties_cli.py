@@ -132,6 +132,8 @@ def csv_logs(draw) -> tuple[str, list[str]]:
         acc = np.array([0.2, -0.1, 9.8]) + rng.normal(0.0, 0.01, 3)
         temp = 20.0 + 20.0 * i / rows
         table.append([time_text, *(f'{v:.5f}' for v in acc), f'{temp:.3f}'])
+    short: set[int] = set()
+    blank: set[int] = set()
     for _ in range(draw(st.integers(0, 4))):
         row = draw(st.integers(0, rows - 1))
         kind = draw(st.sampled_from(['junk', 'big', 'duplicate_time', 'swap_rows', 'time', 'short_row',
@@ -148,15 +150,16 @@ def csv_logs(draw) -> tuple[str, list[str]]:
             table[row][0] = draw(st.sampled_from(['2147483648', '1e19', '9223372036854775808', '1.5e9',
                                                   '4e9', '-1e-3', '1e-400']))
         elif kind == 'short_row':
-            table[row] = table[row][:3]
+            short.add(row)
         elif kind == 'blank_row':
-            table[row] = []
+            blank.add(row)
         elif kind == 'negative_time':
             table[row][0] = '-' + table[row][0]
     header = ['t', 'ax', 'ay', 'az', 'temp']
     if draw(st.booleans()) and draw(st.booleans()):
         header[draw(st.integers(0, 4))] = draw(st.sampled_from(['', 'x', 'ax ']))
-    text = delimiter.join(header) + '\n' + ''.join(delimiter.join(r) + '\n' for r in table)
+    lines = ['' if i in blank else delimiter.join(r[:3] if i in short else r) for i, r in enumerate(table)]
+    text = delimiter.join(header) + '\n' + ''.join(line + '\n' for line in lines)
     unit = 'us' if seconds == 'us' else 's'
     return text, ['--time-column', 't', '--time-unit', unit, '--acc-columns', 'ax', 'ay', 'az',
                   '--temp-column', 'temp']

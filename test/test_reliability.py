@@ -493,3 +493,21 @@ def test_write_record_refuses_an_existing_bag_unless_force(tmp_path):
     write_record(tmp_path / 'b', replace(record, counts=np.ones((2, 3))), force=True)
     assert np.array_equal(read_record(tmp_path / 'b', progress=False).counts, np.ones((2, 3)))
     assert _leftovers(tmp_path) == []
+
+
+def test_a_full_disk_while_writing_the_report_names_the_report_directory(tiny, tmp_path, monkeypatch, capsys):
+    """A figure that cannot be written: one line naming --report's directory, not the temporary one."""
+    from tak_thermo_ros import report as report_module
+    root, _ = tiny
+
+    def full_disk(path, data):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+    monkeypatch.setattr(report_module, '_write_atomic', full_disk)
+    out = tmp_path / 'report'
+    argv = ['diagnose', str(root / 'cal'), '--params', str(root / 'params.yaml'), '--report', str(out),
+            '--candidates', 'warmup', '--folds', '2', '--no-progress']
+    assert main(argv) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert line == f'tak_calib: error: {out}: No space left on device'
+    assert list(tmp_path.iterdir()) == []

@@ -195,10 +195,10 @@ def atomic_directory(path: str | os.PathLike[str]) -> Iterator[Path]:
     inner = staging / path.name
     inner.mkdir()
     try:
-        yield inner
         try:
+            yield inner
             install_directory(inner, path)
-        except OSError as err:
-            raise _user_error(err, path) from None
+        except OSError as err:  # a full disk while filling it: name the user's path
+            raise _user_error(err, path) from err
     finally:
         shutil.rmtree(staging, ignore_errors=True)
