@@ -248,10 +248,11 @@ class _AtomicBag:
             raise self._failure(failure) from failure
 
 
-def _chunked(*columns: np.ndarray, size: int = 65_536) -> Iterator[tuple]:
-    """Rows of equally long arrays as tuples of Python numbers, converted ``size`` at a time."""
-    for start in range(0, len(columns[0]), size):
-        yield from zip(*(column[start:start + size].tolist() for column in columns))
+def _chunked(order: np.ndarray, *columns: np.ndarray, size: int = 65_536) -> Iterator[tuple]:
+    """Rows ``order`` of equally long arrays as tuples of Python numbers, ``size`` at a time."""
+    for start in range(0, len(order), size):
+        chunk = order[start:start + size]
+        yield from zip(*(column[chunk].tolist() for column in columns))
 
 
 def write_record(path: str | os.PathLike[str], record: ChannelRecord, *, topics: Topics = Topics(),
@@ -268,8 +269,6 @@ def write_record(path: str | os.PathLike[str], record: ChannelRecord, *, topics:
     streams = np.concatenate([np.full(len(part), stream, dtype=np.int8) for stream, part in enumerate(parts)])
     rows = np.concatenate([np.arange(len(part), dtype=np.int64) for part in parts])
     order = np.lexsort((rows, streams, stamps))
-    stamps, streams, rows = stamps[order], streams[order], rows[order]
-    del order
     with _AtomicBag(path, storage, force=force) as writer:
         counts_conn = writer.add_connection(topics.counts, VECTOR3_STAMPED, typestore=TYPESTORE)
         temp_conn = writer.add_connection(topics.temp_code, TEMPERATURE, typestore=TYPESTORE)
@@ -277,7 +276,7 @@ def write_record(path: str | os.PathLike[str], record: ChannelRecord, *, topics:
                           if record.has_reference else None)
         if record.nominal_scale is not None:
             writer.set_custom_data(NOMINAL_SCALE_KEY, ','.join(repr(float(v)) for v in record.nominal_scale))
-        for stamp, stream, row in _chunked(stamps, streams, rows):
+        for stamp, stream, row in _chunked(order, stamps, streams, rows):
             header = _header(stamp, record.frame_id)
             if stream == 0:
                 message = _Temperature(header=header, temperature=float(record.temp_code[row]), variance=0.0)

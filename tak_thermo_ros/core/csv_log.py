@@ -263,9 +263,10 @@ def parse_csv_log(lines: Iterable[str], options: CsvImportOptions, *, source: st
     table = np.concatenate(value_parts)
     del value_parts
     _check_increasing(stamp_ns, source, line_numbers, options.time_column)
-    acceleration = table[:, :3] * ACC_UNITS[options.acc_unit]
-    temperature = table[:, 3]
     _check_not_constant(table, wanted[1:], source)
+    acceleration = table[:, :3] * ACC_UNITS[options.acc_unit]
+    temperature = table[:, 3].copy()
+    del table
     counts = np.round(acceleration / options.acc_resolution)
     _check_code_range(counts, acceleration, options, source, line_numbers)
     temp_code = np.round(temperature / options.temp_resolution)
