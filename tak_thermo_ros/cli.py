@@ -23,10 +23,12 @@ import traceback  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Callable, Sequence  # noqa: E402
 
+import numpy as np  # noqa: E402
+
 from tak_thermo_ros import options as bounds
 from tak_thermo_ros.core.calibration_file import load_calibration, save_calibration
-from tak_thermo_ros.core.files import BAG, FILE, REPORT, atomic_directory, check_output, write_text_atomic
 from tak_thermo_ros.core.correction import Corrector, OutOfRange, acceleration_variance
+from tak_thermo_ros.core.files import BAG, FILE, REPORT, atomic_directory, check_output, write_text_atomic
 from tak_thermo_ros.core.fit import fit_model
 from tak_thermo_ros.core.model import AXES
 from tak_thermo_ros.core.record import AlignedSamples, ChannelRecord, align
@@ -117,7 +119,6 @@ def _print_ignored_temp_codes(samples: AlignedSamples, topic: str) -> None:
 
 def _require_finite(values, what: str) -> None:
     """Refuse to print or write a non-finite number with exit 0."""
-    import numpy as np
     bad = int(np.count_nonzero(~np.isfinite(np.asarray(values, dtype=float))))
     if bad:
         msg = f'{what}: {bad} values are not finite (NaN or infinite); nothing written'
@@ -198,6 +199,10 @@ def cmd_validate(args: argparse.Namespace) -> int:
     """|g| from the three channels before and after correction."""
     calibration = load_calibration(args.params)
     _, samples = _read_samples(args, calibration_run=False)
+    if not len(samples):
+        left_out = f' (left out: {_describe_dropped(samples.dropped)})' if samples.dropped else ''
+        msg = f'{args.bag}: no usable counts samples to validate{left_out}'
+        raise TakError(msg)
     result = validate_gravity(calibration, samples.counts, samples.temp_code, gravity=args.gravity,
                               stamp_s=samples.stamp_s,
                               out_of_range=OutOfRange(args.out_of_range))
