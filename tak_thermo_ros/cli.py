@@ -31,7 +31,7 @@ from tak_thermo_ros.core.correction import Corrector, OutOfRange, acceleration_v
 from tak_thermo_ros.core.files import BAG, FILE, REPORT, atomic_directory, check_output, write_text_atomic
 from tak_thermo_ros.core.fit import fit_model
 from tak_thermo_ros.core.model import AXES
-from tak_thermo_ros.core.record import AlignedSamples, ChannelRecord, align
+from tak_thermo_ros.core.record import REFERENCE_LIMIT, TEMP_CODE_LIMIT, AlignedSamples, ChannelRecord, align
 from tak_thermo_ros.core.simulate import STANDARD_GRAVITY, Scenario, load_scenario, simulate
 from tak_thermo_ros.core.validate import validate_gravity
 from tak_thermo_ros.errors import TakError
@@ -110,11 +110,15 @@ def _describe_dropped(dropped: dict[str, int]) -> str:
     return ', '.join(f'{count} {reason.replace("_", " ")}' for reason, count in sorted(dropped.items()))
 
 
-def _print_ignored_temp_codes(samples: AlignedSamples, topic: str) -> None:
-    """One line per reason a temperature code was ignored (not held), if any was."""
-    words = {'non_finite': 'non-finite', 'implausible': 'implausible (|code| >= 1e7)'}
-    for reason, count in sorted(samples.ignored_temp_codes.items()):
-        print(f'ignored {count} {words.get(reason, reason)} temperature codes on {topic} (the last good code held)')
+def _print_ignored(samples: AlignedSamples, args: argparse.Namespace) -> None:
+    """One line per reason a temperature code or reference was ignored (not held), if any was."""
+    for what, ignored, topic, words in (
+            ('temperature codes', samples.ignored_temp_codes, args.temp_topic,
+             {'implausible': f'implausible (|code| >= {TEMP_CODE_LIMIT:g})'}),
+            ('reference messages', samples.ignored_references, args.reference_topic,
+             {'implausible': f'implausible (a component >= {REFERENCE_LIMIT:g} m/s^2)'})):
+        for reason, count in sorted(ignored.items()):
+            print(f'ignored {count} {words.get(reason, "non-finite")} {what} on {topic} (the last good one held)')
 
 
 def _require_finite(values, what: str) -> None:
@@ -136,7 +140,7 @@ def _json_text(document: object, path: str) -> str:
 def cmd_fit(args: argparse.Namespace) -> int:
     """Fit the correction link to a calibration bag."""
     record, samples = _read_samples(args, calibration_run=True, settle_time_s=args.settle_time)
-    _print_ignored_temp_codes(samples, args.temp_topic)
+    _print_ignored(samples, args)
     nominal = record.nominal_scale
     if args.nominal_scale is not None:
         nominal = tuple(args.nominal_scale * 3 if len(args.nominal_scale) == 1 else args.nominal_scale)
@@ -185,7 +189,7 @@ def cmd_apply(args: argparse.Namespace) -> int:
     write_imu(args.output, samples.stamp_ns, record.frame_id, acceleration,
               acceleration_variance(calibration), topic=args.imu_topic, storage=args.storage, force=args.force)
     print(f'wrote {len(samples)} Imu messages on {args.imu_topic} to {args.output}')
-    _print_ignored_temp_codes(samples, args.temp_topic)
+    _print_ignored(samples, args)
     if samples.dropped:
         print(f'dropped counts messages: {_describe_dropped(samples.dropped)}')
     outside = corrector.out_of_range_count(samples.temp_code)
@@ -208,7 +212,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
                               out_of_range=OutOfRange(args.out_of_range))
     before, after = result.before, result.after
     _require_finite([before.rms, before.max, after.rms, after.max], f'{args.bag}: |g| error')
-    _print_ignored_temp_codes(samples, args.temp_topic)
+    _print_ignored(samples, args)
     if samples.dropped:
         print(f'left out: {_describe_dropped(samples.dropped)}')
     print(f'|g| error over {len(samples)} samples of {args.bag} (gravity {args.gravity:g} m/s^2):')
@@ -276,7 +280,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
           f'(model: {result.ladder[0].label})')
     if samples.dropped:
         print(f'left out: {_describe_dropped(samples.dropped)}')
-    _print_ignored_temp_codes(samples, args.temp_topic)
+    _print_ignored(samples, args)
     for name, axis in zip(AXES, result.axes):
         print(f'  {name}: residual RMS {axis.rms:.3f} counts, noise floor {axis.noise_floor:.3f}; held-out '
               f'{axis.heldout_rms:.3f} ({axis.heldout_rms / axis.noise_floor:.2f}x the floor)')

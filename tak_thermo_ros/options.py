@@ -9,8 +9,9 @@ follows from the physics or from what the code downstream can represent:
 - local gravity lies within :data:`GRAVITY_MIN` .. :data:`GRAVITY_MAX` m/s^2 (every place on the
   Earth's surface, from high mountains at the equator, about 9.76, to the poles, about 9.83,
   with a margin);
-- a temperature code lies within +-:data:`~tak_thermo_ros.core.record.TEMP_CODE_LIMIT` (beyond
-  any 24-bit sensor code);
+- a temperature code lies strictly within +-:data:`~tak_thermo_ros.core.record.TEMP_CODE_LIMIT`
+  (beyond any 24-bit sensor code), a reference component within
+  +-:data:`~tak_thermo_ros.core.record.REFERENCE_LIMIT` m/s^2;
 - times (``--settle-time``) are finite and not negative; resolutions are positive; a nominal
   scale lies within 0 .. :data:`MAX_NOMINAL_SCALE` counts per m/s^2;
 - polynomial orders lie within 0 .. :data:`MAX_ORDER`; cross-validation needs 2 folds or more;
@@ -23,7 +24,7 @@ import argparse
 import math
 from typing import Callable
 
-from tak_thermo_ros.core.record import TEMP_CODE_LIMIT
+from tak_thermo_ros.core.record import REFERENCE_LIMIT, TEMP_CODE_LIMIT
 
 GRAVITY_MIN = 9.7
 """Lowest accepted local gravity, m/s^2."""
@@ -37,8 +38,6 @@ MAX_SEED = 2 ** 63 - 1
 """Largest random seed."""
 MAX_NOMINAL_SCALE = 1e7
 """Largest nominal scale, counts per m/s^2 (a 24-bit channel over +-2 g has 4e5)."""
-MAX_SPECIFIC_FORCE = 1000.0
-"""Largest specific-force component accepted as a reference, m/s^2 (about 100 g)."""
 
 
 def _float(text: str) -> float:
@@ -58,19 +57,21 @@ def finite_float(text: str) -> float:
     return _float(text)
 
 
-def float_within(low: float, high: float, unit: str = '', *, low_open: bool = False) -> Callable[[str], float]:
-    """A finite number within ``[low, high]`` (``(low, high]`` with ``low_open``)."""
+def float_within(low: float, high: float, unit: str = '', *, low_open: bool = False,
+                 high_open: bool = False) -> Callable[[str], float]:
+    """A finite number within ``[low, high]``; ``low_open``, ``high_open`` leave a bound out."""
     unit_text = f' {unit}' if unit else ''
 
     def parse(text: str) -> float:
         value = _float(text)
-        inside = (value > low if low_open else value >= low) and value <= high
+        inside = (value > low if low_open else value >= low) and (value < high if high_open else value <= high)
         if not inside:
             if math.isinf(high):
                 bound = f'> {low:g}' if low_open else f'>= {low:g}'
                 msg = f'{text} is out of range: must be {bound}{unit_text}'
             else:
-                msg = f'{text} is out of range: must lie within {low:g}..{high:g}{unit_text}'
+                interval = f'{"(" if low_open else "["}{low:g}, {high:g}{")" if high_open else "]"}'
+                msg = f'{text} is out of range: must lie within {interval}{unit_text}'
             raise argparse.ArgumentTypeError(msg)
         return value
 
@@ -100,13 +101,14 @@ gravity = float_within(GRAVITY_MIN, GRAVITY_MAX, 'm/s^2 (local gravity on the Ea
 """``--gravity``."""
 seconds_not_negative = float_within(0.0, math.inf, 's')
 """``--settle-time``."""
-temp_code = float_within(-TEMP_CODE_LIMIT, TEMP_CODE_LIMIT, '(temperature-sensor code)')
+temp_code = float_within(-TEMP_CODE_LIMIT, TEMP_CODE_LIMIT, '(temperature-sensor code)', low_open=True,
+                         high_open=True)
 """``--temp-code-ref``."""
 positive = float_within(0.0, math.inf, low_open=True)
 """Resolutions."""
 nominal_scale = float_within(0.0, MAX_NOMINAL_SCALE, 'counts per m/s^2', low_open=True)
 """``--nominal-scale``."""
-specific_force = float_within(-MAX_SPECIFIC_FORCE, MAX_SPECIFIC_FORCE, 'm/s^2')
+specific_force = float_within(-REFERENCE_LIMIT, REFERENCE_LIMIT, 'm/s^2', low_open=True, high_open=True)
 """``--reference`` components."""
 polynomial_order = int_within(0, MAX_ORDER)
 """``--bias-order``, ``--scale-order``."""

@@ -200,8 +200,9 @@ def small_run(tmp_path_factory):
 
 
 @st.composite
-def record_changes(draw, length: int, temp_length: int) -> dict:
-    """Changes to a run: temperature codes NaN/inf/huge, counts NaN/huge, header stamps back."""
+def record_changes(draw, length: int, temp_length: int, reference_length: int) -> dict:
+    """Changes to a run: temperature codes and references NaN/inf/huge, counts NaN/huge,
+    header stamps back."""
     indices = st.integers(0, length - 1)
     return {
         'temp': draw(st.lists(st.tuples(st.integers(0, temp_length - 1),
@@ -212,6 +213,9 @@ def record_changes(draw, length: int, temp_length: int) -> dict:
                                 max_size=4)),
         'stamps': draw(st.lists(st.tuples(indices, st.sampled_from(['duplicate', 'back', 'far_back', 'forward'])),
                                 max_size=4)),
+        'reference': draw(st.lists(st.tuples(st.integers(0, reference_length - 1), st.integers(0, 2),
+                                             st.sampled_from([math.nan, -math.inf, 1e300, 1999.0, 0.0])),
+                                   max_size=3)),
     }
 
 
@@ -222,13 +226,16 @@ def _changed_record(record, changes: dict):
     counts = record.counts.copy()
     for row, axis, value in changes['counts']:
         counts[row, axis] = value
+    reference = record.reference.copy()
+    for row, axis, value in changes['reference']:
+        reference[row, axis] = value
     headers = record.counts_stamp_ns.copy()
     for row, how in changes['stamps']:
         if row == 0:
             continue
         headers[row] = {'duplicate': headers[row - 1], 'back': headers[row - 1] - 10 ** 9,
                         'far_back': 10 ** 9, 'forward': headers[row] + 10 ** 12}[how]
-    return replace(record, temp_code=temp_code, counts=counts), headers
+    return replace(record, temp_code=temp_code, counts=counts, reference=reference), headers
 
 
 COMMANDS = ('fit', 'apply', 'validate', 'diagnose')
@@ -264,7 +271,8 @@ def _prepare_output(out: Path, command: str, existing: bool) -> dict[Path, bytes
 def test_commands_on_changed_runs_keep_the_invariant(small_run, data, command, storage, existing, force):
     """NaN and huge temperature codes, bad counts, header stamps back (bag time increasing)."""
     run, params = small_run
-    changes = data.draw(record_changes(len(run.record.counts), len(run.record.temp_code)))
+    changes = data.draw(record_changes(len(run.record.counts), len(run.record.temp_code),
+                                       len(run.record.reference)))
     record, headers = _changed_record(run.record, changes)
     with tempfile.TemporaryDirectory() as name:
         directory = Path(name)

@@ -281,6 +281,27 @@ def test_non_finite_and_implausible_temperature_codes_are_not_held(tiny, tmp_pat
     assert 'verdict:' in capsys.readouterr().out
 
 
+def test_non_finite_and_implausible_references_are_not_held(tiny, tmp_path, capsys):
+    """A reference message that is NaN, infinite or beyond 2000 m/s^2 is ignored like a bad
+    temperature code: the previous one stays held; fit prints the count and fits the truth."""
+    root, run = tiny
+    reference = run.record.reference.copy()
+    reference[5, 0] = np.nan
+    reference[9, 2] = np.inf
+    reference[12, 1] = 1e300
+    record = replace(run.record, reference=reference)
+    samples = align(record)
+    assert samples.ignored_references == {'non_finite': 2, 'implausible': 1}
+    assert np.all(np.isfinite(samples.reference)) and np.all(np.abs(samples.reference) < 20.0)
+    stamps = record.reference_stamp_ns
+    between = (samples.stamp_ns >= stamps[5]) & (samples.stamp_ns < stamps[6])
+    assert between.any() and np.all(samples.reference[between] == reference[4])  # the last good one, held
+    write_record(tmp_path / 'bad', record)
+    assert main(['fit', str(tmp_path / 'bad'), '-o', str(tmp_path / 'p.yaml'), '--no-progress']) == 0
+    out = capsys.readouterr().out
+    assert 'ignored 2 non-finite reference messages' in out and 'ignored 1 implausible' in out
+
+
 def test_counts_stamps_going_backwards_are_dropped_and_counted(tiny):
     """A counts sample stamped no later than the previous counts message (bag order) is left
     out: ``time_backwards`` or ``duplicate_stamp``; the kept samples keep their own codes."""

@@ -100,6 +100,12 @@ def counts_problems(counts: np.ndarray) -> dict[str, np.ndarray]:
             'saturated': finite & integer & rail}
 
 
+REFERENCE_LIMIT = 2000.0
+"""Largest plausible reference component, m/s^2 (about 200 g, beyond any turntable or centrifuge).
+
+A reference message with a component at or beyond it, or NaN or infinite, is corrupt: it is
+ignored (the previous good reference stays held).
+"""
 STAMP_DROP_REASONS = ('duplicate_stamp', 'time_backwards')
 """Why a counts sample is left out for its header stamp, checked before :data:`DROP_REASONS`."""
 TEMP_CODE_PROBLEMS = ('non_finite', 'implausible')
@@ -122,6 +128,30 @@ def temp_code_problems(temp_code: np.ndarray) -> dict[str, np.ndarray]:
     finite = np.isfinite(temp_code)
     return {'non_finite': ~finite,
             'implausible': finite & (np.abs(np.where(finite, temp_code, 0.0)) >= TEMP_CODE_LIMIT)}
+
+
+def reference_problems(reference: np.ndarray) -> dict[str, np.ndarray]:
+    """Masks ``(r,)`` per reason a reference message is ignored: ``non_finite`` (a component NaN
+    or infinite) or ``implausible`` (a component of magnitude :data:`REFERENCE_LIMIT` or more)."""
+    reference = np.asarray(reference, dtype=float).reshape(-1, 3)
+    finite = np.all(np.isfinite(reference), axis=1)
+    large = np.any(np.abs(np.where(np.isfinite(reference), reference, 0.0)) >= REFERENCE_LIMIT, axis=1)
+    return {'non_finite': ~finite, 'implausible': finite & large}
+
+
+def _usable_hold_index(source_stamp_ns: np.ndarray, problems: dict[str, np.ndarray], target_stamp_ns: np.ndarray,
+                       ignored: dict[str, int]) -> np.ndarray:
+    """:func:`hold_last_index` over the source rows without a problem; counts the others in ``ignored``."""
+    usable = np.ones(len(source_stamp_ns), dtype=bool)
+    for reason, mask in problems.items():
+        if mask.any():
+            ignored[reason] = int(np.count_nonzero(mask))
+            usable &= ~mask
+    rows = np.flatnonzero(usable)
+    if not len(rows):
+        return np.full(len(target_stamp_ns), -1)
+    held = hold_last_index(source_stamp_ns[rows], target_stamp_ns)
+    return np.where(held >= 0, rows[np.maximum(held, 0)], -1)
 
 
 def stamp_problems(stamp_ns: np.ndarray) -> dict[str, np.ndarray]:
@@ -161,6 +191,7 @@ class AlignedSamples:
     :param dropped: reason -> number of counts samples left out.
     :param ignored_temp_codes: reason of :data:`TEMP_CODE_PROBLEMS` -> number of temperature
         codes that were ignored (not held), reasons with none left out.
+    :param ignored_references: the same for reference messages (:func:`reference_problems`).
     """
 
     stamp_ns: np.ndarray
@@ -169,6 +200,7 @@ class AlignedSamples:
     reference: np.ndarray | None
     dropped: dict[str, int]
     ignored_temp_codes: dict[str, int] = field(default_factory=dict)
+    ignored_references: dict[str, int] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.stamp_ns)
@@ -200,7 +232,8 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
 
     A temperature code that is NaN, infinite or implausibly large (:func:`temp_code_problem`)
     is never held: the previous good code stays, as in the node; the ignored codes are counted
-    in :attr:`AlignedSamples.ignored_temp_codes`.
+    in :attr:`AlignedSamples.ignored_temp_codes`. A reference message likewise
+    (:func:`reference_problems`, :attr:`AlignedSamples.ignored_references`).
     """
     stamps = record.counts_stamp_ns
     counts = record.counts
@@ -219,32 +252,28 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
         if reason != 'saturated' or drop_saturated:
             leave_out(reason, mask)
     ignored: dict[str, int] = {}
-    usable = np.ones(len(record.temp_code), dtype=bool)
-    for reason, mask in temp_code_problems(record.temp_code).items():
-        if mask.any():
-            ignored[reason] = int(np.count_nonzero(mask))
-            usable &= ~mask
-    usable_rows = np.flatnonzero(usable)
-    if len(usable_rows):
-        held = hold_last_index(record.temp_stamp_ns[usable_rows], stamps)
-        temp_index = np.where(held >= 0, usable_rows[np.maximum(held, 0)], -1)
-    else:
-        temp_index = np.full(len(stamps), -1)
+    temp_index = _usable_hold_index(record.temp_stamp_ns, temp_code_problems(record.temp_code), stamps, ignored)
     leave_out('before_first_temp_code', temp_index < 0)
     reference = None
+    ignored_references: dict[str, int] = {}
     if use_reference and record.has_reference:
-        reference_index = hold_last_index(record.reference_stamp_ns, stamps)
+        problems = reference_problems(record.reference)
+        reference_index = _usable_hold_index(record.reference_stamp_ns, problems, stamps, ignored_references)
+        usable_references = ~(problems['non_finite'] | problems['implausible'])
         leave_out('before_first_reference', reference_index < 0)
         if settle_time_s > 0.0:
-            leave_out('settling', _within_settle_time(record, stamps, settle_time_s))
+            leave_out('settling', _within_settle_time(record, stamps, settle_time_s, usable_references))
         reference = record.reference[reference_index[keep]]
     return AlignedSamples(stamp_ns=stamps[keep], counts=counts[keep],
                           temp_code=record.temp_code[temp_index[keep]].astype(float),
-                          reference=reference, dropped=dropped, ignored_temp_codes=ignored)
+                          reference=reference, dropped=dropped, ignored_temp_codes=ignored,
+                          ignored_references=ignored_references)
 
 
-def _within_settle_time(record: ChannelRecord, stamps: np.ndarray, settle_time_s: float) -> np.ndarray:
-    order = np.argsort(record.reference_stamp_ns, kind='stable')
+def _within_settle_time(record: ChannelRecord, stamps: np.ndarray, settle_time_s: float,
+                        usable: np.ndarray) -> np.ndarray:
+    rows = np.flatnonzero(usable)
+    order = rows[np.argsort(record.reference_stamp_ns[rows], kind='stable')]
     ref_stamps = record.reference_stamp_ns[order]
     values = record.reference[order]
     changed = np.ones(len(values), dtype=bool)
