@@ -21,6 +21,12 @@ TEMP_CODE_LIMIT = 1e7
 A code at or beyond it is a corrupted message, not a temperature: it is ignored like a
 non-finite one (the last good code stays held).
 """
+REFERENCE_LIMIT = 2000.0
+"""Largest plausible reference component, m/s^2 (about 200 g, beyond any turntable or centrifuge).
+
+A reference message with a component at or beyond it, or NaN or infinite, is corrupt: it is
+ignored (the previous good reference stays held).
+"""
 
 
 def seconds_from_ns(stamp_ns: np.ndarray) -> np.ndarray:
@@ -100,12 +106,6 @@ def counts_problems(counts: np.ndarray) -> dict[str, np.ndarray]:
             'saturated': finite & integer & rail}
 
 
-REFERENCE_LIMIT = 2000.0
-"""Largest plausible reference component, m/s^2 (about 200 g, beyond any turntable or centrifuge).
-
-A reference message with a component at or beyond it, or NaN or infinite, is corrupt: it is
-ignored (the previous good reference stays held).
-"""
 STAMP_DROP_REASONS = ('duplicate_stamp', 'time_backwards')
 """Why a counts sample is left out for its header stamp, checked before :data:`DROP_REASONS`."""
 TEMP_CODE_PROBLEMS = ('non_finite', 'implausible')
@@ -251,8 +251,9 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
     for reason, mask in counts_problems(counts).items():
         if reason != 'saturated' or drop_saturated:
             leave_out(reason, mask)
-    ignored: dict[str, int] = {}
-    temp_index = _usable_hold_index(record.temp_stamp_ns, temp_code_problems(record.temp_code), stamps, ignored)
+    ignored_temp_codes: dict[str, int] = {}
+    temp_index = _usable_hold_index(record.temp_stamp_ns, temp_code_problems(record.temp_code), stamps,
+                                    ignored_temp_codes)
     leave_out('before_first_temp_code', temp_index < 0)
     reference = None
     ignored_references: dict[str, int] = {}
@@ -266,7 +267,7 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
         reference = record.reference[reference_index[keep]]
     return AlignedSamples(stamp_ns=stamps[keep], counts=counts[keep],
                           temp_code=record.temp_code[temp_index[keep]].astype(float),
-                          reference=reference, dropped=dropped, ignored_temp_codes=ignored,
+                          reference=reference, dropped=dropped, ignored_temp_codes=ignored_temp_codes,
                           ignored_references=ignored_references)
 
 
