@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test venv bench clean
+.PHONY: demo test venv bench clean fuzz
 
 venv: $(STAMP)
 
@@ -24,6 +24,10 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q test
+
+# The property tests with a 25x example budget and fresh random examples (minutes, not seconds).
+fuzz: $(STAMP)
+	TAK_HYPOTHESIS_PROFILE=long $(BIN)/python -m pytest -q test/test_properties_cli.py
 
 bench: $(STAMP)
 	$(BIN)/python bench/run_all.py

@@ -9,28 +9,30 @@ The bag contract (each topic name is an option):
 - ``/tak/imu/data_raw``: ``sensor_msgs/msg/Imu`` written by ``apply``.
 
 Both rosbag2 storages (mcap, sqlite3) are read; bags are written to a temporary directory
-beside the target and renamed into place, so a failed write leaves nothing behind.
+beside the target and renamed into place, so a failed write leaves nothing behind; an existing
+output is refused unless ``force`` (:mod:`tak_thermo_ros.core.files`).
 """
 
 from __future__ import annotations
 
 import os
 import shutil
-import tempfile
+import sqlite3
 from dataclasses import dataclass
 from itertools import islice
 from pathlib import Path
 from typing import Iterator
 
 import numpy as np
-from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.rosbag2 import Reader, StoragePlugin, Writer, WriterError
 from rosbags.typesys import Stores, get_typestore
 
 from tak_thermo_ros.cdr import MessageArrays, decode_messages
 from tak_thermo_ros.core.correction import imu_covariances
+from tak_thermo_ros.core.files import BAG, check_output, install_directory, staging_directory
 from tak_thermo_ros.core.model import InputKind
 from tak_thermo_ros.core.record import NANOSECONDS, ChannelRecord, DriverRecord
-from tak_thermo_ros.errors import BagError, CdrError
+from tak_thermo_ros.errors import BagError, CdrError, OutputError
 from tak_thermo_ros.progress import Progress
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
@@ -45,6 +47,8 @@ DECODERS = ('block', 'rosbags')
 ``rosbags``: one ``deserialize_cdr`` call per message (the reference)."""
 CHUNK_MESSAGES = 65536
 """Raw messages the block decoder reads and decodes at once."""
+STORAGE_ERRORS: tuple[type[Exception], ...] = (OSError, sqlite3.Error, WriterError)
+"""What a bag write raises when the storage fails (a full disk, no permission)."""
 
 _Header = TYPESTORE.types['std_msgs/msg/Header']
 _Time = TYPESTORE.types['builtin_interfaces/msg/Time']
@@ -420,48 +424,85 @@ def _read_vectors(topic: _TopicReader, bar: Progress, path: Path, *,
 
 
 class _AtomicBag:
-    """A Writer into a temporary directory that is renamed to ``path`` on success."""
+    """A Writer into a temporary directory that is renamed to ``path`` on success.
 
-    def __init__(self, path: str | os.PathLike[str], storage: str) -> None:
+    The overwrite rule of :mod:`tak_thermo_ros.core.files` holds: an existing output is
+    refused unless ``force``, and only a bag directory is ever replaced. A failure (a full
+    disk, no permission) or an interruption removes the temporary directory; the error names
+    ``path``.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], storage: str, *, force: bool = False) -> None:
         self.path = Path(path)
         if storage not in STORAGES:
             msg = f'unknown storage {storage!r} (mcap or sqlite3)'
             raise BagError(msg)
-        if self.path.exists():
-            msg = f'{self.path}: exists already, not overwriting'
-            raise BagError(msg)
-        parent = self.path.parent
-        if not parent.is_dir():
-            msg = f'{self.path}: directory {parent} does not exist'
-            raise BagError(msg)
-        self.staging = Path(tempfile.mkdtemp(prefix=f'.{self.path.name}.', suffix='.partial', dir=parent))
+        try:
+            check_output(self.path, BAG, force=force)
+        except OutputError as err:
+            raise BagError(str(err)) from None
+        self.staging = staging_directory(self.path)
         # rosbags writes the bag *into* a path that must not exist yet; its files are named after it.
         self.inner = self.staging / self.path.name
         self.writer = Writer(self.inner, version=9, storage_plugin=STORAGES[storage])
 
+    def _failure(self, err: BaseException) -> BagError:
+        if isinstance(err, OSError):
+            detail = err.strerror or type(err).__name__
+        else:
+            detail = str(err).splitlines()[0] if str(err) else type(err).__name__
+        return BagError(f'{self.path}: cannot write bag ({detail})')
+
     def __enter__(self) -> Writer:
-        self.writer.open()
+        try:
+            self.writer.open()
+        except BaseException as err:
+            shutil.rmtree(self.staging, ignore_errors=True)
+            if isinstance(err, STORAGE_ERRORS):
+                raise self._failure(err) from err
+            raise
         return self.writer
 
     def __exit__(self, exc_type, exc, traceback) -> None:
+        failure: BaseException | None = None
         try:
-            self.writer.close()
-            if exc_type is None:
-                os.rename(self.inner, self.path)
+            try:
+                self.writer.close()
+            except Exception as err:  # a full disk shows here first for buffered storages
+                failure = err
+            if exc_type is None and failure is None:
+                try:
+                    install_directory(self.inner, self.path)
+                except OSError as err:
+                    failure = err
         finally:
             shutil.rmtree(self.staging, ignore_errors=True)
+        if exc is not None:
+            if isinstance(exc, STORAGE_ERRORS):
+                raise self._failure(exc) from exc
+            return
+        if failure is not None:
+            raise self._failure(failure) from failure
+
+
+def _chunked(order: np.ndarray, *columns: np.ndarray, size: int = 65_536) -> Iterator[tuple]:
+    """Rows ``order`` of equally long arrays as tuples of Python numbers, ``size`` at a time."""
+    for start in range(0, len(order), size):
+        chunk = order[start:start + size]
+        yield from zip(*(column[chunk].tolist() for column in columns))
 
 
 def write_record(path: str | os.PathLike[str], record: ChannelRecord, *, topics: Topics = Topics(),
-                 storage: str = 'mcap') -> None:
-    """Write a run in the bag contract (messages in stamp order, bag time = header stamp)."""
+                 storage: str = 'mcap', force: bool = False) -> None:
+    """Write a run in the bag contract (messages in stamp order, bag time = header stamp).
+
+    :param force: replace an existing bag at ``path`` (:func:`tak_thermo_ros.core.files.check_output`).
+    """
     serialize = TYPESTORE.serialize_cdr
-    events: list[tuple[int, int, int]] = []  # (stamp, stream, row): streams 0 temp, 1 ref, 2 counts
-    events += [(int(s), 0, i) for i, s in enumerate(record.temp_stamp_ns)]
-    events += [(int(s), 1, i) for i, s in enumerate(record.reference_stamp_ns)]
-    events += [(int(s), 2, i) for i, s in enumerate(record.counts_stamp_ns)]
-    events.sort()
-    with _AtomicBag(path, storage) as writer:
+    # Messages in (stamp, stream, row) order, streams 0 temp, 1 ref, 2 counts; as arrays, so that
+    # a long run costs a few bytes per message here, not Python tuples.
+    events = _merged_order((record.temp_stamp_ns, record.reference_stamp_ns, record.counts_stamp_ns))
+    with _AtomicBag(path, storage, force=force) as writer:
         counts_conn = writer.add_connection(topics.counts, VECTOR3_STAMPED, typestore=TYPESTORE)
         temp_conn = writer.add_connection(topics.temp_code, TEMPERATURE, typestore=TYPESTORE)
         reference_conn = (writer.add_connection(topics.reference, VECTOR3_STAMPED, typestore=TYPESTORE)
@@ -483,18 +524,27 @@ def write_record(path: str | os.PathLike[str], record: ChannelRecord, *, topics:
                 writer.write(counts_conn, stamp, serialize(message, VECTOR3_STAMPED))
 
 
+def _merged_order(parts: tuple[np.ndarray, ...]) -> Iterator[tuple[int, int, int]]:
+    """``(stamp, stream, row)`` of every message of several streams, in stamp order (ties: stream order)."""
+    stamps = np.concatenate([np.asarray(part, dtype=np.int64) for part in parts])
+    streams = np.concatenate([np.full(len(part), stream, dtype=np.int8) for stream, part in enumerate(parts)])
+    rows = np.concatenate([np.arange(len(part), dtype=np.int64) for part in parts])
+    order = np.lexsort((rows, streams, stamps))
+    return _chunked(order, stamps, streams, rows)
+
+
 def write_driver_record(path: str | os.PathLike[str], record: DriverRecord, *, topics: Topics = Topics(),
-                        storage: str = 'mcap') -> None:
-    """Write a driver run (Imu, temperature in C, references if any) in stamp order."""
+                        storage: str = 'mcap', force: bool = False) -> None:
+    """Write a driver run (Imu, temperature in C, references if any) in stamp order.
+
+    :param force: replace an existing bag at ``path`` (:func:`tak_thermo_ros.core.files.check_output`).
+    """
     serialize = TYPESTORE.serialize_cdr
-    events: list[tuple[int, int, int]] = []  # (stamp, stream, row): 0 temperature, 1 ref, 2 rate ref, 3 Imu
-    events += [(int(s), 0, i) for i, s in enumerate(record.temp_stamp_ns)]
-    events += [(int(s), 1, i) for i, s in enumerate(record.reference_stamp_ns)]
-    events += [(int(s), 2, i) for i, s in enumerate(record.rate_reference_stamp_ns)]
-    events += [(int(s), 3, i) for i, s in enumerate(record.stamp_ns)]
-    events.sort()
+    # streams 0 temperature, 1 reference, 2 rate reference, 3 Imu
+    events = _merged_order((record.temp_stamp_ns, record.reference_stamp_ns, record.rate_reference_stamp_ns,
+                            record.stamp_ns))
     zero_covariance = np.zeros(9)
-    with _AtomicBag(path, storage) as writer:
+    with _AtomicBag(path, storage, force=force) as writer:
         imu_conn = writer.add_connection(topics.raw_imu, IMU, typestore=TYPESTORE)
         temp_conn = writer.add_connection(topics.temperature, TEMPERATURE, typestore=TYPESTORE)
         reference_conn = (writer.add_connection(topics.reference, VECTOR3_STAMPED, typestore=TYPESTORE)
@@ -527,7 +577,8 @@ def write_driver_record(path: str | os.PathLike[str], record: DriverRecord, *, t
 
 def write_imu(path: str | os.PathLike[str], stamp_ns: np.ndarray, frame_id: str,
               acceleration: np.ndarray, variance: tuple[float, float, float], *,
-              topic: str = Topics.imu, storage: str = 'mcap', angular_velocity: np.ndarray | None = None,
+              topic: str = Topics.imu, storage: str = 'mcap', force: bool = False,
+              angular_velocity: np.ndarray | None = None,
               angular_variance: tuple[float, float, float] | None = None,
               orientation: np.ndarray | None = None, orientation_covariance: np.ndarray | None = None) -> None:
     """Write corrected samples as ``sensor_msgs/msg/Imu`` (REP 103 axes, m/s^2, rad/s).
@@ -536,6 +587,8 @@ def write_imu(path: str | os.PathLike[str], stamp_ns: np.ndarray, frame_id: str,
     provided (:func:`~tak_thermo_ros.core.correction.imu_covariances`). Driver input: also the
     corrected angular velocity, and the driver's orientation and its covariance passed through
     per message.
+
+    :param force: replace an existing bag at ``path`` (:func:`tak_thermo_ros.core.files.check_output`).
     """
     serialize = TYPESTORE.serialize_cdr
     orientation_cov, angular_cov, linear_cov = (np.array(c) for c in imu_covariances(variance, angular_variance))
@@ -543,7 +596,7 @@ def write_imu(path: str | os.PathLike[str], stamp_ns: np.ndarray, frame_id: str,
     zero = _Vector3(x=0.0, y=0.0, z=0.0)
     rates = angular_velocity.tolist() if angular_velocity is not None else None
     quaternions = orientation.tolist() if orientation is not None else None
-    with _AtomicBag(path, storage) as writer:
+    with _AtomicBag(path, storage, force=force) as writer:
         connection = writer.add_connection(topic, IMU, typestore=TYPESTORE)
         for row, (stamp, (x, y, z)) in enumerate(zip(stamp_ns.tolist(), acceleration.tolist())):
             rate = zero if rates is None else _Vector3(x=rates[row][0], y=rates[row][1], z=rates[row][2])

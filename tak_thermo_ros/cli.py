@@ -1,7 +1,10 @@
 """``tak_calib``: simulate chamber runs, fit, apply and validate the correction link.
 
 Every deliberate failure prints one line ``tak_calib: error: ...`` and exits with status 2;
-no traceback reaches the user.
+no traceback reaches the user (``tak_calib --debug`` shows it). Interrupted by SIGINT or
+SIGTERM, it removes what it was writing and exits with 130 or 143. Every output obeys one
+overwrite rule (:mod:`tak_thermo_ros.core.files`): an existing output is refused unless
+``--force``, and only regular files, bags and report directories are ever replaced.
 """
 
 from __future__ import annotations
@@ -14,7 +17,9 @@ os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 
 import argparse  # noqa: E402
 import json  # noqa: E402
+import signal  # noqa: E402
 import sys  # noqa: E402
+import traceback  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Callable, Sequence  # noqa: E402
 
@@ -22,17 +27,31 @@ from dataclasses import dataclass, replace  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from tak_thermo_ros.core.calibration_file import load_unit, save_unit, write_text_atomic
+from tak_thermo_ros import options as bounds
+from tak_thermo_ros.core.calibration_file import load_unit, save_unit
+from tak_thermo_ros.core.files import BAG, FILE, REPORT, atomic_directory, check_output, write_text_atomic
 from tak_thermo_ros.core.correction import OutOfRange, UnitCorrector, acceleration_variance
 from tak_thermo_ros.core.fit import FitResult, fit_model
 from tak_thermo_ros.core.model import AXES, InputKind, UnitCalibration
-from tak_thermo_ros.core.record import AlignedSamples, ChannelRecord, DriverRecord, align
+from tak_thermo_ros.core.record import REFERENCE_LIMIT, TEMPERATURE_RANGE, AlignedSamples, ChannelRecord, DriverRecord, align
 from tak_thermo_ros.core.simulate import STANDARD_GRAVITY, Scenario, load_scenario, simulate
 from tak_thermo_ros.core.static_run import STATIC_TOLERANCE_DEG, static_reference
 from tak_thermo_ros.core.validate import validate_gravity, validate_rate
 from tak_thermo_ros.errors import FitError, TakError
 
 EXIT_ERROR = 2
+EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 143
+
+OUTPUTS: dict[str, tuple[tuple[str, str, str], ...]] = {
+    'simulate': (('out_bag', BAG, 'OUT_BAG'),),
+    'fit': (('output', FILE, '-o'),),
+    'apply': (('output', BAG, '-o'),),
+    'validate': (('json', FILE, '--json'),),
+    'import-csv': (('output', BAG, '-o'),),
+    'diagnose': (('json', FILE, '--json'), ('report', REPORT, '--report')),
+}
+"""Each command's outputs: ``(argument, kind, option)``, checked before any work is done."""
 
 
 UNITS = {(InputKind.COUNTS, 'accel'): 'counts', (InputKind.IMU, 'accel'): 'm/s^2', (InputKind.IMU, 'gyro'): 'rad/s'}
@@ -63,13 +82,18 @@ def _add_topic_options(parser: argparse.ArgumentParser, *, imu: bool = False) ->
         group.add_argument('--imu-topic', help='corrected output (Imu): default /tak/imu/data_raw with counts, '
                                                '/imu/data_compensated with a driver Imu')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar even on a terminal')
+    parser.add_argument('--force', action='store_true',
+                        help='replace an existing output (a regular file, a bag or a report directory; '
+                             'nothing else is ever replaced)')
+    parser.add_argument('--debug', action='store_true', default=argparse.SUPPRESS,
+                        help='show the traceback of an error')
 
 
 def _add_static_options(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group('driver bags without reference topics (a static run)')
-    group.add_argument('--gravity', type=float, default=STANDARD_GRAVITY,
+    group.add_argument('--gravity', type=bounds.gravity, default=STANDARD_GRAVITY,
                        help='local gravity, m/s^2: the magnitude of the estimated specific-force reference')
-    group.add_argument('--latitude', type=float, metavar='DEG',
+    group.add_argument('--latitude', type=bounds.latitude, metavar='DEG',
                        help="adds the Earth rate's vertical component (Omega_E sin(latitude), along the "
                             'measured up direction) to the rate reference; default zero')
 
@@ -89,13 +113,13 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     run = simulate(scenario)
     if run.driver is not None:
         driver = run.driver
-        write_driver_record(args.out_bag, driver, topics=_topics(args), storage=args.storage)
+        write_driver_record(args.out_bag, driver, topics=_topics(args), storage=args.storage, force=args.force)
         print(f'wrote {args.out_bag}: {len(driver.stamp_ns)} Imu, {len(driver.temp_stamp_ns)} temperature, '
               f'{len(driver.reference_stamp_ns)} reference changes, {scenario.duration_s() / 3600.0:.2f} h at '
               f'{scenario.sample_rate_hz:g} Hz ({args.storage}); temperature '
               f'{driver.temperature.min():.2f}..{driver.temperature.max():.2f} C')
         return 0
-    write_record(args.out_bag, run.record, topics=_topics(args), storage=args.storage)
+    write_record(args.out_bag, run.record, topics=_topics(args), storage=args.storage, force=args.force)
     record = run.record
     print(f'wrote {args.out_bag}: {len(record.counts_stamp_ns)} counts, {len(record.temp_stamp_ns)} temperature codes, '
           f'{len(record.reference_stamp_ns)} reference changes, {scenario.duration_s() / 3600.0:.2f} h '
@@ -199,6 +223,40 @@ def _describe_dropped(dropped: dict[str, int]) -> str:
     return ', '.join(f'{count} {reason.replace("_", " ")}' for reason, count in sorted(dropped.items()))
 
 
+def _print_ignored(samples: AlignedSamples, args: argparse.Namespace,
+                   input_kind: InputKind = InputKind.COUNTS, sensor: str = 'accel') -> None:
+    """One line per reason a temperature or reference message was ignored (not held), if any was."""
+    topics = _topics(args)
+    low, high = TEMPERATURE_RANGE[input_kind.value]
+    if input_kind is InputKind.COUNTS:
+        temperature = ('temperature codes', topics.temp_code, f'implausible (|code| >= {high:g})')
+    else:
+        temperature = ('temperatures', topics.temperature, f'implausible (outside {low:g}..{high:g} C)')
+    reference_topic = topics.reference_rate if sensor == 'gyro' else topics.reference
+    for what, ignored, topic, words in (
+            (temperature[0], samples.ignored_temp_codes, temperature[1], {'implausible': temperature[2]}),
+            ('reference messages', samples.ignored_references, reference_topic,
+             {'implausible': f'implausible (a component >= {REFERENCE_LIMIT:g})'})):
+        for reason, count in sorted(ignored.items()):
+            print(f'ignored {count} {words.get(reason, "non-finite")} {what} on {topic} (the last good one held)')
+
+
+def _require_finite(values, what: str) -> None:
+    """Refuse to print or write a non-finite number with exit 0."""
+    bad = int(np.count_nonzero(~np.isfinite(np.asarray(values, dtype=float))))
+    if bad:
+        msg = f'{what}: {bad} values are not finite (NaN or infinite); nothing written'
+        raise TakError(msg)
+
+
+def _json_text(document: object, path: str) -> str:
+    try:
+        return json.dumps(document, indent=2, allow_nan=False) + '\n'
+    except ValueError:
+        msg = f'{path}: the figures hold a non-finite number (NaN or infinite); not written'
+        raise TakError(msg) from None
+
+
 def _nominal(args: argparse.Namespace, record: ChannelRecord) -> tuple[float, float, float] | None:
     nominal = record.nominal_scale
     if args.nominal_scale is not None and record.input_kind == InputKind.COUNTS.value:
@@ -252,6 +310,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         prefix = '' if run.input_kind is InputKind.COUNTS else f'{SENSOR_NAMES[sensor]}: '
         if result.dropped:
             print(f'{prefix}left out: {_describe_dropped(result.dropped)}')
+        _print_ignored(sensor_run.samples, args, run.input_kind, sensor)
         if run.input_kind is InputKind.COUNTS:
             print(f'calibrated temperature-code range {calibration.temp_code_min:g}..{calibration.temp_code_max:g}, '
                   f'reference {calibration.temp_code_ref:g}')
@@ -312,14 +371,16 @@ def cmd_apply(args: argparse.Namespace) -> int:
     samples = align(record, use_reference=False)
     corrector = UnitCorrector(unit, out_of_range=OutOfRange(args.out_of_range))
     corrected = corrector.correct(samples.counts, samples.temp_code, stamp_s=samples.stamp_s)
+    _require_finite(corrected, f'{args.output}: corrected values')
     extra = {}
     if driver is not None:
         kept = samples.rows
         extra = dict(angular_velocity=corrected[:, 3:6], angular_variance=acceleration_variance(unit.gyro),
                      orientation=driver.orientation[kept], orientation_covariance=driver.orientation_covariance[kept])
     write_imu(args.output, samples.stamp_ns, record.frame_id, corrected[:, :3], acceleration_variance(unit.accel),
-              topic=output_topic, storage=args.storage, **extra)
+              topic=output_topic, storage=args.storage, force=args.force, **extra)
     print(f'wrote {len(samples)} Imu messages on {output_topic} to {args.output}')
+    _print_ignored(samples, args, kind)
     if samples.dropped:
         print(f'dropped {"counts" if driver is None else "Imu"} messages: {_describe_dropped(samples.dropped)}')
     outside = corrector.out_of_range_count(samples.temp_code)
@@ -337,9 +398,17 @@ def cmd_validate(args: argparse.Namespace) -> int:
     run = _read_run(args, calibration_run=unit.input_kind is InputKind.IMU)
     _check_kind(args, unit, run)
     accel = run.sensor('accel').samples
+    if not len(accel):
+        left_out = f' (left out: {_describe_dropped(accel.dropped)})' if accel.dropped else ''
+        msg = f'{args.bag}: no usable samples to validate{left_out}'
+        raise TakError(msg)
     result = validate_gravity(unit.accel, accel.counts, accel.temp_code, gravity=args.gravity,
                               stamp_s=accel.stamp_s, out_of_range=OutOfRange(args.out_of_range))
     before, after = result.before, result.after
+    _require_finite([before.rms, before.max, after.rms, after.max], f'{args.bag}: |g| error')
+    _print_ignored(accel, args, run.input_kind)
+    if accel.dropped:
+        print(f'left out: {_describe_dropped(accel.dropped)}')
     print(f'|g| error over {len(accel)} samples of {args.bag} (gravity {args.gravity:g} m/s^2):')
     print(f'  before (nominal scale and offset): RMS {before.rms:.5f} m/s^2 ({before.rms / args.gravity * 1e3:.3f} mg), '
           f'max {before.max:.5f} m/s^2')
@@ -363,7 +432,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
                   + ' '.join(f'{v:+.3e}' for v in stats.mean) + ' rad/s')
         document['gyro'] = {'samples': len(gyro), 'before': rate.before.as_dict(), 'after': rate.after.as_dict()}
     if args.json:
-        write_text_atomic(args.json, json.dumps(document, indent=2) + '\n')
+        write_text_atomic(args.json, _json_text(document, args.json))
         print(f'wrote {args.json}')
     return 0
 
@@ -387,7 +456,7 @@ def cmd_import_csv(args: argparse.Namespace) -> int:
         delimiter=delimiter_from_option(args.delimiter) if args.delimiter else None, frame_id=args.frame_id)
     log = read_csv_log(args.log, options)
     record = log.record
-    write_record(args.output, record, topics=_topics(args), storage=args.storage)
+    write_record(args.output, record, topics=_topics(args), storage=args.storage, force=args.force)
     print(f'read {args.log}: {log.rows} rows ({log.delimiter_name}-delimited), {log.duration_s:.1f} s '
           f'at {(log.rows - 1) / max(log.duration_s, 1e-9):.3g} Hz')
     print(f'acceleration {" ".join(options.acc_columns)} in {options.acc_unit}: counts = round(a / '
@@ -433,6 +502,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
               f'(model: {result.ladder[0].label})')
         if samples.dropped:
             print(f'left out: {_describe_dropped(samples.dropped)}')
+        _print_ignored(samples, args, run.input_kind)
         for name, axis in zip(AXES, result.axes):
             print(f'  {name}: residual RMS {axis.rms:.4g} {unit_name}, noise floor {axis.noise_floor:.4g}; held-out '
                   f'{axis.heldout_rms:.4g} ({axis.heldout_rms / axis.noise_floor:.2f}x the floor)')
@@ -453,24 +523,27 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         if run.input_kind is InputKind.IMU:
             document['sensors'] = {sensor: {**result.as_dict(), 'unit': UNITS[run.input_kind, sensor]}
                                    for sensor, result in results.items()}
-        write_text_atomic(args.json, json.dumps(document, indent=2) + '\n')
+        write_text_atomic(args.json, _json_text(document, args.json))
         print(f'wrote {args.json}')
     if args.report:
         from tak_thermo_ros.report import write_report, write_sensor_index
-        if run.input_kind is InputKind.COUNTS:
-            files = write_report(results['accel'], run.sensor('accel').samples, args.report,
-                                 source=Path(args.bag).name, gravity=args.gravity)
-            print(f'wrote {files.html} ({len(files.figures)} figures)')
-        else:
-            pages = {}
-            for sensor, result in results.items():
-                files = write_report(result, run.sensor(sensor).samples, Path(args.report) / sensor,
-                                     source=f'{Path(args.bag).name}, {SENSOR_NAMES[sensor]}', gravity=args.gravity,
-                                     sensor=sensor, unit=UNITS[run.input_kind, sensor])
-                pages[sensor] = (files, result)
-            index = write_sensor_index(pages, args.report, source=Path(args.bag).name)
-            print(f'wrote {index} (accelerometer and gyroscope, '
-                  f'{sum(len(files.figures) for files, _ in pages.values())} figures)')
+        check_output(args.report, REPORT, force=args.force, option='--report')
+        with atomic_directory(args.report) as staging:
+            if run.input_kind is InputKind.COUNTS:
+                files = write_report(results['accel'], run.sensor('accel').samples, staging,
+                                     source=Path(args.bag).name, gravity=args.gravity)
+                written = f'{Path(args.report) / files.html.name} ({len(files.figures)} figures)'
+            else:
+                pages = {}
+                for sensor, result in results.items():
+                    files = write_report(result, run.sensor(sensor).samples, Path(staging) / sensor,
+                                         source=f'{Path(args.bag).name}, {SENSOR_NAMES[sensor]}',
+                                         gravity=args.gravity, sensor=sensor, unit=UNITS[run.input_kind, sensor])
+                    pages[sensor] = (files, result)
+                index = write_sensor_index(pages, staging, source=Path(args.bag).name)
+                written = (f'{Path(args.report) / index.name} (accelerometer and gyroscope, '
+                           f'{sum(len(files.figures) for files, _ in pages.values())} figures)')
+        print(f'wrote {written}')
     return 0
 
 
@@ -484,15 +557,25 @@ def expand_candidates(text: str) -> list[str]:
     return candidates
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with the tool's one-line error: ``tak_calib: error: ...``, exit status 2."""
+
+    def error(self, message: str):  # type: ignore[override]
+        command = self.prog.removeprefix('tak_calib').strip()
+        where = f'{command}: ' if command else ''
+        self.exit(EXIT_ERROR, f'tak_calib: error: {where}{message} (see {self.prog} --help)\n')
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``tak_calib`` argument parser."""
-    parser = argparse.ArgumentParser(prog='tak_calib', description=__doc__.splitlines()[0])
+    parser = _Parser(prog='tak_calib', description=__doc__.splitlines()[0])
+    parser.add_argument('--debug', action='store_true', help='show the traceback of an error')
     commands = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
 
     sim = commands.add_parser('simulate', help='simulate a thermal-chamber run into a bag')
     sim.add_argument('out_bag', metavar='OUT_BAG')
     sim.add_argument('--scenario', metavar='FILE.yaml', help='scenario overrides, every key optional (README: The simulator)')
-    sim.add_argument('--seed', type=int, help='random seed (overrides the scenario)')
+    sim.add_argument('--seed', type=bounds.seed, help='random seed, 0 .. 2**63-1 (overrides the scenario)')
     sim.add_argument('--storage', choices=['mcap', 'sqlite3'], default='mcap')
     _add_topic_options(sim)
     sim.set_defaults(handler=cmd_simulate)
@@ -500,10 +583,10 @@ def build_parser() -> argparse.ArgumentParser:
     fit = commands.add_parser('fit', help='fit the correction link to a calibration bag')
     fit.add_argument('bag', metavar='BAG')
     fit.add_argument('-o', '--output', required=True, metavar='PARAMS.yaml')
-    fit.add_argument('--bias-order', type=int, default=3, help='order q of F_s (default 3)')
-    fit.add_argument('--scale-order', type=int, default=2, help='order p of F_c (default 2; 0 = no scale drift)')
-    fit.add_argument('--temp-code-ref', type=float, help='N_t,ref (default: middle of the calibrated range)')
-    fit.add_argument('--nominal-scale', type=float, nargs='+', metavar='K0',
+    fit.add_argument('--bias-order', type=bounds.polynomial_order, default=3, help='order q of F_s (default 3)')
+    fit.add_argument('--scale-order', type=bounds.polynomial_order, default=2, help='order p of F_c (default 2; 0 = no scale drift)')
+    fit.add_argument('--temp-code-ref', type=bounds.temp_code, help='N_t,ref (default: middle of the calibrated range)')
+    fit.add_argument('--nominal-scale', type=bounds.nominal_scale, nargs='+', metavar='K0',
                      help='nominal counts per m/s^2 (one value or x y z), held for an axis that sees one '
                           'input only; default: the bag metadata written by simulate / import-csv')
     fit.add_argument('--effects', metavar='NAME[,NAME...]',
@@ -511,7 +594,7 @@ def build_parser() -> argparse.ArgumentParser:
                           'cross_axis, warmup, temperature_shape, or module:Class (see docs/effects.md)')
     fit.add_argument('--gyro-effects', metavar='NAME[,NAME...]',
                      help='effects to fit on the gyroscope (driver bags), the same names as --effects')
-    fit.add_argument('--settle-time', type=float, default=0.0, metavar='SECONDS',
+    fit.add_argument('--settle-time', type=bounds.seconds_not_negative, default=0.0, metavar='SECONDS',
                      help='leave out samples this long after each reference change (turntable settling)')
     _add_static_options(fit)
     _add_topic_options(fit)
@@ -529,9 +612,10 @@ def build_parser() -> argparse.ArgumentParser:
     val = commands.add_parser('validate', help='|g| from the three channels before and after correction')
     val.add_argument('bag', metavar='BAG')
     val.add_argument('--params', required=True, metavar='PARAMS.yaml')
-    val.add_argument('--gravity', type=float, default=STANDARD_GRAVITY, help='local gravity, m/s^2')
+    val.add_argument('--gravity', type=bounds.gravity, default=STANDARD_GRAVITY,
+                     help=f'local gravity, m/s^2 ({bounds.GRAVITY_MIN:g}..{bounds.GRAVITY_MAX:g})')
     val.add_argument('--json', metavar='OUT.json', help='also write the figures as JSON')
-    val.add_argument('--latitude', type=float, metavar='DEG',
+    val.add_argument('--latitude', type=bounds.latitude, metavar='DEG',
                      help="driver bags without a rate reference: the Earth rate's vertical component at this "
                           'latitude is the true rate (default: zero)')
     _out_of_range(val)
@@ -547,14 +631,15 @@ def build_parser() -> argparse.ArgumentParser:
     imp.add_argument('--time-unit', choices=['s', 'ms', 'us', 'ns'], default='s', help='unit of the time column (default s)')
     imp.add_argument('--acc-unit', choices=['m/s^2', 'g'], default='m/s^2',
                      help='unit of the acceleration columns (1 g = 9.80665 m/s^2; default m/s^2)')
-    imp.add_argument('--acc-resolution', type=float, default=1e-3, metavar='M/S^2',
+    imp.add_argument('--acc-resolution', type=bounds.positive, default=1e-3, metavar='M/S^2',
                      help='m/s^2 per channel count: counts = round(a / resolution) (default 0.001); '
                           'the nominal scale 1/resolution goes into the bag metadata')
-    imp.add_argument('--temp-resolution', type=float, default=0.01, metavar='CELSIUS',
+    imp.add_argument('--temp-resolution', type=bounds.positive, default=0.01, metavar='CELSIUS',
                      help='degrees per temperature code: N_t = round(T / resolution) (default 0.01)')
-    imp.add_argument('--gravity', type=float, default=STANDARD_GRAVITY,
-                     help='local gravity, m/s^2: magnitude of the estimated reference (default 9.80665)')
-    imp.add_argument('--reference', type=float, nargs=3, metavar=('X', 'Y', 'Z'),
+    imp.add_argument('--gravity', type=bounds.gravity, default=STANDARD_GRAVITY,
+                     help=f'local gravity, m/s^2 ({bounds.GRAVITY_MIN:g}..{bounds.GRAVITY_MAX:g}): magnitude of the '
+                          'estimated reference (default 9.80665)')
+    imp.add_argument('--reference', type=bounds.specific_force, nargs=3, metavar=('X', 'Y', 'Z'),
                      help='the specific force in the sensor frame, m/s^2, if known (default: the mean '
                           'measured direction scaled to --gravity)')
     imp.add_argument('--delimiter', help='field delimiter: tab, comma, semicolon or one character '
@@ -572,12 +657,14 @@ def build_parser() -> argparse.ArgumentParser:
                       help='effects to try (default: every library effect the calibration lacks); '
                            "module:Class for a user-defined effect (see docs/effects.md); 'library' "
                            "stands for every library effect, e.g. library,mymodule:MyEffect")
-    diag.add_argument('--folds', type=int, default=5, help='cross-validation folds (default 5)')
-    diag.add_argument('--settle-time', type=float, default=0.0, metavar='SECONDS',
+    diag.add_argument('--folds', type=bounds.folds, default=5,
+                      help=f'cross-validation folds, 2..{bounds.MAX_FOLDS} (default 5)')
+    diag.add_argument('--settle-time', type=bounds.seconds_not_negative, default=0.0, metavar='SECONDS',
                       help='leave out samples this long after each reference change (as for fit)')
-    diag.add_argument('--gravity', type=float, default=STANDARD_GRAVITY,
-                      help='local gravity for the |g| figure and a static reference, m/s^2')
-    diag.add_argument('--latitude', type=float, metavar='DEG',
+    diag.add_argument('--gravity', type=bounds.gravity, default=STANDARD_GRAVITY,
+                      help=f'local gravity for the |g| figure and a static reference, m/s^2 '
+                           f'({bounds.GRAVITY_MIN:g}..{bounds.GRAVITY_MAX:g})')
+    diag.add_argument('--latitude', type=bounds.latitude, metavar='DEG',
                       help="driver bags without a rate reference: add the Earth rate's vertical component")
     _add_topic_options(diag)
     diag.set_defaults(handler=cmd_diagnose)
@@ -586,23 +673,66 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, handled like SIGINT (the partial output is removed), exit status 143."""
+
+
+def _raise_terminated(signum: int, frame: object) -> None:
+    raise _Terminated
+
+
+def _check_outputs(args: argparse.Namespace) -> None:
+    """Apply the overwrite rule to every output of the command before any work is done."""
+    for name, kind, option in OUTPUTS.get(args.command, ()):
+        path = getattr(args, name, None)
+        if path is not None:
+            check_output(path, kind, force=args.force, option=option)
+
+
+def _report(message: str, err: BaseException, debug: bool) -> None:
+    if debug:
+        traceback.print_exception(err)
+    print(f'tak_calib: error: {message}', file=sys.stderr)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``tak_calib``."""
     parser = build_parser()
     args = parser.parse_args(argv)
     handler: Callable[[argparse.Namespace], int] = args.handler
+    debug = bool(getattr(args, 'debug', False))
+    previous = None
     try:
+        previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    except ValueError:  # not the main thread: SIGTERM keeps its meaning
+        previous = None
+    try:
+        _check_outputs(args)
         return handler(args)
     except TakError as err:
-        print(f'tak_calib: error: {err}', file=sys.stderr)
+        _report(str(err), err, debug)
         return EXIT_ERROR
     except OSError as err:
         where = f'{err.filename}: ' if err.filename else ''
-        print(f'tak_calib: error: {where}{err.strerror or err}', file=sys.stderr)
+        _report(f'{where}{err.strerror or err}', err, debug)
         return EXIT_ERROR
+    except MemoryError as err:
+        _report('out of memory', err, debug)
+        return EXIT_ERROR
+    except _Terminated:
+        print('tak_calib: terminated', file=sys.stderr)
+        return EXIT_TERMINATED
     except KeyboardInterrupt:
         print('tak_calib: interrupted', file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
+    except Exception as err:  # a bug: still one line for the user, the traceback with --debug
+        detail = str(err).splitlines()[0] if str(err) else ''
+        _report(f'internal error, please report it: {type(err).__name__}: {detail} '
+                f'(tak_calib --debug shows the traceback)', err, debug)
+        return EXIT_ERROR
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == '__main__':

@@ -37,3 +37,11 @@ class CdrError(BagError):
     def __init__(self, message: str, index: int) -> None:
         super().__init__(message)
         self.index = index
+
+
+class OutputError(TakError):
+    """An output cannot be written where asked (a special file, an existing output, a full disk)."""
+
+
+class EffectError(TakError):
+    """A user-defined effect raised or returned values that are not finite or of a wrong shape."""

@@ -52,3 +52,25 @@ def short_run():
 def short_samples(short_run):
     """The short run aligned on counts stamps."""
     return align(short_run.record)
+
+
+# ----- Hypothesis: one profile for `make test`, a longer one for `make fuzz` ---------------------
+
+import os  # noqa: E402
+
+from hypothesis import HealthCheck, settings  # noqa: E402
+
+_SUPPRESSED = [HealthCheck.too_slow, HealthCheck.function_scoped_fixture, HealthCheck.data_too_large,
+               HealthCheck.filter_too_much]
+settings.register_profile('ci', deadline=None, derandomize=True, database=None, print_blob=True,
+                          suppress_health_check=_SUPPRESSED)
+settings.register_profile('long', deadline=None, database=None, print_blob=True, suppress_health_check=_SUPPRESSED)
+HYPOTHESIS_PROFILE = os.environ.get('TAK_HYPOTHESIS_PROFILE', 'ci')
+settings.load_profile(HYPOTHESIS_PROFILE)
+FUZZ_SCALE = int(os.environ.get('TAK_FUZZ_SCALE', '25' if HYPOTHESIS_PROFILE == 'long' else '1'))
+"""Examples per property test = its base budget times this (the 'long' profile: 25x)."""
+
+
+def examples(base: int) -> int:
+    """The example budget of a property test: ``base`` in ``make test`` (all together < 60 s)."""
+    return base * FUZZ_SCALE

@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import os
 import re
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
@@ -45,6 +44,7 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
+from tak_thermo_ros.core.files import write_text_atomic  # noqa: F401 (re-exported: one writer of text files)
 from tak_thermo_ros.core.model import (
     AXES,
     CALIBRATION_VERSION,
@@ -493,25 +493,6 @@ def load_calibration(path: str | os.PathLike[str]) -> Calibration:
         msg = f'{path}: a driver calibration (accel and gyro); this use takes a counts calibration (version 1)'
         raise CalibrationError(msg)
     return unit.accel
-
-
-def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
-    """Write a text file atomically: a temporary file beside it, then a rename."""
-    path = Path(path)
-    handle, temporary = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.partial',
-                                         dir=path.parent if str(path.parent) else '.')
-    try:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(temporary, 0o666 & ~umask)  # mkstemp makes it owner-only; a normal file is wanted
-        with os.fdopen(handle, 'w', encoding='utf-8') as stream:
-            stream.write(text)
-            stream.flush()
-            os.fsync(stream.fileno())
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
 
 
 def unit_yaml(unit: UnitCalibration, *, extra_parameters: Mapping[str, Any] | None = None,

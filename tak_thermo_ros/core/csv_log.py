@@ -10,7 +10,9 @@ Units and rounding
 ------------------
 - Time: the ``time_unit`` column (``s``, ``ms``, ``us``, ``ns``) becomes int64 nanoseconds.
   Integer text is converted exactly; decimal text through :class:`decimal.Decimal`, rounded
-  to the nearest nanosecond. Stamps must strictly increase.
+  to the nearest nanosecond. Stamps must strictly increase and fit the bag's time type
+  (``builtin_interfaces/Time``: whole seconds 0 .. 2**31 - 1, i.e. 1970-01-01 .. 2038-01-19);
+  a stamp outside it is an error naming the line and the column.
 - Acceleration: the columns in ``m/s^2`` or ``g`` (``1 g = 9.80665 m/s^2``, the standard
   value, whatever the local gravity) become channel codes
   ``N = round(a / acc_resolution)`` with ``acc_resolution`` in m/s^2 per count (round half to
@@ -39,7 +41,7 @@ from typing import Iterable
 
 import numpy as np
 
-from tak_thermo_ros.core.record import COUNTS_MAX, COUNTS_MIN, ChannelRecord
+from tak_thermo_ros.core.record import COUNTS_MAX, COUNTS_MIN, TEMP_CODE_LIMIT, ChannelRecord
 from tak_thermo_ros.core.simulate import STANDARD_GRAVITY
 from tak_thermo_ros.errors import LogError
 
@@ -49,6 +51,10 @@ ACC_UNITS: dict[str, float] = {'m/s^2': 1.0, 'g': STANDARD_GRAVITY}
 """m/s^2 per unit of the acceleration columns."""
 DELIMITERS = ('\t', ',', ';')
 """Delimiters that are sniffed from the header line when none is given."""
+MAX_STAMP_NS = (2 ** 31 - 1) * 1_000_000_000 + 999_999_999
+"""Latest stamp a bag holds: ``builtin_interfaces/Time.sec`` is an int32 (2038-01-19)."""
+CHUNK_ROWS = 65_536
+"""Rows converted to arrays at a time: the text of a large log is never held as Python objects."""
 STATIC_TOLERANCE_DEG = 10.0
 """A sample whose direction is further than this from the mean direction means the board moved."""
 
@@ -187,7 +193,11 @@ def parse_csv_log(lines: Iterable[str], options: CsvImportOptions, *, source: st
     :param lines: the text, one line per item (a file object serves).
     :param options: columns, units and resolutions.
     :param source: the name used in messages.
-    :raises LogError: missing column, non-numeric field, time not increasing, a constant
+    The rows are converted to arrays :data:`CHUNK_ROWS` at a time, so that memory stays near
+    the size of the arrays (48 bytes per row), whatever the length of the log.
+
+    :raises LogError: missing column, non-numeric field, a stamp outside the bag's time type,
+        time not increasing, a constant
         column (no temperature sweep, a stuck axis), a value beyond the 16-bit code range,
         a board that moved, or an empty file; one line naming the row or column.
     """
@@ -208,35 +218,59 @@ def parse_csv_log(lines: Iterable[str], options: CsvImportOptions, *, source: st
         index.append(header.index(name))
 
     time_factor = TIME_UNITS[options.time_unit]
+    stamp_parts: list[np.ndarray] = []
+    value_parts: list[np.ndarray] = []
+    line_parts: list[np.ndarray] = []
     stamps: list[int] = []
-    values: list[tuple[float, float, float, float]] = []
-    line_numbers: list[int] = []
+    values: list[float] = []
+    lines: list[int] = []
+    rows = 0
+
+    def flush() -> None:
+        stamp_parts.append(np.array(stamps, dtype=np.int64))
+        value_parts.append(np.array(values, dtype=float).reshape(-1, 4))
+        line_parts.append(np.array(lines, dtype=np.int64))
+        stamps.clear()
+        values.clear()
+        lines.clear()
+
     reader = csv.reader(iterator, delimiter=delimiter)
+    value_columns = tuple(zip(index[1:], wanted[1:]))
     for fields in reader:
         if not fields or all(not field.strip() for field in fields):
             continue
-        row = len(stamps) + 1
+        rows += 1
         line = reader.line_num + skipped
-        where = f'{source}: row {row} (line {line})'
         if len(fields) != len(header):
-            msg = f'{where}: {len(fields)} fields, the header has {len(header)}'
+            msg = f'{source}: row {rows} (line {line}): {len(fields)} fields, the header has {len(header)}'
             raise LogError(msg)
-        stamps.append(_stamp_ns(fields[index[0]].strip(), time_factor, where, options.time_column))
-        values.append(tuple(_number(fields[i].strip(), where, name)  # type: ignore[misc]
-                            for i, name in zip(index[1:], wanted[1:])))
-        line_numbers.append(line)
-    if not stamps:
+        stamps.append(_stamp_ns(fields[index[0]].strip(), time_factor, (source, rows, line), options.time_column))
+        for i, name in value_columns:
+            values.append(_number(fields[i].strip(), (source, rows, line), name))
+        lines.append(line)
+        if len(stamps) == CHUNK_ROWS:
+            flush()
+    if stamps:
+        flush()
+    if not rows:
         msg = f'{source}: no data rows after the header'
         raise LogError(msg)
 
-    stamp_ns = _stamps_array(stamps, source, line_numbers, options.time_column)
-    table = np.asarray(values, dtype=float)
-    acceleration = table[:, :3] * ACC_UNITS[options.acc_unit]
-    temperature = table[:, 3]
+    stamp_ns = np.concatenate(stamp_parts)
+    del stamp_parts
+    line_numbers = np.concatenate(line_parts)
+    del line_parts
+    table = np.concatenate(value_parts)
+    del value_parts
+    _check_increasing(stamp_ns, source, line_numbers, options.time_column)
     _check_not_constant(table, wanted[1:], source)
+    acceleration = table[:, :3] * ACC_UNITS[options.acc_unit]
+    temperature = table[:, 3].copy()
+    del table
     counts = np.round(acceleration / options.acc_resolution)
     _check_code_range(counts, acceleration, options, source, line_numbers)
     temp_code = np.round(temperature / options.temp_resolution)
+    _check_temp_code_range(temp_code, temperature, options, source, line_numbers)
     if np.all(temp_code == temp_code[0]):
         msg = (f'{source}: column {options.temp_column!r} varies by only {np.ptp(temperature):g} C, less than '
                f'one code of {options.temp_resolution:g} C: no temperature sweep at this --temp-resolution')
@@ -291,37 +325,46 @@ def _sniff_delimiter(header_line: str, source: str) -> str:
     return best
 
 
-def _stamp_ns(text: str, factor: int, where: str, column: str) -> int:
+def _where(place: tuple[str, int, int]) -> str:
+    source, row, line = place
+    return f'{source}: row {row} (line {line})'
+
+
+def _stamp_ns(text: str, factor: int, place: tuple[str, int, int], column: str) -> int:
+    """Nanoseconds of one time field; ``place`` is ``(source, row, line)`` for the message."""
     try:
-        return int(text) * factor
+        stamp = int(text) * factor
     except ValueError:
-        pass
-    try:
-        value = Decimal(text)
-    except InvalidOperation:
-        value = Decimal('NaN')
-    if not value.is_finite():
-        msg = f'{where}, column {column!r}: {text!r} is not a number'
+        try:
+            value = Decimal(text)
+        except InvalidOperation:
+            value = Decimal('NaN')
+        if not value.is_finite():
+            msg = f'{_where(place)}, column {column!r}: {text!r} is not a number'
+            raise LogError(msg) from None
+        if value.adjusted() > 30:  # far beyond any stamp; converting it would take ages
+            stamp = MAX_STAMP_NS + 1
+        else:
+            stamp = int((value * factor).to_integral_value())
+    if not 0 <= stamp <= MAX_STAMP_NS:
+        msg = (f'{_where(place)}, column {column!r}: {text!r} {"is before 1970" if stamp < 0 else "is after 2038"} '
+               f'and does not fit a bag stamp (builtin_interfaces/Time: 0 .. 2**31-1 s; wrong --time-unit?)')
         raise LogError(msg)
-    return int((value * factor).to_integral_value())
+    return stamp
 
 
-def _number(text: str, where: str, column: str) -> float:
+def _number(text: str, place: tuple[str, int, int], column: str) -> float:
     try:
         value = float(text)
     except ValueError:
         value = math.nan
     if not math.isfinite(value):
-        msg = f'{where}, column {column!r}: {text!r} is not a finite number'
+        msg = f'{_where(place)}, column {column!r}: {text!r} is not a finite number'
         raise LogError(msg)
     return value
 
 
-def _stamps_array(stamps: list[int], source: str, line_numbers: list[int], column: str) -> np.ndarray:
-    if max(abs(stamps[0]), abs(stamps[-1])) >= 2 ** 63:
-        msg = f'{source}: column {column!r} does not fit int64 nanoseconds (wrong --time-unit?)'
-        raise LogError(msg)
-    stamp_ns = np.asarray(stamps, dtype=np.int64)
+def _check_increasing(stamp_ns: np.ndarray, source: str, line_numbers: np.ndarray, column: str) -> None:
     steps = np.diff(stamp_ns)
     bad = np.flatnonzero(steps <= 0)
     if bad.size:
@@ -330,7 +373,6 @@ def _stamps_array(stamps: list[int], source: str, line_numbers: list[int], colum
         msg = (f'{source}: row {row + 1} (line {line_numbers[row]}): time {how} in column {column!r} '
                f'({stamp_ns[row]} ns after {stamp_ns[row - 1]} ns); stamps must increase')
         raise LogError(msg)
-    return stamp_ns
 
 
 def _check_not_constant(table: np.ndarray, names: tuple[str, ...], source: str) -> None:
@@ -347,7 +389,7 @@ def _check_not_constant(table: np.ndarray, names: tuple[str, ...], source: str) 
 
 
 def _check_code_range(counts: np.ndarray, acceleration: np.ndarray, options: CsvImportOptions,
-                      source: str, line_numbers: list[int]) -> None:
+                      source: str, line_numbers: np.ndarray) -> None:
     outside = (counts <= COUNTS_MIN) | (counts >= COUNTS_MAX)
     if not outside.any():
         return
@@ -357,4 +399,18 @@ def _check_code_range(counts: np.ndarray, acceleration: np.ndarray, options: Csv
            f'{acceleration[row, axis]:g} m/s^2 is {counts[row, axis]:.0f} counts at a resolution of '
            f'{options.acc_resolution:g} m/s^2 per count: at or beyond the 16-bit range, it would saturate; '
            f'use an acceleration resolution of at least {needed:.3g} m/s^2 per count')
+    raise LogError(msg)
+
+
+def _check_temp_code_range(temp_code: np.ndarray, temperature: np.ndarray, options: CsvImportOptions,
+                           source: str, line_numbers: np.ndarray) -> None:
+    """Every temperature code must be a plausible sensor code (``|N_t| < TEMP_CODE_LIMIT``)."""
+    outside = np.abs(temp_code) >= TEMP_CODE_LIMIT
+    if not outside.any():
+        return
+    row = int(np.flatnonzero(outside)[0])
+    msg = (f'{source}: row {row + 1} (line {line_numbers[row]}), column {options.temp_column!r}: '
+           f'{temperature[row]:g} C is a temperature code of {temp_code[row]:.3g} at a resolution of '
+           f'{options.temp_resolution:g} C per code, beyond any sensor code (|code| < {TEMP_CODE_LIMIT:g}); '
+           f'use a larger --temp-resolution')
     raise LogError(msg)

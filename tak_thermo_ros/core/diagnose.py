@@ -40,6 +40,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from tak_thermo_ros.core.effects import LIBRARY, Effect, resolve_effect
+from tak_thermo_ros.core.effects.base import call_effect
 from tak_thermo_ros.core.fit import fit_model, residual_counts
 from tak_thermo_ros.core.model import AXES, Calibration
 from tak_thermo_ros.core.record import AlignedSamples
@@ -620,7 +621,7 @@ def unresolved_shapes(effect: Effect, samples: AlignedSamples) -> tuple[str, ...
 
     :returns: ``'tau_s 2.07e+04 (edge of 3..2.07e+04)'`` texts, empty when all are inside.
     """
-    space = type(effect).search_space(samples.stamp_s, samples.temp_code)
+    space = call_effect(effect, 'search_space', type(effect).search_space, samples.stamp_s, samples.temp_code)
     varies = effect.shape_varies()
     found = []
     for name in effect.shape_names():

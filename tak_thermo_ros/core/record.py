@@ -15,6 +15,22 @@ import numpy as np
 COUNTS_MIN = -32768.0
 COUNTS_MAX = 32767.0
 NANOSECONDS = 1_000_000_000
+TEMP_CODE_LIMIT = 1e7
+"""Largest magnitude of a plausible temperature-sensor code (beyond any 24-bit code, 2**23).
+
+A code at or beyond it is a corrupted message, not a temperature: it is ignored like a
+non-finite one (the last good code stays held).
+"""
+TEMPERATURE_RANGE = {'counts': (-TEMP_CODE_LIMIT, TEMP_CODE_LIMIT), 'imu': (-273.15, 1000.0)}
+"""Plausible temperature inputs by input kind: codes, or degrees Celsius (from absolute zero to
+a soldering iron). A value outside is ignored as ``implausible``; the calibration file refuses
+a calibrated range outside it."""
+REFERENCE_LIMIT = 2000.0
+"""Largest plausible reference component, m/s^2 (about 200 g, beyond any turntable or centrifuge).
+
+A reference message with a component at or beyond it, or NaN or infinite, is corrupt: it is
+ignored (the previous good reference stays held).
+"""
 
 
 def seconds_from_ns(stamp_ns: np.ndarray) -> np.ndarray:
@@ -117,6 +133,72 @@ def counts_problems(counts: np.ndarray, *, whole_codes: bool = True) -> dict[str
             'saturated': finite & integer & rail}
 
 
+STAMP_DROP_REASONS = ('duplicate_stamp', 'time_backwards')
+"""Why a counts sample is left out for its header stamp, checked before :data:`DROP_REASONS`."""
+TEMP_CODE_PROBLEMS = ('non_finite', 'implausible')
+"""Why a temperature code is ignored (not held)."""
+
+
+def temp_code_problem(temp_code: float, input_kind: str = 'counts') -> str | None:
+    """Why one temperature input is ignored, or ``None``: NaN or infinite (``non_finite``), or
+    outside :data:`TEMPERATURE_RANGE` of the input kind (``implausible``)."""
+    if not isfinite(temp_code):
+        return 'non_finite'
+    low, high = TEMPERATURE_RANGE[input_kind]
+    if not low < temp_code < high:
+        return 'implausible'
+    return None
+
+
+def temp_code_problems(temp_code: np.ndarray, input_kind: str = 'counts') -> dict[str, np.ndarray]:
+    """Masks ``(m,)`` per reason of :data:`TEMP_CODE_PROBLEMS`; same rules as :func:`temp_code_problem`."""
+    temp_code = np.asarray(temp_code, dtype=float)
+    finite = np.isfinite(temp_code)
+    low, high = TEMPERATURE_RANGE[input_kind]
+    safe = np.where(finite, temp_code, 0.0)
+    return {'non_finite': ~finite, 'implausible': finite & ~((safe > low) & (safe < high))}
+
+
+def reference_problems(reference: np.ndarray) -> dict[str, np.ndarray]:
+    """Masks ``(r,)`` per reason a reference message is ignored: ``non_finite`` (a component NaN
+    or infinite) or ``implausible`` (a component of magnitude :data:`REFERENCE_LIMIT` or more)."""
+    reference = np.asarray(reference, dtype=float).reshape(-1, 3)
+    finite = np.all(np.isfinite(reference), axis=1)
+    large = np.any(np.abs(np.where(np.isfinite(reference), reference, 0.0)) >= REFERENCE_LIMIT, axis=1)
+    return {'non_finite': ~finite, 'implausible': finite & large}
+
+
+def _usable_hold_index(source_stamp_ns: np.ndarray, problems: dict[str, np.ndarray], target_stamp_ns: np.ndarray,
+                       ignored: dict[str, int]) -> np.ndarray:
+    """:func:`hold_last_index` over the source rows without a problem; counts the others in ``ignored``."""
+    usable = np.ones(len(source_stamp_ns), dtype=bool)
+    for reason, mask in problems.items():
+        if mask.any():
+            ignored[reason] = int(np.count_nonzero(mask))
+            usable &= ~mask
+    rows = np.flatnonzero(usable)
+    if not len(rows):
+        return np.full(len(target_stamp_ns), -1)
+    held = hold_last_index(source_stamp_ns[rows], target_stamp_ns)
+    return np.where(held >= 0, rows[np.maximum(held, 0)], -1)
+
+
+def stamp_problems(stamp_ns: np.ndarray) -> dict[str, np.ndarray]:
+    """Masks ``(k,)`` per reason of :data:`STAMP_DROP_REASONS`, in bag (arrival) order.
+
+    A counts sample whose header stamp equals the previous counts message's (whatever became
+    of that one) is a ``duplicate_stamp``; one stamped earlier is ``time_backwards``. The node
+    applies the same rule per message.
+    """
+    stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
+    duplicate = np.zeros(len(stamp_ns), dtype=bool)
+    backwards = np.zeros(len(stamp_ns), dtype=bool)
+    if len(stamp_ns) > 1:
+        duplicate[1:] = stamp_ns[1:] == stamp_ns[:-1]
+        backwards[1:] = stamp_ns[1:] < stamp_ns[:-1]
+    return {'duplicate_stamp': duplicate, 'time_backwards': backwards}
+
+
 def hold_last_index(source_stamp_ns: np.ndarray, target_stamp_ns: np.ndarray) -> np.ndarray:
     """Index of the last source sample at or before each target stamp, ``-1`` where none.
 
@@ -137,6 +219,9 @@ class AlignedSamples:
     :param reference: ``(k, 3)`` held reference, or ``None`` without a reference stream.
     :param dropped: reason -> number of counts samples left out.
     :param rows: ``(k,)`` index of each kept sample in the record's stream, or ``None``.
+    :param ignored_temp_codes: reason of :data:`TEMP_CODE_PROBLEMS` -> number of temperature
+        codes that were ignored (not held), reasons with none left out.
+    :param ignored_references: the same for reference messages (:func:`reference_problems`).
     """
 
     stamp_ns: np.ndarray
@@ -145,6 +230,8 @@ class AlignedSamples:
     reference: np.ndarray | None
     dropped: dict[str, int]
     rows: np.ndarray | None = None
+    ignored_temp_codes: dict[str, int] = field(default_factory=dict)
+    ignored_references: dict[str, int] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.stamp_ns)
@@ -166,11 +253,18 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
           drop_saturated: bool = True) -> AlignedSamples:
     """Hold temperature code and reference on the counts stamps and keep usable samples.
 
-    Counts samples are left out, and counted by reason, when: no temperature code has
-    arrived yet (``before_first_temp_code``); no reference yet (``before_first_reference``);
-    within ``settle_time_s`` after a reference change (``settling``); and for the reasons of
-    :func:`counts_problems`: a code is NaN or infinite (``non_finite``), not a whole number
-    (``non_integer``), or at a 16-bit rail (``saturated``, unless ``drop_saturated`` is false).
+    Counts samples are left out, and counted by reason, in this order: the header stamp is
+    not later than the previous counts message's (:func:`stamp_problems`: ``duplicate_stamp``,
+    ``time_backwards``); for the reasons of :func:`counts_problems`: a code is NaN or infinite
+    (``non_finite``), not a whole number (``non_integer``), or at a 16-bit rail (``saturated``,
+    unless ``drop_saturated`` is false); no temperature code has arrived yet
+    (``before_first_temp_code``); no reference yet (``before_first_reference``); within
+    ``settle_time_s`` after a reference change (``settling``).
+
+    A temperature code that is NaN, infinite or implausibly large (:func:`temp_code_problem`)
+    is never held: the previous good code stays, as in the node; the ignored codes are counted
+    in :attr:`AlignedSamples.ignored_temp_codes`. A reference message likewise
+    (:func:`reference_problems`, :attr:`AlignedSamples.ignored_references`).
     """
     stamps = record.counts_stamp_ns
     counts = record.counts
@@ -183,25 +277,36 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
             dropped[reason] = dropped.get(reason, 0) + int(np.count_nonzero(newly))
             keep[newly] = False
 
+    for reason, mask in stamp_problems(stamps).items():
+        leave_out(reason, mask)
     for reason, mask in counts_problems(counts, whole_codes=record.input_kind == 'counts').items():
         if reason != 'saturated' or drop_saturated:
             leave_out(reason, mask)
-    temp_index = hold_last_index(record.temp_stamp_ns, stamps)
+    ignored_temp_codes: dict[str, int] = {}
+    temp_problems = temp_code_problems(record.temp_code, record.input_kind)
+    temp_index = _usable_hold_index(record.temp_stamp_ns, temp_problems, stamps,
+                                    ignored_temp_codes)
     leave_out('before_first_temp_code', temp_index < 0)
     reference = None
+    ignored_references: dict[str, int] = {}
     if use_reference and record.has_reference:
-        reference_index = hold_last_index(record.reference_stamp_ns, stamps)
+        problems = reference_problems(record.reference)
+        reference_index = _usable_hold_index(record.reference_stamp_ns, problems, stamps, ignored_references)
+        usable_references = ~(problems['non_finite'] | problems['implausible'])
         leave_out('before_first_reference', reference_index < 0)
         if settle_time_s > 0.0:
-            leave_out('settling', _within_settle_time(record, stamps, settle_time_s))
+            leave_out('settling', _within_settle_time(record, stamps, settle_time_s, usable_references))
         reference = record.reference[reference_index[keep]]
     return AlignedSamples(stamp_ns=stamps[keep], counts=counts[keep],
                           temp_code=record.temp_code[temp_index[keep]].astype(float),
-                          reference=reference, dropped=dropped, rows=np.flatnonzero(keep))
+                          reference=reference, dropped=dropped, rows=np.flatnonzero(keep),
+                          ignored_temp_codes=ignored_temp_codes, ignored_references=ignored_references)
 
 
-def _within_settle_time(record: ChannelRecord, stamps: np.ndarray, settle_time_s: float) -> np.ndarray:
-    order = np.argsort(record.reference_stamp_ns, kind='stable')
+def _within_settle_time(record: ChannelRecord, stamps: np.ndarray, settle_time_s: float,
+                        usable: np.ndarray) -> np.ndarray:
+    rows = np.flatnonzero(usable)
+    order = rows[np.argsort(record.reference_stamp_ns[rows], kind='stable')]
     ref_stamps = record.reference_stamp_ns[order]
     values = record.reference[order]
     changed = np.ones(len(values), dtype=bool)

@@ -30,12 +30,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, ClassVar, Mapping, Sequence
+from typing import Any, Callable, ClassVar, Mapping, Sequence, TypeVar
 
 import numpy as np
 
 from tak_thermo_ros.core.model import finite_number
-from tak_thermo_ros.errors import CalibrationError
+from tak_thermo_ros.errors import CalibrationError, EffectError
 
 AXIS_NAMES: tuple[str, str, str] = ('x', 'y', 'z')
 OFFSET = 'offset'
@@ -271,13 +271,21 @@ class Effect:
         out = np.empty((len(codes), width))
         if not codes:
             return out
-        state = self.start(stamps[0], codes[0])
+        state = call_effect(self, 'start', self.start, stamps[0], codes[0])
         rows = []
         step = self.step
-        for stamp, code in zip(stamps, codes):
-            state, values = step(state, stamp, code)
-            rows.append(values)
-        out[:] = rows
+        try:
+            for stamp, code in zip(stamps, codes):
+                state, values = step(state, stamp, code)
+                rows.append(values)
+        except Exception as err:
+            raise effect_failure(self, 'step', err) from err
+        try:
+            out[:] = rows
+        except (TypeError, ValueError) as err:
+            msg = (f'effect {self.name}: step() returned basis values of the wrong length '
+                   f'(the effect has {width} basis signal{"s" if width != 1 else ""})')
+            raise EffectError(msg) from err
         return out
 
     def search_basis(self, stamp_s: np.ndarray, temp_code: np.ndarray) -> np.ndarray:
@@ -291,7 +299,7 @@ class Effect:
 
     def offsets(self, stamp_s: np.ndarray, temp_code: np.ndarray) -> np.ndarray:
         """Contribution ``(k, 3)`` in counts over a series (from the initial state)."""
-        basis = self.basis(stamp_s, temp_code)
+        basis = checked_basis(self, stamp_s, temp_code)
         out = np.zeros((basis.shape[0], 3))
         for i, amplitudes in enumerate(self.amplitudes()):
             total = out[:, i]
@@ -343,3 +351,49 @@ def typical_interval(time_s: np.ndarray) -> float:
     steps = np.diff(np.asarray(time_s, dtype=float))
     steps = steps[steps > 0.0]
     return float(np.median(steps)) if steps.size else 1.0
+
+
+_Result = TypeVar('_Result')
+
+
+def effect_failure(effect: Effect | type[Effect], method: str, err: BaseException) -> EffectError:
+    """The one-line error for an exception raised inside an effect's method (kept as the cause)."""
+    if isinstance(err, EffectError):
+        return err
+    detail = str(err).splitlines()[0] if str(err) else ''
+    return EffectError(f'effect {effect.name}: {method}() raised {type(err).__name__}'
+                       f'{": " + detail if detail else ""}')
+
+
+def call_effect(effect: Effect | type[Effect], method: str, function: Callable[..., _Result],
+                *args: Any) -> _Result:
+    """Call an effect's method; an exception inside it becomes an :class:`EffectError`
+    naming the effect and the method (the original is its cause, shown by ``--debug``)."""
+    try:
+        return function(*args)
+    except Exception as err:
+        raise effect_failure(effect, method, err) from err
+
+
+def checked_basis(effect: Effect, stamp_s: np.ndarray, temp_code: np.ndarray, *,
+                  search: bool = False) -> np.ndarray:
+    """:meth:`Effect.basis` (or :meth:`Effect.search_basis`) checked at the boundary.
+
+    :raises EffectError: the method raised, or returned anything but a finite ``(k, b)``
+        array with ``k`` the number of samples and ``b`` the effect's basis signals.
+    """
+    method = 'search_basis' if search else 'basis'
+    values = call_effect(effect, method, effect.search_basis if search else effect.basis, stamp_s, temp_code)
+    expected = (len(temp_code), len(effect.basis_suffixes()))
+    try:
+        basis = np.asarray(values, dtype=float)
+    except (TypeError, ValueError):
+        basis = None
+    if basis is None or basis.shape != expected:
+        got = 'values that are not an array' if basis is None else f'shape {basis.shape}'
+        msg = f'effect {effect.name}: {method}() returned {got}, expected {expected}'
+        raise EffectError(msg)
+    if not np.all(np.isfinite(basis)):
+        msg = f'effect {effect.name}: {method}() returned non-finite values (NaN or infinite)'
+        raise EffectError(msg)
+    return basis

@@ -26,7 +26,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from tak_thermo_ros.core.effects import resolve_effect
-from tak_thermo_ros.core.effects.base import AXIS_NAMES, INPUT, Effect
+from tak_thermo_ros.core.effects.base import AXIS_NAMES, INPUT, Effect, call_effect, checked_basis
 from tak_thermo_ros.core.fit import (
     FitResult,
     finish_fit,
@@ -269,7 +269,7 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
         if fixed_shape:
             entry = _Offset(effect=effect, mode='fixed')
         else:
-            structures = cls.structures(time_train, code_train)
+            structures = call_effect(cls, 'structures', cls.structures, time_train, code_train)
             if structures is not None:
                 if not structures:
                     msg = f'effect {cls.name}: the temperature codes of this run do not span a range'
@@ -279,14 +279,14 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
                 if effect is None:
                     msg = f'effect {cls.name}: its parameters have no defaults to start a search from'
                     raise FitError(msg)
-                space = cls.search_space(time_train, code_train)
+                space = call_effect(cls, 'search_space', cls.search_space, time_train, code_train)
                 varies = effect.shape_varies()
                 searched = tuple((name, *space[name]) for name in effect.shape_names()
                                  if varies.get(name, True) and name in space
                                  and all(math.isfinite(v) for v in space[name][:2]))
                 entry = _Offset(effect=effect, mode='search' if searched else 'fixed', searched=searched)
         if entry.mode == 'fixed':
-            entry.basis = entry.effect.basis(stamp_all, code_all)
+            entry.basis = checked_basis(entry.effect, stamp_all, code_all)
             entry.done = True
         offsets.append(entry)
 
@@ -320,7 +320,7 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
     def basis_of(entry: _Offset, effect: Effect, *, exact: bool = False) -> np.ndarray:
         key = (exact, tuple(sorted(effect.values.items())))
         if key not in entry.cache:
-            entry.cache[key] = (effect.basis if exact else effect.search_basis)(stamp_all, code_all)
+            entry.cache[key] = checked_basis(effect, stamp_all, code_all, search=not exact)
         return entry.cache[key]
 
     def search(entry: _Offset) -> None:
@@ -487,7 +487,7 @@ def _standard_errors(offsets, input_effects, designs, residual_sums, betas, fixe
         entry = offsets[index]
         step = SHAPE_STEP if log else SHAPE_STEP * max(abs(value), 1.0)
         values = [(value * math.exp(h) if log else value + h) for h in (step, -step)]
-        upper, lower = (entry.effect.replace(**{name: v}).basis(stamp_all, code_all)[mask] for v in values)
+        upper, lower = (checked_basis(entry.effect.replace(**{name: v}), stamp_all, code_all)[mask] for v in values)
         slope = (upper - lower) / (2.0 * step)
         for i in range(3):
             position = fixed[i].shape[1] + sum(o.basis.shape[1] for o in offsets[:index])

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from tak_thermo_ros.core.effects.base import INPUT, OFFSET
+from tak_thermo_ros.core.effects.base import INPUT, OFFSET, checked_basis, effect_failure
 from tak_thermo_ros.core.effects.cross_axis import CrossAxis
 from tak_thermo_ros.core.effects.scale_nonlinearity import ScaleNonlinearity
 from tak_thermo_ros.core.model import Calibration, correction_terms, offset_and_gain
@@ -125,7 +125,7 @@ class EffectLink:
         stamps = np.zeros(count) if stamp_s is None else np.asarray(stamp_s, dtype=float)
         extra = [np.zeros(count), np.zeros(count), np.zeros(count)]
         for effect, amplitudes in zip(self._offset_effects, self._amplitudes):
-            basis = effect.basis(stamps, temp_code)
+            basis = checked_basis(effect, stamps, temp_code)
             for i, axis_amplitudes in enumerate(amplitudes):
                 total = extra[i]
                 for b, amplitude in enumerate(axis_amplitudes):
@@ -153,10 +153,19 @@ class EffectLink:
         n = code - self._ref
         states = self._states
         if states is None:
-            states = self._states = [effect.start(stamp_s, code) for effect in self._offset_effects]
+            states = []
+            for effect in self._offset_effects:
+                try:
+                    states.append(effect.start(stamp_s, code))
+                except Exception as err:
+                    raise effect_failure(effect, 'start', err) from err
+            self._states = states
         extra = [0.0, 0.0, 0.0]
         for index, (effect, amplitudes) in enumerate(zip(self._offset_effects, self._amplitudes)):
-            state, basis = effect.step(states[index], stamp_s, code)
+            try:
+                state, basis = effect.step(states[index], stamp_s, code)
+            except Exception as err:
+                raise effect_failure(effect, 'step', err) from err
             states[index] = state
             for i, axis_amplitudes in enumerate(amplitudes):
                 total = extra[i]

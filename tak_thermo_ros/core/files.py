@@ -1,0 +1,204 @@
+"""Output files: written atomically, only as regular files and directories, one overwrite rule.
+
+Every output of ``tak_calib`` (calibration YAML, JSON, report directory, bag directory) obeys
+one rule:
+
+- an output that does not exist yet is written to a temporary ``.NAME.*.partial`` beside it
+  and renamed into place, so that an interrupted or failed write leaves nothing behind;
+- an existing output is refused (:class:`~tak_thermo_ros.errors.OutputError`, one line telling
+  to remove it or pass ``--force``);
+- with ``--force``, an existing *regular file* (YAML, JSON), an existing *bag directory*
+  (``metadata.yaml`` and plain files) or an existing *report directory* (``report.html`` and
+  PNG figures) is replaced; the new output is complete before the old one goes;
+- anything else is refused, with or without ``--force``: a symbolic link, a FIFO, a device
+  node, a socket, a directory where a file is expected, a directory that is not a bag or a
+  report. Nothing but regular files and the output directories is ever replaced.
+
+Errors name the user's path, never the temporary one.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import stat
+import tempfile
+from pathlib import Path
+from typing import Iterator
+
+from tak_thermo_ros.errors import OutputError
+
+FILE = 'file'
+BAG = 'bag'
+REPORT = 'report'
+OUTPUT_KINDS = (FILE, BAG, REPORT)
+"""What an output is: a regular file, a rosbag2 directory, a report directory."""
+
+_REPORT_SUFFIXES = ('.png', '.html')
+
+
+def _what(mode: int) -> str:
+    """A file type in words."""
+    for test, name in ((stat.S_ISLNK, 'a symbolic link'), (stat.S_ISFIFO, 'a FIFO (named pipe)'),
+                       (stat.S_ISCHR, 'a character device'), (stat.S_ISBLK, 'a block device'),
+                       (stat.S_ISSOCK, 'a socket'), (stat.S_ISDIR, 'a directory'), (stat.S_ISREG, 'a regular file')):
+        if test(mode):
+            return name
+    return 'a special file'
+
+
+def _is_output_directory(path: Path, kind: str) -> bool:
+    """Whether an existing directory is one this tool writes (a bag or a report) of ``kind``."""
+    try:
+        entries = list(os.scandir(path))
+    except OSError:
+        return False
+    if not all(entry.is_file(follow_symlinks=False) for entry in entries):
+        return False
+    names = {entry.name for entry in entries}
+    if not names:
+        return True  # an empty directory holds nothing to lose
+    if kind == BAG:
+        return 'metadata.yaml' in names
+    return 'report.html' in names and all(name.endswith(_REPORT_SUFFIXES) for name in names)
+
+
+def check_output(path: str | os.PathLike[str], kind: str = FILE, *, force: bool = False,
+                 option: str = '') -> Path:
+    """Check that ``path`` may be written as an output of ``kind`` under the overwrite rule.
+
+    :param kind: one of :data:`OUTPUT_KINDS`.
+    :param force: replace an existing output of the same kind (``--force``).
+    :param option: the command-line option naming the output, for the message.
+    :raises OutputError: one line naming ``path``.
+    """
+    path = Path(path)
+    label = f'{path} ({option})' if option else str(path)
+    what = {FILE: 'a regular file', BAG: 'a bag directory', REPORT: 'a report directory'}[kind]
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        parent = path.parent
+        if not parent.is_dir():
+            msg = f'{label}: cannot write into directory {parent}: No such file or directory'
+            raise OutputError(msg) from None
+        return path
+    except OSError as err:
+        msg = f'{label}: cannot inspect ({err.strerror})'
+        raise OutputError(msg) from None
+    if kind == FILE:
+        matches = stat.S_ISREG(mode)
+    else:
+        matches = stat.S_ISDIR(mode) and _is_output_directory(path, kind)
+    if not matches:
+        msg = (f'{label}: exists and is {_what(mode)}'
+               f'{" that this tool did not write" if stat.S_ISDIR(mode) and kind != FILE else ""}; '
+               f'only {what} is written or replaced here, refusing to touch it')
+        raise OutputError(msg)
+    if not force:
+        msg = f'{label}: exists already, not overwriting (remove it or pass --force)'
+        raise OutputError(msg)
+    return path
+
+
+def _temporary_parent(path: Path) -> Path:
+    return path.parent if str(path.parent) else Path('.')
+
+
+def _user_error(err: OSError, path: Path) -> OSError:
+    """The same error naming the user's path instead of a temporary one."""
+    return OSError(err.errno, err.strerror or str(err), str(path))
+
+
+def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
+    """Write a text file atomically: a temporary file beside it, then a rename.
+
+    An existing regular file is replaced (the caller applies the overwrite rule with
+    :func:`check_output`); anything else that exists (a link, a FIFO, a device, a directory)
+    is refused.
+
+    :raises OutputError: ``path`` exists and is not a regular file.
+    :raises OSError: the write failed (disk full, no permission), naming ``path``; nothing
+        is left behind.
+    """
+    path = Path(path)
+    with contextlib.suppress(FileNotFoundError):
+        mode = os.lstat(path).st_mode
+        if not stat.S_ISREG(mode):
+            msg = f'{path}: exists and is {_what(mode)}; only a regular file is written here, refusing to touch it'
+            raise OutputError(msg)
+    try:
+        handle, temporary = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.partial',
+                                             dir=_temporary_parent(path))
+    except OSError as err:
+        raise _user_error(err, path) from None
+    try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(temporary, 0o666 & ~umask)  # mkstemp makes it owner-only; a normal file is wanted
+        with os.fdopen(handle, 'w', encoding='utf-8') as stream:
+            stream.write(text)
+            stream.flush()
+            os.fsync(stream.fileno())
+        os.replace(temporary, path)
+    except OSError as err:
+        Path(temporary).unlink(missing_ok=True)
+        raise _user_error(err, path) from None
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise
+
+
+def staging_directory(path: Path) -> Path:
+    """A new empty hidden ``.NAME.*.partial`` directory beside ``path``.
+
+    :raises OSError: naming ``path`` when it cannot be made.
+    """
+    try:
+        return Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.partial', dir=_temporary_parent(path)))
+    except OSError as err:
+        raise _user_error(err, path) from None
+
+
+def install_directory(finished: Path, path: Path) -> None:
+    """Rename a finished directory to ``path``, replacing an existing output there.
+
+    The old output is renamed aside first and removed only after the new one is in place;
+    should the second rename fail, the old one is put back.
+    """
+    old = None
+    if os.path.lexists(path):
+        old = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.old', dir=_temporary_parent(path)))
+        aside = old / 'previous'
+        os.rename(path, aside)
+    try:
+        os.rename(finished, path)
+    except BaseException:
+        if old is not None:
+            os.rename(old / 'previous', path)
+            shutil.rmtree(old, ignore_errors=True)
+        raise
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def atomic_directory(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """Fill a staging directory and rename it to ``path`` on success; on any failure or
+    interruption remove it, leaving ``path`` as it was.
+
+    The caller applies the overwrite rule (:func:`check_output`) beforehand.
+    """
+    path = Path(path)
+    staging = staging_directory(path)
+    inner = staging / path.name
+    inner.mkdir()
+    try:
+        try:
+            yield inner
+            install_directory(inner, path)
+        except OSError as err:  # a full disk while filling it: name the user's path
+            raise _user_error(err, path) from err
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)

@@ -1,0 +1,120 @@
+"""Bounds of the numeric ``tak_calib`` options, checked where the command line is parsed.
+
+Each function here is an ``argparse`` ``type=``: it turns the text into a number or raises
+``argparse.ArgumentTypeError``, so that argparse prints its own one line
+``tak_calib <command>: error: argument --gravity: ...`` and exits with status 2. Every bound
+follows from the physics or from what the code downstream can represent:
+
+- every number must be finite (``nan``, ``inf`` are refused everywhere);
+- local gravity lies within :data:`GRAVITY_MIN` .. :data:`GRAVITY_MAX` m/s^2 (every place on the
+  Earth's surface, from high mountains at the equator, about 9.76, to the poles, about 9.83,
+  with a margin);
+- a temperature code lies strictly within +-:data:`~tak_thermo_ros.core.record.TEMP_CODE_LIMIT`
+  (beyond any 24-bit sensor code), a reference component within
+  +-:data:`~tak_thermo_ros.core.record.REFERENCE_LIMIT` m/s^2;
+- times (``--settle-time``) are finite and not negative; resolutions are positive; a nominal
+  scale lies within 0 .. :data:`MAX_NOMINAL_SCALE` counts per m/s^2;
+- polynomial orders lie within 0 .. :data:`MAX_ORDER`; cross-validation needs 2 folds or more;
+- a random seed is a whole number 0 .. 2**63 - 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from typing import Callable
+
+from tak_thermo_ros.core.record import REFERENCE_LIMIT, TEMP_CODE_LIMIT
+
+GRAVITY_MIN = 9.7
+"""Lowest accepted local gravity, m/s^2."""
+GRAVITY_MAX = 9.9
+"""Highest accepted local gravity, m/s^2."""
+MAX_ORDER = 8
+"""Highest polynomial order of ``F_s`` and ``F_c`` (higher orders only fit noise)."""
+MAX_FOLDS = 100
+"""Most cross-validation folds ``diagnose`` accepts."""
+MAX_SEED = 2 ** 63 - 1
+"""Largest random seed."""
+MAX_NOMINAL_SCALE = 1e7
+"""Largest nominal scale, counts per m/s^2 (a 24-bit channel over +-2 g has 4e5)."""
+
+
+def _float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        msg = f'{text!r} is not a number'
+        raise argparse.ArgumentTypeError(msg) from None
+    if not math.isfinite(value):
+        msg = f'{text!r} is not a finite number'
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+def finite_float(text: str) -> float:
+    """Any finite number."""
+    return _float(text)
+
+
+def float_within(low: float, high: float, unit: str = '', *, low_open: bool = False,
+                 high_open: bool = False) -> Callable[[str], float]:
+    """A finite number within ``[low, high]``; ``low_open``, ``high_open`` leave a bound out."""
+    unit_text = f' {unit}' if unit else ''
+
+    def parse(text: str) -> float:
+        value = _float(text)
+        inside = (value > low if low_open else value >= low) and (value < high if high_open else value <= high)
+        if not inside:
+            if math.isinf(high):
+                bound = f'> {low:g}' if low_open else f'>= {low:g}'
+                msg = f'{text} is out of range: must be {bound}{unit_text}'
+            else:
+                interval = f'{"(" if low_open else "["}{low:g}, {high:g}{")" if high_open else "]"}'
+                msg = f'{text} is out of range: must lie within {interval}{unit_text}'
+            raise argparse.ArgumentTypeError(msg)
+        return value
+
+    parse.__name__ = 'number'
+    return parse
+
+
+def int_within(low: int, high: int) -> Callable[[str], int]:
+    """A whole number within ``[low, high]``."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            msg = f'{text!r} is not a whole number'
+            raise argparse.ArgumentTypeError(msg) from None
+        if not low <= value <= high:
+            msg = f'{text} is out of range: must lie within {low}..{high}'
+            raise argparse.ArgumentTypeError(msg)
+        return value
+
+    parse.__name__ = 'whole number'
+    return parse
+
+
+gravity = float_within(GRAVITY_MIN, GRAVITY_MAX, 'm/s^2 (local gravity on the Earth\'s surface)')
+"""``--gravity``."""
+seconds_not_negative = float_within(0.0, math.inf, 's')
+"""``--settle-time``."""
+temp_code = float_within(-TEMP_CODE_LIMIT, TEMP_CODE_LIMIT, '(temperature-sensor code)', low_open=True,
+                         high_open=True)
+"""``--temp-code-ref``."""
+positive = float_within(0.0, math.inf, low_open=True)
+"""Resolutions."""
+nominal_scale = float_within(0.0, MAX_NOMINAL_SCALE, 'counts per m/s^2', low_open=True)
+"""``--nominal-scale``."""
+specific_force = float_within(-REFERENCE_LIMIT, REFERENCE_LIMIT, 'm/s^2', low_open=True, high_open=True)
+"""``--reference`` components."""
+polynomial_order = int_within(0, MAX_ORDER)
+"""``--bias-order``, ``--scale-order``."""
+folds = int_within(2, MAX_FOLDS)
+"""``--folds``."""
+seed = int_within(0, MAX_SEED)
+"""``simulate --seed``."""
+latitude = float_within(-90.0, 90.0, "degrees")
+"""``--latitude`` (a static driver bag's Earth rate)."""

@@ -1,0 +1,354 @@
+"""Property tests of ``tak_calib`` under generated bad input (Hypothesis).
+
+Invariant, whatever the input: exit 0 with finite output (the written YAML, JSON and Imu bag
+are parsed, no NaN or infinity anywhere, nor in what is printed), or exit 2 with exactly one
+stderr line ``tak_calib: error: ...`` that is not an internal error; never a traceback; never a
+temporary ``.partial`` left behind; a pre-existing output unchanged byte for byte unless
+``--force`` was given.
+
+The commands run in-process (``tak_thermo_ros.cli.main``) for speed, a few as subprocesses.
+The example budget keeps all of them under a minute in ``make test``; ``make fuzz`` (the
+``long`` Hypothesis profile of ``conftest.py``) runs 25 times more.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import math
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import warnings
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from hypothesis import event, given, settings
+from hypothesis.control import currently_in_test_context
+from hypothesis import strategies as st
+
+from bag_writer import write_with_header_stamps
+from conftest import SHORT, examples
+from tak_thermo_ros.bagio import read_imu, read_record, write_record
+from tak_thermo_ros.cli import main
+from tak_thermo_ros.core.simulate import simulate
+
+TAK_CALIB = str(Path(sys.executable).with_name('tak_calib'))
+SMALL = replace(SHORT, plateau_hours=0.03, ramp_celsius_per_minute=8.0, board_lag_s=60.0, dwell_s=10.0, seed=21)
+"""A few hundred samples over the five plateaus: enough for a fit, fast to write and read."""
+NON_FINITE_WORD = re.compile(r'(?<![a-z_])(nan|inf|infinity)(?![a-z_])', re.IGNORECASE)
+
+
+def _run(argv: list[str]) -> tuple[int, str, str]:
+    """``main(argv)`` in-process: exit status, stdout, stderr; a warning counts as stderr."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), \
+            warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        try:
+            code = main(argv)
+        except SystemExit as exit_info:  # argparse
+            code = exit_info.code if isinstance(exit_info.code, int) else 2
+    text = err.getvalue() + ''.join(f'{w.category.__name__}: {w.message}\n' for w in caught)
+    return code, out.getvalue(), text
+
+
+def _finite_tree(value: object) -> bool:
+    if isinstance(value, float):
+        return math.isfinite(value)
+    if isinstance(value, dict):
+        return all(_finite_tree(v) for v in value.values())
+    if isinstance(value, list):
+        return all(_finite_tree(v) for v in value)
+    return True
+
+
+def check_outcome(code: int, out: str, err: str, directory: Path, protected: dict[Path, bytes],
+                  outputs: dict[Path, str]) -> None:
+    """The invariant (module docstring); ``outputs`` maps a written path to yaml/json/imu/bag."""
+    if currently_in_test_context():
+        event(f'exit {code}')
+    assert 'Traceback' not in err and 'Traceback' not in out
+    leftovers = [p.name for p in directory.rglob('*') if p.name.endswith(('.partial', '.old'))]
+    assert leftovers == [], leftovers
+    for path, content in protected.items():
+        assert path.read_bytes() == content, f'{path} was changed'
+    if code == 2:
+        lines = err.strip().splitlines()
+        assert len(lines) == 1, err
+        assert lines[0].startswith('tak_calib: error: '), err
+        assert 'internal error' not in lines[0], err
+        return
+    assert code == 0, (code, err)
+    assert err == '', err
+    assert not NON_FINITE_WORD.search(out), out
+    for path, kind in outputs.items():
+        if path in protected:
+            continue
+        if kind == 'yaml':
+            assert _finite_tree(yaml.safe_load(path.read_text())), path.read_text()
+        elif kind == 'json':
+            def refuse(constant: str) -> float:
+                raise AssertionError(f'{path}: {constant} in the JSON')
+            json.loads(path.read_text(), parse_constant=refuse)
+        elif kind == 'imu':
+            _, acceleration, _, covariance = read_imu(path)
+            assert np.all(np.isfinite(acceleration)) and np.all(np.isfinite(covariance))
+        elif kind == 'bag':
+            record = read_record(path, progress=False)
+            for array in (record.counts, record.temp_code, record.reference):
+                assert np.all(np.isfinite(array))
+
+
+# ----- CSV logs ------------------------------------------------------------------------------
+
+JUNK = st.sampled_from(['', 'nan', 'NaN', 'inf', '-inf', '1e400', '-1e400', 'abc', '0x10', '1,5', '"',
+                        '1e999999999', '-0', '9' * 30, ' ', '1_000', '١٢'])
+"""Field texts a log may hold by mistake."""
+
+
+@st.composite
+def csv_logs(draw) -> tuple[str, list[str]]:
+    """A static thermal log (tab- or comma-delimited) with a few generated mistakes."""
+    rows = draw(st.integers(2, 40))
+    seconds = draw(st.sampled_from(['int', 'decimal', 'us']))
+    start = draw(st.sampled_from([0, 1, 1_700_000_000, 2 ** 31 - 50]))
+    delimiter = draw(st.sampled_from([',', '\t', ';']))
+    rng = np.random.default_rng(draw(st.integers(0, 2 ** 32 - 1)))
+    table = []
+    for i in range(rows):
+        if seconds == 'us':
+            time_text = str((start + i) * 1_000_000)
+        elif seconds == 'decimal':
+            time_text = f'{start + i * 0.25:.3f}'
+        else:
+            time_text = str(start + i)
+        acc = np.array([0.2, -0.1, 9.8]) + rng.normal(0.0, 0.01, 3)
+        temp = 20.0 + 20.0 * i / rows
+        table.append([time_text, *(f'{v:.5f}' for v in acc), f'{temp:.3f}'])
+    short: set[int] = set()
+    blank: set[int] = set()
+    for _ in range(draw(st.integers(0, 4))):
+        row = draw(st.integers(0, rows - 1))
+        kind = draw(st.sampled_from(['junk', 'big', 'duplicate_time', 'swap_rows', 'time', 'short_row',
+                                     'blank_row', 'negative_time']))
+        if kind == 'junk':
+            table[row][draw(st.integers(0, 4))] = draw(JUNK)
+        elif kind == 'big':
+            table[row][draw(st.integers(1, 4))] = repr(draw(st.floats(allow_nan=True, allow_infinity=True)))
+        elif kind == 'duplicate_time' and row > 0:
+            table[row][0] = table[row - 1][0]
+        elif kind == 'swap_rows' and row > 0:
+            table[row], table[row - 1] = table[row - 1], table[row]
+        elif kind == 'time':
+            table[row][0] = draw(st.sampled_from(['2147483648', '1e19', '9223372036854775808', '1.5e9',
+                                                  '4e9', '-1e-3', '1e-400']))
+        elif kind == 'short_row':
+            short.add(row)
+        elif kind == 'blank_row':
+            blank.add(row)
+        elif kind == 'negative_time':
+            table[row][0] = '-' + table[row][0]
+    header = ['t', 'ax', 'ay', 'az', 'temp']
+    if draw(st.booleans()) and draw(st.booleans()):
+        header[draw(st.integers(0, 4))] = draw(st.sampled_from(['', 'x', 'ax ']))
+    lines = ['' if i in blank else delimiter.join(r[:3] if i in short else r) for i, r in enumerate(table)]
+    text = delimiter.join(header) + '\n' + ''.join(line + '\n' for line in lines)
+    unit = 'us' if seconds == 'us' else 's'
+    return text, ['--time-column', 't', '--time-unit', unit, '--acc-columns', 'ax', 'ay', 'az',
+                  '--temp-column', 'temp']
+
+
+@settings(max_examples=examples(60))
+@given(log=csv_logs(), existing=st.booleans(), force=st.booleans(), storage=st.sampled_from(['mcap', 'sqlite3']))
+def test_import_csv_of_generated_logs_keeps_the_invariant(log, existing, force, storage):
+    """import-csv of a generated log: a finite bag with exit 0, or one line with exit 2."""
+    text, options = log
+    with tempfile.TemporaryDirectory() as name:
+        directory = Path(name)
+        (directory / 'log.csv').write_text(text, encoding='utf-8')
+        out = directory / 'out'
+        protected = {}
+        if existing:
+            out.write_bytes(b'precious')
+            protected[out] = b'precious'
+        argv = ['import-csv', str(directory / 'log.csv'), '-o', str(out), '--storage', storage, '--no-progress',
+                *options, *(['--force'] if force else [])]
+        code, stdout, stderr = _run(argv)
+        check_outcome(code, stdout, stderr, directory, protected, {out: 'bag'})
+        if existing:  # a regular file where a bag goes is refused even with --force
+            assert code == 2
+
+
+# ----- bags ----------------------------------------------------------------------------------
+
+@pytest.fixture(scope='module')
+def small_run(tmp_path_factory):
+    """A small calibration run and the calibration fitted from it."""
+    root = tmp_path_factory.mktemp('properties')
+    run = simulate(SMALL)
+    write_record(root / 'cal', run.record)
+    code, _, err = _run(['fit', str(root / 'cal'), '-o', str(root / 'params.yaml'), '--no-progress'])
+    assert code == 0, err
+    return run, root / 'params.yaml'
+
+
+@st.composite
+def record_changes(draw, length: int, temp_length: int, reference_length: int) -> dict:
+    """Changes to a run: temperature codes and references NaN/inf/huge, counts NaN/huge,
+    header stamps back."""
+    indices = st.integers(0, length - 1)
+    return {
+        'temp': draw(st.lists(st.tuples(st.integers(0, temp_length - 1),
+                                        st.sampled_from([math.nan, math.inf, -math.inf, 1e9, -1e9, 1e300, 0.0,
+                                                         9.99e6])), max_size=6)),
+        'counts': draw(st.lists(st.tuples(indices, st.integers(0, 2),
+                                          st.sampled_from([math.nan, math.inf, 1e12, -32768.0, 0.5])),
+                                max_size=4)),
+        'stamps': draw(st.lists(st.tuples(indices, st.sampled_from(['duplicate', 'back', 'far_back', 'forward'])),
+                                max_size=4)),
+        'reference': draw(st.lists(st.tuples(st.integers(0, reference_length - 1), st.integers(0, 2),
+                                             st.sampled_from([math.nan, -math.inf, 1e300, 1999.0, 0.0])),
+                                   max_size=3)),
+    }
+
+
+def _changed_record(record, changes: dict):
+    temp_code = record.temp_code.copy()
+    for row, value in changes['temp']:
+        temp_code[row] = value
+    counts = record.counts.copy()
+    for row, axis, value in changes['counts']:
+        counts[row, axis] = value
+    reference = record.reference.copy()
+    for row, axis, value in changes['reference']:
+        reference[row, axis] = value
+    headers = record.counts_stamp_ns.copy()
+    for row, how in changes['stamps']:
+        if row == 0:
+            continue
+        headers[row] = {'duplicate': headers[row - 1], 'back': headers[row - 1] - 10 ** 9,
+                        'far_back': 10 ** 9, 'forward': headers[row] + 10 ** 12}[how]
+    return replace(record, temp_code=temp_code, counts=counts, reference=reference), headers
+
+
+COMMANDS = ('fit', 'apply', 'validate', 'diagnose')
+
+
+def _command(command: str, bag: Path, params: Path, out: Path, force: bool) -> tuple[list[str], dict[Path, str]]:
+    common = ['--no-progress', *(['--force'] if force else [])]
+    if command == 'fit':
+        return ['fit', str(bag), '-o', str(out), *common], {out: 'yaml'}
+    if command == 'apply':
+        return ['apply', str(bag), '--params', str(params), '-o', str(out), *common], {out: 'imu'}
+    if command == 'validate':
+        return ['validate', str(bag), '--params', str(params), '--json', str(out), *common], {out: 'json'}
+    return (['diagnose', str(bag), '--params', str(params), '--json', str(out), '--candidates', 'warmup',
+             '--folds', '2', *common], {out: 'json'})
+
+
+def _prepare_output(out: Path, command: str, existing: bool) -> dict[Path, bytes]:
+    """An existing output of the right kind when asked; what must stay unchanged without --force."""
+    if not existing:
+        return {}
+    if command == 'apply':
+        out.mkdir()
+        (out / 'metadata.yaml').write_bytes(b'precious')
+        return {out / 'metadata.yaml': b'precious'}
+    out.write_bytes(b'precious')
+    return {out: b'precious'}
+
+
+@settings(max_examples=examples(14))
+@given(data=st.data(), command=st.sampled_from(COMMANDS), storage=st.sampled_from(['mcap', 'sqlite3']),
+       existing=st.booleans(), force=st.booleans())
+def test_commands_on_changed_runs_keep_the_invariant(small_run, data, command, storage, existing, force):
+    """NaN and huge temperature codes, bad counts, header stamps back (bag time increasing)."""
+    run, params = small_run
+    changes = data.draw(record_changes(len(run.record.counts), len(run.record.temp_code),
+                                       len(run.record.reference)))
+    record, headers = _changed_record(run.record, changes)
+    with tempfile.TemporaryDirectory() as name:
+        directory = Path(name)
+        write_with_header_stamps(directory / 'bag', record, headers, storage=storage)
+        out = directory / 'out'
+        protected = _prepare_output(out, command, existing)
+        if force:
+            protected = {}
+        argv, outputs = _command(command, directory / 'bag', params, out, force)
+        code, stdout, stderr = _run(argv)
+        check_outcome(code, stdout, stderr, directory, protected, outputs)
+        if existing and not force:
+            assert code == 2
+
+
+def _storage_file(bag: Path) -> Path:
+    return next(p for p in bag.iterdir() if p.suffix in ('.mcap', '.db3'))
+
+
+@settings(max_examples=examples(14))
+@given(command=st.sampled_from(COMMANDS), storage=st.sampled_from(['mcap', 'sqlite3']),
+       damage=st.sampled_from(['truncate', 'flip']), fraction=st.floats(0.0, 1.0),
+       flips=st.lists(st.tuples(st.floats(0.0, 1.0), st.integers(0, 7)), min_size=1, max_size=12))
+def test_commands_on_damaged_bag_files_keep_the_invariant(small_run, tmp_path_factory, command, storage, damage,
+                                                          fraction, flips):
+    """A truncated or bit-flipped storage file (mcap or sqlite3)."""
+    run, params = small_run
+    with tempfile.TemporaryDirectory() as name:
+        directory = Path(name)
+        bag = directory / 'bag'
+        cache = _pristine(tmp_path_factory, run, storage)
+        shutil.copytree(cache, bag)
+        storage_file = _storage_file(bag)
+        data = bytearray(storage_file.read_bytes())
+        if damage == 'truncate':
+            del data[int(fraction * len(data)):]
+        else:
+            for where, bit in flips:
+                position = min(int(where * len(data)), len(data) - 1)
+                data[position] ^= 1 << bit
+        storage_file.write_bytes(bytes(data))
+        out = directory / 'out'
+        argv, outputs = _command(command, bag, params, out, False)
+        code, stdout, stderr = _run(argv)
+        check_outcome(code, stdout, stderr, directory, {}, outputs)
+
+
+_PRISTINE: dict[str, Path] = {}
+
+
+def _pristine(tmp_path_factory, run, storage: str) -> Path:
+    """The undamaged bag of the small run in ``storage``, written once."""
+    if storage not in _PRISTINE:
+        path = tmp_path_factory.mktemp(f'pristine_{storage}') / 'bag'
+        write_record(path, run.record, storage=storage)
+        _PRISTINE[storage] = path
+    return _PRISTINE[storage]
+
+
+# ----- a few real processes ------------------------------------------------------------------
+
+@pytest.mark.parametrize('argv', [
+    ['validate', '{bag}', '--params', '{params}', '--gravity', 'nan'],
+    ['fit', '{bag}', '-o', '/dev/null', '--force'],
+    ['apply', '{bag}', '--params', '{params}', '-o', '{out}', '--storage', 'sqlite3'],
+])
+def test_subprocess_runs_keep_the_invariant(small_run, tmp_path, argv):
+    """The same invariant through the console script: status, stderr and files as a user sees them."""
+    run, params = small_run
+    codes = run.record.temp_code.copy()
+    codes[::7] = np.nan
+    write_record(tmp_path / 'bag', replace(run.record, temp_code=codes))
+    out = tmp_path / 'out'
+    command = [a.format(bag=tmp_path / 'bag', params=params, out=out) for a in argv]
+    result = subprocess.run([TAK_CALIB, *command], capture_output=True, text=True, timeout=120)
+    check_outcome(result.returncode, result.stdout, result.stderr, tmp_path, {}, {out: 'imu'})
+    assert Path('/dev/null').is_char_device()
+    if command[0] == 'apply':
+        assert result.returncode == 0 and 'ignored' in result.stdout and 'non-finite temperature codes' in result.stdout
