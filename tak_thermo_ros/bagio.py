@@ -7,6 +7,10 @@ The bag contract (each topic name is an option):
 - ``/tak/reference``: ``geometry_msgs/msg/Vector3Stamped``, true specific force (m/s^2),
   calibration runs only, published at least whenever it changes.
 - ``/tak/imu/data_raw``: ``sensor_msgs/msg/Imu`` written by ``apply``.
+- any other topic of a type in :data:`AUX_FIELDS` (a supply voltage, a pressure, a plain
+  ``std_msgs`` number): an auxiliary signal ``aux:TOPIC`` (its obvious number) or
+  ``aux:TOPIC:FIELD`` (another numeric field), read into the record's ``aux``. A stamped message
+  is placed at its header stamp; a ``std_msgs`` number, which has no header, at its bag time.
 
 Both rosbag2 storages (mcap, sqlite3) are read; bags are written to a temporary directory
 beside the target and renamed into place, so a failed write leaves nothing behind; an existing
@@ -57,6 +61,21 @@ _Vector3Stamped = TYPESTORE.types[VECTOR3_STAMPED]
 _Quaternion = TYPESTORE.types['geometry_msgs/msg/Quaternion']
 _Temperature = TYPESTORE.types[TEMPERATURE]
 _Imu = TYPESTORE.types[IMU]
+BATTERY_STATE = 'sensor_msgs/msg/BatteryState'
+FLOAT64 = 'std_msgs/msg/Float64'
+_INTEGERS = ('Int8', 'Int16', 'Int32', 'Int64', 'UInt8', 'UInt16', 'UInt32', 'UInt64')
+AUX_FIELDS: dict[str, tuple[str, ...]] = {
+    'std_msgs/msg/Float32': ('data',),
+    FLOAT64: ('data',),
+    **{f'std_msgs/msg/{name}': ('data',) for name in _INTEGERS},
+    TEMPERATURE: ('temperature',),
+    'sensor_msgs/msg/FluidPressure': ('fluid_pressure',),
+    'sensor_msgs/msg/RelativeHumidity': ('relative_humidity',),
+    BATTERY_STATE: ('voltage', 'temperature', 'current', 'charge', 'capacity', 'design_capacity', 'percentage'),
+}
+"""Auxiliary scalar signal types: their numeric fields, the obvious one (named ``aux:TOPIC``) first."""
+AUX_TYPES = {'battery_state': BATTERY_STATE, 'float64': FLOAT64}
+"""Message types a simulated auxiliary signal can be written as (scenario ``record_supply_type``)."""
 
 
 @dataclass(frozen=True)
@@ -218,6 +237,7 @@ def read_record(path: str | os.PathLike[str], *, topics: Topics = Topics(),
                 temp_stamp, temp_code = _read_temperatures(temp_topic, bar, path, decoder=decoder)
                 reference_stamp, reference, _ = _read_vectors(reference_topic, bar, path, check_frame=False,
                                                               decoder=decoder)
+            aux = read_aux_signals(reader, path, exclude=(topics.temp_code,))
     except BagError:
         raise
     except Exception as err:  # rosbags and the storage libraries raise many kinds
@@ -226,7 +246,7 @@ def read_record(path: str | os.PathLike[str], *, topics: Topics = Topics(),
         raise BagError(msg) from None
     return ChannelRecord(counts_stamp_ns=counts_stamp, counts=counts, temp_stamp_ns=temp_stamp,
                          temp_code=temp_code, reference_stamp_ns=reference_stamp,
-                         reference=reference, frame_id=frame_id, nominal_scale=nominal_scale)
+                         reference=reference, frame_id=frame_id, nominal_scale=nominal_scale, aux=aux)
 
 
 def read_driver_record(path: str | os.PathLike[str], *, topics: Topics = Topics(),
@@ -259,6 +279,7 @@ def read_driver_record(path: str | os.PathLike[str], *, topics: Topics = Topics(
                 reference_stamp, reference, _ = _read_vectors(reference_topic, bar, path, check_frame=False,
                                                               decoder=decoder)
                 rate_stamp, rate, _ = _read_vectors(rate_topic, bar, path, check_frame=False, decoder=decoder)
+            aux = read_aux_signals(reader, path, exclude=(topics.temperature,))
     except BagError:
         raise
     except Exception as err:  # rosbags and the storage libraries raise many kinds
@@ -269,7 +290,56 @@ def read_driver_record(path: str | os.PathLike[str], *, topics: Topics = Topics(
     return DriverRecord(stamp_ns=stamps, accel=accel, gyro=gyro, orientation=orientation,
                         orientation_covariance=orientation_covariance, temp_stamp_ns=temp_stamp,
                         temperature=temperature, reference_stamp_ns=reference_stamp, reference=reference,
-                        rate_reference_stamp_ns=rate_stamp, rate_reference=rate, frame_id=frame_id)
+                        rate_reference_stamp_ns=rate_stamp, rate_reference=rate, frame_id=frame_id, aux=aux)
+
+
+def read_aux_signals(reader: Reader, path: Path, *,
+                     exclude: tuple[str, ...] = ()) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Every auxiliary scalar signal of an open bag: name -> ``(stamp_ns, values)``.
+
+    Each topic of a type in :data:`AUX_FIELDS` (except the topics in ``exclude``, e.g. the
+    temperature in use) gives ``aux:TOPIC`` (its obvious number) and ``aux:TOPIC:FIELD`` for its
+    other numeric fields. Stamps are the header stamps, or the bag time for a type without a
+    header (``std_msgs``). Decoded by the block decoder (:mod:`tak_thermo_ros.cdr`).
+    """
+    from tak_thermo_ros.core.effects.aux_signal import signal_name
+    by_topic: dict[str, list] = {}
+    for connection in reader.connections:
+        if connection.topic not in exclude and connection.msgtype in AUX_FIELDS:
+            by_topic.setdefault(connection.topic, []).append(connection)
+    signals: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for topic, connections in sorted(by_topic.items()):
+        msgtype = connections[0].msgtype
+        if any(c.msgtype != msgtype for c in connections):
+            msg = f'{path}: topic {topic} has more than one type ({", ".join(sorted({c.msgtype for c in connections}))})'
+            raise BagError(msg)
+        bag_times, raws = [], []
+        for _, timestamp, raw in reader.messages(connections=connections):
+            bag_times.append(timestamp)
+            raws.append(raw)
+        if not raws:
+            continue
+        try:
+            arrays = decode_messages(raws, msgtype)
+        except CdrError as err:
+            raise CdrError(f'{path}: {topic} {err}', err.index) from None
+        stamps = arrays['stamp_ns'] if 'stamp_ns' in arrays.fields else np.asarray(bag_times, dtype=np.int64)
+        for position, field in enumerate(AUX_FIELDS[msgtype]):
+            values = np.asarray(arrays[field], dtype=float)
+            signals[signal_name(topic, '' if position == 0 else field)] = (np.asarray(stamps, dtype=np.int64), values)
+    return signals
+
+
+def _aux_message(msgtype: str, stamp: int, frame_id: str, value: float):
+    """A message of an auxiliary signal type carrying ``value`` in its obvious field."""
+    if msgtype == BATTERY_STATE:
+        nan = float('nan')
+        return TYPESTORE.types[BATTERY_STATE](
+            header=_header(stamp, frame_id), voltage=value, temperature=nan, current=nan, charge=nan,
+            capacity=nan, design_capacity=nan, percentage=nan, power_supply_status=0, power_supply_health=0,
+            power_supply_technology=0, present=True, cell_voltage=np.zeros(0, dtype=np.float32),
+            cell_temperature=np.zeros(0, dtype=np.float32), location='', serial_number='')
+    return TYPESTORE.types[msgtype](data=value)
 
 
 def _read_imu_messages(topic: _TopicReader, bar: Progress, path: Path, *, decoder: str):
@@ -493,16 +563,21 @@ def _chunked(order: np.ndarray, *columns: np.ndarray, size: int = 65_536) -> Ite
 
 
 def write_record(path: str | os.PathLike[str], record: ChannelRecord, *, topics: Topics = Topics(),
-                 storage: str = 'mcap', force: bool = False) -> None:
+                 storage: str = 'mcap', force: bool = False, aux_types: dict[str, str] | None = None) -> None:
     """Write a run in the bag contract (messages in stamp order, bag time = header stamp).
 
     :param force: replace an existing bag at ``path`` (:func:`tak_thermo_ros.core.files.check_output`).
+    :param aux_types: message type of each of the record's auxiliary signals ``aux:TOPIC``
+        (default ``std_msgs/msg/Float64``); each is written on its topic, bag time = its stamp.
     """
     serialize = TYPESTORE.serialize_cdr
     # Messages in (stamp, stream, row) order, streams 0 temp, 1 ref, 2 counts; as arrays, so that
     # a long run costs a few bytes per message here, not Python tuples.
-    events = _merged_order((record.temp_stamp_ns, record.reference_stamp_ns, record.counts_stamp_ns))
+    aux_streams = list(record.aux.items())
+    events = _merged_order((record.temp_stamp_ns, record.reference_stamp_ns, record.counts_stamp_ns,
+                            *(stamps for _, (stamps, _) in aux_streams)))
     with _AtomicBag(path, storage, force=force) as writer:
+        aux_writes = _aux_writers(writer, aux_streams, aux_types, record.frame_id)
         counts_conn = writer.add_connection(topics.counts, VECTOR3_STAMPED, typestore=TYPESTORE)
         temp_conn = writer.add_connection(topics.temp_code, TEMPERATURE, typestore=TYPESTORE)
         reference_conn = (writer.add_connection(topics.reference, VECTOR3_STAMPED, typestore=TYPESTORE)
@@ -518,10 +593,12 @@ def write_record(path: str | os.PathLike[str], record: ChannelRecord, *, topics:
                 x, y, z = (float(v) for v in record.reference[row])
                 message = _Vector3Stamped(header=header, vector=_Vector3(x=x, y=y, z=z))
                 writer.write(reference_conn, stamp, serialize(message, VECTOR3_STAMPED))
-            else:
+            elif stream == 2:
                 x, y, z = (float(v) for v in record.counts[row])
                 message = _Vector3Stamped(header=header, vector=_Vector3(x=x, y=y, z=z))
                 writer.write(counts_conn, stamp, serialize(message, VECTOR3_STAMPED))
+            else:
+                aux_writes[stream - 3](stamp, row)
 
 
 def _merged_order(parts: tuple[np.ndarray, ...]) -> Iterator[tuple[int, int, int]]:
@@ -534,17 +611,20 @@ def _merged_order(parts: tuple[np.ndarray, ...]) -> Iterator[tuple[int, int, int
 
 
 def write_driver_record(path: str | os.PathLike[str], record: DriverRecord, *, topics: Topics = Topics(),
-                        storage: str = 'mcap', force: bool = False) -> None:
+                        storage: str = 'mcap', force: bool = False, aux_types: dict[str, str] | None = None) -> None:
     """Write a driver run (Imu, temperature in C, references if any) in stamp order.
 
     :param force: replace an existing bag at ``path`` (:func:`tak_thermo_ros.core.files.check_output`).
+    :param aux_types: as :func:`write_record`.
     """
     serialize = TYPESTORE.serialize_cdr
     # streams 0 temperature, 1 reference, 2 rate reference, 3 Imu
+    aux_streams = list(record.aux.items())
     events = _merged_order((record.temp_stamp_ns, record.reference_stamp_ns, record.rate_reference_stamp_ns,
-                            record.stamp_ns))
+                            record.stamp_ns, *(stamps for _, (stamps, _) in aux_streams)))
     zero_covariance = np.zeros(9)
     with _AtomicBag(path, storage, force=force) as writer:
+        aux_writes = _aux_writers(writer, aux_streams, aux_types, record.frame_id)
         imu_conn = writer.add_connection(topics.raw_imu, IMU, typestore=TYPESTORE)
         temp_conn = writer.add_connection(topics.temperature, TEMPERATURE, typestore=TYPESTORE)
         reference_conn = (writer.add_connection(topics.reference, VECTOR3_STAMPED, typestore=TYPESTORE)
@@ -562,6 +642,8 @@ def write_driver_record(path: str | os.PathLike[str], record: DriverRecord, *, t
                 message = _Vector3Stamped(header=header, vector=_Vector3(x=x, y=y, z=z))
                 writer.write(reference_conn if stream == 1 else rate_conn, stamp,
                              serialize(message, VECTOR3_STAMPED))
+            elif stream >= 4:
+                aux_writes[stream - 4](stamp, row)
             else:
                 qx, qy, qz, qw = (float(v) for v in record.orientation[row])
                 ax, ay, az = (float(v) for v in record.accel[row])
@@ -573,6 +655,26 @@ def write_driver_record(path: str | os.PathLike[str], record: DriverRecord, *, t
                                linear_acceleration=_Vector3(x=ax, y=ay, z=az),
                                linear_acceleration_covariance=zero_covariance)
                 writer.write(imu_conn, stamp, serialize(message, IMU))
+
+
+def _aux_writers(writer: Writer, aux_streams: list, aux_types: dict[str, str] | None, frame_id: str) -> list:
+    """Per auxiliary signal ``aux:TOPIC`` a function ``(stamp, row) -> None`` writing one message of it."""
+    from tak_thermo_ros.core.effects.aux_signal import split_signal_name
+    serialize = TYPESTORE.serialize_cdr
+    writes = []
+    for name, (_, values) in aux_streams:
+        topic, field = split_signal_name(name)
+        msgtype = (aux_types or {}).get(name, FLOAT64)
+        if field or msgtype not in AUX_FIELDS:
+            msg = f'{name}: only the obvious number of a known auxiliary type can be written'
+            raise BagError(msg)
+        connection = writer.add_connection(topic, msgtype, typestore=TYPESTORE)
+
+        def write(stamp: int, row: int, connection=connection, msgtype=msgtype, values=values) -> None:
+            message = _aux_message(msgtype, stamp, frame_id, float(values[row]))
+            writer.write(connection, stamp, serialize(message, msgtype))
+        writes.append(write)
+    return writes
 
 
 def write_imu(path: str | os.PathLike[str], stamp_ns: np.ndarray, frame_id: str,

@@ -30,10 +30,12 @@ import numpy as np  # noqa: E402
 from tak_thermo_ros import options as bounds
 from tak_thermo_ros.core.calibration_file import load_unit, save_unit
 from tak_thermo_ros.core.files import BAG, FILE, REPORT, atomic_directory, check_output, write_text_atomic
-from tak_thermo_ros.core.correction import OutOfRange, UnitCorrector, acceleration_variance
+from tak_thermo_ros.core.correction import Corrector, OutOfRange, UnitCorrector, acceleration_variance
+from tak_thermo_ros.core.effects.aux_signal import signals_with_values
 from tak_thermo_ros.core.fit import FitResult, fit_model
 from tak_thermo_ros.core.model import AXES, InputKind, UnitCalibration
 from tak_thermo_ros.core.record import REFERENCE_LIMIT, TEMPERATURE_RANGE, AlignedSamples, ChannelRecord, DriverRecord, align
+from tak_thermo_ros.core.record import require_signals
 from tak_thermo_ros.core.simulate import STANDARD_GRAVITY, Scenario, load_scenario, simulate
 from tak_thermo_ros.core.static_run import STATIC_TOLERANCE_DEG, static_reference
 from tak_thermo_ros.core.validate import validate_gravity, validate_rate
@@ -111,15 +113,20 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     if args.seed is not None:
         scenario = replace(scenario, seed=args.seed)
     run = simulate(scenario)
+    from tak_thermo_ros.bagio import AUX_TYPES
+    from tak_thermo_ros.core.simulate import supply_signal_name
+    aux_types = {supply_signal_name(scenario): AUX_TYPES[scenario.record_supply_type]} if scenario.record_supply else None
     if run.driver is not None:
         driver = run.driver
-        write_driver_record(args.out_bag, driver, topics=_topics(args), storage=args.storage, force=args.force)
+        write_driver_record(args.out_bag, driver, topics=_topics(args), storage=args.storage, force=args.force,
+                            aux_types=aux_types)
         print(f'wrote {args.out_bag}: {len(driver.stamp_ns)} Imu, {len(driver.temp_stamp_ns)} temperature, '
               f'{len(driver.reference_stamp_ns)} reference changes, {scenario.duration_s() / 3600.0:.2f} h at '
               f'{scenario.sample_rate_hz:g} Hz ({args.storage}); temperature '
               f'{driver.temperature.min():.2f}..{driver.temperature.max():.2f} C')
         return 0
-    write_record(args.out_bag, run.record, topics=_topics(args), storage=args.storage, force=args.force)
+    write_record(args.out_bag, run.record, topics=_topics(args), storage=args.storage, force=args.force,
+                 aux_types=aux_types)
     record = run.record
     print(f'wrote {args.out_bag}: {len(record.counts_stamp_ns)} counts, {len(record.temp_stamp_ns)} temperature codes, '
           f'{len(record.reference_stamp_ns)} reference changes, {scenario.duration_s() / 3600.0:.2f} h '
@@ -280,9 +287,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
         raise TakError(msg)
     results: dict[str, FitResult] = {}
     for sensor_run in run.sensors:
+        signals = [spec for spec in effects[sensor_run.sensor] if spec.startswith('aux:')]
         try:
             results[sensor_run.sensor] = fit_model(
-                sensor_run.samples, effects=effects[sensor_run.sensor], bias_order=args.bias_order,
+                require_signals(sensor_run.samples, signals), effects=effects[sensor_run.sensor],
+                bias_order=args.bias_order,
                 scale_order=args.scale_order, temp_code_ref=args.temp_code_ref,
                 nominal_scale=_nominal(args, sensor_run.record))
         except FitError as err:
@@ -368,9 +377,9 @@ def cmd_apply(args: argparse.Namespace) -> int:
         driver = read_driver_record(args.bag, topics=topics, progress=not args.no_progress)
         record = driver.six_channels()
         output_topic = topics.compensated_imu
-    samples = align(record, use_reference=False)
     corrector = UnitCorrector(unit, out_of_range=OutOfRange(args.out_of_range))
-    corrected = corrector.correct(samples.counts, samples.temp_code, stamp_s=samples.stamp_s)
+    samples = require_signals(align(record, use_reference=False), corrector.signals)
+    corrected = corrector.correct(samples.counts, samples.temp_code, stamp_s=samples.stamp_s, aux=samples.aux)
     _require_finite(corrected, f'{args.output}: corrected values')
     extra = {}
     if driver is not None:
@@ -397,13 +406,13 @@ def cmd_validate(args: argparse.Namespace) -> int:
     unit = load_unit(args.params)
     run = _read_run(args, calibration_run=unit.input_kind is InputKind.IMU)
     _check_kind(args, unit, run)
-    accel = run.sensor('accel').samples
+    accel = require_signals(run.sensor('accel').samples, Corrector(unit.accel).signals)
     if not len(accel):
         left_out = f' (left out: {_describe_dropped(accel.dropped)})' if accel.dropped else ''
         msg = f'{args.bag}: no usable samples to validate{left_out}'
         raise TakError(msg)
     result = validate_gravity(unit.accel, accel.counts, accel.temp_code, gravity=args.gravity,
-                              stamp_s=accel.stamp_s, out_of_range=OutOfRange(args.out_of_range))
+                              stamp_s=accel.stamp_s, aux=accel.aux, out_of_range=OutOfRange(args.out_of_range))
     before, after = result.before, result.after
     _require_finite([before.rms, before.max, after.rms, after.max], f'{args.bag}: |g| error')
     _print_ignored(accel, args, run.input_kind)
@@ -423,9 +432,9 @@ def cmd_validate(args: argparse.Namespace) -> int:
         for line in run.reference_lines:
             if line.startswith('rate reference'):
                 print(line)
-        gyro = run.sensor('gyro').samples
+        gyro = require_signals(run.sensor('gyro').samples, Corrector(unit.gyro).signals)
         rate = validate_rate(unit.gyro, gyro.counts, gyro.temp_code, gyro.reference, stamp_s=gyro.stamp_s,
-                             out_of_range=OutOfRange(args.out_of_range))
+                             aux=gyro.aux, out_of_range=OutOfRange(args.out_of_range))
         print(f'gyroscope bias error over {len(gyro)} samples (rate minus reference, per axis x y z):')
         for label, stats in (('before (nominal scale and offset)', rate.before), ('after  (full correction link)', rate.after)):
             print(f'  {label}: RMS ' + ' '.join(f'{v:.3e}' for v in stats.rms) + ' rad/s; mean '
@@ -487,8 +496,13 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     for line in run.reference_lines:
         print(line)
     results = {}
+    used: dict[str, AlignedSamples] = {}
     for sensor_run in run.sensors:
         sensor, samples = sensor_run.sensor, sensor_run.samples
+        tried = (signals_with_values(samples.aux) if candidates is None
+                 else [spec for spec in candidates if spec.startswith('aux:')])
+        samples = require_signals(samples, [*Corrector(unit.sensor(sensor)).signals, *tried])
+        used[sensor] = samples
         unit_name = UNITS[run.input_kind, sensor]
         label = '' if run.input_kind is InputKind.COUNTS else f'{SENSOR_NAMES[sensor]}: '
 
@@ -530,13 +544,13 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         check_output(args.report, REPORT, force=args.force, option='--report')
         with atomic_directory(args.report) as staging:
             if run.input_kind is InputKind.COUNTS:
-                files = write_report(results['accel'], run.sensor('accel').samples, staging,
+                files = write_report(results['accel'], used['accel'], staging,
                                      source=Path(args.bag).name, gravity=args.gravity)
                 written = f'{Path(args.report) / files.html.name} ({len(files.figures)} figures)'
             else:
                 pages = {}
                 for sensor, result in results.items():
-                    files = write_report(result, run.sensor(sensor).samples, Path(staging) / sensor,
+                    files = write_report(result, used[sensor], Path(staging) / sensor,
                                          source=f'{Path(args.bag).name}, {SENSOR_NAMES[sensor]}',
                                          gravity=args.gravity, sensor=sensor, unit=UNITS[run.input_kind, sensor])
                     pages[sensor] = (files, result)

@@ -123,7 +123,8 @@ def effects_from_mapping(raw: Any, *, key: str = 'calibration.effects') -> tuple
     :raises CalibrationError: naming the first wrong key (unknown effect, class that cannot be
         imported, missing, non-finite or out-of-bounds parameter).
     """
-    from tak_thermo_ros.core.effects import resolve_effect
+    from tak_thermo_ros.core.effects import aux_effect_class, resolve_effect
+    from tak_thermo_ros.core.effects.aux_signal import signal_name
     if not isinstance(raw, Mapping) or not raw:
         msg = f'{key}: expected a mapping of effect names to their parameters'
         raise CalibrationError(msg)
@@ -133,6 +134,9 @@ def effects_from_mapping(raw: Any, *, key: str = 'calibration.effects') -> tuple
         if not isinstance(entry, Mapping):
             msg = f'{entry_key}: expected a mapping of parameter names to numbers'
             raise CalibrationError(msg)
+        if 'topic' in entry:
+            effects.append(_aux_effect_from_entry(entry, entry_key, aux_effect_class, signal_name))
+            continue
         spec = entry.get('class', name)
         if not isinstance(spec, str):
             msg = f'{entry_key}.class: expected a string module:Class'
@@ -151,12 +155,43 @@ def effects_from_mapping(raw: Any, *, key: str = 'calibration.effects') -> tuple
     return tuple(effects)
 
 
+def _aux_effect_from_entry(entry: Mapping, entry_key: str, aux_effect_class, signal_name):
+    """An auxiliary-signal effect from its entry: ``topic``, optional ``field``, then its numbers."""
+    topic, field = entry['topic'], entry.get('field', '')
+    for label, text in (('topic', topic), ('field', field)):
+        if not isinstance(text, str):
+            msg = f'{entry_key}.{label}: expected a string'
+            raise CalibrationError(msg)
+    try:
+        cls = aux_effect_class(signal_name(topic, field))
+    except FitError as err:
+        msg = f'{entry_key}.topic: {err}'
+        raise CalibrationError(msg) from None
+    values = {param: value for param, value in entry.items() if param not in ('topic', 'field')}
+    return cls.from_values(values, key=entry_key, complete=True)
+
+
 def effects_to_mapping(effects: Any) -> dict[str, Any]:
-    """The ``effects`` mapping of fitted effects (plain floats; ``class`` for user-defined ones)."""
-    from tak_thermo_ros.core.effects import effect_spec
+    """The ``effects`` mapping of fitted effects (plain floats; ``class`` for user-defined ones).
+
+    An auxiliary-signal effect (name ``aux:TOPIC[:FIELD]``, which a ROS 2 parameter name cannot
+    hold) is stored as ``aux_1``, ``aux_2``, ... with the strings ``topic`` (and ``field``).
+    """
+    from tak_thermo_ros.core.effects import effect_spec, is_aux_effect
+    from tak_thermo_ros.core.effects.aux_signal import split_signal_name
     mapping: dict[str, Any] = {}
+    aux_count = 0
     for effect in effects:
         entry: dict[str, Any] = {}
+        if is_aux_effect(effect):
+            aux_count += 1
+            topic, field = split_signal_name(effect.name)
+            entry['topic'] = topic
+            if field:
+                entry['field'] = field
+            entry.update({name: float(value) for name, value in effect.values.items()})
+            mapping[f'aux_{aux_count}'] = entry
+            continue
         spec = effect_spec(type(effect))
         if spec != effect.name:
             entry['class'] = spec

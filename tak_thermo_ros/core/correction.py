@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import enum
 import math
+from typing import Mapping
 
 import numpy as np
 
@@ -55,6 +56,11 @@ class Corrector:
         # Effects (tak_thermo_ros.core.effects) take their own link; without them, the path below.
         self._effect_link = EffectLink(calibration, clamp=self._clamp) if calibration.effects else None
 
+    @property
+    def signals(self) -> tuple[str, ...]:
+        """Names of the recorded signals (``aux:TOPIC``) the correction needs besides the temperature."""
+        return self._effect_link.signals if self._effect_link is not None else ()
+
     def reset(self) -> None:
         """Forget the online state of effects with memory (the node after a restart or a gap)."""
         if self._effect_link is not None:
@@ -70,13 +76,15 @@ class Corrector:
         return temp_code - self._ref
 
     def correct_sample(self, counts_x: float, counts_y: float, counts_z: float,
-                       temp_code: float, *, stamp_s: float = 0.0) -> tuple[float, float, float]:
+                       temp_code: float, *, stamp_s: float = 0.0,
+                       aux: Mapping[str, float] | None = None) -> tuple[float, float, float]:
         """Specific force (m/s^2) of one sample from plain floats; the node's path.
 
         :param stamp_s: the sample's stamp in seconds (for model terms with memory).
+        :param aux: held values of the recorded signals in :attr:`signals`, by name.
         """
         if self._effect_link is not None:
-            return self._effect_link.correct_sample(counts_x, counts_y, counts_z, temp_code, stamp_s)
+            return self._effect_link.correct_sample(counts_x, counts_y, counts_z, temp_code, stamp_s, aux)
         n = self.code_offset(temp_code)
         x_axis, y_axis, z_axis = self._axes
         offset_x, gain_x = offset_and_gain(n, *x_axis)
@@ -85,13 +93,14 @@ class Corrector:
         return (counts_x - offset_x) / gain_x, (counts_y - offset_y) / gain_y, (counts_z - offset_z) / gain_z
 
     def correct(self, counts: np.ndarray, temp_code: np.ndarray, *,
-                stamp_s: np.ndarray | None = None) -> np.ndarray:
+                stamp_s: np.ndarray | None = None, aux: Mapping[str, np.ndarray] | None = None) -> np.ndarray:
         """Specific force ``(k, 3)`` in m/s^2 from codes ``(k, 3)`` and temperature codes ``(k,)``.
 
         :param stamp_s: ``(k,)`` stamps in seconds (for model terms with memory).
+        :param aux: ``(k,)`` held values of the recorded signals in :attr:`signals`, by name.
         """
         if self._effect_link is not None:
-            return self._effect_link.correct(counts, temp_code, stamp_s)
+            return self._effect_link.correct(counts, temp_code, stamp_s, aux)
         counts = np.asarray(counts, dtype=float)
         size = len(counts)
         temp_code = np.broadcast_to(np.asarray(temp_code, dtype=float), (size,))
@@ -125,14 +134,15 @@ class Corrector:
             np.divide(centred, factor, out=out[:, i])
 
     def code_at_reference(self, counts: np.ndarray, temp_code: np.ndarray, *,
-                          stamp_s: np.ndarray | None = None) -> np.ndarray:
+                          stamp_s: np.ndarray | None = None,
+                          aux: Mapping[str, np.ndarray] | None = None) -> np.ndarray:
         """The paper's ``N_hat(0) = (N - dNs(n)) / F_c(n) + dNs0``, codes ``(k, 3)``.
 
         With effects: ``K0 f_hat + dNs0``, the code the same input gives at normal conditions
         without the effects.
         """
         if self._effect_link is not None:
-            force = self._effect_link.correct(counts, temp_code, stamp_s)
+            force = self._effect_link.correct(counts, temp_code, stamp_s, aux)
             return np.column_stack([axis.scale * force[:, i] + axis.offset
                                     for i, axis in enumerate(self.calibration.axes)])
         counts = np.asarray(counts, dtype=float)
@@ -144,13 +154,14 @@ class Corrector:
         return out
 
     def predict_counts(self, specific_force: np.ndarray, temp_code: np.ndarray, *,
-                       stamp_s: np.ndarray | None = None) -> np.ndarray:
+                       stamp_s: np.ndarray | None = None,
+                       aux: Mapping[str, np.ndarray] | None = None) -> np.ndarray:
         """The forward model under this corrector's policy: unrounded codes ``(k, 3)``.
 
         The inverse of :meth:`correct` (effects included, from their initial state).
         """
         link = self._effect_link or EffectLink(self.calibration, clamp=self._clamp)
-        return link.predict_counts(specific_force, temp_code, stamp_s)
+        return link.predict_counts(specific_force, temp_code, stamp_s, aux)
 
     def out_of_range_count(self, temp_code: np.ndarray) -> int:
         """How many temperature codes lie outside the calibrated range."""
@@ -193,19 +204,28 @@ class UnitCorrector:
         for corrector in self.correctors:
             corrector.reset()
 
+    @property
+    def signals(self) -> tuple[str, ...]:
+        """Names of the recorded signals (``aux:TOPIC``) any sensor's correction needs, in order."""
+        return tuple(dict.fromkeys(name for corrector in self.correctors for name in corrector.signals))
+
     def correct(self, values: np.ndarray, temperature: np.ndarray, *,
-                stamp_s: np.ndarray | None = None) -> np.ndarray:
-        """Corrected ``(k, channels)`` from raw ``(k, channels)`` and the temperature input ``(k,)``."""
-        return np.hstack([corrector.correct(values[:, 3 * i:3 * i + 3], temperature, stamp_s=stamp_s)
+                stamp_s: np.ndarray | None = None, aux: Mapping[str, np.ndarray] | None = None) -> np.ndarray:
+        """Corrected ``(k, channels)`` from raw ``(k, channels)`` and the temperature input ``(k,)``.
+
+        :param aux: ``(k,)`` held values of the recorded signals in :attr:`signals`, by name.
+        """
+        return np.hstack([corrector.correct(values[:, 3 * i:3 * i + 3], temperature, stamp_s=stamp_s, aux=aux)
                           for i, corrector in enumerate(self.correctors)])
 
     def correct_sample(self, values: tuple[float, ...], temperature: float, *,
-                       stamp_s: float = 0.0) -> tuple[float, ...]:
+                       stamp_s: float = 0.0, aux: Mapping[str, float] | None = None) -> tuple[float, ...]:
         """One sample of 3 or 6 plain floats; the node's path, bit-identical to :meth:`correct`."""
-        accel = self._accel.correct_sample(values[0], values[1], values[2], temperature, stamp_s=stamp_s)
+        accel = self._accel.correct_sample(values[0], values[1], values[2], temperature, stamp_s=stamp_s, aux=aux)
         if self._gyro is None:
             return accel
-        return accel + self._gyro.correct_sample(values[3], values[4], values[5], temperature, stamp_s=stamp_s)
+        return accel + self._gyro.correct_sample(values[3], values[4], values[5], temperature, stamp_s=stamp_s,
+                                                 aux=aux)
 
     def out_of_range_count(self, temperature: np.ndarray) -> int:
         """How many temperatures lie outside the calibrated range of any sensor."""

@@ -40,6 +40,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from tak_thermo_ros.core.effects import LIBRARY, Effect, resolve_effect
+from tak_thermo_ros.core.effects.aux_signal import recorded_candidates
 from tak_thermo_ros.core.effects.base import call_effect
 from tak_thermo_ros.core.fit import fit_model, residual_counts
 from tak_thermo_ros.core.model import AXES, Calibration
@@ -536,7 +537,8 @@ def decimate(samples: AlignedSamples, stride: int) -> AlignedSamples:
     return AlignedSamples(stamp_ns=samples.stamp_ns[::stride], counts=samples.counts[::stride],
                           temp_code=samples.temp_code[::stride],
                           reference=None if samples.reference is None else samples.reference[::stride],
-                          dropped=dict(samples.dropped))
+                          dropped=dict(samples.dropped),
+                          aux={name: values[::stride] for name, values in samples.aux.items()})
 
 
 def fold_labels(time_s: np.ndarray, folds: int, blocks: int) -> np.ndarray:
@@ -724,7 +726,9 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
     :param calibration: the model to diagnose (base model, possibly with effects).
     :param samples: an aligned run with its reference stream, in time order.
     :param candidates: effects to try: library names, ``'module:Class'`` specs or classes;
-        default every library effect. Effects the calibration holds already are not tried.
+        default every library effect and every recorded signal of the run
+        (:func:`~tak_thermo_ros.core.effects.aux_signal.recorded_candidates`). Effects the
+        calibration holds already are not tried.
     :param folds: cross-validation folds.
     :param blocks_per_fold: contiguous time blocks per fold (dealt round-robin).
     :param max_cv_samples: the cross-validation fits use every m-th sample so that at most
@@ -760,7 +764,8 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
         msg = f'too few samples ({len(cv_samples)}) for {folds}-fold cross-validation in {blocks} blocks'
         raise FitError(msg)
 
-    specs = list(candidates) if candidates is not None else list(LIBRARY)
+    # By default every library effect and every recorded auxiliary signal (aux:TOPIC) in the run.
+    specs = list(candidates) if candidates is not None else [*LIBRARY, *recorded_candidates(samples.aux)]
     pool = [resolve_effect(type(spec) if isinstance(spec, Effect) else spec) for spec in specs]
     pool = [cls for cls in pool if cls.name not in present_names]
 

@@ -74,7 +74,7 @@ def residual_counts(calibration: Calibration, samples: AlignedSamples) -> np.nda
     corrector = Corrector(calibration)
     if calibration.effects:
         return samples.counts - corrector.predict_counts(samples.reference, samples.temp_code,
-                                                         stamp_s=samples.stamp_s)
+                                                         stamp_s=samples.stamp_s, aux=samples.aux)
     error = corrector.correct(samples.counts, samples.temp_code) - samples.reference
     n = corrector.code_offset(samples.temp_code)
     gain = np.column_stack([axis.scale * axis.scale_factor(n) for axis in calibration.axes])

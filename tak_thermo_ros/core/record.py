@@ -7,10 +7,13 @@ Alignment uses header stamps, not bag receive times.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from math import isfinite
+from typing import Sequence
 
 import numpy as np
+
+from tak_thermo_ros.errors import CalibrationError
 
 COUNTS_MIN = -32768.0
 COUNTS_MAX = 32767.0
@@ -64,6 +67,8 @@ class ChannelRecord:
         from the code resolution, or ``None``.
     :param input_kind: ``'counts'`` (the paper's whole-number codes, checked for rails) or
         ``'imu'`` (a driver's values in SI units and the temperature in degrees Celsius).
+    :param aux: recorded auxiliary scalar signals: name ``aux:TOPIC`` or
+        ``aux:TOPIC:FIELD`` -> ``(stamp_ns (a,), values (a,))``.
     """
 
     counts_stamp_ns: np.ndarray
@@ -75,6 +80,7 @@ class ChannelRecord:
     frame_id: str = ''
     nominal_scale: tuple[float, float, float] | None = None
     input_kind: str = 'counts'
+    aux: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
     @property
     def has_reference(self) -> bool:
@@ -222,6 +228,8 @@ class AlignedSamples:
     :param ignored_temp_codes: reason of :data:`TEMP_CODE_PROBLEMS` -> number of temperature
         codes that were ignored (not held), reasons with none left out.
     :param ignored_references: the same for reference messages (:func:`reference_problems`).
+    :param aux: recorded signal name -> ``(k,)`` its value held at each kept sample's stamp
+        (NaN before its first finite value; :func:`require_signals` leaves those samples out).
     """
 
     stamp_ns: np.ndarray
@@ -232,6 +240,7 @@ class AlignedSamples:
     rows: np.ndarray | None = None
     ignored_temp_codes: dict[str, int] = field(default_factory=dict)
     ignored_references: dict[str, int] = field(default_factory=dict)
+    aux: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.stamp_ns)
@@ -300,7 +309,52 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
     return AlignedSamples(stamp_ns=stamps[keep], counts=counts[keep],
                           temp_code=record.temp_code[temp_index[keep]].astype(float),
                           reference=reference, dropped=dropped, rows=np.flatnonzero(keep),
-                          ignored_temp_codes=ignored_temp_codes, ignored_references=ignored_references)
+                          ignored_temp_codes=ignored_temp_codes, ignored_references=ignored_references,
+                          aux={name: hold_signal(signal_stamps, values, stamps[keep])
+                               for name, (signal_stamps, values) in record.aux.items()})
+
+
+def hold_signal(source_stamp_ns: np.ndarray, values: np.ndarray, target_stamp_ns: np.ndarray) -> np.ndarray:
+    """A recorded signal held at its last finite value on each target stamp; NaN before the first.
+
+    A non-finite value is never held (the previous one stays), as for the temperature.
+    """
+    values = np.asarray(values, dtype=float)
+    rows = np.flatnonzero(np.isfinite(values))
+    out = np.full(len(target_stamp_ns), np.nan)
+    if not len(rows):
+        return out
+    held = hold_last_index(np.asarray(source_stamp_ns, dtype=np.int64)[rows], target_stamp_ns)
+    out[held >= 0] = values[rows[held[held >= 0]]]
+    return out
+
+
+def require_signals(samples: AlignedSamples, signals: Sequence[str]) -> AlignedSamples:
+    """Keep only the samples at which every named recorded signal has a held value.
+
+    The others are counted as dropped ``before_first_<name>`` (the node waits likewise).
+
+    :raises CalibrationError: a signal is not in the record at all.
+    """
+    keep = np.ones(len(samples), dtype=bool)
+    dropped = dict(samples.dropped)
+    for name in signals:
+        if name not in samples.aux:
+            recorded = ', '.join(sorted(samples.aux)) or 'none'
+            msg = (f'the calibration needs the recorded signal {name} (topic {name[4:].split(":")[0]}), '
+                   f'which the bag does not hold (recorded signals: {recorded})')
+            raise CalibrationError(msg)
+        missing = np.isnan(samples.aux[name]) & keep
+        if missing.any():
+            dropped[f'before_first_{name}'] = int(np.count_nonzero(missing))
+            keep &= ~missing
+    if keep.all():
+        return samples
+    return replace(samples, stamp_ns=samples.stamp_ns[keep], counts=samples.counts[keep],
+                   temp_code=samples.temp_code[keep],
+                   reference=None if samples.reference is None else samples.reference[keep], dropped=dropped,
+                   rows=None if samples.rows is None else samples.rows[keep],
+                   aux={name: values[keep] for name, values in samples.aux.items()})
 
 
 def _within_settle_time(record: ChannelRecord, stamps: np.ndarray, settle_time_s: float,
@@ -333,6 +387,7 @@ class DriverRecord:
     :param rate_reference_stamp_ns: ``(s,)`` stamps of the angular-rate reference (may be empty).
     :param rate_reference: ``(s, 3)`` true angular rate along the sensor axes, rad/s.
     :param frame_id: frame of the Imu messages.
+    :param aux: recorded auxiliary scalar signals, as :attr:`ChannelRecord.aux`.
     """
 
     stamp_ns: np.ndarray
@@ -347,6 +402,7 @@ class DriverRecord:
     rate_reference_stamp_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     rate_reference: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     frame_id: str = ''
+    aux: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
     def channel(self, sensor: str) -> ChannelRecord:
         """One sensor's three channels as a :class:`ChannelRecord` (nominal scale 1)."""
@@ -359,7 +415,8 @@ class DriverRecord:
             raise ValueError(msg)
         return ChannelRecord(counts_stamp_ns=self.stamp_ns, counts=values, temp_stamp_ns=self.temp_stamp_ns,
                              temp_code=self.temperature, reference_stamp_ns=ref_stamps, reference=reference,
-                             frame_id=self.frame_id, nominal_scale=(1.0, 1.0, 1.0), input_kind='imu')
+                             frame_id=self.frame_id, nominal_scale=(1.0, 1.0, 1.0), input_kind='imu',
+                             aux=self.aux)
 
     def six_channels(self) -> ChannelRecord:
         """Both sensors side by side, ``(k, 6)`` (accel x y z, gyro x y z), without reference.
@@ -368,4 +425,4 @@ class DriverRecord:
         """
         return ChannelRecord(counts_stamp_ns=self.stamp_ns, counts=np.hstack([self.accel, self.gyro]),
                              temp_stamp_ns=self.temp_stamp_ns, temp_code=self.temperature,
-                             frame_id=self.frame_id, input_kind='imu')
+                             frame_id=self.frame_id, input_kind='imu', aux=self.aux)

@@ -12,6 +12,7 @@ effect classes that fit and correct add their forward contribution, driven by th
 (unrounded) temperature code and the sample stamps (power-on = the first sample).
 ``supply_voltage_drift`` adds an offset that follows an unobserved, slowly varying supply
 voltage (not in the bag, not correlated with temperature): the case no library effect explains.
+``record_supply`` records that voltage on a topic (then it is observed: ``aux:TOPIC``).
 
 Every number lives in a :class:`Scenario`, loadable from YAML (all keys optional).
 """
@@ -57,6 +58,10 @@ SUPPLY_AXIS_WEIGHTS: tuple[float, float, float] = (1.0, -0.7, 0.5)
 """Sensitivity of axes x, y, z to the unobserved supply voltage, relative to x."""
 SUPPLY_PERIODS_HOURS: tuple[float, float] = (0.4, 2.0)
 """The supply voltage is three sinusoids with periods drawn from this range and random phases."""
+SUPPLY_NOMINAL_VOLTS = 12.0
+SUPPLY_VOLTS_RMS = 0.2
+"""A recorded supply voltage is ``SUPPLY_NOMINAL_VOLTS + SUPPLY_VOLTS_RMS * supply_voltage()``."""
+SUPPLY_TYPES = ('battery_state', 'float64')
 
 PROFILES: dict[str, dict[str, Any]] = {
     'paper': {},
@@ -158,6 +163,11 @@ class Scenario:
     :param temperature_resolution_celsius: the driver's temperature quantum, degrees C.
     :param record_references: with ``output: imu``, write the reference topics (a calibration
         run on a table); ``false``: a bag as ``ros2 bag record`` of the driver alone gives.
+    :param record_supply: topic on which the supply voltage behind ``supply_voltage_drift`` is
+        recorded (volts, ``12 + 0.2 * signal``, with each temperature message), or ``''`` (default:
+        not recorded, the drift stays unexplained); the run's signal ``aux:TOPIC``.
+    :param record_supply_type: its message type: ``battery_state`` (``sensor_msgs/BatteryState``,
+        the voltage in float32, header stamp) or ``float64`` (``std_msgs/Float64``, bag time).
     """
 
     sample_rate_hz: float = 1.0
@@ -187,6 +197,8 @@ class Scenario:
     table_rates: tuple[float, ...] = ()
     temperature_resolution_celsius: float = 1.0 / 256.0
     record_references: bool = True
+    record_supply: str = ''
+    record_supply_type: str = 'battery_state'
 
     def __post_init__(self) -> None:
         for key in ('effects', 'gyro_effects'):
@@ -203,6 +215,12 @@ class Scenario:
             raise ScenarioError(msg)
         if self.table_rates and len(self.table_rates) != len(self.positions):
             msg = f'table_rates: expected one rate per position ({len(self.positions)}), got {len(self.table_rates)}'
+            raise ScenarioError(msg)
+        if self.record_supply and not (self.record_supply.startswith('/') and ':' not in self.record_supply):
+            msg = f"record_supply: expected a topic name such as '/power/battery_state', got {self.record_supply!r}"
+            raise ScenarioError(msg)
+        if self.record_supply_type not in SUPPLY_TYPES:
+            msg = f'record_supply_type: expected one of {", ".join(SUPPLY_TYPES)}, got {self.record_supply_type!r}'
             raise ScenarioError(msg)
         if not (math.isfinite(self.temperature_resolution_celsius) and self.temperature_resolution_celsius > 0):
             msg = 'temperature_resolution_celsius: must be a finite number > 0'
@@ -372,7 +390,8 @@ def simulate(scenario: Scenario | None = None) -> SimulatedRun:
         counts_stamp_ns=stamps, counts=counts,
         temp_stamp_ns=stamps[temp_rows], temp_code=np.round(true_code[temp_rows]),
         reference_stamp_ns=stamps[changes], reference=force[changes],
-        frame_id=scenario.frame_id, nominal_scale=tuple(scenario.nominal_scale))  # type: ignore[arg-type]
+        frame_id=scenario.frame_id, nominal_scale=tuple(scenario.nominal_scale),  # type: ignore[arg-type]
+        aux=recorded_supply(scenario, stamps[temp_rows], time_s[temp_rows]))
     return SimulatedRun(record=record, board_celsius=board, chamber_celsius=chamber,
                         true_temp_code=true_code, specific_force=force, truth=truth,
                         scenario=scenario)
@@ -386,6 +405,21 @@ def supply_voltage(scenario: Scenario, time_s: np.ndarray) -> np.ndarray:
     phases = rng.uniform(0.0, 2.0 * math.pi, size=3)
     signal = sum(np.sin(2.0 * math.pi * time_s / period + phase) for period, phase in zip(periods, phases))
     return signal / math.sqrt(1.5)
+
+
+def supply_signal_name(scenario: Scenario) -> str:
+    """The recorded supply's signal name ``aux:TOPIC``, or ``''`` when it is not recorded."""
+    return f'aux:{scenario.record_supply}' if scenario.record_supply else ''
+
+
+def recorded_supply(scenario: Scenario, stamp_ns: np.ndarray, time_s: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The record's ``aux`` entry of the recorded supply voltage (volts), empty when not recorded."""
+    if not scenario.record_supply:
+        return {}
+    volts = SUPPLY_NOMINAL_VOLTS + SUPPLY_VOLTS_RMS * supply_voltage(scenario, time_s)
+    if scenario.record_supply_type == 'battery_state':
+        volts = volts.astype(np.float32).astype(float)  # BatteryState.voltage is a float32
+    return {supply_signal_name(scenario): (np.asarray(stamp_ns, dtype=np.int64), volts)}
 
 
 def _simulate_driver(scenario: Scenario) -> SimulatedRun:
@@ -431,7 +465,8 @@ def _simulate_driver(scenario: Scenario) -> SimulatedRun:
         orientation_covariance=orientation_covariance, temp_stamp_ns=stamps[temp_rows],
         temperature=np.round(board[temp_rows] / quantum) * quantum,
         reference_stamp_ns=stamps[step], reference=force[step],
-        rate_reference_stamp_ns=stamps[step], rate_reference=rate[step], frame_id=scenario.frame_id)
+        rate_reference_stamp_ns=stamps[step], rate_reference=rate[step], frame_id=scenario.frame_id,
+        aux=recorded_supply(scenario, stamps[temp_rows], time_s[temp_rows]))
     unit_truth = scenario.driver_truth()
     return SimulatedRun(record=driver.channel('accel'), board_celsius=board, chamber_celsius=chamber,
                         true_temp_code=board, specific_force=force, truth=unit_truth.accel,

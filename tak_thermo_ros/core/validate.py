@@ -8,6 +8,7 @@ positions all see the same |g|.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Mapping
 
 import numpy as np
 
@@ -62,13 +63,15 @@ class GravityValidation:
 def validate_gravity(calibration: Calibration, counts: np.ndarray, temp_code: np.ndarray, *,
                      gravity: float = STANDARD_GRAVITY,
                      out_of_range: OutOfRange = OutOfRange.CLAMP,
-                     stamp_s: np.ndarray | None = None) -> GravityValidation:
+                     stamp_s: np.ndarray | None = None,
+                     aux: Mapping[str, np.ndarray] | None = None) -> GravityValidation:
     """Compare |g| from the three channels with local gravity, before and after correction.
 
     :param stamp_s: ``(k,)`` stamps in seconds, needed by effects with memory.
+    :param aux: ``(k,)`` held recorded signals by name, needed by ``aux:`` effects.
     """
     corrector = Corrector(calibration, out_of_range=out_of_range)
-    after = corrector.correct(counts, temp_code, stamp_s=stamp_s)
+    after = corrector.correct(counts, temp_code, stamp_s=stamp_s, aux=aux)
     before = Corrector(calibration.nominal(), out_of_range=out_of_range).correct(counts, temp_code)
     return GravityValidation(gravity=gravity,
                              magnitude_before=np.linalg.norm(before, axis=1),
@@ -119,7 +122,8 @@ class RateValidation:
 
 def validate_rate(calibration: Calibration, rate: np.ndarray, temperature: np.ndarray,
                   reference: np.ndarray, *, out_of_range: OutOfRange = OutOfRange.CLAMP,
-                  stamp_s: np.ndarray | None = None) -> RateValidation:
+                  stamp_s: np.ndarray | None = None,
+                  aux: Mapping[str, np.ndarray] | None = None) -> RateValidation:
     """Compare the corrected angular rate with the reference (zero on a static run), per axis.
 
     :param rate: ``(k, 3)`` the driver's angular velocity, rad/s.
@@ -128,7 +132,7 @@ def validate_rate(calibration: Calibration, rate: np.ndarray, temperature: np.nd
     :param stamp_s: ``(k,)`` stamps in seconds, needed by effects with memory.
     """
     corrector = Corrector(calibration, out_of_range=out_of_range)
-    after = corrector.correct(rate, temperature, stamp_s=stamp_s)
+    after = corrector.correct(rate, temperature, stamp_s=stamp_s, aux=aux)
     before = Corrector(calibration.nominal(), out_of_range=out_of_range).correct(rate, temperature)
     return RateValidation(before=RateError.of(before - reference), after=RateError.of(after - reference),
                           out_of_range=corrector.out_of_range_count(temperature))

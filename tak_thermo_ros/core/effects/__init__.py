@@ -17,6 +17,7 @@ from tak_thermo_ros.core.effects.base import (
     Parameter,
     ParameterSpec,
 )
+from tak_thermo_ros.core.effects.aux_signal import AUX_PREFIX, AuxSignal, aux_effect_class, is_aux_effect
 from tak_thermo_ros.core.effects.cross_axis import CrossAxis
 from tak_thermo_ros.core.effects.hysteresis import Hysteresis
 from tak_thermo_ros.core.effects.scale_nonlinearity import ScaleNonlinearity
@@ -32,9 +33,11 @@ LIBRARY: dict[str, type[Effect]] = {
 """The library effects by name."""
 
 __all__ = [
+    'AUX_PREFIX',
     'INPUT',
     'LIBRARY',
     'OFFSET',
+    'AuxSignal',
     'CrossAxis',
     'Effect',
     'Hysteresis',
@@ -44,7 +47,9 @@ __all__ = [
     'TemperatureShape',
     'ThermalLag',
     'Warmup',
+    'aux_effect_class',
     'effect_spec',
+    'is_aux_effect',
     'resolve_effect',
     'seconds',
     'seconds_from_ns',
@@ -74,7 +79,8 @@ def _import_module(module: str, spec: str):
 
 
 def resolve_effect(spec: str | type[Effect]) -> type[Effect]:
-    """The effect class of a library name or of ``'module:Class'`` (user-defined).
+    """The effect class of a library name, of a recorded signal ``'aux:TOPIC[:FIELD]'``, or of
+    ``'module:Class'`` (user-defined).
 
     :raises FitError: naming ``spec`` when it is unknown, cannot be imported, or is not an
         offset-kind subclass of :class:`Effect` with a name of its own.
@@ -86,6 +92,8 @@ def resolve_effect(spec: str | type[Effect]) -> type[Effect]:
         spec = str(spec).strip()
         if spec in LIBRARY:
             return LIBRARY[spec]
+        if spec.startswith(AUX_PREFIX):
+            return aux_effect_class(spec)
         if ':' not in spec:
             msg = f"effect '{spec}': unknown (library effects: {', '.join(LIBRARY)}; or give module:Class)"
             raise FitError(msg)
@@ -103,7 +111,7 @@ def resolve_effect(spec: str | type[Effect]) -> type[Effect]:
     if not isinstance(cls, type) or not issubclass(cls, Effect):
         msg = f"effect '{spec}': {cls!r} is not a subclass of tak_thermo_ros.core.effects.Effect"
         raise FitError(msg)
-    if LIBRARY.get(cls.name) is cls:
+    if LIBRARY.get(cls.name) is cls or is_aux_effect(cls):
         return cls
     if not cls.name or cls.name in LIBRARY:
         msg = (f"effect '{spec}': set the class variable name to a name of its own "
@@ -119,7 +127,8 @@ def resolve_effect(spec: str | type[Effect]) -> type[Effect]:
 
 
 def effect_spec(cls: type[Effect]) -> str:
-    """What the calibration file stores to find the class again: the library name or 'module:Class'."""
-    if LIBRARY.get(cls.name) is cls:
+    """What the calibration file stores to find the class again: the library name, the signal
+    name ``aux:...``, or 'module:Class'."""
+    if LIBRARY.get(cls.name) is cls or is_aux_effect(cls):
         return cls.name
     return f'{cls.__module__}:{cls.__qualname__}'

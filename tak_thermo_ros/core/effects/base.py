@@ -89,6 +89,10 @@ class Effect:
     ``confirm``: which test run would confirm it.
     ``kind``: ``'offset'`` (default; the only kind a user-defined effect may have) or ``'input'``.
     ``needs_stamps``: whether :meth:`step` uses the stamp.
+    ``needs_signal``: ``None`` (default), or the name of a recorded signal (``aux:TOPIC``,
+    :mod:`tak_thermo_ros.core.effects.aux_signal`) that drives the effect *in place of the
+    temperature code*: :meth:`start`, :meth:`step`, :meth:`basis` then receive that signal held
+    at its last value where they would receive ``temp_code`` (see :func:`effect_input`).
     ``shape``: the shape parameters (:class:`ParameterSpec`), shared by the three axes.
     ``amplitude``: the amplitude template; its name gets ``_x``, ``_y``, ``_z`` (and a basis
     suffix from :meth:`basis_suffixes` when there is more than one basis signal).
@@ -102,6 +106,7 @@ class Effect:
     confirm: ClassVar[str] = ''
     kind: ClassVar[str] = OFFSET
     needs_stamps: ClassVar[bool] = False
+    needs_signal: ClassVar[str | None] = None
     shape: ClassVar[tuple[ParameterSpec, ...]] = ()
     amplitude: ClassVar[ParameterSpec] = ParameterSpec('amplitude', 0.0, unit='counts')
 
@@ -373,6 +378,24 @@ def call_effect(effect: Effect | type[Effect], method: str, function: Callable[.
         return function(*args)
     except Exception as err:
         raise effect_failure(effect, method, err) from err
+
+
+def effect_input(effect: Effect, temp_code: Any, aux: Mapping[str, Any] | None) -> Any:
+    """What drives an effect: the temperature code, or the held signal it names (``needs_signal``).
+
+    Works on series (arrays) and on one sample (floats) alike.
+
+    :param aux: held signal values by name, aligned with ``temp_code`` (or ``None``).
+    :raises CalibrationError: the effect needs a signal that ``aux`` does not hold.
+    """
+    signal = effect.needs_signal
+    if not signal:
+        return temp_code
+    if aux is None or signal not in aux:
+        msg = (f'calibration.effects.{effect.name}: this effect needs the recorded signal {signal} '
+               f'(topic {signal[4:].split(":")[0]}), which the data does not hold')
+        raise CalibrationError(msg)
+    return aux[signal]
 
 
 def checked_basis(effect: Effect, stamp_s: np.ndarray, temp_code: np.ndarray, *,

@@ -26,7 +26,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from tak_thermo_ros.core.effects import resolve_effect
-from tak_thermo_ros.core.effects.base import AXIS_NAMES, INPUT, Effect, call_effect, checked_basis
+from tak_thermo_ros.core.effects.base import AXIS_NAMES, INPUT, Effect, call_effect, checked_basis, effect_input
 from tak_thermo_ros.core.fit import (
     FitResult,
     finish_fit,
@@ -56,6 +56,7 @@ class _Offset:
     searched: tuple[tuple[str, float, float, bool], ...] = ()
     structures: Sequence[Effect] = ()
     basis: np.ndarray | None = None  # whole series
+    inputs: np.ndarray | None = None  # what drives the effect: the temperature code or its recorded signal
     done: bool = False
     cache: dict = field(default_factory=dict)
 
@@ -64,7 +65,8 @@ def _subset(samples: AlignedSamples, mask: np.ndarray) -> AlignedSamples:
     return AlignedSamples(stamp_ns=samples.stamp_ns[mask], counts=samples.counts[mask],
                           temp_code=samples.temp_code[mask],
                           reference=None if samples.reference is None else samples.reference[mask],
-                          dropped=dict(samples.dropped))
+                          dropped=dict(samples.dropped),
+                          aux={name: values[mask] for name, values in samples.aux.items()})
 
 
 def _template(cls: type[Effect]) -> Effect | None:
@@ -266,27 +268,26 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
     for effect, cls, fixed_shape in chosen:
         if cls.kind == INPUT:
             continue
+        inputs_all = effect_input(effect if effect is not None else cls, code_all, samples.aux)
         if fixed_shape:
             entry = _Offset(effect=effect, mode='fixed')
         else:
-            structures = call_effect(cls, 'structures', cls.structures, time_train, code_train)
+            structures = call_effect(cls, 'structures', cls.structures, time_train, inputs_all[mask])
             if structures is not None:
                 if not structures:
                     msg = f'effect {cls.name}: the temperature codes of this run do not span a range'
                     raise FitError(msg)
-                entry = _Offset(effect=structures[0], mode='structure', structures=structures)
+                entry = _Offset(effect=structures[0], mode='structure', structures=structures,
+                                searched=_searched(cls, structures[0], time_train, inputs_all[mask]))
             else:
                 if effect is None:
                     msg = f'effect {cls.name}: its parameters have no defaults to start a search from'
                     raise FitError(msg)
-                space = call_effect(cls, 'search_space', cls.search_space, time_train, code_train)
-                varies = effect.shape_varies()
-                searched = tuple((name, *space[name]) for name in effect.shape_names()
-                                 if varies.get(name, True) and name in space
-                                 and all(math.isfinite(v) for v in space[name][:2]))
+                searched = _searched(cls, effect, time_train, inputs_all[mask])
                 entry = _Offset(effect=effect, mode='search' if searched else 'fixed', searched=searched)
+        entry.inputs = inputs_all
         if entry.mode == 'fixed':
-            entry.basis = checked_basis(entry.effect, stamp_all, code_all)
+            entry.basis = checked_basis(entry.effect, stamp_all, inputs_all)
             entry.done = True
         offsets.append(entry)
 
@@ -320,7 +321,7 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
     def basis_of(entry: _Offset, effect: Effect, *, exact: bool = False) -> np.ndarray:
         key = (exact, tuple(sorted(effect.values.items())))
         if key not in entry.cache:
-            entry.cache[key] = checked_basis(effect, stamp_all, code_all, search=not exact)
+            entry.cache[key] = checked_basis(effect, stamp_all, entry.inputs, search=not exact)
         return entry.cache[key]
 
     def search(entry: _Offset) -> None:
@@ -343,7 +344,8 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
                 raise FitError(msg)
             entry.effect, entry.basis = best[1], basis_of(entry, best[1], exact=True)
             entry.done = True
-            return
+            if not entry.searched:
+                return
         for name, low_value, high_value, log in entry.searched:
             to_value = (lambda s: math.exp(s)) if log else (lambda s: s)
             a, b = (math.log(low_value), math.log(high_value)) if log else (low_value, high_value)
@@ -446,6 +448,16 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
     return finish_fit(calibration, residual, parameters, dropped=samples.dropped, parameter_errors=errors)
 
 
+def _searched(cls: type[Effect], effect: Effect, time_s: np.ndarray,
+              inputs: np.ndarray) -> tuple[tuple[str, float, float, bool], ...]:
+    """The shape parameters the fit searches, with their ranges on these training samples."""
+    space = call_effect(cls, 'search_space', cls.search_space, time_s, inputs)
+    varies = effect.shape_varies()
+    return tuple((name, *space[name]) for name in effect.shape_names()
+                 if varies.get(name, True) and name in space
+                 and all(math.isfinite(v) for v in space[name][:2]))
+
+
 def _build(cls: type[Effect], values: dict[str, float]) -> Effect:
     try:
         return cls.from_values(values, key=f'effect {cls.name}', complete=True)
@@ -487,7 +499,8 @@ def _standard_errors(offsets, input_effects, designs, residual_sums, betas, fixe
         entry = offsets[index]
         step = SHAPE_STEP if log else SHAPE_STEP * max(abs(value), 1.0)
         values = [(value * math.exp(h) if log else value + h) for h in (step, -step)]
-        upper, lower = (checked_basis(entry.effect.replace(**{name: v}), stamp_all, code_all)[mask] for v in values)
+        upper, lower = (checked_basis(entry.effect.replace(**{name: v}), stamp_all, entry.inputs)[mask]
+                        for v in values)
         slope = (upper - lower) / (2.0 * step)
         for i in range(3):
             position = fixed[i].shape[1] + sum(o.basis.shape[1] for o in offsets[:index])

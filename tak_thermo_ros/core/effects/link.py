@@ -18,11 +18,11 @@ delegates to this class when its calibration has effects, and only then.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
-from tak_thermo_ros.core.effects.base import INPUT, OFFSET, checked_basis, effect_failure
+from tak_thermo_ros.core.effects.base import INPUT, OFFSET, checked_basis, effect_failure, effect_input
 from tak_thermo_ros.core.effects.cross_axis import CrossAxis
 from tak_thermo_ros.core.effects.scale_nonlinearity import ScaleNonlinearity
 from tak_thermo_ros.core.model import Calibration, correction_terms, offset_and_gain
@@ -84,6 +84,8 @@ class EffectLink:
                 msg = f'calibration.effects.{effect.name}: unsupported input effect {type(effect).__name__}'
                 raise CalibrationError(msg)
         self._needs_stamps = tuple(e.name for e in calibration.effects if e.needs_stamps)
+        self.signals = tuple(dict.fromkeys(e.needs_signal for e in self._offset_effects if e.needs_signal))
+        """Names of the recorded signals the effects need (``aux:TOPIC``), in order."""
         self._states: list[Any] | None = None
 
     def reset(self) -> None:
@@ -119,13 +121,17 @@ class EffectLink:
                 f = solve(y0 - q0 * (f0 * f0), y1 - q1 * (f1 * f1), y2 - q2 * (f2 * f2))
         return f
 
-    def offset_series(self, temp_code: np.ndarray, stamp_s: np.ndarray | None) -> list[np.ndarray]:
-        """Sum of the offset effects per axis over a series (from the initial state), counts."""
+    def offset_series(self, temp_code: np.ndarray, stamp_s: np.ndarray | None,
+                      aux: Mapping[str, np.ndarray] | None = None) -> list[np.ndarray]:
+        """Sum of the offset effects per axis over a series (from the initial state), counts.
+
+        :param aux: ``(k,)`` held values of the recorded signals the effects need, by name.
+        """
         count = len(temp_code)
         stamps = np.zeros(count) if stamp_s is None else np.asarray(stamp_s, dtype=float)
         extra = [np.zeros(count), np.zeros(count), np.zeros(count)]
         for effect, amplitudes in zip(self._offset_effects, self._amplitudes):
-            basis = checked_basis(effect, stamps, temp_code)
+            basis = checked_basis(effect, stamps, effect_input(effect, temp_code, aux))
             for i, axis_amplitudes in enumerate(amplitudes):
                 total = extra[i]
                 for b, amplitude in enumerate(axis_amplitudes):
@@ -134,21 +140,24 @@ class EffectLink:
         return extra
 
     def correct(self, counts: np.ndarray, temp_code: np.ndarray,
-                stamp_s: np.ndarray | None = None) -> np.ndarray:
+                stamp_s: np.ndarray | None = None, aux: Mapping[str, np.ndarray] | None = None) -> np.ndarray:
         """Specific force ``(k, 3)`` over a series, from the effects' initial state."""
         self._check_stamps(stamp_s)
         counts = np.asarray(counts, dtype=float)
         code = self._temp_code(np.asarray(temp_code, dtype=float))
         n = code - self._ref
-        extra = self.offset_series(code, stamp_s)
+        extra = self.offset_series(code, stamp_s, aux)
         base = self._base(n)
         y = tuple(counts[:, i] - (base[i][0] + extra[i]) for i in range(3))
         f = self._solve(y, tuple(gain for _, gain in base))
         return np.column_stack(f)
 
     def correct_sample(self, counts_x: float, counts_y: float, counts_z: float, temp_code: float,
-                       stamp_s: float) -> tuple[float, float, float]:
-        """Specific force of one sample (plain floats), advancing the online state."""
+                       stamp_s: float, aux: Mapping[str, float] | None = None) -> tuple[float, float, float]:
+        """Specific force of one sample (plain floats), advancing the online state.
+
+        :param aux: held values of the recorded signals the effects need, by name.
+        """
         code = self._temp_code(temp_code)
         n = code - self._ref
         states = self._states
@@ -156,14 +165,14 @@ class EffectLink:
             states = []
             for effect in self._offset_effects:
                 try:
-                    states.append(effect.start(stamp_s, code))
+                    states.append(effect.start(stamp_s, effect_input(effect, code, aux)))
                 except Exception as err:
                     raise effect_failure(effect, 'start', err) from err
             self._states = states
         extra = [0.0, 0.0, 0.0]
         for index, (effect, amplitudes) in enumerate(zip(self._offset_effects, self._amplitudes)):
             try:
-                state, basis = effect.step(states[index], stamp_s, code)
+                state, basis = effect.step(states[index], stamp_s, effect_input(effect, code, aux))
             except Exception as err:
                 raise effect_failure(effect, 'step', err) from err
             states[index] = state
@@ -179,13 +188,14 @@ class EffectLink:
         return f[0], f[1], f[2]
 
     def predict_counts(self, specific_force: np.ndarray, temp_code: np.ndarray,
-                       stamp_s: np.ndarray | None = None) -> np.ndarray:
+                       stamp_s: np.ndarray | None = None,
+                       aux: Mapping[str, np.ndarray] | None = None) -> np.ndarray:
         """Forward model: unrounded codes ``(k, 3)`` for specific force ``(k, 3)``, effects included."""
         self._check_stamps(stamp_s)
         force = np.asarray(specific_force, dtype=float)
         code = self._temp_code(np.asarray(temp_code, dtype=float))
         base = self._base(code - self._ref)
-        extra = self.offset_series(code, stamp_s)
+        extra = self.offset_series(code, stamp_s, aux)
         out = np.column_stack([base[i][1] * force[:, i] + (base[i][0] + extra[i]) for i in range(3)])
         for effect in self.calibration.effects:
             if effect.kind == INPUT:
