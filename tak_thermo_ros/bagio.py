@@ -32,6 +32,7 @@ from rosbags.rosbag2 import Reader, StoragePlugin, Writer, WriterError
 from rosbags.typesys import Stores, get_typestore
 
 from tak_thermo_ros.cdr import MessageArrays, decode_messages
+from tak_thermo_ros.core.effects import aux_signal
 from tak_thermo_ros.core.correction import imu_covariances
 from tak_thermo_ros.core.files import BAG, check_output, install_directory, staging_directory
 from tak_thermo_ros.core.model import InputKind
@@ -63,17 +64,7 @@ _Temperature = TYPESTORE.types[TEMPERATURE]
 _Imu = TYPESTORE.types[IMU]
 BATTERY_STATE = 'sensor_msgs/msg/BatteryState'
 FLOAT64 = 'std_msgs/msg/Float64'
-_INTEGERS = ('Int8', 'Int16', 'Int32', 'Int64', 'UInt8', 'UInt16', 'UInt32', 'UInt64')
-AUX_FIELDS: dict[str, tuple[str, ...]] = {
-    'std_msgs/msg/Float32': ('data',),
-    FLOAT64: ('data',),
-    **{f'std_msgs/msg/{name}': ('data',) for name in _INTEGERS},
-    TEMPERATURE: ('temperature',),
-    'sensor_msgs/msg/FluidPressure': ('fluid_pressure',),
-    'sensor_msgs/msg/RelativeHumidity': ('relative_humidity',),
-    BATTERY_STATE: ('voltage', 'temperature', 'current', 'charge', 'capacity', 'design_capacity', 'percentage'),
-}
-"""Auxiliary scalar signal types: their numeric fields, the obvious one (named ``aux:TOPIC``) first."""
+AUX_FIELDS = aux_signal.AUX_FIELDS
 AUX_TYPES = {'battery_state': BATTERY_STATE, 'float64': FLOAT64}
 """Message types a simulated auxiliary signal can be written as (scenario ``record_supply_type``)."""
 

@@ -9,6 +9,11 @@ Subscribes ``tak/counts`` (``geometry_msgs/msg/Vector3Stamped``, channel codes) 
 ``tak/imu/data_raw`` (``sensor_msgs/msg/Imu``, exactly as ``tak_calib apply`` writes it) and
 ``/diagnostics`` at 1 Hz. Topic names are relative: namespaces and remapping work.
 
+When the calibration holds a recorded-signal term (``aux:TOPIC``, e.g. the supply voltage on
+``/power/battery_state``), the node also subscribes that topic, with the type its publisher
+advertises (looked up again every diagnostics period until one appears); the value is held like
+the temperature (see :mod:`tak_thermo_ros.core.online`).
+
 This is a thin wrapper: callbacks turn messages into numbers, hand them to
 :class:`~tak_thermo_ros.core.online.OnlineCompensator` (no ROS in it) and turn the result
 back into a message. The only module of the package that imports rclpy.
@@ -41,6 +46,7 @@ from tak_thermo_ros.core.calibration_file import (
     nest_parameters,
 )
 from tak_thermo_ros.core.correction import OutOfRange, imu_covariances
+from tak_thermo_ros.core.effects.aux_signal import AUX_FIELDS, signal_field, split_signal_name
 from tak_thermo_ros.core.model import Calibration
 from tak_thermo_ros.core.online import Level, OnlineCompensator, StaleTemperature
 from tak_thermo_ros.errors import CalibrationError, TakError
@@ -52,6 +58,8 @@ DIAGNOSTICS_TOPIC = '/diagnostics'
 DIAGNOSTICS_PERIOD_S = 1.0
 EXIT_ERROR = 2
 QOS_CHOICES = ('sensor_data', 'reliable')
+SIGNAL_DISCOVERY_S = 5.0
+"""At start-up, how long the node waits for the publisher of a recorded signal it needs."""
 CALIBRATION_PREFIX = 'calibration'
 
 _DIAGNOSTIC_LEVELS = {Level.OK: DiagnosticStatus.OK, Level.WARN: DiagnosticStatus.WARN,
@@ -158,6 +166,14 @@ class CompensatorNode(Node):
         self._diagnostics_publisher = self.create_publisher(
             DiagnosticArray, DIAGNOSTICS_TOPIC, 10,
             event_callbacks=PublisherEventCallbacks(use_default_callbacks=False))
+        # Recorded-signal subscriptions before the counts one too (same creation-order rule);
+        # a signal topic not yet advertised is looked up again every diagnostics period.
+        self._signal_subscriptions: dict[str, Any] = {}
+        deadline = time.monotonic() + SIGNAL_DISCOVERY_S
+        self._subscribe_signals()
+        while len(self._signal_subscriptions) < len(self._core.signals) and time.monotonic() < deadline:
+            time.sleep(0.05)
+            self._subscribe_signals()
         self._counts_subscription = self.create_subscription(Vector3Stamped, COUNTS_TOPIC, self._on_counts,
                                                              input_qos)
         self._diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self._on_diagnostics_timer)
@@ -226,6 +242,37 @@ class CompensatorNode(Node):
                                    ignore_override=bool(path))
         return calibration, source
 
+    def _subscribe_signals(self) -> None:
+        """Subscribe each recorded signal the calibration needs whose topic is advertised yet."""
+        missing = [name for name in self._core.signals if name not in self._signal_subscriptions]
+        if not missing:
+            return
+        advertised = dict(self.get_topic_names_and_types())
+        for name in missing:
+            topic = split_signal_name(name)[0]
+            types = [t for t in advertised.get(topic, ()) if t in AUX_FIELDS]
+            if not types:
+                continue
+            try:
+                field = signal_field(types[0], name)
+            except TakError as err:
+                self.get_logger().error(str(err))
+                continue
+            package, _, message = types[0].split('/')
+            module = __import__(f'{package}.msg', fromlist=[message])
+            message_type = getattr(module, message)
+
+            def on_signal(msg: Any, name: str = name, field: str = field) -> None:
+                self._core.process_signal(name, float(getattr(msg, field)), time.monotonic())
+                if self._core.notices:
+                    self._log_notices()
+
+            self._signal_subscriptions[name] = self.create_subscription(
+                message_type, topic, on_signal,
+                QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                           reliability=self._temp_subscription.qos_profile.reliability))
+            self.get_logger().info(f'subscribed {topic} ({types[0]}.{field}) for {name}')
+
     def _set_covariances(self) -> None:
         orientation, angular, linear = imu_covariances(self._core.variance)
         self._imu.orientation_covariance = orientation
@@ -253,6 +300,7 @@ class CompensatorNode(Node):
             self._log_notices()
 
     def _on_diagnostics_timer(self) -> None:
+        self._subscribe_signals()
         now = time.monotonic()
         self._core.tick(now)
         status = self._core.status(now, imu_subscribers=self._imu_publisher.get_subscription_count())

@@ -22,6 +22,10 @@ Bad input, each with a defined outcome:
   policy), counted, and a throttled warning naming the code and the range;
 - a stamp earlier than, or equal to, the previous counts stamp: passed through and counted;
 - a non-finite temperature code: ignored (the last good code stays) and counted.
+- a calibration with a recorded-signal term (``aux:TOPIC``): that signal follows the
+  temperature's rules: held at its last value; none yet: dropped (``waiting_for_signal``);
+  older than ``temp_timeout``: held or dropped (``stale_signal``) by the same policy; a
+  non-finite value ignored and counted.
 
 Warnings are throttled but never silent: the first of a kind is reported at once, later ones
 at most every ``warn_period_s`` with the number that occurred in between.
@@ -42,6 +46,10 @@ WAITING_FOR_TEMPERATURE = 'waiting_for_temperature'
 STALE_TEMPERATURE = 'stale_temperature'
 ONLINE_DROP_REASONS: tuple[str, ...] = (*DROP_REASONS, WAITING_FOR_TEMPERATURE, STALE_TEMPERATURE)
 """Why a counts message is not published, in the order the checks run."""
+WAITING_FOR_SIGNAL = 'waiting_for_signal'
+STALE_SIGNAL = 'stale_signal'
+SIGNAL_DROP_REASONS: tuple[str, ...] = (WAITING_FOR_SIGNAL, STALE_SIGNAL)
+"""Why a counts message is not published when the calibration needs a recorded signal (checked last)."""
 
 WARN_PERIOD_S = 5.0
 """Default least time between two reports of the same kind of problem."""
@@ -140,7 +148,7 @@ class OnlineCompensator:
         self.warn_period_s = warn_period_s
         self.received = 0
         self.published = 0
-        self.dropped: dict[str, int] = dict.fromkeys(ONLINE_DROP_REASONS, 0)
+        self.dropped: dict[str, int] = dict.fromkeys((*ONLINE_DROP_REASONS, *SIGNAL_DROP_REASONS), 0)
         self.time_backwards = 0
         self.duplicate_stamps = 0
         self.out_of_range = 0
@@ -150,7 +158,12 @@ class OnlineCompensator:
         self.notices: list[Notice] = []
         """Log lines due; the caller empties it (:meth:`take_notices`)."""
         self._throttles = {kind: _Throttle(warn_period_s) for kind in (
-            WAITING_FOR_TEMPERATURE, STALE_TEMPERATURE, 'out_of_range', 'temperature_rejected')}
+            WAITING_FOR_TEMPERATURE, STALE_TEMPERATURE, 'out_of_range', 'temperature_rejected',
+            WAITING_FOR_SIGNAL, STALE_SIGNAL, 'signal_rejected')}
+        self._signal_values: dict[str, float] = {}
+        self._signal_arrival_s: dict[str, float] = {}
+        self.signal_messages: dict[str, int] = {}
+        self.signal_rejected: dict[str, int] = {}
         self._last_stamp_ns: int | None = None
         self._temp_code: float | None = None
         self._temp_arrival_s = -math.inf
@@ -228,6 +241,10 @@ class OnlineCompensator:
         self._drop_stale = new_stale is StaleTemperature.DROP
         self._corrector = corrector
         self._correct: Callable[..., tuple[float, float, float]] = corrector.correct_sample
+        self._signals = corrector.signals
+        for name in self._signals:
+            self.signal_messages.setdefault(name, 0)
+            self.signal_rejected.setdefault(name, 0)
         self._variance = acceleration_variance(new_calibration)
         self._low = float(new_calibration.temp_code_min)
         self._high = float(new_calibration.temp_code_max)
@@ -259,6 +276,43 @@ class OnlineCompensator:
             self._notice(Level.OK, STALE_TEMPERATURE,
                          f'temperature code on {self.temp_topic} fresh again ({temp_code:g})')
         return True
+
+    @property
+    def signals(self) -> tuple[str, ...]:
+        """Names ``aux:TOPIC[:FIELD]`` of the recorded signals the calibration in force needs."""
+        return self._signals
+
+    def process_signal(self, name: str, value: float, now_s: float) -> bool:
+        """Take a value of recorded signal ``name`` that arrived at ``now_s``; ``False`` if rejected
+        (non-finite: the last good value stays, as for the temperature)."""
+        self.signal_messages[name] = self.signal_messages.get(name, 0) + 1
+        if value != value or value in (math.inf, -math.inf):
+            self.signal_rejected[name] = self.signal_rejected.get(name, 0) + 1
+            if self._throttles['signal_rejected'].due(now_s):
+                self._notice(Level.WARN, 'signal_rejected', f'non-finite value {value} of {name} ignored; '
+                             f'keeping the last value ({self.signal_rejected[name]} so far)')
+            return False
+        self._signal_values[name] = float(value)
+        self._signal_arrival_s[name] = now_s
+        return True
+
+    def _signal_problem(self, now_s: float) -> str | None:
+        """Why the counts cannot be corrected for want of a recorded signal, or ``None``."""
+        for name in self._signals:
+            if name not in self._signal_values:
+                if self._throttles[WAITING_FOR_SIGNAL].due(now_s):
+                    self._notice(Level.WARN, WAITING_FOR_SIGNAL, f'waiting for {name}: publishing nothing '
+                                 f'({self.dropped[WAITING_FOR_SIGNAL] + 1} counts messages dropped so far)')
+                return WAITING_FOR_SIGNAL
+            age = now_s - self._signal_arrival_s[name]
+            if age > self._timeout_s:
+                if self._throttles[STALE_SIGNAL].due(now_s):
+                    action = 'dropping counts' if self._drop_stale else 'holding the last value'
+                    self._notice(Level.ERROR, STALE_SIGNAL, f'{name} is stale: {age:.2f} s old > temp_timeout '
+                                 f'{self._timeout_s:g} s; {action}')
+                if self._drop_stale:
+                    return STALE_SIGNAL
+        return None
 
     def process_counts(self, sec: int, nanosec: int, x: float, y: float, z: float,
                        now_s: float) -> tuple[float, float, float] | str:
@@ -295,13 +349,22 @@ class OnlineCompensator:
             if self._drop_stale:
                 self.dropped[STALE_TEMPERATURE] += 1
                 return STALE_TEMPERATURE
+        aux = None
+        if self._signals:
+            signal_problem = self._signal_problem(now_s)
+            if signal_problem is not None:
+                self.dropped[signal_problem] += 1
+                return signal_problem
+            aux = self._signal_values
         if self._temp_outside:
             self.out_of_range += 1
             if self._throttles['out_of_range'].due(now_s):
                 self._report_out_of_range()
         self.published += 1
         # The stamp in seconds exactly as the offline path computes it (seconds_from_ns).
-        return self._correct(x, y, z, temp_code, stamp_s=seconds(sec, nanosec))
+        if aux is None:
+            return self._correct(x, y, z, temp_code, stamp_s=seconds(sec, nanosec))
+        return self._correct(x, y, z, temp_code, stamp_s=seconds(sec, nanosec), aux=aux)
 
     # -- reports ----------------------------------------------------------------------------
 
@@ -391,6 +454,13 @@ class OnlineCompensator:
             action = 'dropping counts' if self._drop_stale else 'holding the last code'
             worse(Level.ERROR, f'temperature code stale ({self.temperature_age_s(now_s):.1f} s > '
                                f'{self._timeout_s:g} s), {action}')
+        for name in self._signals:
+            if name not in self._signal_values:
+                worse(Level.WARN, f'waiting for {name}')
+            elif now_s - self._signal_arrival_s[name] > self._timeout_s:
+                action = 'dropping counts' if self._drop_stale else 'holding the last value'
+                worse(Level.ERROR, f'{name} stale ({now_s - self._signal_arrival_s[name]:.1f} s > '
+                                   f'{self._timeout_s:g} s), {action}')
         if self.received == 0:
             worse(Level.WARN, 'no counts messages yet')
         if new['out_of_range']:
@@ -426,6 +496,13 @@ class OnlineCompensator:
             ('temp_timeout_s', f'{self._timeout_s:g}'),
             ('calibration_updates', str(self.calibration_updates)),
         ]
+        for name in self._signals:
+            held = self._signal_values.get(name)
+            signal_age = now_s - self._signal_arrival_s[name] if name in self._signal_arrival_s else math.inf
+            values += [(f'signal {name}', 'none' if held is None else f'{held:g}'),
+                       (f'signal {name} age_s', 'inf' if math.isinf(signal_age) else f'{signal_age:.3f}'),
+                       (f'signal {name} messages', str(self.signal_messages.get(name, 0))),
+                       (f'signal {name} rejected', str(self.signal_rejected.get(name, 0)))]
         if imu_subscribers is not None:
             values.append(('imu_subscribers', str(imu_subscribers)))
         return Status(level=level, message=message, values=tuple(values))

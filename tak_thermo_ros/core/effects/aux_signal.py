@@ -21,6 +21,18 @@ from tak_thermo_ros.core.effects.base import Effect, ParameterSpec, typical_inte
 from tak_thermo_ros.errors import FitError
 
 AUX_PREFIX = 'aux:'
+_INTEGERS = ('Int8', 'Int16', 'Int32', 'Int64', 'UInt8', 'UInt16', 'UInt32', 'UInt64')
+AUX_FIELDS: dict[str, tuple[str, ...]] = {
+    'std_msgs/msg/Float32': ('data',),
+    'std_msgs/msg/Float64': ('data',),
+    **{f'std_msgs/msg/{name}': ('data',) for name in _INTEGERS},
+    'sensor_msgs/msg/Temperature': ('temperature',),
+    'sensor_msgs/msg/FluidPressure': ('fluid_pressure',),
+    'sensor_msgs/msg/RelativeHumidity': ('relative_humidity',),
+    'sensor_msgs/msg/BatteryState': ('voltage', 'temperature', 'current', 'charge', 'capacity',
+                                     'design_capacity', 'percentage'),
+}
+"""Auxiliary scalar signal types: their numeric fields, the obvious one (named ``aux:TOPIC``) first."""
 
 
 def split_signal_name(signal: str) -> tuple[str, str]:
@@ -37,6 +49,22 @@ def split_signal_name(signal: str) -> tuple[str, str]:
         msg = f"effect '{signal}': expected aux:TOPIC:FIELD with one field name"
         raise FitError(msg)
     return topic, field
+
+
+def signal_field(msgtype: str, signal: str) -> str:
+    """The message field that carries ``signal`` on a topic of type ``msgtype``.
+
+    :raises FitError: the type is not an auxiliary signal type, or has no such numeric field.
+    """
+    fields = AUX_FIELDS.get(msgtype)
+    if fields is None:
+        msg = f'{signal}: topic type {msgtype} is not a scalar signal type ({", ".join(AUX_FIELDS)})'
+        raise FitError(msg)
+    field = split_signal_name(signal)[1] or fields[0]
+    if field not in fields:
+        msg = f'{signal}: {msgtype} has no numeric field {field} ({", ".join(fields)})'
+        raise FitError(msg)
+    return field
 
 
 def signal_name(topic: str, field: str = '') -> str:
