@@ -565,8 +565,11 @@ def write_record(path: str | os.PathLike[str], record: ChannelRecord, *, topics:
     # Messages in (stamp, stream, row) order, streams 0 temp, 1 ref, 2 counts; as arrays, so that
     # a long run costs a few bytes per message here, not Python tuples.
     aux_streams = list(record.aux.items())
-    events = _merged_order((record.temp_stamp_ns, record.reference_stamp_ns, record.counts_stamp_ns,
-                            *(stamps for _, (stamps, _) in aux_streams)))
+    # streams 0 temp, 1 ref, then the auxiliary signals, then counts: at equal stamps a signal's
+    # value comes before the counts it is held for, as the temperature does.
+    events = _merged_order((record.temp_stamp_ns, record.reference_stamp_ns,
+                            *(stamps for _, (stamps, _) in aux_streams), record.counts_stamp_ns))
+    counts_stream = 2 + len(aux_streams)
     with _AtomicBag(path, storage, force=force) as writer:
         aux_writes = _aux_writers(writer, aux_streams, aux_types, record.frame_id)
         counts_conn = writer.add_connection(topics.counts, VECTOR3_STAMPED, typestore=TYPESTORE)
@@ -584,12 +587,12 @@ def write_record(path: str | os.PathLike[str], record: ChannelRecord, *, topics:
                 x, y, z = (float(v) for v in record.reference[row])
                 message = _Vector3Stamped(header=header, vector=_Vector3(x=x, y=y, z=z))
                 writer.write(reference_conn, stamp, serialize(message, VECTOR3_STAMPED))
-            elif stream == 2:
+            elif stream == counts_stream:
                 x, y, z = (float(v) for v in record.counts[row])
                 message = _Vector3Stamped(header=header, vector=_Vector3(x=x, y=y, z=z))
                 writer.write(counts_conn, stamp, serialize(message, VECTOR3_STAMPED))
             else:
-                aux_writes[stream - 3](stamp, row)
+                aux_writes[stream - 2](stamp, row)
 
 
 def _merged_order(parts: tuple[np.ndarray, ...]) -> Iterator[tuple[int, int, int]]:
@@ -609,10 +612,11 @@ def write_driver_record(path: str | os.PathLike[str], record: DriverRecord, *, t
     :param aux_types: as :func:`write_record`.
     """
     serialize = TYPESTORE.serialize_cdr
-    # streams 0 temperature, 1 reference, 2 rate reference, 3 Imu
     aux_streams = list(record.aux.items())
+    # streams 0 temperature, 1 reference, 2 rate reference, then the auxiliary signals, then the Imu
     events = _merged_order((record.temp_stamp_ns, record.reference_stamp_ns, record.rate_reference_stamp_ns,
-                            record.stamp_ns, *(stamps for _, (stamps, _) in aux_streams)))
+                            *(stamps for _, (stamps, _) in aux_streams), record.stamp_ns))
+    imu_stream = 3 + len(aux_streams)
     zero_covariance = np.zeros(9)
     with _AtomicBag(path, storage, force=force) as writer:
         aux_writes = _aux_writers(writer, aux_streams, aux_types, record.frame_id)
@@ -633,8 +637,8 @@ def write_driver_record(path: str | os.PathLike[str], record: DriverRecord, *, t
                 message = _Vector3Stamped(header=header, vector=_Vector3(x=x, y=y, z=z))
                 writer.write(reference_conn if stream == 1 else rate_conn, stamp,
                              serialize(message, VECTOR3_STAMPED))
-            elif stream >= 4:
-                aux_writes[stream - 4](stamp, row)
+            elif stream != imu_stream:
+                aux_writes[stream - 3](stamp, row)
             else:
                 qx, qy, qz, qw = (float(v) for v in record.orientation[row])
                 ax, ay, az = (float(v) for v in record.accel[row])

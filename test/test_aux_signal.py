@@ -205,7 +205,7 @@ def test_the_loop_with_a_recorded_supply_ends_at_the_floor(tmp_path, capsys):
     volts = samples.aux[SUPPLY]
     slope_error = error_counts / (np.std(volts) * math.sqrt(len(volts)))  # least-squares SE of a slope
     for axis in 'xyz':
-        assert effect[f'slope_{axis}'] == pytest.approx(truth[f'slope_{axis}'], abs=6.0 * slope_error + 0.02 * 15.0)
+        assert effect[f'slope_{axis}'] == pytest.approx(truth[f'slope_{axis}'], abs=6.0 * slope_error)
     assert effect['tau_s'] < 5 * 5.0  # no lag beyond the 5 s the voltage is sampled at
 
     again = _diagnose(first, with_supply, tmp_path, 'again')
@@ -220,8 +220,9 @@ def test_the_loop_with_a_recorded_supply_ends_at_the_floor(tmp_path, capsys):
     out = tmp_path / 'validate.json'
     assert cli.main(['validate', str(second), '--params', str(with_supply), '--json', str(out)]) == 0
     fitted = json.loads(out.read_text())['after']['rms']
-    assert cli.main(['validate', str(second), '--params', str(base), '--json', str(out)]) == 0
-    without = json.loads(out.read_text())['after']['rms']
+    out_base = tmp_path / 'validate_base.json'
+    assert cli.main(['validate', str(second), '--params', str(base), '--json', str(out_base)]) == 0
+    without = json.loads(out_base.read_text())['after']['rms']
     assert fitted <= 1.05 * floor
     assert without > 1.5 * floor  # the supply term matters on the second run
 
