@@ -383,12 +383,12 @@ def gravity_series(diagnosis: Diagnosis, samples: AlignedSamples,
     current model, and the model with the ladder's effects."""
     stamps = samples.stamp_s
     current = validate_gravity(diagnosis.calibration, samples.counts, samples.temp_code, gravity=gravity,
-                               stamp_s=stamps)
+                               stamp_s=stamps, aux=samples.aux)
     series = [('nominal scale and offset only', current.magnitude_before - gravity),
               (diagnosis.ladder[0].label, current.magnitude_after - gravity)]
     if diagnosis.calibration_after is not None:
         after = validate_gravity(diagnosis.calibration_after, samples.counts, samples.temp_code, gravity=gravity,
-                                 stamp_s=stamps)
+                                 stamp_s=stamps, aux=samples.aux)
         series.append((diagnosis.ladder[-1].label, after.magnitude_after - gravity))
     return series
 

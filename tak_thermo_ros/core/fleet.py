@@ -185,7 +185,7 @@ def _link_metrics(calibration: Mapping[str, Any]) -> dict[str, float]:
                 metrics[f'{axis}.{key}[{power}]'] = float(value)
     for name, parameters in (calibration.get('effects') or {}).items():
         for parameter, value in parameters.items():
-            if parameter != 'class':
+            if parameter not in ('class', 'topic', 'field'):  # strings naming the class or signal
                 metrics[f'effects.{name}.{parameter}'] = float(value)
     return metrics
 
