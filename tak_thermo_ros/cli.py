@@ -445,20 +445,39 @@ def _check_kind(args: argparse.Namespace, unit: UnitCalibration, run: BagRun) ->
 
 
 def cmd_import_csv(args: argparse.Namespace) -> int:
-    """Convert a delimited log of a static thermal run into a bag."""
-    from tak_thermo_ros.bagio import write_record
+    """Convert a delimited log of a static thermal run into a bag (counts, or a driver bag with a gyroscope)."""
+    from tak_thermo_ros.bagio import write_driver_record, write_record
     from tak_thermo_ros.core.csv_log import CsvImportOptions, delimiter_from_option, read_csv_log
     options = CsvImportOptions(
         acc_columns=tuple(args.acc_columns), temp_column=args.temp_column, time_column=args.time_column,
         time_unit=args.time_unit, acc_unit=args.acc_unit, acc_resolution=args.acc_resolution,
         temp_resolution=args.temp_resolution, gravity=args.gravity,
         reference=tuple(args.reference) if args.reference else None,
-        delimiter=delimiter_from_option(args.delimiter) if args.delimiter else None, frame_id=args.frame_id)
+        delimiter=delimiter_from_option(args.delimiter) if args.delimiter else None, frame_id=args.frame_id,
+        gyro_columns=tuple(args.gyro_columns) if args.gyro_columns else None, gyro_unit=args.gyro_unit)
     log = read_csv_log(args.log, options)
     record = log.record
-    write_record(args.output, record, topics=_topics(args), storage=args.storage, force=args.force)
+    topics = _topics(args)
+    if log.driver is not None:
+        write_driver_record(args.output, log.driver, topics=topics, storage=args.storage, force=args.force)
+    else:
+        write_record(args.output, record, topics=topics, storage=args.storage, force=args.force)
     print(f'read {args.log}: {log.rows} rows ({log.delimiter_name}-delimited), {log.duration_s:.1f} s '
           f'at {(log.rows - 1) / max(log.duration_s, 1e-9):.3g} Hz')
+    if log.driver is not None:
+        rate = log.driver.gyro
+        print(f'driver bag: acceleration {" ".join(options.acc_columns)} in {options.acc_unit} and angular rate '
+              f'{" ".join(options.gyro_columns)} in {options.gyro_unit} written as {topics.raw_imu} (m/s^2, rad/s: '
+              f'{rate.min():.4g}..{rate.max():.4g} rad/s), temperature {options.temp_column} as {topics.temperature} '
+              f'in degrees C ({log.temperature.min():.2f}..{log.temperature.max():.2f})')
+        x, y, z = (float(v) for v in log.reference)
+        if log.reference_estimated:
+            print(f'no reference topic written: fit takes the run as static (mean direction scaled to gravity, '
+                  f'here ({x:.4f}, {y:.4f}, {z:.4f}) m/s^2, largest deviation {log.max_tilt_deg:.2f} deg; rate zero)')
+        else:
+            print(f'reference (given): ({x:.4f}, {y:.4f}, {z:.4f}) m/s^2 on {topics.reference}, written once')
+        print(f'wrote {args.output} ({args.storage})')
+        return 0
     print(f'acceleration {" ".join(options.acc_columns)} in {options.acc_unit}: counts = round(a / '
           f'{options.acc_resolution:g} m/s^2), {record.counts.min():.0f}..{record.counts.max():.0f}; '
           f'nominal scale {options.nominal_scale:g} counts/(m/s^2) (bag metadata)')
@@ -645,6 +664,11 @@ def build_parser() -> argparse.ArgumentParser:
     imp.add_argument('--delimiter', help='field delimiter: tab, comma, semicolon or one character '
                                          '(default: sniffed from the header line)')
     imp.add_argument('--frame-id', default='imu', help='frame_id of the counts messages (default imu)')
+    imp.add_argument('--gyro-columns', nargs=3, metavar=('X', 'Y', 'Z'),
+                     help='angular-rate columns along the sensor axes: the log becomes a driver bag '
+                          '(Imu in m/s^2 and rad/s, temperature in C) instead of counts')
+    imp.add_argument('--gyro-unit', choices=['rad/s', 'deg/s'], default='rad/s',
+                     help='unit of the angular-rate columns (default rad/s)')
     imp.add_argument('--storage', choices=['mcap', 'sqlite3'], default='mcap')
     _add_topic_options(imp)
     imp.set_defaults(handler=cmd_import_csv)
