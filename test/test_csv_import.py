@@ -152,7 +152,7 @@ def test_gyro_columns_make_a_driver_bag_with_the_logged_values(tmp_path, capsys)
 def test_gyro_unit_deg_per_second_is_converted_to_rad_per_second(tmp_path):
     """A log in deg/s is written in rad/s: 180 deg/s is pi rad/s."""
     lines = ['t,ax,ay,az,temp,gx,gy,gz']
-    lines += [f'{i},{0.01 + 1e-3 * (i % 3)},{0.02 - 1e-3 * (i % 2)},9.8,{20 + i},180,-90,{i}' for i in range(30)]
+    lines += [f'{i},{0.01 + 1e-3 * (i % 3)},{0.02 - 1e-3 * (i % 2)},{9.8 + 1e-3 * (i % 2)},{20 + i},180,-90,{i}' for i in range(30)]
     options = CsvImportOptions(acc_columns=('ax', 'ay', 'az'), temp_column='temp', time_column='t',
                                gyro_columns=('gx', 'gy', 'gz'), gyro_unit='deg/s')
     log = parse_csv_log(lines, options)
