@@ -693,7 +693,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_topic_options(diag)
     diag.set_defaults(handler=cmd_diagnose)
     from tak_thermo_ros.fleet import add_fleet_parser
-    add_fleet_parser(commands, fit)
+    add_fleet_parser(commands, fit, main)
     return parser
 
 
