@@ -34,7 +34,7 @@ from typing import Any, Callable, ClassVar, Mapping, Sequence, TypeVar
 
 import numpy as np
 
-from tak_thermo_ros.core.model import finite_number
+from tak_thermo_ros.core.values import finite_number
 from tak_thermo_ros.errors import CalibrationError, EffectError
 
 AXIS_NAMES: tuple[str, str, str] = ('x', 'y', 'z')
