@@ -427,8 +427,9 @@ def cmd_validate(args: argparse.Namespace) -> int:
         rate = validate_rate(unit.gyro, gyro.counts, gyro.temp_code, gyro.reference, stamp_s=gyro.stamp_s,
                              out_of_range=OutOfRange(args.out_of_range))
         print(f'gyroscope bias error over {len(gyro)} samples (rate minus reference, per axis x y z):')
-        for label, stats in (('before (nominal scale and offset)', rate.before), ('after  (full correction link)', rate.after)):
-            print(f'  {label}: RMS ' + ' '.join(f'{v:.3e}' for v in stats.rms) + ' rad/s; mean '
+        for label, stats in (('before (nominal scale and offset):', rate.before),
+                             ('after  (full correction link):', rate.after)):
+            print(f'  {label:<35}RMS ' + ' '.join(f'{v:.3e}' for v in stats.rms) + ' rad/s; mean '
                   + ' '.join(f'{v:+.3e}' for v in stats.mean) + ' rad/s')
         document['gyro'] = {'samples': len(gyro), 'before': rate.before.as_dict(), 'after': rate.after.as_dict()}
     if args.json:
