@@ -234,6 +234,12 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     if args.json:
         write_text_atomic(args.json, json.dumps(result.as_dict(), indent=2) + '\n')
         print(f'wrote {args.json}')
+    if getattr(args, 'design_run', None):
+        from tak_thermo_ros.core.diagnose import design_run, write_design
+        design = design_run(result, samples, progress=progress)
+        paths = write_design(design, args.design_run)
+        print(design.message())
+        print('wrote ' + ', '.join(str(path) for path in paths))
     if args.report:
         from tak_thermo_ros.report import write_report
         files = write_report(result, samples, args.report, source=Path(args.bag).name, gravity=args.gravity)
@@ -275,7 +281,8 @@ def build_parser() -> argparse.ArgumentParser:
                           'input only; default: the bag metadata written by simulate / import-csv')
     fit.add_argument('--effects', metavar='NAME[,NAME...]',
                      help='effects to fit beyond the paper\'s model: thermal_lag, hysteresis, scale_nonlinearity, '
-                          'cross_axis, warmup, temperature_shape, or module:Class (see docs/effects.md)')
+                          'cross_axis, warmup, temperature_shape, the per-axis forms thermal_lag_per_axis, '
+                          'hysteresis_per_axis, warmup_per_axis, or module:Class (see docs/effects.md)')
     fit.add_argument('--settle-time', type=float, default=0.0, metavar='SECONDS',
                      help='leave out samples this long after each reference change (turntable settling)')
     _add_topic_options(fit)
@@ -337,6 +344,10 @@ def build_parser() -> argparse.ArgumentParser:
     diag.add_argument('--settle-time', type=float, default=0.0, metavar='SECONDS',
                       help='leave out samples this long after each reference change (as for fit)')
     diag.add_argument('--gravity', type=float, default=STANDARD_GRAVITY, help='local gravity for the |g| figure, m/s^2')
+    diag.add_argument('--design-run', metavar='DIR',
+                      help='propose the chamber run that tells the two best candidates apart: writes '
+                           'DIR/scenario.yaml (for tak_calib simulate), DIR/schedule.csv (time_s, setpoint_C) '
+                           'and DIR/design.json with the simulated separation')
     _add_topic_options(diag)
     diag.set_defaults(handler=cmd_diagnose)
     return parser

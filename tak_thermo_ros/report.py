@@ -518,7 +518,7 @@ def _effect_card(diagnosis: Diagnosis) -> str:
     parts.append(f'<p><b>Evidence.</b> {html.escape(best.evidence)}</p>')
     if params:
         parts.append(f'<p><b>Fitted on this run.</b> {params}</p>')
-    effects = ','.join((*diagnosis.present_effects, *diagnosis.ladder[-1].effects[len(diagnosis.present_effects):]))
+    effects = ','.join(diagnosis.ladder[-1].effects)  # a per-axis form in place of its shared form included
     parts.append(f'<p class="small">Refit with it: <code>tak_calib fit BAG -o PARAMS.yaml --effects '
                  f'{html.escape(effects)}</code></p></div>')
     return ''.join(parts)

@@ -33,7 +33,8 @@ All residuals and RMS values are in counts.
 The package is split by responsibility: :mod:`.values` (the returned values),
 :mod:`.views` (noise floor, residual views, drivers, plateaus), :mod:`.crossval` (folds,
 blocked cross-validation, scores), :mod:`.verdict` (the rule and the messages) and
-:mod:`.discover` (the steps put together).
+:mod:`.discover` (the steps put together) and :mod:`.design` (the chamber run that would
+separate the top two candidates).
 """
 
 from tak_thermo_ros.core.diagnose.crossval import (
@@ -43,7 +44,8 @@ from tak_thermo_ros.core.diagnose.crossval import (
     fold_labels,
     unresolved_shapes,
 )
-from tak_thermo_ros.core.diagnose.discover import diagnose
+from tak_thermo_ros.core.diagnose.design import RunDesign, design_run, write_design
+from tak_thermo_ros.core.diagnose.discover import diagnose, null_heldout
 from tak_thermo_ros.core.diagnose.values import (
     AxisSummary,
     Candidate,
@@ -95,17 +97,21 @@ __all__ = [
     'LadderStep',
     'ModelScore',
     'Plateau',
+    'RunDesign',
     'Views',
     'binned_means',
     'build_views',
     'cross_validate',
     'decimate',
+    'design_run',
     'diagnose',
     'explained_fraction',
     'fold_labels',
     'noise_floor',
+    'null_heldout',
     'residual_drivers',
     'segment_breaks',
     'temperature_rate',
     'unresolved_shapes',
+    'write_design',
 ]

@@ -248,7 +248,7 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
 
     first_step: _Step | None = None
     skipped: dict[str, str] = {}
-    per_axis_tried: list[Candidate] = []
+    per_axis_tried: list[tuple[int, Candidate]] = []
     model_specs: tuple[Any, ...] = present
     current = base_score
     changes = 0
@@ -271,8 +271,7 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
                 alternative = _replaced(best_model, added_spec, form)
                 form_score = score(alternative, best_score)
                 if form_score.ok:
-                    if changes == 0:
-                        per_axis_tried.append(candidate_of(form.name, form, current, form_score))
+                    per_axis_tried.append((changes, candidate_of(form.name, form, current, form_score)))
                     gain = best_score.excess(floor) - form_score.excess(floor)
                     if gain > SIGNIFICANCE_SIGMAS * sigma_total(best_score):
                         best_model, best_score = alternative, form_score
@@ -359,7 +358,11 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
     drivers = residual_drivers(final_residual, views) if residual_after is not None else base_drivers
 
     ranked = [item[0] for item in first_step.ranked] if first_step is not None else []
-    ranked += [c for c in per_axis_tried if c.effect not in {r.effect for r in ranked}]
+    for rung, candidate in per_axis_tried:
+        # A per-axis form tried on the first rung compares with the other candidates; one tried
+        # on a later rung is listed only when it is the verdict (its figures are against that rung).
+        if candidate.effect not in {r.effect for r in ranked} and (rung == 0 or candidate.effect == verdict):
+            ranked.append(candidate)
     candidates_out = []
     for candidate in ranked:
         if candidate.effect == verdict and parameters:
