@@ -494,6 +494,17 @@ def _candidates_table(diagnosis: Diagnosis) -> str:
         rows.append(f'<tr{css}><td>{html.escape(candidate.effect)}</td><td>{rms}</td>'
                     f'<td>{round(100 * candidate.explained)}%</td><td>{candidate.significance:.1f}</td>'
                     f'<td style="text-align:left">{html.escape(candidate.evidence)}</td></tr>')
+    listed = {candidate.effect for candidate in diagnosis.candidates}
+    chosen = set(diagnosis.ladder[-1].effects)
+    for form in getattr(diagnosis, 'per_axis_forms', ()):
+        if form.effect in listed:
+            continue
+        rms = ', '.join(f'{v:.3f}' for v in form.rms_after)
+        verdict = 'chosen over the shared form' if form.effect in chosen else 'not better than the shared form'
+        rows.append(f'<tr><td>{html.escape(form.effect)}</td><td>{rms}</td>'
+                    f'<td>{round(100 * form.explained)}%</td><td>{form.significance:.1f}</td>'
+                    f'<td style="text-align:left">per-axis form, {verdict} on held-out blocks. '
+                    f'{html.escape(form.evidence)}</td></tr>')
     skipped = ''.join(f'<tr><td>{html.escape(name)}</td><td colspan="4" style="text-align:left">not tried: '
                       f'{html.escape(reason)}</td></tr>' for name, reason in diagnosis.skipped.items())
     return ('<table><tr><th>effect</th><th>held-out RMS x, y, z</th><th>excess removed</th>'

@@ -28,6 +28,8 @@ from tak_thermo_ros.errors import FitError
 RATE_HZ = 0.1
 """About 2100 samples on the cycle profile: the loop's diagnoses stay at seconds of CPU each."""
 MAX_STEPS = 4
+MAX_CV_SAMPLES = 1100
+"""The cross-validation fits use every second sample (the floor and the views use all)."""
 
 WARMUP_AND_HYSTERESIS = {
     'warmup': {'tau_s': 1200.0, 'amplitude_x': 12.0, 'amplitude_y': -9.0, 'amplitude_z': 15.0},
@@ -52,7 +54,7 @@ def run_loop(samples: AlignedSamples) -> tuple[list[str], list[str], object]:
     verdicts: list[str] = []
     result = fit_model(samples)
     for _ in range(MAX_STEPS):
-        verdict = diagnose(result.calibration, samples).verdict
+        verdict = diagnose(result.calibration, samples, max_cv_samples=MAX_CV_SAMPLES).verdict
         verdicts.append(verdict)
         if verdict in ('none', 'unexplained'):
             break

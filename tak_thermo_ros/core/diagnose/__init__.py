@@ -19,14 +19,20 @@ The steps of :func:`diagnose`:
    model is fitted on the other folds and scored on the held-out one, with stateful effects
    run over the whole series. An effect that merely overfits scores worse, not better.
 4. **Model ladder and verdict**: ``'none'`` when the held-out residual of the current model
-   is at the noise floor. Otherwise the best effect joins the ladder when it removes at least
-   :data:`MIN_STEP_FRACTION` of the held-out excess variance over the floor, by far more than
-   noise could (:data:`SIGNIFICANCE_SIGMAS`), and the ladder climbs (current model + effect +
-   next effect ...) while structure remains. The verdict is the ladder's first effect when the
+   is at the noise floor, or no further above it than the same model on a simulated copy of
+   the run in which that model is true (:func:`null_heldout`: the cost of parameters
+   estimated without the held-out block). Otherwise the best effect joins the ladder when it
+   removes at least :data:`MIN_STEP_FRACTION` of the held-out excess variance over the floor,
+   by far more than noise could (:data:`SIGNIFICANCE_SIGMAS`), and the ladder climbs (current
+   model + effect + next effect ...) while structure remains. The verdict is the ladder's first effect when the
    ladder removes at least :data:`MIN_TOTAL_FRACTION` of the excess and the run resolves its
    shape (a fitted time constant or width not at the edge of the range searched on this run,
    see :func:`unresolved_shapes`); ``'unexplained'`` otherwise, with what the residual still
-   follows.
+   follows. When the ladder stops, each effect it added is removed in turn and dropped when
+   the held-out blocks do not notice (an early effect that stood in for two later ones); the
+   verdict is then the remaining effect that scored best alone. A shared effect that joins the
+   ladder is also tried in its per-axis form (``thermal_lag_per_axis``), which takes its place
+   only when held-out blocks prefer it by more than noise could.
 
 All residuals and RMS values are in counts.
 

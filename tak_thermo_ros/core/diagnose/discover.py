@@ -358,10 +358,10 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
     drivers = residual_drivers(final_residual, views) if residual_after is not None else base_drivers
 
     ranked = [item[0] for item in first_step.ranked] if first_step is not None else []
-    for rung, candidate in per_axis_tried:
-        # A per-axis form tried on the first rung compares with the other candidates; one tried
-        # on a later rung is listed only when it is the verdict (its figures are against that rung).
-        if candidate.effect not in {r.effect for r in ranked} and (rung == 0 or candidate.effect == verdict):
+    for _, candidate in per_axis_tried:
+        # A per-axis form tried in place of a shared form that joined the ladder is listed with
+        # the candidates when it is the verdict; all of them are in ``per_axis_forms``.
+        if candidate.effect not in {r.effect for r in ranked} and candidate.effect == verdict:
             ranked.append(candidate)
     candidates_out = []
     for candidate in ranked:
@@ -384,4 +384,5 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
                      residual=residual, residual_after=residual_after, calibration=calibration,
                      calibration_after=calibration_after, views=views, folds=folds, blocks=blocks,
                      cv_stride=stride, present_effects=present_names, explained=float(explained_total),
-                     unresolved=unresolved, pruned=tuple(pruned))
+                     unresolved=unresolved, pruned=tuple(pruned),
+                     per_axis_forms=tuple(candidate for _, candidate in per_axis_tried))

@@ -186,6 +186,9 @@ class Diagnosis:
     :param explained: share of the current model's held-out excess that the ladder removes.
     :param unresolved: ladder effect -> its shape parameters fitted at the edge of the searched
         range (the run does not identify it; it is then not the verdict).
+    :param per_axis_forms: per-axis forms tried in place of a shared form that joined the ladder
+        (``explained`` and ``significance`` against the rung below); the ladder holds the
+        per-axis form when held-out blocks preferred it by more than noise could.
     :param pruned: effects the forward ladder took that the final model does not need (held-out
         blocks do not notice their removal once the later effects are in).
     """
@@ -210,6 +213,7 @@ class Diagnosis:
     explained: float = 0.0
     unresolved: dict[str, str] = field(default_factory=dict)
     pruned: tuple[str, ...] = ()
+    per_axis_forms: tuple[Candidate, ...] = ()
 
     @property
     def noise_floor(self) -> np.ndarray:
@@ -229,6 +233,7 @@ class Diagnosis:
             'skipped': dict(self.skipped),
             'unresolved': dict(self.unresolved),
             'pruned': list(self.pruned),
+            'per_axis_forms': [c.as_dict() for c in self.per_axis_forms],
             'ladder': [step.as_dict() for step in self.ladder],
             'residual_follows': [{'quantity': d.name, 'variance_fraction': dict(zip(AXES, d.fraction))}
                                  for d in self.drivers],
