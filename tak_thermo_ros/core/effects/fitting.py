@@ -466,8 +466,17 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
                               axes=tuple(axes_models), notes=calibration0.notes,  # type: ignore[arg-type]
                               effects=ordered)
     residual = residual_counts(calibration, samples)[mask]
-    shape_count = sum(len(entry.searched) + (1 if entry.mode == 'structure' else 0) for entry in offsets)
-    parameters = [fixed[i].shape[1] + extra_raw[i].shape[1] + shape_count for i in range(3)]
+    def shape_count(axis: int) -> int:
+        """Searched shape parameters that axis ``axis`` depends on (a per-axis form: its own only)."""
+        count = 0
+        for entry in offsets:
+            own = [name for name, *_ in entry.searched]
+            if len(set(entry.effect.axis_columns())) > 1:
+                own = [name for name in own if name.endswith(f'_{AXIS_NAMES[axis]}')]
+            count += len(own) + (1 if entry.mode == 'structure' else 0)
+        return count
+
+    parameters = [fixed[i].shape[1] + extra_raw[i].shape[1] + shape_count(i) for i in range(3)]
     errors = _standard_errors(offsets, input_effects, designs, residual_sums, betas, fixed, force,
                               stamp_all, code_all, mask)
     return finish_fit(calibration, residual, parameters, dropped=samples.dropped, parameter_errors=errors)
