@@ -109,7 +109,7 @@ class RunDesign:
         best = self.best
         return (f'To tell {a} from {b}: {best.label} ({best.hours:.1f} h). Simulated with each candidate\'s '
                 f'fitted parameters, the other cannot absorb {best.separation_sigmas:.0f} noise sigmas of it '
-                f'at {self.sample_rate_hz:g} Hz (what it cannot absorb, RMS in units of the floor: '
+                f'at {self.sample_rate_hz:.3g} Hz (what it cannot absorb, RMS in units of the floor: '
                 f'{", ".join(f"{n} {v:.2f}" for n, v in zip(AXES, best.rms_over_floor))}); '
                 f'on the diagnosed run itself: {self.baseline_sigmas:.0f} sigmas.')
 
