@@ -502,6 +502,10 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     unit = load_unit(args.params)
     run = _read_run(args, calibration_run=True, settle_time_s=args.settle_time)
     _check_kind(args, unit, run)
+    if getattr(args, 'design_run', None) and run.input_kind is not InputKind.COUNTS:
+        msg = ('--design-run: the run design simulates the paper\'s counts unit; for a driver bag it is not '
+               'available yet (diagnose without it)')
+        raise TakError(msg)
     verbose = not args.no_progress and sys.stderr.isatty()
     candidates = expand_candidates(args.candidates) if args.candidates else None
     for line in run.reference_lines:
@@ -545,6 +549,12 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                                    for sensor, result in results.items()}
         write_text_atomic(args.json, _json_text(document, args.json))
         print(f'wrote {args.json}')
+    if getattr(args, 'design_run', None):
+        from tak_thermo_ros.core.diagnose import design_run, write_design
+        design = design_run(results['accel'], run.sensor('accel').samples)
+        paths = write_design(design, args.design_run)
+        print(design.message())
+        print('wrote ' + ', '.join(str(path) for path in paths))
     if args.report:
         from tak_thermo_ros.report import write_report, write_sensor_index
         check_output(args.report, REPORT, force=args.force, option='--report')
@@ -611,7 +621,8 @@ def build_parser() -> argparse.ArgumentParser:
                           'input only; default: the bag metadata written by simulate / import-csv')
     fit.add_argument('--effects', metavar='NAME[,NAME...]',
                      help='effects to fit beyond the paper\'s model: thermal_lag, hysteresis, scale_nonlinearity, '
-                          'cross_axis, warmup, temperature_shape, or module:Class (see docs/effects.md)')
+                          'cross_axis, warmup, temperature_shape, the per-axis forms thermal_lag_per_axis, '
+                          'hysteresis_per_axis, warmup_per_axis, or module:Class (see docs/effects.md)')
     fit.add_argument('--gyro-effects', metavar='NAME[,NAME...]',
                      help='effects to fit on the gyroscope (driver bags), the same names as --effects')
     fit.add_argument('--settle-time', type=bounds.seconds_not_negative, default=0.0, metavar='SECONDS',
@@ -691,6 +702,10 @@ def build_parser() -> argparse.ArgumentParser:
                            f'({bounds.GRAVITY_MIN:g}..{bounds.GRAVITY_MAX:g})')
     diag.add_argument('--latitude', type=bounds.latitude, metavar='DEG',
                       help="driver bags without a rate reference: add the Earth rate's vertical component")
+    diag.add_argument('--design-run', metavar='DIR',
+                      help='propose the chamber run that tells the two best candidates apart: writes '
+                           'DIR/scenario.yaml (for tak_calib simulate), DIR/schedule.csv (time_s, setpoint_C) '
+                           'and DIR/design.json with the simulated separation')
     _add_topic_options(diag)
     diag.set_defaults(handler=cmd_diagnose)
     from tak_thermo_ros.fleet import add_fleet_parser

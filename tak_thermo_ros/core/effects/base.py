@@ -223,6 +223,15 @@ class Effect:
         return tuple(tuple(f'{prefix}_{axis}{suffix}' for suffix in suffixes)
                      for axis in AXIS_NAMES)  # type: ignore[return-value]
 
+    def axis_columns(self) -> tuple[tuple[int, ...], tuple[int, ...], tuple[int, ...]]:
+        """Per axis, the basis signals its amplitudes (:meth:`amplitude_names`) multiply.
+
+        Default: every signal on every axis. A per-axis form (``core.effects.per_axis``) uses
+        signal ``i`` on axis ``i`` only.
+        """
+        every = tuple(range(len(self.basis_suffixes())))
+        return (every, every, every)
+
     def amplitudes(self) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
         """Amplitude values per axis, in basis order."""
         return tuple(tuple(self._values[name] for name in names)
