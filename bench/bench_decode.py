@@ -1,7 +1,7 @@
 """Benchmark: block CDR decoding (``tak_thermo_ros.cdr``) against rosbags' per-message deserialisation.
 
-Two measurements, each side in its own subprocess so that its peak resident set (``wait4``
-rusage ``ru_maxrss``) is its own:
+Two measurements, each side in its own subprocess so that its peak resident set (``VmHWM`` of
+``/proc/self/status``, which starts afresh at ``exec``, unlike ``ru_maxrss``) is its own:
 
 - ``decode``: raw messages at 1 kHz (stamps 1 ms apart, random values, frame ``imu_link``) of
   ``Vector3Stamped``, ``Temperature`` and ``Imu``, 1e6 and 5e6 of each, generated chunk by chunk
@@ -15,14 +15,14 @@ rusage ``ru_maxrss``) is its own:
 
 Results: ``bench/results/decode.json``. There is no target: the script reports the speed-up.
 
-Run: ``.venv/bin/python bench/bench_decode.py [--messages 1000000 5000000] [--record-messages 1000000]``.
+Run: ``.venv/bin/python bench/bench_decode.py [--messages 1000000 5000000] [--record-messages 1000000]``
+(``--keep-decode`` re-measures ``read_record`` only and keeps the decode rows of the results file).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import resource
 import statistics
 import subprocess
 import sys
@@ -131,6 +131,15 @@ def worker_record(bag: str, decoder: str) -> dict[str, object]:
             'checksum': float(np.nansum(record.counts)) + float(np.nansum(record.temp_code))}
 
 
+def _peak_rss_kib() -> int:
+    """Peak resident set of this process image (``VmHWM``), in KiB."""
+    for line in Path('/proc/self/status').read_text().splitlines():
+        if line.startswith('VmHWM:'):
+            return int(line.split()[1])
+    msg = 'no VmHWM in /proc/self/status'
+    raise RuntimeError(msg)
+
+
 def _run_worker(*arguments: str) -> dict[str, object]:
     """One worker in its own interpreter; its figures and peak resident set."""
     command = [sys.executable, str(Path(__file__).resolve()), '--worker', *arguments]
@@ -138,7 +147,7 @@ def _run_worker(*arguments: str) -> dict[str, object]:
     if result.returncode != 0:
         raise SystemExit(f'worker {arguments} failed:\n{result.stderr}')
     figures = json.loads(result.stdout.strip().splitlines()[-1])
-    figures['peak_rss_bytes'] = figures.pop('own_maxrss_kib') * 1024
+    figures['peak_rss_bytes'] = figures.pop('own_peak_rss_kib') * 1024
     return figures
 
 
@@ -199,17 +208,22 @@ def main(argv: list[str] | None = None) -> int:
                         help='counts messages of the simulated run read by read_record (0: skip)')
     parser.add_argument('--storages', nargs='+', default=['mcap', 'sqlite3'])
     parser.add_argument('--repeat', type=int, default=1)
+    parser.add_argument('--keep-decode', action='store_true',
+                        help='skip the decode measurement, keep its rows from bench/results/decode.json')
     parser.add_argument('--worker', nargs='+', help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.worker:
         kind, *rest = args.worker
         figures = (worker_decode(rest[0], int(rest[1]), rest[2]) if kind == 'decode'
                    else worker_record(rest[0], rest[1]))
-        figures['own_maxrss_kib'] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        figures['own_peak_rss_kib'] = _peak_rss_kib()
         print(json.dumps(figures))
         return 0
     before = machine()
-    decode = bench_decode(args.messages, args.repeat)
+    if args.keep_decode:
+        decode = json.loads((RESULTS / 'decode.json').read_text(encoding='utf-8'))['decode']
+    else:
+        decode = bench_decode(args.messages, args.repeat)
     record = []
     if args.record_messages:
         with tempfile.TemporaryDirectory(prefix='bench_decode.') as workdir:

@@ -15,8 +15,17 @@ noise floor, and the |g| error of a second run of the same unit (another seed) m
 A run without a hidden effect must give ``none``; one with the unobserved supply-voltage
 drift ``unexplained``. (``test/test_diagnose.py`` runs a representative subset.)
 
-Run: ``.venv/bin/python bench/bench_diagnose.py [--matrix] [--seeds 3]``.
-Writes ``bench/results/diagnose.json`` (and ``diagnose_matrix.json`` with ``--matrix``).
+Loop matrix (``--loop``): the user's loop (diagnose, add the named effect or swap in the
+named per-axis form, refit, diagnose again, at most five steps) on runs with two hidden
+effects (pairs of library effects) and with per-axis shape parameters (``*_per_axis``, the
+axes' time constants or widths a factor 2 apart), with parameters drawn per seed. A case
+passes when the loop ends on ``none``, the final model holds exactly the hidden effects, and
+the |g| RMS error of a second run (another noise seed) lies within 5 % of what the true
+calibration gives on that run.
+
+Run: ``.venv/bin/python bench/bench_diagnose.py [--matrix] [--seeds 3] [--loop-only]``.
+Writes ``bench/results/diagnose.json`` (``diagnose_matrix.json`` with ``--matrix``,
+``diagnose_loop.json`` with ``--loop``).
 """
 
 from __future__ import annotations
@@ -36,7 +45,7 @@ import numpy as np
 from benchlib import machine, stretched, tak_calib_command
 from tak_thermo_ros.core.calibration_file import save_calibration, write_text_atomic
 from tak_thermo_ros.core.diagnose import diagnose
-from tak_thermo_ros.core.effects import LIBRARY, seconds_from_ns
+from tak_thermo_ros.core.effects import LIBRARY, resolve_effect, seconds_from_ns
 from tak_thermo_ros.core.fit import fit_model, residual_counts
 from tak_thermo_ros.core.record import align
 from tak_thermo_ros.core.simulate import PROFILES, Scenario, simulate
@@ -206,6 +215,102 @@ def bench_matrix(seeds: int, rate_hz: float) -> dict[str, object]:
             'passed': len(cases) - len(failed), 'total': len(cases)}
 
 
+# --------------------------------------------------------------------------------- loop
+
+LOOP_PAIRS = (('warmup', 'hysteresis'), ('thermal_lag', 'warmup'), ('thermal_lag', 'hysteresis'),
+              ('thermal_lag', 'cross_axis'))
+LOOP_PER_AXIS = ('thermal_lag_per_axis', 'warmup_per_axis', 'hysteresis_per_axis')
+LOOP_STEPS = 5
+G_FACTOR = 1.05
+
+
+def per_axis_hidden(name: str, seed: int) -> dict[str, float]:
+    """True parameters of a per-axis form: the axes' shapes a factor 2 apart (order drawn per seed)."""
+    rng = np.random.default_rng(2000 + seed)
+    shared = name[:-len('_per_axis')]
+    middle = {'thermal_lag': (900.0, 1800.0), 'warmup': (600.0, 1200.0), 'hysteresis': (20.0, 40.0)}[shared]
+    centre = float(rng.uniform(*middle))
+    shapes = rng.permutation([centre / 2.0, centre, centre * 2.0])
+    drawn = hidden_effect(shared, seed, (0.0, 1.0))
+    shape_name = 'width_codes' if shared == 'hysteresis' else 'tau_s'
+    drawn.pop(shape_name)
+    return {**drawn, **{f'{shape_name}_{axis}': float(v) for axis, v in zip('xyz', shapes)}}
+
+
+def loop_case(hidden: tuple[str, ...], profile: str, seed: int, rate_hz: float) -> dict[str, object]:
+    """The user's loop on one run with the given hidden effects."""
+    scenario = matrix_scenario(profile, seed, rate_hz)
+    visited = (scenario.start_celsius, *scenario.plateaus_celsius)
+    codes = tuple(scenario.temp_code_ref + scenario.codes_per_celsius * (t - scenario.reference_celsius)
+                  for t in (min(visited), max(visited)))
+    truth_effects = {name: (per_axis_hidden(name, seed) if name.endswith('_per_axis')
+                            else hidden_effect(name, seed, codes)) for name in hidden}  # type: ignore[arg-type]
+    scenario = replace(scenario, effects=truth_effects)
+    run = simulate(scenario)
+    samples = align(run.record)
+    floor = np.array([math.sqrt(a.noise_counts ** 2 + 1.0 / 12.0) for a in scenario.unit])
+    start = time.perf_counter()
+    effects: list[str] = []
+    verdicts: list[str] = []
+    steps = []
+    result = fit_model(samples)
+    for _ in range(LOOP_STEPS):
+        diagnosis = diagnose(result.calibration, samples)
+        verdicts.append(diagnosis.verdict)
+        steps.append({'verdict': diagnosis.verdict, 'pruned': list(diagnosis.pruned),
+                      'heldout_over_floor': [a.heldout_rms / a.noise_floor for a in diagnosis.axes],
+                      'null_over_floor': [a.null_heldout_rms / a.noise_floor for a in diagnosis.axes],
+                      'ladder': [step.label for step in diagnosis.ladder]})
+        if diagnosis.verdict in ('none', 'unexplained'):
+            break
+        shared = getattr(resolve_effect(diagnosis.verdict), 'shared', None)
+        if shared is not None and shared.name in effects:
+            effects[effects.index(shared.name)] = diagnosis.verdict
+        else:
+            effects.append(diagnosis.verdict)
+        result = fit_model(samples, effects=effects)
+    seconds = time.perf_counter() - start
+    rms = np.sqrt(np.mean(residual_counts(result.calibration, samples) ** 2, axis=0))
+    second = align(simulate(replace(scenario, seed=seed + 1000)).record)
+    stamps = seconds_from_ns(second.stamp_ns)
+    found = validate_gravity(result.calibration, second.counts, second.temp_code, stamp_s=stamps).after.rms
+    true = validate_gravity(run.truth, second.counts, second.temp_code, stamp_s=stamps).after.rms
+    case: dict[str, object] = {
+        'hidden': list(hidden), 'profile': profile, 'seed': seed, 'samples': len(samples), 'verdicts': verdicts,
+        'final_effects': effects, 'seconds': seconds, 'steps': steps,
+        'final_rms_over_floor': (rms / floor).tolist(),
+        'second_run_g_rms': {'loop': found, 'truth': true},
+        'ends_none': verdicts[-1] == 'none', 'only_true_effects': sorted(effects) == sorted(hidden),
+        'g_ok': found <= G_FACTOR * true,
+    }
+    if any(name.endswith('_per_axis') for name in hidden):
+        fitted = {e.name: e.values for e in result.calibration.effects}
+        case['fitted_shapes'] = {name: {k: v for k, v in fitted.get(name, {}).items() if k[:-2] in ('tau_s', 'width_codes')}
+                                 for name in hidden}
+        case['true_shapes'] = {name: {k: v for k, v in truth_effects[name].items() if k[:-2] in ('tau_s', 'width_codes')}
+                               for name in hidden}
+    return case
+
+
+def bench_loop(seeds: int, rate_hz: float, profiles: list[str]) -> dict[str, object]:
+    """Pairs of effects and per-axis forms x profiles x seeds."""
+    cases = []
+    for hidden in [*LOOP_PAIRS, *((name,) for name in LOOP_PER_AXIS)]:
+        for profile in profiles:
+            for seed in range(1, seeds + 1):
+                case = loop_case(hidden, profile, seed, rate_hz)
+                ok = case['ends_none'] and case['only_true_effects'] and case['g_ok']
+                g_rms: dict = case['second_run_g_rms']  # type: ignore[assignment]
+                print(f'{" + ".join(hidden):<28} {profile:<10} seed {seed}: {" -> ".join(case["verdicts"])}  '  # type: ignore[arg-type]
+                      f'{"ok" if ok else "FAILED"}  final/floor {max(case["final_rms_over_floor"]):.3f}  '  # type: ignore[arg-type]
+                      f'|g| rms {g_rms["loop"]:.5f} (truth {g_rms["truth"]:.5f})  ({case["samples"]} samples, '
+                      f'{case["seconds"]:.0f} s)', flush=True)
+                cases.append(case)
+    passed = sum(1 for c in cases if c['ends_none'] and c['only_true_effects'] and c['g_ok'])
+    return {'rate_hz': rate_hz, 'seeds': seeds, 'profiles': profiles, 'cases': cases,
+            'passed': passed, 'total': len(cases)}
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the speed benchmark (and the matrix with ``--matrix``); print and write JSON."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -216,8 +321,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--matrix-only', action='store_true', help='run the verdict matrix only')
     parser.add_argument('--seeds', type=int, default=3, help='seeds per effect and profile (default 3)')
     parser.add_argument('--matrix-rate', type=float, default=0.5, help='samples per second of matrix runs')
+    parser.add_argument('--loop', action='store_true', help='also run the loop matrix (pairs, per-axis)')
+    parser.add_argument('--loop-only', action='store_true', help='run the loop matrix only')
+    parser.add_argument('--loop-seeds', type=int, default=2, help='seeds per case of the loop matrix (default 2)')
+    parser.add_argument('--loop-rate', type=float, default=0.2, help='samples per second of loop runs (default 0.2)')
+    parser.add_argument('--loop-profiles', default='cycle,paper', help='profiles of the loop matrix')
     args = parser.parse_args(argv)
     status = 0
+    if args.loop or args.loop_only:
+        loop = bench_loop(args.loop_seeds, args.loop_rate, [p for p in args.loop_profiles.split(',') if p])
+        document = {'benchmark': 'diagnose_loop', 'machine': machine(), **loop}
+        RESULTS.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(RESULTS / 'diagnose_loop.json', json.dumps(document, indent=2) + '\n')
+        print(f'loop matrix: {loop["passed"]}/{loop["total"]} cases pass; wrote {RESULTS / "diagnose_loop.json"}')
+        status |= 0 if loop['passed'] == loop['total'] else 1
+        if args.loop_only:
+            return status
     if not args.matrix_only:
         speed = bench_speed(args.workdir, args.hours, args.rate)
         document = {'benchmark': 'diagnose', 'machine': machine(), **speed}

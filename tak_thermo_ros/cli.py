@@ -436,8 +436,9 @@ def cmd_validate(args: argparse.Namespace) -> int:
         rate = validate_rate(unit.gyro, gyro.counts, gyro.temp_code, gyro.reference, stamp_s=gyro.stamp_s,
                              aux=gyro.aux, out_of_range=OutOfRange(args.out_of_range))
         print(f'gyroscope bias error over {len(gyro)} samples (rate minus reference, per axis x y z):')
-        for label, stats in (('before (nominal scale and offset)', rate.before), ('after  (full correction link)', rate.after)):
-            print(f'  {label}: RMS ' + ' '.join(f'{v:.3e}' for v in stats.rms) + ' rad/s; mean '
+        for label, stats in (('before (nominal scale and offset):', rate.before),
+                             ('after  (full correction link):', rate.after)):
+            print(f'  {label:<35}RMS ' + ' '.join(f'{v:.3e}' for v in stats.rms) + ' rad/s; mean '
                   + ' '.join(f'{v:+.3e}' for v in stats.mean) + ' rad/s')
         document['gyro'] = {'samples': len(gyro), 'before': rate.before.as_dict(), 'after': rate.after.as_dict()}
     if args.json:
@@ -454,20 +455,39 @@ def _check_kind(args: argparse.Namespace, unit: UnitCalibration, run: BagRun) ->
 
 
 def cmd_import_csv(args: argparse.Namespace) -> int:
-    """Convert a delimited log of a static thermal run into a bag."""
-    from tak_thermo_ros.bagio import write_record
+    """Convert a delimited log of a static thermal run into a bag (counts, or a driver bag with a gyroscope)."""
+    from tak_thermo_ros.bagio import write_driver_record, write_record
     from tak_thermo_ros.core.csv_log import CsvImportOptions, delimiter_from_option, read_csv_log
     options = CsvImportOptions(
         acc_columns=tuple(args.acc_columns), temp_column=args.temp_column, time_column=args.time_column,
         time_unit=args.time_unit, acc_unit=args.acc_unit, acc_resolution=args.acc_resolution,
         temp_resolution=args.temp_resolution, gravity=args.gravity,
         reference=tuple(args.reference) if args.reference else None,
-        delimiter=delimiter_from_option(args.delimiter) if args.delimiter else None, frame_id=args.frame_id)
+        delimiter=delimiter_from_option(args.delimiter) if args.delimiter else None, frame_id=args.frame_id,
+        gyro_columns=tuple(args.gyro_columns) if args.gyro_columns else None, gyro_unit=args.gyro_unit)
     log = read_csv_log(args.log, options)
     record = log.record
-    write_record(args.output, record, topics=_topics(args), storage=args.storage, force=args.force)
+    topics = _topics(args)
+    if log.driver is not None:
+        write_driver_record(args.output, log.driver, topics=topics, storage=args.storage, force=args.force)
+    else:
+        write_record(args.output, record, topics=topics, storage=args.storage, force=args.force)
     print(f'read {args.log}: {log.rows} rows ({log.delimiter_name}-delimited), {log.duration_s:.1f} s '
           f'at {(log.rows - 1) / max(log.duration_s, 1e-9):.3g} Hz')
+    if log.driver is not None:
+        rate = log.driver.gyro
+        print(f'driver bag: acceleration {" ".join(options.acc_columns)} in {options.acc_unit} and angular rate '
+              f'{" ".join(options.gyro_columns)} in {options.gyro_unit} written as {topics.raw_imu} (m/s^2, rad/s: '
+              f'{rate.min():.4g}..{rate.max():.4g} rad/s), temperature {options.temp_column} as {topics.temperature} '
+              f'in degrees C ({log.temperature.min():.2f}..{log.temperature.max():.2f})')
+        x, y, z = (float(v) for v in log.reference)
+        if log.reference_estimated:
+            print(f'no reference topic written: fit takes the run as static (mean direction scaled to gravity, '
+                  f'here ({x:.4f}, {y:.4f}, {z:.4f}) m/s^2, largest deviation {log.max_tilt_deg:.2f} deg; rate zero)')
+        else:
+            print(f'reference (given): ({x:.4f}, {y:.4f}, {z:.4f}) m/s^2 on {topics.reference}, written once')
+        print(f'wrote {args.output} ({args.storage})')
+        return 0
     print(f'acceleration {" ".join(options.acc_columns)} in {options.acc_unit}: counts = round(a / '
           f'{options.acc_resolution:g} m/s^2), {record.counts.min():.0f}..{record.counts.max():.0f}; '
           f'nominal scale {options.nominal_scale:g} counts/(m/s^2) (bag metadata)')
@@ -491,6 +511,10 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     unit = load_unit(args.params)
     run = _read_run(args, calibration_run=True, settle_time_s=args.settle_time)
     _check_kind(args, unit, run)
+    if getattr(args, 'design_run', None) and run.input_kind is not InputKind.COUNTS:
+        msg = ('--design-run: the run design simulates the paper\'s counts unit; for a driver bag it is not '
+               'available yet (diagnose without it)')
+        raise TakError(msg)
     verbose = not args.no_progress and sys.stderr.isatty()
     candidates = expand_candidates(args.candidates) if args.candidates else None
     for line in run.reference_lines:
@@ -539,6 +563,12 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                                    for sensor, result in results.items()}
         write_text_atomic(args.json, _json_text(document, args.json))
         print(f'wrote {args.json}')
+    if getattr(args, 'design_run', None):
+        from tak_thermo_ros.core.diagnose import design_run, write_design
+        design = design_run(results['accel'], run.sensor('accel').samples)
+        paths = write_design(design, args.design_run)
+        print(design.message())
+        print('wrote ' + ', '.join(str(path) for path in paths))
     if args.report:
         from tak_thermo_ros.report import write_report, write_sensor_index
         check_output(args.report, REPORT, force=args.force, option='--report')
@@ -605,7 +635,8 @@ def build_parser() -> argparse.ArgumentParser:
                           'input only; default: the bag metadata written by simulate / import-csv')
     fit.add_argument('--effects', metavar='NAME[,NAME...]',
                      help='effects to fit beyond the paper\'s model: thermal_lag, hysteresis, scale_nonlinearity, '
-                          'cross_axis, warmup, temperature_shape, or module:Class (see docs/effects.md)')
+                          'cross_axis, warmup, temperature_shape, the per-axis forms thermal_lag_per_axis, '
+                          'hysteresis_per_axis, warmup_per_axis, or module:Class (see docs/effects.md)')
     fit.add_argument('--gyro-effects', metavar='NAME[,NAME...]',
                      help='effects to fit on the gyroscope (driver bags), the same names as --effects')
     fit.add_argument('--settle-time', type=bounds.seconds_not_negative, default=0.0, metavar='SECONDS',
@@ -659,6 +690,11 @@ def build_parser() -> argparse.ArgumentParser:
     imp.add_argument('--delimiter', help='field delimiter: tab, comma, semicolon or one character '
                                          '(default: sniffed from the header line)')
     imp.add_argument('--frame-id', default='imu', help='frame_id of the counts messages (default imu)')
+    imp.add_argument('--gyro-columns', nargs=3, metavar=('X', 'Y', 'Z'),
+                     help='angular-rate columns along the sensor axes: the log becomes a driver bag '
+                          '(Imu in m/s^2 and rad/s, temperature in C) instead of counts')
+    imp.add_argument('--gyro-unit', choices=['rad/s', 'deg/s'], default='rad/s',
+                     help='unit of the angular-rate columns (default rad/s)')
     imp.add_argument('--storage', choices=['mcap', 'sqlite3'], default='mcap')
     _add_topic_options(imp)
     imp.set_defaults(handler=cmd_import_csv)
@@ -680,10 +716,14 @@ def build_parser() -> argparse.ArgumentParser:
                            f'({bounds.GRAVITY_MIN:g}..{bounds.GRAVITY_MAX:g})')
     diag.add_argument('--latitude', type=bounds.latitude, metavar='DEG',
                       help="driver bags without a rate reference: add the Earth rate's vertical component")
+    diag.add_argument('--design-run', metavar='DIR',
+                      help='propose the chamber run that tells the two best candidates apart: writes '
+                           'DIR/scenario.yaml (for tak_calib simulate), DIR/schedule.csv (time_s, setpoint_C) '
+                           'and DIR/design.json with the simulated separation')
     _add_topic_options(diag)
     diag.set_defaults(handler=cmd_diagnose)
     from tak_thermo_ros.fleet import add_fleet_parser
-    add_fleet_parser(commands, fit)
+    add_fleet_parser(commands, fit, main)
     return parser
 
 

@@ -34,7 +34,7 @@ import time
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence, TextIO
+from typing import Any, Callable, Sequence, TextIO
 
 from tak_thermo_ros.core.calibration_file import NODE_NAME, write_text_atomic
 from tak_thermo_ros.core.correction import OutOfRange
@@ -120,13 +120,17 @@ class UnitOutcome:
 
 # ------------------------------------------------------------------------------ in the worker
 
-def _run_cli(argv: list[str]) -> tuple[int, str, str]:
+Command = Callable[[list[str]], int]
+"""``tak_calib``'s entry point (:func:`tak_thermo_ros.cli.main`), handed in by the command line
+that registers fit-fleet, so that this module never imports it back."""
+
+
+def _run_cli(command: Command, argv: list[str]) -> tuple[int, str, str]:
     """``tak_calib ARGV`` in this process: exit status, stdout, stderr."""
-    from tak_thermo_ros.cli import main
     out, err = io.StringIO(), io.StringIO()
     with _CLI_LOCK, contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         try:
-            status = main(argv)
+            status = command(argv)
         except SystemExit as stop:  # argparse rejected an option
             status = stop.code if isinstance(stop.code, int) else 2
         except Exception as error:  # a bug, not a TakError: keep the unit's traceback in its log
@@ -145,8 +149,8 @@ def _error_line(stderr: str, status: int) -> str:
     return lines[-1] if lines else f'exit status {status}'
 
 
-def run_unit(task: UnitTask) -> UnitOutcome:
-    """Fit, diagnose and validate one unit in this process; never raises for a bad unit."""
+def run_unit(task: UnitTask, command: Command) -> UnitOutcome:
+    """Fit, diagnose and validate one unit in this process with ``command``; never raises for a bad unit."""
     start = time.perf_counter()
     directory = Path(task.directory)
     outcome = UnitOutcome(unit=task.unit, bag=task.bag, validation_bag=task.validation_bag,
@@ -166,7 +170,7 @@ def run_unit(task: UnitTask) -> UnitOutcome:
     log = [f'unit {task.unit} on {outcome.worker} (OPENBLAS_NUM_THREADS={outcome.openblas_threads})\n']
     for step, argv in steps:
         step_start = time.perf_counter()
-        status, stdout, stderr = _run_cli(argv)
+        status, stdout, stderr = _run_cli(command, argv)
         log.append(f'\n$ tak_calib {shlex.join(argv)}\n{stdout}{stderr}'
                    f'exit status {status} after {time.perf_counter() - step_start:.2f} s\n')
         if status != 0:
@@ -266,10 +270,12 @@ def _connect(scheduler: str | None, workers: int) -> tuple[Any, Any]:
     return Client(cluster), cluster
 
 
-def run_batch(tasks: Sequence[UnitTask], *, scheduler: str | None = None, workers: int = DEFAULT_WORKERS,
+def run_batch(tasks: Sequence[UnitTask], command: Command, *, scheduler: str | None = None,
+              workers: int = DEFAULT_WORKERS,
               progress: TextIO | None = None) -> list[UnitOutcome]:
     """Run every unit on Dask; the outcomes in the order of ``tasks``.
 
+    :param command: ``tak_calib``'s entry point, run per unit in the workers.
     :param scheduler: address of a running Dask scheduler; ``None`` = a local cluster.
     :param workers: worker processes of the local cluster (one thread each).
     :param progress: where to print one line per finished unit (default stderr).
@@ -279,7 +285,7 @@ def run_batch(tasks: Sequence[UnitTask], *, scheduler: str | None = None, worker
     client, cluster = _connect(scheduler, workers)
     outcomes: dict[str, UnitOutcome] = {}
     try:
-        futures = {client.submit(run_unit, task, pure=False): task for task in tasks}
+        futures = {client.submit(run_unit, task, command, pure=False): task for task in tasks}
         for done, future in enumerate(as_completed(futures), start=1):
             task = futures[future]
             try:
@@ -385,7 +391,7 @@ def _tasks(args: argparse.Namespace, fit_actions: Sequence[argparse.Action], uni
             for name, bag, check in zip(unit_names(args.bags), bags, validation)]
 
 
-def cmd_fit_fleet(args: argparse.Namespace, fit_actions: Sequence[argparse.Action]) -> int:
+def cmd_fit_fleet(args: argparse.Namespace, fit_actions: Sequence[argparse.Action], command: Command) -> int:
     """Calibrate a batch of units on Dask; write per-unit outputs, ``fleet.json`` and ``fleet.html``."""
     from tak_thermo_ros.fleet_report import write_fleet_report
     out_dir = Path(os.path.abspath(args.output))
@@ -408,7 +414,7 @@ def cmd_fit_fleet(args: argparse.Namespace, fit_actions: Sequence[argparse.Actio
     where = f'scheduler {args.scheduler}' if args.scheduler else f'a local cluster of {workers} workers'
     print(f'fit-fleet: {len(tasks)} units on {where}', file=sys.stderr, flush=True)
     start = time.perf_counter()
-    outcomes = run_batch(tasks, scheduler=args.scheduler, workers=workers)
+    outcomes = run_batch(tasks, command, scheduler=args.scheduler, workers=workers)
     options = {key: value for key, value in vars(args).items() if key not in ('handler', 'command', 'bags', 'validate')}
     document = fleet_document(outcomes, flag_sigma=args.flag_sigma, options=options)
     document['wall_seconds'] = round(time.perf_counter() - start, 3)
@@ -431,7 +437,7 @@ def cmd_fit_fleet(args: argparse.Namespace, fit_actions: Sequence[argparse.Actio
     return 0
 
 
-def add_fleet_parser(commands: Any, fit_parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+def add_fleet_parser(commands: Any, fit_parser: argparse.ArgumentParser, command: Command) -> argparse.ArgumentParser:
     """Add ``fit-fleet`` to the ``tak_calib`` subcommands; it takes over every option of ``fit_parser``.
 
     The fit options are copied from the ``fit`` subcommand (so that a new fit option is at once
@@ -472,5 +478,5 @@ def add_fleet_parser(commands: Any, fit_parser: argparse.ArgumentParser) -> argp
                    and not taken.intersection(action.option_strings)]
     for action in fit_actions:
         fit_group._add_action(action)
-    fleet.set_defaults(handler=lambda args: cmd_fit_fleet(args, fit_actions))
+    fleet.set_defaults(handler=lambda args: cmd_fit_fleet(args, fit_actions, command))
     return fleet

@@ -494,6 +494,17 @@ def _candidates_table(diagnosis: Diagnosis) -> str:
         rows.append(f'<tr{css}><td>{html.escape(candidate.effect)}</td><td>{rms}</td>'
                     f'<td>{round(100 * candidate.explained)}%</td><td>{candidate.significance:.1f}</td>'
                     f'<td style="text-align:left">{html.escape(candidate.evidence)}</td></tr>')
+    listed = {candidate.effect for candidate in diagnosis.candidates}
+    chosen = set(diagnosis.ladder[-1].effects)
+    for form in getattr(diagnosis, 'per_axis_forms', ()):
+        if form.effect in listed:
+            continue
+        rms = ', '.join(f'{v:.3f}' for v in form.rms_after)
+        verdict = 'chosen over the shared form' if form.effect in chosen else 'not better than the shared form'
+        rows.append(f'<tr><td>{html.escape(form.effect)}</td><td>{rms}</td>'
+                    f'<td>{round(100 * form.explained)}%</td><td>{form.significance:.1f}</td>'
+                    f'<td style="text-align:left">per-axis form, {verdict} on held-out blocks. '
+                    f'{html.escape(form.evidence)}</td></tr>')
     skipped = ''.join(f'<tr><td>{html.escape(name)}</td><td colspan="4" style="text-align:left">not tried: '
                       f'{html.escape(reason)}</td></tr>' for name, reason in diagnosis.skipped.items())
     return ('<table><tr><th>effect</th><th>held-out RMS x, y, z</th><th>excess removed</th>'
@@ -518,7 +529,7 @@ def _effect_card(diagnosis: Diagnosis) -> str:
     parts.append(f'<p><b>Evidence.</b> {html.escape(best.evidence)}</p>')
     if params:
         parts.append(f'<p><b>Fitted on this run.</b> {params}</p>')
-    effects = ','.join((*diagnosis.present_effects, *diagnosis.ladder[-1].effects[len(diagnosis.present_effects):]))
+    effects = ','.join(diagnosis.ladder[-1].effects)  # a per-axis form in place of its shared form included
     parts.append(f'<p class="small">Refit with it: <code>tak_calib fit BAG -o PARAMS.yaml --effects '
                  f'{html.escape(effects)}</code></p></div>')
     return ''.join(parts)

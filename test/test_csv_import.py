@@ -130,3 +130,35 @@ def test_bad_log_gives_one_line_and_exit_code_2(case, tmp_path, capsys):
     with pytest.raises(LogError, match=message):
         read_csv_log(log, CsvImportOptions(acc_columns=('ax', 'ay', 'az'), temp_column='temp', time_column='t'))
     assert not bag.exists()
+
+
+def test_gyro_columns_make_a_driver_bag_with_the_logged_values(tmp_path, capsys):
+    """--gyro-columns: the real log becomes a driver bag, values as logged (SI units), temperature in C."""
+    from tak_thermo_ros.bagio import bag_input_kind, read_driver_record
+    from tak_thermo_ros.core.model import InputKind
+    gyro = ['--gyro-columns', 'imu.gyro.x', 'imu.gyro.y', 'imu.gyro.z']
+    assert main(['import-csv', str(REAL_LOG), '-o', str(tmp_path / 'driver'), *REAL_COLUMNS, *gyro]) == 0
+    assert 'no reference topic written' in capsys.readouterr().out
+    assert bag_input_kind(tmp_path / 'driver') is InputKind.IMU
+    driver = read_driver_record(tmp_path / 'driver', progress=False)
+    table = np.genfromtxt(REAL_LOG, delimiter='\t', names=True)
+    np.testing.assert_array_equal(driver.accel[:, 2], table['imuaccz'])
+    np.testing.assert_array_equal(driver.gyro[:, 0], table['imugyrox'])
+    np.testing.assert_array_equal(driver.temperature, table['imutemperature'])
+    assert len(driver.reference_stamp_ns) == 0 and len(driver.rate_reference_stamp_ns) == 0
+    assert np.all(driver.orientation_covariance[:, 0] == -1.0)  # REP 145: no orientation in a log
+
+
+def test_gyro_unit_deg_per_second_is_converted_to_rad_per_second(tmp_path):
+    """A log in deg/s is written in rad/s: 180 deg/s is pi rad/s."""
+    lines = ['t,ax,ay,az,temp,gx,gy,gz']
+    lines += [f'{i},{0.01 + 1e-3 * (i % 3)},{0.02 - 1e-3 * (i % 2)},{9.8 + 1e-3 * (i % 2)},{20 + i},180,-90,{i}' for i in range(30)]
+    options = CsvImportOptions(acc_columns=('ax', 'ay', 'az'), temp_column='temp', time_column='t',
+                               gyro_columns=('gx', 'gy', 'gz'), gyro_unit='deg/s')
+    log = parse_csv_log(lines, options)
+    assert log.driver is not None
+    np.testing.assert_allclose(log.driver.gyro[0], (math.pi, -math.pi / 2, 0.0), rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(log.driver.temperature, 20.0 + np.arange(30))
+    with pytest.raises(LogError, match='gyro_unit'):
+        CsvImportOptions(acc_columns=('ax', 'ay', 'az'), temp_column='temp', gyro_columns=('a', 'b', 'c'),
+                         gyro_unit='rpm')

@@ -18,7 +18,7 @@ from tak_thermo_ros.core.calibration_file import (
     nest_parameters,
     save_calibration,
 )
-from tak_thermo_ros.core.correction import Corrector, OutOfRange
+from tak_thermo_ros.core.correction import Corrector, OutOfRange, forward_counts
 from tak_thermo_ros.core.effects import LIBRARY, Effect, resolve_effect, seconds, seconds_from_ns
 from tak_thermo_ros.core.model import Calibration
 from tak_thermo_ros.core.simulate import Scenario, scenario_from_mapping, simulate
@@ -57,7 +57,7 @@ def test_per_sample_and_series_paths_are_bit_identical(names):
     """correct_sample, message by message, equals correct() bit for bit, with every effect."""
     calibration = replace(Scenario().truth(), effects=tuple(_effect(name) for name in names))
     stamps, codes, force = _series()
-    counts = np.round(calibration.forward(force, codes, stamp_s=stamps))
+    counts = np.round(forward_counts(calibration, force, codes, stamp_s=stamps))
     for policy in OutOfRange:
         corrector = Corrector(calibration, out_of_range=policy)
         bulk = corrector.correct(counts, codes, stamp_s=stamps)
@@ -86,7 +86,7 @@ def test_correction_inverts_the_forward_model_with_effects():
     calibration = replace(Scenario().truth(), effects=tuple(_effect(name) for name in EXAMPLES))
     stamps, codes, force = _series()
     codes = np.clip(codes, calibration.temp_code_min, calibration.temp_code_max)
-    counts = calibration.forward(force, codes, stamp_s=stamps)
+    counts = forward_counts(calibration, force, codes, stamp_s=stamps)
     recovered = Corrector(calibration).correct(counts, codes, stamp_s=stamps)
     np.testing.assert_allclose(recovered, force, rtol=0.0, atol=1e-10)
 
@@ -95,7 +95,7 @@ def test_reset_restarts_the_online_state():
     """After reset() the per-sample path starts from the initial state again."""
     calibration = replace(Scenario().truth(), effects=(_effect('thermal_lag'), _effect('warmup')))
     stamps, codes, force = _series(200)
-    counts = np.round(calibration.forward(force, codes, stamp_s=stamps))
+    counts = np.round(forward_counts(calibration, force, codes, stamp_s=stamps))
     corrector = Corrector(calibration)
     first = [corrector.correct_sample(*row, code, stamp_s=stamp)
              for row, code, stamp in zip(counts.tolist(), codes.tolist(), stamps.tolist())]

@@ -54,8 +54,8 @@ from tak_thermo_ros.core.model import (
     Calibration,
     InputKind,
     UnitCalibration,
-    finite_number,
 )
+from tak_thermo_ros.core.values import finite_number
 from tak_thermo_ros.errors import CalibrationError, FitError
 
 NODE_NAME = 'compensator'

@@ -177,6 +177,22 @@ def _horner_into(shape: tuple[float, ...], n: np.ndarray, out: np.ndarray) -> No
         np.multiply(out, n, out=out)
 
 
+def forward_counts(calibration: Calibration, specific_force: np.ndarray, temp_code: np.ndarray, *,
+                   stamp_s: np.ndarray | None = None,
+                   aux: Mapping[str, np.ndarray] | None = None) -> np.ndarray:
+    """The whole forward model, effects included (from their initial state), polynomials
+    evaluated beyond the calibrated range: unrounded codes ``(k, 3)``; what a simulator and
+    the tests run a unit through.
+
+    :param stamp_s: ``(k,)`` stamps in seconds, needed by effects with memory.
+    :param aux: ``(k,)`` held recorded signals by name, needed by ``aux:`` effects.
+    """
+    if not calibration.effects:
+        return calibration.forward(specific_force, temp_code)
+    return Corrector(calibration, out_of_range=OutOfRange.EXTRAPOLATE).predict_counts(
+        specific_force, temp_code, stamp_s=stamp_s, aux=aux)
+
+
 class UnitCorrector:
     """The correction of a whole IMU: one :class:`Corrector` per sensor, the same policy.
 

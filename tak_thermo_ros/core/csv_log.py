@@ -41,8 +41,16 @@ from typing import Iterable
 
 import numpy as np
 
-from tak_thermo_ros.core.record import COUNTS_MAX, COUNTS_MIN, TEMP_CODE_LIMIT, ChannelRecord
+from tak_thermo_ros.core.record import (
+    COUNTS_MAX,
+    COUNTS_MIN,
+    TEMP_CODE_LIMIT,
+    TEMPERATURE_RANGE,
+    ChannelRecord,
+    DriverRecord,
+)
 from tak_thermo_ros.core.simulate import STANDARD_GRAVITY
+from tak_thermo_ros.core.static_run import STATIC_TOLERANCE_DEG, StaticReference, static_reference
 from tak_thermo_ros.errors import LogError
 
 TIME_UNITS: dict[str, int] = {'s': 1_000_000_000, 'ms': 1_000_000, 'us': 1_000, 'ns': 1}
@@ -55,8 +63,8 @@ MAX_STAMP_NS = (2 ** 31 - 1) * 1_000_000_000 + 999_999_999
 """Latest stamp a bag holds: ``builtin_interfaces/Time.sec`` is an int32 (2038-01-19)."""
 CHUNK_ROWS = 65_536
 """Rows converted to arrays at a time: the text of a large log is never held as Python objects."""
-STATIC_TOLERANCE_DEG = 10.0
-"""A sample whose direction is further than this from the mean direction means the board moved."""
+GYRO_UNITS = {'rad/s': 1.0, 'deg/s': math.pi / 180.0}
+"""Angular-rate units of a log and their factor to rad/s."""
 
 _DELIMITER_NAMES = {'\t': 'tab', ',': 'comma', ';': 'semicolon', ' ': 'space', '|': 'pipe'}
 
@@ -77,6 +85,10 @@ class CsvImportOptions:
         estimates it from the mean measured direction.
     :param delimiter: field delimiter; ``None`` sniffs tab, comma or semicolon from the header.
     :param frame_id: frame written on the counts messages.
+    :param gyro_columns: names of the x, y, z angular-rate columns; given, the log becomes a
+        driver bag (``sensor_msgs/msg/Imu`` in SI units and the temperature in degrees C, no
+        rounding to codes) instead of the paper's counts.
+    :param gyro_unit: unit of the angular-rate columns, one of :data:`GYRO_UNITS`.
     """
 
     acc_columns: tuple[str, str, str]
@@ -90,9 +102,14 @@ class CsvImportOptions:
     reference: tuple[float, float, float] | None = None
     delimiter: str | None = None
     frame_id: str = 'imu'
+    gyro_columns: tuple[str, str, str] | None = None
+    gyro_unit: str = 'rad/s'
 
     def __post_init__(self) -> None:
         checks = (
+            (self.gyro_columns is None or len(self.gyro_columns) == 3, 'gyro_columns',
+             f'needs three names (x y z), got {len(self.gyro_columns or ())}'),
+            (self.gyro_unit in GYRO_UNITS, 'gyro_unit', f'{self.gyro_unit!r} is not one of {", ".join(GYRO_UNITS)}'),
             (len(self.acc_columns) == 3, 'acc_columns', f'needs three names (x y z), got {len(self.acc_columns)}'),
             (self.time_unit in TIME_UNITS, 'time_unit',
              f'{self.time_unit!r} is not one of {", ".join(TIME_UNITS)}'),
@@ -135,6 +152,8 @@ class ImportedLog:
     :param reference_estimated: ``True`` when the reference is the mean direction scaled to
         gravity, ``False`` when it was given.
     :param max_tilt_deg: largest angle between a sample and the mean direction, degrees.
+    :param driver: with gyroscope columns, the driver bag's contents (then ``record`` is its
+        accelerometer channel).
     """
 
     record: ChannelRecord
@@ -147,6 +166,7 @@ class ImportedLog:
     mean_direction: np.ndarray
     reference_estimated: bool
     max_tilt_deg: float
+    driver: DriverRecord | None = None
 
     @property
     def duration_s(self) -> float:
@@ -208,7 +228,7 @@ def parse_csv_log(lines: Iterable[str], options: CsvImportOptions, *, source: st
         raise LogError(msg)
     delimiter = options.delimiter or _sniff_delimiter(header_line, source)
     header = tuple(name.strip() for name in next(csv.reader([header_line], delimiter=delimiter)))
-    wanted = (options.time_column, *options.acc_columns, options.temp_column)
+    wanted = (options.time_column, *options.acc_columns, options.temp_column, *(options.gyro_columns or ()))
     index = []
     for name in wanted:
         if name not in header:
@@ -228,7 +248,7 @@ def parse_csv_log(lines: Iterable[str], options: CsvImportOptions, *, source: st
 
     def flush() -> None:
         stamp_parts.append(np.array(stamps, dtype=np.int64))
-        value_parts.append(np.array(values, dtype=float).reshape(-1, 4))
+        value_parts.append(np.array(values, dtype=float).reshape(-1, len(wanted) - 1))
         line_parts.append(np.array(lines, dtype=np.int64))
         stamps.clear()
         values.clear()
@@ -263,10 +283,14 @@ def parse_csv_log(lines: Iterable[str], options: CsvImportOptions, *, source: st
     table = np.concatenate(value_parts)
     del value_parts
     _check_increasing(stamp_ns, source, line_numbers, options.time_column)
-    _check_not_constant(table, wanted[1:], source)
+    _check_not_constant(table[:, :4], wanted[1:5], source)  # a gyroscope at rest may read one value
     acceleration = table[:, :3] * ACC_UNITS[options.acc_unit]
     temperature = table[:, 3].copy()
+    rate = table[:, 4:7] * GYRO_UNITS[options.gyro_unit] if options.gyro_columns else None
     del table
+    if rate is not None:
+        return _driver_log(stamp_ns, acceleration, rate, temperature, options, source, line_numbers,
+                           delimiter, header)
     counts = np.round(acceleration / options.acc_resolution)
     _check_code_range(counts, acceleration, options, source, line_numbers)
     temp_code = np.round(temperature / options.temp_resolution)
@@ -276,35 +300,70 @@ def parse_csv_log(lines: Iterable[str], options: CsvImportOptions, *, source: st
                f'one code of {options.temp_resolution:g} C: no temperature sweep at this --temp-resolution')
         raise LogError(msg)
 
-    mean = acceleration.mean(axis=0)
-    magnitude = float(np.linalg.norm(mean))
-    if magnitude < 0.1 * options.gravity and options.reference is None:
-        msg = (f'{source}: mean acceleration |{magnitude:.4g}| m/s^2 is far below gravity: not a static run '
-               f'(or the acceleration unit is wrong); give the reference explicitly')
-        raise LogError(msg)
-    direction = mean / magnitude if magnitude > 0.0 else np.zeros(3)
-    norms = np.linalg.norm(acceleration, axis=1)
-    cosine = np.clip((acceleration @ direction) / np.where(norms > 0.0, norms, 1.0), -1.0, 1.0)
-    tilt = np.degrees(np.arccos(cosine))
-    worst = int(np.argmax(tilt))
-    if options.reference is None and tilt[worst] > STATIC_TOLERANCE_DEG:
-        msg = (f'{source}: row {worst + 1} (line {line_numbers[worst]}): the measured direction is '
-               f'{tilt[worst]:.1f} deg from the mean direction: the board moved, the log is not one static '
-               f'orientation (split it, or give the reference)')
-        raise LogError(msg)
-    if options.reference is None:
-        reference = options.gravity * direction
-    else:
-        reference = np.asarray(options.reference, dtype=float)
-
+    static, reference = _reference(acceleration, options, source, line_numbers)
     record = ChannelRecord(
         counts_stamp_ns=stamp_ns, counts=counts, temp_stamp_ns=stamp_ns.copy(), temp_code=temp_code,
         reference_stamp_ns=stamp_ns[:1].copy(), reference=reference.reshape(1, 3),
         frame_id=options.frame_id, nominal_scale=(options.nominal_scale,) * 3)
     return ImportedLog(record=record, rows=len(stamp_ns), delimiter=delimiter, header=header,
                        acceleration=acceleration, temperature=temperature, reference=reference,
-                       mean_direction=direction, reference_estimated=options.reference is None,
-                       max_tilt_deg=float(tilt[worst]))
+                       mean_direction=static.direction, reference_estimated=options.reference is None,
+                       max_tilt_deg=static.max_tilt_deg)
+
+
+def _reference(acceleration: np.ndarray, options: CsvImportOptions, source: str,
+               line_numbers: np.ndarray) -> tuple[StaticReference, np.ndarray]:
+    """The static run's reference (:func:`~tak_thermo_ros.core.static_run.static_reference`), or the given one."""
+    static = static_reference(acceleration, gravity=options.gravity)
+    if options.reference is not None:
+        return static, np.asarray(options.reference, dtype=float)
+    if static.magnitude < 0.1 * options.gravity:
+        msg = (f'{source}: mean acceleration |{static.magnitude:.4g}| m/s^2 is far below gravity: not a static run '
+               f'(or the acceleration unit is wrong); give the reference explicitly')
+        raise LogError(msg)
+    worst = static.worst_row
+    if static.max_tilt_deg > STATIC_TOLERANCE_DEG:
+        msg = (f'{source}: row {worst + 1} (line {line_numbers[worst]}): the measured direction is '
+               f'{static.max_tilt_deg:.1f} deg from the mean direction: the board moved, the log is not one static '
+               f'orientation (split it, or give the reference)')
+        raise LogError(msg)
+    return static, static.specific_force
+
+
+def _driver_log(stamp_ns: np.ndarray, acceleration: np.ndarray, rate: np.ndarray, temperature: np.ndarray,
+                options: CsvImportOptions, source: str, line_numbers: np.ndarray, delimiter: str,
+                header: tuple[str, ...]) -> ImportedLog:
+    """A log with gyroscope columns as a driver bag: values as logged (SI units), temperature in C.
+
+    Without ``--reference`` no reference topic is written: ``fit`` takes the run as static (the
+    mean direction scaled to gravity, zero rate), as for any driver bag recorded without one.
+    """
+    if np.ptp(temperature) <= 0.0:
+        msg = f'{source}: column {options.temp_column!r} does not vary: no temperature sweep'
+        raise LogError(msg)
+    low, high = TEMPERATURE_RANGE['imu']
+    outside = np.flatnonzero(~((temperature > low) & (temperature < high)))
+    if outside.size:
+        row = int(outside[0])
+        msg = (f'{source}: row {row + 1} (line {line_numbers[row]}): temperature {temperature[row]:g} C is outside '
+               f'{low:g}..{high:g} C (is the column in degrees Celsius?)')
+        raise LogError(msg)
+    static, reference = _reference(acceleration, options, source, line_numbers)
+    count = len(stamp_ns)
+    orientation = np.zeros((count, 4))
+    orientation[:, 3] = 1.0
+    orientation_covariance = np.zeros((count, 9))
+    orientation_covariance[:, 0] = -1.0  # REP 145: a log gives no orientation
+    given = options.reference is not None
+    driver = DriverRecord(
+        stamp_ns=stamp_ns, accel=acceleration, gyro=rate, orientation=orientation,
+        orientation_covariance=orientation_covariance, temp_stamp_ns=stamp_ns.copy(), temperature=temperature,
+        reference_stamp_ns=stamp_ns[:1].copy() if given else np.zeros(0, dtype=np.int64),
+        reference=reference.reshape(1, 3) if given else np.zeros((0, 3)), frame_id=options.frame_id)
+    return ImportedLog(record=driver.channel('accel'), rows=count, delimiter=delimiter, header=header,
+                       acceleration=acceleration, temperature=temperature, reference=reference,
+                       mean_direction=static.direction, reference_estimated=not given,
+                       max_tilt_deg=static.max_tilt_deg, driver=driver)
 
 
 def _first_non_blank(iterator) -> tuple[str | None, int]:

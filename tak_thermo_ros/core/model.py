@@ -20,17 +20,13 @@ so that the vectorised and the per-sample correction paths give the same float64
 from __future__ import annotations
 
 import enum
-import math
-
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Sequence
+from typing import Sequence
 
 import numpy as np
 
+from tak_thermo_ros.core.effects.base import Effect
 from tak_thermo_ros.errors import CalibrationError
-
-if TYPE_CHECKING:
-    from tak_thermo_ros.core.effects.base import Effect
 
 AXES: tuple[str, str, str] = ('x', 'y', 'z')
 CALIBRATION_VERSION = 1
@@ -47,18 +43,6 @@ class InputKind(str, enum.Enum):
     IMU = 'imu'
     """A ROS 2 driver: ``sensor_msgs/msg/Imu`` values (m/s^2, rad/s, already scaled by the
     factory) in place of N, and the temperature in degrees Celsius in place of N_t."""
-
-
-def finite_number(value: object, key: str) -> float:
-    """A finite float from a number (Python or numpy; not a bool), or a one-line error naming ``key``."""
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-        msg = f'{key}: expected a number, got {type(value).__name__} {value!r}'
-        raise CalibrationError(msg)
-    number = float(value)
-    if not math.isfinite(number):
-        msg = f'{key}: must be finite, got {number}'
-        raise CalibrationError(msg)
-    return number
 
 
 def horner_no_constant(coeffs: Sequence[float], n):
@@ -188,7 +172,6 @@ class Calibration:
         if len(self.axes) != 3:
             msg = f'calibration needs 3 axes, got {len(self.axes)}'
             raise CalibrationError(msg)
-        from tak_thermo_ros.core.effects.base import Effect
         names = set()
         for effect in self.effects:
             if not isinstance(effect, Effect):
@@ -214,18 +197,12 @@ class Calibration:
                      for axis in self.axes)
         return replace(self, axes=flat, effects=())  # type: ignore[arg-type]
 
-    def forward(self, specific_force: np.ndarray, temp_code: np.ndarray, *,
-                stamp_s: np.ndarray | None = None) -> np.ndarray:
-        """Forward model: unrounded codes ``(k, 3)`` for specific force ``(k, 3)`` in m/s^2.
+    def forward(self, specific_force: np.ndarray, temp_code: np.ndarray) -> np.ndarray:
+        """The paper's forward model: unrounded codes ``(k, 3)`` for specific force ``(k, 3)`` in m/s^2.
 
-        Polynomials are evaluated beyond the calibrated range as well (no clamping).
-
-        :param stamp_s: ``(k,)`` stamps in seconds, needed by effects with memory.
+        Polynomials are evaluated beyond the calibrated range as well (no clamping). Effects
+        are not applied here: :func:`tak_thermo_ros.core.correction.forward_counts` includes them.
         """
-        if self.effects:
-            from tak_thermo_ros.core.correction import Corrector, OutOfRange
-            return Corrector(self, out_of_range=OutOfRange.EXTRAPOLATE).predict_counts(
-                specific_force, temp_code, stamp_s=stamp_s)
         n = np.asarray(temp_code, dtype=float) - self.temp_code_ref
         force = np.asarray(specific_force, dtype=float)
         return np.column_stack([axis.forward(force[:, i], n) for i, axis in enumerate(self.axes)])

@@ -1,7 +1,10 @@
 """The effect library: physical terms that the paper's base model lacks, one class each.
 
 ``LIBRARY`` maps the fixed vocabulary to the classes; :func:`resolve_effect` also accepts a
-user-defined effect as ``'module:Class'`` (see ``docs/effects.md``).
+user-defined effect as ``'module:Class'`` (see ``docs/effects.md``). ``PER_AXIS`` maps the
+per-axis forms of the effects whose shape parameters can differ between axes
+(``thermal_lag_per_axis``, ``hysteresis_per_axis``, ``warmup_per_axis``; see
+:mod:`~tak_thermo_ros.core.effects.per_axis`); they resolve by name like the library.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from tak_thermo_ros.core.effects.base import (
 from tak_thermo_ros.core.effects.aux_signal import AUX_PREFIX, AuxSignal, aux_effect_class, is_aux_effect
 from tak_thermo_ros.core.effects.cross_axis import CrossAxis
 from tak_thermo_ros.core.effects.hysteresis import Hysteresis
+from tak_thermo_ros.core.effects.per_axis import PER_AXIS_SUFFIX, PerAxisEffect, per_axis_form
 from tak_thermo_ros.core.effects.scale_nonlinearity import ScaleNonlinearity
 from tak_thermo_ros.core.effects.temperature_shape import TemperatureShape
 from tak_thermo_ros.core.effects.thermal_lag import ThermalLag
@@ -32,11 +36,19 @@ LIBRARY: dict[str, type[Effect]] = {
 }
 """The library effects by name."""
 
+PER_AXIS: dict[str, type[Effect]] = {
+    form.name: form for form in (per_axis_form(ThermalLag), per_axis_form(Hysteresis), per_axis_form(Warmup))
+}
+"""The per-axis forms by name (``<shared name>_per_axis``)."""
+
 __all__ = [
     'AUX_PREFIX',
     'INPUT',
     'LIBRARY',
     'OFFSET',
+    'PER_AXIS',
+    'PER_AXIS_SUFFIX',
+    'PerAxisEffect',
     'AuxSignal',
     'CrossAxis',
     'Effect',
@@ -92,6 +104,8 @@ def resolve_effect(spec: str | type[Effect]) -> type[Effect]:
         spec = str(spec).strip()
         if spec in LIBRARY:
             return LIBRARY[spec]
+        if spec in PER_AXIS:
+            return PER_AXIS[spec]
         if spec.startswith(AUX_PREFIX):
             return aux_effect_class(spec)
         if ':' not in spec:
@@ -111,9 +125,9 @@ def resolve_effect(spec: str | type[Effect]) -> type[Effect]:
     if not isinstance(cls, type) or not issubclass(cls, Effect):
         msg = f"effect '{spec}': {cls!r} is not a subclass of tak_thermo_ros.core.effects.Effect"
         raise FitError(msg)
-    if LIBRARY.get(cls.name) is cls or is_aux_effect(cls):
+    if LIBRARY.get(cls.name) is cls or PER_AXIS.get(cls.name) is cls or is_aux_effect(cls):
         return cls
-    if not cls.name or cls.name in LIBRARY:
+    if not cls.name or cls.name in LIBRARY or cls.name in PER_AXIS:
         msg = (f"effect '{spec}': set the class variable name to a name of its own "
                f"(not empty, not a library name), got {cls.name!r}")
         raise FitError(msg)
@@ -129,6 +143,6 @@ def resolve_effect(spec: str | type[Effect]) -> type[Effect]:
 def effect_spec(cls: type[Effect]) -> str:
     """What the calibration file stores to find the class again: the library name, the signal
     name ``aux:...``, or 'module:Class'."""
-    if LIBRARY.get(cls.name) is cls or is_aux_effect(cls):
+    if LIBRARY.get(cls.name) is cls or PER_AXIS.get(cls.name) is cls or is_aux_effect(cls):
         return cls.name
     return f'{cls.__module__}:{cls.__qualname__}'

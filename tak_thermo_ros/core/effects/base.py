@@ -34,7 +34,7 @@ from typing import Any, Callable, ClassVar, Mapping, Sequence, TypeVar
 
 import numpy as np
 
-from tak_thermo_ros.core.model import finite_number
+from tak_thermo_ros.core.values import finite_number
 from tak_thermo_ros.errors import CalibrationError, EffectError
 
 AXIS_NAMES: tuple[str, str, str] = ('x', 'y', 'z')
@@ -227,6 +227,15 @@ class Effect:
         prefix = self.amplitude.name
         return tuple(tuple(f'{prefix}_{axis}{suffix}' for suffix in suffixes)
                      for axis in AXIS_NAMES)  # type: ignore[return-value]
+
+    def axis_columns(self) -> tuple[tuple[int, ...], tuple[int, ...], tuple[int, ...]]:
+        """Per axis, the basis signals its amplitudes (:meth:`amplitude_names`) multiply.
+
+        Default: every signal on every axis. A per-axis form (``core.effects.per_axis``) uses
+        signal ``i`` on axis ``i`` only.
+        """
+        every = tuple(range(len(self.basis_suffixes())))
+        return (every, every, every)
 
     def amplitudes(self) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
         """Amplitude values per axis, in basis order."""

@@ -97,23 +97,31 @@ class _Projection:
             perpendicular = target - q @ (q.T @ target)
             self.bases.append((q, perpendicular, float(perpendicular @ perpendicular)))
 
-    def rss(self, extra: np.ndarray | None) -> tuple[np.ndarray, list[np.ndarray]]:
-        """Per-axis RSS with ``extra`` columns ``(k, b)`` (shared by the axes) added, and per axis
-        the least-squares coefficients of those columns."""
+    def rss(self, extra: np.ndarray | Sequence[np.ndarray] | None) -> tuple[np.ndarray, list[np.ndarray]]:
+        """Per-axis RSS with ``extra`` columns ``(k, b)`` added (one array shared by the axes, or
+        one per axis), and per axis the least-squares coefficients of those columns."""
         out = np.empty(3)
         coefficients = []
         for i, (q, perpendicular, total) in enumerate(self.bases):
-            if extra is None or extra.shape[1] == 0:
+            extra_i = _axis_part(extra, i)
+            if extra_i is None or extra_i.shape[1] == 0:
                 out[i] = total
                 coefficients.append(np.zeros(0))
                 continue
-            residual = extra - q @ (q.T @ extra)
+            residual = extra_i - q @ (q.T @ extra_i)
             gram = residual.T @ residual
             z = residual.T @ perpendicular
             solution = np.linalg.pinv(gram, rcond=1e-12, hermitian=True) @ z
             out[i] = max(total - float(z @ solution), 1e-300)
             coefficients.append(solution)
         return out, coefficients
+
+
+def _axis_part(extra: np.ndarray | Sequence[np.ndarray] | None, axis: int) -> np.ndarray | None:
+    """The extra columns of one axis: ``extra`` itself when shared, else its ``axis``-th entry."""
+    if extra is None or isinstance(extra, np.ndarray):
+        return extra
+    return extra[axis]
 
 
 def _normalised(columns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -160,17 +168,19 @@ class _CrossValidation:
             moments = [design[b].T @ target[b] for b in self.blocks]
             self.axes.append((design, target, grams, moments))
 
-    def score(self, extra: np.ndarray) -> tuple[float, list[np.ndarray]]:
-        """The cross-validation score with ``extra`` (normalised) columns added, and per axis the
-        coefficients of those columns fitted on all training samples."""
+    def score(self, extra: np.ndarray | Sequence[np.ndarray]) -> tuple[float, list[np.ndarray]]:
+        """The cross-validation score with ``extra`` (normalised) columns added (shared, or one
+        array per axis), and per axis the coefficients of those columns fitted on all training
+        samples."""
         score = 0.0
         full_coefficients = []
-        width = extra.shape[1]
-        for design, target, grams, moments in self.axes:
+        for axis, (design, target, grams, moments) in enumerate(self.axes):
+            extra_axis = _axis_part(extra, axis)
+            width = extra_axis.shape[1]
             fixed_width = design.shape[1]
             block_grams, block_moments = [], []
             for b, gram_ff, moment_f in zip(self.blocks, grams, moments):
-                columns = extra[b]
+                columns = extra_axis[b]
                 cross = design[b].T @ columns
                 gram = np.block([[gram_ff, cross], [cross.T, columns.T @ columns]])
                 block_grams.append(gram)
@@ -187,7 +197,7 @@ class _CrossValidation:
                     b = self.blocks[i]
                     error = target[b] - design[b] @ beta[:fixed_width]
                     if width:
-                        error = error - extra[b] @ beta[fixed_width:]
+                        error = error - extra_axis[b] @ beta[fixed_width:]
                     sse += float(error @ error)
             score += math.log(max(sse, 1e-300))
         return score, full_coefficients
@@ -218,6 +228,12 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
             effect, fixed = _template(cls), False
         if cls.name in names_seen:
             msg = f'effect {cls.name}: given twice'
+            raise FitError(msg)
+        shared = getattr(cls, 'shared', None)
+        related = [name for name in names_seen
+                   if shared is not None and name == shared.name or name == f'{cls.name}_per_axis']
+        if related:
+            msg = f'effect {cls.name}: give either {related[0]} or {cls.name}, not both (one is the per-axis form)'
             raise FitError(msg)
         names_seen.add(cls.name)
         chosen.append((effect, cls, fixed))
@@ -291,14 +307,24 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
             entry.done = True
         offsets.append(entry)
 
-    def extra_and_norms(skip: _Offset | None = None,
-                        with_basis: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        blocks = [entry.basis[mask] for entry in offsets if entry is not skip and entry.done]
+    def extra_and_norms(skip: _Offset | None = None, with_basis: np.ndarray | None = None,
+                        with_effect: Effect | None = None) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """Per axis the normalised columns of the done offset effects (then ``with_basis``) and
+        their norms; each effect contributes the basis signals its amplitudes on that axis use."""
+        parts = [(entry.basis, entry.effect) for entry in offsets if entry is not skip and entry.done]
         if with_basis is not None:
-            blocks.append(with_basis[mask])
-        if not blocks:
-            return np.zeros((int(mask.sum()), 0)), np.zeros(0)
-        return _normalised(np.column_stack(blocks))
+            parts.append((with_basis, with_effect))
+        columns, norms = [], []
+        for i in range(3):
+            blocks = [phi[mask][:, list(effect.axis_columns()[i])] for phi, effect in parts]
+            if not blocks:
+                columns.append(np.zeros((int(mask.sum()), 0)))
+                norms.append(np.zeros(0))
+                continue
+            normalised, norm = _normalised(np.column_stack(blocks))
+            columns.append(normalised)
+            norms.append(norm)
+        return columns, norms
 
     def visible(phi: np.ndarray) -> bool:
         whole = np.max(np.abs(phi), axis=0)
@@ -310,10 +336,10 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
         phi = basis_of(entry, candidate)
         if not visible(phi):
             return INVALID
-        columns, norms = extra_and_norms(skip=entry, with_basis=phi)
+        columns, norms = extra_and_norms(skip=entry, with_basis=phi, with_effect=candidate)
         rss, coefficients = projection.rss(columns)
-        width = phi.shape[1]
-        amplitudes = [c[-width:] / norms[-width:] for c in coefficients]
+        widths = [len(c) for c in candidate.axis_columns()]
+        amplitudes = [c[-w:] / n[-w:] for c, n, w in zip(coefficients, norms, widths)]
         if not _amplitudes_within_bounds(candidate, amplitudes):
             return INVALID
         return float(np.sum(np.log(rss)))
@@ -332,10 +358,11 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
                 phi = basis_of(entry, candidate)
                 if not visible(phi):
                     continue
-                columns, norms = extra_and_norms(skip=entry, with_basis=phi)
+                columns, norms = extra_and_norms(skip=entry, with_basis=phi, with_effect=candidate)
                 score, coefficients = validation.score(columns)
-                width = phi.shape[1]
-                if not _amplitudes_within_bounds(candidate, [c[-width:] / norms[-width:] for c in coefficients]):
+                widths = [len(c) for c in candidate.axis_columns()]
+                if not _amplitudes_within_bounds(candidate, [c[-w:] / n[-w:] for c, n, w
+                                                             in zip(coefficients, norms, widths)]):
                     continue
                 if best is None or score < best[0]:
                     best = (score, candidate, phi)
@@ -378,15 +405,15 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
             search(entry)
 
     # Final least squares over the training samples.
-    extra_raw = np.column_stack([entry.basis[mask] for entry in offsets]) if offsets else np.zeros((len(u), 0))
+    extra_raw = [_axis_offset_columns(offsets, i, mask, len(u)) for i in range(3)]
     betas, residual_sums, designs = [], [], []
     for i in range(3):
-        design = np.column_stack([fixed[i], extra_raw])
+        design = np.column_stack([fixed[i], extra_raw[i]])
         norms = np.sqrt(np.mean(design ** 2, axis=0))
         norms[norms == 0.0] = 1.0
         solution, _, rank, singular = np.linalg.lstsq(design / norms, targets[i], rcond=None)
         if rank < design.shape[1]:
-            offender = _first_dependent(design / norms, names[i] + _offset_column_names(offsets))
+            offender = _first_dependent(design / norms, names[i] + _offset_column_names(offsets, i))
             msg = (f'axis {AXIS_NAMES[i]}: the data cannot separate {offender} from the other model terms '
                    f'(the inputs and temperatures of this run do not excite it)')
             raise FitError(msg)
@@ -431,7 +458,7 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
     for index, entry in enumerate(offsets):
         values = {name: entry.effect[name] for name in entry.effect.shape_names()}
         for i in range(3):
-            position = fixed[i].shape[1] + sum(o.basis.shape[1] for o in offsets[:index])
+            position = fixed[i].shape[1] + sum(len(o.effect.axis_columns()[i]) for o in offsets[:index])
             for k, name in enumerate(entry.effect.amplitude_names()[i]):
                 values[name] = float(betas[i][position + k])
         fitted[entry.effect.name] = _build(type(entry.effect), values)
@@ -441,8 +468,17 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
                               axes=tuple(axes_models), notes=calibration0.notes,  # type: ignore[arg-type]
                               effects=ordered)
     residual = residual_counts(calibration, samples)[mask]
-    shape_count = sum(len(entry.searched) + (1 if entry.mode == 'structure' else 0) for entry in offsets)
-    parameters = [fixed[i].shape[1] + extra_raw.shape[1] + shape_count for i in range(3)]
+    def shape_count(axis: int) -> int:
+        """Searched shape parameters that axis ``axis`` depends on (a per-axis form: its own only)."""
+        count = 0
+        for entry in offsets:
+            own = [name for name, *_ in entry.searched]
+            if len(set(entry.effect.axis_columns())) > 1:
+                own = [name for name in own if name.endswith(f'_{AXIS_NAMES[axis]}')]
+            count += len(own) + (1 if entry.mode == 'structure' else 0)
+        return count
+
+    parameters = [fixed[i].shape[1] + extra_raw[i].shape[1] + shape_count(i) for i in range(3)]
     errors = _standard_errors(offsets, input_effects, designs, residual_sums, betas, fixed, force,
                               stamp_all, code_all, mask)
     return finish_fit(calibration, residual, parameters, dropped=samples.dropped, parameter_errors=errors)
@@ -466,10 +502,16 @@ def _build(cls: type[Effect], values: dict[str, float]) -> Effect:
         raise FitError(msg) from None
 
 
-def _offset_column_names(offsets: list[_Offset]) -> list[str]:
+def _axis_offset_columns(offsets: list[_Offset], axis: int, mask: np.ndarray, count: int) -> np.ndarray:
+    """The offset effects' basis signals that axis ``axis`` uses, over the training samples."""
+    blocks = [entry.basis[mask][:, list(entry.effect.axis_columns()[axis])] for entry in offsets]
+    return np.column_stack(blocks) if blocks else np.zeros((count, 0))
+
+
+def _offset_column_names(offsets: list[_Offset], axis: int) -> list[str]:
     names = []
     for entry in offsets:
-        names += [entry.effect.name] * entry.basis.shape[1]
+        names += [entry.effect.name] * len(entry.effect.axis_columns()[axis])
     return names
 
 
@@ -503,9 +545,10 @@ def _standard_errors(offsets, input_effects, designs, residual_sums, betas, fixe
                         for v in values)
         slope = (upper - lower) / (2.0 * step)
         for i in range(3):
-            position = fixed[i].shape[1] + sum(o.basis.shape[1] for o in offsets[:index])
-            coefficients = betas[i][position:position + entry.basis.shape[1]]
-            derivatives[i, :, column] = slope @ coefficients
+            used = list(entry.effect.axis_columns()[i])
+            position = fixed[i].shape[1] + sum(len(o.effect.axis_columns()[i]) for o in offsets[:index])
+            coefficients = betas[i][position:position + len(used)]
+            derivatives[i, :, column] = slope[:, used] @ coefficients
     offset = 0
     for i, (design, norms) in enumerate(designs):
         dof = max(count - design.shape[1] - len(shape_parameters), 1)

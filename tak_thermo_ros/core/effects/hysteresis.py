@@ -72,6 +72,21 @@ class Hysteresis(Effect):
             out[k] = (code - play) / half
         return np.array(out).reshape(-1, 1)
 
+    def search_basis(self, stamp_s: np.ndarray, temp_code: np.ndarray) -> np.ndarray:
+        """:meth:`basis` over the runs of equal codes only (for the search; the same values).
+
+        The play operator is idempotent for a repeated code (clipping twice into the same band
+        changes nothing), so a held code repeats the previous output exactly: the recurrence
+        runs once per run of equal codes, which on plateaus is a small fraction of the samples.
+        """
+        codes = np.asarray(temp_code, dtype=float)
+        if not len(codes):
+            return np.zeros((0, 1))
+        starts = np.flatnonzero(np.concatenate(([True], codes[1:] != codes[:-1])))
+        compressed = self.basis(np.zeros(len(starts)), codes[starts])[:, 0]
+        run_index = np.cumsum(np.concatenate(([True], codes[1:] != codes[:-1]))) - 1
+        return compressed[run_index].reshape(-1, 1)
+
     @classmethod
     def search_space(cls, time_s: np.ndarray, temp_code: np.ndarray) -> dict[str, tuple[float, float, bool]]:
         """``width_codes`` from one code to half the code range, log scale."""

@@ -1,0 +1,153 @@
+"""Blocked cross-validation: folds of contiguous time blocks, held-out scores of a model."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any, Sequence
+
+import numpy as np
+
+from tak_thermo_ros.core.diagnose.values import ModelScore
+from tak_thermo_ros.core.effects import Effect
+from tak_thermo_ros.core.effects.base import call_effect
+from tak_thermo_ros.core.fit import fit_model, residual_counts
+from tak_thermo_ros.core.model import Calibration
+from tak_thermo_ros.core.record import AlignedSamples
+from tak_thermo_ros.errors import FitError, TakError
+
+EDGE_FRACTION = 0.01
+"""A fitted shape parameter within this fraction of its search range (log scale for time
+constants) of either end counts as unresolved by the run."""
+
+
+@dataclass(frozen=True)
+class _FitSettings:
+    bias_order: int
+    scale_order: int
+    temp_code_ref: float
+    nominal_scale: tuple[float, float, float]
+
+
+def _settings_of(calibration: Calibration, bias_order: int | None, scale_order: int | None) -> _FitSettings:
+    if bias_order is None:
+        bias_order = max(len(axis.offset_shape) for axis in calibration.axes)
+    if scale_order is None:
+        flat = all(tuple(axis.scale_shape) == (0.0,) for axis in calibration.axes)
+        scale_order = 0 if flat else max(len(axis.scale_shape) for axis in calibration.axes)
+    nominal = tuple(float(axis.scale) for axis in calibration.axes)
+    return _FitSettings(bias_order=int(bias_order), scale_order=int(scale_order),
+                        temp_code_ref=float(calibration.temp_code_ref),
+                        nominal_scale=nominal)  # type: ignore[arg-type]
+
+
+def decimate(samples: AlignedSamples, stride: int) -> AlignedSamples:
+    """Every ``stride``-th sample, in time order (white noise stays white)."""
+    if stride <= 1:
+        return samples
+    return AlignedSamples(stamp_ns=samples.stamp_ns[::stride], counts=samples.counts[::stride],
+                          temp_code=samples.temp_code[::stride],
+                          reference=None if samples.reference is None else samples.reference[::stride],
+                          dropped=dict(samples.dropped),
+                          aux={name: values[::stride] for name, values in samples.aux.items()})
+
+
+def fold_labels(time_s: np.ndarray, folds: int, blocks: int) -> np.ndarray:
+    """Fold of each sample: ``blocks`` contiguous equal-duration blocks dealt round-robin."""
+    duration = max(float(time_s[-1] - time_s[0]), 1e-9)
+    block = np.minimum(((time_s - time_s[0]) / duration * blocks).astype(np.int64), blocks - 1)
+    return block % folds
+
+
+def _effect_specs(calibration: Calibration) -> tuple[Any, ...]:
+    """The effects the calibration already holds, as ``fit_model`` takes them (their classes)."""
+    return tuple(type(effect) for effect in getattr(calibration, 'effects', ()) or ())
+
+
+def _effect_name(spec: Any) -> str:
+    if isinstance(spec, str):
+        return spec
+    return str(getattr(spec, 'name', getattr(spec, '__name__', repr(spec))))
+
+
+def _effect_parameters(calibration: Calibration) -> dict[str, float]:
+    """Fitted parameter values of the calibration's effects, ``effect.parameter`` -> value."""
+    values: dict[str, float] = {}
+    for effect in getattr(calibration, 'effects', ()) or ():
+        for key, value in effect.values.items():
+            values[f'{effect.name}.{key}'] = float(value)
+    return values
+
+
+def _with_range(calibration: Calibration, low: float, high: float) -> Calibration:
+    """The same link with its calibrated range widened to ``low..high``, so held-out samples
+    are evaluated by the fitted functions, not clamped at the training range's edge."""
+    return replace(calibration, temp_code_min=min(low, calibration.temp_code_min),
+                   temp_code_max=max(high, calibration.temp_code_max))
+
+
+def cross_validate(samples: AlignedSamples, effects: Sequence[Any], labels: np.ndarray,
+                   settings: _FitSettings, *, folds: int, fallback: ModelScore | None = None) -> ModelScore:
+    """Blocked cross-validation of base + ``effects``: fit without one fold, score on it.
+
+    Stateful effects run over the whole series; the least squares sees only the training
+    folds (``fit_model(..., train_mask=...)``).
+
+    :param fallback: the current model's score. A fold on which the extended model cannot be
+        fitted is scored with the current model instead (the effect gains nothing there), as
+        long as at most half of the folds fail; otherwise the model counts as not fittable.
+    """
+    names = tuple(_effect_name(spec) for spec in effects)
+    low, high = float(samples.temp_code.min()), float(samples.temp_code.max())
+    fold_sse = np.zeros((folds, 3))
+    fold_samples = np.zeros(folds)
+    failures: list[str] = []
+    for fold in range(folds):
+        held_out = labels == fold
+        fold_samples[fold] = np.count_nonzero(held_out)
+        try:
+            result = fit_model(samples, effects=tuple(effects), bias_order=settings.bias_order,
+                               scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
+                               nominal_scale=settings.nominal_scale, train_mask=~held_out)
+            residual = residual_counts(_with_range(result.calibration, low, high), samples)
+            part = residual[held_out]
+            if not np.all(np.isfinite(part)):
+                msg = 'the fitted model gives non-finite residuals on held-out data'
+                raise FitError(msg)
+            fold_sse[fold] = np.sum(part ** 2, axis=0)
+        except TakError as err:
+            failures.append(f'fold {fold + 1}: {err}')
+            if fallback is None or not fallback.ok or 2 * len(failures) > folds:
+                return ModelScore(effects=names, fold_sse=np.zeros((0, 3)), fold_samples=np.zeros(0),
+                                  error='; '.join(failures))
+            fold_sse[fold] = fallback.fold_sse[fold]
+    return ModelScore(effects=names, fold_sse=fold_sse, fold_samples=fold_samples,
+                      failed_folds=tuple(failures))
+
+
+def unresolved_shapes(effect: Effect, samples: AlignedSamples) -> tuple[str, ...]:
+    """Shape parameters that the fit drove to the edge of the range it searches on this run.
+
+    A time constant at twice the run's length, or a play as wide as half the code range, means
+    the data prefer a shape the run cannot resolve (a lag longer than the run is an integral of
+    the temperature, not a lag): the effect is then not identified by this run.
+
+    :returns: ``'tau_s 2.07e+04 (edge of 3..2.07e+04)'`` texts, empty when all are inside.
+    """
+    space = call_effect(effect, 'search_space', type(effect).search_space, samples.stamp_s, samples.temp_code)
+    varies = effect.shape_varies()
+    found = []
+    for name in effect.shape_names():
+        if not varies.get(name, True) or name not in space:
+            continue
+        low, high, logarithmic = space[name]
+        value = effect[name]
+        if not (math.isfinite(low) and math.isfinite(high)) or high <= low:
+            continue
+        if logarithmic and low > 0.0 and value > 0.0:
+            position = math.log(value / low) / math.log(high / low)
+        else:
+            position = (value - low) / (high - low)
+        if position <= EDGE_FRACTION or position >= 1.0 - EDGE_FRACTION:
+            found.append(f'{name} {value:.3g} (edge of the searched {low:.3g}..{high:.3g})')
+    return tuple(found)

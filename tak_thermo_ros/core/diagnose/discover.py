@@ -1,0 +1,393 @@
+"""The steps of :func:`diagnose` put together: floor, views, cross-validated ladder, verdict."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from tak_thermo_ros.core.correction import Corrector
+from tak_thermo_ros.core.diagnose.crossval import (
+    _effect_name,
+    _effect_parameters,
+    _effect_specs,
+    _settings_of,
+    _with_range,
+    cross_validate,
+    decimate,
+    fold_labels,
+    unresolved_shapes,
+)
+from tak_thermo_ros.core.diagnose.values import AxisSummary, Candidate, Diagnosis, ModelScore
+from tak_thermo_ros.core.diagnose.verdict import (
+    MIN_STEP_FRACTION,
+    MIN_TOTAL_FRACTION,
+    MIN_VARIANCE_EXCESS,
+    SIGNIFICANCE_SIGMAS,
+    VERDICT_NONE,
+    VERDICT_UNEXPLAINED,
+    _describe_rms,
+    _noise_sigma,
+    _paired_sigma,
+    _percent,
+    _rung,
+    _verdict_message,
+)
+from tak_thermo_ros.core.diagnose.views import EFFECT_VIEWS, build_views, noise_floor, residual_drivers
+from tak_thermo_ros.core.effects import LIBRARY, PER_AXIS, PER_AXIS_SUFFIX, Effect, PerAxisEffect, resolve_effect
+from tak_thermo_ros.core.effects.aux_signal import recorded_candidates
+from tak_thermo_ros.core.fit import fit_model, residual_counts
+from tak_thermo_ros.core.model import AXES, Calibration
+from tak_thermo_ros.core.record import AlignedSamples
+from tak_thermo_ros.errors import FitError, TakError
+
+
+@dataclass(frozen=True)
+class _Step:
+    """Candidates scored against one rung of the ladder: ``(candidate, score, model)`` best first."""
+
+    current: ModelScore
+    ranked: tuple[tuple[Candidate, ModelScore, tuple[Any, ...]], ...]
+    skipped: dict[str, str]
+
+
+def _shared_form(spec: Any) -> Any | None:
+    """The shared class of a per-axis form, or ``None``."""
+    return getattr(spec, 'shared', None) if isinstance(spec, type) and issubclass(spec, PerAxisEffect) else None
+
+
+def _per_axis_of(spec: Any) -> Any | None:
+    """The per-axis form of a shared library effect, or ``None``."""
+    return PER_AXIS.get(_effect_name(spec) + PER_AXIS_SUFFIX) if isinstance(spec, type) else None
+
+
+def _replaced(model: tuple[Any, ...], old: Any, new: Any) -> tuple[Any, ...]:
+    return tuple(new if spec is old else spec for spec in model)
+
+
+def null_heldout(samples: AlignedSamples, effects: Sequence[Any], labels: np.ndarray, settings: Any,
+                 floor: np.ndarray, *, folds: int, seed: int = 0) -> ModelScore:
+    """Cross-validation of the same model on a simulated copy of the run where that model is true.
+
+    The copy keeps the stamps, temperature codes and reference of ``samples``; its counts are
+    the model fitted on all of ``samples`` plus white noise at ``floor``. Its held-out RMS is
+    what a model without missing structure shows on this run: the floor, plus the error of
+    parameters estimated from the other folds (larger where held-out blocks extrapolate, e.g.
+    a warm-up at the start of the run). The verdict measures the excess against it.
+    """
+    result = fit_model(samples, effects=tuple(effects), bias_order=settings.bias_order,
+                       scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
+                       nominal_scale=settings.nominal_scale)
+    low, high = float(samples.temp_code.min()), float(samples.temp_code.max())
+    corrector = Corrector(_with_range(result.calibration, low, high))
+    predicted = corrector.predict_counts(samples.reference, samples.temp_code, stamp_s=samples.stamp_s,
+                                     aux=samples.aux)
+    noise = np.random.default_rng(seed).standard_normal(predicted.shape) * floor
+    copy = replace(samples, counts=predicted + noise)
+    return cross_validate(copy, tuple(effects), labels, settings, folds=folds)
+
+
+def diagnose(calibration: Calibration, samples: AlignedSamples, *,
+             candidates: Sequence[Any] | None = None, folds: int = 5, blocks_per_fold: int = 4,
+             max_cv_samples: int = 40_000, max_ladder: int = 3,
+             bias_order: int | None = None, scale_order: int | None = None,
+             rate_window_s: float | None = None,
+             progress: Callable[[str], None] | None = None, per_axis: bool = True) -> Diagnosis:
+    """Compare the calibration with a run, find where it fails and which effect it misses.
+
+    :param calibration: the model to diagnose (base model, possibly with effects).
+    :param samples: an aligned run with its reference stream, in time order.
+    :param candidates: effects to try: library names, ``'module:Class'`` specs or classes;
+        default every library effect and every recorded signal of the run
+        (:func:`~tak_thermo_ros.core.effects.aux_signal.recorded_candidates`). Effects the
+        calibration holds already are not tried.
+    :param folds: cross-validation folds.
+    :param blocks_per_fold: contiguous time blocks per fold (dealt round-robin).
+    :param max_cv_samples: the cross-validation fits use every m-th sample so that at most
+        this many remain (the noise floor and the views use all samples).
+    :param max_ladder: at most this many effects are added one after the other.
+    :param bias_order: ``q`` of the refits; default that of ``calibration``.
+    :param scale_order: ``p`` of the refits; default that of ``calibration``.
+    :param rate_window_s: window of ``dN_t/dt`` (see :func:`build_views`).
+    :param progress: called with a short text before each model is cross-validated.
+    :param per_axis: also try the per-axis form (``<name>_per_axis``) of an effect whose shape
+        parameters can differ between axes: in place of the shared form when that joins the
+        ladder, and in place of a shared form the calibration holds.
+    :raises FitError: when the run has no reference or too few samples.
+    """
+    if samples.reference is None:
+        msg = 'diagnose needs the reference stream (the true specific force) in the run'
+        raise FitError(msg)
+    if folds < 2 or blocks_per_fold < 1:
+        msg = f'cross-validation needs at least 2 folds and 1 block per fold, got {folds} and {blocks_per_fold}'
+        raise FitError(msg)
+    say = progress or (lambda text: None)
+    settings = _settings_of(calibration, bias_order, scale_order)
+    present = _effect_specs(calibration)
+    present_names = tuple(_effect_name(spec) for spec in present)
+
+    residual = residual_counts(calibration, samples)
+    views = build_views(samples, rate_window_s=rate_window_s)
+    floor, differences = noise_floor(residual, views.breaks)
+    floor = np.maximum(floor, 1e-12)
+
+    stride = max(1, math.ceil(len(samples) / max_cv_samples))
+    cv_samples = decimate(samples, stride)
+    blocks = folds * blocks_per_fold
+    labels = fold_labels(cv_samples.time_s, folds, blocks)
+    if np.bincount(labels, minlength=folds).min() < 10:
+        msg = f'too few samples ({len(cv_samples)}) for {folds}-fold cross-validation in {blocks} blocks'
+        raise FitError(msg)
+
+    # By default every library effect and every recorded auxiliary signal (aux:TOPIC) in the run.
+    specs = list(candidates) if candidates is not None else [*LIBRARY, *recorded_candidates(samples.aux)]
+    pool = [resolve_effect(type(spec) if isinstance(spec, Effect) else spec) for spec in specs]
+    related = set(present_names) | {_effect_name(_shared_form(spec)) for spec in present if _shared_form(spec)}
+    pool = [cls for cls in pool if cls.name not in related]
+    pool_names = {cls.name for cls in pool}
+
+    cache: dict[frozenset[str], ModelScore] = {}
+
+    def score(effects: tuple[Any, ...], fallback: ModelScore | None = None) -> ModelScore:
+        key = frozenset(_effect_name(e) for e in effects)
+        if key not in cache:
+            say(' + '.join(('base', *(_effect_name(e) for e in effects))))
+            cache[key] = cross_validate(cv_samples, effects, labels, settings, folds=folds, fallback=fallback)
+        found = cache[key]
+        names = tuple(_effect_name(e) for e in effects)
+        return found if found.effects == names else replace(found, effects=names)
+
+    def sigma_of(model: ModelScore) -> np.ndarray:
+        held = float(model.fold_samples.sum())
+        return np.array([_noise_sigma(differences, held) for _ in range(3)])
+
+    def sigma_total(model: ModelScore) -> float:
+        return float(np.sqrt(np.sum(sigma_of(model) ** 2)))
+
+    null_ratio = np.zeros(3)
+
+    def significant_axes(model: ModelScore, *, paired: bool = True) -> np.ndarray:
+        ratio = model.heldout_rms ** 2 / floor ** 2 - 1.0
+        sigma = sigma_of(model)
+        if paired:
+            held = float(model.fold_samples.sum())
+            sigma = np.array([_paired_sigma(differences, held) for _ in range(3)])
+        threshold = np.maximum(SIGNIFICANCE_SIGMAS * sigma, MIN_VARIANCE_EXCESS)
+        return ratio - (null_ratio if paired else 0.0) > threshold
+
+    base_drivers = residual_drivers(residual, views)
+
+    def candidate_of(name: str, spec: Any, current: ModelScore, model: ModelScore, note: str = '') -> Candidate:
+        excess_now = current.excess(floor)
+        gain = excess_now - model.excess(floor)
+        explained = gain / excess_now if excess_now > 0.0 else 0.0
+        total = sigma_total(current)
+        significance = gain / total if total > 0.0 else 0.0
+        view = EFFECT_VIEWS.get(_effect_name(_shared_form(spec) or spec))
+        view_text = ''
+        if view is not None:
+            driver = next(d for d in base_drivers if d.name == view)
+            axis = int(np.argmax(driver.fraction))
+            view_text = (f' In the current residual, {view} explains {_percent(driver.fraction[axis])} '
+                         f'of the variance on {AXES[axis]}.')
+        evidence = (f'{note}held-out RMS {_describe_rms(current.heldout_rms, model.heldout_rms)} counts '
+                    f'(floor {", ".join(f"{v:.2f}" for v in floor)}); removes {_percent(explained)} of '
+                    f'the held-out excess variance over the floor, {significance:.1f} noise sigmas.'
+                    f'{view_text}')
+        if model.failed_folds:
+            evidence += (f' Not fittable on {len(model.failed_folds)} of {folds} folds (scored there with '
+                         f'the current model): {model.failed_folds[0]}')
+        rms_after = (float(model.heldout_rms[0]), float(model.heldout_rms[1]), float(model.heldout_rms[2]))
+        return Candidate(effect=name, rms_after=rms_after, explained=float(explained),
+                         significance=float(significance), evidence=evidence,
+                         summary=str(spec.summary or ''), confirm=str(spec.confirm or ''))
+
+    def rank(current: ModelScore, effects_so_far: tuple[Any, ...]) -> _Step:
+        scored: list[tuple[Candidate, ModelScore, tuple[Any, ...]]] = []
+        skipped: dict[str, str] = {}
+        held = {_effect_name(e) for e in effects_so_far}
+        held |= {_effect_name(_shared_form(e)) for e in effects_so_far if _shared_form(e)}
+        trials: list[tuple[str, Any, tuple[Any, ...], str]] = []
+        for spec in pool:
+            name = _effect_name(spec)
+            if name not in held:
+                trials.append((name, spec, (*effects_so_far, spec), ''))
+        if per_axis:
+            # A shared form the model holds already may be replaced by its per-axis form.
+            for spec in effects_so_far:
+                form = _per_axis_of(spec)
+                if form is not None and (candidates is None or _effect_name(spec) in pool_names
+                                         or _effect_name(spec) in present_names):
+                    trials.append((form.name, form, _replaced(effects_so_far, spec, form),
+                                   f'In place of {_effect_name(spec)}: '))
+        for name, spec, model_specs, note in trials:
+            model = score(model_specs, current)
+            if not model.ok:
+                skipped[name] = model.error or 'fit failed'
+                continue
+            scored.append((candidate_of(name, spec, current, model, note), model, model_specs))
+        scored.sort(key=lambda item: item[1].excess(floor))
+        return _Step(current=current, ranked=tuple(scored), skipped=skipped)
+
+    base_score = score(present)
+    if not base_score.ok:
+        msg = f'the model cannot be refitted on this run: {base_score.error}'
+        raise FitError(msg)
+    null_score: ModelScore | None = None
+    if significant_axes(base_score, paired=False).any():
+        say('base model on a simulated copy of this run (the held-out error of a complete model)')
+        try:
+            null_score = null_heldout(cv_samples, present, labels, settings, floor, folds=folds)
+        except TakError:
+            null_score = None
+        if null_score is not None and null_score.ok:
+            null_ratio = np.maximum(null_score.heldout_rms ** 2 / floor ** 2 - 1.0, 0.0)
+    base_significant = significant_axes(base_score)
+    null_rms = null_score.heldout_rms if null_score is not None and null_score.ok else floor
+    axes = tuple(AxisSummary(rms=float(math.sqrt(np.mean(residual[:, i] ** 2))), noise_floor=float(floor[i]),
+                             heldout_rms=float(base_score.heldout_rms[i]),
+                             excess_significant=bool(base_significant[i]),
+                             null_heldout_rms=float(null_rms[i])) for i in range(3))
+
+    first_step: _Step | None = None
+    skipped: dict[str, str] = {}
+    per_axis_tried: list[tuple[int, Candidate]] = []
+    model_specs: tuple[Any, ...] = present
+    current = base_score
+    changes = 0
+    if base_significant.any():
+        while changes < max_ladder and significant_axes(current).any():
+            step = rank(current, model_specs)
+            if first_step is None:
+                first_step = step
+                skipped = dict(step.skipped)
+            if not step.ranked:
+                break
+            best, best_score, best_model = step.ranked[0]
+            if best.explained < MIN_STEP_FRACTION or best.significance < SIGNIFICANCE_SIGMAS:
+                break
+            added_spec = best_model[-1] if len(best_model) > len(model_specs) else None
+            form = _per_axis_of(added_spec) if per_axis and added_spec is not None else None
+            if form is not None:
+                # The per-axis form costs parameters: it takes the rung only when held-out
+                # blocks prefer it by more than noise could.
+                alternative = _replaced(best_model, added_spec, form)
+                form_score = score(alternative, best_score)
+                if form_score.ok:
+                    per_axis_tried.append((changes, candidate_of(form.name, form, current, form_score)))
+                    gain = best_score.excess(floor) - form_score.excess(floor)
+                    if gain > SIGNIFICANCE_SIGMAS * sigma_total(best_score):
+                        best_model, best_score = alternative, form_score
+            model_specs, current = best_model, best_score
+            changes += 1
+
+    # Backward: an effect that the ladder took early may have stood in for two others taken
+    # later (a lag mimics part of a warm-up and of a hysteresis); drop every added effect
+    # whose removal the held-out blocks do not notice.
+    pruned: list[str] = []
+    while True:
+        added_now = [spec for spec in model_specs if spec not in present]
+        if len(model_specs) - len(present) < 2 or len(added_now) < 2:
+            break
+        trials = []
+        for spec in added_now:
+            without = tuple(s for s in model_specs if s is not spec)
+            trial = score(without, current)
+            if trial.ok:
+                trials.append((trial.excess(floor) - current.excess(floor), _effect_name(spec), without, trial))
+        if not trials:
+            break
+        loss, name, without, trial = min(trials, key=lambda item: item[0])
+        excess_without = trial.excess(floor)
+        share = loss / excess_without if excess_without > 0.0 else 0.0
+        if loss >= SIGNIFICANCE_SIGMAS * sigma_total(current) and share >= MIN_STEP_FRACTION:
+            break
+        pruned.append(name)
+        model_specs, current = without, trial
+
+    # The effects the final model adds or upgrades, in the order of their single merit.
+    first_rank = {item[0].effect: index for index, item in enumerate(first_step.ranked)} if first_step else {}
+
+    def merit(spec: Any) -> int:
+        name = _effect_name(spec)
+        shared = _shared_form(spec)
+        options = [first_rank.get(name, len(first_rank))]
+        if shared is not None:
+            options.append(first_rank.get(_effect_name(shared), len(first_rank)))
+        return min(options)
+
+    changed_specs = sorted((spec for spec in model_specs if spec not in present), key=merit)
+    ladder = [_rung(base_score)]
+    rung_specs = present
+    for spec in changed_specs:
+        shared = _shared_form(spec)
+        rung_specs = _replaced(rung_specs, shared, spec) if shared in rung_specs else (*rung_specs, spec)
+        rung_score = score(rung_specs, base_score)
+        if rung_score.ok:
+            ladder.append(_rung(rung_score))
+    added = tuple(changed_specs)
+
+    verdict = VERDICT_NONE if not base_significant.any() else VERDICT_UNEXPLAINED
+    base_excess = base_score.excess(floor)
+    explained_total = (base_excess - current.excess(floor)) / base_excess if base_excess > 0.0 else 0.0
+    if added and explained_total >= MIN_TOTAL_FRACTION:
+        verdict = _effect_name(added[0])
+
+    calibration_after = None
+    residual_after = None
+    parameters: dict[str, float] = {}
+    unresolved: dict[str, str] = {}
+    if added:
+        say('refit with ' + ', '.join(_effect_name(e) for e in added))
+        try:
+            result = fit_model(cv_samples, effects=model_specs, bias_order=settings.bias_order,
+                               scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
+                               nominal_scale=settings.nominal_scale)
+        except TakError as err:
+            skipped['refit'] = f'the ladder\'s model could not be refitted on all samples: {err}'
+        else:
+            low, high = float(samples.temp_code.min()), float(samples.temp_code.max())
+            calibration_after = _with_range(result.calibration, low, high)
+            residual_after = residual_counts(calibration_after, samples)
+            parameters = _effect_parameters(calibration_after)
+            for effect in calibration_after.effects:
+                if effect.name in (_effect_name(e) for e in added):
+                    edges = unresolved_shapes(effect, cv_samples)
+                    if edges:
+                        unresolved[effect.name] = ', '.join(edges)
+    if added and _effect_name(added[0]) in unresolved:
+        verdict = VERDICT_UNEXPLAINED
+    final_residual = residual if residual_after is None else residual_after
+    drivers = residual_drivers(final_residual, views) if residual_after is not None else base_drivers
+
+    ranked = [item[0] for item in first_step.ranked] if first_step is not None else []
+    for _, candidate in per_axis_tried:
+        # A per-axis form tried in place of a shared form that joined the ladder is listed with
+        # the candidates when it is the verdict; all of them are in ``per_axis_forms``.
+        if candidate.effect not in {r.effect for r in ranked} and candidate.effect == verdict:
+            ranked.append(candidate)
+    candidates_out = []
+    for candidate in ranked:
+        if candidate.effect == verdict and parameters:
+            own = {key.split('.', 1)[1]: value for key, value in parameters.items()
+                   if key.split('.', 1)[0] == candidate.effect}
+            text = ', '.join(f'{key} {value:.4g}' for key, value in own.items())
+            candidate = replace(candidate, parameters=own,
+                                evidence=candidate.evidence + (f' Fitted: {text}.' if text else ''))
+        candidates_out.append(candidate)
+
+    message = _verdict_message(verdict, axes, ladder, candidates_out, drivers, base_drivers,
+                               significant_axes(current), explained_total, unresolved)
+    if pruned and verdict not in (VERDICT_NONE, VERDICT_UNEXPLAINED):
+        message += (f' Not needed once the others are in: {", ".join(pruned)} (held-out blocks do not '
+                    f'notice its removal).')
+    return Diagnosis(verdict=verdict, message=message, axes=axes,  # type: ignore[arg-type]
+                     candidates=tuple(candidates_out), skipped=skipped, ladder=tuple(ladder), drivers=drivers,
+                     base_drivers=base_drivers,
+                     residual=residual, residual_after=residual_after, calibration=calibration,
+                     calibration_after=calibration_after, views=views, folds=folds, blocks=blocks,
+                     cv_stride=stride, present_effects=present_names, explained=float(explained_total),
+                     unresolved=unresolved, pruned=tuple(pruned),
+                     per_axis_forms=tuple(candidate for _, candidate in per_axis_tried))

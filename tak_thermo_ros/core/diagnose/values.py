@@ -1,0 +1,244 @@
+"""The values :func:`~tak_thermo_ros.core.diagnose.diagnose` returns and passes between its steps."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from tak_thermo_ros.core.model import AXES, Calibration
+
+
+@dataclass(frozen=True)
+class AxisSummary:
+    """Residual RMS of the given calibration on this run against the noise floor, counts.
+
+    :param rms: RMS of ``N - model`` over the whole run (the calibration as given).
+    :param noise_floor: white noise plus code rounding, from successive differences.
+    :param heldout_rms: held-out RMS of the same model structure refitted by cross-validation.
+    :param excess_significant: whether ``heldout_rms`` lies significantly above the floor, and
+        above what the same model shows on a copy of the run where it is true.
+    :param null_heldout_rms: held-out RMS of the same model on a simulated copy of the run in
+        which that model is true, with white noise at the floor (parameter-estimation error of
+        held-out blocks included); the floor itself when the excess was too small to need it.
+    """
+
+    rms: float
+    noise_floor: float
+    heldout_rms: float
+    excess_significant: bool
+    null_heldout_rms: float = 0.0
+
+
+@dataclass(frozen=True)
+class ModelScore:
+    """Blocked cross-validation of one model.
+
+    :param effects: effect names on top of the base model.
+    :param fold_sse: ``(folds, 3)`` held-out sum of squared residuals per fold and axis.
+    :param fold_samples: ``(folds,)`` held-out samples per fold.
+    :param error: why the model could not be fitted (then the arrays are empty).
+    :param failed_folds: folds that could not be fitted and were scored with the current model.
+    """
+
+    effects: tuple[str, ...]
+    fold_sse: np.ndarray
+    fold_samples: np.ndarray
+    error: str | None = None
+    failed_folds: tuple[str, ...] = ()
+
+    @property
+    def ok(self) -> bool:
+        """Whether every fold could be fitted."""
+        return self.error is None
+
+    @property
+    def heldout_rms(self) -> np.ndarray:
+        """``(3,)`` pooled held-out RMS per axis."""
+        return np.sqrt(self.fold_sse.sum(axis=0) / self.fold_samples.sum())
+
+    def excess(self, floor: np.ndarray) -> float:
+        """Held-out variance above the floor, summed over axes in units of each axis' floor^2."""
+        return float(np.sum(self.heldout_rms ** 2 / floor ** 2 - 1.0))
+
+    @property
+    def label(self) -> str:
+        """``'base'`` or ``'base + a + b'``."""
+        return ' + '.join(('base', *self.effects))
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One library effect tried on top of the current model.
+
+    :param effect: its name.
+    :param rms_after: ``(3,)`` held-out RMS with the effect added, counts.
+    :param explained: share of the current model's held-out excess variance it removes.
+    :param significance: that improvement in standard errors of pure noise.
+    :param evidence: one paragraph for a human.
+    :param summary: the effect's physics, one sentence.
+    :param confirm: which test run would confirm it.
+    :param parameters: its fitted parameters.
+    """
+
+    effect: str
+    rms_after: tuple[float, float, float]
+    explained: float
+    significance: float
+    evidence: str
+    summary: str = ''
+    confirm: str = ''
+    parameters: dict[str, float] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready form."""
+        return {'effect': self.effect, 'rms_after': dict(zip(AXES, self.rms_after)),
+                'explained_fraction': self.explained, 'significance_sigmas': self.significance,
+                'evidence': self.evidence, 'summary': self.summary, 'confirm': self.confirm,
+                'parameters': dict(self.parameters)}
+
+
+@dataclass(frozen=True)
+class LadderStep:
+    """One rung of the model ladder: a model and its held-out RMS per axis."""
+
+    label: str
+    effects: tuple[str, ...]
+    heldout_rms: tuple[float, float, float]
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready form."""
+        return {'model': self.label, 'effects': list(self.effects),
+                'heldout_rms': dict(zip(AXES, self.heldout_rms))}
+
+
+@dataclass(frozen=True)
+class Driver:
+    """How much of the residual variance a binned mean of one quantity explains (eta^2)."""
+
+    name: str
+    fraction: tuple[float, float, float]
+
+    @property
+    def largest(self) -> float:
+        """The largest fraction over the axes."""
+        return max(self.fraction)
+
+
+@dataclass(frozen=True)
+class Plateau:
+    """A stretch of steady temperature code.
+
+    :param start: index of its first sample; ``stop`` one past the last.
+    :param temp_code: mean temperature code.
+    :param approach: ``+1`` reached by heating, ``-1`` by cooling, ``0`` at the start.
+    """
+
+    start: int
+    stop: int
+    temp_code: float
+    approach: int
+
+
+@dataclass(frozen=True)
+class Views:
+    """The quantities the residual is viewed against, one value per sample.
+
+    :param time_s: ``(k,)`` seconds since the first sample.
+    :param temp_code: ``(k,)`` held temperature code.
+    :param rate: ``(k,)`` ``dN_t/dt`` in codes per second (central difference over a window).
+    :param direction: ``(k,)`` ``+1`` heating, ``-1`` cooling, ``0`` steady.
+    :param specific_force: ``(k, 3)`` the reference input, m/s^2.
+    :param plateaus: the steady stretches, in time order.
+    :param breaks: ``(k,)`` True where the sample starts a new segment (turntable move, gap).
+    """
+
+    time_s: np.ndarray
+    temp_code: np.ndarray
+    rate: np.ndarray
+    direction: np.ndarray
+    specific_force: np.ndarray
+    plateaus: tuple[Plateau, ...]
+    breaks: np.ndarray
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """What :func:`diagnose` found.
+
+    :param verdict: an effect name, ``'none'`` or ``'unexplained'``.
+    :param message: the verdict in two or three sentences.
+    :param axes: per axis x, y, z.
+    :param candidates: effects tried on the current model, best first.
+    :param skipped: effect -> why it could not be tried on this run.
+    :param ladder: the current model, then each effect added while it explained the rest.
+    :param drivers: what the final residual follows (eta^2 per quantity), largest first.
+    :param base_drivers: the same for the current model's residual.
+    :param residual: ``(k, 3)`` residual of the given calibration.
+    :param residual_after: ``(k, 3)`` residual after the ladder's effects, or ``None``.
+    :param calibration: the calibration as given.
+    :param calibration_after: the calibration refitted with the ladder's effects, or ``None``.
+    :param views: the quantities the residual is viewed against.
+    :param folds: cross-validation folds; ``blocks`` contiguous time blocks in all.
+    :param cv_stride: every this many samples were used in the cross-validation fits.
+    :param present_effects: the effects the given calibration holds already.
+    :param explained: share of the current model's held-out excess that the ladder removes.
+    :param unresolved: ladder effect -> its shape parameters fitted at the edge of the searched
+        range (the run does not identify it; it is then not the verdict).
+    :param per_axis_forms: per-axis forms tried in place of a shared form that joined the ladder
+        (``explained`` and ``significance`` against the rung below); the ladder holds the
+        per-axis form when held-out blocks preferred it by more than noise could.
+    :param pruned: effects the forward ladder took that the final model does not need (held-out
+        blocks do not notice their removal once the later effects are in).
+    """
+
+    verdict: str
+    message: str
+    axes: tuple[AxisSummary, AxisSummary, AxisSummary]
+    candidates: tuple[Candidate, ...]
+    skipped: dict[str, str]
+    ladder: tuple[LadderStep, ...]
+    drivers: tuple[Driver, ...]
+    base_drivers: tuple[Driver, ...]
+    residual: np.ndarray
+    residual_after: np.ndarray | None
+    calibration: Calibration
+    calibration_after: Calibration | None
+    views: Views
+    folds: int
+    blocks: int
+    cv_stride: int
+    present_effects: tuple[str, ...] = ()
+    explained: float = 0.0
+    unresolved: dict[str, str] = field(default_factory=dict)
+    pruned: tuple[str, ...] = ()
+    per_axis_forms: tuple[Candidate, ...] = ()
+
+    @property
+    def noise_floor(self) -> np.ndarray:
+        """``(3,)`` the noise floor per axis, counts."""
+        return np.array([axis.noise_floor for axis in self.axes])
+
+    def as_dict(self) -> dict[str, Any]:
+        """The JSON document of ``tak_calib diagnose --json``."""
+        return {
+            'verdict': self.verdict,
+            'message': self.message,
+            'axes': {name: {'rms': a.rms, 'noise_floor': a.noise_floor, 'heldout_rms': a.heldout_rms,
+                            'excess_significant': a.excess_significant,
+                            'null_heldout_rms': a.null_heldout_rms}
+                     for name, a in zip(AXES, self.axes)},
+            'candidates': [c.as_dict() for c in self.candidates],
+            'skipped': dict(self.skipped),
+            'unresolved': dict(self.unresolved),
+            'pruned': list(self.pruned),
+            'per_axis_forms': [c.as_dict() for c in self.per_axis_forms],
+            'ladder': [step.as_dict() for step in self.ladder],
+            'residual_follows': [{'quantity': d.name, 'variance_fraction': dict(zip(AXES, d.fraction))}
+                                 for d in self.drivers],
+            'ladder_explained_fraction': self.explained,
+            'model_effects': list(self.present_effects),
+            'cross_validation': {'folds': self.folds, 'blocks': self.blocks, 'stride': self.cv_stride},
+            'samples': int(len(self.views.time_s)),
+        }

@@ -1,0 +1,153 @@
+"""The verdict: the rule that names an effect, ``'none'`` or ``'unexplained'``, and its messages."""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+
+from tak_thermo_ros.core.diagnose.values import AxisSummary, Candidate, Driver, LadderStep, ModelScore
+from tak_thermo_ros.core.model import AXES
+
+VERDICT_NONE = 'none'
+VERDICT_UNEXPLAINED = 'unexplained'
+
+MIN_STEP_FRACTION = 0.5
+"""An effect joins the ladder when it removes at least this share of the held-out excess
+variance over the floor that the rung below leaves: less, and it leaves more structure
+unexplained than it explains."""
+MIN_TOTAL_FRACTION = 0.75
+"""The first effect of the ladder is the verdict when the ladder as a whole removes at least
+this share of the current model's held-out excess; else significant structure remains that the
+library does not explain (``'unexplained'``). Single hidden effects reach 0.97-1.0 on simulated
+runs, the lag on the real IMU log 0.88; a supply-voltage drift that a monotone temperature
+staircase confounds with temperature lets the spline of ``temperature_shape`` reach up to 0.48."""
+SIGNIFICANCE_SIGMAS = 4.0
+"""How many standard errors of pure noise an excess or an improvement must exceed."""
+MIN_VARIANCE_EXCESS = 0.02
+"""Below this held-out variance excess (2 %, i.e. RMS 1 % above the floor) an axis counts as
+at the floor however many samples there are: the floor estimate itself is not better."""
+
+
+def _noise_sigma(floor_differences: int, heldout_samples: float) -> float:
+    """Standard error of ``heldout_mse / floor^2`` for one axis of pure white noise."""
+    return math.sqrt(2.0 / max(heldout_samples, 1.0) + 3.0 / max(floor_differences, 1))
+
+
+def _paired_sigma(floor_differences: int, heldout_samples: float) -> float:
+    """Standard error of ``heldout_mse / floor^2`` less that of a simulated copy of the run with
+    white noise at the floor (:func:`~tak_thermo_ros.core.diagnose.discover.null_heldout`): both
+    held-out means carry their own noise (``2 / n`` each), the floor estimate its own (``3 / m``)."""
+    return math.sqrt(4.0 / max(heldout_samples, 1.0) + 3.0 / max(floor_differences, 1))
+
+
+def _describe_rms(before: np.ndarray, after: np.ndarray) -> str:
+    return ', '.join(f'{name} {b:.2f}->{a:.2f}' for name, b, a in zip(AXES, before, after))
+
+
+def _percent(value: float) -> str:
+    return f'{round(100.0 * value) + 0:.0f}%'
+
+
+def _driver_sentence(drivers: Sequence[Driver], *, exclude: Sequence[str] = ()) -> str:
+    """``'time (62% on y), temperature code (8% on x)'`` for the leading quantities."""
+    parts = []
+    for driver in drivers:
+        if driver.name in exclude:
+            continue
+        axis = int(np.argmax(driver.fraction))
+        parts.append(f'{driver.name} ({_percent(driver.fraction[axis])} of the variance on {AXES[axis]})')
+        if len(parts) == 3:
+            break
+    return ', '.join(parts)
+
+
+def _unexplained_sentence(drivers: Sequence[Driver]) -> str:
+    """What a residual that no library effect explains still follows, and what that suggests.
+
+    Called only when no library effect explains the structure: the temperature effects (a
+    spline in ``N_t``, a lag, hysteresis, warm-up) have then failed on held-out blocks, which is
+    the evidence that a residual sorted by time is not a function of temperature or its history.
+    """
+    by_name = {d.name: d for d in drivers}
+    lead = drivers[0]
+    text = f'the residual still follows {_driver_sentence(drivers)}'
+    if lead.name in ('time', 'time at fixed temperature'):
+        text += ('; it is a slow drift in time that no function of the temperature code or of its history in '
+                 'the library predicts on held-out time blocks: look for a quantity that is not in the bag '
+                 '(supply voltage, humidity, mechanical stress, a reference that moves)')
+        code = by_name['temperature code'].largest
+        if code > 0.2:
+            text += (f'. The temperature code sorts {_percent(code)} of it as well, because temperature and time '
+                     f'move together over parts of the run; yet no function of temperature predicts it on '
+                     f'held-out blocks. A run that holds one temperature for hours would show the drift alone')
+    elif lead.name in ('temperature rate', 'heating vs cooling'):
+        text += ('; it follows the temperature history, but neither the library lag nor its hysteresis '
+                 'models it: consider a user-defined effect (docs/effects.md)')
+    elif lead.name == 'temperature code':
+        text += ('; it follows the temperature code in a way neither the power series nor the spline of '
+                 'temperature_shape predicts on held-out blocks: try higher orders (--bias-order, --scale-order)')
+    elif lead.name in ('own input', 'other inputs'):
+        text += '; it depends on the input: check the reference stream and the turntable positions'
+    return text
+
+
+def _rung(model: ModelScore) -> LadderStep:
+    rms = model.heldout_rms
+    return LadderStep(label=model.label, effects=model.effects,
+                      heldout_rms=(float(rms[0]), float(rms[1]), float(rms[2])))
+
+
+def _verdict_message(verdict: str, axes: Sequence[AxisSummary], ladder: Sequence[LadderStep],
+                     candidates: Sequence[Candidate], drivers: Sequence[Driver],
+                     base_drivers: Sequence[Driver], still_significant: np.ndarray,
+                     explained_total: float, unresolved: dict[str, str]) -> str:
+    ratios = ', '.join(f'{name} {a.heldout_rms / a.noise_floor:.2f}x' for name, a in zip(AXES, axes))
+    if verdict == VERDICT_NONE:
+        text = (f'The residual is at the noise floor (held-out RMS / floor: {ratios}): '
+                f'no structure left for an effect to explain.')
+        refit = [name for name, a in zip(AXES, axes) if a.rms > 1.1 * a.heldout_rms]
+        if refit:
+            text += (f' The calibration as given fits this run worse than a refit of the same model '
+                     f'(axes {", ".join(refit)}): refit it on this run.')
+        return text
+    if verdict == VERDICT_UNEXPLAINED:
+        first = ladder[1].effects[-1] if len(ladder) > 1 else ''
+        if first in unresolved:
+            best = (f' {ladder[-1].label} removes {_percent(explained_total)} of the held-out excess, but the '
+                    f'fit of {first} runs to the edge of what this run resolves ({unresolved[first]}): the run '
+                    f'does not identify it, so it is not named (a longer run, or longer plateaus, would tell).')
+            follows = f'the residual follows {_driver_sentence(base_drivers)}'
+        elif len(ladder) > 1:
+            best = (f' {ladder[-1].label} removes {_percent(explained_total)} of the held-out excess, '
+                    f'too little to name it the cause.')
+            follows = _unexplained_sentence(drivers)
+        else:
+            if candidates and candidates[0].explained > 0.0:
+                best = (f' The best library effect, {candidates[0].effect}, removes only '
+                        f'{_percent(candidates[0].explained)} of the held-out excess.')
+            else:
+                best = ' No library effect lowers the held-out error.'
+            follows = _unexplained_sentence(base_drivers)
+        return (f'Significant structure remains above the noise floor (held-out RMS / floor: {ratios}) '
+                f'that no library effect explains with parameters this run resolves.{best} '
+                f'{follows[0].upper()}{follows[1:]}.')
+    best = next((c for c in candidates if c.effect == verdict), candidates[0])
+    text = (f'The model misses {verdict}: it removes {_percent(best.explained)} of the held-out excess '
+            f'over the noise floor (held-out RMS / floor before: {ratios}). {best.summary}')
+    if verdict.endswith('_per_axis'):
+        shared = next((c for c in candidates if c.effect == verdict[:-len('_per_axis')]), None)
+        if shared is not None:
+            text += (f' The per-axis form beats the shared {shared.effect} on held-out blocks '
+                     f'(held-out RMS {", ".join(f"{v:.2f}" for v in shared.rms_after)} shared, '
+                     f'{", ".join(f"{v:.2f}" for v in best.rms_after)} per axis).')
+    if len(ladder) > 2:
+        text += (' Then: ' + ', '.join(step.effects[-1] for step in ladder[2:])
+                 + f' ({_percent(explained_total)} of the excess in all).')
+    for name, edges in unresolved.items():
+        text += f' The fit of {name} runs to the edge of what this run resolves ({edges}).'
+    if still_significant.any():
+        text += (f' Structure remains on {", ".join(n for n, s in zip(AXES, still_significant) if s)}: '
+                 f'{_unexplained_sentence(drivers)}.')
+    return text

@@ -1,0 +1,21 @@
+"""Checked numbers: the one test of a finite number that the calibration file and the effects share."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from tak_thermo_ros.errors import CalibrationError
+
+
+def finite_number(value: object, key: str) -> float:
+    """A finite float from a number (Python or numpy; not a bool), or a one-line error naming ``key``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+        msg = f'{key}: expected a number, got {type(value).__name__} {value!r}'
+        raise CalibrationError(msg)
+    number = float(value)
+    if not math.isfinite(number):
+        msg = f'{key}: must be finite, got {number}'
+        raise CalibrationError(msg)
+    return number
