@@ -636,7 +636,8 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument('--effects', metavar='NAME[,NAME...]',
                      help='effects to fit beyond the paper\'s model: thermal_lag, hysteresis, scale_nonlinearity, '
                           'cross_axis, warmup, temperature_shape, the per-axis forms thermal_lag_per_axis, '
-                          'hysteresis_per_axis, warmup_per_axis, or module:Class (see docs/effects.md)')
+                          'hysteresis_per_axis, warmup_per_axis, a recorded signal aux:TOPIC[:FIELD] '
+                          '(e.g. aux:/power/battery_state), or module:Class (see docs/effects.md)')
     fit.add_argument('--gyro-effects', metavar='NAME[,NAME...]',
                      help='effects to fit on the gyroscope (driver bags), the same names as --effects')
     fit.add_argument('--settle-time', type=bounds.seconds_not_negative, default=0.0, metavar='SECONDS',
@@ -704,7 +705,8 @@ def build_parser() -> argparse.ArgumentParser:
     diag.add_argument('--json', metavar='OUT.json', help='write the verdict, RMS, floor and candidates as JSON')
     diag.add_argument('--report', metavar='DIR', help='write PNG figures and report.html into DIR')
     diag.add_argument('--candidates', metavar='NAME[,NAME...]',
-                      help='effects to try (default: every library effect the calibration lacks); '
+                      help='effects to try (default: every library effect the calibration lacks and every '
+                           'recorded signal aux:TOPIC in the bag); '
                            "module:Class for a user-defined effect (see docs/effects.md); 'library' "
                            "stands for every library effect, e.g. library,mymodule:MyEffect")
     diag.add_argument('--folds', type=bounds.folds, default=5,
