@@ -279,3 +279,14 @@ def test_online_core_waits_for_holds_and_drops_a_stale_signal_like_the_temperatu
     assert core.dropped[WAITING_FOR_SIGNAL] == 1 and core.dropped[STALE_SIGNAL] == 1
     assert core.signal_rejected[SUPPLY] == 1 and core.signal_messages[SUPPLY] == 2
     assert core.received == core.published + core.dropped_total()
+
+
+def test_scenario_refuses_a_supply_topic_or_type_it_cannot_write():
+    """record_supply must be an absolute topic without ':'; record_supply_type one of the two types."""
+    from tak_thermo_ros.core.simulate import scenario_from_mapping
+    from tak_thermo_ros.errors import ScenarioError
+    with pytest.raises(ScenarioError, match='record_supply'):
+        scenario_from_mapping({'record_supply': 'power'})
+    with pytest.raises(ScenarioError, match='record_supply_type'):
+        scenario_from_mapping({'record_supply': '/p', 'record_supply_type': 'int8'})
+    assert simulate(replace(SHORT, plateau_hours=0.05, plateaus_celsius=(10.0, 30.0))).record.aux == {}
