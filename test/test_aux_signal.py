@@ -227,6 +227,20 @@ def test_the_loop_with_a_recorded_supply_ends_at_the_floor(tmp_path, capsys):
     assert without > 1.5 * floor  # the supply term matters on the second run
 
 
+def test_a_recorded_supply_that_drives_nothing_is_tried_but_not_chosen():
+    """With a warm-up hidden and the supply recorded but inert, diagnose tries aux:... and names warmup."""
+    from tak_thermo_ros.core.diagnose import diagnose
+    from tak_thermo_ros.core.fit import fit_model
+    scenario = replace(SHORT, seed=43, record_supply='/power/battery_state',
+                       effects={'warmup': {'tau_s': 1800.0, 'amplitude_x': 30.0, 'amplitude_z': -20.0}})
+    samples = align(simulate(scenario).record)
+    result = diagnose(fit_model(samples).calibration, samples)
+    assert result.verdict == 'warmup', result.message
+    tried = {candidate.effect: candidate for candidate in result.candidates}
+    assert SUPPLY in tried and tried[SUPPLY].explained < tried['warmup'].explained
+    assert all(SUPPLY not in step.effects for step in result.ladder)
+
+
 def test_driver_bag_fits_the_supply_on_the_accelerometer_and_nothing_on_the_gyroscope(tmp_path):
     """fit --effects / --gyro-effects aux:... on a driver bag: the accel slopes recover the truth, the gyro's are ~0."""
     drift = 0.01  # m/s^2 per unit of the supply signal
