@@ -14,6 +14,7 @@ os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 
 import argparse  # noqa: E402
 import json  # noqa: E402
+import re  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Callable, Sequence  # noqa: E402
@@ -270,12 +271,25 @@ def cmd_fit(args: argparse.Namespace) -> int:
             errors = result.parameter_errors
             shown = ', '.join(f'{p.name} {p.value:.4g}' + (f' +- {errors[effect.name + "." + p.name]:.2g}'
                                                            if effect.name + '.' + p.name in errors else '')
-                              + (f' {p.unit}' if p.unit else '') for p in effect.parameters)
+                              + (f' {_effect_unit(p.unit, unit_name)}' if p.unit else '') for p in effect.parameters)
             print(f'  effect {effect.name}: {shown}')
         for note in calibration.notes:
             print(f'note: {prefix}{note}')
     print(f'wrote {args.output}')
     return 0
+
+
+def _effect_unit(unit: str, sensor_unit: str) -> str:
+    """An effect parameter's unit for the sensor's input: the library states it for codes.
+
+    With a driver's input, counts are the sensor's unit (m/s^2 or rad/s), its input is in the
+    same unit, and the temperature code is the temperature in degrees C.
+    """
+    if sensor_unit == 'counts':
+        return unit
+    unit = re.sub(r'\bm/s\^2\b', '@', unit)
+    unit = re.sub(r'\bcodes?\b', 'C', unit)
+    return unit.replace('counts', sensor_unit).replace('@', sensor_unit)
 
 
 def _amount(value: float, unit: str) -> str:
