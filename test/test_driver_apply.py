@@ -104,12 +104,13 @@ def test_apply_refuses_a_calibration_of_the_other_input_kind(bags, tmp_path, cap
     save_calibration(tmp_path / 'v1.yaml', Scenario().truth())
     counts_run = simulate(Scenario(plateaus_celsius=(15.0, 25.0), plateau_hours=0.05, dwell_s=30.0))
     write_record(tmp_path / 'counts', counts_run.record)
-    for bag, params, says in ((root / 'run2', tmp_path / 'v1.yaml', 'is a counts calibration'),
-                              (tmp_path / 'counts', root / 'p.yaml', 'is a imu calibration')):
+    for bag, params, says in ((root / 'run2', tmp_path / 'v1.yaml', 'holds a driver Imu'),
+                              (tmp_path / 'counts', root / 'p.yaml', 'holds channel codes')):
         out = tmp_path / f'out_{bag.name}'
         assert main(['apply', str(bag), '--params', str(params), '-o', str(out), '--no-progress']) == 2
         error = capsys.readouterr().err
-        assert error.count('\n') == 1 and error.startswith(f'tak_calib: error: {params} {says}')
+        assert error.count('\n') == 1 and error.startswith(f'tak_calib: error: {params} ')
+        assert error.rstrip().endswith(f'{bag} {says}')
         assert not out.exists()
 
 
