@@ -18,6 +18,7 @@ import os
 import shutil
 import tempfile
 from dataclasses import dataclass
+from itertools import islice
 from pathlib import Path
 from typing import Iterator
 
@@ -25,10 +26,11 @@ import numpy as np
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
+from tak_thermo_ros.cdr import MessageArrays, decode_messages
 from tak_thermo_ros.core.correction import imu_covariances
 from tak_thermo_ros.core.model import InputKind
 from tak_thermo_ros.core.record import NANOSECONDS, ChannelRecord, DriverRecord
-from tak_thermo_ros.errors import BagError
+from tak_thermo_ros.errors import BagError, CdrError
 from tak_thermo_ros.progress import Progress
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
@@ -38,6 +40,11 @@ IMU = 'sensor_msgs/msg/Imu'
 NOMINAL_SCALE_KEY = 'tak_thermo_ros.nominal_scale'
 """Bag metadata ``custom_data`` key: nominal K0 per axis as ``'x,y,z'`` (counts per m/s^2)."""
 STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
+DECODERS = ('block', 'rosbags')
+"""``block``: raw messages decoded chunk by chunk into arrays (:mod:`tak_thermo_ros.cdr`);
+``rosbags``: one ``deserialize_cdr`` call per message (the reference)."""
+CHUNK_MESSAGES = 65536
+"""Raw messages the block decoder reads and decodes at once."""
 
 _Header = TYPESTORE.types['std_msgs/msg/Header']
 _Time = TYPESTORE.types['builtin_interfaces/msg/Time']
@@ -124,13 +131,67 @@ class _TopicReader:
             if step % 4096 == 4095:
                 progress.advance(4096)
 
+    def arrays(self, progress: Progress, path: Path, chunk: int | None = None) -> Iterator[MessageArrays]:
+        """The topic's messages decoded ``chunk`` (default :data:`CHUNK_MESSAGES`) at a time."""
+        if not self.connections:
+            return
+        chunk = chunk or CHUNK_MESSAGES
+        raws = (raw for _, _, raw in self.reader.messages(connections=self.connections))
+        first_index = 0
+        while batch := list(islice(raws, chunk)):
+            try:
+                arrays = decode_messages(batch, self.msgtype, first_index=first_index)
+            except CdrError as err:
+                raise CdrError(f'{path}: {self.topic} {err}', err.index) from None
+            first_index += len(batch)
+            progress.advance(len(batch))
+            yield arrays
+
+
+def iter_topic_arrays(source: str | os.PathLike[str] | Reader, topic: str, msgtype: str, *,
+                      chunk: int | None = None) -> Iterator[MessageArrays]:
+    """Decode one topic of a bag chunk by chunk into arrays (rosbags reads the storage only).
+
+    :param source: a bag directory, or a :class:`rosbags.rosbag2.Reader` that is open.
+    :param msgtype: the topic's expected type, one of :data:`tak_thermo_ros.cdr.SCHEMAS`.
+    :param chunk: raw messages decoded at once (default :data:`CHUNK_MESSAGES`).
+    :returns: one :class:`~tak_thermo_ros.cdr.MessageArrays` per chunk, in bag order.
+    :raises BagError: missing bag or topic, wrong type, malformed message
+        (:class:`~tak_thermo_ros.errors.CdrError`), unreadable file.
+    """
+    if chunk is not None and chunk < 1:
+        msg = f'chunk must be at least 1 message, got {chunk}'
+        raise ValueError(msg)
+    quiet = Progress(0, topic, enabled=False)
+    path = Path(source.path if isinstance(source, Reader) else source)
+    if not path.exists():
+        msg = f'{path}: no such bag'
+        raise BagError(msg)
+    try:
+        if isinstance(source, Reader):
+            yield from _TopicReader(source, path, topic, msgtype, required=True).arrays(quiet, path, chunk)
+        else:
+            with Reader(path) as reader:
+                yield from _TopicReader(reader, path, topic, msgtype, required=True).arrays(quiet, path, chunk)
+    except BagError:
+        raise
+    except Exception as err:  # rosbags and the storage libraries raise many kinds
+        detail = str(err).splitlines()[0] if str(err) else type(err).__name__
+        msg = f'{path}: cannot read bag ({detail})'
+        raise BagError(msg) from None
+
 
 def read_record(path: str | os.PathLike[str], *, topics: Topics = Topics(),
-                require_reference: bool = False, progress: bool = True) -> ChannelRecord:
+                require_reference: bool = False, progress: bool = True,
+                decoder: str = 'block') -> ChannelRecord:
     """Read the counts, temperature-code and (optional) reference streams of a bag.
 
+    :param decoder: one of :data:`DECODERS`; both give the same arrays.
     :raises BagError: missing bag or topic, wrong type, empty topic, unreadable or truncated file.
     """
+    if decoder not in DECODERS:
+        msg = f'decoder must be one of {DECODERS}, got {decoder!r}'
+        raise ValueError(msg)
     path = Path(path)
     if not path.exists():
         msg = f'{path}: no such bag'
@@ -148,17 +209,11 @@ def read_record(path: str | os.PathLike[str], *, topics: Topics = Topics(),
                     raise BagError(msg)
             total = counts_topic.count + temp_topic.count + reference_topic.count
             with Progress(total, f'reading {path.name}', enabled=None if progress else False) as bar:
-                counts_stamp, counts, frame_id = _read_vectors(counts_topic, bar, path, check_frame=True)
-                temp_stamp = np.empty(temp_topic.count, dtype=np.int64)
-                temp_code = np.empty(temp_topic.count)
-                filled = 0
-                for filled, message in enumerate(temp_topic.messages(bar), start=1):
-                    temp_stamp[filled - 1] = _stamp_ns(message.header)
-                    temp_code[filled - 1] = message.temperature
-                if filled != temp_topic.count:
-                    msg = f'{path}: {temp_topic.topic} holds {filled} of the {temp_topic.count} messages its index lists (truncated bag?)'
-                    raise BagError(msg)
-                reference_stamp, reference, _ = _read_vectors(reference_topic, bar, path, check_frame=False)
+                counts_stamp, counts, frame_id = _read_vectors(counts_topic, bar, path, check_frame=True,
+                                                               decoder=decoder)
+                temp_stamp, temp_code = _read_temperatures(temp_topic, bar, path, decoder=decoder)
+                reference_stamp, reference, _ = _read_vectors(reference_topic, bar, path, check_frame=False,
+                                                              decoder=decoder)
     except BagError:
         raise
     except Exception as err:  # rosbags and the storage libraries raise many kinds
@@ -171,8 +226,10 @@ def read_record(path: str | os.PathLike[str], *, topics: Topics = Topics(),
 
 
 def read_driver_record(path: str | os.PathLike[str], *, topics: Topics = Topics(),
-                       progress: bool = True) -> DriverRecord:
+                       progress: bool = True, decoder: str = 'block') -> DriverRecord:
     """Read a driver bag: the Imu, the temperature (degrees C) and the optional references.
+
+    :param decoder: one of :data:`DECODERS`; both give the same arrays.
 
     :raises BagError: missing bag or topic, wrong type, empty topic, a frame_id that changes,
         unreadable or truncated file.
@@ -193,10 +250,11 @@ def read_driver_record(path: str | os.PathLike[str], *, topics: Topics = Topics(
                     raise BagError(msg)
             total = imu_topic.count + temp_topic.count + reference_topic.count + rate_topic.count
             with Progress(total, f'reading {path.name}', enabled=None if progress else False) as bar:
-                imu = _read_imu_messages(imu_topic, bar, path)
-                temp_stamp, temperature = _read_temperatures(temp_topic, bar, path)
-                reference_stamp, reference, _ = _read_vectors(reference_topic, bar, path, check_frame=False)
-                rate_stamp, rate, _ = _read_vectors(rate_topic, bar, path, check_frame=False)
+                imu = _read_imu_messages(imu_topic, bar, path, decoder=decoder)
+                temp_stamp, temperature = _read_temperatures(temp_topic, bar, path, decoder=decoder)
+                reference_stamp, reference, _ = _read_vectors(reference_topic, bar, path, check_frame=False,
+                                                              decoder=decoder)
+                rate_stamp, rate, _ = _read_vectors(rate_topic, bar, path, check_frame=False, decoder=decoder)
     except BagError:
         raise
     except Exception as err:  # rosbags and the storage libraries raise many kinds
@@ -210,20 +268,7 @@ def read_driver_record(path: str | os.PathLike[str], *, topics: Topics = Topics(
                         rate_reference_stamp_ns=rate_stamp, rate_reference=rate, frame_id=frame_id)
 
 
-def _read_temperatures(topic: _TopicReader, bar: Progress, path: Path) -> tuple[np.ndarray, np.ndarray]:
-    stamps = np.empty(topic.count, dtype=np.int64)
-    values = np.empty(topic.count)
-    filled = 0
-    for filled, message in enumerate(topic.messages(bar), start=1):
-        stamps[filled - 1] = _stamp_ns(message.header)
-        values[filled - 1] = message.temperature
-    if filled != topic.count:
-        msg = f'{path}: {topic.topic} holds {filled} of the {topic.count} messages its index lists (truncated bag?)'
-        raise BagError(msg)
-    return stamps, values
-
-
-def _read_imu_messages(topic: _TopicReader, bar: Progress, path: Path):
+def _read_imu_messages(topic: _TopicReader, bar: Progress, path: Path, *, decoder: str):
     count = topic.count
     stamps = np.empty(count, dtype=np.int64)
     accel = np.empty((count, 3))
@@ -232,23 +277,34 @@ def _read_imu_messages(topic: _TopicReader, bar: Progress, path: Path):
     orientation_covariance = np.empty((count, 9))
     frame_id = ''
     filled = 0
-    for filled, message in enumerate(topic.messages(bar), start=1):
-        row = filled - 1
-        header = message.header
-        stamps[row] = header.stamp.sec * NANOSECONDS + header.stamp.nanosec
-        acc = message.linear_acceleration
-        rate = message.angular_velocity
-        quaternion = message.orientation
-        accel[row] = (acc.x, acc.y, acc.z)
-        gyro[row] = (rate.x, rate.y, rate.z)
-        orientation[row] = (quaternion.x, quaternion.y, quaternion.z, quaternion.w)
-        orientation_covariance[row] = message.orientation_covariance
-        if row == 0:
-            frame_id = header.frame_id
-        elif header.frame_id != frame_id:
-            msg = (f'{path}: frame_id on {topic.topic} changes from {frame_id!r} to '
-                   f'{header.frame_id!r} at message {filled}; one frame per run is supported')
-            raise BagError(msg)
+    if decoder == 'block':
+        for arrays in topic.arrays(bar, path):
+            rows = _fill_rows(topic, path, filled, len(arrays))
+            frame_id = _block_frame(arrays, frame_id, filled, topic, path, check=True)
+            stamps[rows] = arrays['stamp_ns']
+            accel[rows] = arrays['linear_acceleration']
+            gyro[rows] = arrays['angular_velocity']
+            orientation[rows] = arrays['orientation']
+            orientation_covariance[rows] = arrays['orientation_covariance']
+            filled = rows.stop
+    else:
+        for filled, message in enumerate(topic.messages(bar), start=1):
+            row = filled - 1
+            header = message.header
+            stamps[row] = header.stamp.sec * NANOSECONDS + header.stamp.nanosec
+            acc = message.linear_acceleration
+            rate = message.angular_velocity
+            quaternion = message.orientation
+            accel[row] = (acc.x, acc.y, acc.z)
+            gyro[row] = (rate.x, rate.y, rate.z)
+            orientation[row] = (quaternion.x, quaternion.y, quaternion.z, quaternion.w)
+            orientation_covariance[row] = message.orientation_covariance
+            if row == 0:
+                frame_id = header.frame_id
+            elif header.frame_id != frame_id:
+                msg = (f'{path}: frame_id on {topic.topic} changes from {frame_id!r} to '
+                       f'{header.frame_id!r} at message {filled}; one frame per run is supported')
+                raise BagError(msg)
     if filled != count:
         msg = f'{path}: {topic.topic} holds {filled} of the {count} messages its index lists (truncated bag?)'
         raise BagError(msg)
@@ -271,8 +327,74 @@ def _nominal_scale(reader: Reader, path: Path) -> tuple[float, float, float] | N
     return values  # type: ignore[return-value]
 
 
+def _read_temperatures(topic: _TopicReader, bar: Progress, path: Path, *,
+                       decoder: str) -> tuple[np.ndarray, np.ndarray]:
+    temp_stamp = np.empty(topic.count, dtype=np.int64)
+    temp_code = np.empty(topic.count)
+    filled = 0
+    if decoder == 'block':
+        for arrays in topic.arrays(bar, path):
+            rows = _fill_rows(topic, path, filled, len(arrays))
+            temp_stamp[rows] = arrays['stamp_ns']
+            temp_code[rows] = arrays['temperature']
+            filled = rows.stop
+    else:
+        for filled, message in enumerate(topic.messages(bar), start=1):
+            temp_stamp[filled - 1] = _stamp_ns(message.header)
+            temp_code[filled - 1] = message.temperature
+    if filled != topic.count:
+        msg = f'{path}: {topic.topic} holds {filled} of the {topic.count} messages its index lists (truncated bag?)'
+        raise BagError(msg)
+    return temp_stamp, temp_code
+
+
+def _fill_rows(topic: _TopicReader, path: Path, filled: int, count: int) -> slice:
+    """Rows ``filled`` to ``filled + count`` of a topic's arrays, refused beyond the index's count."""
+    if filled + count > topic.count:
+        msg = f'{path}: {topic.topic} holds more than the {topic.count} messages its index lists'
+        raise BagError(msg)
+    return slice(filled, filled + count)
+
+
+def _block_frame(arrays: MessageArrays, frame_id: str, filled: int, topic: _TopicReader, path: Path, *,
+                 check: bool) -> str:
+    """The run's frame_id (the first message's), refused when it changes within a decoded block."""
+    codes, labels = arrays['frame_id'], arrays.labels['frame_id']
+    if filled == 0 and len(codes):
+        frame_id = labels[codes[0]]
+    if check:
+        expected = labels.index(frame_id) if frame_id in labels else -1
+        changed = np.flatnonzero(codes != expected)
+        if changed.size:
+            row = int(changed[0])
+            msg = (f'{path}: frame_id on {topic.topic} changes from {frame_id!r} to '
+                   f'{labels[codes[row]]!r} at message {filled + row + 1}; one frame per run is supported')
+            raise BagError(msg)
+    return frame_id
+
+
+def _read_vector_arrays(topic: _TopicReader, bar: Progress, path: Path, *,
+                        check_frame: bool) -> tuple[np.ndarray, np.ndarray, str]:
+    stamps = np.empty(topic.count, dtype=np.int64)
+    values = np.empty((topic.count, 3))
+    frame_id = ''
+    filled = 0
+    for arrays in topic.arrays(bar, path):
+        rows = _fill_rows(topic, path, filled, len(arrays))
+        frame_id = _block_frame(arrays, frame_id, filled, topic, path, check=check_frame)
+        stamps[rows] = arrays['stamp_ns']
+        values[rows] = arrays['vector']
+        filled = rows.stop
+    if filled != topic.count:
+        msg = f'{path}: {topic.topic} holds {filled} of the {topic.count} messages its index lists (truncated bag?)'
+        raise BagError(msg)
+    return stamps, values, frame_id
+
+
 def _read_vectors(topic: _TopicReader, bar: Progress, path: Path, *,
-                  check_frame: bool) -> tuple[np.ndarray, np.ndarray, str]:
+                  check_frame: bool, decoder: str = 'rosbags') -> tuple[np.ndarray, np.ndarray, str]:
+    if decoder == 'block':
+        return _read_vector_arrays(topic, bar, path, check_frame=check_frame)
     stamps = np.empty(topic.count, dtype=np.int64)
     values = np.empty((topic.count, 3))
     frame_id = ''

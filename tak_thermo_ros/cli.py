@@ -595,6 +595,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help="driver bags without a rate reference: add the Earth rate's vertical component")
     _add_topic_options(diag)
     diag.set_defaults(handler=cmd_diagnose)
+    from tak_thermo_ros.fleet import add_fleet_parser
+    add_fleet_parser(commands, fit)
     return parser
 
 

@@ -29,3 +29,11 @@ class BagError(TakError):
 
 class LogError(TakError):
     """A delimited (CSV) log cannot be imported into the bag contract."""
+
+
+class CdrError(BagError):
+    """A raw CDR message is malformed or truncated (``index``: its position, counted from 0)."""
+
+    def __init__(self, message: str, index: int) -> None:
+        super().__init__(message)
+        self.index = index

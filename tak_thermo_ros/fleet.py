@@ -1,0 +1,476 @@
+"""``tak_calib fit-fleet``: calibrate a production batch of units on Dask.
+
+Every unit runs in a Dask worker through the same code path as the command line: the worker
+calls :func:`tak_thermo_ros.cli.main` with ``fit``, ``diagnose --json`` and, when a validation
+bag is given, ``validate --json``, so each ``params.yaml`` is byte for byte what
+``tak_calib fit BAG -o params.yaml`` writes for that bag alone (given the same absolute bag
+path). A unit that fails is reported with its one-line error; the batch goes on.
+
+Outputs under ``OUT_DIR``: ``units/<unit>/{params.yaml, diagnose.json, validation.json,
+log.txt}``, ``fleet.json`` (one row per unit, the batch's robust spread and the flags) and
+``fleet.html`` (the spread of every coefficient, the flagged units). The statistics live in
+:mod:`tak_thermo_ros.core.fleet`, the report in :mod:`tak_thermo_ros.fleet_report`.
+
+The bags and ``OUT_DIR`` must be reachable under the same paths from every worker (a shared
+file system when the scheduler runs elsewhere).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import copy
+import io
+import json
+import logging
+import math
+import os
+import re
+import shlex
+import socket
+import sys
+import threading
+import time
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence, TextIO
+
+from tak_thermo_ros.core.calibration_file import NODE_NAME, write_text_atomic
+from tak_thermo_ros.core.correction import OutOfRange
+from tak_thermo_ros.core.fleet import (
+    DEFAULT_FLAG_SIGMA,
+    MIN_UNITS_FOR_SPREAD,
+    batch_spreads,
+    calibration_metrics,
+    diagnosis_verdict,
+    flag_units,
+    majority_verdict,
+)
+from tak_thermo_ros.core.model import AXES
+from tak_thermo_ros.core.simulate import STANDARD_GRAVITY
+from tak_thermo_ros.errors import TakError
+
+STATUS_OK = 'ok'
+STATUS_FAILED = 'failed'
+PARAMS_FILE = 'params.yaml'
+DIAGNOSE_FILE = 'diagnose.json'
+VALIDATION_FILE = 'validation.json'
+LOG_FILE = 'log.txt'
+FLEET_JSON = 'fleet.json'
+FLEET_HTML = 'fleet.html'
+DEFAULT_WORKERS = 2
+NOT_PASSED_TO_FIT = ('help', 'bag', 'output', 'no_progress')
+"""``tak_calib fit`` options that fit-fleet sets itself; every other fit option is passed through."""
+TOPIC_OPTIONS = ('counts_topic', 'raw_imu_topic', 'temp_topic', 'reference_topic', 'reference_rate_topic', 'latitude')
+"""Options of fit that diagnose and validate take too (topics; a static driver bag's latitude)."""
+
+_CLI_LOCK = threading.Lock()
+"""``cli.main`` prints to ``sys.stdout``: units in threads of one worker process take turns."""
+
+
+@dataclass(frozen=True)
+class UnitTask:
+    """What a worker needs to calibrate one unit (plain strings: it travels to the worker).
+
+    :param unit: the unit's name (its directory under ``units/``).
+    :param bag: absolute path of its calibration bag.
+    :param validation_bag: absolute path of its validation bag, or ``None``.
+    :param directory: absolute path of ``OUT_DIR/units/<unit>``.
+    :param fit_options: ``tak_calib fit`` options after ``BAG -o PARAMS``.
+    :param diagnose_options: ``tak_calib diagnose`` options after ``BAG --params PARAMS --json OUT``.
+    :param validate_options: ``tak_calib validate`` options after ``BAG --params PARAMS --json OUT``.
+    """
+
+    unit: str
+    bag: str
+    validation_bag: str | None
+    directory: str
+    fit_options: tuple[str, ...] = ()
+    diagnose_options: tuple[str, ...] = ()
+    validate_options: tuple[str, ...] = ()
+
+
+@dataclass
+class UnitOutcome:
+    """What happened to one unit.
+
+    :param status: :data:`STATUS_OK` or :data:`STATUS_FAILED`.
+    :param error: the one-line error of the step that failed (``fit: ...``), else ``None``.
+    :param calibration: the ``calibration`` mapping of its ``params.yaml``.
+    :param diagnosis: its ``diagnose --json`` document.
+    :param validation: its ``validate --json`` document.
+    :param worker: ``host:pid`` of the process that ran it.
+    :param openblas_threads: ``OPENBLAS_NUM_THREADS`` in that process.
+    """
+
+    unit: str
+    bag: str
+    validation_bag: str | None
+    status: str
+    error: str | None = None
+    seconds: float = 0.0
+    calibration: dict[str, Any] | None = None
+    diagnosis: dict[str, Any] | None = None
+    validation: dict[str, Any] | None = None
+    worker: str = ''
+    openblas_threads: str | None = None
+    files: dict[str, str] = field(default_factory=dict)
+
+
+# ------------------------------------------------------------------------------ in the worker
+
+def _run_cli(argv: list[str]) -> tuple[int, str, str]:
+    """``tak_calib ARGV`` in this process: exit status, stdout, stderr."""
+    from tak_thermo_ros.cli import main
+    out, err = io.StringIO(), io.StringIO()
+    with _CLI_LOCK, contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            status = main(argv)
+        except SystemExit as stop:  # argparse rejected an option
+            status = stop.code if isinstance(stop.code, int) else 2
+        except Exception as error:  # a bug, not a TakError: keep the unit's traceback in its log
+            traceback.print_exc(file=err)
+            print(f'tak_calib: error: {type(error).__name__}: {error}', file=err)
+            status = 1
+    return status, out.getvalue(), err.getvalue()
+
+
+def _error_line(stderr: str, status: int) -> str:
+    """The one line that says why a step failed."""
+    lines = [line.strip() for line in stderr.splitlines() if line.strip()]
+    for line in reversed(lines):
+        if line.startswith('tak_calib: error: '):
+            return line[len('tak_calib: error: '):]
+    return lines[-1] if lines else f'exit status {status}'
+
+
+def run_unit(task: UnitTask) -> UnitOutcome:
+    """Fit, diagnose and validate one unit in this process; never raises for a bad unit."""
+    start = time.perf_counter()
+    directory = Path(task.directory)
+    outcome = UnitOutcome(unit=task.unit, bag=task.bag, validation_bag=task.validation_bag,
+                          status=STATUS_OK, worker=f'{socket.gethostname()}:{os.getpid()}',
+                          openblas_threads=os.environ.get('OPENBLAS_NUM_THREADS'))
+    directory.mkdir(parents=True, exist_ok=True)
+    for name in (PARAMS_FILE, DIAGNOSE_FILE, VALIDATION_FILE, LOG_FILE):
+        (directory / name).unlink(missing_ok=True)  # a failed step must not leave last run's file
+    params, diagnose_json, validation_json = (str(directory / name)
+                                              for name in (PARAMS_FILE, DIAGNOSE_FILE, VALIDATION_FILE))
+    steps = [('fit', ['fit', task.bag, '-o', params, *task.fit_options, '--no-progress']),
+             ('diagnose', ['diagnose', task.bag, '--params', params, '--json', diagnose_json,
+                           *task.diagnose_options, '--no-progress'])]
+    if task.validation_bag is not None:
+        steps.append(('validate', ['validate', task.validation_bag, '--params', params, '--json', validation_json,
+                                   *task.validate_options, '--no-progress']))
+    log = [f'unit {task.unit} on {outcome.worker} (OPENBLAS_NUM_THREADS={outcome.openblas_threads})\n']
+    for step, argv in steps:
+        step_start = time.perf_counter()
+        status, stdout, stderr = _run_cli(argv)
+        log.append(f'\n$ tak_calib {shlex.join(argv)}\n{stdout}{stderr}'
+                   f'exit status {status} after {time.perf_counter() - step_start:.2f} s\n')
+        if status != 0:
+            outcome.status = STATUS_FAILED
+            outcome.error = f'{step}: {_error_line(stderr, status)}'
+            break
+    try:
+        if outcome.status == STATUS_OK:
+            import yaml
+            document = yaml.safe_load(Path(params).read_text(encoding='utf-8'))
+            outcome.calibration = document[NODE_NAME]['ros__parameters']['calibration']
+            outcome.diagnosis = json.loads(Path(diagnose_json).read_text(encoding='utf-8'))
+            outcome.files = {'params': params, 'diagnose': diagnose_json}
+            if task.validation_bag is not None:
+                outcome.validation = json.loads(Path(validation_json).read_text(encoding='utf-8'))
+                outcome.files['validation'] = validation_json
+    except (OSError, ValueError, KeyError, TypeError) as error:
+        outcome.status = STATUS_FAILED
+        outcome.error = f'reading the outputs back: {type(error).__name__}: {error}'
+        log.append(f'\n{outcome.error}\n')
+    outcome.seconds = time.perf_counter() - start
+    log.append(f'\n{outcome.status}{": " + outcome.error if outcome.error else ""} '
+               f'after {outcome.seconds:.2f} s\n')
+    write_text_atomic(directory / LOG_FILE, ''.join(log))
+    outcome.files['log'] = str(directory / LOG_FILE)
+    return outcome
+
+
+# ------------------------------------------------------------------------------ on the client
+
+def unit_names(bags: Sequence[str | os.PathLike[str]]) -> list[str]:
+    """A directory name per bag: its own name, with parent directories prepended while two clash.
+
+    ``lineA/unit7/calib`` and ``lineA/unit8/calib`` become ``unit7_calib`` and ``unit8_calib``.
+
+    :raises TakError: when a bag is given twice.
+    """
+    parts = [Path(os.path.abspath(bag)).parts for bag in bags]
+    seen: dict[tuple[str, ...], int] = {}
+    for index, path in enumerate(parts):
+        if path in seen:
+            msg = f'{bags[index]}: given twice (also as BAG number {seen[path] + 1})'
+            raise TakError(msg)
+        seen[path] = index
+    depth = [1] * len(parts)
+    while True:
+        names = ['_'.join(path[-d:]).lstrip('/') for path, d in zip(parts, depth)]
+        clashing = {name for name in names if names.count(name) > 1}
+        if not clashing:
+            break
+        depth = [d + 1 if name in clashing and d < len(path) else d for path, d, name in zip(parts, depth, names)]
+    return [re.sub(r'[^A-Za-z0-9._-]+', '_', name).strip('.') or f'unit{index + 1}' for index, name in enumerate(names)]
+
+
+def _option_argv(action: argparse.Action, value: Any) -> list[str]:
+    """The command-line words that give ``value`` to ``action`` (none for the default)."""
+    if value == action.default:
+        return []
+    option = action.option_strings[-1]
+    if action.nargs == 0:  # store_true / store_false / store_const
+        return [option]
+    if isinstance(value, (list, tuple)):
+        return [option, *(str(item) for item in value)]
+    return [f'{option}={value}']
+
+
+def _link_coefficients(link: dict[str, Any], stem: str) -> dict[str, Any]:
+    """One link's coefficients for the fleet table (``stem``: ``temp_code`` or ``temperature``)."""
+    return {**{axis: {key: link[axis][key] for key in ('scale', 'offset', 'offset_span', 'offset_shape', 'scale_shape')}
+               for axis in AXES},
+            'effects': link.get('effects', {}),
+            f'{stem}_ref': link[f'{stem}_ref'],
+            f'{stem}_range': [link[f'{stem}_min'], link[f'{stem}_max']]}
+
+
+def pass_through(actions: Sequence[argparse.Action], args: argparse.Namespace) -> tuple[str, ...]:
+    """``args``' values of ``actions`` as command-line words (``str(float)`` round-trips exactly)."""
+    words: list[str] = []
+    for action in actions:
+        words += _option_argv(action, getattr(args, action.dest))
+    return tuple(words)
+
+
+def _connect(scheduler: str | None, workers: int) -> tuple[Any, Any]:
+    """A Dask client on ``scheduler``, or on a new local cluster of ``workers`` processes."""
+    from dask.distributed import Client, LocalCluster
+    if scheduler:
+        try:
+            return Client(scheduler, timeout='30s'), None
+        except (OSError, TimeoutError, ValueError) as error:
+            msg = f'--scheduler {scheduler}: cannot connect ({type(error).__name__}: {error})'
+            raise TakError(msg) from None
+    # One thread per process: the fits are numpy/scipy work that holds the GIL in between.
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host='127.0.0.1',
+                           dashboard_address=None, silence_logs=logging.ERROR,
+                           env={'OPENBLAS_NUM_THREADS': '1'})
+    return Client(cluster), cluster
+
+
+def run_batch(tasks: Sequence[UnitTask], *, scheduler: str | None = None, workers: int = DEFAULT_WORKERS,
+              progress: TextIO | None = None) -> list[UnitOutcome]:
+    """Run every unit on Dask; the outcomes in the order of ``tasks``.
+
+    :param scheduler: address of a running Dask scheduler; ``None`` = a local cluster.
+    :param workers: worker processes of the local cluster (one thread each).
+    :param progress: where to print one line per finished unit (default stderr).
+    """
+    from dask.distributed import as_completed
+    stream = progress if progress is not None else sys.stderr
+    client, cluster = _connect(scheduler, workers)
+    outcomes: dict[str, UnitOutcome] = {}
+    try:
+        futures = {client.submit(run_unit, task, pure=False): task for task in tasks}
+        for done, future in enumerate(as_completed(futures), start=1):
+            task = futures[future]
+            try:
+                outcome = future.result()
+            except Exception as error:  # the worker died or could not run the task
+                outcome = UnitOutcome(unit=task.unit, bag=task.bag, validation_bag=task.validation_bag,
+                                      status=STATUS_FAILED, error=f'dask: {type(error).__name__}: {error}')
+            outcomes[task.unit] = outcome
+            detail = f': {outcome.error}' if outcome.error else ''
+            print(f'[{done}/{len(tasks)}] {outcome.unit} {outcome.status} {outcome.seconds:.1f} s{detail}',
+                  file=stream, flush=True)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    return [outcomes[task.unit] for task in tasks]
+
+
+def _finite(value: Any) -> float | None:
+    return float(value) if isinstance(value, (int, float)) and math.isfinite(value) else None
+
+
+def unit_metrics(outcome: UnitOutcome) -> dict[str, float]:
+    """The metrics of one succeeded unit that the batch flags: its coefficients, residual and |g| error."""
+    metrics = calibration_metrics(outcome.calibration or {})
+    if outcome.validation is not None:
+        after = _finite(outcome.validation.get('after', {}).get('rms'))
+        if after is not None:
+            metrics['validation.rms'] = after
+    return metrics
+
+
+def fleet_document(outcomes: Sequence[UnitOutcome], *, flag_sigma: float,
+                   options: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The ``fleet.json`` document: the batch's spread and one row per unit with its flags."""
+    succeeded = [o for o in outcomes if o.status == STATUS_OK]
+    table = {o.unit: unit_metrics(o) for o in succeeded}
+    verdicts = {o.unit: diagnosis_verdict(o.diagnosis) for o in succeeded}
+    flags = flag_units(table, verdicts, k=flag_sigma)
+    rows = []
+    for outcome in outcomes:
+        row: dict[str, Any] = {'unit': outcome.unit, 'bag': outcome.bag, 'validation_bag': outcome.validation_bag,
+                               'status': outcome.status, 'error': outcome.error,
+                               'seconds': round(outcome.seconds, 3), 'worker': outcome.worker}
+        if outcome.status == STATUS_OK and outcome.calibration is not None:
+            calibration = outcome.calibration
+            if 'accel' in calibration:  # a driver calibration: both sensors
+                row['coefficients'] = {sensor: _link_coefficients(calibration[sensor], 'temperature')
+                                       for sensor in ('accel', 'gyro')}
+                row['residual_rms'] = {sensor: {axis: calibration[sensor][axis].get('residual_rms') for axis in AXES}
+                                       for sensor in ('accel', 'gyro')}
+            else:
+                row['coefficients'] = _link_coefficients(calibration, 'temp_code')
+                row['residual_rms'] = {axis: calibration[axis].get('residual_rms') for axis in AXES}
+            row['verdict'] = verdicts[outcome.unit]
+            row['validation_rms'] = (outcome.validation or {}).get('after', {}).get('rms')
+            row['validation_rms_before'] = (outcome.validation or {}).get('before', {}).get('rms')
+            row['metrics'] = table[outcome.unit]
+            row['flags'] = [flag.as_dict() for flag in flags.get(outcome.unit, [])]
+        else:
+            row.update(coefficients=None, residual_rms=None, verdict=None, validation_rms=None,
+                       validation_rms_before=None, metrics={}, flags=[])
+        row['flagged'] = bool(row['flags'])
+        row['files'] = {name: os.path.relpath(path, start=Path(path).parents[2])
+                        for name, path in outcome.files.items()}
+        rows.append(row)
+    return {
+        'options': dict(options or {}),
+        'units_total': len(outcomes),
+        'units_ok': len(succeeded),
+        'units_failed': len(outcomes) - len(succeeded),
+        'units_flagged': sum(1 for row in rows if row['flagged']),
+        'flag_sigma': flag_sigma,
+        'flag_rule': (f'a unit is flagged when a metric lies more than {flag_sigma:g} x 1.4826 x MAD from the '
+                      f'batch median (metrics with values from at least {MIN_UNITS_FOR_SPREAD} units), or when its '
+                      'diagnosis verdict differs from the verdict of more than half of the diagnosed units'),
+        'majority_verdict': majority_verdict(verdicts),
+        'spread': {metric: spread.as_dict() for metric, spread in batch_spreads(table).items()},
+        'units': rows,
+    }
+
+
+def _tasks(args: argparse.Namespace, fit_actions: Sequence[argparse.Action], units_dir: Path) -> list[UnitTask]:
+    bags = [str(Path(os.path.abspath(bag))) for bag in args.bags]
+    validation = [str(Path(os.path.abspath(bag))) for bag in args.validate] if args.validate else [None] * len(bags)
+    if len(validation) != len(bags):
+        msg = (f'--validate: {len(validation)} validation bags for {len(bags)} calibration bags '
+               '(give one per BAG, in the same order)')
+        raise TakError(msg)
+    topics: list[str] = []
+    for dest in TOPIC_OPTIONS:
+        if getattr(args, dest, None) is not None:
+            topics.append(f'--{dest.replace("_", "-")}={getattr(args, dest)}')
+    diagnose = [*topics, f'--settle-time={args.settle_time}', f'--folds={args.folds}', f'--gravity={args.gravity}']
+    if args.candidates:
+        diagnose.append(f'--candidates={args.candidates}')
+    validate = [*topics, f'--gravity={args.gravity}', f'--out-of-range={args.out_of_range}']
+    fit_options = pass_through(fit_actions, args)
+    if args.gravity != STANDARD_GRAVITY:  # fit's own --gravity (a static driver bag's reference) is fleet's
+        fit_options += (f'--gravity={args.gravity}',)
+    return [UnitTask(unit=name, bag=bag, validation_bag=check, directory=str(units_dir / name),
+                     fit_options=fit_options, diagnose_options=tuple(diagnose), validate_options=tuple(validate))
+            for name, bag, check in zip(unit_names(args.bags), bags, validation)]
+
+
+def cmd_fit_fleet(args: argparse.Namespace, fit_actions: Sequence[argparse.Action]) -> int:
+    """Calibrate a batch of units on Dask; write per-unit outputs, ``fleet.json`` and ``fleet.html``."""
+    from tak_thermo_ros.fleet_report import write_fleet_report
+    out_dir = Path(os.path.abspath(args.output))
+    fleet_json = out_dir / FLEET_JSON
+    if out_dir.exists() and not out_dir.is_dir():
+        msg = f'{args.output}: exists and is not a directory'
+        raise TakError(msg)
+    if fleet_json.exists() and not args.force:
+        msg = f'{fleet_json}: exists (a finished batch); pass --force to replace it'
+        raise TakError(msg)
+    if not args.flag_sigma > 0.0:
+        msg = f'--flag-sigma: must be > 0, got {args.flag_sigma}'
+        raise TakError(msg)
+    if args.workers is not None and args.workers < 1:
+        msg = f'--workers: must be >= 1, got {args.workers}'
+        raise TakError(msg)
+    tasks = _tasks(args, fit_actions, out_dir / 'units')
+    out_dir.mkdir(parents=True, exist_ok=True)
+    workers = args.workers or DEFAULT_WORKERS
+    where = f'scheduler {args.scheduler}' if args.scheduler else f'a local cluster of {workers} workers'
+    print(f'fit-fleet: {len(tasks)} units on {where}', file=sys.stderr, flush=True)
+    start = time.perf_counter()
+    outcomes = run_batch(tasks, scheduler=args.scheduler, workers=workers)
+    options = {key: value for key, value in vars(args).items() if key not in ('handler', 'command', 'bags', 'validate')}
+    document = fleet_document(outcomes, flag_sigma=args.flag_sigma, options=options)
+    document['wall_seconds'] = round(time.perf_counter() - start, 3)
+    write_text_atomic(fleet_json, json.dumps(document, indent=2) + '\n')
+    html_path = write_fleet_report(document, out_dir / FLEET_HTML)
+    for row in document['units']:
+        if row['status'] != STATUS_OK:
+            print(f'{row["unit"]}: failed: {row["error"]}')
+        for flag in row['flags']:
+            print(f'{row["unit"]}: flagged: {flag["reason"]}')
+    print(f'{document["units_ok"]} of {document["units_total"]} units calibrated, {document["units_failed"]} failed, '
+          f'{document["units_flagged"]} flagged (majority verdict {document["majority_verdict"]}) '
+          f'in {document["wall_seconds"]:.1f} s')
+    print(f'wrote {fleet_json}')
+    print(f'wrote {html_path}')
+    if document['units_ok'] == 0:
+        msg = (f'all {document["units_total"]} units failed (first: {outcomes[0].unit}: {outcomes[0].error}); '
+               f'see {fleet_json}')
+        raise TakError(msg)
+    return 0
+
+
+def add_fleet_parser(commands: Any, fit_parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Add ``fit-fleet`` to the ``tak_calib`` subcommands; it takes over every option of ``fit_parser``.
+
+    The fit options are copied from the ``fit`` subcommand (so that a new fit option is at once
+    a fleet option) and handed to ``tak_calib fit`` for every unit.
+    """
+    fleet = commands.add_parser(
+        'fit-fleet', help='calibrate a batch of units on Dask, with a spread report and outlier flags',
+        description='Fit, diagnose and (optionally) validate every unit of a production batch on Dask workers; '
+                    'write OUT_DIR/units/<unit>/, OUT_DIR/fleet.json and OUT_DIR/fleet.html (see docs/fleet.md). '
+                    'Exit status 0 when at least one unit was calibrated (failed units are listed in fleet.json), '
+                    '2 when none was.')
+    fleet.add_argument('bags', nargs='+', metavar='BAG',
+                       help='one calibration bag per unit (the unit is named after it)')
+    fleet.add_argument('-o', '--output', required=True, metavar='OUT_DIR')
+    fleet.add_argument('--validate', nargs='+', metavar='BAG',
+                       help='one validation bag per unit, in the order of the BAGs (|g| error after correction)')
+    where = fleet.add_mutually_exclusive_group()
+    where.add_argument('--scheduler', metavar='ADDRESS',
+                       help='a running Dask scheduler, e.g. tcp://host:8786 (default: a local cluster)')
+    where.add_argument('--workers', type=int, metavar='N',
+                       help=f'worker processes of the local cluster, one thread each (default {DEFAULT_WORKERS})')
+    fleet.add_argument('--flag-sigma', type=float, default=DEFAULT_FLAG_SIGMA, metavar='K',
+                       help='flag a unit whose coefficient or residual lies more than K robust sigmas '
+                            f'(1.4826 x MAD) from the batch median (default {DEFAULT_FLAG_SIGMA:g})')
+    fleet.add_argument('--force', action='store_true', help='replace an existing OUT_DIR/fleet.json')
+    diagnose = fleet.add_argument_group('diagnose and validate options (every unit)')
+    diagnose.add_argument('--folds', type=int, default=5, help='cross-validation folds of diagnose (default 5)')
+    diagnose.add_argument('--candidates', metavar='NAME[,NAME...]', help='effects diagnose tries (see diagnose)')
+    diagnose.add_argument('--gravity', type=float, default=STANDARD_GRAVITY, help='local gravity, m/s^2')
+    diagnose.add_argument('--out-of-range', choices=[p.value for p in OutOfRange], default=OutOfRange.CLAMP.value,
+                          help='validate: temperature codes outside the calibrated range (default clamp)')
+    fit_group = fleet.add_argument_group('fit options (passed to tak_calib fit for every unit)')
+    # Copies of fit's own option actions (argparse offers no public way to share them). One whose
+    # name fit-fleet already uses is left out rather than breaking every command (a test checks).
+    taken = set(fleet._option_string_actions)
+    fit_actions = [copy.copy(action) for action in fit_parser._actions
+                   if action.option_strings and action.dest not in NOT_PASSED_TO_FIT
+                   and not taken.intersection(action.option_strings)]
+    for action in fit_actions:
+        fit_group._add_action(action)
+    fleet.set_defaults(handler=lambda args: cmd_fit_fleet(args, fit_actions))
+    return fleet
