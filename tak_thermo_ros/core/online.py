@@ -567,7 +567,8 @@ class OnlineCompensator:
         self._throttles[STALE_TEMPERATURE].take_held_back()
         self._stale_reported = True
         action = (f'dropping {self._message_word} messages' if self._drop_stale
-                  else f'holding the last one, {self._temperature:g}')
+                  else f'holding the last {"code" if self.input_kind is InputKind.COUNTS else "temperature"} '
+                       f'{self._temperature:g}')
         self._notice(Level.ERROR, STALE_TEMPERATURE,
                      f'{self._temperature_word} on {self.temp_topic} is stale: '
                      f'{now_s - self._temp_arrival_s:.2f} s old > temp_timeout {self._timeout_s:g} s; '
@@ -626,7 +627,8 @@ class OnlineCompensator:
         if self._temperature is None:
             worse(Level.WARN, f'waiting for {what} on {self.temp_topic}')
         elif self.is_stale(now_s):
-            action = f'dropping {word} messages' if self._drop_stale else 'holding the last one'
+            action = (f'dropping {word} messages' if self._drop_stale
+                      else f'holding the last {"code" if self.input_kind is InputKind.COUNTS else "temperature"}')
             worse(Level.ERROR, f'{what} stale ({self.temperature_age_s(now_s):.1f} s > '
                                f'{self._timeout_s:g} s), {action}')
         if self.received == 0:
