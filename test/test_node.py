@@ -25,7 +25,8 @@ from node_helpers import (
 )
 from tak_thermo_ros import cli
 from tak_thermo_ros.bagio import read_imu, read_record, write_record
-from tak_thermo_ros.core.calibration_file import calibration_yaml, load_calibration, write_text_atomic
+from tak_thermo_ros.core.calibration_file import calibration_yaml, load_calibration, load_unit, write_text_atomic
+from tak_thermo_ros.core.model import InputKind
 from tak_thermo_ros.core.correction import Corrector, OutOfRange
 from tak_thermo_ros.core.online import ONLINE_DROP_REASONS
 from tak_thermo_ros.core.simulate import Scenario, simulate
@@ -58,7 +59,7 @@ def acceleration(message) -> tuple[float, float, float]:
 
 
 def test_bad_input_cases_have_their_defined_behaviour(tmp_path, ros_env):
-    """Waiting, bad counts, odd stamps, out of range, stale: published or dropped, logged, counted."""
+    """Waiting, bad counts, stamps out of order, out of range, stale: published or dropped, logged, counted."""
     params = write_params(tmp_path / 'params.yaml', qos='reliable', temp_timeout=30.0,
                           stale_temperature='drop')
     clamp = Corrector(CALIBRATION, out_of_range=OutOfRange.CLAMP)
@@ -89,13 +90,13 @@ def test_bad_input_cases_have_their_defined_behaviour(tmp_path, ros_env):
             (START_NS + 5, (1.5, 0.0, 0.0)),
             (START_NS + 6, (32767.0, 0.0, 0.0)),
             (START_NS + 7, (0.0, -32768.0, 0.0)),
-            (START_NS + 7, (101.0, -51.0, 2501.0)),   # duplicate stamp: passed through
-            (START_NS + 3, (102.0, -52.0, 2502.0)),   # backwards: passed through
-            (START_NS + 8, (103.0, -53.0, 2503.0)),
+            (START_NS + 7, (101.0, -51.0, 2501.0)),   # duplicate stamp (of a dropped message): dropped
+            (START_NS + 3, (102.0, -52.0, 2502.0)),   # backwards: dropped
+            (START_NS + 8, (103.0, -53.0, 2503.0)),   # later than the previous message's: published
         ]
         for stamp, (x, y, z) in sent:
             ros.send_counts(stamp, x, y, z)
-        good = [(stamp, xyz) for stamp, xyz in sent if xyz[0] in (100.0, 101.0, 102.0, 103.0)]
+        good = [(stamp, xyz) for stamp, xyz in sent if xyz[0] in (100.0, 103.0)]
         ros.wait(lambda: len(ros.imu) == len(good), 10.0, 'the Imu of the good counts')
         assert [stamp_of(m) for m in ros.imu] == [stamp for stamp, _ in good]
         for message, (_, xyz) in zip(ros.imu, good):
@@ -139,13 +140,14 @@ def test_bad_input_cases_have_their_defined_behaviour(tmp_path, ros_env):
         # Every counts message published or counted as dropped with its reason.
         values = status_values(status)
         dropped = {reason: int(values[f'dropped.{reason}']) for reason in ONLINE_DROP_REASONS}
-        assert dropped == {'non_finite': 3, 'non_integer': 1, 'saturated': 2,
-                           'waiting_for_temperature': 1, 'stale_temperature': 1}
-        assert int(values['published']) == len(ros.imu) == 7
+        assert dropped == {'duplicate_stamp': 1, 'time_backwards': 1, 'non_finite': 3, 'non_integer': 1,
+                           'saturated': 2, 'waiting_for_temperature': 1, 'stale_temperature': 1,
+                           'correction_failed': 0, 'non_finite_output': 0}
+        assert int(values['published']) == len(ros.imu) == 5
         assert int(values['received']) == int(values['published']) + sum(dropped.values())
         assert int(values['dropped']) == sum(dropped.values())
-        assert (values['time_backwards'], values['duplicate_stamps']) == ('1', '1')
-        assert values['out_of_range'] == '2'
+        assert values['out_of_range'] == '2' and values['message_lost'] == '0'
+        assert 'header stamp equal to the previous one: dropped' in node.log()
         assert node.stop() == 0
     assert 'Traceback' not in node.log()
 
@@ -277,15 +279,24 @@ def test_bad_calibration_refused_at_startup(tmp_path, ros_env, case):
     assert expected in lines[0]
 
 
-def test_launch_file_and_example_config():
-    """The launch file parses; the example config is a valid calibration with the node's defaults."""
+def test_launch_file_and_example_configs(tmp_path):
+    """The launch file compiles, remaps driver -> compensator -> estimator; the example configs
+    are valid calibrations (counts and driver) with the node's defaults."""
+    import py_compile
     from tak_thermo_ros.node import _tunables
-    source = (REPO / 'launch' / 'compensator.launch.py').read_text(encoding='utf-8')
-    tree = ast.parse(source)
-    compile(tree, 'compensator.launch.py', 'exec')
+    launch_file = REPO / 'launch' / 'compensator.launch.py'
+    py_compile.compile(str(launch_file), cfile=str(tmp_path / 'launch.pyc'), doraise=True)
+    tree = ast.parse(launch_file.read_text(encoding='utf-8'))
     assert any(isinstance(n, ast.FunctionDef) and n.name == 'generate_launch_description' for n in tree.body)
-    config = REPO / 'config' / 'compensator.yaml'
-    load_calibration(config)
-    parameters = yaml.safe_load(config.read_text(encoding='utf-8'))['/**/compensator']['ros__parameters']
+    constants = {n.targets[0].id: ast.literal_eval(n.value) for n in tree.body
+                 if isinstance(n, ast.Assign) and isinstance(n.targets[0], ast.Name) and n.targets[0].id.endswith('TOPICS')}
+    from tak_thermo_ros import node as node_module
+    assert constants['DRIVER_TOPICS'] == (node_module.RAW_IMU_TOPIC, node_module.TEMPERATURE_TOPIC,
+                                          node_module.COMPENSATED_IMU_TOPIC)
+    assert constants['COUNTS_TOPICS'] == (node_module.COUNTS_TOPIC, node_module.TEMP_TOPIC, node_module.IMU_TOPIC)
     defaults = {name: default for name, (default, _, _) in _tunables().items()}
-    assert {k: v for k, v in parameters.items() if k != 'calibration'} == defaults
+    for name, kind in (('compensator.yaml', InputKind.COUNTS), ('compensator_driver.yaml', InputKind.IMU)):
+        config = REPO / 'config' / name
+        assert load_unit(config).input_kind is kind
+        parameters = yaml.safe_load(config.read_text(encoding='utf-8'))['/**/compensator']['ros__parameters']
+        assert {k: v for k, v in parameters.items() if k != 'calibration'} == defaults
