@@ -499,7 +499,7 @@ def test_shutdown_on_sigint_and_sigterm_within_a_time_limit(tmp_path, ros_env, e
         with NodeProcess(node_command('--params-file', str(params)), ros_env,
                          tmp_path / f'node_{number}.log') as node, \
                 Harness(int(ros_env['ROS_DOMAIN_ID']), driver=True) as ros:
-            ros.wait(lambda: len(ros.diagnostics) >= 2, 20.0, 'two diagnostics messages (the timer runs)')
+            ros.wait(lambda: len(ros.diagnostics) >= 1, 20.0, 'a diagnostics message (the timer runs)')
             assert f'executor {executor}' in node.log()
             started = time.monotonic()
             os.killpg(node.process.pid, number)
@@ -509,8 +509,9 @@ def test_shutdown_on_sigint_and_sigterm_within_a_time_limit(tmp_path, ros_env, e
 
 
 def test_transport_losses_counted_from_message_lost_events(tmp_path, ros_env):
-    """20,000 Imu at full speed into a reliable node of depth 1: what Fast DDS reports lost is counted
-    in /diagnostics (message_lost) and logged; received == published + dropped still holds."""
+    """Bursts of Imu at full speed into a reliable node of depth 1 from a writer of depth 1: what
+    Fast DDS reports lost is counted in /diagnostics (message_lost) and logged;
+    received == published + dropped still holds, and received + lost never exceeds what was sent."""
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
     params = driver_params(tmp_path / 'params.yaml', qos='reliable', qos_depth=1)
     burst = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE)
@@ -518,15 +519,20 @@ def test_transport_losses_counted_from_message_lost_events(tmp_path, ros_env):
             Harness(int(ros_env['ROS_DOMAIN_ID']), driver=True, input_qos=burst) as ros:
         ros.wait_matched()
         ros.send_temperature_and_wait(START_NS, 20.0)
-        total = 20_000
-        for k in range(total):
-            ros.send_imu(START_NS + 1 + k, (0.1, -0.2, 9.81, 0.01, -0.02, 0.03))
-        ros.wait(lambda: int(status_values(ros.latest_status())['message_lost']) > 0, 20.0,
-                 'a transport loss in the diagnostics')
+        sent = 0
+        for _ in range(8):  # bursts of 5,000 until Fast DDS reports a loss (the first one, usually)
+            for _ in range(5_000):
+                sent += 1
+                ros.send_imu(START_NS + sent, (0.1, -0.2, 9.81, 0.01, -0.02, 0.03))
+            try:
+                ros.wait(lambda: int(status_values(ros.latest_status())['message_lost']) > 0, 3.0,
+                         'a transport loss in the diagnostics')
+                break
+            except AssertionError:
+                continue
         values = status_values(ros.latest_status())
         received, published, lost = int(values['received']), int(values['published']), int(values['message_lost'])
-        assert received == published + int(values['dropped']) and published < total
-        assert lost == int(values['message_lost.imu']) and received + lost <= total
-        assert 'messages lost in transport' in ros.latest_status().message or lost > 0
+        assert lost > 0 and lost == int(values['message_lost.imu'])
+        assert received == published + int(values['dropped']) and received + lost <= sent
         assert node.stop() == 0
     assert 'imu messages lost in transport' in node.log()
