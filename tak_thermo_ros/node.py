@@ -408,7 +408,14 @@ def spin(node: Node, executor: Executor) -> None:
     executor.add_node(node)
     context = node.context
     while context.ok():
-        executor.spin_once(timeout_sec=SPIN_PERIOD_S)
+        try:
+            executor.spin_once(timeout_sec=SPIN_PERIOD_S)
+        except ExternalShutdownException:
+            break
+        except Exception:
+            if context.ok():
+                raise
+            break  # the executor noticed the shutdown first, in its own words
 
 
 def main(args: Sequence[str] | None = None) -> int:

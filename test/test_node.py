@@ -504,7 +504,7 @@ def test_shutdown_on_sigint_and_sigterm_within_a_time_limit(tmp_path, ros_env, e
             started = time.monotonic()
             os.killpg(node.process.pid, number)
             node.process.wait(timeout=5.0)
-            assert time.monotonic() - started < 5.0 and node.process.returncode == 0
+            assert time.monotonic() - started < 5.0 and node.process.returncode == 0, node.log()
         assert 'Traceback' not in node.log()
 
 
