@@ -677,6 +677,70 @@ def main() -> int:
     return 0
 
 
+TRANSPORT_BURST = 20_000
+
+
+def measure_transport_loss(params: Path, workdir: Path, *, count: int = TRANSPORT_BURST) -> list[dict]:
+    """``count`` driver Imu as fast as this process publishes them into the compensator, per
+    executor and input QoS: what the node received, what Fast DDS reported lost (``message_lost``),
+    and what is left unaccounted (``sent - received - message_lost``)."""
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    rows = []
+    home = workdir / 'ros_home'
+    home.mkdir(exist_ok=True)
+    for index, (executor, qos) in enumerate((('events', 'reliable'), ('events', 'sensor_data'),
+                                             ('single_threaded', 'reliable'), ('single_threaded', 'sensor_data'))):
+        env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+               'ROS_DOMAIN_ID': str(1 + (os.getpid() + 41 * index + 5) % 100),
+               'ROS_HOME': str(home), 'ROS_LOG_DIR': str(home / 'log'), 'RCUTILS_COLORIZED_OUTPUT': '0'}
+        command = [sys.executable, '-m', 'tak_thermo_ros.node', '--ros-args', '--params-file', str(params),
+                   '-p', f'qos:={qos}', '-p', f'qos_depth:={DEPTH}', '-p', f'executor:={executor}']
+        log = workdir / f'loss_{executor}_{qos}.log'
+        process = subprocess.Popen(command, env=env, stdout=open(log, 'wb'), stderr=subprocess.STDOUT,
+                                   stdin=subprocess.DEVNULL, start_new_session=True)
+        driver = ImuDriver(int(env['ROS_DOMAIN_ID']), 'bench_loss_driver')
+        try:
+            from diagnostic_msgs.msg import DiagnosticArray
+            statuses: list = []
+            driver.node.create_subscription(DiagnosticArray, '/diagnostics', statuses.append, 10)
+            if qos == 'sensor_data':  # a best-effort driver, as REP 2003 drivers publish
+                best_effort = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DEPTH,
+                                         reliability=ReliabilityPolicy.BEST_EFFORT)
+                driver.node.destroy_publisher(driver.imu_publisher)
+                from sensor_msgs.msg import Imu
+                driver.imu_publisher = driver.node.create_publisher(Imu, 'imu/data_raw', best_effort)
+            driver.warm_up()
+
+            def latest() -> dict:
+                return {pair.key: pair.value for pair in statuses[-1].status[0].values}
+
+            statuses.clear()
+            driver.spin_until(lambda: len(statuses) >= 2, 10.0)  # a status after the warm-up
+            before = latest()
+            started = time.perf_counter()
+            for k in range(1, count + 1):
+                driver.publish(k)
+            rate = count / (time.perf_counter() - started)
+            end = time.monotonic() + 4.0  # two diagnostics periods after the burst
+            while time.monotonic() < end:
+                driver.executor.spin_once(timeout_sec=0.05)
+            after = latest()
+            values = {key: int(after[key]) - int(before[key]) for key in ('received', 'published', 'dropped',
+                                                                           'message_lost')}
+        finally:
+            driver.close()
+            stop(process)
+        received = values['received']
+        row = {'executor': executor, 'qos': qos, 'depth': DEPTH, 'sent': count, 'send_rate_hz': rate,
+               'received_by_node': received, 'published': values['published'], 'dropped': values['dropped'],
+               'message_lost_reported': values['message_lost'],
+               'unaccounted': count - received - values['message_lost']}
+        rows.append(row)
+        print(f'  burst of {count} at {rate:.0f} Hz, {executor:15s} {qos:11s}: node received {received}, '
+              f'message_lost {row["message_lost_reported"]}, unaccounted {row["unaccounted"]}', flush=True)
+    return rows
+
+
 def driver_params(path: Path) -> None:
     """The simulator's default driver unit as a version-2 calibration file."""
     from tak_thermo_ros.core.calibration_file import save_unit
@@ -695,6 +759,8 @@ def driver_only(*, quick: bool) -> int:
         load = os.getloadavg()[0]
         driver_input = measure_driver_input(params, workdir, rates=(500.0, 2000.0) if quick else DRIVER_RATES_HZ,
                                             seconds=1.0 if quick else DRIVER_SECONDS)
+        driver_input['transport_loss'] = measure_transport_loss(params, workdir,
+                                                                count=2_000 if quick else TRANSPORT_BURST)
     driver_input['wall_s'] = time.time() - started
     driver_input['load_average_1min_before'] = load
     driver_input['machine'] = {'cpus': os.cpu_count(), 'python': platform.python_version()}
@@ -705,10 +771,10 @@ def driver_only(*, quick: bool) -> int:
     results.write_text(json.dumps(document, indent=2) + '\n', encoding='utf-8')
     for executor in ('events', 'single_threaded'):
         pair = driver_input[executor]
-        print(f'{executor:15s} relay: {pair["relay"]["cpu_us_per_message_at_1khz"]:.0f} us/msg at 1 kHz, '
-              f'no loss up to {pair["relay"]["sustained_rate_without_loss_hz"]:.0f} Hz; compensator: '
-              f'{pair["compensator"]["cpu_us_per_message_at_1khz"]:.0f} us/msg, no loss up to '
-              f'{pair["compensator"]["sustained_rate_without_loss_hz"]:.0f} Hz')
+        for kind in ('relay', 'compensator'):
+            cpu = ', '.join(f'{row["rate_hz"]:.0f} Hz {row["cpu_us_per_message"]:.0f} us' for row in pair[kind]['rates'])
+            print(f'{executor:15s} {kind:11s}: no loss up to {pair[kind]["sustained_rate_without_loss_hz"]:.0f} Hz; '
+                  f'CPU per message {cpu}')
     print(f'wrote {results}')
     return 0
 
