@@ -184,8 +184,14 @@ class CompensatorNode(Node):
         self._diagnostics_publisher = self.create_publisher(
             DiagnosticArray, DIAGNOSTICS_TOPIC, 10,
             event_callbacks=PublisherEventCallbacks(use_default_callbacks=False))
+        # rclpy 7's EventsExecutor calls a callback with the message only; the single-threaded
+        # executor also hands over the MessageInfo, whose publication sequence numbers show
+        # every message that never arrived (Fast DDS's message-lost event shows only some).
+        on_input = self._on_imu if driver else self._on_counts
+        if self.executor_kind == 'single_threaded':
+            on_input = self._with_sequence(on_input)
         self._input_subscription = self.create_subscription(
-            input_type, input_topic, self._on_imu if driver else self._on_counts, input_qos,
+            input_type, input_topic, on_input, input_qos,
             event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_input_lost))
         self._diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self._on_diagnostics_timer)
         self._pending: Any = None
@@ -297,6 +303,19 @@ class CompensatorNode(Node):
             self._publish_imu(imu)
         if self._core.notices:
             self._log_notices()
+
+    def _with_sequence(self, on_message: Any) -> Any:
+        """``on_message`` preceded by the count of sequence gaps (a callback taking the MessageInfo)."""
+        sequence = self._core.sequence
+        name = self._input_name
+
+        def on_message_with_info(message: Any, info: dict[str, Any]) -> None:
+            number = info.get('publication_sequence_number')
+            if number is not None:
+                sequence(name, number, time.monotonic())
+            on_message(message)
+
+        return on_message_with_info
 
     def _on_input_lost(self, info: QoSMessageLostInfo) -> None:
         self._core.message_lost(self._input_name, info.total_count_change, time.monotonic())

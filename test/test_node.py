@@ -534,5 +534,35 @@ def test_transport_losses_counted_from_message_lost_events(tmp_path, ros_env):
         received, published, lost = int(values['received']), int(values['published']), int(values['message_lost'])
         assert lost > 0 and lost == int(values['message_lost.imu'])
         assert received == published + int(values['dropped']) and received + lost <= sent
+        assert values['sequence_gap'] == 'unavailable'  # the EventsExecutor gives no MessageInfo
         assert node.stop() == 0
     assert 'imu messages lost in transport' in node.log()
+
+
+def test_single_threaded_executor_counts_every_message_never_received(tmp_path, ros_env):
+    """With executor single_threaded the publication sequence numbers show every lost message:
+    after a burst of 5,000 into a node of depth 1, received + sequence_gap == sent, exactly."""
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    params = driver_params(tmp_path / 'params.yaml', qos='reliable', qos_depth=1, executor='single_threaded')
+    burst = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE)
+    with NodeProcess(node_command('--params-file', str(params)), ros_env, tmp_path / 'node.log') as node, \
+            Harness(int(ros_env['ROS_DOMAIN_ID']), driver=True, input_qos=burst) as ros:
+        ros.wait_matched()
+        ros.send_temperature_and_wait(START_NS, 20.0)
+        ros.send_imu(START_NS + 1, (0.1, -0.2, 9.81, 0.01, -0.02, 0.03))  # sequence number 1, received
+        ros.wait(lambda: status_values(ros.latest_status())['received'] == '1', 10.0, 'the first Imu taken')
+        sent = 1
+        for _ in range(5_000):
+            sent += 1
+            ros.send_imu(START_NS + sent, (0.1, -0.2, 9.81, 0.01, -0.02, 0.03))
+
+        def accounted() -> bool:
+            values = status_values(ros.latest_status())
+            return int(values['received']) + int(values['sequence_gap']) == sent
+
+        ros.wait(accounted, 20.0, 'received + sequence_gap == sent')
+        values = status_values(ros.latest_status())
+        assert int(values['sequence_gap']) > 0 and int(values['received']) < sent
+        assert int(values['received']) == int(values['published']) + int(values['dropped'])
+        assert node.stop() == 0
+    assert 'imu messages never received' in node.log()

@@ -444,3 +444,19 @@ def test_generated_streams_keep_every_invariant(events):
         assert np.array_equal(np.array(results), offline)
     values = dict(core.status(now).values)
     assert int(values['received']) == int(values['published']) + int(values['dropped'])
+
+
+def test_sequence_gaps_count_every_message_never_received():
+    """Publication sequence numbers: each gap counted once, a restart starts afresh, status says it."""
+    core = OnlineCompensator(DRIVER)
+    assert core.status(0.0).value('sequence_gap') == 'unavailable'
+    for number in (1, 2, 5, 6, 10, 3, 4, 8):  # 3..4 missing, 7..9 missing; 3 = another publisher or a restart
+        core.sequence('imu', number, now_s=0.1)
+    assert core.sequence_gaps == {'imu': 2 + 3 + 3} and core.sequence_gap_total() == 8
+    notice = core.take_notices()[0]
+    assert notice.kind == 'message_lost' and 'sequence numbers 3..4' in notice.text
+    status = core.status(0.2)
+    assert status.value('sequence_gap') == '8' and status.value('sequence_gap.imu') == '8'
+    assert status.level is Level.WARN and '8 messages never received' in status.message
+    core.message_lost('temperature', 4, now_s=0.3)
+    assert core.status(0.4).value('message_lost.temperature') == '4' and core.lost_total() == 4

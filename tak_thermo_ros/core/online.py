@@ -6,8 +6,9 @@ outcome, so that every input message received is either published or dropped wit
 
     received == published + sum(dropped.values())
 
-Messages lost before they reach the node (in transport, reported by the middleware) are
-counted apart, in :attr:`OnlineCompensator.lost`.
+Messages lost before they reach the node are counted apart: those the middleware reports lost
+in :attr:`OnlineCompensator.lost`, and, when the caller has the publishers' sequence numbers,
+the gaps in them in :attr:`OnlineCompensator.sequence_gaps`.
 
 It imports nothing from ROS (like imu_tools' ``imu_filter.h``): the node converts messages to
 plain numbers, calls :meth:`OnlineCompensator.process_values` (or :meth:`process_counts`)
@@ -269,6 +270,10 @@ class OnlineCompensator:
         self.dropped: dict[str, int] = dict.fromkeys(ONLINE_DROP_REASONS, 0)
         self.lost: dict[str, int] = {}
         """Messages lost in transport (reported by the middleware), per input stream."""
+        self.sequence_gaps: dict[str, int] | None = None
+        """Messages never received, from gaps in the publisher's sequence numbers, per input
+        stream; ``None`` while the caller gives no sequence numbers (:meth:`sequence`)."""
+        self._last_sequence: dict[str, int] = {}
         self.out_of_range = 0
         self.temperature_messages = 0
         self.temperature_rejected = 0
@@ -514,6 +519,31 @@ class OnlineCompensator:
                          f'{count} {stream} messages lost in transport ({self.lost_total()} so far'
                          f'{self._since(held)})')
 
+    def sequence(self, stream: str, number: int, now_s: float) -> None:
+        """Take the publication sequence number of a message of input ``stream`` as it arrives.
+
+        A number more than one above the previous one counts the messages in between as never
+        received (``sequence_gap``); a number not above it (another publisher, or one that
+        restarted) starts afresh. Meant for one publisher per topic (a driver).
+        """
+        if self.sequence_gaps is None:
+            self.sequence_gaps = {}
+        last = self._last_sequence.get(stream)
+        self._last_sequence[stream] = number
+        if last is None or number <= last + 1:
+            return
+        gap = number - last - 1
+        self.sequence_gaps[stream] = self.sequence_gaps.get(stream, 0) + gap
+        if self._throttles['message_lost'].due(now_s):
+            held = self._throttles['message_lost'].take_held_back()
+            self._notice(Level.WARN, 'message_lost',
+                         f'{gap} {stream} messages never received (publication sequence numbers '
+                         f'{last + 1}..{number - 1}; {self.sequence_gap_total()} so far{self._since(held)})')
+
+    def sequence_gap_total(self) -> int:
+        """Messages never received according to the sequence numbers, every input stream (0 without them)."""
+        return sum(self.sequence_gaps.values()) if self.sequence_gaps else 0
+
     def lost_total(self) -> int:
         """Messages lost in transport, every input stream."""
         return sum(self.lost.values())
@@ -611,7 +641,7 @@ class OnlineCompensator:
         """
         counters = {'received': self.received, 'published': self.published,
                     'out_of_range': self.out_of_range, 'temperature_rejected': self.temperature_rejected,
-                    'message_lost': self.lost_total(),
+                    'message_lost': self.lost_total(), 'sequence_gap': self.sequence_gap_total(),
                     **{f'dropped.{reason}': count for reason, count in self.dropped.items()}}
         new = {key: count - self._previous.get(key, 0) for key, count in counters.items()}
         self._previous = counters
@@ -644,6 +674,8 @@ class OnlineCompensator:
                   'dropped ' + ', '.join(f'{n} {reason}' for reason, n in dropped_now.items()))
         if new['message_lost']:
             worse(Level.WARN, f'{new["message_lost"]} messages lost in transport')
+        if new['sequence_gap']:
+            worse(Level.WARN, f'{new["sequence_gap"]} messages never received (sequence gaps)')
         if new['temperature_rejected']:
             worse(Level.WARN, f'{new["temperature_rejected"]} implausible or non-finite {what}s ignored')
         message = '; '.join(problems) if problems else 'correcting'
@@ -659,6 +691,8 @@ class OnlineCompensator:
             *((f'dropped.{reason}', str(count)) for reason, count in self.dropped.items()),
             ('message_lost', str(self.lost_total())),
             *((f'message_lost.{stream}', str(count)) for stream, count in sorted(self.lost.items())),
+            ('sequence_gap', 'unavailable' if self.sequence_gaps is None else str(self.sequence_gap_total())),
+            *((f'sequence_gap.{stream}', str(count)) for stream, count in sorted((self.sequence_gaps or {}).items())),
             ('out_of_range', str(self.out_of_range)),
             (stem, 'none' if self._temperature is None else f'{self._temperature:g}'),
             (f'{stem}_age_s', 'inf' if math.isinf(age) else f'{age:.3f}'),
