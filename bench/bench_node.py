@@ -727,17 +727,20 @@ def measure_transport_loss(params: Path, workdir: Path, *, count: int = TRANSPOR
             after = latest()
             values = {key: int(after[key]) - int(before[key]) for key in ('received', 'published', 'dropped',
                                                                            'message_lost')}
+            values['sequence_gap'] = (None if after['sequence_gap'] == 'unavailable'
+                                      else int(after['sequence_gap']) - int(before['sequence_gap']))
         finally:
             driver.close()
             stop(process)
         received = values['received']
         row = {'executor': executor, 'qos': qos, 'depth': DEPTH, 'sent': count, 'send_rate_hz': rate,
                'received_by_node': received, 'published': values['published'], 'dropped': values['dropped'],
-               'message_lost_reported': values['message_lost'],
+               'message_lost_reported': values['message_lost'], 'sequence_gap': values['sequence_gap'],
                'unaccounted': count - received - values['message_lost']}
         rows.append(row)
         print(f'  burst of {count} at {rate:.0f} Hz, {executor:15s} {qos:11s}: node received {received}, '
-              f'message_lost {row["message_lost_reported"]}, unaccounted {row["unaccounted"]}', flush=True)
+              f'message_lost {row["message_lost_reported"]}, unaccounted {row["unaccounted"]}, sequence_gap '
+              f'{row["sequence_gap"]}', flush=True)
     return rows
 
 
