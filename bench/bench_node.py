@@ -17,7 +17,15 @@ Figures:
 - soak: one million messages through the compensator, resident memory (VmRSS) growth;
 - the per-message cost of the node's own work, measured in-process (core + message fill).
 
-Usage: ``python bench/bench_node.py [--quick]``; writes ``bench/results/node.json`` (with
+Driver input (a version-2 calibration: Imu and degrees C in, both sensors corrected), for each
+executor (``events``: rclpy.experimental.EventsExecutor, the node's default; ``single_threaded``):
+the compensator and a bare relay (Imu in -> the same Imu out, same subscriptions, same executor
+and spin loop) are driven open loop at fixed rates up to 2 kHz (reliable, depth 100); per rate,
+messages lost (sent - received) and the node's CPU per message. The sustained rate without loss
+is the highest rate at which nothing was lost. ``--driver-only`` runs only this part and
+updates ``driver_input`` in ``node.json``.
+
+Usage: ``python bench/bench_node.py [--quick] [--driver-only]``; writes ``bench/results/node.json`` (with
 ``--quick``: ``node_quick.json``, a smoke run, not the figures); exits 3
 (as every ``bench/bench_*.py``) when a target is missed.
 """
@@ -90,6 +98,41 @@ def relay_main() -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+def driver_relay_main(executor_kind: str) -> int:
+    """A bare relay of the driver input: Imu and Temperature subscriptions, the same Imu republished."""
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    from rclpy.node import Node
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import Imu, Temperature
+
+    from tak_thermo_ros.node import make_executor, spin
+
+    class DriverRelay(Node):
+        def __init__(self) -> None:
+            super().__init__('relay')
+            qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DEPTH, reliability=ReliabilityPolicy.RELIABLE)
+            self._temp = self.create_subscription(Temperature, 'imu/temperature', self._on_temperature, qos)
+            self._publisher = self.create_publisher(Imu, 'imu/data_compensated', qos)
+            self._imu = self.create_subscription(Imu, 'imu/data_raw', self._publisher.publish, qos)
+
+        def _on_temperature(self, message: Temperature) -> None:
+            pass
+
+    rclpy.init()
+    node = DriverRelay()
+    executor = make_executor(executor_kind, node.context)
+    try:
+        spin(node, executor)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
     return 0
@@ -246,7 +289,8 @@ def start(kind: str, params: Path, env: dict[str, str], log: Path) -> subprocess
         command = [sys.executable, str(Path(__file__).resolve()), 'relay', '--ros-args']
     else:
         command = [sys.executable, '-m', 'tak_thermo_ros.node', '--ros-args', '--params-file', str(params),
-                   '-p', 'qos:=reliable', '-p', f'qos_depth:={DEPTH}']
+                   '-p', 'qos:=reliable', '-p', f'qos_depth:={DEPTH}',
+                   '-p', 'executor:=single_threaded']  # the relay's rclpy.spin: the same executor
     return subprocess.Popen(command, env=env, stdout=open(log, 'wb'), stderr=subprocess.STDOUT,
                             stdin=subprocess.DEVNULL, start_new_session=True)
 
@@ -404,10 +448,166 @@ def in_process_cost(params: Path, count: int = 200_000) -> dict:
     return timings
 
 
+DRIVER_RATES_HZ = (250.0, 500.0, 1000.0, 1500.0, 2000.0)
+DRIVER_SECONDS = 4.0
+
+
+class ImuDriver:
+    """Publishes driver Imu and temperatures (degrees C) at a fixed rate, receives the output."""
+
+    def __init__(self, domain: int, name: str) -> None:
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.experimental import EventsExecutor
+        from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import Imu, Temperature
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.node = rclpy.create_node(name, context=self.context)
+        self.executor = EventsExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DEPTH, reliability=ReliabilityPolicy.RELIABLE)
+        self.imu_publisher = self.node.create_publisher(Imu, 'imu/data_raw', qos)
+        self.temp_publisher = self.node.create_publisher(Temperature, 'imu/temperature', qos)
+        self.subscription = self.node.create_subscription(Imu, 'imu/data_compensated', self._on_imu, qos)
+        self.imu = Imu()
+        self.imu.header.frame_id = 'imu_link'
+        self.imu.orientation.w = 1.0
+        self.temperature = Temperature()
+        self.received = 0
+        self.last_stamp_ns = 0
+
+    def _on_imu(self, message) -> None:
+        self.received += 1
+
+    def publish(self, k: int) -> None:
+        stamp_ns = max(time.time_ns(), self.last_stamp_ns + 1)  # strictly increasing: none dropped as backwards
+        self.last_stamp_ns = stamp_ns
+        sec, nanosec = divmod(stamp_ns, NANOSECONDS)
+        if k % TEMP_EVERY == 0:
+            self.temperature.header.stamp.sec, self.temperature.header.stamp.nanosec = sec, nanosec
+            self.temperature.temperature = 20.0 + (k // TEMP_EVERY) % 10 * 0.5
+            self.temp_publisher.publish(self.temperature)
+        self.imu.header.stamp.sec, self.imu.header.stamp.nanosec = sec, nanosec
+        a, w = self.imu.linear_acceleration, self.imu.angular_velocity
+        a.x, a.y, a.z = 0.01 * (k % 100), -0.2, 9.81
+        w.x, w.y, w.z = 0.001 * (k % 50), 0.02, -0.03
+        self.imu_publisher.publish(self.imu)
+
+    def spin_until(self, condition, timeout: float) -> None:
+        deadline = time.monotonic() + timeout
+        while not condition():
+            if time.monotonic() > deadline:
+                raise RuntimeError('timed out')
+            self.executor.spin_once(timeout_sec=0.01)
+
+    def warm_up(self) -> None:
+        """Until the node answers; then drain."""
+        self.spin_until(lambda: (self.imu_publisher.get_subscription_count() >= 1
+                                 and self.temp_publisher.get_subscription_count() >= 1
+                                 and self.subscription.get_publisher_count() >= 1), 30.0)
+        deadline = time.monotonic() + 30.0
+        k = 0
+        while self.received == 0:
+            if time.monotonic() > deadline:
+                raise RuntimeError('the node never answered')
+            self.publish(k * TEMP_EVERY)  # a temperature with each
+            k += 1
+            end = time.monotonic() + 0.2
+            while self.received == 0 and time.monotonic() < end:
+                self.executor.spin_once(timeout_sec=0.01)
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def paced(self, rate_hz: float, count: int) -> tuple[int, float]:
+        """Send ``count`` messages at ``rate_hz`` (open loop); (received, achieved send rate)."""
+        self.received = 0
+        period_ns = int(NANOSECONDS / rate_hz)
+        spin_once = self.executor.spin_once
+        started = time.monotonic_ns()
+        next_ns = started
+        for k in range(count):
+            while True:
+                wait = next_ns - time.monotonic_ns()
+                if wait <= 0:
+                    break
+                spin_once(timeout_sec=wait / NANOSECONDS)
+            self.publish(k)
+            next_ns += period_ns
+        achieved = count / ((time.monotonic_ns() - started) / NANOSECONDS)
+        last, idle_since = self.received, time.monotonic()
+        while self.received < count and time.monotonic() - idle_since < 2.0:
+            spin_once(timeout_sec=0.05)
+            if self.received != last:
+                last, idle_since = self.received, time.monotonic()
+        return self.received, achieved
+
+    def close(self) -> None:
+        import rclpy
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+def measure_driver_input(params: Path, workdir: Path, *, rates: tuple[float, ...], seconds: float) -> dict:
+    """Relay and compensator on each executor, open loop at each rate: loss and CPU per message."""
+    home = workdir / 'ros_home'
+    home.mkdir(exist_ok=True)
+    results: dict = {}
+    for executor_index, executor in enumerate(('events', 'single_threaded')):
+        for subject_index, kind in enumerate(('relay', 'compensator')):
+            env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+                   'ROS_DOMAIN_ID': str(1 + (os.getpid() + 37 * (2 * executor_index + subject_index) + 11) % 100),
+                   'ROS_HOME': str(home), 'ROS_LOG_DIR': str(home / 'log'), 'RCUTILS_COLORIZED_OUTPUT': '0'}
+            if kind == 'relay':
+                command = [sys.executable, str(Path(__file__).resolve()), 'driver_relay', executor, '--ros-args']
+            else:
+                command = [sys.executable, '-m', 'tak_thermo_ros.node', '--ros-args', '--params-file', str(params),
+                           '-p', 'qos:=reliable', '-p', f'qos_depth:={DEPTH}', '-p', f'executor:={executor}']
+            log = workdir / f'driver_{executor}_{kind}.log'
+            process = subprocess.Popen(command, env=env, stdout=open(log, 'wb'), stderr=subprocess.STDOUT,
+                                       stdin=subprocess.DEVNULL, start_new_session=True)
+            driver = ImuDriver(int(env['ROS_DOMAIN_ID']), f'bench_imu_driver_{kind}')
+            rows = []
+            try:
+                driver.warm_up()
+                for rate in rates:
+                    count = int(rate * seconds)
+                    cpu_before = cpu_s(process.pid)
+                    received, achieved = driver.paced(rate, count)
+                    cpu = cpu_s(process.pid) - cpu_before
+                    rows.append({'rate_hz': rate, 'sent': count, 'achieved_send_rate_hz': achieved,
+                                 'received': received, 'lost': count - received,
+                                 'cpu_us_per_message': cpu / max(received, 1) * 1e6,
+                                 'cpu_fraction': cpu / (count / achieved)})
+                    print(f'  driver input, {executor:15s} {kind:11s} {rate:6.0f} Hz (sent at {achieved:6.0f}): '
+                          f'{count - received:5d} of {count} lost, {rows[-1]["cpu_us_per_message"]:6.0f} us CPU '
+                          f'per message', flush=True)
+            finally:
+                driver.close()
+                code = stop(process)
+            without_loss = [row['rate_hz'] for row in rows if row['lost'] == 0]
+            results.setdefault(executor, {})[kind] = {
+                'rates': rows, 'exit_code': code,
+                'sustained_rate_without_loss_hz': max(without_loss) if without_loss else 0.0,
+                'cpu_us_per_message_at_1khz': next((r['cpu_us_per_message'] for r in rows if r['rate_hz'] == 1000.0),
+                                                   None)}
+        pair = results[executor]
+        pair['added_cpu_us_per_message_at_1khz'] = (
+            pair['compensator']['cpu_us_per_message_at_1khz'] - pair['relay']['cpu_us_per_message_at_1khz']
+            if pair['relay']['cpu_us_per_message_at_1khz'] is not None else None)
+    return results
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--quick', action='store_true', help='small counts (a smoke run, not the figures)')
+    parser.add_argument('--driver-only', action='store_true',
+                        help='only the driver-input part (both executors, rates up to 2 kHz); updates node.json')
     args = parser.parse_args()
+    if args.driver_only:
+        return driver_only(quick=args.quick)
     throughput_count = 5_000 if args.quick else 10_000
     latency_count = 2_000 if args.quick else 10_000
     soak_count = 20_000 if args.quick else 1_000_000
@@ -425,6 +625,11 @@ def main() -> int:
         started = time.time()
         relay, compensator = measure(params, workdir, throughput_count=throughput_count,
                                      latency_count=latency_count, rounds=rounds, soak_count=soak_count)
+        driver_file = workdir / 'driver_params.yaml'
+        driver_params(driver_file)
+        driver_input = measure_driver_input(driver_file, workdir,
+                                            rates=(500.0, 2000.0) if args.quick else DRIVER_RATES_HZ,
+                                            seconds=1.0 if args.quick else DRIVER_SECONDS)
         for name, result in (('relay', relay), ('compensator', compensator)):
             print(f'{name:12s} {result["throughput_msgs_per_s"]:8.0f} msg/s closed loop, '
                   f'{result["capacity_msgs_per_cpu_s"]:8.0f} msg/CPU-s, latency at 1 kHz p50 '
@@ -446,7 +651,7 @@ def main() -> int:
         document = {'quick': args.quick, 'cpus': os.cpu_count(), 'python': sys.version.split()[0],
                     'wall_s': time.time() - started, 'window': WINDOW, 'depth': DEPTH,
                     'temp_code_every': TEMP_EVERY, 'figures': figures, 'relay': relay,
-                    'compensator': compensator, 'in_process': cost,
+                    'compensator': compensator, 'in_process': cost, 'driver_input': driver_input,
                     'targets': {'throughput_ratio': '>= 0.9', 'added_latency_p99_us': '<= 50',
                                 'soak_rss_growth_mb': '< 10'}}
     results = RESULTS.with_name('node_quick.json') if args.quick else RESULTS
@@ -472,7 +677,154 @@ def main() -> int:
     return 0
 
 
+TRANSPORT_BURST = 20_000
+
+
+def measure_transport_loss(params: Path, workdir: Path, *, count: int = TRANSPORT_BURST) -> list[dict]:
+    """``count`` driver Imu as fast as this process publishes them into the compensator, per
+    executor and input QoS: what the node received, what Fast DDS reported lost (``message_lost``),
+    and what is left unaccounted (``sent - received - message_lost``)."""
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    rows = []
+    home = workdir / 'ros_home'
+    home.mkdir(exist_ok=True)
+    for index, (executor, qos) in enumerate((('events', 'reliable'), ('events', 'sensor_data'),
+                                             ('single_threaded', 'reliable'), ('single_threaded', 'sensor_data'))):
+        env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+               'ROS_DOMAIN_ID': str(1 + (os.getpid() + 41 * index + 5) % 100),
+               'ROS_HOME': str(home), 'ROS_LOG_DIR': str(home / 'log'), 'RCUTILS_COLORIZED_OUTPUT': '0'}
+        command = [sys.executable, '-m', 'tak_thermo_ros.node', '--ros-args', '--params-file', str(params),
+                   '-p', f'qos:={qos}', '-p', f'qos_depth:={DEPTH}', '-p', f'executor:={executor}']
+        log = workdir / f'loss_{executor}_{qos}.log'
+        process = subprocess.Popen(command, env=env, stdout=open(log, 'wb'), stderr=subprocess.STDOUT,
+                                   stdin=subprocess.DEVNULL, start_new_session=True)
+        driver = ImuDriver(int(env['ROS_DOMAIN_ID']), 'bench_loss_driver')
+        try:
+            from diagnostic_msgs.msg import DiagnosticArray
+            statuses: list = []
+            driver.node.create_subscription(DiagnosticArray, '/diagnostics', statuses.append, 10)
+            if qos == 'sensor_data':  # a best-effort driver, as REP 2003 drivers publish
+                best_effort = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DEPTH,
+                                         reliability=ReliabilityPolicy.BEST_EFFORT)
+                driver.node.destroy_publisher(driver.imu_publisher)
+                from sensor_msgs.msg import Imu
+                driver.imu_publisher = driver.node.create_publisher(Imu, 'imu/data_raw', best_effort)
+            driver.warm_up()
+
+            def latest() -> dict:
+                return {pair.key: pair.value for pair in statuses[-1].status[0].values}
+
+            statuses.clear()
+            driver.spin_until(lambda: len(statuses) >= 2, 10.0)  # a status after the warm-up
+            before = latest()
+            started = time.perf_counter()
+            for k in range(1, count + 1):
+                driver.publish(k)
+            rate = count / (time.perf_counter() - started)
+            end = time.monotonic() + 4.0  # two diagnostics periods after the burst
+            while time.monotonic() < end:
+                driver.executor.spin_once(timeout_sec=0.05)
+            after = latest()
+            values = {key: int(after[key]) - int(before[key]) for key in ('received', 'published', 'dropped',
+                                                                           'message_lost')}
+            values['sequence_gap'] = (None if after['sequence_gap'] == 'unavailable'
+                                      else int(after['sequence_gap']) - int(before['sequence_gap']))
+        finally:
+            driver.close()
+            stop(process)
+        received = values['received']
+        row = {'executor': executor, 'qos': qos, 'depth': DEPTH, 'sent': count, 'send_rate_hz': rate,
+               'received_by_node': received, 'published': values['published'], 'dropped': values['dropped'],
+               'message_lost_reported': values['message_lost'], 'sequence_gap': values['sequence_gap'],
+               'unaccounted': count - received - values['message_lost']}
+        rows.append(row)
+        print(f'  burst of {count} at {rate:.0f} Hz, {executor:15s} {qos:11s}: node received {received}, '
+              f'message_lost {row["message_lost_reported"]}, unaccounted {row["unaccounted"]}, sequence_gap '
+              f'{row["sequence_gap"]}', flush=True)
+    return rows
+
+
+def in_process_driver_cost(params: Path, count: int = 50_000) -> dict:
+    """Microseconds per message of the driver-input callback's own work, without DDS: the six
+    values out of an Imu, ``process_values``, the corrected Imu filled (as ``_on_imu``)."""
+    from sensor_msgs.msg import Imu
+
+    from tak_thermo_ros.core.calibration_file import load_unit
+    from tak_thermo_ros.core.online import OnlineCompensator
+    core = OnlineCompensator(load_unit(params))
+    core.process_temperature(21.0, 0.0)
+    message = Imu()
+    message.linear_acceleration.z = 9.81
+    message.angular_velocity.x = 0.01
+    out = Imu()
+    acceleration, rate = out.linear_acceleration, out.angular_velocity
+    process = core.process_values
+
+    def compensator_path() -> None:
+        for k in range(count):
+            header = message.header
+            stamp = header.stamp
+            a = message.linear_acceleration
+            w = message.angular_velocity
+            result = process(stamp.sec, k, (a.x, a.y, a.z, w.x, w.y, w.z), 0.5)
+            if result.__class__ is tuple:
+                out.header = header
+                out.orientation = message.orientation
+                out.orientation_covariance = message.orientation_covariance
+                acceleration.x, acceleration.y, acceleration.z, rate.x, rate.y, rate.z = result
+            if core.notices:
+                core.take_notices()
+
+    best = float('inf')
+    for _ in range(3):
+        started = time.perf_counter()
+        compensator_path()
+        best = min(best, time.perf_counter() - started)
+    return {'driver_callback_us': best / count * 1e6, 'messages': count}
+
+
+def driver_params(path: Path) -> None:
+    """The simulator's default driver unit as a version-2 calibration file."""
+    from tak_thermo_ros.core.calibration_file import save_unit
+    from tak_thermo_ros.core.simulate import Scenario
+    save_unit(path, Scenario(output='imu').driver_truth())
+
+
+def driver_only(*, quick: bool) -> int:
+    """Run the driver-input part and merge it into the results file."""
+    import platform
+    with tempfile.TemporaryDirectory(prefix='bench_node_driver_') as tmp:
+        workdir = Path(tmp)
+        params = workdir / 'driver_params.yaml'
+        driver_params(params)
+        started = time.time()
+        load = os.getloadavg()[0]
+        driver_input = measure_driver_input(params, workdir, rates=(500.0, 2000.0) if quick else DRIVER_RATES_HZ,
+                                            seconds=1.0 if quick else DRIVER_SECONDS)
+        driver_input['transport_loss'] = measure_transport_loss(params, workdir,
+                                                                count=2_000 if quick else TRANSPORT_BURST)
+        driver_input['in_process'] = in_process_driver_cost(params)
+    driver_input['wall_s'] = time.time() - started
+    driver_input['load_average_1min_before'] = load
+    driver_input['machine'] = {'cpus': os.cpu_count(), 'python': platform.python_version()}
+    results = RESULTS.with_name('node_quick.json') if quick else RESULTS
+    document = json.loads(results.read_text(encoding='utf-8')) if results.exists() else {}
+    document['driver_input'] = driver_input
+    results.parent.mkdir(parents=True, exist_ok=True)
+    results.write_text(json.dumps(document, indent=2) + '\n', encoding='utf-8')
+    for executor in ('events', 'single_threaded'):
+        pair = driver_input[executor]
+        for kind in ('relay', 'compensator'):
+            cpu = ', '.join(f'{row["rate_hz"]:.0f} Hz {row["cpu_us_per_message"]:.0f} us' for row in pair[kind]['rates'])
+            print(f'{executor:15s} {kind:11s}: no loss up to {pair[kind]["sustained_rate_without_loss_hz"]:.0f} Hz; '
+                  f'CPU per message {cpu}')
+    print(f'wrote {results}')
+    return 0
+
+
 if __name__ == '__main__':
     if len(sys.argv) > 1 and sys.argv[1] == 'relay':
         sys.exit(relay_main())
+    if len(sys.argv) > 2 and sys.argv[1] == 'driver_relay':
+        sys.exit(driver_relay_main(sys.argv[2]))
     sys.exit(main())

@@ -1,10 +1,27 @@
-"""Launch the ``compensator`` node with a parameters file.
+"""Launch the ``compensator`` node between an IMU driver and a state estimator.
 
 ::
 
-    ros2 launch tak_thermo_ros compensator.launch.py params_file:=tak_params.yaml namespace:=imu0
+    ros2 launch tak_thermo_ros compensator.launch.py params_file:=tak_params.yaml \\
+        driver_imu_topic:=/driver/imu/data_raw driver_temperature_topic:=/driver/imu/temperature \\
+        estimator_imu_topic:=/ekf/imu
 
-``params_file`` defaults to the installed example ``config/compensator.yaml`` (an example
+The pipeline, with a driver calibration (file version 2, ``input: imu``)::
+
+    IMU driver                compensator                              estimator
+    Imu         --> driver_imu_topic         --> imu/data_raw
+    Temperature --> driver_temperature_topic --> imu/temperature
+                                                 imu/data_compensated --> estimator_imu_topic --> Imu
+
+The node's relative topics are remapped onto the driver's and the estimator's names, so neither
+needs changing. Start the driver and the estimator as usual (their own launch files); with
+``start_estimator:=true`` this file also starts ``robot_localization``'s ``ekf_node`` with
+``estimator_params_file`` (it must read ``imu0: <estimator_imu_topic>``).
+
+With a counts calibration (version 1, the paper's codes) the node's topics are ``tak/counts``,
+``tak/temp_code`` and ``tak/imu/data_raw``; they are remapped from the same three arguments.
+
+``params_file`` defaults to the installed example ``config/compensator_driver.yaml`` (an example
 calibration: use the file ``tak_calib fit`` wrote for your unit).
 """
 
@@ -15,25 +32,55 @@ import os
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
+from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+DRIVER_TOPICS = ('imu/data_raw', 'imu/temperature', 'imu/data_compensated')
+COUNTS_TOPICS = ('tak/counts', 'tak/temp_code', 'tak/imu/data_raw')
+
 
 def generate_launch_description() -> LaunchDescription:
-    """The compensator node, its parameters file and namespace as launch arguments."""
-    default_params = os.path.join(get_package_share_directory('tak_thermo_ros'), 'config', 'compensator.yaml')
+    """The compensator with its parameters, namespace and the driver/estimator topic remapping."""
+    share = get_package_share_directory('tak_thermo_ros')
+    default_params = os.path.join(share, 'config', 'compensator_driver.yaml')
+    driver_imu = LaunchConfiguration('driver_imu_topic')
+    driver_temperature = LaunchConfiguration('driver_temperature_topic')
+    estimator_imu = LaunchConfiguration('estimator_imu_topic')
+    remappings = []
+    for raw, temperature, corrected in (DRIVER_TOPICS, COUNTS_TOPICS):
+        remappings += [(raw, driver_imu), (temperature, driver_temperature), (corrected, estimator_imu)]
     return LaunchDescription([
         DeclareLaunchArgument('params_file', default_value=default_params,
                               description='calibration and node parameters (the file tak_calib fit writes)'),
         DeclareLaunchArgument('namespace', default_value='',
-                              description='namespace of the node and of its relative topics'),
+                              description='namespace of the compensator node'),
+        DeclareLaunchArgument('driver_imu_topic', default_value='/imu/data_raw',
+                              description="the driver's sensor_msgs/msg/Imu (or counts) topic"),
+        DeclareLaunchArgument('driver_temperature_topic', default_value='/imu/temperature',
+                              description="the driver's sensor_msgs/msg/Temperature topic"),
+        DeclareLaunchArgument('estimator_imu_topic', default_value='/imu/data_compensated',
+                              description='the topic the estimator reads the corrected Imu from'),
+        DeclareLaunchArgument('start_estimator', default_value='false',
+                              description="also start robot_localization's ekf_node"),
+        DeclareLaunchArgument('estimator_params_file', default_value='',
+                              description='ekf_node parameters (imu0: <estimator_imu_topic>)'),
         Node(
             package='tak_thermo_ros',
             executable='compensator',
             name='compensator',
             namespace=LaunchConfiguration('namespace'),
             parameters=[LaunchConfiguration('params_file')],
+            remappings=remappings,
             output='screen',
             emulate_tty=True,
+        ),
+        Node(
+            package='robot_localization',
+            executable='ekf_node',
+            name='ekf_filter_node',
+            parameters=[LaunchConfiguration('estimator_params_file')],
+            condition=IfCondition(LaunchConfiguration('start_estimator')),
+            output='screen',
         ),
     ])

@@ -17,6 +17,7 @@ os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 
 import argparse  # noqa: E402
 import json  # noqa: E402
+import re  # noqa: E402
 import signal  # noqa: E402
 import sys  # noqa: E402
 import traceback  # noqa: E402
@@ -338,12 +339,25 @@ def cmd_fit(args: argparse.Namespace) -> int:
             errors = result.parameter_errors
             shown = ', '.join(f'{p.name} {p.value:.4g}' + (f' +- {errors[effect.name + "." + p.name]:.2g}'
                                                            if effect.name + '.' + p.name in errors else '')
-                              + (f' {p.unit}' if p.unit else '') for p in effect.parameters)
+                              + (f' {_effect_unit(p.unit, unit_name)}' if p.unit else '') for p in effect.parameters)
             print(f'  effect {effect.name}: {shown}')
         for note in calibration.notes:
             print(f'note: {prefix}{note}')
     print(f'wrote {args.output}')
     return 0
+
+
+def _effect_unit(unit: str, sensor_unit: str) -> str:
+    """An effect parameter's unit for the sensor's input: the library states it for codes.
+
+    With a driver's input, counts are the sensor's unit (m/s^2 or rad/s), its input is in the
+    same unit, and the temperature code is the temperature in degrees C.
+    """
+    if sensor_unit == 'counts':
+        return unit
+    unit = re.sub(r'\bm/s\^2\b', '@', unit)
+    unit = re.sub(r'\bcodes?\b', 'C', unit)
+    return unit.replace('counts', sensor_unit).replace('@', sensor_unit)
 
 
 def _amount(value: float, unit: str) -> str:
@@ -366,7 +380,7 @@ def cmd_apply(args: argparse.Namespace) -> int:
     topics = _topics(args)
     kind = bag_input_kind(args.bag, topics=topics)
     if kind is not unit.input_kind:
-        msg = (f'{args.params} is a {unit.input_kind.value} calibration, {args.bag} holds '
+        msg = (f'{args.params} is a calibration for {unit.input_kind.value} input, {args.bag} holds '
                f'{"channel codes" if kind is InputKind.COUNTS else "a driver Imu"}')
         raise TakError(msg)
     driver = None
@@ -449,7 +463,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
 
 def _check_kind(args: argparse.Namespace, unit: UnitCalibration, run: BagRun) -> None:
     if run.input_kind is not unit.input_kind:
-        msg = (f'{args.params} is a {unit.input_kind.value} calibration, {args.bag} holds '
+        msg = (f'{args.params} is a calibration for {unit.input_kind.value} input, {args.bag} holds '
                f'{"channel codes" if run.input_kind is InputKind.COUNTS else "a driver Imu"}')
         raise TakError(msg)
 

@@ -4,15 +4,23 @@
 
     ros2 run tak_thermo_ros compensator --ros-args --params-file tak_params.yaml
 
-Subscribes ``tak/counts`` (``geometry_msgs/msg/Vector3Stamped``, channel codes) and
-``tak/temp_code`` (``sensor_msgs/msg/Temperature``, the raw temperature-sensor code); publishes
-``tak/imu/data_raw`` (``sensor_msgs/msg/Imu``, exactly as ``tak_calib apply`` writes it) and
-``/diagnostics`` at 1 Hz. Topic names are relative: namespaces and remapping work.
+The calibration's input kind chooses the topics (relative names: namespaces and remapping work):
+
+- a driver calibration (file version 2, ``input: imu``): subscribes ``imu/data_raw``
+  (``sensor_msgs/msg/Imu``) and ``imu/temperature`` (``sensor_msgs/msg/Temperature``, degrees
+  C); publishes ``imu/data_compensated`` (``sensor_msgs/msg/Imu``, accelerometer and gyroscope
+  corrected, exactly as ``tak_calib apply`` writes it);
+- a counts calibration (version 1, the paper's codes): subscribes ``tak/counts``
+  (``geometry_msgs/msg/Vector3Stamped``, channel codes) and ``tak/temp_code``
+  (``sensor_msgs/msg/Temperature``, the raw temperature-sensor code); publishes
+  ``tak/imu/data_raw`` (``sensor_msgs/msg/Imu``).
+
+Both publish ``/diagnostics`` at 1 Hz.
 
 When the calibration holds a recorded-signal term (``aux:TOPIC``, e.g. the supply voltage on
 ``/power/battery_state``), the node also subscribes that topic, with the type its publisher
-advertises (looked up again every diagnostics period until one appears); the value is held like
-the temperature (see :mod:`tak_thermo_ros.core.online`).
+advertises (waiting up to :data:`SIGNAL_DISCOVERY_S` at start-up, then looked up again every
+diagnostics period); the value is held like the temperature (:mod:`tak_thermo_ros.core.online`).
 
 This is a thin wrapper: callbacks turn messages into numbers, hand them to
 :class:`~tak_thermo_ros.core.online.OnlineCompensator` (no ROS in it) and turn the result
@@ -30,8 +38,9 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Vector3Stamped
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
-from rclpy.event_handler import PublisherEventCallbacks
-from rclpy.executors import ExternalShutdownException
+from rclpy.event_handler import PublisherEventCallbacks, QoSMessageLostInfo, SubscriptionEventCallbacks
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -39,28 +48,34 @@ from sensor_msgs.msg import Imu, Temperature
 
 from tak_thermo_ros.core.calibration_file import (
     NODE_NAME,
-    calibration_from_mapping,
-    calibration_to_mapping,
     flatten_parameters,
-    load_calibration,
+    load_unit,
     nest_parameters,
+    unit_from_mapping,
+    unit_to_mapping,
 )
-from tak_thermo_ros.core.correction import OutOfRange, imu_covariances
+from tak_thermo_ros.core.correction import OutOfRange
 from tak_thermo_ros.core.effects.aux_signal import AUX_FIELDS, signal_field, split_signal_name
-from tak_thermo_ros.core.model import Calibration
+from tak_thermo_ros.core.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.online import Level, OnlineCompensator, StaleTemperature
 from tak_thermo_ros.errors import CalibrationError, TakError
 
 COUNTS_TOPIC = 'tak/counts'
 TEMP_TOPIC = 'tak/temp_code'
 IMU_TOPIC = 'tak/imu/data_raw'
+RAW_IMU_TOPIC = 'imu/data_raw'
+TEMPERATURE_TOPIC = 'imu/temperature'
+COMPENSATED_IMU_TOPIC = 'imu/data_compensated'
 DIAGNOSTICS_TOPIC = '/diagnostics'
 DIAGNOSTICS_PERIOD_S = 1.0
 EXIT_ERROR = 2
 QOS_CHOICES = ('sensor_data', 'reliable')
+EXECUTOR_CHOICES = ('events', 'single_threaded')
+SPIN_PERIOD_S = 0.1
+"""Longest wait of one ``spin_once``: how soon the loop notices a shutdown (SIGINT, SIGTERM)."""
+CALIBRATION_PREFIX = 'calibration'
 SIGNAL_DISCOVERY_S = 5.0
 """At start-up, how long the node waits for the publisher of a recorded signal it needs."""
-CALIBRATION_PREFIX = 'calibration'
 
 _DIAGNOSTIC_LEVELS = {Level.OK: DiagnosticStatus.OK, Level.WARN: DiagnosticStatus.WARN,
                       Level.ERROR: DiagnosticStatus.ERROR}
@@ -72,14 +87,17 @@ def _tunables() -> dict[str, tuple[Any, str, bool]]:
         'calibration_file': ('', 'calibration parameters YAML to load instead of calibration.* '
                                  '(the file tak_calib fit writes); empty: use calibration.*', True),
         'qos': ('sensor_data', "input QoS: 'sensor_data' (best effort, REP 2003 consumer; matches "
-                               "every publisher) or 'reliable' (lossless, needs a reliable publisher)",
+                               "every publisher) or 'reliable' (retransmits, needs a reliable publisher; a driver faster "
+                               "than the node still loses messages at the history depth)",
                 True),
         'qos_depth': (100, 'history depth of the subscriptions and the Imu publisher', True),
-        'temp_timeout': (1.0, 'seconds after which the last temperature code is stale '
+        'executor': ('events', "'events' (rclpy.experimental.EventsExecutor, about half the CPU per "
+                               "message) or 'single_threaded' (rclpy's default executor)", True),
+        'temp_timeout': (1.0, 'seconds after which the last temperature is stale '
                               '(diagnostics ERROR)', False),
-        'stale_temperature': ('hold', "counts while the temperature code is stale: 'hold' the last "
-                                      "code or 'drop' the counts", False),
-        'out_of_range': ('clamp', "temperature codes outside the calibrated range: 'clamp' to the "
+        'stale_temperature': ('hold', "input while the temperature is stale: 'hold' the last "
+                                      "temperature or 'drop' the messages", False),
+        'out_of_range': ('clamp', "temperatures outside the calibrated range: 'clamp' to the "
                                   "edge or 'extrapolate' (always counted and logged)", False),
     }
 
@@ -131,59 +149,77 @@ class CompensatorNode(Node):
 
     def _setup(self) -> None:
         self._declare_tunables()
-        calibration, source = self._load_calibration()
+        unit, source = self._load_calibration()
         depth = _depth(self._value('qos_depth'))
         qos_name = _choice(self._value('qos'), 'qos', QOS_CHOICES)
+        self.executor_kind = _choice(self._value('executor'), 'executor', EXECUTOR_CHOICES)
         reliability = (ReliabilityPolicy.BEST_EFFORT if qos_name == 'sensor_data'
                        else ReliabilityPolicy.RELIABLE)
         input_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=reliability)
         # REP 2003: the Imu is published reliable, which matches reliable and best-effort readers.
         output_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
                                 reliability=ReliabilityPolicy.RELIABLE)
-        # The temperature subscription is created first: when a code and a counts message are
-        # ready at once, the executor takes them in creation order, the code first.
-        self._temp_subscription = self.create_subscription(Temperature, TEMP_TOPIC, self._on_temperature,
-                                                           input_qos)
+        driver = unit.input_kind is InputKind.IMU
+        self._input_name = 'imu' if driver else 'counts'
+        input_type, input_topic, temp_topic, output_topic = (
+            (Imu, RAW_IMU_TOPIC, TEMPERATURE_TOPIC, COMPENSATED_IMU_TOPIC) if driver
+            else (Vector3Stamped, COUNTS_TOPIC, TEMP_TOPIC, IMU_TOPIC))
+        # The temperature subscription is created first: when a temperature and an input message
+        # are ready at once, the executor takes them in creation order, the temperature first.
+        self._temp_subscription = self.create_subscription(
+            Temperature, temp_topic, self._on_temperature, input_qos,
+            event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_temperature_lost))
         self._core = OnlineCompensator(
-            calibration,
+            unit,
             out_of_range=OutOfRange(_choice(self._value('out_of_range'), 'out_of_range',
                                             [p.value for p in OutOfRange])),
             stale_temperature=StaleTemperature(_choice(self._value('stale_temperature'), 'stale_temperature',
                                                        [p.value for p in StaleTemperature])),
             temp_timeout_s=_timeout(self._value('temp_timeout')),
             temp_topic=self._temp_subscription.topic_name)
-        self._process_counts = self._core.process_counts
+        self._process_values = self._core.process_values
         self._process_temperature = self._core.process_temperature
         self._imu = Imu()
         self._imu.orientation.x = self._imu.orientation.y = self._imu.orientation.z = 0.0
         self._imu.orientation.w = 1.0
         self._acceleration = self._imu.linear_acceleration
+        self._angular_velocity = self._imu.angular_velocity
         self._set_covariances()
-        self._imu_publisher = self.create_publisher(Imu, IMU_TOPIC, output_qos)
+        self._imu_publisher = self.create_publisher(Imu, output_topic, output_qos)
         self._publish_imu = self._imu_publisher.publish
         # No QoS event handlers on /diagnostics: every waitable costs the executor time on
-        # every counts message, and a 1 Hz status needs no incompatible-QoS report.
+        # every input message, and a 1 Hz status needs no incompatible-QoS report.
         self._diagnostics_publisher = self.create_publisher(
             DiagnosticArray, DIAGNOSTICS_TOPIC, 10,
             event_callbacks=PublisherEventCallbacks(use_default_callbacks=False))
-        # Recorded-signal subscriptions before the counts one too (same creation-order rule);
-        # a signal topic not yet advertised is looked up again every diagnostics period.
+        # rclpy 7's EventsExecutor calls a callback with the message only; the single-threaded
+        # executor also hands over the MessageInfo, whose publication sequence numbers show
+        # every message that never arrived (Fast DDS's message-lost event shows only some).
+        # Recorded-signal subscriptions before the input one too (same creation-order rule); a
+        # signal topic not yet advertised is looked up again every diagnostics period.
+        self._signal_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=reliability)
         self._signal_subscriptions: dict[str, Any] = {}
         deadline = time.monotonic() + SIGNAL_DISCOVERY_S
         self._subscribe_signals()
         while len(self._signal_subscriptions) < len(self._core.signals) and time.monotonic() < deadline:
             time.sleep(0.05)
             self._subscribe_signals()
-        self._counts_subscription = self.create_subscription(Vector3Stamped, COUNTS_TOPIC, self._on_counts,
-                                                             input_qos)
+        on_input = self._on_imu if driver else self._on_counts
+        if self.executor_kind == 'single_threaded':
+            on_input = self._with_sequence(on_input)
+        self._input_subscription = self.create_subscription(
+            input_type, input_topic, on_input, input_qos,
+            event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_input_lost))
         self._diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self._on_diagnostics_timer)
-        self._pending: dict[str, Any] | None = None
+        self._pending: Any = None
         self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
+        low, high = self._core.calibrated_range
+        what = 'accelerometer and gyroscope, temperature (C)' if driver else 'temperature-code'
         self.get_logger().info(
-            f'correcting {self._counts_subscription.topic_name} with {self._temp_subscription.topic_name} '
-            f'-> {self._imu_publisher.topic_name}; calibration from {source}, temperature-code range '
-            f'{calibration.temp_code_min:g}..{calibration.temp_code_max:g}; qos {qos_name} (depth {depth}), '
+            f'correcting {self._input_subscription.topic_name} with {self._temp_subscription.topic_name} '
+            f'-> {self._imu_publisher.topic_name}; calibration ({unit.input_kind.value} input) from {source}, '
+            f'{what} range {low:g}..{high:g}; qos {qos_name} (depth {depth}), executor {self.executor_kind}, '
             f'out_of_range {self._core.out_of_range_policy.value}, stale_temperature '
             f'{self._core.stale_policy.value} after {self._core.temp_timeout_s:g} s')
 
@@ -208,7 +244,7 @@ class CompensatorNode(Node):
         return {f'{CALIBRATION_PREFIX}.{name}': _plain(parameter.value)
                 for name, parameter in self.get_parameters_by_prefix(CALIBRATION_PREFIX).items()}
 
-    def _load_calibration(self) -> tuple[Calibration, str]:
+    def _load_calibration(self) -> tuple[UnitCalibration, str]:
         """The calibration from ``calibration_file`` or ``calibration.*``, declared as parameters."""
         path = self._value('calibration_file')
         flat = self._calibration_values()
@@ -220,8 +256,8 @@ class CompensatorNode(Node):
                 msg = (f'calibration_file ({path}) and calibration.* parameters ({next(iter(flat))}, ...) '
                        f'both given: use one')
                 raise CalibrationError(msg)
-            calibration = load_calibration(path)
-            flat = flatten_parameters(calibration_to_mapping(calibration), CALIBRATION_PREFIX)
+            unit = load_unit(path)
+            flat = flatten_parameters(unit_to_mapping(unit), CALIBRATION_PREFIX)
             source = path
         elif not flat:
             msg = (f'calibration: missing for node {self.get_fully_qualified_name()}; give the file '
@@ -230,8 +266,7 @@ class CompensatorNode(Node):
                    f'-p calibration_file:=FILE')
             raise CalibrationError(msg)
         else:
-            calibration = calibration_from_mapping(nest_parameters(flat, CALIBRATION_PREFIX),
-                                                   key=CALIBRATION_PREFIX)
+            unit = unit_from_mapping(nest_parameters(flat, CALIBRATION_PREFIX), key=CALIBRATION_PREFIX)
             source = 'parameters calibration.*'
         # Dynamic typing: `ros2 param set ... calibration.x.scale 256` (an integer) is then checked
         # by the calibration validator like any other value, not refused for its type.
@@ -240,7 +275,7 @@ class CompensatorNode(Node):
                 self.undeclare_parameter(name)
             self.declare_parameter(name, value, ParameterDescriptor(dynamic_typing=True),
                                    ignore_override=bool(path))
-        return calibration, source
+        return unit, source
 
     def _subscribe_signals(self) -> None:
         """Subscribe each recorded signal the calibration needs whose topic is advertised yet."""
@@ -259,23 +294,21 @@ class CompensatorNode(Node):
                 self.get_logger().error(str(err))
                 continue
             package, _, message = types[0].split('/')
-            module = __import__(f'{package}.msg', fromlist=[message])
-            message_type = getattr(module, message)
+            message_type = getattr(__import__(f'{package}.msg', fromlist=[message]), message)
 
             def on_signal(msg: Any, name: str = name, field: str = field) -> None:
                 self._core.process_signal(name, float(getattr(msg, field)), time.monotonic())
                 if self._core.notices:
                     self._log_notices()
 
-            self._signal_subscriptions[name] = self.create_subscription(
-                message_type, topic, on_signal,
-                QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                           reliability=self._temp_subscription.qos_profile.reliability))
+            self._signal_subscriptions[name] = self.create_subscription(message_type, topic, on_signal,
+                                                                        self._signal_qos)
             self.get_logger().info(f'subscribed {topic} ({types[0]}.{field}) for {name}')
 
     def _set_covariances(self) -> None:
-        orientation, angular, linear = imu_covariances(self._core.variance)
-        self._imu.orientation_covariance = orientation
+        orientation, angular, linear = self._core.covariances
+        if self._core.input_kind is InputKind.COUNTS:
+            self._imu.orientation_covariance = orientation
         self._imu.angular_velocity_covariance = angular
         self._imu.linear_acceleration_covariance = linear
 
@@ -290,12 +323,52 @@ class CompensatorNode(Node):
         header = message.header
         stamp = header.stamp
         vector = message.vector
-        result = self._process_counts(stamp.sec, stamp.nanosec, vector.x, vector.y, vector.z, time.monotonic())
+        result = self._process_values(stamp.sec, stamp.nanosec, (vector.x, vector.y, vector.z), time.monotonic())
         if result.__class__ is tuple:
             self._imu.header = header
             acceleration = self._acceleration
             acceleration.x, acceleration.y, acceleration.z = result
             self._publish_imu(self._imu)
+        if self._core.notices:
+            self._log_notices()
+
+    def _on_imu(self, message: Imu) -> None:
+        header = message.header
+        stamp = header.stamp
+        a = message.linear_acceleration
+        w = message.angular_velocity
+        result = self._process_values(stamp.sec, stamp.nanosec, (a.x, a.y, a.z, w.x, w.y, w.z), time.monotonic())
+        if result.__class__ is tuple:
+            imu = self._imu
+            imu.header = header
+            imu.orientation = message.orientation
+            imu.orientation_covariance = message.orientation_covariance
+            acceleration, rate = self._acceleration, self._angular_velocity
+            acceleration.x, acceleration.y, acceleration.z, rate.x, rate.y, rate.z = result
+            self._publish_imu(imu)
+        if self._core.notices:
+            self._log_notices()
+
+    def _with_sequence(self, on_message: Any) -> Any:
+        """``on_message`` preceded by the count of sequence gaps (a callback taking the MessageInfo)."""
+        sequence = self._core.sequence
+        name = self._input_name
+
+        def on_message_with_info(message: Any, info: dict[str, Any]) -> None:
+            number = info.get('publication_sequence_number')
+            if number is not None:
+                sequence(name, number, time.monotonic())
+            on_message(message)
+
+        return on_message_with_info
+
+    def _on_input_lost(self, info: QoSMessageLostInfo) -> None:
+        self._core.message_lost(self._input_name, info.total_count_change, time.monotonic())
+        if self._core.notices:
+            self._log_notices()
+
+    def _on_temperature_lost(self, info: QoSMessageLostInfo) -> None:
+        self._core.message_lost('temperature', info.total_count_change, time.monotonic())
         if self._core.notices:
             self._log_notices()
 
@@ -329,7 +402,12 @@ class CompensatorNode(Node):
     # -- runtime parameter updates -----------------------------------------------------------
 
     def _check_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
-        """Validate a change: the whole resulting calibration and policies, before it is set."""
+        """Validate a change: the whole resulting calibration and policies, before it is set.
+
+        Everything later computed from the values is computed here (:meth:`OnlineCompensator.prepare`:
+        the parser's limits, the covariances, the correction over the calibrated range), so that
+        putting the change in force cannot fail. Any error refuses the change with its reason.
+        """
         self._pending = None
         try:
             changes: dict[str, Any] = {}
@@ -355,30 +433,55 @@ class CompensatorNode(Node):
                         flat.pop(parameter.name, None)
                     else:
                         flat[parameter.name] = _plain(parameter.value)
-                changes['calibration'] = calibration_from_mapping(
-                    nest_parameters(flat, CALIBRATION_PREFIX), key=CALIBRATION_PREFIX)
-        except (TakError, ValueError) as err:
-            reason = str(err)
+                changes['calibration'] = unit_from_mapping(nest_parameters(flat, CALIBRATION_PREFIX),
+                                                           key=CALIBRATION_PREFIX)
+            prepared = self._core.prepare(**changes) if changes else None
+        except Exception as err:  # noqa: BLE001 - a running node must never die of a parameter update
+            reason = str(err) if isinstance(err, (TakError, ValueError)) else f'{type(err).__name__}: {err}'
             self.get_logger().warning(f'parameter update rejected, the previous values stay in force: {reason}')
             return SetParametersResult(successful=False, reason=reason)
-        self._pending = changes
+        self._pending = prepared
         return SetParametersResult(successful=True)
 
     def _apply_parameters(self, parameters: list[Parameter]) -> None:
-        """Swap the validated change in: runs in the executor, between two messages."""
-        changes, self._pending = self._pending, None
-        if not changes:
+        """Put the validated change in force: runs in the executor, between two messages."""
+        prepared, self._pending = self._pending, None
+        if prepared is None:
             return
-        calibration = changes.pop('calibration', None)
-        self._core.set_policies(**changes)
-        if calibration is not None:
-            self._core.swap_calibration(calibration)
-            self._set_covariances()
+        self._core.install(prepared)
+        self._set_covariances()
         names = ', '.join(p.name for p in parameters)
         self.get_logger().info(f'parameters updated ({names}): out_of_range {self._core.out_of_range_policy.value}, '
                                f'stale_temperature {self._core.stale_policy.value}, temp_timeout '
                                f'{self._core.temp_timeout_s:g} s, calibration updates '
                                f'{self._core.calibration_updates}')
+
+
+def make_executor(kind: str, context: Any) -> Executor:
+    """The executor named by the ``executor`` parameter."""
+    if kind == 'events':
+        return EventsExecutor(context=context)
+    return SingleThreadedExecutor(context=context)
+
+
+def spin(node: Node, executor: Executor) -> None:
+    """Spin until the context shuts down (SIGINT or SIGTERM: rclpy's signal handlers).
+
+    ``spin_once`` in a loop, not ``spin()``: the EventsExecutor's ``spin()`` stopped by a
+    shutdown from another thread kept running at 100 % CPU in a trial; this loop notices the
+    shutdown within :data:`SPIN_PERIOD_S`.
+    """
+    executor.add_node(node)
+    context = node.context
+    while context.ok():
+        try:
+            executor.spin_once(timeout_sec=SPIN_PERIOD_S)
+        except ExternalShutdownException:
+            break
+        except Exception:
+            if context.ok():
+                raise
+            break  # the executor noticed the shutdown first, in its own words
 
 
 def main(args: Sequence[str] | None = None) -> int:
@@ -399,11 +502,15 @@ def main(args: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         rclpy.try_shutdown()
         return 0
+    executor = None
     try:
-        rclpy.spin(node)
+        executor = make_executor(node.executor_kind, node.context)
+        spin(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        if executor is not None:
+            executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
     return 0

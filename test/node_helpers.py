@@ -133,21 +133,30 @@ def stamp_of(message: Any) -> int:
 class Harness:
     """The test side: publishers of counts and temperature codes, subscribers of the outputs.
 
+    With ``driver=True``, the driver-input topics instead: Imu on ``imu/data_raw`` and degrees C
+    on ``imu/temperature`` out, the corrected Imu from ``imu/data_compensated`` in.
+
     :param domain: ROS domain id (the node's).
     :param namespace: namespace of the node under test (topics are relative to it).
+    :param driver: whether the node runs a driver (version-2) calibration.
+    :param input_qos: QoS of the test's input publishers.
     """
 
-    def __init__(self, domain: int, *, namespace: str = '') -> None:
+    def __init__(self, domain: int, *, namespace: str = '', driver: bool = False,
+                 input_qos: QoSProfile = RELIABLE) -> None:
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain)
         self.node = rclpy.create_node('compensator_test', context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         prefix = f'/{namespace.strip("/")}/' if namespace.strip('/') else '/'
-        self.counts = self.node.create_publisher(Vector3Stamped, prefix + 'tak/counts', RELIABLE)
-        self.temperature = self.node.create_publisher(Temperature, prefix + 'tak/temp_code', RELIABLE)
+        input_type, input_topic, temp_topic, output_topic = (
+            (Imu, 'imu/data_raw', 'imu/temperature', 'imu/data_compensated') if driver
+            else (Vector3Stamped, 'tak/counts', 'tak/temp_code', 'tak/imu/data_raw'))
+        self.counts = self.node.create_publisher(input_type, prefix + input_topic, input_qos)
+        self.temperature = self.node.create_publisher(Temperature, prefix + temp_topic, input_qos)
         self.imu: list[Imu] = []
-        self.imu_subscription = self.node.create_subscription(Imu, prefix + 'tak/imu/data_raw',
+        self.imu_subscription = self.node.create_subscription(Imu, prefix + output_topic,
                                                               self.imu.append, RELIABLE)
         self.temperatures_sent = 0
         self.diagnostics: list[Any] = []
@@ -202,6 +211,21 @@ class Harness:
         header_stamp(message, stamp_ns)
         message.header.frame_id = frame_id
         message.vector.x, message.vector.y, message.vector.z = float(x), float(y), float(z)
+        self.counts.publish(message)
+
+    def send_imu(self, stamp_ns: int, values: Sequence[float], *, frame_id: str = 'imu_link',
+                 orientation: Sequence[float] = (0.0, 0.0, 0.0, 1.0),
+                 orientation_covariance: Sequence[float] = (-1.0, 0, 0, 0, 0, 0, 0, 0, 0)) -> None:
+        """Publish one driver Imu: accelerometer x y z, gyroscope x y z, orientation (x y z w)."""
+        message = Imu()
+        header_stamp(message, stamp_ns)
+        message.header.frame_id = frame_id
+        a, w, q = message.linear_acceleration, message.angular_velocity, message.orientation
+        a.x, a.y, a.z, w.x, w.y, w.z = (float(v) for v in values)
+        q.x, q.y, q.z, q.w = (float(v) for v in orientation)
+        message.orientation_covariance = [float(v) for v in orientation_covariance]
+        message.angular_velocity_covariance = [7.0] * 9  # the node replaces these with the fit's
+        message.linear_acceleration_covariance = [7.0] * 9
         self.counts.publish(message)
 
     def set_parameters(self, values: dict[str, Any], *, atomically: bool = False,

@@ -205,3 +205,21 @@ def test_diagnose_tries_a_user_defined_effect_and_names_it(tmp_path, monkeypatch
     assert with_user.candidates[0].confirm.startswith('Log the air conditioning')
     assert with_user.ladder[-1].effects == ('ripple',)
     assert np.all(np.array(with_user.ladder[-1].heldout_rms) <= 1.1 * noise_floor_of(scenario))
+
+
+def test_noise_floor_rejects_glitches_in_a_drivers_si_units():
+    """Isolated spikes in rad/s are left out as in codes: the floor stays at the white noise.
+
+    The jump limit's least spread of half a code would reject nothing in rad/s; with
+    ``least_spread=0`` (what diagnose uses for a driver's values) 30 spikes of 0.05 rad/s in
+    6000 samples of 0.8 mrad/s noise leave the floor within its own statistical error.
+    """
+    rng = np.random.default_rng(8)
+    sigma = 0.0008
+    residual = rng.standard_normal((6000, 3)) * sigma
+    residual[rng.choice(6000, size=30, replace=False), 0] += 0.05
+    floor, used = noise_floor(residual, least_spread=0.0)
+    tolerance = 5.0 * sigma * np.sqrt(3.0 / used) / 2.0  # five standard errors of the floor
+    np.testing.assert_allclose(floor, sigma, atol=tolerance)
+    inflated, _ = noise_floor(residual)  # the counts default rejects nothing here
+    assert inflated[0] > 3.0 * sigma

@@ -24,10 +24,18 @@ from node_helpers import (
     wait_until,
 )
 from tak_thermo_ros import cli
-from tak_thermo_ros.bagio import read_imu, read_record, write_record
-from tak_thermo_ros.core.calibration_file import calibration_yaml, load_calibration, write_text_atomic
-from tak_thermo_ros.core.correction import Corrector, OutOfRange
+from tak_thermo_ros.bagio import read_imu, read_imu_messages, read_record, write_driver_record, write_record
+from tak_thermo_ros.core.calibration_file import (
+    calibration_yaml,
+    load_calibration,
+    load_unit,
+    unit_yaml,
+    write_text_atomic,
+)
+from tak_thermo_ros.core.model import InputKind
+from tak_thermo_ros.core.correction import Corrector, OutOfRange, UnitCorrector
 from tak_thermo_ros.core.online import ONLINE_DROP_REASONS
+from tak_thermo_ros.core.record import align
 from tak_thermo_ros.core.simulate import Scenario, simulate
 
 REPO = Path(__file__).resolve().parent.parent
@@ -58,7 +66,7 @@ def acceleration(message) -> tuple[float, float, float]:
 
 
 def test_bad_input_cases_have_their_defined_behaviour(tmp_path, ros_env):
-    """Waiting, bad counts, odd stamps, out of range, stale: published or dropped, logged, counted."""
+    """Waiting, bad counts, stamps out of order, out of range, stale: published or dropped, logged, counted."""
     params = write_params(tmp_path / 'params.yaml', qos='reliable', temp_timeout=30.0,
                           stale_temperature='drop')
     clamp = Corrector(CALIBRATION, out_of_range=OutOfRange.CLAMP)
@@ -89,13 +97,13 @@ def test_bad_input_cases_have_their_defined_behaviour(tmp_path, ros_env):
             (START_NS + 5, (1.5, 0.0, 0.0)),
             (START_NS + 6, (32767.0, 0.0, 0.0)),
             (START_NS + 7, (0.0, -32768.0, 0.0)),
-            (START_NS + 7, (101.0, -51.0, 2501.0)),   # duplicate stamp: passed through
-            (START_NS + 3, (102.0, -52.0, 2502.0)),   # backwards: passed through
-            (START_NS + 8, (103.0, -53.0, 2503.0)),
+            (START_NS + 7, (101.0, -51.0, 2501.0)),   # duplicate stamp (of a dropped message): dropped
+            (START_NS + 3, (102.0, -52.0, 2502.0)),   # backwards: dropped
+            (START_NS + 8, (103.0, -53.0, 2503.0)),   # later than the previous message's: published
         ]
         for stamp, (x, y, z) in sent:
             ros.send_counts(stamp, x, y, z)
-        good = [(stamp, xyz) for stamp, xyz in sent if xyz[0] in (100.0, 101.0, 102.0, 103.0)]
+        good = [(stamp, xyz) for stamp, xyz in sent if xyz[0] in (100.0, 103.0)]
         ros.wait(lambda: len(ros.imu) == len(good), 10.0, 'the Imu of the good counts')
         assert [stamp_of(m) for m in ros.imu] == [stamp for stamp, _ in good]
         for message, (_, xyz) in zip(ros.imu, good):
@@ -139,13 +147,14 @@ def test_bad_input_cases_have_their_defined_behaviour(tmp_path, ros_env):
         # Every counts message published or counted as dropped with its reason.
         values = status_values(status)
         dropped = {reason: int(values[f'dropped.{reason}']) for reason in ONLINE_DROP_REASONS}
-        assert dropped == {'non_finite': 3, 'non_integer': 1, 'saturated': 2,
-                           'waiting_for_temperature': 1, 'stale_temperature': 1}
-        assert int(values['published']) == len(ros.imu) == 7
+        assert dropped == {'duplicate_stamp': 1, 'time_backwards': 1, 'non_finite': 3, 'non_integer': 1,
+                           'saturated': 2, 'waiting_for_temperature': 1, 'stale_temperature': 1,
+                           'correction_failed': 0, 'non_finite_output': 0}
+        assert int(values['published']) == len(ros.imu) == 5
         assert int(values['received']) == int(values['published']) + sum(dropped.values())
         assert int(values['dropped']) == sum(dropped.values())
-        assert (values['time_backwards'], values['duplicate_stamps']) == ('1', '1')
-        assert values['out_of_range'] == '2'
+        assert values['out_of_range'] == '2' and values['message_lost'] == '0'
+        assert 'header stamp equal to the previous one: dropped' in node.log()
         assert node.stop() == 0
     assert 'Traceback' not in node.log()
 
@@ -277,15 +286,283 @@ def test_bad_calibration_refused_at_startup(tmp_path, ros_env, case):
     assert expected in lines[0]
 
 
-def test_launch_file_and_example_config():
-    """The launch file parses; the example config is a valid calibration with the node's defaults."""
+def test_launch_file_and_example_configs(tmp_path):
+    """The launch file compiles, remaps driver -> compensator -> estimator; the example configs
+    are valid calibrations (counts and driver) with the node's defaults."""
+    import py_compile
     from tak_thermo_ros.node import _tunables
-    source = (REPO / 'launch' / 'compensator.launch.py').read_text(encoding='utf-8')
-    tree = ast.parse(source)
-    compile(tree, 'compensator.launch.py', 'exec')
+    launch_file = REPO / 'launch' / 'compensator.launch.py'
+    py_compile.compile(str(launch_file), cfile=str(tmp_path / 'launch.pyc'), doraise=True)
+    tree = ast.parse(launch_file.read_text(encoding='utf-8'))
     assert any(isinstance(n, ast.FunctionDef) and n.name == 'generate_launch_description' for n in tree.body)
-    config = REPO / 'config' / 'compensator.yaml'
-    load_calibration(config)
-    parameters = yaml.safe_load(config.read_text(encoding='utf-8'))['/**/compensator']['ros__parameters']
+    constants = {n.targets[0].id: ast.literal_eval(n.value) for n in tree.body
+                 if isinstance(n, ast.Assign) and isinstance(n.targets[0], ast.Name) and n.targets[0].id.endswith('TOPICS')}
+    from tak_thermo_ros import node as node_module
+    assert constants['DRIVER_TOPICS'] == (node_module.RAW_IMU_TOPIC, node_module.TEMPERATURE_TOPIC,
+                                          node_module.COMPENSATED_IMU_TOPIC)
+    assert constants['COUNTS_TOPICS'] == (node_module.COUNTS_TOPIC, node_module.TEMP_TOPIC, node_module.IMU_TOPIC)
     defaults = {name: default for name, (default, _, _) in _tunables().items()}
-    assert {k: v for k, v in parameters.items() if k != 'calibration'} == defaults
+    for name, kind in (('compensator.yaml', InputKind.COUNTS), ('compensator_driver.yaml', InputKind.IMU)):
+        config = REPO / 'config' / name
+        assert load_unit(config).input_kind is kind
+        parameters = yaml.safe_load(config.read_text(encoding='utf-8'))['/**/compensator']['ros__parameters']
+        assert {k: v for k, v in parameters.items() if k != 'calibration'} == defaults
+
+
+# -- driver input (a version-2 calibration): sensor_msgs/Imu and degrees C in -------------------
+
+DRIVER_RUN = Scenario(output='imu', sample_rate_hz=10.0, plateaus_celsius=(10.0, 30.0), plateau_hours=0.01,
+                      ramp_celsius_per_minute=10.0, board_lag_s=5.0, dwell_s=2.0,
+                      gyro_effects={'thermal_lag': {'tau_s': 30.0, 'slope_x': 0.002, 'slope_z': -0.0015}})
+"""About 250 s of a driver on a rate table, 2521 Imu messages, a hidden gyroscope thermal lag."""
+DRIVER_UNIT = Scenario(output='imu').driver_truth()  # 5..35 C
+
+
+def driver_params(path: Path, unit=DRIVER_UNIT, **parameters) -> Path:
+    """A params file with a driver calibration and the node's parameters."""
+    write_text_atomic(path, unit_yaml(unit, extra_parameters=parameters))
+    return path
+
+
+def play_driver(ros: Harness, driver) -> None:
+    """Publish a driver run in stamp order (temperature before Imu at equal stamps), losing nothing."""
+    events = sorted([(int(s), 0, i) for i, s in enumerate(driver.temp_stamp_ns)]
+                    + [(int(s), 2, i) for i, s in enumerate(driver.stamp_ns)])
+    sent = 0
+    for stamp, stream, row in events:
+        if stream == 0:
+            ros.wait(lambda: len(ros.imu) >= sent, 20.0, f'the node to catch up ({len(ros.imu)} of {sent})')
+            ros.send_temperature(stamp, driver.temperature[row])
+        else:
+            ros.wait(lambda: len(ros.imu) >= sent - 50, 20.0, f'the node to catch up ({len(ros.imu)} of {sent})')
+            ros.send_imu(stamp, (*driver.accel[row], *driver.gyro[row]), frame_id=driver.frame_id,
+                         orientation=driver.orientation[row], orientation_covariance=driver.orientation_covariance[row])
+            sent += 1
+    ros.wait(lambda: len(ros.imu) >= sent, 20.0, 'the last Imu')
+
+
+def test_driver_node_output_equals_tak_calib_apply_on_both_sensors(tmp_path, ros_env):
+    """A driver bag (gyro thermal lag fitted) played into the node: apply's Imu, float64-equal, every field."""
+    run = simulate(DRIVER_RUN)
+    rng = np.random.default_rng(5)
+    quaternions = rng.normal(size=(len(run.driver.stamp_ns), 4))
+    quaternions /= np.linalg.norm(quaternions, axis=1, keepdims=True)
+    driver = replace(run.driver, orientation=quaternions,
+                     orientation_covariance=rng.uniform(0.0, 1e-3, (len(quaternions), 9)))
+    bag, params, corrected = tmp_path / 'driver.mcap', tmp_path / 'tak_params.yaml', tmp_path / 'imu.mcap'
+    write_driver_record(bag, driver)
+    assert cli.main(['fit', str(bag), '-o', str(params), '--no-progress', '--gyro-effects', 'thermal_lag']) == 0
+    unit = load_unit(params)
+    assert unit.input_kind is InputKind.IMU and [e.name for e in unit.gyro.effects] == ['thermal_lag']
+    assert cli.main(['apply', str(bag), '--params', str(params), '-o', str(corrected), '--no-progress']) == 0
+    expected = read_imu_messages(corrected, topic='/imu/data_compensated')
+    with NodeProcess(node_command('--params-file', str(params), '-p', 'qos:=reliable'), ros_env,
+                     tmp_path / 'node.log') as node, \
+            Harness(int(ros_env['ROS_DOMAIN_ID']), driver=True) as ros:
+        ros.wait_matched()
+        play_driver(ros, driver)
+        assert node.stop() == 0
+    assert len(ros.imu) == len(expected.stamp_ns) == len(driver.stamp_ns)
+    got = {
+        'stamp': np.array([stamp_of(m) for m in ros.imu]),
+        'accel': np.array([(m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z)
+                           for m in ros.imu]),
+        'gyro': np.array([(m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z) for m in ros.imu]),
+        'orientation': np.array([(m.orientation.x, m.orientation.y, m.orientation.z, m.orientation.w)
+                                 for m in ros.imu]),
+        'orientation_covariance': np.array([m.orientation_covariance for m in ros.imu]),
+        'angular_velocity_covariance': np.array([m.angular_velocity_covariance for m in ros.imu]),
+        'linear_acceleration_covariance': np.array([m.linear_acceleration_covariance for m in ros.imu]),
+    }
+    assert got['accel'].dtype == got['gyro'].dtype == np.float64
+    assert np.array_equal(got['stamp'], expected.stamp_ns)
+    assert np.array_equal(got['accel'], expected.linear_acceleration)
+    assert np.array_equal(got['gyro'], expected.angular_velocity)
+    assert np.array_equal(got['orientation'], expected.orientation) and np.array_equal(got['orientation'], quaternions)
+    assert np.array_equal(got['orientation_covariance'], expected.orientation_covariance)
+    assert np.array_equal(got['angular_velocity_covariance'], expected.angular_velocity_covariance)
+    assert np.array_equal(got['linear_acceleration_covariance'], expected.linear_acceleration_covariance)
+    assert got['angular_velocity_covariance'][0, 0] > 0.0  # from the gyroscope's fit, not the driver's
+    assert [m.header.frame_id for m in ros.imu] == expected.frame_ids
+    # The lag's state matters: the same link without the effect differs by far more than the noise.
+    samples = align(driver.six_channels(), use_reference=False)
+    without_lag = UnitCorrector(replace(unit, gyro=replace(unit.gyro, effects=()))).correct(
+        samples.counts, samples.temp_code, stamp_s=samples.stamp_s)
+    assert np.max(np.abs(without_lag[:, 3:] - got['gyro'])) > 10.0 * unit.gyro.axes[0].residual_rms
+
+
+def test_driver_bad_input_and_time_backwards(tmp_path, ros_env):
+    """Imu input: NaN anywhere drops the message, NaN temperature ignored, backwards/duplicate stamps
+    dropped, out of range clamped, stale held; all counted in /diagnostics."""
+    params = driver_params(tmp_path / 'params.yaml', qos='reliable', temp_timeout=30.0)
+    corrector = UnitCorrector(DRIVER_UNIT)
+    good = (0.1, -0.2, 9.81, 0.01, -0.02, 0.03)
+    with NodeProcess(node_command('--params-file', str(params)), ros_env, tmp_path / 'node.log') as node, \
+            Harness(int(ros_env['ROS_DOMAIN_ID']), driver=True) as ros:
+        ros.wait_matched()
+
+        def status_with(condition):
+            ros.wait(lambda: ros.latest_status() is not None and condition(status_values(ros.latest_status())),
+                     10.0, 'a diagnostics status')
+            return status_values(ros.latest_status())
+
+        ros.send_imu(START_NS, good)  # no temperature yet
+        status_with(lambda v: v['dropped.waiting_for_temperature'] == '1')
+        assert 'waiting for temperature on /imu/temperature' in ros.latest_status().message
+        ros.send_temperature_and_wait(START_NS, 21.5)
+        ros.send_temperature_and_wait(START_NS, math.nan)  # ignored: 21.5 stays
+        sent = [(START_NS + 1, good, True), (START_NS + 2, (*good[:4], math.nan, good[5]), False),
+                (START_NS + 3, (math.inf, *good[1:]), False), (START_NS + 3, good, False),  # duplicate
+                (START_NS + 2, good, False),  # backwards
+                (START_NS + 4, (0.2, 0.3, 9.7, -0.01, 0.02, 0.05), True)]
+        for stamp, values, _ in sent:
+            ros.send_imu(stamp, values, orientation=(0.1, 0.2, 0.3, 0.9273618495495704))
+        published = [(stamp, values) for stamp, values, kept in sent if kept]
+        ros.wait(lambda: len(ros.imu) == len(published), 10.0, 'the Imu of the good messages')
+        for message, (stamp, values) in zip(ros.imu, published):
+            assert stamp_of(message) == stamp and message.header.frame_id == 'imu_link'
+            result = corrector.correct_sample(values, 21.5)  # no effects: the stamp does not matter
+            assert (message.linear_acceleration.x, message.linear_acceleration.y, message.linear_acceleration.z,
+                    message.angular_velocity.x, message.angular_velocity.y, message.angular_velocity.z) == result
+            assert (message.orientation.x, message.orientation.w) == (0.1, 0.9273618495495704)
+            assert message.orientation_covariance[0] == -1.0 and message.linear_acceleration_covariance[0] != 7.0
+        ros.send_temperature_and_wait(START_NS + 5, 60.0)  # out of range: clamped to 35
+        ros.send_imu(START_NS + 6, good)
+        ros.wait(lambda: len(ros.imu) == 3, 10.0, 'the out-of-range Imu')
+        assert ros.imu[-1].angular_velocity.x == corrector.correct_sample(good, 35.0)[3]
+        values = status_with(lambda v: v['received'] == '8')
+        dropped = {reason: int(values[f'dropped.{reason}']) for reason in ONLINE_DROP_REASONS}
+        assert dropped == {'duplicate_stamp': 1, 'time_backwards': 1, 'non_finite': 2, 'non_integer': 0,
+                           'saturated': 0, 'waiting_for_temperature': 1, 'stale_temperature': 0,
+                           'correction_failed': 0, 'non_finite_output': 0}
+        assert int(values['received']) == int(values['published']) + sum(dropped.values()) == 3 + 5
+        assert values['temperature_rejected'] == '1' and values['out_of_range'] == '1'
+        assert values['input'] == 'imu' and values['calibrated_range'] == '5..35'
+        assert values['message_lost'] == '0'
+        assert node.stop() == 0
+    log = node.log()
+    assert 'temperature 60 outside the calibrated range 5..35' in log and 'Traceback' not in log
+
+
+def test_absurd_parameter_updates_refused_and_the_node_keeps_publishing(tmp_path, ros_env):
+    """residual_rms 1e200, offset 1e308, a tiny scale, a string, an input-kind change: each refused with
+    its reason; a valid update in between is taken; the node publishes throughout."""
+    params = driver_params(tmp_path / 'params.yaml', qos='reliable')
+    good = (0.1, -0.2, 9.81, 0.01, -0.02, 0.03)
+    with NodeProcess(node_command('--params-file', str(params)), ros_env, tmp_path / 'node.log') as node, \
+            Harness(int(ros_env['ROS_DOMAIN_ID']), driver=True) as ros:
+        ros.wait_matched()
+        ros.send_temperature_and_wait(START_NS, 20.0)
+        stamp = START_NS
+
+        def corrected():
+            nonlocal stamp
+            stamp += 1
+            count = len(ros.imu)
+            ros.send_imu(stamp, good)
+            ros.wait(lambda: len(ros.imu) == count + 1, 10.0, 'an Imu')
+            imu = ros.imu[-1]
+            return imu.angular_velocity.x, imu.angular_velocity_covariance[0]
+
+        before = corrected()
+        absurd = [({'calibration.gyro.x.residual_rms': 1e200}, 'calibration.gyro.x.residual_rms'),
+                  ({'calibration.accel.x.offset': 1e308}, 'calibration.accel.x.offset'),
+                  ({'calibration.gyro.y.scale': 1e-300}, 'calibration.gyro.y.scale'),
+                  ({'calibration.gyro.z.offset_shape': [1e300, 1e300]}, 'calibration.gyro.z.offset_shape'),
+                  ({'calibration.accel.temperature_max': 1e9}, 'calibration.accel.temperature_max'),
+                  ({'calibration.gyro.x.offset': 'zero'}, 'calibration.gyro.x.offset'),
+                  ({'calibration.version': 1}, 'calibration'),
+                  ({'temp_timeout': -1.0}, 'temp_timeout')]
+        for change, key in absurd:
+            result = ros.set_parameters(change)[0]
+            assert not result.successful and key in result.reason, (change, result.reason)
+            assert corrected() == before
+        x = DRIVER_UNIT.gyro.axes[0]
+        assert ros.set_parameters({'calibration.gyro.x.offset': x.offset + 0.01})[0].successful
+        after = corrected()
+        assert after[0] == UnitCorrector(replace(DRIVER_UNIT, gyro=replace(DRIVER_UNIT.gyro, axes=(
+            replace(x, offset=x.offset + 0.01), *DRIVER_UNIT.gyro.axes[1:])))).correct_sample(good, 20.0)[3]
+        assert after[0] != before[0]
+        assert node.process.poll() is None and node.stop() == 0
+    log = node.log()
+    assert log.count('parameter update rejected') == len(absurd) and 'Traceback' not in log
+
+
+@pytest.mark.parametrize('executor', ['events', 'single_threaded'])
+def test_shutdown_on_sigint_and_sigterm_within_a_time_limit(tmp_path, ros_env, executor):
+    """Either executor: the diagnostics timer runs, and SIGINT or SIGTERM ends the node (exit 0) in < 5 s."""
+    import os
+    import signal
+    import time
+    params = driver_params(tmp_path / 'params.yaml', executor=executor)
+    for number in (signal.SIGINT, signal.SIGTERM):
+        with NodeProcess(node_command('--params-file', str(params)), ros_env,
+                         tmp_path / f'node_{number}.log') as node, \
+                Harness(int(ros_env['ROS_DOMAIN_ID']), driver=True) as ros:
+            ros.wait(lambda: len(ros.diagnostics) >= 1, 20.0, 'a diagnostics message (the timer runs)')
+            assert f'executor {executor}' in node.log()
+            started = time.monotonic()
+            os.killpg(node.process.pid, number)
+            node.process.wait(timeout=5.0)
+            assert time.monotonic() - started < 5.0 and node.process.returncode == 0, node.log()
+        assert 'Traceback' not in node.log()
+
+
+def test_transport_losses_counted_from_message_lost_events(tmp_path, ros_env):
+    """Bursts of Imu at full speed into a reliable node of depth 1 from a writer of depth 1: what
+    Fast DDS reports lost is counted in /diagnostics (message_lost) and logged;
+    received == published + dropped still holds, and received + lost never exceeds what was sent."""
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    params = driver_params(tmp_path / 'params.yaml', qos='reliable', qos_depth=1)
+    burst = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE)
+    with NodeProcess(node_command('--params-file', str(params)), ros_env, tmp_path / 'node.log') as node, \
+            Harness(int(ros_env['ROS_DOMAIN_ID']), driver=True, input_qos=burst) as ros:
+        ros.wait_matched()
+        ros.send_temperature_and_wait(START_NS, 20.0)
+        sent = 0
+        for _ in range(8):  # bursts of 5,000 until Fast DDS reports a loss (the first one, usually)
+            for _ in range(5_000):
+                sent += 1
+                ros.send_imu(START_NS + sent, (0.1, -0.2, 9.81, 0.01, -0.02, 0.03))
+            try:
+                ros.wait(lambda: int(status_values(ros.latest_status())['message_lost']) > 0, 3.0,
+                         'a transport loss in the diagnostics')
+                break
+            except AssertionError:
+                continue
+        values = status_values(ros.latest_status())
+        received, published, lost = int(values['received']), int(values['published']), int(values['message_lost'])
+        assert lost > 0 and lost == int(values['message_lost.imu'])
+        assert received == published + int(values['dropped']) and received + lost <= sent
+        assert values['sequence_gap'] == 'unavailable'  # the EventsExecutor gives no MessageInfo
+        assert node.stop() == 0
+    assert 'imu messages lost in transport' in node.log()
+
+
+def test_single_threaded_executor_counts_every_message_never_received(tmp_path, ros_env):
+    """With executor single_threaded the publication sequence numbers show every lost message:
+    after a burst of 5,000 into a node of depth 1, received + sequence_gap == sent, exactly."""
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    params = driver_params(tmp_path / 'params.yaml', qos='reliable', qos_depth=1, executor='single_threaded')
+    burst = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE)
+    with NodeProcess(node_command('--params-file', str(params)), ros_env, tmp_path / 'node.log') as node, \
+            Harness(int(ros_env['ROS_DOMAIN_ID']), driver=True, input_qos=burst) as ros:
+        ros.wait_matched()
+        ros.send_temperature_and_wait(START_NS, 20.0)
+        ros.send_imu(START_NS + 1, (0.1, -0.2, 9.81, 0.01, -0.02, 0.03))  # sequence number 1, received
+        ros.wait(lambda: status_values(ros.latest_status())['received'] == '1', 10.0, 'the first Imu taken')
+        sent = 1
+        for _ in range(5_000):
+            sent += 1
+            ros.send_imu(START_NS + sent, (0.1, -0.2, 9.81, 0.01, -0.02, 0.03))
+
+        def accounted() -> bool:
+            values = status_values(ros.latest_status())
+            return int(values['received']) + int(values['sequence_gap']) == sent
+
+        ros.wait(accounted, 20.0, 'received + sequence_gap == sent')
+        values = status_values(ros.latest_status())
+        assert int(values['sequence_gap']) > 0 and int(values['received']) < sent
+        assert int(values['received']) == int(values['published']) + int(values['dropped'])
+        assert node.stop() == 0
+    assert 'imu messages never received' in node.log()

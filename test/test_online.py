@@ -8,14 +8,20 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from tak_thermo_ros.core.correction import Corrector, OutOfRange, acceleration_variance, imu_covariances
+from tak_thermo_ros.core.correction import (
+    Corrector,
+    OutOfRange,
+    UnitCorrector,
+    acceleration_variance,
+    imu_covariances,
+)
 from tak_thermo_ros.core.online import (
     ONLINE_DROP_REASONS,
     Level,
     OnlineCompensator,
     StaleTemperature,
 )
-from tak_thermo_ros.core.record import counts_problems
+from tak_thermo_ros.core.record import counts_problems, seconds_from_ns
 from tak_thermo_ros.core.simulate import Scenario
 
 CALIBRATION = Scenario().truth()  # temperature-code range 7600..8800
@@ -80,16 +86,22 @@ def test_bad_counts_dropped_by_reason_as_apply_drops_them(counts, reason):
     assert core.dropped[reason] == 1 and core.published == 0 and balanced(core)
 
 
-def test_backwards_and_duplicate_stamps_pass_through_counted():
-    """A stamp equal to or before the previous one is published and counted."""
+def test_backwards_and_duplicate_stamps_dropped_counted():
+    """A stamp equal to or before the previous message's (whatever became of it) is dropped and counted."""
     core = make()
     core.process_temperature(8200.0, now_s=0.0)
-    stamps = [(SEC, 0), (SEC, 100), (SEC, 100), (SEC - 1, 999_999_999), (SEC, 200), (SEC, 200)]
+    stamps = [(SEC, 0), (SEC, 100), (SEC, 100), (SEC - 1, 999_999_999), (SEC, 200), (SEC, 200),
+              (SEC, 150), (SEC, 160)]
     results = [core.process_counts(sec, nsec, 1.0, 2.0, 3.0, now_s=0.1) for sec, nsec in stamps]
-    assert all(isinstance(r, tuple) for r in results)
-    assert (core.duplicate_stamps, core.time_backwards, core.published) == (2, 1, 6)
+    assert [r if isinstance(r, str) else 'published' for r in results] == [
+        'published', 'published', 'duplicate_stamp', 'time_backwards', 'published', 'duplicate_stamp',
+        'time_backwards', 'published']  # 160 > 150, the previous message's stamp
+    assert (core.dropped['duplicate_stamp'], core.dropped['time_backwards'], core.published) == (2, 2, 4)
+    notices = core.take_notices()
+    assert [n.kind for n in notices] == ['stamp_order'] and 'dropped' in notices[0].text
     status = core.status(0.2)
-    assert status.level is Level.WARN and 'passed through' in status.message
+    assert status.level is Level.WARN and '2 duplicate_stamp' in status.message
+    assert status.value('dropped.time_backwards') == '2' and balanced(core)
     assert core.status(0.3).level is Level.OK  # the level covers what is new since the last status
 
 
@@ -202,8 +214,9 @@ def test_counters_balance_and_appear_in_status():
         stamp = SEC * 1_000_000_000 + k * 1_000_000 - int(rng.integers(0, 3)) * 1_000_000
         core.process_counts(*divmod(stamp, 1_000_000_000), x, y, z, now_s=now)
     assert balanced(core)
-    assert all(core.dropped[reason] > 0 for reason in ONLINE_DROP_REASONS)
-    assert core.time_backwards > 0 and core.duplicate_stamps > 0 and core.out_of_range > 0
+    assert all(core.dropped[reason] > 0 for reason in ONLINE_DROP_REASONS
+               if reason not in ('correction_failed', 'non_finite_output'))
+    assert core.out_of_range > 0
     values = dict(core.status(now).values)
     dropped = sum(int(values[f'dropped.{reason}']) for reason in ONLINE_DROP_REASONS)
     assert int(values['received']) == 3000 == int(values['published']) + dropped
@@ -237,7 +250,7 @@ def test_bad_policy_change_refused_and_nothing_changes(change):
     """An invalid policy change raises and leaves every policy as it was."""
     core = make(temp_timeout_s=2.0)
     corrector = core.corrector
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError):  # noqa: PT011 - the message is checked by the node tests
         core.set_policies(**change)
     assert core.corrector is corrector and core.out_of_range_policy is OutOfRange.CLAMP
     assert core.temp_timeout_s == 2.0 and core.stale_policy is StaleTemperature.HOLD
@@ -270,3 +283,180 @@ def test_imu_covariance_layout():
     orientation, angular, linear = imu_covariances(variance)
     assert orientation[0] == angular[0] == -1.0 and not any(orientation[1:]) and not any(angular[1:])
     assert (linear[0], linear[4], linear[8]) == variance and variance[0] > 0.0
+
+
+# -- driver input (six channels, temperature in degrees C) ----------------------------------------
+
+DRIVER = Scenario(output='imu').driver_truth()  # temperature range 5..35 C, no effects
+LAGGED = Scenario(output='imu', gyro_effects={'thermal_lag': {'tau_s': 20.0, 'slope_x': 0.002,
+                                                              'slope_z': -0.001}}).driver_truth()
+
+
+def test_driver_input_corrects_six_channels_as_the_vectorised_path_with_memory():
+    """Accelerometer and gyroscope through UnitCorrector, float64-equal to correct(), lag state included."""
+    rng = np.random.default_rng(11)
+    values = rng.normal(0.0, 3.0, (400, 6))
+    temperature = np.linspace(3.0, 38.0, 400)  # crosses both ends of 5..35
+    stamps = SEC * 1_000_000_000 + np.arange(400, dtype=np.int64) * 10_000_000
+    core = OnlineCompensator(LAGGED, temp_topic='/imu/temperature')
+    assert core.channels == 6 and core.unit is LAGGED
+    online = []
+    for k in range(400):
+        core.process_temperature(float(temperature[k]), now_s=k * 0.01)
+        online.append(core.process_values(*divmod(int(stamps[k]), 1_000_000_000), tuple(values[k].tolist()),
+                                          now_s=k * 0.01))
+    offline = UnitCorrector(LAGGED).correct(values, temperature, stamp_s=seconds_from_ns(stamps))
+    assert np.array_equal(np.array(online), offline)
+    assert core.out_of_range == UnitCorrector(LAGGED).out_of_range_count(temperature) > 0
+    notice = next(n for n in core.take_notices() if n.kind == 'out_of_range')
+    assert 'temperature 3 outside the calibrated range 5..35' in notice.text
+    status = core.status(5.0)
+    assert status.value('input') == 'imu' and status.value('calibrated_range') == '5..35'
+    assert status.value('temperature') == '38' and status.value('temperature_ref') == '20'
+    orientation, angular, linear = core.covariances
+    assert (angular[0], angular[4], angular[8]) == acceleration_variance(LAGGED.gyro)
+    assert (linear[0], linear[4], linear[8]) == acceleration_variance(LAGGED.accel)
+
+
+@pytest.mark.parametrize('index', range(6))
+@pytest.mark.parametrize('bad', [math.nan, math.inf, -math.inf])
+def test_driver_message_with_one_non_finite_value_dropped_whole(index, bad):
+    """Any of the six values NaN or infinite: the whole message is dropped, as apply drops it."""
+    core = OnlineCompensator(DRIVER)
+    core.process_temperature(20.0, now_s=0.0)
+    values = [0.1, -0.2, 9.8, 0.01, 0.02, -0.03]
+    values[index] = bad
+    assert core.process_values(SEC, 0, tuple(values), now_s=0.1) == 'non_finite'
+    assert core.published == 0 and balanced(core)
+    # Rails and fractions mean nothing for a driver's SI values: corrected.
+    assert isinstance(core.process_values(SEC, 1, (32767.0, 0.5, 1.25, -32768.0, 0.0, 0.0), now_s=0.2), tuple)
+
+
+@pytest.mark.parametrize(('key', 'change', 'reason'), [
+    ('residual_rms', {'residual_rms': 1e200}, 'calibration.gyro.x.residual_rms'),
+    ('offset', {'offset': 1e308}, 'calibration.gyro.x.offset'),
+    ('scale', {'scale': 1e-300}, 'calibration.gyro.x.scale'),
+])
+def test_absurd_driver_calibration_values_refused_by_the_one_parser(key, change, reason):
+    """Values that pass a type check but would overflow later are refused, with the key."""
+    from tak_thermo_ros.core.calibration_file import unit_from_mapping, unit_to_mapping
+    from tak_thermo_ros.errors import CalibrationError
+    mapping = unit_to_mapping(DRIVER)
+    mapping['gyro']['x'].update(change)
+    with pytest.raises(CalibrationError, match=reason.replace('.', r'\.')):
+        unit_from_mapping(mapping)
+
+
+def test_counts_calibration_whose_covariance_or_correction_overflows_is_refused():
+    """prepare() computes what the node later computes: a tiny scale that the parser allows is refused."""
+    from tak_thermo_ros.errors import CalibrationError
+    core = make()
+    x = CALIBRATION.axes[0]
+    tiny = replace(CALIBRATION, axes=(replace(x, scale=1e-300, residual_rms=1.0), *CALIBRATION.axes[1:]))
+    with pytest.raises(CalibrationError, match='calibration'):
+        core.prepare(calibration=tiny)
+    with pytest.raises(CalibrationError, match='cannot replace'):
+        core.prepare(calibration=DRIVER)
+    assert core.calibration is CALIBRATION and core.calibration_updates == 0
+
+
+# -- property test: generated message streams ----------------------------------------------------
+
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+_value = st.one_of(st.floats(-50.0, 50.0), st.sampled_from([math.nan, math.inf, -math.inf, 0.0, 1e6]))
+_event = st.one_of(
+    st.tuples(st.just('imu'), st.integers(-3, 4), st.tuples(*[_value] * 6), st.floats(0.0, 0.3)),
+    st.tuples(st.just('temp'), st.one_of(st.floats(-10.0, 50.0), st.sampled_from([math.nan, -math.inf, 2e7])),
+              st.floats(0.0, 0.3)),
+    st.tuples(st.just('param'), st.sampled_from(['offset', 'range', 'extrapolate', 'clamp', 'drop', 'hold',
+                                                 'absurd_rms', 'absurd_offset', 'tiny_scale', 'timeout'])),
+)
+
+
+def _changed(unit, what: str):
+    """A calibration change, valid or absurd."""
+    accel, gyro = unit.accel, unit.gyro
+    x = gyro.axes[0]
+    if what == 'offset':
+        return replace(unit, gyro=replace(gyro, axes=(replace(x, offset=x.offset + 0.01), *gyro.axes[1:])))
+    if what == 'range':
+        return replace(unit, accel=replace(accel, temp_code_min=accel.temp_code_min - 5.0))
+    value = {'absurd_rms': {'residual_rms': 1e200}, 'absurd_offset': {'offset': 1e308},
+             'tiny_scale': {'scale': 1e-300}}[what]
+    return replace(unit, gyro=replace(gyro, axes=(replace(x, **value), *gyro.axes[1:])))
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(_event, min_size=1, max_size=120))
+def test_generated_streams_keep_every_invariant(events):
+    """NaN, rails, stamps backwards, temperature gaps, parameter updates in the middle:
+    received == published + dropped, outputs finite and equal to UnitCorrector.correct on the
+    published subset (per calibration in force), stamps dropped by the previous-message rule."""
+    from tak_thermo_ros.core.calibration_file import unit_from_mapping, unit_to_mapping
+    from tak_thermo_ros.errors import CalibrationError
+    core = OnlineCompensator(DRIVER, temp_timeout_s=0.5)
+    now, stamp, previous_stamp = 0.0, SEC * 1_000_000_000, None
+    published: dict[int, tuple] = {}
+    expected_order_drops = 0
+    for event in events:
+        if event[0] == 'temp':
+            now += event[2]
+            core.process_temperature(event[1], now_s=now)
+        elif event[0] == 'imu':
+            now += event[3]
+            stamp += event[1] * 1_000_000
+            if previous_stamp is not None and stamp <= previous_stamp:
+                expected_order_drops += 1
+            previous_stamp = stamp
+            result = core.process_values(*divmod(stamp, 1_000_000_000), event[2], now_s=now)
+            if isinstance(result, tuple):
+                assert all(math.isfinite(v) for v in result)
+                group = published.setdefault(id(core.corrector), (core.corrector, [], [], [], []))
+                group[1].append(event[2])
+                group[2].append(core.temperature)
+                group[3].append(stamp)
+                group[4].append(result)
+            else:
+                assert result in ONLINE_DROP_REASONS
+        else:
+            what = event[1]
+            if what in ('extrapolate', 'clamp'):
+                core.set_policies(out_of_range=what)
+            elif what in ('drop', 'hold'):
+                core.set_policies(stale_temperature=what)
+            elif what == 'timeout':
+                core.set_policies(temp_timeout_s=0.2)
+            else:
+                before = core.unit
+                candidate = _changed(core.unit, what)
+                try:  # as the node: the one parser, then prepare(); install only what passed both
+                    unit = unit_from_mapping(unit_to_mapping(candidate))
+                    core.install(core.prepare(calibration=unit))
+                except CalibrationError:
+                    assert what.startswith(('absurd', 'tiny')) and core.unit is before
+        assert balanced(core)
+    assert core.dropped['time_backwards'] + core.dropped['duplicate_stamp'] == expected_order_drops
+    for corrector, values, temperatures, stamps, results in published.values():
+        offline = UnitCorrector(corrector.unit, out_of_range=corrector.correctors[0].out_of_range).correct(
+            np.array(values), np.array(temperatures), stamp_s=seconds_from_ns(np.array(stamps, dtype=np.int64)))
+        assert np.array_equal(np.array(results), offline)
+    values = dict(core.status(now).values)
+    assert int(values['received']) == int(values['published']) + int(values['dropped'])
+
+
+def test_sequence_gaps_count_every_message_never_received():
+    """Publication sequence numbers: each gap counted once, a restart starts afresh, status says it."""
+    core = OnlineCompensator(DRIVER)
+    assert core.status(0.0).value('sequence_gap') == 'unavailable'
+    for number in (1, 2, 5, 6, 10, 3, 4, 8):  # 3..4 missing, 7..9 missing; 3 = another publisher or a restart
+        core.sequence('imu', number, now_s=0.1)
+    assert core.sequence_gaps == {'imu': 2 + 3 + 3} and core.sequence_gap_total() == 8
+    notice = core.take_notices()[0]
+    assert notice.kind == 'message_lost' and 'sequence numbers 3..4' in notice.text
+    status = core.status(0.2)
+    assert status.value('sequence_gap') == '8' and status.value('sequence_gap.imu') == '8'
+    assert status.level is Level.WARN and '8 messages never received' in status.message
+    core.message_lost('temperature', 4, now_s=0.3)
+    assert core.status(0.4).value('message_lost.temperature') == '4' and core.lost_total() == 4

@@ -84,7 +84,7 @@ def _axis_from_mapping(raw: Any, key: str) -> AxisModel:
         if name not in raw:
             msg = f'{key}.{name}: missing'
             raise CalibrationError(msg)
-    unknown = sorted(set(raw) - set(AXIS_KEYS) - set(OPTIONAL_AXIS_KEYS))
+    unknown = sorted(str(name) for name in set(raw) - set(AXIS_KEYS) - set(OPTIONAL_AXIS_KEYS))
     if unknown:
         msg = f'{key}.{unknown[0]}: unknown key'
         raise CalibrationError(msg)

@@ -1,27 +1,44 @@
 """Online correction, one message at a time: the ``compensator`` node's logic without ROS.
 
-:class:`OnlineCompensator` holds a :class:`~tak_thermo_ros.core.correction.Corrector`, the last
-temperature code and when it arrived, the policies for bad input, and a counter for every
-outcome, so that every counts message received is either published or dropped with a reason::
+:class:`OnlineCompensator` holds a :class:`~tak_thermo_ros.core.correction.UnitCorrector`, the
+last temperature and when it arrived, the policies for bad input, and a counter for every
+outcome, so that every input message received is either published or dropped with a reason::
 
     received == published + sum(dropped.values())
 
+Messages lost before they reach the node are counted apart: those the middleware reports lost
+in :attr:`OnlineCompensator.lost`, and, when the caller has the publishers' sequence numbers,
+the gaps in them in :attr:`OnlineCompensator.sequence_gaps`.
+
 It imports nothing from ROS (like imu_tools' ``imu_filter.h``): the node converts messages to
-plain numbers, calls :meth:`OnlineCompensator.process_counts` and converts the result back.
-The same drop rules as ``tak_calib apply`` hold (:func:`~tak_thermo_ros.core.record.counts_problem`),
-and the correction is :meth:`Corrector.correct_sample`, bit-identical to the vectorised path.
+plain numbers, calls :meth:`OnlineCompensator.process_values` (or :meth:`process_counts`)
+and converts the result back. Two inputs, one set of policies:
 
-Bad input, each with a defined outcome:
+- ``counts`` (calibration file version 1): three channel codes and a temperature-sensor code;
+  the drop rules of :func:`~tak_thermo_ros.core.record.counts_problem`;
+- ``imu`` (version 2): a driver's six values (accelerometer x y z in m/s^2, gyroscope x y z in
+  rad/s) and a temperature in degrees C; the drop rule of
+  :func:`~tak_thermo_ros.core.record.values_problem` (a non-finite value drops the whole
+  message, as ``tak_calib apply`` does).
 
-- counts NaN / infinite / not whole / at a 16-bit rail: dropped (``non_finite``,
-  ``non_integer``, ``saturated``), never corrected;
-- no temperature code yet: dropped (``waiting_for_temperature``) and a throttled warning;
-- temperature code older than ``temp_timeout`` (on the arrival clock): held (``hold``) or the
-  counts dropped (``drop``: ``stale_temperature``); diagnostics at ERROR either way;
-- temperature code outside the calibrated range: clamped or extrapolated (the Corrector's
-  policy), counted, and a throttled warning naming the code and the range;
-- a stamp earlier than, or equal to, the previous counts stamp: passed through and counted;
-- a non-finite temperature code: ignored (the last good code stays) and counted.
+The correction is :meth:`UnitCorrector.correct_sample`, bit-identical to the vectorised path.
+
+Bad input, each with a defined outcome, checks in this order:
+
+- a header stamp equal to (``duplicate_stamp``) or earlier than (``time_backwards``) the
+  previous input message's, whatever became of that one: dropped, as ``align()`` does offline;
+- values NaN / infinite (``non_finite``), for counts also not whole (``non_integer``) or at
+  a 16-bit rail (``saturated``): dropped, never corrected;
+- no temperature yet: dropped (``waiting_for_temperature``) and a throttled warning;
+- temperature older than ``temp_timeout`` (on the arrival clock): held (``hold``) or the
+  message dropped (``drop``: ``stale_temperature``); diagnostics at ERROR either way;
+- temperature outside the calibrated range (of any sensor): clamped or extrapolated (the
+  corrector's policy), counted, and a throttled warning naming the value and the range;
+- the correction raises (a user effect) or gives a non-finite number (``correction_failed``,
+  ``non_finite_output``): dropped, never published;
+- a non-finite temperature, or one outside the plausible range of the input kind
+  (:func:`~tak_thermo_ros.core.record.temp_code_problem`, the offline rule): ignored (the
+  last good one stays) and counted;
 - a calibration with a recorded-signal term (``aux:TOPIC``): that signal follows the
   temperature's rules: held at its last value; none yet: dropped (``waiting_for_signal``);
   older than ``temp_timeout``: held or dropped (``stale_signal``) by the same policy; a
@@ -38,30 +55,48 @@ import math
 from dataclasses import dataclass
 from typing import Callable
 
-from tak_thermo_ros.core.correction import Corrector, OutOfRange, acceleration_variance
-from tak_thermo_ros.core.model import Calibration
-from tak_thermo_ros.core.record import DROP_REASONS, NANOSECONDS, counts_problem, seconds
+from tak_thermo_ros.core.correction import OutOfRange, UnitCorrector, acceleration_variance, imu_covariances
+from tak_thermo_ros.core.model import Calibration, InputKind, UnitCalibration
+from tak_thermo_ros.core.record import (
+    DROP_REASONS,
+    NANOSECONDS,
+    counts_problem,
+    seconds,
+    temp_code_problem,
+    values_problem,
+)
+from tak_thermo_ros.errors import CalibrationError
 
+DUPLICATE_STAMP = 'duplicate_stamp'
+TIME_BACKWARDS = 'time_backwards'
 WAITING_FOR_TEMPERATURE = 'waiting_for_temperature'
 STALE_TEMPERATURE = 'stale_temperature'
-ONLINE_DROP_REASONS: tuple[str, ...] = (*DROP_REASONS, WAITING_FOR_TEMPERATURE, STALE_TEMPERATURE)
-"""Why a counts message is not published, in the order the checks run."""
+CORRECTION_FAILED = 'correction_failed'
+NON_FINITE_OUTPUT = 'non_finite_output'
+STAMP_DROP_REASONS: tuple[str, ...] = (DUPLICATE_STAMP, TIME_BACKWARDS)
+ONLINE_DROP_REASONS: tuple[str, ...] = (*STAMP_DROP_REASONS, *DROP_REASONS, WAITING_FOR_TEMPERATURE,
+                                        STALE_TEMPERATURE, CORRECTION_FAILED, NON_FINITE_OUTPUT)
+"""Why an input message is not published, in the order the checks run."""
 WAITING_FOR_SIGNAL = 'waiting_for_signal'
 STALE_SIGNAL = 'stale_signal'
 SIGNAL_DROP_REASONS: tuple[str, ...] = (WAITING_FOR_SIGNAL, STALE_SIGNAL)
-"""Why a counts message is not published when the calibration needs a recorded signal (checked last)."""
+"""Why an input message is not published when the calibration needs a recorded signal
+(checked after the temperature)."""
 
 WARN_PERIOD_S = 5.0
 """Default least time between two reports of the same kind of problem."""
 
+PROBE_TEMPERATURES = 33
+"""Temperatures across each calibrated range at which a new calibration is tried out."""
+
 
 class StaleTemperature(str, enum.Enum):
-    """What to do with counts while the last temperature code is older than ``temp_timeout``."""
+    """What to do with input messages while the last temperature is older than ``temp_timeout``."""
 
     HOLD = 'hold'
-    """Correct with the last code (the board temperature changes over minutes)."""
+    """Correct with the last temperature (the board temperature changes over minutes)."""
     DROP = 'drop'
-    """Publish nothing until a fresh code arrives."""
+    """Publish nothing until a fresh temperature arrives."""
 
 
 class Level(enum.IntEnum):
@@ -104,6 +139,25 @@ class Status:
         return dict(self.values)[key]
 
 
+@dataclass(frozen=True)
+class Configuration:
+    """A validated set of policies and calibration, ready to be put in force by
+    :meth:`OnlineCompensator.install` (which cannot fail).
+
+    Built by :meth:`OnlineCompensator.prepare`; every number later computed from the
+    calibration (covariances, the correction over the calibrated range) was computed once.
+    """
+
+    unit: UnitCalibration
+    corrector: UnitCorrector
+    out_of_range: OutOfRange
+    stale: StaleTemperature
+    timeout_s: float
+    covariances: tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]
+    low: float
+    high: float
+
+
 class _Throttle:
     """First report at once, then at most one per period, counting what was held back."""
 
@@ -126,31 +180,110 @@ class _Throttle:
         return held
 
 
+def as_unit(calibration: UnitCalibration | Calibration) -> UnitCalibration:
+    """A :class:`UnitCalibration`; a bare :class:`Calibration` is the counts input's accelerometer."""
+    if isinstance(calibration, UnitCalibration):
+        return calibration
+    return UnitCalibration(InputKind.COUNTS, calibration)
+
+
+PROBE_INPUT = {InputKind.COUNTS: 4096.0, InputKind.IMU: 16.0}
+"""Magnitude of the inputs at which a new calibration is tried out: 16 m/s^2 in codes of the
+paper's unit (about 256 per m/s^2); 16 m/s^2 or 16 rad/s for a driver's values."""
+
+
+def probe_values(input_kind: InputKind) -> tuple[float, ...]:
+    """Input values at which a new calibration is tried out: zero and :data:`PROBE_INPUT` either way."""
+    magnitude = PROBE_INPUT[input_kind]
+    return (-magnitude, 0.0, magnitude)
+
+
+def check_correction(unit: UnitCalibration, corrector: UnitCorrector, *, key: str = 'calibration') -> None:
+    """Try the correction out over the calibrated range before it is put in force.
+
+    Every sensor is corrected at :data:`PROBE_TEMPERATURES` temperatures across its range,
+    with inputs at zero and of either sign (:func:`probe_values`), on a
+    fresh corrector (effects with memory start afresh, one second apart).
+
+    :raises CalibrationError: when the correction raises or gives a non-finite number.
+    """
+    values = probe_values(unit.input_kind)
+    channels = corrector.channels
+    trial = UnitCorrector(unit, out_of_range=OutOfRange.CLAMP)
+    # Recorded signals (aux:TOPIC) held at their terms' reference value (0 if a term has none).
+    aux = {effect.needs_signal: float(effect.values.get('reference', 0.0))
+           for _, calibration in unit.sensors for effect in calibration.effects if effect.needs_signal} or None
+    step = 0
+    for name, calibration in unit.sensors:
+        low, high = calibration.temp_code_min, calibration.temp_code_max
+        for index in range(PROBE_TEMPERATURES):
+            temperature = low + (high - low) * index / (PROBE_TEMPERATURES - 1)
+            for value in values:
+                step += 1
+                try:
+                    result = trial.correct_sample((value,) * channels, temperature, stamp_s=float(step), aux=aux)
+                except Exception as err:  # a user effect may raise anything: refuse the calibration
+                    msg = (f'{key}: the correction fails at temperature {temperature:g} '
+                           f'({type(err).__name__}: {err})')
+                    raise CalibrationError(msg) from None
+                if not all(math.isfinite(v) for v in result):
+                    msg = (f'{key}.{name}: the correction is not finite at temperature {temperature:g} '
+                           f'for input {value:g} (check scale, offsets and effects)')
+                    raise CalibrationError(msg)
+
+
+def _covariances(unit: UnitCalibration, key: str) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
+    """The Imu covariances of the unit (as ``tak_calib apply`` writes them), all finite."""
+    try:
+        accel = acceleration_variance(unit.accel)
+        gyro = acceleration_variance(unit.gyro) if unit.gyro is not None else None
+        covariances = imu_covariances(accel, gyro)
+    except (OverflowError, ZeroDivisionError) as err:
+        msg = f'{key}: residual_rms / scale gives no finite covariance ({err})'
+        raise CalibrationError(msg) from None
+    if not all(math.isfinite(v) for block in covariances for v in block):
+        msg = f'{key}: residual_rms / scale gives no finite covariance'
+        raise CalibrationError(msg)
+    return covariances
+
+
 class OnlineCompensator:
-    """Correct counts messages one by one, with defined behaviour on every bad input.
+    """Correct input messages one by one, with defined behaviour on every bad input.
 
     Times ``now_s`` are seconds on a monotonic clock of the caller's choice (the node uses the
     arrival time); stamps are the messages' header stamps (``sec``, ``nanosec``).
 
-    :param calibration: the correction link in force.
-    :param out_of_range: temperature codes outside the calibrated range: clamp or extrapolate.
-    :param stale_temperature: counts while the temperature code is stale: hold or drop.
-    :param temp_timeout_s: age beyond which the last temperature code is stale, > 0.
-    :param temp_topic: name of the temperature-code stream, used in messages.
+    :param calibration: the correction in force (a bare :class:`Calibration` is the counts input).
+    :param out_of_range: temperatures outside the calibrated range: clamp or extrapolate.
+    :param stale_temperature: input while the temperature is stale: hold or drop.
+    :param temp_timeout_s: age beyond which the last temperature is stale, > 0.
+    :param temp_topic: name of the temperature stream, used in messages.
     :param warn_period_s: least time between two reports of the same kind.
+    :raises CalibrationError: when the calibration fails :meth:`prepare`'s checks.
+    :raises ValueError: on an invalid policy.
     """
 
-    def __init__(self, calibration: Calibration, *, out_of_range: OutOfRange = OutOfRange.CLAMP,
+    def __init__(self, calibration: UnitCalibration | Calibration, *, out_of_range: OutOfRange = OutOfRange.CLAMP,
                  stale_temperature: StaleTemperature = StaleTemperature.HOLD,
                  temp_timeout_s: float = 1.0, temp_topic: str = 'tak/temp_code',
                  warn_period_s: float = WARN_PERIOD_S) -> None:
+        unit = as_unit(calibration)
+        self.input_kind = unit.input_kind
         self.temp_topic = temp_topic
         self.warn_period_s = warn_period_s
+        counts = self.input_kind is InputKind.COUNTS
+        self._message_word = 'counts' if counts else 'Imu'
+        self._temperature_word = 'temperature code' if counts else 'temperature'
+        self._problem: Callable[..., str | None] = counts_problem if counts else values_problem
         self.received = 0
         self.published = 0
         self.dropped: dict[str, int] = dict.fromkeys((*ONLINE_DROP_REASONS, *SIGNAL_DROP_REASONS), 0)
-        self.time_backwards = 0
-        self.duplicate_stamps = 0
+        self.lost: dict[str, int] = {}
+        """Messages lost in transport (reported by the middleware), per input stream."""
+        self.sequence_gaps: dict[str, int] | None = None
+        """Messages never received, from gaps in the publisher's sequence numbers, per input
+        stream; ``None`` while the caller gives no sequence numbers (:meth:`sequence`)."""
+        self._last_sequence: dict[str, int] = {}
         self.out_of_range = 0
         self.temperature_messages = 0
         self.temperature_rejected = 0
@@ -159,122 +292,186 @@ class OnlineCompensator:
         """Log lines due; the caller empties it (:meth:`take_notices`)."""
         self._throttles = {kind: _Throttle(warn_period_s) for kind in (
             WAITING_FOR_TEMPERATURE, STALE_TEMPERATURE, 'out_of_range', 'temperature_rejected',
-            WAITING_FOR_SIGNAL, STALE_SIGNAL, 'signal_rejected')}
+            'stamp_order', 'correction', 'message_lost', WAITING_FOR_SIGNAL, STALE_SIGNAL, 'signal_rejected')}
+        self._signals: tuple[str, ...] = ()
         self._signal_values: dict[str, float] = {}
         self._signal_arrival_s: dict[str, float] = {}
         self.signal_messages: dict[str, int] = {}
         self.signal_rejected: dict[str, int] = {}
         self._last_stamp_ns: int | None = None
-        self._temp_code: float | None = None
+        self._temperature: float | None = None
         self._temp_arrival_s = -math.inf
         self._temp_outside = False
         self._stale_reported = False
         self._previous: dict[str, int] = {}
-        self.set_policies(out_of_range=out_of_range, stale_temperature=stale_temperature,
-                          temp_timeout_s=temp_timeout_s, calibration=calibration)
+        self._config: Configuration | None = None
+        self.install(self.prepare(calibration=unit, out_of_range=out_of_range,
+                                  stale_temperature=stale_temperature, temp_timeout_s=temp_timeout_s))
 
     # -- configuration -------------------------------------------------------------------
 
     @property
-    def calibration(self) -> Calibration:
-        """The calibration in force."""
-        return self._corrector.calibration
+    def unit(self) -> UnitCalibration:
+        """The calibration in force, every sensor."""
+        return self._config.unit
 
     @property
-    def corrector(self) -> Corrector:
+    def calibration(self) -> Calibration:
+        """The accelerometer's calibration in force (the whole of a counts calibration)."""
+        return self._config.unit.accel
+
+    @property
+    def corrector(self) -> UnitCorrector:
         """The corrector in force."""
-        return self._corrector
+        return self._config.corrector
+
+    @property
+    def channels(self) -> int:
+        """Values per input message: 3 (counts) or 6 (a driver's accelerometer and gyroscope)."""
+        return self._config.corrector.channels
 
     @property
     def out_of_range_policy(self) -> OutOfRange:
-        """The policy for temperature codes outside the calibrated range."""
-        return self._corrector.out_of_range
+        """The policy for temperatures outside the calibrated range."""
+        return self._config.out_of_range
 
     @property
     def stale_policy(self) -> StaleTemperature:
-        """The policy for counts while the temperature code is stale."""
-        return self._stale_policy
+        """The policy for input while the temperature is stale."""
+        return self._config.stale
 
     @property
     def temp_timeout_s(self) -> float:
-        """Age beyond which the last temperature code is stale."""
-        return self._timeout_s
+        """Age beyond which the last temperature is stale."""
+        return self._config.timeout_s
 
     @property
-    def temp_code(self) -> float | None:
-        """The last temperature code accepted, or ``None`` before the first."""
-        return self._temp_code
+    def temperature(self) -> float | None:
+        """The last temperature input accepted, or ``None`` before the first."""
+        return self._temperature
+
+    temp_code = temperature
 
     @property
     def waiting_for_temperature(self) -> bool:
-        """Whether no temperature code has arrived yet (nothing is published meanwhile)."""
-        return self._temp_code is None
+        """Whether no temperature has arrived yet (nothing is published meanwhile)."""
+        return self._temperature is None
+
+    @property
+    def covariances(self) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
+        """Orientation, angular-velocity and linear-acceleration covariances of the Imu output."""
+        return self._config.covariances
 
     @property
     def variance(self) -> tuple[float, float, float]:
         """Per-axis variance of the corrected specific force for the Imu covariance, (m/s^2)^2."""
-        return self._variance
+        linear = self._config.covariances[2]
+        return linear[0], linear[4], linear[8]
 
-    def set_policies(self, *, out_of_range: OutOfRange | None = None,
-                     stale_temperature: StaleTemperature | None = None,
-                     temp_timeout_s: float | None = None,
-                     calibration: Calibration | None = None) -> None:
-        """Change any of the policies (and the calibration) in one step, between two messages.
+    @property
+    def calibrated_range(self) -> tuple[float, float]:
+        """The temperatures inside every sensor's calibrated range (``low``, ``high``)."""
+        return self._config.low, self._config.high
+
+    def prepare(self, *, out_of_range: OutOfRange | str | None = None,
+                stale_temperature: StaleTemperature | str | None = None,
+                temp_timeout_s: float | None = None,
+                calibration: UnitCalibration | Calibration | None = None,
+                key: str = 'calibration') -> Configuration:
+        """Validate a change of any of the policies (and the calibration); nothing changes yet.
+
+        A new calibration must have the input kind in force; its covariances must be finite
+        and its correction finite over its calibrated range (:func:`check_correction`).
 
         :raises ValueError: on an unknown policy or a timeout that is not a positive number.
+        :raises CalibrationError: on a calibration that fails the checks, naming ``key``.
         """
-        current = getattr(self, '_corrector', None)
+        current = self._config
         new_out_of_range = OutOfRange(out_of_range if out_of_range is not None else current.out_of_range)
-        new_stale = StaleTemperature(stale_temperature if stale_temperature is not None
-                                     else self._stale_policy)
-        new_timeout = float(temp_timeout_s if temp_timeout_s is not None else self._timeout_s)
+        new_stale = StaleTemperature(stale_temperature if stale_temperature is not None else current.stale)
+        timeout = temp_timeout_s if temp_timeout_s is not None else current.timeout_s
+        if isinstance(timeout, bool) or not isinstance(timeout, (int, float)):
+            msg = f'temp_timeout: must be a finite number > 0, got {timeout!r}'
+            raise ValueError(msg)
+        new_timeout = float(timeout)
         if not (new_timeout > 0.0 and math.isfinite(new_timeout)):
             msg = f'temp_timeout: must be a finite number > 0, got {new_timeout}'
             raise ValueError(msg)
-        new_calibration = calibration if calibration is not None else current.calibration
-        corrector = (current if current is not None and new_calibration is current.calibration
-                     and new_out_of_range is current.out_of_range
-                     else Corrector(new_calibration, out_of_range=new_out_of_range))
-        # Everything is built first; the assignments below cannot fail.
-        self._stale_policy = new_stale
-        self._timeout_s = new_timeout
-        self._drop_stale = new_stale is StaleTemperature.DROP
-        self._corrector = corrector
-        self._correct: Callable[..., tuple[float, float, float]] = corrector.correct_sample
-        self._signals = corrector.signals
+        if calibration is None:
+            if new_out_of_range is current.out_of_range:
+                return Configuration(current.unit, current.corrector, new_out_of_range, new_stale, new_timeout,
+                                     current.covariances, current.low, current.high)
+            unit = current.unit
+        else:
+            unit = as_unit(calibration)
+            if unit.input_kind is not self.input_kind:
+                msg = (f'{key}: a {unit.input_kind.value}-input calibration cannot replace the '
+                       f'{self.input_kind.value}-input one in force (the topics differ): restart the node')
+                raise CalibrationError(msg)
+        corrector = UnitCorrector(unit, out_of_range=new_out_of_range)
+        if calibration is not None:
+            check_correction(unit, corrector, key=key)
+            covariances = _covariances(unit, key)
+        else:
+            covariances = current.covariances
+        low = max(c.temp_code_min for _, c in unit.sensors)
+        high = min(c.temp_code_max for _, c in unit.sensors)
+        return Configuration(unit, corrector, new_out_of_range, new_stale, new_timeout, covariances,
+                             float(low), float(high))
+
+    def install(self, configuration: Configuration) -> None:
+        """Put a prepared configuration in force; the next message uses it. Cannot fail."""
+        previous, self._config = self._config, configuration
+        self._drop_stale = configuration.stale is StaleTemperature.DROP
+        self._correct = configuration.corrector.correct_sample
+        self._signals = configuration.corrector.signals
         for name in self._signals:
             self.signal_messages.setdefault(name, 0)
             self.signal_rejected.setdefault(name, 0)
-        self._variance = acceleration_variance(new_calibration)
-        self._low = float(new_calibration.temp_code_min)
-        self._high = float(new_calibration.temp_code_max)
-        if self._temp_code is not None:
-            self._temp_outside = not self._low <= self._temp_code <= self._high
+        self._low, self._high = configuration.low, configuration.high
+        self._timeout_s = configuration.timeout_s
+        if self._temperature is not None:
+            self._temp_outside = not self._low <= self._temperature <= self._high
+        if previous is not None and configuration.unit is not previous.unit:
+            self.calibration_updates += 1
 
-    def swap_calibration(self, calibration: Calibration) -> None:
-        """Put a new (validated) calibration in force; the next message uses it."""
+    def set_policies(self, *, out_of_range: OutOfRange | str | None = None,
+                     stale_temperature: StaleTemperature | str | None = None,
+                     temp_timeout_s: float | None = None,
+                     calibration: UnitCalibration | Calibration | None = None) -> None:
+        """:meth:`prepare` and :meth:`install` in one step, between two messages.
+
+        :raises ValueError: on an unknown policy or a bad timeout (nothing changes).
+        :raises CalibrationError: on a calibration that fails the checks (nothing changes).
+        """
+        self.install(self.prepare(out_of_range=out_of_range, stale_temperature=stale_temperature,
+                                  temp_timeout_s=temp_timeout_s, calibration=calibration))
+
+    def swap_calibration(self, calibration: UnitCalibration | Calibration) -> None:
+        """Put a new calibration in force (checked first); the next message uses it."""
         self.set_policies(calibration=calibration)
-        self.calibration_updates += 1
 
     # -- the per-message path --------------------------------------------------------------
 
-    def process_temperature(self, temp_code: float, now_s: float) -> bool:
-        """Take a temperature code that arrived at ``now_s``; ``False`` if it was rejected."""
+    def process_temperature(self, temperature: float, now_s: float) -> bool:
+        """Take a temperature (code or degrees C) that arrived at ``now_s``; ``False`` if rejected."""
         self.temperature_messages += 1
-        if temp_code != temp_code or temp_code in (math.inf, -math.inf):
+        problem = temp_code_problem(temperature, self.input_kind.value)
+        if problem is not None:
             self.temperature_rejected += 1
             if self._throttles['temperature_rejected'].due(now_s):
+                what = problem.replace('_', '-')
                 self._notice(Level.WARN, 'temperature_rejected',
-                             f'non-finite temperature code {temp_code} on {self.temp_topic} ignored; '
-                             f'keeping the last code ({self.temperature_rejected} so far)')
+                             f'{what} {self._temperature_word} {temperature:g} on {self.temp_topic} ignored; '
+                             f'keeping the last one ({self.temperature_rejected} so far)')
             return False
-        self._temp_code = temp_code
+        self._temperature = temperature
         self._temp_arrival_s = now_s
-        self._temp_outside = not self._low <= temp_code <= self._high
+        self._temp_outside = not self._low <= temperature <= self._high
         if self._stale_reported:
             self._stale_reported = False
             self._notice(Level.OK, STALE_TEMPERATURE,
-                         f'temperature code on {self.temp_topic} fresh again ({temp_code:g})')
+                         f'{self._temperature_word} on {self.temp_topic} fresh again ({temperature:g})')
         return True
 
     @property
@@ -297,17 +494,18 @@ class OnlineCompensator:
         return True
 
     def _signal_problem(self, now_s: float) -> str | None:
-        """Why the counts cannot be corrected for want of a recorded signal, or ``None``."""
+        """Why the input cannot be corrected for want of a recorded signal, or ``None``."""
         for name in self._signals:
             if name not in self._signal_values:
                 if self._throttles[WAITING_FOR_SIGNAL].due(now_s):
                     self._notice(Level.WARN, WAITING_FOR_SIGNAL, f'waiting for {name}: publishing nothing '
-                                 f'({self.dropped[WAITING_FOR_SIGNAL] + 1} counts messages dropped so far)')
+                                 f'({self.dropped[WAITING_FOR_SIGNAL] + 1} {self._message_word} messages '
+                                 f'dropped so far)')
                 return WAITING_FOR_SIGNAL
             age = now_s - self._signal_arrival_s[name]
             if age > self._timeout_s:
                 if self._throttles[STALE_SIGNAL].due(now_s):
-                    action = 'dropping counts' if self._drop_stale else 'holding the last value'
+                    action = f'dropping {self._message_word} messages' if self._drop_stale else 'holding the last value'
                     self._notice(Level.ERROR, STALE_SIGNAL, f'{name} is stale: {age:.2f} s old > temp_timeout '
                                  f'{self._timeout_s:g} s; {action}')
                 if self._drop_stale:
@@ -315,31 +513,35 @@ class OnlineCompensator:
         return None
 
     def process_counts(self, sec: int, nanosec: int, x: float, y: float, z: float,
-                       now_s: float) -> tuple[float, float, float] | str:
-        """Correct one counts message, or tell why it is dropped.
+                       now_s: float) -> tuple[float, ...] | str:
+        """:meth:`process_values` of one counts message (three channel codes)."""
+        return self.process_values(sec, nanosec, (x, y, z), now_s)
+
+    def process_values(self, sec: int, nanosec: int, values: tuple[float, ...],
+                       now_s: float) -> tuple[float, ...] | str:
+        """Correct one input message, or tell why it is dropped.
 
         :param sec: header stamp, whole seconds (``builtin_interfaces/Time.sec``).
         :param nanosec: header stamp, nanoseconds part.
-        :param x: channel code of axis x (y, z alike).
+        :param values: the message's values, :attr:`channels` plain floats (counts x y z; or
+            the driver's accelerometer x y z then gyroscope x y z).
         :param now_s: arrival time on the caller's monotonic clock, seconds.
-        :returns: the specific force ``(fx, fy, fz)`` in m/s^2 as plain floats, or the drop
-            reason (a ``str`` of :data:`ONLINE_DROP_REASONS`).
+        :returns: the corrected values as plain floats, or the drop reason (a ``str`` of
+            :data:`ONLINE_DROP_REASONS`).
         """
         self.received += 1
         stamp_ns = sec * NANOSECONDS + nanosec
         last = self._last_stamp_ns
-        if last is not None and stamp_ns <= last:
-            if stamp_ns == last:
-                self.duplicate_stamps += 1
-            else:
-                self.time_backwards += 1
         self._last_stamp_ns = stamp_ns
-        problem = counts_problem(x, y, z)
+        if last is not None and stamp_ns <= last:
+            return self._drop_out_of_order(DUPLICATE_STAMP if stamp_ns == last else TIME_BACKWARDS,
+                                           stamp_ns, last, now_s)
+        problem = self._problem(*values)
         if problem is not None:
             self.dropped[problem] += 1
             return problem
-        temp_code = self._temp_code
-        if temp_code is None:
+        temperature = self._temperature
+        if temperature is None:
             self.dropped[WAITING_FOR_TEMPERATURE] += 1
             if self._throttles[WAITING_FOR_TEMPERATURE].due(now_s):
                 self._report_waiting()
@@ -360,11 +562,81 @@ class OnlineCompensator:
             self.out_of_range += 1
             if self._throttles['out_of_range'].due(now_s):
                 self._report_out_of_range()
+        try:
+            # The stamp in seconds exactly as the offline path computes it (seconds_from_ns).
+            if aux is None:
+                result = self._correct(values, temperature, stamp_s=seconds(sec, nanosec))
+            else:
+                result = self._correct(values, temperature, stamp_s=seconds(sec, nanosec), aux=aux)
+        except Exception as err:  # a user effect may raise anything: the message is dropped, never the node
+            return self._drop_failed(CORRECTION_FAILED, f'{type(err).__name__}: {err}', now_s)
+        for value in result:
+            if not -math.inf < value < math.inf:
+                return self._drop_failed(NON_FINITE_OUTPUT, f'output {result}', now_s)
         self.published += 1
-        # The stamp in seconds exactly as the offline path computes it (seconds_from_ns).
-        if aux is None:
-            return self._correct(x, y, z, temp_code, stamp_s=seconds(sec, nanosec))
-        return self._correct(x, y, z, temp_code, stamp_s=seconds(sec, nanosec), aux=aux)
+        return result
+
+    def message_lost(self, stream: str, count: int, now_s: float) -> None:
+        """Count ``count`` messages of input ``stream`` that the middleware reports lost in transport."""
+        if count <= 0:
+            return
+        self.lost[stream] = self.lost.get(stream, 0) + count
+        if self._throttles['message_lost'].due(now_s):
+            held = self._throttles['message_lost'].take_held_back()
+            self._notice(Level.WARN, 'message_lost',
+                         f'{count} {stream} messages lost in transport ({self.lost_total()} so far'
+                         f'{self._since(held)})')
+
+    def sequence(self, stream: str, number: int, now_s: float) -> None:
+        """Take the publication sequence number of a message of input ``stream`` as it arrives.
+
+        A number more than one above the previous one counts the messages in between as never
+        received (``sequence_gap``); a number not above it (another publisher, or one that
+        restarted) starts afresh. Meant for one publisher per topic (a driver).
+        """
+        if self.sequence_gaps is None:
+            self.sequence_gaps = {}
+        last = self._last_sequence.get(stream)
+        self._last_sequence[stream] = number
+        if last is None or number <= last + 1:
+            return
+        gap = number - last - 1
+        self.sequence_gaps[stream] = self.sequence_gaps.get(stream, 0) + gap
+        if self._throttles['message_lost'].due(now_s):
+            held = self._throttles['message_lost'].take_held_back()
+            self._notice(Level.WARN, 'message_lost',
+                         f'{gap} {stream} messages never received (publication sequence numbers '
+                         f'{last + 1}..{number - 1}; {self.sequence_gap_total()} so far{self._since(held)})')
+
+    def sequence_gap_total(self) -> int:
+        """Messages never received according to the sequence numbers, every input stream (0 without them)."""
+        return sum(self.sequence_gaps.values()) if self.sequence_gaps else 0
+
+    def lost_total(self) -> int:
+        """Messages lost in transport, every input stream."""
+        return sum(self.lost.values())
+
+    def _drop_out_of_order(self, reason: str, stamp_ns: int, last_ns: int, now_s: float) -> str:
+        self.dropped[reason] += 1
+        if self._throttles['stamp_order'].due(now_s):
+            held = self._throttles['stamp_order'].take_held_back()
+            relation = 'equal to' if reason == DUPLICATE_STAMP else f'{(last_ns - stamp_ns) * 1e-9:.6f} s before'
+            self._notice(Level.WARN, 'stamp_order',
+                         f'{self._message_word} header stamp {relation} the previous one: dropped '
+                         f'({self.dropped[DUPLICATE_STAMP]} duplicate, {self.dropped[TIME_BACKWARDS]} '
+                         f'backwards so far{self._since(held)})')
+        return reason
+
+    def _drop_failed(self, reason: str, detail: str, now_s: float) -> str:
+        self.dropped[reason] += 1
+        if self._throttles['correction'].due(now_s):
+            held = self._throttles['correction'].take_held_back()
+            self._notice(Level.ERROR, reason,
+                         f'{self._message_word} message dropped, the correction gave no finite number '
+                         f'at {self._temperature_word} {self._temperature:g} ({reason}: {detail}; '
+                         f'{self.dropped[CORRECTION_FAILED] + self.dropped[NON_FINITE_OUTPUT]} so far'
+                         f'{self._since(held)})')
+        return reason
 
     # -- reports ----------------------------------------------------------------------------
 
@@ -383,8 +655,8 @@ class OnlineCompensator:
     def _report_waiting(self) -> None:
         held = self._throttles[WAITING_FOR_TEMPERATURE].take_held_back()
         self._notice(Level.WARN, WAITING_FOR_TEMPERATURE,
-                     f'waiting for temperature code on {self.temp_topic}: publishing nothing '
-                     f'({self.dropped[WAITING_FOR_TEMPERATURE]} counts messages dropped so far'
+                     f'waiting for {self._temperature_word} on {self.temp_topic}: publishing nothing '
+                     f'({self.dropped[WAITING_FOR_TEMPERATURE]} {self._message_word} messages dropped so far'
                      f'{self._since(held)})')
 
     def _report_stale(self, now_s: float) -> None:
@@ -392,10 +664,11 @@ class OnlineCompensator:
             return
         self._throttles[STALE_TEMPERATURE].take_held_back()
         self._stale_reported = True
-        action = ('dropping counts' if self._drop_stale
-                  else f'holding the last code {self._temp_code:g}')
+        action = (f'dropping {self._message_word} messages' if self._drop_stale
+                  else f'holding the last {"code" if self.input_kind is InputKind.COUNTS else "temperature"} '
+                       f'{self._temperature:g}')
         self._notice(Level.ERROR, STALE_TEMPERATURE,
-                     f'temperature code on {self.temp_topic} is stale: '
+                     f'{self._temperature_word} on {self.temp_topic} is stale: '
                      f'{now_s - self._temp_arrival_s:.2f} s old > temp_timeout {self._timeout_s:g} s; '
                      f'{action} ({self.dropped[STALE_TEMPERATURE]} dropped so far)')
 
@@ -404,28 +677,28 @@ class OnlineCompensator:
         action = ('clamped to the range edge' if self.out_of_range_policy is OutOfRange.CLAMP
                   else 'extrapolating the polynomials')
         self._notice(Level.WARN, 'out_of_range',
-                     f'temperature code {self._temp_code:g} outside the calibrated range '
+                     f'{self._temperature_word} {self._temperature:g} outside the calibrated range '
                      f'{self._low:g}..{self._high:g}: {action} ({self.out_of_range} samples so far'
                      f'{self._since(held)})')
 
     def temperature_age_s(self, now_s: float) -> float:
-        """Seconds since the last temperature code arrived (``inf`` before the first)."""
+        """Seconds since the last temperature arrived (``inf`` before the first)."""
         return now_s - self._temp_arrival_s
 
     def is_stale(self, now_s: float) -> bool:
-        """Whether the last temperature code is older than ``temp_timeout`` (or none came)."""
-        return self._temp_code is not None and now_s - self._temp_arrival_s > self._timeout_s
+        """Whether the last temperature is older than ``temp_timeout`` (``False`` before the first)."""
+        return self._temperature is not None and now_s - self._temp_arrival_s > self._timeout_s
 
     def tick(self, now_s: float) -> None:
         """Periodic checks that need no message (the node calls it with its diagnostics)."""
-        if self._temp_code is None:
+        if self._temperature is None:
             if self._throttles[WAITING_FOR_TEMPERATURE].due(now_s):
                 self._report_waiting()
         elif self.is_stale(now_s):
             self._report_stale(now_s)
 
     def dropped_total(self) -> int:
-        """Counts messages dropped, all reasons."""
+        """Input messages dropped, all reasons."""
         return sum(self.dropped.values())
 
     def status(self, now_s: float, *, imu_subscribers: int | None = None) -> Status:
@@ -435,8 +708,8 @@ class OnlineCompensator:
             (reported only: running without one is legitimate).
         """
         counters = {'received': self.received, 'published': self.published,
-                    'time_backwards': self.time_backwards, 'duplicate_stamps': self.duplicate_stamps,
                     'out_of_range': self.out_of_range, 'temperature_rejected': self.temperature_rejected,
+                    'message_lost': self.lost_total(), 'sequence_gap': self.sequence_gap_total(),
                     **{f'dropped.{reason}': count for reason, count in self.dropped.items()}}
         new = {key: count - self._previous.get(key, 0) for key, count in counters.items()}
         self._previous = counters
@@ -448,51 +721,62 @@ class OnlineCompensator:
             level = max(level, at_least)
             problems.append(text)
 
-        if self._temp_code is None:
-            worse(Level.WARN, f'waiting for temperature code on {self.temp_topic}')
+        word, what = self._message_word, self._temperature_word
+        if self._temperature is None:
+            worse(Level.WARN, f'waiting for {what} on {self.temp_topic}')
         elif self.is_stale(now_s):
-            action = 'dropping counts' if self._drop_stale else 'holding the last code'
-            worse(Level.ERROR, f'temperature code stale ({self.temperature_age_s(now_s):.1f} s > '
+            action = (f'dropping {word} messages' if self._drop_stale
+                      else f'holding the last {"code" if self.input_kind is InputKind.COUNTS else "temperature"}')
+            worse(Level.ERROR, f'{what} stale ({self.temperature_age_s(now_s):.1f} s > '
                                f'{self._timeout_s:g} s), {action}')
         for name in self._signals:
             if name not in self._signal_values:
                 worse(Level.WARN, f'waiting for {name}')
             elif now_s - self._signal_arrival_s[name] > self._timeout_s:
-                action = 'dropping counts' if self._drop_stale else 'holding the last value'
+                action = f'dropping {word} messages' if self._drop_stale else 'holding the last value'
                 worse(Level.ERROR, f'{name} stale ({now_s - self._signal_arrival_s[name]:.1f} s > '
                                    f'{self._timeout_s:g} s), {action}')
         if self.received == 0:
-            worse(Level.WARN, 'no counts messages yet')
+            worse(Level.WARN, f'no {word} messages yet')
         if new['out_of_range']:
-            worse(Level.WARN, f'{new["out_of_range"]} samples outside the calibrated temperature-code '
+            worse(Level.WARN, f'{new["out_of_range"]} samples outside the calibrated {what} '
                               f'range ({self.out_of_range_policy.value})')
         dropped_now = {reason: new[f'dropped.{reason}'] for reason in self.dropped
                        if new[f'dropped.{reason}']}
         if dropped_now:
-            worse(Level.WARN, 'dropped ' + ', '.join(f'{n} {reason}' for reason, n in dropped_now.items()))
-        if new['time_backwards'] or new['duplicate_stamps']:
-            worse(Level.WARN, f'{new["time_backwards"]} stamps going backwards, '
-                              f'{new["duplicate_stamps"]} duplicate stamps (passed through)')
+            failed = dropped_now.keys() & {CORRECTION_FAILED, NON_FINITE_OUTPUT}
+            worse(Level.ERROR if failed else Level.WARN,
+                  'dropped ' + ', '.join(f'{n} {reason}' for reason, n in dropped_now.items()))
+        if new['message_lost']:
+            worse(Level.WARN, f'{new["message_lost"]} messages lost in transport')
+        if new['sequence_gap']:
+            worse(Level.WARN, f'{new["sequence_gap"]} messages never received (sequence gaps)')
         if new['temperature_rejected']:
-            worse(Level.WARN, f'{new["temperature_rejected"]} non-finite temperature codes ignored')
+            worse(Level.WARN, f'{new["temperature_rejected"]} implausible or non-finite {what}s ignored')
         message = '; '.join(problems) if problems else 'correcting'
         age = self.temperature_age_s(now_s)
+        counts = self.input_kind is InputKind.COUNTS
+        stem = 'temperature_code' if counts else 'temperature'
+        reference = self.calibration.temp_code_ref
         values: list[tuple[str, str]] = [
+            ('input', self.input_kind.value),
             ('received', str(self.received)),
             ('published', str(self.published)),
             ('dropped', str(self.dropped_total())),
             *((f'dropped.{reason}', str(count)) for reason, count in self.dropped.items()),
-            ('time_backwards', str(self.time_backwards)),
-            ('duplicate_stamps', str(self.duplicate_stamps)),
+            ('message_lost', str(self.lost_total())),
+            *((f'message_lost.{stream}', str(count)) for stream, count in sorted(self.lost.items())),
+            ('sequence_gap', 'unavailable' if self.sequence_gaps is None else str(self.sequence_gap_total())),
+            *((f'sequence_gap.{stream}', str(count)) for stream, count in sorted((self.sequence_gaps or {}).items())),
             ('out_of_range', str(self.out_of_range)),
-            ('temperature_code', 'none' if self._temp_code is None else f'{self._temp_code:g}'),
-            ('temperature_code_age_s', 'inf' if math.isinf(age) else f'{age:.3f}'),
+            (stem, 'none' if self._temperature is None else f'{self._temperature:g}'),
+            (f'{stem}_age_s', 'inf' if math.isinf(age) else f'{age:.3f}'),
             ('temperature_messages', str(self.temperature_messages)),
             ('temperature_rejected', str(self.temperature_rejected)),
             ('calibrated_range', f'{self._low:g}..{self._high:g}'),
-            ('temp_code_ref', f'{self.calibration.temp_code_ref:g}'),
+            ('temp_code_ref' if counts else 'temperature_ref', f'{reference:g}'),
             ('out_of_range_policy', self.out_of_range_policy.value),
-            ('stale_temperature_policy', self._stale_policy.value),
+            ('stale_temperature_policy', self.stale_policy.value),
             ('temp_timeout_s', f'{self._timeout_s:g}'),
             ('calibration_updates', str(self.calibration_updates)),
         ]

@@ -14,7 +14,10 @@ def finite_number(value: object, key: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
         msg = f'{key}: expected a number, got {type(value).__name__} {value!r}'
         raise CalibrationError(msg)
-    number = float(value)
+    try:
+        number = float(value)
+    except OverflowError:  # a Python int beyond float range (YAML reads 400 digits as an int)
+        number = math.inf
     if not math.isfinite(number):
         msg = f'{key}: must be finite, got {number}'
         raise CalibrationError(msg)

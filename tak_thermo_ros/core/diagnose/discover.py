@@ -34,6 +34,7 @@ from tak_thermo_ros.core.diagnose.verdict import (
     _percent,
     _rung,
     _verdict_message,
+    rms_text,
 )
 from tak_thermo_ros.core.diagnose.views import EFFECT_VIEWS, build_views, noise_floor, residual_drivers
 from tak_thermo_ros.core.effects import LIBRARY, PER_AXIS, PER_AXIS_SUFFIX, Effect, PerAxisEffect, resolve_effect
@@ -130,7 +131,8 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
 
     residual = residual_counts(calibration, samples)
     views = build_views(samples, rate_window_s=rate_window_s)
-    floor, differences = noise_floor(residual, views.breaks)
+    whole_codes = bool(np.all(samples.counts == np.round(samples.counts)))
+    floor, differences = noise_floor(residual, views.breaks, least_spread=0.5 if whole_codes else 0.0)
     floor = np.maximum(floor, 1e-12)
 
     stride = max(1, math.ceil(len(samples) / max_cv_samples))
@@ -192,8 +194,8 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
             axis = int(np.argmax(driver.fraction))
             view_text = (f' In the current residual, {view} explains {_percent(driver.fraction[axis])} '
                          f'of the variance on {AXES[axis]}.')
-        evidence = (f'{note}held-out RMS {_describe_rms(current.heldout_rms, model.heldout_rms)} counts '
-                    f'(floor {", ".join(f"{v:.2f}" for v in floor)}); removes {_percent(explained)} of '
+        evidence = (f'{note}held-out RMS {_describe_rms(current.heldout_rms, model.heldout_rms)} '
+                    f'(floor {", ".join(rms_text(v) for v in floor)}); removes {_percent(explained)} of '
                     f'the held-out excess variance over the floor, {significance:.1f} noise sigmas.'
                     f'{view_text}')
         if model.failed_folds:

@@ -42,8 +42,13 @@ def _paired_sigma(floor_differences: int, heldout_samples: float) -> float:
     return math.sqrt(4.0 / max(heldout_samples, 1.0) + 3.0 / max(floor_differences, 1))
 
 
+def rms_text(value: float) -> str:
+    """An RMS in a message: two decimals for codes, three digits for a driver's small SI values."""
+    return f'{value:.2f}' if abs(value) >= 0.1 else f'{value:.3g}'
+
+
 def _describe_rms(before: np.ndarray, after: np.ndarray) -> str:
-    return ', '.join(f'{name} {b:.2f}->{a:.2f}' for name, b, a in zip(AXES, before, after))
+    return ', '.join(f'{name} {rms_text(b)}->{rms_text(a)}' for name, b, a in zip(AXES, before, after))
 
 
 def _percent(value: float) -> str:
@@ -140,8 +145,8 @@ def _verdict_message(verdict: str, axes: Sequence[AxisSummary], ladder: Sequence
         shared = next((c for c in candidates if c.effect == verdict[:-len('_per_axis')]), None)
         if shared is not None:
             text += (f' The per-axis form beats the shared {shared.effect} on held-out blocks '
-                     f'(held-out RMS {", ".join(f"{v:.2f}" for v in shared.rms_after)} shared, '
-                     f'{", ".join(f"{v:.2f}" for v in best.rms_after)} per axis).')
+                     f'(held-out RMS {", ".join(rms_text(v) for v in shared.rms_after)} shared, '
+                     f'{", ".join(rms_text(v) for v in best.rms_after)} per axis).')
     if len(ladder) > 2:
         text += (' Then: ' + ', '.join(step.effects[-1] for step in ladder[2:])
                  + f' ({_percent(explained_total)} of the excess in all).')

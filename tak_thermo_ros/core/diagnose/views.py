@@ -36,7 +36,8 @@ def segment_breaks(samples: AlignedSamples) -> np.ndarray:
     return breaks
 
 
-def noise_floor(residual: np.ndarray, breaks: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+def noise_floor(residual: np.ndarray, breaks: np.ndarray | None = None, *,
+                least_spread: float = 0.5) -> tuple[np.ndarray, int]:
     """Per-axis noise floor (white noise plus code rounding) from successive differences.
 
     ``floor = sqrt(mean(d^2) / 2)`` with ``d = r[k+1] - r[k]`` inside segments, after leaving
@@ -44,6 +45,9 @@ def noise_floor(residual: np.ndarray, breaks: np.ndarray | None = None) -> tuple
 
     :param residual: ``(k, 3)`` residual in counts, in time order.
     :param breaks: ``(k,)`` True where a segment starts (no difference taken into it).
+    :param least_spread: the smallest robust sigma of the differences the jump limit assumes:
+        half a code for the paper's whole-number codes (rounding alone spreads them), 0 for a
+        driver's values in SI units (a spread in counts would reject nothing there).
     :returns: ``(3,)`` floor in counts and the number of differences used (for its
         standard error: the relative standard error of ``floor^2`` is about ``sqrt(3 / m)``).
     """
@@ -62,8 +66,8 @@ def noise_floor(residual: np.ndarray, breaks: np.ndarray | None = None) -> tuple
     for i in range(diffs.shape[1]):
         column = diffs[:, i]
         robust = 1.4826 * float(np.median(np.abs(column - np.median(column))))
-        limit = JUMP_SIGMAS * max(robust, 0.5)
-        inside = np.abs(column) <= limit
+        limit = JUMP_SIGMAS * max(robust, least_spread)
+        inside = np.abs(column) <= limit if limit > 0.0 else np.ones(len(column), dtype=bool)
         floor[i] = math.sqrt(float(np.mean(column[inside] ** 2)) / 2.0)
         used = min(used, int(np.count_nonzero(inside)))
     return floor, used

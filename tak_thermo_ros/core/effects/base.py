@@ -161,7 +161,7 @@ class Effect:
     def _checked(cls, values: Mapping[str, Any], *, key: str, complete: bool) -> dict[str, float]:
         shape_specs, amplitude_specs = cls.specs_for(cls.structure_from_values(values))
         specs = {spec.name: spec for spec in (*shape_specs, *amplitude_specs)}
-        unknown = sorted(set(values) - set(specs))
+        unknown = sorted(str(name) for name in set(values) - set(specs))
         if unknown:
             msg = (f'{key}.{unknown[0]}: unknown parameter of effect {cls.name} '
                    f'(known: {", ".join(specs)})')

@@ -89,6 +89,14 @@ class Hysteresis(Effect):
 
     @classmethod
     def search_space(cls, time_s: np.ndarray, temp_code: np.ndarray) -> dict[str, tuple[float, float, bool]]:
-        """``width_codes`` from one code to half the code range, log scale."""
-        span = float(np.max(temp_code) - np.min(temp_code)) if len(temp_code) else 2.0
-        return {'width_codes': (1.0, max(span / 2.0, 2.0), True)}
+        """``width_codes`` from the temperature's quantum to half its range, log scale.
+
+        The quantum is the smallest step between the distinct temperatures of the run: one code
+        for the paper's codes, e.g. 1/256 degrees C for a driver's temperature (a play narrower
+        than one degree is common there), and at least a ten-thousandth of the range.
+        """
+        levels = np.unique(np.asarray(temp_code, dtype=float))
+        span = float(levels[-1] - levels[0]) if len(levels) else 2.0
+        steps = np.diff(levels)
+        low = max(float(steps.min()), 1e-4 * span) if steps.size else 1.0
+        return {'width_codes': (low, max(span / 2.0, 2.0 * low), True)}
