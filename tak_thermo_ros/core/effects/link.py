@@ -172,7 +172,8 @@ class EffectLink:
         extra = [0.0, 0.0, 0.0]
         for index, (effect, amplitudes) in enumerate(zip(self._offset_effects, self._amplitudes)):
             try:
-                state, basis = effect.step(states[index], stamp_s, effect_input(effect, code, aux))
+                state, basis = effect.step(states[index], stamp_s,
+                                           code if effect.needs_signal is None else effect_input(effect, code, aux))
             except Exception as err:
                 raise effect_failure(effect, 'step', err) from err
             states[index] = state
