@@ -19,6 +19,7 @@ output is refused unless ``force`` (:mod:`tak_thermo_ros.core.files`).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import sqlite3
@@ -89,16 +90,8 @@ def bag_input_kind(path: str | os.PathLike[str], *, topics: Topics = Topics()) -
     :raises BagError: missing bag, or neither topic in it.
     """
     path = Path(path)
-    if not path.exists():
-        msg = f'{path}: no such bag'
-        raise BagError(msg)
-    try:
-        with Reader(path) as reader:
-            names = {c.topic for c in reader.connections}
-    except Exception as err:  # rosbags and the storage libraries raise many kinds
-        detail = str(err).splitlines()[0] if str(err) else type(err).__name__
-        msg = f'{path}: cannot read bag ({detail})'
-        raise BagError(msg) from None
+    with _reading(path) as reader:
+        names = {c.topic for c in reader.connections}
     if topics.counts in names:
         return InputKind.COUNTS
     if topics.raw_imu in names:
@@ -177,16 +170,34 @@ def iter_topic_arrays(source: str | os.PathLike[str] | Reader, topic: str, msgty
         msg = f'chunk must be at least 1 message, got {chunk}'
         raise ValueError(msg)
     quiet = Progress(0, topic, enabled=False)
-    path = Path(source.path if isinstance(source, Reader) else source)
+    if isinstance(source, Reader):
+        path = Path(source.path)
+        with _wrapped(path):
+            yield from _TopicReader(source, path, topic, msgtype, required=True).arrays(quiet, path, chunk)
+    else:
+        path = Path(source)
+        with _reading(path) as reader:
+            yield from _TopicReader(reader, path, topic, msgtype, required=True).arrays(quiet, path, chunk)
+
+
+@contextlib.contextmanager
+def _reading(path: Path, decoder: str = 'block') -> Iterator[Reader]:
+    """An open :class:`Reader` of ``path``; whatever rosbags or the storage raise becomes one :class:`BagError`."""
+    if decoder not in DECODERS:
+        msg = f'decoder must be one of {DECODERS}, got {decoder!r}'
+        raise ValueError(msg)
     if not path.exists():
         msg = f'{path}: no such bag'
         raise BagError(msg)
+    with _wrapped(path), Reader(path) as reader:
+        yield reader
+
+
+@contextlib.contextmanager
+def _wrapped(path: Path) -> Iterator[None]:
+    """Whatever rosbags or the storage libraries raise becomes one :class:`BagError` naming ``path``."""
     try:
-        if isinstance(source, Reader):
-            yield from _TopicReader(source, path, topic, msgtype, required=True).arrays(quiet, path, chunk)
-        else:
-            with Reader(path) as reader:
-                yield from _TopicReader(reader, path, topic, msgtype, required=True).arrays(quiet, path, chunk)
+        yield
     except BagError:
         raise
     except Exception as err:  # rosbags and the storage libraries raise many kinds
@@ -203,38 +214,25 @@ def read_record(path: str | os.PathLike[str], *, topics: Topics = Topics(),
     :param decoder: one of :data:`DECODERS`; both give the same arrays.
     :raises BagError: missing bag or topic, wrong type, empty topic, unreadable or truncated file.
     """
-    if decoder not in DECODERS:
-        msg = f'decoder must be one of {DECODERS}, got {decoder!r}'
-        raise ValueError(msg)
     path = Path(path)
-    if not path.exists():
-        msg = f'{path}: no such bag'
-        raise BagError(msg)
-    try:
-        with Reader(path) as reader:
-            counts_topic = _TopicReader(reader, path, topics.counts, VECTOR3_STAMPED, required=True)
-            temp_topic = _TopicReader(reader, path, topics.temp_code, TEMPERATURE, required=True)
-            nominal_scale = _nominal_scale(reader, path)
-            reference_topic = _TopicReader(reader, path, topics.reference, VECTOR3_STAMPED,
-                                           required=require_reference)
-            for topic in (counts_topic, temp_topic, *((reference_topic,) if require_reference else ())):
-                if topic.count == 0:
-                    msg = f'{path}: no messages on {topic.topic}'
-                    raise BagError(msg)
-            total = counts_topic.count + temp_topic.count + reference_topic.count
-            with Progress(total, f'reading {path.name}', enabled=None if progress else False) as bar:
-                counts_stamp, counts, frame_id = _read_vectors(counts_topic, bar, path, check_frame=True,
-                                                               decoder=decoder)
-                temp_stamp, temp_code = _read_temperatures(temp_topic, bar, path, decoder=decoder)
-                reference_stamp, reference, _ = _read_vectors(reference_topic, bar, path, check_frame=False,
-                                                              decoder=decoder)
-            aux = read_aux_signals(reader, path, exclude=(topics.temp_code,))
-    except BagError:
-        raise
-    except Exception as err:  # rosbags and the storage libraries raise many kinds
-        detail = str(err).splitlines()[0] if str(err) else type(err).__name__
-        msg = f'{path}: cannot read bag ({detail})'
-        raise BagError(msg) from None
+    with _reading(path, decoder) as reader:
+        counts_topic = _TopicReader(reader, path, topics.counts, VECTOR3_STAMPED, required=True)
+        temp_topic = _TopicReader(reader, path, topics.temp_code, TEMPERATURE, required=True)
+        nominal_scale = _nominal_scale(reader, path)
+        reference_topic = _TopicReader(reader, path, topics.reference, VECTOR3_STAMPED,
+                                       required=require_reference)
+        for topic in (counts_topic, temp_topic, *((reference_topic,) if require_reference else ())):
+            if topic.count == 0:
+                msg = f'{path}: no messages on {topic.topic}'
+                raise BagError(msg)
+        total = counts_topic.count + temp_topic.count + reference_topic.count
+        with Progress(total, f'reading {path.name}', enabled=None if progress else False) as bar:
+            counts_stamp, counts, frame_id = _read_vectors(counts_topic, bar, path, check_frame=True,
+                                                           decoder=decoder)
+            temp_stamp, temp_code = _read_temperatures(temp_topic, bar, path, decoder=decoder)
+            reference_stamp, reference, _ = _read_vectors(reference_topic, bar, path, check_frame=False,
+                                                          decoder=decoder)
+        aux = read_aux_signals(reader, path, exclude=(topics.temp_code,))
     return ChannelRecord(counts_stamp_ns=counts_stamp, counts=counts, temp_stamp_ns=temp_stamp,
                          temp_code=temp_code, reference_stamp_ns=reference_stamp,
                          reference=reference, frame_id=frame_id, nominal_scale=nominal_scale, aux=aux)
@@ -250,33 +248,23 @@ def read_driver_record(path: str | os.PathLike[str], *, topics: Topics = Topics(
         unreadable or truncated file.
     """
     path = Path(path)
-    if not path.exists():
-        msg = f'{path}: no such bag'
-        raise BagError(msg)
-    try:
-        with Reader(path) as reader:
-            imu_topic = _TopicReader(reader, path, topics.raw_imu, IMU, required=True)
-            temp_topic = _TopicReader(reader, path, topics.temperature, TEMPERATURE, required=True)
-            reference_topic = _TopicReader(reader, path, topics.reference, VECTOR3_STAMPED, required=False)
-            rate_topic = _TopicReader(reader, path, topics.reference_rate, VECTOR3_STAMPED, required=False)
-            for topic in (imu_topic, temp_topic):
-                if topic.count == 0:
-                    msg = f'{path}: no messages on {topic.topic}'
-                    raise BagError(msg)
-            total = imu_topic.count + temp_topic.count + reference_topic.count + rate_topic.count
-            with Progress(total, f'reading {path.name}', enabled=None if progress else False) as bar:
-                imu = _read_imu_messages(imu_topic, bar, path, decoder=decoder)
-                temp_stamp, temperature = _read_temperatures(temp_topic, bar, path, decoder=decoder)
-                reference_stamp, reference, _ = _read_vectors(reference_topic, bar, path, check_frame=False,
-                                                              decoder=decoder)
-                rate_stamp, rate, _ = _read_vectors(rate_topic, bar, path, check_frame=False, decoder=decoder)
-            aux = read_aux_signals(reader, path, exclude=(topics.temperature,))
-    except BagError:
-        raise
-    except Exception as err:  # rosbags and the storage libraries raise many kinds
-        detail = str(err).splitlines()[0] if str(err) else type(err).__name__
-        msg = f'{path}: cannot read bag ({detail})'
-        raise BagError(msg) from None
+    with _reading(path, decoder) as reader:
+        imu_topic = _TopicReader(reader, path, topics.raw_imu, IMU, required=True)
+        temp_topic = _TopicReader(reader, path, topics.temperature, TEMPERATURE, required=True)
+        reference_topic = _TopicReader(reader, path, topics.reference, VECTOR3_STAMPED, required=False)
+        rate_topic = _TopicReader(reader, path, topics.reference_rate, VECTOR3_STAMPED, required=False)
+        for topic in (imu_topic, temp_topic):
+            if topic.count == 0:
+                msg = f'{path}: no messages on {topic.topic}'
+                raise BagError(msg)
+        total = imu_topic.count + temp_topic.count + reference_topic.count + rate_topic.count
+        with Progress(total, f'reading {path.name}', enabled=None if progress else False) as bar:
+            imu = _read_imu_messages(imu_topic, bar, path, decoder=decoder)
+            temp_stamp, temperature = _read_temperatures(temp_topic, bar, path, decoder=decoder)
+            reference_stamp, reference, _ = _read_vectors(reference_topic, bar, path, check_frame=False,
+                                                          decoder=decoder)
+            rate_stamp, rate, _ = _read_vectors(rate_topic, bar, path, check_frame=False, decoder=decoder)
+        aux = read_aux_signals(reader, path, exclude=(topics.temperature,))
     stamps, accel, gyro, orientation, orientation_covariance, frame_id = imu
     return DriverRecord(stamp_ns=stamps, accel=accel, gyro=gyro, orientation=orientation,
                         orientation_covariance=orientation_covariance, temp_stamp_ns=temp_stamp,
@@ -713,28 +701,9 @@ def write_imu(path: str | os.PathLike[str], stamp_ns: np.ndarray, frame_id: str,
 
 def read_imu(path: str | os.PathLike[str], *, topic: str = Topics.imu) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray]:
     """Read an Imu topic: stamps ``(k,)``, linear acceleration ``(k, 3)``, frame ids, covariances ``(k, 9)``."""
-    path = Path(path)
-    stamps, values, frames, covariances = [], [], [], []
-    try:
-        with Reader(path) as reader:
-            connections = [c for c in reader.connections if c.topic == topic]
-            if not connections:
-                msg = f'{path}: topic {topic} not found'
-                raise BagError(msg)
-            for connection, _, raw in reader.messages(connections=connections):
-                message = TYPESTORE.deserialize_cdr(raw, connection.msgtype)
-                stamps.append(_stamp_ns(message.header))
-                acc = message.linear_acceleration
-                values.append((acc.x, acc.y, acc.z))
-                frames.append(message.header.frame_id)
-                covariances.append(np.asarray(message.linear_acceleration_covariance))
-    except BagError:
-        raise
-    except Exception as err:
-        msg = f'{path}: cannot read bag ({err})'
-        raise BagError(msg) from None
-    return (np.asarray(stamps, dtype=np.int64), np.asarray(values).reshape(-1, 3), frames,
-            np.asarray(covariances).reshape(-1, 9))
+    messages = read_imu_messages(path, topic=topic)
+    return (messages.stamp_ns, messages.linear_acceleration, messages.frame_ids,
+            messages.linear_acceleration_covariance)
 
 
 @dataclass(frozen=True)
@@ -765,24 +734,18 @@ def read_imu_messages(path: str | os.PathLike[str], *, topic: str) -> ImuMessage
     """Every field of an Imu topic that the correction touches or passes through."""
     path = Path(path)
     rows: list[tuple] = []
-    try:
-        with Reader(path) as reader:
-            connections = [c for c in reader.connections if c.topic == topic]
-            if not connections:
-                msg = f'{path}: topic {topic} not found'
-                raise BagError(msg)
-            for connection, _, raw in reader.messages(connections=connections):
-                m = TYPESTORE.deserialize_cdr(raw, connection.msgtype)
-                q, w, a = m.orientation, m.angular_velocity, m.linear_acceleration
-                rows.append((_stamp_ns(m.header), m.header.frame_id, (q.x, q.y, q.z, q.w),
-                             np.asarray(m.orientation_covariance), (w.x, w.y, w.z),
-                             np.asarray(m.angular_velocity_covariance), (a.x, a.y, a.z),
-                             np.asarray(m.linear_acceleration_covariance)))
-    except BagError:
-        raise
-    except Exception as err:
-        msg = f'{path}: cannot read bag ({err})'
-        raise BagError(msg) from None
+    with _reading(path) as reader:
+        connections = [c for c in reader.connections if c.topic == topic]
+        if not connections:
+            msg = f'{path}: topic {topic} not found'
+            raise BagError(msg)
+        for connection, _, raw in reader.messages(connections=connections):
+            m = TYPESTORE.deserialize_cdr(raw, connection.msgtype)
+            q, w, a = m.orientation, m.angular_velocity, m.linear_acceleration
+            rows.append((_stamp_ns(m.header), m.header.frame_id, (q.x, q.y, q.z, q.w),
+                         np.asarray(m.orientation_covariance), (w.x, w.y, w.z),
+                         np.asarray(m.angular_velocity_covariance), (a.x, a.y, a.z),
+                         np.asarray(m.linear_acceleration_covariance)))
     columns = list(zip(*rows)) if rows else [()] * 8
     return ImuMessages(stamp_ns=np.asarray(columns[0], dtype=np.int64), frame_ids=list(columns[1]),
                        orientation=np.asarray(columns[2], dtype=float).reshape(-1, 4),
