@@ -27,7 +27,7 @@ from scipy.optimize import minimize_scalar
 
 from tak_thermo_ros.core.effects import resolve_effect
 from tak_thermo_ros.core.effects.base import AXIS_NAMES, INPUT, Effect, call_effect, checked_basis, effect_input
-from tak_thermo_ros.core.fit import (
+from tak_thermo_ros.core.base_fit import (
     FitResult,
     finish_fit,
     fit_calibration,
