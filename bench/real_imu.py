@@ -57,7 +57,8 @@ T_975_DOF_9 = 2.262
 RATE_WINDOW_S = 30.0
 PLAY_WIDTHS_C = (4.0, 8.0, 16.0, 32.0, 46.0, 64.0, 80.0, 96.0)
 AXES = 'xyz'
-MODELS = {'base': (), 'thermal_lag': ('thermal_lag',), 'hysteresis': ('hysteresis',),
+MODELS = {'base': (), 'thermal_lag': ('thermal_lag',), 'thermal_lag_per_axis': ('thermal_lag_per_axis',),
+          'hysteresis': ('hysteresis',),
           'thermal_lag+hysteresis': ('thermal_lag', 'hysteresis')}
 
 
@@ -145,6 +146,7 @@ def main() -> None:
     comparisons = {name: paired(scores['base'], scores[name]) for name in MODELS if name != 'base'}
     lag_versus_hysteresis = paired(scores['hysteresis'], scores['thermal_lag'])
     lag_versus_both = paired(scores['thermal_lag'], scores['thermal_lag+hysteresis'])
+    shared_versus_per_axis = paired(scores['thermal_lag'], scores['thermal_lag_per_axis'])
 
     # The start-up minute kept: the lag alone, and the lag plus a warm-up exponential.
     all_time = (everything.stamp_ns - record.counts_stamp_ns[0]) * 1e-9
@@ -181,7 +183,8 @@ def main() -> None:
               f'{mg(rms[2]):.2f} mg)')
     for name, c in {**{f'base -> {k}': v for k, v in comparisons.items()},
                     'hysteresis -> thermal_lag': lag_versus_hysteresis,
-                    'thermal_lag -> thermal_lag+hysteresis': lag_versus_both}.items():
+                    'thermal_lag -> thermal_lag+hysteresis': lag_versus_both,
+                    'thermal_lag -> thermal_lag_per_axis': shared_versus_per_axis}.items():
         print(f'  {name:40s} MSE gain per axis {np.round(c["mean"], 1).tolist()} +/- {np.round(c["stderr"], 1).tolist()} '
               f'counts^2, t {np.round(c["t"], 2).tolist()}, blocks won {c["wins"].tolist()}')
     taus = [v['thermal_lag']['tau_s'] for v in scores['thermal_lag']['values']]
@@ -211,6 +214,7 @@ def main() -> None:
         'paired_mse_gain': {name: {k: np.asarray(v).tolist() for k, v in c.items()} for name, c in comparisons.items()},
         'hysteresis_to_lag': {k: np.asarray(v).tolist() for k, v in lag_versus_hysteresis.items()},
         'lag_to_lag_plus_hysteresis': {k: np.asarray(v).tolist() for k, v in lag_versus_both.items()},
+        'lag_to_lag_per_axis': {k: np.asarray(v).tolist() for k, v in shared_versus_per_axis.items()},
         'thermal_lag_tau_s_per_fold': taus, 'thermal_lag_whole_log': lag_values,
         'hysteresis_width_c_per_fold': plays,
         'play_width_scan_heldout_rms': {str(w): r.tolist() for w, r in widths.items()},
