@@ -200,11 +200,19 @@ def finish_fit(calibration: Calibration, residual: np.ndarray, parameters: Seque
     :param residual: ``(k, 3)`` residual in counts over the samples the fit used.
     :param parameters: number of fitted parameters per axis.
     """
-    count = len(residual)
+    sums = [float(np.sum(residual[:, i] ** 2)) for i in range(len(calibration.axes))]
+    return finish_fit_from_sums(calibration, sums, len(residual), parameters, dropped=dropped,
+                                parameter_errors=parameter_errors)
+
+
+def finish_fit_from_sums(calibration: Calibration, residual_sums: Sequence[float], count: int,
+                         parameters: Sequence[int], *, dropped: dict[str, int],
+                         parameter_errors: dict[str, float] | None = None) -> FitResult:
+    """:func:`finish_fit` from the residual sum of squares per axis over ``count`` samples."""
     stats = []
     final_axes = []
     for i, axis in enumerate(calibration.axes):
-        rss = float(np.sum(residual[:, i] ** 2))
+        rss = float(residual_sums[i])
         rms = math.sqrt(rss / count)
         bic = count * math.log(max(rss, 1e-300) / count) + parameters[i] * math.log(count)
         stats.append(AxisFit(residual_rms=rms, parameters=parameters[i], bic=bic))
