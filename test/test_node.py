@@ -535,7 +535,7 @@ def test_transport_losses_counted_from_message_lost_events(tmp_path, ros_env):
         # Whether Fast DDS reports a loss at all depends on the machine's timing (an idle machine
         # may report none in 40,000 messages); what it reports is counted, per input and in all,
         # and never more than what was neither received nor sent.
-        assert lost == int(values['message_lost.imu'])
+        assert lost == int(values.get('message_lost.imu', '0'))  # the per-input key appears with the first loss
         assert received == published + int(values['dropped']) and received + lost <= sent
         assert values['sequence_gap'] == 'unavailable'  # the EventsExecutor gives no MessageInfo
         assert node.stop() == 0
