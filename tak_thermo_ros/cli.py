@@ -24,13 +24,12 @@ import numpy as np  # noqa: E402
 
 from tak_thermo_ros.core.calibration_file import load_unit, save_unit, write_text_atomic
 from tak_thermo_ros.core.correction import OutOfRange, UnitCorrector, acceleration_variance
-from tak_thermo_ros.core.fit import FitResult, fit_model
+from tak_thermo_ros.core.fit import FitResult
 from tak_thermo_ros.core.model import AXES, InputKind, UnitCalibration
 from tak_thermo_ros.core.record import AlignedSamples, ChannelRecord, DriverRecord, align
 from tak_thermo_ros.core.simulate import STANDARD_GRAVITY, Scenario, load_scenario, simulate
 from tak_thermo_ros.core.static_run import STATIC_TOLERANCE_DEG, static_reference
-from tak_thermo_ros.core.validate import validate_gravity, validate_rate
-from tak_thermo_ros.errors import FitError, TakError
+from tak_thermo_ros.errors import TakError
 
 EXIT_ERROR = 2
 
@@ -195,6 +194,11 @@ def _with_references(driver: DriverRecord, args: argparse.Namespace, topics) -> 
     return driver, lines
 
 
+def _stream_options(args: argparse.Namespace):
+    from tak_thermo_ros.streaming import StreamOptions
+    return StreamOptions(topics=_topics(args), progress=not args.no_progress)
+
+
 def _describe_dropped(dropped: dict[str, int]) -> str:
     return ', '.join(f'{count} {reason.replace("_", " ")}' for reason, count in sorted(dropped.items()))
 
@@ -215,23 +219,16 @@ def _effect_list(text: str | None) -> list[str]:
 
 def cmd_fit(args: argparse.Namespace) -> int:
     """Fit the correction link to a calibration bag (counts, or a driver's Imu: both sensors)."""
-    run = _read_run(args, calibration_run=True, settle_time_s=args.settle_time)
+    from tak_thermo_ros.streaming import FitSettings, fit_bag
     effects = {'accel': _effect_list(args.effects), 'gyro': _effect_list(args.gyro_effects)}
-    if run.input_kind is InputKind.COUNTS and effects['gyro']:
-        msg = f'--gyro-effects: {args.bag} holds channel codes of the accelerometer only'
-        raise TakError(msg)
-    results: dict[str, FitResult] = {}
-    for sensor_run in run.sensors:
-        try:
-            results[sensor_run.sensor] = fit_model(
-                sensor_run.samples, effects=effects[sensor_run.sensor], bias_order=args.bias_order,
-                scale_order=args.scale_order, temp_code_ref=args.temp_code_ref,
-                nominal_scale=_nominal(args, sensor_run.record))
-        except FitError as err:
-            if run.input_kind is InputKind.COUNTS:
-                raise
-            msg = f'{SENSOR_NAMES[sensor_run.sensor]}: {err}'
-            raise FitError(msg) from None
+    settings = FitSettings(effects=effects, bias_order=args.bias_order, scale_order=args.scale_order,
+                           temp_code_ref=args.temp_code_ref, settle_time_s=args.settle_time,
+                           gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None))
+    run = fit_bag(args.bag, settings, _stream_options(args), nominal_for=lambda kind, scale: _nominal(
+        args, ChannelRecord(counts_stamp_ns=np.zeros(0, dtype=np.int64), counts=np.zeros((0, 3)),
+                            temp_stamp_ns=np.zeros(0, dtype=np.int64), temp_code=np.zeros(0),
+                            nominal_scale=scale, input_kind=kind.value)))
+    results: dict[str, FitResult] = run.results
     unit = UnitCalibration(run.input_kind, results['accel'].calibration,
                            results['gyro'].calibration if 'gyro' in results else None)
     applied = ', '.join(f'{sensor} {", ".join(e.name for e in calibration.effects)}'
@@ -245,13 +242,16 @@ def cmd_fit(args: argparse.Namespace) -> int:
           f'{" (driver Imu: accelerometer and gyroscope)" if run.input_kind is InputKind.IMU else ""}')
     for line in run.reference_lines:
         print(line)
-    for sensor_run in run.sensors:
-        sensor, result = sensor_run.sensor, results[sensor_run.sensor]
+    for sensor in run.sensors:
+        result = results[sensor]
         calibration = result.calibration
         unit_name = UNITS[run.input_kind, sensor]
         prefix = '' if run.input_kind is InputKind.COUNTS else f'{SENSOR_NAMES[sensor]}: '
         if result.dropped:
             print(f'{prefix}left out: {_describe_dropped(result.dropped)}')
+        if run.effect_stride.get(sensor, 1) > 1:
+            print(f'{prefix}effects fitted on one sample in {run.effect_stride[sensor]} ({result.samples} of '
+                  f'{run.usable[sensor]} usable; docs/streaming.md)')
         if run.input_kind is InputKind.COUNTS:
             print(f'calibrated temperature-code range {calibration.temp_code_min:g}..{calibration.temp_code_max:g}, '
                   f'reference {calibration.temp_code_ref:g}')
@@ -293,7 +293,8 @@ def _in_si(value: float, unit: str) -> str:
 
 def cmd_apply(args: argparse.Namespace) -> int:
     """Correct a bag's counts or driver Imu and write Imu messages."""
-    from tak_thermo_ros.bagio import bag_input_kind, read_driver_record, read_record, write_imu
+    from tak_thermo_ros.bagio import bag_input_kind
+    from tak_thermo_ros.streaming import apply_bag
     unit = load_unit(args.params)
     topics = _topics(args)
     kind = bag_input_kind(args.bag, topics=topics)
@@ -301,28 +302,12 @@ def cmd_apply(args: argparse.Namespace) -> int:
         msg = (f'{args.params} is a {unit.input_kind.value} calibration, {args.bag} holds '
                f'{"channel codes" if kind is InputKind.COUNTS else "a driver Imu"}')
         raise TakError(msg)
-    driver = None
-    if kind is InputKind.COUNTS:
-        record = read_record(args.bag, topics=topics, require_reference=False, progress=not args.no_progress)
-        output_topic = topics.imu
-    else:
-        driver = read_driver_record(args.bag, topics=topics, progress=not args.no_progress)
-        record = driver.six_channels()
-        output_topic = topics.compensated_imu
-    samples = align(record, use_reference=False)
-    corrector = UnitCorrector(unit, out_of_range=OutOfRange(args.out_of_range))
-    corrected = corrector.correct(samples.counts, samples.temp_code, stamp_s=samples.stamp_s)
-    extra = {}
-    if driver is not None:
-        kept = samples.rows
-        extra = dict(angular_velocity=corrected[:, 3:6], angular_variance=acceleration_variance(unit.gyro),
-                     orientation=driver.orientation[kept], orientation_covariance=driver.orientation_covariance[kept])
-    write_imu(args.output, samples.stamp_ns, record.frame_id, corrected[:, :3], acceleration_variance(unit.accel),
-              topic=output_topic, storage=args.storage, **extra)
-    print(f'wrote {len(samples)} Imu messages on {output_topic} to {args.output}')
-    if samples.dropped:
-        print(f'dropped {"counts" if driver is None else "Imu"} messages: {_describe_dropped(samples.dropped)}')
-    outside = corrector.out_of_range_count(samples.temp_code)
+    applied = apply_bag(args.bag, unit, args.output, _stream_options(args), storage=args.storage,
+                        out_of_range=OutOfRange(args.out_of_range))
+    print(f'wrote {applied.written} Imu messages on {applied.topic} to {args.output}')
+    if applied.dropped:
+        print(f'dropped {"counts" if kind is InputKind.COUNTS else "Imu"} messages: {_describe_dropped(applied.dropped)}')
+    outside = applied.out_of_range
     if outside:
         low, high = unit.accel.temp_code_min, unit.accel.temp_code_max
         what = 'temperature code' if kind is InputKind.COUNTS else 'temperature'
@@ -333,14 +318,14 @@ def cmd_apply(args: argparse.Namespace) -> int:
 
 def cmd_validate(args: argparse.Namespace) -> int:
     """|g| from the three accelerometer channels (and the gyroscope's rate error) before and after correction."""
+    from tak_thermo_ros.streaming import validate_bag
     unit = load_unit(args.params)
-    run = _read_run(args, calibration_run=unit.input_kind is InputKind.IMU)
-    _check_kind(args, unit, run)
-    accel = run.sensor('accel').samples
-    result = validate_gravity(unit.accel, accel.counts, accel.temp_code, gravity=args.gravity,
-                              stamp_s=accel.stamp_s, out_of_range=OutOfRange(args.out_of_range))
-    before, after = result.before, result.after
-    print(f'|g| error over {len(accel)} samples of {args.bag} (gravity {args.gravity:g} m/s^2):')
+    run = validate_bag(args.bag, unit, _stream_options(args), gravity=args.gravity,
+                       latitude=getattr(args, 'latitude', None), out_of_range=OutOfRange(args.out_of_range),
+                       expect_kind=lambda kind: _check_kind(args, unit, BagRun(kind, ())))
+    result = run.gravity
+    before, after = result.before.gravity_error(), result.after.gravity_error()
+    print(f'|g| error over {result.samples} samples of {args.bag} (gravity {args.gravity:g} m/s^2):')
     print(f'  before (nominal scale and offset): RMS {before.rms:.5f} m/s^2 ({before.rms / args.gravity * 1e3:.3f} mg), '
           f'max {before.max:.5f} m/s^2')
     print(f'  after  (full correction link):     RMS {after.rms:.5f} m/s^2 ({after.rms / args.gravity * 1e3:.3f} mg), '
@@ -348,20 +333,19 @@ def cmd_validate(args: argparse.Namespace) -> int:
     if result.out_of_range:
         print(f'warning: {result.out_of_range} samples outside the calibrated temperature range ({args.out_of_range})')
     document = {'bag': str(args.bag), 'params': str(args.params), 'gravity': args.gravity,
-                'samples': len(accel), 'out_of_range': result.out_of_range,
+                'samples': result.samples, 'out_of_range': result.out_of_range,
                 'before': before.as_dict(), 'after': after.as_dict()}
     if unit.gyro is not None:
         for line in run.reference_lines:
             if line.startswith('rate reference'):
                 print(line)
-        gyro = run.sensor('gyro').samples
-        rate = validate_rate(unit.gyro, gyro.counts, gyro.temp_code, gyro.reference, stamp_s=gyro.stamp_s,
-                             out_of_range=OutOfRange(args.out_of_range))
-        print(f'gyroscope bias error over {len(gyro)} samples (rate minus reference, per axis x y z):')
-        for label, stats in (('before (nominal scale and offset)', rate.before), ('after  (full correction link)', rate.after)):
+        rate = run.rate
+        rate_before, rate_after = rate.before.rate_error(), rate.after.rate_error()
+        print(f'gyroscope bias error over {rate.samples} samples (rate minus reference, per axis x y z):')
+        for label, stats in (('before (nominal scale and offset)', rate_before), ('after  (full correction link)', rate_after)):
             print(f'  {label}: RMS ' + ' '.join(f'{v:.3e}' for v in stats.rms) + ' rad/s; mean '
                   + ' '.join(f'{v:+.3e}' for v in stats.mean) + ' rad/s')
-        document['gyro'] = {'samples': len(gyro), 'before': rate.before.as_dict(), 'after': rate.after.as_dict()}
+        document['gyro'] = {'samples': rate.samples, 'before': rate_before.as_dict(), 'after': rate_after.as_dict()}
     if args.json:
         write_text_atomic(args.json, json.dumps(document, indent=2) + '\n')
         print(f'wrote {args.json}')
@@ -410,8 +394,14 @@ def cmd_import_csv(args: argparse.Namespace) -> int:
 def cmd_diagnose(args: argparse.Namespace) -> int:
     """Compare a calibration with a run: noise floor, residual views, the missing effect, per sensor."""
     from tak_thermo_ros.core.diagnose import diagnose
+    from tak_thermo_ros.streaming import bounded_run
     unit = load_unit(args.params)
-    run = _read_run(args, calibration_run=True, settle_time_s=args.settle_time)
+    bounded = bounded_run(args.bag, _stream_options(args), settle_time_s=args.settle_time, gravity=args.gravity,
+                          latitude=getattr(args, 'latitude', None))
+    empty = ChannelRecord(counts_stamp_ns=np.zeros(0, dtype=np.int64), counts=np.zeros((0, 3)),
+                          temp_stamp_ns=np.zeros(0, dtype=np.int64), temp_code=np.zeros(0))
+    run = BagRun(bounded.input_kind, tuple(SensorRun(sensor, empty, samples) for sensor, samples in bounded.samples.items()),
+                 bounded.reference_lines)
     _check_kind(args, unit, run)
     verbose = not args.no_progress and sys.stderr.isatty()
     candidates = expand_candidates(args.candidates) if args.candidates else None
@@ -431,6 +421,9 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         results[sensor] = result
         print(f'{label}diagnosed {len(samples)} samples of {args.bag} against {args.params} '
               f'(model: {result.ladder[0].label})')
+        if bounded.stride > 1:
+            print(f'{label}one sample in {bounded.stride} of the run\'s {bounded.usable[sensor]} usable samples '
+                  f'(diagnose works on a bounded subsample spread over the run)')
         if samples.dropped:
             print(f'left out: {_describe_dropped(samples.dropped)}')
         for name, axis in zip(AXES, result.axes):

@@ -109,9 +109,9 @@ class ErrorSums:
 
     def add(self, error: np.ndarray) -> None:
         """Add a block of errors."""
-        error = np.asarray(error, dtype=float).reshape(len(error), -1)
         if not len(error):
             return
+        error = np.asarray(error, dtype=float).reshape(len(error), -1)
         self.count += len(error)
         self.total += error.sum(axis=0)
         self.squares += (error ** 2).sum(axis=0)
