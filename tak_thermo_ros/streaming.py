@@ -13,6 +13,7 @@ takes one extra pass for the mean measured direction first. See docs/streaming.m
 from __future__ import annotations
 
 import math
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Iterator, Sequence
@@ -26,7 +27,7 @@ from tak_thermo_ros.core.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.record import AlignedSamples, ChannelRecord, DriverRecord
 from tak_thermo_ros.core.static_run import STATIC_TOLERANCE_DEG, StaticReference, static_reference
 from tak_thermo_ros.core.stream_correction import BlockUnitCorrector, GravityCheck, RateCheck
-from tak_thermo_ros.core.stream_fit import StreamingFit
+from tak_thermo_ros.core.stream_fit import StreamingEffectFit, StreamingFit
 from tak_thermo_ros.errors import FitError, TakError
 
 DIAGNOSE_MAX_SAMPLES = 1_000_000
@@ -110,6 +111,10 @@ class _StaticRun:
             msg = (f'{path}: no {topics.reference} and the mean acceleration |{static.magnitude:.4g}| m/s^2 is '  # type: ignore[attr-defined]
                    f'far below gravity: not a static run; record the reference')
             raise TakError(msg)
+
+    def rewind(self) -> None:
+        """Before another pass: the references go into its first block again."""
+        self._first_block = True
 
     def check_block(self, block: DriverRecord) -> DriverRecord:
         """The block with the estimated references (first block), its tilt checked."""
@@ -200,6 +205,8 @@ def _open_calibration_run(path: Path, options: StreamOptions, *, gravity: float,
 def _run_passes(path: Path, options: StreamOptions, opened: _Opened, passes: Sequence[SensorPass]) -> list[str]:
     """Read the bag once, feeding each sensor's pass; the reference lines (driver bags)."""
     from tak_thermo_ros.bagio import iter_blocks
+    if opened.static is not None:
+        opened.static.rewind()
     for block in iter_blocks(path, topics=options.topics, kind=opened.kind,  # type: ignore[arg-type]
                              block_samples=options.block_samples, progress=options.progress):
         if opened.static is not None:
@@ -300,42 +307,67 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
         nominal['accel'] = nominal_for(kind, bag_streams(path, topics=options.topics).nominal_scale)  # type: ignore[arg-type]
     elif kind is InputKind.IMU:
         nominal = {sensor: (1.0, 1.0, 1.0) for sensor in sensors}
+    def aligner() -> BlockAligner:
+        return BlockAligner(use_reference=True, reference_expected=True, settle_time_s=settings.settle_time_s)
+
     passes, fits, subsamples = [], {}, {}
     for sensor in sensors:
-        aligner = BlockAligner(use_reference=True, reference_expected=True, settle_time_s=settings.settle_time_s)
-        sensor_pass = SensorPass(sensor, aligner)
+        sensor_pass = SensorPass(sensor, aligner())
+        fits[sensor] = StreamingFit(bias_order=settings.bias_order, scale_order=settings.scale_order,
+                                    temp_code_ref=settings.temp_code_ref, nominal_scale=nominal.get(sensor))
+        sensor_pass.consumers.append(fits[sensor].add)
         if settings.effects.get(sensor):
             subsamples[sensor] = _Subsample(stride_for(opened.main, settings.max_effect_samples))
             sensor_pass.consumers.append(subsamples[sensor])
-        else:
-            fits[sensor] = StreamingFit(bias_order=settings.bias_order, scale_order=settings.scale_order,
-                                        temp_code_ref=settings.temp_code_ref, nominal_scale=nominal.get(sensor))
-            sensor_pass.consumers.append(fits[sensor].add)
         passes.append(sensor_pass)
     lines = _run_passes(path, options, opened, passes)
     results: dict[str, FitResult] = {}
     usable: dict[str, int] = {}
+    second: dict[str, tuple[StreamingEffectFit, FitResult]] = {}
     for sensor_pass in passes:
         sensor, dropped = sensor_pass.sensor, sensor_pass.aligner.dropped
         usable[sensor] = sensor_pass.aligner.kept
-        try:
-            if sensor in subsamples:
-                samples = subsamples[sensor].samples(dropped)
-                if not len(samples):
-                    samples = replace(samples, reference=np.zeros((0, 3)))
-                results[sensor] = fit_model(samples, effects=settings.effects[sensor], bias_order=settings.bias_order,
-                                            scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
-                                            nominal_scale=nominal.get(sensor))
-            else:
+        with _sensor_errors(kind, sensor):
+            if sensor not in subsamples:
                 results[sensor] = fits[sensor].result(dropped=dropped)
-        except FitError as err:
-            if kind is InputKind.COUNTS:
-                raise
-            msg = f'{SENSOR_NAMES[sensor]}: {err}'
-            raise FitError(msg) from None
+                continue
+            samples = subsamples[sensor].samples(dropped)
+            if not len(samples):
+                samples = replace(samples, reference=np.zeros((0, 3)))
+            shaped = fit_model(samples, effects=settings.effects[sensor], bias_order=settings.bias_order,
+                               scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
+                               nominal_scale=nominal.get(sensor))
+            if subsamples[sensor].stride == 1:
+                results[sensor] = shaped
+            else:
+                second[sensor] = (StreamingEffectFit(shaped.calibration.effects, fits[sensor]), shaped)
+    if second:
+        # The shapes are fixed now: a second pass solves every amplitude over the whole run.
+        passes = [SensorPass(sensor, aligner(), [amplitudes.add]) for sensor, (amplitudes, _) in second.items()]
+        _run_passes(path, options, _Opened(kind, opened.main, opened.static), passes)
+        for sensor_pass in passes:
+            sensor = sensor_pass.sensor
+            amplitudes, shaped = second[sensor]
+            shape_names = {f'{e.name}.{name}' for e in shaped.calibration.effects for name in e.shape_names()}
+            with _sensor_errors(kind, sensor):
+                results[sensor] = amplitudes.result(
+                    dropped=sensor_pass.aligner.dropped, parameters=[axis.parameters for axis in shaped.axes],
+                    shape_errors={k: v for k, v in shaped.parameter_errors.items() if k in shape_names})
     return StreamedFit(input_kind=kind, sensors=sensors, results=results, usable=usable,
                        effect_stride={sensor: subsample.stride for sensor, subsample in subsamples.items()},
                        reference_lines=tuple(lines))
+
+
+@contextmanager
+def _sensor_errors(kind: InputKind, sensor: str) -> Iterator[None]:
+    """A fit error names the sensor on driver bags."""
+    try:
+        yield
+    except FitError as err:
+        if kind is InputKind.COUNTS:
+            raise
+        msg = f'{SENSOR_NAMES[sensor]}: {err}'
+        raise FitError(msg) from None
 
 
 # ----- apply ----------------------------------------------------------------------------------------

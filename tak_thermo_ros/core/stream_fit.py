@@ -265,3 +265,176 @@ def fit_in_blocks(blocks: Sequence[AlignedSamples], **options) -> FitResult:
         for reason, count in block.dropped.items():
             dropped[reason] = dropped.get(reason, 0) + count
     return fit.result(dropped=dropped)
+
+
+class StreamingEffectFit:
+    """The amplitudes of effects with fixed shapes, with the base model, over blocks in time order.
+
+    The second pass of a long run's fit with effects: the shapes (time constants, widths,
+    knots) come from a fit on a subsample; here every amplitude and the base model are solved
+    by a blocked QR over the whole run, the effects' signals continued across blocks from
+    their state (:func:`~tak_thermo_ros.core.stream_correction.basis_from`). The design per axis
+    is that of :func:`~tak_thermo_ros.core.effects.fitting.fit_with_effects` with the shapes fixed.
+
+    :param effects: effect instances (their shapes are kept, their amplitudes refitted).
+    :param first_pass: the base fit of the same run (temperature range, held axes, count).
+    """
+
+    def __init__(self, effects: Sequence, first_pass: StreamingFit) -> None:
+        from tak_thermo_ros.core.effects.base import INPUT
+        self.effects = tuple(effects)
+        self.input_effects = [e for e in self.effects if e.kind == INPUT]
+        self.offset_effects = [e for e in self.effects if e.kind != INPUT]
+        self.bias_order, self.scale_order = first_pass.bias_order, first_pass.scale_order
+        self.nominal_scale = first_pass.nominal_scale
+        first_pass.check_observable()
+        self.low, self.high = first_pass.low, first_pass.high
+        temp_code_ref = first_pass.temp_code_ref
+        self.ref = float(round((self.low + self.high) / 2.0)) if temp_code_ref is None else float(temp_code_ref)
+        self.n_scale = max(abs(self.low - self.ref), abs(self.high - self.ref), 1.0)
+        self.held = first_pass.single_input_axes()
+        self.first_inputs = list(first_pass._first_input or [0.0, 0.0, 0.0])
+        if any(self.held) and self.nominal_scale is None:
+            first_pass.result()  # raises the in-memory fit's message
+        self._states: list = [None] * len(self.offset_effects)
+        self._started = False
+        self._factors: list[np.ndarray | None] = [None, None, None]
+        self.count = 0
+
+    def _design(self, axis: int, force: np.ndarray, powers: list[np.ndarray], counts: np.ndarray,
+                bases: list[np.ndarray]) -> tuple[np.ndarray, list[str]]:
+        q, p = self.bias_order, self.scale_order
+        if self.held[axis]:
+            columns = [powers[j] for j in range(q + 1)]
+            names = ['the offset polynomial'] * (q + 1)
+            target = counts[:, axis] - self.nominal_scale[axis] * force[:, axis]  # type: ignore[index]
+        else:
+            columns = [force[:, axis] * powers[j] for j in range(p + 1)] + [powers[j] for j in range(q + 1)]
+            names = ['the scale polynomial'] * (p + 1) + ['the offset polynomial'] * (q + 1)
+            target = counts[:, axis]
+        for effect in self.input_effects:
+            for name, column in effect.input_columns(axis, force):
+                columns.append(column)
+                names.append(f'{effect.name} ({name})')
+        for effect, basis in zip(self.offset_effects, bases):
+            for b in range(basis.shape[1]):
+                columns.append(basis[:, b])
+                names.append(effect.name)
+        return np.column_stack([*columns, target]), names
+
+    def add(self, samples: AlignedSamples) -> None:
+        """Add the next block of aligned samples (in time order)."""
+        from tak_thermo_ros.core.stream_correction import basis_from
+        if not len(samples) or samples.reference is None:
+            return
+        codes = np.clip(np.asarray(samples.temp_code, dtype=float), self.low, self.high)
+        stamps = samples.stamp_s
+        bases = []
+        for index, effect in enumerate(self.offset_effects):
+            basis, self._states[index] = basis_from(effect, self._states[index], stamps, codes, started=self._started)
+            bases.append(basis)
+        self._started = True
+        u = (codes - self.ref) / self.n_scale
+        powers = [np.ones_like(u)]
+        for _ in range(max(self.bias_order, self.scale_order)):
+            powers.append(powers[-1] * u)
+        for i in range(3):
+            block, self.names = self._design(i, samples.reference, powers, samples.counts, bases)
+            previous = self._factors[i]
+            stacked = block if previous is None else np.vstack([previous, block])
+            factor = np.linalg.qr(stacked, mode='r')
+            width = block.shape[1]
+            if factor.shape[0] < width:
+                factor = np.vstack([factor, np.zeros((width - factor.shape[0], width))])
+            self._factors[i] = factor[:width]
+        self.count += len(u)
+
+    def result(self, *, dropped: dict[str, int], shape_errors: dict[str, float] | None = None,
+               parameters: Sequence[int] | None = None) -> FitResult:
+        """The calibration with the effects' amplitudes refitted over the whole run.
+
+        :param shape_errors: standard errors of the shape parameters (from the subsample fit).
+        :param parameters: fitted parameters per axis, shapes included (the subsample fit's;
+            default: the amplitudes and base terms only).
+        """
+        from tak_thermo_ros.core.effects.fitting import _build
+        q, p = self.bias_order, self.scale_order
+        low, high, ref, n_scale = self.low, self.high, self.ref, self.n_scale
+        betas, sums, widths, errors = [], [], [], dict(shape_errors or {})
+        for i in range(3):
+            factor = self._factors[i]
+            assert factor is not None
+            triangle, target = factor[:-1, :-1], factor[:-1, -1]
+            width = triangle.shape[1]
+            norms = np.sqrt(np.sum(triangle ** 2, axis=0) / self.count)
+            norms[norms == 0.0] = 1.0
+            scaled = triangle / norms
+            solution, _, rank, _ = np.linalg.lstsq(scaled, target, rcond=None)
+            singular = np.linalg.svd(scaled, compute_uv=False)
+            rank = int(np.count_nonzero(singular > np.finfo(float).eps * max(self.count, width) * singular[0]))
+            if rank < width:
+                offender = next((self.names[end - 1] for end in range(1, width + 1)
+                                 if np.linalg.matrix_rank(scaled[:, :end]) < end), self.names[-1])
+                msg = (f'axis {AXES[i]}: the data cannot separate {offender} from the other model terms '
+                       f'(the inputs and temperatures of this run do not excite it)')
+                raise FitError(msg)
+            beta = solution / norms
+            rss = float(factor[-1, -1] ** 2 + np.sum((scaled @ solution - target) ** 2))
+            betas.append(beta)
+            sums.append(rss)
+            widths.append(width)
+            dof = max(self.count - (parameters[i] if parameters is not None else width), 1)
+            covariance = (rss / dof) * np.linalg.inv(scaled.T @ scaled)
+            amplitude_errors = np.sqrt(np.clip(np.diag(covariance), 0.0, None)) / norms
+            position = (q + 1) if self.held[i] else (q + p + 2)
+            for effect in self.input_effects:
+                for name, _ in effect.input_columns(i, np.zeros((1, 3))):
+                    errors[f'{effect.name}.{name}'] = float(amplitude_errors[position])
+                    position += 1
+            for effect in self.offset_effects:
+                for name in effect.amplitude_names()[i]:
+                    errors[f'{effect.name}.{name}'] = float(amplitude_errors[position])
+                    position += 1
+        axes_models = []
+        for i in range(3):
+            beta = betas[i]
+            if self.held[i]:
+                axes_models.append(AxisModel.from_polynomials(
+                    scale=self.nominal_scale[i], offset=beta[0],  # type: ignore[index]
+                    offset_coeffs=[beta[j] / n_scale ** j for j in range(1, q + 1)], scale_coeffs=(),
+                    code_offset_range=(low - ref, high - ref), scale_observable=False))
+                continue
+            scale = beta[0]
+            if not scale > 0.0:
+                msg = f'axis {AXES[i]}: fitted scale {scale:g} counts per m/s^2 is not positive'
+                raise FitError(msg)
+            axes_models.append(AxisModel.from_polynomials(
+                scale=scale, offset=beta[p + 1], offset_coeffs=[beta[p + 1 + j] / n_scale ** j for j in range(1, q + 1)],
+                scale_coeffs=[beta[j] / (scale * n_scale ** j) for j in range(1, p + 1)],
+                code_offset_range=(low - ref, high - ref)))
+        fitted = []
+        for effect in self.effects:
+            values = {name: effect[name] for name in effect.shape_names()}
+            for i in range(3):
+                position = (q + 1) if self.held[i] else (q + p + 2)
+                for other in self.input_effects:
+                    columns = other.input_columns(i, np.zeros((1, 3)))
+                    if other is effect:
+                        for k, (name, _) in enumerate(columns):
+                            values[name] = float(betas[i][position + k])
+                    position += len(columns)
+                for other in self.offset_effects:
+                    names = other.amplitude_names()[i]
+                    if other is effect:
+                        for k, name in enumerate(names):
+                            values[name] = float(betas[i][position + k])
+                    position += len(names)
+            fitted.append(_build(type(effect), values))
+        held_inputs = [f'{AXES[i]} input {self.first_inputs[i]:.4g} at nominal scale {self.nominal_scale[i]:g}'  # type: ignore[index]
+                       for i in range(3) if self.held[i]]
+        notes = (held_scale_note(self.held, held_inputs),) if held_inputs else ()
+        calibration = Calibration(temp_code_ref=ref, temp_code_min=low, temp_code_max=high, axes=tuple(axes_models),
+                                  notes=notes, effects=tuple(fitted))  # type: ignore[arg-type]
+        counted = list(parameters) if parameters is not None else widths
+        return finish_fit_from_sums(calibration, sums, self.count, counted, dropped=dict(dropped),
+                                    parameter_errors=errors)
