@@ -12,7 +12,7 @@ with a template serialiser (the CDR bytes of one message, fields patched in nump
 building them needs little memory; they are cached under ``--workdir``. Writing still goes
 through rosbags' writer, one message at a time (about 20 us each on an idle core).
 
-Run: ``.venv/bin/python bench/bench_memory.py [--hours 1 5 15] [--apply-hours 1 2]``.
+Run: ``.venv/bin/python bench/bench_memory.py [--hours 1 5 15] [--apply-hours 1 5] [--diagnose-hours 1 5]``.
 """
 
 from __future__ import annotations
@@ -150,8 +150,8 @@ def build_bag(workdir: Path, hours: float) -> Path:
     return bag
 
 
-def measure(bag: Path, workdir: Path, *, apply: bool) -> dict[str, object]:
-    """Baseline deserialisation, ``fit`` and (optionally) ``apply`` of one bag, each in its own process."""
+def measure(bag: Path, workdir: Path, *, apply: bool, diagnose: bool) -> dict[str, object]:
+    """Baseline deserialisation, ``fit`` and (optionally) ``apply`` and ``diagnose`` of one bag, each in its own process."""
     wall, cpu, rss, out = run_child([sys.executable, '-c', BASELINE_SCRIPT, str(bag)])
     baseline = json.loads(out)
     params = workdir / f'{bag.name}_params.yaml'
@@ -174,6 +174,13 @@ def measure(bag: Path, workdir: Path, *, apply: bool) -> dict[str, object]:
         shutil.rmtree(output, ignore_errors=True)
         row.update(apply_wall_s=apply_wall, apply_cpu_s=apply_cpu, apply_peak_rss_bytes=apply_rss)
         print(f'  apply {apply_wall:.1f} s, peak {apply_rss / 2**20:.0f} MiB')
+    if diagnose:
+        report = workdir / f'{bag.name}_diagnose.json'
+        diagnose_wall, diagnose_cpu, diagnose_rss, diagnose_out = run_child(
+            [*tak_calib_command(), 'diagnose', str(bag), '--params', str(params), '--json', str(report), '--no-progress'])
+        row.update(diagnose_wall_s=diagnose_wall, diagnose_cpu_s=diagnose_cpu, diagnose_peak_rss_bytes=diagnose_rss,
+                   diagnose_output=diagnose_out.strip().splitlines()[:3])
+        print(f'  diagnose {diagnose_wall:.1f} s, peak {diagnose_rss / 2**20:.0f} MiB')
     return row
 
 
@@ -193,29 +200,43 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--hours', type=float, nargs='+', default=[1.0, 5.0, 15.0], help='run lengths')
     parser.add_argument('--apply-hours', type=float, nargs='*', default=[1.0, 5.0],
                         help='lengths on which apply is measured too (writing is slow)')
+    parser.add_argument('--diagnose-hours', type=float, nargs='*', default=[1.0, 5.0],
+                        help='lengths on which diagnose is measured too')
     parser.add_argument('--build-only', action='store_true', help='generate the bags and stop')
     parser.add_argument('--output', type=Path, default=RESULTS / 'memory.json')
+    parser.add_argument('--combine', type=Path, nargs='+', metavar='PART.json',
+                        help='merge the runs of earlier outputs (lengths measured separately) into --output')
     args = parser.parse_args(argv)
     load_start = os.getloadavg()
-    bags = {hours: build_bag(args.workdir, hours) for hours in args.hours}
-    if args.build_only:
-        return 0
-    rows = {hours: measure(bag, args.workdir, apply=hours in args.apply_hours) for hours, bag in bags.items()}
-    peak = max(float(row['fit_peak_rss_bytes']) for row in rows.values())  # type: ignore[arg-type]
+    if args.combine:
+        parts = [json.loads(part.read_text()) for part in args.combine]
+        rows = {float(name[:-1]): row for part in parts for name, row in part['runs'].items()}
+        machines = [part['machine'] for part in parts]
+    else:
+        bags = {hours: build_bag(args.workdir, hours) for hours in args.hours}
+        if args.build_only:
+            return 0
+        rows = {hours: measure(bag, args.workdir, apply=hours in args.apply_hours,
+                               diagnose=hours in args.diagnose_hours) for hours, bag in bags.items()}
+        machines = [{**machine(), 'load_average_start': load_start, 'load_average_end': os.getloadavg()}]
+    rows = dict(sorted(rows.items()))
+    peak = max(float(row[key]) for row in rows.values() for key in row  # type: ignore[arg-type]
+               if key.endswith('peak_rss_bytes') and not key.startswith('baseline'))
     document = {
         'benchmark': 'memory',
         'bags': {'contract': 'counts', 'rate_hz': RATE_HZ, 'temperature_every': TEMP_EVERY, 'dwell_s': DWELL_S,
                  'storage': 'mcap'},
-        'machine': {**machine(), 'load_average_start': load_start, 'load_average_end': os.getloadavg()},
+        'machine': machines[0] if len(machines) == 1 else machines,
         'runs': {f'{hours:g}h': row for hours, row in rows.items()},
         'fit_peak_growth_bytes_per_hour': growth_per_hour(rows, 'fit_peak_rss_bytes'),
         'apply_peak_growth_bytes_per_hour': growth_per_hour(rows, 'apply_peak_rss_bytes'),
+        'diagnose_peak_growth_bytes_per_hour': growth_per_hour(rows, 'diagnose_peak_rss_bytes'),
         'memory_target_bytes': MEMORY_TARGET_BYTES,
         'memory_holds': peak < MEMORY_TARGET_BYTES,
     }
     args.output.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(args.output, json.dumps(document, indent=2) + '\n')
-    for key in ('fit', 'apply'):
+    for key in ('fit', 'apply', 'diagnose'):
         slope = document[f'{key}_peak_growth_bytes_per_hour']
         if slope is not None:
             print(f'{key}: peak memory grows {slope / 2**20:+.1f} MiB per hour of run')
