@@ -577,29 +577,26 @@ def bag_streams(path: str | os.PathLike[str], *, topics: Topics = Topics(),
 def decode_vector3_stamped(raws: list[bytes]) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """Stamps ``(k,)``, vectors ``(k, 3)`` and frame ids of serialised ``Vector3Stamped`` messages."""
     deserialize = TYPESTORE.deserialize_cdr
-    stamps = np.empty(len(raws), dtype=np.int64)
-    values = np.empty((len(raws), 3))
-    frames = []
-    for row, raw in enumerate(raws):
+    stamps, values, frames = [], [], []
+    for raw in raws:
         message = deserialize(raw, VECTOR3_STAMPED)
         header = message.header
-        stamps[row] = header.stamp.sec * NANOSECONDS + header.stamp.nanosec
+        stamps.append(header.stamp.sec * NANOSECONDS + header.stamp.nanosec)
         vector = message.vector
-        values[row] = (vector.x, vector.y, vector.z)
+        values.append((vector.x, vector.y, vector.z))
         frames.append(header.frame_id)
-    return stamps, values, frames
+    return np.array(stamps, dtype=np.int64), np.array(values, dtype=float).reshape(-1, 3), frames
 
 
 def decode_temperatures(raws: list[bytes]) -> tuple[np.ndarray, np.ndarray]:
     """Stamps ``(k,)`` and values ``(k,)`` of serialised ``Temperature`` messages."""
     deserialize = TYPESTORE.deserialize_cdr
-    stamps = np.empty(len(raws), dtype=np.int64)
-    values = np.empty(len(raws))
-    for row, raw in enumerate(raws):
+    stamps, values = [], []
+    for raw in raws:
         message = deserialize(raw, TEMPERATURE)
-        stamps[row] = _stamp_ns(message.header)
-        values[row] = message.temperature
-    return stamps, values
+        stamps.append(_stamp_ns(message.header))
+        values.append(message.temperature)
+    return np.array(stamps, dtype=np.int64), np.array(values, dtype=float)
 
 
 def decode_imus(raws: list[bytes]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[str]]:
