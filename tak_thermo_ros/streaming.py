@@ -16,7 +16,7 @@ import math
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable, Iterator, Sequence
+from typing import TYPE_CHECKING, Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -29,6 +29,9 @@ from tak_thermo_ros.core.static_run import STATIC_TOLERANCE_DEG, StaticReference
 from tak_thermo_ros.core.stream_correction import BlockUnitCorrector, GravityCheck, RateCheck
 from tak_thermo_ros.core.stream_fit import StreamingEffectFit, StreamingFit
 from tak_thermo_ros.errors import FitError, TakError
+
+if TYPE_CHECKING:
+    from tak_thermo_ros.bagio import Topics
 
 DIAGNOSE_MAX_SAMPLES = 1_000_000
 """``diagnose`` works on at most about this many samples, spread evenly over the run."""
@@ -70,7 +73,7 @@ class StreamOptions:
     :param block_samples: main-stream messages per block.
     """
 
-    topics: object
+    topics: Topics
     progress: bool = True
     block_samples: int = 65536
 
@@ -92,7 +95,7 @@ class _StaticRun:
         self.max_tilt_deg = 0.0
         self._first_block = True
         if recorded_reference and recorded_rate:
-            self.lines.append(f'reference: {topics.reference} and {topics.reference_rate} as recorded')  # type: ignore[attr-defined]
+            self.lines.append(f'reference: {topics.reference} and {topics.reference_rate} as recorded')
             return
         total = np.zeros(3)
         count = 0
@@ -106,9 +109,9 @@ class _StaticRun:
                                        latitude_deg=latitude)
         static = self.static
         if recorded_reference:
-            self.lines.append(f'reference: {topics.reference} as recorded')  # type: ignore[attr-defined]
+            self.lines.append(f'reference: {topics.reference} as recorded')
         elif static.magnitude < 0.1 * gravity:
-            msg = (f'{path}: no {topics.reference} and the mean acceleration |{static.magnitude:.4g}| m/s^2 is '  # type: ignore[attr-defined]
+            msg = (f'{path}: no {topics.reference} and the mean acceleration |{static.magnitude:.4g}| m/s^2 is '
                    f'far below gravity: not a static run; record the reference')
             raise TakError(msg)
 
@@ -168,8 +171,15 @@ class SensorPass:
     aligner: BlockAligner
     consumers: list[Callable[[AlignedSamples], None]] = field(default_factory=list)
 
-    def feed(self, record: ChannelRecord, *, final: bool = False) -> None:
-        aligned = self.aligner.finish() if final else self.aligner.push(record)
+    def feed(self, record: ChannelRecord) -> None:
+        """Align a block and hand what became ready to the consumers."""
+        self._hand_on(self.aligner.push(record))
+
+    def finish(self) -> None:
+        """Align the samples still waiting at the end of the run."""
+        self._hand_on(self.aligner.finish())
+
+    def _hand_on(self, aligned: AlignedSamples) -> None:
         for consume in self.consumers:
             consume(aligned)
 
@@ -192,9 +202,9 @@ class _Opened:
 def _open_calibration_run(path: Path, options: StreamOptions, *, gravity: float, latitude: float | None,
                           require_reference: bool) -> _Opened:
     from tak_thermo_ros.bagio import bag_streams
-    streams = bag_streams(path, topics=options.topics)  # type: ignore[arg-type]
+    streams = bag_streams(path, topics=options.topics)
     if require_reference and streams.kind is InputKind.COUNTS:
-        streams = bag_streams(path, topics=options.topics, require_reference=True)  # type: ignore[arg-type]
+        streams = bag_streams(path, topics=options.topics, require_reference=True)
     static = None
     if streams.kind is InputKind.IMU:
         static = _StaticRun(path, options, recorded_reference=streams.reference > 0,
@@ -207,15 +217,15 @@ def _run_passes(path: Path, options: StreamOptions, opened: _Opened, passes: Seq
     from tak_thermo_ros.bagio import iter_blocks
     if opened.static is not None:
         opened.static.rewind()
-    for block in iter_blocks(path, topics=options.topics, kind=opened.kind,  # type: ignore[arg-type]
+    for block in iter_blocks(path, topics=options.topics, kind=opened.kind,
                              block_samples=options.block_samples, progress=options.progress):
         if opened.static is not None:
-            block = opened.static.check_block(block)  # type: ignore[arg-type]
+            block = opened.static.check_block(block)
         records = _sensor_records(block, opened.kind)
         for sensor_pass in passes:
             sensor_pass.feed(records[sensor_pass.sensor])
     for sensor_pass in passes:
-        sensor_pass.feed(None, final=True)  # type: ignore[arg-type]
+        sensor_pass.finish()
     return opened.static.finish(options.topics) if opened.static is not None else []
 
 
@@ -304,7 +314,7 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
     nominal = dict(settings.nominal_scale)
     if kind is InputKind.COUNTS and nominal_for is not None:
         from tak_thermo_ros.bagio import bag_streams
-        nominal['accel'] = nominal_for(kind, bag_streams(path, topics=options.topics).nominal_scale)  # type: ignore[arg-type]
+        nominal['accel'] = nominal_for(kind, bag_streams(path, topics=options.topics).nominal_scale)
     elif kind is InputKind.IMU:
         nominal = {sensor: (1.0, 1.0, 1.0) for sensor in sensors}
     def aligner() -> BlockAligner:
@@ -410,8 +420,8 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
     from tak_thermo_ros.bagio import ImuBagWriter, bag_streams, iter_blocks
     path = Path(path)
     topics = options.topics
-    kind = bag_streams(path, topics=topics).kind  # type: ignore[arg-type]
-    topic = topics.imu if kind is InputKind.COUNTS else topics.compensated_imu  # type: ignore[attr-defined]
+    kind = bag_streams(path, topics=topics).kind
+    topic = topics.imu if kind is InputKind.COUNTS else topics.compensated_imu
     aligner = BlockAligner(use_reference=False)
     corrector = BlockUnitCorrector(unit, out_of_range=out_of_range)
     accel_variance = acceleration_variance(unit.accel)
@@ -436,7 +446,7 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
                              orientation=orientation, orientation_covariance=covariance)
             writer.write(samples.stamp_ns, frame_id, corrected[:, :3], accel_variance, **extra)
 
-        for block in iter_blocks(path, topics=topics, kind=kind, block_samples=options.block_samples,  # type: ignore[arg-type]
+        for block in iter_blocks(path, topics=topics, kind=kind, block_samples=options.block_samples,
                                  references=False, progress=options.progress):
             if isinstance(block, DriverRecord):
                 passing.add(block.orientation, block.orientation_covariance)
@@ -472,7 +482,7 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
     """
     from tak_thermo_ros.bagio import bag_streams
     path = Path(path)
-    kind = bag_streams(path, topics=options.topics).kind  # type: ignore[arg-type]
+    kind = bag_streams(path, topics=options.topics).kind
     if expect_kind is not None:
         expect_kind(kind)
     calibration_run = kind is InputKind.IMU
@@ -529,11 +539,3 @@ def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: floa
                       usable={p.sensor: p.aligner.kept for p in passes}, stride=stride,
                       reference_lines=tuple(lines))
 
-
-def iter_sensor_blocks(path: str | Path, options: StreamOptions) -> Iterator[dict[str, ChannelRecord]]:
-    """The raw blocks per sensor (for tests and tools)."""
-    from tak_thermo_ros.bagio import bag_streams, iter_blocks
-    kind = bag_streams(Path(path), topics=options.topics).kind  # type: ignore[arg-type]
-    for block in iter_blocks(path, topics=options.topics, kind=kind,  # type: ignore[arg-type]
-                             block_samples=options.block_samples, progress=options.progress):
-        yield _sensor_records(block, kind)

@@ -29,7 +29,7 @@ from tak_thermo_ros.core.fit import (INPUT_RESOLUTION, MIN_SAMPLES_PER_PARAMETER
                                      held_scale_note)
 from tak_thermo_ros.core.model import AXES, AxisModel, Calibration
 from tak_thermo_ros.core.record import AlignedSamples
-from tak_thermo_ros.errors import FitError
+from tak_thermo_ros.errors import CalibrationError, FitError
 
 HEADROOM = 2.0
 """The provisional scale is rebuilt when a temperature code lies this many scales from the reference."""
@@ -357,7 +357,6 @@ class StreamingEffectFit:
         :param parameters: fitted parameters per axis, shapes included (the subsample fit's;
             default: the amplitudes and base terms only).
         """
-        from tak_thermo_ros.core.effects.fitting import _build
         q, p = self.bias_order, self.scale_order
         low, high, ref, n_scale = self.low, self.high, self.ref, self.n_scale
         betas, sums, widths, errors = [], [], [], dict(shape_errors or {})
@@ -429,7 +428,11 @@ class StreamingEffectFit:
                         for k, name in enumerate(names):
                             values[name] = float(betas[i][position + k])
                     position += len(names)
-            fitted.append(_build(type(effect), values))
+            try:
+                fitted.append(type(effect).from_values(values, key=f'effect {effect.name}', complete=True))
+            except CalibrationError as err:
+                msg = f'fitted {err}'
+                raise FitError(msg) from None
         held_inputs = [f'{AXES[i]} input {self.first_inputs[i]:.4g} at nominal scale {self.nominal_scale[i]:g}'  # type: ignore[index]
                        for i in range(3) if self.held[i]]
         notes = (held_scale_note(self.held, held_inputs),) if held_inputs else ()
