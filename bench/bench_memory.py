@@ -160,9 +160,10 @@ def measure(bag: Path, workdir: Path, *, apply: bool, diagnose: bool) -> dict[st
                                                      '--no-progress'])
     row: dict[str, object] = {
         'messages': baseline['messages'], 'bag_bytes': sum(f.stat().st_size for f in bag.rglob('*') if f.is_file()),
-        'baseline_rosbags_deserialise_s': baseline['seconds'], 'baseline_peak_rss_bytes': rss,
+        'baseline_rosbags_deserialise_s': baseline['seconds'], 'baseline_cpu_s': cpu, 'baseline_peak_rss_bytes': rss,
         'fit_wall_s': fit_wall, 'fit_cpu_s': fit_cpu, 'fit_peak_rss_bytes': fit_rss,
-        'fit_over_baseline': fit_wall / baseline['seconds'], 'fit_output': fit_out.strip().splitlines(),
+        'fit_over_baseline': fit_wall / baseline['seconds'], 'fit_cpu_over_baseline_cpu': fit_cpu / cpu,
+        'fit_output': fit_out.strip().splitlines(),
     }
     print(f'{bag.name}: {baseline["messages"]} messages; rosbags deserialise {baseline["seconds"]:.1f} s; '
           f'fit {fit_wall:.1f} s ({fit_wall / baseline["seconds"]:.2f}x), peak {fit_rss / 2**20:.0f} MiB')
