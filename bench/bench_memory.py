@@ -211,7 +211,10 @@ def main(argv: list[str] | None = None) -> int:
     load_start = os.getloadavg()
     if args.combine:
         parts = [json.loads(part.read_text()) for part in args.combine]
-        rows = {float(name[:-1]): row for part in parts for name, row in part['runs'].items()}
+        rows = {}
+        for part in parts:  # a later part's figures replace an earlier one's, key by key
+            for name, row in part['runs'].items():
+                rows.setdefault(float(name[:-1]), {}).update(row)
         machines = [part['machine'] for part in parts]
     else:
         bags = {hours: build_bag(args.workdir, hours) for hours in args.hours}
