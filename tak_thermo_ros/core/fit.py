@@ -178,14 +178,19 @@ def fit_calibration(samples: AlignedSamples, *, bias_order: int = 3, scale_order
             code_offset_range=(low - ref, high - ref)))
 
     if held_inputs:
-        notes.append(f'scale held at nominal on {", ".join(AXES[i] for i in range(3) if held[i])}: one input '
-                     f'only ({"; ".join(held_inputs)}), so scale and offset drift cannot be told apart; '
-                     f'the offset shape was fitted (scale_observable false)')
+        notes.append(held_scale_note(held, held_inputs))
     calibration = Calibration(temp_code_ref=ref, temp_code_min=low, temp_code_max=high,
                               axes=tuple(axes_models), notes=tuple(notes))  # type: ignore[arg-type]
     residual = residual_counts(calibration, samples)
     parameters = [bias_order + 1 if held[i] else bias_order + scale_order + 2 for i in range(3)]
     return finish_fit(calibration, residual, parameters, dropped=samples.dropped)
+
+
+def held_scale_note(held: Sequence[bool], held_inputs: Sequence[str]) -> str:
+    """The calibration note for axes whose scale was held at nominal (one input only)."""
+    return (f'scale held at nominal on {", ".join(AXES[i] for i in range(3) if held[i])}: one input '
+            f'only ({"; ".join(held_inputs)}), so scale and offset drift cannot be told apart; '
+            f'the offset shape was fitted (scale_observable false)')
 
 
 def finish_fit(calibration: Calibration, residual: np.ndarray, parameters: Sequence[int], *,
@@ -195,11 +200,19 @@ def finish_fit(calibration: Calibration, residual: np.ndarray, parameters: Seque
     :param residual: ``(k, 3)`` residual in counts over the samples the fit used.
     :param parameters: number of fitted parameters per axis.
     """
-    count = len(residual)
+    sums = [float(np.sum(residual[:, i] ** 2)) for i in range(len(calibration.axes))]
+    return finish_fit_from_sums(calibration, sums, len(residual), parameters, dropped=dropped,
+                                parameter_errors=parameter_errors)
+
+
+def finish_fit_from_sums(calibration: Calibration, residual_sums: Sequence[float], count: int,
+                         parameters: Sequence[int], *, dropped: dict[str, int],
+                         parameter_errors: dict[str, float] | None = None) -> FitResult:
+    """:func:`finish_fit` from the residual sum of squares per axis over ``count`` samples."""
     stats = []
     final_axes = []
     for i, axis in enumerate(calibration.axes):
-        rss = float(np.sum(residual[:, i] ** 2))
+        rss = float(residual_sums[i])
         rms = math.sqrt(rss / count)
         bic = count * math.log(max(rss, 1e-300) / count) + parameters[i] * math.log(count)
         stats.append(AxisFit(residual_rms=rms, parameters=parameters[i], bic=bic))
