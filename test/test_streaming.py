@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from conftest import SHORT
-from tak_thermo_ros.bagio import (Topics, iter_blocks, read_driver_record, read_imu_messages, read_record,
+from tak_thermo_ros.bagio import (AUX_TYPES, DECODERS, Topics, iter_blocks, read_driver_record, read_imu_messages, read_record,
                                   write_driver_record, write_imu, write_record)
 from tak_thermo_ros.core.correction import UnitCorrector, acceleration_variance
 from tak_thermo_ros.core.effects import ThermalLag, Warmup
@@ -147,3 +147,48 @@ def test_effects_on_a_long_run_shapes_from_a_subsample_amplitudes_from_every_sam
     assert np.all(np.array([axis.residual_rms for axis in result.axes]) <= 1.1 * floor)
     for mine, theirs in zip(result.calibration.axes, whole.calibration.axes):
         assert mine.scale == pytest.approx(theirs.scale, rel=1e-4)
+
+
+@pytest.mark.parametrize('supply_type', ['battery_state', 'float64'])
+def test_block_decoder_equals_per_message_decoder_and_blocks_carry_the_recorded_signals(tmp_path, supply_type):
+    """decoder='block' (cdr.decode_messages) and 'rosbags' give the same blocks; their aux joins to read_record's."""
+    run = simulate(replace(SHORT, plateau_hours=0.05, plateaus_celsius=(10.0, 30.0), supply_voltage_drift=1.0,
+                           record_supply='/power/battery_state', record_supply_type=supply_type, seed=9))
+    path = tmp_path / 'run'
+    write_record(path, run.record, aux_types={name: AUX_TYPES[supply_type] for name in run.record.aux})
+    whole = read_record(path, progress=False)
+    assert whole.aux
+    by_decoder = {decoder: list(iter_blocks(path, kind=InputKind.COUNTS, block_samples=777, progress=False,
+                                            decoder=decoder)) for decoder in DECODERS}
+    fast, reference = by_decoder['block'], by_decoder['rosbags']
+    assert len(fast) == len(reference) > 2
+    for a, b in zip(fast, reference):
+        for name in ('counts_stamp_ns', 'counts', 'temp_stamp_ns', 'temp_code', 'reference_stamp_ns', 'reference'):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), name
+        assert a.frame_id == b.frame_id and sorted(a.aux) == sorted(whole.aux) == sorted(b.aux)
+    for name, (stamps, values) in whole.aux.items():
+        assert np.array_equal(np.concatenate([block.aux[name][0] for block in fast]), stamps)
+        assert np.array_equal(np.concatenate([block.aux[name][1] for block in fast]), values, equal_nan=True)
+
+
+def test_streamed_apply_holds_a_recorded_signal_across_blocks(tmp_path):
+    """An aux: effect: blocks of 500 write the messages of one whole-run correction, the samples
+    before the signal's first value dropped by name."""
+    from tak_thermo_ros.core.record import require_signals
+    run = simulate(replace(SHORT, plateau_hours=0.05, plateaus_celsius=(10.0, 30.0), supply_voltage_drift=2.0,
+                           record_supply='/p', record_supply_type='float64', seed=12))
+    record = run.record
+    stamps, volts = record.aux['aux:/p']
+    record = replace(record, aux={'aux:/p': (stamps[3:], volts[3:])})
+    bag = tmp_path / 'run'
+    write_record(bag, record)
+    samples = require_signals(align(record), ['aux:/p'])
+    unit = UnitCalibration(InputKind.COUNTS, fit_model(samples, effects=['aux:/p']).calibration)
+    whole = require_signals(align(record, use_reference=False), ['aux:/p'])
+    expected = UnitCorrector(unit).correct(whole.counts, whole.temp_code, stamp_s=whole.stamp_s, aux=whole.aux)
+    applied = apply_bag(bag, unit, tmp_path / 'imu', SMALL)
+    assert applied.dropped == whole.dropped and applied.dropped['before_first_aux:/p'] > 0
+    assert applied.written == len(whole)
+    written = read_imu_messages(tmp_path / 'imu', topic=Topics().imu)
+    assert np.array_equal(written.stamp_ns, whole.stamp_ns)
+    assert np.array_equal(written.linear_acceleration, expected)
