@@ -10,6 +10,12 @@ reference where there is one, stamped at or after it has been read, or once more
 ``max_pending`` samples wait). Concatenating the blocks' results equals ``align`` of the whole
 record when each stream's stamps do not go backwards across block edges and no held message
 is logged more than ``max_pending`` main samples after a main sample stamped later than it.
+
+Main's reliability rules hold across block edges: a temperature or reference message that
+``align`` ignores is counted when read and never carried (``ignored_temp_codes``,
+``ignored_references``); the stamp rule (``duplicate_stamp``, ``time_backwards``) compares a
+block's first sample with the last one aligned before it; recorded signals (``aux``) are
+carried like the temperature and waited for like it.
 """
 
 from __future__ import annotations
