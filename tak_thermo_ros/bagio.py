@@ -281,7 +281,6 @@ def read_aux_signals(reader: Reader, path: Path, *,
     other numeric fields. Stamps are the header stamps, or the bag time for a type without a
     header (``std_msgs``). Decoded by the block decoder (:mod:`tak_thermo_ros.cdr`).
     """
-    from tak_thermo_ros.core.effects.aux_signal import signal_name
     by_topic: dict[str, list] = {}
     for connection in reader.connections:
         if connection.topic not in exclude and connection.msgtype in AUX_FIELDS:
@@ -298,15 +297,27 @@ def read_aux_signals(reader: Reader, path: Path, *,
             raws.append(raw)
         if not raws:
             continue
-        try:
-            arrays = decode_messages(raws, msgtype)
-        except CdrError as err:
-            raise CdrError(f'{path}: {topic} {err}', err.index) from None
-        stamps = arrays['stamp_ns'] if 'stamp_ns' in arrays.fields else np.asarray(bag_times, dtype=np.int64)
-        for position, field in enumerate(AUX_FIELDS[msgtype]):
-            values = np.asarray(arrays[field], dtype=float)
-            signals[signal_name(topic, '' if position == 0 else field)] = (np.asarray(stamps, dtype=np.int64), values)
+        signals.update(_aux_arrays(path, topic, msgtype, raws, bag_times))
     return signals
+
+
+def _aux_signal_names(topic: str, msgtype: str) -> list[str]:
+    """The signal names a topic of an auxiliary type gives, its obvious number first."""
+    from tak_thermo_ros.core.effects.aux_signal import signal_name
+    return [signal_name(topic, '' if position == 0 else field) for position, field in enumerate(AUX_FIELDS[msgtype])]
+
+
+def _aux_arrays(path: Path, topic: str, msgtype: str, raws: list[bytes],
+                bag_times: list[int]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Name -> ``(stamp_ns, values)`` of one auxiliary topic's raw messages (header stamp, or bag time)."""
+    try:
+        arrays = decode_messages(raws, msgtype)
+    except CdrError as err:
+        raise CdrError(f'{path}: {topic} {err}', err.index) from None
+    stamps = arrays['stamp_ns'] if 'stamp_ns' in arrays.fields else np.asarray(bag_times, dtype=np.int64)
+    stamps = np.asarray(stamps, dtype=np.int64)
+    return {name: (stamps, np.asarray(arrays[field], dtype=float))
+            for name, field in zip(_aux_signal_names(topic, msgtype), AUX_FIELDS[msgtype])}
 
 
 def _aux_message(msgtype: str, stamp: int, frame_id: str, value: float):
@@ -675,28 +686,11 @@ def write_imu(path: str | os.PathLike[str], stamp_ns: np.ndarray, frame_id: str,
 
     :param force: replace an existing bag at ``path`` (:func:`tak_thermo_ros.core.files.check_output`).
     """
-    serialize = TYPESTORE.serialize_cdr
-    orientation_cov, angular_cov, linear_cov = (np.array(c) for c in imu_covariances(variance, angular_variance))
-    identity = _Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
-    zero = _Vector3(x=0.0, y=0.0, z=0.0)
-    rates = angular_velocity.tolist() if angular_velocity is not None else None
-    quaternions = orientation.tolist() if orientation is not None else None
     with _AtomicBag(path, storage, force=force) as writer:
         connection = writer.add_connection(topic, IMU, typestore=TYPESTORE)
-        for row, (stamp, (x, y, z)) in enumerate(zip(stamp_ns.tolist(), acceleration.tolist())):
-            rate = zero if rates is None else _Vector3(x=rates[row][0], y=rates[row][1], z=rates[row][2])
-            if quaternions is None:
-                quaternion, covariance = identity, orientation_cov
-            else:
-                qx, qy, qz, qw = quaternions[row]
-                quaternion = _Quaternion(x=qx, y=qy, z=qz, w=qw)
-                covariance = np.asarray(orientation_covariance[row], dtype=float)
-            message = _Imu(header=_header(stamp, frame_id), orientation=quaternion,
-                           orientation_covariance=covariance, angular_velocity=rate,
-                           angular_velocity_covariance=angular_cov,
-                           linear_acceleration=_Vector3(x=x, y=y, z=z),
-                           linear_acceleration_covariance=linear_cov)
-            writer.write(connection, stamp, serialize(message, IMU))
+        _write_imu_messages(writer, connection, stamp_ns, frame_id, acceleration, variance,
+                            angular_velocity=angular_velocity, angular_variance=angular_variance,
+                            orientation=orientation, orientation_covariance=orientation_covariance)
 
 
 def read_imu(path: str | os.PathLike[str], *, topic: str = Topics.imu) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray]:
@@ -754,3 +748,351 @@ def read_imu_messages(path: str | os.PathLike[str], *, topic: str) -> ImuMessage
                        angular_velocity_covariance=np.asarray(columns[5], dtype=float).reshape(-1, 9),
                        linear_acceleration=np.asarray(columns[6], dtype=float).reshape(-1, 3),
                        linear_acceleration_covariance=np.asarray(columns[7], dtype=float).reshape(-1, 9))
+
+
+# ----- streaming: blocks of messages in log order, and an Imu writer that stays open ----------
+
+STREAM_BLOCK_SAMPLES = 65536
+"""Main-stream messages per block of :func:`iter_blocks`."""
+
+
+@dataclass(frozen=True)
+class BagStreams:
+    """What a bag holds for a streamed read: its kind and the message count of each stream.
+
+    :param kind: the paper's counts topic, or a driver's Imu.
+    :param main: messages on the counts (or Imu) topic.
+    :param temperature: messages on the temperature topic.
+    :param reference: messages on the specific-force reference topic (0 when absent).
+    :param rate_reference: messages on the rate reference topic (driver bags; 0 when absent).
+    :param nominal_scale: the bag metadata's nominal K0 (counts bags), or ``None``.
+    """
+
+    kind: InputKind
+    main: int
+    temperature: int
+    reference: int
+    rate_reference: int
+    nominal_scale: tuple[float, float, float] | None
+
+
+def _stream_topics(kind: InputKind, topics: Topics) -> list[tuple[str, str, str]]:
+    """``(role, topic, type)`` of the streams a streamed read takes, main stream first."""
+    if kind is InputKind.COUNTS:
+        return [('main', topics.counts, VECTOR3_STAMPED), ('temperature', topics.temp_code, TEMPERATURE),
+                ('reference', topics.reference, VECTOR3_STAMPED)]
+    return [('main', topics.raw_imu, IMU), ('temperature', topics.temperature, TEMPERATURE),
+            ('reference', topics.reference, VECTOR3_STAMPED),
+            ('rate_reference', topics.reference_rate, VECTOR3_STAMPED)]
+
+
+def _cannot_read(path: Path, err: Exception) -> BagError:
+    detail = str(err).splitlines()[0] if str(err) else type(err).__name__
+    return BagError(f'{path}: cannot read bag ({detail})')
+
+
+def bag_streams(path: str | os.PathLike[str], *, topics: Topics = Topics(),
+                require_reference: bool = False) -> BagStreams:
+    """The kind and message counts of a bag, its topics' types checked, without reading messages.
+
+    :raises BagError: missing bag or topic, wrong type, an empty main, temperature or (when
+        required) reference topic.
+    """
+    path = Path(path)
+    kind = bag_input_kind(path, topics=topics)
+    try:
+        with Reader(path) as reader:
+            counts = {}
+            for role, topic, msgtype in _stream_topics(kind, topics):
+                required = role in ('main', 'temperature') or (role == 'reference' and require_reference)
+                stream = _TopicReader(reader, path, topic, msgtype, required=required)
+                if required and stream.count == 0:
+                    msg = f'{path}: no messages on {topic}'
+                    raise BagError(msg)
+                counts[role] = stream.count
+            nominal_scale = _nominal_scale(reader, path) if kind is InputKind.COUNTS else None
+    except BagError:
+        raise
+    except Exception as err:  # rosbags and the storage libraries raise many kinds
+        raise _cannot_read(path, err) from None
+    return BagStreams(kind=kind, main=counts['main'], temperature=counts['temperature'],
+                      reference=counts['reference'], rate_reference=counts.get('rate_reference', 0),
+                      nominal_scale=nominal_scale)
+
+
+def decode_vector3_stamped(raws: list[bytes]) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Stamps ``(k,)``, vectors ``(k, 3)`` and frame ids of serialised ``Vector3Stamped`` messages."""
+    deserialize = TYPESTORE.deserialize_cdr
+    stamps, values, frames = [], [], []
+    for raw in raws:
+        message = deserialize(raw, VECTOR3_STAMPED)
+        header = message.header
+        stamps.append(header.stamp.sec * NANOSECONDS + header.stamp.nanosec)
+        vector = message.vector
+        values.append((vector.x, vector.y, vector.z))
+        frames.append(header.frame_id)
+    return np.array(stamps, dtype=np.int64), np.array(values, dtype=float).reshape(-1, 3), frames
+
+
+def decode_temperatures(raws: list[bytes]) -> tuple[np.ndarray, np.ndarray]:
+    """Stamps ``(k,)`` and values ``(k,)`` of serialised ``Temperature`` messages."""
+    deserialize = TYPESTORE.deserialize_cdr
+    stamps, values = [], []
+    for raw in raws:
+        message = deserialize(raw, TEMPERATURE)
+        stamps.append(_stamp_ns(message.header))
+        values.append(message.temperature)
+    return np.array(stamps, dtype=np.int64), np.array(values, dtype=float)
+
+
+def decode_imus(raws: list[bytes]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[str]]:
+    """Stamps, accel ``(k, 3)``, gyro ``(k, 3)``, orientation ``(k, 4)``, its covariance ``(k, 9)``, frame ids."""
+    deserialize = TYPESTORE.deserialize_cdr
+    count = len(raws)
+    stamps = np.empty(count, dtype=np.int64)
+    accel = np.empty((count, 3))
+    gyro = np.empty((count, 3))
+    orientation = np.empty((count, 4))
+    covariance = np.empty((count, 9))
+    frames = []
+    for row, raw in enumerate(raws):
+        message = deserialize(raw, IMU)
+        header = message.header
+        stamps[row] = header.stamp.sec * NANOSECONDS + header.stamp.nanosec
+        acc, rate, quaternion = message.linear_acceleration, message.angular_velocity, message.orientation
+        accel[row] = (acc.x, acc.y, acc.z)
+        gyro[row] = (rate.x, rate.y, rate.z)
+        orientation[row] = (quaternion.x, quaternion.y, quaternion.z, quaternion.w)
+        covariance[row] = message.orientation_covariance
+        frames.append(header.frame_id)
+    return stamps, accel, gyro, orientation, covariance, frames
+
+
+class _FrameCheck:
+    """One frame_id per run on the main stream, as the whole-bag readers require."""
+
+    def __init__(self, path: Path, topic: str) -> None:
+        self.path, self.topic = path, topic
+        self.frame_id: str | None = None
+        self.seen = 0
+
+    def check(self, frames: list[str] | MessageArrays) -> str:
+        if isinstance(frames, MessageArrays):
+            codes, labels = frames['frame_id'], frames.labels['frame_id']
+            if len(labels) == 1 and (self.frame_id is None or labels[0] == self.frame_id):
+                self.frame_id = labels[0]
+                self.seen += len(codes)
+                return self.frame_id
+            frames = frames.strings('frame_id')
+        if frames and self.frame_id is None:
+            self.frame_id = frames[0]
+        for offset, frame in enumerate(frames):
+            if frame != self.frame_id:
+                msg = (f'{self.path}: frame_id on {self.topic} changes from {self.frame_id!r} to '
+                       f'{frame!r} at message {self.seen + offset + 1}; one frame per run is supported')
+                raise BagError(msg)
+        self.seen += len(frames)
+        return self.frame_id or ''
+
+
+def _aux_topics(reader: Reader, path: Path, exclude: tuple[str, ...]) -> dict[str, str]:
+    """Topic -> type of the auxiliary signal topics of an open bag (as :func:`read_aux_signals`)."""
+    types: dict[str, set[str]] = {}
+    for connection in reader.connections:
+        if connection.topic not in exclude and connection.msgtype in AUX_FIELDS:
+            types.setdefault(connection.topic, set()).add(connection.msgtype)
+    for topic, found in types.items():
+        if len(found) > 1:
+            msg = f'{path}: topic {topic} has more than one type ({", ".join(sorted(found))})'
+            raise BagError(msg)
+    return {topic: next(iter(found)) for topic, found in sorted(types.items())}
+
+
+def iter_blocks(path: str | os.PathLike[str], *, topics: Topics = Topics(), kind: InputKind,
+                block_samples: int = STREAM_BLOCK_SAMPLES, references: bool = True,
+                progress: bool = True, decoder: str = 'block') -> Iterator[ChannelRecord | DriverRecord]:
+    """The bag's messages in log order, one block per ``block_samples`` main-stream messages.
+
+    Each block holds its main-stream messages and the temperature, reference and auxiliary
+    signal messages logged since the previous block, as a :class:`ChannelRecord` (counts bags:
+    the metadata's nominal scale attached) or a :class:`DriverRecord` (driver bags), for
+    :func:`tak_thermo_ros.core.blocks.align_block`. Every block's ``aux`` names every auxiliary
+    signal of the bag (empty arrays where the block has none of its messages). The raw messages
+    of a block are collected per topic and decoded together.
+
+    :param references: also read the reference topics (``False``: ``apply``).
+    :param decoder: one of :data:`DECODERS`: ``block`` (:func:`tak_thermo_ros.cdr.decode_messages`)
+        or ``rosbags`` (``decode_*``, one ``deserialize_cdr`` per message, the reference); both
+        give the same blocks.
+    :raises BagError: as the whole-bag readers (missing topic, wrong type, changing frame_id,
+        truncated or unreadable file).
+    """
+    if decoder not in DECODERS:
+        msg = f'decoder must be one of {DECODERS}, got {decoder!r}'
+        raise ValueError(msg)
+    path = Path(path)
+    streams = bag_streams(path, topics=topics)
+    roles = [(role, topic, msgtype) for role, topic, msgtype in _stream_topics(kind, topics)
+             if references or role in ('main', 'temperature')]
+    temperature_topic = topics.temp_code if kind is InputKind.COUNTS else topics.temperature
+    try:
+        with Reader(path) as reader:
+            by_connection: dict[int, str] = {}
+            for role, topic, _ in roles:
+                for connection in reader.connections:
+                    if connection.topic == topic:
+                        by_connection[connection.id] = role
+            aux_topics = _aux_topics(reader, path, (temperature_topic,))
+            for connection in reader.connections:
+                if connection.topic in aux_topics and connection.id not in by_connection:
+                    by_connection[connection.id] = f'aux {connection.topic}'
+            connections = [c for c in reader.connections if c.id in by_connection]
+            frames = _FrameCheck(path, roles[0][1])
+            names = {role: topic for role, topic, _ in roles}
+            total = sum(c.msgcount for c in connections)
+            read_main = 0
+            buckets = [role for role, _, _ in roles] + [f'aux {topic}' for topic in aux_topics]
+            raws: dict[str, list[bytes]] = {role: [] for role in buckets}
+            bag_times: dict[str, list[int]] = {role: [] for role in buckets}
+            with Progress(total, f'reading {path.name}', enabled=None if progress else False) as bar:
+                for connection, timestamp, raw in reader.messages(connections=connections):
+                    role = by_connection[connection.id]
+                    bucket = raws[role]
+                    bucket.append(raw)
+                    bag_times[role].append(timestamp)
+                    if role == 'main' and len(bucket) == block_samples:
+                        read_main += len(bucket)
+                        bar.advance(sum(len(v) for v in raws.values()))
+                        yield _decode_block(path, kind, raws, bag_times, aux_topics, frames, streams.nominal_scale,
+                                            decoder, names)
+                        raws = {r: [] for r in buckets}
+                        bag_times = {r: [] for r in buckets}
+                read_main += len(raws['main'])
+                yield _decode_block(path, kind, raws, bag_times, aux_topics, frames, streams.nominal_scale, decoder,
+                                    names)
+    except BagError:
+        raise
+    except Exception as err:  # rosbags and the storage libraries raise many kinds
+        raise _cannot_read(path, err) from None
+    if read_main != streams.main:
+        msg = f'{path}: {roles[0][1]} holds {read_main} of the {streams.main} messages its index lists (truncated bag?)'
+        raise BagError(msg)
+
+
+def _block_arrays(path: Path, raws: list[bytes], msgtype: str, topic: str) -> MessageArrays:
+    try:
+        return decode_messages(raws, msgtype)
+    except CdrError as err:
+        raise CdrError(f'{path}: {topic} {err}', err.index) from None
+
+
+def _decode_vectors(path: Path, raws: list[bytes], topic: str,
+                    decoder: str) -> tuple[np.ndarray, np.ndarray, list[str] | MessageArrays]:
+    if decoder == 'rosbags' or not raws:
+        return decode_vector3_stamped(raws)
+    arrays = _block_arrays(path, raws, VECTOR3_STAMPED, topic)
+    return np.asarray(arrays['stamp_ns'], dtype=np.int64), np.asarray(arrays['vector'], dtype=float), arrays
+
+
+def _decode_block(path: Path, kind: InputKind, raws: dict[str, list[bytes]], bag_times: dict[str, list[int]],
+                  aux_topics: dict[str, str], frames: _FrameCheck, nominal_scale: tuple[float, float, float] | None,
+                  decoder: str, names: dict[str, str]) -> ChannelRecord | DriverRecord:
+    temperature_raws = raws['temperature']
+    if decoder == 'rosbags' or not temperature_raws:
+        temp_stamp, temperature = decode_temperatures(temperature_raws)
+    else:
+        arrays = _block_arrays(path, temperature_raws, TEMPERATURE, names['temperature'])
+        temp_stamp, temperature = np.asarray(arrays['stamp_ns'], dtype=np.int64), np.asarray(arrays['temperature'],
+                                                                                              dtype=float)
+    reference_stamp, reference, _ = _decode_vectors(path, raws.get('reference', []), names.get('reference', ''), decoder)
+    aux: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for topic, msgtype in aux_topics.items():
+        role = f'aux {topic}'
+        if raws[role]:
+            aux.update(_aux_arrays(path, topic, msgtype, raws[role], bag_times[role]))
+        else:
+            aux.update({name: (np.zeros(0, dtype=np.int64), np.zeros(0))
+                        for name in _aux_signal_names(topic, msgtype)})
+    if kind is InputKind.COUNTS:
+        stamps, counts, frame_ids = _decode_vectors(path, raws['main'], names['main'], decoder)
+        return ChannelRecord(counts_stamp_ns=stamps, counts=counts, temp_stamp_ns=temp_stamp, temp_code=temperature,
+                             reference_stamp_ns=reference_stamp, reference=reference,
+                             frame_id=frames.check(frame_ids), nominal_scale=nominal_scale, aux=aux)
+    if decoder == 'rosbags' or not raws['main']:
+        stamps, accel, gyro, orientation, covariance, frame_ids = decode_imus(raws['main'])
+    else:
+        arrays = _block_arrays(path, raws['main'], IMU, names['main'])
+        stamps = np.asarray(arrays['stamp_ns'], dtype=np.int64)
+        accel = np.asarray(arrays['linear_acceleration'], dtype=float)
+        gyro = np.asarray(arrays['angular_velocity'], dtype=float)
+        orientation = np.asarray(arrays['orientation'], dtype=float)
+        covariance = np.asarray(arrays['orientation_covariance'], dtype=float)
+        frame_ids = arrays
+    rate_stamp, rate, _ = _decode_vectors(path, raws.get('rate_reference', []), names.get('rate_reference', ''), decoder)
+    return DriverRecord(stamp_ns=stamps, accel=accel, gyro=gyro, orientation=orientation,
+                        orientation_covariance=covariance, temp_stamp_ns=temp_stamp, temperature=temperature,
+                        reference_stamp_ns=reference_stamp, reference=reference,
+                        rate_reference_stamp_ns=rate_stamp, rate_reference=rate, frame_id=frames.check(frame_ids),
+                        aux=aux)
+
+
+class ImuBagWriter:
+    """An Imu bag written block by block (``apply`` streaming), atomically as :func:`write_imu`.
+
+    Use as a context manager; :meth:`write` takes the arguments of :func:`write_imu` for one
+    block of samples. The bag appears at ``path`` only when the block ``with`` ends without
+    an exception.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *, topic: str = Topics.imu, storage: str = 'mcap',
+                 force: bool = False) -> None:
+        self._bag = _AtomicBag(path, storage, force=force)
+        self._topic = topic
+        self._writer: Writer | None = None
+        self._connection = None
+        self.written = 0
+
+    def __enter__(self) -> ImuBagWriter:
+        self._writer = self._bag.__enter__()
+        self._connection = self._writer.add_connection(self._topic, IMU, typestore=TYPESTORE)
+        return self
+
+    def __exit__(self, exc_type, exc, traceback) -> None:
+        self._bag.__exit__(exc_type, exc, traceback)
+
+    def write(self, stamp_ns: np.ndarray, frame_id: str, acceleration: np.ndarray,
+              variance: tuple[float, float, float], *, angular_velocity: np.ndarray | None = None,
+              angular_variance: tuple[float, float, float] | None = None, orientation: np.ndarray | None = None,
+              orientation_covariance: np.ndarray | None = None) -> None:
+        """Append one block of corrected samples (see :func:`write_imu`)."""
+        assert self._writer is not None, 'ImuBagWriter.write outside its with block'
+        _write_imu_messages(self._writer, self._connection, stamp_ns, frame_id, acceleration, variance,
+                            angular_velocity=angular_velocity, angular_variance=angular_variance,
+                            orientation=orientation, orientation_covariance=orientation_covariance)
+        self.written += len(stamp_ns)
+
+
+def _write_imu_messages(writer: Writer, connection, stamp_ns: np.ndarray, frame_id: str, acceleration: np.ndarray,
+                        variance: tuple[float, float, float], *, angular_velocity: np.ndarray | None,
+                        angular_variance: tuple[float, float, float] | None, orientation: np.ndarray | None,
+                        orientation_covariance: np.ndarray | None) -> None:
+    serialize = TYPESTORE.serialize_cdr
+    orientation_cov, angular_cov, linear_cov = (np.array(c) for c in imu_covariances(variance, angular_variance))
+    identity = _Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
+    zero = _Vector3(x=0.0, y=0.0, z=0.0)
+    rates = angular_velocity.tolist() if angular_velocity is not None else None
+    quaternions = orientation.tolist() if orientation is not None else None
+    for row, (stamp, (x, y, z)) in enumerate(zip(stamp_ns.tolist(), acceleration.tolist())):
+        rate = zero if rates is None else _Vector3(x=rates[row][0], y=rates[row][1], z=rates[row][2])
+        if quaternions is None:
+            quaternion, covariance = identity, orientation_cov
+        else:
+            qx, qy, qz, qw = quaternions[row]
+            quaternion = _Quaternion(x=qx, y=qy, z=qz, w=qw)
+            covariance = np.asarray(orientation_covariance[row], dtype=float)
+        message = _Imu(header=_header(stamp, frame_id), orientation=quaternion,
+                       orientation_covariance=covariance, angular_velocity=rate,
+                       angular_velocity_covariance=angular_cov,
+                       linear_acceleration=_Vector3(x=x, y=y, z=z),
+                       linear_acceleration_covariance=linear_cov)
+        writer.write(connection, stamp, serialize(message, IMU))

@@ -31,7 +31,7 @@ import numpy as np  # noqa: E402
 from tak_thermo_ros import options as bounds
 from tak_thermo_ros.core.calibration_file import load_unit, save_unit
 from tak_thermo_ros.core.files import BAG, FILE, REPORT, atomic_directory, check_output, write_text_atomic
-from tak_thermo_ros.core.correction import Corrector, OutOfRange, UnitCorrector, acceleration_variance
+from tak_thermo_ros.core.correction import Corrector, OutOfRange
 from tak_thermo_ros.core.effects.aux_signal import signals_with_values
 from tak_thermo_ros.core.fit import FitResult, fit_model
 from tak_thermo_ros.core.model import AXES, InputKind, UnitCalibration
@@ -39,7 +39,6 @@ from tak_thermo_ros.core.record import REFERENCE_LIMIT, TEMPERATURE_RANGE, Align
 from tak_thermo_ros.core.record import require_signals
 from tak_thermo_ros.core.simulate import STANDARD_GRAVITY, Scenario, load_scenario, simulate
 from tak_thermo_ros.core.static_run import STATIC_TOLERANCE_DEG, static_reference
-from tak_thermo_ros.core.validate import validate_gravity, validate_rate
 from tak_thermo_ros.errors import FitError, TakError
 
 EXIT_ERROR = 2
@@ -231,7 +230,20 @@ def _describe_dropped(dropped: dict[str, int]) -> str:
     return ', '.join(f'{count} {reason.replace("_", " ")}' for reason, count in sorted(dropped.items()))
 
 
-def _print_ignored(samples: AlignedSamples, args: argparse.Namespace,
+@dataclass(frozen=True)
+class _IgnoredCounts:
+    """Temperature and reference messages ignored (not held), by reason, as :class:`AlignedSamples` counts them."""
+
+    ignored_temp_codes: dict[str, int]
+    ignored_references: dict[str, int]
+
+
+def _stream_options(args: argparse.Namespace):
+    from tak_thermo_ros.streaming import StreamOptions
+    return StreamOptions(topics=_topics(args), progress=not args.no_progress)
+
+
+def _print_ignored(samples: AlignedSamples | _IgnoredCounts, args: argparse.Namespace,
                    input_kind: InputKind = InputKind.COUNTS, sensor: str = 'accel') -> None:
     """One line per reason a temperature or reference message was ignored (not held), if any was."""
     topics = _topics(args)
@@ -374,8 +386,9 @@ def _in_si(value: float, unit: str) -> str:
 
 
 def cmd_apply(args: argparse.Namespace) -> int:
-    """Correct a bag's counts or driver Imu and write Imu messages."""
-    from tak_thermo_ros.bagio import bag_input_kind, read_driver_record, read_record, write_imu
+    """Correct a bag's counts or driver Imu and write Imu messages (block by block, bounded memory)."""
+    from tak_thermo_ros.bagio import bag_input_kind
+    from tak_thermo_ros.streaming import apply_bag
     unit = load_unit(args.params)
     topics = _topics(args)
     kind = bag_input_kind(args.bag, topics=topics)
@@ -383,30 +396,13 @@ def cmd_apply(args: argparse.Namespace) -> int:
         msg = (f'{args.params} is a calibration for {unit.input_kind.value} input, {args.bag} holds '
                f'{"channel codes" if kind is InputKind.COUNTS else "a driver Imu"}')
         raise TakError(msg)
-    driver = None
-    if kind is InputKind.COUNTS:
-        record = read_record(args.bag, topics=topics, require_reference=False, progress=not args.no_progress)
-        output_topic = topics.imu
-    else:
-        driver = read_driver_record(args.bag, topics=topics, progress=not args.no_progress)
-        record = driver.six_channels()
-        output_topic = topics.compensated_imu
-    corrector = UnitCorrector(unit, out_of_range=OutOfRange(args.out_of_range))
-    samples = require_signals(align(record, use_reference=False), corrector.signals)
-    corrected = corrector.correct(samples.counts, samples.temp_code, stamp_s=samples.stamp_s, aux=samples.aux)
-    _require_finite(corrected, f'{args.output}: corrected values')
-    extra = {}
-    if driver is not None:
-        kept = samples.rows
-        extra = dict(angular_velocity=corrected[:, 3:6], angular_variance=acceleration_variance(unit.gyro),
-                     orientation=driver.orientation[kept], orientation_covariance=driver.orientation_covariance[kept])
-    write_imu(args.output, samples.stamp_ns, record.frame_id, corrected[:, :3], acceleration_variance(unit.accel),
-              topic=output_topic, storage=args.storage, force=args.force, **extra)
-    print(f'wrote {len(samples)} Imu messages on {output_topic} to {args.output}')
-    _print_ignored(samples, args, kind)
-    if samples.dropped:
-        print(f'dropped {"counts" if driver is None else "Imu"} messages: {_describe_dropped(samples.dropped)}')
-    outside = corrector.out_of_range_count(samples.temp_code)
+    applied = apply_bag(args.bag, unit, args.output, _stream_options(args), storage=args.storage,
+                        out_of_range=OutOfRange(args.out_of_range), force=args.force)
+    print(f'wrote {applied.written} Imu messages on {applied.topic} to {args.output}')
+    _print_ignored(applied, args, kind)
+    if applied.dropped:
+        print(f'dropped {"counts" if kind is InputKind.COUNTS else "Imu"} messages: {_describe_dropped(applied.dropped)}')
+    outside = applied.out_of_range
     if outside:
         low, high = unit.accel.temp_code_min, unit.accel.temp_code_max
         what = 'temperature code' if kind is InputKind.COUNTS else 'temperature'
@@ -416,23 +412,26 @@ def cmd_apply(args: argparse.Namespace) -> int:
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
-    """|g| from the three accelerometer channels (and the gyroscope's rate error) before and after correction."""
+    """|g| from the three accelerometer channels (and the gyroscope's rate error) before and after correction.
+
+    The bag is read block by block (bounded memory); the errors are accumulated as sums.
+    """
+    from tak_thermo_ros.streaming import validate_bag
     unit = load_unit(args.params)
-    run = _read_run(args, calibration_run=unit.input_kind is InputKind.IMU)
-    _check_kind(args, unit, run)
-    accel = require_signals(run.sensor('accel').samples, Corrector(unit.accel).signals)
-    if not len(accel):
-        left_out = f' (left out: {_describe_dropped(accel.dropped)})' if accel.dropped else ''
+    run = validate_bag(args.bag, unit, _stream_options(args), gravity=args.gravity,
+                       latitude=getattr(args, 'latitude', None), out_of_range=OutOfRange(args.out_of_range),
+                       expect_kind=lambda kind: _check_kind(args, unit, BagRun(kind, ())))
+    result = run.gravity
+    if not result.samples:
+        left_out = f' (left out: {_describe_dropped(run.accel_dropped)})' if run.accel_dropped else ''
         msg = f'{args.bag}: no usable samples to validate{left_out}'
         raise TakError(msg)
-    result = validate_gravity(unit.accel, accel.counts, accel.temp_code, gravity=args.gravity,
-                              stamp_s=accel.stamp_s, aux=accel.aux, out_of_range=OutOfRange(args.out_of_range))
-    before, after = result.before, result.after
+    before, after = result.before.gravity_error(), result.after.gravity_error()
     _require_finite([before.rms, before.max, after.rms, after.max], f'{args.bag}: |g| error')
-    _print_ignored(accel, args, run.input_kind)
-    if accel.dropped:
-        print(f'left out: {_describe_dropped(accel.dropped)}')
-    print(f'|g| error over {len(accel)} samples of {args.bag} (gravity {args.gravity:g} m/s^2):')
+    _print_ignored(_IgnoredCounts(run.accel_ignored_temp_codes, run.accel_ignored_references), args, run.input_kind)
+    if run.accel_dropped:
+        print(f'left out: {_describe_dropped(run.accel_dropped)}')
+    print(f'|g| error over {result.samples} samples of {args.bag} (gravity {args.gravity:g} m/s^2):')
     print(f'  before (nominal scale and offset): RMS {before.rms:.5f} m/s^2 ({before.rms / args.gravity * 1e3:.3f} mg), '
           f'max {before.max:.5f} m/s^2')
     print(f'  after  (full correction link):     RMS {after.rms:.5f} m/s^2 ({after.rms / args.gravity * 1e3:.3f} mg), '
@@ -440,21 +439,20 @@ def cmd_validate(args: argparse.Namespace) -> int:
     if result.out_of_range:
         print(f'warning: {result.out_of_range} samples outside the calibrated temperature range ({args.out_of_range})')
     document = {'bag': str(args.bag), 'params': str(args.params), 'gravity': args.gravity,
-                'samples': len(accel), 'out_of_range': result.out_of_range,
+                'samples': result.samples, 'out_of_range': result.out_of_range,
                 'before': before.as_dict(), 'after': after.as_dict()}
-    if unit.gyro is not None:
+    if unit.gyro is not None and run.rate is not None:
         for line in run.reference_lines:
             if line.startswith('rate reference'):
                 print(line)
-        gyro = require_signals(run.sensor('gyro').samples, Corrector(unit.gyro).signals)
-        rate = validate_rate(unit.gyro, gyro.counts, gyro.temp_code, gyro.reference, stamp_s=gyro.stamp_s,
-                             aux=gyro.aux, out_of_range=OutOfRange(args.out_of_range))
-        print(f'gyroscope bias error over {len(gyro)} samples (rate minus reference, per axis x y z):')
-        for label, stats in (('before (nominal scale and offset):', rate.before),
-                             ('after  (full correction link):', rate.after)):
+        rate = run.rate
+        rate_before, rate_after = rate.before.rate_error(), rate.after.rate_error()
+        print(f'gyroscope bias error over {rate.samples} samples (rate minus reference, per axis x y z):')
+        for label, stats in (('before (nominal scale and offset):', rate_before),
+                             ('after  (full correction link):', rate_after)):
             print(f'  {label:<35}RMS ' + ' '.join(f'{v:.3e}' for v in stats.rms) + ' rad/s; mean '
                   + ' '.join(f'{v:+.3e}' for v in stats.mean) + ' rad/s')
-        document['gyro'] = {'samples': len(gyro), 'before': rate.before.as_dict(), 'after': rate.after.as_dict()}
+        document['gyro'] = {'samples': rate.samples, 'before': rate_before.as_dict(), 'after': rate_after.as_dict()}
     if args.json:
         write_text_atomic(args.json, _json_text(document, args.json))
         print(f'wrote {args.json}')

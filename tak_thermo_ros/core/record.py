@@ -189,14 +189,20 @@ def _usable_hold_index(source_stamp_ns: np.ndarray, problems: dict[str, np.ndarr
     return np.where(held >= 0, rows[np.maximum(held, 0)], -1)
 
 
-def stamp_problems(stamp_ns: np.ndarray) -> dict[str, np.ndarray]:
+def stamp_problems(stamp_ns: np.ndarray, *, previous_stamp_ns: int | None = None) -> dict[str, np.ndarray]:
     """Masks ``(k,)`` per reason of :data:`STAMP_DROP_REASONS`, in bag (arrival) order.
 
     A counts sample whose header stamp equals the previous counts message's (whatever became
     of that one) is a ``duplicate_stamp``; one stamped earlier is ``time_backwards``. The node
     applies the same rule per message.
+
+    :param previous_stamp_ns: the stamp of the message before the first one (a run read in
+        blocks), or ``None``.
     """
     stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
+    if previous_stamp_ns is not None:
+        with_previous = np.concatenate([np.array([previous_stamp_ns], dtype=np.int64), stamp_ns])
+        return {reason: mask[1:] for reason, mask in stamp_problems(with_previous).items()}
     duplicate = np.zeros(len(stamp_ns), dtype=bool)
     backwards = np.zeros(len(stamp_ns), dtype=bool)
     if len(stamp_ns) > 1:
@@ -259,7 +265,7 @@ class AlignedSamples:
 
 
 def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: float = 0.0,
-          drop_saturated: bool = True) -> AlignedSamples:
+          drop_saturated: bool = True, previous_stamp_ns: int | None = None) -> AlignedSamples:
     """Hold temperature code and reference on the counts stamps and keep usable samples.
 
     Counts samples are left out, and counted by reason, in this order: the header stamp is
@@ -274,6 +280,9 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
     is never held: the previous good code stays, as in the node; the ignored codes are counted
     in :attr:`AlignedSamples.ignored_temp_codes`. A reference message likewise
     (:func:`reference_problems`, :attr:`AlignedSamples.ignored_references`).
+
+    :param previous_stamp_ns: the stamp of the counts message before the record's first one
+        (a run aligned in blocks, :mod:`tak_thermo_ros.core.blocks`), or ``None``.
     """
     stamps = record.counts_stamp_ns
     counts = record.counts
@@ -286,7 +295,7 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
             dropped[reason] = dropped.get(reason, 0) + int(np.count_nonzero(newly))
             keep[newly] = False
 
-    for reason, mask in stamp_problems(stamps).items():
+    for reason, mask in stamp_problems(stamps, previous_stamp_ns=previous_stamp_ns).items():
         leave_out(reason, mask)
     for reason, mask in counts_problems(counts, whole_codes=record.input_kind == 'counts').items():
         if reason != 'saturated' or drop_saturated:

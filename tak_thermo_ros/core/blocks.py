@@ -1,0 +1,299 @@
+"""Alignment of a run that arrives in blocks, with the held streams carried across block edges.
+
+A bag is read in log order, one block of main-stream messages (counts, or a driver's Imu) at
+a time, together with the temperature and reference messages logged in between.
+:func:`align_block` aligns one block by :func:`~tak_thermo_ros.core.record.align` itself, on a
+small record made of the carried state and the block: the last held temperature and reference
+messages (and the reference's last change, for ``settle_time_s``), plus the tail of main
+samples whose held values may still arrive (a sample is aligned once a temperature, and a
+reference where there is one, stamped at or after it has been read, or once more than
+``max_pending`` samples wait). Concatenating the blocks' results equals ``align`` of the whole
+record when each stream's stamps do not go backwards across block edges and no held message
+is logged more than ``max_pending`` main samples after a main sample stamped later than it.
+
+Main's reliability rules hold across block edges: a temperature or reference message that
+``align`` ignores is counted when read and never carried (``ignored_temp_codes``,
+``ignored_references``); the stamp rule (``duplicate_stamp``, ``time_backwards``) compares a
+block's first sample with the last one aligned before it; recorded signals (``aux``) are
+carried like the temperature and waited for like it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from tak_thermo_ros.core.record import (AlignedSamples, ChannelRecord, align, hold_last_index, reference_problems,
+                                        temp_code_problems)
+
+NEVER = np.iinfo(np.int64).max
+"""Stamp of a placeholder reference that no sample reaches (no reference read yet)."""
+
+
+def _empty_stamps() -> np.ndarray:
+    return np.zeros(0, dtype=np.int64)
+
+
+@dataclass(frozen=True)
+class AlignState:
+    """What one block's alignment hands to the next.
+
+    :param temp_stamp_ns: carried temperature messages' stamps (log order).
+    :param temp_code: their values.
+    :param reference_stamp_ns: carried reference messages' stamps (log order).
+    :param reference: ``(r, 3)`` their values.
+    :param pending_stamp_ns: main samples read but not aligned yet.
+    :param pending_values: ``(p, c)`` their values.
+    :param rows_done: main samples aligned (kept or dropped) before the pending ones.
+    :param last_stamp_ns: the largest stamp among the aligned main samples, or ``None``.
+    :param temp_seen_ns: the largest temperature stamp read, or ``None``.
+    :param reference_seen_ns: the largest reference stamp read, or ``None``.
+    :param previous_stamp_ns: the stamp of the last main sample aligned (kept or dropped), for
+        the ``duplicate_stamp`` / ``time_backwards`` rule across block edges, or ``None``.
+    :param aux: carried recorded signals, name -> ``(stamp_ns, values)`` (finite values only).
+    :param aux_seen_ns: per recorded signal the largest stamp read, or ``None``.
+    """
+
+    temp_stamp_ns: np.ndarray = field(default_factory=_empty_stamps)
+    temp_code: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    reference_stamp_ns: np.ndarray = field(default_factory=_empty_stamps)
+    reference: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    pending_stamp_ns: np.ndarray = field(default_factory=_empty_stamps)
+    pending_values: np.ndarray | None = None
+    rows_done: int = 0
+    last_stamp_ns: int | None = None
+    temp_seen_ns: int | None = None
+    reference_seen_ns: int | None = None
+    previous_stamp_ns: int | None = None
+    aux: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    aux_seen_ns: dict[str, int | None] = field(default_factory=dict)
+
+
+def _count_problems(problems: dict[str, np.ndarray]) -> tuple[dict[str, int], np.ndarray]:
+    """Counts per reason (reasons with none left out) and the mask of messages without a problem."""
+    counts: dict[str, int] = {}
+    usable = None
+    for reason, mask in problems.items():
+        usable = ~mask if usable is None else usable & ~mask
+        if mask.any():
+            counts[reason] = int(np.count_nonzero(mask))
+    return counts, usable if usable is not None else np.zeros(0, dtype=bool)
+
+
+def _carried_signal(stamps: np.ndarray, values: np.ndarray, horizon: int | None) -> np.ndarray:
+    """The held value of a recorded signal at ``horizon`` plus those stamped later."""
+    if horizon is None or not len(stamps):
+        return _kept_held(stamps, None, [])
+    held = int(hold_last_index(stamps, np.array([horizon], dtype=np.int64))[0])
+    return _kept_held(stamps, horizon, [held])
+
+
+def _latest(current: int | None, stamps: np.ndarray) -> int | None:
+    if not len(stamps):
+        return current
+    top = int(stamps.max())
+    return top if current is None else max(current, top)
+
+
+def _kept_held(stamps: np.ndarray, horizon: int | None, extra: list[int]) -> np.ndarray:
+    """Indices (log order) of held messages still needed after main samples up to ``horizon``."""
+    if horizon is None:
+        return np.arange(len(stamps))
+    keep = stamps > horizon
+    for index in extra:
+        if index >= 0:
+            keep[index] = True
+    return np.flatnonzero(keep)
+
+
+def _carried_temperatures(stamps: np.ndarray, values: np.ndarray, horizon: int | None) -> np.ndarray:
+    """The held temperature at ``horizon`` (and the last finite one) plus those stamped later."""
+    if horizon is None or not len(stamps):
+        return _kept_held(stamps, None, [])
+    at = np.array([horizon], dtype=np.int64)
+    held = int(hold_last_index(stamps, at)[0])
+    finite = np.flatnonzero(np.isfinite(values))
+    position = int(hold_last_index(stamps[finite], at)[0]) if len(finite) else -1
+    held_finite = int(finite[position]) if position >= 0 else -1
+    return _kept_held(stamps, horizon, [held, held_finite])
+
+
+def _carried_references(stamps: np.ndarray, values: np.ndarray, horizon: int | None) -> np.ndarray:
+    """The held reference at ``horizon``, the message that last changed it, and later ones."""
+    if horizon is None or not len(stamps):
+        return _kept_held(stamps, None, [])
+    held = int(hold_last_index(stamps, np.array([horizon], dtype=np.int64))[0])
+    if held < 0:
+        return _kept_held(stamps, horizon, [])
+    order = np.argsort(stamps, kind='stable')
+    position = int(np.flatnonzero(order == held)[0])
+    sorted_values = values[order[:position + 1]]
+    changed = np.ones(position + 1, dtype=bool)
+    changed[1:] = np.any(sorted_values[1:] != sorted_values[:-1], axis=1)
+    last_change = int(order[np.flatnonzero(changed)[-1]])
+    return _kept_held(stamps, horizon, [held, last_change])
+
+
+def align_block(state: AlignState, block: ChannelRecord, *, final: bool, use_reference: bool = True,
+                reference_expected: bool = False, settle_time_s: float = 0.0, drop_saturated: bool = True,
+                max_pending: int = 262_144) -> tuple[AlignedSamples, AlignState]:
+    """Align one block of a run read in log order (see the module's description).
+
+    :param state: what the previous block handed on (``AlignState()`` for the first block).
+    :param block: the block's main samples and the held messages read with them.
+    :param final: the last block: every pending sample is aligned.
+    :param use_reference: hold the reference (as :func:`align`).
+    :param reference_expected: the run has a reference stream (its topic holds messages):
+        samples before its first message are dropped as ``before_first_reference``, also in
+        blocks that carry no reference message yet.
+    :param max_pending: at most this many main samples wait for their held values.
+    :returns: the block's aligned samples (``rows`` index the whole stream, ``dropped``
+        counts this block only) and the state for the next block.
+    """
+    width = block.counts.shape[1] if block.counts.ndim == 2 else 3
+    pending_values = state.pending_values if state.pending_values is not None else np.zeros((0, width))
+    stamps = np.concatenate([state.pending_stamp_ns, block.counts_stamp_ns])
+    values = np.concatenate([pending_values, block.counts]) if len(block.counts) else pending_values
+    # A temperature or reference message that align() would ignore (never hold) is counted
+    # when it is read and not carried: the held values are the same without it.
+    block_temp = np.asarray(block.temp_code, dtype=float)
+    ignored_temp_codes, temp_usable = _count_problems(temp_code_problems(block_temp, block.input_kind))
+    temp_stamps = np.concatenate([state.temp_stamp_ns, block.temp_stamp_ns[temp_usable]])
+    temp_values = np.concatenate([state.temp_code, block_temp[temp_usable]])
+    holding_reference = use_reference and reference_expected
+    ignored_references: dict[str, int] = {}
+    if holding_reference:
+        block_reference = np.asarray(block.reference, dtype=float).reshape(-1, 3)
+        ignored_references, reference_usable = _count_problems(reference_problems(block_reference))
+        reference_stamps = np.concatenate([state.reference_stamp_ns, block.reference_stamp_ns[reference_usable]])
+        reference_values = np.concatenate([state.reference, block_reference[reference_usable]])
+    else:
+        reference_stamps, reference_values = _empty_stamps(), np.zeros((0, 3))
+    temp_seen = _latest(state.temp_seen_ns, block.temp_stamp_ns)
+    reference_seen = _latest(state.reference_seen_ns, block.reference_stamp_ns)
+    aux: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    aux_seen: dict[str, int | None] = {}
+    for name in sorted(set(state.aux) | set(block.aux)):
+        carried_stamps, carried_values = state.aux.get(name, (_empty_stamps(), np.zeros(0)))
+        new_stamps, new_values = block.aux.get(name, (_empty_stamps(), np.zeros(0)))
+        new_stamps = np.asarray(new_stamps, dtype=np.int64)
+        new_values = np.asarray(new_values, dtype=float)
+        finite = np.isfinite(new_values)
+        aux[name] = (np.concatenate([carried_stamps, new_stamps[finite]]),
+                     np.concatenate([carried_values, new_values[finite]]))
+        aux_seen[name] = _latest(state.aux_seen_ns.get(name), new_stamps)
+
+    ready = len(stamps)
+    if not final:
+        horizons = [temp_seen, *aux_seen.values()]
+        if holding_reference:
+            horizons.append(reference_seen)
+        if any(h is None for h in horizons):
+            ready = 0
+        else:
+            late = np.flatnonzero(stamps > min(horizons))  # type: ignore[type-var]
+            ready = int(late[0]) if len(late) else len(stamps)
+        ready = max(ready, len(stamps) - max_pending)
+
+    if holding_reference and not len(reference_stamps):
+        # a placeholder (finite, so not an ignored message) that no sample reaches
+        part_reference_stamps = np.array([NEVER], dtype=np.int64)
+        part_reference = np.zeros((1, 3))
+    else:
+        part_reference_stamps, part_reference = reference_stamps, reference_values
+    part = ChannelRecord(counts_stamp_ns=stamps[:ready], counts=values[:ready], temp_stamp_ns=temp_stamps,
+                         temp_code=temp_values, reference_stamp_ns=part_reference_stamps,
+                         reference=part_reference, frame_id=block.frame_id, nominal_scale=block.nominal_scale,
+                         input_kind=block.input_kind, aux=aux)
+    aligned = align(part, use_reference=use_reference, settle_time_s=settle_time_s, drop_saturated=drop_saturated,
+                    previous_stamp_ns=state.previous_stamp_ns)
+    rows = aligned.rows + state.rows_done if aligned.rows is not None else None
+    aligned = replace(aligned, rows=rows, ignored_temp_codes=ignored_temp_codes,
+                      ignored_references=ignored_references)
+    if holding_reference and aligned.reference is None:
+        aligned = replace(aligned, reference=np.zeros((len(aligned), 3)))
+
+    horizon = state.last_stamp_ns if not ready else _latest(state.last_stamp_ns, stamps[:ready])
+    temp_keep = _carried_temperatures(temp_stamps, temp_values, horizon)
+    reference_keep = _carried_references(reference_stamps, reference_values, horizon)
+    carried_aux = {}
+    for name, (signal_stamps, signal_values) in aux.items():
+        keep = _carried_signal(signal_stamps, signal_values, horizon)
+        carried_aux[name] = (signal_stamps[keep], signal_values[keep])
+    next_state = AlignState(temp_stamp_ns=temp_stamps[temp_keep], temp_code=temp_values[temp_keep],
+                            reference_stamp_ns=reference_stamps[reference_keep],
+                            reference=reference_values[reference_keep],
+                            pending_stamp_ns=stamps[ready:].copy(), pending_values=values[ready:].copy(),
+                            rows_done=state.rows_done + ready, last_stamp_ns=horizon,
+                            temp_seen_ns=temp_seen, reference_seen_ns=reference_seen,
+                            previous_stamp_ns=int(stamps[ready - 1]) if ready else state.previous_stamp_ns,
+                            aux=carried_aux, aux_seen_ns=aux_seen)
+    return aligned, next_state
+
+
+def add_counts(total: dict[str, int], part: dict[str, int]) -> None:
+    """Add one block's counts per reason to ``total``."""
+    for reason, count in part.items():
+        total[reason] = total.get(reason, 0) + count
+
+
+def concatenate(parts: list[AlignedSamples]) -> AlignedSamples:
+    """The blocks' aligned samples as one, drop and ignored counts summed (for tests and small runs)."""
+    dropped: dict[str, int] = {}
+    ignored_temp_codes: dict[str, int] = {}
+    ignored_references: dict[str, int] = {}
+    for part in parts:
+        add_counts(dropped, part.dropped)
+        add_counts(ignored_temp_codes, part.ignored_temp_codes)
+        add_counts(ignored_references, part.ignored_references)
+    names = sorted({name for part in parts for name in part.aux})
+    with_reference = [p for p in parts if p.reference is not None]
+    reference = np.concatenate([p.reference for p in with_reference]) if with_reference else None
+    width = parts[0].counts.shape[1] if parts else 3
+    return AlignedSamples(stamp_ns=np.concatenate([p.stamp_ns for p in parts]) if parts else _empty_stamps(),
+                          counts=np.concatenate([p.counts for p in parts]) if parts else np.zeros((0, width)),
+                          temp_code=np.concatenate([p.temp_code for p in parts]) if parts else np.zeros(0),
+                          reference=reference, dropped=dropped,
+                          rows=np.concatenate([p.rows for p in parts]) if parts else _empty_stamps(),
+                          ignored_temp_codes=ignored_temp_codes, ignored_references=ignored_references,
+                          aux={name: np.concatenate([p.aux[name] for p in parts]) for name in names})
+
+
+class BlockAligner:
+    """:func:`align_block` with its state held: ``push`` each block, then ``finish``.
+
+    :param reference_expected: the run has a reference stream (see :func:`align_block`).
+    """
+
+    def __init__(self, *, use_reference: bool = True, reference_expected: bool = False,
+                 settle_time_s: float = 0.0, drop_saturated: bool = True, max_pending: int = 262_144) -> None:
+        self.state = AlignState()
+        self.options = dict(use_reference=use_reference, reference_expected=reference_expected,
+                            settle_time_s=settle_time_s, drop_saturated=drop_saturated, max_pending=max_pending)
+        self.dropped: dict[str, int] = {}
+        self.ignored_temp_codes: dict[str, int] = {}
+        self.ignored_references: dict[str, int] = {}
+        self.kept = 0
+        self._template: ChannelRecord | None = None
+
+    def push(self, block: ChannelRecord, *, final: bool = False) -> AlignedSamples:
+        """Aligned samples that became ready with this block."""
+        self._template = block
+        aligned, self.state = align_block(self.state, block, final=final, **self.options)  # type: ignore[arg-type]
+        add_counts(self.dropped, aligned.dropped)
+        add_counts(self.ignored_temp_codes, aligned.ignored_temp_codes)
+        add_counts(self.ignored_references, aligned.ignored_references)
+        self.kept += len(aligned)
+        return aligned
+
+    def finish(self) -> AlignedSamples:
+        """The samples still pending at the end of the run."""
+        template = self._template
+        width = template.counts.shape[1] if template is not None else 3
+        empty = ChannelRecord(counts_stamp_ns=_empty_stamps(), counts=np.zeros((0, width)),
+                              temp_stamp_ns=_empty_stamps(), temp_code=np.zeros(0),
+                              frame_id=template.frame_id if template else '',
+                              input_kind=template.input_kind if template else 'counts',
+                              aux={name: (_empty_stamps(), np.zeros(0)) for name in (template.aux if template else {})})
+        return self.push(empty, final=True)

@@ -1,0 +1,194 @@
+"""The correction, and the validation statistics, over a run that arrives in blocks.
+
+:class:`Corrector.correct` runs the effects with memory (``thermal_lag``, ``hysteresis``,
+``warmup``) from their initial state on every call. :class:`BlockCorrector` carries their state
+from one call to the next, so that correcting a run block by block gives the same floats as one
+call on the whole run: an effect's signals are advanced with :meth:`Effect.step`, which every
+effect's :meth:`Effect.basis` reproduces bit for bit. Without effects the correction has no
+state and the blocks are corrected by :class:`Corrector` itself.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping
+
+import numpy as np
+
+from tak_thermo_ros.core.correction import Corrector, OutOfRange, UnitCorrector
+from tak_thermo_ros.core.effects.base import Effect, call_effect, effect_failure, effect_input
+from tak_thermo_ros.core.effects.link import EffectLink
+from tak_thermo_ros.core.model import Calibration, UnitCalibration
+from tak_thermo_ros.core.validate import GravityError, RateError
+from tak_thermo_ros.errors import EffectError
+
+
+def basis_from(effect: Effect, state: Any, stamp_s: np.ndarray, temp_code: np.ndarray,
+               *, started: bool) -> tuple[np.ndarray, Any]:
+    """Basis signals ``(k, b)`` of a block continuing from ``state``, and the state after it.
+
+    :param started: ``False`` before the run's first sample (the effect starts at it).
+    """
+    stamps = np.asarray(stamp_s, dtype=float).tolist()
+    codes = np.asarray(temp_code, dtype=float).tolist()
+    width = len(effect.basis_suffixes())
+    if not codes:
+        return np.empty((0, width)), state
+    if not started:
+        state = call_effect(effect, 'start', effect.start, stamps[0], codes[0])
+    step = effect.step
+    rows = []
+    try:
+        for stamp, code in zip(stamps, codes):
+            state, values = step(state, stamp, code)
+            rows.append(values)
+    except Exception as err:
+        raise effect_failure(effect, 'step', err) from err
+    out = np.empty((len(codes), width))
+    try:
+        out[:] = rows
+    except (TypeError, ValueError) as err:
+        msg = (f'effect {effect.name}: step() returned basis values of the wrong length '
+               f'(the effect has {width} basis signal{"s" if width != 1 else ""})')
+        raise EffectError(msg) from err
+    if not np.all(np.isfinite(out)):
+        msg = f'effect {effect.name}: basis() returned non-finite values (NaN or infinite)'
+        raise EffectError(msg)
+    return out, state
+
+
+class _CarriedEffectLink(EffectLink):
+    """:class:`EffectLink` whose array path continues the effects' state from the previous call."""
+
+    def __init__(self, calibration: Calibration, *, clamp: bool) -> None:
+        super().__init__(calibration, clamp=clamp)
+        self._block_states: list[Any] = [None] * len(self._offset_effects)
+        self._started = False
+
+    def reset(self) -> None:
+        super().reset()
+        self._block_states = [None] * len(self._offset_effects)
+        self._started = False
+
+    def offset_series(self, temp_code: np.ndarray, stamp_s: np.ndarray | None,
+                      aux: Mapping[str, np.ndarray] | None = None) -> list[np.ndarray]:
+        count = len(temp_code)
+        stamps = np.zeros(count) if stamp_s is None else np.asarray(stamp_s, dtype=float)
+        extra = [np.zeros(count), np.zeros(count), np.zeros(count)]
+        for index, (effect, amplitudes) in enumerate(zip(self._offset_effects, self._amplitudes)):
+            basis, self._block_states[index] = basis_from(effect, self._block_states[index], stamps,
+                                                          effect_input(effect, temp_code, aux), started=self._started)
+            for i, axis_amplitudes in enumerate(amplitudes):
+                total = extra[i]
+                for b, amplitude in enumerate(axis_amplitudes):
+                    total = total + amplitude * basis[:, b]
+                extra[i] = total
+        if count:
+            self._started = True
+        return extra
+
+
+class BlockCorrector(Corrector):
+    """A :class:`Corrector` whose :meth:`correct` continues the run from the previous call.
+
+    :meth:`reset` starts a new run. Everything else is :class:`Corrector`'s.
+    """
+
+    def __init__(self, calibration: Calibration, *, out_of_range: OutOfRange = OutOfRange.CLAMP) -> None:
+        super().__init__(calibration, out_of_range=out_of_range)
+        if calibration.effects:
+            self._effect_link = _CarriedEffectLink(calibration, clamp=self._clamp)
+
+
+class BlockUnitCorrector(UnitCorrector):
+    """A :class:`UnitCorrector` of :class:`BlockCorrector` s: blocks of six (or three) channels."""
+
+    def __init__(self, unit: UnitCalibration, *, out_of_range: OutOfRange = OutOfRange.CLAMP) -> None:
+        super().__init__(unit, out_of_range=out_of_range)
+        self.correctors = tuple(BlockCorrector(calibration, out_of_range=out_of_range)
+                                for _, calibration in unit.sensors)
+        self._accel = self.correctors[0]
+        self._gyro = self.correctors[1] if len(self.correctors) > 1 else None
+
+
+class ErrorSums:
+    """Running sums of an error series ``(k, c)``: RMS, mean and largest magnitude per column."""
+
+    def __init__(self, columns: int) -> None:
+        self.count = 0
+        self.total = np.zeros(columns)
+        self.squares = np.zeros(columns)
+        self.largest = np.zeros(columns)
+
+    def add(self, error: np.ndarray) -> None:
+        """Add a block of errors."""
+        if not len(error):
+            return
+        error = np.asarray(error, dtype=float).reshape(len(error), -1)
+        self.count += len(error)
+        self.total += error.sum(axis=0)
+        self.squares += (error ** 2).sum(axis=0)
+        self.largest = np.maximum(self.largest, np.abs(error).max(axis=0))
+
+    def rms(self) -> np.ndarray:
+        return np.sqrt(self.squares / self.count) if self.count else np.full(len(self.total), math.nan)
+
+    def mean(self) -> np.ndarray:
+        return self.total / self.count if self.count else np.full(len(self.total), math.nan)
+
+    def gravity_error(self) -> GravityError:
+        """As :meth:`GravityError.of` of the whole series (one column)."""
+        return GravityError(rms=float(self.rms()[0]), max=float(self.largest[0]), mean=float(self.mean()[0]))
+
+    def rate_error(self) -> RateError:
+        """As :meth:`RateError.of` of the whole series (three columns)."""
+        rms, mean, largest = self.rms(), self.mean(), self.largest
+
+        def triple(values: np.ndarray) -> tuple[float, float, float]:
+            return float(values[0]), float(values[1]), float(values[2])
+        return RateError(rms=triple(rms), mean=triple(mean), max=triple(largest))
+
+
+class GravityCheck:
+    """:func:`~tak_thermo_ros.core.validate.validate_gravity` accumulated over blocks."""
+
+    def __init__(self, calibration: Calibration, *, gravity: float, out_of_range: OutOfRange) -> None:
+        self.gravity = gravity
+        self.corrector = BlockCorrector(calibration, out_of_range=out_of_range)
+        self.nominal = Corrector(calibration.nominal(), out_of_range=out_of_range)
+        self.before = ErrorSums(1)
+        self.after = ErrorSums(1)
+        self.out_of_range = 0
+        self.samples = 0
+
+    def add(self, counts: np.ndarray, temp_code: np.ndarray, stamp_s: np.ndarray, *,
+            aux: Mapping[str, np.ndarray] | None = None) -> None:
+        """Add a block of aligned samples (``aux``: their held recorded signals, by name)."""
+        after = self.corrector.correct(counts, temp_code, stamp_s=stamp_s, aux=aux)
+        before = self.nominal.correct(counts, temp_code)
+        self.after.add(np.linalg.norm(after, axis=1) - self.gravity)
+        self.before.add(np.linalg.norm(before, axis=1) - self.gravity)
+        self.out_of_range += self.corrector.out_of_range_count(temp_code)
+        self.samples += len(counts)
+
+
+class RateCheck:
+    """:func:`~tak_thermo_ros.core.validate.validate_rate` accumulated over blocks."""
+
+    def __init__(self, calibration: Calibration, *, out_of_range: OutOfRange) -> None:
+        self.corrector = BlockCorrector(calibration, out_of_range=out_of_range)
+        self.nominal = Corrector(calibration.nominal(), out_of_range=out_of_range)
+        self.before = ErrorSums(3)
+        self.after = ErrorSums(3)
+        self.out_of_range = 0
+        self.samples = 0
+
+    def add(self, rate: np.ndarray, temperature: np.ndarray, reference: np.ndarray, stamp_s: np.ndarray, *,
+            aux: Mapping[str, np.ndarray] | None = None) -> None:
+        """Add a block of aligned samples with their held rate reference (``aux`` as :meth:`GravityCheck.add`)."""
+        after = self.corrector.correct(rate, temperature, stamp_s=stamp_s, aux=aux)
+        before = self.nominal.correct(rate, temperature)
+        self.after.add(after - reference)
+        self.before.add(before - reference)
+        self.out_of_range += self.corrector.out_of_range_count(temperature)
+        self.samples += len(rate)

@@ -1,0 +1,591 @@
+"""``tak_calib``'s passes over a bag in blocks: fit, apply, validate and diagnose in bounded memory.
+
+Each pass reads the bag once in log order (:func:`tak_thermo_ros.bagio.iter_blocks`), aligns
+each block on the main stream with the held values carried over
+(:class:`~tak_thermo_ros.core.blocks.BlockAligner`) and hands the block to an accumulator:
+the blocked-QR fit (:class:`~tak_thermo_ros.core.stream_fit.StreamingFit`), the corrector
+that carries the effects' state (:class:`~tak_thermo_ros.core.stream_correction.BlockUnitCorrector`)
+and an open bag writer, the validation sums, or a bounded, evenly spread subsample (the
+effects' shape search, ``diagnose``). A driver bag without reference topics (a static run)
+takes one extra pass for the mean measured direction first. See docs/streaming.md.
+"""
+
+from __future__ import annotations
+
+import math
+from contextlib import contextmanager
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Callable, Iterator, Sequence
+
+import numpy as np
+
+from tak_thermo_ros.core.blocks import BlockAligner, add_counts, concatenate
+from tak_thermo_ros.core.correction import Corrector, OutOfRange, acceleration_variance
+from tak_thermo_ros.core.fit import FitResult, fit_model
+from tak_thermo_ros.core.model import InputKind, UnitCalibration
+from tak_thermo_ros.core.record import AlignedSamples, ChannelRecord, DriverRecord, require_signals
+from tak_thermo_ros.core.static_run import STATIC_TOLERANCE_DEG, StaticReference, static_reference
+from tak_thermo_ros.core.stream_correction import BlockUnitCorrector, GravityCheck, RateCheck
+from tak_thermo_ros.core.stream_fit import StreamingEffectFit, StreamingFit
+from tak_thermo_ros.errors import FitError, TakError
+
+if TYPE_CHECKING:
+    from tak_thermo_ros.bagio import Topics
+
+DIAGNOSE_MAX_SAMPLES = 1_000_000
+"""``diagnose`` works on at most about this many samples, spread evenly over the run."""
+EFFECT_FIT_MAX_SAMPLES = 1_000_000
+"""``fit --effects`` searches the effects' shapes on at most about this many samples."""
+SENSOR_NAMES = {'accel': 'accelerometer', 'gyro': 'gyroscope'}
+
+
+def sensors_of(kind: InputKind) -> tuple[str, ...]:
+    """The sensors a bag of this kind holds."""
+    return ('accel',) if kind is InputKind.COUNTS else ('accel', 'gyro')
+
+
+def stride_for(messages: int, max_samples: int) -> int:
+    """Every how many main-stream messages one is kept so that at most ``max_samples`` remain."""
+    return max(1, math.ceil(messages / max(max_samples, 1)))
+
+
+def every_nth(samples: AlignedSamples, stride: int) -> AlignedSamples:
+    """The samples whose stream row is a multiple of ``stride`` (spread evenly over the run)."""
+    if stride <= 1 or samples.rows is None:
+        return samples
+    keep = samples.rows % stride == 0
+    return AlignedSamples(stamp_ns=samples.stamp_ns[keep], counts=samples.counts[keep],
+                          temp_code=samples.temp_code[keep],
+                          reference=None if samples.reference is None else samples.reference[keep],
+                          dropped=samples.dropped, rows=samples.rows[keep],
+                          ignored_temp_codes=samples.ignored_temp_codes, ignored_references=samples.ignored_references,
+                          aux={name: values[keep] for name, values in samples.aux.items()})
+
+
+# ----- reading: blocks per sensor, a static run's reference ----------------------------------------------
+
+
+@dataclass(frozen=True)
+class StreamOptions:
+    """How a pass reads the bag.
+
+    :param topics: the bag's topic names (:class:`tak_thermo_ros.bagio.Topics`).
+    :param progress: show a progress bar on a terminal.
+    :param block_samples: main-stream messages per block.
+    """
+
+    topics: Topics
+    progress: bool = True
+    block_samples: int = 65536
+
+
+class _StaticRun:
+    """A driver bag's missing references, estimated as a static run (one extra pass, the mean)."""
+
+    def __init__(self, path: Path, options: StreamOptions, *, recorded_reference: bool, recorded_rate: bool,
+                 gravity: float, latitude: float | None) -> None:
+        from tak_thermo_ros.bagio import iter_blocks
+        topics = options.topics
+        self.path = path
+        self.recorded_reference = recorded_reference
+        self.recorded_rate = recorded_rate
+        self.gravity = gravity
+        self.latitude = latitude
+        self.lines: list[str] = []
+        self.static: StaticReference | None = None
+        self.max_tilt_deg = 0.0
+        self._first_block = True
+        if recorded_reference and recorded_rate:
+            self.lines.append(f'reference: {topics.reference} and {topics.reference_rate} as recorded')
+            return
+        total = np.zeros(3)
+        count = 0
+        for block in iter_blocks(path, topics=topics, kind=InputKind.IMU, block_samples=options.block_samples,
+                                 references=False, progress=options.progress):
+            finite = np.all(np.isfinite(block.accel), axis=1)  # type: ignore[union-attr]
+            total += block.accel[finite].sum(axis=0)  # type: ignore[union-attr]
+            count += int(np.count_nonzero(finite))
+        mean = total / count if count else np.zeros(3)
+        self.static = static_reference(mean.reshape(1, 3) if count else np.zeros((0, 3)), gravity=gravity,
+                                       latitude_deg=latitude)
+        static = self.static
+        if recorded_reference:
+            self.lines.append(f'reference: {topics.reference} as recorded')
+        elif static.magnitude < 0.1 * gravity:
+            msg = (f'{path}: no {topics.reference} and the mean acceleration |{static.magnitude:.4g}| m/s^2 is '
+                   f'far below gravity: not a static run; record the reference')
+            raise TakError(msg)
+
+    def rewind(self) -> None:
+        """Before another pass: the references go into its first block again."""
+        self._first_block = True
+
+    def check_block(self, block: DriverRecord) -> DriverRecord:
+        """The block with the estimated references (first block), its tilt checked."""
+        if self.static is None:
+            return block
+        if not self.recorded_reference:
+            accel = block.accel[np.all(np.isfinite(block.accel), axis=1)]
+            if len(accel):
+                norms = np.linalg.norm(accel, axis=1)
+                cosine = np.clip((accel @ self.static.direction) / np.where(norms > 0.0, norms, 1.0), -1.0, 1.0)
+                self.max_tilt_deg = max(self.max_tilt_deg, float(np.degrees(np.arccos(cosine)).max()))
+        if not self._first_block or not len(block.stamp_ns):
+            return block
+        self._first_block = False
+        first = block.stamp_ns[:1].copy()
+        if not self.recorded_reference:
+            block = replace(block, reference_stamp_ns=first, reference=self.static.specific_force.reshape(1, 3))
+        if not self.recorded_rate:
+            block = replace(block, rate_reference_stamp_ns=first, rate_reference=self.static.rate.reshape(1, 3))
+        return block
+
+    def finish(self, topics) -> list[str]:
+        """The lines that say how the references were obtained; refuses a run that moved."""
+        if self.static is None:
+            return self.lines
+        static, gravity, latitude = self.static, self.gravity, self.latitude
+        lines = list(self.lines)
+        if not self.recorded_reference:
+            if self.max_tilt_deg > STATIC_TOLERANCE_DEG:
+                msg = (f'{self.path}: no {topics.reference} and the board moved (a sample {self.max_tilt_deg:.1f} deg '
+                       f'from the mean direction): a static run needs one orientation; record the reference')
+                raise TakError(msg)
+            x, y, z = (float(v) for v in static.specific_force)
+            lines.append(f'reference (static run): mean measured direction scaled to gravity {gravity:g} m/s^2 = '
+                         f'({x:.4f}, {y:.4f}, {z:.4f}) m/s^2 (largest deviation {self.max_tilt_deg:.2f} deg)')
+        if self.recorded_rate:
+            lines.append(f'rate reference: {topics.reference_rate} as recorded')
+        else:
+            x, y, z = (float(v) for v in static.rate)
+            lines.append('rate reference (static run): zero' if latitude is None else
+                         f'rate reference (static run): the Earth rate\'s vertical component at latitude {latitude:g} deg '
+                         f'= ({x:.3e}, {y:.3e}, {z:.3e}) rad/s')
+        return lines
+
+
+@dataclass
+class SensorPass:
+    """One sensor's alignment over the blocks and what it feeds."""
+
+    sensor: str
+    aligner: BlockAligner
+    consumers: list[Callable[[AlignedSamples], None]] = field(default_factory=list)
+
+    def feed(self, record: ChannelRecord) -> None:
+        """Align a block and hand what became ready to the consumers."""
+        self._hand_on(self.aligner.push(record))
+
+    def finish(self) -> None:
+        """Align the samples still waiting at the end of the run."""
+        self._hand_on(self.aligner.finish())
+
+    def _hand_on(self, aligned: AlignedSamples) -> None:
+        for consume in self.consumers:
+            consume(aligned)
+
+
+def _sensor_records(block: ChannelRecord | DriverRecord, kind: InputKind) -> dict[str, ChannelRecord]:
+    if kind is InputKind.COUNTS:
+        return {'accel': block}  # type: ignore[dict-item]
+    return {sensor: block.channel(sensor) for sensor in ('accel', 'gyro')}  # type: ignore[union-attr]
+
+
+@dataclass(frozen=True)
+class _Opened:
+    """A bag opened for a calibration-run pass (references held)."""
+
+    kind: InputKind
+    main: int
+    static: _StaticRun | None
+
+
+def _open_calibration_run(path: Path, options: StreamOptions, *, gravity: float, latitude: float | None,
+                          require_reference: bool) -> _Opened:
+    from tak_thermo_ros.bagio import bag_streams
+    streams = bag_streams(path, topics=options.topics)
+    if require_reference and streams.kind is InputKind.COUNTS:
+        streams = bag_streams(path, topics=options.topics, require_reference=True)
+    static = None
+    if streams.kind is InputKind.IMU:
+        static = _StaticRun(path, options, recorded_reference=streams.reference > 0,
+                            recorded_rate=streams.rate_reference > 0, gravity=gravity, latitude=latitude)
+    return _Opened(streams.kind, streams.main, static)
+
+
+def _run_passes(path: Path, options: StreamOptions, opened: _Opened, passes: Sequence[SensorPass]) -> list[str]:
+    """Read the bag once, feeding each sensor's pass; the reference lines (driver bags)."""
+    from tak_thermo_ros.bagio import iter_blocks
+    if opened.static is not None:
+        opened.static.rewind()
+    for block in iter_blocks(path, topics=options.topics, kind=opened.kind,
+                             block_samples=options.block_samples, progress=options.progress):
+        if opened.static is not None:
+            block = opened.static.check_block(block)
+        records = _sensor_records(block, opened.kind)
+        for sensor_pass in passes:
+            sensor_pass.feed(records[sensor_pass.sensor])
+    for sensor_pass in passes:
+        sensor_pass.finish()
+    return opened.static.finish(options.topics) if opened.static is not None else []
+
+
+class _Subsample:
+    """Every ``stride``-th stream row of the aligned blocks, kept in memory."""
+
+    def __init__(self, stride: int) -> None:
+        self.stride = stride
+        self.parts: list[AlignedSamples] = []
+        self.usable = 0
+
+    def __call__(self, aligned: AlignedSamples) -> None:
+        self.usable += len(aligned)
+        if len(aligned):
+            self.parts.append(every_nth(aligned, self.stride))
+
+    def samples(self, dropped: dict[str, int]) -> AlignedSamples:
+        joined = concatenate(self.parts) if self.parts else AlignedSamples(
+            stamp_ns=np.zeros(0, dtype=np.int64), counts=np.zeros((0, 3)), temp_code=np.zeros(0),
+            reference=None, dropped={}, rows=np.zeros(0, dtype=np.int64))
+        return replace(joined, dropped=dict(dropped))
+
+
+# ----- fit ------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    """The options of ``tak_calib fit``.
+
+    :param effects: effect specs per sensor.
+    :param nominal_scale: the held-axis nominal scale per sensor (``None``: none known).
+    """
+
+    effects: dict[str, list[str]]
+    bias_order: int = 3
+    scale_order: int = 2
+    temp_code_ref: float | None = None
+    nominal_scale: dict[str, tuple[float, float, float] | None] = field(default_factory=dict)
+    settle_time_s: float = 0.0
+    gravity: float = 9.80665
+    latitude: float | None = None
+    max_effect_samples: int = EFFECT_FIT_MAX_SAMPLES
+
+
+@dataclass(frozen=True)
+class StreamedFit:
+    """What ``fit`` prints and writes.
+
+    :param results: per sensor, the fit.
+    :param usable: per sensor, the usable (aligned) samples of the whole run.
+    :param effect_stride: per sensor fitted with effects, every how many stream rows the
+        effects' fit used (1: all).
+    """
+
+    input_kind: InputKind
+    sensors: tuple[str, ...]
+    results: dict[str, FitResult]
+    usable: dict[str, int]
+    effect_stride: dict[str, int]
+    reference_lines: tuple[str, ...]
+
+
+def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
+            nominal_for: Callable[[InputKind, tuple[float, float, float] | None], tuple[float, float, float] | None]
+            | None = None) -> StreamedFit:
+    """The fit of ``tak_calib fit`` in one pass over the bag (two for a static driver run).
+
+    Without effects each sensor's fit is :class:`StreamingFit` (equal to
+    :func:`fit_calibration` to rounding). With effects, the fit of :func:`fit_model` runs on
+    every m-th sample so that at most ``settings.max_effect_samples`` remain (all of a
+    shorter run).
+
+    :param nominal_for: ``(kind, the bag's nominal scale) -> nominal scale`` (counts bags;
+        the command line may override the bag's metadata).
+    :raises FitError: as :func:`fit_model`, prefixed with the sensor on driver bags.
+    """
+    path = Path(path)
+    opened = _open_calibration_run(path, options, gravity=settings.gravity, latitude=settings.latitude,
+                                   require_reference=True)
+    kind = opened.kind
+    sensors = sensors_of(kind)
+    if kind is InputKind.COUNTS and settings.effects.get('gyro'):
+        msg = f'--gyro-effects: {path} holds channel codes of the accelerometer only'
+        raise TakError(msg)
+    nominal = dict(settings.nominal_scale)
+    if kind is InputKind.COUNTS and nominal_for is not None:
+        from tak_thermo_ros.bagio import bag_streams
+        nominal['accel'] = nominal_for(kind, bag_streams(path, topics=options.topics).nominal_scale)
+    elif kind is InputKind.IMU:
+        nominal = {sensor: (1.0, 1.0, 1.0) for sensor in sensors}
+    def aligner() -> BlockAligner:
+        return BlockAligner(use_reference=True, reference_expected=True, settle_time_s=settings.settle_time_s)
+
+    passes, fits, subsamples = [], {}, {}
+    for sensor in sensors:
+        sensor_pass = SensorPass(sensor, aligner())
+        fits[sensor] = StreamingFit(bias_order=settings.bias_order, scale_order=settings.scale_order,
+                                    temp_code_ref=settings.temp_code_ref, nominal_scale=nominal.get(sensor))
+        sensor_pass.consumers.append(fits[sensor].add)
+        if settings.effects.get(sensor):
+            subsamples[sensor] = _Subsample(stride_for(opened.main, settings.max_effect_samples))
+            sensor_pass.consumers.append(subsamples[sensor])
+        passes.append(sensor_pass)
+    lines = _run_passes(path, options, opened, passes)
+    results: dict[str, FitResult] = {}
+    usable: dict[str, int] = {}
+    second: dict[str, tuple[StreamingEffectFit, FitResult]] = {}
+    for sensor_pass in passes:
+        sensor, dropped = sensor_pass.sensor, sensor_pass.aligner.dropped
+        usable[sensor] = sensor_pass.aligner.kept
+        with _sensor_errors(kind, sensor):
+            if sensor not in subsamples:
+                results[sensor] = fits[sensor].result(dropped=dropped)
+                continue
+            samples = subsamples[sensor].samples(dropped)
+            if not len(samples):
+                samples = replace(samples, reference=np.zeros((0, 3)))
+            shaped = fit_model(samples, effects=settings.effects[sensor], bias_order=settings.bias_order,
+                               scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
+                               nominal_scale=nominal.get(sensor))
+            if subsamples[sensor].stride == 1:
+                results[sensor] = shaped
+            else:
+                second[sensor] = (StreamingEffectFit(shaped.calibration.effects, fits[sensor]), shaped)
+    if second:
+        # The shapes are fixed now: a second pass solves every amplitude over the whole run.
+        passes = [SensorPass(sensor, aligner(), [amplitudes.add]) for sensor, (amplitudes, _) in second.items()]
+        _run_passes(path, options, _Opened(kind, opened.main, opened.static), passes)
+        for sensor_pass in passes:
+            sensor = sensor_pass.sensor
+            amplitudes, shaped = second[sensor]
+            shape_names = {f'{e.name}.{name}' for e in shaped.calibration.effects for name in e.shape_names()}
+            with _sensor_errors(kind, sensor):
+                results[sensor] = amplitudes.result(
+                    dropped=sensor_pass.aligner.dropped, parameters=[axis.parameters for axis in shaped.axes],
+                    shape_errors={k: v for k, v in shaped.parameter_errors.items() if k in shape_names})
+    return StreamedFit(input_kind=kind, sensors=sensors, results=results, usable=usable,
+                       effect_stride={sensor: subsample.stride for sensor, subsample in subsamples.items()},
+                       reference_lines=tuple(lines))
+
+
+@contextmanager
+def _sensor_errors(kind: InputKind, sensor: str) -> Iterator[None]:
+    """A fit error names the sensor on driver bags."""
+    try:
+        yield
+    except FitError as err:
+        if kind is InputKind.COUNTS:
+            raise
+        msg = f'{SENSOR_NAMES[sensor]}: {err}'
+        raise FitError(msg) from None
+
+
+# ----- apply ----------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Applied:
+    """What ``apply`` wrote: messages, the drops by reason, samples outside the calibrated range,
+    and the temperature messages ignored (not held) by reason."""
+
+    written: int
+    dropped: dict[str, int]
+    out_of_range: int
+    topic: str
+    ignored_temp_codes: dict[str, int] = field(default_factory=dict)
+    ignored_references: dict[str, int] = field(default_factory=dict)
+
+
+class _Required:
+    """Each aligned block with the recorded signals a correction needs held (:func:`require_signals`),
+    its drops (``before_first_<signal>`` included) summed over the run."""
+
+    def __init__(self, signals: Sequence[str]) -> None:
+        self.signals = tuple(signals)
+        self.dropped: dict[str, int] = {}
+
+    def __call__(self, aligned: AlignedSamples) -> AlignedSamples:
+        samples = require_signals(aligned, self.signals)
+        add_counts(self.dropped, samples.dropped)
+        return samples
+
+
+class _RowsBuffer:
+    """Per-message fields that pass through (a driver's orientation), until their rows are aligned."""
+
+    def __init__(self) -> None:
+        self.start = 0
+        self.chunks: list[tuple[np.ndarray, np.ndarray]] = []
+        self.read = 0
+
+    def add(self, orientation: np.ndarray, covariance: np.ndarray) -> None:
+        self.chunks.append((orientation, covariance))
+        self.read += len(orientation)
+
+    def take(self, rows: np.ndarray, done: int) -> tuple[np.ndarray, np.ndarray]:
+        orientation = np.concatenate([c[0] for c in self.chunks]) if self.chunks else np.zeros((0, 4))
+        covariance = np.concatenate([c[1] for c in self.chunks]) if self.chunks else np.zeros((0, 9))
+        picked = orientation[rows - self.start], covariance[rows - self.start]
+        while self.chunks and self.start + len(self.chunks[0][0]) <= done:
+            self.start += len(self.chunks.pop(0)[0])
+        return picked
+
+
+def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, options: StreamOptions, *,
+              storage: str = 'mcap', out_of_range: OutOfRange = OutOfRange.CLAMP, force: bool = False) -> Applied:
+    """Correct a bag block by block into an Imu bag that stays open (``tak_calib apply``).
+
+    :param force: replace an existing output bag (:func:`tak_thermo_ros.core.files.check_output`).
+    :raises TakError: a corrected value is not finite (nothing is written).
+    """
+    from tak_thermo_ros.bagio import ImuBagWriter, bag_streams, iter_blocks
+    path = Path(path)
+    topics = options.topics
+    kind = bag_streams(path, topics=topics).kind
+    topic = topics.imu if kind is InputKind.COUNTS else topics.compensated_imu
+    aligner = BlockAligner(use_reference=False)
+    corrector = BlockUnitCorrector(unit, out_of_range=out_of_range)
+    required = _Required(corrector.signals)
+    accel_variance = acceleration_variance(unit.accel)
+    gyro_variance = acceleration_variance(unit.gyro) if unit.gyro is not None else None
+    passing = _RowsBuffer()
+    outside = 0
+    frame_id = ''
+    with ImuBagWriter(output, topic=topic, storage=storage, force=force) as writer:
+
+        def write(aligned: AlignedSamples) -> None:
+            nonlocal outside
+            samples = required(aligned)
+            if not len(samples):
+                if kind is InputKind.IMU and samples.rows is not None:
+                    passing.take(samples.rows, aligner.state.rows_done)
+                return
+            corrected = corrector.correct(samples.counts, samples.temp_code, stamp_s=samples.stamp_s, aux=samples.aux)
+            bad = int(np.count_nonzero(~np.isfinite(corrected)))
+            if bad:
+                msg = f'{output}: corrected values: {bad} values are not finite (NaN or infinite); nothing written'
+                raise TakError(msg)
+            outside += corrector.out_of_range_count(samples.temp_code)
+            extra = {}
+            if kind is InputKind.IMU:
+                orientation, covariance = passing.take(samples.rows, aligner.state.rows_done)
+                extra = dict(angular_velocity=corrected[:, 3:6], angular_variance=gyro_variance,
+                             orientation=orientation, orientation_covariance=covariance)
+            writer.write(samples.stamp_ns, frame_id, corrected[:, :3], accel_variance, **extra)
+
+        for block in iter_blocks(path, topics=topics, kind=kind, block_samples=options.block_samples,
+                                 references=False, progress=options.progress):
+            if isinstance(block, DriverRecord):
+                passing.add(block.orientation, block.orientation_covariance)
+                record = block.six_channels()
+            else:
+                record = block
+            frame_id = frame_id or record.frame_id
+            write(aligner.push(record))
+        write(aligner.finish())
+        written = writer.written
+    return Applied(written=written, dropped=required.dropped, out_of_range=outside, topic=topic,
+                   ignored_temp_codes=dict(aligner.ignored_temp_codes),
+                   ignored_references=dict(aligner.ignored_references))
+
+
+# ----- validate -------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Validated:
+    """The sums of ``validate``: |g| (accelerometer) and, on driver bags, the rate error."""
+
+    input_kind: InputKind
+    gravity: GravityCheck
+    rate: RateCheck | None
+    reference_lines: tuple[str, ...]
+    accel_dropped: dict[str, int] = field(default_factory=dict)
+    accel_ignored_temp_codes: dict[str, int] = field(default_factory=dict)
+    accel_ignored_references: dict[str, int] = field(default_factory=dict)
+
+
+def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions, *, gravity: float,
+                 latitude: float | None = None, out_of_range: OutOfRange = OutOfRange.CLAMP,
+                 expect_kind: Callable[[InputKind], None] | None = None) -> Validated:
+    """``tak_calib validate`` in one pass (two for a static driver run).
+
+    :param expect_kind: called with the bag's kind before the pass (raises on a mismatch).
+    """
+    from tak_thermo_ros.bagio import bag_streams
+    path = Path(path)
+    kind = bag_streams(path, topics=options.topics).kind
+    if expect_kind is not None:
+        expect_kind(kind)
+    calibration_run = kind is InputKind.IMU
+    if calibration_run:
+        opened = _open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=False)
+    else:
+        opened = _Opened(kind, 0, None)
+    gravity_check = GravityCheck(unit.accel, gravity=gravity, out_of_range=out_of_range)
+    rate_check = RateCheck(unit.gyro, out_of_range=out_of_range) if unit.gyro is not None else None
+    accel_required = _Required(Corrector(unit.accel).signals)
+
+    def add_gravity(aligned: AlignedSamples) -> None:
+        samples = accel_required(aligned)
+        gravity_check.add(samples.counts, samples.temp_code, samples.stamp_s, aux=samples.aux)
+
+    accel_pass = SensorPass('accel', BlockAligner(use_reference=calibration_run, reference_expected=calibration_run),
+                            [add_gravity])
+    passes = [accel_pass]
+    if calibration_run:
+        gyro_pass = SensorPass('gyro', BlockAligner(use_reference=True, reference_expected=True))
+        if rate_check is not None:
+            gyro_required = _Required(Corrector(unit.gyro).signals)  # type: ignore[arg-type]
+
+            def add_rate(aligned: AlignedSamples) -> None:
+                samples = gyro_required(aligned)
+                rate_check.add(samples.counts, samples.temp_code, samples.reference, samples.stamp_s,
+                               aux=samples.aux)
+            gyro_pass.consumers.append(add_rate)
+        passes.append(gyro_pass)
+    lines = _run_passes(path, options, opened, passes)
+    return Validated(input_kind=kind, gravity=gravity_check, rate=rate_check, reference_lines=tuple(lines),
+                     accel_dropped=accel_required.dropped,
+                     accel_ignored_temp_codes=dict(accel_pass.aligner.ignored_temp_codes),
+                     accel_ignored_references=dict(accel_pass.aligner.ignored_references))
+
+
+# ----- diagnose -------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class BoundedRun:
+    """A calibration run's samples for ``diagnose``: every ``stride``-th stream row, at most about
+    ``max_samples``.
+
+    :param samples: per sensor, the kept samples (``dropped`` counts the whole run's drops).
+    :param usable: per sensor, the usable samples of the whole run.
+    """
+
+    input_kind: InputKind
+    samples: dict[str, AlignedSamples]
+    usable: dict[str, int]
+    stride: int
+    reference_lines: tuple[str, ...]
+
+
+def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: float = 0.0, gravity: float = 9.80665,
+                latitude: float | None = None, max_samples: int = DIAGNOSE_MAX_SAMPLES) -> BoundedRun:
+    """One pass collecting a bounded subsample spread evenly over the run, references held."""
+    path = Path(path)
+    opened = _open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=True)
+    stride = stride_for(opened.main, max_samples)
+    passes, subsamples = [], {}
+    for sensor in sensors_of(opened.kind):
+        subsamples[sensor] = _Subsample(stride)
+        passes.append(SensorPass(sensor, BlockAligner(use_reference=True, reference_expected=True,
+                                                      settle_time_s=settle_time_s), [subsamples[sensor]]))
+    lines = _run_passes(path, options, opened, passes)
+    return BoundedRun(input_kind=opened.kind,
+                      samples={p.sensor: subsamples[p.sensor].samples(p.aligner.dropped) for p in passes},
+                      usable={p.sensor: p.aligner.kept for p in passes}, stride=stride,
+                      reference_lines=tuple(lines))
+
