@@ -38,7 +38,7 @@ from tak_thermo_ros.core.model import AXES, InputKind, UnitCalibration
 from tak_thermo_ros.core.record import REFERENCE_LIMIT, TEMPERATURE_RANGE, AlignedSamples, ChannelRecord, DriverRecord, align
 from tak_thermo_ros.core.record import require_signals
 from tak_thermo_ros.core.simulate import STANDARD_GRAVITY, Scenario, load_scenario, simulate
-from tak_thermo_ros.core.static_run import STATIC_TOLERANCE_DEG, static_reference
+from tak_thermo_ros.core.static_run import check_static, rate_line, reference_line, static_reference
 from tak_thermo_ros.errors import FitError, TakError
 
 EXIT_ERROR = 2
@@ -203,25 +203,14 @@ def _with_references(driver: DriverRecord, args: argparse.Namespace, topics) -> 
     if len(driver.reference_stamp_ns):
         lines.append(f'reference: {topics.reference} as recorded')
     else:
-        if static.magnitude < 0.1 * gravity:
-            msg = (f'{args.bag}: no {topics.reference} and the mean acceleration |{static.magnitude:.4g}| m/s^2 is '
-                   f'far below gravity: not a static run; record the reference')
-            raise TakError(msg)
-        if static.max_tilt_deg > STATIC_TOLERANCE_DEG:
-            msg = (f'{args.bag}: no {topics.reference} and the board moved (a sample {static.max_tilt_deg:.1f} deg '
-                   f'from the mean direction): a static run needs one orientation; record the reference')
-            raise TakError(msg)
-        x, y, z = (float(v) for v in static.specific_force)
-        lines.append(f'reference (static run): mean measured direction scaled to gravity {gravity:g} m/s^2 = '
-                     f'({x:.4f}, {y:.4f}, {z:.4f}) m/s^2 (largest deviation {static.max_tilt_deg:.2f} deg)')
+        check_static(static, gravity=gravity, max_tilt_deg=static.max_tilt_deg, where=str(args.bag),
+                     reference_topic=topics.reference)
+        lines.append(reference_line(static, gravity=gravity, max_tilt_deg=static.max_tilt_deg))
         driver = replace(driver, reference_stamp_ns=first, reference=static.specific_force.reshape(1, 3))
     if len(driver.rate_reference_stamp_ns):
         lines.append(f'rate reference: {topics.reference_rate} as recorded')
     else:
-        x, y, z = (float(v) for v in static.rate)
-        lines.append(f'rate reference (static run): zero' if latitude is None else
-                     f'rate reference (static run): the Earth rate\'s vertical component at latitude {latitude:g} deg '
-                     f'= ({x:.3e}, {y:.3e}, {z:.3e}) rad/s')
+        lines.append(rate_line(static, latitude))
         driver = replace(driver, rate_reference_stamp_ns=first, rate_reference=static.rate.reshape(1, 3))
     return driver, lines
 

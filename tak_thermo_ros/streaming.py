@@ -25,7 +25,7 @@ from tak_thermo_ros.core.correction import Corrector, OutOfRange, acceleration_v
 from tak_thermo_ros.core.fit import FitResult, fit_model
 from tak_thermo_ros.core.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.record import AlignedSamples, ChannelRecord, DriverRecord, require_signals
-from tak_thermo_ros.core.static_run import STATIC_TOLERANCE_DEG, StaticReference, static_reference
+from tak_thermo_ros.core.static_run import StaticReference, check_static, rate_line, reference_line, static_reference
 from tak_thermo_ros.core.stream_correction import BlockUnitCorrector, GravityCheck, RateCheck
 from tak_thermo_ros.core.stream_fit import StreamingEffectFit, StreamingFit
 from tak_thermo_ros.errors import FitError, TakError
@@ -112,10 +112,8 @@ class _StaticRun:
         static = self.static
         if recorded_reference:
             self.lines.append(f'reference: {topics.reference} as recorded')
-        elif static.magnitude < 0.1 * gravity:
-            msg = (f'{path}: no {topics.reference} and the mean acceleration |{static.magnitude:.4g}| m/s^2 is '
-                   f'far below gravity: not a static run; record the reference')
-            raise TakError(msg)
+        else:
+            check_static(static, gravity=gravity, max_tilt_deg=0.0, where=str(path), reference_topic=topics.reference)
 
     def rewind(self) -> None:
         """Before another pass: the references go into its first block again."""
@@ -148,20 +146,13 @@ class _StaticRun:
         static, gravity, latitude = self.static, self.gravity, self.latitude
         lines = list(self.lines)
         if not self.recorded_reference:
-            if self.max_tilt_deg > STATIC_TOLERANCE_DEG:
-                msg = (f'{self.path}: no {topics.reference} and the board moved (a sample {self.max_tilt_deg:.1f} deg '
-                       f'from the mean direction): a static run needs one orientation; record the reference')
-                raise TakError(msg)
-            x, y, z = (float(v) for v in static.specific_force)
-            lines.append(f'reference (static run): mean measured direction scaled to gravity {gravity:g} m/s^2 = '
-                         f'({x:.4f}, {y:.4f}, {z:.4f}) m/s^2 (largest deviation {self.max_tilt_deg:.2f} deg)')
+            check_static(static, gravity=gravity, max_tilt_deg=self.max_tilt_deg, where=str(self.path),
+                         reference_topic=topics.reference)
+            lines.append(reference_line(static, gravity=gravity, max_tilt_deg=self.max_tilt_deg))
         if self.recorded_rate:
             lines.append(f'rate reference: {topics.reference_rate} as recorded')
         else:
-            x, y, z = (float(v) for v in static.rate)
-            lines.append('rate reference (static run): zero' if latitude is None else
-                         f'rate reference (static run): the Earth rate\'s vertical component at latitude {latitude:g} deg '
-                         f'= ({x:.3e}, {y:.3e}, {z:.3e}) rad/s')
+            lines.append(rate_line(static, latitude))
         return lines
 
 

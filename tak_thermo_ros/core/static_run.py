@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tak_thermo_ros.errors import TakError
+
 EARTH_RATE = 7.2921159e-5
 """The Earth's rotation rate, rad/s (WGS 84)."""
 
@@ -69,3 +71,37 @@ def static_reference(acceleration: np.ndarray, *, gravity: float,
         rate = EARTH_RATE * math.sin(math.radians(latitude_deg)) * direction
     return StaticReference(specific_force=gravity * direction, rate=rate, direction=direction,
                            magnitude=magnitude, tilt_deg=np.degrees(np.arccos(cosine)))
+
+
+def check_static(static: StaticReference, *, gravity: float, max_tilt_deg: float, where: str,
+                 reference_topic: str) -> None:
+    """Refuse a run without a specific-force reference that is not static in one orientation.
+
+    :param where: the bag, named in the message.
+    :raises TakError: the mean is far below gravity, or a sample points more than
+        :data:`STATIC_TOLERANCE_DEG` away from the mean direction (the board moved).
+    """
+    if static.magnitude < 0.1 * gravity:
+        msg = (f'{where}: no {reference_topic} and the mean acceleration |{static.magnitude:.4g}| m/s^2 is '
+               f'far below gravity: not a static run; record the reference')
+        raise TakError(msg)
+    if max_tilt_deg > STATIC_TOLERANCE_DEG:
+        msg = (f'{where}: no {reference_topic} and the board moved (a sample {max_tilt_deg:.1f} deg '
+               f'from the mean direction): a static run needs one orientation; record the reference')
+        raise TakError(msg)
+
+
+def reference_line(static: StaticReference, *, gravity: float, max_tilt_deg: float) -> str:
+    """How a static run's specific-force reference was obtained, one line."""
+    x, y, z = (float(v) for v in static.specific_force)
+    return (f'reference (static run): mean measured direction scaled to gravity {gravity:g} m/s^2 = '
+            f'({x:.4f}, {y:.4f}, {z:.4f}) m/s^2 (largest deviation {max_tilt_deg:.2f} deg)')
+
+
+def rate_line(static: StaticReference, latitude_deg: float | None) -> str:
+    """How a static run's rate reference was obtained, one line."""
+    if latitude_deg is None:
+        return 'rate reference (static run): zero'
+    x, y, z = (float(v) for v in static.rate)
+    return (f"rate reference (static run): the Earth rate's vertical component at latitude {latitude_deg:g} deg "
+            f'= ({x:.3e}, {y:.3e}, {z:.3e}) rad/s')
