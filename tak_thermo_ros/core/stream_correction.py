@@ -16,7 +16,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from tak_thermo_ros.core.correction import Corrector, OutOfRange, UnitCorrector
-from tak_thermo_ros.core.effects.base import Effect, call_effect, effect_failure, effect_input
+from tak_thermo_ros.core.effects.base import Effect, effect_input
 from tak_thermo_ros.core.effects.link import EffectLink
 from tak_thermo_ros.core.model import Calibration, UnitCalibration
 from tak_thermo_ros.core.validate import GravityError, RateError
@@ -29,28 +29,7 @@ def basis_from(effect: Effect, state: Any, stamp_s: np.ndarray, temp_code: np.nd
 
     :param started: ``False`` before the run's first sample (the effect starts at it).
     """
-    stamps = np.asarray(stamp_s, dtype=float).tolist()
-    codes = np.asarray(temp_code, dtype=float).tolist()
-    width = len(effect.basis_suffixes())
-    if not codes:
-        return np.empty((0, width)), state
-    if not started:
-        state = call_effect(effect, 'start', effect.start, stamps[0], codes[0])
-    step = effect.step
-    rows = []
-    try:
-        for stamp, code in zip(stamps, codes):
-            state, values = step(state, stamp, code)
-            rows.append(values)
-    except Exception as err:
-        raise effect_failure(effect, 'step', err) from err
-    out = np.empty((len(codes), width))
-    try:
-        out[:] = rows
-    except (TypeError, ValueError) as err:
-        msg = (f'effect {effect.name}: step() returned basis values of the wrong length '
-               f'(the effect has {width} basis signal{"s" if width != 1 else ""})')
-        raise EffectError(msg) from err
+    out, state = effect.stepped_basis(stamp_s, temp_code, state=state, started=started)
     if not np.all(np.isfinite(out)):
         msg = f'effect {effect.name}: basis() returned non-finite values (NaN or infinite)'
         raise EffectError(msg)

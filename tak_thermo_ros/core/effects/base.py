@@ -279,13 +279,23 @@ class Effect:
         The default runs :meth:`step` sample by sample (bit-identical by construction); a
         subclass may override it with a faster path that performs the same float operations.
         """
+        return self.stepped_basis(stamp_s, temp_code)[0]
+
+    def stepped_basis(self, stamp_s: np.ndarray, temp_code: np.ndarray, *, state: Any = None,
+                      started: bool = False) -> tuple[np.ndarray, Any]:
+        """:meth:`step` over a series: basis signals ``(k, b)`` and the state after the last sample.
+
+        :param state: the state to continue from (a block of a longer run), with ``started``.
+        :param started: ``False``: the effect starts at the first sample (:meth:`start`).
+        """
         stamps = np.asarray(stamp_s, dtype=float).tolist()
         codes = np.asarray(temp_code, dtype=float).tolist()
         width = len(self.basis_suffixes())
         out = np.empty((len(codes), width))
         if not codes:
-            return out
-        state = call_effect(self, 'start', self.start, stamps[0], codes[0])
+            return out, state
+        if not started:
+            state = call_effect(self, 'start', self.start, stamps[0], codes[0])
         rows = []
         step = self.step
         try:
@@ -300,7 +310,7 @@ class Effect:
             msg = (f'effect {self.name}: step() returned basis values of the wrong length '
                    f'(the effect has {width} basis signal{"s" if width != 1 else ""})')
             raise EffectError(msg) from err
-        return out
+        return out, state
 
     def search_basis(self, stamp_s: np.ndarray, temp_code: np.ndarray) -> np.ndarray:
         """Basis signals for the fit's shape search: may differ from :meth:`basis` by rounding.
