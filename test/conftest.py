@@ -8,6 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from node_helpers import domain_id, ros_environment
 from tak_thermo_ros.core.record import align
 from tak_thermo_ros.core.simulate import Scenario, simulate
 
@@ -74,3 +75,13 @@ FUZZ_SCALE = int(os.environ.get('TAK_FUZZ_SCALE', '25' if HYPOTHESIS_PROFILE == 
 def examples(base: int) -> int:
     """The example budget of a property test: ``base`` in ``make test`` (all together < 60 s)."""
     return base * FUZZ_SCALE
+
+
+@pytest.fixture
+def ros_env(tmp_path, monkeypatch, request):
+    """Environment of this test's ROS processes (also applied to the test process)."""
+    index = sum(ord(c) for c in request.node.name)
+    env = ros_environment(tmp_path, domain_id(index))
+    for key in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_DOMAIN_ID', 'ROS_HOME', 'ROS_LOG_DIR'):
+        monkeypatch.setenv(key, env[key])
+    return env

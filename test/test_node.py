@@ -15,9 +15,7 @@ from node_helpers import (
     NANOSECONDS,
     Harness,
     NodeProcess,
-    domain_id,
     node_command,
-    ros_environment,
     run_to_exit,
     stamp_of,
     status_values,
@@ -41,16 +39,6 @@ from tak_thermo_ros.core.simulate import Scenario, simulate
 REPO = Path(__file__).resolve().parent.parent
 START_NS = 1_700_000_000 * NANOSECONDS
 CALIBRATION = Scenario().truth()  # temperature-code range 7600..8800, reference 8200
-
-
-@pytest.fixture
-def ros_env(tmp_path, monkeypatch, request):
-    """Environment of this test's ROS processes (also applied to the test process)."""
-    index = sum(ord(c) for c in request.node.name)
-    env = ros_environment(tmp_path, domain_id(index))
-    for key in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_DOMAIN_ID', 'ROS_HOME', 'ROS_LOG_DIR'):
-        monkeypatch.setenv(key, env[key])
-    return env
 
 
 def write_params(path: Path, calibration=CALIBRATION, **parameters) -> Path:

@@ -14,10 +14,8 @@ from node_helpers import (
     RELIABLE,
     Harness,
     NodeProcess,
-    domain_id,
     header_stamp,
     node_command,
-    ros_environment,
     stamp_of,
     status_values,
 )
@@ -41,16 +39,6 @@ SHORT_RUN = Scenario(sample_rate_hz=10.0, plateaus_celsius=(10.0, 30.0), plateau
                      ramp_celsius_per_minute=10.0, board_lag_s=5.0, dwell_s=2.0, supply_voltage_drift=2.0,
                      record_supply='/power/battery_state', seed=5)
 """About 250 s of chamber run, 2521 counts messages, the supply voltage with every temperature code."""
-
-
-@pytest.fixture
-def ros_env(tmp_path, monkeypatch, request):
-    """Environment of this test's ROS processes (also applied to the test process)."""
-    index = sum(ord(c) for c in request.node.name)
-    env = ros_environment(tmp_path, domain_id(index))
-    for key in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_DOMAIN_ID', 'ROS_HOME', 'ROS_LOG_DIR'):
-        monkeypatch.setenv(key, env[key])
-    return env
 
 
 DRIVER_RUN = replace(SHORT_RUN, output='imu', supply_voltage_drift=0.01, record_supply_type='float64')
