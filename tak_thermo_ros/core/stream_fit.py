@@ -329,6 +329,7 @@ class StreamingEffectFit:
 
     def add(self, samples: AlignedSamples) -> None:
         """Add the next block of aligned samples (in time order)."""
+        from tak_thermo_ros.core.effects.base import effect_input
         from tak_thermo_ros.core.stream_correction import basis_from
         if not len(samples) or samples.reference is None:
             return
@@ -336,7 +337,8 @@ class StreamingEffectFit:
         stamps = samples.stamp_s
         bases = []
         for index, effect in enumerate(self.offset_effects):
-            basis, self._states[index] = basis_from(effect, self._states[index], stamps, codes, started=self._started)
+            basis, self._states[index] = basis_from(effect, self._states[index], stamps,
+                                                    effect_input(effect, codes, samples.aux), started=self._started)
             bases.append(basis)
         self._started = True
         u = (codes - self.ref) / self.n_scale
