@@ -208,7 +208,13 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
                      scale_order: int = 2, temp_code_ref: float | None = None,
                      nominal_scale: tuple[float, float, float] | None = None,
                      train_mask: np.ndarray | None = None) -> FitResult:
-    """The implementation of :func:`tak_thermo_ros.core.fit.fit_model`."""
+    """The implementation of :func:`tak_thermo_ros.core.fit.fit_model`.
+
+    The steps: the paper's fit on the training samples; the design of the base model and the
+    input effects per axis; each offset effect's shapes searched on the profiled residual
+    (variable projection; structures by cross-validation); the final least squares; the
+    calibration and the standard errors (:class:`_EffectFit`).
+    """
     if train_mask is None:
         mask = np.ones(len(samples), dtype=bool)
     else:
@@ -219,7 +225,21 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
     train = _subset(samples, mask) if not mask.all() else samples
     base = fit_calibration(train, bias_order=bias_order, scale_order=scale_order,
                            temp_code_ref=temp_code_ref, nominal_scale=nominal_scale)
-    chosen: list[tuple[Effect | None, type[Effect], bool]] = []
+    chosen = _resolve_specs(effects)
+    if not chosen:
+        return base
+    fit = _EffectFit(samples, train, mask, base.calibration, chosen, bias_order=bias_order, scale_order=scale_order)
+    fit.search_shapes()
+    return fit.result()
+
+
+_Chosen = tuple[Effect | None, type[Effect], bool]
+"""An effect to fit: its instance (given, or its defaults; ``None`` without), its class, whether its shape is fixed."""
+
+
+def _resolve_specs(effects: Sequence) -> list[_Chosen]:
+    """The effects to fit, each once, never with its per-axis form."""
+    chosen: list[_Chosen] = []
     names_seen: set[str] = set()
     for spec in effects:
         if isinstance(spec, Effect):
@@ -238,56 +258,68 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
             raise FitError(msg)
         names_seen.add(cls.name)
         chosen.append((effect, cls, fixed))
-    if not chosen:
-        return base
+    return chosen
 
-    calibration0 = base.calibration
-    ref, low, high = calibration0.temp_code_ref, calibration0.temp_code_min, calibration0.temp_code_max
-    n_scale = max(abs(low - ref), abs(high - ref), 1.0)
-    held = single_input_axes(train)
-    code_all = np.clip(samples.temp_code, low, high)  # what the corrector's clamp policy gives
-    stamp_all = samples.stamp_s
-    time_train = stamp_all[mask]
-    code_train = code_all[mask]
-    force = train.reference
-    counts = train.counts
-    u = (code_train - ref) / n_scale
-    powers = [np.ones_like(u)]
-    for _ in range(max(bias_order, scale_order)):
-        powers.append(powers[-1] * u)
 
-    # Fixed columns per axis: base model, then the input effects' amplitudes.
-    input_effects = [(effect, cls) for effect, cls, _ in chosen if cls.kind == INPUT]
-    fixed, targets, names = [], [], []
-    base_counts = []
-    for i in range(3):
-        if held[i]:
-            columns = [powers[j] for j in range(bias_order + 1)]
-            column_names = ['the offset polynomial'] * len(columns)
-            target = counts[:, i] - calibration0.axes[i].scale * force[:, i]
-        else:
-            columns = [force[:, i] * powers[j] for j in range(scale_order + 1)]
-            columns += [powers[j] for j in range(bias_order + 1)]
-            column_names = ['the scale polynomial'] * (scale_order + 1) + ['the offset polynomial'] * (bias_order + 1)
-            target = counts[:, i]
-        base_counts.append(len(columns))
-        for effect, cls in input_effects:
-            for name, column in (effect or cls()).input_columns(i, force):
-                columns.append(column)
-                column_names.append(f'{cls.name} ({name})')
-        fixed.append(np.column_stack(columns))
-        targets.append(target)
-        names.append(column_names)
-    projection = _Projection(fixed, targets, names)
+class _EffectFit:
+    """One fit of the paper's model plus effects, step by step (see :func:`fit_with_effects`).
 
-    # Offset effects.
-    offsets: list[_Offset] = []
-    for effect, cls, fixed_shape in chosen:
-        if cls.kind == INPUT:
-            continue
-        inputs_all = effect_input(effect if effect is not None else cls, code_all, samples.aux)
+    :param samples: every sample (effects with memory run over the whole series).
+    :param train: the training samples (``samples`` where ``mask``).
+    :param calibration0: the paper's fit on ``train`` (range, reference, held scales).
+    """
+
+    def __init__(self, samples: AlignedSamples, train: AlignedSamples, mask: np.ndarray, calibration0: Calibration,
+                 chosen: list[_Chosen], *, bias_order: int, scale_order: int) -> None:
+        self.samples, self.mask, self.calibration0, self.chosen = samples, mask, calibration0, chosen
+        self.bias_order, self.scale_order = bias_order, scale_order
+        ref, low, high = calibration0.temp_code_ref, calibration0.temp_code_min, calibration0.temp_code_max
+        self.n_scale = max(abs(low - ref), abs(high - ref), 1.0)
+        self.held = single_input_axes(train)
+        self.code_all = np.clip(samples.temp_code, low, high)  # what the corrector's clamp policy gives
+        self.stamp_all = samples.stamp_s
+        self.force = train.reference
+        self.input_effects = [(effect, cls) for effect, cls, _ in chosen if cls.kind == INPUT]
+        self._fixed_columns(train.counts, (self.code_all[mask] - ref) / self.n_scale)
+        self.projection = _Projection(self.fixed, self.targets, self.names)
+        self.offsets = [self._offset_entry(effect, cls, fixed_shape)
+                        for effect, cls, fixed_shape in chosen if cls.kind != INPUT]
+
+    # ----- the design ------------------------------------------------------------------------
+
+    def _fixed_columns(self, counts: np.ndarray, u: np.ndarray) -> None:
+        """Per axis: the base model's columns, then the input effects' amplitudes; the target."""
+        bias_order, scale_order, force = self.bias_order, self.scale_order, self.force
+        powers = [np.ones_like(u)]
+        for _ in range(max(bias_order, scale_order)):
+            powers.append(powers[-1] * u)
+        self.fixed, self.targets, self.names, self.base_counts = [], [], [], []
+        for i in range(3):
+            if self.held[i]:
+                columns = [powers[j] for j in range(bias_order + 1)]
+                column_names = ['the offset polynomial'] * len(columns)
+                target = counts[:, i] - self.calibration0.axes[i].scale * force[:, i]
+            else:
+                columns = [force[:, i] * powers[j] for j in range(scale_order + 1)]
+                columns += [powers[j] for j in range(bias_order + 1)]
+                column_names = ['the scale polynomial'] * (scale_order + 1) + ['the offset polynomial'] * (bias_order + 1)
+                target = counts[:, i]
+            self.base_counts.append(len(columns))
+            for effect, cls in self.input_effects:
+                for name, column in (effect or cls()).input_columns(i, force):
+                    columns.append(column)
+                    column_names.append(f'{cls.name} ({name})')
+            self.fixed.append(np.column_stack(columns))
+            self.targets.append(target)
+            self.names.append(column_names)
+
+    def _offset_entry(self, effect: Effect | None, cls: type[Effect], fixed_shape: bool) -> _Offset:
+        """An offset effect: fixed, its shapes to search, or a structure to choose."""
+        mask = self.mask
+        time_train = self.stamp_all[mask]
+        inputs_all = effect_input(effect if effect is not None else cls, self.code_all, self.samples.aux)
         if fixed_shape:
-            entry = _Offset(effect=effect, mode='fixed')
+            entry = _Offset(effect=effect, mode='fixed')  # type: ignore[arg-type]
         else:
             structures = call_effect(cls, 'structures', cls.structures, time_train, inputs_all[mask])
             if structures is not None:
@@ -304,15 +336,16 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
                 entry = _Offset(effect=effect, mode='search' if searched else 'fixed', searched=searched)
         entry.inputs = inputs_all
         if entry.mode == 'fixed':
-            entry.basis = checked_basis(entry.effect, stamp_all, inputs_all)
+            entry.basis = checked_basis(entry.effect, self.stamp_all, inputs_all)
             entry.done = True
-        offsets.append(entry)
+        return entry
 
-    def extra_and_norms(skip: _Offset | None = None, with_basis: np.ndarray | None = None,
-                        with_effect: Effect | None = None) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    def _extra_and_norms(self, skip: _Offset | None = None, with_basis: np.ndarray | None = None,
+                         with_effect: Effect | None = None) -> tuple[list[np.ndarray], list[np.ndarray]]:
         """Per axis the normalised columns of the done offset effects (then ``with_basis``) and
         their norms; each effect contributes the basis signals its amplitudes on that axis use."""
-        parts = [(entry.basis, entry.effect) for entry in offsets if entry is not skip and entry.done]
+        mask = self.mask
+        parts = [(entry.basis, entry.effect) for entry in self.offsets if entry is not skip and entry.done]
         if with_basis is not None:
             parts.append((with_basis, with_effect))
         columns, norms = [], []
@@ -327,148 +360,169 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
             norms.append(norm)
         return columns, norms
 
-    def visible(phi: np.ndarray) -> bool:
+    def _visible(self, phi: np.ndarray) -> bool:
+        mask = self.mask
         whole = np.max(np.abs(phi), axis=0)
         seen = np.max(np.abs(phi[mask]), axis=0) if mask.any() else np.zeros_like(whole)
         return bool(np.all(seen >= VISIBLE * whole))
 
-    def profiled(entry: _Offset, candidate: Effect) -> float:
+    def _basis_of(self, entry: _Offset, effect: Effect, *, exact: bool = False) -> np.ndarray:
+        key = (exact, tuple(sorted(effect.values.items())))
+        if key not in entry.cache:
+            entry.cache[key] = checked_basis(effect, self.stamp_all, entry.inputs, search=not exact)
+        return entry.cache[key]
+
+    # ----- the shapes ------------------------------------------------------------------------
+
+    def _profiled(self, entry: _Offset, candidate: Effect) -> float:
         """``sum_axes ln RSS`` with the candidate's basis, or INVALID when its amplitudes leave their bounds."""
-        phi = basis_of(entry, candidate)
-        if not visible(phi):
+        phi = self._basis_of(entry, candidate)
+        if not self._visible(phi):
             return INVALID
-        columns, norms = extra_and_norms(skip=entry, with_basis=phi, with_effect=candidate)
-        rss, coefficients = projection.rss(columns)
+        columns, norms = self._extra_and_norms(skip=entry, with_basis=phi, with_effect=candidate)
+        rss, coefficients = self.projection.rss(columns)
         widths = [len(c) for c in candidate.axis_columns()]
         amplitudes = [c[-w:] / n[-w:] for c, n, w in zip(coefficients, norms, widths)]
         if not _amplitudes_within_bounds(candidate, amplitudes):
             return INVALID
         return float(np.sum(np.log(rss)))
 
-    def basis_of(entry: _Offset, effect: Effect, *, exact: bool = False) -> np.ndarray:
-        key = (exact, tuple(sorted(effect.values.items())))
-        if key not in entry.cache:
-            entry.cache[key] = checked_basis(effect, stamp_all, entry.inputs, search=not exact)
-        return entry.cache[key]
+    def search_shapes(self) -> None:
+        """Search every offset effect's shape, twice over when there are several (each sees the others)."""
+        pending = [entry for entry in self.offsets if entry.mode != 'fixed']
+        for entry in pending:
+            self._search(entry)
+        if len(pending) > 1:
+            for entry in pending:
+                self._search(entry)
 
-    def search(entry: _Offset) -> None:
+    def _search(self, entry: _Offset) -> None:
         if entry.mode == 'structure':
-            validation = _CrossValidation(fixed, targets)
-            best = None
-            for candidate in entry.structures:
-                phi = basis_of(entry, candidate)
-                if not visible(phi):
-                    continue
-                columns, norms = extra_and_norms(skip=entry, with_basis=phi, with_effect=candidate)
-                score, coefficients = validation.score(columns)
-                widths = [len(c) for c in candidate.axis_columns()]
-                if not _amplitudes_within_bounds(candidate, [c[-w:] / n[-w:] for c, n, w
-                                                             in zip(coefficients, norms, widths)]):
-                    continue
-                if best is None or score < best[0]:
-                    best = (score, candidate, phi)
-            if best is None:
-                msg = f'effect {entry.effect.name}: no candidate keeps its amplitudes within their bounds'
-                raise FitError(msg)
-            entry.effect, entry.basis = best[1], basis_of(entry, best[1], exact=True)
-            entry.done = True
+            self._choose_structure(entry)
             if not entry.searched:
                 return
         for name, low_value, high_value, log in entry.searched:
-            to_value = (lambda s: math.exp(s)) if log else (lambda s: s)
-            a, b = (math.log(low_value), math.log(high_value)) if log else (low_value, high_value)
-
-            def objective(s: float, name=name, to_value=to_value) -> float:
-                return profiled(entry, entry.effect.replace(**{name: to_value(s)}))
-
-            grid = np.linspace(a, b, GRID_POINTS)
-            values = [objective(s) for s in grid]
-            j = int(np.argmin(values))
-            if values[j] >= INVALID:
-                msg = (f'effect {entry.effect.name}: no {name} in {low_value:g}..{high_value:g} keeps its '
-                       f'amplitudes within their bounds on these samples')
-                raise FitError(msg)
-            best_s, best_value = float(grid[j]), values[j]
-            lo, hi = float(grid[max(j - 1, 0)]), float(grid[min(j + 1, GRID_POINTS - 1)])
-            result = minimize_scalar(objective, bounds=(lo, hi), method='bounded',
-                                     options={'xatol': 1e-3 if log else 1e-3 * (b - a)})
-            if result.fun < best_value:
-                best_s = float(result.x)
-            entry.effect = entry.effect.replace(**{name: to_value(best_s)})
-        entry.basis = basis_of(entry, entry.effect, exact=True)
+            self._search_parameter(entry, name, low_value, high_value, log)
+        entry.basis = self._basis_of(entry, entry.effect, exact=True)
         entry.done = True
 
-    pending = [entry for entry in offsets if entry.mode != 'fixed']
-    for entry in pending:
-        search(entry)
-    if len(pending) > 1:
-        for entry in pending:
-            search(entry)
-
-    # Final least squares over the training samples.
-    extra_raw = [_axis_offset_columns(offsets, i, mask, len(u)) for i in range(3)]
-    betas, residual_sums, designs = [], [], []
-    for i in range(3):
-        design = np.column_stack([fixed[i], extra_raw[i]])
-        norms = np.sqrt(np.mean(design ** 2, axis=0))
-        norms[norms == 0.0] = 1.0
-        solution, _, rank, singular = np.linalg.lstsq(design / norms, targets[i], rcond=None)
-        if rank < design.shape[1]:
-            offender = _first_dependent(design / norms, names[i] + _offset_column_names(offsets, i))
-            msg = (f'axis {AXIS_NAMES[i]}: the data cannot separate {offender} from the other model terms '
-                   f'(the inputs and temperatures of this run do not excite it)')
+    def _choose_structure(self, entry: _Offset) -> None:
+        """The structure (e.g. the knots of a shape) with the best blocked cross-validation score."""
+        validation = _CrossValidation(self.fixed, self.targets)
+        best = None
+        for candidate in entry.structures:
+            phi = self._basis_of(entry, candidate)
+            if not self._visible(phi):
+                continue
+            columns, norms = self._extra_and_norms(skip=entry, with_basis=phi, with_effect=candidate)
+            score, coefficients = validation.score(columns)
+            widths = [len(c) for c in candidate.axis_columns()]
+            if not _amplitudes_within_bounds(candidate, [c[-w:] / n[-w:] for c, n, w
+                                                         in zip(coefficients, norms, widths)]):
+                continue
+            if best is None or score < best[0]:
+                best = (score, candidate, phi)
+        if best is None:
+            msg = f'effect {entry.effect.name}: no candidate keeps its amplitudes within their bounds'
             raise FitError(msg)
-        beta = solution / norms
-        betas.append(beta)
-        residual = targets[i] - design @ beta
-        residual_sums.append(float(residual @ residual))
-        designs.append((design, norms))
+        entry.effect, entry.basis = best[1], self._basis_of(entry, best[1], exact=True)
+        entry.done = True
 
-    # Assemble the calibration.
-    axes_models = [axis_from_coefficients(betas[i], bias_order=bias_order, scale_order=scale_order, n_scale=n_scale,
-                                          code_offset_range=(low - ref, high - ref), name=AXIS_NAMES[i],
-                                          held_scale=calibration0.axes[i].scale if held[i] else None)
-                   for i in range(3)]
+    def _search_parameter(self, entry: _Offset, name: str, low_value: float, high_value: float, log: bool) -> None:
+        """One shape parameter: a coarse grid, then a bounded refinement around its best point."""
+        to_value = (lambda s: math.exp(s)) if log else (lambda s: s)
+        a, b = (math.log(low_value), math.log(high_value)) if log else (low_value, high_value)
 
-    fitted: dict[str, Effect] = {}
-    for effect, cls in input_effects:
-        values = {}
+        def objective(s: float) -> float:
+            return self._profiled(entry, entry.effect.replace(**{name: to_value(s)}))
+
+        grid = np.linspace(a, b, GRID_POINTS)
+        values = [objective(s) for s in grid]
+        j = int(np.argmin(values))
+        if values[j] >= INVALID:
+            msg = (f'effect {entry.effect.name}: no {name} in {low_value:g}..{high_value:g} keeps its '
+                   f'amplitudes within their bounds on these samples')
+            raise FitError(msg)
+        best_s, best_value = float(grid[j]), values[j]
+        lo, hi = float(grid[max(j - 1, 0)]), float(grid[min(j + 1, GRID_POINTS - 1)])
+        result = minimize_scalar(objective, bounds=(lo, hi), method='bounded',
+                                 options={'xatol': 1e-3 if log else 1e-3 * (b - a)})
+        if result.fun < best_value:
+            best_s = float(result.x)
+        entry.effect = entry.effect.replace(**{name: to_value(best_s)})
+
+    # ----- the result ------------------------------------------------------------------------
+
+    def result(self) -> FitResult:
+        """The final least squares over the training samples, the calibration and its errors."""
+        mask, offsets, fixed = self.mask, self.offsets, self.fixed
+        count = int(mask.sum())
+        extra_raw = [_axis_offset_columns(offsets, i, mask, count) for i in range(3)]
+        betas, residual_sums, designs = [], [], []
         for i in range(3):
-            position = base_counts[i]
-            for other, other_cls in input_effects:
-                columns = (other or other_cls()).input_columns(i, force[:1])
-                if other_cls is cls:
-                    for k, (name, _) in enumerate(columns):
-                        values[name] = float(betas[i][position + k])
-                position += len(columns)
-        fitted[cls.name] = _build(cls, values)
-    for index, entry in enumerate(offsets):
-        values = {name: entry.effect[name] for name in entry.effect.shape_names()}
-        for i in range(3):
-            position = fixed[i].shape[1] + sum(len(o.effect.axis_columns()[i]) for o in offsets[:index])
-            for k, name in enumerate(entry.effect.amplitude_names()[i]):
-                values[name] = float(betas[i][position + k])
-        fitted[entry.effect.name] = _build(type(entry.effect), values)
-    ordered = tuple(fitted[cls.name] for _, cls, _ in chosen)
+            design = np.column_stack([fixed[i], extra_raw[i]])
+            norms = np.sqrt(np.mean(design ** 2, axis=0))
+            norms[norms == 0.0] = 1.0
+            solution, _, rank, singular = np.linalg.lstsq(design / norms, self.targets[i], rcond=None)
+            if rank < design.shape[1]:
+                offender = _first_dependent(design / norms, self.names[i] + _offset_column_names(offsets, i))
+                msg = (f'axis {AXIS_NAMES[i]}: the data cannot separate {offender} from the other model terms '
+                       f'(the inputs and temperatures of this run do not excite it)')
+                raise FitError(msg)
+            beta = solution / norms
+            betas.append(beta)
+            residual = self.targets[i] - design @ beta
+            residual_sums.append(float(residual @ residual))
+            designs.append((design, norms))
+        calibration0 = self.calibration0
+        ref, low, high = calibration0.temp_code_ref, calibration0.temp_code_min, calibration0.temp_code_max
+        axes_models = [axis_from_coefficients(betas[i], bias_order=self.bias_order, scale_order=self.scale_order,
+                                              n_scale=self.n_scale, code_offset_range=(low - ref, high - ref),
+                                              name=AXIS_NAMES[i],
+                                              held_scale=calibration0.axes[i].scale if self.held[i] else None)
+                       for i in range(3)]
+        calibration = Calibration(temp_code_ref=ref, temp_code_min=low, temp_code_max=high,
+                                  axes=tuple(axes_models), notes=calibration0.notes,  # type: ignore[arg-type]
+                                  effects=self._fitted_effects(betas))
+        residual = residual_counts(calibration, self.samples)[mask]
+        parameters = [fixed[i].shape[1] + extra_raw[i].shape[1] + self._shape_count(i) for i in range(3)]
+        errors = _standard_errors(offsets, self.input_effects, designs, residual_sums, betas, fixed, self.force,
+                                  self.stamp_all, self.code_all, mask)
+        return finish_fit(calibration, residual, parameters, dropped=self.samples.dropped, parameter_errors=errors)
 
-    calibration = Calibration(temp_code_ref=ref, temp_code_min=low, temp_code_max=high,
-                              axes=tuple(axes_models), notes=calibration0.notes,  # type: ignore[arg-type]
-                              effects=ordered)
-    residual = residual_counts(calibration, samples)[mask]
-    def shape_count(axis: int) -> int:
+    def _fitted_effects(self, betas: list[np.ndarray]) -> tuple[Effect, ...]:
+        """Every effect with its amplitudes read from the solution, in the order given."""
+        input_effects, offsets, fixed = self.input_effects, self.offsets, self.fixed
+        fitted: dict[str, Effect] = {}
+        for effect, cls in input_effects:
+            values = {}
+            for i in range(3):
+                position = self.base_counts[i]
+                for other, other_cls in input_effects:
+                    columns = (other or other_cls()).input_columns(i, self.force[:1])
+                    if other_cls is cls:
+                        for k, (name, _) in enumerate(columns):
+                            values[name] = float(betas[i][position + k])
+                    position += len(columns)
+            fitted[cls.name] = _build(cls, values)
+        for index, entry in enumerate(offsets):
+            values = {name: entry.effect[name] for name in entry.effect.shape_names()}
+            for i in range(3):
+                position = fixed[i].shape[1] + sum(len(o.effect.axis_columns()[i]) for o in offsets[:index])
+                for k, name in enumerate(entry.effect.amplitude_names()[i]):
+                    values[name] = float(betas[i][position + k])
+            fitted[entry.effect.name] = _build(type(entry.effect), values)
+        return tuple(fitted[cls.name] for _, cls, _ in self.chosen)
+
+    def _shape_count(self, axis: int) -> int:
         """Searched shape parameters that axis ``axis`` depends on (a per-axis form: its own only)."""
         count = 0
-        for entry in offsets:
+        for entry in self.offsets:
             own = [name for name, *_ in entry.searched]
             if len(set(entry.effect.axis_columns())) > 1:
                 own = [name for name in own if name.endswith(f'_{AXIS_NAMES[axis]}')]
             count += len(own) + (1 if entry.mode == 'structure' else 0)
         return count
-
-    parameters = [fixed[i].shape[1] + extra_raw[i].shape[1] + shape_count(i) for i in range(3)]
-    errors = _standard_errors(offsets, input_effects, designs, residual_sums, betas, fixed, force,
-                              stamp_all, code_all, mask)
-    return finish_fit(calibration, residual, parameters, dropped=samples.dropped, parameter_errors=errors)
 
 
 def _searched(cls: type[Effect], effect: Effect, time_s: np.ndarray,
