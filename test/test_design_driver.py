@@ -16,7 +16,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from tak_thermo_ros.bagio import bag_input_kind, read_driver_record, write_driver_record
+from conftest import SHORT
+from tak_thermo_ros.bagio import bag_input_kind, read_driver_record, write_driver_record, write_record
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.core.diagnose import design_driver_run, diagnose
 from tak_thermo_ros.core.diagnose.design import driver_table
@@ -140,3 +141,19 @@ def test_the_design_is_simulated_on_the_table_of_the_diagnosed_run(table, expect
     for key, value in expected.items():
         np.testing.assert_allclose(np.array(found[key], dtype=float), np.array(value, dtype=float), atol=1e-9,
                                    err_msg=key)
+
+
+def test_counts_bag_with_a_recorded_signal_on_top_gets_the_same_line(tmp_path, capsys):
+    """The paper's counts: the recorded-signal line instead of a design (no error, nothing written)."""
+    scenario = replace(SHORT, sample_rate_hz=0.1, supply_voltage_drift=6.0, record_supply='/power/battery_state',
+                       seed=5)
+    write_record(tmp_path / 'run', simulate(scenario).record)
+    assert main(['fit', str(tmp_path / 'run'), '-o', str(tmp_path / 'base.yaml'), '--no-progress']) == 0
+    capsys.readouterr()
+    code = main(['diagnose', str(tmp_path / 'run'), '--params', str(tmp_path / 'base.yaml'), '--candidates',
+                 'thermal_lag,aux:/power/battery_state', '--design-run', str(tmp_path / 'design'), '--no-progress'])
+    out = capsys.readouterr().out
+    assert code == 0
+    lines = [line for line in out.splitlines() if line.startswith('no chamber run designed')]
+    assert len(lines) == 1 and 'aux:/power/battery_state' in lines[0], out
+    assert not (tmp_path / 'design').exists()
