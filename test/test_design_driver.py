@@ -157,3 +157,26 @@ def test_counts_bag_with_a_recorded_signal_on_top_gets_the_same_line(tmp_path, c
     lines = [line for line in out.splitlines() if line.startswith('no chamber run designed')]
     assert len(lines) == 1 and 'aux:/power/battery_state' in lines[0], out
     assert not (tmp_path / 'design').exists()
+
+
+def test_a_model_that_follows_a_recorded_signal_is_designed_with_the_signal_steady():
+    """The accelerometer's model holds the supply voltage (aux) and misses a lag: the simulated runs
+    record no voltage, so that effect is left out there; what the other candidate cannot absorb is
+    then at most the whole lag (slope x ramp rate x tau), not the whole signal of a failed fit."""
+    lag = {'tau_s': 900.0, 'slope_x': 3e-3, 'slope_z': 4e-3}
+    scenario = replace(RUN, gyro_effects={}, sample_rate_hz=0.1, supply_voltage_drift=0.03,
+                       record_supply='/power/battery_state', effects={'thermal_lag': lag})
+    driver = simulate(scenario).driver
+    samples = {sensor: align(driver.channel(sensor)) for sensor in ('accel', 'gyro')}
+    calibrations = {'accel': fit_model(samples['accel'], effects=['aux:/power/battery_state']).calibration,
+                    'gyro': fit_model(samples['gyro']).calibration}
+    diagnoses = {sensor: diagnose(calibrations[sensor], s, candidates=PAIR.split(',')) for sensor, s in samples.items()}
+    assert diagnoses['accel'].verdict == 'thermal_lag' and diagnoses['gyro'].verdict == 'none'
+    design = design_driver_run(diagnoses, samples)
+    (accel,) = design.sensors
+    assert accel.sensor == 'accel' and 'gyro' in design.notes
+    ramp = max(p['ramp_celsius_per_minute'] for p in (s.scenario for s in accel.tried)) / 60.0
+    whole_lag = max(abs(lag['slope_x']), abs(lag['slope_z'])) * ramp * lag['tau_s']
+    for score in accel.tried:
+        assert np.all(np.array(score.rms_over_floor) < whole_lag / diagnoses['accel'].noise_floor), score
+    assert accel.tried[design.choice].separation_sigmas > accel.baseline_sigmas

@@ -18,6 +18,14 @@ The profile with the largest separation is written as a simulator scenario (YAML
 :func:`tak_thermo_ros.core.simulate.load_scenario` format) and as a chamber schedule (CSV of
 ``time_s, setpoint_C``). Temperatures in Celsius map to temperature codes through the scenario's
 sensor gain (``temp_code_ref``, ``codes_per_celsius``; the simulator's defaults unless given).
+
+Driver bags (:func:`design_driver_run`): the same per sensor, in the sensor's units and with the
+temperature in degrees C (no gain), each profile simulated once as a driver run on the diagnosed
+run's table; one run serves both sensors, so the proposed profile is the one whose weaker sensor
+separation is largest (:data:`COMBINATION_RULE`). A recorded signal (``aux:``) among the two best
+candidates is not separated by any temperature profile (:func:`recorded_signal_note`). Effects of
+the current model that follow a recorded signal are left out of the simulated runs (the simulator
+records none; a steady signal adds a constant the bias absorbs).
 """
 
 from __future__ import annotations
@@ -157,6 +165,19 @@ class _CandidateFits:
     fitted: dict[str, Calibration]
     settings: Any
 
+    def steady_signals(self) -> _CandidateFits:
+        """The same fits without the effects that follow a recorded signal (``aux:``), for simulated runs.
+
+        The simulator records no such signal: held steady, it adds a constant that the bias absorbs.
+        """
+        def follows_signal(spec: Any) -> bool:
+            return getattr(spec, 'needs_signal', None) is not None
+
+        models = {name: tuple(spec for spec in specs if not follows_signal(spec)) for name, specs in self.models.items()}
+        fitted = {name: replace(cal, effects=tuple(e for e in cal.effects if not follows_signal(e)))
+                  for name, cal in self.fitted.items()}
+        return replace(self, models=models, fitted=fitted)
+
     def parameters(self) -> dict[str, dict[str, float]]:
         """``candidate -> {effect.parameter: value}`` of the fitted effects."""
         return {name: {f'{e.name}.{k}': float(v) for e in cal.effects for k, v in e.values.items()}
@@ -249,7 +270,7 @@ def design_run(diagnosis: Diagnosis, samples: AlignedSamples, *, pair: Sequence[
     for label, profile in candidate_profiles(temps[0], temps[1]):
         scenario = _scenario({**profile, 'sample_rate_hz': DESIGN_RATE_HZ, 'effects': {}}, sensor)
         say(f'simulate: {label}')
-        weakest = _weakest_direction(fits, align(simulate(scenario).record), floor)
+        weakest = _weakest_direction(fits.steady_signals(), align(simulate(scenario).record), floor)
         scores.append(_score(label, profile, weakest, scenario.duration_s() / 3600.0, rate))
     best = max(scores, key=lambda s: s.separation_sigmas)
     return RunDesign(candidates=fits.names, best=best, tried=tuple(scores), sample_rate_hz=float(rate),
@@ -483,7 +504,7 @@ def design_driver_run(diagnoses: Mapping[str, Diagnosis], samples: Mapping[str, 
         driver = simulate(scenario).driver
         for sensor in fits:
             simulated = align(driver.channel(sensor))  # type: ignore[union-attr]
-            weakest = _weakest_direction(fits[sensor], simulated, floors[sensor])
+            weakest = _weakest_direction(fits[sensor].steady_signals(), simulated, floors[sensor])
             scores[sensor].append(_score(label, profile, weakest, scenario.duration_s() / 3600.0, rate))
     count = len(next(iter(scores.values())))
     choice = max(range(count), key=lambda i: min(scores[s][i].separation_sigmas for s in fits))
