@@ -298,8 +298,8 @@ def recorded_signal_note(diagnosis: Diagnosis, label: str = '') -> str | None:
     others = [name for name in names if name not in signals]
     topics = ', '.join(name[len(AUX_PREFIX):].split(':')[0] for name in signals)
     against = f'from {others[0]}' if others else 'from each other'
-    return (f'{label}no chamber run designed: {" and ".join(signals)} is among the two best candidates, and a '
-            f'temperature profile cannot tell a recorded signal {against} by temperature alone; what separates '
+    return (f'{label}no chamber run designed: {" and ".join(signals)} {"is" if len(signals) == 1 else "are"} among the two best candidates, '
+            f'and a temperature profile cannot tell a recorded signal {against} by temperature alone; what separates '
             f'them is a run in which {topics} varies independently of the temperature (e.g. the supply voltage '
             f'stepped at a constant chamber temperature)')
 
