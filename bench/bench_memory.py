@@ -177,6 +177,7 @@ def measure(bag: Path, workdir: Path, *, apply: bool, diagnose: bool) -> dict[st
         print(f'  apply {apply_wall:.1f} s, peak {apply_rss / 2**20:.0f} MiB')
     if diagnose:
         report = workdir / f'{bag.name}_diagnose.json'
+        report.unlink(missing_ok=True)
         diagnose_wall, diagnose_cpu, diagnose_rss, diagnose_out = run_child(
             [*tak_calib_command(), 'diagnose', str(bag), '--params', str(params), '--json', str(report), '--no-progress'])
         row.update(diagnose_wall_s=diagnose_wall, diagnose_cpu_s=diagnose_cpu, diagnose_peak_rss_bytes=diagnose_rss,

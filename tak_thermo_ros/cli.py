@@ -33,13 +33,12 @@ from tak_thermo_ros.core.calibration_file import load_unit, save_unit
 from tak_thermo_ros.core.files import BAG, FILE, REPORT, atomic_directory, check_output, write_text_atomic
 from tak_thermo_ros.core.correction import Corrector, OutOfRange
 from tak_thermo_ros.core.effects.aux_signal import signals_with_values
-from tak_thermo_ros.core.fit import FitResult, fit_model
 from tak_thermo_ros.core.model import AXES, InputKind, UnitCalibration
-from tak_thermo_ros.core.record import REFERENCE_LIMIT, TEMPERATURE_RANGE, AlignedSamples, ChannelRecord, DriverRecord, align
+from tak_thermo_ros.core.record import REFERENCE_LIMIT, TEMPERATURE_RANGE, AlignedSamples
 from tak_thermo_ros.core.record import require_signals
 from tak_thermo_ros.core.simulate import STANDARD_GRAVITY, Scenario, load_scenario, simulate
-from tak_thermo_ros.core.static_run import check_static, rate_line, reference_line, static_reference
-from tak_thermo_ros.errors import FitError, TakError
+from tak_thermo_ros.errors import TakError
+from tak_thermo_ros.streaming import DIAGNOSE_MAX_SAMPLES, EFFECT_FIT_MAX_SAMPLES
 
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
@@ -135,86 +134,6 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
-@dataclass(frozen=True)
-class SensorRun:
-    """One sensor's streams of a bag, aligned on its stamps.
-
-    :param sensor: ``'accel'`` or ``'gyro'``.
-    :param record: the streams.
-    :param samples: the usable samples, reference held (calibration runs).
-    """
-
-    sensor: str
-    record: ChannelRecord
-    samples: AlignedSamples
-
-
-@dataclass(frozen=True)
-class BagRun:
-    """A bag read for fit, diagnose or validate: one :class:`SensorRun` per sensor.
-
-    :param input_kind: counts (the paper's bag contract) or a driver's Imu.
-    :param sensors: the accelerometer, then (driver bags) the gyroscope.
-    :param reference_lines: how the reference was obtained, one line each (driver bags).
-    """
-
-    input_kind: InputKind
-    sensors: tuple[SensorRun, ...]
-    reference_lines: tuple[str, ...] = ()
-
-    def sensor(self, name: str) -> SensorRun:
-        """The run of ``'accel'`` or ``'gyro'``."""
-        return next(run for run in self.sensors if run.sensor == name)
-
-
-def _read_run(args: argparse.Namespace, *, calibration_run: bool, settle_time_s: float = 0.0) -> BagRun:
-    """Read the bag named by ``args.bag``, whichever contract it follows, and align its streams.
-
-    :param calibration_run: the reference is required (counts bags) or estimated (driver
-        bags without reference topics: a static run), and held on the samples.
-    """
-    from tak_thermo_ros.bagio import bag_input_kind, read_driver_record, read_record
-    topics = _topics(args)
-    kind = bag_input_kind(args.bag, topics=topics)
-    if kind is InputKind.COUNTS:
-        record = read_record(args.bag, topics=topics, require_reference=calibration_run,
-                             progress=not args.no_progress)
-        samples = align(record, use_reference=calibration_run, settle_time_s=settle_time_s)
-        return BagRun(kind, (SensorRun('accel', record, samples),))
-    driver = read_driver_record(args.bag, topics=topics, progress=not args.no_progress)
-    driver, lines = _with_references(driver, args, topics)
-    runs = []
-    for sensor in ('accel', 'gyro'):
-        record = driver.channel(sensor)
-        runs.append(SensorRun(sensor, record, align(record, use_reference=True, settle_time_s=settle_time_s)))
-    return BagRun(kind, tuple(runs), tuple(lines))
-
-
-def _with_references(driver: DriverRecord, args: argparse.Namespace, topics) -> tuple[DriverRecord, list[str]]:
-    """The driver record with both references: recorded, or those of a static run."""
-    lines = []
-    if len(driver.reference_stamp_ns) and len(driver.rate_reference_stamp_ns):
-        return driver, [f'reference: {topics.reference} and {topics.reference_rate} as recorded']
-    finite = np.all(np.isfinite(driver.accel), axis=1)
-    gravity = getattr(args, 'gravity', STANDARD_GRAVITY)
-    latitude = getattr(args, 'latitude', None)
-    static = static_reference(driver.accel[finite], gravity=gravity, latitude_deg=latitude)
-    first = driver.stamp_ns[:1].copy()
-    if len(driver.reference_stamp_ns):
-        lines.append(f'reference: {topics.reference} as recorded')
-    else:
-        check_static(static, gravity=gravity, max_tilt_deg=static.max_tilt_deg, where=str(args.bag),
-                     reference_topic=topics.reference)
-        lines.append(reference_line(static, gravity=gravity, max_tilt_deg=static.max_tilt_deg))
-        driver = replace(driver, reference_stamp_ns=first, reference=static.specific_force.reshape(1, 3))
-    if len(driver.rate_reference_stamp_ns):
-        lines.append(f'rate reference: {topics.reference_rate} as recorded')
-    else:
-        lines.append(rate_line(static, latitude))
-        driver = replace(driver, rate_reference_stamp_ns=first, rate_reference=static.rate.reshape(1, 3))
-    return driver, lines
-
-
 def _describe_dropped(dropped: dict[str, int]) -> str:
     return ', '.join(f'{count} {reason.replace("_", " ")}' for reason, count in sorted(dropped.items()))
 
@@ -266,9 +185,10 @@ def _json_text(document: object, path: str) -> str:
         raise TakError(msg) from None
 
 
-def _nominal(args: argparse.Namespace, record: ChannelRecord) -> tuple[float, float, float] | None:
-    nominal = record.nominal_scale
-    if args.nominal_scale is not None and record.input_kind == InputKind.COUNTS.value:
+def _nominal(args: argparse.Namespace, nominal: tuple[float, float, float] | None
+             ) -> tuple[float, float, float] | None:
+    """A counts bag's nominal scale: ``--nominal-scale`` (one value or x y z), else the bag's metadata."""
+    if args.nominal_scale is not None:
         nominal = tuple(args.nominal_scale * 3 if len(args.nominal_scale) == 1 else args.nominal_scale)
         if len(nominal) != 3:
             msg = f'--nominal-scale takes one value or three (x y z), got {len(args.nominal_scale)}'
@@ -281,27 +201,17 @@ def _effect_list(text: str | None) -> list[str]:
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
-    """Fit the correction link to a calibration bag (counts, or a driver's Imu: both sensors)."""
-    run = _read_run(args, calibration_run=True, settle_time_s=args.settle_time)
+    """Fit the correction link to a calibration bag (counts, or a driver's Imu: both sensors), block by block."""
+    from tak_thermo_ros.streaming import FitSettings, fit_bag
     effects = {'accel': _effect_list(args.effects), 'gyro': _effect_list(args.gyro_effects)}
-    if run.input_kind is InputKind.COUNTS and effects['gyro']:
-        msg = f'--gyro-effects: {args.bag} holds channel codes of the accelerometer only'
-        raise TakError(msg)
-    results: dict[str, FitResult] = {}
-    for sensor_run in run.sensors:
-        signals = [spec for spec in effects[sensor_run.sensor] if spec.startswith('aux:')]
-        try:
-            results[sensor_run.sensor] = fit_model(
-                require_signals(sensor_run.samples, signals), effects=effects[sensor_run.sensor],
-                bias_order=args.bias_order,
-                scale_order=args.scale_order, temp_code_ref=args.temp_code_ref,
-                nominal_scale=_nominal(args, sensor_run.record))
-        except FitError as err:
-            if run.input_kind is InputKind.COUNTS:
-                raise
-            msg = f'{SENSOR_NAMES[sensor_run.sensor]}: {err}'
-            raise FitError(msg) from None
-    unit = UnitCalibration(run.input_kind, results['accel'].calibration,
+    settings = FitSettings(effects=effects, bias_order=args.bias_order, scale_order=args.scale_order,
+                           temp_code_ref=args.temp_code_ref, settle_time_s=args.settle_time,
+                           gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
+                           max_effect_samples=args.effect_samples)
+    fitted = fit_bag(args.bag, settings, _stream_options(args),
+                     nominal_for=lambda kind, bag_nominal: _nominal(args, bag_nominal))
+    results = fitted.results
+    unit = UnitCalibration(fitted.input_kind, results['accel'].calibration,
                            results['gyro'].calibration if 'gyro' in results else None)
     applied = ', '.join(f'{sensor} {", ".join(e.name for e in calibration.effects)}'
                         for sensor, calibration in unit.sensors if calibration.effects)
@@ -310,19 +220,26 @@ def cmd_fit(args: argparse.Namespace) -> int:
               f'{", effects " + applied if applied else ""}\n'
               f'load with: ros2 run tak_thermo_ros compensator --ros-args --params-file {Path(args.output).name}')
     save_unit(args.output, unit, header=header)
+    kind = fitted.input_kind
     print(f'fitted {results["accel"].samples} samples from {args.bag}'
-          f'{" (driver Imu: accelerometer and gyroscope)" if run.input_kind is InputKind.IMU else ""}')
-    for line in run.reference_lines:
+          f'{" (driver Imu: accelerometer and gyroscope)" if kind is InputKind.IMU else ""}')
+    for line in fitted.reference_lines:
         print(line)
-    for sensor_run in run.sensors:
-        sensor, result = sensor_run.sensor, results[sensor_run.sensor]
+    for sensor in fitted.sensors:
+        result = results[sensor]
         calibration = result.calibration
-        unit_name = UNITS[run.input_kind, sensor]
-        prefix = '' if run.input_kind is InputKind.COUNTS else f'{SENSOR_NAMES[sensor]}: '
+        unit_name = UNITS[kind, sensor]
+        prefix = '' if kind is InputKind.COUNTS else f'{SENSOR_NAMES[sensor]}: '
         if result.dropped:
             print(f'{prefix}left out: {_describe_dropped(result.dropped)}')
-        _print_ignored(sensor_run.samples, args, run.input_kind, sensor)
-        if run.input_kind is InputKind.COUNTS:
+        _print_ignored(_IgnoredCounts(fitted.ignored_temp_codes[sensor], fitted.ignored_references[sensor]),
+                       args, kind, sensor)
+        stride = fitted.effect_stride.get(sensor, 1)
+        if stride > 1:
+            print(f'{prefix}effect shapes searched on 1 sample in {stride} '
+                  f'(about {fitted.usable[sensor] // stride} of {fitted.usable[sensor]}); '
+                  f'amplitudes and the paper\'s link fitted on all of them')
+        if kind is InputKind.COUNTS:
             print(f'calibrated temperature-code range {calibration.temp_code_min:g}..{calibration.temp_code_max:g}, '
                   f'reference {calibration.temp_code_ref:g}')
         elif sensor == 'accel':
@@ -381,10 +298,7 @@ def cmd_apply(args: argparse.Namespace) -> int:
     unit = load_unit(args.params)
     topics = _topics(args)
     kind = bag_input_kind(args.bag, topics=topics)
-    if kind is not unit.input_kind:
-        msg = (f'{args.params} is a calibration for {unit.input_kind.value} input, {args.bag} holds '
-               f'{"channel codes" if kind is InputKind.COUNTS else "a driver Imu"}')
-        raise TakError(msg)
+    _check_kind(args, unit, kind)
     applied = apply_bag(args.bag, unit, args.output, _stream_options(args), storage=args.storage,
                         out_of_range=OutOfRange(args.out_of_range), force=args.force)
     print(f'wrote {applied.written} Imu messages on {applied.topic} to {args.output}')
@@ -409,7 +323,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
     unit = load_unit(args.params)
     run = validate_bag(args.bag, unit, _stream_options(args), gravity=args.gravity,
                        latitude=getattr(args, 'latitude', None), out_of_range=OutOfRange(args.out_of_range),
-                       expect_kind=lambda kind: _check_kind(args, unit, BagRun(kind, ())))
+                       expect_kind=lambda kind: _check_kind(args, unit, kind))
     result = run.gravity
     if not result.samples:
         left_out = f' (left out: {_describe_dropped(run.accel_dropped)})' if run.accel_dropped else ''
@@ -448,10 +362,10 @@ def cmd_validate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _check_kind(args: argparse.Namespace, unit: UnitCalibration, run: BagRun) -> None:
-    if run.input_kind is not unit.input_kind:
+def _check_kind(args: argparse.Namespace, unit: UnitCalibration, kind: InputKind) -> None:
+    if kind is not unit.input_kind:
         msg = (f'{args.params} is a calibration for {unit.input_kind.value} input, {args.bag} holds '
-               f'{"channel codes" if run.input_kind is InputKind.COUNTS else "a driver Imu"}')
+               f'{"channel codes" if kind is InputKind.COUNTS else "a driver Imu"}')
         raise TakError(msg)
 
 
@@ -508,18 +422,24 @@ def cmd_import_csv(args: argparse.Namespace) -> int:
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     """Compare a calibration with a run: noise floor, residual views, the missing effect, per sensor."""
+    from tak_thermo_ros.bagio import bag_input_kind
     from tak_thermo_ros.core.diagnose import diagnose
+    from tak_thermo_ros.streaming import bounded_run
     unit = load_unit(args.params)
-    run = _read_run(args, calibration_run=True, settle_time_s=args.settle_time)
-    _check_kind(args, unit, run)
+    _check_kind(args, unit, bag_input_kind(args.bag, topics=_topics(args)))
+    run = bounded_run(args.bag, _stream_options(args), settle_time_s=args.settle_time,
+                      gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
+                      max_samples=args.max_samples)
     verbose = not args.no_progress and sys.stderr.isatty()
     candidates = expand_candidates(args.candidates) if args.candidates else None
     for line in run.reference_lines:
         print(line)
     results = {}
     used: dict[str, AlignedSamples] = {}
-    for sensor_run in run.sensors:
-        sensor, samples = sensor_run.sensor, sensor_run.samples
+    if run.stride > 1:
+        print(f'diagnosing 1 sample in {run.stride}, spread evenly over the run '
+              f'(at most about {args.max_samples:,} samples, --max-samples; {run.usable["accel"]:,} usable in the bag)')
+    for sensor, samples in run.samples.items():
         tried = (signals_with_values(samples.aux) if candidates is None
                  else [spec for spec in candidates if spec.startswith('aux:')])
         samples = require_signals(samples, [*Corrector(unit.sensor(sensor)).signals, *tried])
@@ -554,9 +474,11 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         print(f'{label}verdict: {result.verdict}')
         print(result.message)
     if args.json:
-        document = results['accel'].as_dict()
+        document = {**results['accel'].as_dict(), 'samples_diagnosed': len(used['accel']),
+                    'samples_usable': run.usable['accel'], 'subsample_stride': run.stride}
         if run.input_kind is InputKind.IMU:
-            document['sensors'] = {sensor: {**result.as_dict(), 'unit': UNITS[run.input_kind, sensor]}
+            document['sensors'] = {sensor: {**result.as_dict(), 'unit': UNITS[run.input_kind, sensor],
+                                            'samples_diagnosed': len(used[sensor]), 'samples_usable': run.usable[sensor]}
                                    for sensor, result in results.items()}
         write_text_atomic(args.json, _json_text(document, args.json))
         print(f'wrote {args.json}')
@@ -572,7 +494,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         if note is not None:
             print(note)
         elif run.input_kind is InputKind.COUNTS:
-            design = design_run(results['accel'], run.sensor('accel').samples)
+            design = design_run(results['accel'], run.samples['accel'])
             paths = write_design(design, args.design_run)
             print(design.message())
             print('wrote ' + ', '.join(str(path) for path in paths))
@@ -659,6 +581,9 @@ def build_parser() -> argparse.ArgumentParser:
                           '(e.g. aux:/power/battery_state), or module:Class (see docs/effects.md)')
     fit.add_argument('--gyro-effects', metavar='NAME[,NAME...]',
                      help='effects to fit on the gyroscope (driver bags), the same names as --effects')
+    fit.add_argument('--effect-samples', type=bounds.sample_budget, default=EFFECT_FIT_MAX_SAMPLES, metavar='N',
+                     help=f'search the effects\' shapes on at most about N samples spread evenly over the run '
+                          f'(default {EFFECT_FIT_MAX_SAMPLES:,}; the amplitudes use every sample)')
     fit.add_argument('--settle-time', type=bounds.seconds_not_negative, default=0.0, metavar='SECONDS',
                      help='leave out samples this long after each reference change (turntable settling)')
     _add_static_options(fit)
@@ -732,6 +657,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help=f'cross-validation folds, 2..{bounds.MAX_FOLDS} (default 5)')
     diag.add_argument('--settle-time', type=bounds.seconds_not_negative, default=0.0, metavar='SECONDS',
                       help='leave out samples this long after each reference change (as for fit)')
+    diag.add_argument('--max-samples', type=bounds.sample_budget, default=DIAGNOSE_MAX_SAMPLES, metavar='N',
+                      help=f'diagnose at most about N samples, spread evenly over the run (default {DIAGNOSE_MAX_SAMPLES:,})')
     diag.add_argument('--gravity', type=bounds.gravity, default=STANDARD_GRAVITY,
                       help=f'local gravity for the |g| figure and a static reference, m/s^2 '
                            f'({bounds.GRAVITY_MIN:g}..{bounds.GRAVITY_MAX:g})')

@@ -37,6 +37,9 @@ MAX_FOLDS = 100
 MAX_SEED = 2 ** 63 - 1
 """Largest random seed."""
 MAX_NOMINAL_SCALE = 1e7
+MIN_SAMPLE_BUDGET = 1000
+"""Fewer samples than this cannot show an effect's shape against the noise."""
+MAX_SAMPLE_BUDGET = 10 ** 9
 """Largest nominal scale, counts per m/s^2 (a 24-bit channel over +-2 g has 4e5)."""
 
 
@@ -116,5 +119,7 @@ folds = int_within(2, MAX_FOLDS)
 """``--folds``."""
 seed = int_within(0, MAX_SEED)
 """``simulate --seed``."""
+sample_budget = int_within(MIN_SAMPLE_BUDGET, MAX_SAMPLE_BUDGET)
+"""``fit --effect-samples``, ``diagnose --max-samples``."""
 latitude = float_within(-90.0, 90.0, "degrees")
 """``--latitude`` (a static driver bag's Earth rate)."""

@@ -232,7 +232,7 @@ class _Subsample:
 
     def __call__(self, aligned: AlignedSamples) -> None:
         self.usable += len(aligned)
-        if len(aligned):
+        if len(aligned) or aligned.ignored_temp_codes or aligned.ignored_references:
             self.parts.append(every_nth(aligned, self.stride))
 
     def samples(self, dropped: dict[str, int]) -> AlignedSamples:
@@ -272,6 +272,8 @@ class StreamedFit:
     :param usable: per sensor, the usable (aligned) samples of the whole run.
     :param effect_stride: per sensor fitted with effects, every how many stream rows the
         effects' fit used (1: all).
+    :param ignored_temp_codes: per sensor, the temperature messages ignored (not held), by reason.
+    :param ignored_references: per sensor, the reference messages ignored, by reason.
     """
 
     input_kind: InputKind
@@ -280,6 +282,8 @@ class StreamedFit:
     usable: dict[str, int]
     effect_stride: dict[str, int]
     reference_lines: tuple[str, ...]
+    ignored_temp_codes: dict[str, dict[str, int]] = field(default_factory=dict)
+    ignored_references: dict[str, dict[str, int]] = field(default_factory=dict)
 
 
 def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
@@ -313,23 +317,28 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
     def aligner() -> BlockAligner:
         return BlockAligner(use_reference=True, reference_expected=True, settle_time_s=settings.settle_time_s)
 
-    passes, fits, subsamples = [], {}, {}
+    def required(sensor: str) -> _Required:
+        return _Required([spec for spec in settings.effects.get(sensor, ()) if spec.startswith('aux:')])
+
+    passes, fits, subsamples, requirements = [], {}, {}, {}
     for sensor in sensors:
-        sensor_pass = SensorPass(sensor, aligner())
         fits[sensor] = StreamingFit(bias_order=settings.bias_order, scale_order=settings.scale_order,
                                     temp_code_ref=settings.temp_code_ref, nominal_scale=nominal.get(sensor))
-        sensor_pass.consumers.append(fits[sensor].add)
+        requirements[sensor] = required(sensor)
+        consumers = [fits[sensor].add]
         if settings.effects.get(sensor):
             subsamples[sensor] = _Subsample(stride_for(opened.main, settings.max_effect_samples))
-            sensor_pass.consumers.append(subsamples[sensor])
-        passes.append(sensor_pass)
+            consumers.append(subsamples[sensor])
+        passes.append(SensorPass(sensor, aligner(), [_feeding(requirements[sensor], consumers)]))
     lines = _run_passes(path, options, opened, passes)
+    passes_first = passes
     results: dict[str, FitResult] = {}
     usable: dict[str, int] = {}
     second: dict[str, tuple[StreamingEffectFit, FitResult]] = {}
     for sensor_pass in passes:
-        sensor, dropped = sensor_pass.sensor, sensor_pass.aligner.dropped
-        usable[sensor] = sensor_pass.aligner.kept
+        sensor = sensor_pass.sensor
+        dropped = _summed(sensor_pass.aligner.dropped, requirements[sensor].dropped)
+        usable[sensor] = sensor_pass.aligner.kept - sum(requirements[sensor].dropped.values())
         with _sensor_errors(kind, sensor):
             if sensor not in subsamples:
                 results[sensor] = fits[sensor].result(dropped=dropped)
@@ -346,19 +355,57 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
                 second[sensor] = (StreamingEffectFit(shaped.calibration.effects, fits[sensor]), shaped)
     if second:
         # The shapes are fixed now: a second pass solves every amplitude over the whole run.
-        passes = [SensorPass(sensor, aligner(), [amplitudes.add]) for sensor, (amplitudes, _) in second.items()]
+        again = {sensor: required(sensor) for sensor in second}
+        passes = [SensorPass(sensor, aligner(), [_feeding(again[sensor], [amplitudes.add])])
+                  for sensor, (amplitudes, _) in second.items()]
         _run_passes(path, options, _Opened(kind, opened.main, opened.static), passes)
         for sensor_pass in passes:
             sensor = sensor_pass.sensor
             amplitudes, shaped = second[sensor]
             shape_names = {f'{e.name}.{name}' for e in shaped.calibration.effects for name in e.shape_names()}
             with _sensor_errors(kind, sensor):
-                results[sensor] = amplitudes.result(
-                    dropped=sensor_pass.aligner.dropped, parameters=[axis.parameters for axis in shaped.axes],
+                result = amplitudes.result(
+                    dropped=_summed(sensor_pass.aligner.dropped, again[sensor].dropped),
+                    parameters=[axis.parameters for axis in shaped.axes],
                     shape_errors={k: v for k, v in shaped.parameter_errors.items() if k in shape_names})
+            results[sensor] = replace(result, parameter_errors=_with_shape_uncertainty(
+                result.parameter_errors, shaped, shape_names, result.samples))
     return StreamedFit(input_kind=kind, sensors=sensors, results=results, usable=usable,
                        effect_stride={sensor: subsample.stride for sensor, subsample in subsamples.items()},
-                       reference_lines=tuple(lines))
+                       reference_lines=tuple(lines),
+                       ignored_temp_codes={p.sensor: dict(p.aligner.ignored_temp_codes) for p in passes_first},
+                       ignored_references={p.sensor: dict(p.aligner.ignored_references) for p in passes_first})
+
+
+def _with_shape_uncertainty(errors: dict[str, float], shaped: FitResult, shape_names: set[str],
+                            samples: int) -> dict[str, float]:
+    """The amplitudes' standard errors with the shapes' uncertainty in them.
+
+    The second pass solves the amplitudes with the shapes held, so its errors leave out how
+    far the shapes are known; the subsample's joint errors hold it. Scaled to the whole run
+    (white noise: errors fall as one over the square root of the samples), the larger of the two
+    is reported.
+    """
+    scale = math.sqrt(shaped.samples / max(samples, 1))
+    joint = {key: max(value, shaped.parameter_errors[key] * scale) if key in shaped.parameter_errors else value
+             for key, value in errors.items() if key not in shape_names}
+    return {**errors, **joint}
+
+
+def _summed(first: dict[str, int], second: dict[str, int]) -> dict[str, int]:
+    total = dict(first)
+    add_counts(total, second)
+    return total
+
+
+def _feeding(required: _Required, consumers: Sequence[Callable[[AlignedSamples], None]]
+             ) -> Callable[[AlignedSamples], None]:
+    """One consumer: the aligned block with the recorded signals held (:class:`_Required`), to each of ``consumers``."""
+    def feed(aligned: AlignedSamples) -> None:
+        samples = required(aligned) if required.signals else aligned
+        for consume in consumers:
+            consume(samples)
+    return feed
 
 
 @contextmanager

@@ -155,3 +155,22 @@ def test_diagnose_candidates_expand_library():
     assert expand_candidates('mymodule:Creep') == ['mymodule:Creep']
     assert expand_candidates('library, mymodule:Creep,thermal_lag') == [*LIBRARY, 'mymodule:Creep']
     assert expand_candidates('hysteresis,,library') == ['hysteresis', *[n for n in LIBRARY if n != 'hysteresis']]
+
+
+def test_long_runs_are_fitted_and_diagnosed_on_a_bounded_subsample(workspace, tmp_path):
+    """``fit --effect-samples`` and ``diagnose --max-samples`` say the subsample in one line and keep to it."""
+    root, _ = workspace
+    fit = _run('fit', str(root / 'cal'), '--effects', 'thermal_lag', '--effect-samples', '1000',
+               '-o', str(tmp_path / 'lag.yaml'))
+    assert fit.returncode == 0, fit.stderr
+    assert 'effect shapes searched on 1 sample in ' in fit.stdout
+    assert 'amplitudes and the paper\'s link fitted on all of them' in fit.stdout
+    report = tmp_path / 'diagnose.json'
+    diagnosed = _run('diagnose', str(root / 'cal'), '--params', str(root / 'params.yaml'), '--max-samples', '1000',
+                     '--json', str(report))
+    assert diagnosed.returncode == 0, diagnosed.stderr
+    document = json.loads(report.read_text())
+    stride = document['subsample_stride']
+    assert stride > 1 and f'diagnosing 1 sample in {stride}, spread evenly over the run' in diagnosed.stdout
+    assert document['samples_diagnosed'] <= 1000 < document['samples_usable']
+    assert document['samples_diagnosed'] >= 0.9 * document['samples_usable'] / stride

@@ -192,3 +192,34 @@ def test_streamed_apply_holds_a_recorded_signal_across_blocks(tmp_path):
     written = read_imu_messages(tmp_path / 'imu', topic=Topics().imu)
     assert np.array_equal(written.stamp_ns, whole.stamp_ns)
     assert np.array_equal(written.linear_acceleration, expected)
+
+
+def test_a_recorded_signal_effect_on_a_long_run_is_fitted_in_two_passes(tmp_path):
+    """``aux:`` terms: the shapes on one sample in four, the slopes over every sample with the signal held.
+
+    The samples before the signal's first value are left out and counted, as in memory; the
+    slopes recover the simulator's supply drift within 4.5 standard errors, and agree with the
+    in-memory fit of the whole run.
+    """
+    from test_aux_signal import supply_truth
+    from tak_thermo_ros.core.record import require_signals
+    run = simulate(replace(SHORT, plateau_hours=0.1, plateaus_celsius=(10.0, 30.0), supply_voltage_drift=3.0,
+                           record_supply='/p', record_supply_type='float64', seed=14))
+    stamps, volts = run.record.aux['aux:/p']
+    record = replace(run.record, aux={'aux:/p': (stamps[5:], volts[5:])})
+    bag = tmp_path / 'run'
+    write_record(bag, record)
+    samples = require_signals(align(record), ['aux:/p'])
+    whole = fit_model(samples, effects=['aux:/p'])
+    streamed = fit_bag(bag, FitSettings(effects={'accel': ['aux:/p']}, max_effect_samples=len(samples) // 4), SMALL)
+    result = streamed.results['accel']
+    assert streamed.effect_stride['accel'] > 1
+    assert result.samples == len(samples) == streamed.usable['accel']
+    assert result.dropped == samples.dropped and result.dropped['before_first_aux:/p'] > 0
+    effect, truth = result.calibration.effects[0], supply_truth(3.0)
+    for axis in 'xyz':
+        name = f'aux:/p.slope_{axis}'
+        joint = whole.parameter_errors[name]
+        assert result.parameter_errors[name] >= 0.9 * joint, 'the shape\'s uncertainty is in the amplitude\'s error'
+        assert abs(effect[f'slope_{axis}'] - truth[f'slope_{axis}']) <= 4.5 * joint, axis
+        assert abs(effect[f'slope_{axis}'] - whole.calibration.effects[0][f'slope_{axis}']) <= 4.5 * joint, axis

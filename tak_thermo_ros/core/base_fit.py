@@ -105,6 +105,32 @@ def single_input_axes(samples: AlignedSamples) -> tuple[bool, bool, bool]:
                  for i in range(3))  # type: ignore[return-value]
 
 
+def axis_from_coefficients(beta: Sequence[float], *, bias_order: int, scale_order: int, n_scale: float,
+                           code_offset_range: tuple[float, float], name: str,
+                           held_scale: float | None = None) -> AxisModel:
+    """The axis model of a solved design in the normalised temperature ``u = (N_t - N_t,ref) / n_scale``.
+
+    :param beta: the coefficients of ``f u^0 .. f u^p, u^0 .. u^q`` (scale fitted), or of
+        ``u^0 .. u^q`` alone when the scale is held (``held_scale``); anything after them (an
+        effect's amplitudes) is ignored.
+    :param held_scale: the nominal scale an axis that sees one input only is held at.
+    :raises FitError: a fitted scale that is not positive.
+    """
+    if held_scale is not None:
+        return AxisModel.from_polynomials(
+            scale=held_scale, offset=beta[0], offset_coeffs=[beta[j] / n_scale ** j for j in range(1, bias_order + 1)],
+            scale_coeffs=(), code_offset_range=code_offset_range, scale_observable=False)
+    scale = beta[0]
+    if not scale > 0.0:
+        msg = f'axis {name}: fitted scale {scale:g} counts per m/s^2 is not positive'
+        raise FitError(msg)
+    return AxisModel.from_polynomials(
+        scale=scale, offset=beta[scale_order + 1],
+        offset_coeffs=[beta[scale_order + 1 + j] / n_scale ** j for j in range(1, bias_order + 1)],
+        scale_coeffs=[beta[j] / (scale * n_scale ** j) for j in range(1, scale_order + 1)],
+        code_offset_range=code_offset_range)
+
+
 def fit_calibration(samples: AlignedSamples, *, bias_order: int = 3, scale_order: int = 2,
                     temp_code_ref: float | None = None,
                     nominal_scale: tuple[float, float, float] | None = None) -> FitResult:
@@ -165,17 +191,8 @@ def fit_calibration(samples: AlignedSamples, *, bias_order: int = 3, scale_order
                    f'cover bias order {bias_order} and scale order {scale_order}')
             raise FitError(msg)
         del design
-        beta = solution / norms
-        scale = beta[0]
-        if not scale > 0.0:
-            msg = f'axis {name}: fitted scale {scale:g} counts per m/s^2 is not positive'
-            raise FitError(msg)
-        scale_coeffs = [beta[j] / (scale * n_scale ** j) for j in range(1, scale_order + 1)]
-        offset = beta[scale_order + 1]
-        offset_coeffs = [beta[scale_order + 1 + j] / n_scale ** j for j in range(1, bias_order + 1)]
-        axes_models.append(AxisModel.from_polynomials(
-            scale=scale, offset=offset, offset_coeffs=offset_coeffs, scale_coeffs=scale_coeffs,
-            code_offset_range=(low - ref, high - ref)))
+        axes_models.append(axis_from_coefficients(solution / norms, bias_order=bias_order, scale_order=scale_order,
+                                                  n_scale=n_scale, code_offset_range=(low - ref, high - ref), name=name))
 
     if held_inputs:
         notes.append(held_scale_note(held, held_inputs))
@@ -235,6 +252,5 @@ def _fit_offset_only(counts: np.ndarray, force: np.ndarray, powers: list[np.ndar
     if rank < design.shape[1]:
         msg = f'axis {name}: the temperature codes do not cover bias order {bias_order}'
         raise FitError(msg)
-    return AxisModel.from_polynomials(
-        scale=scale, offset=solution[0], offset_coeffs=[solution[j] / n_scale ** j for j in range(1, bias_order + 1)],
-        scale_coeffs=(), code_offset_range=code_offset_range, scale_observable=False)
+    return axis_from_coefficients(solution, bias_order=bias_order, scale_order=0, n_scale=n_scale,
+                                  code_offset_range=code_offset_range, name=name, held_scale=scale)

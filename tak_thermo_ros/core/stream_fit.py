@@ -29,6 +29,7 @@ from tak_thermo_ros.core.base_fit import (
     INPUT_RESOLUTION,
     MIN_SAMPLES_PER_PARAMETER,
     FitResult,
+    axis_from_coefficients,
     finish_fit_from_sums,
     held_scale_note,
 )
@@ -222,17 +223,9 @@ class StreamingFit:
                        f'cover bias order {q} and scale order {p}')
                 raise FitError(msg)
             solution = np.linalg.solve(scaled, target)
-            beta = solution / norms
-            scale = beta[0]
-            if not scale > 0.0:
-                msg = f'axis {name}: fitted scale {scale:g} counts per m/s^2 is not positive'
-                raise FitError(msg)
+            axes_models.append(axis_from_coefficients(solution / norms, bias_order=q, scale_order=p, n_scale=n_scale,
+                                                      code_offset_range=(low - ref, high - ref), name=name))
             sums.append(float(factor[-1, -1] ** 2 + np.sum((scaled @ solution - target) ** 2)))
-            scale_coeffs = [beta[j] / (scale * n_scale ** j) for j in range(1, p + 1)]
-            offset_coeffs = [beta[p + 1 + j] / n_scale ** j for j in range(1, q + 1)]
-            axes_models.append(AxisModel.from_polynomials(
-                scale=scale, offset=beta[p + 1], offset_coeffs=offset_coeffs, scale_coeffs=scale_coeffs,
-                code_offset_range=(low - ref, high - ref)))
         notes = (held_scale_note(held, held_inputs),) if held_inputs else ()
         calibration = Calibration(temp_code_ref=ref, temp_code_min=low, temp_code_max=high,
                                   axes=tuple(axes_models), notes=notes)  # type: ignore[arg-type]
@@ -255,9 +248,8 @@ class StreamingFit:
             msg = f'axis {name}: the temperature codes do not cover bias order {q}'
             raise FitError(msg)
         rss = float(np.sum(projected[q + 1:] ** 2) + np.sum((triangle @ solution - projected[:q + 1]) ** 2))
-        model = AxisModel.from_polynomials(
-            scale=scale, offset=solution[0], offset_coeffs=[solution[j] / n_scale ** j for j in range(1, q + 1)],
-            scale_coeffs=(), code_offset_range=code_offset_range, scale_observable=False)
+        model = axis_from_coefficients(solution, bias_order=q, scale_order=0, n_scale=n_scale,
+                                       code_offset_range=code_offset_range, name=name, held_scale=scale)
         return model, rss
 
 
@@ -329,6 +321,7 @@ class StreamingEffectFit:
 
     def add(self, samples: AlignedSamples) -> None:
         """Add the next block of aligned samples (in time order)."""
+        from tak_thermo_ros.core.effects.base import effect_input
         from tak_thermo_ros.core.stream_correction import basis_from
         if not len(samples) or samples.reference is None:
             return
@@ -336,7 +329,8 @@ class StreamingEffectFit:
         stamps = samples.stamp_s
         bases = []
         for index, effect in enumerate(self.offset_effects):
-            basis, self._states[index] = basis_from(effect, self._states[index], stamps, codes, started=self._started)
+            basis, self._states[index] = basis_from(effect, self._states[index], stamps,
+                                                    effect_input(effect, codes, samples.aux), started=self._started)
             bases.append(basis)
         self._started = True
         u = (codes - self.ref) / self.n_scale
@@ -399,23 +393,10 @@ class StreamingEffectFit:
                 for name in effect.amplitude_names()[i]:
                     errors[f'{effect.name}.{name}'] = float(amplitude_errors[position])
                     position += 1
-        axes_models = []
-        for i in range(3):
-            beta = betas[i]
-            if self.held[i]:
-                axes_models.append(AxisModel.from_polynomials(
-                    scale=self.nominal_scale[i], offset=beta[0],  # type: ignore[index]
-                    offset_coeffs=[beta[j] / n_scale ** j for j in range(1, q + 1)], scale_coeffs=(),
-                    code_offset_range=(low - ref, high - ref), scale_observable=False))
-                continue
-            scale = beta[0]
-            if not scale > 0.0:
-                msg = f'axis {AXES[i]}: fitted scale {scale:g} counts per m/s^2 is not positive'
-                raise FitError(msg)
-            axes_models.append(AxisModel.from_polynomials(
-                scale=scale, offset=beta[p + 1], offset_coeffs=[beta[p + 1 + j] / n_scale ** j for j in range(1, q + 1)],
-                scale_coeffs=[beta[j] / (scale * n_scale ** j) for j in range(1, p + 1)],
-                code_offset_range=(low - ref, high - ref)))
+        axes_models = [axis_from_coefficients(betas[i], bias_order=q, scale_order=p, n_scale=n_scale,
+                                              code_offset_range=(low - ref, high - ref), name=AXES[i],
+                                              held_scale=self.nominal_scale[i] if self.held[i] else None)  # type: ignore[index]
+                       for i in range(3)]
         fitted = []
         for effect in self.effects:
             values = {name: effect[name] for name in effect.shape_names()}

@@ -29,12 +29,13 @@ from tak_thermo_ros.core.effects import resolve_effect
 from tak_thermo_ros.core.effects.base import AXIS_NAMES, INPUT, Effect, call_effect, checked_basis, effect_input
 from tak_thermo_ros.core.base_fit import (
     FitResult,
+    axis_from_coefficients,
     finish_fit,
     fit_calibration,
     residual_counts,
     single_input_axes,
 )
-from tak_thermo_ros.core.model import AxisModel, Calibration
+from tak_thermo_ros.core.model import Calibration
 from tak_thermo_ros.core.record import AlignedSamples
 from tak_thermo_ros.errors import CalibrationError, FitError
 
@@ -424,24 +425,10 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
         designs.append((design, norms))
 
     # Assemble the calibration.
-    axes_models = []
-    for i in range(3):
-        beta = betas[i]
-        if held[i]:
-            axes_models.append(AxisModel.from_polynomials(
-                scale=calibration0.axes[i].scale, offset=beta[0],
-                offset_coeffs=[beta[j] / n_scale ** j for j in range(1, bias_order + 1)], scale_coeffs=(),
-                code_offset_range=(low - ref, high - ref), scale_observable=False))
-            continue
-        scale = beta[0]
-        if not scale > 0.0:
-            msg = f'axis {AXIS_NAMES[i]}: fitted scale {scale:g} counts per m/s^2 is not positive'
-            raise FitError(msg)
-        axes_models.append(AxisModel.from_polynomials(
-            scale=scale, offset=beta[scale_order + 1],
-            offset_coeffs=[beta[scale_order + 1 + j] / n_scale ** j for j in range(1, bias_order + 1)],
-            scale_coeffs=[beta[j] / (scale * n_scale ** j) for j in range(1, scale_order + 1)],
-            code_offset_range=(low - ref, high - ref)))
+    axes_models = [axis_from_coefficients(betas[i], bias_order=bias_order, scale_order=scale_order, n_scale=n_scale,
+                                          code_offset_range=(low - ref, high - ref), name=AXIS_NAMES[i],
+                                          held_scale=calibration0.axes[i].scale if held[i] else None)
+                   for i in range(3)]
 
     fitted: dict[str, Effect] = {}
     for effect, cls in input_effects:
