@@ -430,10 +430,6 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     run = bounded_run(args.bag, _stream_options(args), settle_time_s=args.settle_time,
                       gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
                       max_samples=args.max_samples)
-    if getattr(args, 'design_run', None) and run.input_kind is not InputKind.COUNTS:
-        msg = ('--design-run: the run design simulates the paper\'s counts unit; for a driver bag it is not '
-               'available yet (diagnose without it)')
-        raise TakError(msg)
     verbose = not args.no_progress and sys.stderr.isatty()
     candidates = expand_candidates(args.candidates) if args.candidates else None
     for line in run.reference_lines:
@@ -487,11 +483,33 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         write_text_atomic(args.json, _json_text(document, args.json))
         print(f'wrote {args.json}')
     if getattr(args, 'design_run', None):
-        from tak_thermo_ros.core.diagnose import design_run, write_design
-        design = design_run(results['accel'], run.samples['accel'])
-        paths = write_design(design, args.design_run)
-        print(design.message())
-        print('wrote ' + ', '.join(str(path) for path in paths))
+        from tak_thermo_ros.core.diagnose import (
+            design_driver_run,
+            design_run,
+            recorded_signal_note,
+            write_design,
+            write_driver_design,
+        )
+        note = recorded_signal_note(results['accel']) if run.input_kind is InputKind.COUNTS else None
+        if note is not None:
+            print(note)
+        elif run.input_kind is InputKind.COUNTS:
+            design = design_run(results['accel'], run.samples['accel'])
+            paths = write_design(design, args.design_run)
+            print(design.message())
+            print('wrote ' + ', '.join(str(path) for path in paths))
+        else:
+            def design_progress(text: str) -> None:
+                if verbose:
+                    print(f'design: {text} ...', file=sys.stderr)
+
+            driver_design = design_driver_run(results, used, progress=design_progress)
+            for line in driver_design.lines():
+                print(line)
+            if driver_design.designed:
+                print('wrote ' + ', '.join(str(path) for path in write_driver_design(driver_design, args.design_run)))
+            else:
+                print(f'--design-run: no chamber run to propose; nothing written to {args.design_run}')
     if args.report:
         from tak_thermo_ros.report import write_report, write_sensor_index
         check_output(args.report, REPORT, force=args.force, option='--report')
@@ -647,9 +665,9 @@ def build_parser() -> argparse.ArgumentParser:
     diag.add_argument('--latitude', type=bounds.latitude, metavar='DEG',
                       help="driver bags without a rate reference: add the Earth rate's vertical component")
     diag.add_argument('--design-run', metavar='DIR',
-                      help='propose the chamber run that tells the two best candidates apart: writes '
-                           'DIR/scenario.yaml (for tak_calib simulate), DIR/schedule.csv (time_s, setpoint_C) '
-                           'and DIR/design.json with the simulated separation')
+                      help='propose the chamber run that tells the two best candidates apart (driver bags: '
+                           'one run for both sensors): writes DIR/scenario.yaml (for tak_calib simulate), '
+                           'DIR/schedule.csv (time_s, setpoint_C) and DIR/design.json with the simulated separation')
     _add_topic_options(diag)
     diag.set_defaults(handler=cmd_diagnose)
     from tak_thermo_ros.fleet import add_fleet_parser

@@ -50,7 +50,16 @@ from tak_thermo_ros.core.diagnose.crossval import (
     fold_labels,
     unresolved_shapes,
 )
-from tak_thermo_ros.core.diagnose.design import RunDesign, design_run, write_design
+from tak_thermo_ros.core.diagnose.design import (
+    DriverRunDesign,
+    RunDesign,
+    SensorDesign,
+    design_driver_run,
+    design_run,
+    recorded_signal_note,
+    write_design,
+    write_driver_design,
+)
 from tak_thermo_ros.core.diagnose.discover import diagnose, null_heldout
 from tak_thermo_ros.core.diagnose.values import (
     AxisSummary,
@@ -100,24 +109,29 @@ __all__ = [
     'Candidate',
     'Diagnosis',
     'Driver',
+    'DriverRunDesign',
     'LadderStep',
     'ModelScore',
     'Plateau',
     'RunDesign',
+    'SensorDesign',
     'Views',
     'binned_means',
     'build_views',
     'cross_validate',
     'decimate',
+    'design_driver_run',
     'design_run',
     'diagnose',
     'explained_fraction',
     'fold_labels',
     'noise_floor',
+    'recorded_signal_note',
     'null_heldout',
     'residual_drivers',
     'segment_breaks',
     'temperature_rate',
     'unresolved_shapes',
     'write_design',
+    'write_driver_design',
 ]
