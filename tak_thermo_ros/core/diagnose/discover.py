@@ -18,6 +18,7 @@ from tak_thermo_ros.core.diagnose.crossval import (
     cross_validate,
     decimate,
     fold_labels,
+    paired_block_t,
     unresolved_shapes,
 )
 from tak_thermo_ros.core.diagnose.values import AxisSummary, Candidate, Diagnosis, ModelScore
@@ -34,6 +35,7 @@ from tak_thermo_ros.core.diagnose.verdict import (
     _percent,
     _rung,
     _verdict_message,
+    per_axis_t_threshold,
     rms_text,
 )
 from tak_thermo_ros.core.diagnose.views import EFFECT_VIEWS, build_views, noise_floor, residual_drivers
@@ -52,6 +54,7 @@ class _Step:
     current: ModelScore
     ranked: tuple[tuple[Candidate, ModelScore, tuple[Any, ...]], ...]
     skipped: dict[str, str]
+    refused: frozenset[str] = frozenset()
 
 
 def _shared_form(spec: Any) -> Any | None:
@@ -206,9 +209,29 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
                          significance=float(significance), evidence=evidence,
                          summary=str(spec.summary or ''), confirm=str(spec.confirm or ''))
 
+    t_threshold = per_axis_t_threshold(blocks)
+
+    def per_axis_evidence(shared: ModelScore, form: ModelScore) -> tuple[bool, str]:
+        """Whether held-out blocks prefer the per-axis form over the shared one, and why.
+
+        The per-axis form costs two shape parameters more. It must lower the held-out excess
+        summed over the axes by more than white noise could (:data:`SIGNIFICANCE_SIGMAS`), and
+        on at least one axis its paired gain over the time blocks must stand out against the
+        gain's own block-to-block spread (paired t beyond :func:`per_axis_t_threshold`): a
+        residual that neither form explains spreads the gain far wider than white noise does.
+        """
+        t = paired_block_t(shared, form)
+        gain = shared.excess(floor) - form.excess(floor)
+        noise_ok = gain > SIGNIFICANCE_SIGMAS * sigma_total(shared)
+        blocks_ok = bool(np.max(t) > t_threshold)
+        text = (f'paired t over the {blocks} held-out blocks against the shared form '
+                f'{", ".join(f"{n} {v:.1f}" for n, v in zip(AXES, t))} (threshold {t_threshold:.2f}); ')
+        return noise_ok and blocks_ok, text
+
     def rank(current: ModelScore, effects_so_far: tuple[Any, ...]) -> _Step:
         scored: list[tuple[Candidate, ModelScore, tuple[Any, ...]]] = []
         skipped: dict[str, str] = {}
+        refused: set[str] = set()
         held = {_effect_name(e) for e in effects_so_far}
         held |= {_effect_name(_shared_form(e)) for e in effects_so_far if _shared_form(e)}
         trials: list[tuple[str, Any, tuple[Any, ...], str]] = []
@@ -229,9 +252,15 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
             if not model.ok:
                 skipped[name] = model.error or 'fit failed'
                 continue
+            if note and _shared_form(spec) is not None:
+                # In place of a shared form the model holds: the same evidence as on the ladder.
+                preferred, text = per_axis_evidence(current, model)
+                note += text
+                if not preferred:
+                    refused.add(name)
             scored.append((candidate_of(name, spec, current, model, note), model, model_specs))
         scored.sort(key=lambda item: item[1].excess(floor))
-        return _Step(current=current, ranked=tuple(scored), skipped=skipped)
+        return _Step(current=current, ranked=tuple(scored), skipped=skipped, refused=frozenset(refused))
 
     base_score = score(present)
     if not base_score.ok:
@@ -265,22 +294,24 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
             if first_step is None:
                 first_step = step
                 skipped = dict(step.skipped)
-            if not step.ranked:
+            admissible = [item for item in step.ranked if item[0].effect not in step.refused]
+            if not admissible:
                 break
-            best, best_score, best_model = step.ranked[0]
+            best, best_score, best_model = admissible[0]
             if best.explained < MIN_STEP_FRACTION or best.significance < SIGNIFICANCE_SIGMAS:
                 break
             added_spec = best_model[-1] if len(best_model) > len(model_specs) else None
             form = _per_axis_of(added_spec) if per_axis and added_spec is not None else None
             if form is not None:
                 # The per-axis form costs parameters: it takes the rung only when held-out
-                # blocks prefer it by more than noise could.
+                # blocks prefer it by more than noise and the blocks' own spread could.
                 alternative = _replaced(best_model, added_spec, form)
                 form_score = score(alternative, best_score)
                 if form_score.ok:
-                    per_axis_tried.append((changes, candidate_of(form.name, form, current, form_score)))
-                    gain = best_score.excess(floor) - form_score.excess(floor)
-                    if gain > SIGNIFICANCE_SIGMAS * sigma_total(best_score):
+                    preferred, text = per_axis_evidence(best_score, form_score)
+                    per_axis_tried.append((changes, candidate_of(form.name, form, current, form_score,
+                                                                 f'In place of {_effect_name(added_spec)}: {text}')))
+                    if preferred:
                         best_model, best_score = alternative, form_score
             model_specs, current = best_model, best_score
             changes += 1
