@@ -52,11 +52,22 @@ def decimate(samples: AlignedSamples, stride: int) -> AlignedSamples:
                           aux={name: values[::stride] for name, values in samples.aux.items()})
 
 
-def fold_labels(time_s: np.ndarray, folds: int, blocks: int) -> np.ndarray:
-    """Fold of each sample: ``blocks`` contiguous equal-duration blocks dealt round-robin."""
+def fold_labels(time_s: np.ndarray, folds: int, blocks: int, *, split_start: bool = True) -> np.ndarray:
+    """Fold of each sample: ``blocks`` contiguous equal-duration blocks dealt round-robin.
+
+    :param split_start: cut the first block into ``folds`` equal pieces, one per fold. What
+        happens only at the start of a run (a warm-up decaying within minutes of power-on) then
+        lies in every fold's training data, and a held-out piece of it is interpolated from its
+        neighbours instead of extrapolated from the tail of the run.
+    """
     duration = max(float(time_s[-1] - time_s[0]), 1e-9)
-    block = np.minimum(((time_s - time_s[0]) / duration * blocks).astype(np.int64), blocks - 1)
-    return block % folds
+    position = (time_s - time_s[0]) / duration * blocks
+    block = np.minimum(position.astype(np.int64), blocks - 1)
+    labels = block % folds
+    if split_start and blocks > 1:
+        first = block == 0
+        labels[first] = np.minimum((position[first] * folds).astype(np.int64), folds - 1)
+    return labels
 
 
 def block_index(labels: np.ndarray) -> np.ndarray:
