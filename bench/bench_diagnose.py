@@ -327,6 +327,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--matrix-only', action='store_true', help='run the verdict matrix only')
     parser.add_argument('--seeds', type=int, default=3, help='seeds per effect and profile (default 3)')
     parser.add_argument('--matrix-rate', type=float, default=0.5, help='samples per second of matrix runs')
+    parser.add_argument('--matrix-name', default='diagnose_matrix',
+                        help='results file of the matrix (diagnose_matrix_quick for --seeds 1 --matrix-rate 0.25)')
     parser.add_argument('--loop', action='store_true', help='also run the loop matrix (pairs, per-axis)')
     parser.add_argument('--loop-only', action='store_true', help='run the loop matrix only')
     parser.add_argument('--loop-seeds', type=int, default=2, help='seeds per case of the loop matrix (default 2)')
@@ -359,9 +361,9 @@ def main(argv: list[str] | None = None) -> int:
         matrix = bench_matrix(args.seeds, args.matrix_rate)
         document = {'benchmark': 'diagnose_matrix', 'machine': machine(), **matrix}
         RESULTS.mkdir(parents=True, exist_ok=True)
-        write_text_atomic(RESULTS / 'diagnose_matrix.json', json.dumps(document, indent=2) + '\n')
+        write_text_atomic(RESULTS / f'{args.matrix_name}.json', json.dumps(document, indent=2) + '\n')
         print(f'verdict matrix: {matrix["passed"]}/{matrix["total"]} cases pass; '
-              f'wrote {RESULTS / "diagnose_matrix.json"}')
+              f'wrote {RESULTS / args.matrix_name}.json')
         status |= 0 if matrix['passed'] == matrix['total'] else 1
     return status
 
