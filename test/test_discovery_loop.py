@@ -152,7 +152,7 @@ def test_paired_block_t_is_large_for_a_gain_on_every_block_and_about_one_for_a_g
 
 def test_per_axis_warmup_decaying_inside_the_first_block_is_named():
     """Warm-ups of 7 minutes on y, 20 on x and an hour on z on a 6-hour run (18-minute blocks): every fold
-    holds a piece of the first block, and the per-axis form, which leaves the floor, is the verdict although
+    holds a piece of the first block, and the per-axis form, which brings every axis to the floor, is the verdict although
     its gain over the shared form, confined to the first blocks, gives no large paired t."""
     effects = {'warmup_per_axis': {'tau_s_x': 1200.0, 'tau_s_y': 400.0, 'tau_s_z': 3600.0,
                                    'amplitude_x': 15.0, 'amplitude_y': -15.0, 'amplitude_z': 12.0}}

@@ -15,6 +15,7 @@ from tak_thermo_ros.core.diagnose.crossval import (
     _effect_specs,
     _settings_of,
     _with_range,
+    block_index,
     cross_validate,
     decimate,
     fold_labels,
@@ -108,7 +109,8 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
         (:func:`~tak_thermo_ros.core.effects.aux_signal.recorded_candidates`). Effects the
         calibration holds already are not tried.
     :param folds: cross-validation folds.
-    :param blocks_per_fold: contiguous time blocks per fold (dealt round-robin).
+    :param blocks_per_fold: contiguous time blocks per fold (dealt round-robin); the first block
+        is cut into one piece per fold besides (:func:`fold_labels`).
     :param max_cv_samples: the cross-validation fits use every m-th sample so that at most
         this many remain (the noise floor and the views use all samples).
     :param max_ladder: at most this many effects are added one after the other.
@@ -228,7 +230,7 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
         blocks_ok = bool(np.max(t) > threshold)
         text = (f'paired t over the {count} held-out blocks against the shared form '
                 f'{", ".join(f"{n} {v:.1f}" for n, v in zip(AXES, t))} (threshold {threshold:.2f}'
-                f'{", not needed: the per-axis form leaves the floor" if at_floor else ""}); ')
+                f'{", not needed: what the per-axis form leaves is at the floor" if at_floor else ""}); ')
         return noise_ok and (at_floor or blocks_ok), text
 
     def rank(current: ModelScore, effects_so_far: tuple[Any, ...]) -> _Step:
@@ -423,7 +425,8 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
                      candidates=tuple(candidates_out), skipped=skipped, ladder=tuple(ladder), drivers=drivers,
                      base_drivers=base_drivers,
                      residual=residual, residual_after=residual_after, calibration=calibration,
-                     calibration_after=calibration_after, views=views, folds=folds, blocks=blocks,
+                     calibration_after=calibration_after, views=views, folds=folds,
+                     blocks=int(block_index(labels)[-1]) + 1,
                      cv_stride=stride, present_effects=present_names, explained=float(explained_total),
                      unresolved=unresolved, pruned=tuple(pruned),
                      per_axis_forms=tuple(candidate for _, candidate in per_axis_tried))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Sequence
 
@@ -49,6 +50,7 @@ def student_t_quantile(probability: float, dof: int) -> float:
     return float(grid[min(int(np.searchsorted(cumulative, probability)), len(grid) - 1)])
 
 
+@functools.lru_cache(maxsize=16)
 def per_axis_t_threshold(blocks: int) -> float:
     """The paired-t threshold of :data:`PER_AXIS_ALPHA` for ``blocks`` held-out time blocks."""
     return student_t_quantile(1.0 - PER_AXIS_ALPHA / 3.0, max(blocks - 1, 1))
