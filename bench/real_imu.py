@@ -176,6 +176,8 @@ def main() -> None:
     for candidate in diagnosis.candidates:
         print(f'  {candidate.effect:18s} held-out {np.round(candidate.rms_after, 2).tolist()}, '
               f'explains {candidate.explained:.0%} of the excess')
+    for candidate in diagnosis.per_axis_forms:
+        print(f'  per-axis form tried: {candidate.effect}: {candidate.evidence}')
     print(f'blocked CV, {BLOCKS} contiguous blocks, held-out RMS in counts (1 count = 0.001 m/s^2 = 0.102 mg):')
     for name, score in {**scores, **startup}.items():
         rms = score['heldout_rms']
@@ -209,7 +211,9 @@ def main() -> None:
         'diagnose': {'verdict': diagnosis.verdict,
                      'ladder': [step.as_dict() for step in diagnosis.ladder],
                      'candidates': [{'effect': c.effect, 'rms_after': list(c.rms_after), 'explained': c.explained}
-                                    for c in diagnosis.candidates]},
+                                    for c in diagnosis.candidates],
+                     'per_axis_forms': [{'effect': c.effect, 'rms_after': list(c.rms_after), 'evidence': c.evidence}
+                                        for c in diagnosis.per_axis_forms]},
         'heldout_rms_counts': {name: s['heldout_rms'].tolist() for name, s in {**scores, **startup}.items()},
         'paired_mse_gain': {name: {k: np.asarray(v).tolist() for k, v in c.items()} for name, c in comparisons.items()},
         'hysteresis_to_lag': {k: np.asarray(v).tolist() for k, v in lag_versus_hysteresis.items()},

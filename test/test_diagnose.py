@@ -61,15 +61,19 @@ def test_explained_fraction_is_the_share_of_variance_of_the_group_means():
 
 
 def test_folds_deal_contiguous_blocks_round_robin():
-    """Every fold holds blocks from the start, middle and end of the run, each contiguous."""
+    """Every fold holds blocks from the start, middle and end of the run, each contiguous; the
+    first block is cut into one piece per fold, so every fold holds a piece of the first 5 %."""
     time_s = np.arange(10_000, dtype=float)
     labels = fold_labels(time_s, 5, 20)
-    assert np.bincount(labels).tolist() == [2000] * 5
+    assert np.bincount(labels).tolist() == [1600] + [2100] * 4
     changes = np.count_nonzero(np.diff(labels))
-    assert changes == 19
+    assert changes == 19 + 4
     for fold in range(5):
         where = np.flatnonzero(labels == fold)
-        assert where.min() < 2500 and where.max() > 7500
+        assert where.min() < 500 and where.max() > 7500
+    whole = fold_labels(time_s, 5, 20, split_start=False)
+    assert np.bincount(whole).tolist() == [2000] * 5
+    assert np.count_nonzero(np.diff(whole)) == 19
 
 
 # ------------------------------------------------------------------ verdicts on hidden effects

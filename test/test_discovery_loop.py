@@ -17,7 +17,9 @@ from conftest import SHORT
 from conftest import noise_floor as noise_floor_of
 from tak_thermo_ros.core.calibration_file import calibration_from_mapping, calibration_to_mapping, flatten_parameters
 from tak_thermo_ros.core.correction import Corrector
-from tak_thermo_ros.core.diagnose import design_run, diagnose, write_design
+from tak_thermo_ros.core.diagnose import ModelScore, design_run, diagnose, write_design
+from tak_thermo_ros.core.diagnose.crossval import paired_block_t
+from tak_thermo_ros.core.diagnose.verdict import per_axis_t_threshold
 from tak_thermo_ros.core.effects import PER_AXIS, resolve_effect
 from tak_thermo_ros.core.fit import fit_model, residual_counts
 from tak_thermo_ros.core.record import AlignedSamples, align
@@ -112,6 +114,55 @@ def test_loop_on_per_axis_time_constants_chooses_the_per_axis_lag_and_recovers_t
 
 
 # ------------------------------------------------------------------------- per-axis effects
+
+def test_per_axis_lag_is_refused_when_the_axes_share_one_time_constant_and_taken_when_they_do_not():
+    """The per-axis form costs two parameters: with equal time constants it gains nothing the held-out
+    blocks can see and the shared lag is the verdict; with time constants a factor 2 apart it wins."""
+    slopes = {f'slope_{a}': PER_AXIS_LAG['thermal_lag_per_axis'][f'slope_{a}'] for a in 'xyz'}
+    equal = {'thermal_lag_per_axis': {**slopes, 'tau_s_x': 1800.0, 'tau_s_y': 1800.0, 'tau_s_z': 1800.0}}
+    apart = {'thermal_lag_per_axis': {**slopes, 'tau_s_x': 1800.0, 'tau_s_y': 900.0, 'tau_s_z': 3600.0}}
+    verdicts = {}
+    for label, effects in (('equal', equal), ('apart', apart)):
+        samples = align(simulate(_scenario(effects, seed=11)).record)
+        result = diagnose(fit_model(samples).calibration, samples, candidates=['thermal_lag'],
+                          max_cv_samples=MAX_CV_SAMPLES)
+        assert [c.effect for c in result.per_axis_forms] == ['thermal_lag_per_axis'], result.message
+        verdicts[label] = result.verdict
+    assert verdicts == {'equal': 'thermal_lag', 'apart': 'thermal_lag_per_axis'}
+
+
+def test_paired_block_t_is_large_for_a_gain_on_every_block_and_about_one_for_a_gain_on_one_block():
+    """The block-to-block spread is the margin: a steady gain stands out, a gain confined to one block
+    (a warm-up that decays inside it) cannot, however large, so the per-axis rule needs the floor test."""
+    rng = np.random.default_rng(2)
+    count = np.full(24, 100.0)
+    shared_sse = 100.0 * (1.0 + 0.05 * rng.standard_normal((24, 3)))
+    steady = shared_sse - 20.0
+    local = shared_sse.copy()
+    local[0] -= 5000.0
+
+    def score(sse: np.ndarray) -> ModelScore:
+        return ModelScore(effects=(), fold_sse=np.zeros((5, 3)), fold_samples=np.ones(5), block_sse=sse,
+                          block_samples=count)
+
+    assert np.all(paired_block_t(score(shared_sse), score(steady)) > 10.0)
+    assert np.all(np.abs(paired_block_t(score(shared_sse), score(local)) - 1.0) < 0.05)
+    assert per_axis_t_threshold(24) == pytest.approx(2.98, abs=0.01)
+
+
+def test_per_axis_warmup_decaying_inside_the_first_block_is_named():
+    """Warm-ups of 7 minutes on y, 20 on x and an hour on z on a 6-hour run (18-minute blocks): every fold
+    holds a piece of the first block, and the per-axis form, which brings every axis to the floor, is the verdict although
+    its gain over the shared form, confined to the first blocks, gives no large paired t."""
+    effects = {'warmup_per_axis': {'tau_s_x': 1200.0, 'tau_s_y': 400.0, 'tau_s_z': 3600.0,
+                                   'amplitude_x': 15.0, 'amplitude_y': -15.0, 'amplitude_z': 12.0}}
+    samples = align(simulate(_scenario(effects, seed=12)).record)
+    result = diagnose(fit_model(samples).calibration, samples, candidates=['warmup'],
+                      max_cv_samples=MAX_CV_SAMPLES)
+    assert result.verdict == 'warmup_per_axis', result.message
+    assert not any(a.excess_significant for a in diagnose(result.calibration_after, samples, candidates=['warmup'],
+                                                          max_cv_samples=MAX_CV_SAMPLES).axes)
+
 
 @pytest.mark.parametrize('name', sorted(PER_AXIS))
 def test_per_axis_form_equals_the_shared_form_per_axis_and_both_paths_agree(name):

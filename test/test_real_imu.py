@@ -46,9 +46,12 @@ def diagnosis(real_run):
 
 def test_diagnose_names_the_thermal_lag(real_run, diagnosis):
     """The base model's excess over the noise floor is significant on every axis; the verdict is the
-    thermal lag, in its per-axis form when held-out blocks prefer the axes' own time constants."""
+    shared thermal lag. Its per-axis form is tried and lowers the held-out excess by many noise sigmas,
+    but structure remains after it and its paired gain over the held-out blocks stays within the
+    blocks' own spread (as in the 10-block test of bench/real_imu.py), so it is not taken."""
     assert all(axis.excess_significant for axis in diagnosis.axes)
-    assert diagnosis.verdict in ('thermal_lag', 'thermal_lag_per_axis'), diagnosis.message
+    assert diagnosis.verdict == 'thermal_lag', diagnosis.message
+    assert [c.effect for c in diagnosis.per_axis_forms] == ['thermal_lag_per_axis']
     best = diagnosis.candidates[0]
     assert best.effect == 'thermal_lag' and best.explained > 0.5
     named = next(c for c in diagnosis.candidates if c.effect == diagnosis.verdict)

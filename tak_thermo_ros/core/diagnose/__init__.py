@@ -15,7 +15,8 @@ The steps of :func:`diagnose`:
    of that quantity explains (the correlation ratio, eta^2).
 3. **Blocked cross-validation** of the current model and of the current model plus each
    library effect it does not hold yet: the run is cut into contiguous time blocks, dealt
-   round-robin into folds (so every fold holds early and late, hot and cold blocks); each
+   round-robin into folds (so every fold holds early and late, hot and cold blocks; the first
+   block is cut into one piece per fold, so every fold holds the first minutes too); each
    model is fitted on the other folds and scored on the held-out one, with stateful effects
    run over the whole series. An effect that merely overfits scores worse, not better.
 4. **Model ladder and verdict**: ``'none'`` when the held-out residual of the current model
@@ -32,7 +33,8 @@ The steps of :func:`diagnose`:
    the held-out blocks do not notice (an early effect that stood in for two later ones); the
    verdict is then the remaining effect that scored best alone. A shared effect that joins the
    ladder is also tried in its per-axis form (``thermal_lag_per_axis``), which takes its place
-   only when held-out blocks prefer it by more than noise could.
+   only when held-out blocks prefer it by more than noise could and, while structure remains
+   after it, by more than the gain's own spread from block to block (:data:`PER_AXIS_ALPHA`).
 
 All residuals and RMS values are in counts.
 
@@ -75,6 +77,7 @@ from tak_thermo_ros.core.diagnose.verdict import (
     MIN_STEP_FRACTION,
     MIN_TOTAL_FRACTION,
     MIN_VARIANCE_EXCESS,
+    PER_AXIS_ALPHA,
     SIGNIFICANCE_SIGMAS,
     VERDICT_NONE,
     VERDICT_UNEXPLAINED,
@@ -100,6 +103,7 @@ __all__ = [
     'MIN_STEP_FRACTION',
     'MIN_TOTAL_FRACTION',
     'MIN_VARIANCE_EXCESS',
+    'PER_AXIS_ALPHA',
     'RATE_WINDOW_S',
     'SIGNIFICANCE_SIGMAS',
     'VERDICT_NONE',

@@ -52,11 +52,29 @@ def decimate(samples: AlignedSamples, stride: int) -> AlignedSamples:
                           aux={name: values[::stride] for name, values in samples.aux.items()})
 
 
-def fold_labels(time_s: np.ndarray, folds: int, blocks: int) -> np.ndarray:
-    """Fold of each sample: ``blocks`` contiguous equal-duration blocks dealt round-robin."""
+def fold_labels(time_s: np.ndarray, folds: int, blocks: int, *, split_start: bool = True) -> np.ndarray:
+    """Fold of each sample: ``blocks`` contiguous equal-duration blocks dealt round-robin.
+
+    :param split_start: cut the first block into ``folds`` equal pieces, one per fold. What
+        happens only at the start of a run (a warm-up decaying within minutes of power-on) then
+        lies in every fold's training data, and a held-out piece of it is interpolated from its
+        neighbours instead of extrapolated from the tail of the run.
+    """
     duration = max(float(time_s[-1] - time_s[0]), 1e-9)
-    block = np.minimum(((time_s - time_s[0]) / duration * blocks).astype(np.int64), blocks - 1)
-    return block % folds
+    position = (time_s - time_s[0]) / duration * blocks
+    block = np.minimum(position.astype(np.int64), blocks - 1)
+    labels = block % folds
+    if split_start and blocks > 1:
+        first = block == 0
+        labels[first] = np.minimum((position[first] * folds).astype(np.int64), folds - 1)
+    return labels
+
+
+def block_index(labels: np.ndarray) -> np.ndarray:
+    """Contiguous block of each sample (0, 1, ...): a block ends where the fold label changes."""
+    if not len(labels):
+        return np.zeros(0, dtype=np.int64)
+    return np.concatenate(([0], np.cumsum(labels[1:] != labels[:-1]))).astype(np.int64)
 
 
 def _effect_specs(calibration: Calibration) -> tuple[Any, ...]:
@@ -101,6 +119,10 @@ def cross_validate(samples: AlignedSamples, effects: Sequence[Any], labels: np.n
     low, high = float(samples.temp_code.min()), float(samples.temp_code.max())
     fold_sse = np.zeros((folds, 3))
     fold_samples = np.zeros(folds)
+    block = block_index(labels)
+    blocks = int(block[-1]) + 1 if len(block) else 0
+    block_sse = np.zeros((blocks, 3))
+    block_samples = np.bincount(block, minlength=blocks).astype(float)
     failures: list[str] = []
     for fold in range(folds):
         held_out = labels == fold
@@ -115,14 +137,37 @@ def cross_validate(samples: AlignedSamples, effects: Sequence[Any], labels: np.n
                 msg = 'the fitted model gives non-finite residuals on held-out data'
                 raise FitError(msg)
             fold_sse[fold] = np.sum(part ** 2, axis=0)
+            for index in np.unique(block[held_out]):
+                block_sse[index] = np.sum(residual[block == index] ** 2, axis=0)
         except TakError as err:
             failures.append(f'fold {fold + 1}: {err}')
             if fallback is None or not fallback.ok or 2 * len(failures) > folds:
                 return ModelScore(effects=names, fold_sse=np.zeros((0, 3)), fold_samples=np.zeros(0),
                                   error='; '.join(failures))
             fold_sse[fold] = fallback.fold_sse[fold]
+            if fallback.block_sse is not None:
+                held_blocks = np.unique(block[held_out])
+                block_sse[held_blocks] = fallback.block_sse[held_blocks]
     return ModelScore(effects=names, fold_sse=fold_sse, fold_samples=fold_samples,
-                      failed_folds=tuple(failures))
+                      failed_folds=tuple(failures), block_sse=block_sse, block_samples=block_samples)
+
+
+def paired_block_t(before: ModelScore, after: ModelScore) -> np.ndarray:
+    """Paired t per axis of the held-out MSE gain ``before - after`` over the time blocks.
+
+    Each contiguous block gives one difference of held-out mean squared errors between the two
+    models (both scored on the same samples, so the noise common to both cancels); ``t`` is the
+    mean difference over the blocks divided by its standard error. ``(3,)``; zero where the two
+    models do not differ or the scores lack blocks.
+    """
+    if before.block_sse is None or after.block_sse is None or before.block_samples is None \
+            or len(before.block_sse) != len(after.block_sse) or len(before.block_sse) < 2:
+        return np.zeros(3)
+    count = np.maximum(before.block_samples, 1.0)[:, None]
+    gain = before.block_sse / count - after.block_sse / count
+    spread = gain.std(axis=0, ddof=1) / math.sqrt(len(gain))
+    mean = gain.mean(axis=0)
+    return np.divide(mean, spread, out=np.zeros(3), where=spread > 0.0)
 
 
 def unresolved_shapes(effect: Effect, samples: AlignedSamples) -> tuple[str, ...]:

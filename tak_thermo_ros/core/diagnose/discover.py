@@ -15,9 +15,11 @@ from tak_thermo_ros.core.diagnose.crossval import (
     _effect_specs,
     _settings_of,
     _with_range,
+    block_index,
     cross_validate,
     decimate,
     fold_labels,
+    paired_block_t,
     unresolved_shapes,
 )
 from tak_thermo_ros.core.diagnose.values import AxisSummary, Candidate, Diagnosis, ModelScore
@@ -34,6 +36,7 @@ from tak_thermo_ros.core.diagnose.verdict import (
     _percent,
     _rung,
     _verdict_message,
+    per_axis_t_threshold,
     rms_text,
 )
 from tak_thermo_ros.core.diagnose.views import EFFECT_VIEWS, build_views, noise_floor, residual_drivers
@@ -52,6 +55,7 @@ class _Step:
     current: ModelScore
     ranked: tuple[tuple[Candidate, ModelScore, tuple[Any, ...]], ...]
     skipped: dict[str, str]
+    refused: frozenset[str] = frozenset()
 
 
 def _shared_form(spec: Any) -> Any | None:
@@ -105,7 +109,8 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
         (:func:`~tak_thermo_ros.core.effects.aux_signal.recorded_candidates`). Effects the
         calibration holds already are not tried.
     :param folds: cross-validation folds.
-    :param blocks_per_fold: contiguous time blocks per fold (dealt round-robin).
+    :param blocks_per_fold: contiguous time blocks per fold (dealt round-robin); the first block
+        is cut into one piece per fold besides (:func:`fold_labels`).
     :param max_cv_samples: the cross-validation fits use every m-th sample so that at most
         this many remain (the noise floor and the views use all samples).
     :param max_ladder: at most this many effects are added one after the other.
@@ -206,9 +211,32 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
                          significance=float(significance), evidence=evidence,
                          summary=str(spec.summary or ''), confirm=str(spec.confirm or ''))
 
+    def per_axis_evidence(shared: ModelScore, form: ModelScore) -> tuple[bool, str]:
+        """Whether held-out blocks prefer the per-axis form over the shared one, and why.
+
+        The per-axis form costs two shape parameters more. It must lower the held-out excess
+        summed over the axes by more than white noise could (:data:`SIGNIFICANCE_SIGMAS`). That
+        standard error holds when what the per-axis form leaves is white noise at the floor;
+        when significant structure remains, the gain varies from block to block far more than
+        noise makes it, and on at least one axis the paired gain over the time blocks must then
+        stand out against its own spread as well (paired t beyond :func:`per_axis_t_threshold`).
+        """
+        t = paired_block_t(shared, form)
+        count = 0 if form.block_sse is None else len(form.block_sse)
+        threshold = per_axis_t_threshold(count)
+        gain = shared.excess(floor) - form.excess(floor)
+        noise_ok = gain > SIGNIFICANCE_SIGMAS * sigma_total(shared)
+        at_floor = not significant_axes(form).any()
+        blocks_ok = bool(np.max(t) > threshold)
+        text = (f'paired t over the {count} held-out blocks against the shared form '
+                f'{", ".join(f"{n} {v:.1f}" for n, v in zip(AXES, t))} (threshold {threshold:.2f}'
+                f'{", not needed: what the per-axis form leaves is at the floor" if at_floor else ""}); ')
+        return noise_ok and (at_floor or blocks_ok), text
+
     def rank(current: ModelScore, effects_so_far: tuple[Any, ...]) -> _Step:
         scored: list[tuple[Candidate, ModelScore, tuple[Any, ...]]] = []
         skipped: dict[str, str] = {}
+        refused: set[str] = set()
         held = {_effect_name(e) for e in effects_so_far}
         held |= {_effect_name(_shared_form(e)) for e in effects_so_far if _shared_form(e)}
         trials: list[tuple[str, Any, tuple[Any, ...], str]] = []
@@ -229,9 +257,15 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
             if not model.ok:
                 skipped[name] = model.error or 'fit failed'
                 continue
+            if note and _shared_form(spec) is not None:
+                # In place of a shared form the model holds: the same evidence as on the ladder.
+                preferred, text = per_axis_evidence(current, model)
+                note += text
+                if not preferred:
+                    refused.add(name)
             scored.append((candidate_of(name, spec, current, model, note), model, model_specs))
         scored.sort(key=lambda item: item[1].excess(floor))
-        return _Step(current=current, ranked=tuple(scored), skipped=skipped)
+        return _Step(current=current, ranked=tuple(scored), skipped=skipped, refused=frozenset(refused))
 
     base_score = score(present)
     if not base_score.ok:
@@ -265,22 +299,24 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
             if first_step is None:
                 first_step = step
                 skipped = dict(step.skipped)
-            if not step.ranked:
+            admissible = [item for item in step.ranked if item[0].effect not in step.refused]
+            if not admissible:
                 break
-            best, best_score, best_model = step.ranked[0]
+            best, best_score, best_model = admissible[0]
             if best.explained < MIN_STEP_FRACTION or best.significance < SIGNIFICANCE_SIGMAS:
                 break
             added_spec = best_model[-1] if len(best_model) > len(model_specs) else None
             form = _per_axis_of(added_spec) if per_axis and added_spec is not None else None
             if form is not None:
                 # The per-axis form costs parameters: it takes the rung only when held-out
-                # blocks prefer it by more than noise could.
+                # blocks prefer it by more than noise and the blocks' own spread could.
                 alternative = _replaced(best_model, added_spec, form)
                 form_score = score(alternative, best_score)
                 if form_score.ok:
-                    per_axis_tried.append((changes, candidate_of(form.name, form, current, form_score)))
-                    gain = best_score.excess(floor) - form_score.excess(floor)
-                    if gain > SIGNIFICANCE_SIGMAS * sigma_total(best_score):
+                    preferred, text = per_axis_evidence(best_score, form_score)
+                    per_axis_tried.append((changes, candidate_of(form.name, form, current, form_score,
+                                                                 f'In place of {_effect_name(added_spec)}: {text}')))
+                    if preferred:
                         best_model, best_score = alternative, form_score
             model_specs, current = best_model, best_score
             changes += 1
@@ -389,7 +425,8 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
                      candidates=tuple(candidates_out), skipped=skipped, ladder=tuple(ladder), drivers=drivers,
                      base_drivers=base_drivers,
                      residual=residual, residual_after=residual_after, calibration=calibration,
-                     calibration_after=calibration_after, views=views, folds=folds, blocks=blocks,
+                     calibration_after=calibration_after, views=views, folds=folds,
+                     blocks=int(block_index(labels)[-1]) + 1,
                      cv_stride=stride, present_effects=present_names, explained=float(explained_total),
                      unresolved=unresolved, pruned=tuple(pruned),
                      per_axis_forms=tuple(candidate for _, candidate in per_axis_tried))

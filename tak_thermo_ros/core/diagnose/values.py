@@ -40,6 +40,9 @@ class ModelScore:
     :param fold_samples: ``(folds,)`` held-out samples per fold.
     :param error: why the model could not be fitted (then the arrays are empty).
     :param failed_folds: folds that could not be fitted and were scored with the current model.
+    :param block_sse: ``(blocks, 3)`` the same per contiguous time block (each block is held out
+        with its fold), for paired comparisons of two models block by block.
+    :param block_samples: ``(blocks,)`` held-out samples per block.
     """
 
     effects: tuple[str, ...]
@@ -47,6 +50,8 @@ class ModelScore:
     fold_samples: np.ndarray
     error: str | None = None
     failed_folds: tuple[str, ...] = ()
+    block_sse: np.ndarray | None = None
+    block_samples: np.ndarray | None = None
 
     @property
     def ok(self) -> bool:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Sequence
 
@@ -28,6 +29,31 @@ SIGNIFICANCE_SIGMAS = 4.0
 MIN_VARIANCE_EXCESS = 0.02
 """Below this held-out variance excess (2 %, i.e. RMS 1 % above the floor) an axis counts as
 at the floor however many samples there are: the floor estimate itself is not better."""
+PER_AXIS_ALPHA = 0.01
+"""A per-axis form replaces its shared form only when, on at least one axis, the paired t over
+the held-out time blocks (:func:`~tak_thermo_ros.core.diagnose.crossval.paired_block_t`) lies
+beyond the one-sided quantile ``1 - PER_AXIS_ALPHA / 3`` of Student's t with ``blocks - 1``
+degrees of freedom: a 1 % chance over the three axes that a per-axis form that gains nothing
+is taken (t 3.05 with 20 blocks)."""
+
+
+def student_t_quantile(probability: float, dof: int) -> float:
+    """Quantile of Student's t distribution with ``dof`` degrees of freedom (``probability > 0.5``).
+
+    The density integrated numerically (trapezoids on a fine grid): accurate to about 1e-3,
+    enough for a significance threshold, and no dependency for one function.
+    """
+    grid = np.linspace(0.0, 60.0, 600_001)
+    log_norm = math.lgamma((dof + 1) / 2.0) - math.lgamma(dof / 2.0) - 0.5 * math.log(dof * math.pi)
+    density = np.exp(log_norm - (dof + 1) / 2.0 * np.log1p(grid ** 2 / dof))
+    cumulative = 0.5 + np.concatenate(([0.0], np.cumsum((density[1:] + density[:-1]) / 2.0 * np.diff(grid))))
+    return float(grid[min(int(np.searchsorted(cumulative, probability)), len(grid) - 1)])
+
+
+@functools.lru_cache(maxsize=16)
+def per_axis_t_threshold(blocks: int) -> float:
+    """The paired-t threshold of :data:`PER_AXIS_ALPHA` for ``blocks`` held-out time blocks."""
+    return student_t_quantile(1.0 - PER_AXIS_ALPHA / 3.0, max(blocks - 1, 1))
 
 
 def _noise_sigma(floor_differences: int, heldout_samples: float) -> float:
