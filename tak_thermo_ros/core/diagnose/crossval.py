@@ -143,13 +143,22 @@ def cross_validate(samples: AlignedSamples, effects: Sequence[Any], labels: np.n
             failures.append(f'fold {fold + 1}: {err}')
             if fallback is None or not fallback.ok or 2 * len(failures) > folds:
                 return ModelScore(effects=names, fold_sse=np.zeros((0, 3)), fold_samples=np.zeros(0),
-                                  error='; '.join(failures))
+                                  error=_joined_failures(failures))
             fold_sse[fold] = fallback.fold_sse[fold]
             if fallback.block_sse is not None:
                 held_blocks = np.unique(block[held_out])
                 block_sse[held_blocks] = fallback.block_sse[held_blocks]
     return ModelScore(effects=names, fold_sse=fold_sse, fold_samples=fold_samples,
                       failed_folds=tuple(failures), block_sse=block_sse, block_samples=block_samples)
+
+
+def _joined_failures(failures: list[str]) -> str:
+    """``fold k: reason`` joined; one reason said once when every failed fold gives it."""
+    reasons = {failure.partition(': ')[2] for failure in failures}
+    if len(reasons) == 1:
+        folds = ', '.join(failure.partition(':')[0].removeprefix('fold ') for failure in failures)
+        return f'fold{"s" if len(failures) > 1 else ""} {folds}: {reasons.pop()}'
+    return '; '.join(failures)
 
 
 def paired_block_t(before: ModelScore, after: ModelScore) -> np.ndarray:
