@@ -278,6 +278,13 @@ def _effect_unit(unit: str, sensor_unit: str) -> str:
     return unit.replace('counts', sensor_unit).replace('@', sensor_unit)
 
 
+def _in_driver_words(text: str) -> str:
+    """A diagnosis written for the paper's codes, said of a driver's temperature in degrees C."""
+    text = re.sub(r'\btemperature codes\b', 'temperatures', text)
+    text = re.sub(r'\btemperature code\b', 'temperature', text)
+    return re.sub(r'\b(\w+)_codes\b', r'\1_codes (in C here)', text)
+
+
 def _amount(value: float, unit: str) -> str:
     """A residual or offset in a sensor's unit (counts to three decimals, SI to four digits)."""
     if unit == 'counts':
@@ -472,7 +479,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             print('model ladder (held-out RMS x y z): ' + '; '.join(
                 f'{step.label}: {" ".join(f"{v:.4g}" for v in step.heldout_rms)}' for step in result.ladder))
         print(f'{label}verdict: {result.verdict}')
-        print(result.message)
+        print(_in_driver_words(result.message) if run.input_kind is InputKind.IMU else result.message)
     if args.json:
         document = {**results['accel'].as_dict(), 'samples_diagnosed': len(used['accel']),
                     'samples_usable': run.usable['accel'], 'subsample_stride': run.stride}

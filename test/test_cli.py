@@ -174,3 +174,12 @@ def test_long_runs_are_fitted_and_diagnosed_on_a_bounded_subsample(workspace, tm
     assert stride > 1 and f'diagnosing 1 sample in {stride}, spread evenly over the run' in diagnosed.stdout
     assert document['samples_diagnosed'] <= 1000 < document['samples_usable']
     assert document['samples_diagnosed'] >= 0.9 * document['samples_usable'] / stride
+
+
+def test_a_driver_bags_diagnosis_speaks_of_degrees_not_codes():
+    """On driver bags the verdict's words name the temperature (degrees C), not the paper's codes."""
+    from tak_thermo_ros.cli import _in_driver_words
+    text = _in_driver_words('no function of the temperature code predicts it; a play operator of width '
+                            'width_codes; the temperature codes of this run')
+    assert 'code ' not in text.replace('_codes', '') and 'temperatures of this run' in text
+    assert 'width_codes (in C here)' in text
