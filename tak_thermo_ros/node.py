@@ -373,6 +373,8 @@ class CompensatorNode(Node):
             self._log_notices()
 
     def _on_diagnostics_timer(self) -> None:
+        if not self.context.ok():  # a SIGINT or SIGTERM shut rclpy down: publishers and rosout are gone
+            return
         self._subscribe_signals()
         now = time.monotonic()
         self._core.tick(now)
@@ -385,19 +387,29 @@ class CompensatorNode(Node):
             message=status.message,
             hardware_id=self._imu.header.frame_id,
             values=[KeyValue(key=key, value=value) for key, value in status.values])]
-        self._diagnostics_publisher.publish(diagnostics)
+        try:
+            self._diagnostics_publisher.publish(diagnostics)
+        except Exception:
+            if self.context.ok():
+                raise
+            return  # shut down since the check above
         if self._core.notices:
             self._log_notices()
 
     def _log_notices(self) -> None:
         logger = self.get_logger()
         for notice in self._core.take_notices():
-            if notice.level is Level.ERROR:
-                logger.error(notice.text)
-            elif notice.level is Level.WARN:
-                logger.warning(notice.text)
-            else:
-                logger.info(notice.text)
+            try:  # one call site per severity: rclpy's logger keeps a severity per calling line
+                if notice.level is Level.ERROR:
+                    logger.error(notice.text)
+                elif notice.level is Level.WARN:
+                    logger.warning(notice.text)
+                else:
+                    logger.info(notice.text)
+            except Exception:
+                if self.context.ok():
+                    raise
+                return  # shut down between the check and the call: rosout has no publisher any more
 
     # -- runtime parameter updates -----------------------------------------------------------
 

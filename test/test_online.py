@@ -454,9 +454,13 @@ def test_sequence_gaps_count_every_message_never_received():
         core.sequence('imu', number, now_s=0.1)
     assert core.sequence_gaps == {'imu': 2 + 3 + 3} and core.sequence_gap_total() == 8
     notice = core.take_notices()[0]
-    assert notice.kind == 'message_lost' and 'sequence numbers 3..4' in notice.text
+    assert notice.kind == 'sequence_gap' and 'sequence numbers 3..4' in notice.text
     status = core.status(0.2)
     assert status.value('sequence_gap') == '8' and status.value('sequence_gap.imu') == '8'
     assert status.level is Level.WARN and '8 messages never received' in status.message
     core.message_lost('temperature', 4, now_s=0.3)
     assert core.status(0.4).value('message_lost.temperature') == '4' and core.lost_total() == 4
+    # A loss the middleware reports does not hold back the log line of a gap, nor the other way round.
+    assert [n.kind for n in core.take_notices()] == ['message_lost']
+    core.sequence('imu', 12, now_s=100.0)
+    assert [n.kind for n in core.take_notices()] == ['sequence_gap']

@@ -292,7 +292,8 @@ class OnlineCompensator:
         """Log lines due; the caller empties it (:meth:`take_notices`)."""
         self._throttles = {kind: _Throttle(warn_period_s) for kind in (
             WAITING_FOR_TEMPERATURE, STALE_TEMPERATURE, 'out_of_range', 'temperature_rejected',
-            'stamp_order', 'correction', 'message_lost', WAITING_FOR_SIGNAL, STALE_SIGNAL, 'signal_rejected')}
+            'stamp_order', 'correction', 'message_lost', 'sequence_gap', WAITING_FOR_SIGNAL, STALE_SIGNAL,
+            'signal_rejected')}
         self._signals: tuple[str, ...] = ()
         self._signal_values: dict[str, float] = {}
         self._signal_arrival_s: dict[str, float] = {}
@@ -602,9 +603,9 @@ class OnlineCompensator:
             return
         gap = number - last - 1
         self.sequence_gaps[stream] = self.sequence_gaps.get(stream, 0) + gap
-        if self._throttles['message_lost'].due(now_s):
-            held = self._throttles['message_lost'].take_held_back()
-            self._notice(Level.WARN, 'message_lost',
+        if self._throttles['sequence_gap'].due(now_s):
+            held = self._throttles['sequence_gap'].take_held_back()
+            self._notice(Level.WARN, 'sequence_gap',
                          f'{gap} {stream} messages never received (publication sequence numbers '
                          f'{last + 1}..{number - 1}; {self.sequence_gap_total()} so far{self._since(held)})')
 
