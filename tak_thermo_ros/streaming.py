@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Callable, Iterator, Sequence
 
 import numpy as np
 
-from tak_thermo_ros.core.blocks import BlockAligner, add_counts, concatenate
+from tak_thermo_ros.core.blocks import BlockAligner, add_counts
 from tak_thermo_ros.core.correction import Corrector, OutOfRange, acceleration_variance
 from tak_thermo_ros.core.fit import FitResult, fit_model
 from tak_thermo_ros.core.model import InputKind, UnitCalibration
@@ -223,23 +223,63 @@ def _run_passes(path: Path, options: StreamOptions, opened: _Opened, passes: Seq
 
 
 class _Subsample:
-    """Every ``stride``-th stream row of the aligned blocks, kept in memory."""
+    """Every ``stride``-th stream row of the aligned blocks, copied into arrays that grow by doubling.
 
-    def __init__(self, stride: int) -> None:
+    One set of arrays for the whole run (about ``expected`` rows, known from the bag's index),
+    filled block by block: no list of per-block pieces to join at the end, which would hold the
+    subsample twice.
+    """
+
+    def __init__(self, stride: int, expected: int = 0) -> None:
         self.stride = stride
-        self.parts: list[AlignedSamples] = []
         self.usable = 0
+        self.count = 0
+        self.capacity = max(expected, 1)
+        self.arrays: dict[str, np.ndarray] | None = None
+        self.ignored_temp_codes: dict[str, int] = {}
+        self.ignored_references: dict[str, int] = {}
 
     def __call__(self, aligned: AlignedSamples) -> None:
         self.usable += len(aligned)
-        if len(aligned) or aligned.ignored_temp_codes or aligned.ignored_references:
-            self.parts.append(every_nth(aligned, self.stride))
+        add_counts(self.ignored_temp_codes, aligned.ignored_temp_codes)
+        add_counts(self.ignored_references, aligned.ignored_references)
+        if not len(aligned):
+            return
+        part = every_nth(aligned, self.stride)
+        columns = {'stamp_ns': part.stamp_ns, 'counts': part.counts, 'temp_code': part.temp_code,
+                   'rows': part.rows if part.rows is not None else np.full(len(part), -1, dtype=np.int64),
+                   **({} if part.reference is None else {'reference': part.reference}),
+                   **{f'aux:{name}': values for name, values in part.aux.items()}}
+        if self.arrays is None:
+            self.arrays = {key: np.empty((self.capacity, *values.shape[1:]), dtype=values.dtype)
+                           for key, values in columns.items()}
+        if columns.keys() != self.arrays.keys():
+            msg = 'a block of the run holds other streams than the first one (reference or recorded signals)'
+            raise TakError(msg)
+        end = self.count + len(part)
+        if end > self.capacity:
+            self.capacity = max(end, 2 * self.capacity)
+            for key, values in self.arrays.items():
+                grown = np.empty((self.capacity, *values.shape[1:]), dtype=values.dtype)
+                grown[:self.count] = values[:self.count]
+                self.arrays[key] = grown
+        for key, values in columns.items():
+            self.arrays[key][self.count:end] = values
+        self.count = end
 
     def samples(self, dropped: dict[str, int]) -> AlignedSamples:
-        joined = concatenate(self.parts) if self.parts else AlignedSamples(
-            stamp_ns=np.zeros(0, dtype=np.int64), counts=np.zeros((0, 3)), temp_code=np.zeros(0),
-            reference=None, dropped={}, rows=np.zeros(0, dtype=np.int64))
-        return replace(joined, dropped=dict(dropped))
+        """The subsample (views of the filled rows), the whole run's drop and ignored counts."""
+        if self.arrays is None:
+            return AlignedSamples(stamp_ns=np.zeros(0, dtype=np.int64), counts=np.zeros((0, 3)),
+                                  temp_code=np.zeros(0), reference=None, dropped=dict(dropped),
+                                  rows=np.zeros(0, dtype=np.int64), ignored_temp_codes=dict(self.ignored_temp_codes),
+                                  ignored_references=dict(self.ignored_references))
+        filled = {key: values[:self.count] for key, values in self.arrays.items()}
+        return AlignedSamples(stamp_ns=filled['stamp_ns'], counts=filled['counts'], temp_code=filled['temp_code'],
+                              reference=filled.get('reference'), dropped=dict(dropped), rows=filled['rows'],
+                              ignored_temp_codes=dict(self.ignored_temp_codes),
+                              ignored_references=dict(self.ignored_references),
+                              aux={key[4:]: values for key, values in filled.items() if key.startswith('aux:')})
 
 
 # ----- fit ------------------------------------------------------------------------------------------
@@ -327,7 +367,8 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
         requirements[sensor] = required(sensor)
         consumers = [fits[sensor].add]
         if settings.effects.get(sensor):
-            subsamples[sensor] = _Subsample(stride_for(opened.main, settings.max_effect_samples))
+            stride = stride_for(opened.main, settings.max_effect_samples)
+            subsamples[sensor] = _Subsample(stride, expected=opened.main // stride + 1)
             consumers.append(subsamples[sensor])
         passes.append(SensorPass(sensor, aligner(), [_feeding(requirements[sensor], consumers)]))
     lines = _run_passes(path, options, opened, passes)
@@ -618,7 +659,7 @@ def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: floa
     stride = stride_for(opened.main, max_samples)
     passes, subsamples = [], {}
     for sensor in sensors_of(opened.kind):
-        subsamples[sensor] = _Subsample(stride)
+        subsamples[sensor] = _Subsample(stride, expected=opened.main // stride + 1)
         passes.append(SensorPass(sensor, BlockAligner(use_reference=True, reference_expected=True,
                                                       settle_time_s=settle_time_s), [subsamples[sensor]]))
     lines = _run_passes(path, options, opened, passes)

@@ -223,3 +223,22 @@ def test_a_recorded_signal_effect_on_a_long_run_is_fitted_in_two_passes(tmp_path
         assert result.parameter_errors[name] >= 0.9 * joint, 'the shape\'s uncertainty is in the amplitude\'s error'
         assert abs(effect[f'slope_{axis}'] - truth[f'slope_{axis}']) <= 4.5 * joint, axis
         assert abs(effect[f'slope_{axis}'] - whole.calibration.effects[0][f'slope_{axis}']) <= 4.5 * joint, axis
+
+
+def test_subsample_arrays_grow_beyond_the_expected_size_and_keep_every_stride_row(driver_bag):
+    """The subsample's arrays double when a run holds more rows than expected; the rows kept are
+    those of every_nth on the whole alignment, with the whole run's ignored counts."""
+    from tak_thermo_ros.core.blocks import BlockAligner
+    from tak_thermo_ros.streaming import _Subsample, every_nth
+    path, _ = driver_bag
+    driver = read_driver_record(path, progress=False)
+    whole = every_nth(align(driver.channel('accel')), 3)
+    subsample, aligner = _Subsample(3, expected=1), BlockAligner(use_reference=True, reference_expected=True)
+    for block in iter_blocks(path, kind=InputKind.IMU, block_samples=200, progress=False):
+        subsample(aligner.push(block.channel('accel')))
+    subsample(aligner.finish())
+    got = subsample.samples(aligner.dropped)
+    assert subsample.capacity >= len(got) == len(whole) > 1
+    for name in ('stamp_ns', 'counts', 'temp_code', 'reference', 'rows'):
+        assert np.array_equal(getattr(got, name), getattr(whole, name)), name
+    assert got.ignored_temp_codes == whole.ignored_temp_codes and got.dropped == whole.dropped
