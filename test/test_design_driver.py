@@ -108,17 +108,23 @@ def test_one_run_for_both_sensors_maximises_the_weaker_separation():
         assert sensor.tried[design.choice].separation_sigmas > sensor.baseline_sigmas, sensor
 
 
-def test_a_recorded_signal_on_top_gets_one_clear_line_and_no_design(tmp_path, capsys):
-    """The accelerometer follows the recorded supply voltage: no temperature run is designed, exit 0."""
-    scenario = replace(RUN, gyro_effects={}, supply_voltage_drift=0.03, record_supply='/power/battery_state',
-                       sample_rate_hz=0.1)
-    write_driver_record(tmp_path / 'run', simulate(scenario).driver)
+def _diagnose_with_supply_candidate(tmp_path, capsys) -> str:
+    """fit, then diagnose --design-run with the lag and the recorded supply as candidates; its output (exit 0)."""
     assert main(['fit', str(tmp_path / 'run'), '-o', str(tmp_path / 'base.yaml'), '--no-progress']) == 0
     capsys.readouterr()
     code = main(['diagnose', str(tmp_path / 'run'), '--params', str(tmp_path / 'base.yaml'), '--candidates',
                  'thermal_lag,aux:/power/battery_state', '--design-run', str(tmp_path / 'design'), '--no-progress'])
     out = capsys.readouterr().out
-    assert code == 0
+    assert code == 0, out
+    return out
+
+
+def test_a_recorded_signal_on_top_gets_one_clear_line_and_no_design(tmp_path, capsys):
+    """The accelerometer follows the recorded supply voltage: no temperature run is designed, exit 0."""
+    scenario = replace(RUN, gyro_effects={}, supply_voltage_drift=0.03, record_supply='/power/battery_state',
+                       sample_rate_hz=0.1)
+    write_driver_record(tmp_path / 'run', simulate(scenario).driver)
+    out = _diagnose_with_supply_candidate(tmp_path, capsys)
     lines = [line for line in out.splitlines() if line.startswith('accelerometer: no chamber run designed')]
     assert len(lines) == 1, out
     assert 'aux:/power/battery_state' in lines[0] and 'independently of the temperature' in lines[0]
@@ -148,12 +154,7 @@ def test_counts_bag_with_a_recorded_signal_on_top_gets_the_same_line(tmp_path, c
     scenario = replace(SHORT, sample_rate_hz=0.1, supply_voltage_drift=6.0, record_supply='/power/battery_state',
                        seed=5)
     write_record(tmp_path / 'run', simulate(scenario).record)
-    assert main(['fit', str(tmp_path / 'run'), '-o', str(tmp_path / 'base.yaml'), '--no-progress']) == 0
-    capsys.readouterr()
-    code = main(['diagnose', str(tmp_path / 'run'), '--params', str(tmp_path / 'base.yaml'), '--candidates',
-                 'thermal_lag,aux:/power/battery_state', '--design-run', str(tmp_path / 'design'), '--no-progress'])
-    out = capsys.readouterr().out
-    assert code == 0
+    out = _diagnose_with_supply_candidate(tmp_path, capsys)
     lines = [line for line in out.splitlines() if line.startswith('no chamber run designed')]
     assert len(lines) == 1 and 'aux:/power/battery_state' in lines[0], out
     assert not (tmp_path / 'design').exists()
