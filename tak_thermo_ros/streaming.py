@@ -372,7 +372,6 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
             consumers.append(subsamples[sensor])
         passes.append(SensorPass(sensor, aligner(), [_feeding(requirements[sensor], consumers)]))
     lines = _run_passes(path, options, opened, passes)
-    passes_first = passes
     results: dict[str, FitResult] = {}
     usable: dict[str, int] = {}
     second: dict[str, tuple[StreamingEffectFit, FitResult]] = {}
@@ -397,10 +396,10 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
     if second:
         # The shapes are fixed now: a second pass solves every amplitude over the whole run.
         again = {sensor: required(sensor) for sensor in second}
-        passes = [SensorPass(sensor, aligner(), [_feeding(again[sensor], [amplitudes.add])])
+        amplitude_passes = [SensorPass(sensor, aligner(), [_feeding(again[sensor], [amplitudes.add])])
                   for sensor, (amplitudes, _) in second.items()]
-        _run_passes(path, options, _Opened(kind, opened.main, opened.static), passes)
-        for sensor_pass in passes:
+        _run_passes(path, options, _Opened(kind, opened.main, opened.static), amplitude_passes)
+        for sensor_pass in amplitude_passes:
             sensor = sensor_pass.sensor
             amplitudes, shaped = second[sensor]
             shape_names = {f'{e.name}.{name}' for e in shaped.calibration.effects for name in e.shape_names()}
@@ -414,8 +413,8 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
     return StreamedFit(input_kind=kind, sensors=sensors, results=results, usable=usable,
                        effect_stride={sensor: subsample.stride for sensor, subsample in subsamples.items()},
                        reference_lines=tuple(lines),
-                       ignored_temp_codes={p.sensor: dict(p.aligner.ignored_temp_codes) for p in passes_first},
-                       ignored_references={p.sensor: dict(p.aligner.ignored_references) for p in passes_first})
+                       ignored_temp_codes={p.sensor: dict(p.aligner.ignored_temp_codes) for p in passes},
+                       ignored_references={p.sensor: dict(p.aligner.ignored_references) for p in passes})
 
 
 def _with_shape_uncertainty(errors: dict[str, float], shaped: FitResult, shape_names: set[str],
