@@ -427,7 +427,6 @@ class _Template:
     numbers lie (byte offsets from the start of the raw message, as :func:`_layout` finds them)."""
 
     row: np.ndarray
-    little_endian: bool
     numbers: dict[str, tuple[Field, int]]
 
 
@@ -459,7 +458,7 @@ def _template(msgtype: str, strings: tuple[tuple[str, bytes], ...], little_endia
         msg = f'{msgtype}: the encoder template does not read back as laid out'
         raise AssertionError(msg)
     numbers = {field.name: (field, offset) for field, offset in layout.numbers}
-    return _Template(np.frombuffer(raw, dtype=np.uint8), little_endian, numbers)
+    return _Template(np.frombuffer(raw, dtype=np.uint8), numbers)
 
 
 def encode_messages(msgtype: str, stamp_ns: np.ndarray | None, values: dict[str, np.ndarray | Sequence[float] | float],
@@ -492,6 +491,9 @@ def encode_messages(msgtype: str, stamp_ns: np.ndarray | None, values: dict[str,
     row = template.row.copy()
     columns = dict(values)
     if 'stamp_sec' in template.numbers:
+        if stamp_ns is None:
+            msg = f'{msgtype}: stamps not given'
+            raise CdrError(msg, -1)
         stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
         sec, nanosec = np.divmod(stamp_ns, NANOSECONDS)
         outside = np.flatnonzero((sec < np.iinfo(np.int32).min) | (sec > np.iinfo(np.int32).max))

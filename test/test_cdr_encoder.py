@@ -15,7 +15,7 @@ from rosbags.rosbag2 import Reader
 from conftest import SHORT
 from tak_thermo_ros import bagio
 from tak_thermo_ros.bagio import TYPESTORE, read_imu_messages, write_driver_record, write_record
-from tak_thermo_ros.cdr import decode_messages, encode_imus
+from tak_thermo_ros.cdr import decode_messages, encode_imus, encode_messages
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.core.calibration_file import save_calibration, save_unit
 from tak_thermo_ros.core.simulate import simulate
@@ -115,6 +115,29 @@ def test_block_encoder_refuses_a_stamp_outside_int32_seconds_and_a_wrong_shape()
     assert caught.value.index == 1
     with pytest.raises(CdrError, match=r'linear_acceleration has shape \(2, 2\), expected \(2, 3\) or \(3,\)'):
         encode_imus(np.array([0, 1]), 'imu', **{**shared, 'linear_acceleration': np.zeros((2, 2))})
+
+
+@pytest.mark.parametrize('little', [True, False])
+@pytest.mark.parametrize('frame_id', ['', 'a', 'abcde'])
+def test_other_fixed_layout_types_equal_rosbags(frame_id, little):
+    """encode_messages serves every fixed-layout type of the decoder: stamped types with per-message and
+    shared values, and std_msgs numbers of every width (no trailing padding, as rosbags)."""
+    header = TYPES['std_msgs/msg/Header'](stamp=TYPES['builtin_interfaces/msg/Time'](sec=1, nanosec=3), frame_id=frame_id)
+    vector = encode_messages('geometry_msgs/msg/Vector3Stamped', np.array([5, NANOSECONDS + 3]),
+                             {'vector': np.array([[1.0, 2.0, 3.0], [4.0, math.nan, -math.inf]])},
+                             {'frame_id': frame_id}, little_endian=little)
+    message = TYPES['geometry_msgs/msg/Vector3Stamped'](
+        header=header, vector=TYPES['geometry_msgs/msg/Vector3'](4.0, math.nan, -math.inf))
+    assert vector[1] == bytes(TYPESTORE.serialize_cdr(message, 'geometry_msgs/msg/Vector3Stamped', little_endian=little))
+    temperature = encode_messages('sensor_msgs/msg/Temperature', np.array([NANOSECONDS + 3]),
+                                  {'temperature': np.array([3.5]), 'variance': 0.25}, {'frame_id': frame_id},
+                                  little_endian=little)
+    message = TYPES['sensor_msgs/msg/Temperature'](header=header, temperature=3.5, variance=0.25)
+    assert temperature == [bytes(TYPESTORE.serialize_cdr(message, 'sensor_msgs/msg/Temperature', little_endian=little))]
+    for type_name, value in [('UInt8', 200), ('Int16', -5), ('Float32', 1.5), ('UInt32', 2**32 - 1), ('Int64', -2**60)]:
+        msgtype = f'std_msgs/msg/{type_name}'
+        raws = encode_messages(msgtype, None, {'data': np.array([value, 0])}, little_endian=little)
+        assert raws[0] == bytes(TYPESTORE.serialize_cdr(TYPES[msgtype](data=value), msgtype, little_endian=little))
 
 
 # ---- tak_calib apply: the bag written with the block encoder equals the per-message one -------------
