@@ -32,7 +32,7 @@ import numpy as np
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer, WriterError
 from rosbags.typesys import Stores, get_typestore
 
-from tak_thermo_ros.cdr import MessageArrays, decode_messages
+from tak_thermo_ros.cdr import MessageArrays, decode_messages, encode_imus
 from tak_thermo_ros.core.effects import aux_signal
 from tak_thermo_ros.core.correction import imu_covariances
 from tak_thermo_ros.core.files import BAG, check_output, install_directory, staging_directory
@@ -51,6 +51,12 @@ STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
 DECODERS = ('block', 'rosbags')
 """``block``: raw messages decoded chunk by chunk into arrays (:mod:`tak_thermo_ros.cdr`);
 ``rosbags``: one ``deserialize_cdr`` call per message (the reference)."""
+ENCODERS = ('block', 'rosbags')
+"""``block``: a block of Imu messages serialised at once into arrays (:func:`tak_thermo_ros.cdr.encode_imus`);
+``rosbags``: one message object and one ``serialize_cdr`` call per message (the reference). Both
+give the same bytes."""
+IMU_ENCODER = 'block'
+"""The encoder :func:`write_imu` and :class:`ImuBagWriter` use unless told otherwise."""
 CHUNK_MESSAGES = 65536
 """Raw messages the block decoder reads and decodes at once."""
 STORAGE_ERRORS: tuple[type[Exception], ...] = (OSError, sqlite3.Error, WriterError)
@@ -676,7 +682,8 @@ def write_imu(path: str | os.PathLike[str], stamp_ns: np.ndarray, frame_id: str,
               topic: str = Topics.imu, storage: str = 'mcap', force: bool = False,
               angular_velocity: np.ndarray | None = None,
               angular_variance: tuple[float, float, float] | None = None,
-              orientation: np.ndarray | None = None, orientation_covariance: np.ndarray | None = None) -> None:
+              orientation: np.ndarray | None = None, orientation_covariance: np.ndarray | None = None,
+              encoder: str | None = None) -> None:
     """Write corrected samples as ``sensor_msgs/msg/Imu`` (REP 103 axes, m/s^2, rad/s).
 
     Counts input: the specific force only, orientation and angular velocity marked not
@@ -685,12 +692,14 @@ def write_imu(path: str | os.PathLike[str], stamp_ns: np.ndarray, frame_id: str,
     per message.
 
     :param force: replace an existing bag at ``path`` (:func:`tak_thermo_ros.core.files.check_output`).
+    :param encoder: one of :data:`ENCODERS` (default :data:`IMU_ENCODER`).
     """
     with _AtomicBag(path, storage, force=force) as writer:
         connection = writer.add_connection(topic, IMU, typestore=TYPESTORE)
         _write_imu_messages(writer, connection, stamp_ns, frame_id, acceleration, variance,
                             angular_velocity=angular_velocity, angular_variance=angular_variance,
-                            orientation=orientation, orientation_covariance=orientation_covariance)
+                            orientation=orientation, orientation_covariance=orientation_covariance,
+                            encoder=encoder or IMU_ENCODER)
 
 
 def read_imu(path: str | os.PathLike[str], *, topic: str = Topics.imu) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray]:
@@ -1042,12 +1051,15 @@ class ImuBagWriter:
     Use as a context manager; :meth:`write` takes the arguments of :func:`write_imu` for one
     block of samples. The bag appears at ``path`` only when the block ``with`` ends without
     an exception.
+
+    :param encoder: one of :data:`ENCODERS` (default :data:`IMU_ENCODER`).
     """
 
     def __init__(self, path: str | os.PathLike[str], *, topic: str = Topics.imu, storage: str = 'mcap',
-                 force: bool = False) -> None:
+                 force: bool = False, encoder: str | None = None) -> None:
         self._bag = _AtomicBag(path, storage, force=force)
         self._topic = topic
+        self._encoder = encoder or IMU_ENCODER
         self._writer: Writer | None = None
         self._connection = None
         self.written = 0
@@ -1068,16 +1080,30 @@ class ImuBagWriter:
         assert self._writer is not None, 'ImuBagWriter.write outside its with block'
         _write_imu_messages(self._writer, self._connection, stamp_ns, frame_id, acceleration, variance,
                             angular_velocity=angular_velocity, angular_variance=angular_variance,
-                            orientation=orientation, orientation_covariance=orientation_covariance)
+                            orientation=orientation, orientation_covariance=orientation_covariance,
+                            encoder=self._encoder)
         self.written += len(stamp_ns)
 
 
 def _write_imu_messages(writer: Writer, connection, stamp_ns: np.ndarray, frame_id: str, acceleration: np.ndarray,
                         variance: tuple[float, float, float], *, angular_velocity: np.ndarray | None,
                         angular_variance: tuple[float, float, float] | None, orientation: np.ndarray | None,
-                        orientation_covariance: np.ndarray | None) -> None:
-    serialize = TYPESTORE.serialize_cdr
+                        orientation_covariance: np.ndarray | None, encoder: str = 'block') -> None:
     orientation_cov, angular_cov, linear_cov = (np.array(c) for c in imu_covariances(variance, angular_variance))
+    if encoder == 'block':
+        raws = encode_imus(stamp_ns, frame_id,
+                           orientation=(0.0, 0.0, 0.0, 1.0) if orientation is None else orientation,
+                           orientation_covariance=orientation_cov if orientation is None else orientation_covariance,
+                           angular_velocity=(0.0, 0.0, 0.0) if angular_velocity is None else angular_velocity,
+                           angular_velocity_covariance=angular_cov, linear_acceleration=acceleration,
+                           linear_acceleration_covariance=linear_cov)
+        for stamp, raw in zip(stamp_ns.tolist(), raws):
+            writer.write(connection, stamp, raw)
+        return
+    if encoder != 'rosbags':
+        msg = f'unknown Imu encoder {encoder!r} (known: {", ".join(ENCODERS)})'
+        raise ValueError(msg)
+    serialize = TYPESTORE.serialize_cdr
     identity = _Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
     zero = _Vector3(x=0.0, y=0.0, z=0.0)
     rates = angular_velocity.tolist() if angular_velocity is not None else None
