@@ -15,6 +15,16 @@ from tak_thermo_ros.core.simulate import Scenario, simulate
 SHORT = Scenario(plateau_hours=0.5, ramp_celsius_per_minute=1.0, board_lag_s=300.0, dwell_s=30.0)
 """The paper's five plateaus, shortened: about 3 h of 1 Hz samples."""
 
+EXAMPLES = {
+    'thermal_lag': {'tau_s': 300.0, 'slope_x': 0.02, 'slope_z': -0.03},
+    'hysteresis': {'width_codes': 30.0, 'amplitude_y': 5.0, 'amplitude_z': -2.0},
+    'warmup': {'tau_s': 900.0, 'amplitude_x': 10.0, 'amplitude_z': -4.0},
+    'temperature_shape': {'knot_1': 8000.0, 'knot_2': 8400.0, 'slope_x_1': 0.01, 'slope_y_2': -0.02},
+    'cross_axis': {'c_xy': 0.3, 'c_zx': -0.5, 'c_yz': 0.2},
+    'scale_nonlinearity': {'k2_x': 0.05, 'k2_y': -0.03, 'k2_z': 0.02},
+}
+"""Each library effect with example parameters (the library and block-correction tests)."""
+
 
 CREEP_MODULE = '''
 from tak_thermo_ros.core.effects import Effect, ParameterSpec

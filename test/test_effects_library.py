@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from conftest import CREEP_MODULE
+from conftest import CREEP_MODULE, EXAMPLES
 from tak_thermo_ros.core.calibration_file import (
     calibration_from_mapping,
     calibration_to_mapping,
@@ -24,14 +24,6 @@ from tak_thermo_ros.core.model import Calibration
 from tak_thermo_ros.core.simulate import Scenario, scenario_from_mapping, simulate
 from tak_thermo_ros.errors import CalibrationError, FitError, ScenarioError
 
-EXAMPLES = {
-    'thermal_lag': {'tau_s': 300.0, 'slope_x': 0.02, 'slope_z': -0.03},
-    'hysteresis': {'width_codes': 30.0, 'amplitude_y': 5.0, 'amplitude_z': -2.0},
-    'warmup': {'tau_s': 900.0, 'amplitude_x': 10.0, 'amplitude_z': -4.0},
-    'temperature_shape': {'knot_1': 8000.0, 'knot_2': 8400.0, 'slope_x_1': 0.01, 'slope_y_2': -0.02},
-    'cross_axis': {'c_xy': 0.3, 'c_zx': -0.5, 'c_yz': 0.2},
-    'scale_nonlinearity': {'k2_x': 0.05, 'k2_y': -0.03, 'k2_z': 0.02},
-}
 
 USER_MODULE = CREEP_MODULE + '''
 
