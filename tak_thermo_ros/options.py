@@ -37,10 +37,11 @@ MAX_FOLDS = 100
 MAX_SEED = 2 ** 63 - 1
 """Largest random seed."""
 MAX_NOMINAL_SCALE = 1e7
-MIN_SAMPLE_BUDGET = 1000
-"""Fewer samples than this cannot show an effect's shape against the noise."""
-MAX_SAMPLE_BUDGET = 10 ** 9
 """Largest nominal scale, counts per m/s^2 (a 24-bit channel over +-2 g has 4e5)."""
+MIN_SAMPLE_BUDGET = 1000
+"""Fewest samples ``--effect-samples`` / ``--max-samples`` accept: fewer cannot show an effect's shape against the noise."""
+MAX_SAMPLE_BUDGET = 10 ** 9
+"""Most samples those options accept."""
 
 
 def _float(text: str) -> float:
