@@ -38,7 +38,7 @@ from tak_thermo_ros.core.record import REFERENCE_LIMIT, TEMPERATURE_RANGE, Align
 from tak_thermo_ros.core.record import require_signals
 from tak_thermo_ros.core.simulate import STANDARD_GRAVITY, Scenario, load_scenario, simulate
 from tak_thermo_ros.errors import TakError
-from tak_thermo_ros.streaming import DIAGNOSE_MAX_SAMPLES, EFFECT_FIT_MAX_SAMPLES
+from tak_thermo_ros.streaming import DIAGNOSE_MAX_SAMPLES, EFFECT_FIT_MAX_SAMPLES, SENSOR_NAMES
 
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
@@ -57,7 +57,6 @@ OUTPUTS: dict[str, tuple[tuple[str, str, str], ...]] = {
 
 UNITS = {(InputKind.COUNTS, 'accel'): 'counts', (InputKind.IMU, 'accel'): 'm/s^2', (InputKind.IMU, 'gyro'): 'rad/s'}
 """The unit of a sensor's residuals and offsets, by input kind."""
-SENSOR_NAMES = {'accel': 'accelerometer', 'gyro': 'gyroscope'}
 
 
 def _topics(args: argparse.Namespace):
