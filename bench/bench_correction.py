@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from tak_thermo_ros.core.calibration_file import write_text_atomic
-from tak_thermo_ros.core.correction import Corrector
-from tak_thermo_ros.core.simulate import Scenario
+from tak_thermo_ros.core.records.calibration_file import write_text_atomic
+from tak_thermo_ros.core.link.correction import Corrector
+from tak_thermo_ros.core.simulation.imu import Scenario
 
 RESULTS = Path(__file__).resolve().parent / 'results'
 TARGET_MISSED = 3

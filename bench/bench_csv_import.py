@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from benchlib import machine, tak_calib_command
-from tak_thermo_ros.core.calibration_file import write_text_atomic
+from tak_thermo_ros.core.records.calibration_file import write_text_atomic
 
 RESULTS = Path(__file__).resolve().parent / 'results'
 TARGET_MISSED = 3

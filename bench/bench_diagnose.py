@@ -8,7 +8,7 @@ an in-process breakdown (read, diagnose, report). The run hides a thermal lag so
 whole ladder and report are exercised.
 
 Verdict matrix (``--matrix``): for every library effect, over several seeds and the three
-temperature profiles of ``tak_thermo_ros.core.simulate.PROFILES``, with effect parameters
+temperature profiles of ``tak_thermo_ros.core.simulation.imu.PROFILES``, with effect parameters
 drawn per seed: simulate a run with the effect, fit the base model, diagnose; the verdict
 must name the effect; refit with it: the residual RMS must lie within 1.1x the simulated
 noise floor, and the |g| error of a second run of the same unit (another seed) must fall.
@@ -44,13 +44,13 @@ from pathlib import Path
 import numpy as np
 
 from benchlib import machine, stretched, tak_calib_command
-from tak_thermo_ros.core.calibration_file import save_calibration, write_text_atomic
+from tak_thermo_ros.core.records.calibration_file import save_calibration, write_text_atomic
 from tak_thermo_ros.core.diagnose import diagnose
 from tak_thermo_ros.core.effects import LIBRARY, resolve_effect, seconds_from_ns
 from tak_thermo_ros.core.fit import fit_model, residual_counts
-from tak_thermo_ros.core.record import align
-from tak_thermo_ros.core.simulate import PROFILES, Scenario, simulate
-from tak_thermo_ros.core.validate import validate_gravity
+from tak_thermo_ros.core.records.record import align
+from tak_thermo_ros.core.simulation.imu import PROFILES, Scenario, simulate
+from tak_thermo_ros.core.link.validate import validate_gravity
 
 RESULTS = Path(__file__).resolve().parent / 'results'
 TARGET_S = 60.0
@@ -101,7 +101,7 @@ def bench_speed(workdir: Path, hours: float, rate_hz: float) -> dict[str, object
     subprocess.run(command, capture_output=True, text=True, check=True, env=single)
     wall_single = time.perf_counter() - start
 
-    from tak_thermo_ros.core.calibration_file import load_calibration
+    from tak_thermo_ros.core.records.calibration_file import load_calibration
     calibration = load_calibration(params)
     stages = {}
     start = time.perf_counter()

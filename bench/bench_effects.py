@@ -11,11 +11,11 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from tak_thermo_ros.core.correction import Corrector
+from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.core.effects import LIBRARY, seconds_from_ns
 from tak_thermo_ros.core.fit import fit_calibration, fit_model, residual_counts
-from tak_thermo_ros.core.record import align
-from tak_thermo_ros.core.simulate import Scenario, simulate
+from tak_thermo_ros.core.records.record import align
+from tak_thermo_ros.core.simulation.imu import Scenario, simulate
 
 EXAMPLES = {
     'thermal_lag': {'tau_s': 1800.0, 'slope_z': 0.03},

@@ -31,8 +31,8 @@ from pathlib import Path
 
 
 from benchlib import machine, stretched, tak_calib_command
-from tak_thermo_ros.core.calibration_file import write_text_atomic
-from tak_thermo_ros.core.simulate import Scenario
+from tak_thermo_ros.core.records.calibration_file import write_text_atomic
+from tak_thermo_ros.core.simulation.imu import Scenario
 
 RESULTS = Path(__file__).resolve().parent / 'results'
 TARGET_MISSED = 3
@@ -72,7 +72,7 @@ def build_bag(workdir: Path, hours: float, rate_hz: float, storage: str) -> Path
     if bag.exists():
         return bag
     from tak_thermo_ros.bagio import write_record
-    from tak_thermo_ros.core.simulate import simulate
+    from tak_thermo_ros.core.simulation.imu import simulate
     workdir.mkdir(parents=True, exist_ok=True)
     scenario = bench_scenario(hours, rate_hz)
     start = time.perf_counter()

@@ -403,8 +403,8 @@ def in_process_cost(params: Path, count: int = 200_000) -> dict:
     from geometry_msgs.msg import Vector3Stamped
     from sensor_msgs.msg import Imu
 
-    from tak_thermo_ros.core.calibration_file import load_calibration
-    from tak_thermo_ros.core.online import OnlineCompensator
+    from tak_thermo_ros.core.records.calibration_file import load_calibration
+    from tak_thermo_ros.core.link.online import OnlineCompensator
     core = OnlineCompensator(load_calibration(params))
     core.process_temperature(8300.0, 0.0)
     message = Vector3Stamped()
@@ -613,8 +613,8 @@ def main() -> int:
     soak_count = 20_000 if args.quick else 1_000_000
     rounds = 2 if args.quick else 10
 
-    from tak_thermo_ros.core.calibration_file import save_calibration
-    from tak_thermo_ros.core.simulate import Scenario
+    from tak_thermo_ros.core.records.calibration_file import save_calibration
+    from tak_thermo_ros.core.simulation.imu import Scenario
 
     with tempfile.TemporaryDirectory(prefix='bench_node_') as tmp:
         workdir = Path(tmp)
@@ -749,8 +749,8 @@ def in_process_driver_cost(params: Path, count: int = 50_000) -> dict:
     values out of an Imu, ``process_values``, the corrected Imu filled (as ``_on_imu``)."""
     from sensor_msgs.msg import Imu
 
-    from tak_thermo_ros.core.calibration_file import load_unit
-    from tak_thermo_ros.core.online import OnlineCompensator
+    from tak_thermo_ros.core.records.calibration_file import load_unit
+    from tak_thermo_ros.core.link.online import OnlineCompensator
     core = OnlineCompensator(load_unit(params))
     core.process_temperature(21.0, 0.0)
     message = Imu()
@@ -785,8 +785,8 @@ def in_process_driver_cost(params: Path, count: int = 50_000) -> dict:
 
 def driver_params(path: Path) -> None:
     """The simulator's default driver unit as a version-2 calibration file."""
-    from tak_thermo_ros.core.calibration_file import save_unit
-    from tak_thermo_ros.core.simulate import Scenario
+    from tak_thermo_ros.core.records.calibration_file import save_unit
+    from tak_thermo_ros.core.simulation.imu import Scenario
     save_unit(path, Scenario(output='imu').driver_truth())
 
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tak_thermo_ros.core.simulate import Scenario
+from tak_thermo_ros.core.simulation.imu import Scenario
 
 
 def tak_calib_command() -> list[str]:

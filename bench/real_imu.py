@@ -35,14 +35,14 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from tak_thermo_ros.core.calibration_file import write_text_atomic  # noqa: E402
-from tak_thermo_ros.core.csv_log import CsvImportOptions, read_csv_log  # noqa: E402
+from tak_thermo_ros.core.records.calibration_file import write_text_atomic  # noqa: E402
+from tak_thermo_ros.core.records.csv_log import CsvImportOptions, read_csv_log  # noqa: E402
 from tak_thermo_ros.core.diagnose import diagnose  # noqa: E402
 from tak_thermo_ros.core.effects import seconds_from_ns  # noqa: E402
 from tak_thermo_ros.core.fit import fit_calibration, fit_model, residual_counts  # noqa: E402
-from tak_thermo_ros.core.record import align  # noqa: E402
-from tak_thermo_ros.core.simulate import STANDARD_GRAVITY  # noqa: E402
-from tak_thermo_ros.core.validate import validate_gravity  # noqa: E402
+from tak_thermo_ros.core.records.record import align  # noqa: E402
+from tak_thermo_ros.core.simulation.imu import STANDARD_GRAVITY  # noqa: E402
+from tak_thermo_ros.core.link.validate import validate_gravity  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 LOG = ROOT / 'data' / 'tofupilot-imu-thermal' / 'imu_raw_data.csv'

@@ -50,9 +50,9 @@ def draw(figures: dict) -> None:
     import numpy as np
 
     from tak_thermo_ros.bagio import read_record
-    from tak_thermo_ros.core.calibration_file import load_calibration
-    from tak_thermo_ros.core.record import align
-    from tak_thermo_ros.core.validate import validate_gravity
+    from tak_thermo_ros.core.records.calibration_file import load_calibration
+    from tak_thermo_ros.core.records.record import align
+    from tak_thermo_ros.core.link.validate import validate_gravity
 
     samples = align(read_record(OUT / 'run2', progress=False), use_reference=False)
     result = validate_gravity(load_calibration(OUT / 'params.yaml'), samples.counts, samples.temp_code)

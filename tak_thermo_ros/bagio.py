@@ -14,7 +14,7 @@ The bag contract (each topic name is an option):
 
 Both rosbag2 storages (mcap, sqlite3) are read; bags are written to a temporary directory
 beside the target and renamed into place, so a failed write leaves nothing behind; an existing
-output is refused unless ``force`` (:mod:`tak_thermo_ros.core.files`).
+output is refused unless ``force`` (:mod:`tak_thermo_ros.core.records.files`).
 """
 
 from __future__ import annotations
@@ -34,10 +34,10 @@ from rosbags.typesys import Stores, get_typestore
 
 from tak_thermo_ros.cdr import MessageArrays, decode_messages, encode_imus
 from tak_thermo_ros.core.effects import aux_signal
-from tak_thermo_ros.core.correction import imu_covariances
-from tak_thermo_ros.core.files import BAG, check_output, install_directory, staging_directory
-from tak_thermo_ros.core.model import InputKind
-from tak_thermo_ros.core.record import NANOSECONDS, ChannelRecord, DriverRecord
+from tak_thermo_ros.core.link.correction import imu_covariances
+from tak_thermo_ros.core.records.files import BAG, check_output, install_directory, staging_directory
+from tak_thermo_ros.core.link.model import InputKind
+from tak_thermo_ros.core.records.record import NANOSECONDS, ChannelRecord, DriverRecord
 from tak_thermo_ros.errors import BagError, CdrError, OutputError
 from tak_thermo_ros.progress import Progress
 
@@ -492,7 +492,7 @@ def _read_vectors(topic: _TopicReader, bar: Progress, path: Path, *,
 class _AtomicBag:
     """A Writer into a temporary directory that is renamed to ``path`` on success.
 
-    The overwrite rule of :mod:`tak_thermo_ros.core.files` holds: an existing output is
+    The overwrite rule of :mod:`tak_thermo_ros.core.records.files` holds: an existing output is
     refused unless ``force``, and only a bag directory is ever replaced. A failure (a full
     disk, no permission) or an interruption removes the temporary directory; the error names
     ``path``.
@@ -562,7 +562,7 @@ def write_record(path: str | os.PathLike[str], record: ChannelRecord, *, topics:
                  storage: str = 'mcap', force: bool = False, aux_types: dict[str, str] | None = None) -> None:
     """Write a run in the bag contract (messages in stamp order, bag time = header stamp).
 
-    :param force: replace an existing bag at ``path`` (:func:`tak_thermo_ros.core.files.check_output`).
+    :param force: replace an existing bag at ``path`` (:func:`tak_thermo_ros.core.records.files.check_output`).
     :param aux_types: message type of each of the record's auxiliary signals ``aux:TOPIC``
         (default ``std_msgs/msg/Float64``); each is written on its topic, bag time = its stamp.
     """
@@ -613,7 +613,7 @@ def write_driver_record(path: str | os.PathLike[str], record: DriverRecord, *, t
                         storage: str = 'mcap', force: bool = False, aux_types: dict[str, str] | None = None) -> None:
     """Write a driver run (Imu, temperature in C, references if any) in stamp order.
 
-    :param force: replace an existing bag at ``path`` (:func:`tak_thermo_ros.core.files.check_output`).
+    :param force: replace an existing bag at ``path`` (:func:`tak_thermo_ros.core.records.files.check_output`).
     :param aux_types: as :func:`write_record`.
     """
     serialize = TYPESTORE.serialize_cdr
@@ -687,11 +687,11 @@ def write_imu(path: str | os.PathLike[str], stamp_ns: np.ndarray, frame_id: str,
     """Write corrected samples as ``sensor_msgs/msg/Imu`` (REP 103 axes, m/s^2, rad/s).
 
     Counts input: the specific force only, orientation and angular velocity marked not
-    provided (:func:`~tak_thermo_ros.core.correction.imu_covariances`). Driver input: also the
+    provided (:func:`~tak_thermo_ros.core.link.correction.imu_covariances`). Driver input: also the
     corrected angular velocity, and the driver's orientation and its covariance passed through
     per message.
 
-    :param force: replace an existing bag at ``path`` (:func:`tak_thermo_ros.core.files.check_output`).
+    :param force: replace an existing bag at ``path`` (:func:`tak_thermo_ros.core.records.files.check_output`).
     :param encoder: one of :data:`ENCODERS` (default :data:`IMU_ENCODER`).
     """
     with _AtomicBag(path, storage, force=force) as writer:
@@ -925,7 +925,7 @@ def iter_blocks(path: str | os.PathLike[str], *, topics: Topics = Topics(), kind
     Each block holds its main-stream messages and the temperature, reference and auxiliary
     signal messages logged since the previous block, as a :class:`ChannelRecord` (counts bags:
     the metadata's nominal scale attached) or a :class:`DriverRecord` (driver bags), for
-    :func:`tak_thermo_ros.core.blocks.align_block`. Every block's ``aux`` names every auxiliary
+    :func:`tak_thermo_ros.core.records.blocks.align_block`. Every block's ``aux`` names every auxiliary
     signal of the bag (empty arrays where the block has none of its messages). The raw messages
     of a block are collected per topic and decoded together.
 

@@ -3,7 +3,7 @@
 Every deliberate failure prints one line ``tak_calib: error: ...`` and exits with status 2;
 no traceback reaches the user (``tak_calib --debug`` shows it). Interrupted by SIGINT or
 SIGTERM, it removes what it was writing and exits with 130 or 143. Every output obeys one
-overwrite rule (:mod:`tak_thermo_ros.core.files`): an existing output is refused unless
+overwrite rule (:mod:`tak_thermo_ros.core.records.files`): an existing output is refused unless
 ``--force``, and only regular files, bags and report directories are ever replaced.
 """
 
@@ -29,14 +29,14 @@ from dataclasses import dataclass, replace  # noqa: E402
 import numpy as np  # noqa: E402
 
 from tak_thermo_ros import options as bounds
-from tak_thermo_ros.core.calibration_file import load_unit, save_unit
-from tak_thermo_ros.core.files import BAG, FILE, REPORT, atomic_directory, check_output, write_text_atomic
-from tak_thermo_ros.core.correction import Corrector, OutOfRange
+from tak_thermo_ros.core.records.calibration_file import load_unit, save_unit
+from tak_thermo_ros.core.records.files import BAG, FILE, REPORT, atomic_directory, check_output, write_text_atomic
+from tak_thermo_ros.core.link.correction import Corrector, OutOfRange
 from tak_thermo_ros.core.effects.aux_signal import signals_with_values
-from tak_thermo_ros.core.model import AXES, InputKind, UnitCalibration
-from tak_thermo_ros.core.record import REFERENCE_LIMIT, TEMPERATURE_RANGE, AlignedSamples
-from tak_thermo_ros.core.record import require_signals
-from tak_thermo_ros.core.simulate import STANDARD_GRAVITY, Scenario, load_scenario, simulate
+from tak_thermo_ros.core.link.model import AXES, InputKind, UnitCalibration
+from tak_thermo_ros.core.records.record import REFERENCE_LIMIT, TEMPERATURE_RANGE, AlignedSamples
+from tak_thermo_ros.core.records.record import require_signals
+from tak_thermo_ros.core.simulation.imu import STANDARD_GRAVITY, Scenario, load_scenario, simulate
 from tak_thermo_ros.errors import TakError
 from tak_thermo_ros.streaming import DIAGNOSE_MAX_SAMPLES, EFFECT_FIT_MAX_SAMPLES, SENSOR_NAMES
 
@@ -112,7 +112,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         scenario = replace(scenario, seed=args.seed)
     run = simulate(scenario)
     from tak_thermo_ros.bagio import AUX_TYPES
-    from tak_thermo_ros.core.simulate import supply_signal_name
+    from tak_thermo_ros.core.simulation.imu import supply_signal_name
     aux_types = {supply_signal_name(scenario): AUX_TYPES[scenario.record_supply_type]} if scenario.record_supply else None
     if run.driver is not None:
         driver = run.driver
@@ -378,7 +378,7 @@ def _check_kind(args: argparse.Namespace, unit: UnitCalibration, kind: InputKind
 def cmd_import_csv(args: argparse.Namespace) -> int:
     """Convert a delimited log of a static thermal run into a bag (counts, or a driver bag with a gyroscope)."""
     from tak_thermo_ros.bagio import write_driver_record, write_record
-    from tak_thermo_ros.core.csv_log import CsvImportOptions, delimiter_from_option, read_csv_log
+    from tak_thermo_ros.core.records.csv_log import CsvImportOptions, delimiter_from_option, read_csv_log
     options = CsvImportOptions(
         acc_columns=tuple(args.acc_columns), temp_column=args.temp_column, time_column=args.time_column,
         time_unit=args.time_unit, acc_unit=args.acc_unit, acc_resolution=args.acc_resolution,

@@ -9,7 +9,7 @@ path). A unit that fails is reported with its one-line error; the batch goes on.
 Outputs under ``OUT_DIR``: ``units/<unit>/{params.yaml, diagnose.json, validation.json,
 log.txt}``, ``fleet.json`` (one row per unit, the batch's robust spread and the flags) and
 ``fleet.html`` (the spread of every coefficient, the flagged units). The statistics live in
-:mod:`tak_thermo_ros.core.fleet`, the report in :mod:`tak_thermo_ros.fleet_report`.
+:mod:`tak_thermo_ros.core.diagnose.fleet`, the report in :mod:`tak_thermo_ros.fleet_report`.
 
 The bags and ``OUT_DIR`` must be reachable under the same paths from every worker (a shared
 file system when the scheduler runs elsewhere).
@@ -36,9 +36,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence, TextIO
 
-from tak_thermo_ros.core.calibration_file import NODE_NAME, write_text_atomic
-from tak_thermo_ros.core.correction import OutOfRange
-from tak_thermo_ros.core.fleet import (
+from tak_thermo_ros.core.records.calibration_file import NODE_NAME, write_text_atomic
+from tak_thermo_ros.core.link.correction import OutOfRange
+from tak_thermo_ros.core.diagnose.fleet import (
     DEFAULT_FLAG_SIGMA,
     MIN_UNITS_FOR_SPREAD,
     batch_spreads,
@@ -47,8 +47,8 @@ from tak_thermo_ros.core.fleet import (
     flag_units,
     majority_verdict,
 )
-from tak_thermo_ros.core.model import AXES
-from tak_thermo_ros.core.simulate import STANDARD_GRAVITY
+from tak_thermo_ros.core.link.model import AXES
+from tak_thermo_ros.core.simulation.imu import STANDARD_GRAVITY
 from tak_thermo_ros.errors import TakError
 
 STATUS_OK = 'ok'

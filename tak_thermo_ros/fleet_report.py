@@ -22,8 +22,8 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from tak_thermo_ros.core.calibration_file import write_text_atomic  # noqa: E402
-from tak_thermo_ros.core.model import AXES  # noqa: E402
+from tak_thermo_ros.core.records.calibration_file import write_text_atomic  # noqa: E402
+from tak_thermo_ros.core.link.model import AXES  # noqa: E402
 
 NORMAL = '#1f77b4'
 FLAGGED = '#d62728'

@@ -20,10 +20,10 @@ Both publish ``/diagnostics`` at 1 Hz.
 When the calibration holds a recorded-signal term (``aux:TOPIC``, e.g. the supply voltage on
 ``/power/battery_state``), the node also subscribes that topic, with the type its publisher
 advertises (waiting up to :data:`SIGNAL_DISCOVERY_S` at start-up, then looked up again every
-diagnostics period); the value is held like the temperature (:mod:`tak_thermo_ros.core.online`).
+diagnostics period); the value is held like the temperature (:mod:`tak_thermo_ros.core.link.online`).
 
 This is a thin wrapper: callbacks turn messages into numbers, hand them to
-:class:`~tak_thermo_ros.core.online.OnlineCompensator` (no ROS in it) and turn the result
+:class:`~tak_thermo_ros.core.link.online.OnlineCompensator` (no ROS in it) and turn the result
 back into a message. The only module of the package that imports rclpy.
 """
 
@@ -46,7 +46,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, Temperature
 
-from tak_thermo_ros.core.calibration_file import (
+from tak_thermo_ros.core.records.calibration_file import (
     NODE_NAME,
     flatten_parameters,
     load_unit,
@@ -54,10 +54,10 @@ from tak_thermo_ros.core.calibration_file import (
     unit_from_mapping,
     unit_to_mapping,
 )
-from tak_thermo_ros.core.correction import OutOfRange
+from tak_thermo_ros.core.link.correction import OutOfRange
 from tak_thermo_ros.core.effects.aux_signal import AUX_FIELDS, signal_field, split_signal_name
-from tak_thermo_ros.core.model import InputKind, UnitCalibration
-from tak_thermo_ros.core.online import Level, OnlineCompensator, StaleTemperature
+from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
+from tak_thermo_ros.core.link.online import Level, OnlineCompensator, StaleTemperature
 from tak_thermo_ros.errors import CalibrationError, TakError
 
 COUNTS_TOPIC = 'tak/counts'

@@ -9,9 +9,9 @@ follows from the physics or from what the code downstream can represent:
 - local gravity lies within :data:`GRAVITY_MIN` .. :data:`GRAVITY_MAX` m/s^2 (every place on the
   Earth's surface, from high mountains at the equator, about 9.76, to the poles, about 9.83,
   with a margin);
-- a temperature code lies strictly within +-:data:`~tak_thermo_ros.core.record.TEMP_CODE_LIMIT`
+- a temperature code lies strictly within +-:data:`~tak_thermo_ros.core.records.record.TEMP_CODE_LIMIT`
   (beyond any 24-bit sensor code), a reference component within
-  +-:data:`~tak_thermo_ros.core.record.REFERENCE_LIMIT` m/s^2;
+  +-:data:`~tak_thermo_ros.core.records.record.REFERENCE_LIMIT` m/s^2;
 - times (``--settle-time``) are finite and not negative; resolutions are positive; a nominal
   scale lies within 0 .. :data:`MAX_NOMINAL_SCALE` counts per m/s^2;
 - polynomial orders lie within 0 .. :data:`MAX_ORDER`; cross-validation needs 2 folds or more;
@@ -24,7 +24,7 @@ import argparse
 import math
 from typing import Callable
 
-from tak_thermo_ros.core.record import REFERENCE_LIMIT, TEMP_CODE_LIMIT
+from tak_thermo_ros.core.records.record import REFERENCE_LIMIT, TEMP_CODE_LIMIT
 
 GRAVITY_MIN = 9.7
 """Lowest accepted local gravity, m/s^2."""

@@ -44,10 +44,10 @@ from tak_thermo_ros.core.diagnose import (  # noqa: E402
     Diagnosis,
     binned_means,
 )
-from tak_thermo_ros.core.model import AXES  # noqa: E402
-from tak_thermo_ros.core.record import AlignedSamples  # noqa: E402
-from tak_thermo_ros.core.simulate import STANDARD_GRAVITY  # noqa: E402
-from tak_thermo_ros.core.validate import validate_gravity  # noqa: E402
+from tak_thermo_ros.core.link.model import AXES  # noqa: E402
+from tak_thermo_ros.core.records.record import AlignedSamples  # noqa: E402
+from tak_thermo_ros.core.simulation.imu import STANDARD_GRAVITY  # noqa: E402
+from tak_thermo_ros.core.link.validate import validate_gravity  # noqa: E402
 
 HEATING = '#d62728'
 COOLING = '#1f77b4'

@@ -2,9 +2,9 @@
 
 Each pass reads the bag once in log order (:func:`tak_thermo_ros.bagio.iter_blocks`), aligns
 each block on the main stream with the held values carried over
-(:class:`~tak_thermo_ros.core.blocks.BlockAligner`) and hands the block to an accumulator:
-the blocked-QR fit (:class:`~tak_thermo_ros.core.stream_fit.StreamingFit`), the corrector
-that carries the effects' state (:class:`~tak_thermo_ros.core.stream_correction.BlockUnitCorrector`)
+(:class:`~tak_thermo_ros.core.records.blocks.BlockAligner`) and hands the block to an accumulator:
+the blocked-QR fit (:class:`~tak_thermo_ros.core.fit.stream.StreamingFit`), the corrector
+that carries the effects' state (:class:`~tak_thermo_ros.core.link.stream_correction.BlockUnitCorrector`)
 and an open bag writer, the validation sums, or a bounded, evenly spread subsample (the
 effects' shape search, ``diagnose``). A driver bag without reference topics (a static run)
 takes one extra pass for the mean measured direction first. See docs/streaming.md.
@@ -20,14 +20,14 @@ from typing import TYPE_CHECKING, Callable, Iterator, Sequence
 
 import numpy as np
 
-from tak_thermo_ros.core.blocks import BlockAligner, add_counts
-from tak_thermo_ros.core.correction import Corrector, OutOfRange, acceleration_variance
+from tak_thermo_ros.core.records.blocks import BlockAligner, add_counts
+from tak_thermo_ros.core.link.correction import Corrector, OutOfRange, acceleration_variance
 from tak_thermo_ros.core.fit import FitResult, fit_model
-from tak_thermo_ros.core.model import InputKind, UnitCalibration
-from tak_thermo_ros.core.record import AlignedSamples, ChannelRecord, DriverRecord, require_signals
-from tak_thermo_ros.core.static_run import StaticReference, check_static, rate_line, reference_line, static_reference
-from tak_thermo_ros.core.stream_correction import BlockUnitCorrector, GravityCheck, RateCheck
-from tak_thermo_ros.core.stream_fit import StreamingEffectFit, StreamingFit
+from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
+from tak_thermo_ros.core.records.record import AlignedSamples, ChannelRecord, DriverRecord, require_signals
+from tak_thermo_ros.core.records.static_run import StaticReference, check_static, rate_line, reference_line, static_reference
+from tak_thermo_ros.core.link.stream_correction import BlockUnitCorrector, GravityCheck, RateCheck
+from tak_thermo_ros.core.fit.stream import StreamingEffectFit, StreamingFit
 from tak_thermo_ros.errors import FitError, TakError
 
 if TYPE_CHECKING:
@@ -515,7 +515,7 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
               storage: str = 'mcap', out_of_range: OutOfRange = OutOfRange.CLAMP, force: bool = False) -> Applied:
     """Correct a bag block by block into an Imu bag that stays open (``tak_calib apply``).
 
-    :param force: replace an existing output bag (:func:`tak_thermo_ros.core.files.check_output`).
+    :param force: replace an existing output bag (:func:`tak_thermo_ros.core.records.files.check_output`).
     :raises TakError: a corrected value is not finite (nothing is written).
     """
     from tak_thermo_ros.bagio import ImuBagWriter, bag_streams, iter_blocks

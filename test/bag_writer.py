@@ -8,7 +8,7 @@ import numpy as np
 from rosbags.rosbag2 import Writer
 
 from tak_thermo_ros.bagio import TEMPERATURE, TYPESTORE, VECTOR3_STAMPED, Topics
-from tak_thermo_ros.core.record import NANOSECONDS, ChannelRecord
+from tak_thermo_ros.core.records.record import NANOSECONDS, ChannelRecord
 
 _types = TYPESTORE.types
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from node_helpers import domain_id, ros_environment
-from tak_thermo_ros.core.record import align
-from tak_thermo_ros.core.simulate import Scenario, simulate
+from tak_thermo_ros.core.records.record import align
+from tak_thermo_ros.core.simulation.imu import Scenario, simulate
 
 SHORT = Scenario(plateau_hours=0.5, ramp_celsius_per_minute=1.0, board_lag_s=300.0, dwell_s=30.0)
 """The paper's five plateaus, shortened: about 3 h of 1 Hz samples."""

@@ -13,17 +13,17 @@ import yaml
 from conftest import SHORT
 from tak_thermo_ros import cli
 from tak_thermo_ros.bagio import read_driver_record, read_record
-from tak_thermo_ros.core.calibration_file import (
+from tak_thermo_ros.core.records.calibration_file import (
     calibration_from_mapping,
     calibration_to_mapping,
     load_unit,
     parse_parameters_yaml,
 )
-from tak_thermo_ros.core.correction import Corrector
+from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.core.effects import aux_effect_class, resolve_effect
-from tak_thermo_ros.core.online import STALE_SIGNAL, WAITING_FOR_SIGNAL, OnlineCompensator, StaleTemperature
-from tak_thermo_ros.core.record import align, require_signals
-from tak_thermo_ros.core.simulate import (
+from tak_thermo_ros.core.link.online import STALE_SIGNAL, WAITING_FOR_SIGNAL, OnlineCompensator, StaleTemperature
+from tak_thermo_ros.core.records.record import align, require_signals
+from tak_thermo_ros.core.simulation.imu import (
     SUPPLY_AXIS_WEIGHTS,
     SUPPLY_NOMINAL_VOLTS,
     SUPPLY_VOLTS_RMS,
@@ -31,7 +31,7 @@ from tak_thermo_ros.core.simulate import (
     first_order_lag,
     simulate,
 )
-from tak_thermo_ros.core.validate import validate_gravity
+from tak_thermo_ros.core.link.validate import validate_gravity
 from tak_thermo_ros.errors import CalibrationError, FitError
 
 SUPPLY = 'aux:/power/battery_state'
@@ -297,7 +297,7 @@ def test_online_core_waits_for_holds_and_drops_a_stale_signal_like_the_temperatu
 
 def test_scenario_refuses_a_supply_topic_or_type_it_cannot_write():
     """record_supply must be an absolute topic without ':'; record_supply_type one of the two types."""
-    from tak_thermo_ros.core.simulate import scenario_from_mapping
+    from tak_thermo_ros.core.simulation.imu import scenario_from_mapping
     from tak_thermo_ros.errors import ScenarioError
     with pytest.raises(ScenarioError, match='record_supply'):
         scenario_from_mapping({'record_supply': 'power'})

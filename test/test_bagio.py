@@ -12,8 +12,8 @@ from rosbags.typesys import Stores, get_typestore
 
 from conftest import SHORT
 from tak_thermo_ros.bagio import Topics, read_imu, read_record, write_imu, write_record
-from tak_thermo_ros.core.record import ChannelRecord
-from tak_thermo_ros.core.simulate import simulate
+from tak_thermo_ros.core.records.record import ChannelRecord
+from tak_thermo_ros.core.simulation.imu import simulate
 from tak_thermo_ros.errors import BagError
 
 TINY = replace(SHORT, plateaus_celsius=(10.0, 30.0), plateau_hours=0.02, ramp_celsius_per_minute=20.0, seed=3)

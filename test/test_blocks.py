@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from conftest import SHORT
-from tak_thermo_ros.core.blocks import BlockAligner, concatenate
-from tak_thermo_ros.core.record import ChannelRecord, align
-from tak_thermo_ros.core.simulate import simulate
+from tak_thermo_ros.core.records.blocks import BlockAligner, concatenate
+from tak_thermo_ros.core.records.record import ChannelRecord, align
+from tak_thermo_ros.core.simulation.imu import simulate
 
 
 def log_order_blocks(record: ChannelRecord, block_samples: int) -> list[ChannelRecord]:

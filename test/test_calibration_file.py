@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from tak_thermo_ros.core.calibration_file import (
+from tak_thermo_ros.core.records.calibration_file import (
     calibration_from_mapping,
     calibration_to_mapping,
     flatten_parameters,
@@ -18,7 +18,7 @@ from tak_thermo_ros.core.calibration_file import (
     save_calibration,
     write_text_atomic,
 )
-from tak_thermo_ros.core.simulate import Scenario
+from tak_thermo_ros.core.simulation.imu import Scenario
 from tak_thermo_ros.errors import CalibrationError
 
 

@@ -21,7 +21,7 @@ from rclpy.context import Context
 from rclpy.node import Node
 
 from node_helpers import domain_id, ros_environment
-from tak_thermo_ros.core.calibration_file import (
+from tak_thermo_ros.core.records.calibration_file import (
     LIMITS,
     flatten_parameters,
     load_calibration,
@@ -34,8 +34,8 @@ from tak_thermo_ros.core.calibration_file import (
     unit_yaml,
 )
 from tak_thermo_ros.core.effects import LIBRARY
-from tak_thermo_ros.core.model import AxisModel, Calibration, InputKind, UnitCalibration
-from tak_thermo_ros.core.simulate import Scenario
+from tak_thermo_ros.core.link.model import AxisModel, Calibration, InputKind, UnitCalibration
+from tak_thermo_ros.core.simulation.imu import Scenario
 from tak_thermo_ros.errors import CalibrationError
 
 V1_FILE = '''\

@@ -17,8 +17,8 @@ from tak_thermo_ros import bagio
 from tak_thermo_ros.bagio import TYPESTORE, read_imu_messages, write_driver_record, write_record
 from tak_thermo_ros.cdr import decode_messages, encode_imus, encode_messages
 from tak_thermo_ros.cli import main
-from tak_thermo_ros.core.calibration_file import save_calibration, save_unit
-from tak_thermo_ros.core.simulate import simulate
+from tak_thermo_ros.core.records.calibration_file import save_calibration, save_unit
+from tak_thermo_ros.core.simulation.imu import simulate
 from tak_thermo_ros.errors import CdrError
 
 IMU = 'sensor_msgs/msg/Imu'

@@ -15,10 +15,10 @@ import yaml
 from conftest import SHORT
 from tak_thermo_ros.bagio import read_imu, read_record, write_record
 from tak_thermo_ros.cli import main
-from tak_thermo_ros.core.calibration_file import load_calibration
-from tak_thermo_ros.core.correction import Corrector, acceleration_variance
-from tak_thermo_ros.core.record import align
-from tak_thermo_ros.core.simulate import simulate
+from tak_thermo_ros.core.records.calibration_file import load_calibration
+from tak_thermo_ros.core.link.correction import Corrector, acceleration_variance
+from tak_thermo_ros.core.records.record import align
+from tak_thermo_ros.core.simulation.imu import simulate
 
 TAK_CALIB = str(Path(sys.executable).with_name('tak_calib'))
 
@@ -92,7 +92,7 @@ def test_bad_counts_are_dropped_and_reported(tmp_path):
     counts[12, 2] = 32767.0
     write_record(tmp_path / 'bad', replace(run.record, counts=counts))
     calibration = run.truth
-    from tak_thermo_ros.core.calibration_file import save_calibration
+    from tak_thermo_ros.core.records.calibration_file import save_calibration
     save_calibration(tmp_path / 'p.yaml', calibration)
     result = _run('apply', str(tmp_path / 'bad'), '--params', str(tmp_path / 'p.yaml'), '-o', str(tmp_path / 'imu'))
     assert result.returncode == 0, result.stderr

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tak_thermo_ros.core.correction import Corrector, OutOfRange, acceleration_variance
-from tak_thermo_ros.core.model import AxisModel, Calibration, horner_no_constant
-from tak_thermo_ros.core.simulate import Scenario
+from tak_thermo_ros.core.link.correction import Corrector, OutOfRange, acceleration_variance
+from tak_thermo_ros.core.link.model import AxisModel, Calibration, horner_no_constant
+from tak_thermo_ros.core.simulation.imu import Scenario
 
 
 @pytest.fixture

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tak_thermo_ros.core.correction import BLOCK_SAMPLES, Corrector, OutOfRange
-from tak_thermo_ros.core.simulate import Scenario
+from tak_thermo_ros.core.link.correction import BLOCK_SAMPLES, Corrector, OutOfRange
+from tak_thermo_ros.core.simulation.imu import Scenario
 
 
 def _inputs(count: int):

@@ -22,9 +22,9 @@ from tak_thermo_ros.cli import main
 from tak_thermo_ros.core.diagnose import design_driver_run, diagnose
 from tak_thermo_ros.core.diagnose.design import driver_table
 from tak_thermo_ros.core.fit import fit_model
-from tak_thermo_ros.core.model import InputKind
-from tak_thermo_ros.core.record import align
-from tak_thermo_ros.core.simulate import (
+from tak_thermo_ros.core.link.model import InputKind
+from tak_thermo_ros.core.records.record import align
+from tak_thermo_ros.core.simulation.imu import (
     RATE_TABLE_POSITIONS,
     RATE_TABLE_RATES,
     Scenario,

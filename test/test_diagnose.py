@@ -13,9 +13,9 @@ from conftest import noise_floor as noise_floor_of
 from tak_thermo_ros.core.diagnose import build_views, diagnose, explained_fraction, fold_labels, noise_floor
 from tak_thermo_ros.core.effects import LIBRARY, seconds_from_ns
 from tak_thermo_ros.core.fit import fit_model, residual_counts
-from tak_thermo_ros.core.record import align
-from tak_thermo_ros.core.simulate import PROFILES, Scenario, simulate
-from tak_thermo_ros.core.validate import validate_gravity
+from tak_thermo_ros.core.records.record import align
+from tak_thermo_ros.core.simulation.imu import PROFILES, Scenario, simulate
+from tak_thermo_ros.core.link.validate import validate_gravity
 
 
 @pytest.mark.parametrize('sigma', [0.6, 1.5])

@@ -15,16 +15,16 @@ import pytest
 
 from conftest import SHORT
 from conftest import noise_floor as noise_floor_of
-from tak_thermo_ros.core.calibration_file import calibration_from_mapping, calibration_to_mapping, flatten_parameters
-from tak_thermo_ros.core.correction import Corrector
+from tak_thermo_ros.core.records.calibration_file import calibration_from_mapping, calibration_to_mapping, flatten_parameters
+from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.core.diagnose import ModelScore, design_run, diagnose, write_design
 from tak_thermo_ros.core.diagnose.crossval import paired_block_t
 from tak_thermo_ros.core.diagnose.verdict import per_axis_t_threshold
 from tak_thermo_ros.core.effects import PER_AXIS, resolve_effect
 from tak_thermo_ros.core.fit import fit_model, residual_counts
-from tak_thermo_ros.core.record import AlignedSamples, align
-from tak_thermo_ros.core.simulate import PROFILES, Scenario, chamber_profile, load_scenario, simulate
-from tak_thermo_ros.core.validate import validate_gravity
+from tak_thermo_ros.core.records.record import AlignedSamples, align
+from tak_thermo_ros.core.simulation.imu import PROFILES, Scenario, chamber_profile, load_scenario, simulate
+from tak_thermo_ros.core.link.validate import validate_gravity
 from tak_thermo_ros.errors import FitError
 
 RATE_HZ = 0.1

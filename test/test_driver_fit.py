@@ -15,11 +15,11 @@ import pytest
 
 from tak_thermo_ros.bagio import Topics, write_driver_record
 from tak_thermo_ros.cli import main
-from tak_thermo_ros.core.calibration_file import load_unit
-from tak_thermo_ros.core.model import Calibration, InputKind
-from tak_thermo_ros.core.record import align
-from tak_thermo_ros.core.simulate import RATE_TABLE_POSITIONS, RATE_TABLE_RATES, Scenario, simulate
-from tak_thermo_ros.core.static_run import EARTH_RATE
+from tak_thermo_ros.core.records.calibration_file import load_unit
+from tak_thermo_ros.core.link.model import Calibration, InputKind
+from tak_thermo_ros.core.records.record import align
+from tak_thermo_ros.core.simulation.imu import RATE_TABLE_POSITIONS, RATE_TABLE_RATES, Scenario, simulate
+from tak_thermo_ros.core.records.static_run import EARTH_RATE
 
 SIGMAS = 5.0
 BIAS_ORDER, SCALE_ORDER = 3, 2

@@ -16,11 +16,11 @@ import pytest
 
 from tak_thermo_ros.bagio import write_driver_record
 from tak_thermo_ros.cli import main
-from tak_thermo_ros.core.calibration_file import load_unit
+from tak_thermo_ros.core.records.calibration_file import load_unit
 from tak_thermo_ros.core.effects import LIBRARY
 from tak_thermo_ros.core.fit import fit_model
-from tak_thermo_ros.core.record import align
-from tak_thermo_ros.core.simulate import RATE_TABLE_POSITIONS, RATE_TABLE_RATES, Scenario, simulate
+from tak_thermo_ros.core.records.record import align
+from tak_thermo_ros.core.simulation.imu import RATE_TABLE_POSITIONS, RATE_TABLE_RATES, Scenario, simulate
 
 SIGMAS = 5.0
 RUN = Scenario(output='imu', plateaus_celsius=(5.0, 35.0, 5.0, 35.0), ramp_celsius_per_minute=2.0,

@@ -11,11 +11,11 @@ import yaml
 
 from conftest import CREEP_MODULE
 from tak_thermo_ros.cli import main
-from tak_thermo_ros.core.correction import Corrector
+from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.core.effects import LIBRARY, seconds_from_ns
 from tak_thermo_ros.core.fit import fit_calibration, fit_model, residual_counts
-from tak_thermo_ros.core.record import align
-from tak_thermo_ros.core.simulate import PROFILES, Scenario, simulate
+from tak_thermo_ros.core.records.record import align
+from tak_thermo_ros.core.simulation.imu import PROFILES, Scenario, simulate
 from tak_thermo_ros.errors import FitError
 
 # Temperature codes on every sample: the hidden effects see the true code, the fit the recorded

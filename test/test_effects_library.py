@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from conftest import CREEP_MODULE, EXAMPLES
-from tak_thermo_ros.core.calibration_file import (
+from tak_thermo_ros.core.records.calibration_file import (
     calibration_from_mapping,
     calibration_to_mapping,
     flatten_parameters,
@@ -18,10 +18,10 @@ from tak_thermo_ros.core.calibration_file import (
     nest_parameters,
     save_calibration,
 )
-from tak_thermo_ros.core.correction import Corrector, OutOfRange, forward_counts
+from tak_thermo_ros.core.link.correction import Corrector, OutOfRange, forward_counts
 from tak_thermo_ros.core.effects import LIBRARY, Effect, resolve_effect, seconds, seconds_from_ns
-from tak_thermo_ros.core.model import Calibration
-from tak_thermo_ros.core.simulate import Scenario, scenario_from_mapping, simulate
+from tak_thermo_ros.core.link.model import Calibration
+from tak_thermo_ros.core.simulation.imu import Scenario, scenario_from_mapping, simulate
 from tak_thermo_ros.errors import CalibrationError, FitError, ScenarioError
 
 

@@ -9,9 +9,9 @@ import pytest
 
 from conftest import SHORT, noise_floor
 from tak_thermo_ros.core.fit import fit_calibration
-from tak_thermo_ros.core.plus_minus import fit_plus_minus, plus_minus
-from tak_thermo_ros.core.record import AlignedSamples, align
-from tak_thermo_ros.core.simulate import simulate
+from tak_thermo_ros.core.fit.plus_minus import fit_plus_minus, plus_minus
+from tak_thermo_ros.core.records.record import AlignedSamples, align
+from tak_thermo_ros.core.simulation.imu import simulate
 from tak_thermo_ros.errors import FitError
 
 

@@ -26,7 +26,7 @@ from hypothesis import strategies as st
 from conftest import SHORT
 from tak_thermo_ros.bagio import write_record
 from tak_thermo_ros.cli import main
-from tak_thermo_ros.core.fleet import (
+from tak_thermo_ros.core.diagnose.fleet import (
     MAD_TO_SIGMA,
     MIN_UNITS_FOR_SPREAD,
     Spread,
@@ -35,7 +35,7 @@ from tak_thermo_ros.core.fleet import (
     majority_verdict,
     robust_spread,
 )
-from tak_thermo_ros.core.simulate import DEFAULT_UNIT, simulate
+from tak_thermo_ros.core.simulation.imu import DEFAULT_UNIT, simulate
 from tak_thermo_ros.fleet import unit_names
 
 BIN = Path(sys.executable).parent

@@ -23,18 +23,18 @@ from node_helpers import (
 )
 from tak_thermo_ros import cli
 from tak_thermo_ros.bagio import read_imu, read_imu_messages, read_record, write_driver_record, write_record
-from tak_thermo_ros.core.calibration_file import (
+from tak_thermo_ros.core.records.calibration_file import (
     calibration_yaml,
     load_calibration,
     load_unit,
     unit_yaml,
     write_text_atomic,
 )
-from tak_thermo_ros.core.model import InputKind
-from tak_thermo_ros.core.correction import Corrector, OutOfRange, UnitCorrector
-from tak_thermo_ros.core.online import ONLINE_DROP_REASONS
-from tak_thermo_ros.core.record import align
-from tak_thermo_ros.core.simulate import Scenario, simulate
+from tak_thermo_ros.core.link.model import InputKind
+from tak_thermo_ros.core.link.correction import Corrector, OutOfRange, UnitCorrector
+from tak_thermo_ros.core.link.online import ONLINE_DROP_REASONS
+from tak_thermo_ros.core.records.record import align
+from tak_thermo_ros.core.simulation.imu import Scenario, simulate
 
 REPO = Path(__file__).resolve().parent.parent
 START_NS = 1_700_000_000 * NANOSECONDS

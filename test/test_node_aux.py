@@ -29,10 +29,10 @@ from tak_thermo_ros.bagio import (
     write_driver_record,
     write_record,
 )
-from tak_thermo_ros.core.calibration_file import unit_yaml, write_text_atomic
-from tak_thermo_ros.core.online import as_unit
+from tak_thermo_ros.core.records.calibration_file import unit_yaml, write_text_atomic
+from tak_thermo_ros.core.link.online import as_unit
 from tak_thermo_ros.core.effects import aux_effect_class
-from tak_thermo_ros.core.simulate import Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import Scenario, simulate
 
 SUPPLY = 'aux:/power/battery_state'
 SHORT_RUN = Scenario(sample_rate_hz=10.0, plateaus_celsius=(10.0, 30.0), plateau_hours=0.01,

@@ -37,7 +37,7 @@ from bag_writer import write_with_header_stamps
 from conftest import SHORT, examples
 from tak_thermo_ros.bagio import read_imu, read_record, write_record
 from tak_thermo_ros.cli import main
-from tak_thermo_ros.core.simulate import simulate
+from tak_thermo_ros.core.simulation.imu import simulate
 
 TAK_CALIB = str(Path(sys.executable).with_name('tak_calib'))
 SMALL = replace(SHORT, plateau_hours=0.03, ramp_celsius_per_minute=8.0, board_lag_s=60.0, dwell_s=10.0, seed=21)

@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tak_thermo_ros.core.csv_log import CsvImportOptions, read_csv_log
+from tak_thermo_ros.core.records.csv_log import CsvImportOptions, read_csv_log
 from tak_thermo_ros.core.diagnose import diagnose
 from tak_thermo_ros.core.fit import fit_calibration, fit_model, residual_counts
-from tak_thermo_ros.core.record import align
+from tak_thermo_ros.core.records.record import align
 
 REAL_LOG = Path(__file__).resolve().parents[1] / 'data' / 'tofupilot-imu-thermal' / 'imu_raw_data.csv'
 OPTIONS = CsvImportOptions(acc_columns=('imu.acc.x', 'imu.acc.y', 'imu.acc.z'), temp_column='imu.temperature',

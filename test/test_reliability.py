@@ -24,12 +24,12 @@ from conftest import CREEP_MODULE, SHORT
 from tak_thermo_ros import bagio
 from tak_thermo_ros.bagio import read_imu, read_record, write_record
 from tak_thermo_ros.cli import main
-from tak_thermo_ros.core.calibration_file import save_calibration
-from tak_thermo_ros.core.correction import Corrector
-from tak_thermo_ros.core.csv_log import MAX_STAMP_NS, CsvImportOptions, parse_csv_log
-from tak_thermo_ros.core.files import write_text_atomic
-from tak_thermo_ros.core.record import TEMP_CODE_LIMIT, ChannelRecord, align
-from tak_thermo_ros.core.simulate import simulate
+from tak_thermo_ros.core.records.calibration_file import save_calibration
+from tak_thermo_ros.core.link.correction import Corrector
+from tak_thermo_ros.core.records.csv_log import MAX_STAMP_NS, CsvImportOptions, parse_csv_log
+from tak_thermo_ros.core.records.files import write_text_atomic
+from tak_thermo_ros.core.records.record import TEMP_CODE_LIMIT, ChannelRecord, align
+from tak_thermo_ros.core.simulation.imu import simulate
 from tak_thermo_ros.errors import BagError, LogError, OutputError
 
 TAK_CALIB = str(Path(sys.executable).with_name('tak_calib'))
@@ -481,7 +481,7 @@ def test_a_temperature_code_beyond_any_sensor_code_names_row_and_column():
 
 def test_csv_rows_are_converted_in_chunks(monkeypatch):
     """Chunk boundaries change nothing: the same arrays with chunks of 3 rows as with one chunk."""
-    from tak_thermo_ros.core import csv_log
+    from tak_thermo_ros.core.records import csv_log
     lines = _csv([str(i) for i in range(10)])
     whole = parse_csv_log(lines, CSV_OPTIONS)
     monkeypatch.setattr(csv_log, 'CHUNK_ROWS', 3)

@@ -18,8 +18,8 @@ import pytest
 
 from node_helpers import Harness, NodeProcess, domain_id, ros_environment, stamp_of
 
-from tak_thermo_ros.core.calibration_file import load_calibration
-from tak_thermo_ros.core.correction import Corrector
+from tak_thermo_ros.core.records.calibration_file import load_calibration
+from tak_thermo_ros.core.link.correction import Corrector
 
 REPO = Path(__file__).resolve().parent.parent
 PACKAGE = 'tak_thermo_ros'
@@ -120,7 +120,7 @@ def test_ros2_run_with_a_driver_calibration(installed, tmp_path, monkeypatch):
     bag and nothing else: imu/data_raw + imu/temperature in, imu/data_compensated out, as apply."""
     from tak_thermo_ros import cli
     from tak_thermo_ros.bagio import read_imu_messages, write_driver_record
-    from tak_thermo_ros.core.simulate import Scenario, simulate
+    from tak_thermo_ros.core.simulation.imu import Scenario, simulate
     _, prefix = installed
     run = simulate(Scenario(output='imu', sample_rate_hz=10.0, plateaus_celsius=(10.0, 30.0), plateau_hours=0.005,
                             ramp_celsius_per_minute=10.0, board_lag_s=5.0, dwell_s=1.0))

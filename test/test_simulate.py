@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from conftest import SHORT
-from tak_thermo_ros.core.simulate import Scenario, load_scenario, simulate
+from tak_thermo_ros.core.simulation.imu import Scenario, load_scenario, simulate
 from tak_thermo_ros.errors import ScenarioError
 
 

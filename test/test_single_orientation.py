@@ -10,11 +10,11 @@ import yaml
 
 from tak_thermo_ros.bagio import write_record
 from tak_thermo_ros.cli import main
-from tak_thermo_ros.core.calibration_file import load_calibration, save_calibration
-from tak_thermo_ros.core.correction import Corrector
+from tak_thermo_ros.core.records.calibration_file import load_calibration, save_calibration
+from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.core.fit import fit_calibration
-from tak_thermo_ros.core.record import align
-from tak_thermo_ros.core.simulate import Scenario, simulate
+from tak_thermo_ros.core.records.record import align
+from tak_thermo_ros.core.simulation.imu import Scenario, simulate
 from tak_thermo_ros.errors import FitError
 
 STATIC = Scenario(positions=((0.0, 0.0, 1.0),), start_celsius=20.0, plateaus_celsius=(-10.0, 50.0),

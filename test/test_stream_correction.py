@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from conftest import EXAMPLES
-from tak_thermo_ros.core.correction import Corrector, OutOfRange, UnitCorrector
+from tak_thermo_ros.core.link.correction import Corrector, OutOfRange, UnitCorrector
 from tak_thermo_ros.core.effects import LIBRARY
-from tak_thermo_ros.core.model import InputKind, UnitCalibration
-from tak_thermo_ros.core.simulate import Scenario
-from tak_thermo_ros.core.stream_correction import BlockCorrector, BlockUnitCorrector, GravityCheck, RateCheck
-from tak_thermo_ros.core.validate import validate_gravity, validate_rate
+from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
+from tak_thermo_ros.core.simulation.imu import Scenario
+from tak_thermo_ros.core.link.stream_correction import BlockCorrector, BlockUnitCorrector, GravityCheck, RateCheck
+from tak_thermo_ros.core.link.validate import validate_gravity, validate_rate
 
 SPLITS = [1, 2, 999, 1000, 2500]
 

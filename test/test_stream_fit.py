@@ -9,9 +9,9 @@ import pytest
 
 from conftest import SHORT
 from tak_thermo_ros.core.fit import fit_calibration
-from tak_thermo_ros.core.record import AlignedSamples, align
-from tak_thermo_ros.core.simulate import simulate
-from tak_thermo_ros.core.stream_fit import StreamingFit, fit_in_blocks
+from tak_thermo_ros.core.records.record import AlignedSamples, align
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.fit.stream import StreamingFit, fit_in_blocks
 from tak_thermo_ros.errors import FitError
 
 

@@ -11,12 +11,12 @@ import pytest
 from conftest import SHORT
 from tak_thermo_ros.bagio import (AUX_TYPES, DECODERS, Topics, iter_blocks, read_driver_record, read_imu_messages, read_record,
                                   write_driver_record, write_imu, write_record)
-from tak_thermo_ros.core.correction import UnitCorrector, acceleration_variance
+from tak_thermo_ros.core.link.correction import UnitCorrector, acceleration_variance
 from tak_thermo_ros.core.effects import ThermalLag, Warmup
 from tak_thermo_ros.core.fit import fit_calibration, fit_model
-from tak_thermo_ros.core.model import InputKind, UnitCalibration
-from tak_thermo_ros.core.record import align
-from tak_thermo_ros.core.simulate import Scenario, simulate
+from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
+from tak_thermo_ros.core.records.record import align
+from tak_thermo_ros.core.simulation.imu import Scenario, simulate
 from tak_thermo_ros.streaming import FitSettings, StreamOptions, apply_bag, bounded_run, fit_bag
 
 SMALL = StreamOptions(topics=Topics(), progress=False, block_samples=500)
@@ -174,7 +174,7 @@ def test_block_decoder_equals_per_message_decoder_and_blocks_carry_the_recorded_
 def test_streamed_apply_holds_a_recorded_signal_across_blocks(tmp_path):
     """An aux: effect: blocks of 500 write the messages of one whole-run correction, the samples
     before the signal's first value dropped by name."""
-    from tak_thermo_ros.core.record import require_signals
+    from tak_thermo_ros.core.records.record import require_signals
     run = simulate(replace(SHORT, plateau_hours=0.05, plateaus_celsius=(10.0, 30.0), supply_voltage_drift=2.0,
                            record_supply='/p', record_supply_type='float64', seed=12))
     record = run.record
@@ -202,7 +202,7 @@ def test_a_recorded_signal_effect_on_a_long_run_is_fitted_in_two_passes(tmp_path
     in-memory fit of the whole run.
     """
     from test_aux_signal import supply_truth
-    from tak_thermo_ros.core.record import require_signals
+    from tak_thermo_ros.core.records.record import require_signals
     run = simulate(replace(SHORT, plateau_hours=0.1, plateaus_celsius=(10.0, 30.0), supply_voltage_drift=3.0,
                            record_supply='/p', record_supply_type='float64', seed=14))
     stamps, volts = run.record.aux['aux:/p']
@@ -228,7 +228,7 @@ def test_a_recorded_signal_effect_on_a_long_run_is_fitted_in_two_passes(tmp_path
 def test_subsample_arrays_grow_beyond_the_expected_size_and_keep_every_stride_row(driver_bag):
     """The subsample's arrays double when a run holds more rows than expected; the rows kept are
     those of every_nth on the whole alignment, with the whole run's ignored counts."""
-    from tak_thermo_ros.core.blocks import BlockAligner
+    from tak_thermo_ros.core.records.blocks import BlockAligner
     from tak_thermo_ros.streaming import _Subsample, every_nth
     path, _ = driver_bag
     driver = read_driver_record(path, progress=False)

@@ -1,4 +1,4 @@
-"""Checked numbers: the one test of a finite number that the calibration file and the effects share."""
+"""Shared leaves: the one test of a finite number (calibration file, effects) and physical constants."""
 
 from __future__ import annotations
 
@@ -7,6 +7,9 @@ import math
 import numpy as np
 
 from tak_thermo_ros.errors import CalibrationError
+
+STANDARD_GRAVITY = 9.80665
+"""Standard gravity, m/s^2 (the simulator's and the static reference's default)."""
 
 
 def finite_number(value: object, key: str) -> float:

@@ -12,8 +12,8 @@ from tak_thermo_ros.core.diagnose.values import ModelScore
 from tak_thermo_ros.core.effects import Effect
 from tak_thermo_ros.core.effects.base import call_effect
 from tak_thermo_ros.core.fit import fit_model, residual_counts
-from tak_thermo_ros.core.model import Calibration
-from tak_thermo_ros.core.record import AlignedSamples
+from tak_thermo_ros.core.link.model import Calibration
+from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import FitError, TakError
 
 EDGE_FRACTION = 0.01

@@ -6,7 +6,7 @@ model plus each of the two candidates on the diagnosed run, then for each of a f
 temperature profiles (plateaus visited from both sides, ramp rates, dwell times):
 
 1. simulates the chamber, the board's lag and the turntable of that profile
-   (:func:`tak_thermo_ros.core.simulate.simulate`, for the stamps, temperature codes and inputs);
+   (:func:`tak_thermo_ros.core.simulation.imu.simulate`, for the stamps, temperature codes and inputs);
 2. predicts the counts under candidate A with its fitted parameters, and fits the model with
    candidate B to them (noise-free: the best B can do to mimic A), and the other way round;
 3. measures the separation: what the other model cannot absorb, in units of the noise floor.
@@ -15,7 +15,7 @@ temperature profiles (plateaus visited from both sides, ramp rates, dwell times)
    of the two directions.
 
 The profile with the largest separation is written as a simulator scenario (YAML,
-:func:`tak_thermo_ros.core.simulate.load_scenario` format) and as a chamber schedule (CSV of
+:func:`tak_thermo_ros.core.simulation.imu.load_scenario` format) and as a chamber schedule (CSV of
 ``time_s, setpoint_C``). Temperatures in Celsius map to temperature codes through the scenario's
 sensor gain (``temp_code_ref``, ``codes_per_celsius``; the simulator's defaults unless given).
 
@@ -38,16 +38,16 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import yaml
 
-from tak_thermo_ros.core.calibration_file import write_text_atomic
-from tak_thermo_ros.core.correction import Corrector
+from tak_thermo_ros.core.records.calibration_file import write_text_atomic
+from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.core.diagnose.crossval import _effect_specs, _settings_of, _with_range, decimate
 from tak_thermo_ros.core.diagnose.values import Diagnosis
 from tak_thermo_ros.core.diagnose.verdict import VERDICT_NONE
 from tak_thermo_ros.core.effects import AUX_PREFIX, resolve_effect
 from tak_thermo_ros.core.fit import fit_model, residual_counts
-from tak_thermo_ros.core.model import AXES, Calibration
-from tak_thermo_ros.core.record import AlignedSamples, align
-from tak_thermo_ros.core.simulate import (
+from tak_thermo_ros.core.link.model import AXES, Calibration
+from tak_thermo_ros.core.records.record import AlignedSamples, align
+from tak_thermo_ros.core.simulation.imu import (
     DEFAULT_POSITIONS,
     RATE_TABLE_POSITIONS,
     RATE_TABLE_RATES,

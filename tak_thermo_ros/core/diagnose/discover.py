@@ -8,7 +8,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from tak_thermo_ros.core.correction import Corrector
+from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.core.diagnose.crossval import (
     _effect_name,
     _effect_parameters,
@@ -43,8 +43,8 @@ from tak_thermo_ros.core.diagnose.views import EFFECT_VIEWS, build_views, noise_
 from tak_thermo_ros.core.effects import LIBRARY, PER_AXIS, PER_AXIS_SUFFIX, Effect, PerAxisEffect, resolve_effect
 from tak_thermo_ros.core.effects.aux_signal import recorded_candidates
 from tak_thermo_ros.core.fit import fit_model, residual_counts
-from tak_thermo_ros.core.model import AXES, Calibration
-from tak_thermo_ros.core.record import AlignedSamples
+from tak_thermo_ros.core.link.model import AXES, Calibration
+from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import FitError, TakError
 
 

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from tak_thermo_ros.core.model import AXES, Calibration
+from tak_thermo_ros.core.link.model import AXES, Calibration
 
 
 @dataclass(frozen=True)

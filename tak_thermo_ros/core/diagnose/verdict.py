@@ -9,7 +9,7 @@ from typing import Sequence
 import numpy as np
 
 from tak_thermo_ros.core.diagnose.values import AxisSummary, Candidate, Driver, LadderStep, ModelScore
-from tak_thermo_ros.core.model import AXES
+from tak_thermo_ros.core.link.model import AXES
 
 VERDICT_NONE = 'none'
 VERDICT_UNEXPLAINED = 'unexplained'

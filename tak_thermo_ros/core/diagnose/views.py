@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from tak_thermo_ros.core.diagnose.values import Driver, Plateau, Views
-from tak_thermo_ros.core.record import AlignedSamples
+from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import FitError
 
 JUMP_SIGMAS = 8.0

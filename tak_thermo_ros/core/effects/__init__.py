@@ -28,7 +28,7 @@ from tak_thermo_ros.core.effects.scale_nonlinearity import ScaleNonlinearity
 from tak_thermo_ros.core.effects.temperature_shape import TemperatureShape
 from tak_thermo_ros.core.effects.thermal_lag import ThermalLag
 from tak_thermo_ros.core.effects.warmup import Warmup
-from tak_thermo_ros.core.record import seconds, seconds_from_ns
+from tak_thermo_ros.core.records.record import seconds, seconds_from_ns
 from tak_thermo_ros.errors import FitError
 
 LIBRARY: dict[str, type[Effect]] = {

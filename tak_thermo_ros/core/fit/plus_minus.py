@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tak_thermo_ros.core.model import AXES, AxisModel, Calibration
-from tak_thermo_ros.core.record import AlignedSamples
+from tak_thermo_ros.core.link.model import AXES, AxisModel, Calibration
+from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import FitError
 
 

@@ -201,7 +201,7 @@ class Calibration:
         """The paper's forward model: unrounded codes ``(k, 3)`` for specific force ``(k, 3)`` in m/s^2.
 
         Polynomials are evaluated beyond the calibrated range as well (no clamping). Effects
-        are not applied here: :func:`tak_thermo_ros.core.correction.forward_counts` includes them.
+        are not applied here: :func:`tak_thermo_ros.core.link.correction.forward_counts` includes them.
         """
         n = np.asarray(temp_code, dtype=float) - self.temp_code_ref
         force = np.asarray(specific_force, dtype=float)

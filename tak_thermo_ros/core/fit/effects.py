@@ -27,7 +27,7 @@ from scipy.optimize import minimize_scalar
 
 from tak_thermo_ros.core.effects import resolve_effect
 from tak_thermo_ros.core.effects.base import AXIS_NAMES, INPUT, Effect, call_effect, checked_basis, effect_input
-from tak_thermo_ros.core.base_fit import (
+from tak_thermo_ros.core.fit.base import (
     FitResult,
     axis_from_coefficients,
     finish_fit,
@@ -35,8 +35,8 @@ from tak_thermo_ros.core.base_fit import (
     residual_counts,
     single_input_axes,
 )
-from tak_thermo_ros.core.model import Calibration
-from tak_thermo_ros.core.record import AlignedSamples
+from tak_thermo_ros.core.link.model import Calibration
+from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import CalibrationError, FitError
 
 GRID_POINTS = 9

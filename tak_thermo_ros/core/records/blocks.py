@@ -2,7 +2,7 @@
 
 A bag is read in log order, one block of main-stream messages (counts, or a driver's Imu) at
 a time, together with the temperature and reference messages logged in between.
-:func:`align_block` aligns one block by :func:`~tak_thermo_ros.core.record.align` itself, on a
+:func:`align_block` aligns one block by :func:`~tak_thermo_ros.core.records.record.align` itself, on a
 small record made of the carried state and the block: the last held temperature and reference
 messages (and the reference's last change, for ``settle_time_s``), plus the tail of main
 samples whose held values may still arrive (a sample is aligned once a temperature, and a
@@ -24,7 +24,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from tak_thermo_ros.core.record import (AlignedSamples, ChannelRecord, align, hold_last_index, reference_problems,
+from tak_thermo_ros.core.records.record import (AlignedSamples, ChannelRecord, align, hold_last_index, reference_problems,
                                         temp_code_problems)
 
 NEVER = np.iinfo(np.int64).max

@@ -20,7 +20,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from tak_thermo_ros.core.model import AXES
+from tak_thermo_ros.core.link.model import AXES
 
 MAD_TO_SIGMA = 1.4826
 """``1 / Phi^-1(3/4)``: the MAD of normally distributed values times this is their standard deviation."""

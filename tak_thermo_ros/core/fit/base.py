@@ -1,6 +1,6 @@
 """The paper's least squares: the correction link without effects, over a whole calibration run.
 
-The first room of the fit: :mod:`tak_thermo_ros.core.effects.fitting` adds the effects on top of
+The first room of the fit: :mod:`tak_thermo_ros.core.fit.effects` adds the effects on top of
 it, and :func:`tak_thermo_ros.core.fit.fit_model` is the one entry that users call.
 
 The model is linear in ``(K0, K0 a1..ap, dNs0, c1..cq)`` with ``c_k = D b_k``: per axis the
@@ -16,10 +16,10 @@ from typing import Sequence
 
 import numpy as np
 
-from tak_thermo_ros.core.calibration_file import check_scale_positive
-from tak_thermo_ros.core.correction import Corrector
-from tak_thermo_ros.core.model import AXES, AxisModel, Calibration
-from tak_thermo_ros.core.record import AlignedSamples
+from tak_thermo_ros.core.records.calibration_file import check_scale_positive
+from tak_thermo_ros.core.link.correction import Corrector
+from tak_thermo_ros.core.link.model import AXES, AxisModel, Calibration
+from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import CalibrationError, FitError
 
 MIN_SAMPLES_PER_PARAMETER = 10

@@ -25,7 +25,7 @@ from typing import Sequence
 
 import numpy as np
 
-from tak_thermo_ros.core.base_fit import (
+from tak_thermo_ros.core.fit.base import (
     INPUT_RESOLUTION,
     MIN_SAMPLES_PER_PARAMETER,
     FitResult,
@@ -33,8 +33,8 @@ from tak_thermo_ros.core.base_fit import (
     finish_fit_from_sums,
     held_scale_note,
 )
-from tak_thermo_ros.core.model import AXES, AxisModel, Calibration
-from tak_thermo_ros.core.record import AlignedSamples
+from tak_thermo_ros.core.link.model import AXES, AxisModel, Calibration
+from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import CalibrationError, FitError
 
 HEADROOM = 2.0
@@ -270,8 +270,8 @@ class StreamingEffectFit:
     The second pass of a long run's fit with effects: the shapes (time constants, widths,
     knots) come from a fit on a subsample; here every amplitude and the base model are solved
     by a blocked QR over the whole run, the effects' signals continued across blocks from
-    their state (:func:`~tak_thermo_ros.core.stream_correction.basis_from`). The design per axis
-    is that of :func:`~tak_thermo_ros.core.effects.fitting.fit_with_effects` with the shapes fixed.
+    their state (:func:`~tak_thermo_ros.core.link.stream_correction.basis_from`). The design per axis
+    is that of :func:`~tak_thermo_ros.core.fit.effects.fit_with_effects` with the shapes fixed.
 
     :param effects: effect instances (their shapes are kept, their amplitudes refitted).
     :param first_pass: the base fit of the same run (temperature range, held axes, count).
@@ -322,7 +322,7 @@ class StreamingEffectFit:
     def add(self, samples: AlignedSamples) -> None:
         """Add the next block of aligned samples (in time order)."""
         from tak_thermo_ros.core.effects.base import effect_input
-        from tak_thermo_ros.core.stream_correction import basis_from
+        from tak_thermo_ros.core.link.stream_correction import basis_from
         if not len(samples) or samples.reference is None:
             return
         codes = np.clip(np.asarray(samples.temp_code, dtype=float), self.low, self.high)

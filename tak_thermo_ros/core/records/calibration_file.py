@@ -44,8 +44,8 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
-from tak_thermo_ros.core.files import write_text_atomic  # noqa: F401 (re-exported: one writer of text files)
-from tak_thermo_ros.core.model import (
+from tak_thermo_ros.core.records.files import write_text_atomic  # noqa: F401 (re-exported: one writer of text files)
+from tak_thermo_ros.core.link.model import (
     AXES,
     CALIBRATION_VERSION,
     SENSORS,

@@ -21,8 +21,8 @@ from typing import Mapping
 
 import numpy as np
 
-from tak_thermo_ros.core.effects.link import EffectLink
-from tak_thermo_ros.core.model import Calibration, UnitCalibration, correction_terms, offset_and_gain
+from tak_thermo_ros.core.link.effect_link import EffectLink
+from tak_thermo_ros.core.link.model import Calibration, UnitCalibration, correction_terms, offset_and_gain
 
 BLOCK_SAMPLES = 16384
 """Samples per block of :meth:`Corrector.correct` (its scratch arrays stay in the CPU cache)."""

@@ -282,7 +282,7 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
     (:func:`reference_problems`, :attr:`AlignedSamples.ignored_references`).
 
     :param previous_stamp_ns: the stamp of the counts message before the record's first one
-        (a run aligned in blocks, :mod:`tak_thermo_ros.core.blocks`), or ``None``.
+        (a run aligned in blocks, :mod:`tak_thermo_ros.core.records.blocks`), or ``None``.
     """
     stamps = record.counts_stamp_ns
     counts = record.counts

@@ -15,11 +15,11 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from tak_thermo_ros.core.correction import Corrector, OutOfRange, UnitCorrector
+from tak_thermo_ros.core.link.correction import Corrector, OutOfRange, UnitCorrector
 from tak_thermo_ros.core.effects.base import Effect, effect_input
-from tak_thermo_ros.core.effects.link import EffectLink
-from tak_thermo_ros.core.model import Calibration, UnitCalibration
-from tak_thermo_ros.core.validate import GravityError, RateError
+from tak_thermo_ros.core.link.effect_link import EffectLink
+from tak_thermo_ros.core.link.model import Calibration, UnitCalibration
+from tak_thermo_ros.core.link.validate import GravityError, RateError
 from tak_thermo_ros.errors import EffectError
 
 
@@ -129,7 +129,7 @@ class ErrorSums:
 
 
 class GravityCheck:
-    """:func:`~tak_thermo_ros.core.validate.validate_gravity` accumulated over blocks."""
+    """:func:`~tak_thermo_ros.core.link.validate.validate_gravity` accumulated over blocks."""
 
     def __init__(self, calibration: Calibration, *, gravity: float, out_of_range: OutOfRange) -> None:
         self.gravity = gravity
@@ -152,7 +152,7 @@ class GravityCheck:
 
 
 class RateCheck:
-    """:func:`~tak_thermo_ros.core.validate.validate_rate` accumulated over blocks."""
+    """:func:`~tak_thermo_ros.core.link.validate.validate_rate` accumulated over blocks."""
 
     def __init__(self, calibration: Calibration, *, out_of_range: OutOfRange) -> None:
         self.corrector = BlockCorrector(calibration, out_of_range=out_of_range)

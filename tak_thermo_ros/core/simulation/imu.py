@@ -30,8 +30,8 @@ from tak_thermo_ros.core.effects.base import Effect
 import numpy as np
 import yaml
 
-from tak_thermo_ros.core.model import AXES, AxisModel, Calibration, InputKind, UnitCalibration
-from tak_thermo_ros.core.record import (
+from tak_thermo_ros.core.link.model import AXES, AxisModel, Calibration, InputKind, UnitCalibration
+from tak_thermo_ros.core.records.record import (
     COUNTS_MAX,
     COUNTS_MIN,
     NANOSECONDS,
@@ -39,9 +39,8 @@ from tak_thermo_ros.core.record import (
     DriverRecord,
     seconds_from_ns,
 )
+from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import CalibrationError, FitError, ScenarioError
-
-STANDARD_GRAVITY = 9.80665
 
 _SQRT1_2 = math.sqrt(0.5)
 _SQRT1_3 = math.sqrt(1.0 / 3.0)

@@ -3,7 +3,7 @@
 Most users calibrate the way PX4 and ArduPilot do: the board lies still in one orientation and
 the temperature is swept; the log comes as a delimited text file with a time column, three
 acceleration columns and a temperature column. This module turns such a log into a
-:class:`~tak_thermo_ros.core.record.ChannelRecord` (pure: no rosbags; ``bagio.write_record``
+:class:`~tak_thermo_ros.core.records.record.ChannelRecord` (pure: no rosbags; ``bagio.write_record``
 writes it).
 
 Units and rounding
@@ -41,7 +41,7 @@ from typing import Iterable
 
 import numpy as np
 
-from tak_thermo_ros.core.record import (
+from tak_thermo_ros.core.records.record import (
     COUNTS_MAX,
     COUNTS_MIN,
     TEMP_CODE_LIMIT,
@@ -49,8 +49,8 @@ from tak_thermo_ros.core.record import (
     ChannelRecord,
     DriverRecord,
 )
-from tak_thermo_ros.core.simulate import STANDARD_GRAVITY
-from tak_thermo_ros.core.static_run import STATIC_TOLERANCE_DEG, StaticReference, static_reference
+from tak_thermo_ros.core.values import STANDARD_GRAVITY
+from tak_thermo_ros.core.records.static_run import STATIC_TOLERANCE_DEG, StaticReference, static_reference
 from tak_thermo_ros.errors import LogError
 
 TIME_UNITS: dict[str, int] = {'s': 1_000_000_000, 'ms': 1_000_000, 'us': 1_000, 'ns': 1}
@@ -313,7 +313,7 @@ def parse_csv_log(lines: Iterable[str], options: CsvImportOptions, *, source: st
 
 def _reference(acceleration: np.ndarray, options: CsvImportOptions, source: str,
                line_numbers: np.ndarray) -> tuple[StaticReference, np.ndarray]:
-    """The static run's reference (:func:`~tak_thermo_ros.core.static_run.static_reference`), or the given one."""
+    """The static run's reference (:func:`~tak_thermo_ros.core.records.static_run.static_reference`), or the given one."""
     static = static_reference(acceleration, gravity=options.gravity)
     if options.reference is not None:
         return static, np.asarray(options.reference, dtype=float)

@@ -12,9 +12,9 @@ from typing import Mapping
 
 import numpy as np
 
-from tak_thermo_ros.core.correction import Corrector, OutOfRange
-from tak_thermo_ros.core.model import Calibration
-from tak_thermo_ros.core.simulate import STANDARD_GRAVITY
+from tak_thermo_ros.core.link.correction import Corrector, OutOfRange
+from tak_thermo_ros.core.link.model import Calibration
+from tak_thermo_ros.core.values import STANDARD_GRAVITY
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """The fit of the correction link: the one entry, :func:`fit_model`.
 
-Two rooms, one direction: :mod:`tak_thermo_ros.core.base_fit` solves the paper's model by least
-squares (linear in ``(K0, K0 a1..ap, dNs0, c1..cq)``); :mod:`tak_thermo_ros.core.effects.fitting`
+Two rooms, one direction: :mod:`tak_thermo_ros.core.fit.base` solves the paper's model by least
+squares (linear in ``(K0, K0 a1..ap, dNs0, c1..cq)``); :mod:`tak_thermo_ros.core.fit.effects`
 adds the effects on top of it (variable projection). This module calls the second, which calls
 the first; neither imports this one. The base fit's names are importable from here too.
 """
@@ -12,7 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
-from tak_thermo_ros.core.base_fit import (  # noqa: F401 (the base fit's names, importable from the entry)
+from tak_thermo_ros.core.fit.base import (  # noqa: F401 (the base fit's names, importable from the entry)
     INPUT_RESOLUTION,
     MIN_SAMPLES_PER_PARAMETER,
     AxisFit,
@@ -25,8 +25,8 @@ from tak_thermo_ros.core.base_fit import (  # noqa: F401 (the base fit's names, 
     single_input_axes,
 )
 from tak_thermo_ros.core.effects.base import Effect
-from tak_thermo_ros.core.effects.fitting import fit_with_effects
-from tak_thermo_ros.core.record import AlignedSamples
+from tak_thermo_ros.core.fit.effects import fit_with_effects
+from tak_thermo_ros.core.records.record import AlignedSamples
 
 
 def fit_model(samples: AlignedSamples, *, effects: Sequence[str | type[Effect] | Effect] = (),

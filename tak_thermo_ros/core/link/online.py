@@ -1,6 +1,6 @@
 """Online correction, one message at a time: the ``compensator`` node's logic without ROS.
 
-:class:`OnlineCompensator` holds a :class:`~tak_thermo_ros.core.correction.UnitCorrector`, the
+:class:`OnlineCompensator` holds a :class:`~tak_thermo_ros.core.link.correction.UnitCorrector`, the
 last temperature and when it arrived, the policies for bad input, and a counter for every
 outcome, so that every input message received is either published or dropped with a reason::
 
@@ -15,10 +15,10 @@ plain numbers, calls :meth:`OnlineCompensator.process_values` (or :meth:`process
 and converts the result back. Two inputs, one set of policies:
 
 - ``counts`` (calibration file version 1): three channel codes and a temperature-sensor code;
-  the drop rules of :func:`~tak_thermo_ros.core.record.counts_problem`;
+  the drop rules of :func:`~tak_thermo_ros.core.records.record.counts_problem`;
 - ``imu`` (version 2): a driver's six values (accelerometer x y z in m/s^2, gyroscope x y z in
   rad/s) and a temperature in degrees C; the drop rule of
-  :func:`~tak_thermo_ros.core.record.values_problem` (a non-finite value drops the whole
+  :func:`~tak_thermo_ros.core.records.record.values_problem` (a non-finite value drops the whole
   message, as ``tak_calib apply`` does).
 
 The correction is :meth:`UnitCorrector.correct_sample`, bit-identical to the vectorised path.
@@ -37,7 +37,7 @@ Bad input, each with a defined outcome, checks in this order:
 - the correction raises (a user effect) or gives a non-finite number (``correction_failed``,
   ``non_finite_output``): dropped, never published;
 - a non-finite temperature, or one outside the plausible range of the input kind
-  (:func:`~tak_thermo_ros.core.record.temp_code_problem`, the offline rule): ignored (the
+  (:func:`~tak_thermo_ros.core.records.record.temp_code_problem`, the offline rule): ignored (the
   last good one stays) and counted;
 - a calibration with a recorded-signal term (``aux:TOPIC``): that signal follows the
   temperature's rules: held at its last value; none yet: dropped (``waiting_for_signal``);
@@ -55,9 +55,9 @@ import math
 from dataclasses import dataclass
 from typing import Callable
 
-from tak_thermo_ros.core.correction import OutOfRange, UnitCorrector, acceleration_variance, imu_covariances
-from tak_thermo_ros.core.model import Calibration, InputKind, UnitCalibration
-from tak_thermo_ros.core.record import (
+from tak_thermo_ros.core.link.correction import OutOfRange, UnitCorrector, acceleration_variance, imu_covariances
+from tak_thermo_ros.core.link.model import Calibration, InputKind, UnitCalibration
+from tak_thermo_ros.core.records.record import (
     DROP_REASONS,
     NANOSECONDS,
     counts_problem,

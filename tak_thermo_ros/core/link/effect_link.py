@@ -12,7 +12,7 @@ fraction of the linear one, so each iteration gains some three digits).
 
 :meth:`EffectLink.correct` (numpy arrays) and :meth:`EffectLink.correct_sample` (plain
 floats, with the online state of the effects with memory) run the same float operations in
-the same order, so they agree bit for bit. :class:`~tak_thermo_ros.core.correction.Corrector`
+the same order, so they agree bit for bit. :class:`~tak_thermo_ros.core.link.correction.Corrector`
 delegates to this class when its calibration has effects, and only then.
 """
 
@@ -25,7 +25,7 @@ import numpy as np
 from tak_thermo_ros.core.effects.base import INPUT, OFFSET, checked_basis, effect_failure, effect_input
 from tak_thermo_ros.core.effects.cross_axis import CrossAxis
 from tak_thermo_ros.core.effects.scale_nonlinearity import ScaleNonlinearity
-from tak_thermo_ros.core.model import Calibration, correction_terms, offset_and_gain
+from tak_thermo_ros.core.link.model import Calibration, correction_terms, offset_and_gain
 from tak_thermo_ros.errors import CalibrationError
 
 FIXED_POINT_ITERATIONS = 6

@@ -1,0 +1,1 @@
+"""The correction link: the model per sensor, its correction (vectorised, per sample, by blocks), the node's logic."""
