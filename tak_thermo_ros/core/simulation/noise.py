@@ -2,10 +2,10 @@
 
 - **Bias instability** ``B`` (flicker: a flat Allan deviation ``0.664 B``) is a sum of
   first-order Gauss-Markov processes with correlation times spaced evenly in log time
-  (:data:`POLES_PER_DECADE`) and equal variances, which makes a 1/f spectrum between its
-  poles. The poles are placed so that the Allan deviation is flat (within a few per cent) over
-  :data:`FLAT_DECADES` decades centred on the axis's ``bias_instability_tau``; the variance
-  is set so that the flat part is ``0.664 B`` (averaged over that band in log time).
+  (:data:`POLES_PER_DECADE` over :data:`POLE_DECADES`) and equal variances, which makes a 1/f
+  spectrum between its poles: the Allan deviation is flat within +-5 % over two decades
+  (:data:`FLAT_DECADES`) around the axis's ``bias_instability_tau``, at ``0.664 B`` (the
+  variance is set so on average over that band in log time).
 - **Random walk** ``K`` (rate / velocity random walk, units*sqrt(Hz)): the sum of independent
   increments of standard deviation ``K sqrt(dt)``, starting at 0 (Allan variance ``K^2 tau / 3``).
 
@@ -25,8 +25,11 @@ from tak_thermo_ros.core.noise.model import FLICKER_FLOOR
 
 POLES_PER_DECADE = 2
 """Gauss-Markov correlation times per decade of the bias-instability band."""
+POLE_DECADES = 3.0
+"""The correlation times span this many decades, centred on ``tau / 1.89``."""
 FLAT_DECADES = 2.0
-"""The Allan deviation of the bias instability is flat over this many decades around its tau."""
+"""... which makes the Allan deviation flat within +-5 % over about this many decades around ``tau``
+(from ``tau / 12`` to ``10 tau``); it falls as white noise above and as a random walk below."""
 PEAK_RATIO = 1.8926
 """A Gauss-Markov process's Allan deviation peaks at ``tau = 1.89 T`` (its correlation time ``T``)."""
 
@@ -44,8 +47,8 @@ def gauss_markov_allan_variance(taus: np.ndarray, variance: float, correlation_t
 
 def bias_instability_poles(tau: float) -> np.ndarray:
     """The correlation times (s) of the Gauss-Markov processes behind a bias instability centred on ``tau``."""
-    half = FLAT_DECADES / 2.0
-    count = int(round(FLAT_DECADES * POLES_PER_DECADE)) + 1
+    half = POLE_DECADES / 2.0
+    count = int(round(POLE_DECADES * POLES_PER_DECADE)) + 1
     return tau / PEAK_RATIO * np.logspace(-half, half, count)
 
 
