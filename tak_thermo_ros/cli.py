@@ -290,8 +290,10 @@ DEG = 180.0 / 3.141592653589793
 
 
 def noise_axis_line(sensor: str, model, axis: int, unit: str) -> str:
-    """One axis of a noise model: white density, bias instability at its floor time, random walk,
-    in SI and in the units of a data sheet (deg/sqrt(h), deg/h; ug/sqrt(Hz), mg)."""
+    """One axis of a noise model in SI and in the units of a data sheet.
+
+    White density, bias instability at its floor time, random walk (deg/sqrt(h), deg/h; ug/sqrt(Hz), mg).
+    """
     white, bias = model.white_noise_density[axis], model.bias_instability[axis]
     tau, walk = model.bias_instability_tau[axis], model.random_walk[axis]
     at = f'{tau:.3g} s' if tau < float('inf') else 'no floor (nothing rises)'

@@ -150,6 +150,10 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
     kind = bag_streams(path, topics=options.topics).kind
     if expect_kind is not None:
         expect_kind(kind)
+    if unit is not None and kind is not unit.input_kind:
+        msg = (f'{path}: holds {"channel codes" if kind is InputKind.COUNTS else "a driver Imu"}, the calibration is '
+               f'for {unit.input_kind.value} input')
+        raise NoiseError(msg)
     if kind is InputKind.COUNTS and unit is None:
         msg = f'{path}: a counts bag holds channel codes, not SI values: give --params (the calibration) to take its noise'
         raise NoiseError(msg)
@@ -243,8 +247,11 @@ def noise_models(*, unit: UnitCalibration | None, options: StreamOptions, noise_
 
 
 def noise_document(noise: SensorNoise) -> dict[str, object]:
-    """JSON of one sensor's noise: the model's terms (lists, SI; a floor time at infinity is null),
-    its source and update rate, the samples and gaps, and the Allan deviation behind it."""
+    """JSON of one sensor's noise.
+
+    The model's terms (lists, SI; a floor time at infinity is null), its source and update rate,
+    the samples and gaps, and the Allan deviation behind it.
+    """
     document: dict[str, object] = {}
     for key, value in noise.model.to_mapping().items():
         if isinstance(value, list):

@@ -137,8 +137,10 @@ class NoiseModel:
 
 
 def noise_model_from_mapping(raw: Any, where: str) -> NoiseModel:
-    """A :class:`NoiseModel` from :meth:`NoiseModel.to_mapping`'s keys (``quantization``, ``rate_ramp``
-    optional; ``bias_instability_tau`` optional: the floor of the other terms).
+    """A :class:`NoiseModel` from the keys of :meth:`NoiseModel.to_mapping`.
+
+    ``quantization`` and ``rate_ramp`` are optional (0), ``bias_instability_tau`` too (the floor of
+    the other terms, :func:`floor_tau`); a single number stands for all three axes.
 
     :raises NoiseError: naming ``where`` and the key, on a missing, unknown or bad value.
     """

@@ -352,10 +352,13 @@ def _noise_from_mapping(raw: Any, key: str) -> NoiseModel:
 
 
 def noise_to_mapping(noise: NoiseModel) -> dict[str, Any]:
-    """A sensor's ``noise`` section: three floats per term (x, y, z; SI units of the corrected output),
-    ``update_rate`` (Hz) and ``source``. ``bias_instability_tau`` is left out when an axis's is
-    infinite (a ROS 2 parameter array of doubles cannot say it portably); loading then takes the
-    floor of the other terms again."""
+    """A sensor's ``noise`` section.
+
+    Three floats per term (x, y, z; SI units of the corrected output), ``update_rate`` (Hz) and
+    ``source``. ``bias_instability_tau`` is left out when an axis's is infinite (a ROS 2
+    parameter array of doubles cannot say it portably); loading then takes the floor of the
+    other terms again.
+    """
     mapping = noise.to_mapping()
     if not all(math.isfinite(v) for v in noise.bias_instability_tau):
         del mapping['bias_instability_tau']
