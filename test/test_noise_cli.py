@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -13,6 +14,7 @@ import yaml
 from tak_thermo_ros import cli
 from tak_thermo_ros.bagio import Topics, read_imu_messages, write_driver_record, write_record
 from tak_thermo_ros.core.link.correction import acceleration_variance
+from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.noise.kalibr import read_kalibr
 from tak_thermo_ros.core.records.calibration_file import load_unit, save_unit
 from tak_thermo_ros.core.simulation.imu import Scenario, scenario_from_mapping, simulate
@@ -172,3 +174,22 @@ def test_noise_axis_line_converts_to_data_sheet_units():
     line = cli.noise_axis_line('gyro', replace(model, bias_instability=(math.radians(10.0) / 3600.0,) * 3), 0, 'rad/s')
     assert 'bias instability 4.848e-05 rad/s (10 deg/h)' in line
     assert f'({2.4e-4 / math.sqrt(2.0) * 180 / math.pi * 60:.3g} deg/sqrt(h))' in line
+
+
+def test_a_counts_bag_with_params_gives_the_corrected_outputs_noise(tmp_path, capsys):
+    """The paper's codes, corrected with the true link: the white noise of the output in m/s^2 is
+    the codes' (noise and rounding) over K0, within 5 % (5,400 samples: 1 % spread at the shortest
+    averaging time), on every axis; a random walk of the codes shows in m/s^2 too."""
+    scenario = scenario_from_mapping({'plateaus_celsius': [15.0, 25.0], 'plateau_hours': 0.5, 'sample_rate_hz': 1.0,
+                                      'unit': {'x': {'random_walk': 0.05}}})
+    bag, params = tmp_path / 'counts.mcap', tmp_path / 'truth.yaml'
+    write_record(bag, simulate(scenario).record)
+    save_unit(params, UnitCalibration(InputKind.COUNTS, scenario.truth()))
+    document = tmp_path / 'n.json'
+    assert cli.main(['noise', str(bag), '--params', str(params), '--json', str(document), '--no-progress']) == 0
+    assert re.search(r'accelerometer: \d+ samples at 1 Hz', capsys.readouterr().out)
+    accel = json.loads(document.read_text())['sensors']['accel']
+    # 1 Hz: density = per-sample deviation; the rounding to whole codes adds 1/12 count^2 of white noise
+    expected = [math.sqrt(a.noise_counts ** 2 + 1.0 / 12.0) / a.scale for a in scenario.unit]
+    assert np.allclose(accel['white_noise_density'], expected, rtol=0.05)
+    assert accel['random_walk'][0] > 0.3 * 0.05 / scenario.unit[0].scale
