@@ -14,7 +14,6 @@ run's own residual after the fitted model (``source='residual'``).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
@@ -252,11 +251,7 @@ def noise_document(noise: SensorNoise) -> dict[str, object]:
     The model's terms (lists, SI; a floor time at infinity is null), its source and update rate,
     the samples and gaps, and the Allan deviation behind it.
     """
-    document: dict[str, object] = {}
-    for key, value in noise.model.to_mapping().items():
-        if isinstance(value, list):
-            value = [v if math.isfinite(v) else None for v in value]
-        document[key] = value
+    document: dict[str, object] = noise.model.to_json()
     allan = noise.allan
     document.update(samples=allan.samples, gaps=noise.gaps, missing_samples=noise.missing,
                     allan={'taus': allan.taus.tolist(), 'adev': allan.adev.tolist(), 'counts': allan.counts.tolist()})

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -194,6 +195,8 @@ def test_model_refuses_bad_values(key, value, match):
 def test_model_mapping_round_trips_and_names_bad_keys():
     model = _model(bias_instability_tau=(100.0, math.inf, 300.0))
     assert noise_model_from_mapping(model.to_mapping(), 'noise') == model
+    assert model.to_json()['bias_instability_tau'] == [100.0, None, 300.0]
+    assert json.loads(json.dumps(model.to_json(), allow_nan=False))['white_noise_density'] == [1e-4, 2e-4, 3e-4]
     with pytest.raises(NoiseError, match='noise.colour: unknown key'):
         noise_model_from_mapping({**model.to_mapping(), 'colour': 1}, 'noise')
     with pytest.raises(NoiseError, match='noise: missing key random_walk'):

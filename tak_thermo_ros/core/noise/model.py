@@ -131,9 +131,14 @@ class NoiseModel:
         return _triple([w * w * self.update_rate for w in self.white_noise_density], 'sample_variance')
 
     def to_mapping(self) -> dict[str, Any]:
-        """Plain numbers and lists (YAML, JSON); :func:`noise_model_from_mapping` reads it back."""
+        """Plain numbers and lists (YAML); :func:`noise_model_from_mapping` reads it back."""
         return {f.name: (list(getattr(self, f.name)) if isinstance(getattr(self, f.name), tuple)
                          else getattr(self, f.name)) for f in fields(self)}
+
+    def to_json(self) -> dict[str, Any]:
+        """As :meth:`to_mapping`, with a floor time at infinity as ``None`` (strict JSON has no infinity)."""
+        return {key: [v if math.isfinite(v) else None for v in value] if isinstance(value, list) else value
+                for key, value in self.to_mapping().items()}
 
 
 def noise_model_from_mapping(raw: Any, where: str) -> NoiseModel:
