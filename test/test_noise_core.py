@@ -322,3 +322,21 @@ def test_unreadable_noise_files_are_named(tmp_path):
 def test_allan_terms_columns_are_the_unit_terms():
     taus = np.array([2.0])
     assert np.allclose(allan_terms(taus)[0], [3 / 4, 1 / 2, FLICKER_FLOOR ** 2, 2 / 3, 2.0])
+
+
+term = st.floats(0.0, 1e3, allow_subnormal=False)
+triple = st.tuples(term, term, term)
+
+
+@settings(max_examples=60, deadline=None)
+@given(triple, triple, triple, triple, triple, st.floats(0.1, 1e5))
+def test_any_model_round_trips_through_the_kalibr_text(white, bias, walk, quantum, ramp, rate):
+    import yaml
+    tau = floor_tau(white, bias, walk, quantum, ramp, taus=(1e-3, 1e6))
+    model = NoiseModel(white_noise_density=white, bias_instability=bias, bias_instability_tau=tau, random_walk=walk,
+                       update_rate=rate, source='residual', quantization=quantum, rate_ramp=ramp)
+    back, topic = kalibr_from_mapping(yaml.safe_load(kalibr_text({'gyro': model}, rostopic='/imu')))
+    assert topic == '/imu' and set(back) == {'gyro'}
+    for name in (*TERMS, 'bias_instability_tau'):
+        assert np.allclose(getattr(back['gyro'], name), getattr(model, name), rtol=1e-6, atol=0.0), name
+    assert back['gyro'].update_rate == rate
