@@ -296,7 +296,7 @@ def noise_axis_line(sensor: str, model, axis: int, unit: str) -> str:
     """
     white, bias = model.white_noise_density[axis], model.bias_instability[axis]
     tau, walk = model.bias_instability_tau[axis], model.random_walk[axis]
-    at = f'{tau:.3g} s' if tau < float('inf') else 'no floor (nothing rises)'
+    at = f'{tau:.3g} s' if tau < float('inf') else 'no floor within the averaging times'
     if unit == 'rad/s':
         text = (f'white {white:.3e} rad/s/sqrt(Hz) ({white * DEG * 60.0:.3g} deg/sqrt(h)); '
                 f'bias instability {bias:.3e} rad/s ({bias * DEG * 3600.0:.3g} deg/h) at {at}; '

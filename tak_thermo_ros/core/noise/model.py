@@ -81,7 +81,8 @@ class NoiseModel:
         velocity random walk of an accelerometer (m/s^2/sqrt(Hz)); Kalibr's ``*_noise_density``.
     :param bias_instability: units; the flicker term, whose flat Allan deviation is 0.664 times it.
     :param bias_instability_tau: s, the averaging time where the model's Allan deviation is
-        lowest (the floor); ``inf`` when nothing rises at long times.
+        lowest (the floor); ``inf`` when nothing rises at long times (a fitted model: not within
+        the measured averaging times).
     :param random_walk: units*sqrt(Hz): rate (velocity) random walk; Kalibr's ``*_random_walk``.
     :param update_rate: Hz, the sample rate the model was estimated at (the per-sample
         variance of the white noise is ``white_noise_density^2 * update_rate``).
@@ -183,7 +184,8 @@ def floor_tau(white: Triple, bias: Triple, random_walk: Triple, quantization: Tr
 
     Without quantisation and ramp it is ``sqrt(3) N / K`` (where white noise and random walk
     cross; a flat flicker term does not move it), ``inf`` when ``K`` is 0. Otherwise it is searched
-    on a log grid over ``taus`` (default 1 us to 1e9 s); a minimum at the grid's upper end is ``inf``.
+    on a log grid over ``taus`` (default 1 us to 1e9 s); a minimum at the grid's upper end (the
+    Allan deviation still falling at the longest averaging time) is ``inf``.
     """
     out = []
     for axis in range(3):
@@ -196,7 +198,7 @@ def floor_tau(white: Triple, bias: Triple, random_walk: Triple, quantization: Tr
         coefficients = np.array([q, n, bias[axis], k, r]) ** 2
         avar = allan_terms(grid) @ coefficients
         best = int(np.argmin(avar))
-        out.append(math.inf if taus is None and best == len(grid) - 1 else float(grid[best]))
+        out.append(math.inf if best == len(grid) - 1 else float(grid[best]))
     return (out[0], out[1], out[2])
 
 
