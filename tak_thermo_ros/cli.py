@@ -308,8 +308,9 @@ def noise_axis_line(sensor: str, model, axis: int, unit: str) -> str:
                 f'random walk {walk:.3e} m/s^3/sqrt(Hz) ({walk / g * 1e3 * 60.0:.3g} mg/sqrt(h))')
     else:
         text = f'white {white:.3e}; bias instability {bias:.3e} at {at}; random walk {walk:.3e} ({unit})'
-    extra = [f'{name} {getattr(model, name)[axis]:.3e}' for name in ('quantization', 'rate_ramp')
-             if getattr(model, name)[axis] > 0.0]
+    extra_units = {'rad/s': ('rad', 'rad/s^2')}.get(unit, ('m/s', 'm/s^3') if unit in ('m/s^2', 'counts') else ('', ''))
+    extra = [f'{name} {getattr(model, name)[axis]:.3e} {extra_unit}'.rstrip()
+             for name, extra_unit in zip(('quantization', 'rate_ramp'), extra_units) if getattr(model, name)[axis] > 0.0]
     return text + (f'; {", ".join(extra)}' if extra else '')
 
 
