@@ -112,7 +112,8 @@ def test_noise_of_the_compensated_signal_is_the_sensors_and_fit_writes_it(tmp_pa
         assert stored is not None and stored.source == 'residual' and stored.update_rate == pytest.approx(2.0)
         assert np.allclose(stored.white_noise_density, truth.white_noise_density, rtol=0.05)
         variance = acceleration_variance(unit.sensor(sensor))
-        assert variance == pytest.approx(tuple(w * w * 2.0 for w in stored.white_noise_density), rel=1e-12)
+        assert variance == pytest.approx(tuple(stored.allan_variance([0.5])[0]), rel=1e-12)
+        assert np.allclose(variance, np.array(stored.white_noise_density) ** 2 * 2.0, rtol=0.2)  # mostly white
     output = tmp_path / 'compensated.yaml'
     assert cli.main(['noise', str(bag), '--params', str(params), '-o', str(output), '--no-progress']) == 0
     assert 'thermally compensated' in capsys.readouterr().out
@@ -135,8 +136,9 @@ def test_fit_takes_a_kalibr_file_and_apply_writes_its_covariances(tmp_path, caps
     written = read_imu_messages(corrected, topic='/imu/data_compensated')
     linear = written.linear_acceleration_covariance[0].reshape(3, 3)
     angular = written.angular_velocity_covariance[0].reshape(3, 3)
-    assert np.allclose(np.diag(linear), [9e-6 * 100.0, 1e-6 * 100.0, 4e-6 * 100.0], rtol=1e-12)
-    assert np.allclose(np.diag(angular), 4e-8 * 100.0, rtol=1e-12)
+    # white^2 * rate, plus the random walk's K^2 tau / 3 at one sample period (1e-7 of it here)
+    assert np.allclose(np.diag(linear), np.array([9e-6, 1e-6, 4e-6]) * 100.0 + 1e-8 * 0.01 / 3.0, rtol=1e-12)
+    assert np.allclose(np.diag(angular), 4e-8 * 100.0 + 1e-10 * 0.01 / 3.0, rtol=1e-12)
     bad = tmp_path / 'bad.yaml'
     bad.write_text('gyroscope_noise_density: 2.0e-4\nupdate_rate: 100.0\n')
     assert cli.main(['fit', str(bag), '-o', str(tmp_path / 'q.yaml'), '--no-progress', '--noise', str(bad)]) == 2

@@ -176,7 +176,11 @@ def test_model_allan_deviation_is_the_sum_of_the_five_terms():
     assert np.allclose(model.allan_variance(taus), expected, rtol=1e-12)
     assert np.allclose(model.allan_deviation(taus), np.sqrt(expected))
     assert FLICKER_FLOOR == pytest.approx(0.6643, abs=1e-4)
-    assert model.sample_variance() == pytest.approx(tuple(w * w * 200.0 for w in model.white_noise_density))
+    assert model.sample_variance() == pytest.approx(tuple(model.allan_variance([1.0 / 200.0])[0]), rel=1e-12)
+    white = _model(bias_instability=(0.0,) * 3, random_walk=(0.0,) * 3, quantization=(0.0,) * 3, rate_ramp=(0.0,) * 3)
+    assert white.sample_variance() == pytest.approx(tuple(w * w * 200.0 for w in white.white_noise_density), rel=1e-12)
+    only_quantization = _model(white_noise_density=(0.0, 1e-4, 0.0))
+    assert only_quantization.sample_variance()[0] > 0.0  # never 0 (REP 145: unknown) while the model has noise
 
 
 @pytest.mark.parametrize(('key', 'value', 'match'), [

@@ -47,7 +47,8 @@ def test_node_covariances_follow_the_noise_model_and_equal_apply(tmp_path, ros_e
     assert np.array_equal(angular, expected.angular_velocity_covariance)
     assert np.array_equal(np.array([(m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z)
                                     for m in ros.imu]), expected.angular_velocity)
-    per_sample = {name: np.array(model.white_noise_density) ** 2 * 200.0
+    per_sample = {name: model.allan_variance([1.0 / 200.0])[0]  # white^2 * 200 and the rest at 5 ms
                   for name, model in (('accel', ACCEL_NOISE), ('gyro', GYRO_NOISE))}
+    assert np.allclose(per_sample['gyro'], np.array(GYRO_NOISE.white_noise_density) ** 2 * 200.0, rtol=0.01)
     assert np.allclose(linear[0].reshape(3, 3), np.diag(per_sample['accel']), rtol=1e-12, atol=0.0)
     assert np.allclose(angular[0].reshape(3, 3), np.diag(per_sample['gyro']), rtol=1e-12, atol=0.0)

@@ -160,7 +160,7 @@ class Calibration:
     :param effects: fitted effects beyond the paper's model (``tak_thermo_ros.core.effects``),
         each name at most once; the correction applies them in this order.
     :param noise: the noise model of the corrected output (SI: m/s^2 or rad/s), or ``None``;
-        when given, the Imu covariance is its per-sample white variance.
+        when given, the Imu covariance is its per-sample variance (``NoiseModel.sample_variance``).
     """
 
     temp_code_ref: float

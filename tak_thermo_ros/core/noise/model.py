@@ -128,8 +128,15 @@ class NoiseModel:
         return np.sqrt(self.allan_variance(taus))
 
     def sample_variance(self) -> Triple:
-        """Per axis, the variance of one sample's white noise: ``white_noise_density^2 * update_rate``."""
-        return _triple([w * w * self.update_rate for w in self.white_noise_density], 'sample_variance')
+        """Per axis, the variance of one sample's noise: the model's Allan variance at one sample period.
+
+        For white noise alone that is exactly ``white_noise_density^2 * update_rate``; the other
+        terms add what they predict at ``tau = 1 / update_rate`` (quantisation, where a short run
+        cannot tell it from white noise, most of it; bias instability and random walk next to
+        nothing), so that an axis whose fit put its short-time noise into quantisation still
+        gets the variance its samples show, never 0 (which REP 145 reads as "unknown").
+        """
+        return _triple(self.allan_variance([1.0 / self.update_rate])[0].tolist(), 'sample_variance')
 
     def to_mapping(self) -> dict[str, Any]:
         """Plain numbers and lists (YAML); :func:`noise_model_from_mapping` reads it back."""
