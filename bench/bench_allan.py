@@ -12,6 +12,11 @@ bias instability and random walk of a consumer MEMS gyroscope, from the simulato
 processes) are generated block by block in the same process; their generation is timed
 separately and not counted. The peak resident set is the child process's ``ru_maxrss``.
 
+``--end-to-end``: ``tak_calib noise BAG -o imu.yaml`` on a simulated static driver bag
+(``--hours`` at ``--rate`` Imu messages, two passes: the static reference, then the noise)
+against rosbags' own deserialisation of the same bag (``bench_fit.BASELINE_SCRIPT``), each in
+its own process; writes bench/results/allan_end_to_end.json.
+
 Run: ``.venv/bin/python bench/bench_allan.py [--hours 15] [--rate 1000]``; writes bench/results/allan.json;
 exits 0 when both targets hold, 3 when one is missed.
 """
@@ -88,12 +93,51 @@ def child(hours: float, rate: float) -> dict[str, float]:
             'fitted_random_walk': list(model.random_walk)}
 
 
+def end_to_end(hours: float, rate: float, workdir: Path) -> int:
+    """``tak_calib noise`` on a simulated static driver bag against rosbags reading it."""
+    from bench_fit import BASELINE_SCRIPT, run_child
+    from benchlib import tak_calib_command
+    from tak_thermo_ros.bagio import write_driver_record
+    from tak_thermo_ros.core.simulation.imu import scenario_from_mapping, simulate
+    axis = {'noise_counts': WHITE * math.sqrt(rate), 'bias_instability': BIAS, 'bias_instability_tau': BIAS_TAU,
+            'random_walk': WALK}
+    scenario = scenario_from_mapping({'output': 'imu', 'sample_rate_hz': rate, 'plateaus_celsius': [20.0],
+                                      'plateau_hours': hours, 'positions': [[0.0, 0.0, 1.0]],
+                                      'record_references': False, 'temp_code_every': max(1, int(rate)),
+                                      'gyro_unit': {'x': axis, 'y': axis, 'z': axis}})
+    workdir.mkdir(parents=True, exist_ok=True)
+    bag = workdir / f'noise_{hours:g}h_{rate:g}hz_mcap'
+    if not bag.exists():
+        write_driver_record(bag, simulate(scenario).driver)
+    _, _, _, out = run_child([sys.executable, '-c', BASELINE_SCRIPT, str(bag)])
+    baseline = json.loads(out)
+    output = workdir / 'imu.yaml'
+    output.unlink(missing_ok=True)
+    wall, cpu, rss, out = run_child([*tak_calib_command(), 'noise', str(bag), '-o', str(output), '--no-progress'])
+    figures = {'hours': hours, 'rate_hz': rate, 'messages': baseline['messages'], 'rosbags_s': baseline['seconds'],
+               'noise_wall_s': wall, 'noise_cpu_s': cpu, 'noise_peak_rss_bytes': rss,
+               'ratio_to_rosbags': wall / baseline['seconds'], 'noise_output': out.strip().splitlines(),
+               'machine': machine()}
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / 'allan_end_to_end.json').write_text(json.dumps(figures, indent=2) + '\n')
+    print(f'{baseline["messages"]:,} messages: rosbags deserialise {baseline["seconds"]:.1f} s; tak_calib noise '
+          f'{wall:.1f} s end to end (two passes) = {figures["ratio_to_rosbags"]:.2f}x; peak {rss / 1e6:.0f} MB')
+    return 0
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--hours', type=float, default=15.0)
     parser.add_argument('--rate', type=float, default=1000.0)
     parser.add_argument('--child', action='store_true', help=argparse.SUPPRESS)
+    parser.add_argument('--end-to-end', action='store_true',
+                        help='tak_calib noise on a simulated static driver bag (default 1 h at 100 Hz) vs rosbags')
+    parser.add_argument('--workdir', type=Path, default=Path('/tmp/tak_bench'), help='where the bag is kept')
     args = parser.parse_args()
+    if args.end_to_end:
+        hours = args.hours if args.hours != 15.0 else 1.0
+        rate = args.rate if args.rate != 1000.0 else 100.0
+        return end_to_end(hours, rate, args.workdir)
     if args.child:
         print(json.dumps(child(args.hours, args.rate)))
         return 0
