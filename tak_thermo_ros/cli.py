@@ -321,6 +321,7 @@ def cmd_noise(args: argparse.Namespace) -> int:
     unit = load_unit(args.params) if args.params else None
     run = noise_bag(args.bag, _stream_options(args), unit=unit, gravity=args.gravity,
                     latitude=getattr(args, 'latitude', None), out_of_range=OutOfRange(args.out_of_range),
+                    settle_time_s=args.settle_time,
                     expect_kind=(lambda kind: _check_kind(args, unit, kind)) if unit is not None else None)
     for line in run.reference_lines:
         print(line)
@@ -781,6 +782,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help='a calibration: the noise of the thermally compensated output (default: the raw output)')
     noise.add_argument('-o', '--output', metavar='IMU.yaml', help='write the models as a Kalibr-style imu.yaml')
     noise.add_argument('--json', metavar='OUT.json', help='write the models and the Allan deviations as JSON')
+    noise.add_argument('--settle-time', type=bounds.seconds_not_negative, default=0.0, metavar='SECONDS',
+                       help='leave out samples this long after each reference change (a table settling; '
+                            'the gaps are counted, the samples taken as evenly spaced)')
     _add_static_options(noise)
     _out_of_range(noise)
     _add_topic_options(noise)

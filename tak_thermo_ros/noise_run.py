@@ -132,13 +132,16 @@ class NoiseRun:
 def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration | None = None,
               source: str | None = None, gravity: float = STANDARD_GRAVITY, latitude: float | None = None,
               out_of_range: OutOfRange = OutOfRange.CLAMP, per_octave: int = PER_OCTAVE,
-              expect_kind: Callable[[InputKind], None] | None = None) -> NoiseRun:
+              settle_time_s: float = 0.0, expect_kind: Callable[[InputKind], None] | None = None) -> NoiseRun:
     """Each sensor's five-term noise model from one streamed pass (two for a static driver run).
 
     :param unit: a calibration: the residual is the corrected output minus the reference (the
         thermally compensated signal). Without it: the measured value minus the reference
         (driver bags only; a counts bag's codes are not in SI).
     :param source: the models' ``source`` (default ``residual`` with a calibration, else ``static_run``).
+    :param settle_time_s: leave out the samples this long after each reference change (a table
+        settling, as ``fit --settle-time``); the gaps this leaves are counted, the rest taken as
+        evenly spaced.
     :param expect_kind: called with the bag's kind before the pass (raises on a mismatch).
     :raises NoiseError: a counts bag without a calibration, a run too short for five averaging times.
     """
@@ -160,7 +163,8 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
     sensors = sensors_of(opened.kind)
     streams = {sensor: _SensorNoise(unit.sensor(sensor) if unit is not None else None, out_of_range, per_octave)
                for sensor in sensors}
-    passes = [SensorPass(sensor, BlockAligner(use_reference=True, reference_expected=True), [streams[sensor]])
+    passes = [SensorPass(sensor, BlockAligner(use_reference=True, reference_expected=True,
+                                              settle_time_s=settle_time_s), [streams[sensor]])
               for sensor in sensors]
     lines = _run_passes(path, options, opened, passes)
     source = source or ('residual' if unit is not None else 'static_run')
