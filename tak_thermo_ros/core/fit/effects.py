@@ -1,7 +1,9 @@
-"""Fitting the base model together with effects (variable projection).
+"""Fitting the base model together with effects: the shape search on top of the pipeline.
 
 Per axis the model is linear in the base coefficients, the input effects' amplitudes and the
-offset effects' amplitudes once the offset effects' shape parameters are fixed. So:
+offset effects' amplitudes once the offset effects' shape parameters are fixed: the columns of
+:mod:`~tak_thermo_ros.core.fit.design`, one solve (:mod:`~tak_thermo_ros.core.fit.solve`), a
+model (:mod:`~tak_thermo_ros.core.fit.model`). Only the shapes need a search. So:
 
 1. the base model alone is fitted first (:func:`~tak_thermo_ros.core.fit.fit_calibration` on
    the training samples: the same checks, reference code and notes as a plain fit);
@@ -12,8 +14,9 @@ offset effects' amplitudes once the offset effects' shape parameters are fixed. 
    cross-validation: the training samples cut into contiguous blocks, dealt round-robin into
    folds, each fold predicted from a fit on the others;
 4. with several searched effects, step 2-3 is repeated once with all the others in place;
-5. the final least squares gives every amplitude; standard errors come from the Fisher
-   information of amplitudes and shape parameters together (shape derivatives numerically).
+5. the final least squares (the pipeline with every shape fixed) gives every amplitude;
+   standard errors come from the Fisher information of amplitudes and shape parameters
+   together (shape derivatives numerically).
 """
 
 from __future__ import annotations
@@ -27,14 +30,17 @@ from scipy.optimize import minimize_scalar
 
 from tak_thermo_ros.core.effects import resolve_effect
 from tak_thermo_ros.core.effects.base import AXIS_NAMES, INPUT, Effect, call_effect, checked_basis, effect_input
-from tak_thermo_ros.core.fit.base import (
+from tak_thermo_ros.core.fit.base import fit_calibration
+from tak_thermo_ros.core.fit.design import AxisDesign, Column, Frame, axis_design, single_input_axes
+from tak_thermo_ros.core.fit.model import (
     FitResult,
-    axis_from_coefficients,
+    amplitude_errors,
+    calibration_from,
     finish_fit,
-    fit_calibration,
+    fitted_effects,
     residual_counts,
-    single_input_axes,
 )
+from tak_thermo_ros.core.fit.solve import Solution, least_squares, unit_norms
 from tak_thermo_ros.core.link.model import Calibration
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import CalibrationError, FitError
@@ -86,9 +92,7 @@ class _Projection:
         self.names = names
         self.bases = []
         for i, (design, target) in enumerate(zip(fixed, targets)):
-            norms = np.sqrt(np.mean(design ** 2, axis=0))
-            norms[norms == 0.0] = 1.0
-            q, r = np.linalg.qr(design / norms)
+            q, r = np.linalg.qr(design / unit_norms(design))
             diagonal = np.abs(np.diag(r))
             if diagonal.size and diagonal.min() < RANK_TOLERANCE * diagonal.max():
                 culprit = names[i][int(np.argmin(diagonal))]
@@ -126,8 +130,7 @@ def _axis_part(extra: np.ndarray | Sequence[np.ndarray] | None, axis: int) -> np
 
 
 def _normalised(columns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    norms = np.sqrt(np.mean(columns ** 2, axis=0))
-    norms[norms == 0.0] = 1.0
+    norms = unit_norms(columns)
     return columns / norms, norms
 
 
@@ -273,45 +276,31 @@ class _EffectFit:
                  chosen: list[_Chosen], *, bias_order: int, scale_order: int) -> None:
         self.samples, self.mask, self.calibration0, self.chosen = samples, mask, calibration0, chosen
         self.bias_order, self.scale_order = bias_order, scale_order
-        ref, low, high = calibration0.temp_code_ref, calibration0.temp_code_min, calibration0.temp_code_max
-        self.n_scale = max(abs(low - ref), abs(high - ref), 1.0)
-        self.held = single_input_axes(train)
-        self.code_all = np.clip(samples.temp_code, low, high)  # what the corrector's clamp policy gives
+        self.frame = Frame.of_range(calibration0.temp_code_min, calibration0.temp_code_max, calibration0.temp_code_ref)
+        held = single_input_axes(train)
+        self.held_scales = [calibration0.axes[i].scale if held[i] else None for i in range(3)]
+        self.code_all = np.clip(samples.temp_code, self.frame.low, self.frame.high)  # the corrector's clamp policy
         self.stamp_all = samples.stamp_s
-        self.force = train.reference
-        self.input_effects = [(effect, cls) for effect, cls, _ in chosen if cls.kind == INPUT]
-        self._fixed_columns(train.counts, (self.code_all[mask] - ref) / self.n_scale)
+        self.train = train
+        self.input_effects = [effect or cls() for effect, cls, _ in chosen if cls.kind == INPUT]
+        self.powers = self.frame.powers(self.code_all[mask], max(bias_order, scale_order))
+        fixed = [self._design(i) for i in range(3)]
+        self.fixed = [design.matrix for design in fixed]
+        self.targets = [design.target for design in fixed]
+        self.names = [design.terms for design in fixed]
         self.projection = _Projection(self.fixed, self.targets, self.names)
         self.offsets = [self._offset_entry(effect, cls, fixed_shape)
                         for effect, cls, fixed_shape in chosen if cls.kind != INPUT]
 
     # ----- the design ------------------------------------------------------------------------
 
-    def _fixed_columns(self, counts: np.ndarray, u: np.ndarray) -> None:
-        """Per axis: the base model's columns, then the input effects' amplitudes; the target."""
-        bias_order, scale_order, force = self.bias_order, self.scale_order, self.force
-        powers = [np.ones_like(u)]
-        for _ in range(max(bias_order, scale_order)):
-            powers.append(powers[-1] * u)
-        self.fixed, self.targets, self.names, self.base_counts = [], [], [], []
-        for i in range(3):
-            if self.held[i]:
-                columns = [powers[j] for j in range(bias_order + 1)]
-                column_names = ['the offset polynomial'] * len(columns)
-                target = counts[:, i] - self.calibration0.axes[i].scale * force[:, i]
-            else:
-                columns = [force[:, i] * powers[j] for j in range(scale_order + 1)]
-                columns += [powers[j] for j in range(bias_order + 1)]
-                column_names = ['the scale polynomial'] * (scale_order + 1) + ['the offset polynomial'] * (bias_order + 1)
-                target = counts[:, i]
-            self.base_counts.append(len(columns))
-            for effect, cls in self.input_effects:
-                for name, column in (effect or cls()).input_columns(i, force):
-                    columns.append(column)
-                    column_names.append(f'{cls.name} ({name})')
-            self.fixed.append(np.column_stack(columns))
-            self.targets.append(target)
-            self.names.append(column_names)
+    def _design(self, axis: int, offsets: Sequence[_Offset] = ()) -> AxisDesign:
+        """One axis's columns over the training samples: the base model, the input effects, then
+        the given offset effects (their shapes as they stand)."""
+        return axis_design(axis, self.powers, self.train.reference, self.train.counts, bias_order=self.bias_order,
+                           scale_order=self.scale_order, held_scale=self.held_scales[axis],
+                           input_effects=self.input_effects,
+                           offset_bases=[(entry.effect, entry.basis[self.mask]) for entry in offsets])
 
     def _offset_entry(self, effect: Effect | None, cls: type[Effect], fixed_shape: bool) -> _Offset:
         """An offset effect: fixed, its shapes to search, or a structure to choose."""
@@ -454,65 +443,29 @@ class _EffectFit:
     # ----- the result ------------------------------------------------------------------------
 
     def result(self) -> FitResult:
-        """The final least squares over the training samples, the calibration and its errors."""
-        mask, offsets, fixed = self.mask, self.offsets, self.fixed
-        count = int(mask.sum())
-        extra_raw = [_axis_offset_columns(offsets, i, mask, count) for i in range(3)]
-        betas, residual_sums, designs = [], [], []
+        """The pipeline with every shape fixed: the final least squares over the training samples,
+        the calibration and its errors."""
+        mask, offsets = self.mask, self.offsets
+        solutions, columns = [], []
         for i in range(3):
-            design = np.column_stack([fixed[i], extra_raw[i]])
-            norms = np.sqrt(np.mean(design ** 2, axis=0))
-            norms[norms == 0.0] = 1.0
-            solution, _, rank, singular = np.linalg.lstsq(design / norms, self.targets[i], rcond=None)
-            if rank < design.shape[1]:
-                offender = _first_dependent(design / norms, self.names[i] + _offset_column_names(offsets, i))
-                msg = (f'axis {AXIS_NAMES[i]}: the data cannot separate {offender} from the other model terms '
-                       f'(the inputs and temperatures of this run do not excite it)')
+            design = self._design(i, offsets)
+            solution = least_squares(*design.system(), in_place=False)
+            if not solution.full_rank():
+                msg = (f'axis {AXIS_NAMES[i]}: the data cannot separate {solution.first_dependent(design.terms)} '
+                       f'from the other model terms (the inputs and temperatures of this run do not excite it)')
                 raise FitError(msg)
-            beta = solution / norms
-            betas.append(beta)
-            residual = self.targets[i] - design @ beta
-            residual_sums.append(float(residual @ residual))
-            designs.append((design, norms))
-        calibration0 = self.calibration0
-        ref, low, high = calibration0.temp_code_ref, calibration0.temp_code_min, calibration0.temp_code_max
-        axes_models = [axis_from_coefficients(betas[i], bias_order=self.bias_order, scale_order=self.scale_order,
-                                              n_scale=self.n_scale, code_offset_range=(low - ref, high - ref),
-                                              name=AXIS_NAMES[i],
-                                              held_scale=calibration0.axes[i].scale if self.held[i] else None)
-                       for i in range(3)]
-        calibration = Calibration(temp_code_ref=ref, temp_code_min=low, temp_code_max=high,
-                                  axes=tuple(axes_models), notes=calibration0.notes,  # type: ignore[arg-type]
-                                  effects=self._fitted_effects(betas))
+            solutions.append(solution)
+            columns.append(design.columns)
+        betas = [solution.coefficients for solution in solutions]
+        by_name = {entry.effect.name: entry.effect for entry in offsets}
+        by_name.update((effect.name, effect) for effect in self.input_effects)
+        effects = fitted_effects([by_name[cls.name] for _, cls, _ in self.chosen], columns, betas)
+        calibration = calibration_from(self.frame, betas, bias_order=self.bias_order, scale_order=self.scale_order,
+                                       held_scales=self.held_scales, notes=self.calibration0.notes, effects=effects)
         residual = residual_counts(calibration, self.samples)[mask]
-        parameters = [fixed[i].shape[1] + extra_raw[i].shape[1] + self._shape_count(i) for i in range(3)]
-        errors = _standard_errors(offsets, self.input_effects, designs, residual_sums, betas, fixed, self.force,
-                                  self.stamp_all, self.code_all, mask)
+        parameters = [solutions[i].width + self._shape_count(i) for i in range(3)]
+        errors = _standard_errors(offsets, solutions, columns, self.stamp_all, mask)
         return finish_fit(calibration, residual, parameters, dropped=self.samples.dropped, parameter_errors=errors)
-
-    def _fitted_effects(self, betas: list[np.ndarray]) -> tuple[Effect, ...]:
-        """Every effect with its amplitudes read from the solution, in the order given."""
-        input_effects, offsets, fixed = self.input_effects, self.offsets, self.fixed
-        fitted: dict[str, Effect] = {}
-        for effect, cls in input_effects:
-            values = {}
-            for i in range(3):
-                position = self.base_counts[i]
-                for other, other_cls in input_effects:
-                    columns = (other or other_cls()).input_columns(i, self.force[:1])
-                    if other_cls is cls:
-                        for k, (name, _) in enumerate(columns):
-                            values[name] = float(betas[i][position + k])
-                    position += len(columns)
-            fitted[cls.name] = _build(cls, values)
-        for index, entry in enumerate(offsets):
-            values = {name: entry.effect[name] for name in entry.effect.shape_names()}
-            for i in range(3):
-                position = fixed[i].shape[1] + sum(len(o.effect.axis_columns()[i]) for o in offsets[:index])
-                for k, name in enumerate(entry.effect.amplitude_names()[i]):
-                    values[name] = float(betas[i][position + k])
-            fitted[entry.effect.name] = _build(type(entry.effect), values)
-        return tuple(fitted[cls.name] for _, cls, _ in self.chosen)
 
     def _shape_count(self, axis: int) -> int:
         """Searched shape parameters that axis ``axis`` depends on (a per-axis form: its own only)."""
@@ -535,47 +488,20 @@ def _searched(cls: type[Effect], effect: Effect, time_s: np.ndarray,
                  and all(math.isfinite(v) for v in space[name][:2]))
 
 
-def _build(cls: type[Effect], values: dict[str, float]) -> Effect:
-    try:
-        return cls.from_values(values, key=f'effect {cls.name}', complete=True)
-    except CalibrationError as err:
-        msg = f'fitted {err}'
-        raise FitError(msg) from None
+def _standard_errors(offsets: list[_Offset], solutions: list[Solution], columns: list[tuple[Column, ...]],
+                     stamp_all: np.ndarray, mask: np.ndarray) -> dict[str, float]:
+    """Standard errors from the Fisher information of amplitudes and shape parameters together.
 
-
-def _axis_offset_columns(offsets: list[_Offset], axis: int, mask: np.ndarray, count: int) -> np.ndarray:
-    """The offset effects' basis signals that axis ``axis`` uses, over the training samples."""
-    blocks = [entry.basis[mask][:, list(entry.effect.axis_columns()[axis])] for entry in offsets]
-    return np.column_stack(blocks) if blocks else np.zeros((count, 0))
-
-
-def _offset_column_names(offsets: list[_Offset], axis: int) -> list[str]:
-    names = []
-    for entry in offsets:
-        names += [entry.effect.name] * len(entry.effect.axis_columns()[axis])
-    return names
-
-
-def _first_dependent(design: np.ndarray, names: list[str]) -> str:
-    """The first column (by name) that makes the design rank-deficient."""
-    for end in range(1, design.shape[1] + 1):
-        if np.linalg.matrix_rank(design[:, :end]) < end:
-            return names[end - 1]
-    return names[-1]
-
-
-def _standard_errors(offsets, input_effects, designs, residual_sums, betas, fixed, force,
-                     stamp_all, code_all, mask) -> dict[str, float]:
-    """Standard errors from the Fisher information of amplitudes and shape parameters together."""
+    :param solutions: per axis the final solve; ``columns``: per axis its column labels.
+    """
     count = int(mask.sum())
     shape_parameters = []  # (entry index, name, log, value)
     for index, entry in enumerate(offsets):
         for name, _, _, log in entry.searched:
             shape_parameters.append((index, name, log, entry.effect[name]))
-    blocks = [design.shape[1] for design, _ in designs]
+    blocks = [solution.width for solution in solutions]
     size = sum(blocks) + len(shape_parameters)
     fisher = np.zeros((size, size))
-    variances = []
     # Derivatives of every axis's model with respect to each searched shape coordinate.
     derivatives = np.zeros((3, count, len(shape_parameters)))
     for column, (index, name, log, value) in enumerate(shape_parameters):
@@ -587,46 +513,25 @@ def _standard_errors(offsets, input_effects, designs, residual_sums, betas, fixe
         slope = (upper - lower) / (2.0 * step)
         for i in range(3):
             used = list(entry.effect.axis_columns()[i])
-            position = fixed[i].shape[1] + sum(len(o.effect.axis_columns()[i]) for o in offsets[:index])
-            coefficients = betas[i][position:position + len(used)]
-            derivatives[i, :, column] = slope[:, used] @ coefficients
+            own = [k for k, label in enumerate(columns[i]) if label.effect == entry.effect.name]
+            derivatives[i, :, column] = slope[:, used] @ solutions[i].coefficients[own]
     offset = 0
-    for i, (design, norms) in enumerate(designs):
-        dof = max(count - design.shape[1] - len(shape_parameters), 1)
-        variance = residual_sums[i] / dof
-        variances.append(variance)
-        jacobian = np.column_stack([design / norms, derivatives[i]])
+    for i, solution in enumerate(solutions):
+        dof = max(count - solution.width - len(shape_parameters), 1)
+        variance = solution.rss / dof
+        jacobian = np.column_stack([solution.scaled, derivatives[i]])
         information = jacobian.T @ jacobian / variance
-        width = design.shape[1]
-        rows = list(range(offset, offset + width)) + list(range(sum(blocks), size))
+        rows = list(range(offset, offset + solution.width)) + list(range(sum(blocks), size))
         fisher[np.ix_(rows, rows)] += information
-        offset += width
+        offset += solution.width
     covariance = np.linalg.pinv(fisher, rcond=1e-14, hermitian=True)
     deviation = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
     errors: dict[str, float] = {}
     offset = 0
-    for i, (design, norms) in enumerate(designs):
-        names = _amplitude_layout(i, offsets, input_effects, fixed, force)
-        for position, label in names.items():
-            errors[label] = float(deviation[offset + position] / norms[position])
-        offset += design.shape[1]
+    for solution, labels in zip(solutions, columns):
+        errors.update(amplitude_errors(labels, deviation[offset:offset + solution.width] / solution.norms))
+        offset += solution.width
     for column, (index, name, log, value) in enumerate(shape_parameters):
         sigma = float(deviation[sum(blocks) + column])
         errors[f'{offsets[index].effect.name}.{name}'] = value * sigma if log else sigma
     return errors
-
-
-def _amplitude_layout(axis: int, offsets, input_effects, fixed, force) -> dict[int, str]:
-    """Design column -> ``'<effect>.<amplitude>'`` for one axis."""
-    layout = {}
-    position = fixed[axis].shape[1] - sum(len((e or c()).input_columns(axis, force[:1])) for e, c in input_effects)
-    for effect, cls in input_effects:
-        for name, _ in (effect or cls()).input_columns(axis, force[:1]):
-            layout[position] = f'{cls.name}.{name}'
-            position += 1
-    position = fixed[axis].shape[1]
-    for entry in offsets:
-        for name in entry.effect.amplitude_names()[axis]:
-            layout[position] = f'{entry.effect.name}.{name}'
-            position += 1
-    return layout

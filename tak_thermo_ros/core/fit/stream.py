@@ -25,14 +25,8 @@ from typing import Sequence
 
 import numpy as np
 
-from tak_thermo_ros.core.fit.base import (
-    INPUT_RESOLUTION,
-    MIN_SAMPLES_PER_PARAMETER,
-    FitResult,
-    axis_from_coefficients,
-    finish_fit_from_sums,
-    held_scale_note,
-)
+from tak_thermo_ros.core.fit.design import INPUT_RESOLUTION, MIN_SAMPLES_PER_PARAMETER
+from tak_thermo_ros.core.fit.model import FitResult, axis_from_coefficients, finish_fit_from_sums, held_scale_note
 from tak_thermo_ros.core.link.model import AXES, AxisModel, Calibration
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import CalibrationError, FitError
