@@ -17,11 +17,17 @@ from tak_thermo_ros.core.fit.design import (
     held_scale,
     single_input_axes,
 )
-from tak_thermo_ros.core.fit.model import FitResult, calibration_from, finish_fit, held_notes, residual_counts
-from tak_thermo_ros.core.fit.solve import Solution, least_squares
+from tak_thermo_ros.core.fit.model import (
+    FitResult,
+    calibration_from,
+    check_separated,
+    finish_fit,
+    held_notes,
+    residual_counts,
+)
+from tak_thermo_ros.core.fit.solve import least_squares
 from tak_thermo_ros.core.link.model import AXES
 from tak_thermo_ros.core.records.record import AlignedSamples
-from tak_thermo_ros.errors import FitError
 
 
 def fit_calibration(samples: AlignedSamples, *, bias_order: int = 3, scale_order: int = 2,
@@ -61,16 +67,3 @@ def fit_calibration(samples: AlignedSamples, *, bias_order: int = 3, scale_order
     parameters = [len(beta) for beta in coefficients]
     return finish_fit(calibration, residual, parameters, dropped=samples.dropped)
 
-
-def check_separated(solution: Solution, name: str, bias_order: int, scale_order: int, *, held: bool) -> None:
-    """The paper's model determined on one axis (else a :class:`FitError` saying which orders fail)."""
-    if held:
-        if not solution.full_rank():
-            msg = f'axis {name}: the temperature codes do not cover bias order {bias_order}'
-            raise FitError(msg)
-        return
-    if not solution.separated():
-        msg = (f'axis {name}: the data cannot separate the model terms '
-               f'(rank {solution.rank} of {solution.width}); the inputs and temperatures do not '
-               f'cover bias order {bias_order} and scale order {scale_order}')
-        raise FitError(msg)
