@@ -1,33 +1,44 @@
-"""The paper's least squares: the correction link without effects, over a whole calibration run.
+"""The fit's pipeline: a run's columns -> one solve per axis -> the model.
 
-The fit's one way, with no effect: samples -> the paper's columns (:mod:`~.design`) -> one
-solve (:mod:`~.solve`) -> a model (:mod:`~.model`). The model is linear in
-``(K0, K0 a1..ap, dNs0, c1..cq)`` with ``c_k = D b_k``: per axis the design matrix has the
-columns ``f n^j`` (j = 0..p) and ``n^j`` (j = 0..q), built in ``u = n / max|n|`` for
-conditioning and converted back to raw code powers afterwards.
+Every in-memory fit ends here, the paper's model alone (:func:`fit_calibration`) and the
+effects' final solve with their shapes fixed (:mod:`~tak_thermo_ros.core.fit.effects`):
+:meth:`FitRun.design <tak_thermo_ros.core.fit.design.FitRun.design>` gives the columns (the
+paper's ``f u^j`` and ``u^j``, then each effect's), :func:`solve_run` solves each axis
+(:func:`~tak_thermo_ros.core.fit.solve.least_squares`), :func:`model_run` turns the solutions
+into the calibration and its statistics (:mod:`~tak_thermo_ros.core.fit.model`). The model is
+linear in ``(K0, K0 a1..ap, dNs0, c1..cq)`` with ``c_k = D b_k``; the columns are built in
+``u = n / max|n|`` for conditioning and converted back to raw code powers afterwards.
 """
 
 from __future__ import annotations
 
-from tak_thermo_ros.core.fit.design import (
-    Frame,
-    axis_design,
-    check_observable,
-    check_orders,
-    held_scale,
-    single_input_axes,
-)
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from tak_thermo_ros.core.effects.base import Effect
+from tak_thermo_ros.core.fit.design import Column, FitRun
 from tak_thermo_ros.core.fit.model import (
     FitResult,
     calibration_from,
-    check_separated,
     finish_fit,
+    fitted_effects,
     held_notes,
     residual_counts,
 )
-from tak_thermo_ros.core.fit.solve import least_squares
+from tak_thermo_ros.core.fit.solve import Solution, least_squares
 from tak_thermo_ros.core.link.model import AXES
 from tak_thermo_ros.core.records.record import AlignedSamples
+from tak_thermo_ros.errors import FitError
+
+@dataclass(frozen=True)
+class Solved:
+    """The solve of the three axes: per axis the solution, its columns' labels, the held scale."""
+
+    solutions: tuple[Solution, ...]
+    columns: tuple[tuple[Column, ...], ...]
+    held_scales: tuple[float | None, ...]
 
 
 def fit_calibration(samples: AlignedSamples, *, bias_order: int = 3, scale_order: int = 2,
@@ -45,25 +56,72 @@ def fit_calibration(samples: AlignedSamples, *, bias_order: int = 3, scale_order
         marked ``scale_observable = False``.
     :raises FitError: when the data cannot determine the model.
     """
-    check_orders(bias_order, scale_order)
-    check_observable(samples, bias_order, scale_order)
-    frame = Frame.of_samples(samples, temp_code_ref)
-    powers = frame.powers(samples.temp_code, max(bias_order, scale_order))
-    first_input = [float(v) for v in samples.reference[0]]
-    single = single_input_axes(samples)
-    held: list[float | None] = []
-    coefficients = []
-    for i, name in enumerate(AXES):
-        held.append(held_scale(i, single, nominal_scale, first_input))
-        # One axis's design at a time: a 15-hour run at 100 Hz has 5.4 million rows.
-        solution = least_squares(*axis_design(i, powers, samples.reference, samples.counts, bias_order=bias_order,
-                                              scale_order=scale_order, held_scale=held[i]).system())
-        check_separated(solution, name, bias_order, scale_order, held=held[i] is not None)
-        coefficients.append(solution.coefficients)
-        del solution
-    calibration = calibration_from(frame, coefficients, bias_order=bias_order, scale_order=scale_order,
-                                   held_scales=held, notes=held_notes(held, first_input))
-    residual = residual_counts(calibration, samples)
-    parameters = [len(beta) for beta in coefficients]
-    return finish_fit(calibration, residual, parameters, dropped=samples.dropped)
+    run = FitRun.prepare(samples, bias_order=bias_order, scale_order=scale_order, temp_code_ref=temp_code_ref,
+                         nominal_scale=nominal_scale)
+    return fit_run(run)
 
+
+def fit_run(run: FitRun) -> FitResult:
+    """The paper's model over a prepared run: :func:`solve_run`, then :func:`model_run`."""
+    solved = solve_run(run)
+    return model_run(run, solved)
+
+
+def solve_run(run: FitRun, *, input_effects: Sequence[Effect] = (),
+              offset_bases: Sequence[tuple[Effect, np.ndarray]] = ()) -> Solved:
+    """One least squares per axis over the training rows: the paper's columns, then each effect's.
+
+    :param offset_bases: ``(effect, basis)`` of each offset effect over the training rows.
+    :raises FitError: a held axis without a nominal scale, or columns the data cannot separate
+        (the paper's model alone: which orders; with effects: the first such column).
+    """
+    solutions, columns, held_scales = [], [], []
+    for i, name in enumerate(AXES):
+        held = run.held_scale(i)
+        design = run.design(i, held, input_effects, offset_bases)
+        with_effects = any(column.effect for column in design.columns)
+        # The effects' errors need the raw columns; the paper's model alone may have millions of rows.
+        solution = least_squares(*design.system(), in_place=not with_effects)
+        if not with_effects:
+            check_separated(solution, name, run.bias_order, run.scale_order, held=held is not None)
+        elif not solution.full_rank():
+            msg = (f'axis {name}: the data cannot separate {solution.first_dependent(design.terms)} '
+                   f'from the other model terms (the inputs and temperatures of this run do not excite it)')
+            raise FitError(msg)
+        solutions.append(solution if with_effects else solution.without_design())
+        columns.append(design.columns)
+        held_scales.append(held)
+    return Solved(tuple(solutions), tuple(columns), tuple(held_scales))
+
+
+def model_run(run: FitRun, solved: Solved, *, effects: Sequence[Effect] = (), shape_parameters: Sequence[int] = (0, 0, 0),
+              parameter_errors: dict[str, float] | None = None) -> FitResult:
+    """The calibration of the solved axes, its residual through the correction path, its statistics.
+
+    :param effects: the effects in the calibration's order, shapes as solved (amplitudes are read
+        from the solution).
+    :param shape_parameters: per axis the searched shape parameters it depends on.
+    """
+    held = solved.held_scales
+    betas = [solution.coefficients for solution in solved.solutions]
+    fitted = fitted_effects(effects, solved.columns, betas)
+    calibration = calibration_from(run.frame, betas, bias_order=run.bias_order, scale_order=run.scale_order,
+                                   held_scales=held, notes=held_notes(held, run.first_input), effects=fitted)
+    # Effects with memory run over the whole series from their initial state.
+    residual = residual_counts(calibration, run.samples)[run.mask] if fitted else residual_counts(calibration, run.train)
+    parameters = [solution.width + shapes for solution, shapes in zip(solved.solutions, shape_parameters)]
+    return finish_fit(calibration, residual, parameters, dropped=run.samples.dropped, parameter_errors=parameter_errors)
+
+
+def check_separated(solution: Solution, name: str, bias_order: int, scale_order: int, *, held: bool) -> None:
+    """The paper's model determined on one axis (else a :class:`FitError` saying which orders fail)."""
+    if held:
+        if not solution.full_rank():
+            msg = f'axis {name}: the temperature codes do not cover bias order {bias_order}'
+            raise FitError(msg)
+        return
+    if not solution.separated():
+        msg = (f'axis {name}: the data cannot separate the model terms '
+               f'(rank {solution.rank} of {solution.width}); the inputs and temperatures do not '
+               f'cover bias order {bias_order} and scale order {scale_order}')
+        raise FitError(msg)

@@ -23,7 +23,7 @@ from typing import Sequence
 
 import numpy as np
 
-from tak_thermo_ros.core.effects.base import Effect
+from tak_thermo_ros.core.effects.base import Effect, checked_basis, effect_input
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import FitError
 
@@ -219,3 +219,83 @@ def axis_design(axis: int, powers_of_u: Sequence[np.ndarray], force: np.ndarray,
     if with_target:
         matrix[:, width] = target
     return AxisDesign(matrix=matrix, target=target, columns=tuple(labels))
+
+
+def subset(samples: AlignedSamples, mask: np.ndarray) -> AlignedSamples:
+    """The samples where ``mask`` (every stream, the drop counts kept)."""
+    return AlignedSamples(stamp_ns=samples.stamp_ns[mask], counts=samples.counts[mask],
+                          temp_code=samples.temp_code[mask],
+                          reference=None if samples.reference is None else samples.reference[mask],
+                          dropped=dict(samples.dropped),
+                          aux={name: values[mask] for name, values in samples.aux.items()})
+
+
+@dataclass(frozen=True)
+class FitRun:
+    """The samples as a fit sees them: the training rows, the polynomials' frame, the held axes.
+
+    :param samples: every sample (effects with memory run over the whole series).
+    :param mask: the training rows; ``train``: ``samples`` there.
+    :param single: per axis, whether the training reference holds one input only.
+    :param first_input: the training reference's first sample.
+    :param powers: ``u^0 .. u^max(p, q)`` over the training rows.
+    """
+
+    samples: AlignedSamples
+    mask: np.ndarray
+    train: AlignedSamples
+    bias_order: int
+    scale_order: int
+    frame: Frame
+    single: tuple[bool, bool, bool]
+    nominal_scale: tuple[float, float, float] | None
+    first_input: tuple[float, ...]
+    powers: list[np.ndarray]
+
+    @classmethod
+    def prepare(cls, samples: AlignedSamples, *, bias_order: int = 3, scale_order: int = 2,
+                temp_code_ref: float | None = None, nominal_scale: tuple[float, float, float] | None = None,
+                train_mask: np.ndarray | None = None) -> FitRun:
+        """Check the samples for the orders and set the run up.
+
+        :raises FitError: a train mask of the wrong shape, orders out of range, too few samples,
+            no reference, no temperature spread.
+        """
+        if train_mask is None:
+            mask = np.ones(len(samples), dtype=bool)
+        else:
+            mask = np.asarray(train_mask, dtype=bool)
+            if mask.shape != (len(samples),):
+                msg = f'train_mask: expected {len(samples)} booleans, got shape {mask.shape}'
+                raise FitError(msg)
+        train = subset(samples, mask) if not mask.all() else samples
+        check_orders(bias_order, scale_order)
+        check_observable(train, bias_order, scale_order)
+        frame = Frame.of_samples(train, temp_code_ref)
+        return cls(samples=samples, mask=mask, train=train, bias_order=bias_order, scale_order=scale_order,
+                   frame=frame, single=single_input_axes(train), nominal_scale=nominal_scale,
+                   first_input=tuple(float(v) for v in train.reference[0]),
+                   powers=frame.powers(train.temp_code, max(bias_order, scale_order)))
+
+    def held_scale(self, axis: int) -> float | None:
+        """The nominal scale axis ``axis`` is held at (``None``: its scale is fitted); see :func:`held_scale`."""
+        return held_scale(axis, self.single, self.nominal_scale, self.first_input)
+
+    def effect_input(self, effect: Effect | type[Effect]) -> np.ndarray:
+        """What drives an offset effect over every sample: the temperature code as the corrector
+        sees it (clamped to the calibrated range), or the recorded signal it names."""
+        return effect_input(effect, np.clip(self.samples.temp_code, self.frame.low, self.frame.high),  # type: ignore[arg-type]
+                            self.samples.aux)
+
+    def basis(self, effect: Effect, inputs: np.ndarray, *, search: bool = False) -> np.ndarray:
+        """An offset effect's basis signals ``(k, b)`` over every sample, in time order from its
+        initial state (:func:`~tak_thermo_ros.core.effects.base.checked_basis`); ``inputs`` from
+        :meth:`effect_input`."""
+        return checked_basis(effect, self.samples.stamp_s, inputs, search=search)
+
+    def design(self, axis: int, held: float | None, input_effects: Sequence[Effect] = (),
+               offset_bases: Sequence[tuple[Effect, np.ndarray]] = ()) -> AxisDesign:
+        """One axis's design over the training rows (:func:`axis_design`; ``offset_bases`` over those rows)."""
+        return axis_design(axis, self.powers, self.train.reference, self.train.counts, bias_order=self.bias_order,
+                           scale_order=self.scale_order, held_scale=held, input_effects=input_effects,
+                           offset_bases=offset_bases)

@@ -5,8 +5,8 @@ offset effects' amplitudes once the offset effects' shape parameters are fixed: 
 :mod:`~tak_thermo_ros.core.fit.design`, one solve (:mod:`~tak_thermo_ros.core.fit.solve`), a
 model (:mod:`~tak_thermo_ros.core.fit.model`). Only the shapes need a search. So:
 
-1. the base model alone is fitted first (:func:`~tak_thermo_ros.core.fit.fit_calibration` on
-   the training samples: the same checks, reference code and notes as a plain fit);
+1. the run is set up as for the paper's model alone (:class:`~tak_thermo_ros.core.fit.design.FitRun`:
+   the same checks, reference code and held axes as a plain fit);
 2. each offset effect's shape parameter is searched on a coarse log grid, then refined by a
    bounded Brent search, minimising ``sum_axes ln RSS_axis`` with every amplitude profiled out
    by least squares (QR projection onto the fixed columns);
@@ -29,19 +29,11 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from tak_thermo_ros.core.effects import resolve_effect
-from tak_thermo_ros.core.effects.base import AXIS_NAMES, INPUT, Effect, call_effect, checked_basis, effect_input
-from tak_thermo_ros.core.fit.base import fit_calibration
-from tak_thermo_ros.core.fit.design import AxisDesign, Column, Frame, axis_design, single_input_axes
-from tak_thermo_ros.core.fit.model import (
-    FitResult,
-    amplitude_errors,
-    calibration_from,
-    finish_fit,
-    fitted_effects,
-    residual_counts,
-)
-from tak_thermo_ros.core.fit.solve import Solution, least_squares, unit_norms
-from tak_thermo_ros.core.link.model import Calibration
+from tak_thermo_ros.core.effects.base import AXIS_NAMES, INPUT, Effect, call_effect
+from tak_thermo_ros.core.fit.base import fit_run, model_run, solve_run
+from tak_thermo_ros.core.fit.design import Column, FitRun
+from tak_thermo_ros.core.fit.model import FitResult, amplitude_errors
+from tak_thermo_ros.core.fit.solve import Solution, unit_norms
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import CalibrationError, FitError
 
@@ -66,14 +58,6 @@ class _Offset:
     inputs: np.ndarray | None = None  # what drives the effect: the temperature code or its recorded signal
     done: bool = False
     cache: dict = field(default_factory=dict)
-
-
-def _subset(samples: AlignedSamples, mask: np.ndarray) -> AlignedSamples:
-    return AlignedSamples(stamp_ns=samples.stamp_ns[mask], counts=samples.counts[mask],
-                          temp_code=samples.temp_code[mask],
-                          reference=None if samples.reference is None else samples.reference[mask],
-                          dropped=dict(samples.dropped),
-                          aux={name: values[mask] for name, values in samples.aux.items()})
 
 
 def _template(cls: type[Effect]) -> Effect | None:
@@ -213,25 +197,19 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
                      train_mask: np.ndarray | None = None) -> FitResult:
     """The implementation of :func:`tak_thermo_ros.core.fit.fit_model`.
 
-    The steps: the paper's fit on the training samples; the design of the base model and the
-    input effects per axis; each offset effect's shapes searched on the profiled residual
-    (variable projection; structures by cross-validation); the final least squares; the
-    calibration and the standard errors (:class:`_EffectFit`).
+    The steps: the run set up (:meth:`FitRun.prepare`: the training rows, checks, frame); each
+    offset effect's shapes searched on the profiled residual (variable projection; structures
+    by cross-validation), with the columns of the paper's model and the input effects fixed;
+    then the pipeline with every shape fixed (:func:`~tak_thermo_ros.core.fit.base.solve_run`,
+    :func:`~tak_thermo_ros.core.fit.base.model_run`) and the standard errors (:class:`_EffectFit`).
+    Without effects, the pipeline alone (:func:`~tak_thermo_ros.core.fit.base.fit_run`).
     """
-    if train_mask is None:
-        mask = np.ones(len(samples), dtype=bool)
-    else:
-        mask = np.asarray(train_mask, dtype=bool)
-        if mask.shape != (len(samples),):
-            msg = f'train_mask: expected {len(samples)} booleans, got shape {mask.shape}'
-            raise FitError(msg)
-    train = _subset(samples, mask) if not mask.all() else samples
-    base = fit_calibration(train, bias_order=bias_order, scale_order=scale_order,
-                           temp_code_ref=temp_code_ref, nominal_scale=nominal_scale)
+    run = FitRun.prepare(samples, bias_order=bias_order, scale_order=scale_order, temp_code_ref=temp_code_ref,
+                         nominal_scale=nominal_scale, train_mask=train_mask)
     chosen = _resolve_specs(effects)
     if not chosen:
-        return base
-    fit = _EffectFit(samples, train, mask, base.calibration, chosen, bias_order=bias_order, scale_order=scale_order)
+        return fit_run(run)
+    fit = _EffectFit(run, chosen)
     fit.search_shapes()
     return fit.result()
 
@@ -267,24 +245,16 @@ def _resolve_specs(effects: Sequence) -> list[_Chosen]:
 class _EffectFit:
     """One fit of the paper's model plus effects, step by step (see :func:`fit_with_effects`).
 
-    :param samples: every sample (effects with memory run over the whole series).
-    :param train: the training samples (``samples`` where ``mask``).
-    :param calibration0: the paper's fit on ``train`` (range, reference, held scales).
+    :param run: the prepared run (every sample: effects with memory run over the whole series;
+        the least squares over its training rows).
     """
 
-    def __init__(self, samples: AlignedSamples, train: AlignedSamples, mask: np.ndarray, calibration0: Calibration,
-                 chosen: list[_Chosen], *, bias_order: int, scale_order: int) -> None:
-        self.samples, self.mask, self.calibration0, self.chosen = samples, mask, calibration0, chosen
-        self.bias_order, self.scale_order = bias_order, scale_order
-        self.frame = Frame.of_range(calibration0.temp_code_min, calibration0.temp_code_max, calibration0.temp_code_ref)
-        held = single_input_axes(train)
-        self.held_scales = [calibration0.axes[i].scale if held[i] else None for i in range(3)]
-        self.code_all = np.clip(samples.temp_code, self.frame.low, self.frame.high)  # the corrector's clamp policy
-        self.stamp_all = samples.stamp_s
-        self.train = train
+    def __init__(self, run: FitRun, chosen: list[_Chosen]) -> None:
+        self.run, self.chosen = run, chosen
+        self.samples, self.mask = run.samples, run.mask
+        self.held_scales = [run.held_scale(i) for i in range(3)]
         self.input_effects = [effect or cls() for effect, cls, _ in chosen if cls.kind == INPUT]
-        self.powers = self.frame.powers(self.code_all[mask], max(bias_order, scale_order))
-        fixed = [self._design(i) for i in range(3)]
+        fixed = [run.design(i, self.held_scales[i], self.input_effects) for i in range(3)]
         self.fixed = [design.matrix for design in fixed]
         self.targets = [design.target for design in fixed]
         self.names = [design.terms for design in fixed]
@@ -294,19 +264,11 @@ class _EffectFit:
 
     # ----- the design ------------------------------------------------------------------------
 
-    def _design(self, axis: int, offsets: Sequence[_Offset] = ()) -> AxisDesign:
-        """One axis's columns over the training samples: the base model, the input effects, then
-        the given offset effects (their shapes as they stand)."""
-        return axis_design(axis, self.powers, self.train.reference, self.train.counts, bias_order=self.bias_order,
-                           scale_order=self.scale_order, held_scale=self.held_scales[axis],
-                           input_effects=self.input_effects,
-                           offset_bases=[(entry.effect, entry.basis[self.mask]) for entry in offsets])
-
     def _offset_entry(self, effect: Effect | None, cls: type[Effect], fixed_shape: bool) -> _Offset:
         """An offset effect: fixed, its shapes to search, or a structure to choose."""
         mask = self.mask
-        time_train = self.stamp_all[mask]
-        inputs_all = effect_input(effect if effect is not None else cls, self.code_all, self.samples.aux)
+        time_train = self.run.train.stamp_s
+        inputs_all = self.run.effect_input(effect if effect is not None else cls)
         if fixed_shape:
             entry = _Offset(effect=effect, mode='fixed')  # type: ignore[arg-type]
         else:
@@ -325,7 +287,7 @@ class _EffectFit:
                 entry = _Offset(effect=effect, mode='search' if searched else 'fixed', searched=searched)
         entry.inputs = inputs_all
         if entry.mode == 'fixed':
-            entry.basis = checked_basis(entry.effect, self.stamp_all, inputs_all)
+            entry.basis = self.run.basis(entry.effect, inputs_all)
             entry.done = True
         return entry
 
@@ -358,7 +320,7 @@ class _EffectFit:
     def _basis_of(self, entry: _Offset, effect: Effect, *, exact: bool = False) -> np.ndarray:
         key = (exact, tuple(sorted(effect.values.items())))
         if key not in entry.cache:
-            entry.cache[key] = checked_basis(effect, self.stamp_all, entry.inputs, search=not exact)
+            entry.cache[key] = self.run.basis(effect, entry.inputs, search=not exact)
         return entry.cache[key]
 
     # ----- the shapes ------------------------------------------------------------------------
@@ -443,29 +405,16 @@ class _EffectFit:
     # ----- the result ------------------------------------------------------------------------
 
     def result(self) -> FitResult:
-        """The pipeline with every shape fixed: the final least squares over the training samples,
+        """The pipeline with every shape fixed: the final least squares over the training rows,
         the calibration and its errors."""
-        mask, offsets = self.mask, self.offsets
-        solutions, columns = [], []
-        for i in range(3):
-            design = self._design(i, offsets)
-            solution = least_squares(*design.system(), in_place=False)
-            if not solution.full_rank():
-                msg = (f'axis {AXIS_NAMES[i]}: the data cannot separate {solution.first_dependent(design.terms)} '
-                       f'from the other model terms (the inputs and temperatures of this run do not excite it)')
-                raise FitError(msg)
-            solutions.append(solution)
-            columns.append(design.columns)
-        betas = [solution.coefficients for solution in solutions]
+        offsets = self.offsets
+        solved = solve_run(self.run, input_effects=self.input_effects,
+                           offset_bases=[(entry.effect, entry.basis[self.mask]) for entry in offsets])
         by_name = {entry.effect.name: entry.effect for entry in offsets}
         by_name.update((effect.name, effect) for effect in self.input_effects)
-        effects = fitted_effects([by_name[cls.name] for _, cls, _ in self.chosen], columns, betas)
-        calibration = calibration_from(self.frame, betas, bias_order=self.bias_order, scale_order=self.scale_order,
-                                       held_scales=self.held_scales, notes=self.calibration0.notes, effects=effects)
-        residual = residual_counts(calibration, self.samples)[mask]
-        parameters = [solutions[i].width + self._shape_count(i) for i in range(3)]
-        errors = _standard_errors(offsets, solutions, columns, self.stamp_all, mask)
-        return finish_fit(calibration, residual, parameters, dropped=self.samples.dropped, parameter_errors=errors)
+        errors = _standard_errors(self.run, offsets, solved.solutions, solved.columns)
+        return model_run(self.run, solved, effects=[by_name[cls.name] for _, cls, _ in self.chosen],
+                         shape_parameters=[self._shape_count(i) for i in range(3)], parameter_errors=errors)
 
     def _shape_count(self, axis: int) -> int:
         """Searched shape parameters that axis ``axis`` depends on (a per-axis form: its own only)."""
@@ -488,12 +437,13 @@ def _searched(cls: type[Effect], effect: Effect, time_s: np.ndarray,
                  and all(math.isfinite(v) for v in space[name][:2]))
 
 
-def _standard_errors(offsets: list[_Offset], solutions: list[Solution], columns: list[tuple[Column, ...]],
-                     stamp_all: np.ndarray, mask: np.ndarray) -> dict[str, float]:
+def _standard_errors(run: FitRun, offsets: list[_Offset], solutions: Sequence[Solution],
+                     columns: Sequence[tuple[Column, ...]]) -> dict[str, float]:
     """Standard errors from the Fisher information of amplitudes and shape parameters together.
 
     :param solutions: per axis the final solve; ``columns``: per axis its column labels.
     """
+    mask = run.mask
     count = int(mask.sum())
     shape_parameters = []  # (entry index, name, log, value)
     for index, entry in enumerate(offsets):
@@ -508,7 +458,7 @@ def _standard_errors(offsets: list[_Offset], solutions: list[Solution], columns:
         entry = offsets[index]
         step = SHAPE_STEP if log else SHAPE_STEP * max(abs(value), 1.0)
         values = [(value * math.exp(h) if log else value + h) for h in (step, -step)]
-        upper, lower = (checked_basis(entry.effect.replace(**{name: v}), stamp_all, entry.inputs)[mask]
+        upper, lower = (run.basis(entry.effect.replace(**{name: v}), entry.inputs)[mask]
                         for v in values)
         slope = (upper - lower) / (2.0 * step)
         for i in range(3):

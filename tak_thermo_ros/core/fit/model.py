@@ -16,7 +16,6 @@ import numpy as np
 
 from tak_thermo_ros.core.effects.base import Effect
 from tak_thermo_ros.core.fit.design import Column, Frame
-from tak_thermo_ros.core.fit.solve import Solution
 from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.core.link.model import AXES, AxisModel, Calibration
 from tak_thermo_ros.core.records.calibration_file import check_scale_positive
@@ -102,20 +101,6 @@ def axis_from_coefficients(beta: Sequence[float], *, bias_order: int, scale_orde
         offset_coeffs=[beta[scale_order + 1 + j] / n_scale ** j for j in range(1, bias_order + 1)],
         scale_coeffs=[beta[j] / (scale * n_scale ** j) for j in range(1, scale_order + 1)],
         code_offset_range=code_offset_range)
-
-
-def check_separated(solution: Solution, name: str, bias_order: int, scale_order: int, *, held: bool) -> None:
-    """The paper's model determined on one axis (else a :class:`FitError` saying which orders fail)."""
-    if held:
-        if not solution.full_rank():
-            msg = f'axis {name}: the temperature codes do not cover bias order {bias_order}'
-            raise FitError(msg)
-        return
-    if not solution.separated():
-        msg = (f'axis {name}: the data cannot separate the model terms '
-               f'(rank {solution.rank} of {solution.width}); the inputs and temperatures do not '
-               f'cover bias order {bias_order} and scale order {scale_order}')
-        raise FitError(msg)
 
 
 def held_scale_note(held: Sequence[bool], held_inputs: Sequence[str]) -> str:

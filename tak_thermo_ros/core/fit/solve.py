@@ -10,7 +10,7 @@ tall-skinny QR (:class:`BlockedQR`, never forming ``X^T X``) and solved by :func
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
@@ -50,6 +50,10 @@ class Solution:
     def separated(self) -> bool:
         """Full rank, and no direction determined less than :data:`SEPARATION` of the best one."""
         return self.full_rank() and not self.singular[-1] < SEPARATION * self.singular[0]
+
+    def without_design(self) -> Solution:
+        """This solution without the scaled design (which may hold millions of rows), to keep."""
+        return replace(self, scaled=self.scaled[:0])
 
     def first_dependent(self, names: Sequence[str]) -> str:
         """The name of the first column that makes the design rank-deficient."""

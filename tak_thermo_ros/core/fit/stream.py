@@ -28,6 +28,7 @@ from typing import Sequence
 import numpy as np
 
 from tak_thermo_ros.core.effects.base import INPUT, Effect, basis_from, effect_input
+from tak_thermo_ros.core.fit.base import check_separated
 from tak_thermo_ros.core.fit.design import (
     INPUT_RESOLUTION,
     MIN_SAMPLES_PER_PARAMETER,
@@ -41,7 +42,6 @@ from tak_thermo_ros.core.fit.model import (
     FitResult,
     amplitude_errors,
     calibration_from,
-    check_separated,
     finish_fit_from_sums,
     fitted_effects,
     held_notes,
