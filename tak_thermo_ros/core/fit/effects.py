@@ -251,7 +251,7 @@ class _EffectFit:
 
     def __init__(self, run: FitRun, chosen: list[_Chosen]) -> None:
         self.run, self.chosen = run, chosen
-        self.samples, self.mask = run.samples, run.mask
+        self.mask = run.mask
         self.held_scales = [run.held_scale(i) for i in range(3)]
         self.input_effects = [effect or cls() for effect, cls, _ in chosen if cls.kind == INPUT]
         fixed = [run.design(i, self.held_scales[i], self.input_effects) for i in range(3)]
