@@ -439,3 +439,19 @@ def checked_basis(effect: Effect, stamp_s: np.ndarray, temp_code: np.ndarray, *,
         msg = f'effect {effect.name}: {method}() returned non-finite values (NaN or infinite)'
         raise EffectError(msg)
     return basis
+
+
+def basis_from(effect: Effect, state: Any, stamp_s: np.ndarray, temp_code: np.ndarray,
+               *, started: bool) -> tuple[np.ndarray, Any]:
+    """Basis signals ``(k, b)`` of a block continuing from ``state``, and the state after it.
+
+    The block path of the fit and of the correction alike (:meth:`Effect.stepped_basis`).
+
+    :param started: ``False`` before the run's first sample (the effect starts at it).
+    :raises EffectError: non-finite values.
+    """
+    out, state = effect.stepped_basis(stamp_s, temp_code, state=state, started=started)
+    if not np.all(np.isfinite(out)):
+        msg = f'effect {effect.name}: basis() returned non-finite values (NaN or infinite)'
+        raise EffectError(msg)
+    return out, state

@@ -1,9 +1,12 @@
 """The fit of the correction link: the one entry, :func:`fit_model`.
 
-Two rooms, one direction: :mod:`tak_thermo_ros.core.fit.base` solves the paper's model by least
-squares (linear in ``(K0, K0 a1..ap, dNs0, c1..cq)``); :mod:`tak_thermo_ros.core.fit.effects`
-adds the effects on top of it (variable projection). This module calls the second, which calls
-the first; neither imports this one. The base fit's names are importable from here too.
+The fit's data flows one way: samples -> each term's columns (:mod:`~.design`: the paper's
+polynomials, then each effect's columns) -> one solve (:mod:`~.solve`: least squares in
+memory, or from a triangular factor accumulated over blocks) -> a model (:mod:`~.model`: the
+calibration, its residual through the one correction path, its statistics and errors).
+:mod:`~.base` runs that pipeline for the paper's model; :mod:`~.effects` searches the effects'
+shapes on top of it and ends with the same pipeline (variable projection); :mod:`~.stream`
+runs it over a run that arrives in blocks. The names users need are importable from here.
 """
 
 from __future__ import annotations
@@ -12,21 +15,23 @@ from typing import Sequence
 
 import numpy as np
 
-from tak_thermo_ros.core.fit.base import (  # noqa: F401 (the base fit's names, importable from the entry)
-    INPUT_RESOLUTION,
-    MIN_SAMPLES_PER_PARAMETER,
+from tak_thermo_ros.core.effects.base import Effect
+from tak_thermo_ros.core.fit.base import fit_calibration
+from tak_thermo_ros.core.fit.design import INPUT_RESOLUTION, MIN_SAMPLES_PER_PARAMETER, single_input_axes
+from tak_thermo_ros.core.fit.effects import fit_with_effects
+from tak_thermo_ros.core.fit.model import (
     AxisFit,
     FitResult,
     finish_fit,
     finish_fit_from_sums,
-    fit_calibration,
     held_scale_note,
     residual_counts,
-    single_input_axes,
 )
-from tak_thermo_ros.core.effects.base import Effect
-from tak_thermo_ros.core.fit.effects import fit_with_effects
 from tak_thermo_ros.core.records.record import AlignedSamples
+
+__all__ = ['INPUT_RESOLUTION', 'MIN_SAMPLES_PER_PARAMETER', 'AxisFit', 'FitResult', 'finish_fit',
+           'finish_fit_from_sums', 'fit_calibration', 'fit_model', 'fit_with_effects', 'held_scale_note',
+           'residual_counts', 'single_input_axes']
 
 
 def fit_model(samples: AlignedSamples, *, effects: Sequence[str | type[Effect] | Effect] = (),

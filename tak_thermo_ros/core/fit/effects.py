@@ -1,10 +1,12 @@
-"""Fitting the base model together with effects (variable projection).
+"""Fitting the base model together with effects: the shape search on top of the pipeline.
 
 Per axis the model is linear in the base coefficients, the input effects' amplitudes and the
-offset effects' amplitudes once the offset effects' shape parameters are fixed. So:
+offset effects' amplitudes once the offset effects' shape parameters are fixed: the columns of
+:mod:`~tak_thermo_ros.core.fit.design`, one solve (:mod:`~tak_thermo_ros.core.fit.solve`), a
+model (:mod:`~tak_thermo_ros.core.fit.model`). Only the shapes need a search. So:
 
-1. the base model alone is fitted first (:func:`~tak_thermo_ros.core.fit.fit_calibration` on
-   the training samples: the same checks, reference code and notes as a plain fit);
+1. the run is set up as for the paper's model alone (:class:`~tak_thermo_ros.core.fit.design.FitRun`:
+   the same checks, reference code and held axes as a plain fit);
 2. each offset effect's shape parameter is searched on a coarse log grid, then refined by a
    bounded Brent search, minimising ``sum_axes ln RSS_axis`` with every amplitude profiled out
    by least squares (QR projection onto the fixed columns);
@@ -12,8 +14,9 @@ offset effects' amplitudes once the offset effects' shape parameters are fixed. 
    cross-validation: the training samples cut into contiguous blocks, dealt round-robin into
    folds, each fold predicted from a fit on the others;
 4. with several searched effects, step 2-3 is repeated once with all the others in place;
-5. the final least squares gives every amplitude; standard errors come from the Fisher
-   information of amplitudes and shape parameters together (shape derivatives numerically).
+5. the final least squares (the pipeline with every shape fixed) gives every amplitude;
+   standard errors come from the Fisher information of amplitudes and shape parameters
+   together (shape derivatives numerically).
 """
 
 from __future__ import annotations
@@ -26,16 +29,11 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from tak_thermo_ros.core.effects import resolve_effect
-from tak_thermo_ros.core.effects.base import AXIS_NAMES, INPUT, Effect, call_effect, checked_basis, effect_input
-from tak_thermo_ros.core.fit.base import (
-    FitResult,
-    axis_from_coefficients,
-    finish_fit,
-    fit_calibration,
-    residual_counts,
-    single_input_axes,
-)
-from tak_thermo_ros.core.link.model import Calibration
+from tak_thermo_ros.core.effects.base import AXIS_NAMES, INPUT, Effect, call_effect
+from tak_thermo_ros.core.fit.base import fit_run, model_run, solve_run
+from tak_thermo_ros.core.fit.design import Column, FitRun
+from tak_thermo_ros.core.fit.model import FitResult, amplitude_errors
+from tak_thermo_ros.core.fit.solve import Solution, unit_norms
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import CalibrationError, FitError
 
@@ -62,14 +60,6 @@ class _Offset:
     cache: dict = field(default_factory=dict)
 
 
-def _subset(samples: AlignedSamples, mask: np.ndarray) -> AlignedSamples:
-    return AlignedSamples(stamp_ns=samples.stamp_ns[mask], counts=samples.counts[mask],
-                          temp_code=samples.temp_code[mask],
-                          reference=None if samples.reference is None else samples.reference[mask],
-                          dropped=dict(samples.dropped),
-                          aux={name: values[mask] for name, values in samples.aux.items()})
-
-
 def _template(cls: type[Effect]) -> Effect | None:
     try:
         return cls.from_values({}, complete=False)
@@ -86,9 +76,7 @@ class _Projection:
         self.names = names
         self.bases = []
         for i, (design, target) in enumerate(zip(fixed, targets)):
-            norms = np.sqrt(np.mean(design ** 2, axis=0))
-            norms[norms == 0.0] = 1.0
-            q, r = np.linalg.qr(design / norms)
+            q, r = np.linalg.qr(design / unit_norms(design))
             diagonal = np.abs(np.diag(r))
             if diagonal.size and diagonal.min() < RANK_TOLERANCE * diagonal.max():
                 culprit = names[i][int(np.argmin(diagonal))]
@@ -126,8 +114,7 @@ def _axis_part(extra: np.ndarray | Sequence[np.ndarray] | None, axis: int) -> np
 
 
 def _normalised(columns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    norms = np.sqrt(np.mean(columns ** 2, axis=0))
-    norms[norms == 0.0] = 1.0
+    norms = unit_norms(columns)
     return columns / norms, norms
 
 
@@ -210,25 +197,19 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
                      train_mask: np.ndarray | None = None) -> FitResult:
     """The implementation of :func:`tak_thermo_ros.core.fit.fit_model`.
 
-    The steps: the paper's fit on the training samples; the design of the base model and the
-    input effects per axis; each offset effect's shapes searched on the profiled residual
-    (variable projection; structures by cross-validation); the final least squares; the
-    calibration and the standard errors (:class:`_EffectFit`).
+    The steps: the run set up (:meth:`FitRun.prepare`: the training rows, checks, frame); each
+    offset effect's shapes searched on the profiled residual (variable projection; structures
+    by cross-validation), with the columns of the paper's model and the input effects fixed;
+    then the pipeline with every shape fixed (:func:`~tak_thermo_ros.core.fit.base.solve_run`,
+    :func:`~tak_thermo_ros.core.fit.base.model_run`) and the standard errors (:class:`_EffectFit`).
+    Without effects, the pipeline alone (:func:`~tak_thermo_ros.core.fit.base.fit_run`).
     """
-    if train_mask is None:
-        mask = np.ones(len(samples), dtype=bool)
-    else:
-        mask = np.asarray(train_mask, dtype=bool)
-        if mask.shape != (len(samples),):
-            msg = f'train_mask: expected {len(samples)} booleans, got shape {mask.shape}'
-            raise FitError(msg)
-    train = _subset(samples, mask) if not mask.all() else samples
-    base = fit_calibration(train, bias_order=bias_order, scale_order=scale_order,
-                           temp_code_ref=temp_code_ref, nominal_scale=nominal_scale)
+    run = FitRun.prepare(samples, bias_order=bias_order, scale_order=scale_order, temp_code_ref=temp_code_ref,
+                         nominal_scale=nominal_scale, train_mask=train_mask)
     chosen = _resolve_specs(effects)
     if not chosen:
-        return base
-    fit = _EffectFit(samples, train, mask, base.calibration, chosen, bias_order=bias_order, scale_order=scale_order)
+        return fit_run(run)
+    fit = _EffectFit(run, chosen)
     fit.search_shapes()
     return fit.result()
 
@@ -264,60 +245,30 @@ def _resolve_specs(effects: Sequence) -> list[_Chosen]:
 class _EffectFit:
     """One fit of the paper's model plus effects, step by step (see :func:`fit_with_effects`).
 
-    :param samples: every sample (effects with memory run over the whole series).
-    :param train: the training samples (``samples`` where ``mask``).
-    :param calibration0: the paper's fit on ``train`` (range, reference, held scales).
+    :param run: the prepared run (every sample: effects with memory run over the whole series;
+        the least squares over its training rows).
     """
 
-    def __init__(self, samples: AlignedSamples, train: AlignedSamples, mask: np.ndarray, calibration0: Calibration,
-                 chosen: list[_Chosen], *, bias_order: int, scale_order: int) -> None:
-        self.samples, self.mask, self.calibration0, self.chosen = samples, mask, calibration0, chosen
-        self.bias_order, self.scale_order = bias_order, scale_order
-        ref, low, high = calibration0.temp_code_ref, calibration0.temp_code_min, calibration0.temp_code_max
-        self.n_scale = max(abs(low - ref), abs(high - ref), 1.0)
-        self.held = single_input_axes(train)
-        self.code_all = np.clip(samples.temp_code, low, high)  # what the corrector's clamp policy gives
-        self.stamp_all = samples.stamp_s
-        self.force = train.reference
-        self.input_effects = [(effect, cls) for effect, cls, _ in chosen if cls.kind == INPUT]
-        self._fixed_columns(train.counts, (self.code_all[mask] - ref) / self.n_scale)
+    def __init__(self, run: FitRun, chosen: list[_Chosen]) -> None:
+        self.run, self.chosen = run, chosen
+        self.mask = run.mask
+        self.held_scales = [run.held_scale(i) for i in range(3)]
+        self.input_effects = [effect or cls() for effect, cls, _ in chosen if cls.kind == INPUT]
+        fixed = [run.design(i, self.held_scales[i], self.input_effects) for i in range(3)]
+        self.fixed = [design.matrix for design in fixed]
+        self.targets = [design.target for design in fixed]
+        self.names = [design.terms for design in fixed]
         self.projection = _Projection(self.fixed, self.targets, self.names)
         self.offsets = [self._offset_entry(effect, cls, fixed_shape)
                         for effect, cls, fixed_shape in chosen if cls.kind != INPUT]
 
     # ----- the design ------------------------------------------------------------------------
 
-    def _fixed_columns(self, counts: np.ndarray, u: np.ndarray) -> None:
-        """Per axis: the base model's columns, then the input effects' amplitudes; the target."""
-        bias_order, scale_order, force = self.bias_order, self.scale_order, self.force
-        powers = [np.ones_like(u)]
-        for _ in range(max(bias_order, scale_order)):
-            powers.append(powers[-1] * u)
-        self.fixed, self.targets, self.names, self.base_counts = [], [], [], []
-        for i in range(3):
-            if self.held[i]:
-                columns = [powers[j] for j in range(bias_order + 1)]
-                column_names = ['the offset polynomial'] * len(columns)
-                target = counts[:, i] - self.calibration0.axes[i].scale * force[:, i]
-            else:
-                columns = [force[:, i] * powers[j] for j in range(scale_order + 1)]
-                columns += [powers[j] for j in range(bias_order + 1)]
-                column_names = ['the scale polynomial'] * (scale_order + 1) + ['the offset polynomial'] * (bias_order + 1)
-                target = counts[:, i]
-            self.base_counts.append(len(columns))
-            for effect, cls in self.input_effects:
-                for name, column in (effect or cls()).input_columns(i, force):
-                    columns.append(column)
-                    column_names.append(f'{cls.name} ({name})')
-            self.fixed.append(np.column_stack(columns))
-            self.targets.append(target)
-            self.names.append(column_names)
-
     def _offset_entry(self, effect: Effect | None, cls: type[Effect], fixed_shape: bool) -> _Offset:
         """An offset effect: fixed, its shapes to search, or a structure to choose."""
         mask = self.mask
-        time_train = self.stamp_all[mask]
-        inputs_all = effect_input(effect if effect is not None else cls, self.code_all, self.samples.aux)
+        time_train = self.run.train.stamp_s
+        inputs_all = self.run.effect_input(effect if effect is not None else cls)
         if fixed_shape:
             entry = _Offset(effect=effect, mode='fixed')  # type: ignore[arg-type]
         else:
@@ -336,7 +287,7 @@ class _EffectFit:
                 entry = _Offset(effect=effect, mode='search' if searched else 'fixed', searched=searched)
         entry.inputs = inputs_all
         if entry.mode == 'fixed':
-            entry.basis = checked_basis(entry.effect, self.stamp_all, inputs_all)
+            entry.basis = self.run.basis(entry.effect, inputs_all)
             entry.done = True
         return entry
 
@@ -369,7 +320,7 @@ class _EffectFit:
     def _basis_of(self, entry: _Offset, effect: Effect, *, exact: bool = False) -> np.ndarray:
         key = (exact, tuple(sorted(effect.values.items())))
         if key not in entry.cache:
-            entry.cache[key] = checked_basis(effect, self.stamp_all, entry.inputs, search=not exact)
+            entry.cache[key] = self.run.basis(effect, entry.inputs, search=not exact)
         return entry.cache[key]
 
     # ----- the shapes ------------------------------------------------------------------------
@@ -454,65 +405,16 @@ class _EffectFit:
     # ----- the result ------------------------------------------------------------------------
 
     def result(self) -> FitResult:
-        """The final least squares over the training samples, the calibration and its errors."""
-        mask, offsets, fixed = self.mask, self.offsets, self.fixed
-        count = int(mask.sum())
-        extra_raw = [_axis_offset_columns(offsets, i, mask, count) for i in range(3)]
-        betas, residual_sums, designs = [], [], []
-        for i in range(3):
-            design = np.column_stack([fixed[i], extra_raw[i]])
-            norms = np.sqrt(np.mean(design ** 2, axis=0))
-            norms[norms == 0.0] = 1.0
-            solution, _, rank, singular = np.linalg.lstsq(design / norms, self.targets[i], rcond=None)
-            if rank < design.shape[1]:
-                offender = _first_dependent(design / norms, self.names[i] + _offset_column_names(offsets, i))
-                msg = (f'axis {AXIS_NAMES[i]}: the data cannot separate {offender} from the other model terms '
-                       f'(the inputs and temperatures of this run do not excite it)')
-                raise FitError(msg)
-            beta = solution / norms
-            betas.append(beta)
-            residual = self.targets[i] - design @ beta
-            residual_sums.append(float(residual @ residual))
-            designs.append((design, norms))
-        calibration0 = self.calibration0
-        ref, low, high = calibration0.temp_code_ref, calibration0.temp_code_min, calibration0.temp_code_max
-        axes_models = [axis_from_coefficients(betas[i], bias_order=self.bias_order, scale_order=self.scale_order,
-                                              n_scale=self.n_scale, code_offset_range=(low - ref, high - ref),
-                                              name=AXIS_NAMES[i],
-                                              held_scale=calibration0.axes[i].scale if self.held[i] else None)
-                       for i in range(3)]
-        calibration = Calibration(temp_code_ref=ref, temp_code_min=low, temp_code_max=high,
-                                  axes=tuple(axes_models), notes=calibration0.notes,  # type: ignore[arg-type]
-                                  effects=self._fitted_effects(betas))
-        residual = residual_counts(calibration, self.samples)[mask]
-        parameters = [fixed[i].shape[1] + extra_raw[i].shape[1] + self._shape_count(i) for i in range(3)]
-        errors = _standard_errors(offsets, self.input_effects, designs, residual_sums, betas, fixed, self.force,
-                                  self.stamp_all, self.code_all, mask)
-        return finish_fit(calibration, residual, parameters, dropped=self.samples.dropped, parameter_errors=errors)
-
-    def _fitted_effects(self, betas: list[np.ndarray]) -> tuple[Effect, ...]:
-        """Every effect with its amplitudes read from the solution, in the order given."""
-        input_effects, offsets, fixed = self.input_effects, self.offsets, self.fixed
-        fitted: dict[str, Effect] = {}
-        for effect, cls in input_effects:
-            values = {}
-            for i in range(3):
-                position = self.base_counts[i]
-                for other, other_cls in input_effects:
-                    columns = (other or other_cls()).input_columns(i, self.force[:1])
-                    if other_cls is cls:
-                        for k, (name, _) in enumerate(columns):
-                            values[name] = float(betas[i][position + k])
-                    position += len(columns)
-            fitted[cls.name] = _build(cls, values)
-        for index, entry in enumerate(offsets):
-            values = {name: entry.effect[name] for name in entry.effect.shape_names()}
-            for i in range(3):
-                position = fixed[i].shape[1] + sum(len(o.effect.axis_columns()[i]) for o in offsets[:index])
-                for k, name in enumerate(entry.effect.amplitude_names()[i]):
-                    values[name] = float(betas[i][position + k])
-            fitted[entry.effect.name] = _build(type(entry.effect), values)
-        return tuple(fitted[cls.name] for _, cls, _ in self.chosen)
+        """The pipeline with every shape fixed: the final least squares over the training rows,
+        the calibration and its errors."""
+        offsets = self.offsets
+        solved = solve_run(self.run, input_effects=self.input_effects,
+                           offset_bases=[(entry.effect, entry.basis[self.mask]) for entry in offsets])
+        by_name = {entry.effect.name: entry.effect for entry in offsets}
+        by_name.update((effect.name, effect) for effect in self.input_effects)
+        errors = _standard_errors(self.run, offsets, solved.solutions, solved.columns)
+        return model_run(self.run, solved, effects=[by_name[cls.name] for _, cls, _ in self.chosen],
+                         shape_parameters=[self._shape_count(i) for i in range(3)], parameter_errors=errors)
 
     def _shape_count(self, axis: int) -> int:
         """Searched shape parameters that axis ``axis`` depends on (a per-axis form: its own only)."""
@@ -535,98 +437,51 @@ def _searched(cls: type[Effect], effect: Effect, time_s: np.ndarray,
                  and all(math.isfinite(v) for v in space[name][:2]))
 
 
-def _build(cls: type[Effect], values: dict[str, float]) -> Effect:
-    try:
-        return cls.from_values(values, key=f'effect {cls.name}', complete=True)
-    except CalibrationError as err:
-        msg = f'fitted {err}'
-        raise FitError(msg) from None
+def _standard_errors(run: FitRun, offsets: list[_Offset], solutions: Sequence[Solution],
+                     columns: Sequence[tuple[Column, ...]]) -> dict[str, float]:
+    """Standard errors from the Fisher information of amplitudes and shape parameters together.
 
-
-def _axis_offset_columns(offsets: list[_Offset], axis: int, mask: np.ndarray, count: int) -> np.ndarray:
-    """The offset effects' basis signals that axis ``axis`` uses, over the training samples."""
-    blocks = [entry.basis[mask][:, list(entry.effect.axis_columns()[axis])] for entry in offsets]
-    return np.column_stack(blocks) if blocks else np.zeros((count, 0))
-
-
-def _offset_column_names(offsets: list[_Offset], axis: int) -> list[str]:
-    names = []
-    for entry in offsets:
-        names += [entry.effect.name] * len(entry.effect.axis_columns()[axis])
-    return names
-
-
-def _first_dependent(design: np.ndarray, names: list[str]) -> str:
-    """The first column (by name) that makes the design rank-deficient."""
-    for end in range(1, design.shape[1] + 1):
-        if np.linalg.matrix_rank(design[:, :end]) < end:
-            return names[end - 1]
-    return names[-1]
-
-
-def _standard_errors(offsets, input_effects, designs, residual_sums, betas, fixed, force,
-                     stamp_all, code_all, mask) -> dict[str, float]:
-    """Standard errors from the Fisher information of amplitudes and shape parameters together."""
+    :param solutions: per axis the final solve; ``columns``: per axis its column labels.
+    """
+    mask = run.mask
     count = int(mask.sum())
     shape_parameters = []  # (entry index, name, log, value)
     for index, entry in enumerate(offsets):
         for name, _, _, log in entry.searched:
             shape_parameters.append((index, name, log, entry.effect[name]))
-    blocks = [design.shape[1] for design, _ in designs]
+    blocks = [solution.width for solution in solutions]
     size = sum(blocks) + len(shape_parameters)
     fisher = np.zeros((size, size))
-    variances = []
     # Derivatives of every axis's model with respect to each searched shape coordinate.
     derivatives = np.zeros((3, count, len(shape_parameters)))
     for column, (index, name, log, value) in enumerate(shape_parameters):
         entry = offsets[index]
         step = SHAPE_STEP if log else SHAPE_STEP * max(abs(value), 1.0)
         values = [(value * math.exp(h) if log else value + h) for h in (step, -step)]
-        upper, lower = (checked_basis(entry.effect.replace(**{name: v}), stamp_all, entry.inputs)[mask]
+        upper, lower = (run.basis(entry.effect.replace(**{name: v}), entry.inputs)[mask]
                         for v in values)
         slope = (upper - lower) / (2.0 * step)
         for i in range(3):
             used = list(entry.effect.axis_columns()[i])
-            position = fixed[i].shape[1] + sum(len(o.effect.axis_columns()[i]) for o in offsets[:index])
-            coefficients = betas[i][position:position + len(used)]
-            derivatives[i, :, column] = slope[:, used] @ coefficients
+            own = [k for k, label in enumerate(columns[i]) if label.effect == entry.effect.name]
+            derivatives[i, :, column] = slope[:, used] @ solutions[i].coefficients[own]
     offset = 0
-    for i, (design, norms) in enumerate(designs):
-        dof = max(count - design.shape[1] - len(shape_parameters), 1)
-        variance = residual_sums[i] / dof
-        variances.append(variance)
-        jacobian = np.column_stack([design / norms, derivatives[i]])
+    for i, solution in enumerate(solutions):
+        dof = max(count - solution.width - len(shape_parameters), 1)
+        variance = solution.rss / dof
+        jacobian = np.column_stack([solution.scaled, derivatives[i]])
         information = jacobian.T @ jacobian / variance
-        width = design.shape[1]
-        rows = list(range(offset, offset + width)) + list(range(sum(blocks), size))
+        rows = list(range(offset, offset + solution.width)) + list(range(sum(blocks), size))
         fisher[np.ix_(rows, rows)] += information
-        offset += width
+        offset += solution.width
     covariance = np.linalg.pinv(fisher, rcond=1e-14, hermitian=True)
     deviation = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
     errors: dict[str, float] = {}
     offset = 0
-    for i, (design, norms) in enumerate(designs):
-        names = _amplitude_layout(i, offsets, input_effects, fixed, force)
-        for position, label in names.items():
-            errors[label] = float(deviation[offset + position] / norms[position])
-        offset += design.shape[1]
+    for solution, labels in zip(solutions, columns):
+        errors.update(amplitude_errors(labels, deviation[offset:offset + solution.width] / solution.norms))
+        offset += solution.width
     for column, (index, name, log, value) in enumerate(shape_parameters):
         sigma = float(deviation[sum(blocks) + column])
         errors[f'{offsets[index].effect.name}.{name}'] = value * sigma if log else sigma
     return errors
-
-
-def _amplitude_layout(axis: int, offsets, input_effects, fixed, force) -> dict[int, str]:
-    """Design column -> ``'<effect>.<amplitude>'`` for one axis."""
-    layout = {}
-    position = fixed[axis].shape[1] - sum(len((e or c()).input_columns(axis, force[:1])) for e, c in input_effects)
-    for effect, cls in input_effects:
-        for name, _ in (effect or cls()).input_columns(axis, force[:1]):
-            layout[position] = f'{cls.name}.{name}'
-            position += 1
-    position = fixed[axis].shape[1]
-    for entry in offsets:
-        for name in entry.effect.amplitude_names()[axis]:
-            layout[position] = f'{entry.effect.name}.{name}'
-            position += 1
-    return layout

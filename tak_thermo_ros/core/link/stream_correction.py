@@ -16,24 +16,10 @@ from typing import Any, Mapping
 import numpy as np
 
 from tak_thermo_ros.core.link.correction import Corrector, OutOfRange, UnitCorrector
-from tak_thermo_ros.core.effects.base import Effect, effect_input
+from tak_thermo_ros.core.effects.base import basis_from, effect_input
 from tak_thermo_ros.core.link.effect_link import EffectLink
 from tak_thermo_ros.core.link.model import Calibration, UnitCalibration
 from tak_thermo_ros.core.link.validate import GravityError, RateError
-from tak_thermo_ros.errors import EffectError
-
-
-def basis_from(effect: Effect, state: Any, stamp_s: np.ndarray, temp_code: np.ndarray,
-               *, started: bool) -> tuple[np.ndarray, Any]:
-    """Basis signals ``(k, b)`` of a block continuing from ``state``, and the state after it.
-
-    :param started: ``False`` before the run's first sample (the effect starts at it).
-    """
-    out, state = effect.stepped_basis(stamp_s, temp_code, state=state, started=started)
-    if not np.all(np.isfinite(out)):
-        msg = f'effect {effect.name}: basis() returned non-finite values (NaN or infinite)'
-        raise EffectError(msg)
-    return out, state
 
 
 class _CarriedEffectLink(EffectLink):
