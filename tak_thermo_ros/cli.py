@@ -66,7 +66,10 @@ def _topics(args: argparse.Namespace):
                   reference=args.reference_topic, imu=getattr(args, 'imu_topic', None) or defaults.imu,
                   raw_imu=args.raw_imu_topic, temperature=args.temp_topic or defaults.temperature,
                   reference_rate=args.reference_rate_topic,
-                  compensated_imu=getattr(args, 'imu_topic', None) or defaults.compensated_imu)
+                  compensated_imu=getattr(args, 'imu_topic', None) or defaults.compensated_imu,
+                  mag=getattr(args, 'mag_topic', defaults.mag),
+                  reference_field=getattr(args, 'reference_field_topic', defaults.reference_field),
+                  compensated_mag=getattr(args, 'mag_output_topic', None) or defaults.compensated_mag)
 
 
 def _add_topic_options(parser: argparse.ArgumentParser, *, imu: bool = False) -> None:
@@ -76,6 +79,9 @@ def _add_topic_options(parser: argparse.ArgumentParser, *, imu: bool = False) ->
     group.add_argument('--temp-topic', help='temperature (Temperature): codes /tak/temp_code with counts, '
                                             'degrees C /imu/temperature with a driver Imu')
     group.add_argument('--reference-topic', default='/tak/reference', help='true specific force (Vector3Stamped)')
+    group.add_argument('--mag-topic', default='/imu/mag', help="a driver's magnetometer (MagneticField, tesla)")
+    group.add_argument('--reference-field-topic', default='/tak/reference_field',
+                       help='true magnetic field along the sensor axes, tesla (Vector3Stamped; a coil)')
     group.add_argument('--reference-rate-topic', default='/tak/reference_rate',
                        help='true angular rate, rad/s (Vector3Stamped; driver bags)')
     if imu:
@@ -122,6 +128,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
               f'{len(driver.reference_stamp_ns)} reference changes, {scenario.duration_s() / 3600.0:.2f} h at '
               f'{scenario.sample_rate_hz:g} Hz ({args.storage}); temperature '
               f'{driver.temperature.min():.2f}..{driver.temperature.max():.2f} C')
+        if len(driver.mag_stamp_ns):
+            print(f'  magnetometer: {len(driver.mag_stamp_ns)} MagneticField on {_topics(args).mag}'
+                  f'{f" ({scenario.rotation} rotation record)" if scenario.rotation else ""}, '
+                  f'{len(driver.mag_reference_stamp_ns)} reference field changes')
         return 0
     write_record(args.out_bag, run.record, topics=_topics(args), storage=args.storage, force=args.force,
                  aux_types=aux_types)
@@ -210,8 +220,10 @@ def cmd_fit(args: argparse.Namespace) -> int:
     fitted = fit_bag(args.bag, settings, _stream_options(args),
                      nominal_for=lambda kind, bag_nominal: _nominal(args, bag_nominal))
     results = fitted.results
+    magnetometer = _fit_magnetometer(args, fitted.input_kind)
     unit = UnitCalibration(fitted.input_kind, results['accel'].calibration,
-                           results['gyro'].calibration if 'gyro' in results else None)
+                           results['gyro'].calibration if 'gyro' in results else None,
+                           magnetometer.calibration if magnetometer is not None else None)
     applied = ', '.join(f'{sensor} {", ".join(e.name for e in calibration.effects)}'
                         for sensor, calibration in unit.sensors if calibration.effects)
     header = (f'tak_thermo_ros calibration fitted from {args.bag}\n'
@@ -260,8 +272,47 @@ def cmd_fit(args: argparse.Namespace) -> int:
             print(f'  effect {effect.name}: {shown}')
         for note in calibration.notes:
             print(f'note: {prefix}{note}')
+    if magnetometer is not None:
+        _print_magnetometer(magnetometer, args)
     print(f'wrote {args.output}')
     return 0
+
+
+def _fit_magnetometer(args: argparse.Namespace, kind: InputKind):
+    """The magnetometer's fit when the driver bag holds one (``--iron-run``: its rotation record)."""
+    from tak_thermo_ros.streaming_mag import fit_mag_bag, has_mag
+    iron_run = getattr(args, 'iron_run', None)
+    options = _stream_options(args)
+    if kind is not InputKind.IMU or not has_mag(args.bag, options.topics):
+        if iron_run is not None:
+            msg = f'--iron-run: {args.bag} holds no magnetometer on {options.topics.mag} to calibrate'
+            raise TakError(msg)
+        return None
+    return fit_mag_bag(args.bag, options, bias_order=args.bias_order, scale_order=args.scale_order,
+                       temp_code_ref=args.temp_code_ref, iron_run=iron_run)
+
+
+def _print_magnetometer(fitted, args: argparse.Namespace) -> None:
+    """``fit``'s lines for the magnetometer, in microtesla."""
+    thermal, link = fitted.thermal, fitted.calibration.thermal
+    for line in fitted.lines:
+        print(line)
+    if thermal.dropped:
+        print(f'magnetometer: left out: {_describe_dropped(thermal.dropped)}')
+    print(f'magnetometer ({_topics(args).mag}), {thermal.samples} samples:')
+    for name, axis, stats in zip(AXES, link.axes, thermal.axes):
+        print(f'  {name}: residual RMS {stats.residual_rms * 1e6:.4g} uT; scale {axis.scale:.6g}'
+              f'{"" if axis.scale_observable else " (held)"}, offset {axis.offset * 1e6:.4g} uT, '
+              f'offset span {axis.offset_span * 1e6:.4g} uT')
+    iron = fitted.iron
+    mag = fitted.calibration
+    if iron is not None:
+        rows = '; '.join(' '.join(f'{v:.4f}' for v in mag.soft_iron[3 * i:3 * i + 3]) for i in range(3))
+        print(f'  hard iron {" ".join(f"{v * 1e6:+.3f}" for v in mag.hard_iron)} uT; soft iron [{rows}]')
+        print(f'  ellipsoid: radius {iron.radius * 1e6:.3f} uT, residual RMS {iron.residual_rms * 1e6:.3f} uT, '
+              f'{iron.sections} of 20 sections, spread {iron.spread:.2f}')
+    for note in link.notes:
+        print(f'note: magnetometer: {note}')
 
 
 def _effect_unit(unit: str, sensor_unit: str) -> str:
@@ -308,6 +359,10 @@ def cmd_apply(args: argparse.Namespace) -> int:
     applied = apply_bag(args.bag, unit, args.output, _stream_options(args), storage=args.storage,
                         out_of_range=OutOfRange(args.out_of_range), force=args.force)
     print(f'wrote {applied.written} Imu messages on {applied.topic} to {args.output}')
+    if applied.mag_written or applied.mag_topic:
+        print(f'wrote {applied.mag_written} MagneticField messages on {applied.mag_topic}')
+        if applied.mag_dropped:
+            print(f'dropped MagneticField messages: {_describe_dropped(applied.mag_dropped)}')
     _print_ignored(applied, args, kind)
     if applied.dropped:
         print(f'dropped {"counts" if kind is InputKind.COUNTS else "Imu"} messages: {_describe_dropped(applied.dropped)}')
@@ -362,10 +417,34 @@ def cmd_validate(args: argparse.Namespace) -> int:
             print(f'  {label:<35}RMS ' + ' '.join(f'{v:.3e}' for v in stats.rms) + ' rad/s; mean '
                   + ' '.join(f'{v:+.3e}' for v in stats.mean) + ' rad/s')
         document['gyro'] = {'samples': rate.samples, 'before': rate_before.as_dict(), 'after': rate_after.as_dict()}
+    if unit.mag is not None and run.input_kind is InputKind.IMU:
+        document.update(_validate_magnetometer(args, unit))
     if args.json:
         write_text_atomic(args.json, _json_text(document, args.json))
         print(f'wrote {args.json}')
     return 0
+
+
+def _validate_magnetometer(args: argparse.Namespace, unit: UnitCalibration) -> dict:
+    """``validate``'s field error before and after, in microtesla; the JSON entry ``mag``."""
+    from tak_thermo_ros.streaming_mag import has_mag, validate_mag
+    options = _stream_options(args)
+    if not has_mag(args.bag, options.topics):
+        print(f'magnetometer: {args.bag} holds no messages on {options.topics.mag}; not validated')
+        return {}
+    result = validate_mag(args.bag, unit.mag, options, out_of_range=OutOfRange(args.out_of_range))
+    against = ('about the run\'s mean field (static run)' if result.reference == 'static'
+               else f'against {result.reference}')
+    print(f'magnetometer field error over {result.samples} samples, {against} (per axis x y z, |B|):')
+    for label, values in (('before (raw field):', result.before), ('after  (thermal link and iron):', result.after)):
+        print(f'  {label:<35}RMS ' + ' '.join(f'{v * 1e6:.3f}' for v in values[:3])
+              + f' uT; |B| {values[3] * 1e6:.3f} uT')
+    if result.out_of_range:
+        print(f'warning: {result.out_of_range} magnetometer samples outside the calibrated temperature range '
+              f'({args.out_of_range})')
+    return {'mag': {'samples': result.samples, 'reference': result.reference,
+                    'before_rms_t': list(result.before[:3]), 'before_magnitude_rms_t': result.before[3],
+                    'after_rms_t': list(result.after[:3]), 'after_magnitude_rms_t': result.after[3]}}
 
 
 def _check_kind(args: argparse.Namespace, unit: UnitCalibration, kind: InputKind) -> None:
@@ -590,6 +669,9 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument('--effect-samples', type=bounds.sample_budget, default=EFFECT_FIT_MAX_SAMPLES, metavar='N',
                      help=f'search the effects\' shapes on at most about N samples spread evenly over the run '
                           f'(default {EFFECT_FIT_MAX_SAMPLES:,}; the amplitudes use every sample)')
+    fit.add_argument('--iron-run', metavar='BAG',
+                     help="the magnetometer's rotation record (installed, turned through every orientation): "
+                          'hard and soft iron by an ellipsoid fit, after the thermal link (default: not fitted)')
     fit.add_argument('--settle-time', type=bounds.seconds_not_negative, default=0.0, metavar='SECONDS',
                      help='leave out samples this long after each reference change (turntable settling)')
     _add_static_options(fit)

@@ -35,9 +35,10 @@ MAX_OFF_DIAGONAL = 0.5
 """Largest off-diagonal of ``W`` accepted (ArduPilot 1.0)."""
 MAX_RESIDUAL_T = 1.6e-6
 """Largest RMS of ``|W (B - h)| - radius`` accepted, tesla (ArduPilot's fitness, 16 mGauss)."""
-MIN_SPREAD = 0.2
-"""Smallest ratio of the record's spread along its thinnest direction to its widest (square
-roots of the sample covariance's eigenvalues); a turn about one axis gives about 0."""
+MIN_SPREAD = 0.1
+"""Smallest spread of the record along its thinnest direction (the square root of the sample
+covariance's smallest eigenvalue) over the field's median magnitude: every orientation gives
+about 0.58 (``1/sqrt(3)``), a turn about one axis or no turn at all about 0."""
 SECTIONS_NEEDED = 16
 """Of the 20 sections of the sphere (the directions of a dodecahedron's vertices), how many
 the corrected field must point into (ArduPilot fills a mask of sections likewise)."""
@@ -86,7 +87,7 @@ class EllipsoidFit:
     :param residual_rms: RMS of ``|W (B - h)| - radius``, tesla.
     :param samples: samples fitted.
     :param sections: of the 20 sections of the sphere, how many the corrected field points into.
-    :param spread: the record's thinnest to widest spread (see :data:`MIN_SPREAD`).
+    :param spread: the record's thinnest spread over the field's magnitude (see :data:`MIN_SPREAD`).
     """
 
     hard_iron: tuple[float, float, float]
@@ -99,10 +100,11 @@ class EllipsoidFit:
 
 
 def spread_ratio(values: np.ndarray) -> float:
-    """The record's spread along its thinnest direction over its widest (0 for a planar turn)."""
+    """The record's spread along its thinnest direction over the field's median magnitude (see :data:`MIN_SPREAD`)."""
     centred = values - values.mean(axis=0)
-    eigenvalues = np.linalg.eigvalsh(centred.T @ centred / max(len(values), 1))
-    return float(math.sqrt(max(eigenvalues[0], 0.0) / eigenvalues[-1])) if eigenvalues[-1] > 0 else 0.0
+    smallest = np.linalg.eigvalsh(centred.T @ centred / max(len(values), 1))[0]
+    magnitude = float(np.median(np.linalg.norm(values, axis=1)))
+    return float(math.sqrt(max(smallest, 0.0)) / magnitude) if magnitude > 0 else 0.0
 
 
 def sections_hit(directions: np.ndarray) -> int:
@@ -149,8 +151,8 @@ def fit_ellipsoid(values: np.ndarray, *, where: str = 'rotation record') -> Elli
         raise FitError(msg)
     spread = spread_ratio(values)
     if spread < MIN_SPREAD:
-        msg = (f'{where}: covers too few orientations: the field spreads {spread:.2f} as far along its thinnest '
-               f'direction as along its widest (at least {MIN_SPREAD} needed): turn the unit about more than one axis')
+        msg = (f'{where}: covers too few orientations: along its thinnest direction the field spreads {spread:.3f} '
+               f'of its magnitude (at least {MIN_SPREAD} needed): turn the unit about more than one axis')
         raise FitError(msg)
     mean = values.mean(axis=0)
     size = float(np.median(np.linalg.norm(values - mean, axis=1)))

@@ -39,7 +39,7 @@ from tak_thermo_ros.core.records.record import (
     DriverRecord,
     seconds_from_ns,
 )
-from tak_thermo_ros.core.simulation.magnetometer import MagnetometerTruth, table_field, truth_from_mapping
+from tak_thermo_ros.core.simulation.magnetometer import MagnetometerTruth, rotation_record, table_field, truth_from_mapping
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import CalibrationError, FitError, ScenarioError
 
@@ -168,6 +168,9 @@ class Scenario:
         not recorded, the drift stays unexplained); the run's signal ``aux:TOPIC``.
     :param record_supply_type: its message type: ``battery_state`` (``sensor_msgs/BatteryState``,
         the voltage in float32, header stamp) or ``float64`` (``std_msgs/Float64``, bag time).
+    :param rotation: with ``output: imu`` and a ``magnetometer``, ``tumble`` (every orientation),
+        ``yaw`` (about z only) or ``cap`` (within 40 deg of z up) writes instead a rotation record
+        for the iron (2000 samples at ``sample_rate_hz``, at ``start_celsius``); ``''``: a chamber run.
     :param magnetometer: with ``output: imu``, a magnetometer on ``/imu/mag``
         (:mod:`tak_thermo_ros.core.simulation.magnetometer`; YAML: a mapping, ``{}`` for the
         defaults), or ``None`` (default: none).
@@ -203,6 +206,7 @@ class Scenario:
     record_supply: str = ''
     record_supply_type: str = 'battery_state'
     magnetometer: MagnetometerTruth | None = None
+    rotation: str = ''
 
     def __post_init__(self) -> None:
         for key in ('effects', 'gyro_effects'):
@@ -216,6 +220,9 @@ class Scenario:
         self.effect_instances('gyro_effects')
         if self.output not in ('counts', 'imu'):
             msg = f"output: expected 'counts' or 'imu', got {self.output!r}"
+            raise ScenarioError(msg)
+        if self.rotation and (self.magnetometer is None or self.rotation not in ('tumble', 'yaw', 'cap')):
+            msg = f"rotation: expected 'tumble', 'yaw' or 'cap' with a magnetometer, got {self.rotation!r}"
             raise ScenarioError(msg)
         if self.magnetometer is not None and self.output != 'imu':
             msg = 'magnetometer: needs output: imu (a driver bag; the paper\'s codes have no magnetometer)'
@@ -433,6 +440,8 @@ def recorded_supply(scenario: Scenario, stamp_ns: np.ndarray, time_s: np.ndarray
 
 def _simulate_driver(scenario: Scenario) -> SimulatedRun:
     """A driver bag: the Imu in SI units, the temperature in degrees C, on a tilt and rate table."""
+    if scenario.rotation:
+        return _rotation_run(scenario)
     rng = np.random.default_rng(scenario.seed)
     count = int(math.floor(scenario.duration_s() * scenario.sample_rate_hz)) + 1
     time_s = np.arange(count) / scenario.sample_rate_hz
@@ -487,6 +496,19 @@ def _simulate_driver(scenario: Scenario) -> SimulatedRun:
     return SimulatedRun(record=driver.channel('accel'), board_celsius=board, chamber_celsius=chamber,
                         true_temp_code=board, specific_force=force, truth=unit_truth.accel,
                         scenario=scenario, driver=driver, angular_rate=rate, unit_truth=unit_truth)
+
+
+def _rotation_run(scenario: Scenario) -> SimulatedRun:
+    """A rotation record of the magnetometer (``scenario.rotation``), at ``start_celsius``."""
+    driver = rotation_record(scenario.magnetometer, samples=2000, rate_hz=scenario.sample_rate_hz,
+                             temperature_celsius=scenario.start_celsius, reference_celsius=scenario.reference_celsius,
+                             turn=scenario.rotation, seed=scenario.seed, start_time_s=scenario.start_time_s,
+                             frame_id=scenario.frame_id)
+    constant = np.full(len(driver.stamp_ns), scenario.start_celsius)
+    unit_truth = scenario.driver_truth()
+    return SimulatedRun(record=driver.channel('accel'), board_celsius=constant, chamber_celsius=constant,
+                        true_temp_code=constant, specific_force=driver.accel, truth=unit_truth.accel,
+                        scenario=scenario, driver=driver, angular_rate=np.zeros_like(driver.gyro), unit_truth=unit_truth)
 
 
 def _effect_terms(effects: tuple[Effect, ...], inputs: np.ndarray, temperature: np.ndarray,

@@ -6,7 +6,7 @@ per axis (the same :class:`~tak_thermo_ros.core.link.model.Calibration` forward 
 white noise. Values in tesla, temperatures in degrees C.
 
 Chosen defaults (the issue leaves them open): the Earth's field 48.4 uT in the sensor frame at
-rest (20, 2, 44 uT); a sensor offset of 1-2 uT at 20 C drifting by 0.8-1.4 uT over 5..35 C (a
+rest (20, 2, 44 uT); a sensor offset of 1-2 uT at 20 C drifting by 1.9-3.8 uT over 5..35 C (a
 cubic per axis, as PX4 fits); a scale drift of 2-3e-4 per C; hard iron (4, -3, 2) uT; soft iron
 ``|S - I|`` 0.04-0.06 per element (symmetric); noise 0.2 uT per sample and axis.
 
@@ -46,8 +46,8 @@ class MagnetometerTruth:
 
     earth_field: tuple[float, float, float] = (20e-6, 2e-6, 44e-6)
     offset: tuple[float, float, float] = (1.5e-6, -0.8e-6, 2.0e-6)
-    offset_coeffs: tuple[tuple[float, ...], ...] = ((40e-9, 1.0e-9, -0.05e-9), (-30e-9, 0.8e-9, 0.04e-9),
-                                                    (50e-9, -1.0e-9, 0.0))
+    offset_coeffs: tuple[tuple[float, ...], ...] = ((120e-9, 3.0e-9, -0.15e-9), (-90e-9, 2.4e-9, 0.12e-9),
+                                                    (150e-9, -3.0e-9, 0.0))
     scale_coeffs: tuple[tuple[float, ...], ...] = ((3e-4,), (-2e-4,), (2.5e-4,))
     hard_iron: tuple[float, float, float] = (4e-6, -3e-6, 2e-6)
     soft_iron: tuple[float, ...] = (1.05, 0.04, -0.03, 0.04, 0.96, 0.05, -0.03, 0.05, 1.02)

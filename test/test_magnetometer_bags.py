@@ -1,0 +1,117 @@
+"""The magnetometer through the bags: fit (thermal link and iron), apply, validate; bad input refused.
+
+A static chamber run of a unit with a drifting magnetometer calibrates its thermal link, a
+rotation record of the installed unit its iron; a second static run with another profile,
+corrected, has a field error at the noise floor.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from tak_thermo_ros.bagio import MAGNETIC_FIELD, iter_topic_arrays, write_driver_record
+from tak_thermo_ros.cli import main
+from tak_thermo_ros.core.link.correction import OutOfRange
+from tak_thermo_ros.core.magnetometer.channel import MagCorrector
+from tak_thermo_ros.core.records.calibration_file import load_unit
+from tak_thermo_ros.core.records.record import hold_last_index
+from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+from tak_thermo_ros.core.simulation.magnetometer import MagnetometerTruth, rotation_record
+
+TRUTH = MagnetometerTruth()
+CHAMBER = Scenario(output='imu', plateaus_celsius=(5.0, 35.0, 20.0), plateau_hours=0.2, ramp_celsius_per_minute=1.0,
+                   board_lag_s=120.0, positions=((0.0, 0.0, 1.0),), record_references=False, magnetometer=TRUTH,
+                   seed=3)
+"""About 1.8 h, static z up, 5..35 C: the offsets drift by 0.8-1.4 uT, seven times the noise."""
+SECOND = replace(CHAMBER, plateaus_celsius=(30.0, 10.0, 25.0), seed=4)
+
+
+@pytest.fixture(scope='module')
+def bags(tmp_path_factory):
+    root = tmp_path_factory.mktemp('mag')
+    write_driver_record(root / 'cal', simulate(CHAMBER).driver)
+    write_driver_record(root / 'run2', simulate(SECOND).driver)
+    write_driver_record(root / 'iron', rotation_record(TRUTH, samples=2000, seed=5))
+    write_driver_record(root / 'yaw', rotation_record(TRUTH, samples=2000, seed=6, turn='yaw'))
+    assert main(['fit', str(root / 'cal'), '-o', str(root / 'p.yaml'), '--iron-run', str(root / 'iron'),
+                 '--no-progress']) == 0
+    return root
+
+
+def test_fit_apply_validate_bring_the_field_error_to_the_noise_floor(bags, capsys):
+    unit = load_unit(bags / 'p.yaml')
+    assert unit.mag is not None and all(not axis.scale_observable for axis in unit.mag.thermal.axes)
+    capsys.readouterr()
+    assert main(['validate', str(bags / 'run2'), '--params', str(bags / 'p.yaml'), '--json', str(bags / 'v.json'),
+                 '--no-progress']) == 0
+    out = capsys.readouterr().out
+    assert 'magnetometer field error' in out
+    figures = json.loads((bags / 'v.json').read_text())['mag']
+    # Static run: the error about the run's mean. After the correction it is the noise turned by
+    # W (rows of norm about 1): within 15 % of 0.2 uT; before, the drift, several times more.
+    soft = np.array(unit.mag.soft_iron).reshape(3, 3)
+    floor = TRUTH.noise * np.linalg.norm(soft, axis=1)
+    after, before = np.array(figures['after_rms_t']), np.array(figures['before_rms_t'])
+    assert np.all(np.abs(after / floor - 1.0) < 0.15), after / floor
+    assert np.all(before > 3.0 * TRUTH.noise), before
+    assert figures['after_magnitude_rms_t'] < 1.15 * TRUTH.noise < figures['before_magnitude_rms_t']
+
+
+def test_the_iron_is_the_simulated_one_and_apply_writes_the_corrected_field(bags, capsys):
+    unit = load_unit(bags / 'p.yaml')
+    inverse = np.linalg.inv(TRUTH.soft_matrix())
+    inverse /= np.linalg.det(inverse) ** (1.0 / 3.0)
+    assert np.max(np.abs(np.array(unit.mag.soft_iron).reshape(3, 3) - inverse)) < 0.01
+    assert main(['apply', str(bags / 'run2'), '--params', str(bags / 'p.yaml'), '-o', str(bags / 'out'),
+                 '--no-progress']) == 0
+    assert 'MagneticField messages on /imu/mag_compensated' in capsys.readouterr().out
+    arrays = list(iter_topic_arrays(bags / 'out', '/imu/mag_compensated', MAGNETIC_FIELD))
+    written = np.concatenate([a['magnetic_field'] for a in arrays])
+    covariance = arrays[0]['magnetic_field_covariance'][0]
+    # apply is the vectorised MagCorrector on the held temperature.
+    driver = simulate(SECOND).driver
+    held = driver.temperature[hold_last_index(driver.temp_stamp_ns, driver.mag_stamp_ns)]
+    expected = MagCorrector(unit.mag, out_of_range=OutOfRange.CLAMP).correct(driver.mag, held)
+    assert np.array_equal(written, expected)
+    assert covariance[0] > 0 and np.allclose(covariance.reshape(3, 3), covariance.reshape(3, 3).T)
+
+
+@pytest.mark.parametrize(('iron', 'expected'), [('yaw', 'covers too few orientations'),
+                                                ('cal', 'covers too few orientations')])
+def test_a_rotation_record_without_rotation_is_refused_in_one_line_and_nothing_written(bags, capsys, iron, expected):
+    output = bags / f'refused_{iron}.yaml'
+    assert main(['fit', str(bags / 'cal'), '-o', str(output), '--iron-run', str(bags / iron), '--no-progress']) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith('tak_calib: error: magnetometer:') and expected in err[0]
+    assert not output.exists()
+
+
+def test_a_topic_in_gauss_is_refused_and_nothing_written(bags, tmp_path, capsys):
+    driver = simulate(replace(CHAMBER, plateau_hours=0.05)).driver
+    write_driver_record(tmp_path / 'gauss', replace(driver, mag=driver.mag * 1e4))
+    assert main(['fit', str(tmp_path / 'gauss'), '-o', str(tmp_path / 'p.yaml'), '--no-progress']) == 2
+    err = capsys.readouterr().err.strip()
+    assert 'not a field in tesla' in err and 'gauss' in err and '\n' not in err
+    assert not (tmp_path / 'p.yaml').exists()
+    assert main(['apply', str(tmp_path / 'gauss'), '--params', str(bags / 'p.yaml'), '-o', str(tmp_path / 'out'),
+                 '--no-progress']) == 2
+    assert 'not a field in tesla' in capsys.readouterr().err and not (tmp_path / 'out').exists()
+
+
+def test_nan_fields_are_left_out_and_counted_and_a_record_of_nan_is_refused(bags, tmp_path, capsys):
+    driver = simulate(replace(CHAMBER, plateau_hours=0.05)).driver
+    mag = driver.mag.copy()
+    mag[[10, 20, 30], 1] = np.nan
+    write_driver_record(tmp_path / 'some', replace(driver, mag=mag))
+    assert main(['fit', str(tmp_path / 'some'), '-o', str(tmp_path / 'p.yaml'), '--no-progress']) == 0
+    out = capsys.readouterr().out
+    assert 'magnetometer: left out: 3 non_finite' in out.replace('non-finite', 'non_finite') or '3 non' in out
+    write_driver_record(tmp_path / 'all', replace(driver, mag=np.full_like(driver.mag, np.nan)))
+    assert main(['fit', str(tmp_path / 'all'), '-o', str(tmp_path / 'q.yaml'), '--no-progress']) == 2
+    assert '/imu/mag' in capsys.readouterr().err and not (tmp_path / 'q.yaml').exists()
+    assert math.isfinite(load_unit(tmp_path / 'p.yaml').mag.thermal.axes[1].offset)
