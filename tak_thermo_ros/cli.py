@@ -55,7 +55,8 @@ OUTPUTS: dict[str, tuple[tuple[str, str, str], ...]] = {
 """Each command's outputs: ``(argument, kind, option)``, checked before any work is done."""
 
 
-UNITS = {(InputKind.COUNTS, 'accel'): 'counts', (InputKind.IMU, 'accel'): 'm/s^2', (InputKind.IMU, 'gyro'): 'rad/s'}
+UNITS = {(InputKind.COUNTS, 'accel'): 'counts', (InputKind.IMU, 'accel'): 'm/s^2', (InputKind.IMU, 'gyro'): 'rad/s',
+         (InputKind.IMU, 'mag'): 'T'}
 """The unit of a sensor's residuals and offsets, by input kind."""
 
 
@@ -124,8 +125,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         driver = run.driver
         write_driver_record(args.out_bag, driver, topics=_topics(args), storage=args.storage, force=args.force,
                             aux_types=aux_types)
+        hours = ((driver.stamp_ns[-1] - driver.stamp_ns[0]) * 1e-9 if scenario.rotation else scenario.duration_s()) / 3600.0
         print(f'wrote {args.out_bag}: {len(driver.stamp_ns)} Imu, {len(driver.temp_stamp_ns)} temperature, '
-              f'{len(driver.reference_stamp_ns)} reference changes, {scenario.duration_s() / 3600.0:.2f} h at '
+              f'{len(driver.reference_stamp_ns)} reference changes, {hours:.2f} h at '
               f'{scenario.sample_rate_hz:g} Hz ({args.storage}); temperature '
               f'{driver.temperature.min():.2f}..{driver.temperature.max():.2f} C')
         if len(driver.mag_stamp_ns):
@@ -515,6 +517,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     run = bounded_run(args.bag, _stream_options(args), settle_time_s=args.settle_time,
                       gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
                       max_samples=args.max_samples)
+    _add_magnetometer(args, unit, run)
     verbose = not args.no_progress and sys.stderr.isatty()
     candidates = expand_candidates(args.candidates) if args.candidates else None
     for line in run.reference_lines:
@@ -588,7 +591,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                 if verbose:
                     print(f'design: {text} ...', file=sys.stderr)
 
-            driver_design = design_driver_run(results, used, progress=design_progress)
+            imu_results = {sensor: result for sensor, result in results.items() if sensor != 'mag'}
+            driver_design = design_driver_run(imu_results, used, progress=design_progress)
             for line in driver_design.lines():
                 print(line)
             if driver_design.designed:
@@ -611,10 +615,25 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                                          gravity=args.gravity, sensor=sensor, unit=UNITS[run.input_kind, sensor])
                     pages[sensor] = (files, result)
                 index = write_sensor_index(pages, staging, source=Path(args.bag).name)
-                written = (f'{Path(args.report) / index.name} (accelerometer and gyroscope, '
+                written = (f'{Path(args.report) / index.name} ({" and ".join(SENSOR_NAMES[s] for s in pages)}, '
                            f'{sum(len(files.figures) for files, _ in pages.values())} figures)')
         print(f'wrote {written}')
     return 0
+
+
+def _add_magnetometer(args: argparse.Namespace, unit: UnitCalibration, run) -> None:
+    """``diagnose``'s magnetometer (its thermal link) when the calibration and the bag hold one."""
+    from tak_thermo_ros.streaming_mag import bounded_mag_run, has_mag
+    options = _stream_options(args)
+    if run.input_kind is not InputKind.IMU or unit.mag is None:
+        return
+    if not has_mag(args.bag, options.topics):
+        print(f'magnetometer: {args.bag} holds no messages on {options.topics.mag}; not diagnosed')
+        return
+    samples, usable, line = bounded_mag_run(args.bag, options, max_samples=args.max_samples)
+    print(line)
+    run.samples['mag'] = samples
+    run.usable['mag'] = usable
 
 
 def expand_candidates(text: str) -> list[str]:

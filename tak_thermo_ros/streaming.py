@@ -37,7 +37,7 @@ DIAGNOSE_MAX_SAMPLES = 1_000_000
 """``diagnose`` works on at most about this many samples, spread evenly over the run."""
 EFFECT_FIT_MAX_SAMPLES = 1_000_000
 """``fit --effects`` searches the effects' shapes on at most about this many samples."""
-SENSOR_NAMES = {'accel': 'accelerometer', 'gyro': 'gyroscope'}
+SENSOR_NAMES = {'accel': 'accelerometer', 'gyro': 'gyroscope', 'mag': 'magnetometer'}
 
 
 def sensors_of(kind: InputKind) -> tuple[str, ...]:

@@ -72,6 +72,69 @@ def _mean_field(path: Path, options) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class _CalibrationPass:
+    """One pass over a calibration run's magnetometer with its reference held (see :func:`_calibration_pass`)."""
+
+    static: bool
+    mean: np.ndarray | None
+    max_turn_deg: float
+    aligner: BlockAligner
+
+
+def _calibration_pass(path: Path, options, consumers) -> _CalibrationPass:
+    """Align the magnetometer on its reference (recorded, or a static run's mean field) and hand
+    each block to ``consumers``; refuses a static run that turned and a topic not in tesla."""
+    from tak_thermo_ros.bagio import bag_streams
+    topics = options.topics
+    static = bag_streams(path, topics=topics).mag_reference == 0
+    mean = _mean_field(path, options) if static else None
+    aligner = BlockAligner(use_reference=True, reference_expected=True)
+    max_turn = 0.0
+    first = True
+
+    def hand_on(aligned: AlignedSamples) -> None:
+        for consume in consumers:
+            consume(aligned)
+
+    for record in _mag_blocks(path, options, references=True):
+        if static:
+            finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
+            if len(finite):
+                cosine = (finite @ mean) / (np.linalg.norm(finite, axis=1) * np.linalg.norm(mean))
+                max_turn = max(max_turn, float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))).max()))
+            if first:
+                # The static run's reference, held from before the first sample.
+                record = replace(record, reference_stamp_ns=np.zeros(1, dtype=np.int64), reference=mean.reshape(1, 3))
+                first = False
+        elif first and len(record.counts):
+            check_tesla(record.counts[np.all(np.isfinite(record.counts), axis=1)], f'{path}: {topics.mag}')
+            first = False
+        hand_on(aligner.push(record))
+    hand_on(aligner.finish())
+    if static and max_turn > MAX_STATIC_TURN_DEG:
+        msg = (f'magnetometer: {path}: the field turns by up to {max_turn:.1f} deg from its mean '
+               f'(at most {MAX_STATIC_TURN_DEG:g}): the thermal fit takes a static run, or a reference field '
+               f'on {topics.reference_field}; a rotation record goes to --iron-run')
+        raise FitError(msg)
+    return _CalibrationPass(static, mean, max_turn, aligner)
+
+
+def bounded_mag_run(path: str | Path, options, *, max_samples: int) -> tuple[AlignedSamples, int, str]:
+    """``diagnose``'s magnetometer samples: every n-th, at most about ``max_samples``, the
+    reference held as for the fit; the usable count of the whole run and the reference's line."""
+    from tak_thermo_ros.bagio import bag_streams
+    from tak_thermo_ros.streaming import _Subsample, stride_for
+    path = Path(path)
+    count = bag_streams(path, topics=options.topics).mag
+    stride = stride_for(count, max_samples)
+    subsample = _Subsample(stride, expected=count // stride + 1)
+    calibration_pass = _calibration_pass(path, options, [subsample])
+    line = (f'magnetometer: reference field {options.topics.reference_field} as recorded' if not calibration_pass.static
+            else f'magnetometer: static run, reference the mean field {_microtesla(calibration_pass.mean)} uT')
+    return subsample.samples(calibration_pass.aligner.dropped), calibration_pass.aligner.kept, line
+
+
+@dataclass(frozen=True)
 class MagFit:
     """What ``fit`` prints and writes for the magnetometer.
 
@@ -97,37 +160,13 @@ def fit_mag_bag(path: str | Path, options, *, bias_order: int = 3, scale_order: 
         be determined, a rotation record that fails the ellipsoid's checks).
     :raises TakError: a topic not in tesla.
     """
-    from tak_thermo_ros.bagio import bag_streams
     path = Path(path)
     topics = options.topics
-    streams = bag_streams(path, topics=topics)
-    static = streams.mag_reference == 0
-    mean = _mean_field(path, options) if static else None
     fit = StreamingFit(bias_order=bias_order, scale_order=scale_order, temp_code_ref=temp_code_ref,
                        nominal_scale=(1.0, 1.0, 1.0))
-    aligner = BlockAligner(use_reference=True, reference_expected=True)
-    max_turn = 0.0
-    first = True
-    for record in _mag_blocks(path, options, references=True):
-        if static:
-            finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
-            if len(finite):
-                cosine = (finite @ mean) / (np.linalg.norm(finite, axis=1) * np.linalg.norm(mean))
-                max_turn = max(max_turn, float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))).max()))
-            if first:
-                # The static run's reference, held from before the first sample.
-                record = replace(record, reference_stamp_ns=np.zeros(1, dtype=np.int64), reference=mean.reshape(1, 3))
-                first = False
-        elif first:
-            check_tesla(record.counts[np.all(np.isfinite(record.counts), axis=1)], f'{path}: {topics.mag}')
-            first = False
-        fit.add(aligner.push(record))
-    fit.add(aligner.finish())
-    if static and max_turn > MAX_STATIC_TURN_DEG:
-        msg = (f'magnetometer: {path}: the field turns by up to {max_turn:.1f} deg from its mean '
-               f'(at most {MAX_STATIC_TURN_DEG:g}): the thermal fit takes a static run, or a reference field '
-               f'on {topics.reference_field}; a rotation record goes to --iron-run')
-        raise FitError(msg)
+    calibration_pass = _calibration_pass(path, options, [fit.add])
+    static, mean, max_turn, aligner = (calibration_pass.static, calibration_pass.mean, calibration_pass.max_turn_deg,
+                                       calibration_pass.aligner)
     try:
         thermal = fit.result(dropped=aligner.dropped)
     except FitError as err:

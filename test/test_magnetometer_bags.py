@@ -115,3 +115,25 @@ def test_nan_fields_are_left_out_and_counted_and_a_record_of_nan_is_refused(bags
     assert main(['fit', str(tmp_path / 'all'), '-o', str(tmp_path / 'q.yaml'), '--no-progress']) == 2
     assert '/imu/mag' in capsys.readouterr().err and not (tmp_path / 'q.yaml').exists()
     assert math.isfinite(load_unit(tmp_path / 'p.yaml').mag.thermal.axes[1].offset)
+
+
+def test_diagnose_works_on_the_magnetometer_like_on_the_other_sensors(bags, tmp_path, capsys):
+    capsys.readouterr()
+    assert main(['diagnose', str(bags / 'cal'), '--params', str(bags / 'p.yaml'), '--json', str(tmp_path / 'd.json'),
+                 '--no-progress', '--candidates', 'thermal_lag,temperature_shape']) == 0
+    out = capsys.readouterr().out
+    assert 'magnetometer: verdict: none' in out
+    mag = json.loads((tmp_path / 'd.json').read_text())['sensors']['mag']
+    assert mag['verdict'] == 'none' and mag['unit'] == 'T'
+    for axis in mag['axes'].values():
+        assert abs(axis['heldout_rms'] / axis['noise_floor'] - 1.0) < 0.1
+        assert abs(axis['noise_floor'] / TRUTH.noise - 1.0) < 0.1
+    # A link too poor for the drift (a straight line for a cubic): diagnose sees it.
+    assert main(['fit', str(bags / 'cal'), '-o', str(tmp_path / 'poor.yaml'), '--bias-order', '1',
+                 '--no-progress']) == 0
+    capsys.readouterr()
+    assert main(['diagnose', str(bags / 'cal'), '--params', str(tmp_path / 'poor.yaml'), '--json',
+                 str(tmp_path / 'poor.json'), '--no-progress', '--candidates', 'thermal_lag,temperature_shape']) == 0
+    poor = json.loads((tmp_path / 'poor.json').read_text())['sensors']['mag']
+    assert poor['verdict'] == 'temperature_shape'
+    assert max(axis['heldout_rms'] / axis['noise_floor'] for axis in poor['axes'].values()) > 1.5

@@ -284,8 +284,9 @@ class UnitCalibration:
         return tuple((name, calibration) for name, calibration in present if calibration is not None)
 
     def sensor(self, name: str) -> Calibration:
-        """The calibration of sensor ``'accel'`` or ``'gyro'``."""
-        calibration = {'accel': self.accel, 'gyro': self.gyro}.get(name)
+        """The calibration of sensor ``'accel'`` or ``'gyro'`` (``'mag'``: the magnetometer's thermal link)."""
+        mag = self.mag.thermal if self.mag is not None else None
+        calibration = {'accel': self.accel, 'gyro': self.gyro, MAG_SENSOR: mag}.get(name)
         if calibration is None:
             msg = f'calibration.{name}: not in this calibration'
             raise CalibrationError(msg)

@@ -8,7 +8,7 @@ white noise. Values in tesla, temperatures in degrees C.
 Chosen defaults (the issue leaves them open): the Earth's field 48.4 uT in the sensor frame at
 rest (20, 2, 44 uT); a sensor offset of 1-2 uT at 20 C drifting by 1.9-3.8 uT over 5..35 C (a
 cubic per axis, as PX4 fits); a scale drift of 2-3e-4 per C; hard iron (4, -3, 2) uT; soft iron
-``|S - I|`` 0.04-0.06 per element (symmetric); noise 0.2 uT per sample and axis.
+``|S - I|`` up to 0.05 per element (symmetric); noise 0.2 uT per sample and axis.
 
 In a driver scenario (``output: imu``) the key ``magnetometer`` (a mapping, every key
 optional, ``{}`` for the defaults) adds ``/imu/mag`` at the Imu's stamps: the field turns with
