@@ -137,3 +137,62 @@ def test_diagnose_works_on_the_magnetometer_like_on_the_other_sensors(bags, tmp_
     poor = json.loads((tmp_path / 'poor.json').read_text())['sensors']['mag']
     assert poor['verdict'] == 'temperature_shape'
     assert max(axis['heldout_rms'] / axis['noise_floor'] for axis in poor['axes'].values()) > 1.5
+
+
+SIX = ((1.0, 0.0, 0.0), (-1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, 1.0), (0.0, 0.0, -1.0))
+
+
+def test_a_reference_field_fits_the_scale_drift_and_a_static_run_that_turned_is_refused(tmp_path, capsys):
+    # A table turning through six positions in a known (surveyed) field, recorded on /tak/reference_field.
+    table = replace(CHAMBER, positions=SIX, dwell_s=60.0, record_references=True, plateau_hours=0.3)
+    write_driver_record(tmp_path / 'table', simulate(table).driver)
+    assert main(['fit', str(tmp_path / 'table'), '-o', str(tmp_path / 'p.yaml'), '--no-progress']) == 0
+    out = capsys.readouterr().out
+    assert 'magnetometer: reference field /tak/reference_field as recorded' in out
+    link = load_unit(tmp_path / 'p.yaml').mag.thermal
+    for axis, truth in zip(link.axes, TRUTH.scale_coeffs):
+        assert axis.scale_observable
+        # The linear scale drift per C: its error over a 30 C spread at 0.2 uT noise in a 48 uT field
+        # on a few thousand samples is some 1e-6 per C; 2e-5 is far beyond it.
+        assert abs(axis.scale_shape[0] - truth[0]) < 2e-5
+    # The reference is the field outside the sensor's own iron: each axis's scale takes the soft
+    # iron's diagonal with it (1.05, 0.96, 1.02, within the off-diagonal's pull).
+    assert np.allclose([axis.scale for axis in link.axes], np.diag(TRUTH.soft_matrix()), atol=0.02)
+    assert main(['validate', str(tmp_path / 'table'), '--params', str(tmp_path / 'p.yaml'), '--json',
+                 str(tmp_path / 'v.json'), '--no-progress']) == 0
+    # validate compares with the reference when the bag holds one.
+    assert json.loads((tmp_path / 'v.json').read_text())['mag']['reference'] == '/tak/reference_field'
+    # The same table recorded without the reference: the field turns, the thermal fit refuses it.
+    unreferenced = replace(simulate(table).driver, mag_reference_stamp_ns=np.zeros(0, np.int64),
+                           mag_reference=np.zeros((0, 3)))
+    write_driver_record(tmp_path / 'turned', unreferenced)
+    assert main(['fit', str(tmp_path / 'turned'), '-o', str(tmp_path / 'q.yaml'), '--no-progress']) == 2
+    err = capsys.readouterr().err
+    assert 'the field turns by up to' in err and 'static run' in err and not (tmp_path / 'q.yaml').exists()
+
+
+def test_the_block_decoder_and_encoder_handle_magnetic_field_as_rosbags_does(tmp_path):
+    from tak_thermo_ros.bagio import TYPESTORE, iter_blocks
+    from tak_thermo_ros.cdr import decode_messages, encode_messages
+    from tak_thermo_ros.core.link.model import InputKind
+    driver = simulate(replace(CHAMBER, plateau_hours=0.02)).driver
+    write_driver_record(tmp_path / 'bag', driver)
+    blocks = {decoder: list(iter_blocks(tmp_path / 'bag', kind=InputKind.IMU, block_samples=500, decoder=decoder,
+                                        progress=False)) for decoder in ('block', 'rosbags')}
+    for name in ('mag_stamp_ns', 'mag'):
+        by_block = np.concatenate([getattr(b, name) for b in blocks['block']])
+        assert np.array_equal(by_block, np.concatenate([getattr(b, name) for b in blocks['rosbags']]))
+        assert np.array_equal(by_block, getattr(driver, name))
+    covariance = np.arange(9, dtype=float) * 1e-15
+    raws = encode_messages(MAGNETIC_FIELD, driver.mag_stamp_ns[:50], {'magnetic_field': driver.mag[:50],
+                                                                      'magnetic_field_covariance': covariance},
+                           {'frame_id': 'mag_link'})
+    decoded = decode_messages(raws, MAGNETIC_FIELD)
+    assert np.array_equal(decoded['magnetic_field'], driver.mag[:50])
+    for raw, stamp, field in zip(raws, driver.mag_stamp_ns[:50].tolist(), driver.mag[:50]):
+        message = TYPESTORE.deserialize_cdr(raw, MAGNETIC_FIELD)
+        assert message.header.frame_id == 'mag_link'
+        assert message.header.stamp.sec * 10**9 + message.header.stamp.nanosec == stamp
+        assert (message.magnetic_field.x, message.magnetic_field.y, message.magnetic_field.z) == tuple(field)
+        assert np.array_equal(message.magnetic_field_covariance, covariance)
+        assert TYPESTORE.serialize_cdr(message, MAGNETIC_FIELD) == raw

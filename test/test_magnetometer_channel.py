@@ -10,6 +10,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from conftest import examples
 from tak_thermo_ros.core.link.model import InputKind, MagnetometerCalibration, UnitCalibration
 from tak_thermo_ros.core.magnetometer.channel import MagCorrector, check_tesla, magnetic_covariance
 from tak_thermo_ros.core.magnetometer.iron import fit_ellipsoid
@@ -150,7 +151,7 @@ _RECORD = rotation_record(TRUTH, samples=600, seed=6).mag
 _FIT = fit_ellipsoid(_RECORD)
 
 
-@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=examples(30), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.tuples(*[st.floats(-1.0, 1.0) for _ in range(4)]).filter(lambda q: sum(v * v for v in q) > 0.01))
 def test_the_ellipsoid_fit_is_invariant_to_a_rotation_of_the_record(quaternion):
     rotation = _rotation(quaternion)
