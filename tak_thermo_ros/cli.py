@@ -266,12 +266,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
                   f'scale {axis.scale:.6g}{" counts/(m/s^2)" if unit_name == "counts" else ""}'
                   f'{"" if axis.scale_observable else " (held)"}, '
                   f'offset {_amount(axis.offset, unit_name)}, offset span {_amount(axis.offset_span, unit_name)}')
-        for effect in calibration.effects:
-            errors = result.parameter_errors
-            shown = ', '.join(f'{p.name} {p.value:.4g}' + (f' +- {errors[effect.name + "." + p.name]:.2g}'
-                                                           if effect.name + '.' + p.name in errors else '')
-                              + (f' {_effect_unit(p.unit, unit_name)}' if p.unit else '') for p in effect.parameters)
-            print(f'  effect {effect.name}: {shown}')
+        _print_effects(calibration, result, unit_name)
         for note in calibration.notes:
             print(f'note: {prefix}{note}')
     if magnetometer is not None:
@@ -280,18 +275,31 @@ def cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def _print_effects(calibration, result, unit_name: str) -> None:
+    """One line per fitted effect: its parameters with their standard errors and units."""
+    errors = result.parameter_errors
+    for effect in calibration.effects:
+        shown = ', '.join(f'{p.name} {p.value:.4g}' + (f' +- {errors[effect.name + "." + p.name]:.2g}'
+                                                       if effect.name + '.' + p.name in errors else '')
+                          + (f' {_effect_unit(p.unit, unit_name)}' if p.unit else '') for p in effect.parameters)
+        print(f'  effect {effect.name}: {shown}')
+
+
 def _fit_magnetometer(args: argparse.Namespace, kind: InputKind):
     """The magnetometer's fit when the driver bag holds one (``--iron-run``: its rotation record)."""
     from tak_thermo_ros.streaming_mag import fit_mag_bag, has_mag
     iron_run = getattr(args, 'iron_run', None)
+    effects = _effect_list(getattr(args, 'mag_effects', None))
     options = _stream_options(args)
     if kind is not InputKind.IMU or not has_mag(args.bag, options.topics):
-        if iron_run is not None:
-            msg = f'--iron-run: {args.bag} holds no magnetometer on {options.topics.mag} to calibrate'
-            raise TakError(msg)
+        for option, given in (('--iron-run', iron_run is not None), ('--mag-effects', bool(effects))):
+            if given:
+                msg = f'{option}: {args.bag} holds no magnetometer on {options.topics.mag} to calibrate'
+                raise TakError(msg)
         return None
     return fit_mag_bag(args.bag, options, bias_order=args.bias_order, scale_order=args.scale_order,
-                       temp_code_ref=args.temp_code_ref, iron_run=iron_run)
+                       temp_code_ref=args.temp_code_ref, iron_run=iron_run, effects=effects,
+                       max_effect_samples=args.effect_samples)
 
 
 def _print_magnetometer(fitted, args: argparse.Namespace) -> None:
@@ -306,6 +314,7 @@ def _print_magnetometer(fitted, args: argparse.Namespace) -> None:
         print(f'  {name}: residual RMS {stats.residual_rms * 1e6:.4g} uT; scale {axis.scale:.6g}'
               f'{"" if axis.scale_observable else " (held)"}, offset {axis.offset * 1e6:.4g} uT, '
               f'offset span {axis.offset_span * 1e6:.4g} uT')
+    _print_effects(link, thermal, 'T')
     iron = fitted.iron
     mag = fitted.calibration
     if iron is not None:
@@ -688,6 +697,8 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument('--effect-samples', type=bounds.sample_budget, default=EFFECT_FIT_MAX_SAMPLES, metavar='N',
                      help=f'search the effects\' shapes on at most about N samples spread evenly over the run '
                           f'(default {EFFECT_FIT_MAX_SAMPLES:,}; the amplitudes use every sample)')
+    fit.add_argument('--mag-effects', metavar='NAME[,NAME...]',
+                     help="effects on the magnetometer's thermal link, as --effects (what diagnose names)")
     fit.add_argument('--iron-run', metavar='BAG',
                      help="the magnetometer's rotation record (installed, turned through every orientation): "
                           'hard and soft iron by an ellipsoid fit, after the thermal link (default: not fitted)')

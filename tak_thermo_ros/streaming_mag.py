@@ -22,10 +22,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
-from tak_thermo_ros.core.fit import FitResult
+from tak_thermo_ros.core.fit import FitResult, fit_model
 from tak_thermo_ros.core.fit.stream import StreamingFit
 from tak_thermo_ros.core.link.correction import Corrector, OutOfRange
 from tak_thermo_ros.core.link.model import IDENTITY_3X3, InputKind, MagnetometerCalibration
@@ -153,8 +154,13 @@ class MagFit:
 
 
 def fit_mag_bag(path: str | Path, options, *, bias_order: int = 3, scale_order: int = 2,
-                temp_code_ref: float | None = None, iron_run: str | Path | None = None) -> MagFit:
+                temp_code_ref: float | None = None, iron_run: str | Path | None = None,
+                effects: Sequence[str] = (), max_effect_samples: int = 1_000_000) -> MagFit:
     """Fit the magnetometer: its thermal link from ``path``, its iron from ``iron_run``.
+
+    With ``effects`` (library names, as ``--effects``) the link and the effects are fitted by
+    :func:`~tak_thermo_ros.core.fit.fit_model` on every n-th sample, at most about
+    ``max_effect_samples`` (all of a shorter run; said in a line otherwise).
 
     :raises FitError: one line prefixed ``magnetometer:`` (a run that moved, a fit that cannot
         be determined, a rotation record that fails the ellipsoid's checks).
@@ -162,18 +168,33 @@ def fit_mag_bag(path: str | Path, options, *, bias_order: int = 3, scale_order: 
     """
     path = Path(path)
     topics = options.topics
+    from tak_thermo_ros.bagio import bag_streams
+    from tak_thermo_ros.streaming import _Subsample, stride_for
     fit = StreamingFit(bias_order=bias_order, scale_order=scale_order, temp_code_ref=temp_code_ref,
                        nominal_scale=(1.0, 1.0, 1.0))
-    calibration_pass = _calibration_pass(path, options, [fit.add])
+    consumers = [fit.add]
+    subsample = None
+    if effects:
+        count = bag_streams(path, topics=topics).mag
+        subsample = _Subsample(stride_for(count, max_effect_samples), expected=count)
+        consumers.append(subsample)
+    calibration_pass = _calibration_pass(path, options, consumers)
     static, mean, max_turn, aligner = (calibration_pass.static, calibration_pass.mean, calibration_pass.max_turn_deg,
                                        calibration_pass.aligner)
     try:
-        thermal = fit.result(dropped=aligner.dropped)
+        if subsample is None:
+            thermal = fit.result(dropped=aligner.dropped)
+        else:
+            thermal = fit_model(subsample.samples(aligner.dropped), effects=list(effects), bias_order=bias_order,
+                                scale_order=scale_order, temp_code_ref=temp_code_ref, nominal_scale=(1.0, 1.0, 1.0))
     except FitError as err:
         raise FitError(f'magnetometer: {err}') from None
     lines = [f'magnetometer: reference field {topics.reference_field} as recorded' if not static else
              f'magnetometer: static run, reference the mean field {_microtesla(mean)} uT '
              f'(|B| {np.linalg.norm(mean) * 1e6:.2f} uT; largest turn from it {max_turn:.2f} deg)']
+    if subsample is not None and subsample.stride > 1:
+        lines.append(f'magnetometer: the link and its effects fitted on 1 sample in {subsample.stride} '
+                     f'({subsample.count} of {subsample.usable})')
     link = thermal.calibration
     notes = list(link.notes)
     iron = None

@@ -196,3 +196,53 @@ def test_the_block_decoder_and_encoder_handle_magnetic_field_as_rosbags_does(tmp
         assert (message.magnetic_field.x, message.magnetic_field.y, message.magnetic_field.z) == tuple(field)
         assert np.array_equal(message.magnetic_field_covariance, covariance)
         assert TYPESTORE.serialize_cdr(message, MAGNETIC_FIELD) == raw
+
+
+LAG = {'tau_s': 300.0, 'slope_x': 2.0e-7, 'slope_z': -1.5e-7}
+"""A hidden thermal lag of the magnetometer's offset: tesla per degree C of lag (about 1 uT at 2 C/min)."""
+
+
+def test_the_discovery_loop_works_on_the_magnetometer(tmp_path, capsys):
+    lagging = replace(CHAMBER, plateaus_celsius=(5.0, 35.0, 5.0, 35.0), ramp_celsius_per_minute=2.0,
+                      board_lag_s=300.0, magnetometer=replace(TRUTH, effects={'thermal_lag': LAG}), seed=9)
+    write_driver_record(tmp_path / 'run', simulate(lagging).driver)
+    candidates = ['--candidates', 'thermal_lag,hysteresis,temperature_shape']
+
+    def mag_verdict(params: str) -> dict:
+        assert main(['diagnose', str(tmp_path / 'run'), '--params', str(tmp_path / params), '--json',
+                     str(tmp_path / 'd.json'), '--no-progress', '--force', *candidates]) == 0
+        return json.loads((tmp_path / 'd.json').read_text())['sensors']['mag']
+
+    assert main(['fit', str(tmp_path / 'run'), '-o', str(tmp_path / 'base.yaml'), '--no-progress']) == 0
+    assert mag_verdict('base.yaml')['verdict'] == 'thermal_lag'
+    assert main(['fit', str(tmp_path / 'run'), '-o', str(tmp_path / 'lag.yaml'), '--no-progress',
+                 '--mag-effects', 'thermal_lag']) == 0
+    out = capsys.readouterr().out
+    effect = load_unit(tmp_path / 'lag.yaml').mag.thermal.effects[0]
+    errors = {m.group(1): float(m.group(2)) for m in __import__('re').finditer(r'(\w+) \S+ \+- (\S+)', out)
+              if m.group(1) in ('tau_s', 'slope_x', 'slope_z')}
+    # The errors are the fit's own (in tesla as in rad/s), and the truth lies within four of them.
+    assert 0.5 < errors['tau_s'] < 30.0
+    for name, true in LAG.items():
+        assert abs(effect[name] - true) < 4.0 * errors[name], (name, effect[name], errors[name])
+    after = mag_verdict('lag.yaml')
+    assert after['verdict'] == 'none'
+    assert all(abs(axis['heldout_rms'] / axis['noise_floor'] - 1.0) < 0.05 for axis in after['axes'].values())
+
+
+def test_effect_standard_errors_do_not_depend_on_the_sensor_unit():
+    from tak_thermo_ros.core.fit import fit_model
+    from tak_thermo_ros.core.records.record import align
+    lagging = replace(CHAMBER, plateaus_celsius=(5.0, 35.0, 5.0), ramp_celsius_per_minute=2.0, plateau_hours=0.1,
+                      board_lag_s=300.0, magnetometer=replace(TRUTH, effects={'thermal_lag': LAG}), seed=10)
+    driver = simulate(lagging).driver
+    record = driver.channel('mag')
+    mean = record.counts.mean(axis=0)
+    record = replace(record, reference_stamp_ns=np.zeros(1, np.int64), reference=mean.reshape(1, 3))
+    samples = align(record)
+    in_tesla = fit_model(samples, effects=['thermal_lag'], nominal_scale=(1.0, 1.0, 1.0))
+    scaled = replace(samples, counts=samples.counts * 1e6, reference=samples.reference * 1e6)
+    in_microtesla = fit_model(scaled, effects=['thermal_lag'], nominal_scale=(1.0, 1.0, 1.0))
+    assert math.isclose(in_tesla.parameter_errors['thermal_lag.tau_s'],
+                        in_microtesla.parameter_errors['thermal_lag.tau_s'], rel_tol=1e-3)
+    assert in_tesla.parameter_errors['thermal_lag.tau_s'] > 0.5

@@ -590,12 +590,16 @@ def _standard_errors(offsets, input_effects, designs, residual_sums, betas, fixe
             position = fixed[i].shape[1] + sum(len(o.effect.axis_columns()[i]) for o in offsets[:index])
             coefficients = betas[i][position:position + len(used)]
             derivatives[i, :, column] = slope[:, used] @ coefficients
+    # The shape columns scaled like the amplitudes' (to unit norm over the axes): the Fisher
+    # matrix's conditioning then does not depend on the sensor's unit (tesla or counts).
+    shape_norms = np.sqrt(np.sum(derivatives ** 2, axis=(0, 1)))
+    shape_norms = np.where(shape_norms > 0.0, shape_norms, 1.0)
     offset = 0
     for i, (design, norms) in enumerate(designs):
         dof = max(count - design.shape[1] - len(shape_parameters), 1)
         variance = residual_sums[i] / dof
         variances.append(variance)
-        jacobian = np.column_stack([design / norms, derivatives[i]])
+        jacobian = np.column_stack([design / norms, derivatives[i] / shape_norms])
         information = jacobian.T @ jacobian / variance
         width = design.shape[1]
         rows = list(range(offset, offset + width)) + list(range(sum(blocks), size))
@@ -611,7 +615,7 @@ def _standard_errors(offsets, input_effects, designs, residual_sums, betas, fixe
             errors[label] = float(deviation[offset + position] / norms[position])
         offset += design.shape[1]
     for column, (index, name, log, value) in enumerate(shape_parameters):
-        sigma = float(deviation[sum(blocks) + column])
+        sigma = float(deviation[sum(blocks) + column] / shape_norms[column])
         errors[f'{offsets[index].effect.name}.{name}'] = value * sigma if log else sigma
     return errors
 

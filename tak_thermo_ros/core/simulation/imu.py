@@ -489,7 +489,7 @@ def _simulate_driver(scenario: Scenario) -> SimulatedRun:
         # Its own noise stream: the other channels stay as without a magnetometer.
         field_truth = table_field(scenario.magnetometer, positions, position_index)
         mag = scenario.magnetometer.measure(field_truth, board, scenario.reference_celsius,
-                                            np.random.default_rng([scenario.seed, 18]))
+                                            np.random.default_rng([scenario.seed, 18]), stamp_s)
         driver = replace(driver, mag_stamp_ns=stamps.copy(), mag=mag, mag_frame_id=scenario.frame_id,
                          mag_reference_stamp_ns=stamps[step], mag_reference=field_truth[step])
     unit_truth = scenario.driver_truth()

@@ -20,15 +20,17 @@ surveyed field). :func:`rotation_record` simulates the turns for the ellipsoid.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from typing import Any, Mapping
 
 import numpy as np
 
+from tak_thermo_ros.core.effects import resolve_effect
+from tak_thermo_ros.core.link.correction import forward_counts
 from tak_thermo_ros.core.link.model import AxisModel, Calibration, MagnetometerCalibration
 from tak_thermo_ros.core.records.record import NANOSECONDS, DriverRecord
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
-from tak_thermo_ros.errors import ScenarioError
+from tak_thermo_ros.errors import CalibrationError, FitError, ScenarioError
 
 
 @dataclass(frozen=True)
@@ -42,6 +44,8 @@ class MagnetometerTruth:
     :param hard_iron: ``h``, tesla.
     :param soft_iron: ``S``, row-major, symmetric.
     :param noise: white noise per sample and axis, tesla.
+    :param effects: hidden effects of the library on the thermal link (tesla, degrees C), effect
+        name -> its true parameters, as a scenario's ``effects`` (off by default).
     """
 
     earth_field: tuple[float, float, float] = (20e-6, 2e-6, 44e-6)
@@ -52,6 +56,17 @@ class MagnetometerTruth:
     hard_iron: tuple[float, float, float] = (4e-6, -3e-6, 2e-6)
     soft_iron: tuple[float, ...] = (1.05, 0.04, -0.03, 0.04, 0.96, 0.05, -0.03, 0.05, 1.02)
     noise: float = 0.2e-6
+    effects: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
+
+    def effect_instances(self, key: str = 'magnetometer.effects') -> tuple:
+        """The hidden effects as the library's effect objects with their true parameters."""
+        instances = []
+        for name, values in self.effects.items():
+            try:
+                instances.append(resolve_effect(name).from_values(values, key=f'{key}.{name}', complete=False))
+            except (FitError, CalibrationError) as err:
+                raise ScenarioError(f'{key}.{name}: {err}') from None
+        return tuple(instances)
 
     def link(self, reference_celsius: float, low: float, high: float) -> Calibration:
         """The thermal link, normalised over ``low..high`` degrees C."""
@@ -60,7 +75,7 @@ class MagnetometerTruth:
                                                 code_offset_range=n_range, residual_rms=self.noise)
                      for offset, drift, scale in zip(self.offset, self.offset_coeffs, self.scale_coeffs))
         return Calibration(temp_code_ref=reference_celsius, temp_code_min=low, temp_code_max=high,
-                           axes=axes)  # type: ignore[arg-type]
+                           axes=axes, effects=self.effect_instances())  # type: ignore[arg-type]
 
     def soft_matrix(self) -> np.ndarray:
         """``S`` as a 3x3 array."""
@@ -74,11 +89,17 @@ class MagnetometerTruth:
                                        tuple(float(v) for v in inverse.ravel()))
 
     def measure(self, field: np.ndarray, temperature: np.ndarray, reference_celsius: float,
-                rng: np.random.Generator) -> np.ndarray:
-        """What the sensor gives for the true field ``(k, 3)`` at board temperatures ``(k,)``."""
+                rng: np.random.Generator, stamp_s: np.ndarray | None = None) -> np.ndarray:
+        """What the sensor gives for the true field ``(k, 3)`` at board temperatures ``(k,)``.
+
+        The link's forward model with its hidden effects (:func:`forward_counts`, the IMU's),
+        driven by the stamps ``(k,)`` in seconds (needed by effects with memory).
+        """
         at_sensor = np.asarray(field, dtype=float) @ self.soft_matrix().T + np.asarray(self.hard_iron)
         link = self.link(reference_celsius, -1.0 + reference_celsius, 1.0 + reference_celsius)
-        exact = link.forward(at_sensor, np.asarray(temperature, dtype=float))
+        if stamp_s is None:
+            stamp_s = np.arange(len(at_sensor), dtype=float)
+        exact = forward_counts(link, at_sensor, np.asarray(temperature, dtype=float), stamp_s=stamp_s)
         return exact + rng.standard_normal(exact.shape) * self.noise
 
 
@@ -100,6 +121,10 @@ def truth_from_mapping(raw: Any, *, key: str = 'magnetometer') -> MagnetometerTr
         try:
             if name == 'noise':
                 values[name] = float(value)
+            elif name == 'effects':
+                if not isinstance(value, Mapping):
+                    raise TypeError
+                values[name] = {str(effect): dict(params) for effect, params in value.items()}
             elif name in ('offset_coeffs', 'scale_coeffs'):
                 values[name] = tuple(tuple(float(v) for v in axis) for axis in value)
             else:
@@ -108,6 +133,7 @@ def truth_from_mapping(raw: Any, *, key: str = 'magnetometer') -> MagnetometerTr
             msg = f'{key}.{name}: expected numbers'
             raise ScenarioError(msg) from None
     truth = MagnetometerTruth(**values)
+    truth.effect_instances(f'{key}.effects')
     lengths = {'earth_field': 3, 'offset': 3, 'hard_iron': 3, 'soft_iron': 9, 'offset_coeffs': 3, 'scale_coeffs': 3}
     for name, length in lengths.items():
         if len(getattr(truth, name)) != length:
@@ -197,7 +223,8 @@ def rotation_record(truth: MagnetometerTruth, *, samples: int = 2000, rate_hz: f
     rotations = random_rotations(samples, rng, turn)
     field = np.einsum('kji,j->ki', rotations, np.asarray(truth.earth_field))
     temperature = np.full(samples, float(temperature_celsius))
-    mag = truth.measure(field, temperature, reference_celsius, rng)
+    stamps_s = start_time_s + np.arange(samples) / rate_hz
+    mag = truth.measure(field, temperature, reference_celsius, rng, stamps_s)
     gravity = np.einsum('kji,j->ki', rotations, np.array([0.0, 0.0, STANDARD_GRAVITY]))
     stamps = np.round((start_time_s + np.arange(samples) / rate_hz) * NANOSECONDS).astype(np.int64)
     orientation = np.zeros((samples, 4))
