@@ -83,8 +83,11 @@ class _CalibrationPass:
 
 
 def _calibration_pass(path: Path, options, consumers) -> _CalibrationPass:
-    """Align the magnetometer on its reference (recorded, or a static run's mean field) and hand
-    each block to ``consumers``; refuses a static run that turned and a topic not in tesla."""
+    """Align the magnetometer on its reference and hand each block to ``consumers``.
+
+    The reference is the recorded field, or a static run's mean field; refuses a static run
+    that turned and a topic not in tesla.
+    """
     from tak_thermo_ros.bagio import bag_streams
     topics = options.topics
     static = bag_streams(path, topics=topics).mag_reference == 0
@@ -121,8 +124,10 @@ def _calibration_pass(path: Path, options, consumers) -> _CalibrationPass:
 
 
 def bounded_mag_run(path: str | Path, options, *, max_samples: int) -> tuple[AlignedSamples, int, str]:
-    """``diagnose``'s magnetometer samples: every n-th, at most about ``max_samples``, the
-    reference held as for the fit; the usable count of the whole run and the reference's line."""
+    """``diagnose``'s magnetometer samples, the usable count of the whole run and the reference's line.
+
+    Every n-th sample, at most about ``max_samples``, the reference held as for the fit.
+    """
     from tak_thermo_ros.bagio import bag_streams
     from tak_thermo_ros.streaming import _Subsample, stride_for
     path = Path(path)
@@ -336,8 +341,10 @@ class MagValidated:
 
 def validate_mag(path: str | Path, mag: MagnetometerCalibration, options, *,
                  out_of_range: OutOfRange = OutOfRange.CLAMP) -> MagValidated:
-    """The field error before and after the correction: against ``/tak/reference_field`` when
-    recorded, else about the run's mean (a static run)."""
+    """The field error before and after the correction.
+
+    Against ``/tak/reference_field`` when recorded, else about the run's mean (a static run).
+    """
     from tak_thermo_ros.bagio import bag_streams
     path = Path(path)
     streams = bag_streams(path, topics=options.topics)

@@ -263,8 +263,10 @@ def check_correction(unit: UnitCalibration, corrector: UnitCorrector, *, key: st
 
 def _covariances(unit: UnitCalibration, key: str, channel: str = 'imu'
                  ) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
-    """The Imu covariances of the unit (as ``tak_calib apply`` writes them), all finite; for the
-    magnetometer ``((), (), magnetic_field_covariance)``."""
+    """The Imu covariances of the unit (as ``tak_calib apply`` writes them), all finite.
+
+    For the magnetometer: ``((), (), magnetic_field_covariance)``.
+    """
     if channel == MAG_CHANNEL:
         from tak_thermo_ros.core.magnetometer.channel import magnetic_covariance
         return (), (), magnetic_covariance(unit.mag)
@@ -358,8 +360,10 @@ class OnlineCompensator:
 
     @property
     def calibration(self) -> Calibration:
-        """The accelerometer's calibration in force (the whole of a counts calibration); the
-        magnetometer's thermal link on the ``mag`` channel."""
+        """The accelerometer's calibration in force (the whole of a counts calibration).
+
+        On the ``mag`` channel: the magnetometer's thermal link.
+        """
         return channel_sensors(self._config.unit, self.channel)[0][1]
 
     @property

@@ -172,8 +172,11 @@ def table_field(truth: MagnetometerTruth, positions: np.ndarray, position_index:
 
 
 def random_rotations(count: int, rng: np.random.Generator, turn: str = 'tumble') -> np.ndarray:
-    """``(count, 3, 3)`` rotations: uniform over every orientation (``tumble``), about z only
-    (``yaw``: too few orientations), or z kept within 40 degrees of up (``cap``)."""
+    """``(count, 3, 3)`` random rotations of one of three kinds.
+
+    Uniform over every orientation (``tumble``), about z only (``yaw``: too few orientations),
+    or z kept within 40 degrees of up (``cap``).
+    """
     if turn == 'yaw':
         angle = rng.uniform(0.0, 2.0 * math.pi, count)
         cosine, sine = np.cos(angle), np.sin(angle)
@@ -217,8 +220,11 @@ def rotation_record(truth: MagnetometerTruth, *, samples: int = 2000, rate_hz: f
                     temperature_celsius: float = 20.0, reference_celsius: float = 20.0, turn: str = 'tumble',
                     seed: int = 0, start_time_s: float = 1_700_000_000.0, frame_id: str = 'tak_imu',
                     accel_noise: float = 0.004, gyro_noise: float = 0.0008) -> DriverRecord:
-    """A rotation record of the installed unit for the ellipsoid fit: the driver's Imu (gravity
-    turned with the unit, ideal otherwise), its temperature (constant) and ``/imu/mag``."""
+    """A rotation record of the installed unit for the ellipsoid fit.
+
+    The driver's Imu (gravity turned with the unit, ideal otherwise), its temperature (constant)
+    and ``/imu/mag``.
+    """
     rng = np.random.default_rng([seed, 18])
     rotations = random_rotations(samples, rng, turn)
     field = np.einsum('kji,j->ki', rotations, np.asarray(truth.earth_field))
