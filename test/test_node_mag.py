@@ -157,3 +157,13 @@ def test_the_online_core_corrects_the_magnetometer_as_the_vectorised_path():
     expected = MagCorrector(unit.mag).correct(driver.mag[:200], np.full(200, driver.temperature[0]))
     assert np.array_equal(np.array(results), expected)
     assert core.covariances[2][0] > 0.0 and core.status(0.2).value('published') == '200'
+
+
+def test_the_launch_file_remaps_the_magnetometer_topics():
+    import ast
+    from pathlib import Path
+    from tak_thermo_ros import node as node_module
+    tree = ast.parse((Path(__file__).resolve().parents[1] / 'launch' / 'compensator.launch.py').read_text())
+    constants = {n.targets[0].id: ast.literal_eval(n.value) for n in tree.body
+                 if isinstance(n, ast.Assign) and isinstance(n.targets[0], ast.Name) and n.targets[0].id == 'MAG_TOPICS'}
+    assert constants['MAG_TOPICS'] == (node_module.MAG_TOPIC, node_module.COMPENSATED_MAG_TOPIC)
