@@ -370,6 +370,10 @@ def cmd_apply(args: argparse.Namespace) -> int:
     applied = apply_bag(args.bag, unit, args.output, _stream_options(args), storage=args.storage,
                         out_of_range=OutOfRange(args.out_of_range), force=args.force)
     print(f'wrote {applied.written} Imu messages on {applied.topic} to {args.output}')
+    if kind is InputKind.IMU and unit.mag is None:
+        from tak_thermo_ros.streaming_mag import has_mag
+        if has_mag(args.bag, topics):
+            print(f'note: {args.params} holds no magnetometer: {topics.mag} is not corrected (nothing written for it)')
     if applied.mag_written or applied.mag_topic:
         print(f'wrote {applied.mag_written} MagneticField messages on {applied.mag_topic}')
         if applied.mag_dropped:

@@ -16,6 +16,7 @@ import pytest
 
 from tak_thermo_ros.bagio import MAGNETIC_FIELD, iter_topic_arrays, write_driver_record
 from tak_thermo_ros.cli import main
+from tak_thermo_ros.errors import BagError
 from tak_thermo_ros.core.link.correction import OutOfRange
 from tak_thermo_ros.core.magnetometer.channel import MagCorrector
 from tak_thermo_ros.core.records.calibration_file import load_unit
@@ -246,3 +247,15 @@ def test_effect_standard_errors_do_not_depend_on_the_sensor_unit():
     assert math.isclose(in_tesla.parameter_errors['thermal_lag.tau_s'],
                         in_microtesla.parameter_errors['thermal_lag.tau_s'], rel_tol=1e-3)
     assert in_tesla.parameter_errors['thermal_lag.tau_s'] > 0.5
+
+
+def test_apply_says_when_the_calibration_has_no_magnetometer(bags, tmp_path, capsys):
+    from tak_thermo_ros.core.records.calibration_file import save_unit
+    save_unit(tmp_path / 'imu_only.yaml', replace(load_unit(bags / 'p.yaml'), mag=None))
+    capsys.readouterr()
+    assert main(['apply', str(bags / 'run2'), '--params', str(tmp_path / 'imu_only.yaml'), '-o', str(tmp_path / 'out'),
+                 '--no-progress']) == 0
+    out = capsys.readouterr().out
+    assert 'holds no magnetometer: /imu/mag is not corrected' in out and 'MagneticField messages' not in out
+    with pytest.raises(BagError, match='topic /imu/mag_compensated not found'):
+        list(iter_topic_arrays(tmp_path / 'out', '/imu/mag_compensated', MAGNETIC_FIELD))

@@ -167,3 +167,37 @@ def test_the_launch_file_remaps_the_magnetometer_topics():
     constants = {n.targets[0].id: ast.literal_eval(n.value) for n in tree.body
                  if isinstance(n, ast.Assign) and isinstance(n.targets[0], ast.Name) and n.targets[0].id == 'MAG_TOPICS'}
     assert constants['MAG_TOPICS'] == (node_module.MAG_TOPIC, node_module.COMPENSATED_MAG_TOPIC)
+
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from conftest import examples  # noqa: E402
+
+_EVENT = st.one_of(
+    st.tuples(st.just('temperature'), st.sampled_from([0.0, 20.0, 40.0, math.nan, 2e7])),
+    st.tuples(st.just('mag'), st.tuples(st.integers(-2, 3), st.sampled_from([2e-5, -4e-5, 1e-4, math.nan, math.inf]))))
+_UNIT = Scenario(output='imu', magnetometer=MagnetometerTruth()).driver_truth()
+
+
+@settings(max_examples=examples(60), deadline=None)
+@given(st.lists(_EVENT, min_size=1, max_size=80))
+def test_every_magnetometer_message_is_published_or_dropped_and_published_ones_equal_the_vectorised_path(events):
+    core = OnlineCompensator(_UNIT, channel='mag')
+    corrector = MagCorrector(_UNIT.mag)
+    stamp, now, temperature = 10**18, 0.0, None
+    for kind, value in events:
+        now += 0.01
+        if kind == 'temperature':
+            if core.process_temperature(value, now):
+                temperature = value
+            continue
+        step, field = value
+        stamp += step
+        values = (field, 3e-6, -field / 2)
+        result = core.process_values(stamp // 10**9, stamp % 10**9, values, now)
+        if isinstance(result, tuple):
+            assert temperature is not None and all(math.isfinite(v) for v in result)
+            assert result == tuple(corrector.correct(np.array([values]), np.array([temperature]))[0])
+    assert core.received == core.published + core.dropped_total()
+    assert core.received == sum(1 for kind, _ in events if kind == 'mag')
