@@ -207,9 +207,12 @@ def fit_mag_bag(path: str | Path, options, *, bias_order: int = 3, scale_order: 
         notes.append(NO_IRON_NOTE)
         hard, soft = (0.0, 0.0, 0.0), IDENTITY_3X3
     else:
-        iron = _fit_iron(Path(iron_run), options, link)
+        iron, outside = _fit_iron(Path(iron_run), options, link)
         hard, soft = iron.hard_iron, iron.soft_iron
         lines.append(f'magnetometer: iron from {iron_run} ({iron.samples} samples)')
+        if outside:
+            lines.append(f'warning: magnetometer: {outside} samples of {iron_run} outside the calibrated temperature '
+                         f'range {link.temp_code_min:g}..{link.temp_code_max:g} C (clamped to its edge)')
     link = replace(link, notes=tuple(notes))
     calibration = MagnetometerCalibration(link, hard, soft)  # type: ignore[arg-type]
     return MagFit(calibration=calibration, thermal=replace(thermal, calibration=link), iron=iron, lines=tuple(lines),
@@ -220,8 +223,8 @@ def _microtesla(values) -> str:
     return ' '.join(f'{v * 1e6:+.3f}' for v in values)
 
 
-def _fit_iron(path: Path, options, link) -> EllipsoidFit:
-    """The ellipsoid of a rotation record, corrected by the thermal link first."""
+def _fit_iron(path: Path, options, link) -> tuple[EllipsoidFit, int]:
+    """The ellipsoid of a rotation record, corrected by the thermal link first; samples out of its range."""
     from tak_thermo_ros.bagio import bag_streams
     topic = options.topics.mag
     streams = bag_streams(path, topics=options.topics)
@@ -232,10 +235,13 @@ def _fit_iron(path: Path, options, link) -> EllipsoidFit:
     aligner = BlockAligner(use_reference=False)
     parts: list[np.ndarray] = []
     checked = False
+    outside = 0
 
     def take(aligned: AlignedSamples) -> None:
+        nonlocal outside
         if len(aligned):
             parts.append(corrector.correct(aligned.counts, aligned.temp_code, stamp_s=aligned.stamp_s))
+            outside += corrector.out_of_range_count(aligned.temp_code)
 
     for record in _mag_blocks(path, options, references=False):
         finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
@@ -246,7 +252,7 @@ def _fit_iron(path: Path, options, link) -> EllipsoidFit:
     take(aligner.finish())
     values = np.concatenate(parts) if parts else np.zeros((0, 3))
     try:
-        return fit_ellipsoid(values, where=f'{path}: {topic}')
+        return fit_ellipsoid(values, where=f'{path}: {topic}'), outside
     except FitError as err:
         raise FitError(f'magnetometer: {err}') from None
 

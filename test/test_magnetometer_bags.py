@@ -259,3 +259,11 @@ def test_apply_says_when_the_calibration_has_no_magnetometer(bags, tmp_path, cap
     assert 'holds no magnetometer: /imu/mag is not corrected' in out and 'MagneticField messages' not in out
     with pytest.raises(BagError, match='topic /imu/mag_compensated not found'):
         list(iter_topic_arrays(tmp_path / 'out', '/imu/mag_compensated', MAGNETIC_FIELD))
+
+
+def test_a_rotation_record_outside_the_calibrated_range_is_said(bags, tmp_path, capsys):
+    write_driver_record(tmp_path / 'hot', rotation_record(TRUTH, samples=600, seed=11, temperature_celsius=40.0))
+    capsys.readouterr()
+    assert main(['fit', str(bags / 'cal'), '-o', str(tmp_path / 'p.yaml'), '--iron-run', str(tmp_path / 'hot'),
+                 '--no-progress']) == 0
+    assert 'warning: magnetometer: 600 samples of' in capsys.readouterr().out
