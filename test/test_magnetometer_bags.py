@@ -111,7 +111,7 @@ def test_nan_fields_are_left_out_and_counted_and_a_record_of_nan_is_refused(bags
     write_driver_record(tmp_path / 'some', replace(driver, mag=mag))
     assert main(['fit', str(tmp_path / 'some'), '-o', str(tmp_path / 'p.yaml'), '--no-progress']) == 0
     out = capsys.readouterr().out
-    assert 'magnetometer: left out: 3 non_finite' in out.replace('non-finite', 'non_finite') or '3 non' in out
+    assert 'magnetometer: left out: 3 non finite' in out
     write_driver_record(tmp_path / 'all', replace(driver, mag=np.full_like(driver.mag, np.nan)))
     assert main(['fit', str(tmp_path / 'all'), '-o', str(tmp_path / 'q.yaml'), '--no-progress']) == 2
     assert '/imu/mag' in capsys.readouterr().err and not (tmp_path / 'q.yaml').exists()
