@@ -10,8 +10,12 @@ import math
 from dataclasses import replace
 
 import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from sensor_msgs.msg import MagneticField
 
+from conftest import examples
 from node_helpers import RELIABLE, Harness, NodeProcess, header_stamp, node_command, stamp_of, status_values
 from tak_thermo_ros import cli
 from tak_thermo_ros.bagio import MAGNETIC_FIELD, iter_topic_arrays, write_driver_record
@@ -20,6 +24,7 @@ from tak_thermo_ros.core.magnetometer.channel import MagCorrector
 from tak_thermo_ros.core.records.calibration_file import load_unit
 from tak_thermo_ros.core.simulation.imu import Scenario, simulate
 from tak_thermo_ros.core.simulation.magnetometer import MagnetometerTruth, rotation_record
+from tak_thermo_ros.errors import CalibrationError
 
 RUN = Scenario(output='imu', sample_rate_hz=10.0, plateaus_celsius=(10.0, 30.0), plateau_hours=0.01,
                ramp_celsius_per_minute=10.0, board_lag_s=5.0, positions=((0.0, 0.0, 1.0),), record_references=False,
@@ -169,11 +174,6 @@ def test_the_launch_file_remaps_the_magnetometer_topics():
     assert constants['MAG_TOPICS'] == (node_module.MAG_TOPIC, node_module.COMPENSATED_MAG_TOPIC)
 
 
-from hypothesis import given, settings  # noqa: E402
-from hypothesis import strategies as st  # noqa: E402
-
-from conftest import examples  # noqa: E402
-
 _EVENT = st.one_of(
     st.tuples(st.just('temperature'), st.sampled_from([0.0, 20.0, 40.0, math.nan, 2e7])),
     st.tuples(st.just('mag'), st.tuples(st.integers(-2, 3), st.sampled_from([2e-5, -4e-5, 1e-4, math.nan, math.inf]))))
@@ -201,3 +201,41 @@ def test_every_magnetometer_message_is_published_or_dropped_and_published_ones_e
             assert result == tuple(corrector.correct(np.array([values]), np.array([temperature]))[0])
     assert core.received == core.published + core.dropped_total()
     assert core.received == sum(1 for kind, _ in events if kind == 'mag')
+
+
+def test_magnetometer_calibration_updates_at_run_time_are_checked_and_put_in_force(tmp_path, ros_env):
+    from tak_thermo_ros.core.records.calibration_file import unit_yaml, write_text_atomic
+    params = tmp_path / 'p.yaml'
+    write_text_atomic(params, unit_yaml(_UNIT, extra_parameters={'qos': 'reliable'}))
+    start = 1_700_000_000 * 1_000_000_000
+    field = (2.1e-5, 1.5e-6, 4.5e-5)
+    with NodeProcess(node_command('--params-file', str(params)), ros_env, tmp_path / 'node.log') as node, \
+            MagHarness(int(ros_env['ROS_DOMAIN_ID'])) as ros:
+        ros.wait_mag_matched()
+        ros.send_temperature_and_wait(start, 20.0)
+
+        def corrected(stamp: int) -> tuple[float, float, float]:
+            count = len(ros.mag)
+            ros.send_mag(stamp, field)
+            ros.wait(lambda: len(ros.mag) == count + 1, 10.0, 'a corrected field')
+            return tuple(getattr(ros.mag[-1].magnetic_field, axis) for axis in 'xyz')
+
+        assert corrected(start + 1) == MagCorrector(_UNIT.mag).correct_sample(field, 20.0)
+        moved = replace(_UNIT.mag, hard_iron=(1e-6, -2e-6, 3e-6))
+        results = ros.set_parameters({'calibration.mag.hard_iron': list(moved.hard_iron)})
+        assert results[0].successful, results[0].reason
+        assert corrected(start + 2) == MagCorrector(moved).correct_sample(field, 20.0)
+        crooked = [1.0, 0.1, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+        results = ros.set_parameters({'calibration.mag.soft_iron': crooked})
+        assert not results[0].successful and 'calibration.mag.soft_iron' in results[0].reason
+        assert corrected(start + 3) == MagCorrector(moved).correct_sample(field, 20.0)
+        assert node.stop() == 0
+    assert 'Traceback' not in node.log()
+
+
+def test_the_magnetometer_channel_refuses_a_calibration_without_it():
+    core = OnlineCompensator(_UNIT, channel='mag')
+    with pytest.raises(CalibrationError, match='calibration.mag: missing'):
+        core.prepare(calibration=replace(_UNIT, mag=None))
+    with pytest.raises(CalibrationError, match='calibration.mag: missing'):
+        OnlineCompensator(replace(_UNIT, mag=None), channel='mag')
