@@ -18,6 +18,9 @@ needs changing. Start the driver and the estimator as usual (their own launch fi
 ``start_estimator:=true`` this file also starts ``robot_localization``'s ``ekf_node`` with
 ``estimator_params_file`` (it must read ``imu0: <estimator_imu_topic>``).
 
+With a magnetometer in the calibration (``mag``), ``imu/mag`` and ``imu/mag_compensated`` are
+remapped from ``driver_mag_topic`` and ``estimator_mag_topic``.
+
 With a counts calibration (version 1, the paper's codes) the node's topics are ``tak/counts``,
 ``tak/temp_code`` and ``tak/imu/data_raw``; they are remapped from the same three arguments.
 
@@ -38,6 +41,7 @@ from launch_ros.actions import Node
 
 DRIVER_TOPICS = ('imu/data_raw', 'imu/temperature', 'imu/data_compensated')
 COUNTS_TOPICS = ('tak/counts', 'tak/temp_code', 'tak/imu/data_raw')
+MAG_TOPICS = ('imu/mag', 'imu/mag_compensated')
 
 
 def generate_launch_description() -> LaunchDescription:
@@ -50,6 +54,8 @@ def generate_launch_description() -> LaunchDescription:
     remappings = []
     for raw, temperature, corrected in (DRIVER_TOPICS, COUNTS_TOPICS):
         remappings += [(raw, driver_imu), (temperature, driver_temperature), (corrected, estimator_imu)]
+    remappings += [(MAG_TOPICS[0], LaunchConfiguration('driver_mag_topic')),
+                   (MAG_TOPICS[1], LaunchConfiguration('estimator_mag_topic'))]
     return LaunchDescription([
         DeclareLaunchArgument('params_file', default_value=default_params,
                               description='calibration and node parameters (the file tak_calib fit writes)'),
@@ -61,6 +67,10 @@ def generate_launch_description() -> LaunchDescription:
                               description="the driver's sensor_msgs/msg/Temperature topic"),
         DeclareLaunchArgument('estimator_imu_topic', default_value='/imu/data_compensated',
                               description='the topic the estimator reads the corrected Imu from'),
+        DeclareLaunchArgument('driver_mag_topic', default_value='/imu/mag',
+                              description="the driver's sensor_msgs/msg/MagneticField topic (tesla)"),
+        DeclareLaunchArgument('estimator_mag_topic', default_value='/imu/mag_compensated',
+                              description='the topic the estimator reads the corrected MagneticField from'),
         DeclareLaunchArgument('start_estimator', default_value='false',
                               description="also start robot_localization's ekf_node"),
         DeclareLaunchArgument('estimator_params_file', default_value='',

@@ -26,13 +26,13 @@ import sqlite3
 from dataclasses import dataclass
 from itertools import islice
 from pathlib import Path
-from typing import Iterator
+from typing import Any, Iterator
 
 import numpy as np
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer, WriterError
 from rosbags.typesys import Stores, get_typestore
 
-from tak_thermo_ros.cdr import MessageArrays, decode_messages, encode_imus
+from tak_thermo_ros.cdr import MessageArrays, decode_messages, encode_imus, encode_messages
 from tak_thermo_ros.core.effects import aux_signal
 from tak_thermo_ros.core.link.correction import imu_covariances
 from tak_thermo_ros.core.records.files import BAG, check_output, install_directory, staging_directory
@@ -45,6 +45,7 @@ TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 VECTOR3_STAMPED = 'geometry_msgs/msg/Vector3Stamped'
 TEMPERATURE = 'sensor_msgs/msg/Temperature'
 IMU = 'sensor_msgs/msg/Imu'
+MAGNETIC_FIELD = 'sensor_msgs/msg/MagneticField'
 NOMINAL_SCALE_KEY = 'tak_thermo_ros.nominal_scale'
 """Bag metadata ``custom_data`` key: nominal K0 per axis as ``'x,y,z'`` (counts per m/s^2)."""
 STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
@@ -69,6 +70,7 @@ _Vector3Stamped = TYPESTORE.types[VECTOR3_STAMPED]
 _Quaternion = TYPESTORE.types['geometry_msgs/msg/Quaternion']
 _Temperature = TYPESTORE.types[TEMPERATURE]
 _Imu = TYPESTORE.types[IMU]
+_MagneticField = TYPESTORE.types[MAGNETIC_FIELD]
 BATTERY_STATE = 'sensor_msgs/msg/BatteryState'
 FLOAT64 = 'std_msgs/msg/Float64'
 AUX_FIELDS = aux_signal.AUX_FIELDS
@@ -88,6 +90,9 @@ class Topics:
     temperature: str = '/imu/temperature'
     reference_rate: str = '/tak/reference_rate'
     compensated_imu: str = '/imu/data_compensated'
+    mag: str = '/imu/mag'
+    reference_field: str = '/tak/reference_field'
+    compensated_mag: str = '/imu/mag_compensated'
 
 
 def bag_input_kind(path: str | os.PathLike[str], *, topics: Topics = Topics()) -> InputKind:
@@ -618,10 +623,13 @@ def write_driver_record(path: str | os.PathLike[str], record: DriverRecord, *, t
     """
     serialize = TYPESTORE.serialize_cdr
     aux_streams = list(record.aux.items())
-    # streams 0 temperature, 1 reference, 2 rate reference, then the auxiliary signals, then the Imu
+    # streams 0 temperature, 1 reference, 2 rate reference, then the auxiliary signals, then the Imu,
+    # then the magnetometer and its reference field
     events = _merged_order((record.temp_stamp_ns, record.reference_stamp_ns, record.rate_reference_stamp_ns,
-                            *(stamps for _, (stamps, _) in aux_streams), record.stamp_ns))
+                            *(stamps for _, (stamps, _) in aux_streams), record.stamp_ns,
+                            record.mag_stamp_ns, record.mag_reference_stamp_ns))
     imu_stream = 3 + len(aux_streams)
+    mag_stream, field_stream = imu_stream + 1, imu_stream + 2
     zero_covariance = np.zeros(9)
     with _AtomicBag(path, storage, force=force) as writer:
         aux_writes = _aux_writers(writer, aux_streams, aux_types, record.frame_id)
@@ -631,9 +639,22 @@ def write_driver_record(path: str | os.PathLike[str], record: DriverRecord, *, t
                           if len(record.reference_stamp_ns) else None)
         rate_conn = (writer.add_connection(topics.reference_rate, VECTOR3_STAMPED, typestore=TYPESTORE)
                      if len(record.rate_reference_stamp_ns) else None)
+        mag_conn = (writer.add_connection(topics.mag, MAGNETIC_FIELD, typestore=TYPESTORE)
+                    if len(record.mag_stamp_ns) else None)
+        field_conn = (writer.add_connection(topics.reference_field, VECTOR3_STAMPED, typestore=TYPESTORE)
+                      if len(record.mag_reference_stamp_ns) else None)
         for stamp, stream, row in events:
             header = _header(stamp, record.frame_id)
-            if stream == 0:
+            if stream == mag_stream:
+                x, y, z = (float(v) for v in record.mag[row])
+                message = _MagneticField(header=_header(stamp, record.mag_frame_id or record.frame_id),
+                                         magnetic_field=_Vector3(x=x, y=y, z=z), magnetic_field_covariance=zero_covariance)
+                writer.write(mag_conn, stamp, serialize(message, MAGNETIC_FIELD))
+            elif stream == field_stream:
+                x, y, z = (float(v) for v in record.mag_reference[row])
+                message = _Vector3Stamped(header=header, vector=_Vector3(x=x, y=y, z=z))
+                writer.write(field_conn, stamp, serialize(message, VECTOR3_STAMPED))
+            elif stream == 0:
                 message = _Temperature(header=header, temperature=float(record.temperature[row]), variance=0.0)
                 writer.write(temp_conn, stamp, serialize(message, TEMPERATURE))
             elif stream in (1, 2):
@@ -775,6 +796,8 @@ class BagStreams:
     :param reference: messages on the specific-force reference topic (0 when absent).
     :param rate_reference: messages on the rate reference topic (driver bags; 0 when absent).
     :param nominal_scale: the bag metadata's nominal K0 (counts bags), or ``None``.
+    :param mag: messages on the magnetometer topic (driver bags; 0 when absent).
+    :param mag_reference: messages on the reference field topic (0 when absent).
     """
 
     kind: InputKind
@@ -783,6 +806,8 @@ class BagStreams:
     reference: int
     rate_reference: int
     nominal_scale: tuple[float, float, float] | None
+    mag: int = 0
+    mag_reference: int = 0
 
 
 def _stream_topics(kind: InputKind, topics: Topics) -> list[tuple[str, str, str]]:
@@ -792,7 +817,8 @@ def _stream_topics(kind: InputKind, topics: Topics) -> list[tuple[str, str, str]
                 ('reference', topics.reference, VECTOR3_STAMPED)]
     return [('main', topics.raw_imu, IMU), ('temperature', topics.temperature, TEMPERATURE),
             ('reference', topics.reference, VECTOR3_STAMPED),
-            ('rate_reference', topics.reference_rate, VECTOR3_STAMPED)]
+            ('rate_reference', topics.reference_rate, VECTOR3_STAMPED),
+            ('mag', topics.mag, MAGNETIC_FIELD), ('mag_reference', topics.reference_field, VECTOR3_STAMPED)]
 
 
 def _cannot_read(path: Path, err: Exception) -> BagError:
@@ -826,7 +852,7 @@ def bag_streams(path: str | os.PathLike[str], *, topics: Topics = Topics(),
         raise _cannot_read(path, err) from None
     return BagStreams(kind=kind, main=counts['main'], temperature=counts['temperature'],
                       reference=counts['reference'], rate_reference=counts.get('rate_reference', 0),
-                      nominal_scale=nominal_scale)
+                      nominal_scale=nominal_scale, mag=counts.get('mag', 0), mag_reference=counts.get('mag_reference', 0))
 
 
 def decode_vector3_stamped(raws: list[bytes]) -> tuple[np.ndarray, np.ndarray, list[str]]:
@@ -942,7 +968,7 @@ def iter_blocks(path: str | os.PathLike[str], *, topics: Topics = Topics(), kind
     path = Path(path)
     streams = bag_streams(path, topics=topics)
     roles = [(role, topic, msgtype) for role, topic, msgtype in _stream_topics(kind, topics)
-             if references or role in ('main', 'temperature')]
+             if references or role in ('main', 'temperature', 'mag')]
     temperature_topic = topics.temp_code if kind is InputKind.COUNTS else topics.temperature
     try:
         with Reader(path) as reader:
@@ -957,6 +983,7 @@ def iter_blocks(path: str | os.PathLike[str], *, topics: Topics = Topics(), kind
                     by_connection[connection.id] = f'aux {connection.topic}'
             connections = [c for c in reader.connections if c.id in by_connection]
             frames = _FrameCheck(path, roles[0][1])
+            mag_frames = _FrameCheck(path, topics.mag)
             names = {role: topic for role, topic, _ in roles}
             total = sum(c.msgcount for c in connections)
             read_main = 0
@@ -973,12 +1000,12 @@ def iter_blocks(path: str | os.PathLike[str], *, topics: Topics = Topics(), kind
                         read_main += len(bucket)
                         bar.advance(sum(len(v) for v in raws.values()))
                         yield _decode_block(path, kind, raws, bag_times, aux_topics, frames, streams.nominal_scale,
-                                            decoder, names)
+                                            decoder, names, mag_frames)
                         raws = {r: [] for r in buckets}
                         bag_times = {r: [] for r in buckets}
                 read_main += len(raws['main'])
                 yield _decode_block(path, kind, raws, bag_times, aux_topics, frames, streams.nominal_scale, decoder,
-                                    names)
+                                    names, mag_frames)
     except BagError:
         raise
     except Exception as err:  # rosbags and the storage libraries raise many kinds
@@ -1005,7 +1032,8 @@ def _decode_vectors(path: Path, raws: list[bytes], topic: str,
 
 def _decode_block(path: Path, kind: InputKind, raws: dict[str, list[bytes]], bag_times: dict[str, list[int]],
                   aux_topics: dict[str, str], frames: _FrameCheck, nominal_scale: tuple[float, float, float] | None,
-                  decoder: str, names: dict[str, str]) -> ChannelRecord | DriverRecord:
+                  decoder: str, names: dict[str, str], mag_frames: _FrameCheck | None = None
+                  ) -> ChannelRecord | DriverRecord:
     temperature_raws = raws['temperature']
     if decoder == 'rosbags' or not temperature_raws:
         temp_stamp, temperature = decode_temperatures(temperature_raws)
@@ -1038,11 +1066,43 @@ def _decode_block(path: Path, kind: InputKind, raws: dict[str, list[bytes]], bag
         covariance = np.asarray(arrays['orientation_covariance'], dtype=float)
         frame_ids = arrays
     rate_stamp, rate, _ = _decode_vectors(path, raws.get('rate_reference', []), names.get('rate_reference', ''), decoder)
+    mag_stamp, mag, mag_frame = _decode_mag(path, raws.get('mag', []), names.get('mag', ''), decoder, mag_frames)
+    field_stamp, field, _ = _decode_vectors(path, raws.get('mag_reference', []), names.get('mag_reference', ''), decoder)
     return DriverRecord(stamp_ns=stamps, accel=accel, gyro=gyro, orientation=orientation,
                         orientation_covariance=covariance, temp_stamp_ns=temp_stamp, temperature=temperature,
                         reference_stamp_ns=reference_stamp, reference=reference,
                         rate_reference_stamp_ns=rate_stamp, rate_reference=rate, frame_id=frames.check(frame_ids),
-                        aux=aux)
+                        aux=aux, mag_stamp_ns=mag_stamp, mag=mag, mag_reference_stamp_ns=field_stamp,
+                        mag_reference=field, mag_frame_id=mag_frame)
+
+
+def decode_magnetic_fields(raws: list[bytes]) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Stamps ``(k,)``, fields ``(k, 3)`` (tesla) and frame ids of serialised ``MagneticField`` messages."""
+    deserialize = TYPESTORE.deserialize_cdr
+    stamps, values, frames = [], [], []
+    for raw in raws:
+        message = deserialize(raw, MAGNETIC_FIELD)
+        stamps.append(_stamp_ns(message.header))
+        vector = message.magnetic_field
+        values.append((vector.x, vector.y, vector.z))
+        frames.append(message.header.frame_id)
+    return np.array(stamps, dtype=np.int64), np.array(values, dtype=float).reshape(-1, 3), frames
+
+
+def _decode_mag(path: Path, raws: list[bytes], topic: str, decoder: str,
+                frames: _FrameCheck | None) -> tuple[np.ndarray, np.ndarray, str]:
+    """A block's magnetometer messages: stamps, fields (tesla), the frame (one per run)."""
+    if decoder == 'rosbags' or not raws:
+        stamps, values, frame_ids = decode_magnetic_fields(raws)
+    else:
+        arrays = _block_arrays(path, raws, MAGNETIC_FIELD, topic)
+        stamps, values = np.asarray(arrays['stamp_ns'], dtype=np.int64), np.asarray(arrays['magnetic_field'], dtype=float)
+        frame_ids = arrays
+    if frames is None:
+        return stamps, values, ''
+    if not raws:
+        return stamps, values, frames.frame_id or ''
+    return stamps, values, frames.check(frame_ids)
 
 
 class ImuBagWriter:
@@ -1062,7 +1122,9 @@ class ImuBagWriter:
         self._encoder = encoder or IMU_ENCODER
         self._writer: Writer | None = None
         self._connection = None
+        self._mag_connections: dict[str, Any] = {}
         self.written = 0
+        self.written_mag = 0
 
     def __enter__(self) -> ImuBagWriter:
         self._writer = self._bag.__enter__()
@@ -1071,6 +1133,20 @@ class ImuBagWriter:
 
     def __exit__(self, exc_type, exc, traceback) -> None:
         self._bag.__exit__(exc_type, exc, traceback)
+
+    def write_mag(self, topic: str, stamp_ns: np.ndarray, frame_id: str, field: np.ndarray,
+                  covariance: tuple[float, ...]) -> None:
+        """Append one block of corrected magnetometer samples as ``sensor_msgs/msg/MagneticField`` on ``topic``."""
+        assert self._writer is not None, 'ImuBagWriter.write_mag outside its with block'
+        if topic not in self._mag_connections:
+            self._mag_connections[topic] = self._writer.add_connection(topic, MAGNETIC_FIELD, typestore=TYPESTORE)
+        connection = self._mag_connections[topic]
+        raws = encode_messages(MAGNETIC_FIELD, np.asarray(stamp_ns, dtype=np.int64),
+                               {'magnetic_field': field, 'magnetic_field_covariance': np.asarray(covariance, dtype=float)},
+                               {'frame_id': frame_id})
+        for stamp, raw in zip(np.asarray(stamp_ns).tolist(), raws):
+            self._writer.write(connection, stamp, raw)
+        self.written_mag += len(stamp_ns)
 
     def write(self, stamp_ns: np.ndarray, frame_id: str, acceleration: np.ndarray,
               variance: tuple[float, float, float], *, angular_velocity: np.ndarray | None = None,

@@ -76,6 +76,8 @@ SCHEMAS: dict[str, tuple[Field, ...]] = {
         *_HEADER, Field('orientation', 'f8', 4), Field('orientation_covariance', 'f8', 9),
         Field('angular_velocity', 'f8', 3), Field('angular_velocity_covariance', 'f8', 9),
         Field('linear_acceleration', 'f8', 3), Field('linear_acceleration_covariance', 'f8', 9)),
+    'sensor_msgs/msg/MagneticField': (*_HEADER, Field('magnetic_field', 'f8', 3),
+                                      Field('magnetic_field_covariance', 'f8', 9)),
     'sensor_msgs/msg/FluidPressure': (*_HEADER, Field('fluid_pressure', 'f8'), Field('variance', 'f8')),
     'sensor_msgs/msg/RelativeHumidity': (*_HEADER, Field('relative_humidity', 'f8'),
                                          Field('variance', 'f8')),

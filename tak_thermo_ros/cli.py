@@ -56,7 +56,8 @@ OUTPUTS: dict[str, tuple[tuple[str, str, str], ...]] = {
 """Each command's outputs: ``(argument, kind, option)``, checked before any work is done."""
 
 
-UNITS = {(InputKind.COUNTS, 'accel'): 'counts', (InputKind.IMU, 'accel'): 'm/s^2', (InputKind.IMU, 'gyro'): 'rad/s'}
+UNITS = {(InputKind.COUNTS, 'accel'): 'counts', (InputKind.IMU, 'accel'): 'm/s^2', (InputKind.IMU, 'gyro'): 'rad/s',
+         (InputKind.IMU, 'mag'): 'T'}
 """The unit of a sensor's residuals and offsets, by input kind."""
 
 
@@ -67,7 +68,10 @@ def _topics(args: argparse.Namespace):
                   reference=args.reference_topic, imu=getattr(args, 'imu_topic', None) or defaults.imu,
                   raw_imu=args.raw_imu_topic, temperature=args.temp_topic or defaults.temperature,
                   reference_rate=args.reference_rate_topic,
-                  compensated_imu=getattr(args, 'imu_topic', None) or defaults.compensated_imu)
+                  compensated_imu=getattr(args, 'imu_topic', None) or defaults.compensated_imu,
+                  mag=getattr(args, 'mag_topic', defaults.mag),
+                  reference_field=getattr(args, 'reference_field_topic', defaults.reference_field),
+                  compensated_mag=getattr(args, 'mag_output_topic', None) or defaults.compensated_mag)
 
 
 def _add_topic_options(parser: argparse.ArgumentParser, *, imu: bool = False) -> None:
@@ -77,6 +81,9 @@ def _add_topic_options(parser: argparse.ArgumentParser, *, imu: bool = False) ->
     group.add_argument('--temp-topic', help='temperature (Temperature): codes /tak/temp_code with counts, '
                                             'degrees C /imu/temperature with a driver Imu')
     group.add_argument('--reference-topic', default='/tak/reference', help='true specific force (Vector3Stamped)')
+    group.add_argument('--mag-topic', default='/imu/mag', help="a driver's magnetometer (MagneticField, tesla)")
+    group.add_argument('--reference-field-topic', default='/tak/reference_field',
+                       help='true magnetic field along the sensor axes, tesla (Vector3Stamped; a coil)')
     group.add_argument('--reference-rate-topic', default='/tak/reference_rate',
                        help='true angular rate, rad/s (Vector3Stamped; driver bags)')
     if imu:
@@ -119,10 +126,15 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         driver = run.driver
         write_driver_record(args.out_bag, driver, topics=_topics(args), storage=args.storage, force=args.force,
                             aux_types=aux_types)
+        hours = ((driver.stamp_ns[-1] - driver.stamp_ns[0]) * 1e-9 if scenario.rotation else scenario.duration_s()) / 3600.0
         print(f'wrote {args.out_bag}: {len(driver.stamp_ns)} Imu, {len(driver.temp_stamp_ns)} temperature, '
-              f'{len(driver.reference_stamp_ns)} reference changes, {scenario.duration_s() / 3600.0:.2f} h at '
+              f'{len(driver.reference_stamp_ns)} reference changes, {hours:.2f} h at '
               f'{scenario.sample_rate_hz:g} Hz ({args.storage}); temperature '
               f'{driver.temperature.min():.2f}..{driver.temperature.max():.2f} C')
+        if len(driver.mag_stamp_ns):
+            print(f'  magnetometer: {len(driver.mag_stamp_ns)} MagneticField on {_topics(args).mag}'
+                  f'{f" ({scenario.rotation} rotation record)" if scenario.rotation else ""}, '
+                  f'{len(driver.mag_reference_stamp_ns)} reference field changes')
         return 0
     write_record(args.out_bag, run.record, topics=_topics(args), storage=args.storage, force=args.force,
                  aux_types=aux_types)
@@ -211,8 +223,10 @@ def cmd_fit(args: argparse.Namespace) -> int:
     fitted = fit_bag(args.bag, settings, _stream_options(args),
                      nominal_for=lambda kind, bag_nominal: _nominal(args, bag_nominal))
     results = fitted.results
+    magnetometer = _fit_magnetometer(args, fitted.input_kind)
     unit = UnitCalibration(fitted.input_kind, results['accel'].calibration,
-                           results['gyro'].calibration if 'gyro' in results else None)
+                           results['gyro'].calibration if 'gyro' in results else None,
+                           magnetometer.calibration if magnetometer is not None else None)
     noise_line = ''
     if args.noise or args.noise_run or args.noise_from_residual:
         unit, noise_line = _with_noise(args, unit)
@@ -256,12 +270,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
                   f'scale {axis.scale:.6g}{" counts/(m/s^2)" if unit_name == "counts" else ""}'
                   f'{"" if axis.scale_observable else " (held)"}, '
                   f'offset {_amount(axis.offset, unit_name)}, offset span {_amount(axis.offset_span, unit_name)}')
-        for effect in calibration.effects:
-            errors = result.parameter_errors
-            shown = ', '.join(f'{p.name} {p.value:.4g}' + (f' +- {errors[effect.name + "." + p.name]:.2g}'
-                                                           if effect.name + '.' + p.name in errors else '')
-                              + (f' {_effect_unit(p.unit, unit_name)}' if p.unit else '') for p in effect.parameters)
-            print(f'  effect {effect.name}: {shown}')
+        _print_effects(calibration, result, unit_name)
         for note in calibration.notes:
             print(f'note: {prefix}{note}')
         noise = unit.sensor(sensor).noise
@@ -271,6 +280,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
                 print(f'  {name}: {noise_axis_line(sensor, noise, i, unit_name)}')
     if noise_line:
         print(f'{noise_line} (written with the calibration: the node\'s Imu covariances come from it)')
+    if magnetometer is not None:
+        _print_magnetometer(magnetometer, args)
     print(f'wrote {args.output}')
     return 0
 
@@ -283,7 +294,7 @@ def _with_noise(args: argparse.Namespace, unit: UnitCalibration) -> tuple[UnitCa
                          gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None))
     accel = replace(unit.accel, noise=found.models['accel'])
     gyro = replace(unit.gyro, noise=found.models['gyro']) if unit.gyro is not None else None
-    return UnitCalibration(unit.input_kind, accel, gyro), found.line
+    return UnitCalibration(unit.input_kind, accel, gyro, unit.mag), found.line
 
 
 DEG = 180.0 / 3.141592653589793
@@ -356,6 +367,55 @@ def cmd_noise(args: argparse.Namespace) -> int:
         write_text_atomic(args.json, _json_text(document, args.json))
         print(f'wrote {args.json}')
     return 0
+def _print_effects(calibration, result, unit_name: str) -> None:
+    """One line per fitted effect: its parameters with their standard errors and units."""
+    errors = result.parameter_errors
+    for effect in calibration.effects:
+        shown = ', '.join(f'{p.name} {p.value:.4g}' + (f' +- {errors[effect.name + "." + p.name]:.2g}'
+                                                       if effect.name + '.' + p.name in errors else '')
+                          + (f' {_effect_unit(p.unit, unit_name)}' if p.unit else '') for p in effect.parameters)
+        print(f'  effect {effect.name}: {shown}')
+
+
+def _fit_magnetometer(args: argparse.Namespace, kind: InputKind):
+    """The magnetometer's fit when the driver bag holds one (``--iron-run``: its rotation record)."""
+    from tak_thermo_ros.streaming_mag import fit_mag_bag, has_mag
+    iron_run = getattr(args, 'iron_run', None)
+    effects = _effect_list(getattr(args, 'mag_effects', None))
+    options = _stream_options(args)
+    if kind is not InputKind.IMU or not has_mag(args.bag, options.topics):
+        for option, given in (('--iron-run', iron_run is not None), ('--mag-effects', bool(effects))):
+            if given:
+                msg = f'{option}: {args.bag} holds no magnetometer on {options.topics.mag} to calibrate'
+                raise TakError(msg)
+        return None
+    return fit_mag_bag(args.bag, options, bias_order=args.bias_order, scale_order=args.scale_order,
+                       temp_code_ref=args.temp_code_ref, iron_run=iron_run, effects=effects,
+                       max_effect_samples=args.effect_samples)
+
+
+def _print_magnetometer(fitted, args: argparse.Namespace) -> None:
+    """``fit``'s lines for the magnetometer, in microtesla."""
+    thermal, link = fitted.thermal, fitted.calibration.thermal
+    for line in fitted.lines:
+        print(line)
+    if thermal.dropped:
+        print(f'magnetometer: left out: {_describe_dropped(thermal.dropped)}')
+    print(f'magnetometer ({_topics(args).mag}), {thermal.samples} samples:')
+    for name, axis, stats in zip(AXES, link.axes, thermal.axes):
+        print(f'  {name}: residual RMS {stats.residual_rms * 1e6:.4g} uT; scale {axis.scale:.6g}'
+              f'{"" if axis.scale_observable else " (held)"}, offset {axis.offset * 1e6:.4g} uT, '
+              f'offset span {axis.offset_span * 1e6:.4g} uT')
+    _print_effects(link, thermal, 'T')
+    iron = fitted.iron
+    mag = fitted.calibration
+    if iron is not None:
+        rows = '; '.join(' '.join(f'{v:.4f}' for v in mag.soft_iron[3 * i:3 * i + 3]) for i in range(3))
+        print(f'  hard iron {" ".join(f"{v * 1e6:+.3f}" for v in mag.hard_iron)} uT; soft iron [{rows}]')
+        print(f'  ellipsoid: radius {iron.radius * 1e6:.3f} uT, residual RMS {iron.residual_rms * 1e6:.3f} uT, '
+              f'{iron.sections} of 20 sections, spread {iron.spread:.2f}')
+    for note in link.notes:
+        print(f'note: magnetometer: {note}')
 
 
 def _effect_unit(unit: str, sensor_unit: str) -> str:
@@ -402,6 +462,14 @@ def cmd_apply(args: argparse.Namespace) -> int:
     applied = apply_bag(args.bag, unit, args.output, _stream_options(args), storage=args.storage,
                         out_of_range=OutOfRange(args.out_of_range), force=args.force)
     print(f'wrote {applied.written} Imu messages on {applied.topic} to {args.output}')
+    if kind is InputKind.IMU and unit.mag is None:
+        from tak_thermo_ros.streaming_mag import has_mag
+        if has_mag(args.bag, topics):
+            print(f'note: {args.params} holds no magnetometer: {topics.mag} is not corrected (nothing written for it)')
+    if applied.mag_written or applied.mag_topic:
+        print(f'wrote {applied.mag_written} MagneticField messages on {applied.mag_topic}')
+        if applied.mag_dropped:
+            print(f'dropped MagneticField messages: {_describe_dropped(applied.mag_dropped)}')
     _print_ignored(applied, args, kind)
     if applied.dropped:
         print(f'dropped {"counts" if kind is InputKind.COUNTS else "Imu"} messages: {_describe_dropped(applied.dropped)}')
@@ -456,10 +524,34 @@ def cmd_validate(args: argparse.Namespace) -> int:
             print(f'  {label:<35}RMS ' + ' '.join(f'{v:.3e}' for v in stats.rms) + ' rad/s; mean '
                   + ' '.join(f'{v:+.3e}' for v in stats.mean) + ' rad/s')
         document['gyro'] = {'samples': rate.samples, 'before': rate_before.as_dict(), 'after': rate_after.as_dict()}
+    if unit.mag is not None and run.input_kind is InputKind.IMU:
+        document.update(_validate_magnetometer(args, unit))
     if args.json:
         write_text_atomic(args.json, _json_text(document, args.json))
         print(f'wrote {args.json}')
     return 0
+
+
+def _validate_magnetometer(args: argparse.Namespace, unit: UnitCalibration) -> dict:
+    """``validate``'s field error before and after, in microtesla; the JSON entry ``mag``."""
+    from tak_thermo_ros.streaming_mag import has_mag, validate_mag
+    options = _stream_options(args)
+    if not has_mag(args.bag, options.topics):
+        print(f'magnetometer: {args.bag} holds no messages on {options.topics.mag}; not validated')
+        return {}
+    result = validate_mag(args.bag, unit.mag, options, out_of_range=OutOfRange(args.out_of_range))
+    against = ('about the run\'s mean field (static run)' if result.reference == 'static'
+               else f'against {result.reference}')
+    print(f'magnetometer field error over {result.samples} samples, {against} (per axis x y z, |B|):')
+    for label, values in (('before (raw field):', result.before), ('after  (thermal link and iron):', result.after)):
+        print(f'  {label:<35}RMS ' + ' '.join(f'{v * 1e6:.3f}' for v in values[:3])
+              + f' uT; |B| {values[3] * 1e6:.3f} uT')
+    if result.out_of_range:
+        print(f'warning: {result.out_of_range} magnetometer samples outside the calibrated temperature range '
+              f'({args.out_of_range})')
+    return {'mag': {'samples': result.samples, 'reference': result.reference,
+                    'before_rms_t': list(result.before[:3]), 'before_magnitude_rms_t': result.before[3],
+                    'after_rms_t': list(result.after[:3]), 'after_magnitude_rms_t': result.after[3]}}
 
 
 def _check_kind(args: argparse.Namespace, unit: UnitCalibration, kind: InputKind) -> None:
@@ -530,6 +622,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     run = bounded_run(args.bag, _stream_options(args), settle_time_s=args.settle_time,
                       gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
                       max_samples=args.max_samples)
+    _add_magnetometer(args, unit, run)
     verbose = not args.no_progress and sys.stderr.isatty()
     candidates = expand_candidates(args.candidates) if args.candidates else None
     for line in run.reference_lines:
@@ -603,7 +696,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                 if verbose:
                     print(f'design: {text} ...', file=sys.stderr)
 
-            driver_design = design_driver_run(results, used, progress=design_progress)
+            imu_results = {sensor: result for sensor, result in results.items() if sensor != 'mag'}
+            driver_design = design_driver_run(imu_results, used, progress=design_progress)
             for line in driver_design.lines():
                 print(line)
             if driver_design.designed:
@@ -626,10 +720,25 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                                          gravity=args.gravity, sensor=sensor, unit=UNITS[run.input_kind, sensor])
                     pages[sensor] = (files, result)
                 index = write_sensor_index(pages, staging, source=Path(args.bag).name)
-                written = (f'{Path(args.report) / index.name} (accelerometer and gyroscope, '
+                written = (f'{Path(args.report) / index.name} ({" and ".join(SENSOR_NAMES[s] for s in pages)}, '
                            f'{sum(len(files.figures) for files, _ in pages.values())} figures)')
         print(f'wrote {written}')
     return 0
+
+
+def _add_magnetometer(args: argparse.Namespace, unit: UnitCalibration, run) -> None:
+    """``diagnose``'s magnetometer (its thermal link) when the calibration and the bag hold one."""
+    from tak_thermo_ros.streaming_mag import bounded_mag_run, has_mag
+    options = _stream_options(args)
+    if run.input_kind is not InputKind.IMU or unit.mag is None:
+        return
+    if not has_mag(args.bag, options.topics):
+        print(f'magnetometer: {args.bag} holds no messages on {options.topics.mag}; not diagnosed')
+        return
+    samples, usable, line = bounded_mag_run(args.bag, options, max_samples=args.max_samples)
+    print(line)
+    run.samples['mag'] = samples
+    run.usable['mag'] = usable
 
 
 def expand_candidates(text: str) -> list[str]:
@@ -684,6 +793,11 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument('--effect-samples', type=bounds.sample_budget, default=EFFECT_FIT_MAX_SAMPLES, metavar='N',
                      help=f'search the effects\' shapes on at most about N samples spread evenly over the run '
                           f'(default {EFFECT_FIT_MAX_SAMPLES:,}; the amplitudes use every sample)')
+    fit.add_argument('--mag-effects', metavar='NAME[,NAME...]',
+                     help="effects on the magnetometer's thermal link, as --effects (what diagnose names)")
+    fit.add_argument('--iron-run', metavar='BAG',
+                     help="the magnetometer's rotation record (installed, turned through every orientation): "
+                          'hard and soft iron by an ellipsoid fit, after the thermal link (default: not fitted)')
     fit.add_argument('--settle-time', type=bounds.seconds_not_negative, default=0.0, metavar='SECONDS',
                      help='leave out samples this long after each reference change (turntable settling)')
     noise_group = fit.add_argument_group('noise model written with the calibration (the node\'s Imu covariances)')

@@ -10,6 +10,9 @@ The calibration's input kind chooses the topics (relative names: namespaces and 
   (``sensor_msgs/msg/Imu``) and ``imu/temperature`` (``sensor_msgs/msg/Temperature``, degrees
   C); publishes ``imu/data_compensated`` (``sensor_msgs/msg/Imu``, accelerometer and gyroscope
   corrected, exactly as ``tak_calib apply`` writes it);
+  with a magnetometer in the calibration (``mag``), also subscribes ``imu/mag``
+  (``sensor_msgs/msg/MagneticField``, tesla) and publishes ``imu/mag_compensated`` (corrected for
+  temperature and iron, covariance from the calibration, exactly as ``tak_calib apply``);
 - a counts calibration (version 1, the paper's codes): subscribes ``tak/counts``
   (``geometry_msgs/msg/Vector3Stamped``, channel codes) and ``tak/temp_code``
   (``sensor_msgs/msg/Temperature``, the raw temperature-sensor code); publishes
@@ -44,7 +47,7 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import Imu, Temperature
+from sensor_msgs.msg import Imu, MagneticField, Temperature
 
 from tak_thermo_ros.core.records.calibration_file import (
     NODE_NAME,
@@ -66,6 +69,8 @@ IMU_TOPIC = 'tak/imu/data_raw'
 RAW_IMU_TOPIC = 'imu/data_raw'
 TEMPERATURE_TOPIC = 'imu/temperature'
 COMPENSATED_IMU_TOPIC = 'imu/data_compensated'
+MAG_TOPIC = 'imu/mag'
+COMPENSATED_MAG_TOPIC = 'imu/mag_compensated'
 DIAGNOSTICS_TOPIC = '/diagnostics'
 DIAGNOSTICS_PERIOD_S = 1.0
 EXIT_ERROR = 2
@@ -169,14 +174,17 @@ class CompensatorNode(Node):
         self._temp_subscription = self.create_subscription(
             Temperature, temp_topic, self._on_temperature, input_qos,
             event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_temperature_lost))
-        self._core = OnlineCompensator(
-            unit,
+        policies = dict(
             out_of_range=OutOfRange(_choice(self._value('out_of_range'), 'out_of_range',
                                             [p.value for p in OutOfRange])),
             stale_temperature=StaleTemperature(_choice(self._value('stale_temperature'), 'stale_temperature',
                                                        [p.value for p in StaleTemperature])),
             temp_timeout_s=_timeout(self._value('temp_timeout')),
             temp_topic=self._temp_subscription.topic_name)
+        self._core = OnlineCompensator(unit, **policies)
+        # The magnetometer: a second core on its own topic, the same temperature and rules.
+        self._mag_core = (OnlineCompensator(unit, channel='mag', **policies)
+                          if driver and unit.mag is not None else None)
         self._process_values = self._core.process_values
         self._process_temperature = self._core.process_temperature
         self._imu = Imu()
@@ -204,6 +212,19 @@ class CompensatorNode(Node):
         while len(self._signal_subscriptions) < len(self._core.signals) and time.monotonic() < deadline:
             time.sleep(0.05)
             self._subscribe_signals()
+        if self._mag_core is not None:
+            self._mag = MagneticField()
+            self._mag_field = self._mag.magnetic_field
+            self._mag.magnetic_field_covariance = self._mag_core.covariances[2]
+            self._mag_publisher = self.create_publisher(MagneticField, COMPENSATED_MAG_TOPIC, output_qos)
+            self._publish_mag = self._mag_publisher.publish
+            self._process_mag = self._mag_core.process_values
+            on_mag = self._on_mag
+            if self.executor_kind == 'single_threaded':
+                on_mag = self._with_sequence(on_mag, self._mag_core, 'mag')
+            self._mag_subscription = self.create_subscription(
+                MagneticField, MAG_TOPIC, on_mag, input_qos,
+                event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_mag_lost))
         on_input = self._on_imu if driver else self._on_counts
         if self.executor_kind == 'single_threaded':
             on_input = self._with_sequence(on_input)
@@ -212,6 +233,7 @@ class CompensatorNode(Node):
             event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_input_lost))
         self._diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self._on_diagnostics_timer)
         self._pending: Any = None
+        self._mag_pending: Any = None
         self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         low, high = self._core.calibrated_range
@@ -222,6 +244,9 @@ class CompensatorNode(Node):
             f'{what} range {low:g}..{high:g}; qos {qos_name} (depth {depth}), executor {self.executor_kind}, '
             f'out_of_range {self._core.out_of_range_policy.value}, stale_temperature '
             f'{self._core.stale_policy.value} after {self._core.temp_timeout_s:g} s')
+        if self._mag_core is not None:
+            self.get_logger().info(f'correcting {self._mag_subscription.topic_name} (magnetometer: temperature and '
+                                   f'iron) -> {self._mag_publisher.topic_name}')
 
     def _value(self, name: str) -> Any:
         return self.get_parameter(name).value
@@ -315,9 +340,37 @@ class CompensatorNode(Node):
     # -- messages ---------------------------------------------------------------------------
 
     def _on_temperature(self, message: Temperature) -> None:
-        self._process_temperature(message.temperature, time.monotonic())
+        now = time.monotonic()
+        self._process_temperature(message.temperature, now)
+        if self._mag_core is not None:
+            self._mag_core.process_temperature(message.temperature, now)
+            if self._mag_core.notices:
+                self._log_mag_notices()
         if self._core.notices:
             self._log_notices()
+
+    def _on_mag(self, message: MagneticField) -> None:
+        header = message.header
+        stamp = header.stamp
+        field = message.magnetic_field
+        result = self._process_mag(stamp.sec, stamp.nanosec, (field.x, field.y, field.z), time.monotonic())
+        if result.__class__ is tuple:
+            mag = self._mag
+            mag.header = header
+            out = self._mag_field
+            out.x, out.y, out.z = result
+            self._publish_mag(mag)
+        if self._mag_core.notices:
+            self._log_mag_notices()
+
+    def _on_mag_lost(self, info: QoSMessageLostInfo) -> None:
+        self._mag_core.message_lost('mag', info.total_count_change, time.monotonic())
+        if self._mag_core.notices:
+            self._log_mag_notices()
+
+    def _log_mag_notices(self) -> None:
+        """The magnetometer core's log lines, but the temperature's own (the Imu core reports them)."""
+        self._log_notices(self._mag_core, skip=('temperature_rejected',))
 
     def _on_counts(self, message: Vector3Stamped) -> None:
         header = message.header
@@ -349,10 +402,10 @@ class CompensatorNode(Node):
         if self._core.notices:
             self._log_notices()
 
-    def _with_sequence(self, on_message: Any) -> Any:
+    def _with_sequence(self, on_message: Any, core: OnlineCompensator | None = None, name: str = '') -> Any:
         """``on_message`` preceded by the count of sequence gaps (a callback taking the MessageInfo)."""
-        sequence = self._core.sequence
-        name = self._input_name
+        sequence = (core or self._core).sequence
+        name = name or self._input_name
 
         def on_message_with_info(message: Any, info: dict[str, Any]) -> None:
             number = info.get('publication_sequence_number')
@@ -387,6 +440,15 @@ class CompensatorNode(Node):
             message=status.message,
             hardware_id=self._imu.header.frame_id,
             values=[KeyValue(key=key, value=value) for key, value in status.values])]
+        if self._mag_core is not None:
+            self._mag_core.tick(now)
+            mag_status = self._mag_core.status(now, imu_subscribers=self._mag_publisher.get_subscription_count())
+            diagnostics.status.append(DiagnosticStatus(
+                level=_DIAGNOSTIC_LEVELS[mag_status.level],
+                name=f'{self.get_name()}: magnetometer compensation',
+                message=mag_status.message,
+                hardware_id=self._mag.header.frame_id,
+                values=[KeyValue(key=key, value=value) for key, value in mag_status.values]))
         try:
             self._diagnostics_publisher.publish(diagnostics)
         except Exception:
@@ -395,10 +457,14 @@ class CompensatorNode(Node):
             return  # shut down since the check above
         if self._core.notices:
             self._log_notices()
+        if self._mag_core is not None and self._mag_core.notices:
+            self._log_mag_notices()
 
-    def _log_notices(self) -> None:
+    def _log_notices(self, core: OnlineCompensator | None = None, skip: tuple[str, ...] = ()) -> None:
         logger = self.get_logger()
-        for notice in self._core.take_notices():
+        for notice in (core or self._core).take_notices():
+            if notice.kind in skip:
+                continue
             try:  # one call site per severity: rclpy's logger keeps a severity per calling line
                 if notice.level is Level.ERROR:
                     logger.error(notice.text)
@@ -448,20 +514,27 @@ class CompensatorNode(Node):
                 changes['calibration'] = unit_from_mapping(nest_parameters(flat, CALIBRATION_PREFIX),
                                                            key=CALIBRATION_PREFIX)
             prepared = self._core.prepare(**changes) if changes else None
+            mag_prepared = (self._mag_core.prepare(**changes, key=CALIBRATION_PREFIX)
+                            if changes and self._mag_core is not None else None)
         except Exception as err:  # noqa: BLE001 - a running node must never die of a parameter update
             reason = str(err) if isinstance(err, (TakError, ValueError)) else f'{type(err).__name__}: {err}'
             self.get_logger().warning(f'parameter update rejected, the previous values stay in force: {reason}')
             return SetParametersResult(successful=False, reason=reason)
         self._pending = prepared
+        self._mag_pending = mag_prepared
         return SetParametersResult(successful=True)
 
     def _apply_parameters(self, parameters: list[Parameter]) -> None:
         """Put the validated change in force: runs in the executor, between two messages."""
         prepared, self._pending = self._pending, None
+        mag_prepared, self._mag_pending = self._mag_pending, None
         if prepared is None:
             return
         self._core.install(prepared)
         self._set_covariances()
+        if mag_prepared is not None:
+            self._mag_core.install(mag_prepared)
+            self._mag.magnetic_field_covariance = self._mag_core.covariances[2]
         names = ', '.join(p.name for p in parameters)
         self.get_logger().info(f'parameters updated ({names}): out_of_range {self._core.out_of_range_policy.value}, '
                                f'stale_temperature {self._core.stale_policy.value}, temp_timeout '

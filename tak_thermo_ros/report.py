@@ -664,7 +664,7 @@ def write_sensor_index(pages: dict[str, tuple[ReportFiles, Diagnosis]], director
     :param pages: sensor -> (its report files, written into ``directory/<sensor>``, its diagnosis).
     """
     directory = Path(directory)
-    names = {'accel': 'Accelerometer', 'gyro': 'Gyroscope'}
+    names = {'accel': 'Accelerometer', 'gyro': 'Gyroscope', 'mag': 'Magnetometer'}
     sections = []
     for sensor, (files, diagnosis) in pages.items():
         kind = ('v-none' if diagnosis.verdict == VERDICT_NONE else

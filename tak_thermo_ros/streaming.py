@@ -37,7 +37,7 @@ DIAGNOSE_MAX_SAMPLES = 1_000_000
 """``diagnose`` works on at most about this many samples, spread evenly over the run."""
 EFFECT_FIT_MAX_SAMPLES = 1_000_000
 """``fit --effects`` searches the effects' shapes on at most about this many samples."""
-SENSOR_NAMES = {'accel': 'accelerometer', 'gyro': 'gyroscope'}
+SENSOR_NAMES = {'accel': 'accelerometer', 'gyro': 'gyroscope', 'mag': 'magnetometer'}
 
 
 def sensors_of(kind: InputKind) -> tuple[str, ...]:
@@ -474,6 +474,9 @@ class Applied:
     topic: str
     ignored_temp_codes: dict[str, int] = field(default_factory=dict)
     ignored_references: dict[str, int] = field(default_factory=dict)
+    mag_written: int = 0
+    mag_topic: str = ''
+    mag_dropped: dict[str, int] = field(default_factory=dict)
 
 
 class _Required:
@@ -531,6 +534,10 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
     passing = _RowsBuffer()
     outside = 0
     frame_id = ''
+    magnetometer = None
+    if kind is InputKind.IMU and unit.mag is not None and bag_streams(path, topics=topics).mag:
+        from tak_thermo_ros.streaming_mag import MagApplier
+        magnetometer = MagApplier(unit.mag, out_of_range=out_of_range, topic=topics.compensated_mag)
     with ImuBagWriter(output, topic=topic, storage=storage, force=force) as writer:
 
         def write(aligned: AlignedSamples) -> None:
@@ -558,15 +565,21 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
             if isinstance(block, DriverRecord):
                 passing.add(block.orientation, block.orientation_covariance)
                 record = block.six_channels()
+                if magnetometer is not None:
+                    magnetometer.push(writer, block.channel('mag'), output)
             else:
                 record = block
             frame_id = frame_id or record.frame_id
             write(aligner.push(record))
         write(aligner.finish())
+        if magnetometer is not None:
+            magnetometer.finish(writer, frame_id, output)
         written = writer.written
     return Applied(written=written, dropped=required.dropped, out_of_range=outside, topic=topic,
                    ignored_temp_codes=dict(aligner.ignored_temp_codes),
-                   ignored_references=dict(aligner.ignored_references))
+                   ignored_references=dict(aligner.ignored_references),
+                   mag_written=writer.written_mag, mag_topic=topics.compensated_mag if magnetometer else '',
+                   mag_dropped=dict(magnetometer.aligner.dropped) if magnetometer else {})
 
 
 # ----- validate -------------------------------------------------------------------------------------

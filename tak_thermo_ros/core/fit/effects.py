@@ -465,11 +465,15 @@ def _standard_errors(run: FitRun, offsets: list[_Offset], solutions: Sequence[So
             used = list(entry.effect.axis_columns()[i])
             own = [k for k, label in enumerate(columns[i]) if label.effect == entry.effect.name]
             derivatives[i, :, column] = slope[:, used] @ solutions[i].coefficients[own]
+    # The shape columns scaled like the amplitudes' (to unit norm over the axes): the Fisher
+    # matrix's conditioning then does not depend on the sensor's unit (tesla or counts).
+    shape_norms = np.sqrt(np.sum(derivatives ** 2, axis=(0, 1)))
+    shape_norms = np.where(shape_norms > 0.0, shape_norms, 1.0)
     offset = 0
     for i, solution in enumerate(solutions):
         dof = max(count - solution.width - len(shape_parameters), 1)
         variance = solution.rss / dof
-        jacobian = np.column_stack([solution.scaled, derivatives[i]])
+        jacobian = np.column_stack([solution.scaled, derivatives[i] / shape_norms])
         information = jacobian.T @ jacobian / variance
         rows = list(range(offset, offset + solution.width)) + list(range(sum(blocks), size))
         fisher[np.ix_(rows, rows)] += information
@@ -482,6 +486,6 @@ def _standard_errors(run: FitRun, offsets: list[_Offset], solutions: Sequence[So
         errors.update(amplitude_errors(labels, deviation[offset:offset + solution.width] / solution.norms))
         offset += solution.width
     for column, (index, name, log, value) in enumerate(shape_parameters):
-        sigma = float(deviation[sum(blocks) + column])
+        sigma = float(deviation[sum(blocks) + column] / shape_norms[column])
         errors[f'{offsets[index].effect.name}.{name}'] = value * sigma if log else sigma
     return errors

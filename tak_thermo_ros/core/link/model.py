@@ -34,6 +34,9 @@ CALIBRATION_VERSION = 1
 UNIT_CALIBRATION_VERSION = 2
 SENSORS: tuple[str, str] = ('accel', 'gyro')
 """The two three-axis sensors of an IMU: accelerometer and gyroscope."""
+MAG_SENSOR = 'mag'
+"""The optional third sensor of a driver unit: the magnetometer (its own topic, tesla)."""
+IDENTITY_3X3: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
 
 
 class InputKind(str, enum.Enum):
@@ -213,6 +216,38 @@ class Calibration:
 
 
 @dataclass(frozen=True)
+class MagnetometerCalibration:
+    """The magnetometer's correction: the thermal link, then the hard and soft iron.
+
+    ``B_corrected = W (B_thermal - h)``, with ``B_thermal`` the output of the paper's link
+    (``thermal``, per axis, tesla) and ``W`` symmetric positive definite.
+
+    :param thermal: offset and scale against temperature per axis (tesla; degrees C).
+    :param hard_iron: ``h``, tesla, in the sensor frame.
+    :param soft_iron: ``W``, row-major 3x3 (nine floats: ROS 2 parameters hold no nested lists).
+    """
+
+    thermal: Calibration
+    hard_iron: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    soft_iron: tuple[float, ...] = IDENTITY_3X3
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, 'hard_iron', tuple(float(v) for v in self.hard_iron))
+        object.__setattr__(self, 'soft_iron', tuple(float(v) for v in self.soft_iron))
+        if len(self.hard_iron) != 3:
+            msg = f'calibration.mag.hard_iron: expected 3 numbers, got {len(self.hard_iron)}'
+            raise CalibrationError(msg)
+        if len(self.soft_iron) != 9:
+            msg = f'calibration.mag.soft_iron: expected 9 numbers (row-major 3x3), got {len(self.soft_iron)}'
+            raise CalibrationError(msg)
+
+    @property
+    def soft_iron_matrix(self) -> np.ndarray:
+        """``W`` as a 3x3 array."""
+        return np.array(self.soft_iron, dtype=float).reshape(3, 3)
+
+
+@dataclass(frozen=True)
 class UnitCalibration:
     """The correction of a whole IMU: one :class:`Calibration` per three-axis sensor.
 
@@ -225,11 +260,14 @@ class UnitCalibration:
     :param input_kind: what the link takes in.
     :param accel: the accelerometer's link.
     :param gyro: the gyroscope's link (required with :attr:`InputKind.IMU`, absent with counts).
+    :param mag: the magnetometer's correction (optional, driver input only). It is not one of
+        :attr:`sensors`: its messages come on their own topic, with their own stamps.
     """
 
     input_kind: InputKind
     accel: Calibration
     gyro: Calibration | None = None
+    mag: MagnetometerCalibration | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, 'input_kind', InputKind(self.input_kind))
@@ -239,6 +277,9 @@ class UnitCalibration:
         if self.input_kind is InputKind.COUNTS and self.gyro is not None:
             msg = 'calibration.gyro: the counts input (file version 1) has an accelerometer only'
             raise CalibrationError(msg)
+        if self.input_kind is InputKind.COUNTS and self.mag is not None:
+            msg = 'calibration.mag: the counts input (file version 1) has an accelerometer only'
+            raise CalibrationError(msg)
 
     @property
     def sensors(self) -> tuple[tuple[str, Calibration], ...]:
@@ -247,8 +288,9 @@ class UnitCalibration:
         return tuple((name, calibration) for name, calibration in present if calibration is not None)
 
     def sensor(self, name: str) -> Calibration:
-        """The calibration of sensor ``'accel'`` or ``'gyro'``."""
-        calibration = {'accel': self.accel, 'gyro': self.gyro}.get(name)
+        """The calibration of sensor ``'accel'`` or ``'gyro'`` (``'mag'``: the magnetometer's thermal link)."""
+        mag = self.mag.thermal if self.mag is not None else None
+        calibration = {'accel': self.accel, 'gyro': self.gyro, MAG_SENSOR: mag}.get(name)
         if calibration is None:
             msg = f'calibration.{name}: not in this calibration'
             raise CalibrationError(msg)

@@ -44,6 +44,11 @@ Bad input, each with a defined outcome, checks in this order:
   older than ``temp_timeout``: held or dropped (``stale_signal``) by the same policy; a
   non-finite value ignored and counted.
 
+The magnetometer (``channel='mag'``, a driver calibration holding ``mag``) is a second
+instance on its own topic: three values in tesla corrected by
+:class:`~tak_thermo_ros.core.magnetometer.channel.MagCorrector` (the thermal link, then the
+iron), the same temperature, the same rules and the same counters.
+
 Warnings are throttled but never silent: the first of a kind is reported at once, later ones
 at most every ``warn_period_s`` with the number that occurred in between.
 """
@@ -198,7 +203,30 @@ def probe_values(input_kind: InputKind) -> tuple[float, ...]:
     return (-magnitude, 0.0, magnitude)
 
 
-def check_correction(unit: UnitCalibration, corrector: UnitCorrector, *, key: str = 'calibration') -> None:
+MAG_CHANNEL = 'mag'
+CHANNELS = ('imu', MAG_CHANNEL)
+"""What an :class:`OnlineCompensator` corrects: the unit's Imu (or counts), or its magnetometer."""
+MAG_PROBE_TESLA = 1e-4
+"""Field at which a new magnetometer calibration is tried out (twice the Earth's)."""
+
+
+def channel_sensors(unit: UnitCalibration, channel: str) -> tuple[tuple[str, Calibration], ...]:
+    """``(name, link)`` of the sensors a channel corrects (the magnetometer: its thermal link)."""
+    if channel == MAG_CHANNEL:
+        return (('mag', unit.mag.thermal),) if unit.mag is not None else ()
+    return unit.sensors
+
+
+def channel_corrector(unit: UnitCalibration, channel: str, out_of_range: OutOfRange):
+    """The corrector of a channel: :class:`UnitCorrector`, or the magnetometer's."""
+    if channel == MAG_CHANNEL:
+        from tak_thermo_ros.core.magnetometer.channel import MagCorrector
+        return MagCorrector(unit.mag, out_of_range=out_of_range)
+    return UnitCorrector(unit, out_of_range=out_of_range)
+
+
+def check_correction(unit: UnitCalibration, corrector: UnitCorrector, *, key: str = 'calibration',
+                     channel: str = 'imu') -> None:
     """Try the correction out over the calibrated range before it is put in force.
 
     Every sensor is corrected at :data:`PROBE_TEMPERATURES` temperatures across its range,
@@ -207,14 +235,15 @@ def check_correction(unit: UnitCalibration, corrector: UnitCorrector, *, key: st
 
     :raises CalibrationError: when the correction raises or gives a non-finite number.
     """
-    values = probe_values(unit.input_kind)
+    sensors = channel_sensors(unit, channel)
+    values = (-MAG_PROBE_TESLA, 0.0, MAG_PROBE_TESLA) if channel == MAG_CHANNEL else probe_values(unit.input_kind)
     channels = corrector.channels
-    trial = UnitCorrector(unit, out_of_range=OutOfRange.CLAMP)
+    trial = channel_corrector(unit, channel, OutOfRange.CLAMP)
     # Recorded signals (aux:TOPIC) held at their terms' reference value (0 if a term has none).
     aux = {effect.needs_signal: float(effect.values.get('reference', 0.0))
-           for _, calibration in unit.sensors for effect in calibration.effects if effect.needs_signal} or None
+           for _, calibration in sensors for effect in calibration.effects if effect.needs_signal} or None
     step = 0
-    for name, calibration in unit.sensors:
+    for name, calibration in sensors:
         low, high = calibration.temp_code_min, calibration.temp_code_max
         for index in range(PROBE_TEMPERATURES):
             temperature = low + (high - low) * index / (PROBE_TEMPERATURES - 1)
@@ -232,8 +261,15 @@ def check_correction(unit: UnitCalibration, corrector: UnitCorrector, *, key: st
                     raise CalibrationError(msg)
 
 
-def _covariances(unit: UnitCalibration, key: str) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
-    """The Imu covariances of the unit (as ``tak_calib apply`` writes them), all finite."""
+def _covariances(unit: UnitCalibration, key: str, channel: str = 'imu'
+                 ) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
+    """The Imu covariances of the unit (as ``tak_calib apply`` writes them), all finite.
+
+    For the magnetometer: ``((), (), magnetic_field_covariance)``.
+    """
+    if channel == MAG_CHANNEL:
+        from tak_thermo_ros.core.magnetometer.channel import magnetic_covariance
+        return (), (), magnetic_covariance(unit.mag)
     try:
         accel = acceleration_variance(unit.accel)
         gyro = acceleration_variance(unit.gyro) if unit.gyro is not None else None
@@ -259,6 +295,8 @@ class OnlineCompensator:
     :param temp_timeout_s: age beyond which the last temperature is stale, > 0.
     :param temp_topic: name of the temperature stream, used in messages.
     :param warn_period_s: least time between two reports of the same kind.
+    :param channel: ``'imu'`` (the Imu or the counts) or ``'mag'`` (the magnetometer of a driver
+        calibration: three values in tesla on its own topic).
     :raises CalibrationError: when the calibration fails :meth:`prepare`'s checks.
     :raises ValueError: on an invalid policy.
     """
@@ -266,13 +304,17 @@ class OnlineCompensator:
     def __init__(self, calibration: UnitCalibration | Calibration, *, out_of_range: OutOfRange = OutOfRange.CLAMP,
                  stale_temperature: StaleTemperature = StaleTemperature.HOLD,
                  temp_timeout_s: float = 1.0, temp_topic: str = 'tak/temp_code',
-                 warn_period_s: float = WARN_PERIOD_S) -> None:
+                 warn_period_s: float = WARN_PERIOD_S, channel: str = 'imu') -> None:
         unit = as_unit(calibration)
+        if channel not in CHANNELS:
+            msg = f'channel: expected one of {", ".join(CHANNELS)}, got {channel!r}'
+            raise ValueError(msg)
+        self.channel = channel
         self.input_kind = unit.input_kind
         self.temp_topic = temp_topic
         self.warn_period_s = warn_period_s
         counts = self.input_kind is InputKind.COUNTS
-        self._message_word = 'counts' if counts else 'Imu'
+        self._message_word = 'counts' if counts else ('MagneticField' if channel == MAG_CHANNEL else 'Imu')
         self._temperature_word = 'temperature code' if counts else 'temperature'
         self._problem: Callable[..., str | None] = counts_problem if counts else values_problem
         self.received = 0
@@ -318,8 +360,11 @@ class OnlineCompensator:
 
     @property
     def calibration(self) -> Calibration:
-        """The accelerometer's calibration in force (the whole of a counts calibration)."""
-        return self._config.unit.accel
+        """The accelerometer's calibration in force (the whole of a counts calibration).
+
+        On the ``mag`` channel: the magnetometer's thermal link.
+        """
+        return channel_sensors(self._config.unit, self.channel)[0][1]
 
     @property
     def corrector(self) -> UnitCorrector:
@@ -409,14 +454,18 @@ class OnlineCompensator:
                 msg = (f'{key}: a {unit.input_kind.value}-input calibration cannot replace the '
                        f'{self.input_kind.value}-input one in force (the topics differ): restart the node')
                 raise CalibrationError(msg)
-        corrector = UnitCorrector(unit, out_of_range=new_out_of_range)
+            if self.channel == MAG_CHANNEL and unit.mag is None:
+                msg = f'{key}.mag: missing (the magnetometer channel needs it; without it restart the node)'
+                raise CalibrationError(msg)
+        corrector = channel_corrector(unit, self.channel, new_out_of_range)
         if calibration is not None:
-            check_correction(unit, corrector, key=key)
-            covariances = _covariances(unit, key)
+            check_correction(unit, corrector, key=key, channel=self.channel)
+            covariances = _covariances(unit, key, self.channel)
         else:
             covariances = current.covariances
-        low = max(c.temp_code_min for _, c in unit.sensors)
-        high = min(c.temp_code_max for _, c in unit.sensors)
+        sensors = channel_sensors(unit, self.channel)
+        low = max(c.temp_code_min for _, c in sensors)
+        high = min(c.temp_code_max for _, c in sensors)
         return Configuration(unit, corrector, new_out_of_range, new_stale, new_timeout, covariances,
                              float(low), float(high))
 

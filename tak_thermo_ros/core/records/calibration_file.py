@@ -58,7 +58,9 @@ from tak_thermo_ros.core.link.model import (
     UNIT_CALIBRATION_VERSION,
     AxisModel,
     Calibration,
+    MAG_SENSOR,
     InputKind,
+    MagnetometerCalibration,
     UnitCalibration,
 )
 from tak_thermo_ros.core.noise.model import NoiseModel, noise_model_from_mapping
@@ -388,7 +390,8 @@ def unit_from_mapping(raw: Any, *, key: str = 'calibration') -> UnitCalibration:
       ``x``, ``y``, ``z``, optional ``notes`` and ``effects``;
     - version 2 (``input: imu``, a driver's Imu and a temperature in degrees C): ``accel`` and
       ``gyro``, each with ``temperature_ref/min/max``, ``x``, ``y``, ``z``, optional ``notes``
-      and ``effects``.
+      and ``effects``; optional ``mag`` (the magnetometer, tesla): the same keys plus
+      ``hard_iron`` (3) and ``soft_iron`` (9, row-major, symmetric).
 
     :raises CalibrationError: naming the first wrong key.
     """
@@ -398,7 +401,7 @@ def unit_from_mapping(raw: Any, *, key: str = 'calibration') -> UnitCalibration:
     if _version(raw, key) == CALIBRATION_VERSION:
         return UnitCalibration(InputKind.COUNTS, _link_from_mapping(raw, key, InputKind.COUNTS,
                                                                     extra_keys=('version',)))
-    unknown = sorted(str(name) for name in set(raw) - {'version', 'input', *SENSORS})
+    unknown = sorted(str(name) for name in set(raw) - {'version', 'input', *SENSORS, MAG_SENSOR})
     if unknown:
         msg = f'{key}.{unknown[0]}: unknown key'
         raise CalibrationError(msg)
@@ -411,7 +414,50 @@ def unit_from_mapping(raw: Any, *, key: str = 'calibration') -> UnitCalibration:
             raise CalibrationError(msg)
     accel, gyro = (_link_from_mapping(raw[sensor], f'{key}.{sensor}', InputKind.IMU, extra_keys=())
                    for sensor in SENSORS)
-    return UnitCalibration(InputKind.IMU, accel, gyro)
+    mag = _mag_from_mapping(raw[MAG_SENSOR], f'{key}.{MAG_SENSOR}') if MAG_SENSOR in raw else None
+    return UnitCalibration(InputKind.IMU, accel, gyro, mag)
+
+
+MAG_IRON_KEYS = ('hard_iron', 'soft_iron')
+MAX_HARD_IRON_T = 1e-3
+"""Largest ``|hard_iron|`` component a file may hold, tesla (1 mT: beyond any magnetometer's range)."""
+SOFT_IRON_EIGENVALUES = (0.2, 5.0)
+"""Eigenvalues a file's ``soft_iron`` may have (ArduPilot's diagonal bounds)."""
+
+
+def _mag_from_mapping(raw: Any, key: str) -> MagnetometerCalibration:
+    """The magnetometer: a sensor's keys (tesla) plus ``hard_iron`` (3) and ``soft_iron`` (9, row-major)."""
+    thermal = _link_from_mapping(raw, key, InputKind.IMU, extra_keys=MAG_IRON_KEYS)
+    for name in MAG_IRON_KEYS:
+        if name not in raw:
+            msg = f'{key}.{name}: missing'
+            raise CalibrationError(msg)
+    hard = _numbers(raw['hard_iron'], f'{key}.hard_iron', 3)
+    soft = _numbers(raw['soft_iron'], f'{key}.soft_iron', 9)
+    for i, value in enumerate(hard):
+        if abs(value) > MAX_HARD_IRON_T:
+            msg = f'{key}.hard_iron[{i}]: |{value:g}| T is beyond {MAX_HARD_IRON_T:g} T'
+            raise CalibrationError(msg)
+    matrix = np.array(soft).reshape(3, 3)
+    if not np.allclose(matrix, matrix.T, rtol=0.0, atol=1e-9):
+        msg = f'{key}.soft_iron: not symmetric (row-major 3x3; W[i][j] must equal W[j][i])'
+        raise CalibrationError(msg)
+    eigenvalues = np.linalg.eigvalsh((matrix + matrix.T) / 2.0)
+    low, high = SOFT_IRON_EIGENVALUES
+    if eigenvalues[0] <= low or eigenvalues[-1] >= high:
+        msg = (f'{key}.soft_iron: eigenvalues {", ".join(f"{v:.3g}" for v in eigenvalues)} outside '
+               f'{low:g}..{high:g} (exclusive)')
+        raise CalibrationError(msg)
+    return MagnetometerCalibration(thermal, hard, soft)  # type: ignore[arg-type]
+
+
+def _numbers(value: Any, key: str, count: int) -> tuple[float, ...]:
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if not isinstance(value, (list, tuple)) or len(value) != count:
+        msg = f'{key}: expected a list of {count} numbers'
+        raise CalibrationError(msg)
+    return tuple(finite_number(item, f'{key}[{i}]') for i, item in enumerate(value))
 
 
 def unit_to_mapping(unit: UnitCalibration) -> dict[str, Any]:
@@ -421,6 +467,10 @@ def unit_to_mapping(unit: UnitCalibration) -> dict[str, Any]:
     mapping: dict[str, Any] = {'version': UNIT_CALIBRATION_VERSION, 'input': unit.input_kind.value}
     for sensor, calibration in unit.sensors:
         mapping[sensor] = _link_to_mapping(calibration, unit.input_kind)
+    if unit.mag is not None:
+        mapping[MAG_SENSOR] = {**_link_to_mapping(unit.mag.thermal, unit.input_kind),
+                               'hard_iron': [float(v) for v in unit.mag.hard_iron],
+                               'soft_iron': [float(v) for v in unit.mag.soft_iron]}
     return mapping
 
 

@@ -397,6 +397,11 @@ class DriverRecord:
     :param rate_reference: ``(s, 3)`` true angular rate along the sensor axes, rad/s.
     :param frame_id: frame of the Imu messages.
     :param aux: recorded auxiliary scalar signals, as :attr:`ChannelRecord.aux`.
+    :param mag_stamp_ns: ``(g,)`` header stamps of the magnetometer's messages (may be empty).
+    :param mag: ``(g, 3)`` the magnetic field as the driver gave it, tesla.
+    :param mag_reference_stamp_ns: ``(f,)`` stamps of the reference field (a coil; may be empty).
+    :param mag_reference: ``(f, 3)`` the true field along the sensor axes, tesla.
+    :param mag_frame_id: frame of the magnetometer's messages.
     """
 
     stamp_ns: np.ndarray
@@ -412,15 +417,29 @@ class DriverRecord:
     rate_reference: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     frame_id: str = ''
     aux: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    mag_stamp_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    mag: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    mag_reference_stamp_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    mag_reference: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    mag_frame_id: str = ''
 
     def channel(self, sensor: str) -> ChannelRecord:
-        """One sensor's three channels as a :class:`ChannelRecord` (nominal scale 1)."""
+        """One sensor's three channels as a :class:`ChannelRecord` (nominal scale 1).
+
+        The magnetometer (``'mag'``) is its own stream: its stamps, the field in tesla, the
+        reference field.
+        """
+        if sensor == 'mag':
+            return ChannelRecord(counts_stamp_ns=self.mag_stamp_ns, counts=self.mag, temp_stamp_ns=self.temp_stamp_ns,
+                                 temp_code=self.temperature, reference_stamp_ns=self.mag_reference_stamp_ns,
+                                 reference=self.mag_reference, frame_id=self.mag_frame_id,
+                                 nominal_scale=(1.0, 1.0, 1.0), input_kind='imu', aux=self.aux)
         if sensor == 'accel':
             values, ref_stamps, reference = self.accel, self.reference_stamp_ns, self.reference
         elif sensor == 'gyro':
             values, ref_stamps, reference = self.gyro, self.rate_reference_stamp_ns, self.rate_reference
         else:
-            msg = f'unknown sensor {sensor!r} (accel or gyro)'
+            msg = f'unknown sensor {sensor!r} (accel, gyro or mag)'
             raise ValueError(msg)
         return ChannelRecord(counts_stamp_ns=self.stamp_ns, counts=values, temp_stamp_ns=self.temp_stamp_ns,
                              temp_code=self.temperature, reference_stamp_ns=ref_stamps, reference=reference,

@@ -41,6 +41,7 @@ from tak_thermo_ros.core.records.record import (
     DriverRecord,
     seconds_from_ns,
 )
+from tak_thermo_ros.core.simulation.magnetometer import MagnetometerTruth, rotation_record, table_field, truth_from_mapping
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import CalibrationError, FitError, ScenarioError
 
@@ -178,6 +179,12 @@ class Scenario:
         not recorded, the drift stays unexplained); the run's signal ``aux:TOPIC``.
     :param record_supply_type: its message type: ``battery_state`` (``sensor_msgs/BatteryState``,
         the voltage in float32, header stamp) or ``float64`` (``std_msgs/Float64``, bag time).
+    :param rotation: with ``output: imu`` and a ``magnetometer``, ``tumble`` (every orientation),
+        ``yaw`` (about z only) or ``cap`` (within 40 deg of z up) writes instead a rotation record
+        for the iron (2000 samples at ``sample_rate_hz``, at ``start_celsius``); ``''``: a chamber run.
+    :param magnetometer: with ``output: imu``, a magnetometer on ``/imu/mag``
+        (:mod:`tak_thermo_ros.core.simulation.magnetometer`; YAML: a mapping, ``{}`` for the
+        defaults), or ``None`` (default: none).
     """
 
     sample_rate_hz: float = 1.0
@@ -209,6 +216,8 @@ class Scenario:
     record_references: bool = True
     record_supply: str = ''
     record_supply_type: str = 'battery_state'
+    magnetometer: MagnetometerTruth | None = None
+    rotation: str = ''
 
     def __post_init__(self) -> None:
         for key in ('effects', 'gyro_effects'):
@@ -222,6 +231,12 @@ class Scenario:
         self.effect_instances('gyro_effects')
         if self.output not in ('counts', 'imu'):
             msg = f"output: expected 'counts' or 'imu', got {self.output!r}"
+            raise ScenarioError(msg)
+        if self.rotation and (self.magnetometer is None or self.rotation not in ('tumble', 'yaw', 'cap')):
+            msg = f"rotation: expected 'tumble', 'yaw' or 'cap' with a magnetometer, got {self.rotation!r}"
+            raise ScenarioError(msg)
+        if self.magnetometer is not None and self.output != 'imu':
+            msg = 'magnetometer: needs output: imu (a driver bag; the paper\'s codes have no magnetometer)'
             raise ScenarioError(msg)
         if self.table_rates and len(self.table_rates) != len(self.positions):
             msg = f'table_rates: expected one rate per position ({len(self.positions)}), got {len(self.table_rates)}'
@@ -340,7 +355,9 @@ class Scenario:
             return Calibration(temp_code_ref=self.reference_celsius, temp_code_min=low, temp_code_max=high,
                                axes=axes, effects=self.effect_instances(key))  # type: ignore[arg-type]
 
-        return UnitCalibration(InputKind.IMU, link(self.accel_unit, 'effects'), link(self.gyro_unit, 'gyro_effects'))
+        mag = None if self.magnetometer is None else self.magnetometer.correction(self.reference_celsius, low, high)
+        return UnitCalibration(InputKind.IMU, link(self.accel_unit, 'effects'), link(self.gyro_unit, 'gyro_effects'),
+                               mag)
 
 
 @dataclass(frozen=True)
@@ -465,6 +482,8 @@ def recorded_supply(scenario: Scenario, stamp_ns: np.ndarray, time_s: np.ndarray
 
 def _simulate_driver(scenario: Scenario) -> SimulatedRun:
     """A driver bag: the Imu in SI units, the temperature in degrees C, on a tilt and rate table."""
+    if scenario.rotation:
+        return _rotation_run(scenario)
     rng = np.random.default_rng(scenario.seed)
     count = int(math.floor(scenario.duration_s() * scenario.sample_rate_hz)) + 1
     time_s = np.arange(count) / scenario.sample_rate_hz
@@ -509,6 +528,13 @@ def _simulate_driver(scenario: Scenario) -> SimulatedRun:
         reference_stamp_ns=stamps[step], reference=force[step],
         rate_reference_stamp_ns=stamps[step], rate_reference=rate[step], frame_id=scenario.frame_id,
         aux=recorded_supply(scenario, stamps[temp_rows], time_s[temp_rows]))
+    if scenario.magnetometer is not None:
+        # Its own noise stream: the other channels stay as without a magnetometer.
+        field_truth = table_field(scenario.magnetometer, positions, position_index)
+        mag = scenario.magnetometer.measure(field_truth, board, scenario.reference_celsius,
+                                            np.random.default_rng([scenario.seed, 18]), stamp_s)
+        driver = replace(driver, mag_stamp_ns=stamps.copy(), mag=mag, mag_frame_id=scenario.frame_id,
+                         mag_reference_stamp_ns=stamps[step], mag_reference=field_truth[step])
     unit_truth = scenario.driver_truth()
     return SimulatedRun(record=driver.channel('accel'), board_celsius=board, chamber_celsius=chamber,
                         true_temp_code=board, specific_force=force, truth=unit_truth.accel,
@@ -527,6 +553,17 @@ def sensor_wander(scenario: Scenario, unit: tuple[AxisTruth, ...], sensor_index:
         return np.zeros((count, 3))
     return bias_wander([scenario.seed, 16, sensor_index], count, scenario.sample_rate_hz, bias,
                        tuple(a.bias_instability_tau for a in unit), walk)
+def _rotation_run(scenario: Scenario) -> SimulatedRun:
+    """A rotation record of the magnetometer (``scenario.rotation``), at ``start_celsius``."""
+    driver = rotation_record(scenario.magnetometer, samples=2000, rate_hz=scenario.sample_rate_hz,
+                             temperature_celsius=scenario.start_celsius, reference_celsius=scenario.reference_celsius,
+                             turn=scenario.rotation, seed=scenario.seed, start_time_s=scenario.start_time_s,
+                             frame_id=scenario.frame_id)
+    constant = np.full(len(driver.stamp_ns), scenario.start_celsius)
+    unit_truth = scenario.driver_truth()
+    return SimulatedRun(record=driver.channel('accel'), board_celsius=constant, chamber_celsius=constant,
+                        true_temp_code=constant, specific_force=driver.accel, truth=unit_truth.accel,
+                        scenario=scenario, driver=driver, angular_rate=np.zeros_like(driver.gyro), unit_truth=unit_truth)
 
 
 def _effect_terms(effects: tuple[Effect, ...], inputs: np.ndarray, temperature: np.ndarray,
@@ -600,6 +637,8 @@ def scenario_from_mapping(raw: Mapping[str, Any], *, base: Scenario | None = Non
             changes[key] = _unit_from_mapping(value, getattr(base, key))
         elif key in ('effects', 'gyro_effects'):
             changes[key] = _effects_from_mapping(value)
+        elif key == 'magnetometer':
+            changes[key] = None if value is None else truth_from_mapping(value)
         elif key == 'positions':
             if not isinstance(value, list) or not all(isinstance(p, list) and len(p) == 3 for p in value):
                 msg = 'positions: expected a list of [x, y, z] unit vectors'

@@ -1,0 +1,395 @@
+"""``tak_calib``'s passes over the magnetometer of a driver bag, in blocks (as :mod:`tak_thermo_ros.streaming`).
+
+The magnetometer is its own stream (``/imu/mag``, ``sensor_msgs/msg/MagneticField``, tesla),
+aligned on its own stamps with the same temperature held
+(:class:`~tak_thermo_ros.core.records.blocks.BlockAligner`), fitted by the same blocked fit
+(:class:`~tak_thermo_ros.core.fit.stream.StreamingFit`) and corrected by
+:class:`~tak_thermo_ros.core.magnetometer.channel.MagCorrector`.
+
+- The thermal link comes from the calibration bag: with a reference field
+  (``/tak/reference_field``, a coil or a table in a surveyed field) the scale is fitted as
+  on a rate table; without one the run must be static (one orientation): the reference is
+  the mean measured field, the scale is held at 1 and said, and the sensor's constant
+  offset goes into the hard iron (the thermal link keeps only the drift about the run's mean).
+- The iron comes from a separate rotation record (``--iron-run BAG``): the iron belongs to
+  the installation, measured by turning the vehicle at whatever temperature, while the
+  chamber run is of a unit that stays still; the rotation record is corrected by the thermal
+  link just fitted before the ellipsoid is fitted to it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from tak_thermo_ros.core.fit import FitResult, fit_model
+from tak_thermo_ros.core.fit.stream import StreamingFit
+from tak_thermo_ros.core.link.correction import Corrector, OutOfRange
+from tak_thermo_ros.core.link.model import IDENTITY_3X3, InputKind, MagnetometerCalibration
+from tak_thermo_ros.core.magnetometer.channel import MagCorrector, check_tesla
+from tak_thermo_ros.core.magnetometer.iron import EllipsoidFit, fit_ellipsoid
+from tak_thermo_ros.core.records.blocks import BlockAligner
+from tak_thermo_ros.core.records.record import AlignedSamples
+from tak_thermo_ros.errors import BagError, FitError, TakError
+
+MAX_STATIC_TURN_DEG = 10.0
+"""Largest angle between a sample of a static run's field and its mean (the unit moved)."""
+NO_IRON_NOTE = 'hard and soft iron not fitted (no --iron-run): hard_iron 0, soft_iron identity'
+
+
+def has_mag(path: str | Path, topics) -> bool:
+    """Whether a driver bag holds magnetometer messages."""
+    from tak_thermo_ros.bagio import bag_streams
+    streams = bag_streams(path, topics=topics)
+    return streams.kind is InputKind.IMU and streams.mag > 0
+
+
+def _mag_blocks(path: Path, options, *, references: bool):
+    """The bag's blocks as the magnetometer's :class:`ChannelRecord` (its stamps, tesla)."""
+    from tak_thermo_ros.bagio import iter_blocks
+    for block in iter_blocks(path, topics=options.topics, kind=InputKind.IMU, block_samples=options.block_samples,
+                             references=references, progress=options.progress):
+        yield block.channel('mag')
+
+
+def _mean_field(path: Path, options) -> np.ndarray:
+    """The mean measured field of a static run (one pass); refuses a topic not in tesla."""
+    total, count, checked = np.zeros(3), 0, False
+    for record in _mag_blocks(path, options, references=False):
+        finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
+        if len(finite) and not checked:
+            check_tesla(finite, f'{path}: {options.topics.mag}')
+            checked = True
+        total += finite.sum(axis=0)
+        count += len(finite)
+    if not count:
+        msg = f'{path}: no finite messages on {options.topics.mag}'
+        raise BagError(msg)
+    return total / count
+
+
+@dataclass(frozen=True)
+class _CalibrationPass:
+    """One pass over a calibration run's magnetometer with its reference held (see :func:`_calibration_pass`)."""
+
+    static: bool
+    mean: np.ndarray | None
+    max_turn_deg: float
+    aligner: BlockAligner
+
+
+def _calibration_pass(path: Path, options, consumers) -> _CalibrationPass:
+    """Align the magnetometer on its reference and hand each block to ``consumers``.
+
+    The reference is the recorded field, or a static run's mean field; refuses a static run
+    that turned and a topic not in tesla.
+    """
+    from tak_thermo_ros.bagio import bag_streams
+    topics = options.topics
+    static = bag_streams(path, topics=topics).mag_reference == 0
+    mean = _mean_field(path, options) if static else None
+    aligner = BlockAligner(use_reference=True, reference_expected=True)
+    max_turn = 0.0
+    first = True
+
+    def hand_on(aligned: AlignedSamples) -> None:
+        for consume in consumers:
+            consume(aligned)
+
+    for record in _mag_blocks(path, options, references=True):
+        if static:
+            finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
+            if len(finite):
+                cosine = (finite @ mean) / (np.linalg.norm(finite, axis=1) * np.linalg.norm(mean))
+                max_turn = max(max_turn, float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))).max()))
+            if first:
+                # The static run's reference, held from before the first sample.
+                record = replace(record, reference_stamp_ns=np.zeros(1, dtype=np.int64), reference=mean.reshape(1, 3))
+                first = False
+        elif first and len(record.counts):
+            check_tesla(record.counts[np.all(np.isfinite(record.counts), axis=1)], f'{path}: {topics.mag}')
+            first = False
+        hand_on(aligner.push(record))
+    hand_on(aligner.finish())
+    if static and max_turn > MAX_STATIC_TURN_DEG:
+        msg = (f'magnetometer: {path}: the field turns by up to {max_turn:.1f} deg from its mean '
+               f'(at most {MAX_STATIC_TURN_DEG:g}): the thermal fit takes a static run, or a reference field '
+               f'on {topics.reference_field}; a rotation record goes to --iron-run')
+        raise FitError(msg)
+    return _CalibrationPass(static, mean, max_turn, aligner)
+
+
+def bounded_mag_run(path: str | Path, options, *, max_samples: int) -> tuple[AlignedSamples, int, str]:
+    """``diagnose``'s magnetometer samples, the usable count of the whole run and the reference's line.
+
+    Every n-th sample, at most about ``max_samples``, the reference held as for the fit.
+    """
+    from tak_thermo_ros.bagio import bag_streams
+    from tak_thermo_ros.streaming import _Subsample, stride_for
+    path = Path(path)
+    count = bag_streams(path, topics=options.topics).mag
+    stride = stride_for(count, max_samples)
+    subsample = _Subsample(stride, expected=count // stride + 1)
+    calibration_pass = _calibration_pass(path, options, [subsample])
+    line = (f'magnetometer: reference field {options.topics.reference_field} as recorded' if not calibration_pass.static
+            else f'magnetometer: static run, reference the mean field {_microtesla(calibration_pass.mean)} uT')
+    return subsample.samples(calibration_pass.aligner.dropped), calibration_pass.aligner.kept, line
+
+
+@dataclass(frozen=True)
+class MagFit:
+    """What ``fit`` prints and writes for the magnetometer.
+
+    :param calibration: the magnetometer's correction.
+    :param thermal: the thermal link's fit.
+    :param iron: the ellipsoid fit, or ``None`` without a rotation record.
+    :param lines: how the reference was obtained (one line each).
+    :param max_turn_deg: a static run's largest angle from the mean field.
+    """
+
+    calibration: MagnetometerCalibration
+    thermal: FitResult
+    iron: EllipsoidFit | None
+    lines: tuple[str, ...]
+    max_turn_deg: float = 0.0
+
+
+def fit_mag_bag(path: str | Path, options, *, bias_order: int = 3, scale_order: int = 2,
+                temp_code_ref: float | None = None, iron_run: str | Path | None = None,
+                effects: Sequence[str] = (), max_effect_samples: int = 1_000_000) -> MagFit:
+    """Fit the magnetometer: its thermal link from ``path``, its iron from ``iron_run``.
+
+    With ``effects`` (library names, as ``--effects``) the link and the effects are fitted by
+    :func:`~tak_thermo_ros.core.fit.fit_model` on every n-th sample, at most about
+    ``max_effect_samples`` (all of a shorter run; said in a line otherwise).
+
+    :raises FitError: one line prefixed ``magnetometer:`` (a run that moved, a fit that cannot
+        be determined, a rotation record that fails the ellipsoid's checks).
+    :raises TakError: a topic not in tesla.
+    """
+    path = Path(path)
+    topics = options.topics
+    from tak_thermo_ros.bagio import bag_streams
+    from tak_thermo_ros.streaming import _Subsample, stride_for
+    fit = StreamingFit(bias_order=bias_order, scale_order=scale_order, temp_code_ref=temp_code_ref,
+                       nominal_scale=(1.0, 1.0, 1.0))
+    consumers = [fit.add]
+    subsample = None
+    if effects:
+        count = bag_streams(path, topics=topics).mag
+        subsample = _Subsample(stride_for(count, max_effect_samples), expected=count)
+        consumers.append(subsample)
+    calibration_pass = _calibration_pass(path, options, consumers)
+    static, mean, max_turn, aligner = (calibration_pass.static, calibration_pass.mean, calibration_pass.max_turn_deg,
+                                       calibration_pass.aligner)
+    try:
+        if subsample is None:
+            thermal = fit.result(dropped=aligner.dropped)
+        else:
+            thermal = fit_model(subsample.samples(aligner.dropped), effects=list(effects), bias_order=bias_order,
+                                scale_order=scale_order, temp_code_ref=temp_code_ref, nominal_scale=(1.0, 1.0, 1.0))
+    except FitError as err:
+        raise FitError(f'magnetometer: {err}') from None
+    lines = [f'magnetometer: reference field {topics.reference_field} as recorded' if not static else
+             f'magnetometer: static run, reference the mean field {_microtesla(mean)} uT '
+             f'(|B| {np.linalg.norm(mean) * 1e6:.2f} uT; largest turn from it {max_turn:.2f} deg)']
+    if subsample is not None and subsample.stride > 1:
+        lines.append(f'magnetometer: the link and its effects fitted on 1 sample in {subsample.stride} '
+                     f'({subsample.count} of {subsample.usable})')
+    link = thermal.calibration
+    notes = list(link.notes)
+    iron = None
+    if iron_run is None:
+        notes.append(NO_IRON_NOTE)
+        hard, soft = (0.0, 0.0, 0.0), IDENTITY_3X3
+    else:
+        iron, outside = _fit_iron(Path(iron_run), options, link)
+        hard, soft = iron.hard_iron, iron.soft_iron
+        lines.append(f'magnetometer: iron from {iron_run} ({iron.samples} samples)')
+        if outside:
+            lines.append(f'warning: magnetometer: {outside} samples of {iron_run} outside the calibrated temperature '
+                         f'range {link.temp_code_min:g}..{link.temp_code_max:g} C (clamped to its edge)')
+    link = replace(link, notes=tuple(notes))
+    calibration = MagnetometerCalibration(link, hard, soft)  # type: ignore[arg-type]
+    return MagFit(calibration=calibration, thermal=replace(thermal, calibration=link), iron=iron, lines=tuple(lines),
+                  max_turn_deg=max_turn)
+
+
+def _microtesla(values) -> str:
+    return ' '.join(f'{v * 1e6:+.3f}' for v in values)
+
+
+def _fit_iron(path: Path, options, link) -> tuple[EllipsoidFit, int]:
+    """The ellipsoid of a rotation record, corrected by the thermal link first; samples out of its range."""
+    from tak_thermo_ros.bagio import bag_streams
+    topic = options.topics.mag
+    streams = bag_streams(path, topics=options.topics)
+    if streams.kind is not InputKind.IMU or streams.mag == 0:
+        msg = f'{path}: no messages on {topic} (the rotation record for --iron-run)'
+        raise BagError(msg)
+    corrector = Corrector(link)
+    aligner = BlockAligner(use_reference=False)
+    parts: list[np.ndarray] = []
+    checked = False
+    outside = 0
+
+    def take(aligned: AlignedSamples) -> None:
+        nonlocal outside
+        if len(aligned):
+            parts.append(corrector.correct(aligned.counts, aligned.temp_code, stamp_s=aligned.stamp_s))
+            outside += corrector.out_of_range_count(aligned.temp_code)
+
+    for record in _mag_blocks(path, options, references=False):
+        finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
+        if len(finite) and not checked:
+            check_tesla(finite, f'{path}: {topic}')
+            checked = True
+        take(aligner.push(record))
+    take(aligner.finish())
+    values = np.concatenate(parts) if parts else np.zeros((0, 3))
+    try:
+        return fit_ellipsoid(values, where=f'{path}: {topic}'), outside
+    except FitError as err:
+        raise FitError(f'magnetometer: {err}') from None
+
+
+# ----- apply and validate ---------------------------------------------------------------------------
+
+
+class MagApplier:
+    """The magnetometer's part of ``apply``: each block aligned, corrected, written (``/imu/mag_compensated``)."""
+
+    def __init__(self, mag: MagnetometerCalibration, *, out_of_range: OutOfRange, topic: str) -> None:
+        from tak_thermo_ros.core.magnetometer.channel import magnetic_covariance
+        self.corrector = MagCorrector(mag, out_of_range=out_of_range)
+        self.covariance = magnetic_covariance(mag)
+        self.aligner = BlockAligner(use_reference=False)
+        self.topic = topic
+        self.out_of_range = 0
+        self.checked = False
+        self.frame_id = ''
+
+    def push(self, writer, record, output) -> None:
+        """Align and correct one block's magnetometer record into ``writer``."""
+        if not self.checked and len(record.counts):
+            finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
+            if len(finite):
+                check_tesla(finite, f'{self.topic.replace("_compensated", "")}')
+                self.checked = True
+        self.frame_id = self.frame_id or record.frame_id
+        self._write(writer, self.aligner.push(record), self.frame_id, output)
+
+    def finish(self, writer, frame_id: str, output) -> None:
+        """The samples still pending at the end of the run (``frame_id``: when no message had one)."""
+        self._write(writer, self.aligner.finish(), self.frame_id or frame_id, output)
+
+    def _write(self, writer, aligned: AlignedSamples, frame_id: str, output) -> None:
+        if not len(aligned):
+            return
+        corrected = self.corrector.correct(aligned.counts, aligned.temp_code, stamp_s=aligned.stamp_s)
+        if not np.all(np.isfinite(corrected)):
+            msg = f'{output}: corrected magnetic field: values are not finite (NaN or infinite); nothing written'
+            raise TakError(msg)
+        self.out_of_range += self.corrector.out_of_range_count(aligned.temp_code)
+        writer.write_mag(self.topic, aligned.stamp_ns, frame_id, corrected, self.covariance)
+
+
+@dataclass
+class _FieldSums:
+    """Sums for an RMS per axis and of the magnitude, about a mean or against a reference (shifted sums)."""
+
+    shift: np.ndarray | None = None
+    count: int = 0
+    total: np.ndarray | None = None
+    squares: np.ndarray | None = None
+
+    def add(self, error: np.ndarray) -> None:
+        if not len(error):
+            return
+        if self.shift is None:
+            self.shift = error[0].copy()
+            self.total = np.zeros(error.shape[1])
+            self.squares = np.zeros(error.shape[1])
+        centred = error - self.shift
+        self.total += centred.sum(axis=0)
+        self.squares += (centred ** 2).sum(axis=0)
+        self.count += len(error)
+
+    def rms(self, *, about_mean: bool) -> np.ndarray:
+        """RMS per column: about the mean (a static run) or of the error itself (against a reference)."""
+        mean_centred = self.total / self.count
+        if about_mean:
+            return np.sqrt(np.maximum(self.squares / self.count - mean_centred ** 2, 0.0))
+        # E[(c + s)^2] = E[c^2] + 2 s E[c] + s^2
+        return np.sqrt(np.maximum(self.squares / self.count + 2 * self.shift * mean_centred + self.shift ** 2, 0.0))
+
+
+@dataclass(frozen=True)
+class MagValidated:
+    """``validate``'s figures for the magnetometer, tesla.
+
+    :param samples: samples compared.
+    :param reference: ``'static'`` (error about the run's mean field) or the reference topic.
+    :param before: RMS per axis x, y, z and of ``|B|`` of the raw field.
+    :param after: the same after the correction (thermal link and iron).
+    """
+
+    samples: int
+    reference: str
+    before: tuple[float, float, float, float]
+    after: tuple[float, float, float, float]
+    out_of_range: int = 0
+
+
+def validate_mag(path: str | Path, mag: MagnetometerCalibration, options, *,
+                 out_of_range: OutOfRange = OutOfRange.CLAMP) -> MagValidated:
+    """The field error before and after the correction.
+
+    Against ``/tak/reference_field`` when recorded, else about the run's mean (a static run).
+    """
+    from tak_thermo_ros.bagio import bag_streams
+    path = Path(path)
+    streams = bag_streams(path, topics=options.topics)
+    with_reference = streams.mag_reference > 0
+    corrector = MagCorrector(mag, out_of_range=out_of_range)
+    aligner = BlockAligner(use_reference=with_reference, reference_expected=with_reference)
+    before, after = _FieldSums(), _FieldSums()
+    outside = 0
+    checked = False
+
+    def add(aligned: AlignedSamples) -> None:
+        nonlocal outside
+        if not len(aligned):
+            return
+        corrected = corrector.correct(aligned.counts, aligned.temp_code, stamp_s=aligned.stamp_s)
+        outside += corrector.out_of_range_count(aligned.temp_code)
+        for sums, values in ((before, aligned.counts), (after, corrected)):
+            if with_reference:
+                error = values - aligned.reference
+                magnitude = np.linalg.norm(values, axis=1) - np.linalg.norm(aligned.reference, axis=1)
+            else:
+                error, magnitude = values, np.linalg.norm(values, axis=1)
+            sums.add(np.column_stack([error, magnitude]))
+
+    for record in _mag_blocks(path, options, references=with_reference):
+        finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
+        if len(finite) and not checked:
+            check_tesla(finite, f'{path}: {options.topics.mag}')
+            checked = True
+        add(aligner.push(record))
+    add(aligner.finish())
+    if not before.count:
+        msg = f'{path}: no usable magnetometer samples to validate on {options.topics.mag}'
+        raise TakError(msg)
+    about_mean = not with_reference
+    values_before = tuple(float(v) for v in before.rms(about_mean=about_mean))
+    values_after = tuple(float(v) for v in after.rms(about_mean=about_mean))
+    if not all(math.isfinite(v) for v in values_before + values_after):
+        msg = f'{path}: magnetometer field error is not finite'
+        raise TakError(msg)
+    return MagValidated(samples=before.count, reference=options.topics.reference_field if with_reference else 'static',
+                        before=values_before, after=values_after, out_of_range=outside)  # type: ignore[arg-type]
