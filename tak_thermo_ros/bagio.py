@@ -295,7 +295,8 @@ def read_aux_signals(reader: Reader, path: Path, *,
     for topic, connections in sorted(by_topic.items()):
         msgtype = connections[0].msgtype
         if any(c.msgtype != msgtype for c in connections):
-            msg = f'{path}: topic {topic} has more than one type ({", ".join(sorted({c.msgtype for c in connections}))})'
+            types = ', '.join(sorted({c.msgtype for c in connections}))
+            msg = f'{path}: topic {topic} has more than one type ({types})'
             raise BagError(msg)
         bag_times, raws = [], []
         for _, timestamp, raw in reader.messages(connections=connections):
@@ -702,7 +703,8 @@ def write_imu(path: str | os.PathLike[str], stamp_ns: np.ndarray, frame_id: str,
                             encoder=encoder or IMU_ENCODER)
 
 
-def read_imu(path: str | os.PathLike[str], *, topic: str = Topics.imu) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray]:
+def read_imu(path: str | os.PathLike[str], *,
+             topic: str = Topics.imu) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray]:
     """Read an Imu topic: stamps ``(k,)``, linear acceleration ``(k, 3)``, frame ids, covariances ``(k, 9)``."""
     messages = read_imu_messages(path, topic=topic)
     return (messages.stamp_ns, messages.linear_acceleration, messages.frame_ids,
@@ -1011,9 +1013,10 @@ def _decode_block(path: Path, kind: InputKind, raws: dict[str, list[bytes]], bag
         temp_stamp, temperature = decode_temperatures(temperature_raws)
     else:
         arrays = _block_arrays(path, temperature_raws, TEMPERATURE, names['temperature'])
-        temp_stamp, temperature = np.asarray(arrays['stamp_ns'], dtype=np.int64), np.asarray(arrays['temperature'],
-                                                                                              dtype=float)
-    reference_stamp, reference, _ = _decode_vectors(path, raws.get('reference', []), names.get('reference', ''), decoder)
+        temp_stamp = np.asarray(arrays['stamp_ns'], dtype=np.int64)
+        temperature = np.asarray(arrays['temperature'], dtype=float)
+    reference_stamp, reference, _ = _decode_vectors(path, raws.get('reference', []), names.get('reference', ''),
+                                                    decoder)
     aux: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for topic, msgtype in aux_topics.items():
         role = f'aux {topic}'
@@ -1037,7 +1040,8 @@ def _decode_block(path: Path, kind: InputKind, raws: dict[str, list[bytes]], bag
         orientation = np.asarray(arrays['orientation'], dtype=float)
         covariance = np.asarray(arrays['orientation_covariance'], dtype=float)
         frame_ids = arrays
-    rate_stamp, rate, _ = _decode_vectors(path, raws.get('rate_reference', []), names.get('rate_reference', ''), decoder)
+    rate_stamp, rate, _ = _decode_vectors(path, raws.get('rate_reference', []), names.get('rate_reference', ''),
+                                          decoder)
     return DriverRecord(stamp_ns=stamps, accel=accel, gyro=gyro, orientation=orientation,
                         orientation_covariance=covariance, temp_stamp_ns=temp_stamp, temperature=temperature,
                         reference_stamp_ns=reference_stamp, reference=reference,

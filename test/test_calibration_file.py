@@ -27,7 +27,7 @@ def _document(calibration) -> dict:
 
 
 def test_round_trip(tmp_path):
-    """save then load gives back the same calibration, bit for bit."""
+    """`save` then load gives back the same calibration, bit for bit."""
     calibration = Scenario().truth()
     path = tmp_path / 'params.yaml'
     save_calibration(path, calibration, header='made by a test')

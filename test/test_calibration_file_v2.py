@@ -27,7 +27,6 @@ from tak_thermo_ros.core.records.calibration_file import (
     load_calibration,
     load_unit,
     nest_parameters,
-    parse_parameters_yaml,
     save_unit,
     unit_from_mapping,
     unit_to_mapping,
@@ -157,7 +156,7 @@ def test_exponent_without_a_dot_is_a_number_for_the_file_and_for_rcl(tmp_path, m
 
 
 def test_mixed_int_and_float_lists_are_refused_in_one_line(tmp_path):
-    """rcl refuses a list of 0 and 1.5e-6; so does load_unit, naming the file and the key."""
+    """A list of 0 and 1.5e-6 is refused by rcl, and by load_unit naming the file and the key."""
     path = tmp_path / 'p.yaml'
     path.write_text(V1_FILE.replace('scale_shape: [2.0e-06, 1.0e-09]', 'scale_shape: [0, 1.0e-09]'))
     with pytest.raises(CalibrationError) as error:
@@ -303,8 +302,8 @@ def _replaced(node, path, value):
 @st.composite
 def mutated(draw):
     """A valid mapping (either version) with one value anywhere replaced by junk, or a key added."""
-    base = draw(st.sampled_from([_v2_mapping(), unit_to_mapping(UnitCalibration(InputKind.COUNTS,
-                                                                                  Scenario().truth()))]))
+    counts = unit_to_mapping(UnitCalibration(InputKind.COUNTS, Scenario().truth()))
+    base = draw(st.sampled_from([_v2_mapping(), counts]))
     paths = list(_paths(base))
     path = draw(st.sampled_from(paths))
     if draw(st.booleans()) or not path:

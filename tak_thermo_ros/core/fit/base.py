@@ -100,7 +100,7 @@ def _check_observable(samples: AlignedSamples, bias_order: int, scale_order: int
 
 
 def single_input_axes(samples: AlignedSamples) -> tuple[bool, bool, bool]:
-    """Per axis: does the reference hold one value only (scale and offset inseparable)?"""
+    """Per axis, whether the reference holds one value only (scale and offset inseparable)."""
     return tuple(np.unique(np.round(samples.reference[:, i] / INPUT_RESOLUTION)).size < 2
                  for i in range(3))  # type: ignore[return-value]
 
@@ -192,7 +192,8 @@ def fit_calibration(samples: AlignedSamples, *, bias_order: int = 3, scale_order
             raise FitError(msg)
         del design
         axes_models.append(axis_from_coefficients(solution / norms, bias_order=bias_order, scale_order=scale_order,
-                                                  n_scale=n_scale, code_offset_range=(low - ref, high - ref), name=name))
+                                                  n_scale=n_scale, code_offset_range=(low - ref, high - ref),
+                                                  name=name))
 
     if held_inputs:
         notes.append(held_scale_note(held, held_inputs))

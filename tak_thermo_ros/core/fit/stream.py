@@ -175,7 +175,7 @@ class StreamingFit:
             raise FitError(msg)
 
     def single_input_axes(self) -> tuple[bool, bool, bool]:
-        """Per axis: did the reference hold one value only (as :func:`single_input_axes`)?"""
+        """Per axis, whether the reference held one value only (as :func:`single_input_axes`)."""
         return tuple(not several for several in self._several_inputs)  # type: ignore[return-value]
 
     def result(self, *, dropped: dict[str, int] | None = None) -> FitResult:
@@ -395,7 +395,8 @@ class StreamingEffectFit:
                     position += 1
         axes_models = [axis_from_coefficients(betas[i], bias_order=q, scale_order=p, n_scale=n_scale,
                                               code_offset_range=(low - ref, high - ref), name=AXES[i],
-                                              held_scale=self.nominal_scale[i] if self.held[i] else None)  # type: ignore[index]
+                                              held_scale=(self.nominal_scale[i]  # type: ignore[index]
+                                                          if self.held[i] else None))
                        for i in range(3)]
         fitted = []
         for effect in self.effects:
@@ -419,7 +420,8 @@ class StreamingEffectFit:
             except CalibrationError as err:
                 msg = f'fitted {err}'
                 raise FitError(msg) from None
-        held_inputs = [f'{AXES[i]} input {self.first_inputs[i]:.4g} at nominal scale {self.nominal_scale[i]:g}'  # type: ignore[index]
+        held_inputs = [f'{AXES[i]} input {self.first_inputs[i]:.4g} '
+                       f'at nominal scale {self.nominal_scale[i]:g}'  # type: ignore[index]
                        for i in range(3) if self.held[i]]
         notes = (held_scale_note(self.held, held_inputs),) if held_inputs else ()
         calibration = Calibration(temp_code_ref=ref, temp_code_min=low, temp_code_max=high, axes=tuple(axes_models),

@@ -371,7 +371,8 @@ def unit_from_mapping(raw: Any, *, key: str = 'calibration') -> UnitCalibration:
         msg = f'{key}.{unknown[0]}: unknown key'
         raise CalibrationError(msg)
     if raw.get('input') != InputKind.IMU.value:
-        msg = f'{key}.input: expected {InputKind.IMU.value!r} with version {UNIT_CALIBRATION_VERSION}, got {raw.get("input")!r}'
+        msg = (f'{key}.input: expected {InputKind.IMU.value!r} with version {UNIT_CALIBRATION_VERSION}, '
+               f'got {raw.get("input")!r}')
         raise CalibrationError(msg)
     for sensor in SENSORS:
         if sensor not in raw:
@@ -456,7 +457,7 @@ _ParameterLoader.add_implicit_resolver(
 
 
 def _check_uniform_lists(node: Any, key: str) -> None:
-    """rcl refuses a parameter array that mixes integers and doubles: so does this parser."""
+    """A parameter array that mixes integers and doubles is refused, as rcl refuses it."""
     if isinstance(node, Mapping):
         for name, value in node.items():
             _check_uniform_lists(value, f'{key}.{name}')
