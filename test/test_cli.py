@@ -134,7 +134,7 @@ def test_a_bad_calibration_file_names_the_key(workspace, tmp_path, capsys):
     """`apply` with a broken file names the file and the key."""
     root, _ = workspace
     document = yaml.safe_load((root / 'params.yaml').read_text())
-    document['compensator']['ros__parameters']['calibration']['y']['scale'] = -1.0
+    document['/**/compensator']['ros__parameters']['calibration']['y']['scale'] = -1.0
     (tmp_path / 'bad.yaml').write_text(yaml.safe_dump(document))
     code = main(['apply', str(root / 'run2'), '--params', str(tmp_path / 'bad.yaml'), '-o', str(tmp_path / 'imu')])
     assert code == 2

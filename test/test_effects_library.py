@@ -143,7 +143,7 @@ def test_calibration_file_round_trip_with_effects(tmp_path, monkeypatch):
     loaded = load_calibration(path)
     assert loaded == calibration
     document = yaml.safe_load(path.read_text())
-    entry = document['compensator']['ros__parameters']['calibration']['effects']['creep']
+    entry = document['/**/compensator']['ros__parameters']['calibration']['effects']['creep']
     assert entry['class'] == 'user_effects_rt:Creep'
     flat = flatten_parameters(calibration_to_mapping(calibration))
     assert flat['calibration.effects.thermal_lag.tau_s'] == 300.0

@@ -66,7 +66,7 @@ def test_static_fit_holds_the_scale_and_records_it(static_fit, tmp_path):
     assert len(calibration.notes) == 1 and calibration.notes[0].startswith('scale held at nominal on x, y, z')
     path = tmp_path / 'static.yaml'
     save_calibration(path, calibration)
-    entry = yaml.safe_load(path.read_text())['compensator']['ros__parameters']['calibration']
+    entry = yaml.safe_load(path.read_text())['/**/compensator']['ros__parameters']['calibration']
     assert entry['z']['scale_observable'] is False and entry['notes'] == list(calibration.notes)
     loaded = load_calibration(path)
     assert loaded.notes == calibration.notes and not any(axis.scale_observable for axis in loaded.axes)
