@@ -45,3 +45,7 @@ class OutputError(TakError):
 
 class EffectError(TakError):
     """A user-defined effect raised or returned values that are not finite or of a wrong shape."""
+
+
+class DependencyError(TakError):
+    """An optional library that a command needs is not installed (the message names its pip package)."""
