@@ -257,7 +257,6 @@ def pass_through(actions: Sequence[argparse.Action], args: argparse.Namespace) -
 
 def _connect(scheduler: str | None, workers: int) -> tuple[Any, Any]:
     """A Dask client on ``scheduler``, or on a new local cluster of ``workers`` processes."""
-    require('distributed', 'fit-fleet')
     from dask.distributed import Client, LocalCluster
     if scheduler:
         try:
@@ -282,6 +281,7 @@ def run_batch(tasks: Sequence[UnitTask], command: Command, *, scheduler: str | N
     :param workers: worker processes of the local cluster (one thread each).
     :param progress: where to print one line per finished unit (default stderr).
     """
+    require('distributed', 'fit-fleet')  # one line naming dask[distributed] when it is missing
     from dask.distributed import as_completed
     stream = progress if progress is not None else sys.stderr
     client, cluster = _connect(scheduler, workers)
