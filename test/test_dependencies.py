@@ -16,7 +16,8 @@ from tak_thermo_ros.optional import OPTIONAL, require
 
 REPO = Path(__file__).resolve().parent.parent
 OFFLINE = ('scipy', 'matplotlib', 'dask', 'distributed', 'rosbags', 'pandas', 'statsmodels', 'allantools')
-ROS_MESSAGES = ('rclpy', 'rclpy.node', 'rclpy.executors', 'rclpy.experimental', 'rcl_interfaces.msg', 'sensor_msgs.msg', 'geometry_msgs.msg', 'diagnostic_msgs.msg')
+ROS_MESSAGES = ('rclpy', 'rclpy.node', 'rclpy.executors', 'rclpy.experimental', 'rcl_interfaces.msg',
+                'sensor_msgs.msg', 'geometry_msgs.msg', 'diagnostic_msgs.msg')
 ROSDEP_KEYS = {
     'numpy': 'python3-numpy', 'yaml': 'python3-yaml', 'scipy': 'python3-scipy',
     'matplotlib': 'python3-matplotlib', 'rosbags': 'python3-rosbags-pip', 'pandas': 'python3-pandas',
