@@ -111,6 +111,22 @@ def test_every_third_party_import_is_declared_in_package_xml_or_optional():
     assert exec_keys - used <= {'std_msgs'}  # std_msgs: the run-time import above
 
 
+def test_optional_libraries_are_imported_inside_the_commands_only():
+    """No module of the package imports an optional library at its top: only functions do."""
+    top_level = []
+    for path in (REPO / 'tak_thermo_ros').rglob('*.py'):
+        tree = ast.parse(path.read_text(encoding='utf-8'))
+        for node in tree.body:
+            if isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module:
+                names = [node.module]
+            else:
+                continue
+            top_level += [f'{path.relative_to(REPO)}: {name}' for name in names if name.split('.')[0] in OPTIONAL]
+    assert not top_level, top_level
+
+
 def test_package_xml_and_setup_py_say_what_the_package_is():
     """Both sensors, both inputs, the tool and model discovery: in package.xml and setup.py alike."""
     description = ' '.join(ElementTree.parse(REPO / 'package.xml').getroot().findtext('description').split())
