@@ -4,7 +4,13 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test venv bench clean fuzz
+.PHONY: demo test venv bench clean fuzz ros2cli lint
+
+# The real ros2 command line (test/test_ros2_cli.py): a sourced ROS 2 Jazzy, else the build of
+# ../shared/ros2cli/build.sh under ROSCLI_PREFIX, made here when it is missing (2-3 min, cached).
+ROSCLI_PREFIX ?= $(HOME)/.cache/ros2cli-jazzy
+export ROSCLI_PREFIX
+ROSCLI_BUILD := ../shared/ros2cli/build.sh
 
 venv: $(STAMP)
 
@@ -22,8 +28,23 @@ $(STAMP): requirements.txt constraints.txt setup.py setup.cfg package.xml
 demo: $(STAMP)
 	$(BIN)/python demo/demo.py
 
-test: $(STAMP)
+test: $(STAMP) ros2cli
 	$(BIN)/python -m pytest -q test
+
+ros2cli:
+	@if command -v ros2 >/dev/null && command -v colcon >/dev/null; then \
+		echo "ros2 command line: $$(command -v ros2)"; \
+	elif [ -x $(ROSCLI_PREFIX)/venv/bin/ros2 ] && [ -f $(ROSCLI_PREFIX)/env.sh ]; then \
+		echo "ros2 command line: $(ROSCLI_PREFIX)/venv/bin/ros2"; \
+	elif [ -f $(ROSCLI_BUILD) ]; then \
+		PYTHON=$(PYTHON) ROSCLI_PREFIX=$(ROSCLI_PREFIX) bash $(ROSCLI_BUILD) --no-verify; \
+	else \
+		echo "no ros2 command line and no $(ROSCLI_BUILD): test/test_ros2_cli.py is skipped"; \
+	fi
+
+# ament_flake8 and ament_pep257 on the whole package, as `make test` runs them.
+lint: $(STAMP)
+	$(BIN)/python -m pytest -q test/test_flake8.py test/test_pep257.py
 
 # The property tests with a 25x example budget and fresh random examples (minutes, not seconds).
 fuzz: $(STAMP)

@@ -20,7 +20,8 @@ setup(
     zip_safe=True,
     maintainer='tak_thermo_ros developers',
     maintainer_email='dev@tak-thermo-ros.invalid',
-    description='Temperature-drift compensation of a three-axis accelerometer channel.',
+    description=('Temperature-drift compensation of an IMU (accelerometer and gyroscope; driver Imu or raw codes): '
+                 'the compensator node, and tak_calib to fit, validate and discover the model from rosbags.'),
     license='Apache-2.0',
     python_requires='>=3.11',
     entry_points={

@@ -40,8 +40,11 @@ VECTORISED_SIZES = (100_000, 1_000_000, 5_400_000)
 
 
 def bench_data(calibration, size: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Whole-number codes ``(size, 3)``, temperature codes ``(size,)`` reaching 5 % beyond the
-    calibrated range on both sides (so that the clamp runs), stamps in seconds ``(size,)``."""
+    """Whole-number codes ``(size, 3)``.
+
+    Temperature codes ``(size,)`` reaching 5 % beyond the calibrated range on both sides (so that the clamp runs),
+    stamps in seconds ``(size,)``.
+    """
     rng = np.random.default_rng(seed)
     counts = np.round(rng.uniform(-20000.0, 20000.0, (size, 3)))
     low, high = calibration.temp_code_min, calibration.temp_code_max

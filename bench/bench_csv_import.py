@@ -61,8 +61,8 @@ def generate(path: Path, megabytes: float, seed: int = 3) -> int:
             acc = np.array([0.17, -0.10, -9.6]) + rng.normal(0.0, 0.01, (rows_per_chunk, 3))
             acc += 0.002 * (temperature - 25.0)[:, None]
             lines = [f'{s}\t{g0:.10g}\t{g1:.10g}\t{g2:.10g}\t{a0:.10g}\t{a1:.10g}\t{a2:.10g}\t0\t{t:.10g}\n'
-                     for s, (g0, g1, g2), (a0, a1, a2), t in zip(stamp.tolist(), gyro.tolist(), acc.tolist(),
-                                                                  temperature.tolist())]
+                     for s, (g0, g1, g2), (a0, a1, a2), t
+                     in zip(stamp.tolist(), gyro.tolist(), acc.tolist(), temperature.tolist())]
             stream.write(''.join(lines))
             rows += rows_per_chunk
     return rows
@@ -144,7 +144,8 @@ def main(argv: list[str] | None = None) -> int:
     mib = 2 ** 20
     print(f'log: {file_bytes / mib:.0f} MiB, {rows} rows')
     print(f'interpreter with imports: {interpreter / mib:.0f} MiB')
-    print(f'tak_calib import-csv: {this["wall_s"]:.1f} s, peak {int(this["peak_rss_bytes"]) / mib:.0f} MiB '  # type: ignore[arg-type]
+    peak_mib = int(this['peak_rss_bytes']) / mib  # type: ignore[arg-type]
+    print(f'tak_calib import-csv: {this["wall_s"]:.1f} s, peak {peak_mib:.0f} MiB '
           f'({document["peak_over_file_size"]:.2f}x the file); above the interpreter {used / mib:.0f} MiB, '
           f'target < {budget / mib:.0f} MiB (2 x file + {kept / mib:.0f} MiB kept arrays): '
           f'{"holds" if document["holds"] else "MISSED"}')

@@ -170,7 +170,8 @@ def bench_decode(totals: list[int], repeat: int) -> list[dict[str, object]]:
                          'block_us_per_message': 1e6 * sides['block']['seconds'] / total})
             print(f'{msgtype:34s} {total:>9d}  rosbags {sides["rosbags"]["seconds"]:7.2f} s  '
                   f'block {sides["block"]["seconds"]:6.2f} s  x{speedup:5.1f}  peak RSS '
-                  f'{sides["rosbags"]["peak_rss_bytes"] / 2**20:.0f} / {sides["block"]["peak_rss_bytes"] / 2**20:.0f} MiB',
+                  f'{sides["rosbags"]["peak_rss_bytes"] / 2**20:.0f} / '
+                  f'{sides["block"]["peak_rss_bytes"] / 2**20:.0f} MiB',
                   flush=True)
     return rows
 

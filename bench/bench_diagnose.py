@@ -291,9 +291,10 @@ def loop_case(hidden: tuple[str, ...], profile: str, seed: int, rate_hz: float) 
     }
     if any(name.endswith('_per_axis') for name in hidden):
         fitted = {e.name: e.values for e in result.calibration.effects}
-        case['fitted_shapes'] = {name: {k: v for k, v in fitted.get(name, {}).items() if k[:-2] in ('tau_s', 'width_codes')}
+        shapes = ('tau_s', 'width_codes')
+        case['fitted_shapes'] = {name: {k: v for k, v in fitted.get(name, {}).items() if k[:-2] in shapes}
                                  for name in hidden}
-        case['true_shapes'] = {name: {k: v for k, v in truth_effects[name].items() if k[:-2] in ('tau_s', 'width_codes')}
+        case['true_shapes'] = {name: {k: v for k, v in truth_effects[name].items() if k[:-2] in shapes}
                                for name in hidden}
     return case
 
@@ -307,8 +308,10 @@ def bench_loop(seeds: int, rate_hz: float, profiles: list[str]) -> dict[str, obj
                 case = loop_case(hidden, profile, seed, max(rate_hz, LOOP_CASE_RATE_HZ.get(hidden, 0.0)))
                 ok = case['ends_none'] and case['only_true_effects'] and case['g_ok']
                 g_rms: dict = case['second_run_g_rms']  # type: ignore[assignment]
-                print(f'{" + ".join(hidden):<28} {profile:<10} seed {seed}: {" -> ".join(case["verdicts"])}  '  # type: ignore[arg-type]
-                      f'{"ok" if ok else "FAILED"}  final/floor {max(case["final_rms_over_floor"]):.3f}  '  # type: ignore[arg-type]
+                verdicts = ' -> '.join(case['verdicts'])  # type: ignore[arg-type]
+                final = max(case['final_rms_over_floor'])  # type: ignore[arg-type]
+                print(f'{" + ".join(hidden):<28} {profile:<10} seed {seed}: {verdicts}  '
+                      f'{"ok" if ok else "FAILED"}  final/floor {final:.3f}  '
                       f'|g| rms {g_rms["loop"]:.5f} (truth {g_rms["truth"]:.5f})  ({case["samples"]} samples, '
                       f'{case["seconds"]:.0f} s)', flush=True)
                 cases.append(case)

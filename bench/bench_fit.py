@@ -147,7 +147,8 @@ def main(argv: list[str] | None = None) -> int:
             raise SystemExit(f'tak_calib fit wrote no {params}:\n{out}')
         fit_runs.append({'seconds': wall, 'process_cpu_s': cpu, 'peak_rss_bytes': rss})
         print(f'run {attempt}/{args.repeat}: rosbags deserialise {baseline_runs[-1]["seconds"]:.2f} s '
-              f'(process {baseline_runs[-1]["process_wall_s"]:.2f} s, {baseline_runs[-1]["peak_rss_bytes"] / 2**20:.0f} MiB); '
+              f'(process {baseline_runs[-1]["process_wall_s"]:.2f} s, '
+              f'{baseline_runs[-1]["peak_rss_bytes"] / 2**20:.0f} MiB); '
               f'tak_calib fit {wall:.2f} s ({rss / 2**20:.0f} MiB)')
     fit_summary = out.strip().splitlines()
 
@@ -185,7 +186,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f'rosbags alone, deserialise every message: {baseline_s:.2f} s (median of {args.repeat})')
     print(f'tak_calib fit, end to end:                {fit_s:.2f} s (median of {args.repeat})')
     print(f'fit / rosbags, per run:                   {", ".join(f"{r:.2f}x" for r in pair_ratios)}; '
-          f'median {ratio:.2f}x  (target <= {WALL_RATIO_TARGET:g}x: {"holds" if ratio <= WALL_RATIO_TARGET else "MISSED"})')
+          f'median {ratio:.2f}x  '
+          f'(target <= {WALL_RATIO_TARGET:g}x: {"holds" if ratio <= WALL_RATIO_TARGET else "MISSED"})')
     print(f'cross-check, CPU time of the processes:   {cpu_ratio:.2f}x (median)')
     print(f'tak_calib fit, peak memory:               {peak / 2**20:.0f} MiB  '
           f'(target < 2048 MiB: {"holds" if peak < MEMORY_TARGET_BYTES else "MISSED"})')

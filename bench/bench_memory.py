@@ -151,7 +151,7 @@ def build_bag(workdir: Path, hours: float) -> Path:
 
 
 def measure(bag: Path, workdir: Path, *, apply: bool, diagnose: bool) -> dict[str, object]:
-    """Baseline deserialisation, ``fit`` and (optionally) ``apply`` and ``diagnose`` of one bag, each in its own process."""
+    """Baseline deserialisation, ``fit``, optionally ``apply`` and ``diagnose`` of one bag, each in its own process."""
     wall, cpu, rss, out = run_child([sys.executable, '-c', BASELINE_SCRIPT, str(bag)])
     baseline = json.loads(out)
     params = workdir / f'{bag.name}_params.yaml'
@@ -179,7 +179,8 @@ def measure(bag: Path, workdir: Path, *, apply: bool, diagnose: bool) -> dict[st
         report = workdir / f'{bag.name}_diagnose.json'
         report.unlink(missing_ok=True)
         diagnose_wall, diagnose_cpu, diagnose_rss, diagnose_out = run_child(
-            [*tak_calib_command(), 'diagnose', str(bag), '--params', str(params), '--json', str(report), '--no-progress'])
+            [*tak_calib_command(), 'diagnose', str(bag), '--params', str(params), '--json', str(report),
+             '--no-progress'])
         row.update(diagnose_wall_s=diagnose_wall, diagnose_cpu_s=diagnose_cpu, diagnose_peak_rss_bytes=diagnose_rss,
                    diagnose_output=diagnose_out.strip().splitlines()[:3])
         print(f'  diagnose {diagnose_wall:.1f} s, peak {diagnose_rss / 2**20:.0f} MiB')

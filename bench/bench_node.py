@@ -681,9 +681,11 @@ TRANSPORT_BURST = 20_000
 
 
 def measure_transport_loss(params: Path, workdir: Path, *, count: int = TRANSPORT_BURST) -> list[dict]:
-    """``count`` driver Imu as fast as this process publishes them into the compensator, per
-    executor and input QoS: what the node received, what Fast DDS reported lost (``message_lost``),
-    and what is left unaccounted (``sent - received - message_lost``)."""
+    """``count`` driver Imu as fast as this process publishes them into the compensator, per executor and input QoS.
+
+    What the node received, what Fast DDS reported lost (``message_lost``), and what is left unaccounted (``sent -
+    received - message_lost``).
+    """
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
     rows = []
     home = workdir / 'ros_home'
@@ -725,8 +727,8 @@ def measure_transport_loss(params: Path, workdir: Path, *, count: int = TRANSPOR
             while time.monotonic() < end:
                 driver.executor.spin_once(timeout_sec=0.05)
             after = latest()
-            values = {key: int(after[key]) - int(before[key]) for key in ('received', 'published', 'dropped',
-                                                                           'message_lost')}
+            keys = ('received', 'published', 'dropped', 'message_lost')
+            values = {key: int(after[key]) - int(before[key]) for key in keys}
             values['sequence_gap'] = (None if after['sequence_gap'] == 'unavailable'
                                       else int(after['sequence_gap']) - int(before['sequence_gap']))
         finally:
@@ -745,8 +747,10 @@ def measure_transport_loss(params: Path, workdir: Path, *, count: int = TRANSPOR
 
 
 def in_process_driver_cost(params: Path, count: int = 50_000) -> dict:
-    """Microseconds per message of the driver-input callback's own work, without DDS: the six
-    values out of an Imu, ``process_values``, the corrected Imu filled (as ``_on_imu``)."""
+    """Microseconds per message of the driver-input callback's own work, without DDS.
+
+    The six values out of an Imu, ``process_values``, the corrected Imu filled (as ``_on_imu``).
+    """
     from sensor_msgs.msg import Imu
 
     from tak_thermo_ros.core.records.calibration_file import load_unit
@@ -815,7 +819,8 @@ def driver_only(*, quick: bool) -> int:
     for executor in ('events', 'single_threaded'):
         pair = driver_input[executor]
         for kind in ('relay', 'compensator'):
-            cpu = ', '.join(f'{row["rate_hz"]:.0f} Hz {row["cpu_us_per_message"]:.0f} us' for row in pair[kind]['rates'])
+            cpu = ', '.join(f'{row["rate_hz"]:.0f} Hz {row["cpu_us_per_message"]:.0f} us'
+                            for row in pair[kind]['rates'])
             print(f'{executor:15s} {kind:11s}: no loss up to {pair[kind]["sustained_rate_without_loss_hz"]:.0f} Hz; '
                   f'CPU per message {cpu}')
     print(f'wrote {results}')

@@ -169,7 +169,8 @@ def main() -> None:
           f'{len(samples)} samples, the first {SETTLE_S:g} s ({len(everything) - len(samples)} samples) left out')
     print('reference (mean direction x g):', np.round(log.reference, 4), 'm/s^2')
     for i, axis in enumerate(AXES):
-        print(f'{axis}: base residual RMS {base.axes[i].residual_rms:6.2f} counts ({mg(base.axes[i].residual_rms):.2f} mg), '
+        rms = base.axes[i].residual_rms
+        print(f'{axis}: base residual RMS {rms:6.2f} counts ({mg(rms):.2f} mg), '
               f'noise floor {floor[i]:.2f} counts, corr(residual, dT/dt) {correlation[i]:+.2f}')
     print(f'diagnose: verdict {diagnosis.verdict}; ladder ' + '; '.join(
         f'{step.label}: {np.round(step.heldout_rms, 2).tolist()}' for step in diagnosis.ladder))
@@ -187,7 +188,8 @@ def main() -> None:
                     'hysteresis -> thermal_lag': lag_versus_hysteresis,
                     'thermal_lag -> thermal_lag+hysteresis': lag_versus_both,
                     'thermal_lag -> thermal_lag_per_axis': shared_versus_per_axis}.items():
-        print(f'  {name:40s} MSE gain per axis {np.round(c["mean"], 1).tolist()} +/- {np.round(c["stderr"], 1).tolist()} '
+        print(f'  {name:40s} MSE gain per axis {np.round(c["mean"], 1).tolist()} '
+              f'+/- {np.round(c["stderr"], 1).tolist()} '
               f'counts^2, t {np.round(c["t"], 2).tolist()}, blocks won {c["wins"].tolist()}')
     taus = [v['thermal_lag']['tau_s'] for v in scores['thermal_lag']['values']]
     plays = [v['hysteresis']['width_codes'] * OPTIONS.temp_resolution for v in scores['hysteresis']['values']]

@@ -1,10 +1,17 @@
-"""Launch the ``compensator`` node between an IMU driver and a state estimator.
+r"""Launch the ``compensator`` node between an IMU driver and a state estimator.
 
 ::
 
-    ros2 launch tak_thermo_ros compensator.launch.py params_file:=tak_params.yaml \\
-        driver_imu_topic:=/driver/imu/data_raw driver_temperature_topic:=/driver/imu/temperature \\
+    ros2 launch tak_thermo_ros compensator.launch.py params_file:=tak_params.yaml \
+        driver_imu_topic:=/driver/imu/data_raw driver_temperature_topic:=/driver/imu/temperature \
         estimator_imu_topic:=/ekf/imu
+
+Two IMUs, two compensators, each with its unit's file (``tak_calib fit`` writes the node key
+``/**/compensator``, which matches the node in any namespace)::
+
+    ros2 launch tak_thermo_ros compensator.launch.py namespace:=imu0 params_file:=imu0.yaml \
+        driver_imu_topic:=/imu0/data_raw driver_temperature_topic:=/imu0/temperature \
+        estimator_imu_topic:=/imu0/data_compensated
 
 The pipeline, with a driver calibration (file version 2, ``input: imu``)::
 
@@ -14,9 +21,12 @@ The pipeline, with a driver calibration (file version 2, ``input: imu``)::
                                                  imu/data_compensated --> estimator_imu_topic --> Imu
 
 The node's relative topics are remapped onto the driver's and the estimator's names, so neither
-needs changing. Start the driver and the estimator as usual (their own launch files); with
-``start_estimator:=true`` this file also starts ``robot_localization``'s ``ekf_node`` with
-``estimator_params_file`` (it must read ``imu0: <estimator_imu_topic>``).
+needs changing. The three topic arguments default to the node's own relative names, which
+resolve in ``namespace`` (``namespace:=imu0``: ``/imu0/imu/data_raw`` and so on); give absolute
+names (``/driver/imu/data_raw``) to leave the namespace. Start the driver and the estimator as
+usual (their own launch files); with ``start_estimator:=true`` this file also starts
+``robot_localization``'s ``ekf_node`` with ``estimator_params_file`` (it must read
+``imu0: <estimator_imu_topic>``).
 
 With a magnetometer in the calibration (``mag``), ``imu/mag`` and ``imu/mag_compensated`` are
 remapped from ``driver_mag_topic`` and ``estimator_mag_topic``.
@@ -60,12 +70,12 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument('params_file', default_value=default_params,
                               description='calibration and node parameters (the file tak_calib fit writes)'),
         DeclareLaunchArgument('namespace', default_value='',
-                              description='namespace of the compensator node'),
-        DeclareLaunchArgument('driver_imu_topic', default_value='/imu/data_raw',
-                              description="the driver's sensor_msgs/msg/Imu (or counts) topic"),
-        DeclareLaunchArgument('driver_temperature_topic', default_value='/imu/temperature',
+                              description='namespace of the compensator node (relative topic names follow it)'),
+        DeclareLaunchArgument('driver_imu_topic', default_value='imu/data_raw',
+                              description="the driver's Imu (or counts) topic (relative: in namespace)"),
+        DeclareLaunchArgument('driver_temperature_topic', default_value='imu/temperature',
                               description="the driver's sensor_msgs/msg/Temperature topic"),
-        DeclareLaunchArgument('estimator_imu_topic', default_value='/imu/data_compensated',
+        DeclareLaunchArgument('estimator_imu_topic', default_value='imu/data_compensated',
                               description='the topic the estimator reads the corrected Imu from'),
         DeclareLaunchArgument('driver_mag_topic', default_value='/imu/mag',
                               description="the driver's sensor_msgs/msg/MagneticField topic (tesla)"),

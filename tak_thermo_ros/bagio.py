@@ -300,7 +300,8 @@ def read_aux_signals(reader: Reader, path: Path, *,
     for topic, connections in sorted(by_topic.items()):
         msgtype = connections[0].msgtype
         if any(c.msgtype != msgtype for c in connections):
-            msg = f'{path}: topic {topic} has more than one type ({", ".join(sorted({c.msgtype for c in connections}))})'
+            types = ', '.join(sorted({c.msgtype for c in connections}))
+            msg = f'{path}: topic {topic} has more than one type ({types})'
             raise BagError(msg)
         bag_times, raws = [], []
         for _, timestamp, raw in reader.messages(connections=connections):
@@ -723,7 +724,8 @@ def write_imu(path: str | os.PathLike[str], stamp_ns: np.ndarray, frame_id: str,
                             encoder=encoder or IMU_ENCODER)
 
 
-def read_imu(path: str | os.PathLike[str], *, topic: str = Topics.imu) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray]:
+def read_imu(path: str | os.PathLike[str], *,
+             topic: str = Topics.imu) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray]:
     """Read an Imu topic: stamps ``(k,)``, linear acceleration ``(k, 3)``, frame ids, covariances ``(k, 9)``."""
     messages = read_imu_messages(path, topic=topic)
     return (messages.stamp_ns, messages.linear_acceleration, messages.frame_ids,
@@ -1039,9 +1041,10 @@ def _decode_block(path: Path, kind: InputKind, raws: dict[str, list[bytes]], bag
         temp_stamp, temperature = decode_temperatures(temperature_raws)
     else:
         arrays = _block_arrays(path, temperature_raws, TEMPERATURE, names['temperature'])
-        temp_stamp, temperature = np.asarray(arrays['stamp_ns'], dtype=np.int64), np.asarray(arrays['temperature'],
-                                                                                              dtype=float)
-    reference_stamp, reference, _ = _decode_vectors(path, raws.get('reference', []), names.get('reference', ''), decoder)
+        temp_stamp = np.asarray(arrays['stamp_ns'], dtype=np.int64)
+        temperature = np.asarray(arrays['temperature'], dtype=float)
+    reference_stamp, reference, _ = _decode_vectors(path, raws.get('reference', []), names.get('reference', ''),
+                                                    decoder)
     aux: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for topic, msgtype in aux_topics.items():
         role = f'aux {topic}'

@@ -425,8 +425,11 @@ def concatenate(parts: Sequence[MessageArrays]) -> MessageArrays:
 
 @dataclass(frozen=True)
 class _Template:
-    """One serialised message of a fixed layout: its bytes with every number zero, and where the
-    numbers lie (byte offsets from the start of the raw message, as :func:`_layout` finds them)."""
+    """One serialised message of a fixed layout.
+
+    Its bytes with every number zero, and where the numbers lie (byte offsets from the start of the raw message, as
+    :func:`_layout` finds them).
+    """
 
     row: np.ndarray
     numbers: dict[str, tuple[Field, int]]
@@ -466,8 +469,9 @@ def _template(msgtype: str, strings: tuple[tuple[str, bytes], ...], little_endia
 def encode_messages(msgtype: str, stamp_ns: np.ndarray | None, values: dict[str, np.ndarray | Sequence[float] | float],
                     strings: dict[str, str] | None = None, *,
                     little_endian: bool = sys.byteorder == 'little') -> list[bytes]:
-    """Serialise a block of messages of one type and one set of strings, as rosbags'
-    ``serialize_cdr`` does (the same bytes, padding zero).
+    """Serialise a block of messages of one type and one set of strings, as rosbags' ``serialize_cdr`` does.
+
+    (the same bytes, padding zero).
 
     :param msgtype: one of :data:`SCHEMAS` without sequence fields.
     :param stamp_ns: ``(k,)`` header stamps (ns) of a stamped type (None otherwise); the

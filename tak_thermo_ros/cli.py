@@ -28,17 +28,24 @@ from dataclasses import dataclass, replace  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from tak_thermo_ros import options as bounds
-from tak_thermo_ros.core.records.calibration_file import load_unit, save_unit
-from tak_thermo_ros.core.records.files import BAG, FILE, REPORT, atomic_directory, check_output, write_text_atomic
-from tak_thermo_ros.core.link.correction import Corrector, OutOfRange
-from tak_thermo_ros.core.effects.aux_signal import signals_with_values
-from tak_thermo_ros.core.link.model import AXES, InputKind, UnitCalibration
-from tak_thermo_ros.core.records.record import REFERENCE_LIMIT, TEMPERATURE_RANGE, AlignedSamples
-from tak_thermo_ros.core.records.record import require_signals
-from tak_thermo_ros.core.simulation.imu import STANDARD_GRAVITY, Scenario, load_scenario, simulate
-from tak_thermo_ros.errors import TakError
-from tak_thermo_ros.streaming import DIAGNOSE_MAX_SAMPLES, EFFECT_FIT_MAX_SAMPLES, SENSOR_NAMES
+from tak_thermo_ros import options as bounds  # noqa: E402
+from tak_thermo_ros.core.records.calibration_file import load_unit, save_unit  # noqa: E402
+from tak_thermo_ros.core.records.files import (  # noqa: E402
+    BAG,
+    FILE,
+    REPORT,
+    atomic_directory,
+    check_output,
+    write_text_atomic,
+)
+from tak_thermo_ros.core.link.correction import Corrector, OutOfRange  # noqa: E402
+from tak_thermo_ros.core.effects.aux_signal import signals_with_values  # noqa: E402
+from tak_thermo_ros.core.link.model import AXES, InputKind, UnitCalibration  # noqa: E402
+from tak_thermo_ros.core.records.record import REFERENCE_LIMIT, TEMPERATURE_RANGE, AlignedSamples  # noqa: E402
+from tak_thermo_ros.core.records.record import require_signals  # noqa: E402
+from tak_thermo_ros.core.simulation.imu import STANDARD_GRAVITY, Scenario, load_scenario, simulate  # noqa: E402
+from tak_thermo_ros.errors import TakError  # noqa: E402
+from tak_thermo_ros.streaming import DIAGNOSE_MAX_SAMPLES, EFFECT_FIT_MAX_SAMPLES, SENSOR_NAMES  # noqa: E402
 
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
@@ -121,7 +128,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     run = simulate(scenario)
     from tak_thermo_ros.bagio import AUX_TYPES
     from tak_thermo_ros.core.simulation.imu import supply_signal_name
-    aux_types = {supply_signal_name(scenario): AUX_TYPES[scenario.record_supply_type]} if scenario.record_supply else None
+    aux_types = ({supply_signal_name(scenario): AUX_TYPES[scenario.record_supply_type]}
+                 if scenario.record_supply else None)
     if run.driver is not None:
         driver = run.driver
         write_driver_record(args.out_bag, driver, topics=_topics(args), storage=args.storage, force=args.force,
@@ -472,7 +480,8 @@ def cmd_apply(args: argparse.Namespace) -> int:
             print(f'dropped MagneticField messages: {_describe_dropped(applied.mag_dropped)}')
     _print_ignored(applied, args, kind)
     if applied.dropped:
-        print(f'dropped {"counts" if kind is InputKind.COUNTS else "Imu"} messages: {_describe_dropped(applied.dropped)}')
+        what = 'counts' if kind is InputKind.COUNTS else 'Imu'
+        print(f'dropped {what} messages: {_describe_dropped(applied.dropped)}')
     outside = applied.out_of_range
     if outside:
         low, high = unit.accel.temp_code_min, unit.accel.temp_code_max
@@ -503,7 +512,8 @@ def cmd_validate(args: argparse.Namespace) -> int:
     if run.accel_dropped:
         print(f'left out: {_describe_dropped(run.accel_dropped)}')
     print(f'|g| error over {result.samples} samples of {args.bag} (gravity {args.gravity:g} m/s^2):')
-    print(f'  before (nominal scale and offset): RMS {before.rms:.5f} m/s^2 ({before.rms / args.gravity * 1e3:.3f} mg), '
+    print(f'  before (nominal scale and offset): RMS {before.rms:.5f} m/s^2 '
+          f'({before.rms / args.gravity * 1e3:.3f} mg), '
           f'max {before.max:.5f} m/s^2')
     print(f'  after  (full correction link):     RMS {after.rms:.5f} m/s^2 ({after.rms / args.gravity * 1e3:.3f} mg), '
           f'max {after.max:.5f} m/s^2')
@@ -599,7 +609,8 @@ def cmd_import_csv(args: argparse.Namespace) -> int:
           f'{options.acc_resolution:g} m/s^2), {record.counts.min():.0f}..{record.counts.max():.0f}; '
           f'nominal scale {options.nominal_scale:g} counts/(m/s^2) (bag metadata)')
     print(f'temperature {options.temp_column}: {log.temperature.min():.2f}..{log.temperature.max():.2f} C, '
-          f'codes = round(T / {options.temp_resolution:g} C) = {record.temp_code.min():.0f}..{record.temp_code.max():.0f}')
+          f'codes = round(T / {options.temp_resolution:g} C) = '
+          f'{record.temp_code.min():.0f}..{record.temp_code.max():.0f}')
     x, y, z = (float(v) for v in log.reference)
     if log.reference_estimated:
         dx, dy, dz = (float(v) for v in log.mean_direction)
@@ -655,7 +666,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             print(f'  {name}: residual RMS {axis.rms:.4g} {unit_name}, noise floor {axis.noise_floor:.4g}; held-out '
                   f'{axis.heldout_rms:.4g} ({axis.heldout_rms / axis.noise_floor:.2f}x the floor)')
         if result.candidates:
-            print(f'candidates, best first (held-out RMS x y z in {unit_name}; share of the excess over the floor removed):')
+            print(f'candidates, best first (held-out RMS x y z in {unit_name}; '
+                  f'share of the excess over the floor removed):')
             for candidate in result.candidates:
                 rms = ' '.join(f'{v:8.4g}' for v in candidate.rms_after)
                 print(f'  {candidate.effect:<20} {rms}  {round(100.0 * candidate.explained):5d}%')
@@ -671,7 +683,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                     'samples_usable': run.usable['accel'], 'subsample_stride': run.stride}
         if run.input_kind is InputKind.IMU:
             document['sensors'] = {sensor: {**result.as_dict(), 'unit': UNITS[run.input_kind, sensor],
-                                            'samples_diagnosed': len(used[sensor]), 'samples_usable': run.usable[sensor]}
+                                            'samples_diagnosed': len(used[sensor]),
+                                            'samples_usable': run.usable[sensor]}
                                    for sensor, result in results.items()}
         write_text_atomic(args.json, _json_text(document, args.json))
         print(f'wrote {args.json}')
@@ -768,7 +781,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     sim = commands.add_parser('simulate', help='simulate a thermal-chamber run into a bag')
     sim.add_argument('out_bag', metavar='OUT_BAG')
-    sim.add_argument('--scenario', metavar='FILE.yaml', help='scenario overrides, every key optional (README: The simulator)')
+    sim.add_argument('--scenario', metavar='FILE.yaml',
+                     help='scenario overrides, every key optional (README: The simulator)')
     sim.add_argument('--seed', type=bounds.seed, help='random seed, 0 .. 2**63-1 (overrides the scenario)')
     sim.add_argument('--storage', choices=['mcap', 'sqlite3'], default='mcap')
     _add_topic_options(sim)
@@ -778,7 +792,8 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument('bag', metavar='BAG')
     fit.add_argument('-o', '--output', required=True, metavar='PARAMS.yaml')
     fit.add_argument('--bias-order', type=bounds.polynomial_order, default=3, help='order q of F_s (default 3)')
-    fit.add_argument('--scale-order', type=bounds.polynomial_order, default=2, help='order p of F_c (default 2; 0 = no scale drift)')
+    fit.add_argument('--scale-order', type=bounds.polynomial_order, default=2,
+                     help='order p of F_c (default 2; 0 = no scale drift)')
     fit.add_argument('--temp-code-ref', type=bounds.temp_code, help='N_t,ref (default: middle of the calibrated range)')
     fit.add_argument('--nominal-scale', type=bounds.nominal_scale, nargs='+', metavar='K0',
                      help='nominal counts per m/s^2 (one value or x y z), held for an axis that sees one '
@@ -838,7 +853,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help='the acceleration columns along the sensor axes x, y, z')
     imp.add_argument('--temp-column', required=True, help='the temperature column (degrees Celsius)')
     imp.add_argument('--time-column', default='timestamp', help='the time column (default: timestamp)')
-    imp.add_argument('--time-unit', choices=['s', 'ms', 'us', 'ns'], default='s', help='unit of the time column (default s)')
+    imp.add_argument('--time-unit', choices=['s', 'ms', 'us', 'ns'], default='s',
+                     help='unit of the time column (default s)')
     imp.add_argument('--acc-unit', choices=['m/s^2', 'g'], default='m/s^2',
                      help='unit of the acceleration columns (1 g = 9.80665 m/s^2; default m/s^2)')
     imp.add_argument('--acc-resolution', type=bounds.positive, default=1e-3, metavar='M/S^2',
@@ -878,7 +894,8 @@ def build_parser() -> argparse.ArgumentParser:
     diag.add_argument('--settle-time', type=bounds.seconds_not_negative, default=0.0, metavar='SECONDS',
                       help='leave out samples this long after each reference change (as for fit)')
     diag.add_argument('--max-samples', type=bounds.sample_budget, default=DIAGNOSE_MAX_SAMPLES, metavar='N',
-                      help=f'diagnose at most about N samples, spread evenly over the run (default {DIAGNOSE_MAX_SAMPLES:,})')
+                      help=f'diagnose at most about N samples, spread evenly over the run '
+                           f'(default {DIAGNOSE_MAX_SAMPLES:,})')
     diag.add_argument('--gravity', type=bounds.gravity, default=STANDARD_GRAVITY,
                       help=f'local gravity for the |g| figure and a static reference, m/s^2 '
                            f'({bounds.GRAVITY_MIN:g}..{bounds.GRAVITY_MAX:g})')

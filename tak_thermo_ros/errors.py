@@ -49,3 +49,7 @@ class EffectError(TakError):
 
 class NoiseError(TakError):
     """A noise model, its data (Allan variance) or its file (Kalibr-style imu.yaml) is invalid."""
+
+
+class DependencyError(TakError):
+    """An optional library that a command needs is not installed (the message names its pip package)."""

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence, TextIO
 
-from tak_thermo_ros.core.records.calibration_file import NODE_NAME, write_text_atomic
+from tak_thermo_ros.core.records.calibration_file import calibration_section, write_text_atomic
 from tak_thermo_ros.core.link.correction import OutOfRange
 from tak_thermo_ros.core.diagnose.fleet import (
     DEFAULT_FLAG_SIGMA,
@@ -49,7 +49,8 @@ from tak_thermo_ros.core.diagnose.fleet import (
 )
 from tak_thermo_ros.core.link.model import AXES
 from tak_thermo_ros.core.simulation.imu import STANDARD_GRAVITY
-from tak_thermo_ros.errors import TakError
+from tak_thermo_ros.errors import CalibrationError, TakError
+from tak_thermo_ros.optional import require
 
 STATUS_OK = 'ok'
 STATUS_FAILED = 'failed'
@@ -181,13 +182,13 @@ def run_unit(task: UnitTask, command: Command) -> UnitOutcome:
         if outcome.status == STATUS_OK:
             import yaml
             document = yaml.safe_load(Path(params).read_text(encoding='utf-8'))
-            outcome.calibration = document[NODE_NAME]['ros__parameters']['calibration']
+            outcome.calibration = calibration_section(document)['calibration']
             outcome.diagnosis = json.loads(Path(diagnose_json).read_text(encoding='utf-8'))
             outcome.files = {'params': params, 'diagnose': diagnose_json}
             if task.validation_bag is not None:
                 outcome.validation = json.loads(Path(validation_json).read_text(encoding='utf-8'))
                 outcome.files['validation'] = validation_json
-    except (OSError, ValueError, KeyError, TypeError) as error:
+    except (OSError, ValueError, KeyError, TypeError, CalibrationError) as error:
         outcome.status = STATUS_FAILED
         outcome.error = f'reading the outputs back: {type(error).__name__}: {error}'
         log.append(f'\n{outcome.error}\n')
@@ -280,6 +281,7 @@ def run_batch(tasks: Sequence[UnitTask], command: Command, *, scheduler: str | N
     :param workers: worker processes of the local cluster (one thread each).
     :param progress: where to print one line per finished unit (default stderr).
     """
+    require('distributed', 'fit-fleet')  # one line naming dask[distributed] when it is missing
     from dask.distributed import as_completed
     stream = progress if progress is not None else sys.stderr
     client, cluster = _connect(scheduler, workers)

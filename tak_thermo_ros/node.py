@@ -92,8 +92,8 @@ def _tunables() -> dict[str, tuple[Any, str, bool]]:
         'calibration_file': ('', 'calibration parameters YAML to load instead of calibration.* '
                                  '(the file tak_calib fit writes); empty: use calibration.*', True),
         'qos': ('sensor_data', "input QoS: 'sensor_data' (best effort, REP 2003 consumer; matches "
-                               "every publisher) or 'reliable' (retransmits, needs a reliable publisher; a driver faster "
-                               "than the node still loses messages at the history depth)",
+                               "every publisher) or 'reliable' (retransmits, needs a reliable publisher; "
+                               "a driver faster than the node still loses messages at the history depth)",
                 True),
         'qos_depth': (100, 'history depth of the subscriptions and the Imu publisher', True),
         'executor': ('events', "'events' (rclpy.experimental.EventsExecutor, about half the CPU per "

@@ -39,7 +39,10 @@ MAX_SEED = 2 ** 63 - 1
 MAX_NOMINAL_SCALE = 1e7
 """Largest nominal scale, counts per m/s^2 (a 24-bit channel over +-2 g has 4e5)."""
 MIN_SAMPLE_BUDGET = 1000
-"""Fewest samples ``--effect-samples`` / ``--max-samples`` accept: fewer cannot show an effect's shape against the noise."""
+"""Fewest samples ``--effect-samples`` / ``--max-samples`` accept.
+
+Fewer cannot show an effect's shape against the noise.
+"""
 MAX_SAMPLE_BUDGET = 10 ** 9
 """Most samples those options accept."""
 

@@ -379,8 +379,10 @@ def figure_ladder(diagnosis: Diagnosis) -> Figure:
 
 def gravity_series(diagnosis: Diagnosis, samples: AlignedSamples,
                    gravity: float) -> list[tuple[str, np.ndarray]]:
-    """``|g| - g`` in m/s^2 (:func:`validate_gravity`): nominal scale and offset only, the
-    current model, and the model with the ladder's effects."""
+    """``|g| - g`` in m/s^2 (:func:`validate_gravity`).
+
+    Nominal scale and offset only, the current model, and the model with the ladder's effects.
+    """
     stamps = samples.stamp_s
     current = validate_gravity(diagnosis.calibration, samples.counts, samples.temp_code, gravity=gravity,
                                stamp_s=stamps, aux=samples.aux)
@@ -417,8 +419,11 @@ def figure_gravity(diagnosis: Diagnosis, series: list[tuple[str, np.ndarray]], g
 
 
 def _write_atomic(path: Path, data: bytes) -> None:
-    """Write a file atomically (temporary file beside it, then a rename), readable as the umask
-    allows (``mkstemp`` alone would leave it private to the owner)."""
+    """Write a file atomically.
+
+    (temporary file beside it, then a rename), readable as the umask allows (``mkstemp`` alone would leave it private
+    to the owner).
+    """
     umask = os.umask(0)
     os.umask(umask)
     handle, temporary = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.partial', dir=path.parent)

@@ -25,7 +25,13 @@ from tak_thermo_ros.core.link.correction import Corrector, OutOfRange, accelerat
 from tak_thermo_ros.core.fit import FitResult, fit_model
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.records.record import AlignedSamples, ChannelRecord, DriverRecord, require_signals
-from tak_thermo_ros.core.records.static_run import StaticReference, check_static, rate_line, reference_line, static_reference
+from tak_thermo_ros.core.records.static_run import (
+    StaticReference,
+    check_static,
+    rate_line,
+    reference_line,
+    static_reference,
+)
 from tak_thermo_ros.core.link.stream_correction import BlockUnitCorrector, GravityCheck, RateCheck
 from tak_thermo_ros.core.fit.stream import StreamingEffectFit, StreamingFit
 from tak_thermo_ros.errors import FitError, TakError
@@ -354,6 +360,7 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
         nominal['accel'] = nominal_for(kind, bag_streams(path, topics=options.topics).nominal_scale)
     elif kind is InputKind.IMU:
         nominal = {sensor: (1.0, 1.0, 1.0) for sensor in sensors}
+
     def aligner() -> BlockAligner:
         return BlockAligner(use_reference=True, reference_expected=True, settle_time_s=settings.settle_time_s)
 
@@ -397,7 +404,7 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
         # The shapes are fixed now: a second pass solves every amplitude over the whole run.
         again = {sensor: required(sensor) for sensor in second}
         amplitude_passes = [SensorPass(sensor, aligner(), [_feeding(again[sensor], [amplitudes.add])])
-                  for sensor, (amplitudes, _) in second.items()]
+                            for sensor, (amplitudes, _) in second.items()]
         _run_passes(path, options, _Opened(kind, opened.main, opened.static), amplitude_passes)
         for sensor_pass in amplitude_passes:
             sensor = sensor_pass.sensor
@@ -465,8 +472,11 @@ def _sensor_errors(kind: InputKind, sensor: str) -> Iterator[None]:
 
 @dataclass(frozen=True)
 class Applied:
-    """What ``apply`` wrote: messages, the drops by reason, samples outside the calibrated range,
-    and the temperature messages ignored (not held) by reason."""
+    """What ``apply`` wrote.
+
+    Messages, the drops by reason, samples outside the calibrated range, and the temperature messages ignored (not
+    held) by reason.
+    """
 
     written: int
     dropped: dict[str, int]
@@ -480,8 +490,10 @@ class Applied:
 
 
 class _Required:
-    """Each aligned block with the recorded signals a correction needs held (:func:`require_signals`),
-    its drops (``before_first_<signal>`` included) summed over the run."""
+    """Each aligned block with the recorded signals a correction needs held.
+
+    (:func:`require_signals`), its drops (``before_first_<signal>`` included) summed over the run.
+    """
 
     def __init__(self, signals: Sequence[str]) -> None:
         self.signals = tuple(signals)
@@ -649,8 +661,7 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
 
 @dataclass(frozen=True)
 class BoundedRun:
-    """A calibration run's samples for ``diagnose``: every ``stride``-th stream row, at most about
-    ``max_samples``.
+    """A calibration run's samples for ``diagnose``: every ``stride``-th stream row, at most about ``max_samples``.
 
     :param samples: per sensor, the kept samples (``dropped`` counts the whole run's drops).
     :param usable: per sensor, the usable samples of the whole run.
@@ -679,4 +690,3 @@ def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: floa
                       samples={p.sensor: subsamples[p.sensor].samples(p.aligner.dropped) for p in passes},
                       usable={p.sensor: p.aligner.kept for p in passes}, stride=stride,
                       reference_lines=tuple(lines))
-

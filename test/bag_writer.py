@@ -21,8 +21,10 @@ def _header(stamp_ns: int, frame_id: str):
 
 def write_with_header_stamps(path: Path, record: ChannelRecord, counts_header_ns: np.ndarray, *,
                              storage: str = 'mcap') -> None:
-    """Write ``record`` in the bag contract with bag times = the record's stamps (increasing),
-    but the counts messages' header stamps = ``counts_header_ns``."""
+    """Write ``record`` in the bag contract with bag times = the record's stamps.
+
+    (increasing), but the counts messages' header stamps = ``counts_header_ns``.
+    """
     from rosbags.rosbag2 import StoragePlugin
     plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
     events = sorted([(int(s), 0, i) for i, s in enumerate(record.temp_stamp_ns)]

@@ -140,9 +140,8 @@ def test_simulated_supply_is_recorded_and_read_back(tmp_path, kind, output):
     run = simulate(scenario)
     expected_stamps, expected_volts = run.record.aux[SUPPLY]
     record = read_record(path, progress=False) if output == 'counts' else read_driver_record(path, progress=False)
-    assert list(record.aux) == ([SUPPLY] if kind == 'float64' else
-                                [SUPPLY, *(f'{SUPPLY}:{f}' for f in ('temperature', 'current', 'charge', 'capacity',
-                                                                        'design_capacity', 'percentage'))])
+    fields = ('temperature', 'current', 'charge', 'capacity', 'design_capacity', 'percentage')
+    assert list(record.aux) == ([SUPPLY] if kind == 'float64' else [SUPPLY, *(f'{SUPPLY}:{f}' for f in fields)])
     stamps, volts = record.aux[SUPPLY]
     assert np.array_equal(stamps, expected_stamps)  # header stamp, or bag time = the stamp written
     assert np.array_equal(volts, expected_volts)
@@ -180,7 +179,10 @@ def _diagnose(bag, params, tmp_path, name) -> dict:
 
 
 def test_the_loop_with_a_recorded_supply_ends_at_the_floor(tmp_path, capsys):
-    """diagnose names aux:/power/battery_state, fit adds it, diagnose says none, a second run's |g| is at the floor."""
+    """`diagnose` names aux:/power/battery_state, fit adds it, diagnose says none.
+
+    A second run's |g| is then at the floor.
+    """
     scenario = replace(SHORT, seed=41, supply_voltage_drift=DRIFT, record_supply='/power/battery_state')
     (tmp_path / 'scenario.yaml').write_text(yaml.safe_dump({
         'plateau_hours': SHORT.plateau_hours, 'ramp_celsius_per_minute': SHORT.ramp_celsius_per_minute,
@@ -242,7 +244,7 @@ def test_a_recorded_supply_that_drives_nothing_is_tried_but_not_chosen():
 
 
 def test_driver_bag_fits_the_supply_on_the_accelerometer_and_nothing_on_the_gyroscope(tmp_path):
-    """fit --effects / --gyro-effects aux:... on a driver bag: the accel slopes recover the truth, the gyro's are ~0."""
+    """`fit --effects / --gyro-effects aux:...` on a driver bag: accel slopes recover the truth, gyro's are ~0."""
     drift = 0.01  # m/s^2 per unit of the supply signal
     (tmp_path / 'scenario.yaml').write_text(yaml.safe_dump({
         'output': 'imu', 'plateau_hours': SHORT.plateau_hours, 'ramp_celsius_per_minute': SHORT.ramp_celsius_per_minute,

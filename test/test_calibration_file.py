@@ -23,16 +23,44 @@ from tak_thermo_ros.errors import CalibrationError
 
 
 def _document(calibration) -> dict:
-    return {'compensator': {'ros__parameters': {'calibration': calibration_to_mapping(calibration)}}}
+    return {'/**/compensator': {'ros__parameters': {'calibration': calibration_to_mapping(calibration)}}}
 
 
 def test_round_trip(tmp_path):
-    """save then load gives back the same calibration, bit for bit."""
+    """`save` then load gives back the same calibration, bit for bit."""
     calibration = Scenario().truth()
     path = tmp_path / 'params.yaml'
     save_calibration(path, calibration, header='made by a test')
     assert load_calibration(path) == calibration
     assert path.read_text().startswith('# made by a test\n')
+
+
+def test_files_are_written_with_the_any_namespace_key(tmp_path):
+    """`/**/compensator` is the one node key of a written file: the node in any namespace."""
+    path = tmp_path / 'params.yaml'
+    save_calibration(path, Scenario().truth())
+    assert list(yaml.safe_load(path.read_text())) == ['/**/compensator']
+
+
+@pytest.mark.parametrize('key', ['compensator', '/**/compensator', '/**', '/imu0/compensator', 'renamed'])
+def test_any_node_key_holding_a_calibration_loads(tmp_path, key):
+    """Old files (`compensator:` at the root) and hand-edited keys load alike."""
+    calibration = Scenario().truth()
+    document = {key: {'ros__parameters': {'calibration': calibration_to_mapping(calibration)}}}
+    path = tmp_path / 'params.yaml'
+    path.write_text(yaml.safe_dump(document))
+    assert load_calibration(path) == calibration
+
+
+def test_a_merged_file_loads_the_section_that_holds_the_calibration(tmp_path):
+    """A robot's file with other nodes' sections before the compensator's: that one is read."""
+    calibration = Scenario().truth()
+    document = {'/**': {'ros__parameters': {'use_sim_time': False}},
+                '/ekf_filter_node': {'ros__parameters': {'frequency': 50.0}},
+                '/**/compensator': {'ros__parameters': {'calibration': calibration_to_mapping(calibration)}}}
+    path = tmp_path / 'params.yaml'
+    path.write_text(yaml.safe_dump(document, sort_keys=False))
+    assert load_calibration(path) == calibration
 
 
 def test_ros_parameter_names_round_trip():
@@ -46,7 +74,7 @@ def test_ros_parameter_names_round_trip():
 
 def _set(document: dict, dotted: str, value) -> dict:
     document = copy.deepcopy(document)
-    node = document['compensator']['ros__parameters']
+    node = document['/**/compensator']['ros__parameters']
     *parents, last = dotted.split('.')
     for part in parents:
         node = node[part]

@@ -197,8 +197,10 @@ def test_every_truncation_is_refused_with_the_message_index(msgtype):
 
 @pytest.mark.parametrize('msgtype', [VECTOR3_STAMPED, TEMPERATURE, IMU])
 def test_every_single_bit_flip_is_refused_or_read_as_rosbags_reads_it(msgtype):
-    """A flipped bit either raises CdrError naming the message (exactly when rosbags refuses it) or
-    gives rosbags' values: structural damage is never read as a number."""
+    """A flipped bit either raises CdrError naming the message.
+
+    (exactly when rosbags refuses it) or gives rosbags' values: structural damage is never read as a number.
+    """
     intact = _serialize(_message(msgtype, 9, 10, 'imu_link', [0.1, -0.2, 9.81, math.nan]), msgtype)
     refused = 0
     for bit in range(8 * len(intact)):
@@ -285,8 +287,11 @@ PROPERTY = settings(max_examples=60, deadline=None, suppress_health_check=[Healt
        rows=st.lists(st.tuples(stamps, frame_ids, st.lists(floats, min_size=1, max_size=40), st.booleans()),
                      max_size=30))
 def test_stamped_streams_match_rosbags_and_round_trip(msgtype, rows):
-    """Random streams (stamps over the whole int32/uint32 range, any UTF-8 frame ids, NaN/inf/huge
-    values, mixed byte order) decode as rosbags decodes them, and serialise back to the same bytes."""
+    """Random streams.
+
+    (stamps over the whole int32/uint32 range, any UTF-8 frame ids, NaN/inf/huge values, mixed byte order) decode as
+    rosbags decodes them, and serialise back to the same bytes.
+    """
     messages = [_message(msgtype, sec, nanosec, frame, numbers) for (sec, nanosec), frame, numbers, _ in rows]
     raws = [_serialize(m, msgtype, little_endian=little) for m, (*_, little) in zip(messages, rows)]
     arrays = _assert_decodes_like_rosbags(raws, msgtype)
@@ -327,7 +332,7 @@ def test_std_msgs_data_matches_rosbags(type_name, data):
                                st.tuples(st.integers(0, 255), st.integers(0, 255), st.integers(0, 255),
                                          st.booleans())), max_size=20))
 def test_battery_state_matches_rosbags(rows):
-    """BatteryState with sequences and strings of any length decodes as rosbags decodes it."""
+    """`BatteryState` with sequences and strings of any length decodes as rosbags decodes it."""
     raws = [_serialize(_battery(sec, nanosec, frame, numbers, cells, location, serial, flags), BATTERY)
             for (sec, nanosec), frame, numbers, cells, location, serial, flags in rows]
     _assert_decodes_like_rosbags(raws, BATTERY)
@@ -338,8 +343,10 @@ def test_battery_state_matches_rosbags(rows):
                      max_size=12),
        position=st.integers(0, 11), cut=st.integers(0, 80), flip=st.integers(0, 8 * 80 - 1))
 def test_damaged_message_is_refused_or_read_as_rosbags_reads_it(rows, position, cut, flip):
-    """A truncated and bit-flipped message anywhere in a stream: CdrError naming it exactly when
-    rosbags refuses it, otherwise rosbags' values."""
+    """A truncated and bit-flipped message anywhere in a stream.
+
+    CdrError naming it exactly when rosbags refuses it, otherwise rosbags' values.
+    """
     raws = [_serialize(_message(VECTOR3_STAMPED, sec, nanosec, frame, numbers), VECTOR3_STAMPED)
             for (sec, nanosec), frame, numbers in rows]
     position %= len(raws)

@@ -80,15 +80,18 @@ ROW = [1.5, -1.0, math.nan, math.inf, -math.inf, 0.0, -0.0, 2.0, 3.0]
 @given(block=blocks())
 @example(block=([0, (2**31 - 1) * NANOSECONDS + 999_999_999], 'imu_link',
                 {name: [ROW[:width]] * 2 for name, width in FIELDS.items()}, True))
-@example(block=([-1, 1_700_000_000_123_456_789], '', {'orientation': [0.0, 0.0, 0.0, 1.0],
-                                                       'orientation_covariance': [-1.0] + [0.0] * 8,
-                                                       'angular_velocity': [[math.nan] * 3, [1.0, 2.0, 3.0]],
-                                                       'angular_velocity_covariance': [-1.0] + [0.0] * 8,
-                                                       'linear_acceleration': [[9.8, -0.0, math.inf]] * 2,
-                                                       'linear_acceleration_covariance': ROW}, False))
+@example(block=([-1, 1_700_000_000_123_456_789], '', {
+    'orientation': [0.0, 0.0, 0.0, 1.0],
+    'orientation_covariance': [-1.0] + [0.0] * 8,
+    'angular_velocity': [[math.nan] * 3, [1.0, 2.0, 3.0]],
+    'angular_velocity_covariance': [-1.0] + [0.0] * 8,
+    'linear_acceleration': [[9.8, -0.0, math.inf]] * 2,
+    'linear_acceleration_covariance': ROW}, False))
 def test_block_encoder_equals_rosbags_and_decodes_back(block):
-    """Every message of a block is rosbags' bytes (any frame id length, any stamp, NaN/inf/-1, both byte
-    orders), and the block decoder reads the block back as given."""
+    """Every message of a block is rosbags' bytes (any frame id length, any stamp, NaN/inf/-1, both byte orders).
+
+    The block decoder reads the block back as given.
+    """
     stamp_list, frame_id, values, little = block
     count = len(stamp_list)
     arrays = {name: np.array(rows, dtype=np.float64).reshape(-1, FIELDS[name])
@@ -104,11 +107,12 @@ def test_block_encoder_equals_rosbags_and_decodes_back(block):
         assert decoded['stamp_ns'].tolist() == stamp_list
         assert decoded.strings('frame_id') == [frame_id] * count
         for name, given_values in arrays.items():
-            assert np.array_equal(_bits(decoded[name]), _bits(np.broadcast_to(given_values, (count, FIELDS[name])))), name
+            expected = np.broadcast_to(given_values, (count, FIELDS[name]))
+            assert np.array_equal(_bits(decoded[name]), _bits(expected)), name
 
 
 def test_block_encoder_refuses_a_stamp_outside_int32_seconds_and_a_wrong_shape():
-    """rosbags cannot serialise seconds beyond int32 either; the encoder names the message."""
+    """`rosbags` cannot serialise seconds beyond int32 either; the encoder names the message."""
     shared = {name: np.zeros(width) for name, width in FIELDS.items()}
     with pytest.raises(CdrError, match='message 2: stamp .* seconds outside int32') as caught:
         encode_imus(np.array([0, 2**31 * NANOSECONDS]), 'imu', **shared)
@@ -120,15 +124,20 @@ def test_block_encoder_refuses_a_stamp_outside_int32_seconds_and_a_wrong_shape()
 @pytest.mark.parametrize('little', [True, False])
 @pytest.mark.parametrize('frame_id', ['', 'a', 'abcde'])
 def test_other_fixed_layout_types_equal_rosbags(frame_id, little):
-    """encode_messages serves every fixed-layout type of the decoder: stamped types with per-message and
-    shared values, and std_msgs numbers of every width (no trailing padding, as rosbags)."""
-    header = TYPES['std_msgs/msg/Header'](stamp=TYPES['builtin_interfaces/msg/Time'](sec=1, nanosec=3), frame_id=frame_id)
+    """encode_messages serves every fixed-layout type of the decoder.
+
+    Stamped types with per-message and shared values, and std_msgs numbers of every width (no trailing padding, as
+    rosbags).
+    """
+    stamp = TYPES['builtin_interfaces/msg/Time'](sec=1, nanosec=3)
+    header = TYPES['std_msgs/msg/Header'](stamp=stamp, frame_id=frame_id)
     vector = encode_messages('geometry_msgs/msg/Vector3Stamped', np.array([5, NANOSECONDS + 3]),
                              {'vector': np.array([[1.0, 2.0, 3.0], [4.0, math.nan, -math.inf]])},
                              {'frame_id': frame_id}, little_endian=little)
     message = TYPES['geometry_msgs/msg/Vector3Stamped'](
         header=header, vector=TYPES['geometry_msgs/msg/Vector3'](4.0, math.nan, -math.inf))
-    assert vector[1] == bytes(TYPESTORE.serialize_cdr(message, 'geometry_msgs/msg/Vector3Stamped', little_endian=little))
+    expected = TYPESTORE.serialize_cdr(message, 'geometry_msgs/msg/Vector3Stamped', little_endian=little)
+    assert vector[1] == bytes(expected)
     temperature = encode_messages('sensor_msgs/msg/Temperature', np.array([NANOSECONDS + 3]),
                                   {'temperature': np.array([3.5]), 'variance': 0.25}, {'frame_id': frame_id},
                                   little_endian=little)
@@ -158,8 +167,11 @@ def _raw_messages(path, topic: str) -> list[tuple[int, bytes]]:
 
 @pytest.mark.parametrize('output', ['counts', 'imu'])
 def test_apply_writes_the_same_messages_with_either_encoder(tmp_path, monkeypatch, output):
-    """Counts bag (orientation and rate marked not provided) and driver bag (orientation passed
-    through, rate corrected): every field of every message equal with both encoders."""
+    """Counts bag.
+
+    (orientation and rate marked not provided) and driver bag (orientation passed through, rate corrected): every
+    field of every message equal with both encoders.
+    """
     run = simulate(replace(TINY, output=output, frame_id='imu_link'))
     if output == 'counts':
         write_record(tmp_path / 'bag', run.record)

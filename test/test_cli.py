@@ -46,7 +46,7 @@ def workspace(tmp_path_factory):
 
 
 def test_fit_prints_residuals_and_range_and_writes_a_loadable_file(workspace):
-    """fit prints per-axis residual RMS in counts and the calibrated range; the file loads."""
+    """`fit` prints per-axis residual RMS in counts and the calibrated range; the file loads."""
     root, stdout = workspace
     for axis in 'xyz':
         assert f'  {axis}: residual RMS ' in stdout
@@ -68,7 +68,7 @@ def test_validate_on_a_second_run_shows_the_error_fall(workspace):
 
 
 def test_apply_writes_one_imu_per_usable_counts_message(workspace):
-    """apply writes Imu with the counts stamps and frame, REP 145 markers and the fit covariance."""
+    """`apply` writes Imu with the counts stamps and frame, REP 145 markers and the fit covariance."""
     root, _ = workspace
     result = _run('apply', str(root / 'run2'), '--params', str(root / 'params.yaml'), '-o', str(root / 'imu'))
     assert result.returncode == 0, result.stderr
@@ -131,10 +131,10 @@ def test_fit_without_temperature_spread_writes_no_file(tmp_path):
 
 
 def test_a_bad_calibration_file_names_the_key(workspace, tmp_path, capsys):
-    """apply with a broken file names the file and the key."""
+    """`apply` with a broken file names the file and the key."""
     root, _ = workspace
     document = yaml.safe_load((root / 'params.yaml').read_text())
-    document['compensator']['ros__parameters']['calibration']['y']['scale'] = -1.0
+    document['/**/compensator']['ros__parameters']['calibration']['y']['scale'] = -1.0
     (tmp_path / 'bad.yaml').write_text(yaml.safe_dump(document))
     code = main(['apply', str(root / 'run2'), '--params', str(tmp_path / 'bad.yaml'), '-o', str(tmp_path / 'imu')])
     assert code == 2
@@ -142,7 +142,7 @@ def test_a_bad_calibration_file_names_the_key(workspace, tmp_path, capsys):
 
 
 def test_usage_errors_exit_2(capsys):
-    """argparse usage errors also exit with 2."""
+    """`argparse` usage errors also exit with 2."""
     with pytest.raises(SystemExit) as exit_info:
         main(['fit'])
     assert exit_info.value.code == 2

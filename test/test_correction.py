@@ -86,7 +86,7 @@ def test_horner_matches_powers():
 
 
 def test_offset_shape_is_normalised_to_unit_maximum(calibration):
-    """max |F_s| over the calibrated range is 1 and D is the largest offset change."""
+    """`max` |F_s| over the calibrated range is 1 and D is the largest offset change."""
     low, high = calibration.code_offset_range()
     grid = np.linspace(low, high, 4001)
     for axis in calibration.axes:

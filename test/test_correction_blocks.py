@@ -40,7 +40,7 @@ def test_block_results_do_not_depend_on_layout_or_length():
 
 
 def test_a_non_finite_temperature_code_gives_nan_in_both_paths():
-    """NaN in the temperature code propagates to all three axes, in blocks and per sample."""
+    """`NaN` in the temperature code propagates to all three axes, in blocks and per sample."""
     calibration, counts, codes = _inputs(10)
     codes[4] = np.nan
     corrector = Corrector(calibration)

@@ -72,7 +72,7 @@ def test_cli_import_prints_the_reference_and_the_bag_holds_it(tmp_path, capsys):
 
 
 def test_units_g_milliseconds_semicolons_and_a_given_reference():
-    """g is 9.80665 m/s^2, ms become ns, the delimiter is sniffed, a given reference is kept."""
+    """`g` is 9.80665 m/s^2, ms become ns, the delimiter is sniffed, a given reference is kept."""
     text = ['t;ax;ay;az;temp\n', '0;0.001;0;-1;20.00\n', '500;0.002;0;-1.001;20.50\n', '1000.5;0.001;0.001;-1;21.00\n']
     options = CsvImportOptions(acc_columns=('ax', 'ay', 'az'), temp_column='temp', time_column='t',
                                time_unit='ms', acc_unit='g', acc_resolution=0.01, temp_resolution=0.5,
@@ -80,7 +80,8 @@ def test_units_g_milliseconds_semicolons_and_a_given_reference():
     log = parse_csv_log(text, options)
     assert log.delimiter == ';'
     np.testing.assert_array_equal(log.record.counts_stamp_ns, [0, 500_000_000, 1_000_500_000])
-    np.testing.assert_array_equal(log.record.counts[:, 2], np.round(np.array([-1, -1.001, -1]) * STANDARD_GRAVITY / 0.01))
+    expected = np.round(np.array([-1, -1.001, -1]) * STANDARD_GRAVITY / 0.01)
+    np.testing.assert_array_equal(log.record.counts[:, 2], expected)
     np.testing.assert_array_equal(log.record.temp_code, [40.0, 41.0, 42.0])
     np.testing.assert_array_equal(log.record.reference[0], [0.0, 0.0, -9.8])
     assert not log.reference_estimated and log.record.nominal_scale == (100.0, 100.0, 100.0)
@@ -152,7 +153,8 @@ def test_gyro_columns_make_a_driver_bag_with_the_logged_values(tmp_path, capsys)
 def test_gyro_unit_deg_per_second_is_converted_to_rad_per_second(tmp_path):
     """A log in deg/s is written in rad/s: 180 deg/s is pi rad/s."""
     lines = ['t,ax,ay,az,temp,gx,gy,gz']
-    lines += [f'{i},{0.01 + 1e-3 * (i % 3)},{0.02 - 1e-3 * (i % 2)},{9.8 + 1e-3 * (i % 2)},{20 + i},180,-90,{i}' for i in range(30)]
+    lines += [f'{i},{0.01 + 1e-3 * (i % 3)},{0.02 - 1e-3 * (i % 2)},{9.8 + 1e-3 * (i % 2)},{20 + i},180,-90,{i}'
+              for i in range(30)]
     options = CsvImportOptions(acc_columns=('ax', 'ay', 'az'), temp_column='temp', time_column='t',
                                gyro_columns=('gx', 'gy', 'gz'), gyro_unit='deg/s')
     log = parse_csv_log(lines, options)

@@ -92,8 +92,8 @@ def test_driver_design_is_written_for_the_gyroscope_and_separates_better_than_th
 
 def test_one_run_for_both_sensors_maximises_the_weaker_separation():
     """Both sensors lag: the proposed profile is the one whose smaller separation is largest."""
-    scenario = replace(RUN, sample_rate_hz=0.1, effects={'thermal_lag': {'tau_s': 900.0, 'slope_x': 3e-3,
-                                                                          'slope_z': 4e-3}})
+    lag = {'tau_s': 900.0, 'slope_x': 3e-3, 'slope_z': 4e-3}
+    scenario = replace(RUN, sample_rate_hz=0.1, effects={'thermal_lag': lag})
     driver = simulate(scenario).driver
     samples = {sensor: align(driver.channel(sensor)) for sensor in ('accel', 'gyro')}
     diagnoses = {sensor: diagnose(fit_model(s).calibration, s, candidates=PAIR.split(','))
@@ -133,11 +133,12 @@ def test_a_recorded_signal_on_top_gets_one_clear_line_and_no_design(tmp_path, ca
 
 
 @pytest.mark.parametrize(('table', 'expected'), [
-    ({'positions': ((0.0, 0.0, 1.0),), 'table_rates': ()}, {'positions': ((0.0, 0.0, 1.0),), 'table_rates': (),
-                                                             'record_references': False}),
+    ({'positions': ((0.0, 0.0, 1.0),), 'table_rates': ()},
+     {'positions': ((0.0, 0.0, 1.0),), 'table_rates': (), 'record_references': False}),
     ({'positions': RATE_TABLE_POSITIONS, 'table_rates': RATE_TABLE_RATES},
      {'positions': RATE_TABLE_POSITIONS, 'table_rates': RATE_TABLE_RATES, 'dwell_s': RUN.dwell_s}),
-    ({'positions': Scenario().positions, 'table_rates': ()}, {'positions': Scenario().positions, 'table_rates': (), 'dwell_s': RUN.dwell_s}),
+    ({'positions': Scenario().positions, 'table_rates': ()},
+     {'positions': Scenario().positions, 'table_rates': (), 'dwell_s': RUN.dwell_s}),
 ])
 def test_the_design_is_simulated_on_the_table_of_the_diagnosed_run(table, expected):
     """Static (one attitude, no rate): that attitude, no reference topics; a rate table; a tilt table."""
@@ -161,9 +162,11 @@ def test_counts_bag_with_a_recorded_signal_on_top_gets_the_same_line(tmp_path, c
 
 
 def test_a_model_that_follows_a_recorded_signal_is_designed_with_the_signal_steady():
-    """The accelerometer's model holds the supply voltage (aux) and misses a lag: the simulated runs
-    record no voltage, so that effect is left out there; what the other candidate cannot absorb is
-    then at most the whole lag (slope x ramp rate x tau), not the whole signal of a failed fit."""
+    """The accelerometer's model holds the supply voltage (aux) and misses a lag.
+
+    The simulated runs record no voltage, so that effect is left out there; what the other candidate cannot absorb is
+    then at most the whole lag (slope x ramp rate x tau), not the whole signal of a failed fit.
+    """
     lag = {'tau_s': 900.0, 'slope_x': 3e-3, 'slope_z': 4e-3}
     scenario = replace(RUN, gyro_effects={}, sample_rate_hz=0.1, supply_voltage_drift=0.03,
                        record_supply='/power/battery_state', effects={'thermal_lag': lag})

@@ -61,8 +61,10 @@ def test_explained_fraction_is_the_share_of_variance_of_the_group_means():
 
 
 def test_folds_deal_contiguous_blocks_round_robin():
-    """Every fold holds blocks from the start, middle and end of the run, each contiguous; the
-    first block is cut into one piece per fold, so every fold holds a piece of the first 5 %."""
+    """Every fold holds blocks from the start, middle and end of the run, each contiguous.
+
+    The first block is cut into one piece per fold, so every fold holds a piece of the first 5 %.
+    """
     time_s = np.arange(10_000, dtype=float)
     labels = fold_labels(time_s, 5, 20)
     assert np.bincount(labels).tolist() == [1600] + [2100] * 4

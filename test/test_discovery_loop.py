@@ -15,7 +15,11 @@ import pytest
 
 from conftest import SHORT
 from conftest import noise_floor as noise_floor_of
-from tak_thermo_ros.core.records.calibration_file import calibration_from_mapping, calibration_to_mapping, flatten_parameters
+from tak_thermo_ros.core.records.calibration_file import (
+    calibration_from_mapping,
+    calibration_to_mapping,
+    flatten_parameters,
+)
 from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.core.diagnose import ModelScore, design_run, diagnose, write_design
 from tak_thermo_ros.core.diagnose.crossval import paired_block_t
@@ -116,8 +120,11 @@ def test_loop_on_per_axis_time_constants_chooses_the_per_axis_lag_and_recovers_t
 # ------------------------------------------------------------------------- per-axis effects
 
 def test_per_axis_lag_is_refused_when_the_axes_share_one_time_constant_and_taken_when_they_do_not():
-    """The per-axis form costs two parameters: with equal time constants it gains nothing the held-out
-    blocks can see and the shared lag is the verdict; with time constants a factor 2 apart it wins."""
+    """The per-axis form costs two parameters.
+
+    With equal time constants it gains nothing the held-out blocks can see and the shared lag is the verdict; with
+    time constants a factor 2 apart it wins.
+    """
     slopes = {f'slope_{a}': PER_AXIS_LAG['thermal_lag_per_axis'][f'slope_{a}'] for a in 'xyz'}
     equal = {'thermal_lag_per_axis': {**slopes, 'tau_s_x': 1800.0, 'tau_s_y': 1800.0, 'tau_s_z': 1800.0}}
     apart = {'thermal_lag_per_axis': {**slopes, 'tau_s_x': 1800.0, 'tau_s_y': 900.0, 'tau_s_z': 3600.0}}
@@ -132,8 +139,11 @@ def test_per_axis_lag_is_refused_when_the_axes_share_one_time_constant_and_taken
 
 
 def test_paired_block_t_is_large_for_a_gain_on_every_block_and_about_one_for_a_gain_on_one_block():
-    """The block-to-block spread is the margin: a steady gain stands out, a gain confined to one block
-    (a warm-up that decays inside it) cannot, however large, so the per-axis rule needs the floor test."""
+    """The block-to-block spread is the margin.
+
+    A steady gain stands out, a gain confined to one block (a warm-up that decays inside it) cannot, however large, so
+    the per-axis rule needs the floor test.
+    """
     rng = np.random.default_rng(2)
     count = np.full(24, 100.0)
     shared_sse = 100.0 * (1.0 + 0.05 * rng.standard_normal((24, 3)))
@@ -151,9 +161,12 @@ def test_paired_block_t_is_large_for_a_gain_on_every_block_and_about_one_for_a_g
 
 
 def test_per_axis_warmup_decaying_inside_the_first_block_is_named():
-    """Warm-ups of 7 minutes on y, 20 on x and an hour on z on a 6-hour run (18-minute blocks): every fold
-    holds a piece of the first block, and the per-axis form, which brings every axis to the floor, is the verdict although
-    its gain over the shared form, confined to the first blocks, gives no large paired t."""
+    """Warm-ups of 7 minutes on y, 20 on x and an hour on z on a 6-hour run (18-minute blocks) are named.
+
+    Every fold holds a piece of the first block, and the per-axis form, which brings every axis to the
+    floor, is the verdict although its gain over the shared form, confined to the first blocks, gives no
+    large paired t.
+    """
     effects = {'warmup_per_axis': {'tau_s_x': 1200.0, 'tau_s_y': 400.0, 'tau_s_z': 3600.0,
                                    'amplitude_x': 15.0, 'amplitude_y': -15.0, 'amplitude_z': 12.0}}
     samples = align(simulate(_scenario(effects, seed=12)).record)
@@ -179,7 +192,8 @@ def test_per_axis_form_equals_the_shared_form_per_axis_and_both_paths_agree(name
     codes = np.round(np.cumsum(rng.normal(0.0, 2.0, 4000)))
     offsets = effect.offsets(stamps, codes)
     for i, axis in enumerate('xyz'):
-        alone = shared(**{shape: values[f'{shape}_{axis}'], f'{cls.amplitude.name}_{axis}': values[f'{cls.amplitude.name}_{axis}']})
+        amplitude = f'{cls.amplitude.name}_{axis}'
+        alone = shared(**{shape: values[f'{shape}_{axis}'], amplitude: values[amplitude]})
         np.testing.assert_array_equal(offsets[:, i], alone.offsets(stamps, codes)[:, i])
     state = effect.start(stamps[0], codes[0])
     rows = []
@@ -217,8 +231,11 @@ def test_fit_rejects_the_shared_and_the_per_axis_form_together(short_samples):
 # ------------------------------------------------------------------------- experiment design
 
 def test_design_run_proposes_a_profile_that_separates_lag_from_hysteresis_better_than_the_run(tmp_path):
-    """On the paper's staircase a lag and a hysteresis look alike; the proposed run separates them far
-    better, and its files are a scenario the simulator loads and a schedule that follows the profile."""
+    """On the paper's staircase a lag and a hysteresis look alike.
+
+    The proposed run separates them far better, and its files are a scenario the simulator loads and a schedule that
+    follows the profile.
+    """
     scenario = replace(SHORT, sample_rate_hz=RATE_HZ, seed=9,
                        effects={'thermal_lag': {'tau_s': 1500.0, 'slope_x': 0.03, 'slope_y': -0.03, 'slope_z': 0.04}})
     samples = align(simulate(scenario).record)

@@ -39,10 +39,11 @@ SECOND_RUN = replace(CALIBRATION_RUN, positions=((0.0, 0.0, 1.0),), table_rates=
 
 @pytest.fixture(scope='module')
 def story(tmp_path_factory):
-    """Bags, calibrations and diagnoses of the whole story (each command run once)."""
+    """Bags, calibrations and diagnoses of the whole story, each command run once."""
     root = tmp_path_factory.mktemp('done_when')
     write_driver_record(root / 'cal', simulate(CALIBRATION_RUN).driver)
     write_driver_record(root / 'run2', simulate(SECOND_RUN).driver, storage='sqlite3')
+
     def at(name: str) -> str:
         return str(root / name)
 
@@ -93,7 +94,7 @@ def test_refit_brings_the_gyro_heldout_residual_to_the_noise_floor(story):
 
 
 def test_second_run_corrected_by_apply_has_its_gyro_bias_error_at_the_floor(story):
-    """validate's gyro mean within a few noise/sqrt(n), RMS at the noise; apply's output says the same."""
+    """`validate`'s gyro mean within a few noise/sqrt(n), RMS at the noise; apply's output says the same."""
     after = _json(story / 'validate_lag.json')['gyro']
     without_lag = _json(story / 'validate_base.json')['gyro']
     samples = after['samples']

@@ -57,7 +57,7 @@ def _hidden(name: str) -> dict[str, float]:
 
 @pytest.mark.parametrize('name', sorted(GYRO_EFFECTS))
 def test_gyro_effect_is_recovered_through_the_command_line(name, tmp_path, capsys):
-    """fit --gyro-effects NAME: the file's gyro effect matches the truth within 5 standard errors."""
+    """`fit` --gyro-effects NAME: the file's gyro effect matches the truth within 5 standard errors."""
     scenario = replace(RUN, gyro_effects={name: _hidden(name)})
     run = simulate(scenario)
     write_driver_record(tmp_path / 'cal', run.driver)

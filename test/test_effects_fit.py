@@ -76,7 +76,8 @@ def test_hidden_effect_is_recovered(name, profile, seed):
         for parameter, value in truth.values.items():
             error = result.parameter_errors[f'{name}.{parameter}']
             assert 0.0 < error < math.inf
-            assert abs(effect[parameter] - value) <= STANDARD_ERRORS * error, (parameter, effect[parameter], value, error)
+            assert abs(effect[parameter] - value) <= STANDARD_ERRORS * error, \
+                (parameter, effect[parameter], value, error)
 
     second = align(simulate(replace(scenario, seed=seed + 100)).record)
     assert _gravity_rms(result.calibration, second, scenario.gravity) < _gravity_rms(

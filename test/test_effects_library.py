@@ -143,7 +143,7 @@ def test_calibration_file_round_trip_with_effects(tmp_path, monkeypatch):
     loaded = load_calibration(path)
     assert loaded == calibration
     document = yaml.safe_load(path.read_text())
-    entry = document['compensator']['ros__parameters']['calibration']['effects']['creep']
+    entry = document['/**/compensator']['ros__parameters']['calibration']['effects']['creep']
     assert entry['class'] == 'user_effects_rt:Creep'
     flat = flatten_parameters(calibration_to_mapping(calibration))
     assert flat['calibration.effects.thermal_lag.tau_s'] == 300.0
@@ -153,7 +153,8 @@ def test_calibration_file_round_trip_with_effects(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize(('change', 'message'), [
     ({'thermal_lagg': {'tau_s': 1.0}}, r'calibration\.effects\.thermal_lagg: .*unknown'),
-    ({'thermal_lag': {'slope_x': 0.0, 'slope_y': 0.0, 'slope_z': 0.0}}, r'calibration\.effects\.thermal_lag\.tau_s: missing'),
+    ({'thermal_lag': {'slope_x': 0.0, 'slope_y': 0.0, 'slope_z': 0.0}},
+     r'calibration\.effects\.thermal_lag\.tau_s: missing'),
     ({'thermal_lag': {'tau_s': float('nan'), 'slope_x': 0.0, 'slope_y': 0.0, 'slope_z': 0.0}},
      r'calibration\.effects\.thermal_lag\.tau_s: must be finite'),
     ({'thermal_lag': {'tau_s': -5.0, 'slope_x': 0.0, 'slope_y': 0.0, 'slope_z': 0.0}},
@@ -165,7 +166,8 @@ def test_calibration_file_round_trip_with_effects(tmp_path, monkeypatch):
     ({'temperature_shape': {'knot_1': 8300.0, 'knot_2': 8100.0, 'slope_x_1': 0.0, 'slope_y_1': 0.0,
                             'slope_z_1': 0.0, 'slope_x_2': 0.0, 'slope_y_2': 0.0, 'slope_z_2': 0.0}},
      r'calibration\.effects\.temperature_shape\.knot_2: knots must increase'),
-    ({'creep': {'class': 'no_such_module_b1:Creep', 'rate_x': 0.0}}, r'calibration\.effects\.creep\.class: .*no module'),
+    ({'creep': {'class': 'no_such_module_b1:Creep', 'rate_x': 0.0}},
+     r'calibration\.effects\.creep\.class: .*no module'),
     ({'thermal_lag': {'class': 'warmup', 'tau_s': 1.0}}, r'calibration\.effects\.thermal_lag\.class: .*not'),
     ({'thermal_lag': 3.0}, r'calibration\.effects\.thermal_lag: expected a mapping'),
     ({}, r'calibration\.effects: expected a mapping'),
@@ -247,7 +249,7 @@ def test_scenario_effects_errors(raw, message):
 
 
 def test_scenario_yaml_reads_effects():
-    """effects and supply_voltage_drift parse from a scenario mapping."""
+    """`effects` and supply_voltage_drift parse from a scenario mapping."""
     scenario = scenario_from_mapping(yaml.safe_load(
         'effects:\n  thermal_lag: {tau_s: 1800, slope_z: 0.03}\nsupply_voltage_drift: 2\n'))
     assert scenario.effect_instances() == (LIBRARY['thermal_lag'](tau_s=1800.0, slope_z=0.03),)

@@ -159,7 +159,7 @@ def test_rows_hold_what_each_unit_wrote(local_run):
         directory = out / 'units' / row['unit']
         diagnosis = json.loads((directory / 'diagnose.json').read_text())
         validation = json.loads((directory / 'validation.json').read_text())
-        params = yaml.safe_load((directory / 'params.yaml').read_text())['compensator']['ros__parameters']
+        params = yaml.safe_load((directory / 'params.yaml').read_text())['/**/compensator']['ros__parameters']
         assert row['verdict'] == diagnosis['verdict']
         assert row['validation_rms'] == validation['after']['rms']
         assert row['validation_rms'] < row['validation_rms_before']

@@ -46,7 +46,7 @@ def _imported_roots(path: Path) -> set[str]:
 
 
 def test_only_bagio_imports_rosbags_and_only_node_imports_rclpy():
-    """rosbags appears in bagio.py alone; rclpy and ROS message packages in node.py alone."""
+    """`rosbags` appears in bagio.py alone; rclpy and ROS message packages in node.py alone."""
     for path in PACKAGE.rglob('*.py'):
         roots = _imported_roots(path)
         relative = path.relative_to(PACKAGE).as_posix()

@@ -275,8 +275,10 @@ def test_bad_calibration_refused_at_startup(tmp_path, ros_env, case):
 
 
 def test_launch_file_and_example_configs(tmp_path):
-    """The launch file compiles, remaps driver -> compensator -> estimator; the example configs
-    are valid calibrations (counts and driver) with the node's defaults."""
+    """The launch file compiles, remaps driver -> compensator -> estimator.
+
+    The example configs are valid calibrations (counts and driver) with the node's defaults.
+    """
     import py_compile
     from tak_thermo_ros.node import _tunables
     launch_file = REPO / 'launch' / 'compensator.launch.py'
@@ -284,7 +286,8 @@ def test_launch_file_and_example_configs(tmp_path):
     tree = ast.parse(launch_file.read_text(encoding='utf-8'))
     assert any(isinstance(n, ast.FunctionDef) and n.name == 'generate_launch_description' for n in tree.body)
     constants = {n.targets[0].id: ast.literal_eval(n.value) for n in tree.body
-                 if isinstance(n, ast.Assign) and isinstance(n.targets[0], ast.Name) and n.targets[0].id.endswith('TOPICS')}
+                 if isinstance(n, ast.Assign) and isinstance(n.targets[0], ast.Name)
+                 and n.targets[0].id.endswith('TOPICS')}
     from tak_thermo_ros import node as node_module
     assert constants['DRIVER_TOPICS'] == (node_module.RAW_IMU_TOPIC, node_module.TEMPERATURE_TOPIC,
                                           node_module.COMPENSATED_IMU_TOPIC)
@@ -380,8 +383,11 @@ def test_driver_node_output_equals_tak_calib_apply_on_both_sensors(tmp_path, ros
 
 
 def test_driver_bad_input_and_time_backwards(tmp_path, ros_env):
-    """Imu input: NaN anywhere drops the message, NaN temperature ignored, backwards/duplicate stamps
-    dropped, out of range clamped, stale held; all counted in /diagnostics."""
+    """Imu input.
+
+    NaN anywhere drops the message, NaN temperature ignored, backwards/duplicate stamps dropped, out of range clamped,
+    stale held; all counted in /diagnostics.
+    """
     params = driver_params(tmp_path / 'params.yaml', qos='reliable', temp_timeout=30.0)
     corrector = UnitCorrector(DRIVER_UNIT)
     good = (0.1, -0.2, 9.81, 0.01, -0.02, 0.03)
@@ -433,8 +439,10 @@ def test_driver_bad_input_and_time_backwards(tmp_path, ros_env):
 
 
 def test_absurd_parameter_updates_refused_and_the_node_keeps_publishing(tmp_path, ros_env):
-    """residual_rms 1e200, offset 1e308, a tiny scale, a string, an input-kind change: each refused with
-    its reason; a valid update in between is taken; the node publishes throughout."""
+    """residual_rms 1e200, offset 1e308, a tiny scale, a string, an input-kind change.
+
+    Each refused with its reason; a valid update in between is taken; the node publishes throughout.
+    """
     params = driver_params(tmp_path / 'params.yaml', qos='reliable')
     good = (0.1, -0.2, 9.81, 0.01, -0.02, 0.03)
     with NodeProcess(node_command('--params-file', str(params)), ros_env, tmp_path / 'node.log') as node, \
@@ -497,9 +505,11 @@ def test_shutdown_on_sigint_and_sigterm_within_a_time_limit(tmp_path, ros_env, e
 
 
 def test_transport_losses_counted_from_message_lost_events(tmp_path, ros_env):
-    """Bursts of Imu at full speed into a reliable node of depth 1 from a writer of depth 1: what
-    Fast DDS reports lost is counted in /diagnostics (message_lost) and logged;
-    received == published + dropped still holds, and received + lost never exceeds what was sent."""
+    """Bursts of Imu at full speed into a reliable node of depth 1 from a writer of depth 1.
+
+    What Fast DDS reports lost is counted in /diagnostics (message_lost) and logged; received == published + dropped
+    still holds, and received + lost never exceeds what was sent.
+    """
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
     params = driver_params(tmp_path / 'params.yaml', qos='reliable', qos_depth=1)
     burst = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE)
@@ -531,8 +541,10 @@ def test_transport_losses_counted_from_message_lost_events(tmp_path, ros_env):
 
 
 def test_single_threaded_executor_counts_every_message_never_received(tmp_path, ros_env):
-    """With executor single_threaded the publication sequence numbers show every lost message:
-    after a burst of 5,000 into a node of depth 1, received + sequence_gap == sent, exactly."""
+    """With executor single_threaded the publication sequence numbers show every lost message.
+
+    After a burst of 5,000 into a node of depth 1, received + sequence_gap == sent, exactly.
+    """
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
     params = driver_params(tmp_path / 'params.yaml', qos='reliable', qos_depth=1, executor='single_threaded')
     burst = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE)

@@ -50,7 +50,8 @@ def _unit(run, supply):
     if run.unit_truth is None:
         return replace(run.truth, effects=(supply,))
     return replace(run.unit_truth, accel=replace(run.unit_truth.accel, effects=(supply,)),
-                   gyro=replace(run.unit_truth.gyro, effects=(supply.replace(slope_x=0.001, slope_y=0.0, slope_z=0.0),)))
+                   gyro=replace(run.unit_truth.gyro,
+                                effects=(supply.replace(slope_x=0.001, slope_y=0.0, slope_z=0.0),)))
 
 
 @pytest.mark.parametrize('driver', [False, True], ids=['counts', 'driver'])

@@ -39,7 +39,7 @@ def kinds(core: OnlineCompensator) -> list[str]:
 
 
 def balanced(core: OnlineCompensator) -> bool:
-    """received == published + sum(dropped)."""
+    """`received` == published + sum(dropped)."""
     return core.received == core.published + sum(core.dropped.values())
 
 
@@ -391,9 +391,11 @@ def _changed(unit, what: str):
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.lists(_event, min_size=1, max_size=120))
 def test_generated_streams_keep_every_invariant(events):
-    """NaN, rails, stamps backwards, temperature gaps, parameter updates in the middle:
-    received == published + dropped, outputs finite and equal to UnitCorrector.correct on the
-    published subset (per calibration in force), stamps dropped by the previous-message rule."""
+    """NaN, rails, stamps backwards, temperature gaps, parameter updates in the middle.
+
+    Received == published + dropped, outputs finite and equal to UnitCorrector.correct on the published subset (per
+    calibration in force), stamps dropped by the previous-message rule.
+    """
     from tak_thermo_ros.core.records.calibration_file import unit_from_mapping, unit_to_mapping
     from tak_thermo_ros.errors import CalibrationError
     core = OnlineCompensator(DRIVER, temp_timeout_s=0.5)

@@ -201,8 +201,7 @@ def small_run(tmp_path_factory):
 
 @st.composite
 def record_changes(draw, length: int, temp_length: int, reference_length: int) -> dict:
-    """Changes to a run: temperature codes and references NaN/inf/huge, counts NaN/huge,
-    header stamps back."""
+    """Changes to a run: temperature codes and references NaN/inf/huge, counts NaN/huge, header stamps back."""
     indices = st.integers(0, length - 1)
     return {
         'temp': draw(st.lists(st.tuples(st.integers(0, temp_length - 1),
@@ -269,7 +268,7 @@ def _prepare_output(out: Path, command: str, existing: bool) -> dict[Path, bytes
 @given(data=st.data(), command=st.sampled_from(COMMANDS), storage=st.sampled_from(['mcap', 'sqlite3']),
        existing=st.booleans(), force=st.booleans())
 def test_commands_on_changed_runs_keep_the_invariant(small_run, data, command, storage, existing, force):
-    """NaN and huge temperature codes, bad counts, header stamps back (bag time increasing)."""
+    """`NaN` and huge temperature codes, bad counts, header stamps back (bag time increasing)."""
     run, params = small_run
     changes = data.draw(record_changes(len(run.record.counts), len(run.record.temp_code),
                                        len(run.record.reference)))

@@ -39,16 +39,18 @@ def real_run():
 
 @pytest.fixture(scope='module')
 def diagnosis(real_run):
-    """diagnose on the base fit (every library effect is a candidate; one rung of the ladder)."""
+    """`diagnose` on the base fit (every library effect is a candidate; one rung of the ladder)."""
     _, samples, base = real_run
     return diagnose(base.calibration, samples, max_ladder=1)
 
 
 def test_diagnose_names_the_thermal_lag(real_run, diagnosis):
-    """The base model's excess over the noise floor is significant on every axis; the verdict is the
-    shared thermal lag. Its per-axis form is tried and lowers the held-out excess by many noise sigmas,
-    but structure remains after it and its paired gain over the held-out blocks stays within the
-    blocks' own spread (as in the 10-block test of bench/real_imu.py), so it is not taken."""
+    """The base model's excess over the noise floor is significant on every axis; the verdict is the shared thermal lag.
+
+    Its per-axis form is tried and lowers the held-out excess by many noise sigmas, but structure remains after it and
+    its paired gain over the held-out blocks stays within the blocks' own spread (as in the 10-block test of
+    bench/real_imu.py), so it is not taken.
+    """
     assert all(axis.excess_significant for axis in diagnosis.axes)
     assert diagnosis.verdict == 'thermal_lag', diagnosis.message
     assert [c.effect for c in diagnosis.per_axis_forms] == ['thermal_lag_per_axis']
@@ -61,9 +63,12 @@ def test_diagnose_names_the_thermal_lag(real_run, diagnosis):
 
 
 def test_diagnosed_effect_lowers_the_heldout_error_beyond_the_block_to_block_spread(real_run, diagnosis):
-    """On 10 contiguous time blocks (not diagnose's folds), the refit with the named effect lowers the
-    held-out mean square error on every axis by more than t(0.975, 9) standard errors of the paired
-    per-block differences: the margin is the data's own block-to-block spread."""
+    """On 10 contiguous time blocks.
+
+    (not diagnose's folds), the refit with the named effect lowers the held-out mean square error on every axis by
+    more than t(0.975, 9) standard errors of the paired per-block differences: the margin is the data's own
+    block-to-block spread.
+    """
     log, samples, _ = real_run
     block = np.minimum((np.arange(len(samples)) * BLOCKS) // len(samples), BLOCKS - 1)
     low, high = float(samples.temp_code.min()), float(samples.temp_code.max())
@@ -83,6 +88,7 @@ def test_diagnosed_effect_lowers_the_heldout_error_beyond_the_block_to_block_spr
     gain = before - after
     mean = gain.mean(axis=0)
     standard_error = gain.std(axis=0, ddof=1) / math.sqrt(BLOCKS)
-    summary = (f'held-out RMS before {np.sqrt(before.mean(axis=0)).round(2)}, after {np.sqrt(after.mean(axis=0)).round(2)} '
+    summary = (f'held-out RMS before {np.sqrt(before.mean(axis=0)).round(2)}, '
+               f'after {np.sqrt(after.mean(axis=0)).round(2)} '
                f'counts; t = {(mean / standard_error).round(2)}')
     assert np.all(mean > T_975_DOF_9 * standard_error), summary

@@ -1,5 +1,7 @@
-"""Bad input of every class gives one line and exit 2, or a counted rule: never a traceback,
-a NaN written with exit 0, a replaced special file or a temporary left behind."""
+"""Bad input of every class gives one line and exit 2, or a counted rule.
+
+Never a traceback, a NaN written with exit 0, a replaced special file or a temporary left behind.
+"""
 
 from __future__ import annotations
 
@@ -110,8 +112,11 @@ def _commands(root: Path, out: Path) -> dict[str, list[str]]:
 @pytest.mark.parametrize('command', ['fit', 'validate', 'diagnose-json', 'apply', 'simulate'])
 @pytest.mark.parametrize('kind', ['fifo', 'symlink', 'directory', 'device'])
 def test_special_files_are_never_replaced(tiny, tmp_path, command, kind, capsys):
-    """A FIFO, a symbolic link, a non-output directory or a device node at an output path is
-    refused in one line naming it, with or without --force, and stays what it was."""
+    """A FIFO, a symbolic link.
+
+    A non-output directory or a device node at an output path is refused in one line naming it, with or without
+    --force, and stays what it was.
+    """
     root, _ = tiny
     target = tmp_path / 'victim.txt'
     target.write_text('keep')
@@ -139,8 +144,10 @@ def test_special_files_are_never_replaced(tiny, tmp_path, command, kind, capsys)
 
 @pytest.mark.parametrize('command', ['fit', 'validate', 'diagnose-json', 'apply', 'simulate'])
 def test_an_existing_output_is_refused_unless_force(tiny, tmp_path, command, capsys):
-    """The overwrite rule, the same for every command: refused naming the path and --force;
-    with --force the output is replaced, and nothing temporary stays."""
+    """The overwrite rule, the same for every command.
+
+    Refused naming the path and --force; with --force the output is replaced, and nothing temporary stays.
+    """
     root, _ = tiny
     out = tmp_path / 'out'
     argv = _commands(root, out)[command]
@@ -158,8 +165,10 @@ def test_an_existing_output_is_refused_unless_force(tiny, tmp_path, command, cap
 
 
 def test_report_directory_is_written_whole_and_replaced_only_with_force(tiny, tmp_path, capsys):
-    """--report writes into a temporary directory renamed into place; an existing report is
-    replaced only with --force; a directory holding anything else is never replaced."""
+    """--report writes into a temporary directory renamed into place.
+
+    An existing report is replaced only with --force; a directory holding anything else is never replaced.
+    """
     root, _ = tiny
     report = tmp_path / 'report'
     argv = ['diagnose', str(root / 'cal'), '--params', str(root / 'params.yaml'), '--report', str(report),
@@ -200,8 +209,11 @@ def test_write_text_atomic_refuses_a_fifo_and_names_the_users_path(tmp_path, mon
 ])
 def test_a_full_disk_during_a_bag_write_is_one_line_and_leaves_nothing(tmp_path, monkeypatch, capsys, storage,
                                                                        failure):
-    """The storage failing half way (simulated: the writer raises what a full disk raises)
-    gives one line naming the user's bag, exit 2, and no temporary directory."""
+    """The storage failing half way.
+
+    (simulated: the writer raises what a full disk raises) gives one line naming the user's bag, exit 2, and no
+    temporary directory.
+    """
     real_write = bagio.Writer.write
     written = []
 
@@ -221,8 +233,8 @@ def test_a_full_disk_during_a_bag_write_is_one_line_and_leaves_nothing(tmp_path,
     assert sorted(p.name for p in tmp_path.iterdir()) == ['tiny.yaml']
 
 
-@pytest.mark.parametrize(('signum', 'status', 'word'), [(signal.SIGTERM, 143, 'terminated'),
-                                                         (signal.SIGINT, 130, 'interrupted')])
+@pytest.mark.parametrize(('signum', 'status', 'word'), [
+    (signal.SIGTERM, 143, 'terminated'), (signal.SIGINT, 130, 'interrupted')])
 def test_a_signal_during_a_bag_write_leaves_nothing(tmp_path, signum, status, word):
     """SIGTERM is handled like SIGINT: the partial bag is removed, one line, exit 143 (130)."""
     scenario = tmp_path / 'long.yaml'
@@ -245,8 +257,10 @@ def test_a_signal_during_a_bag_write_leaves_nothing(tmp_path, signum, status, wo
 # ----- temperature codes and stamps in a bag -------------------------------------------------
 
 def test_non_finite_and_implausible_temperature_codes_are_not_held(tiny, tmp_path, capsys):
-    """A NaN, infinite or implausible temperature code is ignored (the previous good one is
-    held, as in the node) and counted; apply writes finite Imu, validate prints finite RMS."""
+    """A NaN, infinite or implausible temperature code is ignored.
+
+    (the previous good one is held, as in the node) and counted; apply writes finite Imu, validate prints finite RMS.
+    """
     root, run = tiny
     codes = run.record.temp_code.copy()
     codes[[20, 40]] = np.nan
@@ -282,8 +296,10 @@ def test_non_finite_and_implausible_temperature_codes_are_not_held(tiny, tmp_pat
 
 
 def test_non_finite_and_implausible_references_are_not_held(tiny, tmp_path, capsys):
-    """A reference message that is NaN, infinite or beyond 2000 m/s^2 is ignored like a bad
-    temperature code: the previous one stays held; fit prints the count and fits the truth."""
+    """A reference message that is NaN, infinite or beyond 2000 m/s^2 is ignored like a bad temperature code.
+
+    The previous one stays held; fit prints the count and fits the truth.
+    """
     root, run = tiny
     reference = run.record.reference.copy()
     reference[5, 0] = np.nan
@@ -303,8 +319,10 @@ def test_non_finite_and_implausible_references_are_not_held(tiny, tmp_path, caps
 
 
 def test_counts_stamps_going_backwards_are_dropped_and_counted(tiny):
-    """A counts sample stamped no later than the previous counts message (bag order) is left
-    out: ``time_backwards`` or ``duplicate_stamp``; the kept samples keep their own codes."""
+    """A counts sample stamped no later than the previous counts message (bag order) is left out.
+
+    ``time_backwards`` or ``duplicate_stamp``; the kept samples keep their own codes.
+    """
     _, run = tiny
     stamps = run.record.counts_stamp_ns.copy()
     stamps[100] = stamps[99]                 # duplicate
@@ -319,8 +337,10 @@ def test_counts_stamps_going_backwards_are_dropped_and_counted(tiny):
 
 
 def test_apply_prints_the_stamp_drops(tiny, tmp_path, capsys):
-    """Header stamps that jump back inside a bag whose bag time increases: apply drops them and
-    names the count with the other drops."""
+    """Header stamps that jump back inside a bag whose bag time increases.
+
+    Apply drops them and names the count with the other drops.
+    """
     root, run = tiny
     stamps = run.record.counts_stamp_ns.copy()
     stamps[50] = stamps[40]
@@ -404,8 +424,10 @@ class SpaceRaises(Creep):
 ])
 def test_a_failing_user_effect_is_one_line_naming_effect_and_method(tiny, tmp_path, monkeypatch, capsys, cls,
                                                                     message):
-    """fit with a user effect that raises or returns NaN or a wrong shape: one line naming the
-    effect and the method, no traceback, no file; --debug shows the traceback."""
+    """`fit` with a user effect that raises or returns NaN or a wrong shape.
+
+    One line naming the effect and the method, no traceback, no file; --debug shows the traceback.
+    """
     root, _ = tiny
     (tmp_path / 'bad_effects.py').write_text(BAD_EFFECTS)
     monkeypatch.syspath_prepend(str(tmp_path))
@@ -420,7 +442,7 @@ def test_a_failing_user_effect_is_one_line_naming_effect_and_method(tiny, tmp_pa
 
 
 def test_a_user_effect_failing_at_correction_time_is_one_line(tiny, tmp_path, monkeypatch, capsys):
-    """apply with a calibration whose user effect raises in step(): one line, no bag."""
+    """`apply` with a calibration whose user effect raises in step(): one line, no bag."""
     root, run = tiny
     (tmp_path / 'bad_effects.py').write_text(BAD_EFFECTS)
     monkeypatch.syspath_prepend(str(tmp_path))
@@ -442,7 +464,8 @@ CSV_OPTIONS = CsvImportOptions(acc_columns=('ax', 'ay', 'az'), temp_column='temp
 
 
 def _csv(times: list[str]) -> list[str]:
-    rows = [f'{t},{0.1 + 0.01 * i:.3f},{0.2 - 0.01 * i:.3f},{9.8 + 0.001 * i:.3f},{20 + i}' for i, t in enumerate(times)]
+    rows = [f'{t},{0.1 + 0.01 * i:.3f},{0.2 - 0.01 * i:.3f},{9.8 + 0.001 * i:.3f},{20 + i}'
+            for i, t in enumerate(times)]
     return ['t,ax,ay,az,temp', *rows]
 
 
@@ -454,8 +477,10 @@ def _csv(times: list[str]) -> list[str]:
     ('-1e-999999', 'is not a number'),
 ])
 def test_a_stamp_that_does_not_fit_a_bag_names_line_and_column(time, problem):
-    """A stamp outside builtin_interfaces/Time (negative, past 2038, a huge exponent) in a
-    middle row: one line naming the line and the column; never an overflow."""
+    """A stamp outside builtin_interfaces/Time (negative, past 2038, a huge exponent) in a middle row.
+
+    One line naming the line and the column; never an overflow.
+    """
     times = ['1', '2', time, '4']
     if problem == 'is not a number':
         with pytest.raises(LogError):
@@ -472,10 +497,13 @@ def test_the_last_representable_stamp_is_accepted():
 
 
 def test_a_temperature_code_beyond_any_sensor_code_names_row_and_column():
-    """A temperature resolution so fine that the codes leave +-1e7: refused at the import,
-    not written as codes that every command would ignore."""
+    """A temperature resolution so fine that the codes leave +-1e7.
+
+    Refused at the import, not written as codes that every command would ignore.
+    """
     options = replace(CSV_OPTIONS, temp_resolution=1e-6)
-    with pytest.raises(LogError, match=r"log.csv: row 1 \(line 2\), column 'temp': 20 C is a temperature code of 2e\+07"):
+    message = r"log.csv: row 1 \(line 2\), column 'temp': 20 C is a temperature code of 2e\+07"
+    with pytest.raises(LogError, match=message):
         parse_csv_log(_csv(['1', '2', '3']), options, source='log.csv')
 
 

@@ -116,8 +116,10 @@ def test_colcon_build_ament_index_and_run(installed, tmp_path, monkeypatch):
 
 
 def test_ros2_run_with_a_driver_calibration(installed, tmp_path, monkeypatch):
-    """`ros2 run tak_thermo_ros compensator --ros-args --params-file P.yaml` with P fitted from a driver
-    bag and nothing else: imu/data_raw + imu/temperature in, imu/data_compensated out, as apply."""
+    """`ros2 run tak_thermo_ros compensator --ros-args --params-file P.yaml`, P fitted from a driver bag.
+
+    Nothing else: imu/data_raw + imu/temperature in, imu/data_compensated out, as apply.
+    """
     from tak_thermo_ros import cli
     from tak_thermo_ros.bagio import read_imu_messages, write_driver_record
     from tak_thermo_ros.core.simulation.imu import Scenario, simulate

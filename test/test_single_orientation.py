@@ -66,7 +66,7 @@ def test_static_fit_holds_the_scale_and_records_it(static_fit, tmp_path):
     assert len(calibration.notes) == 1 and calibration.notes[0].startswith('scale held at nominal on x, y, z')
     path = tmp_path / 'static.yaml'
     save_calibration(path, calibration)
-    entry = yaml.safe_load(path.read_text())['compensator']['ros__parameters']['calibration']
+    entry = yaml.safe_load(path.read_text())['/**/compensator']['ros__parameters']['calibration']
     assert entry['z']['scale_observable'] is False and entry['notes'] == list(calibration.notes)
     loaded = load_calibration(path)
     assert loaded.notes == calibration.notes and not any(axis.scale_observable for axis in loaded.axes)
@@ -83,7 +83,7 @@ def test_static_correction_gives_gravity_back(static_fit):
 
 
 def test_only_the_axes_with_one_input_are_held():
-    """z up and z down: x and y see 0 g only and are held; z sees +/-g and its scale is fitted."""
+    """`z` up and z down: x and y see 0 g only and are held; z sees +/-g and its scale is fitted."""
     run = simulate(Scenario(positions=((0.0, 0.0, 1.0), (0.0, 0.0, -1.0)), plateaus_celsius=(0.0, 40.0),
                             plateau_hours=0.25, ramp_celsius_per_minute=1.0, board_lag_s=60.0, seed=6))
     result = fit_calibration(align(run.record), nominal_scale=run.record.nominal_scale)

@@ -9,8 +9,18 @@ import numpy as np
 import pytest
 
 from conftest import SHORT
-from tak_thermo_ros.bagio import (AUX_TYPES, DECODERS, Topics, iter_blocks, read_driver_record, read_imu_messages, read_record,
-                                  write_driver_record, write_imu, write_record)
+from tak_thermo_ros.bagio import (
+    AUX_TYPES,
+    DECODERS,
+    Topics,
+    iter_blocks,
+    read_driver_record,
+    read_imu_messages,
+    read_record,
+    write_driver_record,
+    write_imu,
+    write_record,
+)
 from tak_thermo_ros.core.link.correction import UnitCorrector, acceleration_variance
 from tak_thermo_ros.core.effects import ThermalLag, Warmup
 from tak_thermo_ros.core.fit import fit_calibration, fit_model
@@ -172,8 +182,11 @@ def test_block_decoder_equals_per_message_decoder_and_blocks_carry_the_recorded_
 
 
 def test_streamed_apply_holds_a_recorded_signal_across_blocks(tmp_path):
-    """An aux: effect: blocks of 500 write the messages of one whole-run correction, the samples
-    before the signal's first value dropped by name."""
+    """An aux.
+
+    Effect: blocks of 500 write the messages of one whole-run correction, the samples before the signal's first value
+    dropped by name.
+    """
     from tak_thermo_ros.core.records.record import require_signals
     run = simulate(replace(SHORT, plateau_hours=0.05, plateaus_celsius=(10.0, 30.0), supply_voltage_drift=2.0,
                            record_supply='/p', record_supply_type='float64', seed=12))
@@ -226,8 +239,10 @@ def test_a_recorded_signal_effect_on_a_long_run_is_fitted_in_two_passes(tmp_path
 
 
 def test_subsample_arrays_grow_beyond_the_expected_size_and_keep_every_stride_row(driver_bag):
-    """The subsample's arrays double when a run holds more rows than expected; the rows kept are
-    those of every_nth on the whole alignment, with the whole run's ignored counts."""
+    """The subsample's arrays double when a run holds more rows than expected.
+
+    The rows kept are those of every_nth on the whole alignment, with the whole run's ignored counts.
+    """
     from tak_thermo_ros.core.records.blocks import BlockAligner
     from tak_thermo_ros.streaming import _Subsample, every_nth
     path, _ = driver_bag

@@ -98,8 +98,10 @@ def _effect_parameters(calibration: Calibration) -> dict[str, float]:
 
 
 def _with_range(calibration: Calibration, low: float, high: float) -> Calibration:
-    """The same link with its calibrated range widened to ``low..high``, so held-out samples
-    are evaluated by the fitted functions, not clamped at the training range's edge."""
+    """The same link with its calibrated range widened to ``low..high``.
+
+    So held-out samples are evaluated by the fitted functions, not clamped at the training range's edge.
+    """
     return replace(calibration, temp_code_min=min(low, calibration.temp_code_min),
                    temp_code_max=max(high, calibration.temp_code_max))
 

@@ -153,7 +153,7 @@ def _predicted(calibration: Calibration, samples: AlignedSamples) -> np.ndarray:
     low, high = float(samples.temp_code.min()), float(samples.temp_code.max())
     corrector = Corrector(_with_range(calibration, low, high))
     return corrector.predict_counts(samples.reference, samples.temp_code, stamp_s=samples.stamp_s,
-                                     aux=samples.aux)
+                                    aux=samples.aux)
 
 
 @dataclass(frozen=True)
@@ -173,7 +173,8 @@ class _CandidateFits:
         def follows_signal(spec: Any) -> bool:
             return getattr(spec, 'needs_signal', None) is not None
 
-        models = {name: tuple(spec for spec in specs if not follows_signal(spec)) for name, specs in self.models.items()}
+        models = {name: tuple(spec for spec in specs if not follows_signal(spec))
+                  for name, specs in self.models.items()}
         fitted = {name: replace(cal, effects=tuple(e for e in cal.effects if not follows_signal(e)))
                   for name, cal in self.fitted.items()}
         return replace(self, models=models, fitted=fitted)
@@ -259,8 +260,9 @@ def design_run(diagnosis: Diagnosis, samples: AlignedSamples, *, pair: Sequence[
     fits = _fit_candidates(diagnosis, samples, names, say)
     floor = np.maximum(diagnosis.noise_floor, 1e-12)
     sensor = sensor or Scenario()
-    to_celsius = lambda code: sensor.reference_celsius + (code - sensor.temp_code_ref) / sensor.codes_per_celsius  # noqa: E731
-    temps = sorted((to_celsius(float(samples.temp_code.min())), to_celsius(float(samples.temp_code.max()))))
+    codes = (float(samples.temp_code.min()), float(samples.temp_code.max()))
+    temps = sorted(sensor.reference_celsius + (code - sensor.temp_code_ref) / sensor.codes_per_celsius
+                   for code in codes)
     rate = sample_rate_hz or _sample_rate(samples)
 
     say('separation on the diagnosed run itself')
@@ -298,7 +300,8 @@ def recorded_signal_note(diagnosis: Diagnosis, label: str = '') -> str | None:
     others = [name for name in names if name not in signals]
     topics = ', '.join(name[len(AUX_PREFIX):].split(':')[0] for name in signals)
     against = f'from {others[0]}' if others else 'from each other'
-    return (f'{label}no chamber run designed: {" and ".join(signals)} {"is" if len(signals) == 1 else "are"} among the two best candidates, '
+    verb = 'is' if len(signals) == 1 else 'are'
+    return (f'{label}no chamber run designed: {" and ".join(signals)} {verb} among the two best candidates, '
             f'and a temperature profile cannot tell a recorded signal {against} by temperature alone; what separates '
             f'them is a run in which {topics} varies independently of the temperature (e.g. the supply voltage '
             f'stepped at a constant chamber temperature)')
@@ -510,7 +513,8 @@ def design_driver_run(diagnoses: Mapping[str, Diagnosis], samples: Mapping[str, 
     choice = max(range(count), key=lambda i: min(scores[s][i].separation_sigmas for s in fits))
     designs = tuple(SensorDesign(sensor=s, candidates=fits[s].names, tried=tuple(scores[s]),
                                  baseline_sigmas=baselines[s][0],
-                                 baseline_rms_over_floor=tuple(float(v) for v in baselines[s][1]),  # type: ignore[arg-type]
+                                 baseline_rms_over_floor=tuple(
+                                     float(v) for v in baselines[s][1]),  # type: ignore[arg-type]
                                  fitted=fits[s].parameters())
                     for s in ('accel', 'gyro') if s in fits)
     return DriverRunDesign(sensors=designs, notes=notes, table=table, sample_rate_hz=float(rate), choice=choice)
@@ -560,7 +564,8 @@ def write_driver_design(design: DriverRunDesign, directory: str | Path) -> tuple
     return _write_files(directory, design.scenario(), header, design.schedule(), design.as_dict(), flow_lists=True)
 
 
-def write_design(design: RunDesign, directory: str | Path, *, sensor: Scenario | None = None) -> tuple[Path, Path, Path]:
+def write_design(design: RunDesign, directory: str | Path, *,
+                 sensor: Scenario | None = None) -> tuple[Path, Path, Path]:
     """Write ``scenario.yaml`` (the simulator runs it), ``schedule.csv`` and ``design.json``.
 
     :returns: the three paths.

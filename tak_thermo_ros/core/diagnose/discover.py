@@ -88,7 +88,7 @@ def null_heldout(samples: AlignedSamples, effects: Sequence[Any], labels: np.nda
     low, high = float(samples.temp_code.min()), float(samples.temp_code.max())
     corrector = Corrector(_with_range(result.calibration, low, high))
     predicted = corrector.predict_counts(samples.reference, samples.temp_code, stamp_s=samples.stamp_s,
-                                     aux=samples.aux)
+                                         aux=samples.aux)
     noise = np.random.default_rng(seed).standard_normal(predicted.shape) * floor
     copy = replace(samples, counts=predicted + noise)
     return cross_validate(copy, tuple(effects), labels, settings, folds=folds)

@@ -62,9 +62,11 @@ def _noise_sigma(floor_differences: int, heldout_samples: float) -> float:
 
 
 def _paired_sigma(floor_differences: int, heldout_samples: float) -> float:
-    """Standard error of ``heldout_mse / floor^2`` less that of a simulated copy of the run with
-    white noise at the floor (:func:`~tak_thermo_ros.core.diagnose.discover.null_heldout`): both
-    held-out means carry their own noise (``2 / n`` each), the floor estimate its own (``3 / m``)."""
+    """Standard error of ``heldout_mse / floor^2`` less that of a simulated copy of the run.
+
+    The copy has white noise at the floor (:func:`~tak_thermo_ros.core.diagnose.discover.null_heldout`):
+    both held-out means carry their own noise (``2 / n`` each), the floor estimate its own (``3 / m``).
+    """
     return math.sqrt(4.0 / max(heldout_samples, 1.0) + 3.0 / max(floor_differences, 1))
 
 

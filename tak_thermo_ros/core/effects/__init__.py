@@ -91,8 +91,9 @@ def _import_module(module: str, spec: str):
 
 
 def resolve_effect(spec: str | type[Effect]) -> type[Effect]:
-    """The effect class of a library name, of a recorded signal ``'aux:TOPIC[:FIELD]'``, or of
-    ``'module:Class'`` (user-defined).
+    """The effect class of a library name, of a recorded signal ``'aux:TOPIC[:FIELD]'``, or of ``'module:Class'``.
+
+    (user-defined).
 
     :raises FitError: naming ``spec`` when it is unknown, cannot be imported, or is not an
         offset-kind subclass of :class:`Effect` with a name of its own.
@@ -141,8 +142,10 @@ def resolve_effect(spec: str | type[Effect]) -> type[Effect]:
 
 
 def effect_spec(cls: type[Effect]) -> str:
-    """What the calibration file stores to find the class again: the library name, the signal
-    name ``aux:...``, or 'module:Class'."""
+    """What the calibration file stores to find the class again.
+
+    The library name, the signal name ``aux:...``, or 'module:Class'.
+    """
     if LIBRARY.get(cls.name) is cls or PER_AXIS.get(cls.name) is cls or is_aux_effect(cls):
         return cls.name
     return f'{cls.__module__}:{cls.__qualname__}'

@@ -42,7 +42,8 @@ def split_signal_name(signal: str) -> tuple[str, str]:
     """
     rest = signal[len(AUX_PREFIX):] if signal.startswith(AUX_PREFIX) else ''
     if not rest.startswith('/') or len(rest) < 2:
-        msg = f"effect '{signal}': an auxiliary signal is named aux:TOPIC or aux:TOPIC:FIELD (e.g. aux:/power/battery_state)"
+        msg = (f"effect '{signal}': an auxiliary signal is named aux:TOPIC or aux:TOPIC:FIELD "
+               f"(e.g. aux:/power/battery_state)")
         raise FitError(msg)
     topic, colon, field = rest.partition(':')
     if colon and (not field or ':' in field):
@@ -163,8 +164,11 @@ class AuxSignal(Effect):
 
 
 def recorded_candidates(aux: Mapping[str, np.ndarray]) -> list[str]:
-    """The recorded signals worth trying as effects: each topic's obvious number (``aux:TOPIC``)
-    that has a value at every sample and is not constant (a constant is the offset itself)."""
+    """The recorded signals worth trying as effects.
+
+    Each topic's obvious number (``aux:TOPIC``) that has a value at every sample and is not constant (a constant is
+    the offset itself).
+    """
     names = []
     for name, values in sorted(aux.items()):
         values = np.asarray(values, dtype=float)

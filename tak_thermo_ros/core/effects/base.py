@@ -40,6 +40,8 @@ from tak_thermo_ros.errors import CalibrationError, EffectError
 AXIS_NAMES: tuple[str, str, str] = ('x', 'y', 'z')
 OFFSET = 'offset'
 INPUT = 'input'
+
+
 @dataclass(frozen=True)
 class ParameterSpec:
     """Declaration of one parameter.
@@ -391,8 +393,11 @@ def effect_failure(effect: Effect | type[Effect], method: str, err: BaseExceptio
 
 def call_effect(effect: Effect | type[Effect], method: str, function: Callable[..., _Result],
                 *args: Any) -> _Result:
-    """Call an effect's method; an exception inside it becomes an :class:`EffectError`
-    naming the effect and the method (the original is its cause, shown by ``--debug``)."""
+    """Call an effect's method.
+
+    An exception inside it becomes an :class:`EffectError` naming the effect and the method (the original is its
+    cause, shown by ``--debug``).
+    """
     try:
         return function(*args)
     except Exception as err:

@@ -87,8 +87,10 @@ class _Projection:
             self.bases.append((q, perpendicular, float(perpendicular @ perpendicular)))
 
     def rss(self, extra: np.ndarray | Sequence[np.ndarray] | None) -> tuple[np.ndarray, list[np.ndarray]]:
-        """Per-axis RSS with ``extra`` columns ``(k, b)`` added (one array shared by the axes, or
-        one per axis), and per axis the least-squares coefficients of those columns."""
+        """Per-axis RSS with ``extra`` columns ``(k, b)`` added (one array shared by the axes, or one per axis).
+
+        Per axis the least-squares coefficients of those columns.
+        """
         out = np.empty(3)
         coefficients = []
         for i, (q, perpendicular, total) in enumerate(self.bases):
@@ -157,9 +159,10 @@ class _CrossValidation:
             self.axes.append((design, target, grams, moments))
 
     def score(self, extra: np.ndarray | Sequence[np.ndarray]) -> tuple[float, list[np.ndarray]]:
-        """The cross-validation score with ``extra`` (normalised) columns added (shared, or one
-        array per axis), and per axis the coefficients of those columns fitted on all training
-        samples."""
+        """The cross-validation score with ``extra`` (normalised) columns added (shared, or one array per axis).
+
+        Per axis the coefficients of those columns fitted on all training samples.
+        """
         score = 0.0
         full_coefficients = []
         for axis, (design, target, grams, moments) in enumerate(self.axes):
@@ -293,8 +296,10 @@ class _EffectFit:
 
     def _extra_and_norms(self, skip: _Offset | None = None, with_basis: np.ndarray | None = None,
                          with_effect: Effect | None = None) -> tuple[list[np.ndarray], list[np.ndarray]]:
-        """Per axis the normalised columns of the done offset effects (then ``with_basis``) and
-        their norms; each effect contributes the basis signals its amplitudes on that axis use."""
+        """Per axis the normalised columns of the done offset effects (then ``with_basis``) and their norms.
+
+        Each effect contributes the basis signals its amplitudes on that axis use.
+        """
         mask = self.mask
         parts = [(entry.basis, entry.effect) for entry in self.offsets if entry is not skip and entry.done]
         if with_basis is not None:

@@ -170,7 +170,7 @@ class StreamingFit:
             raise FitError(msg)
 
     def single_input_axes(self) -> tuple[bool, bool, bool]:
-        """Per axis: did the reference hold one value only (as :func:`single_input_axes`)?"""
+        """Per axis, whether the reference held one value only (as :func:`single_input_axes`)."""
         return tuple(not several for several in self._several_inputs)  # type: ignore[return-value]
 
     def frame(self) -> Frame:

@@ -58,7 +58,7 @@ class Corrector:
 
     @property
     def signals(self) -> tuple[str, ...]:
-        """Names of the recorded signals (``aux:TOPIC``) the correction needs besides the temperature."""
+        """Names (``aux:TOPIC``) of the recorded signals the correction needs besides the temperature."""
         return self._effect_link.signals if self._effect_link is not None else ()
 
     def reset(self) -> None:
@@ -180,9 +180,10 @@ def _horner_into(shape: tuple[float, ...], n: np.ndarray, out: np.ndarray) -> No
 def forward_counts(calibration: Calibration, specific_force: np.ndarray, temp_code: np.ndarray, *,
                    stamp_s: np.ndarray | None = None,
                    aux: Mapping[str, np.ndarray] | None = None) -> np.ndarray:
-    """The whole forward model, effects included (from their initial state), polynomials
-    evaluated beyond the calibrated range: unrounded codes ``(k, 3)``; what a simulator and
-    the tests run a unit through.
+    """The whole forward model, effects included.
+
+    (from their initial state), polynomials evaluated beyond the calibrated range: unrounded codes ``(k, 3)``; what a
+    simulator and the tests run a unit through.
 
     :param stamp_s: ``(k,)`` stamps in seconds, needed by effects with memory.
     :param aux: ``(k,)`` held recorded signals by name, needed by ``aux:`` effects.
@@ -222,7 +223,7 @@ class UnitCorrector:
 
     @property
     def signals(self) -> tuple[str, ...]:
-        """Names of the recorded signals (``aux:TOPIC``) any sensor's correction needs, in order."""
+        """Names (``aux:TOPIC``) of the recorded signals any sensor's correction needs, in order."""
         return tuple(dict.fromkeys(name for corrector in self.correctors for name in corrector.signals))
 
     def correct(self, values: np.ndarray, temperature: np.ndarray, *,

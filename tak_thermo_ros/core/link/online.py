@@ -146,8 +146,9 @@ class Status:
 
 @dataclass(frozen=True)
 class Configuration:
-    """A validated set of policies and calibration, ready to be put in force by
-    :meth:`OnlineCompensator.install` (which cannot fail).
+    """A validated set of policies and calibration, ready to be put in force.
+
+    :meth:`OnlineCompensator.install` puts it in force (and cannot fail).
 
     Built by :meth:`OnlineCompensator.prepare`; every number later computed from the
     calibration (covariances, the correction over the calibrated range) was computed once.
@@ -530,8 +531,10 @@ class OnlineCompensator:
         return self._signals
 
     def process_signal(self, name: str, value: float, now_s: float) -> bool:
-        """Take a value of recorded signal ``name`` that arrived at ``now_s``; ``False`` if rejected
-        (non-finite: the last good value stays, as for the temperature)."""
+        """Take a value of recorded signal ``name`` that arrived at ``now_s``.
+
+        ``False`` if rejected (non-finite: the last good value stays, as for the temperature).
+        """
         self.signal_messages[name] = self.signal_messages.get(name, 0) + 1
         if value != value or value in (math.inf, -math.inf):
             self.signal_rejected[name] = self.signal_rejected.get(name, 0) + 1

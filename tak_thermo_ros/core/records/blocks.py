@@ -24,8 +24,14 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from tak_thermo_ros.core.records.record import (AlignedSamples, ChannelRecord, align, hold_last_index, reference_problems,
-                                        temp_code_problems)
+from tak_thermo_ros.core.records.record import (
+    AlignedSamples,
+    ChannelRecord,
+    align,
+    hold_last_index,
+    reference_problems,
+    temp_code_problems,
+)
 
 NEVER = np.iinfo(np.int64).max
 """Stamp of a placeholder reference that no sample reaches (no reference read yet)."""

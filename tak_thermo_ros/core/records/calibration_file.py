@@ -2,7 +2,7 @@
 
 Layout::
 
-    compensator:
+    /**/compensator:
       ros__parameters:
         calibration:
           version: 1
@@ -23,6 +23,11 @@ A sensor may carry its noise model (``noise``: ``white_noise_density``, ``bias_i
 ``bias_instability_tau``, ``random_walk``, ``quantization``, ``rate_ramp``, three floats each,
 SI units of the corrected output; ``update_rate`` Hz; ``source``); the Imu covariance then
 comes from it (:func:`~tak_thermo_ros.core.link.correction.acceleration_variance`).
+
+The node key is :data:`NODE_KEY` (``/**/compensator``): rcl gives the parameters to a node named
+``compensator`` in any namespace (two IMUs, two compensators in ``/imu0`` and ``/imu1``). Files
+written before with the root key ``compensator:`` load as before (:func:`calibration_section`
+takes the section of any key that holds ``ros__parameters.calibration``).
 
 Effects (``tak_thermo_ros.core.effects``) go under ``calibration.effects.<name>.<param>``, one
 float per parameter (no lists, so that every value is one ROS 2 parameter); a user-defined
@@ -68,6 +73,13 @@ from tak_thermo_ros.core.values import finite_number
 from tak_thermo_ros.errors import CalibrationError, FitError, NoiseError
 
 NODE_NAME = 'compensator'
+NODE_KEY = f'/**/{NODE_NAME}'
+"""The node key the files are written with: the node ``compensator`` in any namespace.
+
+Not ``/**`` (every node): a robot's parameters file often gathers many nodes, and ``/**`` would
+hand ``calibration.*`` to each of them. A renamed node reads the file with
+``-p calibration_file:=FILE`` (any key), or the key is edited to its name.
+"""
 AXIS_KEYS = ('scale', 'offset', 'offset_span', 'offset_shape', 'scale_shape')
 OPTIONAL_AXIS_KEYS = ('residual_rms', 'scale_observable')
 MAX_ORDER = 8
@@ -406,7 +418,8 @@ def unit_from_mapping(raw: Any, *, key: str = 'calibration') -> UnitCalibration:
         msg = f'{key}.{unknown[0]}: unknown key'
         raise CalibrationError(msg)
     if raw.get('input') != InputKind.IMU.value:
-        msg = f'{key}.input: expected {InputKind.IMU.value!r} with version {UNIT_CALIBRATION_VERSION}, got {raw.get("input")!r}'
+        msg = (f'{key}.input: expected {InputKind.IMU.value!r} with version {UNIT_CALIBRATION_VERSION}, '
+               f'got {raw.get("input")!r}')
         raise CalibrationError(msg)
     for sensor in SENSORS:
         if sensor not in raw:
@@ -538,7 +551,7 @@ _ParameterLoader.add_implicit_resolver(
 
 
 def _check_uniform_lists(node: Any, key: str) -> None:
-    """rcl refuses a parameter array that mixes integers and doubles: so does this parser."""
+    """A parameter array that mixes integers and doubles is refused, as rcl refuses it."""
     if isinstance(node, Mapping):
         for name, value in node.items():
             _check_uniform_lists(value, f'{key}.{name}')
@@ -556,6 +569,31 @@ def parse_parameters_yaml(text: str) -> Any:
     :raises yaml.YAMLError: when the text is not YAML.
     """
     return yaml.load(text, Loader=_ParameterLoader)  # noqa: S506 (a SafeLoader subclass)
+
+
+def calibration_section(document: Any) -> Mapping[str, Any]:
+    """The ``ros__parameters`` of a calibration file's node section, which holds ``calibration``.
+
+    The section is the first key holding ``ros__parameters.calibration``, whatever its name
+    (``/**/compensator``, the older ``compensator``, ``/imu0/compensator``, ``/**``); a file
+    whose sections hold none names the first key in its error.
+
+    :raises CalibrationError: when no section holds a calibration.
+    """
+    if not isinstance(document, Mapping) or not document:
+        msg = f'expected a mapping {NODE_KEY}: ros__parameters: calibration: ...'
+        raise CalibrationError(msg)
+    for section in document.values():
+        parameters = section.get('ros__parameters') if isinstance(section, Mapping) else None
+        if isinstance(parameters, Mapping) and 'calibration' in parameters:
+            return parameters
+    node_key = next(iter(document))
+    section = document[node_key]
+    if not isinstance(section, Mapping) or 'ros__parameters' not in section:
+        msg = f'{node_key}.ros__parameters: missing'
+        raise CalibrationError(msg)
+    msg = f'{node_key}.ros__parameters.calibration: missing'
+    raise CalibrationError(msg)
 
 
 def load_unit(path: str | os.PathLike[str]) -> UnitCalibration:
@@ -581,18 +619,7 @@ def load_unit(path: str | os.PathLike[str]) -> UnitCalibration:
         msg = f'{path}: not valid YAML{where}'
         raise CalibrationError(msg) from None
     try:
-        if not isinstance(document, Mapping) or not document:
-            msg = f'expected a mapping {NODE_NAME}: ros__parameters: calibration: ...'
-            raise CalibrationError(msg)
-        node_key = NODE_NAME if NODE_NAME in document else next(iter(document))
-        section = document[node_key]
-        if not isinstance(section, Mapping) or 'ros__parameters' not in section:
-            msg = f'{node_key}.ros__parameters: missing'
-            raise CalibrationError(msg)
-        parameters = section['ros__parameters']
-        if not isinstance(parameters, Mapping) or 'calibration' not in parameters:
-            msg = f'{node_key}.ros__parameters.calibration: missing'
-            raise CalibrationError(msg)
+        parameters = calibration_section(document)
         _check_uniform_lists(parameters['calibration'], 'calibration')
         return unit_from_mapping(parameters['calibration'])
     except CalibrationError as err:
@@ -617,7 +644,7 @@ def unit_yaml(unit: UnitCalibration, *, extra_parameters: Mapping[str, Any] | No
     """The calibration file's text, either version."""
     parameters: dict[str, Any] = dict(extra_parameters or {})
     parameters['calibration'] = unit_to_mapping(unit)
-    document = {NODE_NAME: {'ros__parameters': parameters}}
+    document = {NODE_KEY: {'ros__parameters': parameters}}
     body = yaml.safe_dump(document, sort_keys=False, default_flow_style=None, width=100)
     comment = ''.join(f'# {line}\n' for line in header.splitlines())
     return comment + body
@@ -633,7 +660,7 @@ def calibration_yaml(calibration: Calibration, *, extra_parameters: Mapping[str,
 def save_unit(path: str | os.PathLike[str], unit: UnitCalibration, *, header: str = '') -> None:
     """Validate (by a round trip through the one parser) and write the calibration file atomically."""
     text = unit_yaml(unit, header=header)
-    unit_from_mapping(parse_parameters_yaml(text)[NODE_NAME]['ros__parameters']['calibration'])
+    unit_from_mapping(calibration_section(parse_parameters_yaml(text))['calibration'])
     write_text_atomic(path, text)
 
 

@@ -181,7 +181,7 @@ class ImportedLog:
 
 
 def delimiter_from_option(text: str) -> str:
-    """The delimiter character of a command-line value: ``tab``, ``\\t``, ``comma``, ``,`` ..."""
+    r"""The delimiter character of a command-line value: ``tab``, ``\t``, ``comma``, ``,`` ..."""
     names = {'tab': '\t', '\\t': '\t', 'comma': ',', 'semicolon': ';', 'space': ' ', 'pipe': '|'}
     character = names.get(text.lower(), text)
     if len(character) != 1:
@@ -277,11 +277,11 @@ def parse_csv_log(lines: Iterable[str], options: CsvImportOptions, *, source: st
         raise LogError(msg)
 
     stamp_ns = np.concatenate(stamp_parts)
-    del stamp_parts
+    stamp_parts.clear()  # the pieces freed (not del: flush() refers to the list)
     line_numbers = np.concatenate(line_parts)
-    del line_parts
+    line_parts.clear()
     table = np.concatenate(value_parts)
-    del value_parts
+    value_parts.clear()
     _check_increasing(stamp_ns, source, line_numbers, options.time_column)
     _check_not_constant(table[:, :4], wanted[1:5], source)  # a gyroscope at rest may read one value
     acceleration = table[:, :3] * ACC_UNITS[options.acc_unit]
@@ -313,7 +313,7 @@ def parse_csv_log(lines: Iterable[str], options: CsvImportOptions, *, source: st
 
 def _reference(acceleration: np.ndarray, options: CsvImportOptions, source: str,
                line_numbers: np.ndarray) -> tuple[StaticReference, np.ndarray]:
-    """The static run's reference (:func:`~tak_thermo_ros.core.records.static_run.static_reference`), or the given one."""
+    """The static run's reference (:func:`~tak_thermo_ros.core.records.static_run.static_reference`) or the given."""
     static = static_reference(acceleration, gravity=options.gravity)
     if options.reference is not None:
         return static, np.asarray(options.reference, dtype=float)

@@ -185,8 +185,9 @@ def install_directory(finished: Path, path: Path) -> None:
 
 @contextlib.contextmanager
 def atomic_directory(path: str | os.PathLike[str]) -> Iterator[Path]:
-    """Fill a staging directory and rename it to ``path`` on success; on any failure or
-    interruption remove it, leaving ``path`` as it was.
+    """Fill a staging directory and rename it to ``path`` on success.
+
+    On any failure or interruption remove it, leaving ``path`` as it was.
 
     The caller applies the overwrite rule (:func:`check_output`) beforehand.
     """

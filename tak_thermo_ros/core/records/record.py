@@ -146,8 +146,10 @@ TEMP_CODE_PROBLEMS = ('non_finite', 'implausible')
 
 
 def temp_code_problem(temp_code: float, input_kind: str = 'counts') -> str | None:
-    """Why one temperature input is ignored, or ``None``: NaN or infinite (``non_finite``), or
-    outside :data:`TEMPERATURE_RANGE` of the input kind (``implausible``)."""
+    """Why one temperature input is ignored, or ``None``.
+
+    NaN or infinite (``non_finite``), or outside :data:`TEMPERATURE_RANGE` of the input kind (``implausible``).
+    """
     if not isfinite(temp_code):
         return 'non_finite'
     low, high = TEMPERATURE_RANGE[input_kind]
@@ -166,8 +168,11 @@ def temp_code_problems(temp_code: np.ndarray, input_kind: str = 'counts') -> dic
 
 
 def reference_problems(reference: np.ndarray) -> dict[str, np.ndarray]:
-    """Masks ``(r,)`` per reason a reference message is ignored: ``non_finite`` (a component NaN
-    or infinite) or ``implausible`` (a component of magnitude :data:`REFERENCE_LIMIT` or more)."""
+    """Masks ``(r,)`` per reason a reference message is ignored.
+
+    ``non_finite`` (a component NaN or infinite) or ``implausible`` (a component of magnitude :data:`REFERENCE_LIMIT`
+    or more).
+    """
     reference = np.asarray(reference, dtype=float).reshape(-1, 3)
     finite = np.all(np.isfinite(reference), axis=1)
     large = np.any(np.abs(np.where(np.isfinite(reference), reference, 0.0)) >= REFERENCE_LIMIT, axis=1)

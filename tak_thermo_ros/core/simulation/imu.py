@@ -470,7 +470,8 @@ def supply_signal_name(scenario: Scenario) -> str:
     return f'aux:{scenario.record_supply}' if scenario.record_supply else ''
 
 
-def recorded_supply(scenario: Scenario, stamp_ns: np.ndarray, time_s: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+def recorded_supply(scenario: Scenario, stamp_ns: np.ndarray,
+                    time_s: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """The record's ``aux`` entry of the recorded supply voltage (volts), empty when not recorded."""
     if not scenario.record_supply:
         return {}
