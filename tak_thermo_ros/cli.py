@@ -375,6 +375,8 @@ def cmd_noise(args: argparse.Namespace) -> int:
         write_text_atomic(args.json, _json_text(document, args.json))
         print(f'wrote {args.json}')
     return 0
+
+
 def _print_effects(calibration, result, unit_name: str) -> None:
     """One line per fitted effect: its parameters with their standard errors and units."""
     errors = result.parameter_errors

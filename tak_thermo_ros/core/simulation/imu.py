@@ -554,6 +554,8 @@ def sensor_wander(scenario: Scenario, unit: tuple[AxisTruth, ...], sensor_index:
         return np.zeros((count, 3))
     return bias_wander([scenario.seed, 16, sensor_index], count, scenario.sample_rate_hz, bias,
                        tuple(a.bias_instability_tau for a in unit), walk)
+
+
 def _rotation_run(scenario: Scenario) -> SimulatedRun:
     """A rotation record of the magnetometer (``scenario.rotation``), at ``start_celsius``."""
     driver = rotation_record(scenario.magnetometer, samples=2000, rate_hz=scenario.sample_rate_hz,
