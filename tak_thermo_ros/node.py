@@ -33,6 +33,7 @@ back into a message. The only module of the package that imports rclpy.
 from __future__ import annotations
 
 import array
+import signal
 import sys
 import time
 from typing import Any, Sequence
@@ -594,6 +595,9 @@ def main(args: Sequence[str] | None = None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        # Ctrl-C under `ros2 launch` reaches the node twice (the terminal's process group, then
+        # launch forwarding it): a second SIGINT must not break the teardown with a traceback.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
         if executor is not None:
             executor.shutdown()
         node.destroy_node()

@@ -157,7 +157,7 @@ def test_user_defined_effect_through_the_command_line(tmp_path, monkeypatch, cap
     output = capsys.readouterr().out
     assert 'effect creep: rate_x' in output
     entry = yaml.safe_load((tmp_path / 'params.yaml').read_text())[
-        'compensator']['ros__parameters']['calibration']['effects']['creep']
+        '/**/compensator']['ros__parameters']['calibration']['effects']['creep']
     assert entry['class'] == 'user_creep:Creep'
     samples = align(simulate(scenario).record)
     result = fit_model(samples, effects=['user_creep:Creep'])

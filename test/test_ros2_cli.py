@@ -188,7 +188,7 @@ def test_ros2_launch_in_a_namespace_with_the_fitted_file(workspace, fitted, cli_
         launch.stop()
     log = launch.log()
     assert 'correcting /imu0/imu/data_raw with /imu0/imu/temperature -> /imu0/imu/data_compensated' in log
-    assert 'FATAL' not in log and 'Traceback' not in log
+    assert 'FATAL' not in log and 'Traceback' not in log and 'process has died' not in log, log
 
 
 def corrected_values_from(printed: dict) -> tuple[float, ...]:
