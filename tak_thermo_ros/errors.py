@@ -45,3 +45,7 @@ class OutputError(TakError):
 
 class EffectError(TakError):
     """A user-defined effect raised or returned values that are not finite or of a wrong shape."""
+
+
+class CarrierError(TakError):
+    """A record of the carrier method's stages (or its model) is unusable: NaN, gauss-sized numbers, no turn."""
