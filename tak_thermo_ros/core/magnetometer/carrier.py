@@ -55,7 +55,7 @@ NAV_NAMES = ('north', 'east', 'down')
 
 FIELD_RANGE_UT = (1.0, 2000.0)
 """Plausible median field magnitude of a record, microtesla (Earth 22-67 uT plus a carrier's)."""
-IDENTIFIABLE_RATIO = 1e-9
+IDENTIFIABLE_RATIO = 1e-6
 """Smallest singular value over the largest (unit-scaled columns) that the fit accepts."""
 
 
