@@ -294,17 +294,28 @@ def predict(truth: CarrierTruth, record: CarrierRecord) -> np.ndarray:
                     record.turn_axis, record.turn_angle_rad, record.roll_rad, record.pitch_rad, record.heading_rad)
 
 
-def _predict(earth: np.ndarray, induced: np.ndarray, hard_iron: np.ndarray, offset: np.ndarray,
-             turn_axis: np.ndarray, turn_angle: np.ndarray, roll: np.ndarray, pitch: np.ndarray,
-             heading: np.ndarray) -> np.ndarray:
-    earth_carrier = np.einsum('nji,j->ni', attitude_matrix(roll, pitch, heading), earth)
-    carrier_field = earth_carrier @ induced.T + hard_iron
-    sensor = np.empty_like(carrier_field)
+def _turn_matrices(turn_axis: np.ndarray, turn_angle: np.ndarray) -> np.ndarray:
+    turn = np.empty((len(turn_axis), 3, 3))
     for axis in (0, 1, 2):
         rows = turn_axis == axis
         if np.any(rows):
-            sensor[rows] = np.einsum('nji,nj->ni', axis_rotation(axis, turn_angle[rows]), carrier_field[rows])
-    return sensor + offset
+            turn[rows] = axis_rotation(axis, turn_angle[rows])
+    return turn
+
+
+def _predict_with(earth: np.ndarray, induced: np.ndarray, hard_iron: np.ndarray, offset: np.ndarray,
+                  attitude: np.ndarray, turn: np.ndarray) -> np.ndarray:
+    """``R^T ((I + D) C^T b + p) + o`` for precomputed attitude (C) and turn (R) matrices."""
+    earth_carrier = np.einsum('nji,j->ni', attitude, earth)
+    carrier_field = earth_carrier @ induced.T + hard_iron
+    return np.einsum('nji,nj->ni', turn, carrier_field) + offset
+
+
+def _predict(earth: np.ndarray, induced: np.ndarray, hard_iron: np.ndarray, offset: np.ndarray,
+             turn_axis: np.ndarray, turn_angle: np.ndarray, roll: np.ndarray, pitch: np.ndarray,
+             heading: np.ndarray) -> np.ndarray:
+    return _predict_with(earth, induced, hard_iron, offset, attitude_matrix(roll, pitch, heading),
+                         _turn_matrices(turn_axis, turn_angle))
 
 
 @dataclass(frozen=True)
@@ -371,6 +382,8 @@ class _Problem:
         self.whitening = np.broadcast_to(np.eye(3) / max(errors.sigma(errors.field_uT), 1e-12),
                                          (len(record), 3, 3)).copy()
         self.shift = np.zeros((len(record), 3))
+        self.attitude = attitude_matrix(record.roll_rad, record.pitch_rad, record.heading_rad)
+        self.turn = _turn_matrices(record.turn_axis, record.turn_angle_rad)
 
     def unpack(self, theta: np.ndarray, given: dict[str, float] | None = None):
         earth = earth_from_parameters(self.model, theta[:self.n_earth], self.given if given is None else given)
@@ -385,6 +398,8 @@ class _Problem:
                  roll=None, pitch=None, heading=None) -> np.ndarray:
         r = self.record
         earth, induced, hard_iron, offset = self.unpack(theta, given)
+        if turn_angle is None and roll is None and pitch is None and heading is None:
+            return _predict_with(earth, induced, hard_iron, offset, self.attitude, self.turn)
         return _predict(earth, induced, hard_iron, offset, r.turn_axis,
                         r.turn_angle_rad if turn_angle is None else turn_angle, r.roll_rad if roll is None else roll,
                         r.pitch_rad if pitch is None else pitch, r.heading_rad if heading is None else heading)
@@ -485,6 +500,36 @@ def _initial(problem: _Problem) -> np.ndarray:
     return np.concatenate([earth_values, poisson, hard_iron, offset])
 
 
+def smoothed_attitude(record: CarrierRecord, attitude_error_rad: float, degree: int = 3) -> CarrierRecord:
+    """The record with each stage's roll, pitch and heading replaced by a cubic in time (for the rank check).
+
+    A smoothed angle that moves by less than five times the attitude error within a stage is
+    taken as constant (within the stage, and over the whole record when it moves that little
+    there too): motion within the instrument's error is not motion.
+
+    A carrier's attitude moves slowly and smoothly within a stage; the attitude errors scatter
+    the measured angles around that. Evaluated at the measured angles, the Jacobian would take
+    that scatter for real motion and credit the record with information it does not hold (a
+    heading that "varies" by +-0.1 deg seems to separate the Earth's field along the tilt axis
+    from the hard iron). The identifiability check therefore uses the smoothed attitude.
+    """
+    smoothed = {name: np.array(getattr(record, name), dtype=float) for name in ('roll_rad', 'pitch_rad', 'heading_rad')}
+    for stage in np.unique(record.stage):
+        rows = np.nonzero(record.stage == stage)[0]
+        time = np.asarray(record.time_s, dtype=float)[rows]
+        span = float(np.ptp(time)) or 1.0
+        x = (time - time.mean()) / span
+        order = min(degree, len(rows) - 1)
+        for name, values in smoothed.items():
+            fitted = np.polyval(np.polyfit(x, np.unwrap(values[rows]), order), x) if order > 0 else values[rows]
+            values[rows] = fitted if float(np.ptp(fitted)) > 5.0 * attitude_error_rad else float(np.mean(fitted))
+    for name, values in smoothed.items():  # and an angle that moves that little over the whole record, likewise
+        if float(np.ptp(values)) <= 5.0 * attitude_error_rad:
+            smoothed[name] = np.full_like(values, float(np.mean(values)))
+    return CarrierRecord(record.time_s, record.stage, record.turn_axis, record.turn_angle_rad, smoothed['roll_rad'],
+                         smoothed['pitch_rad'], smoothed['heading_rad'], record.field_uT)
+
+
 def _nullspace_words(names: tuple[str, ...], vector: np.ndarray) -> str:
     weights = np.abs(vector) / np.max(np.abs(vector))
     involved = [names[j] for j in np.argsort(-weights) if weights[j] > 0.2]
@@ -517,13 +562,15 @@ def fit_carrier(record: CarrierRecord, model: CarrierModel | None = None,
         theta = solution.x
     problem.reweight(theta)
     jac = problem.jacobian(theta)
-    column_norms = np.linalg.norm(jac, axis=0)
+    smooth = _Problem(smoothed_attitude(record, errors.attitude_rad), model, errors)
+    smooth.reweight(theta)
+    design_jac = smooth.jacobian(theta)
+    column_norms = np.linalg.norm(design_jac, axis=0)
     if np.any(column_norms == 0.0):
         missing = [names[j] for j in np.nonzero(column_norms == 0.0)[0]]
         msg = f'carrier fit: the record does not depend on {", ".join(missing)} at all (no turn or tilt that shows it)'
         raise FitError(msg)
-    scaled = jac / column_norms
-    _, singular, right = np.linalg.svd(scaled, full_matrices=False)
+    _, singular, right = np.linalg.svd(design_jac / column_norms, full_matrices=False)
     if singular[-1] < IDENTIFIABLE_RATIO * singular[0]:
         msg = (f'carrier fit: the record cannot separate {_nullspace_words(names, right[-1])} (they move together; '
                f'tilt about another axis, fix those Poisson coefficients, or give a declination or |B_earth|)')
