@@ -139,7 +139,7 @@ def cmd_carrier_budget(args: argparse.Namespace) -> int:
     print(table)
     sweeps: dict[str, Any] = {}
     if args.report:
-        runs = max(args.runs // 4, 10)
+        runs = max(args.runs // 4, 2)
 
         def progress(text: str) -> None:
             print(f'  sweep: {text} ({runs} runs)', file=sys.stderr)
