@@ -558,7 +558,7 @@ def fit_carrier(record: CarrierRecord, model: CarrierModel | None = None,
     names = model.parameter_names()
     for _ in range(reweightings + 1):
         problem.reweight(theta)
-        solution = least_squares(problem.residuals, theta, method='lm', x_scale='jac', xtol=1e-12, ftol=1e-12)
+        solution = least_squares(problem.residuals, theta, method='lm', x_scale='jac', xtol=1e-10, ftol=1e-10)
         theta = solution.x
     problem.reweight(theta)
     jac = problem.jacobian(theta)
