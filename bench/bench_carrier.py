@@ -65,12 +65,16 @@ def main() -> None:
     table = monte_carlo(scenario, model, args.runs)
     print(table_text(table), flush=True)
     alternatives = {}
-    for name, (alt_scenario, alt_model) in {
-        'magnitude gauge (|B_earth| 50 uT known, declination free)': (scenario, CarrierModel(('zz',), Gauge(magnitude_uT=50.0))),
-        'declination and magnitude known': (scenario, CarrierModel(('zz',), Gauge(declination_deg=7.0, magnitude_uT=50.0))),
+    normal = replace(scenario, errors=replace(scenario.errors, distribution='normal'))
+    variants = {
+        'magnitude gauge (|B_earth| 50 uT known, declination free)':
+            (scenario, CarrierModel(('zz',), Gauge(magnitude_uT=50.0))),
+        'declination and magnitude known':
+            (scenario, CarrierModel(('zz',), Gauge(declination_deg=7.0, magnitude_uT=50.0))),
         'second tilt about roll, no gauge': (replace(scenario, second_tilt_axis='roll'), CarrierModel(('zz',), Gauge())),
-        'normal errors (+/- as 1 sigma)': (replace(scenario, errors=replace(scenario.errors, distribution='normal')), model),
-    }.items():
+        'normal errors (+/- as 1 sigma)': (normal, model),
+    }
+    for name, (alt_scenario, alt_model) in variants.items():
         summary = monte_carlo(alt_scenario, alt_model, args.alternative_runs)
         print(f'\n{name}\n{table_text(summary)}', flush=True)
         alternatives[name] = summary.as_json()

@@ -220,8 +220,8 @@ def test_cli_budget_prints_the_seed_table_and_writes_the_report(tmp_path, capsys
 def test_monte_carlo_errors_match_the_predicted_sigma_and_grow_with_the_attitude_error():
     """The budget's RMS relative errors agree with the reported sigmas; a 3x attitude error raises them."""
     scenario = CarrierScenario()
-    seed = monte_carlo(scenario, SEED_MODEL, runs=30)
+    seed = monte_carlo(scenario, SEED_MODEL, runs=20)
     for name in ('earth', 'poisson', 'hard_iron'):
         assert 0.6 < seed.rms_percent[name] / seed.mean_sigma_percent[name] < 1.6, name
-    worse = monte_carlo(replace(scenario, errors=InstrumentErrors(attitude_rad=math.radians(0.3))), SEED_MODEL, runs=30)
+    worse = monte_carlo(replace(scenario, errors=InstrumentErrors(attitude_rad=math.radians(0.3))), SEED_MODEL, runs=20)
     assert worse.mean_sigma_percent['poisson'] > 1.5 * seed.mean_sigma_percent['poisson']

@@ -225,7 +225,8 @@ class CarrierModel:
     def __post_init__(self) -> None:
         unknown = [name for name in self.poisson if name not in POISSON_NAMES]
         if unknown or len(set(self.poisson)) != len(self.poisson):
-            msg = f'carrier model: Poisson coefficients must be distinct names of {", ".join(POISSON_NAMES)}, got {self.poisson}'
+            msg = (f'carrier model: Poisson coefficients must be distinct names of {", ".join(POISSON_NAMES)}, '
+                   f'got {self.poisson}')
             raise CarrierError(msg)
 
     def earth_names(self) -> tuple[str, ...]:
