@@ -82,6 +82,14 @@ def test_one_tilt_axis_without_a_gauge_is_refused_naming_what_moves_together():
         fit_carrier(record, CarrierModel(('yy',), Gauge(declination_deg=7.0)))
 
 
+def test_a_record_without_a_tilt_is_refused():
+    """The carrier never tilts (its attitude only scatters within the error): induced and permanent are one."""
+    record, _ = simulate_carrier(CarrierScenario(seed=8))
+    scatter = np.random.default_rng(8).uniform(-1.7e-3, 1.7e-3, len(record))
+    with pytest.raises(FitError, match=r'cannot separate .*needs a tilt of the carrier'):
+        fit_carrier(replace(record, pitch_rad=scatter), SEED_MODEL)
+
+
 def test_a_second_tilt_axis_needs_no_gauge():
     """Tilting about roll as well separates everything without outside knowledge."""
     record, truth = simulate_carrier(CarrierScenario(seed=3, second_tilt_axis='roll'))

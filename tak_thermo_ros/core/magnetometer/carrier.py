@@ -573,8 +573,9 @@ def fit_carrier(record: CarrierRecord, model: CarrierModel | None = None,
         raise FitError(msg)
     _, singular, right = np.linalg.svd(design_jac / column_norms, full_matrices=False)
     if singular[-1] < IDENTIFIABLE_RATIO * singular[0]:
-        msg = (f'carrier fit: the record cannot separate {_nullspace_words(names, right[-1])} (they move together; '
-               f'tilt about another axis, fix those Poisson coefficients, or give a declination or |B_earth|)')
+        msg = (f'carrier fit: the record cannot separate {_nullspace_words(names, right[-1])} (they move together: '
+               f'the record needs a tilt of the carrier that shows them apart, fewer free Poisson coefficients, '
+               f'or a declination or |B_earth|)')
         raise FitError(msg)
     condition = float(singular[0] / singular[-1])
     residual = problem.residuals(theta)
