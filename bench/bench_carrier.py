@@ -12,7 +12,7 @@ Writes ``bench/results/carrier_budget.json`` (and, with ``--report DIR``, the sw
   set, gauge) of docs/magnetometer.md (``inf``: a combination the design cannot determine);
 - ``sweeps``: tilt range, tilt step and each instrument error (``--sweep-runs`` per point).
 
-Run: ``.venv/bin/python bench/bench_carrier.py [--runs 1000] [--sweep-runs 200]``.
+Run: ``.venv/bin/python bench/bench_carrier.py [--runs 1000] [--sweep-runs 50]`` (8 min on this machine, loaded).
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--runs', type=int, default=1000)
     parser.add_argument('--alternative-runs', type=int, default=300)
-    parser.add_argument('--sweep-runs', type=int, default=200)
+    parser.add_argument('--sweep-runs', type=int, default=50)
     parser.add_argument('--output', type=Path, default=RESULTS / 'carrier_budget.json')
     args = parser.parse_args()
     start = time.perf_counter()
