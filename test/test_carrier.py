@@ -124,6 +124,27 @@ def test_turning_heading_and_the_earth_field_together_changes_no_reading(turn, s
                                predict(truth, record), atol=1e-9)
 
 
+@pytest.mark.parametrize('shift_deg', [-40.0, 25.0])
+def test_the_estimate_turns_with_heading_and_declination(shift_deg):
+    """Heading and declination both shifted: the same readings, the Earth field's estimate turned about down."""
+    base = CarrierScenario(seed=9)
+    shifted = replace(base, heading_deg=base.heading_deg + shift_deg, declination_deg=base.declination_deg + shift_deg)
+    record, _ = simulate_carrier(base)
+    record_shifted, _ = simulate_carrier(shifted)
+    np.testing.assert_allclose(record_shifted.field_uT, record.field_uT, atol=1e-9)
+    fit = fit_carrier(record, SEED_MODEL)
+    fit_shifted = fit_carrier(record_shifted, CarrierModel(('zz',), Gauge(declination_deg=7.0 + shift_deg)))
+    earth = np.array([fit.value(f'B_{n}') for n in ('north', 'east', 'down')])
+    earth_shifted = np.array([fit_shifted.value(f'B_{n}') for n in ('north', 'east', 'down')])
+    # equal to the fit's convergence: a thousandth of the smallest sigma
+    sigmas = np.array([fit.by_name()[f'B_{n}'].sigma for n in ('north', 'east', 'down')])
+    assert np.all(np.abs(earth_shifted - axis_rotation(2, math.radians(shift_deg)) @ earth) < 1e-3 * sigmas.max())
+    for name in ('D_zz', 'p_x', 'p_y', 'p_z', 'o_x', 'o_y', 'o_z'):
+        sigma = fit.by_name()[name].sigma
+        assert fit_shifted.value(name) == pytest.approx(fit.value(name), abs=1e-3 * sigma)
+        assert fit_shifted.by_name()[name].sigma == pytest.approx(sigma, rel=1e-3)
+
+
 _cell = st.one_of(st.floats(allow_nan=True, allow_infinity=True).map(repr), st.sampled_from(['x', 'z', '', 'nan', 'gauss']),
                   st.floats(-100, 100).map(lambda v: f'{v:.3f}'))
 
