@@ -924,6 +924,8 @@ def build_parser() -> argparse.ArgumentParser:
     noise.set_defaults(handler=cmd_noise)
     from tak_thermo_ros.fleet import add_fleet_parser
     add_fleet_parser(commands, fit, main)
+    from tak_thermo_ros.magnetometer_cli import add_carrier_parsers  # the carrier method (docs/magnetometer.md)
+    add_carrier_parsers(commands, OUTPUTS)
     return parser
 
 

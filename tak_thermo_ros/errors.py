@@ -53,3 +53,7 @@ class NoiseError(TakError):
 
 class DependencyError(TakError):
     """An optional library that a command needs is not installed (the message names its pip package)."""
+
+
+class CarrierError(TakError):
+    """A record of the carrier method's stages (or its model) is unusable: NaN, gauss-sized numbers, no turn."""
