@@ -148,7 +148,8 @@ def main() -> int:
     baseline = ROSBAGS_15H_S * (args.hours / 15.0) * (args.rate / 1000.0)
     figures.update(hours=args.hours, rate_hz=args.rate, wall_s=time.perf_counter() - started,
                    rosbags_baseline_s=baseline,
-                   baseline_source='README: rosbags deserialises 15 h at 1 kHz in 645 s (scaled linearly to this length and rate)',
+                   baseline_source='README: rosbags deserialises 15 h at 1 kHz in 645 s '
+                                   '(scaled linearly to this length and rate)',
                    ratio_to_rosbags=figures['allan_s'] / baseline, target_ratio=0.3,
                    memory_target_bytes=MEMORY_TARGET_BYTES,
                    truth={'white': WHITE, 'bias_instability': BIAS, 'random_walk': WALK},
@@ -159,7 +160,8 @@ def main() -> int:
     (RESULTS / name).write_text(json.dumps(figures, indent=2) + '\n')
     print(f'{figures["samples_per_axis"]:,} samples x 3 axes: Allan deviation (accumulate + fit) '
           f'{figures["allan_s"]:.1f} s = {figures["ratio_to_rosbags"]:.3f}x rosbags ({baseline:.0f} s); '
-          f'peak RSS {figures["peak_rss_bytes"] / 1e6:.0f} MB; generating the samples took {figures["generate_s"]:.1f} s')
+          f'peak RSS {figures["peak_rss_bytes"] / 1e6:.0f} MB; '
+          f'generating the samples took {figures["generate_s"]:.1f} s')
     return 0 if figures['meets_targets'] else 3
 
 

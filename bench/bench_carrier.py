@@ -71,7 +71,8 @@ def main() -> None:
             (scenario, CarrierModel(('zz',), Gauge(magnitude_uT=50.0))),
         'declination and magnitude known':
             (scenario, CarrierModel(('zz',), Gauge(declination_deg=7.0, magnitude_uT=50.0))),
-        'second tilt about roll, no gauge': (replace(scenario, second_tilt_axis='roll'), CarrierModel(('zz',), Gauge())),
+        'second tilt about roll, no gauge':
+            (replace(scenario, second_tilt_axis='roll'), CarrierModel(('zz',), Gauge())),
         'normal errors (+/- as 1 sigma)': (normal, model),
     }
     for name, (alt_scenario, alt_model) in variants.items():

@@ -649,7 +649,8 @@ def write_driver_record(path: str | os.PathLike[str], record: DriverRecord, *, t
             if stream == mag_stream:
                 x, y, z = (float(v) for v in record.mag[row])
                 message = _MagneticField(header=_header(stamp, record.mag_frame_id or record.frame_id),
-                                         magnetic_field=_Vector3(x=x, y=y, z=z), magnetic_field_covariance=zero_covariance)
+                                         magnetic_field=_Vector3(x=x, y=y, z=z),
+                                         magnetic_field_covariance=zero_covariance)
                 writer.write(mag_conn, stamp, serialize(message, MAGNETIC_FIELD))
             elif stream == field_stream:
                 x, y, z = (float(v) for v in record.mag_reference[row])
@@ -854,7 +855,8 @@ def bag_streams(path: str | os.PathLike[str], *, topics: Topics = Topics(),
         raise _cannot_read(path, err) from None
     return BagStreams(kind=kind, main=counts['main'], temperature=counts['temperature'],
                       reference=counts['reference'], rate_reference=counts.get('rate_reference', 0),
-                      nominal_scale=nominal_scale, mag=counts.get('mag', 0), mag_reference=counts.get('mag_reference', 0))
+                      nominal_scale=nominal_scale, mag=counts.get('mag', 0),
+                      mag_reference=counts.get('mag_reference', 0))
 
 
 def decode_vector3_stamped(raws: list[bytes]) -> tuple[np.ndarray, np.ndarray, list[str]]:
@@ -1068,9 +1070,11 @@ def _decode_block(path: Path, kind: InputKind, raws: dict[str, list[bytes]], bag
         orientation = np.asarray(arrays['orientation'], dtype=float)
         covariance = np.asarray(arrays['orientation_covariance'], dtype=float)
         frame_ids = arrays
-    rate_stamp, rate, _ = _decode_vectors(path, raws.get('rate_reference', []), names.get('rate_reference', ''), decoder)
+    rate_stamp, rate, _ = _decode_vectors(path, raws.get('rate_reference', []), names.get('rate_reference', ''),
+                                          decoder)
     mag_stamp, mag, mag_frame = _decode_mag(path, raws.get('mag', []), names.get('mag', ''), decoder, mag_frames)
-    field_stamp, field, _ = _decode_vectors(path, raws.get('mag_reference', []), names.get('mag_reference', ''), decoder)
+    field_stamp, field, _ = _decode_vectors(path, raws.get('mag_reference', []), names.get('mag_reference', ''),
+                                            decoder)
     return DriverRecord(stamp_ns=stamps, accel=accel, gyro=gyro, orientation=orientation,
                         orientation_covariance=covariance, temp_stamp_ns=temp_stamp, temperature=temperature,
                         reference_stamp_ns=reference_stamp, reference=reference,
@@ -1099,7 +1103,8 @@ def _decode_mag(path: Path, raws: list[bytes], topic: str, decoder: str,
         stamps, values, frame_ids = decode_magnetic_fields(raws)
     else:
         arrays = _block_arrays(path, raws, MAGNETIC_FIELD, topic)
-        stamps, values = np.asarray(arrays['stamp_ns'], dtype=np.int64), np.asarray(arrays['magnetic_field'], dtype=float)
+        stamps, values = (np.asarray(arrays['stamp_ns'], dtype=np.int64),
+                          np.asarray(arrays['magnetic_field'], dtype=float))
         frame_ids = arrays
     if frames is None:
         return stamps, values, ''
@@ -1145,7 +1150,8 @@ class ImuBagWriter:
             self._mag_connections[topic] = self._writer.add_connection(topic, MAGNETIC_FIELD, typestore=TYPESTORE)
         connection = self._mag_connections[topic]
         raws = encode_messages(MAGNETIC_FIELD, np.asarray(stamp_ns, dtype=np.int64),
-                               {'magnetic_field': field, 'magnetic_field_covariance': np.asarray(covariance, dtype=float)},
+                               {'magnetic_field': field,
+                                'magnetic_field_covariance': np.asarray(covariance, dtype=float)},
                                {'frame_id': frame_id})
         for stamp, raw in zip(np.asarray(stamp_ns).tolist(), raws):
             self._writer.write(connection, stamp, raw)

@@ -134,7 +134,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         driver = run.driver
         write_driver_record(args.out_bag, driver, topics=_topics(args), storage=args.storage, force=args.force,
                             aux_types=aux_types)
-        hours = ((driver.stamp_ns[-1] - driver.stamp_ns[0]) * 1e-9 if scenario.rotation else scenario.duration_s()) / 3600.0
+        hours = ((driver.stamp_ns[-1] - driver.stamp_ns[0]) * 1e-9 if scenario.rotation
+                 else scenario.duration_s()) / 3600.0
         print(f'wrote {args.out_bag}: {len(driver.stamp_ns)} Imu, {len(driver.temp_stamp_ns)} temperature, '
               f'{len(driver.reference_stamp_ns)} reference changes, {hours:.2f} h at '
               f'{scenario.sample_rate_hz:g} Hz ({args.storage}); temperature '
@@ -322,14 +323,16 @@ def noise_axis_line(sensor: str, model, axis: int, unit: str) -> str:
                 f'random walk {walk:.3e} rad/s^2/sqrt(Hz) ({walk * DEG * 3600.0 * 60.0:.3g} deg/h/sqrt(h))')
     elif unit in ('m/s^2', 'counts'):  # a counts calibration's corrected output is m/s^2
         g = STANDARD_GRAVITY
-        text = (f'white {white:.3e} m/s^2/sqrt(Hz) ({white / g * 1e6:.3g} ug/sqrt(Hz), {white * 60.0:.3g} m/s/sqrt(h)); '
+        text = (f'white {white:.3e} m/s^2/sqrt(Hz) ({white / g * 1e6:.3g} ug/sqrt(Hz), '
+                f'{white * 60.0:.3g} m/s/sqrt(h)); '
                 f'bias instability {bias:.3e} m/s^2 ({bias / g * 1e3:.3g} mg) at {at}; '
                 f'random walk {walk:.3e} m/s^3/sqrt(Hz) ({walk / g * 1e3 * 60.0:.3g} mg/sqrt(h))')
     else:
         text = f'white {white:.3e}; bias instability {bias:.3e} at {at}; random walk {walk:.3e} ({unit})'
     extra_units = {'rad/s': ('rad', 'rad/s^2')}.get(unit, ('m/s', 'm/s^3') if unit in ('m/s^2', 'counts') else ('', ''))
     extra = [f'{name} {getattr(model, name)[axis]:.3e} {extra_unit}'.rstrip()
-             for name, extra_unit in zip(('quantization', 'rate_ramp'), extra_units) if getattr(model, name)[axis] > 0.0]
+             for name, extra_unit in zip(('quantization', 'rate_ramp'), extra_units)
+             if getattr(model, name)[axis] > 0.0]
     return text + (f'; {", ".join(extra)}' if extra else '')
 
 
@@ -367,7 +370,8 @@ def cmd_noise(args: argparse.Namespace) -> int:
             print(f'  {name}: {noise_axis_line(sensor, model, i, unit_name)}')
         document['sensors'][sensor] = noise_document(noise)  # type: ignore[index]
     if args.output:
-        header = (f'noise model of {args.bag} ({"thermally compensated with " + args.params if run.compensated else "not compensated"}), '
+        header = (f'noise model of {args.bag} ('
+                  f'{"thermally compensated with " + args.params if run.compensated else "not compensated"}), '
                   f'tak_calib noise\nKalibr keys: the largest axis; per axis (x, y, z) under *_xyz')
         write_kalibr(args.output, run.models, rostopic=run.topic, header=header, force=args.force)
         print(f'wrote {args.output}')
@@ -818,9 +822,10 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument('--settle-time', type=bounds.seconds_not_negative, default=0.0, metavar='SECONDS',
                      help='leave out samples this long after each reference change (turntable settling)')
     noise_group = fit.add_argument_group('noise model written with the calibration (the node\'s Imu covariances)')
-    noise_group.add_argument('--noise', metavar='IMU.yaml', help='a Kalibr-style imu.yaml (noise densities, random walks)')
+    noise_group.add_argument('--noise', metavar='IMU.yaml',
+                             help='a Kalibr-style imu.yaml (noise densities, random walks)')
     noise_group.add_argument('--noise-run', metavar='BAG', help='a static, constant-temperature run: its noise model '
-                                                               '(compensated with the fitted calibration)')
+                                                                '(compensated with the fitted calibration)')
     noise_group.add_argument('--noise-from-residual', action='store_true',
                              help='the noise model of this run\'s residual after the fit (one more pass over the bag)')
     _add_static_options(fit)

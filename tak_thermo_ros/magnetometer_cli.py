@@ -41,7 +41,7 @@ def _model(args: argparse.Namespace):
                'or --no-gauge for a record that tilts about two axes')
         raise CarrierError(msg)
     gauge = Gauge() if args.no_gauge else Gauge(args.declination, args.declination_sigma, args.magnitude,
-                                                 args.magnitude_sigma)
+                                                args.magnitude_sigma)
     return CarrierModel(names, gauge)
 
 
@@ -227,7 +227,8 @@ def add_carrier_parsers(commands: Any, outputs: dict[str, tuple[tuple[str, str, 
 
     budget = commands.add_parser('carrier-budget', help="Monte Carlo error budget of the carrier method beside "
                                                         "the seed's table")
-    budget.add_argument('--runs', type=bounds.int_within(2, 1_000_000), default=200, help='Monte Carlo runs (default 200)')
+    budget.add_argument('--runs', type=bounds.int_within(2, 1_000_000), default=200,
+                        help='Monte Carlo runs (default 200)')
     budget.add_argument('--first-seed', type=bounds.seed, default=0, help='seed of the first run (default 0)')
     budget.add_argument('--report', metavar='DIR', help='also run the sweeps (runs/4 per point) into DIR/report.html')
     budget.add_argument('--json', metavar='OUT.json', help='write the figures as JSON')

@@ -157,7 +157,8 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
                f'for {unit.input_kind.value} input')
         raise NoiseError(msg)
     if kind is InputKind.COUNTS and unit is None:
-        msg = f'{path}: a counts bag holds channel codes, not SI values: give --params (the calibration) to take its noise'
+        msg = (f'{path}: a counts bag holds channel codes, not SI values: '
+               'give --params (the calibration) to take its noise')
         raise NoiseError(msg)
     opened = _open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=True)
     sensors = sensors_of(opened.kind)

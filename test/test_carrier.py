@@ -145,7 +145,8 @@ def test_the_estimate_turns_with_heading_and_declination(shift_deg):
         assert fit_shifted.by_name()[name].sigma == pytest.approx(sigma, rel=1e-3)
 
 
-_cell = st.one_of(st.floats(allow_nan=True, allow_infinity=True).map(repr), st.sampled_from(['x', 'z', '', 'nan', 'gauss']),
+_cell = st.one_of(st.floats(allow_nan=True, allow_infinity=True).map(repr),
+                  st.sampled_from(['x', 'z', '', 'nan', 'gauss']),
                   st.floats(-100, 100).map(lambda v: f'{v:.3f}'))
 
 

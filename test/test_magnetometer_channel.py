@@ -76,8 +76,8 @@ def test_vectorised_and_per_sample_corrections_agree_bit_for_bit_and_undo_the_si
     corrector = MagCorrector(truth)
     temperature = np.interp(driver.mag_stamp_ns, driver.temp_stamp_ns, driver.temperature)
     vectorised = corrector.correct(driver.mag, temperature)
-    per_sample = np.array([corrector.correct_sample(tuple(v), t) for v, t in zip(driver.mag.tolist(),
-                                                                                   temperature.tolist())])
+    per_sample = np.array([corrector.correct_sample(tuple(v), t)
+                           for v, t in zip(driver.mag.tolist(), temperature.tolist())])
     assert np.array_equal(vectorised, per_sample)
     # The exact correction (W = S^-1, the true link) gives the true field; the board temperature
     # is held between temperature messages, so allow the drift over 5 s of a ramp.

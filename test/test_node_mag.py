@@ -170,7 +170,8 @@ def test_the_launch_file_remaps_the_magnetometer_topics():
     from tak_thermo_ros import node as node_module
     tree = ast.parse((Path(__file__).resolve().parents[1] / 'launch' / 'compensator.launch.py').read_text())
     constants = {n.targets[0].id: ast.literal_eval(n.value) for n in tree.body
-                 if isinstance(n, ast.Assign) and isinstance(n.targets[0], ast.Name) and n.targets[0].id == 'MAG_TOPICS'}
+                 if isinstance(n, ast.Assign) and isinstance(n.targets[0], ast.Name)
+                 and n.targets[0].id == 'MAG_TOPICS'}
     assert constants['MAG_TOPICS'] == (node_module.MAG_TOPIC, node_module.COMPENSATED_MAG_TOPIC)
 
 

@@ -40,8 +40,11 @@ def static_bag(tmp_path_factory):
 
 
 def test_noise_writes_a_kalibr_file_within_20_percent_of_the_simulated_truth(static_bag, tmp_path, capsys):
-    """The four Kalibr numbers (largest axis): over 20 seeds in memory their spread is 0.3 % (densities)
-    and 5-6 % (random walks; largest 13 %), so 20 % holds with margin on any seed."""
+    """The four Kalibr numbers (largest axis) are within 20 % of the truth.
+
+    Over 20 seeds in memory their spread is 0.3 % (densities) and 5-6 % (random walks; largest 13 %),
+    so 20 % holds with margin on any seed.
+    """
     bag, scenario = static_bag
     output, document = tmp_path / 'imu.yaml', tmp_path / 'noise.json'
     assert cli.main(['noise', str(bag), '-o', str(output), '--json', str(document), '--no-progress']) == 0
@@ -85,10 +88,12 @@ def _thermal_static_run(seed: int = 3):
 
 
 def test_noise_of_the_compensated_signal_is_the_sensors_and_fit_writes_it(tmp_path, capsys):
-    """Uncompensated, the thermal drift dominates the long averaging times; compensated with the true
-    link, the model is the sensor's own (the 20 % of the Kalibr check). fit --noise-from-residual
-    writes its residual's model into the calibration (white density within 5 %: the fit's own error
-    is far below it) and the Imu covariance follows it."""
+    """Uncompensated, the thermal drift dominates the long averaging times.
+
+    Compensated with the true link, the model is the sensor's own (the 20 % of the Kalibr check).
+    fit --noise-from-residual writes its residual's model into the calibration (white density within
+    5 %: the fit's own error is far below it) and the Imu covariance follows it.
+    """
     scenario = _thermal_static_run()
     bag, params, truth_params = tmp_path / 'thermal.mcap', tmp_path / 'params.yaml', tmp_path / 'truth.yaml'
     write_driver_record(bag, simulate(scenario).driver)
@@ -179,9 +184,12 @@ def test_noise_axis_line_converts_to_data_sheet_units():
 
 
 def test_a_counts_bag_with_params_gives_the_corrected_outputs_noise(tmp_path, capsys):
-    """The paper's codes, corrected with the true link: the white noise of the output in m/s^2 is
-    the codes' (noise and rounding) over K0, within 5 % (5,400 samples: 1 % spread at the shortest
-    averaging time), on every axis; a random walk of the codes shows in m/s^2 too."""
+    """The paper's codes, corrected with the true link.
+
+    The white noise of the output in m/s^2 is the codes' (noise and rounding) over K0, within 5 %
+    (5,400 samples: 1 % spread at the shortest averaging time), on every axis; a random walk of the
+    codes shows in m/s^2 too.
+    """
     scenario = scenario_from_mapping({'plateaus_celsius': [15.0, 25.0], 'plateau_hours': 0.5, 'sample_rate_hz': 1.0,
                                       'unit': {'x': {'random_walk': 0.05}}})
     bag, params = tmp_path / 'counts.mcap', tmp_path / 'truth.yaml'
@@ -198,9 +206,11 @@ def test_a_counts_bag_with_params_gives_the_corrected_outputs_noise(tmp_path, ca
 
 
 def test_noise_on_a_rate_table_run_is_the_residual_after_the_references(tmp_path, capsys):
-    """A table that tilts and turns (the references change every 20 s): with the true link the
-    residual is the white noise alone, within 5 % on every axis of both sensors (18,000 samples:
-    about 1 % spread at the shortest averaging times); --settle-time leaves gaps, counted."""
+    """A table that tilts and turns (the references change every 20 s).
+
+    With the true link the residual is the white noise alone, within 5 % on every axis of both sensors
+    (18,000 samples: about 1 % spread at the shortest averaging times); --settle-time leaves gaps, counted.
+    """
     scenario = replace(Scenario(output='imu', sample_rate_hz=10.0, plateaus_celsius=(15.0, 25.0), plateau_hours=0.2,
                                 ramp_celsius_per_minute=2.0, board_lag_s=30.0, dwell_s=20.0), seed=4)
     bag, params = tmp_path / 'table.mcap', tmp_path / 'truth.yaml'

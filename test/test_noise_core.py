@@ -140,8 +140,11 @@ def _coverage(alpha_noise: str, m: int, seeds: int, n: int = 1024) -> float:
 
 @pytest.mark.parametrize(('noise', 'm'), [('white', 4), ('white', 64), ('walk', 16)])
 def test_confidence_intervals_cover_the_truth_at_their_level(noise, m):
-    """Over 400 seeds the 68.3 % chi-square interval (Howe's degrees of freedom) covers the truth
-    68.3 % +- 3 binomial standard errors of the time."""
+    """The 68.3 % chi-square interval covers the truth at its level.
+
+    Over 400 seeds the 68.3 % chi-square interval (Howe's degrees of freedom) covers the truth
+    68.3 % +- 3 binomial standard errors of the time.
+    """
     seeds = 400
     coverage = _coverage(noise, m, seeds)
     assert abs(coverage - 0.683) < 3.0 * math.sqrt(0.683 * 0.317 / seeds)

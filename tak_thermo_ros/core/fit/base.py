@@ -32,6 +32,7 @@ from tak_thermo_ros.core.link.model import AXES
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import FitError
 
+
 @dataclass(frozen=True)
 class Solved:
     """The solve of the three axes: per axis the solution, its columns' labels, the held scale."""
@@ -94,7 +95,8 @@ def solve_run(run: FitRun, *, input_effects: Sequence[Effect] = (),
     return Solved(tuple(solutions), tuple(columns), tuple(held_scales))
 
 
-def model_run(run: FitRun, solved: Solved, *, effects: Sequence[Effect] = (), shape_parameters: Sequence[int] = (0, 0, 0),
+def model_run(run: FitRun, solved: Solved, *, effects: Sequence[Effect] = (),
+              shape_parameters: Sequence[int] = (0, 0, 0),
               parameter_errors: dict[str, float] | None = None) -> FitResult:
     """The calibration of the solved axes, its residual through the correction path, its statistics.
 
@@ -108,7 +110,8 @@ def model_run(run: FitRun, solved: Solved, *, effects: Sequence[Effect] = (), sh
     calibration = calibration_from(run.frame, betas, bias_order=run.bias_order, scale_order=run.scale_order,
                                    held_scales=held, notes=held_notes(held, run.first_input), effects=fitted)
     # Effects with memory run over the whole series from their initial state.
-    residual = residual_counts(calibration, run.samples)[run.mask] if fitted else residual_counts(calibration, run.train)
+    residual = (residual_counts(calibration, run.samples)[run.mask] if fitted
+                else residual_counts(calibration, run.train))
     parameters = [solution.width + shapes for solution, shapes in zip(solved.solutions, shape_parameters)]
     return finish_fit(calibration, residual, parameters, dropped=run.samples.dropped, parameter_errors=parameter_errors)
 

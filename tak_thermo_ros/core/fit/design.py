@@ -61,7 +61,7 @@ def check_observable(samples: AlignedSamples, bias_order: int, scale_order: int)
 
 
 def single_input_axes(samples: AlignedSamples) -> tuple[bool, bool, bool]:
-    """Per axis: does the reference hold one value only (scale and offset inseparable)?"""
+    """Per axis: whether the reference holds one value only (scale and offset inseparable)."""
     return tuple(np.unique(np.round(samples.reference[:, i] / INPUT_RESOLUTION)).size < 2
                  for i in range(3))  # type: ignore[return-value]
 
@@ -282,15 +282,20 @@ class FitRun:
         return held_scale(axis, self.single, self.nominal_scale, self.first_input)
 
     def effect_input(self, effect: Effect | type[Effect]) -> np.ndarray:
-        """What drives an offset effect over every sample: the temperature code as the corrector
-        sees it (clamped to the calibrated range), or the recorded signal it names."""
-        return effect_input(effect, np.clip(self.samples.temp_code, self.frame.low, self.frame.high),  # type: ignore[arg-type]
-                            self.samples.aux)
+        """What drives an offset effect over every sample.
+
+        The temperature code as the corrector sees it (clamped to the calibrated range), or the recorded
+        signal it names.
+        """
+        return effect_input(effect,  # type: ignore[arg-type]
+                            np.clip(self.samples.temp_code, self.frame.low, self.frame.high), self.samples.aux)
 
     def basis(self, effect: Effect, inputs: np.ndarray, *, search: bool = False) -> np.ndarray:
-        """An offset effect's basis signals ``(k, b)`` over every sample, in time order from its
-        initial state (:func:`~tak_thermo_ros.core.effects.base.checked_basis`); ``inputs`` from
-        :meth:`effect_input`."""
+        """An offset effect's basis signals ``(k, b)`` over every sample.
+
+        In time order from its initial state (:func:`~tak_thermo_ros.core.effects.base.checked_basis`);
+        ``inputs`` from :meth:`effect_input`.
+        """
         return checked_basis(effect, self.samples.stamp_s, inputs, search=search)
 
     def design(self, axis: int, held: float | None, input_effects: Sequence[Effect] = (),

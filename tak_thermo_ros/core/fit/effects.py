@@ -410,8 +410,10 @@ class _EffectFit:
     # ----- the result ------------------------------------------------------------------------
 
     def result(self) -> FitResult:
-        """The pipeline with every shape fixed: the final least squares over the training rows,
-        the calibration and its errors."""
+        """The pipeline with every shape fixed.
+
+        The final least squares over the training rows, the calibration and its errors.
+        """
         offsets = self.offsets
         solved = solve_run(self.run, input_effects=self.input_effects,
                            offset_bases=[(entry.effect, entry.basis[self.mask]) for entry in offsets])

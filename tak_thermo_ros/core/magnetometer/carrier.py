@@ -264,7 +264,10 @@ def earth_from_parameters(model: CarrierModel, values: np.ndarray, given: dict[s
 
 
 def earth_parameters(model: CarrierModel, north_east_down: np.ndarray) -> np.ndarray:
-    """The Earth parameters of a field (north, east, down) under ``model``'s gauge (the inverse, in the gauge's plane)."""
+    """The Earth parameters of a field (north, east, down) under ``model``'s gauge.
+
+    The inverse, in the gauge's plane.
+    """
     n, e, d = (float(v) for v in north_east_down)
     names = model.earth_names()
     if names == NAV_NAMES:

@@ -64,7 +64,7 @@ class MagCorrector:
 
     @property
     def signals(self) -> tuple[str, ...]:
-        """Recorded signals (``aux:TOPIC``) the thermal link needs."""
+        """The recorded signals the thermal link needs (``aux:TOPIC``)."""
         return self.thermal.signals
 
     def reset(self) -> None:

@@ -185,7 +185,7 @@ def fit_ellipsoid(values: np.ndarray, *, where: str = 'rotation record') -> Elli
 
 
 def check_fit(fit: EllipsoidFit, *, where: str = 'rotation record') -> None:
-    """ArduPilot's acceptance checks on a fit (bounds in the constants above).
+    """The acceptance checks of ArduPilot on a fit (bounds in the constants above).
 
     :raises FitError: one line naming the first check that failed.
     """

@@ -195,7 +195,8 @@ class AllanAccumulator:
             begin = max(held, 2 * m - first_global)
             if begin >= len(joined):
                 continue
-            second = joined[begin:] - 2.0 * joined[begin - m:len(joined) - m] + joined[begin - 2 * m:len(joined) - 2 * m]
+            second = (joined[begin:] - 2.0 * joined[begin - m:len(joined) - m]
+                      + joined[begin - 2 * m:len(joined) - 2 * m])
             self._sum_sq[i] += np.einsum('ij,ij->j', second, second)
             self._terms[i] += len(second)
         self._history = joined[-(2 * self.exact_max + 1):].copy()
@@ -256,9 +257,11 @@ def _edf_power_law(phases: np.ndarray, m: np.ndarray, alpha: np.ndarray) -> np.n
     edf = np.empty(len(n))
     with np.errstate(divide='ignore', invalid='ignore'):
         white_phase = (n + 1.0) * (n - 2.0 * m) / (2.0 * (n - m))
-        flicker_phase = np.exp(np.sqrt(np.abs(np.log((n - 1.0) / (2.0 * m)) * np.log((2.0 * m + 1.0) * (n - 1.0) / 4.0))))
+        flicker_phase = np.exp(np.sqrt(np.abs(np.log((n - 1.0) / (2.0 * m))
+                                              * np.log((2.0 * m + 1.0) * (n - 1.0) / 4.0))))
         white_rate = (3.0 * (n - 1.0) / (2.0 * m) - 2.0 * (n - 2.0) / n) * 4.0 * m ** 2 / (4.0 * m ** 2 + 5.0)
-        flicker_rate = np.where(m == 1.0, 2.0 * (n - 2.0) ** 2 / (2.3 * n - 4.9), 5.0 * n ** 2 / (4.0 * m * (n + 3.0 * m)))
+        flicker_rate = np.where(m == 1.0, 2.0 * (n - 2.0) ** 2 / (2.3 * n - 4.9),
+                                5.0 * n ** 2 / (4.0 * m * (n + 3.0 * m)))
         walk_rate = (n - 2.0) / m * ((n - 1.0) ** 2 - 3.0 * m * (n - 1.0) + 4.0 * m ** 2) / (n - 3.0) ** 2
     for value, formula in ((2, white_phase), (1, flicker_phase), (0, white_rate), (-1, flicker_rate), (-2, walk_rate)):
         edf = np.where(alpha == value, formula, edf)

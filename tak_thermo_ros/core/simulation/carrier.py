@@ -91,7 +91,8 @@ class CarrierScenario:
 
     def __post_init__(self) -> None:
         if self.tilt_axis not in TILT_AXES or (self.second_tilt_axis not in (None, *TILT_AXES)):
-            msg = f'carrier scenario: tilt axes must be roll or pitch, got {self.tilt_axis!r}, {self.second_tilt_axis!r}'
+            msg = (f'carrier scenario: tilt axes must be roll or pitch, '
+                   f'got {self.tilt_axis!r}, {self.second_tilt_axis!r}')
             raise CarrierError(msg)
         for name in ('tilt_range_deg', 'tilt_step_deg', 'turn_step_deg', 'flip_step_deg', 'speed_ratio'):
             value = getattr(self, name)

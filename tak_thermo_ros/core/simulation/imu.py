@@ -41,7 +41,12 @@ from tak_thermo_ros.core.records.record import (
     DriverRecord,
     seconds_from_ns,
 )
-from tak_thermo_ros.core.simulation.magnetometer import MagnetometerTruth, rotation_record, table_field, truth_from_mapping
+from tak_thermo_ros.core.simulation.magnetometer import (
+    MagnetometerTruth,
+    rotation_record,
+    table_field,
+    truth_from_mapping,
+)
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import CalibrationError, FitError, ScenarioError
 
@@ -566,7 +571,8 @@ def _rotation_run(scenario: Scenario) -> SimulatedRun:
     unit_truth = scenario.driver_truth()
     return SimulatedRun(record=driver.channel('accel'), board_celsius=constant, chamber_celsius=constant,
                         true_temp_code=constant, specific_force=driver.accel, truth=unit_truth.accel,
-                        scenario=scenario, driver=driver, angular_rate=np.zeros_like(driver.gyro), unit_truth=unit_truth)
+                        scenario=scenario, driver=driver, angular_rate=np.zeros_like(driver.gyro),
+                        unit_truth=unit_truth)
 
 
 def _effect_terms(effects: tuple[Effect, ...], inputs: np.ndarray, temperature: np.ndarray,
