@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Callable, Iterator, Sequence
 
 import numpy as np
 
-from tak_thermo_ros.core.records.blocks import BlockAligner, add_counts
+from tak_thermo_ros.core.records.blocks import BlockAligner, Subsample, add_counts, stride_for
 from tak_thermo_ros.core.link.correction import Corrector, OutOfRange, acceleration_variance
 from tak_thermo_ros.core.fit import FitResult, fit_model
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
@@ -49,24 +49,6 @@ SENSOR_NAMES = {'accel': 'accelerometer', 'gyro': 'gyroscope', 'mag': 'magnetome
 def sensors_of(kind: InputKind) -> tuple[str, ...]:
     """The sensors a bag of this kind holds."""
     return ('accel',) if kind is InputKind.COUNTS else ('accel', 'gyro')
-
-
-def stride_for(messages: int, max_samples: int) -> int:
-    """Every how many main-stream messages one is kept so that at most ``max_samples`` remain."""
-    return max(1, math.ceil(messages / max(max_samples, 1)))
-
-
-def every_nth(samples: AlignedSamples, stride: int) -> AlignedSamples:
-    """The samples whose stream row is a multiple of ``stride`` (spread evenly over the run)."""
-    if stride <= 1 or samples.rows is None:
-        return samples
-    keep = samples.rows % stride == 0
-    return AlignedSamples(stamp_ns=samples.stamp_ns[keep], counts=samples.counts[keep],
-                          temp_code=samples.temp_code[keep],
-                          reference=None if samples.reference is None else samples.reference[keep],
-                          dropped=samples.dropped, rows=samples.rows[keep],
-                          ignored_temp_codes=samples.ignored_temp_codes, ignored_references=samples.ignored_references,
-                          aux={name: values[keep] for name, values in samples.aux.items()})
 
 
 # ----- reading: blocks per sensor, a static run's reference ----------------------------------------------
@@ -228,66 +210,6 @@ def _run_passes(path: Path, options: StreamOptions, opened: _Opened, passes: Seq
     return opened.static.finish(options.topics) if opened.static is not None else []
 
 
-class _Subsample:
-    """Every ``stride``-th stream row of the aligned blocks, copied into arrays that grow by doubling.
-
-    One set of arrays for the whole run (about ``expected`` rows, known from the bag's index),
-    filled block by block: no list of per-block pieces to join at the end, which would hold the
-    subsample twice.
-    """
-
-    def __init__(self, stride: int, expected: int = 0) -> None:
-        self.stride = stride
-        self.usable = 0
-        self.count = 0
-        self.capacity = max(expected, 1)
-        self.arrays: dict[str, np.ndarray] | None = None
-        self.ignored_temp_codes: dict[str, int] = {}
-        self.ignored_references: dict[str, int] = {}
-
-    def __call__(self, aligned: AlignedSamples) -> None:
-        self.usable += len(aligned)
-        add_counts(self.ignored_temp_codes, aligned.ignored_temp_codes)
-        add_counts(self.ignored_references, aligned.ignored_references)
-        if not len(aligned):
-            return
-        part = every_nth(aligned, self.stride)
-        columns = {'stamp_ns': part.stamp_ns, 'counts': part.counts, 'temp_code': part.temp_code,
-                   'rows': part.rows if part.rows is not None else np.full(len(part), -1, dtype=np.int64),
-                   **({} if part.reference is None else {'reference': part.reference}),
-                   **{f'aux:{name}': values for name, values in part.aux.items()}}
-        if self.arrays is None:
-            self.arrays = {key: np.empty((self.capacity, *values.shape[1:]), dtype=values.dtype)
-                           for key, values in columns.items()}
-        if columns.keys() != self.arrays.keys():
-            msg = 'a block of the run holds other streams than the first one (reference or recorded signals)'
-            raise TakError(msg)
-        end = self.count + len(part)
-        if end > self.capacity:
-            self.capacity = max(end, 2 * self.capacity)
-            for key, values in self.arrays.items():
-                grown = np.empty((self.capacity, *values.shape[1:]), dtype=values.dtype)
-                grown[:self.count] = values[:self.count]
-                self.arrays[key] = grown
-        for key, values in columns.items():
-            self.arrays[key][self.count:end] = values
-        self.count = end
-
-    def samples(self, dropped: dict[str, int]) -> AlignedSamples:
-        """The subsample (views of the filled rows), the whole run's drop and ignored counts."""
-        if self.arrays is None:
-            return AlignedSamples(stamp_ns=np.zeros(0, dtype=np.int64), counts=np.zeros((0, 3)),
-                                  temp_code=np.zeros(0), reference=None, dropped=dict(dropped),
-                                  rows=np.zeros(0, dtype=np.int64), ignored_temp_codes=dict(self.ignored_temp_codes),
-                                  ignored_references=dict(self.ignored_references))
-        filled = {key: values[:self.count] for key, values in self.arrays.items()}
-        return AlignedSamples(stamp_ns=filled['stamp_ns'], counts=filled['counts'], temp_code=filled['temp_code'],
-                              reference=filled.get('reference'), dropped=dict(dropped), rows=filled['rows'],
-                              ignored_temp_codes=dict(self.ignored_temp_codes),
-                              ignored_references=dict(self.ignored_references),
-                              aux={key[4:]: values for key, values in filled.items() if key.startswith('aux:')})
-
-
 # ----- fit ------------------------------------------------------------------------------------------
 
 
@@ -375,7 +297,7 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
         consumers = [fits[sensor].add]
         if settings.effects.get(sensor):
             stride = stride_for(opened.main, settings.max_effect_samples)
-            subsamples[sensor] = _Subsample(stride, expected=opened.main // stride + 1)
+            subsamples[sensor] = Subsample(stride, expected=opened.main // stride + 1)
             consumers.append(subsamples[sensor])
         passes.append(SensorPass(sensor, aligner(), [_feeding(requirements[sensor], consumers)]))
     lines = _run_passes(path, options, opened, passes)
@@ -682,7 +604,7 @@ def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: floa
     stride = stride_for(opened.main, max_samples)
     passes, subsamples = [], {}
     for sensor in sensors_of(opened.kind):
-        subsamples[sensor] = _Subsample(stride, expected=opened.main // stride + 1)
+        subsamples[sensor] = Subsample(stride, expected=opened.main // stride + 1)
         passes.append(SensorPass(sensor, BlockAligner(use_reference=True, reference_expected=True,
                                                       settle_time_s=settle_time_s), [subsamples[sensor]]))
     lines = _run_passes(path, options, opened, passes)

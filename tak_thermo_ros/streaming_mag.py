@@ -32,7 +32,7 @@ from tak_thermo_ros.core.link.correction import Corrector, OutOfRange
 from tak_thermo_ros.core.link.model import IDENTITY_3X3, InputKind, MagnetometerCalibration
 from tak_thermo_ros.core.magnetometer.channel import MagCorrector, check_tesla
 from tak_thermo_ros.core.magnetometer.iron import EllipsoidFit, fit_ellipsoid
-from tak_thermo_ros.core.records.blocks import BlockAligner
+from tak_thermo_ros.core.records.blocks import BlockAligner, Subsample, stride_for
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import BagError, FitError, TakError
 
@@ -129,11 +129,10 @@ def bounded_mag_run(path: str | Path, options, *, max_samples: int) -> tuple[Ali
     Every n-th sample, at most about ``max_samples``, the reference held as for the fit.
     """
     from tak_thermo_ros.bagio import bag_streams
-    from tak_thermo_ros.streaming import _Subsample, stride_for
     path = Path(path)
     count = bag_streams(path, topics=options.topics).mag
     stride = stride_for(count, max_samples)
-    subsample = _Subsample(stride, expected=count // stride + 1)
+    subsample = Subsample(stride, expected=count // stride + 1)
     calibration_pass = _calibration_pass(path, options, [subsample])
     line = (f'magnetometer: reference field {options.topics.reference_field} as recorded' if not calibration_pass.static
             else f'magnetometer: static run, reference the mean field {_microtesla(calibration_pass.mean)} uT')
@@ -174,14 +173,13 @@ def fit_mag_bag(path: str | Path, options, *, bias_order: int = 3, scale_order: 
     path = Path(path)
     topics = options.topics
     from tak_thermo_ros.bagio import bag_streams
-    from tak_thermo_ros.streaming import _Subsample, stride_for
     fit = StreamingFit(bias_order=bias_order, scale_order=scale_order, temp_code_ref=temp_code_ref,
                        nominal_scale=(1.0, 1.0, 1.0))
     consumers = [fit.add]
     subsample = None
     if effects:
         count = bag_streams(path, topics=topics).mag
-        subsample = _Subsample(stride_for(count, max_effect_samples), expected=count)
+        subsample = Subsample(stride_for(count, max_effect_samples), expected=count)
         consumers.append(subsample)
     calibration_pass = _calibration_pass(path, options, consumers)
     static, mean, max_turn, aligner = (calibration_pass.static, calibration_pass.mean, calibration_pass.max_turn_deg,

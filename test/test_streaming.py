@@ -244,11 +244,11 @@ def test_subsample_arrays_grow_beyond_the_expected_size_and_keep_every_stride_ro
     The rows kept are those of every_nth on the whole alignment, with the whole run's ignored counts.
     """
     from tak_thermo_ros.core.records.blocks import BlockAligner
-    from tak_thermo_ros.streaming import _Subsample, every_nth
+    from tak_thermo_ros.core.records.blocks import Subsample, every_nth
     path, _ = driver_bag
     driver = read_driver_record(path, progress=False)
     whole = every_nth(align(driver.channel('accel')), 3)
-    subsample, aligner = _Subsample(3, expected=1), BlockAligner(use_reference=True, reference_expected=True)
+    subsample, aligner = Subsample(3, expected=1), BlockAligner(use_reference=True, reference_expected=True)
     for block in iter_blocks(path, kind=InputKind.IMU, block_samples=200, progress=False):
         subsample(aligner.push(block.channel('accel')))
     subsample(aligner.finish())
