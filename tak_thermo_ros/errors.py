@@ -45,3 +45,7 @@ class OutputError(TakError):
 
 class EffectError(TakError):
     """A user-defined effect raised or returned values that are not finite or of a wrong shape."""
+
+
+class NoiseError(TakError):
+    """A noise model, its data (Allan variance) or its file (Kalibr-style imu.yaml) is invalid."""

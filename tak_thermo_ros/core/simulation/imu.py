@@ -31,6 +31,8 @@ import numpy as np
 import yaml
 
 from tak_thermo_ros.core.link.model import AXES, AxisModel, Calibration, InputKind, UnitCalibration
+from tak_thermo_ros.core.noise.model import NoiseModel, floor_tau
+from tak_thermo_ros.core.simulation.noise import bias_wander
 from tak_thermo_ros.core.records.record import (
     COUNTS_MAX,
     COUNTS_MIN,
@@ -84,7 +86,13 @@ class AxisTruth:
     :param offset: ``dNs0``, counts.
     :param offset_coeffs: ``(c1, ...)``: ``dNs(n) - dNs0 = c1 n + c2 n^2 + ...``, counts.
     :param scale_coeffs: ``(a1, ...)`` of ``F_c(n) = 1 + a1 n + ...``.
-    :param noise_counts: standard deviation of the white noise, counts.
+    :param noise_counts: standard deviation of the white noise, counts (per sample: the white
+        noise density is ``noise_counts / sqrt(sample_rate_hz)``).
+    :param bias_instability: the flicker bias ``B``, counts (driver: m/s^2 or rad/s), whose Allan
+        deviation is flat at ``0.664 B`` over two decades around ``bias_instability_tau``
+        (:mod:`tak_thermo_ros.core.simulation.noise`). 0 = off.
+    :param bias_instability_tau: s, the middle of that flat band.
+    :param random_walk: the bias's random walk ``K``, counts*sqrt(Hz) (Allan variance ``K^2 tau / 3``). 0 = off.
     """
 
     scale: float
@@ -92,6 +100,9 @@ class AxisTruth:
     offset_coeffs: tuple[float, ...]
     scale_coeffs: tuple[float, ...]
     noise_counts: float = 1.5
+    bias_instability: float = 0.0
+    bias_instability_tau: float = 100.0
+    random_walk: float = 0.0
 
 
 DEFAULT_UNIT: tuple[AxisTruth, AxisTruth, AxisTruth] = (
@@ -238,6 +249,13 @@ class Scenario:
              'nominal_scale', 'needs three values > 0'),
             (all(axis.scale > 0 for axis in self.unit), 'unit.*.scale', 'must be > 0'),
             (all(axis.noise_counts >= 0 for axis in self.unit), 'unit.*.noise_counts', 'must be >= 0'),
+            *((all(math.isfinite(getattr(a, key)) and getattr(a, key) >= 0 for a in unit), f'{name}.*.{key}',
+               'must be a finite number >= 0')
+              for name, unit in (('unit', self.unit), ('accel_unit', self.accel_unit), ('gyro_unit', self.gyro_unit))
+              for key in ('bias_instability', 'random_walk')),
+            *((all(math.isfinite(a.bias_instability_tau) and a.bias_instability_tau > 0 for a in unit),
+               f'{name}.*.bias_instability_tau', 'must be a finite number > 0 (s)')
+              for name, unit in (('unit', self.unit), ('accel_unit', self.accel_unit), ('gyro_unit', self.gyro_unit))),
             (math.isfinite(self.supply_voltage_drift) and self.supply_voltage_drift >= 0,
              'supply_voltage_drift', 'must be a finite number >= 0 (counts)'),
         )
@@ -266,6 +284,29 @@ class Scenario:
             except CalibrationError as err:
                 raise ScenarioError(str(err)) from None
         return tuple(instances)
+
+    def noise_truth(self, sensor: str = 'accel') -> NoiseModel:
+        """The simulated noise of a sensor as a :class:`~tak_thermo_ros.core.noise.model.NoiseModel`.
+
+        ``accel`` is ``unit`` on a counts run (counts), ``accel_unit`` on a driver run (m/s^2);
+        ``gyro`` is ``gyro_unit`` (rad/s). ``source='file'``: the truth, as a user's file gives it.
+        """
+        unit = self.sensor_unit(sensor)
+        white = tuple(a.noise_counts / math.sqrt(self.sample_rate_hz) for a in unit)
+        bias = tuple(a.bias_instability for a in unit)
+        walk = tuple(a.random_walk for a in unit)
+        return NoiseModel(white_noise_density=white, bias_instability=bias, random_walk=walk,  # type: ignore[arg-type]
+                          bias_instability_tau=floor_tau(white, bias, walk),  # type: ignore[arg-type]
+                          update_rate=self.sample_rate_hz, source='file')
+
+    def sensor_unit(self, sensor: str) -> tuple[AxisTruth, ...]:
+        """The true axes of ``accel`` (``unit`` on a counts run, ``accel_unit`` on a driver run) or ``gyro``."""
+        if sensor == 'gyro':
+            return self.gyro_unit
+        if sensor == 'accel':
+            return self.accel_unit if self.output == 'imu' else self.unit
+        msg = f'sensor: expected accel or gyro, got {sensor!r}'
+        raise ScenarioError(msg)
 
     def duration_s(self) -> float:
         """Total length of the run."""
@@ -379,6 +420,7 @@ def simulate(scenario: Scenario | None = None) -> SimulatedRun:
                                    ).forward(force[:, i], n_true)
         for i, a in enumerate(scenario.unit)])
     noise = rng.standard_normal((count, 3)) * np.array([a.noise_counts for a in scenario.unit])
+    noise += sensor_wander(scenario, scenario.unit, 0, count)
     stamps = np.round((scenario.start_time_s + time_s) * NANOSECONDS).astype(np.int64)
     exact = exact + hidden_terms(scenario, force, true_code, seconds_from_ns(stamps), time_s)
     counts = np.clip(np.round(exact + noise), COUNTS_MIN, COUNTS_MAX)
@@ -446,7 +488,8 @@ def _simulate_driver(scenario: Scenario) -> SimulatedRun:
         exact += _effect_terms(scenario.effect_instances(key), inputs, board, stamp_s)
         if scenario.supply_voltage_drift > 0.0 and key == 'effects':
             exact += _supply_terms(scenario, time_s)
-        return exact + rng.standard_normal((count, 3)) * np.array([a.noise_counts for a in unit])
+        exact += rng.standard_normal((count, 3)) * np.array([a.noise_counts for a in unit])
+        return exact + sensor_wander(scenario, unit, 0 if key == 'effects' else 1, count)
 
     accel = channels(scenario.accel_unit, 'effects', force)
     gyro = channels(scenario.gyro_unit, 'gyro_effects', rate)
@@ -470,6 +513,20 @@ def _simulate_driver(scenario: Scenario) -> SimulatedRun:
     return SimulatedRun(record=driver.channel('accel'), board_celsius=board, chamber_celsius=chamber,
                         true_temp_code=board, specific_force=force, truth=unit_truth.accel,
                         scenario=scenario, driver=driver, angular_rate=rate, unit_truth=unit_truth)
+
+
+def sensor_wander(scenario: Scenario, unit: tuple[AxisTruth, ...], sensor_index: int, count: int) -> np.ndarray:
+    """``(count, 3)``: the bias instability and random walk of a sensor's axes (zeros when off).
+
+    Drawn from their own stream (``[seed, 16, sensor_index]``): a scenario without them draws the
+    same white noise as before they existed.
+    """
+    bias = tuple(a.bias_instability for a in unit)
+    walk = tuple(a.random_walk for a in unit)
+    if not any(bias) and not any(walk):
+        return np.zeros((count, 3))
+    return bias_wander([scenario.seed, 16, sensor_index], count, scenario.sample_rate_hz, bias,
+                       tuple(a.bias_instability_tau for a in unit), walk)
 
 
 def _effect_terms(effects: tuple[Effect, ...], inputs: np.ndarray, temperature: np.ndarray,

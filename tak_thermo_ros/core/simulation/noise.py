@@ -1,0 +1,83 @@
+"""The simulator's sensor noise beyond white: bias instability and random walk, per axis, seeded.
+
+- **Bias instability** ``B`` (flicker: a flat Allan deviation ``0.664 B``) is a sum of
+  first-order Gauss-Markov processes with correlation times spaced evenly in log time
+  (:data:`POLES_PER_DECADE` over :data:`POLE_DECADES`) and equal variances, which makes a 1/f
+  spectrum between its poles: the Allan deviation is flat within +-5 % over two decades
+  (:data:`FLAT_DECADES`) around the axis's ``bias_instability_tau``, at ``0.664 B`` (the
+  variance is set so on average over that band in log time).
+- **Random walk** ``K`` (rate / velocity random walk, units*sqrt(Hz)): the sum of independent
+  increments of standard deviation ``K sqrt(dt)``, starting at 0 (Allan variance ``K^2 tau / 3``).
+
+The white noise stays where it was (``AxisTruth.noise_counts``, the per-sample standard
+deviation: white noise density ``noise_counts / sqrt(rate)``). These processes draw from their
+own random streams (the scenario's seed and the sensor's index), so a scenario without them
+draws exactly the same numbers as before.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from tak_thermo_ros.core.noise.model import FLICKER_FLOOR
+
+POLES_PER_DECADE = 2
+"""Gauss-Markov correlation times per decade of the bias-instability band."""
+POLE_DECADES = 3.0
+"""The correlation times span this many decades, centred on ``tau / 1.89``."""
+FLAT_DECADES = 2.0
+"""... which makes the Allan deviation flat within +-5 % over about this many decades around ``tau``
+(from ``tau / 12`` to ``10 tau``); it falls as white noise above and as a random walk below."""
+PEAK_RATIO = 1.8926
+"""A Gauss-Markov process's Allan deviation peaks at ``tau = 1.89 T`` (its correlation time ``T``)."""
+
+
+def gauss_markov_allan_variance(taus: np.ndarray, variance: float, correlation_time: float) -> np.ndarray:
+    """The Allan variance of a first-order Gauss-Markov process (autocovariance ``variance e^(-|t|/T)``).
+
+    ``(2 s^2 T / tau) [1 - T / (2 tau) (3 - 4 e^(-tau/T) + e^(-2 tau/T))]``: white (``2 s^2 T / tau``)
+    well above ``T``, random walk (``K^2 = 2 s^2 / T``) well below.
+    """
+    taus = np.asarray(taus, dtype=float)
+    ratio = correlation_time / taus
+    return 2.0 * variance * ratio * (1.0 - ratio / 2.0 * (3.0 - 4.0 * np.exp(-1.0 / ratio) + np.exp(-2.0 / ratio)))
+
+
+def bias_instability_poles(tau: float) -> np.ndarray:
+    """The correlation times (s) of the Gauss-Markov processes behind a bias instability centred on ``tau``."""
+    half = POLE_DECADES / 2.0
+    count = int(round(POLE_DECADES * POLES_PER_DECADE)) + 1
+    return tau / PEAK_RATIO * np.logspace(-half, half, count)
+
+
+def bias_instability_variance(bias_instability: float, tau: float) -> float:
+    """Each process's variance so that the flat Allan deviation of the sum is ``0.664 B``."""
+    poles = bias_instability_poles(tau)
+    half = FLAT_DECADES / 2.0
+    band = tau * np.logspace(-half, half, 41)
+    unit = sum(gauss_markov_allan_variance(band, 1.0, pole) for pole in poles)
+    return float((FLICKER_FLOOR * bias_instability) ** 2 / np.mean(unit))
+
+
+def bias_wander(seed: int | list[int], count: int, rate: float, bias_instability: tuple[float, ...],
+                bias_instability_tau: tuple[float, ...], random_walk: tuple[float, ...]) -> np.ndarray:
+    """``(count, 3)``: bias instability plus random walk per axis at ``rate`` Hz; zeros where both are 0."""
+    from scipy.signal import lfilter
+    wander = np.zeros((count, 3))
+    if count == 0:
+        return wander
+    rng = np.random.default_rng(seed)
+    step = 1.0 / rate
+    for axis in range(3):
+        if bias_instability[axis] > 0.0:
+            variance = bias_instability_variance(bias_instability[axis], bias_instability_tau[axis])
+            for pole in bias_instability_poles(bias_instability_tau[axis]):
+                decay = math.exp(-step / pole)
+                start = rng.standard_normal() * math.sqrt(variance)  # stationary from the first sample
+                drive = rng.standard_normal(count) * math.sqrt(variance * (1.0 - decay * decay))
+                wander[:, axis] += lfilter([1.0], [1.0, -decay], drive, zi=[decay * start])[0]
+        if random_walk[axis] > 0.0:
+            wander[:, axis] += np.cumsum(rng.standard_normal(count)) * (random_walk[axis] * math.sqrt(step))
+    return wander
