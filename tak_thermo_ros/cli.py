@@ -440,6 +440,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     candidates = expand_candidates(args.candidates) if args.candidates else None
     for line in run.reference_lines:
         print(line)
+    noise_models = _given_noise_models(args, unit, run.input_kind, tuple(run.samples))
     results = {}
     used: dict[str, AlignedSamples] = {}
     if run.stride > 1:
@@ -457,16 +458,33 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             if verbose:
                 print(f'{label}cross-validating {text} ...', file=sys.stderr)
 
-        result = diagnose(unit.sensor(sensor), samples, candidates=candidates, folds=args.folds, progress=progress)
+        noise = noise_models.get(sensor)
+        if noise is None:
+            from tak_thermo_ros.core.fit import residual_counts
+            from tak_thermo_ros.noise_models import model_from_residual
+            noise = model_from_residual(residual_counts(unit.sensor(sensor), samples), samples)
+        result = diagnose(unit.sensor(sensor), samples, candidates=candidates, folds=args.folds, progress=progress,
+                          noise=noise)
         results[sensor] = result
         print(f'{label}diagnosed {len(samples)} samples of {args.bag} against {args.params} '
               f'(model: {result.ladder[0].label})')
+        print(_noise_line(noise, unit_name, result.averaging_time_s))
         if samples.dropped:
             print(f'left out: {_describe_dropped(samples.dropped)}')
         _print_ignored(samples, args, run.input_kind)
         for name, axis in zip(AXES, result.axes):
-            print(f'  {name}: residual RMS {axis.rms:.4g} {unit_name}, noise floor {axis.noise_floor:.4g}; held-out '
-                  f'{axis.heldout_rms:.4g} ({axis.heldout_rms / axis.noise_floor:.2f}x the floor)')
+            if result.averaging_time_s:
+                print(f'  {name}: residual RMS {axis.rms:.4g} {unit_name}, white floor {axis.white_floor:.4g}; '
+                      f'held-out {result.averaging_time_s:.3g} s means {axis.heldout_rms:.4g} '
+                      f'({axis.heldout_rms / axis.noise_floor:.2f}x the noise model\'s {axis.noise_floor:.4g})')
+            else:
+                print(f'  {name}: residual RMS {axis.rms:.4g} {unit_name}, noise floor {axis.noise_floor:.4g}; held-out '
+                      f'{axis.heldout_rms:.4g} ({axis.heldout_rms / axis.noise_floor:.2f}x the floor)')
+        if result.allan:
+            check = result.allan[-1][1]
+            print(f'  against the noise model, {"after the ladder" if len(result.allan) > 1 else "the residual"}: '
+                  f'{check.describe()} ({"inside" if check.consistent else "beyond"} the bound {check.worst_bound():.2f}x)'
+                  if len(check.taus) else '  Allan deviation: the run is too short to estimate it')
         if result.candidates:
             print(f'candidates, best first (held-out RMS x y z in {unit_name}; share of the excess over the floor removed):')
             for candidate in result.candidates:
@@ -536,6 +554,40 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                            f'{sum(len(files.figures) for files, _ in pages.values())} figures)')
         print(f'wrote {written}')
     return 0
+
+
+def _given_noise_models(args: argparse.Namespace, unit: UnitCalibration, kind: InputKind,
+                        sensors: tuple[str, ...]) -> dict:
+    """``--noise FILE`` or ``--noise-run BAG``: the sensors' noise models; empty when neither is given."""
+    if getattr(args, 'noise', None) and getattr(args, 'noise_run', None):
+        msg = '--noise and --noise-run: give one noise model source, not both'
+        raise TakError(msg)
+    if getattr(args, 'noise', None):
+        from tak_thermo_ros.noise_models import models_from_file
+        return models_from_file(args.noise, sensors, kind, {sensor: unit.sensor(sensor) for sensor in sensors})
+    if getattr(args, 'noise_run', None):
+        from tak_thermo_ros.noise_models import models_from_static_run
+        models, lines = models_from_static_run(args.noise_run, _stream_options(args), gravity=args.gravity)
+        for line in lines:
+            print(line)
+        return models
+    return {}
+
+
+def _noise_line(noise, unit: str, averaging_s: float) -> str:
+    """One line: the noise model per axis and where it comes from."""
+    if noise is None:
+        return '  noise model: none (the run is too short for an Allan fit): judged against the white floor'
+    def triple(values) -> str:
+        return ' '.join(f'{float(v):.3g}' for v in values)
+    said = {'file': 'from the file', 'static_run': 'from the static run',
+            'residual': "fitted to this run's own residual (no --noise or --noise-run: the verdict uses the white floor)"}
+    text = (f'  noise model {said[noise.source]}: white {triple(noise.white_noise_density)} {unit}/sqrt(Hz), '
+            f'bias instability {triple(noise.bias_instability)} {unit}, random walk {triple(noise.random_walk)} '
+            f'{unit}*sqrt(Hz) (x y z)')
+    if averaging_s:
+        text += f'; judged on held-out {averaging_s:.3g} s means'
+    return text
 
 
 def expand_candidates(text: str) -> list[str]:
@@ -674,6 +726,11 @@ def build_parser() -> argparse.ArgumentParser:
                       help='propose the chamber run that tells the two best candidates apart (driver bags: '
                            'one run for both sensors): writes DIR/scenario.yaml (for tak_calib simulate), '
                            'DIR/schedule.csv (time_s, setpoint_C) and DIR/design.json with the simulated separation')
+    diag.add_argument('--noise', metavar='IMU.yaml',
+                      help="the sensors' noise model, a Kalibr-style imu.yaml (as tak_calib noise writes): the "
+                           'verdict is judged against it at every averaging time (docs/discovery.md)')
+    diag.add_argument('--noise-run', metavar='BAG',
+                      help='a static run at constant temperature: its Allan variance gives the noise model')
     _add_topic_options(diag)
     diag.set_defaults(handler=cmd_diagnose)
     from tak_thermo_ros.fleet import add_fleet_parser

@@ -208,37 +208,21 @@ def whitener(noise: Any, time_s: np.ndarray, white_variance: np.ndarray) -> Call
 
 # ------------------------------------------------------------------------------ simulation
 
-def simulate_noise(noise: Any, time_s: np.ndarray, white_floor: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """``(k, 3)`` a residual that the noise model predicts: white at the measured floor plus the
-    model's bias instability and random walk (:func:`~tak_thermo_ros.core.simulation.noise.bias_wander`)."""
-    white = rng.standard_normal((len(time_s), 3)) * np.asarray(white_floor, dtype=float)
-    return white + _bias_wander(noise, time_s, rng)
-
-
-def _bias_wander(noise: Any, time_s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Bias instability (a Gauss-Markov process whose Allan deviation peaks at 0.664 B near the
-    bias-instability time) plus random walk, ``(k, 3)``."""
-    count = len(time_s)
-    out = np.zeros((count, 3))
-    if count < 2:
-        return out
-    dt = np.diff(time_s, prepend=time_s[0])
-    instability = _triple(noise.bias_instability)
-    walk = _triple(noise.random_walk)
-    correlation = _triple(getattr(noise, 'bias_instability_tau', 100.0)) / 1.89
-    for i in range(3):
-        if walk[i] > 0.0:
-            out[:, i] += np.cumsum(rng.standard_normal(count) * walk[i] * np.sqrt(dt))
-        if instability[i] > 0.0 and correlation[i] > 0.0:
-            sigma = 0.664 / 0.6182 * instability[i]
-            decay = np.exp(-dt / correlation[i])
-            drive = rng.standard_normal(count) * sigma * np.sqrt(1.0 - decay ** 2)
-            state = np.empty(count)
-            state[0] = rng.standard_normal() * sigma
-            for k in range(1, count):
-                state[k] = decay[k] * state[k - 1] + drive[k]
-            out[:, i] += state
-    return out
+def simulate_noise(noise: Any, count: int, sample_period_s: float, white_floor: np.ndarray,
+                   seed: int | list[int], *, longest_s: float = math.inf) -> np.ndarray:
+    """``(count, 3)`` a residual that the noise model predicts at a steady sample rate: white at the
+    measured floor plus the model's bias instability and random walk
+    (:func:`~tak_thermo_ros.core.simulation.noise.bias_wander`, centred on the model's
+    bias-instability time, at most ``longest_s``)."""
+    from tak_thermo_ros.core.simulation.noise import bias_wander
+    rng = np.random.default_rng(seed)
+    white = rng.standard_normal((count, 3)) * np.asarray(white_floor, dtype=float)
+    centre = tuple(float(min(max(t, 2.0 * sample_period_s), longest_s)) if math.isfinite(t) else float(longest_s)
+                   for t in _triple(noise.bias_instability_tau))
+    wander = bias_wander([*np.atleast_1d(seed).tolist(), 1], count, 1.0 / sample_period_s,
+                         tuple(float(v) for v in _triple(noise.bias_instability)), centre,  # type: ignore[arg-type]
+                         tuple(float(v) for v in _triple(noise.random_walk)))  # type: ignore[arg-type]
+    return white + wander
 
 
 @dataclass(frozen=True)
@@ -277,10 +261,13 @@ def null_under_noise(samples: AlignedSamples, labels: np.ndarray, cv_samples: Al
     low, high = float(cv_samples.temp_code.min()), float(cv_samples.temp_code.max())
     predicted = Corrector(_with_range(result.calibration, low, high)).predict_counts(
         cv_samples.reference, cv_samples.temp_code, stamp_s=cv_samples.stamp_s, aux=cv_samples.aux)
-    rng = np.random.default_rng(seed)
+    period = float(np.median(np.diff(samples.time_s))) if len(samples) > 1 else 1.0
+    duration = float(samples.time_s[-1]) if len(samples) else 1.0
     scores = []
-    for _ in range(replicates):
-        residual = bin_means(simulate_noise(noise, samples.time_s, white_floor, rng), labels)
+    for replicate in range(replicates):
+        simulated = simulate_noise(noise, len(samples), period, white_floor, [seed, replicate],
+                                   longest_s=max(duration / 10.0, 2.0 * period))
+        residual = bin_means(simulated, labels)
         copy = copy_with(cv_samples, counts=predicted + residual)
         score = cross_validate(copy, tuple(effects), fold, settings, folds=folds, whiten=whiten)
         if score.ok:
@@ -335,6 +322,13 @@ class AllanCheck:
         index = np.unravel_index(int(np.argmax(self.ratio / self.bound)), self.ratio.shape)
         return float(self.taus[index[0]]), int(index[1]), float(self.ratio[index])
 
+    def worst_bound(self) -> float:
+        """The bound at :meth:`worst`."""
+        if not len(self.taus):
+            return 1.0
+        index = np.unravel_index(int(np.argmax(self.ratio / self.bound)), self.ratio.shape)
+        return float(self.bound[index])
+
     def describe(self) -> str:
         """``'residual Allan deviation 3.1x the noise model at tau 300 s on z'``."""
         tau, axis, ratio = self.worst()
@@ -357,72 +351,40 @@ def tau_text(tau: float) -> str:
     return f'{tau:.2g} s' if tau < 10.0 else f'{tau:.0f} s'
 
 
-def octave_taus(count: int, sample_period_s: float, *, shortest_blocks: int = 8) -> np.ndarray:
-    """Averaging times ``m * period`` for ``m = 1, 2, 4, ...`` while at least ``shortest_blocks``
-    non-overlapping averages fit in the series."""
-    m = 1
-    found = []
-    while count // m >= shortest_blocks:
-        found.append(m)
-        m *= 2
-    return np.asarray(found, dtype=float) * sample_period_s
-
-
 def allan_check(residual: np.ndarray, sample_period_s: float, noise: Any, white_floor: np.ndarray, *,
                 alpha: float = ALLAN_ALPHA, tolerance: float = MODEL_TOLERANCE) -> AllanCheck:
     """The overlapping Allan deviation of a residual at octave averaging times, against the noise model.
 
     The bound at each averaging time is the upper chi-square quantile of the estimate on its
-    equivalent degrees of freedom (:func:`~tak_thermo_ros.core.noise.allan.equivalent_dof`),
+    equivalent degrees of freedom (:func:`~tak_thermo_ros.core.noise.allan.equivalent_degrees_of_freedom`
+    for the noise type that dominates the prediction there: white, flicker or random-walk rate),
     Bonferroni over averaging times and axes, times :data:`MODEL_TOLERANCE` for a model from a
-    file or a static run (a model fitted to this very residual needs none).
+    file or a static run (a model fitted to this very residual needs none). Averaging times up to
+    a tenth of the run (at least eight independent averages).
     """
     from scipy.stats import chi2
 
+    from tak_thermo_ros.core.noise.allan import allan_variance, cluster_sizes, equivalent_degrees_of_freedom
     residual = np.asarray(residual, dtype=float)
-    taus = octave_taus(len(residual), sample_period_s)
-    if not len(taus):
+    clusters = cluster_sizes(len(residual) // 8) if len(residual) >= 16 else np.zeros(0, dtype=np.int64)
+    if not len(clusters):
         empty = np.zeros((0, 3))
-        return AllanCheck(taus=taus, residual_adev=empty, model_adev=empty, bound=empty,
+        return AllanCheck(taus=np.zeros(0), residual_adev=empty, model_adev=empty, bound=empty,
                           source=str(noise.source))
-    steps = np.round(taus / sample_period_s).astype(np.int64)
-    avar = _overlapping_avar(residual, steps)
-    model = predicted_avar(noise, taus, white_floor, sample_period_s)
+    allan = allan_variance(residual, 1.0 / sample_period_s, clusters=clusters)
+    taus = allan.taus
     white = (np.asarray(white_floor, dtype=float) ** 2)[None, :] * sample_period_s / taus[:, None]
-    tests = len(taus) * residual.shape[1]
-    quantile = 1.0 - alpha / tests
-    bound = np.empty_like(avar)
-    for t, m in enumerate(steps):
-        for i in range(residual.shape[1]):
-            dof = _equivalent_dof(len(residual), int(m), white[t, i], model[t, i] - white[t, i], taus[t], noise, i)
-            bound[t, i] = math.sqrt(float(chi2.ppf(quantile, dof)) / dof)
+    wander = wander_avar(noise, taus)
+    walk = (_triple(noise.random_walk) ** 2)[None, :] * taus[:, None] / 3.0
+    model = white + wander
+    # The power-law exponent of the noise that dominates the prediction: 0 white rate,
+    # -2 random-walk rate, -1 flicker (bias instability) otherwise.
+    alphas = np.where(white >= wander, 0, np.where(walk >= 0.5 * wander, -2, -1))
+    quantile = 1.0 - alpha / (len(taus) * residual.shape[1])
+    bound = np.empty_like(model)
+    for i in range(residual.shape[1]):
+        dof = equivalent_degrees_of_freedom(allan, alphas[:, i])
+        bound[:, i] = np.sqrt(chi2.ppf(quantile, dof) / dof)
     slack = 1.0 if noise.source == 'residual' else tolerance
-    return AllanCheck(taus=taus, residual_adev=np.sqrt(avar), model_adev=np.sqrt(model), bound=bound * slack,
+    return AllanCheck(taus=taus, residual_adev=np.sqrt(allan.avar), model_adev=np.sqrt(model), bound=bound * slack,
                       source=str(noise.source))
-
-
-def _overlapping_avar(series: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    """``(t, n)`` overlapping Allan variance of a rate series at ``steps`` samples of averaging."""
-    cumulative = np.concatenate((np.zeros((1, series.shape[1])), np.cumsum(series, axis=0)))
-    out = np.empty((len(steps), series.shape[1]))
-    for t, m in enumerate(steps):
-        m = int(m)
-        means = (cumulative[m:] - cumulative[:-m]) / m
-        diffs = means[m:] - means[:-m]
-        out[t] = np.mean(diffs ** 2, axis=0) / 2.0
-    return out
-
-
-def _equivalent_dof(count: int, m: int, white: float, wander: float, tau: float, noise: Any, axis: int) -> float:
-    """Equivalent degrees of freedom of an overlapping Allan variance (Riley, NIST SP 1065,
-    Table 5): white FM where the white part dominates, random-walk FM where the random walk does,
-    flicker FM otherwise."""
-    n = count + 1
-    walk = float(_triple(noise.random_walk)[axis]) ** 2 * tau / 3.0
-    if white >= wander:
-        dof = (3.0 * (n - 1) / (2.0 * m) - 2.0 * (n - 2) / n) * 4.0 * m * m / (4.0 * m * m + 5.0)
-    elif walk >= 0.5 * wander:
-        dof = (n - 2) / m * ((n - 1) ** 2 - 3.0 * m * (n - 1) + 4.0 * m * m) / (n - 3) ** 2
-    else:
-        dof = 5.0 * n * n / (4.0 * m * (n + 3.0 * m)) if m > 1 else 2.0 * (n - 2) / (2.3 * n - 4.9)
-    return max(float(dof), 1.0)
