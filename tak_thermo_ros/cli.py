@@ -347,6 +347,9 @@ def cmd_validate(args: argparse.Namespace) -> int:
           f'max {after.max:.5f} m/s^2')
     if result.out_of_range:
         print(f'warning: {result.out_of_range} samples outside the calibrated temperature range ({args.out_of_range})')
+    # The corrected output is in SI units whatever the input kind: a file's model as it stands.
+    given = _given_noise_models(args, unit, InputKind.IMU, ('accel',) if unit.gyro is None else ('accel', 'gyro'))
+    averaged = {'accel': _averaged_bias(result, given.get('accel'), 'accel', args.gravity)}
     document = {'bag': str(args.bag), 'params': str(args.params), 'gravity': args.gravity,
                 'samples': result.samples, 'out_of_range': result.out_of_range,
                 'before': before.as_dict(), 'after': after.as_dict()}
@@ -362,6 +365,13 @@ def cmd_validate(args: argparse.Namespace) -> int:
             print(f'  {label:<35}RMS ' + ' '.join(f'{v:.3e}' for v in stats.rms) + ' rad/s; mean '
                   + ' '.join(f'{v:+.3e}' for v in stats.mean) + ' rad/s')
         document['gyro'] = {'samples': rate.samples, 'before': rate_before.as_dict(), 'after': rate_after.as_dict()}
+        averaged['gyro'] = _averaged_bias(rate, given.get('gyro'), 'gyro', args.gravity)
+    for sensor, found in averaged.items():
+        if found is None:
+            continue
+        for line in found['lines']:
+            print(line)
+        (document['gyro'] if sensor == 'gyro' else document)['averaged_bias_error'] = found['document']
     if args.json:
         write_text_atomic(args.json, _json_text(document, args.json))
         print(f'wrote {args.json}')
@@ -574,6 +584,50 @@ def _given_noise_models(args: argparse.Namespace, unit: UnitCalibration, kind: I
     return {}
 
 
+def _averaged_bias(check, noise, sensor: str, gravity: float) -> dict | None:
+    """``validate``'s bias error of the corrected output averaged over 1, 60 and 600 s (deg/h for
+    the gyroscope per axis, mg for |g|), next to what the noise model predicts (its Allan deviation)."""
+    import math
+    rms = check.gravity_averaged.rms() if sensor == 'accel' else check.noise.averaged.rms()
+    windows = check.gravity_averaged.windows() if sensor == 'accel' else check.noise.averaged.windows()
+    source = 'given'
+    if noise is None and check.noise.allan is not None:
+        from tak_thermo_ros.core.noise.model import fit_noise_model
+        try:
+            noise = fit_noise_model(check.noise.allan.result(), source='residual')
+        except TakError:
+            noise = None
+    taus = np.array(sorted(rms))
+    predicted = None
+    if noise is not None:
+        avar = noise.allan_variance(taus)
+        if sensor == 'accel':
+            direction = check.direction / max(float(np.linalg.norm(check.direction)), 1e-300)
+            predicted = np.sqrt(avar @ direction ** 2)[:, None]
+        else:
+            predicted = np.sqrt(avar)
+        source = noise.source
+    if sensor == 'gyro':
+        factor, unit, name = 180.0 / math.pi * 3600.0, 'deg/h', 'gyroscope bias error (x y z)'
+    else:
+        factor, unit, name = 1000.0 / gravity, 'mg', '|g| error'
+    said = {'file': 'the noise model from the file', 'static_run': 'the noise model from the static run',
+            'residual': "a noise model fitted to this run's corrected output"}
+    lines = [f'{name} of the corrected output averaged over 1 s, 60 s, 600 s, RMS of the averages in {unit}'
+             + (f' (next to what {said[source]} predicts, its Allan deviation):' if predicted is not None else ':')]
+    document = {}
+    for t, tau in enumerate(taus):
+        values = np.atleast_1d(rms[tau]) * factor
+        text = ' '.join(f'{v:.3g}' for v in values) if windows[tau] else 'run shorter than one window'
+        entry = {'windows': windows[tau], 'rms': [float(v) for v in values], 'unit': unit}
+        if predicted is not None:
+            text += '   noise model: ' + ' '.join(f'{v * factor:.3g}' for v in predicted[t])
+            entry['noise_model'] = [float(v * factor) for v in predicted[t]]
+        lines.append(f'  {tau:5.0f} s: {text}')
+        document[f'{tau:g}'] = entry
+    return {'lines': lines, 'document': {'source': source if predicted is not None else None, 'taus': document}}
+
+
 def _noise_line(noise, unit: str, averaging_s: float) -> str:
     """One line: the noise model per axis and where it comes from."""
     if noise is None:
@@ -668,6 +722,9 @@ def build_parser() -> argparse.ArgumentParser:
                           'latitude is the true rate (default: zero)')
     _out_of_range(val)
     _add_topic_options(val)
+    val.add_argument('--noise', metavar='IMU.yaml',
+                     help="the sensors' noise model (Kalibr-style imu.yaml): the averaged bias error is shown next to it")
+    val.add_argument('--noise-run', metavar='BAG', help='a static run at constant temperature for the noise model')
     val.set_defaults(handler=cmd_validate)
     imp = commands.add_parser('import-csv', help='convert a delimited log of a static thermal run into a bag')
     imp.add_argument('log', metavar='LOG.csv')
