@@ -172,7 +172,8 @@ class AveragedError:
         if self._start is None:
             self._start = float(time_s[0])
         for j, tau in enumerate(self.taus):
-            window = np.floor((np.asarray(time_s, dtype=float) - self._start) / tau).astype(np.int64)
+            # A stamp on a window's edge (to rounding) opens the next window.
+            window = np.floor((np.asarray(time_s, dtype=float) - self._start) / tau + 1e-9).astype(np.int64)
             edges = np.flatnonzero(np.diff(window)) + 1
             starts = np.concatenate(([0], edges))
             stops = np.concatenate((edges, [len(window)]))
