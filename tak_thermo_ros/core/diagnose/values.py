@@ -254,7 +254,7 @@ class Diagnosis:
             'message': self.message,
             'axes': {name: {'rms': a.rms, 'noise_floor': a.noise_floor, 'heldout_rms': a.heldout_rms,
                             'excess_significant': a.excess_significant,
-                            'null_heldout_rms': a.null_heldout_rms}
+                            'null_heldout_rms': a.null_heldout_rms, 'white_floor': a.white_floor or a.noise_floor}
                      for name, a in zip(AXES, self.axes)},
             'candidates': [c.as_dict() for c in self.candidates],
             'skipped': dict(self.skipped),
