@@ -87,7 +87,8 @@ def small_lag_story(tmp_path_factory):
         return str(root / name)
     commands = [
         ['fit', at('cal'), '-o', at('base.yaml')],
-        ['diagnose', at('cal'), '--params', at('base.yaml'), '--noise-run', at('static'), '--json', at('base.json')],
+        ['diagnose', at('cal'), '--params', at('base.yaml'), '--noise-run', at('static'), '--json', at('base.json'),
+         '--report', at('report')],
         ['fit', at('cal'), '-o', at('lag.yaml'), '--gyro-effects', 'thermal_lag'],
         ['diagnose', at('cal'), '--params', at('lag.yaml'), '--noise-run', at('static'), '--json', at('lag.json')],
     ]
@@ -149,6 +150,14 @@ def test_validate_prints_the_averaged_bias_error_next_to_the_noise_model(small_l
     one = gyro['taus']['1']
     # At 1 s the error is the white noise: its RMS agrees with the model's Allan deviation.
     assert np.allclose(one['rms'], one['noise_model'], rtol=0.25)
+
+
+def test_the_report_shows_the_allan_deviation_before_and_after_the_effect_against_the_model(small_lag_story):
+    page = (small_lag_story / 'report' / 'gyro' / 'report.html').read_text()
+    assert (small_lag_story / 'report' / 'gyro' / 'allan.png').stat().st_size > 10_000
+    assert 'Against the noise model' in page and 'static_run' in page
+    table = page.split('Largest Allan deviation ratio')[1].split('</table>')[0]
+    assert '<td>base</td>' in table and '<td>base + thermal_lag</td>' in table
 
 
 # ----------------------------------------------------------------------- (b) and (c), core
