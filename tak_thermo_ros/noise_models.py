@@ -18,6 +18,12 @@ from tak_thermo_ros.core.link.model import Calibration, InputKind
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import NoiseError, TakError
 
+RESIDUAL_LONGEST_TAU_S = 30.0
+"""A noise model from the diagnosed run's own residual is fitted to its Allan variance at
+averaging times up to this (half a minute): a thermal effect acts over the minutes a temperature
+ramp takes, so what the residual shows at shorter averaging times is the sensor's own noise;
+longer, the residual holds whatever the model misses besides the wander, and no run can tell
+them apart without a static run or a data sheet."""
 NOISE_RUN_MAX_SAMPLES = 4_000_000
 """A static noise run is read whole up to about this many samples (then 1 in n, said in one line)."""
 
@@ -37,12 +43,18 @@ def in_counts(model: Any, calibration: Calibration) -> Any:
                                                               'quantization', 'rate_ramp')})
 
 
-def model_from_signal(signal: np.ndarray, sample_period_s: float, source: str) -> Any:
-    """The five-term noise model of a ``(k, 3)`` signal (its overlapping Allan variance, fitted)."""
-    from tak_thermo_ros.core.noise.allan import allan_variance
+def model_from_signal(signal: np.ndarray, sample_period_s: float, source: str, *,
+                      longest_s: float | None = None) -> Any:
+    """The five-term noise model of a ``(k, 3)`` signal (its overlapping Allan variance, fitted;
+    up to ``longest_s`` of averaging when given, two averaging times per octave)."""
+    from tak_thermo_ros.core.noise.allan import allan_variance, cluster_sizes, largest_cluster
     from tak_thermo_ros.core.noise.model import fit_noise_model
     signal = np.asarray(signal, dtype=float)
-    return fit_noise_model(allan_variance(signal - signal.mean(axis=0), 1.0 / sample_period_s), source=source)
+    largest = largest_cluster(len(signal))
+    if longest_s is not None:
+        largest = min(largest, int(longest_s / sample_period_s))
+    allan = allan_variance(signal - signal.mean(axis=0), 1.0 / sample_period_s, clusters=cluster_sizes(largest, 2))
+    return fit_noise_model(allan, source=source)
 
 
 def models_from_file(path: str | Path, sensors: tuple[str, ...], kind: InputKind,
@@ -79,9 +91,10 @@ def models_from_static_run(path: str | Path, options: Any, *, gravity: float) ->
 
 
 def model_from_residual(residual: np.ndarray, samples: AlignedSamples) -> Any | None:
-    """The noise model of the run's own residual (``source='residual'``), or ``None`` when the run
-    is too short for five averaging times."""
+    """The noise model of the run's own residual at averaging times up to
+    :data:`RESIDUAL_LONGEST_TAU_S` (``source='residual'``), or ``None`` when the run is too short
+    for five averaging times."""
     try:
-        return model_from_signal(residual, _period(samples), 'residual')
+        return model_from_signal(residual, _period(samples), 'residual', longest_s=RESIDUAL_LONGEST_TAU_S)
     except TakError:
         return None

@@ -106,10 +106,14 @@ def _driver_sentence(drivers: Sequence[Driver], *, exclude: Sequence[str] = ()) 
 def _wander_sentence(allan: Any) -> str:
     """What a noise model fitted to the run's own residual can and cannot say."""
     tau, axis, ratio = allan.worst()
-    return (f'The noise model here is fitted to this run\'s own residual (no --noise or --noise-run given): '
-            f'what remains is read as the sensor\'s bias wander where that model follows it (Allan deviation '
-            f'{ratio:.1f}x the model at most, at tau {tau_text(tau)} on {AXES[axis]}), and this run alone cannot '
-            f'tell the sensor\'s own wander from a cause not in the bag: give the sensor\'s noise model '
+    if allan.consistent:
+        where = (f'what remains is consistent with this short-term noise at every averaging time (Allan deviation '
+                 f'at most {ratio:.2f}x it, at tau {tau_text(tau)} on {AXES[axis]})')
+    else:
+        where = f'against it, {allan.describe()}'
+    return (f'No noise model was given (--noise, --noise-run): the one here is fitted to this run\'s own residual '
+            f'at averaging times up to half a minute, where no thermal effect acts; {where}. This run alone cannot tell '
+            f'the sensor\'s own bias wander from a cause that is not in the bag: give the sensor\'s noise model '
             f'(--noise imu.yaml) or a static run at constant temperature (--noise-run BAG) to judge it.')
 
 

@@ -373,8 +373,12 @@ def allan_check(residual: np.ndarray, sample_period_s: float, noise: Any, white_
                           source=str(noise.source))
     allan = allan_variance(residual, 1.0 / sample_period_s, clusters=clusters)
     taus = allan.taus
-    white = (np.asarray(white_floor, dtype=float) ** 2)[None, :] * sample_period_s / taus[:, None]
     wander = wander_avar(noise, taus)
+    # The white level is measured, not tested: what the residual shows at the shortest averaging
+    # time beyond the model's wander there (at least the floor from successive differences, which
+    # leaves out isolated jumps that the Allan variance keeps).
+    level = np.maximum(allan.avar[0] - wander[0], np.asarray(white_floor, dtype=float) ** 2 * sample_period_s / taus[0])
+    white = level[None, :] * taus[0] / taus[:, None]
     walk = (_triple(noise.random_walk) ** 2)[None, :] * taus[:, None] / 3.0
     model = white + wander
     # The power-law exponent of the noise that dominates the prediction: 0 white rate,
