@@ -632,6 +632,7 @@ def _noise_line(noise, unit: str, averaging_s: float) -> str:
     """One line: the noise model per axis and where it comes from."""
     if noise is None:
         return '  noise model: none (the run is too short for an Allan fit): judged against the white floor'
+
     def triple(values) -> str:
         return ' '.join(f'{float(v):.3g}' for v in values)
     said = {'file': 'from the file', 'static_run': 'from the static run',

@@ -39,8 +39,8 @@ def in_counts(model: Any, calibration: Calibration) -> Any:
     def scaled(name: str) -> tuple[float, float, float]:
         values = np.asarray(getattr(model, name), dtype=float) * scale
         return float(values[0]), float(values[1]), float(values[2])
-    return replace(model, **{name: scaled(name) for name in ('white_noise_density', 'bias_instability', 'random_walk',
-                                                              'quantization', 'rate_ramp')})
+    terms = ('white_noise_density', 'bias_instability', 'random_walk', 'quantization', 'rate_ramp')
+    return replace(model, **{name: scaled(name) for name in terms})
 
 
 def model_from_signal(signal: np.ndarray, sample_period_s: float, source: str, *,
