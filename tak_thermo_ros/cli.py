@@ -51,6 +51,7 @@ OUTPUTS: dict[str, tuple[tuple[str, str, str], ...]] = {
     'validate': (('json', FILE, '--json'),),
     'import-csv': (('output', BAG, '-o'),),
     'diagnose': (('json', FILE, '--json'), ('report', REPORT, '--report')),
+    'noise': (('output', FILE, '-o'), ('json', FILE, '--json')),
 }
 """Each command's outputs: ``(argument, kind, option)``, checked before any work is done."""
 
@@ -212,6 +213,9 @@ def cmd_fit(args: argparse.Namespace) -> int:
     results = fitted.results
     unit = UnitCalibration(fitted.input_kind, results['accel'].calibration,
                            results['gyro'].calibration if 'gyro' in results else None)
+    noise_line = ''
+    if args.noise or args.noise_run or args.noise_from_residual:
+        unit, noise_line = _with_noise(args, unit)
     applied = ', '.join(f'{sensor} {", ".join(e.name for e in calibration.effects)}'
                         for sensor, calibration in unit.sensors if calibration.effects)
     header = (f'tak_thermo_ros calibration fitted from {args.bag}\n'
@@ -260,7 +264,97 @@ def cmd_fit(args: argparse.Namespace) -> int:
             print(f'  effect {effect.name}: {shown}')
         for note in calibration.notes:
             print(f'note: {prefix}{note}')
+        noise = unit.sensor(sensor).noise
+        if noise is not None:
+            print(f'  noise ({noise.source}):')
+            for i, name in enumerate(AXES):
+                print(f'  {name}: {noise_axis_line(sensor, noise, i, unit_name)}')
+    if noise_line:
+        print(f'{noise_line} (written with the calibration: the node\'s Imu covariances come from it)')
     print(f'wrote {args.output}')
+    return 0
+
+
+def _with_noise(args: argparse.Namespace, unit: UnitCalibration) -> tuple[UnitCalibration, str]:
+    """The fitted unit with each sensor's noise model (``fit --noise / --noise-run / --noise-from-residual``)."""
+    from tak_thermo_ros.noise_run import noise_models
+    found = noise_models(unit=unit, options=_stream_options(args), noise_file=args.noise, noise_run=args.noise_run,
+                         calibration_run=args.bag if args.noise_from_residual else None, use_stored=False,
+                         gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None))
+    accel = replace(unit.accel, noise=found.models['accel'])
+    gyro = replace(unit.gyro, noise=found.models['gyro']) if unit.gyro is not None else None
+    return UnitCalibration(unit.input_kind, accel, gyro), found.line
+
+
+DEG = 180.0 / 3.141592653589793
+
+
+def noise_axis_line(sensor: str, model, axis: int, unit: str) -> str:
+    """One axis of a noise model in SI and in the units of a data sheet.
+
+    White density, bias instability at its floor time, random walk (deg/sqrt(h), deg/h; ug/sqrt(Hz), mg).
+    """
+    white, bias = model.white_noise_density[axis], model.bias_instability[axis]
+    tau, walk = model.bias_instability_tau[axis], model.random_walk[axis]
+    at = f'{tau:.3g} s' if tau < float('inf') else 'no floor within the averaging times'
+    if unit == 'rad/s':
+        text = (f'white {white:.3e} rad/s/sqrt(Hz) ({white * DEG * 60.0:.3g} deg/sqrt(h)); '
+                f'bias instability {bias:.3e} rad/s ({bias * DEG * 3600.0:.3g} deg/h) at {at}; '
+                f'random walk {walk:.3e} rad/s^2/sqrt(Hz) ({walk * DEG * 3600.0 * 60.0:.3g} deg/h/sqrt(h))')
+    elif unit in ('m/s^2', 'counts'):  # a counts calibration's corrected output is m/s^2
+        g = STANDARD_GRAVITY
+        text = (f'white {white:.3e} m/s^2/sqrt(Hz) ({white / g * 1e6:.3g} ug/sqrt(Hz), {white * 60.0:.3g} m/s/sqrt(h)); '
+                f'bias instability {bias:.3e} m/s^2 ({bias / g * 1e3:.3g} mg) at {at}; '
+                f'random walk {walk:.3e} m/s^3/sqrt(Hz) ({walk / g * 1e3 * 60.0:.3g} mg/sqrt(h))')
+    else:
+        text = f'white {white:.3e}; bias instability {bias:.3e} at {at}; random walk {walk:.3e} ({unit})'
+    extra_units = {'rad/s': ('rad', 'rad/s^2')}.get(unit, ('m/s', 'm/s^3') if unit in ('m/s^2', 'counts') else ('', ''))
+    extra = [f'{name} {getattr(model, name)[axis]:.3e} {extra_unit}'.rstrip()
+             for name, extra_unit in zip(('quantization', 'rate_ramp'), extra_units) if getattr(model, name)[axis] > 0.0]
+    return text + (f'; {", ".join(extra)}' if extra else '')
+
+
+def cmd_noise(args: argparse.Namespace) -> int:
+    """Each sensor's per-axis noise model (Allan deviation, IEEE 952 fit), streamed; a Kalibr-style imu.yaml."""
+    from tak_thermo_ros.core.noise.kalibr import write_kalibr
+    from tak_thermo_ros.noise_run import noise_bag, noise_document
+    unit = load_unit(args.params) if args.params else None
+    run = noise_bag(args.bag, _stream_options(args), unit=unit, gravity=args.gravity,
+                    latitude=getattr(args, 'latitude', None), out_of_range=OutOfRange(args.out_of_range),
+                    settle_time_s=args.settle_time,
+                    expect_kind=(lambda kind: _check_kind(args, unit, kind)) if unit is not None else None)
+    for line in run.reference_lines:
+        print(line)
+    what = ('the thermally compensated output (--params) minus the reference' if run.compensated else
+            'the measured output minus the reference, NOT compensated (no --params): thermal drift counts as '
+            'bias wander here')
+    print(f'noise of {args.bag}: {what}')
+    document: dict[str, object] = {'bag': str(args.bag), 'params': args.params, 'compensated': run.compensated,
+                                   'sensors': {}}
+    for sensor, noise in run.sensors.items():
+        allan, model = noise.allan, noise.model
+        unit_name = 'm/s^2' if sensor == 'accel' else 'rad/s'
+        print(f'{SENSOR_NAMES[sensor]}: {allan.samples} samples at {allan.rate:.6g} Hz, averaging times '
+              f'{allan.taus[0]:.3g} to {allan.taus[-1]:.4g} s, source {model.source}')
+        if noise.dropped:
+            print(f'  left out: {_describe_dropped(noise.dropped)}')
+        if noise.gaps:
+            print(f'  {noise.gaps} gaps in the stamps (about {noise.missing} samples missing): the samples are '
+                  f'taken as evenly spaced')
+        if noise.out_of_range:
+            print(f'  warning: {noise.out_of_range} samples outside the calibrated temperature range '
+                  f'({args.out_of_range})')
+        for i, name in enumerate(AXES):
+            print(f'  {name}: {noise_axis_line(sensor, model, i, unit_name)}')
+        document['sensors'][sensor] = noise_document(noise)  # type: ignore[index]
+    if args.output:
+        header = (f'noise model of {args.bag} ({"thermally compensated with " + args.params if run.compensated else "not compensated"}), '
+                  f'tak_calib noise\nKalibr keys: the largest axis; per axis (x, y, z) under *_xyz')
+        write_kalibr(args.output, run.models, rostopic=run.topic, header=header, force=args.force)
+        print(f'wrote {args.output}')
+    if args.json:
+        write_text_atomic(args.json, _json_text(document, args.json))
+        print(f'wrote {args.json}')
     return 0
 
 
@@ -699,6 +793,12 @@ def build_parser() -> argparse.ArgumentParser:
                           f'(default {EFFECT_FIT_MAX_SAMPLES:,}; the amplitudes use every sample)')
     fit.add_argument('--settle-time', type=bounds.seconds_not_negative, default=0.0, metavar='SECONDS',
                      help='leave out samples this long after each reference change (turntable settling)')
+    noise_group = fit.add_argument_group('noise model written with the calibration (the node\'s Imu covariances)')
+    noise_group.add_argument('--noise', metavar='IMU.yaml', help='a Kalibr-style imu.yaml (noise densities, random walks)')
+    noise_group.add_argument('--noise-run', metavar='BAG', help='a static, constant-temperature run: its noise model '
+                                                               '(compensated with the fitted calibration)')
+    noise_group.add_argument('--noise-from-residual', action='store_true',
+                             help='the noise model of this run\'s residual after the fit (one more pass over the bag)')
     _add_static_options(fit)
     _add_topic_options(fit)
     fit.set_defaults(handler=cmd_fit)
@@ -791,6 +891,19 @@ def build_parser() -> argparse.ArgumentParser:
                       help='a static run at constant temperature: its Allan variance gives the noise model')
     _add_topic_options(diag)
     diag.set_defaults(handler=cmd_diagnose)
+    noise = commands.add_parser('noise', help='per-axis noise model (Allan deviation) of each sensor; Kalibr imu.yaml')
+    noise.add_argument('bag', metavar='BAG')
+    noise.add_argument('--params', metavar='PARAMS.yaml',
+                       help='a calibration: the noise of the thermally compensated output (default: the raw output)')
+    noise.add_argument('-o', '--output', metavar='IMU.yaml', help='write the models as a Kalibr-style imu.yaml')
+    noise.add_argument('--json', metavar='OUT.json', help='write the models and the Allan deviations as JSON')
+    noise.add_argument('--settle-time', type=bounds.seconds_not_negative, default=0.0, metavar='SECONDS',
+                       help='leave out samples this long after each reference change (a table settling; '
+                            'the gaps are counted, the samples taken as evenly spaced)')
+    _add_static_options(noise)
+    _out_of_range(noise)
+    _add_topic_options(noise)
+    noise.set_defaults(handler=cmd_noise)
     from tak_thermo_ros.fleet import add_fleet_parser
     add_fleet_parser(commands, fit, main)
     return parser

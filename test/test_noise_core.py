@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -175,7 +176,11 @@ def test_model_allan_deviation_is_the_sum_of_the_five_terms():
     assert np.allclose(model.allan_variance(taus), expected, rtol=1e-12)
     assert np.allclose(model.allan_deviation(taus), np.sqrt(expected))
     assert FLICKER_FLOOR == pytest.approx(0.6643, abs=1e-4)
-    assert model.sample_variance() == pytest.approx(tuple(w * w * 200.0 for w in model.white_noise_density))
+    assert model.sample_variance() == pytest.approx(tuple(model.allan_variance([1.0 / 200.0])[0]), rel=1e-12)
+    white = _model(bias_instability=(0.0,) * 3, random_walk=(0.0,) * 3, quantization=(0.0,) * 3, rate_ramp=(0.0,) * 3)
+    assert white.sample_variance() == pytest.approx(tuple(w * w * 200.0 for w in white.white_noise_density), rel=1e-12)
+    only_quantization = _model(white_noise_density=(0.0, 1e-4, 0.0))
+    assert only_quantization.sample_variance()[0] > 0.0  # never 0 (REP 145: unknown) while the model has noise
 
 
 @pytest.mark.parametrize(('key', 'value', 'match'), [
@@ -194,6 +199,8 @@ def test_model_refuses_bad_values(key, value, match):
 def test_model_mapping_round_trips_and_names_bad_keys():
     model = _model(bias_instability_tau=(100.0, math.inf, 300.0))
     assert noise_model_from_mapping(model.to_mapping(), 'noise') == model
+    assert model.to_json()['bias_instability_tau'] == [100.0, None, 300.0]
+    assert json.loads(json.dumps(model.to_json(), allow_nan=False))['white_noise_density'] == [1e-4, 2e-4, 3e-4]
     with pytest.raises(NoiseError, match='noise.colour: unknown key'):
         noise_model_from_mapping({**model.to_mapping(), 'colour': 1}, 'noise')
     with pytest.raises(NoiseError, match='noise: missing key random_walk'):
@@ -319,3 +326,21 @@ def test_unreadable_noise_files_are_named(tmp_path):
 def test_allan_terms_columns_are_the_unit_terms():
     taus = np.array([2.0])
     assert np.allclose(allan_terms(taus)[0], [3 / 4, 1 / 2, FLICKER_FLOOR ** 2, 2 / 3, 2.0])
+
+
+term = st.floats(0.0, 1e3, allow_subnormal=False)
+triple = st.tuples(term, term, term)
+
+
+@settings(max_examples=60, deadline=None)
+@given(triple, triple, triple, triple, triple, st.floats(0.1, 1e5))
+def test_any_model_round_trips_through_the_kalibr_text(white, bias, walk, quantum, ramp, rate):
+    import yaml
+    tau = floor_tau(white, bias, walk, quantum, ramp, taus=(1e-3, 1e6))
+    model = NoiseModel(white_noise_density=white, bias_instability=bias, bias_instability_tau=tau, random_walk=walk,
+                       update_rate=rate, source='residual', quantization=quantum, rate_ramp=ramp)
+    back, topic = kalibr_from_mapping(yaml.safe_load(kalibr_text({'gyro': model}, rostopic='/imu')))
+    assert topic == '/imu' and set(back) == {'gyro'}
+    for name in (*TERMS, 'bias_instability_tau'):
+        assert np.allclose(getattr(back['gyro'], name), getattr(model, name), rtol=1e-6, atol=0.0), name
+    assert back['gyro'].update_rate == rate

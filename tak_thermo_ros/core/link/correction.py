@@ -253,11 +253,17 @@ class UnitCorrector:
 
 
 def acceleration_variance(calibration: Calibration) -> tuple[float, float, float]:
-    """Per-axis variance of the corrected output of one sensor, from the fit residual.
+    """Per-axis variance of the corrected output of one sensor: the noise model's, else the fit residual's.
 
-    (m/s^2)^2 for an accelerometer, (rad/s)^2 for a gyroscope. Zero where the residual is
-    unknown (REP 145: an all-zero covariance means unknown).
+    (m/s^2)^2 for an accelerometer, (rad/s)^2 for a gyroscope. With a noise model
+    (``calibration.noise``) it is its per-sample variance (:meth:`NoiseModel.sample_variance`:
+    ``white_noise_density^2 * update_rate`` per axis plus what the other terms add at one
+    sample period; what a sample's error is, without the slow wander that a covariance per
+    sample cannot describe). Without one, from the fit
+    residual; zero where that is unknown (REP 145: an all-zero covariance means unknown).
     """
+    if calibration.noise is not None:
+        return calibration.noise.sample_variance()
     variances = []
     for axis in calibration.axes:
         rms = axis.residual_rms

@@ -26,6 +26,7 @@ from typing import Sequence
 import numpy as np
 
 from tak_thermo_ros.core.effects.base import Effect
+from tak_thermo_ros.core.noise.model import NoiseModel
 from tak_thermo_ros.errors import CalibrationError
 
 AXES: tuple[str, str, str] = ('x', 'y', 'z')
@@ -158,6 +159,8 @@ class Calibration:
     :param notes: free-text remarks recorded with the calibration (e.g. what was held).
     :param effects: fitted effects beyond the paper's model (``tak_thermo_ros.core.effects``),
         each name at most once; the correction applies them in this order.
+    :param noise: the noise model of the corrected output (SI: m/s^2 or rad/s), or ``None``;
+        when given, the Imu covariance is its per-sample variance (``NoiseModel.sample_variance``).
     """
 
     temp_code_ref: float
@@ -167,6 +170,7 @@ class Calibration:
     version: int = CALIBRATION_VERSION
     notes: tuple[str, ...] = field(default=())
     effects: tuple[Effect, ...] = field(default=())
+    noise: NoiseModel | None = None
 
     def __post_init__(self) -> None:
         if len(self.axes) != 3:

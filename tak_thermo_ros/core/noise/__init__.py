@@ -1,2 +1,6 @@
-"""A sensor's noise: overlapping Allan variance (``allan``), the IEEE 952 model and its fit (``model``),
-Kalibr-style imu.yaml files (``kalibr``). numpy only at import (scipy inside the functions that need it)."""
+"""A sensor's noise: Allan variance, the IEEE 952 model and its fit, Kalibr-style imu.yaml files.
+
+``allan`` (overlapping Allan variance, in memory and streamed), ``model`` (:class:`NoiseModel`,
+:func:`fit_noise_model`), ``kalibr`` (read and write imu.yaml). numpy only at import; scipy is
+imported inside the functions that need it.
+"""

@@ -81,7 +81,8 @@ class NoiseModel:
         velocity random walk of an accelerometer (m/s^2/sqrt(Hz)); Kalibr's ``*_noise_density``.
     :param bias_instability: units; the flicker term, whose flat Allan deviation is 0.664 times it.
     :param bias_instability_tau: s, the averaging time where the model's Allan deviation is
-        lowest (the floor); ``inf`` when nothing rises at long times.
+        lowest (the floor); ``inf`` when nothing rises at long times (a fitted model: not within
+        the measured averaging times).
     :param random_walk: units*sqrt(Hz): rate (velocity) random walk; Kalibr's ``*_random_walk``.
     :param update_rate: Hz, the sample rate the model was estimated at (the per-sample
         variance of the white noise is ``white_noise_density^2 * update_rate``).
@@ -127,18 +128,32 @@ class NoiseModel:
         return np.sqrt(self.allan_variance(taus))
 
     def sample_variance(self) -> Triple:
-        """Per axis, the variance of one sample's white noise: ``white_noise_density^2 * update_rate``."""
-        return _triple([w * w * self.update_rate for w in self.white_noise_density], 'sample_variance')
+        """Per axis, the variance of one sample's noise: the model's Allan variance at one sample period.
+
+        For white noise alone that is exactly ``white_noise_density^2 * update_rate``; the other
+        terms add what they predict at ``tau = 1 / update_rate`` (quantisation, where a short run
+        cannot tell it from white noise, most of it; bias instability and random walk next to
+        nothing), so that an axis whose fit put its short-time noise into quantisation still
+        gets the variance its samples show, never 0 (which REP 145 reads as "unknown").
+        """
+        return _triple(self.allan_variance([1.0 / self.update_rate])[0].tolist(), 'sample_variance')
 
     def to_mapping(self) -> dict[str, Any]:
-        """Plain numbers and lists (YAML, JSON); :func:`noise_model_from_mapping` reads it back."""
+        """Plain numbers and lists (YAML); :func:`noise_model_from_mapping` reads it back."""
         return {f.name: (list(getattr(self, f.name)) if isinstance(getattr(self, f.name), tuple)
                          else getattr(self, f.name)) for f in fields(self)}
 
+    def to_json(self) -> dict[str, Any]:
+        """As :meth:`to_mapping`, with a floor time at infinity as ``None`` (strict JSON has no infinity)."""
+        return {key: [v if math.isfinite(v) else None for v in value] if isinstance(value, list) else value
+                for key, value in self.to_mapping().items()}
+
 
 def noise_model_from_mapping(raw: Any, where: str) -> NoiseModel:
-    """A :class:`NoiseModel` from :meth:`NoiseModel.to_mapping`'s keys (``quantization``, ``rate_ramp``
-    optional; ``bias_instability_tau`` optional: the floor of the other terms).
+    """A :class:`NoiseModel` from the keys of :meth:`NoiseModel.to_mapping`.
+
+    ``quantization`` and ``rate_ramp`` are optional (0), ``bias_instability_tau`` too (the floor of
+    the other terms, :func:`floor_tau`); a single number stands for all three axes.
 
     :raises NoiseError: naming ``where`` and the key, on a missing, unknown or bad value.
     """
@@ -176,7 +191,8 @@ def floor_tau(white: Triple, bias: Triple, random_walk: Triple, quantization: Tr
 
     Without quantisation and ramp it is ``sqrt(3) N / K`` (where white noise and random walk
     cross; a flat flicker term does not move it), ``inf`` when ``K`` is 0. Otherwise it is searched
-    on a log grid over ``taus`` (default 1 us to 1e9 s); a minimum at the grid's upper end is ``inf``.
+    on a log grid over ``taus`` (default 1 us to 1e9 s); a minimum at the grid's upper end (the
+    Allan deviation still falling at the longest averaging time) is ``inf``.
     """
     out = []
     for axis in range(3):
@@ -189,7 +205,7 @@ def floor_tau(white: Triple, bias: Triple, random_walk: Triple, quantization: Tr
         coefficients = np.array([q, n, bias[axis], k, r]) ** 2
         avar = allan_terms(grid) @ coefficients
         best = int(np.argmin(avar))
-        out.append(math.inf if taus is None and best == len(grid) - 1 else float(grid[best]))
+        out.append(math.inf if best == len(grid) - 1 else float(grid[best]))
     return (out[0], out[1], out[2])
 
 

@@ -19,6 +19,11 @@ written ``[0.0]``. Optional keys: ``residual_rms`` (counts; feeds the Imu covari
 ``scale_observable`` (``false`` when the scale was held at nominal), ``notes`` (list of
 strings). Later model terms go under ``calibration`` beside the axes.
 
+A sensor may carry its noise model (``noise``: ``white_noise_density``, ``bias_instability``,
+``bias_instability_tau``, ``random_walk``, ``quantization``, ``rate_ramp``, three floats each,
+SI units of the corrected output; ``update_rate`` Hz; ``source``); the Imu covariance then
+comes from it (:func:`~tak_thermo_ros.core.link.correction.acceleration_variance`).
+
 Effects (``tak_thermo_ros.core.effects``) go under ``calibration.effects.<name>.<param>``, one
 float per parameter (no lists, so that every value is one ROS 2 parameter); a user-defined
 effect also stores where its class lives::
@@ -35,6 +40,7 @@ the YAML, the node on its ``calibration.*`` parameters.
 
 from __future__ import annotations
 
+import math
 import os
 import re
 from dataclasses import dataclass
@@ -55,8 +61,9 @@ from tak_thermo_ros.core.link.model import (
     InputKind,
     UnitCalibration,
 )
+from tak_thermo_ros.core.noise.model import NoiseModel, noise_model_from_mapping
 from tak_thermo_ros.core.values import finite_number
-from tak_thermo_ros.errors import CalibrationError, FitError
+from tak_thermo_ros.errors import CalibrationError, FitError, NoiseError
 
 NODE_NAME = 'compensator'
 AXIS_KEYS = ('scale', 'offset', 'offset_span', 'offset_shape', 'scale_shape')
@@ -283,7 +290,7 @@ def _link_from_mapping(raw: Any, key: str, input_kind: InputKind, *, extra_keys:
         if name not in raw:
             msg = f'{key}.{name}: missing'
             raise CalibrationError(msg)
-    unknown = sorted(str(name) for name in set(raw) - {*range_keys, *AXES, 'notes', 'effects', *extra_keys})
+    unknown = sorted(str(name) for name in set(raw) - {*range_keys, *AXES, 'notes', 'effects', 'noise', *extra_keys})
     if unknown:
         msg = f'{key}.{unknown[0]}: unknown key'
         raise CalibrationError(msg)
@@ -298,9 +305,10 @@ def _link_from_mapping(raw: Any, key: str, input_kind: InputKind, *, extra_keys:
         raise CalibrationError(msg)
     axes = tuple(_axis_from_mapping(raw[name], f'{key}.{name}') for name in AXES)
     effects = effects_from_mapping(raw['effects'], key=f'{key}.effects') if 'effects' in raw else ()
+    noise = _noise_from_mapping(raw['noise'], f'{key}.noise') if 'noise' in raw else None
     calibration = Calibration(temp_code_ref=ref, temp_code_min=low, temp_code_max=high,
                               axes=axes, version=CALIBRATION_VERSION,  # type: ignore[arg-type]
-                              notes=tuple(notes), effects=effects)
+                              notes=tuple(notes), effects=effects, noise=noise)
     _check_limits(calibration, limits, key)
     check_scale_positive(calibration, key=key)
     return calibration
@@ -330,6 +338,30 @@ def _link_to_mapping(calibration: Calibration, input_kind: InputKind) -> dict[st
         mapping[name] = entry
     if calibration.effects:
         mapping['effects'] = effects_to_mapping(calibration.effects)
+    if calibration.noise is not None:
+        mapping['noise'] = noise_to_mapping(calibration.noise)
+    return mapping
+
+
+def _noise_from_mapping(raw: Any, key: str) -> NoiseModel:
+    """A sensor's ``noise`` section (:func:`noise_to_mapping`), its errors as calibration errors."""
+    try:
+        return noise_model_from_mapping(raw, key)
+    except NoiseError as err:
+        raise CalibrationError(str(err)) from None
+
+
+def noise_to_mapping(noise: NoiseModel) -> dict[str, Any]:
+    """A sensor's ``noise`` section.
+
+    Three floats per term (x, y, z; SI units of the corrected output), ``update_rate`` (Hz) and
+    ``source``. ``bias_instability_tau`` is left out when an axis's is infinite (a ROS 2
+    parameter array of doubles cannot say it portably); loading then takes the floor of the
+    other terms again.
+    """
+    mapping = noise.to_mapping()
+    if not all(math.isfinite(v) for v in noise.bias_instability_tau):
+        del mapping['bias_instability_tau']
     return mapping
 
 

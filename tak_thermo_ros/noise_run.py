@@ -1,0 +1,262 @@
+"""A bag's noise model in one streamed pass (``tak_calib noise``), and the three sources of a noise model.
+
+:func:`noise_bag` reads a bag once in blocks (:mod:`tak_thermo_ros.streaming`), takes each
+sensor's residual (measured minus reference; the thermally compensated output minus the
+reference when a calibration is given) and feeds it to an
+:class:`~tak_thermo_ros.core.noise.allan.AllanAccumulator` (bounded memory), then fits the
+five-term noise model per axis (:func:`~tak_thermo_ros.core.noise.model.fit_noise_model`).
+
+:func:`noise_models` gives the per-sensor models from the sources in the order of preference
+of issue 16: a Kalibr-style file (``--noise FILE``), a static constant-temperature run
+(``--noise-run BAG``), the calibration file's own ``noise`` sections, else the calibration
+run's own residual after the fitted model (``source='residual'``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from tak_thermo_ros.core.link.correction import OutOfRange
+from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
+from tak_thermo_ros.core.link.stream_correction import BlockCorrector
+from tak_thermo_ros.core.noise.allan import AllanAccumulator, AllanVariance
+from tak_thermo_ros.core.noise.model import NoiseModel, fit_noise_model
+from tak_thermo_ros.core.records.record import AlignedSamples
+from tak_thermo_ros.core.values import STANDARD_GRAVITY
+from tak_thermo_ros.errors import NoiseError
+from tak_thermo_ros.streaming import StreamOptions, sensors_of
+
+GAP_FACTOR = 1.5
+"""A step between two samples' stamps longer than this many sampling intervals is a gap."""
+PER_OCTAVE = 2
+"""Averaging times per doubling of ``tak_calib noise``'s Allan deviation."""
+
+
+@dataclass
+class _SensorNoise:
+    """One sensor's residual, streamed into an Allan accumulator; the stamps' gaps counted."""
+
+    calibration: object | None
+    out_of_range: OutOfRange
+    per_octave: int
+    accumulator: AllanAccumulator | None = None
+    interval_ns: float | None = None
+    last_stamp_ns: int | None = None
+    gaps: int = 0
+    missing: int = 0
+    dropped: dict[str, int] = field(default_factory=dict)
+    outside: int = 0
+
+    def __post_init__(self) -> None:
+        from tak_thermo_ros.streaming import _Required
+        self.corrector = BlockCorrector(self.calibration, out_of_range=self.out_of_range) \
+            if self.calibration is not None else None
+        self.required = _Required(self.corrector.signals if self.corrector is not None else ())
+        self.dropped = self.required.dropped
+
+    def __call__(self, aligned: AlignedSamples) -> None:
+        samples = self.required(aligned)
+        if not len(samples):
+            return
+        if samples.reference is None:
+            msg = 'noise: the run has no reference for this sensor'
+            raise NoiseError(msg)
+        measured = samples.counts
+        if self.corrector is not None:
+            measured = self.corrector.correct(samples.counts, samples.temp_code, stamp_s=samples.stamp_s,
+                                              aux=samples.aux)
+            self.outside += self.corrector.out_of_range_count(samples.temp_code)
+        stamps = samples.stamp_ns
+        steps = np.diff(stamps if self.last_stamp_ns is None else np.concatenate([[self.last_stamp_ns], stamps]))
+        if self.interval_ns is None and len(steps):
+            self.interval_ns = float(np.median(steps))
+        if self.interval_ns is not None and self.interval_ns > 0.0:
+            long = steps[steps > GAP_FACTOR * self.interval_ns]
+            self.gaps += len(long)
+            self.missing += int(np.sum(np.round(long / self.interval_ns) - 1))
+        self.last_stamp_ns = int(stamps[-1])
+        if self.accumulator is None:
+            self.accumulator = AllanAccumulator(1.0, 3, per_octave=self.per_octave)
+        self.accumulator.add(measured - samples.reference)
+
+    def allan(self) -> AllanVariance | None:
+        """The Allan variance with averaging times in seconds (the rate from the stamps' median step)."""
+        if self.accumulator is None or self.interval_ns is None or self.interval_ns <= 0.0:
+            return None
+        result = self.accumulator.result()
+        rate = 1e9 / self.interval_ns
+        return replace(result, taus=result.clusters / rate, rate=rate)
+
+
+@dataclass(frozen=True)
+class SensorNoise:
+    """One sensor's noise from a bag.
+
+    :param model: the fitted five-term model (SI units of the corrected output; counts without
+        a calibration on a counts bag are refused).
+    :param allan: the residual's Allan variance (the per-axis measurement behind the model).
+    :param gaps: steps between stamps longer than 1.5 sampling intervals (the samples are
+        taken as evenly spaced: said in one line); ``missing``: samples those gaps lack.
+    :param dropped: samples left out by the alignment, by reason.
+    :param out_of_range: samples corrected outside the calibrated temperature range.
+    """
+
+    model: NoiseModel
+    allan: AllanVariance
+    gaps: int
+    missing: int
+    dropped: dict[str, int]
+    out_of_range: int
+
+
+@dataclass(frozen=True)
+class NoiseRun:
+    """What :func:`noise_bag` found: per sensor its noise, and how the references were obtained."""
+
+    input_kind: InputKind
+    sensors: dict[str, SensorNoise]
+    compensated: bool
+    reference_lines: tuple[str, ...]
+    topic: str
+
+    @property
+    def models(self) -> dict[str, NoiseModel]:
+        """Per sensor the noise model."""
+        return {sensor: noise.model for sensor, noise in self.sensors.items()}
+
+
+def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration | None = None,
+              source: str | None = None, gravity: float = STANDARD_GRAVITY, latitude: float | None = None,
+              out_of_range: OutOfRange = OutOfRange.CLAMP, per_octave: int = PER_OCTAVE,
+              settle_time_s: float = 0.0, expect_kind: Callable[[InputKind], None] | None = None) -> NoiseRun:
+    """Each sensor's five-term noise model from one streamed pass (two for a static driver run).
+
+    :param unit: a calibration: the residual is the corrected output minus the reference (the
+        thermally compensated signal). Without it: the measured value minus the reference
+        (driver bags only; a counts bag's codes are not in SI).
+    :param source: the models' ``source`` (default ``residual`` with a calibration, else ``static_run``).
+    :param settle_time_s: leave out the samples this long after each reference change (a table
+        settling, as ``fit --settle-time``); the gaps this leaves are counted, the rest taken as
+        evenly spaced.
+    :param expect_kind: called with the bag's kind before the pass (raises on a mismatch).
+    :raises NoiseError: a counts bag without a calibration, a run too short for five averaging times.
+    """
+    from tak_thermo_ros.bagio import bag_streams
+    from tak_thermo_ros.streaming import SensorPass, _open_calibration_run, _run_passes
+    from tak_thermo_ros.core.records.blocks import BlockAligner
+    path = Path(path)
+    kind = bag_streams(path, topics=options.topics).kind
+    if expect_kind is not None:
+        expect_kind(kind)
+    if unit is not None and kind is not unit.input_kind:
+        msg = (f'{path}: holds {"channel codes" if kind is InputKind.COUNTS else "a driver Imu"}, the calibration is '
+               f'for {unit.input_kind.value} input')
+        raise NoiseError(msg)
+    if kind is InputKind.COUNTS and unit is None:
+        msg = f'{path}: a counts bag holds channel codes, not SI values: give --params (the calibration) to take its noise'
+        raise NoiseError(msg)
+    opened = _open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=True)
+    sensors = sensors_of(opened.kind)
+    streams = {sensor: _SensorNoise(unit.sensor(sensor) if unit is not None else None, out_of_range, per_octave)
+               for sensor in sensors}
+    passes = [SensorPass(sensor, BlockAligner(use_reference=True, reference_expected=True,
+                                              settle_time_s=settle_time_s), [streams[sensor]])
+              for sensor in sensors]
+    lines = _run_passes(path, options, opened, passes)
+    source = source or ('residual' if unit is not None else 'static_run')
+    found = {}
+    for sensor_pass in passes:
+        stream = streams[sensor_pass.sensor]
+        allan = stream.allan()
+        if allan is None:
+            msg = f'{path}: no usable samples of the {sensor_pass.sensor} to take the noise of'
+            raise NoiseError(msg)
+        try:
+            model = fit_noise_model(allan, source=source)
+        except NoiseError as err:
+            msg = f'{path}: {sensor_pass.sensor}: {err}'
+            raise NoiseError(msg) from None
+        dropped = dict(sensor_pass.aligner.dropped)
+        for reason, count in stream.dropped.items():
+            dropped[reason] = dropped.get(reason, 0) + count
+        found[sensor_pass.sensor] = SensorNoise(model=model, allan=allan, gaps=stream.gaps, missing=stream.missing,
+                                                dropped=dropped, out_of_range=stream.outside)
+    topic = options.topics.counts if opened.kind is InputKind.COUNTS else options.topics.raw_imu
+    return NoiseRun(input_kind=opened.kind, sensors=found, compensated=unit is not None,
+                    reference_lines=tuple(lines), topic=topic)
+
+
+@dataclass(frozen=True)
+class NoiseSource:
+    """Per-sensor noise models and where they come from (one line to print)."""
+
+    models: dict[str, NoiseModel]
+    source: str
+    line: str
+
+
+def noise_models(*, unit: UnitCalibration | None, options: StreamOptions, noise_file: str | Path | None = None,
+                 noise_run: str | Path | None = None, calibration_run: str | Path | None = None,
+                 use_stored: bool = True, gravity: float = STANDARD_GRAVITY,
+                 latitude: float | None = None) -> NoiseSource:
+    """The noise models of a unit's sensors, from the first source that is given, in this order.
+
+    1. ``noise_file``: a Kalibr-style imu.yaml (``source='file'``);
+    2. ``noise_run``: a static, constant-temperature run, compensated with ``unit`` when given
+       (``source='static_run'``);
+    3. ``use_stored`` and every sensor of ``unit`` carries a ``noise`` section (written by
+       ``tak_calib fit``): those (their own ``source``);
+    4. ``calibration_run``: its residual after ``unit``'s correction (``source='residual'``).
+
+    A sensor the file does not cover is taken from the next source that can give it.
+
+    :raises NoiseError: no source can give a model of every sensor.
+    """
+    sensors = ('accel',) if unit is None or unit.input_kind is InputKind.COUNTS else ('accel', 'gyro')
+    models: dict[str, NoiseModel] = {}
+    said: list[str] = []
+    if noise_file is not None:
+        from tak_thermo_ros.core.noise.kalibr import read_kalibr
+        from_file = read_kalibr(noise_file)
+        models.update({s: m for s, m in from_file.items() if s in sensors})
+        said.append(f'{", ".join(sorted(models))} from {noise_file}')
+    if noise_run is not None and any(s not in models for s in sensors):
+        run = noise_bag(noise_run, options, unit=unit, source='static_run', gravity=gravity, latitude=latitude)
+        new = {s: m for s, m in run.models.items() if s not in models}
+        models.update(new)
+        said.append(f'{", ".join(sorted(new))} from the static run {noise_run}')
+    if use_stored and unit is not None and any(s not in models for s in sensors):
+        stored = {s: unit.sensor(s).noise for s in sensors if s not in models and unit.sensor(s).noise is not None}
+        models.update(stored)  # type: ignore[arg-type]
+        if stored:
+            said.append(f'{", ".join(sorted(stored))} from the calibration file')
+    if calibration_run is not None and unit is not None and any(s not in models for s in sensors):
+        run = noise_bag(calibration_run, options, unit=unit, source='residual', gravity=gravity, latitude=latitude)
+        new = {s: m for s, m in run.models.items() if s not in models}
+        models.update(new)
+        said.append(f'{", ".join(sorted(new))} from the residual of {calibration_run} after the calibration')
+    missing = [s for s in sensors if s not in models]
+    if missing:
+        msg = (f'no noise model of the {", ".join(missing)}: give --noise FILE (Kalibr imu.yaml), --noise-run BAG '
+               f'(a static run) or the calibration run')
+        raise NoiseError(msg)
+    sources = {models[s].source for s in sensors}
+    return NoiseSource(models={s: models[s] for s in sensors}, source=sources.pop() if len(sources) == 1 else 'mixed',
+                       line='noise model: ' + '; '.join(said))
+
+
+def noise_document(noise: SensorNoise) -> dict[str, object]:
+    """JSON of one sensor's noise.
+
+    The model's terms (lists, SI; a floor time at infinity is null), its source and update rate,
+    the samples and gaps, and the Allan deviation behind it.
+    """
+    document: dict[str, object] = noise.model.to_json()
+    allan = noise.allan
+    document.update(samples=allan.samples, gaps=noise.gaps, missing_samples=noise.missing,
+                    allan={'taus': allan.taus.tolist(), 'adev': allan.adev.tolist(), 'counts': allan.counts.tolist()})
+    return document
