@@ -662,20 +662,28 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
 def _given_noise_models(args: argparse.Namespace, unit: UnitCalibration, kind: InputKind,
                         sensors: tuple[str, ...]) -> dict:
-    """``--noise FILE`` or ``--noise-run BAG``: the sensors' noise models; empty when neither is given."""
+    """``--noise FILE``, ``--noise-run BAG`` or the calibration file's noise section: the sensors'
+    noise models (:func:`~tak_thermo_ros.noise_run.noise_models`, in SI; in codes for ``kind``
+    counts); empty when none is given."""
+    from tak_thermo_ros.errors import NoiseError
+    from tak_thermo_ros.noise_models import in_counts
+    from tak_thermo_ros.noise_run import noise_models
     if getattr(args, 'noise', None) and getattr(args, 'noise_run', None):
         msg = '--noise and --noise-run: give one noise model source, not both'
         raise TakError(msg)
-    if getattr(args, 'noise', None):
-        from tak_thermo_ros.noise_models import models_from_file
-        return models_from_file(args.noise, sensors, kind, {sensor: unit.sensor(sensor) for sensor in sensors})
-    if getattr(args, 'noise_run', None):
-        from tak_thermo_ros.noise_models import models_from_static_run
-        models, lines = models_from_static_run(args.noise_run, _stream_options(args), gravity=args.gravity)
-        for line in lines:
-            print(line)
-        return models
-    return {}
+    try:
+        found = noise_models(unit=unit, options=_stream_options(args), noise_file=getattr(args, 'noise', None),
+                             noise_run=getattr(args, 'noise_run', None), gravity=args.gravity,
+                             latitude=getattr(args, 'latitude', None))
+    except NoiseError:
+        if getattr(args, 'noise', None) or getattr(args, 'noise_run', None):
+            raise
+        return {}
+    print(found.line)
+    models = {sensor: model for sensor, model in found.models.items() if sensor in sensors}
+    if kind is InputKind.COUNTS:
+        models = {sensor: in_counts(model, unit.sensor(sensor)) for sensor, model in models.items()}
+    return models
 
 
 def _averaged_bias(check, noise, sensor: str, gravity: float) -> dict | None:
