@@ -275,10 +275,12 @@ class Diagnosis:
 
 
 def noise_document(noise: Any) -> dict[str, Any]:
-    """The JSON form of a noise model in ``diagnose --json``: three numbers per term, one per axis."""
-    def triple(name: str) -> list[float]:
+    """The JSON form of a noise model in ``diagnose --json``: three numbers per term, one per axis
+    (``bias_instability_tau`` null where the model has no floor)."""
+    def triple(name: str) -> list[float | None]:
         values = np.broadcast_to(np.asarray(getattr(noise, name, 0.0), dtype=float).reshape(-1), (3,))
-        return [float(v) for v in values]
+        # A floor time at infinity (nothing rises within the averaging times) is null in strict JSON.
+        return [float(v) if np.isfinite(v) else None for v in values]
     return {'white_noise_density': triple('white_noise_density'), 'bias_instability': triple('bias_instability'),
             'bias_instability_tau': triple('bias_instability_tau'), 'random_walk': triple('random_walk'),
             'source': str(getattr(noise, 'source', 'residual'))}
