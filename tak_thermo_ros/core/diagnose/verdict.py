@@ -176,8 +176,6 @@ def _verdict_message(verdict: str, axes: Sequence[AxisSummary], ladder: Sequence
                     f'{AXES[axis]}, within the bound): no structure left for an effect to explain.')
         else:
             text = f'The residual is at the noise floor ({ratios}): no structure left for an effect to explain.'
-        if allan is not None and allan.source == 'residual':
-            text += f' {_wander_sentence(allan)}'
 
         refit = [] if judged else [name for name, a in zip(AXES, axes) if a.rms > 1.1 * a.heldout_rms]
         if refit:
@@ -230,5 +228,7 @@ def _verdict_message(verdict: str, axes: Sequence[AxisSummary], ladder: Sequence
         text += f' The fit of {name} runs to the edge of what this run resolves ({edges}).'
     if still_significant.any():
         text += (f' Structure remains on {", ".join(n for n, s in zip(AXES, still_significant) if s)}: '
-                 f'{_unexplained_sentence(drivers)}.')
+                 f'{_unexplained_sentence(drivers, judged=judged)}.')
+        if allan is not None and allan.source == 'residual':
+            text += f' {_wander_sentence(allan)}'
     return text
