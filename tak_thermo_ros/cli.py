@@ -525,6 +525,9 @@ def cmd_validate(args: argparse.Namespace) -> int:
           f'max {after.max:.5f} m/s^2')
     if result.out_of_range:
         print(f'warning: {result.out_of_range} samples outside the calibrated temperature range ({args.out_of_range})')
+    # The corrected output is in SI units whatever the input kind: a file's model as it stands.
+    given = _given_noise_models(args, unit, InputKind.IMU, ('accel',) if unit.gyro is None else ('accel', 'gyro'))
+    averaged = {'accel': _averaged_bias(result, given.get('accel'), 'accel', args.gravity)}
     document = {'bag': str(args.bag), 'params': str(args.params), 'gravity': args.gravity,
                 'samples': result.samples, 'out_of_range': result.out_of_range,
                 'before': before.as_dict(), 'after': after.as_dict()}
@@ -540,6 +543,13 @@ def cmd_validate(args: argparse.Namespace) -> int:
             print(f'  {label:<35}RMS ' + ' '.join(f'{v:.3e}' for v in stats.rms) + ' rad/s; mean '
                   + ' '.join(f'{v:+.3e}' for v in stats.mean) + ' rad/s')
         document['gyro'] = {'samples': rate.samples, 'before': rate_before.as_dict(), 'after': rate_after.as_dict()}
+        averaged['gyro'] = _averaged_bias(rate, given.get('gyro'), 'gyro', args.gravity)
+    for sensor, found in averaged.items():
+        if found is None:
+            continue
+        for line in found['lines']:
+            print(line)
+        (document['gyro'] if sensor == 'gyro' else document)['averaged_bias_error'] = found['document']
     if unit.mag is not None and run.input_kind is InputKind.IMU:
         document.update(_validate_magnetometer(args, unit))
     if args.json:
@@ -644,6 +654,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     candidates = expand_candidates(args.candidates) if args.candidates else None
     for line in run.reference_lines:
         print(line)
+    noise_models = _given_noise_models(args, unit, run.input_kind, tuple(run.samples))
     results = {}
     used: dict[str, AlignedSamples] = {}
     if run.stride > 1:
@@ -661,16 +672,33 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             if verbose:
                 print(f'{label}cross-validating {text} ...', file=sys.stderr)
 
-        result = diagnose(unit.sensor(sensor), samples, candidates=candidates, folds=args.folds, progress=progress)
+        noise = noise_models.get(sensor)
+        if noise is None:
+            from tak_thermo_ros.core.fit import residual_counts
+            from tak_thermo_ros.noise_models import model_from_residual
+            noise = model_from_residual(residual_counts(unit.sensor(sensor), samples), samples)
+        result = diagnose(unit.sensor(sensor), samples, candidates=candidates, folds=args.folds, progress=progress,
+                          noise=noise)
         results[sensor] = result
         print(f'{label}diagnosed {len(samples)} samples of {args.bag} against {args.params} '
               f'(model: {result.ladder[0].label})')
+        print(_noise_line(noise, unit_name, result.averaging_time_s))
         if samples.dropped:
             print(f'left out: {_describe_dropped(samples.dropped)}')
         _print_ignored(samples, args, run.input_kind)
         for name, axis in zip(AXES, result.axes):
-            print(f'  {name}: residual RMS {axis.rms:.4g} {unit_name}, noise floor {axis.noise_floor:.4g}; held-out '
-                  f'{axis.heldout_rms:.4g} ({axis.heldout_rms / axis.noise_floor:.2f}x the floor)')
+            if result.averaging_time_s:
+                print(f'  {name}: residual RMS {axis.rms:.4g} {unit_name}, white floor {axis.white_floor:.4g}; '
+                      f'held-out {result.averaging_time_s:.3g} s means {axis.heldout_rms:.4g} '
+                      f'({axis.heldout_rms / axis.noise_floor:.2f}x the noise model\'s {axis.noise_floor:.4g})')
+            else:
+                print(f'  {name}: residual RMS {axis.rms:.4g} {unit_name}, noise floor {axis.noise_floor:.4g}; held-out '
+                      f'{axis.heldout_rms:.4g} ({axis.heldout_rms / axis.noise_floor:.2f}x the floor)')
+        if result.allan:
+            check = result.allan[-1][1]
+            print(f'  against the noise model, {"after the ladder" if len(result.allan) > 1 else "the residual"}: '
+                  f'{check.describe()} ({"inside" if check.consistent else "beyond"} the bound {check.worst_bound():.2f}x)'
+                  if len(check.taus) else '  Allan deviation: the run is too short to estimate it')
         if result.candidates:
             print(f'candidates, best first (held-out RMS x y z in {unit_name}; '
                   f'share of the excess over the floor removed):')
@@ -758,6 +786,93 @@ def _add_magnetometer(args: argparse.Namespace, unit: UnitCalibration, run) -> N
     print(line)
     run.samples['mag'] = samples
     run.usable['mag'] = usable
+
+
+def _given_noise_models(args: argparse.Namespace, unit: UnitCalibration, kind: InputKind,
+                        sensors: tuple[str, ...]) -> dict:
+    """``--noise FILE``, ``--noise-run BAG`` or the calibration file's noise section: the sensors'
+    noise models (:func:`~tak_thermo_ros.noise_run.noise_models`, in SI; in codes for ``kind``
+    counts); empty when none is given."""
+    from tak_thermo_ros.errors import NoiseError
+    from tak_thermo_ros.noise_models import in_counts
+    from tak_thermo_ros.noise_run import noise_models
+    if getattr(args, 'noise', None) and getattr(args, 'noise_run', None):
+        msg = '--noise and --noise-run: give one noise model source, not both'
+        raise TakError(msg)
+    try:
+        found = noise_models(unit=unit, options=_stream_options(args), noise_file=getattr(args, 'noise', None),
+                             noise_run=getattr(args, 'noise_run', None), gravity=args.gravity,
+                             latitude=getattr(args, 'latitude', None))
+    except NoiseError:
+        if getattr(args, 'noise', None) or getattr(args, 'noise_run', None):
+            raise
+        return {}
+    print(found.line)
+    models = {sensor: model for sensor, model in found.models.items() if sensor in sensors}
+    if kind is InputKind.COUNTS:
+        models = {sensor: in_counts(model, unit.sensor(sensor)) for sensor, model in models.items()}
+    return models
+
+
+def _averaged_bias(check, noise, sensor: str, gravity: float) -> dict | None:
+    """``validate``'s bias error of the corrected output averaged over 1, 60 and 600 s (deg/h for
+    the gyroscope per axis, mg for |g|), next to what the noise model predicts (its Allan deviation)."""
+    import math
+    rms = check.gravity_averaged.rms() if sensor == 'accel' else check.noise.averaged.rms()
+    windows = check.gravity_averaged.windows() if sensor == 'accel' else check.noise.averaged.windows()
+    source = 'given'
+    if noise is None and check.noise.allan is not None:
+        from tak_thermo_ros.core.noise.model import fit_noise_model
+        try:
+            noise = fit_noise_model(check.noise.allan.result(), source='residual')
+        except TakError:
+            noise = None
+    taus = np.array(sorted(rms))
+    predicted = None
+    if noise is not None:
+        avar = noise.allan_variance(taus)
+        if sensor == 'accel':
+            direction = check.direction / max(float(np.linalg.norm(check.direction)), 1e-300)
+            predicted = np.sqrt(avar @ direction ** 2)[:, None]
+        else:
+            predicted = np.sqrt(avar)
+        source = noise.source
+    if sensor == 'gyro':
+        factor, unit, name = 180.0 / math.pi * 3600.0, 'deg/h', 'gyroscope bias error (x y z)'
+    else:
+        factor, unit, name = 1000.0 / gravity, 'mg', '|g| error'
+    said = {'file': 'the noise model from the file', 'static_run': 'the noise model from the static run',
+            'residual': "a noise model fitted to this run's corrected output"}
+    lines = [f'{name} of the corrected output averaged over 1 s, 60 s, 600 s, RMS of the averages in {unit}'
+             + (f' (next to what {said[source]} predicts, its Allan deviation):' if predicted is not None else ':')]
+    document = {}
+    for t, tau in enumerate(taus):
+        values = np.atleast_1d(rms[tau]) * factor
+        text = ' '.join(f'{v:.3g}' for v in values) if windows[tau] else 'run shorter than one window'
+        entry = {'windows': windows[tau], 'rms': [float(v) for v in values], 'unit': unit}
+        if predicted is not None:
+            text += '   noise model: ' + ' '.join(f'{v * factor:.3g}' for v in predicted[t])
+            entry['noise_model'] = [float(v * factor) for v in predicted[t]]
+        lines.append(f'  {tau:5.0f} s: {text}')
+        document[f'{tau:g}'] = entry
+    return {'lines': lines, 'document': {'source': source if predicted is not None else None, 'taus': document}}
+
+
+def _noise_line(noise, unit: str, averaging_s: float) -> str:
+    """One line: the noise model per axis and where it comes from."""
+    if noise is None:
+        return '  noise model: none (the run is too short for an Allan fit): judged against the white floor'
+
+    def triple(values) -> str:
+        return ' '.join(f'{float(v):.3g}' for v in values)
+    said = {'file': 'from the file', 'static_run': 'from the static run',
+            'residual': "fitted to this run's own residual (no --noise or --noise-run: the verdict uses the white floor)"}
+    text = (f'  noise model {said[noise.source]}: white {triple(noise.white_noise_density)} {unit}/sqrt(Hz), '
+            f'bias instability {triple(noise.bias_instability)} {unit}, random walk {triple(noise.random_walk)} '
+            f'{unit}*sqrt(Hz) (x y z)')
+    if averaging_s:
+        text += f'; judged on held-out {averaging_s:.3g} s means'
+    return text
 
 
 def expand_candidates(text: str) -> list[str]:
@@ -852,6 +967,9 @@ def build_parser() -> argparse.ArgumentParser:
                           'latitude is the true rate (default: zero)')
     _out_of_range(val)
     _add_topic_options(val)
+    val.add_argument('--noise', metavar='IMU.yaml',
+                     help="the sensors' noise model (Kalibr-style imu.yaml): the averaged bias error is shown next to it")
+    val.add_argument('--noise-run', metavar='BAG', help='a static run at constant temperature for the noise model')
     val.set_defaults(handler=cmd_validate)
     imp = commands.add_parser('import-csv', help='convert a delimited log of a static thermal run into a bag')
     imp.add_argument('log', metavar='LOG.csv')
@@ -912,6 +1030,11 @@ def build_parser() -> argparse.ArgumentParser:
                       help='propose the chamber run that tells the two best candidates apart (driver bags: '
                            'one run for both sensors): writes DIR/scenario.yaml (for tak_calib simulate), '
                            'DIR/schedule.csv (time_s, setpoint_C) and DIR/design.json with the simulated separation')
+    diag.add_argument('--noise', metavar='IMU.yaml',
+                      help="the sensors' noise model, a Kalibr-style imu.yaml (as tak_calib noise writes): the "
+                           'verdict is judged against it at every averaging time (docs/discovery.md)')
+    diag.add_argument('--noise-run', metavar='BAG',
+                      help='a static run at constant temperature: its Allan variance gives the noise model')
     _add_topic_options(diag)
     diag.set_defaults(handler=cmd_diagnose)
     noise = commands.add_parser('noise', help='per-axis noise model (Allan deviation) of each sensor; Kalibr imu.yaml')

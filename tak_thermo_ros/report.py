@@ -133,7 +133,7 @@ def figure_residual_time(diagnosis: Diagnosis) -> Figure:
     """Temperature code and residuals against time, failing stretches shaded."""
     views = diagnosis.views
     time, unit = _time_axis(views.time_s)
-    floor = diagnosis.noise_floor
+    floor = diagnosis.white_floor
     fig, axes = _figure(4, 1, 11.0, 9.5, sharex=True, gridspec_kw={'height_ratios': [1.0, 1.4, 1.4, 1.4]})
     top = axes[0, 0]
     for direction in (1, -1, 0):
@@ -212,7 +212,7 @@ def figure_residual_temperature(diagnosis: Diagnosis) -> Figure:
             ax = axes[r, i]
             counts = _split_by_direction(ax, views.temp_code, residual[:, i], views.direction, 40, '-', 1.0)
             typical = float(np.median(counts)) if len(counts) else float(len(residual))
-            band = _mean_noise(diagnosis.noise_floor[i], int(typical), 1)
+            band = _mean_noise(diagnosis.white_floor[i], int(typical), 1)
             ax.axhspan(-band, band, color='#c7c7c7', alpha=0.6, linewidth=0, zorder=0)
             ax.axhline(0.0, color='k', linewidth=0.6)
             ax.set_title(f'{name}: {label}', fontsize=10)
@@ -239,7 +239,7 @@ def figure_residual_rate(diagnosis: Diagnosis) -> Figure:
     edges = np.linspace(-reach, reach, 32)
     for i, name in enumerate(AXES):
         ax = axes[0, i]
-        band = _mean_noise(diagnosis.noise_floor[i], len(rate), 4 * (len(edges) - 1))
+        band = _mean_noise(diagnosis.white_floor[i], len(rate), 4 * (len(edges) - 1))
         ax.axhspan(-band, band, color='#c7c7c7', alpha=0.6, linewidth=0)
         for (label, residual), colour in zip(rows, (BEFORE, AFTER)):
             inside = (rate >= edges[0]) & (rate <= edges[-1])
@@ -277,7 +277,7 @@ def figure_residual_inputs(diagnosis: Diagnosis) -> Figure:
             for (label, residual), colour, shift in zip(rows, (BEFORE, AFTER), (-0.08, 0.08)):
                 values = residual[:, i]
                 mean = (np.bincount(index, weights=values) / np.maximum(counts, 1))[filled]
-                error = 2.0 * diagnosis.noise_floor[i] / np.sqrt(counts[filled])
+                error = 2.0 * diagnosis.white_floor[i] / np.sqrt(counts[filled])
                 ax.errorbar(centre + shift, mean, yerr=error, fmt='o', color=colour, markersize=3.5,
                             capsize=2, label=label)
             ax.axhline(0.0, color='k', linewidth=0.6)
@@ -310,7 +310,7 @@ def figure_residual_plateaus(diagnosis: Diagnosis) -> Figure:
                 part = residual[middle:plateau.stop, i]
                 colour = _direction_colour(plateau.approach)
                 ax.errorbar(plateau.temp_code, float(np.mean(part)),
-                            yerr=2.0 * diagnosis.noise_floor[i] / math.sqrt(len(part)), fmt=marker,
+                            yerr=2.0 * diagnosis.white_floor[i] / math.sqrt(len(part)), fmt=marker,
                             color=colour, markerfacecolor=colour if fill else 'white', markersize=6, capsize=2)
         ax.axhline(0.0, color='k', linewidth=0.6)
         ax.set_title(name, fontsize=10)
@@ -375,6 +375,49 @@ def figure_ladder(diagnosis: Diagnosis) -> Figure:
     ax.set_title(f'Each candidate effect added to {steps[0].label}', fontsize=10)
     fig.tight_layout()
     return fig
+
+
+def figure_allan(diagnosis: Diagnosis) -> Figure:
+    """The residual's Allan deviation before and after each effect of the ladder, against the noise model."""
+    fig, axes = _figure(1, 3, 13.0, 4.2)
+    colours = (BEFORE, AFTER, '#ff7f0e', '#9467bd', '#8c564b')
+    for i, name in enumerate(AXES):
+        ax = axes[0, i]
+        first = diagnosis.allan[0][1]
+        ax.fill_between(first.taus, first.model_adev[:, i], first.model_adev[:, i] * first.bound[:, i],
+                        color='#c7c7c7', alpha=0.6, linewidth=0, label='within the bound')
+        ax.plot(first.taus, first.model_adev[:, i], color='k', linestyle='--', linewidth=1.4,
+                label=f'noise model ({first.source})')
+        for k, (label, check) in enumerate(diagnosis.allan):
+            ax.plot(check.taus, check.residual_adev[:, i], color=colours[k % len(colours)], marker='o',
+                    markersize=3, linewidth=1.6, label=label if k == 0 else '+ ' + label.split(' + ')[-1])
+        ax.set_xscale('log')
+        ax.set_yscale('log')
+        ax.set_xlabel('averaging time tau (s)')
+        ax.set_ylabel(f'{name}: Allan deviation (counts)')
+        ax.grid(alpha=0.3, which='both')
+        if i == 0:
+            ax.legend(fontsize=7)
+    fig.suptitle('Allan deviation of the residual before and after each effect, against the noise model', fontsize=11)
+    fig.tight_layout()
+    return fig
+
+
+def _allan_table(diagnosis: Diagnosis) -> str:
+    """Per rung and axis: the largest ratio of the residual's Allan deviation to the model's, and where."""
+    rows = []
+    for label, check in diagnosis.allan:
+        cells = []
+        for i in range(3):
+            ratio = check.ratio[:, i]
+            if not len(ratio):
+                cells.append('<td>-</td>')
+                continue
+            t = int(np.argmax(ratio / check.bound[:, i]))
+            css = 'bad' if ratio[t] > check.bound[t, i] else 'good'
+            cells.append(f'<td class="{css}">{ratio[t]:.2f}x at {check.taus[t]:.3g} s (bound {check.bound[t, i]:.2f})</td>')
+        rows.append(f'<tr><td>{html.escape(label)}</td>{"".join(cells)}</tr>')
+    return ('<table><tr><th>model</th><th>x</th><th>y</th><th>z</th></tr>' + ''.join(rows) + '</table>')
 
 
 def gravity_series(diagnosis: Diagnosis, samples: AlignedSamples,
@@ -596,6 +639,12 @@ def write_report(diagnosis: Diagnosis, samples: AlignedSamples, directory: str |
          'Left: the model ladder, held-out RMS over the noise floor as each effect is added. '
          'Right: every candidate effect added to the current model, scored on held-out time blocks.'),
     ]
+    if diagnosis.allan:
+        figures.append(('allan.png', figure_allan(diagnosis),
+                        'Overlapping Allan deviation of the residual, per axis: the calibration as given, then '
+                        'the model refitted with each effect of the ladder. Dashed: what the noise model predicts '
+                        '(the measured white floor plus its bias instability and random walk); grey: up to the '
+                        'bound that noise explains (chi-square on the equivalent degrees of freedom).'))
     if sensor == 'accel':
         figures.append(('gravity.png', figure_gravity(diagnosis, series, gravity),
                         '|g| from the three channels minus local gravity: with nominal scale and offset only, '
@@ -623,6 +672,13 @@ def write_report(diagnosis: Diagnosis, samples: AlignedSamples, directory: str |
         for step in diagnosis.ladder)
     stride_text = ('on all samples' if diagnosis.cv_stride == 1 else
                    f'on every {diagnosis.cv_stride}th sample')
+    allan_section = (f"<h2>Against the noise model</h2>\n{blocks['allan.png']}\n"
+                     f'<div class="card"><b>Largest Allan deviation ratio, residual / noise model</b> '
+                     f'(source: {html.escape(str(diagnosis.allan[0][1].source))}'
+                     + (f'; cross-validated on {diagnosis.averaging_time_s:.3g} s means, whitened by the noise '
+                        f'model, against {diagnosis.yardstick_replicates} simulated copies of the run'
+                        if diagnosis.averaging_time_s else '')
+                     + f'){_allan_table(diagnosis)}</div>') if diagnosis.allan else ''
     gravity_section = (f"<h2>|g| before and after</h2>\n{blocks['gravity.png']}\n"
                        f'<div class="card">{_gravity_table(series, gravity)}</div>') if sensor == 'accel' else ''
     page = f"""<!DOCTYPE html>
@@ -654,6 +710,7 @@ of the residual and includes the code rounding)
 whole series), {stride_text}. An effect joins the ladder when it removes at least half of the
 held-out excess variance over the floor that the rung below leaves, by far more than noise could; the
 ladder's first effect is named when the ladder removes at least three quarters of the excess.</p></div>
+{allan_section}
 {gravity_section}
 </main></body></html>
 """

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -107,7 +107,8 @@ def _with_range(calibration: Calibration, low: float, high: float) -> Calibratio
 
 
 def cross_validate(samples: AlignedSamples, effects: Sequence[Any], labels: np.ndarray,
-                   settings: _FitSettings, *, folds: int, fallback: ModelScore | None = None) -> ModelScore:
+                   settings: _FitSettings, *, folds: int, fallback: ModelScore | None = None,
+                   whiten: Callable[[np.ndarray], np.ndarray] | None = None) -> ModelScore:
     """Blocked cross-validation of base + ``effects``: fit without one fold, score on it.
 
     Stateful effects run over the whole series; the least squares sees only the training
@@ -116,6 +117,9 @@ def cross_validate(samples: AlignedSamples, effects: Sequence[Any], labels: np.n
     :param fallback: the current model's score. A fold on which the extended model cannot be
         fitted is scored with the current model instead (the effect gains nothing there), as
         long as at most half of the folds fail; otherwise the model counts as not fittable.
+    :param whiten: applied to the assembled ``(k, 3)`` held-out residual before it is scored (the
+        noise model's whitening filter, :func:`~tak_thermo_ros.core.diagnose.yardstick.whitener`);
+        the held-out residual is then kept in the score (``heldout``).
     """
     names = tuple(_effect_name(spec) for spec in effects)
     low, high = float(samples.temp_code.min()), float(samples.temp_code.max())
@@ -126,6 +130,7 @@ def cross_validate(samples: AlignedSamples, effects: Sequence[Any], labels: np.n
     block_sse = np.zeros((blocks, 3))
     block_samples = np.bincount(block, minlength=blocks).astype(float)
     failures: list[str] = []
+    heldout = np.zeros((len(labels), 3)) if whiten is not None else None
     for fold in range(folds):
         held_out = labels == fold
         fold_samples[fold] = np.count_nonzero(held_out)
@@ -139,6 +144,8 @@ def cross_validate(samples: AlignedSamples, effects: Sequence[Any], labels: np.n
                 msg = 'the fitted model gives non-finite residuals on held-out data'
                 raise FitError(msg)
             fold_sse[fold] = np.sum(part ** 2, axis=0)
+            if heldout is not None:
+                heldout[held_out] = part
             for index in np.unique(block[held_out]):
                 block_sse[index] = np.sum(residual[block == index] ** 2, axis=0)
         except TakError as err:
@@ -147,11 +154,18 @@ def cross_validate(samples: AlignedSamples, effects: Sequence[Any], labels: np.n
                 return ModelScore(effects=names, fold_sse=np.zeros((0, 3)), fold_samples=np.zeros(0),
                                   error=_joined_failures(failures))
             fold_sse[fold] = fallback.fold_sse[fold]
+            if heldout is not None and fallback.heldout is not None:
+                heldout[held_out] = fallback.heldout[held_out]
             if fallback.block_sse is not None:
                 held_blocks = np.unique(block[held_out])
                 block_sse[held_blocks] = fallback.block_sse[held_blocks]
+    if heldout is not None and whiten is not None:
+        whitened = whiten(heldout)
+        fold_sse = np.stack([np.sum(whitened[labels == fold] ** 2, axis=0) for fold in range(folds)])
+        block_sse = np.stack([np.sum(whitened[block == index] ** 2, axis=0) for index in range(blocks)])
     return ModelScore(effects=names, fold_sse=fold_sse, fold_samples=fold_samples,
-                      failed_folds=tuple(failures), block_sse=block_sse, block_samples=block_samples)
+                      failed_folds=tuple(failures), block_sse=block_sse, block_samples=block_samples,
+                      heldout=heldout)
 
 
 def _joined_failures(failures: list[str]) -> str:
@@ -179,6 +193,22 @@ def paired_block_t(before: ModelScore, after: ModelScore) -> np.ndarray:
     spread = gain.std(axis=0, ddof=1) / math.sqrt(len(gain))
     mean = gain.mean(axis=0)
     return np.divide(mean, spread, out=np.zeros(3), where=spread > 0.0)
+
+
+def summed_block_t(before: ModelScore, after: ModelScore, floor: np.ndarray) -> float:
+    """Paired t over the time blocks of the held-out gain ``before - after`` summed over the axes.
+
+    Each block's gain is the drop of its held-out mean square per axis in units of that axis'
+    ``floor^2``, summed over the axes (the ladder's excess, block by block); ``t`` is the mean
+    gain over the blocks divided by its standard error. 0 when the scores lack blocks.
+    """
+    if before.block_sse is None or after.block_sse is None or before.block_samples is None \
+            or len(before.block_sse) != len(after.block_sse) or len(before.block_sse) < 2:
+        return 0.0
+    count = np.maximum(before.block_samples, 1.0)[:, None]
+    gain = np.sum((before.block_sse - after.block_sse) / count / np.asarray(floor) ** 2, axis=1)
+    spread = float(gain.std(ddof=1)) / math.sqrt(len(gain))
+    return float(gain.mean()) / spread if spread > 0.0 else 0.0
 
 
 def unresolved_shapes(effect: Effect, samples: AlignedSamples) -> tuple[str, ...]:

@@ -20,6 +20,7 @@ from tak_thermo_ros.core.diagnose.crossval import (
     decimate,
     fold_labels,
     paired_block_t,
+    summed_block_t,
     unresolved_shapes,
 )
 from tak_thermo_ros.core.diagnose.values import AxisSummary, Candidate, Diagnosis, ModelScore
@@ -36,10 +37,23 @@ from tak_thermo_ros.core.diagnose.verdict import (
     _percent,
     _rung,
     _verdict_message,
+    gain_t_threshold,
     per_axis_t_threshold,
     rms_text,
 )
 from tak_thermo_ros.core.diagnose.views import EFFECT_VIEWS, build_views, noise_floor, residual_drivers
+from tak_thermo_ros.core.diagnose.yardstick import (
+    BINS_PER_BLOCK,
+    NULL_REPLICATES,
+    AllanCheck,
+    NullYardstick,
+    allan_check,
+    averaging_time,
+    bin_labels,
+    bin_samples,
+    null_under_noise,
+    whitener,
+)
 from tak_thermo_ros.core.effects import LIBRARY, PER_AXIS, PER_AXIS_SUFFIX, Effect, PerAxisEffect, resolve_effect
 from tak_thermo_ros.core.effects.aux_signal import recorded_candidates
 from tak_thermo_ros.core.fit import fit_model, residual_counts
@@ -99,7 +113,8 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
              max_cv_samples: int = 40_000, max_ladder: int = 3,
              bias_order: int | None = None, scale_order: int | None = None,
              rate_window_s: float | None = None,
-             progress: Callable[[str], None] | None = None, per_axis: bool = True) -> Diagnosis:
+             progress: Callable[[str], None] | None = None, per_axis: bool = True,
+             noise: Any | None = None, seed: int = 0) -> Diagnosis:
     """Compare the calibration with a run, find where it fails and which effect it misses.
 
     :param calibration: the model to diagnose (base model, possibly with effects).
@@ -121,6 +136,13 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
     :param per_axis: also try the per-axis form (``<name>_per_axis``) of an effect whose shape
         parameters can differ between axes: in place of the shared form when that joins the
         ladder, and in place of a shared form the calibration holds.
+    :param noise: the sensor's noise model (:class:`~tak_thermo_ros.core.noise.model.NoiseModel`):
+        from a file or a static run (``source`` ``'file'`` or ``'static_run'``), the verdict is
+        judged against it (:mod:`~tak_thermo_ros.core.diagnose.yardstick`: averaging bins, the
+        held-out score of copies of the run under the noise model, the Allan test); fitted to
+        this run's residual (``'residual'``) or ``None``, against the white floor, and the Allan
+        deviation against the model is reported.
+    :param seed: seed of the simulated copies of the run.
     :raises FitError: when the run has no reference or too few samples.
     """
     if samples.reference is None:
@@ -139,14 +161,47 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
     whole_codes = bool(np.all(samples.counts == np.round(samples.counts)))
     floor, differences = noise_floor(residual, views.breaks, least_spread=0.5 if whole_codes else 0.0)
     floor = np.maximum(floor, 1e-12)
+    white_floor = floor
+    period = sample_period(samples)
+    blocks = folds * blocks_per_fold
+    judged = noise is not None and getattr(noise, 'source', 'residual') != 'residual'
 
     stride = max(1, math.ceil(len(samples) / max_cv_samples))
-    cv_samples = decimate(samples, stride)
-    blocks = folds * blocks_per_fold
+    averaging_s = period * stride
+    bins = None
+    if judged:
+        duration = float(samples.time_s[-1]) if len(samples) else 0.0
+        starts = np.flatnonzero(views.breaks)
+        # Bins fit inside the turntable's dwells (a bin never straddles a move).
+        segment_s = float(np.median(np.diff(np.append(samples.time_s[starts], duration + period))))
+        averaging_s = averaging_time(noise, white_floor, period, min(duration / blocks, BINS_PER_BLOCK * segment_s))
+        averaging_s = max(averaging_s, duration / max_cv_samples)
+        if averaging_s > 1.5 * period:
+            bins = bin_labels(samples.time_s, views.breaks, averaging_s, period)
+            cv_samples = bin_samples(samples, bins)
+        else:
+            averaging_s, stride = period, 1
+            cv_samples = samples
+    else:
+        cv_samples = decimate(samples, stride)
     labels = fold_labels(cv_samples.time_s, folds, blocks)
     if np.bincount(labels, minlength=folds).min() < 10:
         msg = f'too few samples ({len(cv_samples)}) for {folds}-fold cross-validation in {blocks} blocks'
         raise FitError(msg)
+    yardstick: NullYardstick | None = None
+    whiten = None
+    if judged:
+        counts = np.bincount(bins[bins >= 0]) if bins is not None else np.ones(len(cv_samples))
+        whiten = whitener(noise, cv_samples.time_s, (white_floor ** 2)[None, :] / counts[:, None])
+        say(f'the model on {NULL_REPLICATES} simulated copies of this run under the noise model')
+        try:
+            yardstick = null_under_noise(samples, bins if bins is not None else np.arange(len(samples)),
+                                         cv_samples, labels, present, settings, noise, white_floor,
+                                         folds=folds, seed=seed, whiten=whiten)
+        except TakError as err:
+            msg = f'the model cannot be fitted to simulated copies of this run under the noise model: {err}'
+            raise FitError(msg) from err
+        floor = np.maximum(yardstick.floor, 1e-12)
 
     # By default every library effect and every recorded auxiliary signal (aux:TOPIC) in the run.
     specs = list(candidates) if candidates is not None else [*LIBRARY, *recorded_candidates(samples.aux)]
@@ -161,14 +216,19 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
         key = frozenset(_effect_name(e) for e in effects)
         if key not in cache:
             say(' + '.join(('base', *(_effect_name(e) for e in effects))))
-            cache[key] = cross_validate(cv_samples, effects, labels, settings, folds=folds, fallback=fallback)
+            cache[key] = cross_validate(cv_samples, effects, labels, settings, folds=folds, fallback=fallback,
+                                        whiten=whiten)
         found = cache[key]
         names = tuple(_effect_name(e) for e in effects)
         return found if found.effects == names else replace(found, effects=names)
 
     def sigma_of(model: ModelScore) -> np.ndarray:
         held = float(model.fold_samples.sum())
-        return np.array([_noise_sigma(differences, held) for _ in range(3)])
+        white = np.array([_noise_sigma(differences, held) for _ in range(3)])
+        if yardstick is not None:
+            # The yardstick is a mean over simulated copies: its spread replaces the floor's error.
+            return np.maximum(yardstick.sigma, np.sqrt(2.0 / max(held, 1.0)))
+        return white
 
     def sigma_total(model: ModelScore) -> float:
         return float(np.sqrt(np.sum(sigma_of(model) ** 2)))
@@ -178,7 +238,7 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
     def significant_axes(model: ModelScore, *, paired: bool = True) -> np.ndarray:
         ratio = model.heldout_rms ** 2 / floor ** 2 - 1.0
         sigma = sigma_of(model)
-        if paired:
+        if paired and yardstick is None:
             held = float(model.fold_samples.sum())
             sigma = np.array([_paired_sigma(differences, held) for _ in range(3)])
         threshold = np.maximum(SIGNIFICANCE_SIGMAS * sigma, MIN_VARIANCE_EXCESS)
@@ -272,7 +332,7 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
         msg = f'the model cannot be refitted on this run: {base_score.error}'
         raise FitError(msg)
     null_score: ModelScore | None = None
-    if significant_axes(base_score, paired=False).any():
+    if yardstick is None and significant_axes(base_score, paired=False).any():
         say('base model on a simulated copy of this run (the held-out error of a complete model)')
         try:
             null_score = null_heldout(cv_samples, present, labels, settings, floor, folds=folds)
@@ -285,7 +345,8 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
     axes = tuple(AxisSummary(rms=float(math.sqrt(np.mean(residual[:, i] ** 2))), noise_floor=float(floor[i]),
                              heldout_rms=float(base_score.heldout_rms[i]),
                              excess_significant=bool(base_significant[i]),
-                             null_heldout_rms=float(null_rms[i])) for i in range(3))
+                             null_heldout_rms=float(null_rms[i]), white_floor=float(white_floor[i]))
+                 for i in range(3))
 
     first_step: _Step | None = None
     skipped: dict[str, str] = {}
@@ -293,8 +354,11 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
     model_specs: tuple[Any, ...] = present
     current = base_score
     changes = 0
-    if base_significant.any():
-        while changes < max_ladder and significant_axes(current).any():
+    gain_threshold = gain_t_threshold(blocks, len(pool))
+    if base_significant.any() or judged:
+        # Judged against a noise model, the ladder is tried whatever the base's excess: bias wander
+        # makes that excess a poor gate; each step must beat the blocks' own spread instead.
+        while changes < max_ladder and (judged or significant_axes(current).any()):
             step = rank(current, model_specs)
             if first_step is None:
                 first_step = step
@@ -304,6 +368,8 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
                 break
             best, best_score, best_model = admissible[0]
             if best.explained < MIN_STEP_FRACTION or best.significance < SIGNIFICANCE_SIGMAS:
+                break
+            if judged and summed_block_t(current, best_score, floor) < gain_threshold:
                 break
             added_spec = best_model[-1] if len(best_model) > len(model_specs) else None
             form = _per_axis_of(added_spec) if per_axis and added_spec is not None else None
@@ -370,7 +436,7 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
     verdict = VERDICT_NONE if not base_significant.any() else VERDICT_UNEXPLAINED
     base_excess = base_score.excess(floor)
     explained_total = (base_excess - current.excess(floor)) / base_excess if base_excess > 0.0 else 0.0
-    if added and explained_total >= MIN_TOTAL_FRACTION:
+    if added and (explained_total >= MIN_TOTAL_FRACTION or judged):
         verdict = _effect_name(added[0])
 
     calibration_after = None
@@ -399,6 +465,13 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
         verdict = VERDICT_UNEXPLAINED
     final_residual = residual if residual_after is None else residual_after
     drivers = residual_drivers(final_residual, views) if residual_after is not None else base_drivers
+    allan: tuple[tuple[str, AllanCheck], ...] = ()
+    if noise is not None:
+        allan = _rung_allan(samples, cv_samples, ladder, model_specs, present, residual, residual_after, settings,
+                            noise, white_floor, period)
+    final_allan = allan[-1][1] if allan else None
+    if judged and final_allan is not None and verdict in (VERDICT_NONE, VERDICT_UNEXPLAINED):
+        verdict = VERDICT_NONE if final_allan.consistent else VERDICT_UNEXPLAINED
 
     ranked = [item[0] for item in first_step.ranked] if first_step is not None else []
     for _, candidate in per_axis_tried:
@@ -417,7 +490,8 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
         candidates_out.append(candidate)
 
     message = _verdict_message(verdict, axes, ladder, candidates_out, drivers, base_drivers,
-                               significant_axes(current), explained_total, unresolved)
+                               significant_axes(current), explained_total, unresolved,
+                               allan=final_allan, judged=judged, averaging_s=averaging_s if judged else 0.0)
     if pruned and verdict not in (VERDICT_NONE, VERDICT_UNEXPLAINED):
         message += (f' Not needed once the others are in: {", ".join(pruned)} (held-out blocks do not '
                     f'notice its removal).')
@@ -429,4 +503,39 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
                      blocks=int(block_index(labels)[-1]) + 1,
                      cv_stride=stride, present_effects=present_names, explained=float(explained_total),
                      unresolved=unresolved, pruned=tuple(pruned),
-                     per_axis_forms=tuple(candidate for _, candidate in per_axis_tried))
+                     per_axis_forms=tuple(candidate for _, candidate in per_axis_tried),
+                     noise=noise, allan=allan, averaging_time_s=float(averaging_s) if judged else 0.0,
+                     yardstick_replicates=yardstick.replicates if yardstick is not None else 0)
+
+
+def sample_period(samples: AlignedSamples) -> float:
+    """The median step between samples, s (1 s for fewer than two samples)."""
+    if len(samples) < 2:
+        return 1.0
+    return max(float(np.median(np.diff(samples.stamp_ns))) * 1e-9, 1e-9)
+
+
+def _rung_allan(samples: AlignedSamples, cv_samples: AlignedSamples, ladder: Sequence[Any],
+                model_specs: tuple[Any, ...], present: tuple[Any, ...], residual: np.ndarray,
+                residual_after: np.ndarray | None, settings: Any, noise: Any, white_floor: np.ndarray,
+                period: float) -> tuple[tuple[str, AllanCheck], ...]:
+    """The Allan test of the residual on every rung of the ladder: the calibration as given,
+    then the model refitted with each effect added (the last rung: the ladder's refit)."""
+    checks = [(ladder[0].label, allan_check(residual, period, noise, white_floor))]
+    added = [spec for spec in model_specs if spec not in present]
+    for index, step in enumerate(ladder[1:], start=1):
+        if index == len(ladder) - 1 and residual_after is not None:
+            rung_residual = residual_after
+        else:
+            names = set(step.effects)
+            specs = tuple(spec for spec in (*present, *added) if _effect_name(spec) in names)
+            try:
+                fitted = fit_model(cv_samples, effects=specs, bias_order=settings.bias_order,
+                                   scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
+                                   nominal_scale=settings.nominal_scale)
+            except TakError:
+                continue
+            low, high = float(samples.temp_code.min()), float(samples.temp_code.max())
+            rung_residual = residual_counts(_with_range(fitted.calibration, low, high), samples)
+        checks.append((step.label, allan_check(rung_residual, period, noise, white_floor)))
+    return tuple(checks)

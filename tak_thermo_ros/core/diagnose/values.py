@@ -22,6 +22,9 @@ class AxisSummary:
     :param null_heldout_rms: held-out RMS of the same model on a simulated copy of the run in
         which that model is true, with white noise at the floor (parameter-estimation error of
         held-out blocks included); the floor itself when the excess was too small to need it.
+    :param white_floor: the per-sample white floor from successive differences. Judged against
+        a noise model, ``noise_floor`` and ``heldout_rms`` are RMS values of means over the
+        averaging bins (``noise_floor``: what copies of the run under the noise model show).
     """
 
     rms: float
@@ -29,6 +32,7 @@ class AxisSummary:
     heldout_rms: float
     excess_significant: bool
     null_heldout_rms: float = 0.0
+    white_floor: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -43,6 +47,8 @@ class ModelScore:
     :param block_sse: ``(blocks, 3)`` the same per contiguous time block (each block is held out
         with its fold), for paired comparisons of two models block by block.
     :param block_samples: ``(blocks,)`` held-out samples per block.
+    :param heldout: ``(k, 3)`` the held-out residual itself (before whitening), when the scores
+        are of a whitened residual.
     """
 
     effects: tuple[str, ...]
@@ -52,6 +58,7 @@ class ModelScore:
     failed_folds: tuple[str, ...] = ()
     block_sse: np.ndarray | None = None
     block_samples: np.ndarray | None = None
+    heldout: np.ndarray | None = None
 
     @property
     def ok(self) -> bool:
@@ -196,6 +203,12 @@ class Diagnosis:
         per-axis form when held-out blocks preferred it by more than noise could.
     :param pruned: effects the forward ladder took that the final model does not need (held-out
         blocks do not notice their removal once the later effects are in).
+    :param noise: the noise model the run was judged against (or fitted to its residual), or ``None``.
+    :param allan: per ladder rung, its label and the Allan test of its residual
+        (:class:`~tak_thermo_ros.core.diagnose.yardstick.AllanCheck`); empty without a noise model.
+    :param averaging_time_s: the averaging bins of the cross-validation, judged against a noise
+        model from a file or a static run; 0 otherwise (per sample).
+    :param yardstick_replicates: simulated copies of the run under the noise model.
     """
 
     verdict: str
@@ -219,11 +232,20 @@ class Diagnosis:
     unresolved: dict[str, str] = field(default_factory=dict)
     pruned: tuple[str, ...] = ()
     per_axis_forms: tuple[Candidate, ...] = ()
+    noise: Any = None
+    allan: tuple[tuple[str, Any], ...] = ()
+    averaging_time_s: float = 0.0
+    yardstick_replicates: int = 0
 
     @property
     def noise_floor(self) -> np.ndarray:
-        """``(3,)`` the noise floor per axis, counts."""
+        """``(3,)`` the noise floor per axis, counts (the yardstick of the held-out RMS values)."""
         return np.array([axis.noise_floor for axis in self.axes])
+
+    @property
+    def white_floor(self) -> np.ndarray:
+        """``(3,)`` the per-sample white floor from successive differences, counts."""
+        return np.array([axis.white_floor or axis.noise_floor for axis in self.axes])
 
     def as_dict(self) -> dict[str, Any]:
         """The JSON document of ``tak_calib diagnose --json``."""
@@ -232,7 +254,7 @@ class Diagnosis:
             'message': self.message,
             'axes': {name: {'rms': a.rms, 'noise_floor': a.noise_floor, 'heldout_rms': a.heldout_rms,
                             'excess_significant': a.excess_significant,
-                            'null_heldout_rms': a.null_heldout_rms}
+                            'null_heldout_rms': a.null_heldout_rms, 'white_floor': a.white_floor or a.noise_floor}
                      for name, a in zip(AXES, self.axes)},
             'candidates': [c.as_dict() for c in self.candidates],
             'skipped': dict(self.skipped),
@@ -246,4 +268,19 @@ class Diagnosis:
             'model_effects': list(self.present_effects),
             'cross_validation': {'folds': self.folds, 'blocks': self.blocks, 'stride': self.cv_stride},
             'samples': int(len(self.views.time_s)),
+            'averaging_time_s': self.averaging_time_s,
+            **({'noise': noise_document(self.noise)} if self.noise is not None else {}),
+            'allan': [{'model': label, **check.as_dict()} for label, check in self.allan],
         }
+
+
+def noise_document(noise: Any) -> dict[str, Any]:
+    """The JSON form of a noise model in ``diagnose --json``: three numbers per term, one per axis
+    (``bias_instability_tau`` null where the model has no floor)."""
+    def triple(name: str) -> list[float | None]:
+        values = np.broadcast_to(np.asarray(getattr(noise, name, 0.0), dtype=float).reshape(-1), (3,))
+        # A floor time at infinity (nothing rises within the averaging times) is null in strict JSON.
+        return [float(v) if np.isfinite(v) else None for v in values]
+    return {'white_noise_density': triple('white_noise_density'), 'bias_instability': triple('bias_instability'),
+            'bias_instability_tau': triple('bias_instability_tau'), 'random_walk': triple('random_walk'),
+            'source': str(getattr(noise, 'source', 'residual'))}

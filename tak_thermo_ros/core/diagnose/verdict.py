@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
 from tak_thermo_ros.core.diagnose.values import AxisSummary, Candidate, Driver, LadderStep, ModelScore
+from tak_thermo_ros.core.diagnose.yardstick import tau_text
 from tak_thermo_ros.core.link.model import AXES
 
 VERDICT_NONE = 'none'
@@ -38,22 +39,30 @@ is taken (t 3.05 with 20 blocks)."""
 
 
 def student_t_quantile(probability: float, dof: int) -> float:
-    """Quantile of Student's t distribution with ``dof`` degrees of freedom (``probability > 0.5``).
-
-    The density integrated numerically (trapezoids on a fine grid): accurate to about 1e-3,
-    enough for a significance threshold, and no dependency for one function.
-    """
-    grid = np.linspace(0.0, 60.0, 600_001)
-    log_norm = math.lgamma((dof + 1) / 2.0) - math.lgamma(dof / 2.0) - 0.5 * math.log(dof * math.pi)
-    density = np.exp(log_norm - (dof + 1) / 2.0 * np.log1p(grid ** 2 / dof))
-    cumulative = 0.5 + np.concatenate(([0.0], np.cumsum((density[1:] + density[:-1]) / 2.0 * np.diff(grid))))
-    return float(grid[min(int(np.searchsorted(cumulative, probability)), len(grid) - 1)])
+    """Quantile of Student's t distribution with ``dof`` degrees of freedom (``scipy.stats.t.ppf``)."""
+    from scipy.stats import t as student_t
+    return float(student_t.ppf(probability, dof))
 
 
 @functools.lru_cache(maxsize=16)
 def per_axis_t_threshold(blocks: int) -> float:
     """The paired-t threshold of :data:`PER_AXIS_ALPHA` for ``blocks`` held-out time blocks."""
     return student_t_quantile(1.0 - PER_AXIS_ALPHA / 3.0, max(blocks - 1, 1))
+
+
+GAIN_ALPHA = 0.02
+"""Judged against a noise model, an effect joins the ladder only when the paired t of its
+held-out gain over the time blocks (summed over the axes,
+:func:`~tak_thermo_ros.core.diagnose.crossval.summed_block_t`) lies beyond the one-sided quantile
+``1 - GAIN_ALPHA / candidates`` of Student's t with ``blocks - 1`` degrees of freedom: bias
+wander moves the held-out error of every model from block to block, and an effect that only
+absorbs some wander gains on a few blocks and loses on others (2 % over the candidates tried)."""
+
+
+@functools.lru_cache(maxsize=64)
+def gain_t_threshold(blocks: int, candidates: int) -> float:
+    """The paired-t threshold of :data:`GAIN_ALPHA` for ``blocks`` time blocks and ``candidates`` effects."""
+    return student_t_quantile(1.0 - GAIN_ALPHA / max(candidates, 1), max(blocks - 1, 1))
 
 
 def _noise_sigma(floor_differences: int, heldout_samples: float) -> float:
@@ -96,7 +105,21 @@ def _driver_sentence(drivers: Sequence[Driver], *, exclude: Sequence[str] = ()) 
     return ', '.join(parts)
 
 
-def _unexplained_sentence(drivers: Sequence[Driver]) -> str:
+def _wander_sentence(allan: Any) -> str:
+    """What a noise model fitted to the run's own residual can and cannot say."""
+    tau, axis, ratio = allan.worst()
+    if allan.consistent:
+        where = (f'what remains is consistent with this short-term noise at every averaging time (Allan deviation '
+                 f'at most {ratio:.2f}x it, at tau {tau_text(tau)} on {AXES[axis]})')
+    else:
+        where = f'against it, {allan.describe()}'
+    return (f'No noise model was given (--noise, --noise-run): the one here is fitted to this run\'s own residual '
+            f'at averaging times up to half a minute, where no thermal effect acts; {where}. This run alone cannot tell '
+            f'the sensor\'s own bias wander from a cause that is not in the bag: give the sensor\'s noise model '
+            f'(--noise imu.yaml) or a static run at constant temperature (--noise-run BAG) to judge it.')
+
+
+def _unexplained_sentence(drivers: Sequence[Driver], *, judged: bool = False) -> str:
     """What a residual that no library effect explains still follows, and what that suggests.
 
     Called only when no library effect explains the structure: the temperature effects (a
@@ -106,7 +129,12 @@ def _unexplained_sentence(drivers: Sequence[Driver]) -> str:
     by_name = {d.name: d for d in drivers}
     lead = drivers[0]
     text = f'the residual still follows {_driver_sentence(drivers)}'
-    if lead.name in ('time', 'time at fixed temperature'):
+    if lead.name in ('time', 'time at fixed temperature') and judged:
+        text += ('; it is a drift in time beyond the bias wander the noise model predicts, that no function of '
+                 'the temperature code or of its history in the library predicts on held-out time blocks: look for '
+                 'a quantity that is not in the bag (supply voltage, humidity, mechanical stress, a reference that '
+                 'moves)')
+    elif lead.name in ('time', 'time at fixed temperature'):
         text += ('; it is a slow drift in time that no function of the temperature code or of its history in '
                  'the library predicts on held-out time blocks: look for a quantity that is not in the bag '
                  '(supply voltage, humidity, mechanical stress, a reference that moves)')
@@ -135,12 +163,23 @@ def _rung(model: ModelScore) -> LadderStep:
 def _verdict_message(verdict: str, axes: Sequence[AxisSummary], ladder: Sequence[LadderStep],
                      candidates: Sequence[Candidate], drivers: Sequence[Driver],
                      base_drivers: Sequence[Driver], still_significant: np.ndarray,
-                     explained_total: float, unresolved: dict[str, str]) -> str:
+                     explained_total: float, unresolved: dict[str, str], *, allan: Any = None,
+                     judged: bool = False, averaging_s: float = 0.0) -> str:
     ratios = ', '.join(f'{name} {a.heldout_rms / a.noise_floor:.2f}x' for name, a in zip(AXES, axes))
+    if judged:
+        ratios = f'held-out RMS of {tau_text(averaging_s)} means / the noise model\'s: {ratios}'
+    else:
+        ratios = f'held-out RMS / floor: {ratios}'
     if verdict == VERDICT_NONE:
-        text = (f'The residual is at the noise floor (held-out RMS / floor: {ratios}): '
-                f'no structure left for an effect to explain.')
-        refit = [name for name, a in zip(AXES, axes) if a.rms > 1.1 * a.heldout_rms]
+        if judged:
+            tau, axis, ratio = allan.worst()
+            text = (f'The residual is consistent with the noise model ({allan.source}) at every averaging time '
+                    f'({ratios}; Allan deviation at most {ratio:.2f}x the model, at tau {tau_text(tau)} on '
+                    f'{AXES[axis]}, within the bound): no structure left for an effect to explain.')
+        else:
+            text = f'The residual is at the noise floor ({ratios}): no structure left for an effect to explain.'
+
+        refit = [] if judged else [name for name, a in zip(AXES, axes) if a.rms > 1.1 * a.heldout_rms]
         if refit:
             text += (f' The calibration as given fits this run worse than a refit of the same model '
                      f'(axes {", ".join(refit)}): refit it on this run.')
@@ -163,12 +202,21 @@ def _verdict_message(verdict: str, axes: Sequence[AxisSummary], ladder: Sequence
             else:
                 best = ' No library effect lowers the held-out error.'
             follows = _unexplained_sentence(base_drivers)
-        return (f'Significant structure remains above the noise floor (held-out RMS / floor: {ratios}) '
+        if judged:
+            follows = _unexplained_sentence(drivers if len(ladder) > 1 else base_drivers, judged=True)
+            return (f'Significant structure remains beyond the noise model ({allan.source}): '
+                    f'{allan.describe()} ({ratios}), which no library effect explains with parameters this run '
+                    f'resolves.{best} {follows[0].upper()}{follows[1:]}.')
+        text = (f'Significant structure remains above the noise floor ({ratios}) '
                 f'that no library effect explains with parameters this run resolves.{best} '
                 f'{follows[0].upper()}{follows[1:]}.')
+        if allan is not None:
+            text += f' {_wander_sentence(allan)}'
+        return text
     best = next((c for c in candidates if c.effect == verdict), candidates[0])
+    over = 'over the noise model' if judged else 'over the noise floor'
     text = (f'The model misses {verdict}: it removes {_percent(best.explained)} of the held-out excess '
-            f'over the noise floor (held-out RMS / floor before: {ratios}). {best.summary}')
+            f'{over} ({ratios} before). {best.summary}')
     if verdict.endswith('_per_axis'):
         shared = next((c for c in candidates if c.effect == verdict[:-len('_per_axis')]), None)
         if shared is not None:
@@ -182,5 +230,7 @@ def _verdict_message(verdict: str, axes: Sequence[AxisSummary], ladder: Sequence
         text += f' The fit of {name} runs to the edge of what this run resolves ({edges}).'
     if still_significant.any():
         text += (f' Structure remains on {", ".join(n for n, s in zip(AXES, still_significant) if s)}: '
-                 f'{_unexplained_sentence(drivers)}.')
+                 f'{_unexplained_sentence(drivers, judged=judged)}.')
+        if allan is not None and allan.source == 'residual':
+            text += f' {_wander_sentence(allan)}'
     return text

@@ -114,6 +114,31 @@ class ErrorSums:
         return RateError(rms=triple(rms), mean=triple(mean), max=triple(largest))
 
 
+class NoiseSums:
+    """What ``validate`` keeps of the corrected error series beyond its RMS: its means over 1, 60
+    and 600 s (:class:`~tak_thermo_ros.core.link.validate.AveragedError`) and its overlapping Allan
+    variance (for a noise model when none is given), both over blocks in bounded memory."""
+
+    def __init__(self, columns: int) -> None:
+        from tak_thermo_ros.core.link.validate import AveragedError
+        self.averaged = AveragedError(columns=columns)
+        self.columns = columns
+        self.allan = None
+        self.sample_period_s = 0.0
+
+    def add(self, stamp_s: np.ndarray, error: np.ndarray) -> None:
+        """Add a block of the corrected error, ``(k, columns)``, at ``stamp_s``."""
+        if not len(stamp_s):
+            return
+        self.averaged.add(stamp_s, error)
+        if self.allan is None and len(stamp_s) > 1:
+            from tak_thermo_ros.core.noise.allan import AllanAccumulator
+            self.sample_period_s = max(float(np.median(np.diff(stamp_s))), 1e-9)
+            self.allan = AllanAccumulator(1.0 / self.sample_period_s, self.columns)
+        if self.allan is not None:
+            self.allan.add(np.asarray(error, dtype=float).reshape(len(stamp_s), self.columns))
+
+
 class GravityCheck:
     """:func:`~tak_thermo_ros.core.link.validate.validate_gravity` accumulated over blocks."""
 
@@ -125,6 +150,10 @@ class GravityCheck:
         self.after = ErrorSums(1)
         self.out_of_range = 0
         self.samples = 0
+        self.noise = NoiseSums(3)
+        self.direction = np.zeros(3)
+        from tak_thermo_ros.core.link.validate import AveragedError
+        self.gravity_averaged = AveragedError(columns=1)
 
     def add(self, counts: np.ndarray, temp_code: np.ndarray, stamp_s: np.ndarray, *,
             aux: Mapping[str, np.ndarray] | None = None) -> None:
@@ -133,6 +162,13 @@ class GravityCheck:
         before = self.nominal.correct(counts, temp_code)
         self.after.add(np.linalg.norm(after, axis=1) - self.gravity)
         self.before.add(np.linalg.norm(before, axis=1) - self.gravity)
+        # The |g| error averaged over 1, 60, 600 s; per axis, the corrected specific force about
+        # its first block's mean (a static run), whose Allan variance gives each channel's noise.
+        if len(after):
+            if not self.direction.any():
+                self.direction = np.mean(after, axis=0)
+            self.noise.add(np.asarray(stamp_s, dtype=float), after - self.direction)
+            self.gravity_averaged.add(np.asarray(stamp_s, dtype=float), np.linalg.norm(after, axis=1) - self.gravity)
         self.out_of_range += self.corrector.out_of_range_count(temp_code)
         self.samples += len(counts)
 
@@ -147,6 +183,7 @@ class RateCheck:
         self.after = ErrorSums(3)
         self.out_of_range = 0
         self.samples = 0
+        self.noise = NoiseSums(3)
 
     def add(self, rate: np.ndarray, temperature: np.ndarray, reference: np.ndarray, stamp_s: np.ndarray, *,
             aux: Mapping[str, np.ndarray] | None = None) -> None:
@@ -155,5 +192,6 @@ class RateCheck:
         before = self.nominal.correct(rate, temperature)
         self.after.add(after - reference)
         self.before.add(before - reference)
+        self.noise.add(np.asarray(stamp_s, dtype=float), after - reference)
         self.out_of_range += self.corrector.out_of_range_count(temperature)
         self.samples += len(rate)

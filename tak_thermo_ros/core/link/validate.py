@@ -7,6 +7,7 @@ positions all see the same |g|.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Mapping
 
@@ -136,3 +137,67 @@ def validate_rate(calibration: Calibration, rate: np.ndarray, temperature: np.nd
     before = Corrector(calibration.nominal(), out_of_range=out_of_range).correct(rate, temperature)
     return RateValidation(before=RateError.of(before - reference), after=RateError.of(after - reference),
                           out_of_range=corrector.out_of_range_count(temperature))
+
+
+AVERAGING_TIMES_S: tuple[float, ...] = (1.0, 60.0, 600.0)
+"""The averaging times at which ``validate`` gives the bias error of the corrected output."""
+
+
+class AveragedError:
+    """The RMS of an error series averaged over consecutive windows of ``tau`` seconds, per column.
+
+    The bias error a navigator sees after averaging for ``tau``: what the correction leaves
+    (a bias that stays) plus the noise's share at that averaging time. Accumulated over blocks
+    in time order (a window may straddle two blocks); the last, incomplete window is left out.
+
+    :param taus: averaging times, s.
+    :param columns: columns of the error series.
+    """
+
+    def __init__(self, taus: tuple[float, ...] = AVERAGING_TIMES_S, columns: int = 3) -> None:
+        self.taus = tuple(float(t) for t in taus)
+        self.columns = columns
+        self._start: float | None = None
+        self._window = [-1] * len(self.taus)
+        self._sum = [np.zeros(columns) for _ in self.taus]
+        self._count = [0] * len(self.taus)
+        self._squares = [np.zeros(columns) for _ in self.taus]
+        self._windows = [0] * len(self.taus)
+
+    def add(self, time_s: np.ndarray, error: np.ndarray) -> None:
+        """Add a block: ``time_s`` ``(k,)`` seconds in increasing order, ``error`` ``(k, columns)``."""
+        if not len(time_s):
+            return
+        error = np.asarray(error, dtype=float).reshape(len(time_s), -1)
+        if self._start is None:
+            self._start = float(time_s[0])
+        for j, tau in enumerate(self.taus):
+            # A stamp on a window's edge (to rounding) opens the next window.
+            window = np.floor((np.asarray(time_s, dtype=float) - self._start) / tau + 1e-9).astype(np.int64)
+            edges = np.flatnonzero(np.diff(window)) + 1
+            starts = np.concatenate(([0], edges))
+            stops = np.concatenate((edges, [len(window)]))
+            for start, stop in zip(starts, stops):
+                if window[start] != self._window[j]:
+                    self._close(j)
+                    self._window[j] = int(window[start])
+                self._sum[j] += error[start:stop].sum(axis=0)
+                self._count[j] += stop - start
+
+    def _close(self, j: int) -> None:
+        if self._count[j]:
+            mean = self._sum[j] / self._count[j]
+            self._squares[j] += mean ** 2
+            self._windows[j] += 1
+        self._sum[j] = np.zeros(self.columns)
+        self._count[j] = 0
+
+    def rms(self) -> dict[float, np.ndarray]:
+        """``tau -> (columns,)`` RMS of the complete windows' means (NaN when no window completed)."""
+        return {tau: (np.sqrt(self._squares[j] / self._windows[j]) if self._windows[j]
+                      else np.full(self.columns, math.nan))
+                for j, tau in enumerate(self.taus)}
+
+    def windows(self) -> dict[float, int]:
+        """``tau ->`` complete windows."""
+        return {tau: self._windows[j] for j, tau in enumerate(self.taus)}
