@@ -692,12 +692,13 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                       f'held-out {result.averaging_time_s:.3g} s means {axis.heldout_rms:.4g} '
                       f'({axis.heldout_rms / axis.noise_floor:.2f}x the noise model\'s {axis.noise_floor:.4g})')
             else:
-                print(f'  {name}: residual RMS {axis.rms:.4g} {unit_name}, noise floor {axis.noise_floor:.4g}; held-out '
-                      f'{axis.heldout_rms:.4g} ({axis.heldout_rms / axis.noise_floor:.2f}x the floor)')
+                print(f'  {name}: residual RMS {axis.rms:.4g} {unit_name}, noise floor {axis.noise_floor:.4g}; '
+                      f'held-out {axis.heldout_rms:.4g} ({axis.heldout_rms / axis.noise_floor:.2f}x the floor)')
         if result.allan:
             check = result.allan[-1][1]
             print(f'  against the noise model, {"after the ladder" if len(result.allan) > 1 else "the residual"}: '
-                  f'{check.describe()} ({"inside" if check.consistent else "beyond"} the bound {check.worst_bound():.2f}x)'
+                  f'{check.describe()} ({"inside" if check.consistent else "beyond"} '
+                  f'the bound {check.worst_bound():.2f}x)'
                   if len(check.taus) else '  Allan deviation: the run is too short to estimate it')
         if result.candidates:
             print(f'candidates, best first (held-out RMS x y z in {unit_name}; '
@@ -790,9 +791,11 @@ def _add_magnetometer(args: argparse.Namespace, unit: UnitCalibration, run) -> N
 
 def _given_noise_models(args: argparse.Namespace, unit: UnitCalibration, kind: InputKind,
                         sensors: tuple[str, ...]) -> dict:
-    """``--noise FILE``, ``--noise-run BAG`` or the calibration file's noise section: the sensors'
-    noise models (:func:`~tak_thermo_ros.noise_run.noise_models`, in SI; in codes for ``kind``
-    counts); empty when none is given."""
+    """The sensors' noise models from ``--noise FILE``, ``--noise-run BAG`` or the calibration file's noise section.
+
+    As :func:`~tak_thermo_ros.noise_run.noise_models` gives them (in SI; in codes for ``kind``
+    counts); empty when none is given.
+    """
     from tak_thermo_ros.errors import NoiseError
     from tak_thermo_ros.noise_models import in_counts
     from tak_thermo_ros.noise_run import noise_models
@@ -815,8 +818,11 @@ def _given_noise_models(args: argparse.Namespace, unit: UnitCalibration, kind: I
 
 
 def _averaged_bias(check, noise, sensor: str, gravity: float) -> dict | None:
-    """``validate``'s bias error of the corrected output averaged over 1, 60 and 600 s (deg/h for
-    the gyroscope per axis, mg for |g|), next to what the noise model predicts (its Allan deviation)."""
+    """``validate``'s bias error of the corrected output averaged over 1, 60 and 600 s.
+
+    In deg/h for the gyroscope per axis, mg for |g|, next to what the noise model predicts (its
+    Allan deviation).
+    """
     import math
     rms = check.gravity_averaged.rms() if sensor == 'accel' else check.noise.averaged.rms()
     windows = check.gravity_averaged.windows() if sensor == 'accel' else check.noise.averaged.windows()
@@ -866,7 +872,8 @@ def _noise_line(noise, unit: str, averaging_s: float) -> str:
     def triple(values) -> str:
         return ' '.join(f'{float(v):.3g}' for v in values)
     said = {'file': 'from the file', 'static_run': 'from the static run',
-            'residual': "fitted to this run's own residual (no --noise or --noise-run: the verdict uses the white floor)"}
+            'residual': "fitted to this run's own residual "
+                        "(no --noise or --noise-run: the verdict uses the white floor)"}
     text = (f'  noise model {said[noise.source]}: white {triple(noise.white_noise_density)} {unit}/sqrt(Hz), '
             f'bias instability {triple(noise.bias_instability)} {unit}, random walk {triple(noise.random_walk)} '
             f'{unit}*sqrt(Hz) (x y z)')
@@ -968,7 +975,8 @@ def build_parser() -> argparse.ArgumentParser:
     _out_of_range(val)
     _add_topic_options(val)
     val.add_argument('--noise', metavar='IMU.yaml',
-                     help="the sensors' noise model (Kalibr-style imu.yaml): the averaged bias error is shown next to it")
+                     help="the sensors' noise model (Kalibr-style imu.yaml): "
+                          "the averaged bias error is shown next to it")
     val.add_argument('--noise-run', metavar='BAG', help='a static run at constant temperature for the noise model')
     val.set_defaults(handler=cmd_validate)
     imp = commands.add_parser('import-csv', help='convert a delimited log of a static thermal run into a bag')

@@ -42,8 +42,11 @@ def in_counts(model: Any, calibration: Calibration) -> Any:
 
 def model_from_signal(signal: np.ndarray, sample_period_s: float, source: str, *,
                       longest_s: float | None = None) -> Any:
-    """The five-term noise model of a ``(k, 3)`` signal (its overlapping Allan variance, fitted;
-    up to ``longest_s`` of averaging when given, two averaging times per octave)."""
+    """The five-term noise model of a ``(k, 3)`` signal.
+
+    Its overlapping Allan variance, fitted; up to ``longest_s`` of averaging when given, two
+    averaging times per octave.
+    """
     from tak_thermo_ros.core.noise.allan import allan_variance, cluster_sizes, largest_cluster
     from tak_thermo_ros.core.noise.model import fit_noise_model
     signal = np.asarray(signal, dtype=float)
@@ -55,9 +58,11 @@ def model_from_signal(signal: np.ndarray, sample_period_s: float, source: str, *
 
 
 def model_from_residual(residual: np.ndarray, samples: AlignedSamples) -> Any | None:
-    """The noise model of the run's own residual at averaging times up to
-    :data:`RESIDUAL_LONGEST_TAU_S` (``source='residual'``), or ``None`` when the run is too short
-    for five averaging times."""
+    """The noise model of the run's own residual, or ``None`` when the run is too short.
+
+    At averaging times up to :data:`RESIDUAL_LONGEST_TAU_S` (``source='residual'``); ``None`` when
+    the run is too short for five averaging times.
+    """
     try:
         return model_from_signal(residual, _period(samples), 'residual', longest_s=RESIDUAL_LONGEST_TAU_S)
     except TakError:

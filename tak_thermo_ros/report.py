@@ -415,7 +415,8 @@ def _allan_table(diagnosis: Diagnosis) -> str:
                 continue
             t = int(np.argmax(ratio / check.bound[:, i]))
             css = 'bad' if ratio[t] > check.bound[t, i] else 'good'
-            cells.append(f'<td class="{css}">{ratio[t]:.2f}x at {check.taus[t]:.3g} s (bound {check.bound[t, i]:.2f})</td>')
+            cells.append(f'<td class="{css}">{ratio[t]:.2f}x at {check.taus[t]:.3g} s '
+                         f'(bound {check.bound[t, i]:.2f})</td>')
         rows.append(f'<tr><td>{html.escape(label)}</td>{"".join(cells)}</tr>')
     return ('<table><tr><th>model</th><th>x</th><th>y</th><th>z</th></tr>' + ''.join(rows) + '</table>')
 

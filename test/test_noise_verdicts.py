@@ -164,8 +164,10 @@ def test_the_report_shows_the_allan_deviation_before_and_after_the_effect_agains
 
 @pytest.mark.parametrize('quiet', [1.0, 0.1], ids=['consumer_white', 'white_ten_times_lower'])
 def test_b_bias_wander_alone_is_none_on_both_sensors(quiet):
-    """5 seeds x 2 sensors: at most one verdict other than none (the rule's rate is measured over
-    20 seeds per case in bench/bench_noise_verdicts.py), and never an effect or voltage advice."""
+    """5 seeds x 2 sensors: at most one verdict other than none, and never an effect or voltage advice.
+
+    The rule's rate is measured over 20 seeds per case in bench/bench_noise_verdicts.py.
+    """
     verdicts = [_diagnose(wandering_run(seed=seed, quiet=quiet), sensor)
                 for seed in range(5) for sensor in ('gyro', 'accel')]
     others = [d for d in verdicts if d.verdict != 'none']

@@ -519,8 +519,11 @@ def _rung_allan(samples: AlignedSamples, cv_samples: AlignedSamples, ladder: Seq
                 model_specs: tuple[Any, ...], present: tuple[Any, ...], residual: np.ndarray,
                 residual_after: np.ndarray | None, settings: Any, noise: Any, white_floor: np.ndarray,
                 period: float) -> tuple[tuple[str, AllanCheck], ...]:
-    """The Allan test of the residual on every rung of the ladder: the calibration as given,
-    then the model refitted with each effect added (the last rung: the ladder's refit)."""
+    """The Allan test of the residual on every rung of the ladder.
+
+    The calibration as given, then the model refitted with each effect added (the last rung: the
+    ladder's refit).
+    """
     checks = [(ladder[0].label, allan_check(residual, period, noise, white_floor))]
     added = [spec for spec in model_specs if spec not in present]
     for index, step in enumerate(ladder[1:], start=1):

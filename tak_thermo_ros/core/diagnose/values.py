@@ -275,8 +275,11 @@ class Diagnosis:
 
 
 def noise_document(noise: Any) -> dict[str, Any]:
-    """The JSON form of a noise model in ``diagnose --json``: three numbers per term, one per axis
-    (``bias_instability_tau`` null where the model has no floor)."""
+    """The JSON form of a noise model in ``diagnose --json``.
+
+    Three numbers per term, one per axis (``bias_instability_tau`` null where the model has no
+    floor).
+    """
     def triple(name: str) -> list[float | None]:
         values = np.broadcast_to(np.asarray(getattr(noise, name, 0.0), dtype=float).reshape(-1), (3,))
         # A floor time at infinity (nothing rises within the averaging times) is null in strict JSON.

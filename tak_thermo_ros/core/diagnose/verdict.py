@@ -113,10 +113,10 @@ def _wander_sentence(allan: Any) -> str:
                  f'at most {ratio:.2f}x it, at tau {tau_text(tau)} on {AXES[axis]})')
     else:
         where = f'against it, {allan.describe()}'
-    return (f'No noise model was given (--noise, --noise-run): the one here is fitted to this run\'s own residual '
-            f'at averaging times up to half a minute, where no thermal effect acts; {where}. This run alone cannot tell '
-            f'the sensor\'s own bias wander from a cause that is not in the bag: give the sensor\'s noise model '
-            f'(--noise imu.yaml) or a static run at constant temperature (--noise-run BAG) to judge it.')
+    return (f'No noise model was given (--noise, --noise-run): the one here is fitted to this run\'s own '
+            f'residual at averaging times up to half a minute, where no thermal effect acts; {where}. This run alone '
+            f'cannot tell the sensor\'s own bias wander from a cause that is not in the bag: give the sensor\'s '
+            f'noise model (--noise imu.yaml) or a static run at constant temperature (--noise-run BAG) to judge it.')
 
 
 def _unexplained_sentence(drivers: Sequence[Driver], *, judged: bool = False) -> str:

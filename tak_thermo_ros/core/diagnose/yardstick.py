@@ -74,17 +74,22 @@ def wander_avar(noise: Any, taus: np.ndarray) -> np.ndarray:
 
 
 def predicted_avar(noise: Any, taus: np.ndarray, white_floor: np.ndarray, sample_period_s: float) -> np.ndarray:
-    """``(t, 3)`` Allan variance of the residual the noise model predicts: the measured white
-    floor (per sample) averaged over ``tau``, plus the model's bias instability and random walk."""
+    """``(t, 3)`` Allan variance of the residual the noise model predicts.
+
+    The measured white floor (per sample) averaged over ``tau``, plus the model's bias instability
+    and random walk.
+    """
     taus = np.asarray(taus, dtype=float)
     white = (np.asarray(white_floor, dtype=float) ** 2)[None, :] * sample_period_s / taus[:, None]
     return white + wander_avar(noise, taus)
 
 
 def averaging_time(noise: Any, white_floor: np.ndarray, sample_period_s: float, block_s: float) -> float:
-    """The verdict's averaging time ``tau_b``: where the predicted Allan deviation is lowest
-    (summed over the axes in units of each axis' minimum), between one sample and a tenth of a
-    held-out block (:data:`BINS_PER_BLOCK`)."""
+    """The verdict's averaging time ``tau_b``.
+
+    Where the predicted Allan deviation is lowest (summed over the axes in units of each axis'
+    minimum), between one sample and a tenth of a held-out block (:data:`BINS_PER_BLOCK`).
+    """
     longest = block_s / BINS_PER_BLOCK
     if longest <= sample_period_s:
         return sample_period_s
@@ -131,8 +136,11 @@ def bin_means(values: np.ndarray, labels: np.ndarray) -> np.ndarray:
 
 
 def bin_samples(samples: AlignedSamples, labels: np.ndarray) -> AlignedSamples:
-    """The run as means over the averaging bins: stamps, codes, temperature, reference and
-    recorded signals averaged (the reference is constant inside a bin: bins end at its moves)."""
+    """The run as means over the averaging bins.
+
+    Stamps, codes, temperature, reference and recorded signals averaged (the reference is constant
+    inside a bin: bins end at its moves).
+    """
     first = samples.stamp_ns[0] if len(samples) else 0
     stamps = first + np.round(bin_means((samples.stamp_ns - first).astype(float), labels)).astype(np.int64)
     reference = None if samples.reference is None else bin_means(samples.reference, labels)
@@ -210,10 +218,12 @@ def whitener(noise: Any, time_s: np.ndarray, white_variance: np.ndarray) -> Call
 
 def simulate_noise(noise: Any, count: int, sample_period_s: float, white_floor: np.ndarray,
                    seed: int | list[int], *, longest_s: float = math.inf) -> np.ndarray:
-    """``(count, 3)`` a residual that the noise model predicts at a steady sample rate: white at the
-    measured floor plus the model's bias instability and random walk
+    """``(count, 3)`` a residual that the noise model predicts at a steady sample rate.
+
+    White at the measured floor plus the model's bias instability and random walk
     (:func:`~tak_thermo_ros.core.simulation.noise.bias_wander`, centred on the model's
-    bias-instability time, at most ``longest_s``)."""
+    bias-instability time, at most ``longest_s``).
+    """
     from tak_thermo_ros.core.simulation.noise import bias_wander
     rng = np.random.default_rng(seed)
     white = rng.standard_normal((count, 3)) * np.asarray(white_floor, dtype=float)

@@ -115,9 +115,12 @@ class ErrorSums:
 
 
 class NoiseSums:
-    """What ``validate`` keeps of the corrected error series beyond its RMS: its means over 1, 60
-    and 600 s (:class:`~tak_thermo_ros.core.link.validate.AveragedError`) and its overlapping Allan
-    variance (for a noise model when none is given), both over blocks in bounded memory."""
+    """What ``validate`` keeps of the corrected error series beyond its RMS.
+
+    Its means over 1, 60 and 600 s (:class:`~tak_thermo_ros.core.link.validate.AveragedError`) and
+    its overlapping Allan variance (for a noise model when none is given), both over blocks in
+    bounded memory.
+    """
 
     def __init__(self, columns: int) -> None:
         from tak_thermo_ros.core.link.validate import AveragedError
