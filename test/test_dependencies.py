@@ -65,8 +65,13 @@ def _package_xml() -> dict[str, set[str]]:
 
 
 def _third_party_imports(directory: Path) -> dict[str, set[str]]:
-    """Top-level module -> files importing it, for modules neither stdlib nor local to ``directory``."""
-    local = {path.stem for path in directory.rglob('*.py')} | {'tak_thermo_ros'}
+    """Top-level module -> files importing it, for modules neither stdlib nor the repository's own.
+
+    The repository's own: any module of the package, the tests, the benchmarks, the demo or the
+    launch files (a benchmark may import a test's helpers).
+    """
+    local = {path.stem for folder in ('tak_thermo_ros', 'test', 'bench', 'demo', 'launch')
+             for path in (REPO / folder).rglob('*.py')} | {'tak_thermo_ros'}
     found: dict[str, set[str]] = {}
     for path in directory.rglob('*.py'):
         tree = ast.parse(path.read_text(encoding='utf-8'))
