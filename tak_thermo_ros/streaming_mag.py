@@ -49,21 +49,29 @@ def has_mag(path: str | Path, topics) -> bool:
 
 
 def _mag_blocks(path: Path, options, *, references: bool):
-    """The bag's blocks as the magnetometer's :class:`ChannelRecord` (its stamps, tesla)."""
+    """The bag's blocks as the magnetometer's :class:`ChannelRecord` (its stamps, tesla).
+
+    The first block with finite values is checked to be in tesla (:func:`check_tesla`): a topic
+    in gauss-sized numbers is refused before anything is computed from it.
+    """
     from tak_thermo_ros.bagio import iter_blocks
+    checked = False
     for block in iter_blocks(path, topics=options.topics, kind=InputKind.IMU, block_samples=options.block_samples,
                              references=references, progress=options.progress):
-        yield block.channel('mag')
+        record = block.channel('mag')
+        if not checked:
+            finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
+            if len(finite):
+                check_tesla(finite, f'{path}: {options.topics.mag}')
+                checked = True
+        yield record
 
 
 def _mean_field(path: Path, options) -> np.ndarray:
     """The mean measured field of a static run (one pass); refuses a topic not in tesla."""
-    total, count, checked = np.zeros(3), 0, False
+    total, count = np.zeros(3), 0
     for record in _mag_blocks(path, options, references=False):
         finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
-        if len(finite) and not checked:
-            check_tesla(finite, f'{path}: {options.topics.mag}')
-            checked = True
         total += finite.sum(axis=0)
         count += len(finite)
     if not count:
@@ -110,9 +118,6 @@ def _calibration_pass(path: Path, options, consumers) -> _CalibrationPass:
                 # The static run's reference, held from before the first sample.
                 record = replace(record, reference_stamp_ns=np.zeros(1, dtype=np.int64), reference=mean.reshape(1, 3))
                 first = False
-        elif first and len(record.counts):
-            check_tesla(record.counts[np.all(np.isfinite(record.counts), axis=1)], f'{path}: {topics.mag}')
-            first = False
         hand_on(aligner.push(record))
     hand_on(aligner.finish())
     if static and max_turn > MAX_STATIC_TURN_DEG:
@@ -232,7 +237,6 @@ def _fit_iron(path: Path, options, link) -> tuple[EllipsoidFit, int]:
     corrector = Corrector(link)
     aligner = BlockAligner(use_reference=False)
     parts: list[np.ndarray] = []
-    checked = False
     outside = 0
 
     def take(aligned: AlignedSamples) -> None:
@@ -242,10 +246,6 @@ def _fit_iron(path: Path, options, link) -> tuple[EllipsoidFit, int]:
             outside += corrector.out_of_range_count(aligned.temp_code)
 
     for record in _mag_blocks(path, options, references=False):
-        finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
-        if len(finite) and not checked:
-            check_tesla(finite, f'{path}: {topic}')
-            checked = True
         take(aligner.push(record))
     take(aligner.finish())
     values = np.concatenate(parts) if parts else np.zeros((0, 3))
@@ -357,7 +357,6 @@ def validate_mag(path: str | Path, mag: MagnetometerCalibration, options, *,
     aligner = BlockAligner(use_reference=with_reference, reference_expected=with_reference)
     before, after = _FieldSums(), _FieldSums()
     outside = 0
-    checked = False
 
     def add(aligned: AlignedSamples) -> None:
         nonlocal outside
@@ -374,10 +373,6 @@ def validate_mag(path: str | Path, mag: MagnetometerCalibration, options, *,
             sums.add(np.column_stack([error, magnitude]))
 
     for record in _mag_blocks(path, options, references=with_reference):
-        finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
-        if len(finite) and not checked:
-            check_tesla(finite, f'{path}: {options.topics.mag}')
-            checked = True
         add(aligner.push(record))
     add(aligner.finish())
     if not before.count:
