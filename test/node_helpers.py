@@ -271,3 +271,34 @@ class Harness:
 def status_values(status: Any) -> dict[str, str]:
     """A diagnostics status's key/value pairs as a dict."""
     return {pair.key: pair.value for pair in status.values}
+
+
+PACKAGE_SOURCES = ('setup.py', 'setup.cfg', 'package.xml', 'resource', 'tak_thermo_ros', 'config', 'launch')
+"""What a colcon workspace's ``src/tak_thermo_ros`` holds (the package as a user clones it)."""
+
+
+def copy_package(workspace: Path) -> Path:
+    """Copy the package's sources into ``workspace/src/tak_thermo_ros``; that folder."""
+    import shutil
+    repo = Path(__file__).resolve().parent.parent
+    source = workspace / 'src' / 'tak_thermo_ros'
+    source.mkdir(parents=True)
+    for name in PACKAGE_SOURCES:
+        if (repo / name).is_dir():
+            shutil.copytree(repo / name, source / name, ignore=shutil.ignore_patterns('__pycache__', '*.pyc'))
+        else:
+            shutil.copy2(repo / name, source / name)
+    return source
+
+
+def fitted_driver_params(directory: Path, name: str) -> Path:
+    """The params file ``directory/name`` that ``tak_calib fit`` wrote from a short simulated driver bag."""
+    from tak_thermo_ros import cli
+    from tak_thermo_ros.bagio import write_driver_record
+    from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+    run = simulate(Scenario(output='imu', sample_rate_hz=10.0, plateaus_celsius=(10.0, 30.0), plateau_hours=0.005,
+                            ramp_celsius_per_minute=10.0, board_lag_s=5.0, dwell_s=1.0))
+    write_driver_record(directory / 'driver.mcap', run.driver)
+    params = directory / name
+    assert cli.main(['fit', str(directory / 'driver.mcap'), '-o', str(params), '--no-progress']) == 0
+    return params

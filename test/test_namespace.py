@@ -9,12 +9,9 @@ from __future__ import annotations
 import pytest
 import yaml
 
-from node_helpers import Harness, NodeProcess, node_command, run_to_exit
-from tak_thermo_ros import cli
-from tak_thermo_ros.bagio import write_driver_record
+from node_helpers import Harness, NodeProcess, fitted_driver_params, node_command, run_to_exit
 from tak_thermo_ros.core.link.correction import UnitCorrector
 from tak_thermo_ros.core.records.calibration_file import load_unit
-from tak_thermo_ros.core.simulation.imu import Scenario, simulate
 
 START_NS = 1_700_000_000 * 1_000_000_000
 SAMPLE = (0.1, -0.2, 9.81, 0.01, -0.02, 0.03)
@@ -23,13 +20,7 @@ SAMPLE = (0.1, -0.2, 9.81, 0.01, -0.02, 0.03)
 @pytest.fixture(scope='module')
 def fitted(tmp_path_factory):
     """A params file `tak_calib fit` wrote from a short driver bag."""
-    directory = tmp_path_factory.mktemp('fitted')
-    run = simulate(Scenario(output='imu', sample_rate_hz=10.0, plateaus_celsius=(10.0, 30.0), plateau_hours=0.005,
-                            ramp_celsius_per_minute=10.0, board_lag_s=5.0, dwell_s=1.0))
-    write_driver_record(directory / 'driver.mcap', run.driver)
-    params = directory / 'P.yaml'
-    assert cli.main(['fit', str(directory / 'driver.mcap'), '-o', str(params), '--no-progress']) == 0
-    return params
+    return fitted_driver_params(tmp_path_factory.mktemp('fitted'), 'P.yaml')
 
 
 def exchange(ros: Harness, temperature: float) -> tuple[float, ...]:

@@ -23,16 +23,11 @@ from pathlib import Path
 import pytest
 import yaml
 
-from node_helpers import Harness, NodeProcess, run_to_exit, wait_until
-from tak_thermo_ros import cli
-from tak_thermo_ros.bagio import write_driver_record
+from node_helpers import Harness, NodeProcess, copy_package, fitted_driver_params, run_to_exit, wait_until
 from tak_thermo_ros.core.link.correction import UnitCorrector
 from tak_thermo_ros.core.records.calibration_file import load_unit
-from tak_thermo_ros.core.simulation.imu import Scenario, simulate
 
-REPO = Path(__file__).resolve().parent.parent
 PACKAGE = 'tak_thermo_ros'
-SOURCES = ('setup.py', 'setup.cfg', 'package.xml', 'resource', PACKAGE, 'config', 'launch')
 START_NS = 1_700_000_000 * 1_000_000_000
 SAMPLE = (0.1, -0.2, 9.81, 0.01, -0.02, 0.03)
 HOW_TO_GET = ('no ros2 command: source ROS 2 Jazzy (/opt/ros/jazzy/setup.bash) or build the tools with '
@@ -64,13 +59,7 @@ def clean_environment() -> dict[str, str]:
 def workspace(tmp_path_factory) -> Path:
     """The package colcon-built with the tools' colcon; a script running a command in its environment."""
     workspace = tmp_path_factory.mktemp('ros2_ws')
-    source = workspace / 'src' / PACKAGE
-    source.mkdir(parents=True)
-    for name in SOURCES:
-        if (REPO / name).is_dir():
-            shutil.copytree(REPO / name, source / name, ignore=shutil.ignore_patterns('__pycache__', '*.pyc'))
-        else:
-            shutil.copy2(REPO / name, source / name)
+    copy_package(workspace)
     build = subprocess.run(
         ['bash', '-c', f'{PRELUDE} && cd {workspace} && colcon build --event-handlers console_direct-'],
         env={**clean_environment(), 'COLCON_HOME': str(workspace / 'colcon_home')},
@@ -100,13 +89,7 @@ def cli_env(ros_env) -> dict[str, str]:
 @pytest.fixture(scope='module')
 def fitted(tmp_path_factory) -> Path:
     """The params file `tak_calib fit` wrote from a short driver bag."""
-    directory = tmp_path_factory.mktemp('fitted')
-    run = simulate(Scenario(output='imu', sample_rate_hz=10.0, plateaus_celsius=(10.0, 30.0), plateau_hours=0.005,
-                            ramp_celsius_per_minute=10.0, board_lag_s=5.0, dwell_s=1.0))
-    write_driver_record(directory / 'driver.mcap', run.driver)
-    params = directory / 'imu0.yaml'
-    assert cli.main(['fit', str(directory / 'driver.mcap'), '-o', str(params), '--no-progress']) == 0
-    return params
+    return fitted_driver_params(tmp_path_factory.mktemp('fitted'), 'imu0.yaml')
 
 
 def send(ros: Harness, index: int, temperature: float) -> None:

@@ -8,7 +8,6 @@ workspace, with the venv's colcon (colcon-common-extensions).
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -16,26 +15,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from node_helpers import Harness, NodeProcess, domain_id, ros_environment, stamp_of
+from node_helpers import Harness, NodeProcess, copy_package, domain_id, ros_environment, stamp_of
 
 from tak_thermo_ros.core.records.calibration_file import load_calibration
 from tak_thermo_ros.core.link.correction import Corrector
 
-REPO = Path(__file__).resolve().parent.parent
 PACKAGE = 'tak_thermo_ros'
-SOURCES = ('setup.py', 'setup.cfg', 'package.xml', 'resource', PACKAGE, 'config', 'launch')
 START_NS = 1_700_000_000 * 1_000_000_000
 
 
 def colcon_build(workspace: Path) -> Path:
     """Copy the package into ``workspace/src`` and build it with colcon; the install base."""
-    source = workspace / 'src' / PACKAGE
-    source.mkdir(parents=True)
-    for name in SOURCES:
-        if (REPO / name).is_dir():
-            shutil.copytree(REPO / name, source / name, ignore=shutil.ignore_patterns('__pycache__', '*.pyc'))
-        else:
-            shutil.copy2(REPO / name, source / name)
+    copy_package(workspace)
     colcon = Path(sys.executable).parent / 'colcon'
     env = {**os.environ, 'COLCON_HOME': str(workspace / 'colcon_home')}
     result = subprocess.run(
