@@ -675,8 +675,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         noise = noise_models.get(sensor)
         if noise is None:
             from tak_thermo_ros.core.fit import residual_counts
-            from tak_thermo_ros.noise_models import model_from_residual
-            noise = model_from_residual(residual_counts(unit.sensor(sensor), samples), samples)
+            from tak_thermo_ros.core.noise.residual import model_from_residual
+            noise = model_from_residual(residual_counts(unit.sensor(sensor), samples), samples.stamp_ns)
         result = diagnose(unit.sensor(sensor), samples, candidates=candidates, folds=args.folds, progress=progress,
                           noise=noise)
         results[sensor] = result
@@ -797,7 +797,7 @@ def _given_noise_models(args: argparse.Namespace, unit: UnitCalibration, kind: I
     counts); empty when none is given.
     """
     from tak_thermo_ros.errors import NoiseError
-    from tak_thermo_ros.noise_models import in_counts
+    from tak_thermo_ros.core.noise.residual import in_counts
     from tak_thermo_ros.noise_run import noise_models
     if getattr(args, 'noise', None) and getattr(args, 'noise_run', None):
         msg = '--noise and --noise-run: give one noise model source, not both'
@@ -813,7 +813,8 @@ def _given_noise_models(args: argparse.Namespace, unit: UnitCalibration, kind: I
     print(found.line)
     models = {sensor: model for sensor, model in found.models.items() if sensor in sensors}
     if kind is InputKind.COUNTS:
-        models = {sensor: in_counts(model, unit.sensor(sensor)) for sensor, model in models.items()}
+        models = {sensor: in_counts(model, [axis.scale for axis in unit.sensor(sensor).axes])
+                  for sensor, model in models.items()}
     return models
 
 

@@ -1,4 +1,4 @@
-"""What ``diagnose`` and ``validate`` add to :mod:`tak_thermo_ros.noise_run`'s noise models.
+"""Noise models that ``diagnose`` and ``validate`` derive: from a run's residual, or in codes.
 
 The given sources (a Kalibr-style file, a static run, the calibration file's noise section) come
 from :func:`tak_thermo_ros.noise_run.noise_models`; here: a model expressed in a counts
@@ -9,12 +9,12 @@ at short averaging times (``source='residual'``, said as such).
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any
+from typing import Sequence
 
 import numpy as np
 
-from tak_thermo_ros.core.link.model import Calibration
-from tak_thermo_ros.core.records.record import AlignedSamples
+from tak_thermo_ros.core.noise.allan import allan_variance, cluster_sizes, largest_cluster
+from tak_thermo_ros.core.noise.model import NoiseModel, fit_noise_model
 from tak_thermo_ros.errors import TakError
 
 RESIDUAL_LONGEST_TAU_S = 30.0
@@ -25,13 +25,14 @@ longer, the residual holds whatever the model misses besides the wander, and no 
 them apart without a static run or a data sheet."""
 
 
-def _period(samples: AlignedSamples) -> float:
-    return max(float(np.median(np.diff(samples.stamp_ns))) * 1e-9, 1e-9) if len(samples) > 1 else 1.0
+def sample_period(stamp_ns: np.ndarray) -> float:
+    """The median interval of ``stamp_ns`` in seconds (1 s for fewer than two stamps)."""
+    return max(float(np.median(np.diff(stamp_ns))) * 1e-9, 1e-9) if len(stamp_ns) > 1 else 1.0
 
 
-def in_counts(model: Any, calibration: Calibration) -> Any:
-    """A noise model in SI (a file) expressed in the channel codes of a counts calibration."""
-    scale = np.array([axis.scale for axis in calibration.axes], dtype=float)
+def in_counts(model: NoiseModel, axis_scales: Sequence[float]) -> NoiseModel:
+    """A noise model in SI (a file) expressed in channel codes, by each axis's scale (codes per unit)."""
+    scale = np.asarray(axis_scales, dtype=float)
 
     def scaled(name: str) -> tuple[float, float, float]:
         values = np.asarray(getattr(model, name), dtype=float) * scale
@@ -41,14 +42,12 @@ def in_counts(model: Any, calibration: Calibration) -> Any:
 
 
 def model_from_signal(signal: np.ndarray, sample_period_s: float, source: str, *,
-                      longest_s: float | None = None) -> Any:
+                      longest_s: float | None = None) -> NoiseModel:
     """The five-term noise model of a ``(k, 3)`` signal.
 
     Its overlapping Allan variance, fitted; up to ``longest_s`` of averaging when given, two
     averaging times per octave.
     """
-    from tak_thermo_ros.core.noise.allan import allan_variance, cluster_sizes, largest_cluster
-    from tak_thermo_ros.core.noise.model import fit_noise_model
     signal = np.asarray(signal, dtype=float)
     largest = largest_cluster(len(signal))
     if longest_s is not None:
@@ -57,13 +56,13 @@ def model_from_signal(signal: np.ndarray, sample_period_s: float, source: str, *
     return fit_noise_model(allan, source=source)
 
 
-def model_from_residual(residual: np.ndarray, samples: AlignedSamples) -> Any | None:
+def model_from_residual(residual: np.ndarray, stamp_ns: np.ndarray) -> NoiseModel | None:
     """The noise model of the run's own residual, or ``None`` when the run is too short.
 
     At averaging times up to :data:`RESIDUAL_LONGEST_TAU_S` (``source='residual'``); ``None`` when
     the run is too short for five averaging times.
     """
     try:
-        return model_from_signal(residual, _period(samples), 'residual', longest_s=RESIDUAL_LONGEST_TAU_S)
+        return model_from_signal(residual, sample_period(stamp_ns), 'residual', longest_s=RESIDUAL_LONGEST_TAU_S)
     except TakError:
         return None
