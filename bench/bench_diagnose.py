@@ -49,6 +49,7 @@ from tak_thermo_ros.core.diagnose import diagnose
 from tak_thermo_ros.core.effects import LIBRARY, resolve_effect, seconds_from_ns
 from tak_thermo_ros.core.fit import fit_model, residual_counts
 from tak_thermo_ros.core.records.record import align
+from tak_thermo_ros.core.noise.residual import model_from_residual
 from tak_thermo_ros.core.simulation.imu import PROFILES, Scenario, simulate
 from tak_thermo_ros.core.link.validate import validate_gravity
 
@@ -158,8 +159,12 @@ def matrix_scenario(profile: str, seed: int, rate_hz: float) -> Scenario:
     return replace(base, **PROFILES[profile])
 
 
-def matrix_case(hidden: str, profile: str, seed: int, rate_hz: float) -> dict[str, object]:
-    """One run: verdict, refit residual over the floor, |g| of a second run before and after."""
+def matrix_case(hidden: str, profile: str, seed: int, rate_hz: float, *, own_noise: bool = False) -> dict[str, object]:
+    """One run: verdict, refit residual over the floor, |g| of a second run before and after.
+
+    ``own_noise``: diagnose as ``tak_calib diagnose`` does without ``--noise``: with a noise model
+    fitted to the run's own residual up to 30 s (``model_from_residual``).
+    """
     scenario = matrix_scenario(profile, seed, rate_hz)
     visited = (scenario.start_celsius, *scenario.plateaus_celsius)
     temps = (min(visited), max(visited))
@@ -172,9 +177,11 @@ def matrix_case(hidden: str, profile: str, seed: int, rate_hz: float) -> dict[st
     samples = align(simulate(scenario).record)
     start = time.perf_counter()
     base = fit_model(samples)
-    result = diagnose(base.calibration, samples)
+    noise = model_from_residual(residual_counts(base.calibration, samples), samples.stamp_ns) if own_noise else None
+    result = diagnose(base.calibration, samples, noise=noise)
     seconds = time.perf_counter() - start
-    case: dict[str, object] = {'hidden': hidden, 'profile': profile, 'seed': seed, 'samples': len(samples),
+    case: dict[str, object] = {'own_noise': own_noise, 'hidden': hidden, 'profile': profile, 'seed': seed,
+                               'samples': len(samples),
                                'verdict': result.verdict, 'seconds': seconds,
                                'base_heldout_over_floor': [a.heldout_rms / a.noise_floor for a in result.axes],
                                'floor_estimate_over_true': (result.noise_floor / floor).tolist()}
@@ -194,14 +201,15 @@ def matrix_case(hidden: str, profile: str, seed: int, rate_hz: float) -> dict[st
     return case
 
 
-def bench_matrix(seeds: int, rate_hz: float) -> dict[str, object]:
-    """Every effect x profile x seed, plus 'none' and 'supply' runs."""
+def bench_matrix(seeds: int, rate_hz: float, *, own_noise: bool = False,
+                 only: list[str] | None = None) -> dict[str, object]:
+    """Every effect x profile x seed, plus 'none' and 'supply' runs (``only`` these when given)."""
     cases = []
-    hidden_list = [*LIBRARY, 'none', 'supply']
+    hidden_list = [h for h in (*LIBRARY, 'none', 'supply') if not only or h in only]
     for hidden in hidden_list:
         for profile in PROFILES:
             for seed in range(1, seeds + 1):
-                case = matrix_case(hidden, profile, seed, rate_hz)
+                case = matrix_case(hidden, profile, seed, rate_hz, own_noise=own_noise)
                 flags = [case.get(k) for k in ('verdict_ok', 'refit_ok', 'g_ok') if k in case]
                 line = (f'{hidden:<19} {profile:<10} seed {seed}: verdict {case["verdict"]:<19} '
                         f'{"ok" if all(flags) else "FAILED"}  ({case["samples"]} samples, {case["seconds"]:.1f} s)')
@@ -212,7 +220,7 @@ def bench_matrix(seeds: int, rate_hz: float) -> dict[str, object]:
                 print(line)
                 cases.append(case)
     failed = [c for c in cases if not all(c.get(k, True) for k in ('verdict_ok', 'refit_ok', 'g_ok'))]
-    return {'rate_hz': rate_hz, 'seeds': seeds, 'profiles': list(PROFILES), 'cases': cases,
+    return {'rate_hz': rate_hz, 'seeds': seeds, 'profiles': list(PROFILES), 'own_noise': own_noise, 'cases': cases,
             'passed': len(cases) - len(failed), 'total': len(cases)}
 
 
@@ -332,6 +340,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--matrix-rate', type=float, default=0.5, help='samples per second of matrix runs')
     parser.add_argument('--matrix-name', default='diagnose_matrix',
                         help='results file of the matrix (diagnose_matrix_quick for --seeds 1 --matrix-rate 0.25)')
+    parser.add_argument('--own-noise', action='store_true',
+                        help='matrix: diagnose with a noise model fitted to the run\'s own residual, as the CLI does '
+                             'without --noise')
+    parser.add_argument('--hidden', default='', help='matrix: only these hidden cases (comma-separated)')
     parser.add_argument('--loop', action='store_true', help='also run the loop matrix (pairs, per-axis)')
     parser.add_argument('--loop-only', action='store_true', help='run the loop matrix only')
     parser.add_argument('--loop-seeds', type=int, default=2, help='seeds per case of the loop matrix (default 2)')
@@ -361,7 +373,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f'wrote {RESULTS / "diagnose.json"}')
         status |= 0 if speed['holds'] else 1
     if args.matrix or args.matrix_only:
-        matrix = bench_matrix(args.seeds, args.matrix_rate)
+        matrix = bench_matrix(args.seeds, args.matrix_rate, own_noise=args.own_noise,
+                              only=[h for h in args.hidden.split(',') if h])
         document = {'benchmark': 'diagnose_matrix', 'machine': machine(), **matrix}
         RESULTS.mkdir(parents=True, exist_ok=True)
         write_text_atomic(RESULTS / f'{args.matrix_name}.json', json.dumps(document, indent=2) + '\n')

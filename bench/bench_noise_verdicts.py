@@ -12,23 +12,37 @@ values of ``test/test_noise_verdicts.py``), each diagnosed against its true nois
   verdict is ``thermal_lag``, and of those whose refit is then ``none``;
 - **the large lag** (five times larger): the same.
 
-Run: ``.venv/bin/python bench/bench_noise_verdicts.py [--seeds 20]``. Writes
-``bench/results/noise_verdicts.json``.
+Without a noise model (``--own-noise``; what ``tak_calib diagnose`` does with no ``--noise`` or
+``--noise-run``: white noise and bias instability fitted to the run's own residual up to 30 s,
+then the residual's Allan deviation judged beyond that), on the same runs:
+
+- **bias instability alone** (no random walk): the share of ``none`` on both sensors;
+- **with the random walk**: the verdicts, and the least rate random walk that the message says
+  would explain the excess (``AllanCheck.walk_to_explain``) over the simulator's true one;
+- **a supply-voltage drift** on the accelerometer: the share of ``unexplained``.
+
+Run: ``.venv/bin/python bench/bench_noise_verdicts.py [--seeds 20] [--own-noise]``. Writes
+``bench/results/noise_verdicts.json`` (``noise_verdicts_own.json`` with ``--own-noise``).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 import sys
 import time
 from pathlib import Path
+
+import numpy as np
 
 from benchlib import machine
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))
 
-from test_noise_verdicts import _diagnose, wandering_run  # noqa: E402
+from test_noise_verdicts import ACCEL, GYRO, _diagnose, wandering_run  # noqa: E402
+
+from tak_thermo_ros.core.noise.residual import RESIDUAL_LONGEST_TAU_S  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / 'results'
 
@@ -59,11 +73,58 @@ def detection(seeds: int, slope: float) -> dict[str, object]:
     return {'runs': len(rows), 'named': named, 'refit_none': closed, 'rows': rows}
 
 
+def own_noise(seeds: int) -> dict[str, object]:
+    """Verdicts without a noise model: bias instability alone, with the walk, and a supply drift."""
+    rows = []
+    for seed in range(seeds):
+        for walks in (False, True):
+            for quiet in (1.0, 0.1):
+                for sensor in ('gyro', 'accel'):
+                    result = _diagnose(wandering_run(seed=1000 + seed, quiet=quiet, walks=walks), sensor,
+                                       own_noise=True)
+                    check = result.allan[0][1]
+                    true_walk = (GYRO if sensor == 'gyro' else ACCEL)[2]
+                    implied = check.walk_to_explain(RESIDUAL_LONGEST_TAU_S)
+                    rows.append({'seed': 1000 + seed, 'walks': walks, 'quiet': quiet, 'sensor': sensor,
+                                 'verdict': result.verdict, 'consistent': check.consistent,
+                                 'walk_over_truth': (implied / true_walk).tolist()})
+                    print(f'own noise, walk {walks}, white x{quiet:g}, seed {1000 + seed}, {sensor}: '
+                          f'{result.verdict}; implied walk / true {" ".join(f"{v:.2f}" for v in implied / true_walk)}',
+                          flush=True)
+    supply = []
+    for seed in range(seeds):
+        result = _diagnose(replace(wandering_run(seed=2000 + seed), supply_voltage_drift=0.02), 'accel',
+                           own_noise=True)
+        supply.append({'seed': 2000 + seed, 'verdict': result.verdict})
+        print(f'own noise, supply drift, seed {2000 + seed}: {result.verdict}', flush=True)
+    alone = [row for row in rows if not row['walks']]
+    walking = [row for row in rows if row['walks']]
+    ratios = np.array([v for row in walking for v in row['walk_over_truth']])
+    return {'bias_instability_alone': {'runs': len(alone), 'none': sum(r['verdict'] == 'none' for r in alone)},
+            'with_walk': {'runs': len(walking), 'none': sum(r['verdict'] == 'none' for r in walking),
+                          'unexplained': sum(r['verdict'] == 'unexplained' for r in walking),
+                          'walk_over_truth_quartiles': np.percentile(ratios, [25, 50, 75]).tolist()},
+            'supply_drift': {'runs': len(supply), 'unexplained': sum(r['verdict'] == 'unexplained' for r in supply)},
+            'rows': rows, 'supply_rows': supply}
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--seeds', type=int, default=20)
+    parser.add_argument('--own-noise', action='store_true', help='the runs without a noise model only')
     args = parser.parse_args()
     start = time.perf_counter()
+    if args.own_noise:
+        found = own_noise(args.seeds)
+        found.update(machine=machine(), seconds=time.perf_counter() - start)
+        RESULTS.mkdir(exist_ok=True)
+        (RESULTS / 'noise_verdicts_own.json').write_text(json.dumps(found, indent=2) + '\n')
+        alone, walking, supply = found['bias_instability_alone'], found['with_walk'], found['supply_drift']
+        print(f'bias instability alone: none in {alone["none"]} of {alone["runs"]}; with the walk: none '
+              f'{walking["none"]}, unexplained {walking["unexplained"]} of {walking["runs"]}, implied walk / true '
+              f'quartiles {" ".join(f"{v:.2f}" for v in walking["walk_over_truth_quartiles"])}; supply drift: '
+              f'unexplained in {supply["unexplained"]} of {supply["runs"]}')
+        return 0
     result = {
         'machine': machine(),
         'false_alarms': {'consumer_white': false_alarms(args.seeds, 1.0),

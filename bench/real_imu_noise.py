@@ -5,7 +5,8 @@ Runs the user's commands in a temporary directory: ``import-csv`` (both sensors)
 log's own residual up to 30 s), ``fit`` with what the diagnosis names, ``diagnose`` again, and
 ``validate`` with either calibration. Prints and writes to ``bench/results/real_imu_noise.json``:
 per sensor and model, the residual's Allan deviation over the noise model at 65 s and 259 s per
-axis, the verdicts, and the bias error averaged over 60 s.
+axis, the verdicts, and the bias error averaged over 60 s; copies the final report's Allan
+deviation figures to ``docs/figures/real_imu_allan_{gyro,accel}.png``.
 
 Run: ``.venv/bin/python bench/real_imu_noise.py``.
 """
@@ -13,6 +14,7 @@ Run: ``.venv/bin/python bench/real_imu_noise.py``.
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -23,6 +25,7 @@ from benchlib import machine, tak_calib_command
 ROOT = Path(__file__).resolve().parents[1]
 LOG = ROOT / 'data' / 'tofupilot-imu-thermal' / 'imu_raw_data.csv'
 RESULTS = ROOT / 'bench' / 'results'
+FIGURES = ROOT / 'docs' / 'figures'
 TAUS = (65.0, 259.0)
 
 
@@ -51,7 +54,12 @@ def main() -> int:
                  for sensor in ('accel', 'gyro')}
         run('fit', at('real'), '-o', at('final.yaml'), '--effects', ','.join(named['accel']),
             '--gyro-effects', ','.join(named['gyro']))
-        run('diagnose', at('real'), '--params', at('final.yaml'), '--json', at('final.json'), '--no-progress')
+        said = run('diagnose', at('real'), '--params', at('final.yaml'), '--json', at('final.json'), '--no-progress',
+                   '--report', at('report'))
+        result['final_walk_lines'] = [line.strip() for line in said.splitlines() if 'rate random walk in' in line]
+        FIGURES.mkdir(parents=True, exist_ok=True)
+        for sensor in ('gyro', 'accel'):
+            shutil.copyfile(Path(at('report')) / sensor / 'allan.png', FIGURES / f'real_imu_allan_{sensor}.png')
         final = json.loads(Path(at('final.json')).read_text())
         for label, params in (('base', 'base.yaml'), ('final', 'final.yaml')):
             run('validate', at('real'), '--params', at(params), '--json', at(f'validate_{label}.json'))

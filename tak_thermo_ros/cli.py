@@ -673,7 +673,9 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                 print(f'{label}cross-validating {text} ...', file=sys.stderr)
 
         noise = noise_models.get(sensor)
-        if noise is None:
+        if noise is None or noise.source == 'residual':
+            # A stored model fitted to the calibration run's residual at every averaging time is
+            # no yardstick: diagnose fits its own, at short averaging times only.
             from tak_thermo_ros.core.fit import residual_counts
             from tak_thermo_ros.core.noise.residual import model_from_residual
             noise = model_from_residual(residual_counts(unit.sensor(sensor), samples), samples.stamp_ns)
@@ -713,6 +715,9 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                 f'{step.label}: {" ".join(f"{v:.4g}" for v in step.heldout_rms)}' for step in result.ladder))
         print(f'{label}verdict: {result.verdict}')
         print(_in_driver_words(result.message) if run.input_kind is InputKind.IMU else result.message)
+        walk = _walk_line(result, sensor, run.input_kind)
+        if walk:
+            print(walk)
     if args.json:
         document = {**results['accel'].as_dict(), 'samples_diagnosed': len(used['accel']),
                     'samples_usable': run.usable['accel'], 'subsample_stride': run.stride}
@@ -774,6 +779,17 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     return 0
 
 
+def _walk_line(result, sensor: str, kind: InputKind) -> str:
+    """The rate random walk that would explain an excess over a short-term model, in a gyro's units."""
+    from tak_thermo_ros.core.noise.residual import RESIDUAL_LONGEST_TAU_S
+    check = result.allan[0][1] if result.allan else None
+    if (result.verdict != 'unexplained' or check is None or check.source != 'residual' or check.consistent
+            or sensor != 'gyro' or kind is not InputKind.IMU):
+        return ''
+    walk = check.walk_to_explain(RESIDUAL_LONGEST_TAU_S) * np.degrees(1.0) * 3600.0 * 60.0
+    return f'  that rate random walk in deg/h/sqrt(h): {" ".join(f"{value:.3g}" for value in walk)} (x y z)'
+
+
 def _add_magnetometer(args: argparse.Namespace, unit: UnitCalibration, run) -> None:
     """``diagnose``'s magnetometer (its thermal link) when the calibration and the bag hold one."""
     from tak_thermo_ros.streaming_mag import bounded_mag_run, has_mag
@@ -829,9 +845,9 @@ def _averaged_bias(check, noise, sensor: str, gravity: float) -> dict | None:
     windows = check.gravity_averaged.windows() if sensor == 'accel' else check.noise.averaged.windows()
     source = 'given'
     if noise is None and check.noise.allan is not None:
-        from tak_thermo_ros.core.noise.model import fit_noise_model
+        from tak_thermo_ros.core.noise.residual import short_term_model
         try:
-            noise = fit_noise_model(check.noise.allan.result(), source='residual')
+            noise = short_term_model(check.noise.allan.result())
         except TakError:
             noise = None
     taus = np.array(sorted(rms))
@@ -849,7 +865,7 @@ def _averaged_bias(check, noise, sensor: str, gravity: float) -> dict | None:
     else:
         factor, unit, name = 1000.0 / gravity, 'mg', '|g| error'
     said = {'file': 'the noise model from the file', 'static_run': 'the noise model from the static run',
-            'residual': "a noise model fitted to this run's corrected output"}
+            'residual': "white noise and bias instability fitted to this run's corrected output up to 30 s"}
     lines = [f'{name} of the corrected output averaged over 1 s, 60 s, 600 s, RMS of the averages in {unit}'
              + (f' (next to what {said[source]} predicts, its Allan deviation):' if predicted is not None else ':')]
     document = {}
@@ -873,8 +889,8 @@ def _noise_line(noise, unit: str, averaging_s: float) -> str:
     def triple(values) -> str:
         return ' '.join(f'{float(v):.3g}' for v in values)
     said = {'file': 'from the file', 'static_run': 'from the static run',
-            'residual': "fitted to this run's own residual "
-                        "(no --noise or --noise-run: the verdict uses the white floor)"}
+            'residual': "fitted to this run's own residual up to 30 s (no --noise or --noise-run: "
+                        "the verdict uses the white floor, then the Allan deviation beyond 30 s)"}
     text = (f'  noise model {said[noise.source]}: white {triple(noise.white_noise_density)} {unit}/sqrt(Hz), '
             f'bias instability {triple(noise.bias_instability)} {unit}, random walk {triple(noise.random_walk)} '
             f'{unit}*sqrt(Hz) (x y z)')

@@ -245,6 +245,22 @@ def test_fit_recovers_every_term_of_a_noise_free_allan_variance(white, bias, wal
     assert fitted.source == 'static_run' and fitted.update_rate == 100.0
 
 
+def test_fit_of_chosen_terms_leaves_the_others_zero_and_recovers_those_it_fits():
+    """A white + bias-instability Allan variance fitted with those terms only (as a run's own residual is)."""
+    truth = _model(white_noise_density=(2e-4, 1e-4, 3e-4), bias_instability=(1e-5, 3e-5, 0.0),
+                   random_walk=(0.0, 0.0, 0.0), quantization=(0.0, 0.0, 0.0), rate_ramp=(0.0, 0.0, 0.0))
+    allan = _exact_allan(truth, 10_000_000, 100.0)
+    fitted = fit_noise_model(allan, source='residual', terms=('white_noise_density', 'bias_instability'))
+    assert fitted.random_walk == (0.0, 0.0, 0.0) and fitted.rate_ramp == (0.0, 0.0, 0.0)
+    assert fitted.quantization == (0.0, 0.0, 0.0)
+    assert np.allclose(fitted.white_noise_density, truth.white_noise_density, rtol=1e-4)
+    assert np.allclose(fitted.bias_instability, truth.bias_instability, rtol=1e-4, atol=1e-9)
+    with pytest.raises(NoiseError, match='unknown terms flicker'):
+        fit_noise_model(allan, source='residual', terms=('flicker',))
+    with pytest.raises(NoiseError, match='no term'):
+        fit_noise_model(allan, source='residual', terms=())
+
+
 def test_fit_refuses_too_short_a_run():
     with pytest.raises(NoiseError, match='averaging times'):
         fit_noise_model(allan_variance(np.zeros((20, 3)), 10.0), source='residual')

@@ -27,10 +27,11 @@ from tak_thermo_ros.bagio import write_driver_record
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.core.diagnose import diagnose
 from tak_thermo_ros.core.diagnose.verdict import student_t_quantile
-from tak_thermo_ros.core.diagnose.yardstick import allan_check, bin_labels, simulate_noise, whitener
-from tak_thermo_ros.core.fit import fit_model
+from tak_thermo_ros.core.diagnose.yardstick import AllanCheck, allan_check, bin_labels, simulate_noise, whitener
+from tak_thermo_ros.core.fit import fit_model, residual_counts
 from tak_thermo_ros.core.link.validate import AveragedError
 from tak_thermo_ros.core.noise.kalibr import write_kalibr
+from tak_thermo_ros.core.noise.residual import RESIDUAL_LONGEST_TAU_S, model_from_residual
 from tak_thermo_ros.core.records.record import align
 from tak_thermo_ros.core.simulation.imu import (
     DEFAULT_DRIVER_ACCEL,
@@ -47,25 +48,33 @@ ACCEL = (1.5e-3, 4e-4, 2e-5)
 """The same for the accelerometer (m/s^2 units)."""
 
 
-def _unit(axes, terms, rate_hz: float, quiet: float):
+def _unit(axes, terms, rate_hz: float, quiet: float, walks: bool = True):
     white, bias, walk = terms
     return tuple(replace(a, noise_counts=quiet * white * math.sqrt(rate_hz), bias_instability=bias,
-                         random_walk=walk) for a in axes)
+                         random_walk=walk if walks else 0.0) for a in axes)
 
 
-def wandering_run(*, seed: int, rate_hz: float = 1.0, slope: float = 0.0, quiet: float = 1.0) -> Scenario:
-    """About 1.7 h on the rate table, 2 C/min ramps; a gyroscope lag (tau 300 s, +-slope on x, z)."""
+def wandering_run(*, seed: int, rate_hz: float = 1.0, slope: float = 0.0, quiet: float = 1.0,
+                  walks: bool = True) -> Scenario:
+    """About 1.7 h on the rate table, 2 C/min ramps; a gyroscope lag (tau 300 s, +-slope on x, z).
+
+    ``walks=False``: bias instability without the random walk.
+    """
     lag = {'thermal_lag': {'tau_s': 300.0, 'slope_x': slope, 'slope_y': 0.0, 'slope_z': -slope}} if slope else {}
     return Scenario(output='imu', plateaus_celsius=(5.0, 35.0, 5.0, 35.0), ramp_celsius_per_minute=2.0,
                     plateau_hours=0.2, board_lag_s=300.0, dwell_s=30.0, positions=RATE_TABLE_POSITIONS,
                     table_rates=RATE_TABLE_RATES, gyro_effects=lag, seed=seed, sample_rate_hz=rate_hz,
-                    gyro_unit=_unit(DEFAULT_DRIVER_GYRO, GYRO, rate_hz, quiet),
-                    accel_unit=_unit(DEFAULT_DRIVER_ACCEL, ACCEL, rate_hz, quiet))
+                    gyro_unit=_unit(DEFAULT_DRIVER_GYRO, GYRO, rate_hz, quiet, walks),
+                    accel_unit=_unit(DEFAULT_DRIVER_ACCEL, ACCEL, rate_hz, quiet, walks))
 
 
-def _diagnose(scenario: Scenario, sensor: str, effects=()):
+def _diagnose(scenario: Scenario, sensor: str, effects=(), *, own_noise: bool = False):
+    """Diagnose against the true noise model (``--noise``), or as without one (``own_noise``)."""
     samples = align(simulate(scenario).driver.channel(sensor))
     calibration = fit_model(samples, effects=effects).calibration
+    if own_noise:
+        return diagnose(calibration, samples,
+                        noise=model_from_residual(residual_counts(calibration, samples), samples.stamp_ns))
     return diagnose(calibration, samples, noise=scenario.noise_truth(sensor))
 
 
@@ -192,6 +201,76 @@ def test_a_drift_beyond_the_noise_model_is_unexplained_naming_the_averaging_time
     match = re.search(r'residual Allan deviation ([\d.]+)x the noise model at tau ([\d.]+) (s|h) on ([xyz])',
                       result.message)
     assert match and float(match.group(1)) > 2.0
+
+
+# ------------------------------------------------- without a noise model: the run's own short-term noise
+
+def test_without_a_noise_model_bias_instability_alone_is_none():
+    """No --noise: 3 seeds x 2 sensors of bias instability (no walk), white noise ten times lower.
+
+    The residual stands far above the white floor, and no effect explains it; its Allan deviation
+    beyond half a minute stays within the bound of white noise and bias instability fitted up to
+    half a minute, so the verdict is ``none``, said of this sensor's own noise. At most one other
+    verdict (20 seeds: ``bench/bench_noise_verdicts.py --own-noise``).
+    """
+    verdicts = [_diagnose(wandering_run(seed=seed, quiet=0.1, walks=False), sensor, own_noise=True)
+                for seed in range(3) for sensor in ('gyro', 'accel')]
+    others = [d for d in verdicts if d.verdict != 'none']
+    assert len(others) <= 1, [(d.verdict, d.message) for d in others]
+    said = [d for d in verdicts if "consistent with this sensor's own noise at every averaging time" in d.message]
+    # The rule at work: these were above the white floor, which alone would have said unexplained.
+    assert len(said) >= 3
+    assert all(max(a.heldout_rms / a.noise_floor for a in d.axes) > 1.5 for d in said)
+    assert not any('supply voltage' in d.message for d in said)
+
+
+def test_without_a_noise_model_a_drift_names_tau_the_excess_and_the_walk_that_would_explain_it():
+    """A supply-voltage drift: ``unexplained``, naming the averaging time, the excess and the walk it would take."""
+    result = _diagnose(replace(wandering_run(seed=2), supply_voltage_drift=0.02), 'accel', own_noise=True)
+    assert result.verdict == 'unexplained'
+    assert result.noise.source == 'residual' and result.noise.random_walk == (0.0, 0.0, 0.0)
+    match = re.search(r'residual Allan deviation ([\d.]+)x the noise model at tau ([\d.]+) (s|h) on ([xyz])',
+                      result.message)
+    assert match and float(match.group(1)) > 2.0
+    assert float(match.group(2)) * (3600.0 if match.group(3) == 'h' else 1.0) > RESIDUAL_LONGEST_TAU_S
+    walk = re.search(r'rate random walk.*?at least ([\d.e+-]+) ([\d.e+-]+) ([\d.e+-]+) \(x y z', result.message)
+    assert walk, result.message
+    # The drift is far beyond the part's own walk: what it would take is several times the true one.
+    assert max(float(v) for v in walk.groups()) > 3.0 * ACCEL[2]
+
+
+def test_the_walk_an_excess_implies_is_the_simulated_walk():
+    """Bias instability and random walk, no model given: the least walk explaining the excess is the true one.
+
+    2 seeds x 2 sensors x 3 axes; the Allan variance at the longest averaging times of a 1.7 h run
+    has about 10 degrees of freedom (40 % in variance, 20 % in the walk), and the least walk is the
+    largest over several averaging times: the median within a factor 2 of the truth.
+    """
+    ratios = []
+    for seed in range(2):
+        run = simulate(wandering_run(seed=500 + seed, quiet=0.1))
+        for sensor, terms in (('gyro', GYRO), ('accel', ACCEL)):
+            samples = align(run.driver.channel(sensor))
+            residual = residual_counts(fit_model(samples).calibration, samples)
+            noise = model_from_residual(residual, samples.stamp_ns)
+            # White noise and bias instability up to half a minute: the latter within 35 % of the truth.
+            assert np.allclose(noise.bias_instability, terms[1], rtol=0.35)
+            floor = np.std(np.diff(residual, axis=0), axis=0) / math.sqrt(2.0)
+            check = allan_check(residual, 1.0, noise, floor)
+            ratios += list(check.walk_to_explain(RESIDUAL_LONGEST_TAU_S) / terms[2])
+    assert 0.5 < float(np.median(ratios)) < 2.0, ratios
+
+
+def test_walk_to_explain_closes_the_largest_gap_beyond_the_given_time():
+    taus = np.array([10.0, 100.0, 1000.0])
+    model = np.full((3, 3), 1e-3)
+    walk = np.array([1e-4, 0.0, 3e-5])
+    residual = np.sqrt(model ** 2 + walk[None, :] ** 2 * taus[:, None] / 3.0)
+    residual[0, 1] = 5e-3  # an excess at 10 s, before the time given: not counted
+    check = AllanCheck(taus=taus, residual_adev=residual, model_adev=model, bound=np.full((3, 3), 2.0),
+                       source='residual')
+    assert np.allclose(check.walk_to_explain(30.0), walk, rtol=1e-9, atol=1e-15)
+    assert check.walk_to_explain(1e4).tolist() == [0.0, 0.0, 0.0]
 
 
 # ------------------------------------------------------------------------------ the pieces

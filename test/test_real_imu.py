@@ -6,7 +6,9 @@ held-out error before and after, on time blocks the effect was not fitted on.
 
 from __future__ import annotations
 
+import json
 import math
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -92,3 +94,40 @@ def test_diagnosed_effect_lowers_the_heldout_error_beyond_the_block_to_block_spr
                f'after {np.sqrt(after.mean(axis=0)).round(2)} '
                f'counts; t = {(mean / standard_error).round(2)}')
     assert np.all(mean > T_975_DOF_9 * standard_error), summary
+
+
+def test_the_loop_on_the_real_log_ends_naming_the_averaging_time_and_the_excess(tmp_path, capsys):
+    """Issue 16's done-when on the real log: no noise model exists for this unit.
+
+    After what the first diagnosis names (README, "On a real IMU"), each sensor's verdict is
+    ``none`` or ``unexplained`` naming an averaging time beyond the 30 s its own short-term noise
+    model was fitted on, the excess over that model, and the rate random walk that would explain it.
+    """
+    from tak_thermo_ros.cli import main
+    from tak_thermo_ros.core.noise.residual import RESIDUAL_LONGEST_TAU_S
+    bag, params, out = tmp_path / 'real', tmp_path / 'final.yaml', tmp_path / 'final.json'
+    assert main(['import-csv', str(REAL_LOG), '-o', str(bag), '--time-unit', 'us',
+                 '--acc-columns', *OPTIONS.acc_columns, '--temp-column', OPTIONS.temp_column,
+                 '--gyro-columns', 'imu.gyro.x', 'imu.gyro.y', 'imu.gyro.z']) == 0
+    assert main(['fit', str(bag), '-o', str(params), '--effects', 'thermal_lag',
+                 '--gyro-effects', 'hysteresis,warmup', '--no-progress']) == 0
+    capsys.readouterr()
+    assert main(['diagnose', str(bag), '--params', str(params), '--json', str(out), '--no-progress',
+                 '--candidates', 'thermal_lag,hysteresis']) == 0
+    said = capsys.readouterr().out
+    document = json.loads(out.read_text())
+    for sensor in ('gyro', 'accel'):
+        found = document['sensors'][sensor]
+        assert found['noise']['source'] == 'residual' and found['noise']['random_walk'] == [0.0, 0.0, 0.0]
+        assert found['verdict'] in ('none', 'unexplained')
+        if found['verdict'] == 'unexplained':
+            match = re.search(r'residual Allan deviation ([\d.]+)x the noise model at tau ([\d.]+) (s|h) on ([xyz])',
+                              found['message'])
+            assert match, found['message']
+            assert float(match.group(2)) * (3600.0 if match.group(3) == 'h' else 1.0) > RESIDUAL_LONGEST_TAU_S
+            worst = found['allan'][0]['worst']
+            assert worst['ratio'] > found['allan'][0]['bound'][worst['axis']][
+                found['allan'][0]['taus'].index(worst['tau_s'])]
+            assert 'rate random walk' in found['message'] and 'supply voltage' in found['message']
+    if document['sensors']['gyro']['verdict'] == 'unexplained':
+        assert 'that rate random walk in deg/h/sqrt(h):' in said

@@ -58,6 +58,7 @@ from tak_thermo_ros.core.effects import LIBRARY, PER_AXIS, PER_AXIS_SUFFIX, Effe
 from tak_thermo_ros.core.effects.aux_signal import recorded_candidates
 from tak_thermo_ros.core.fit import fit_model, residual_counts
 from tak_thermo_ros.core.link.model import AXES, Calibration
+from tak_thermo_ros.core.noise.residual import RESIDUAL_LONGEST_TAU_S
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import FitError, TakError
 
@@ -472,6 +473,14 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
     final_allan = allan[-1][1] if allan else None
     if judged and final_allan is not None and verdict in (VERDICT_NONE, VERDICT_UNEXPLAINED):
         verdict = VERDICT_NONE if final_allan.consistent else VERDICT_UNEXPLAINED
+    wander = False
+    if (not judged and allan and verdict == VERDICT_UNEXPLAINED and not (added and _effect_name(added[0]) in unresolved)
+            and wander_explains(allan[0][1])):
+        # No effect is named and the excess over the white floor is what this run's own
+        # short-term noise model predicts at every averaging time, those beyond its fit included.
+        verdict, wander, final_allan = VERDICT_NONE, True, allan[0][1]
+    elif not judged and allan and verdict == VERDICT_UNEXPLAINED:
+        final_allan = allan[0][1]  # no effect is named: the calibration as given is what remains
 
     ranked = [item[0] for item in first_step.ranked] if first_step is not None else []
     for _, candidate in per_axis_tried:
@@ -491,7 +500,8 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
 
     message = _verdict_message(verdict, axes, ladder, candidates_out, drivers, base_drivers,
                                significant_axes(current), explained_total, unresolved,
-                               allan=final_allan, judged=judged, averaging_s=averaging_s if judged else 0.0)
+                               allan=final_allan, judged=judged, averaging_s=averaging_s if judged else 0.0,
+                               wander=wander)
     if pruned and verdict not in (VERDICT_NONE, VERDICT_UNEXPLAINED):
         message += (f' Not needed once the others are in: {", ".join(pruned)} (held-out blocks do not '
                     f'notice its removal).')
@@ -506,6 +516,21 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
                      per_axis_forms=tuple(candidate for _, candidate in per_axis_tried),
                      noise=noise, allan=allan, averaging_time_s=float(averaging_s) if judged else 0.0,
                      yardstick_replicates=yardstick.replicates if yardstick is not None else 0)
+
+
+def wander_explains(check: AllanCheck) -> bool:
+    """Whether a residual is consistent with a noise model fitted to its own short averaging times.
+
+    The model (``source='residual'``, :func:`~tak_thermo_ros.core.noise.residual.model_from_residual`)
+    comes from averaging times up to :data:`~tak_thermo_ros.core.noise.residual.RESIDUAL_LONGEST_TAU_S`,
+    where it agrees with the residual by construction; the test is at the longer ones, where a
+    thermal effect or a drift would rise above its flat bias-instability floor. So the residual
+    must be inside the bounds at every averaging time, and those must reach at least twice that
+    length.
+    """
+    if check.source != 'residual' or not len(check.taus):
+        return False
+    return check.consistent and float(check.taus.max()) >= 2.0 * RESIDUAL_LONGEST_TAU_S
 
 
 def sample_period(samples: AlignedSamples) -> float:

@@ -10,6 +10,7 @@ import numpy as np
 
 from tak_thermo_ros.core.diagnose.values import AxisSummary, Candidate, Driver, LadderStep, ModelScore
 from tak_thermo_ros.core.diagnose.yardstick import tau_text
+from tak_thermo_ros.core.noise.residual import RESIDUAL_LONGEST_TAU_S
 from tak_thermo_ros.core.link.model import AXES
 
 VERDICT_NONE = 'none'
@@ -105,18 +106,41 @@ def _driver_sentence(drivers: Sequence[Driver], *, exclude: Sequence[str] = ()) 
     return ', '.join(parts)
 
 
-def _wander_sentence(allan: Any) -> str:
-    """What a noise model fitted to the run's own residual can and cannot say."""
+def _wander_sentence(allan: Any, *, excess_said: bool = False) -> str:
+    """What a noise model fitted to the run's own residual can and cannot say.
+
+    ``excess_said``: the message already names the excess over it (not repeated).
+    """
     tau, axis, ratio = allan.worst()
+    fitted = ('No noise model was given (--noise, --noise-run): the one here is white noise and bias instability '
+              'fitted to this run\'s own residual at averaging times up to half a minute, where no thermal effect '
+              'acts')
     if allan.consistent:
-        where = (f'what remains is consistent with this short-term noise at every averaging time (Allan deviation '
-                 f'at most {ratio:.2f}x it, at tau {tau_text(tau)} on {AXES[axis]})')
-    else:
-        where = f'against it, {allan.describe()}'
-    return (f'No noise model was given (--noise, --noise-run): the one here is fitted to this run\'s own '
-            f'residual at averaging times up to half a minute, where no thermal effect acts; {where}. This run alone '
-            f'cannot tell the sensor\'s own bias wander from a cause that is not in the bag: give the sensor\'s '
-            f'noise model (--noise imu.yaml) or a static run at constant temperature (--noise-run BAG) to judge it.')
+        return (f'{fitted}; what remains is consistent with it at every averaging time (Allan deviation at most '
+                f'{ratio:.2f}x it, at tau {tau_text(tau)} on {AXES[axis]}). This run alone cannot tell the sensor\'s '
+                f'own bias wander from a cause that is not in the bag: give the sensor\'s noise model (--noise '
+                f'imu.yaml) or a static run at constant temperature (--noise-run BAG) to judge it.')
+    walk = ' '.join(f'{value:.2g}' for value in allan.walk_to_explain(RESIDUAL_LONGEST_TAU_S))
+    against = '' if excess_said else f'; against it, {allan.describe()}'
+    return (f'{fitted}{against}. The sensor\'s own rate random walk, which half a minute '
+            f'does not show, would explain the excess only if it were at least {walk} (x y z, in the residual\'s unit '
+            f'times sqrt(Hz)): if the part\'s data sheet or a static run at constant temperature (--noise-run BAG) '
+            f'gives less, the cause is not in the bag; if as much, it is the sensor\'s own noise (give that model '
+            f'with --noise imu.yaml to judge it).')
+
+
+def _wander_none_text(allan: Any, ratios: str) -> str:
+    """``none`` because the excess over the white floor is this run's own bias wander."""
+    tau, axis, ratio = allan.worst()
+    return (f'The residual is consistent with this sensor\'s own noise at every averaging time: it stands above '
+            f'the white floor ({ratios}), no library effect explains that on held-out blocks, and its Allan '
+            f'deviation stays within the bound of a noise model fitted to this run\'s residual at averaging '
+            f'times up to half a minute (white noise and bias instability, where no thermal effect acts), '
+            f'up to tau {tau_text(float(allan.taus.max()))} (at most {ratio:.2f}x the model, at tau {tau_text(tau)} '
+            f'on {AXES[axis]}): bias wander, which no temperature model can or should follow; no structure left '
+            f'for an effect to explain. The noise model comes from this run itself: give the sensor\'s noise '
+            f'model (--noise imu.yaml) or a static run at constant temperature (--noise-run BAG) to judge the '
+            f'residual against an independent one.')
 
 
 def _unexplained_sentence(drivers: Sequence[Driver], *, judged: bool = False) -> str:
@@ -164,7 +188,7 @@ def _verdict_message(verdict: str, axes: Sequence[AxisSummary], ladder: Sequence
                      candidates: Sequence[Candidate], drivers: Sequence[Driver],
                      base_drivers: Sequence[Driver], still_significant: np.ndarray,
                      explained_total: float, unresolved: dict[str, str], *, allan: Any = None,
-                     judged: bool = False, averaging_s: float = 0.0) -> str:
+                     judged: bool = False, averaging_s: float = 0.0, wander: bool = False) -> str:
     ratios = ', '.join(f'{name} {a.heldout_rms / a.noise_floor:.2f}x' for name, a in zip(AXES, axes))
     if judged:
         ratios = f'held-out RMS of {tau_text(averaging_s)} means / the noise model\'s: {ratios}'
@@ -176,6 +200,8 @@ def _verdict_message(verdict: str, axes: Sequence[AxisSummary], ladder: Sequence
             text = (f'The residual is consistent with the noise model ({allan.source}) at every averaging time '
                     f'({ratios}; Allan deviation at most {ratio:.2f}x the model, at tau {tau_text(tau)} on '
                     f'{AXES[axis]}, within the bound): no structure left for an effect to explain.')
+        elif wander:
+            return _wander_none_text(allan, ratios)
         else:
             text = f'The residual is at the noise floor ({ratios}): no structure left for an effect to explain.'
 
@@ -207,11 +233,14 @@ def _verdict_message(verdict: str, axes: Sequence[AxisSummary], ladder: Sequence
             return (f'Significant structure remains beyond the noise model ({allan.source}): '
                     f'{allan.describe()} ({ratios}), which no library effect explains with parameters this run '
                     f'resolves.{best} {follows[0].upper()}{follows[1:]}.')
-        text = (f'Significant structure remains above the noise floor ({ratios}) '
+        beyond = ''
+        if allan is not None and allan.source == 'residual' and not allan.consistent:
+            beyond = f' and beyond this run\'s short-term noise model ({allan.describe()})'
+        text = (f'Significant structure remains above the noise floor ({ratios}){beyond} '
                 f'that no library effect explains with parameters this run resolves.{best} '
                 f'{follows[0].upper()}{follows[1:]}.')
         if allan is not None:
-            text += f' {_wander_sentence(allan)}'
+            text += f' {_wander_sentence(allan, excess_said=bool(beyond))}'
         return text
     best = next((c for c in candidates if c.effect == verdict), candidates[0])
     over = 'over the noise model' if judged else 'over the noise floor'

@@ -339,6 +339,20 @@ class AllanCheck:
         index = np.unravel_index(int(np.argmax(self.ratio / self.bound)), self.ratio.shape)
         return float(self.bound[index])
 
+    def walk_to_explain(self, longer_than_s: float = 0.0) -> np.ndarray:
+        """``(3,)`` the least rate random walk that would explain the excess, per axis.
+
+        A random walk of ``K`` adds ``K^2 tau / 3`` to the Allan variance; this is the ``K`` that
+        closes the largest gap between the residual and the model at averaging times longer than
+        ``longer_than_s`` (zero where the residual stays below the model). In the residual's unit
+        times sqrt(Hz).
+        """
+        longer = self.taus > longer_than_s
+        if not longer.any():
+            return np.zeros(self.residual_adev.shape[1])
+        gap = (self.residual_adev[longer] ** 2 - self.model_adev[longer] ** 2) * 3.0 / self.taus[longer, None]
+        return np.sqrt(np.maximum(gap.max(axis=0), 0.0))
+
     def describe(self) -> str:
         """``'residual Allan deviation 3.1x the noise model at tau 300 s on z'``."""
         tau, axis, ratio = self.worst()

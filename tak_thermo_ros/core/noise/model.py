@@ -210,14 +210,15 @@ def floor_tau(white: Triple, bias: Triple, random_walk: Triple, quantization: Tr
 
 
 def fit_noise_model(allan: Any, *, source: str, update_rate: float | None = None,
-                    min_terms: int = 2) -> NoiseModel:
+                    min_terms: int = 2, terms: Sequence[str] = TERMS) -> NoiseModel:
     """The five IEEE 952 terms of each axis of an Allan variance, by weighted non-negative least squares.
 
     :param allan: an :class:`~tak_thermo_ros.core.noise.allan.AllanVariance` of a rate signal.
     :param source: ``file``, ``static_run`` or ``residual``.
     :param update_rate: Hz (default: the Allan variance's sample rate).
     :param min_terms: averaging times with fewer terms than this are left out.
-    :raises NoiseError: fewer than five usable averaging times, or not three axes.
+    :param terms: the terms fitted (:data:`TERMS` by default); the others are zero.
+    :raises NoiseError: fewer than five usable averaging times, or not three axes, or an unknown term.
 
     Weights: the relative error of an Allan variance with ``edf`` equivalent degrees of freedom
     is ``sqrt(2 / edf)``; the first fit divides by the measured value and uses white-rate degrees
@@ -238,8 +239,14 @@ def fit_noise_model(allan: Any, *, source: str, update_rate: float | None = None
         msg = (f'noise model: only {int(np.count_nonzero(usable))} averaging times with enough data '
                f'({allan.samples} samples at {allan.rate:g} Hz); at least {len(TERMS)} are needed')
         raise NoiseError(msg)
+    unknown = sorted(set(terms) - set(TERMS))
+    if unknown or not terms:
+        msg = f'noise model: unknown terms {", ".join(unknown)} (known: {", ".join(TERMS)})' if unknown else \
+            'noise model: no term to fit'
+        raise NoiseError(msg)
+    fitted = np.array([name in terms for name in TERMS])
     taus = allan.taus[usable]
-    basis = allan_terms(taus)
+    basis = allan_terms(taus) * fitted
     edf_by_alpha = {alpha: equivalent_degrees_of_freedom(allan, alpha)[usable] for alpha in (2, 0, -1, -2)}
     coefficients = np.zeros((3, len(TERMS)))
     for axis in range(3):
@@ -256,7 +263,7 @@ def fit_noise_model(allan: Any, *, source: str, update_rate: float | None = None
             scale = np.linalg.norm(design, axis=0)
             scale[scale == 0.0] = 1.0
             scaled, _residual = nnls(design / scale, measured * weights)
-            solution = scaled / scale
+            solution = np.where(fitted, scaled / scale, 0.0)
             parts = basis * solution
             predicted = parts.sum(axis=1)
             reference = np.maximum(np.where(predicted > 0.0, predicted, measured), tiny)

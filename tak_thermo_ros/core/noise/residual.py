@@ -13,7 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
-from tak_thermo_ros.core.noise.allan import allan_variance, cluster_sizes, largest_cluster
+from tak_thermo_ros.core.noise.allan import AllanVariance, allan_variance, cluster_sizes, largest_cluster
 from tak_thermo_ros.core.noise.model import NoiseModel, fit_noise_model
 from tak_thermo_ros.errors import TakError
 
@@ -23,6 +23,11 @@ averaging times up to this (half a minute): a thermal effect acts over the minut
 ramp takes, so what the residual shows at shorter averaging times is the sensor's own noise;
 longer, the residual holds whatever the model misses besides the wander, and no run can tell
 them apart without a static run or a data sheet."""
+RESIDUAL_TERMS = ('quantization', 'white_noise_density', 'bias_instability')
+"""The terms of a model fitted to a run's own residual: those that half a minute of averaging
+identifies. A random walk or a ramp rises slowly; fitted at short averaging times it would be a
+guess that then extrapolates unchecked to the long averaging times at which ``diagnose`` judges
+the residual, where it could hide the very drift the verdict is to find."""
 
 
 def sample_period(stamp_ns: np.ndarray) -> float:
@@ -41,28 +46,30 @@ def in_counts(model: NoiseModel, axis_scales: Sequence[float]) -> NoiseModel:
     return replace(model, **{name: scaled(name) for name in terms})
 
 
-def model_from_signal(signal: np.ndarray, sample_period_s: float, source: str, *,
-                      longest_s: float | None = None) -> NoiseModel:
-    """The five-term noise model of a ``(k, 3)`` signal.
+def short_term_model(allan: AllanVariance) -> NoiseModel:
+    """The model of a residual's own short-term noise from its Allan variance (``source='residual'``).
 
-    Its overlapping Allan variance, fitted; up to ``longest_s`` of averaging when given, two
-    averaging times per octave.
+    The terms :data:`RESIDUAL_TERMS`, fitted at averaging times up to :data:`RESIDUAL_LONGEST_TAU_S`.
+
+    :raises NoiseError: fewer than five usable averaging times there.
     """
-    signal = np.asarray(signal, dtype=float)
-    largest = largest_cluster(len(signal))
-    if longest_s is not None:
-        largest = min(largest, int(longest_s / sample_period_s))
-    allan = allan_variance(signal - signal.mean(axis=0), 1.0 / sample_period_s, clusters=cluster_sizes(largest, 2))
-    return fit_noise_model(allan, source=source)
+    keep = allan.taus <= RESIDUAL_LONGEST_TAU_S * (1.0 + 1e-9)
+    short = replace(allan, taus=allan.taus[keep], avar=allan.avar[keep], counts=allan.counts[keep],
+                    clusters=allan.clusters[keep], strides=allan.strides[keep])
+    return fit_noise_model(short, source='residual', terms=RESIDUAL_TERMS)
 
 
 def model_from_residual(residual: np.ndarray, stamp_ns: np.ndarray) -> NoiseModel | None:
     """The noise model of the run's own residual, or ``None`` when the run is too short.
 
-    At averaging times up to :data:`RESIDUAL_LONGEST_TAU_S` (``source='residual'``); ``None`` when
-    the run is too short for five averaging times.
+    At averaging times up to :data:`RESIDUAL_LONGEST_TAU_S`, the terms :data:`RESIDUAL_TERMS`
+    (``source='residual'``); ``None`` when the run is too short for five averaging times.
     """
+    period = sample_period(stamp_ns)
+    residual = np.asarray(residual, dtype=float)
+    largest = min(largest_cluster(len(residual)), int(RESIDUAL_LONGEST_TAU_S / period))
     try:
-        return model_from_signal(residual, sample_period(stamp_ns), 'residual', longest_s=RESIDUAL_LONGEST_TAU_S)
+        allan = allan_variance(residual - residual.mean(axis=0), 1.0 / period, clusters=cluster_sizes(largest, 2))
+        return short_term_model(allan)
     except TakError:
         return None
