@@ -52,10 +52,10 @@ class _SensorNoise:
     outside: int = 0
 
     def __post_init__(self) -> None:
-        from tak_thermo_ros.streaming import _Required
+        from tak_thermo_ros.streaming import Required
         self.corrector = BlockCorrector(self.calibration, out_of_range=self.out_of_range) \
             if self.calibration is not None else None
-        self.required = _Required(self.corrector.signals if self.corrector is not None else ())
+        self.required = Required(self.corrector.signals if self.corrector is not None else ())
         self.dropped = self.required.dropped
 
     def __call__(self, aligned: AlignedSamples) -> None:
@@ -146,7 +146,7 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
     :raises NoiseError: a counts bag without a calibration, a run too short for five averaging times.
     """
     from tak_thermo_ros.bagio import bag_streams
-    from tak_thermo_ros.streaming import SensorPass, _open_calibration_run, _run_passes
+    from tak_thermo_ros.streaming import SensorPass, open_calibration_run, run_passes
     from tak_thermo_ros.core.records.blocks import BlockAligner
     path = Path(path)
     kind = bag_streams(path, topics=options.topics).kind
@@ -160,14 +160,14 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
         msg = (f'{path}: a counts bag holds channel codes, not SI values: '
                'give --params (the calibration) to take its noise')
         raise NoiseError(msg)
-    opened = _open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=True)
+    opened = open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=True)
     sensors = sensors_of(opened.kind)
     streams = {sensor: _SensorNoise(unit.sensor(sensor) if unit is not None else None, out_of_range, per_octave)
                for sensor in sensors}
     passes = [SensorPass(sensor, BlockAligner(use_reference=True, reference_expected=True,
                                               settle_time_s=settle_time_s), [streams[sensor]])
               for sensor in sensors]
-    lines = _run_passes(path, options, opened, passes)
+    lines = run_passes(path, options, opened, passes)
     source = source or ('residual' if unit is not None else 'static_run')
     found = {}
     for sensor_pass in passes:

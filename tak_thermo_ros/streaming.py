@@ -172,7 +172,7 @@ def _sensor_records(block: ChannelRecord | DriverRecord, kind: InputKind) -> dic
 
 
 @dataclass(frozen=True)
-class _Opened:
+class OpenedRun:
     """A bag opened for a calibration-run pass (references held)."""
 
     kind: InputKind
@@ -180,8 +180,13 @@ class _Opened:
     static: _StaticRun | None
 
 
-def _open_calibration_run(path: Path, options: StreamOptions, *, gravity: float, latitude: float | None,
-                          require_reference: bool) -> _Opened:
+def open_calibration_run(path: Path, options: StreamOptions, *, gravity: float, latitude: float | None,
+                         require_reference: bool) -> OpenedRun:
+    """Open ``path`` for a calibration-run pass.
+
+    Its input kind, the number of main messages, and for driver bags the static-run reference
+    (the specific force and rate at each turntable position, recorded or estimated).
+    """
     from tak_thermo_ros.bagio import bag_streams
     streams = bag_streams(path, topics=options.topics)
     if require_reference and streams.kind is InputKind.COUNTS:
@@ -190,10 +195,10 @@ def _open_calibration_run(path: Path, options: StreamOptions, *, gravity: float,
     if streams.kind is InputKind.IMU:
         static = _StaticRun(path, options, recorded_reference=streams.reference > 0,
                             recorded_rate=streams.rate_reference > 0, gravity=gravity, latitude=latitude)
-    return _Opened(streams.kind, streams.main, static)
+    return OpenedRun(streams.kind, streams.main, static)
 
 
-def _run_passes(path: Path, options: StreamOptions, opened: _Opened, passes: Sequence[SensorPass]) -> list[str]:
+def run_passes(path: Path, options: StreamOptions, opened: OpenedRun, passes: Sequence[SensorPass]) -> list[str]:
     """Read the bag once, feeding each sensor's pass; the reference lines (driver bags)."""
     from tak_thermo_ros.bagio import iter_blocks
     if opened.static is not None:
@@ -269,8 +274,8 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
     :raises FitError: as :func:`fit_model`, prefixed with the sensor on driver bags.
     """
     path = Path(path)
-    opened = _open_calibration_run(path, options, gravity=settings.gravity, latitude=settings.latitude,
-                                   require_reference=True)
+    opened = open_calibration_run(path, options, gravity=settings.gravity, latitude=settings.latitude,
+                                  require_reference=True)
     kind = opened.kind
     sensors = sensors_of(kind)
     if kind is InputKind.COUNTS and settings.effects.get('gyro'):
@@ -286,8 +291,8 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
     def aligner() -> BlockAligner:
         return BlockAligner(use_reference=True, reference_expected=True, settle_time_s=settings.settle_time_s)
 
-    def required(sensor: str) -> _Required:
-        return _Required([spec for spec in settings.effects.get(sensor, ()) if spec.startswith('aux:')])
+    def required(sensor: str) -> Required:
+        return Required([spec for spec in settings.effects.get(sensor, ()) if spec.startswith('aux:')])
 
     passes, fits, subsamples, requirements = [], {}, {}, {}
     for sensor in sensors:
@@ -300,7 +305,7 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
             subsamples[sensor] = Subsample(stride, expected=opened.main // stride + 1)
             consumers.append(subsamples[sensor])
         passes.append(SensorPass(sensor, aligner(), [_feeding(requirements[sensor], consumers)]))
-    lines = _run_passes(path, options, opened, passes)
+    lines = run_passes(path, options, opened, passes)
     results: dict[str, FitResult] = {}
     usable: dict[str, int] = {}
     second: dict[str, tuple[StreamingEffectFit, FitResult]] = {}
@@ -327,7 +332,7 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
         again = {sensor: required(sensor) for sensor in second}
         amplitude_passes = [SensorPass(sensor, aligner(), [_feeding(again[sensor], [amplitudes.add])])
                             for sensor, (amplitudes, _) in second.items()]
-        _run_passes(path, options, _Opened(kind, opened.main, opened.static), amplitude_passes)
+        run_passes(path, options, OpenedRun(kind, opened.main, opened.static), amplitude_passes)
         for sensor_pass in amplitude_passes:
             sensor = sensor_pass.sensor
             amplitudes, shaped = second[sensor]
@@ -367,9 +372,9 @@ def _summed(first: dict[str, int], second: dict[str, int]) -> dict[str, int]:
     return total
 
 
-def _feeding(required: _Required, consumers: Sequence[Callable[[AlignedSamples], None]]
+def _feeding(required: Required, consumers: Sequence[Callable[[AlignedSamples], None]]
              ) -> Callable[[AlignedSamples], None]:
-    """One consumer: the aligned block with the recorded signals held (:class:`_Required`), to each of ``consumers``."""
+    """One consumer: the aligned block with the recorded signals held (:class:`Required`), to each of ``consumers``."""
     def feed(aligned: AlignedSamples) -> None:
         samples = required(aligned) if required.signals else aligned
         for consume in consumers:
@@ -411,7 +416,7 @@ class Applied:
     mag_dropped: dict[str, int] = field(default_factory=dict)
 
 
-class _Required:
+class Required:
     """Each aligned block with the recorded signals a correction needs held.
 
     (:func:`require_signals`), its drops (``before_first_<signal>`` included) summed over the run.
@@ -462,7 +467,7 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
     topic = topics.imu if kind is InputKind.COUNTS else topics.compensated_imu
     aligner = BlockAligner(use_reference=False)
     corrector = BlockUnitCorrector(unit, out_of_range=out_of_range)
-    required = _Required(corrector.signals)
+    required = Required(corrector.signals)
     accel_variance = acceleration_variance(unit.accel)
     gyro_variance = acceleration_variance(unit.gyro) if unit.gyro is not None else None
     passing = _RowsBuffer()
@@ -546,12 +551,12 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
         expect_kind(kind)
     calibration_run = kind is InputKind.IMU
     if calibration_run:
-        opened = _open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=False)
+        opened = open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=False)
     else:
-        opened = _Opened(kind, 0, None)
+        opened = OpenedRun(kind, 0, None)
     gravity_check = GravityCheck(unit.accel, gravity=gravity, out_of_range=out_of_range)
     rate_check = RateCheck(unit.gyro, out_of_range=out_of_range) if unit.gyro is not None else None
-    accel_required = _Required(Corrector(unit.accel).signals)
+    accel_required = Required(Corrector(unit.accel).signals)
 
     def add_gravity(aligned: AlignedSamples) -> None:
         samples = accel_required(aligned)
@@ -563,7 +568,7 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
     if calibration_run:
         gyro_pass = SensorPass('gyro', BlockAligner(use_reference=True, reference_expected=True))
         if rate_check is not None:
-            gyro_required = _Required(Corrector(unit.gyro).signals)  # type: ignore[arg-type]
+            gyro_required = Required(Corrector(unit.gyro).signals)  # type: ignore[arg-type]
 
             def add_rate(aligned: AlignedSamples) -> None:
                 samples = gyro_required(aligned)
@@ -571,7 +576,7 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
                                aux=samples.aux)
             gyro_pass.consumers.append(add_rate)
         passes.append(gyro_pass)
-    lines = _run_passes(path, options, opened, passes)
+    lines = run_passes(path, options, opened, passes)
     return Validated(input_kind=kind, gravity=gravity_check, rate=rate_check, reference_lines=tuple(lines),
                      accel_dropped=accel_required.dropped,
                      accel_ignored_temp_codes=dict(accel_pass.aligner.ignored_temp_codes),
@@ -600,14 +605,14 @@ def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: floa
                 latitude: float | None = None, max_samples: int = DIAGNOSE_MAX_SAMPLES) -> BoundedRun:
     """One pass collecting a bounded subsample spread evenly over the run, references held."""
     path = Path(path)
-    opened = _open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=True)
+    opened = open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=True)
     stride = stride_for(opened.main, max_samples)
     passes, subsamples = [], {}
     for sensor in sensors_of(opened.kind):
         subsamples[sensor] = Subsample(stride, expected=opened.main // stride + 1)
         passes.append(SensorPass(sensor, BlockAligner(use_reference=True, reference_expected=True,
                                                       settle_time_s=settle_time_s), [subsamples[sensor]]))
-    lines = _run_passes(path, options, opened, passes)
+    lines = run_passes(path, options, opened, passes)
     return BoundedRun(input_kind=opened.kind,
                       samples={p.sensor: subsamples[p.sensor].samples(p.aligner.dropped) for p in passes},
                       usable={p.sensor: p.aligner.kept for p in passes}, stride=stride,
