@@ -38,13 +38,14 @@ import io
 import json
 import os
 import pstats
-import signal
 import statistics
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from benchlib import stop
 
 REPO = Path(__file__).resolve().parent.parent
 RESULTS = REPO / 'bench' / 'results' / 'node.json'
@@ -293,17 +294,6 @@ def start(kind: str, params: Path, env: dict[str, str], log: Path) -> subprocess
                    '-p', 'executor:=single_threaded']  # the relay's rclpy.spin: the same executor
     return subprocess.Popen(command, env=env, stdout=open(log, 'wb'), stderr=subprocess.STDOUT,
                             stdin=subprocess.DEVNULL, start_new_session=True)
-
-
-def stop(process: subprocess.Popen) -> int:
-    if process.poll() is None:
-        os.killpg(process.pid, signal.SIGINT)
-        try:
-            process.wait(10)
-        except subprocess.TimeoutExpired:
-            os.killpg(process.pid, signal.SIGKILL)
-            process.wait()
-    return process.returncode
 
 
 def percentile(values: list[int], q: float) -> float:

@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
 import statistics
 import subprocess
 import sys
@@ -28,7 +27,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from benchlib import machine
+from benchlib import machine, stop
 
 REPO = Path(__file__).resolve().parent.parent
 RESULTS = REPO / 'bench' / 'results' / 'startup.json'
@@ -140,18 +139,6 @@ class Driver:
         self.executor.shutdown()
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)
-
-
-def stop(process: subprocess.Popen) -> int:
-    """SIGINT to the node's process group, SIGKILL after 10 s; the exit code."""
-    if process.poll() is None:
-        os.killpg(process.pid, signal.SIGINT)
-        try:
-            process.wait(10)
-        except subprocess.TimeoutExpired:
-            os.killpg(process.pid, signal.SIGKILL)
-            process.wait()
-    return process.returncode
 
 
 def start_to_output(command: list[str], env: dict[str, str], log: Path, ready_text: str) -> dict[str, float]:

@@ -7,20 +7,34 @@ from __future__ import annotations
 
 import os
 import platform
+import signal
+import subprocess
 import sys
 from dataclasses import replace
 from importlib.metadata import version
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
-
-from tak_thermo_ros.core.simulation.imu import Scenario
+if TYPE_CHECKING:
+    from tak_thermo_ros.core.simulation.imu import Scenario
 
 
 def tak_calib_command() -> list[str]:
     """``tak_calib`` of this interpreter's environment (the console script, else ``-m``)."""
     script = Path(sys.executable).parent / 'tak_calib'
     return [str(script)] if script.exists() else [sys.executable, '-m', 'tak_thermo_ros.cli']
+
+
+def stop(process: subprocess.Popen) -> int:
+    """SIGINT to a node's process group (started with ``start_new_session``), SIGKILL after 10 s; the exit code."""
+    if process.poll() is None:
+        os.killpg(process.pid, signal.SIGINT)
+        try:
+            process.wait(10)
+        except subprocess.TimeoutExpired:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+    return process.returncode
 
 
 def machine() -> dict[str, object]:
@@ -34,7 +48,7 @@ def machine() -> dict[str, object]:
     except OSError:
         pass
     return {'cpus': os.cpu_count(), 'cpu_model': model, 'python': platform.python_version(),
-            'numpy': np.__version__, 'rosbags': version('rosbags'), 'platform': platform.platform(),
+            'numpy': version('numpy'), 'rosbags': version('rosbags'), 'platform': platform.platform(),
             'load_average_1min': os.getloadavg()[0],
             'OPENBLAS_NUM_THREADS': os.environ.get('OPENBLAS_NUM_THREADS', '(unset)')}
 

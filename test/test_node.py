@@ -332,19 +332,12 @@ def play_driver(ros: Harness, driver) -> None:
     ros.wait(lambda: len(ros.imu) >= sent, 20.0, 'the last Imu')
 
 
-def test_driver_node_output_equals_tak_calib_apply_on_both_sensors(tmp_path, ros_env):
-    """A driver bag (gyro thermal lag fitted) played into the node: apply's Imu, float64-equal, every field."""
-    run = simulate(DRIVER_RUN)
-    rng = np.random.default_rng(5)
-    quaternions = rng.normal(size=(len(run.driver.stamp_ns), 4))
-    quaternions /= np.linalg.norm(quaternions, axis=1, keepdims=True)
-    driver = replace(run.driver, orientation=quaternions,
-                     orientation_covariance=rng.uniform(0.0, 1e-3, (len(quaternions), 9)))
-    bag, params, corrected = tmp_path / 'driver.mcap', tmp_path / 'tak_params.yaml', tmp_path / 'imu.mcap'
-    write_driver_record(bag, driver)
-    assert cli.main(['fit', str(bag), '-o', str(params), '--no-progress', '--gyro-effects', 'thermal_lag']) == 0
-    unit = load_unit(params)
-    assert unit.input_kind is InputKind.IMU and [e.name for e in unit.gyro.effects] == ['thermal_lag']
+def node_and_apply(bag: Path, params: Path, driver, ros_env: dict[str, str], tmp_path: Path):
+    """``tak_calib apply`` on ``bag`` and the node fed ``driver`` (the bag's record) with ``params``.
+
+    :returns: ``(apply's Imu messages, the node's Imu messages)``; the node exits cleanly.
+    """
+    corrected = tmp_path / 'applied.mcap'
     assert cli.main(['apply', str(bag), '--params', str(params), '-o', str(corrected), '--no-progress']) == 0
     expected = read_imu_messages(corrected, topic='/imu/data_compensated')
     with NodeProcess(node_command('--params-file', str(params), '-p', 'qos:=reliable'), ros_env,
@@ -353,17 +346,34 @@ def test_driver_node_output_equals_tak_calib_apply_on_both_sensors(tmp_path, ros
         ros.wait_matched()
         play_driver(ros, driver)
         assert node.stop() == 0
-    assert len(ros.imu) == len(expected.stamp_ns) == len(driver.stamp_ns)
+    return expected, list(ros.imu)
+
+
+def test_driver_node_output_equals_tak_calib_apply_on_both_sensors(tmp_path, ros_env):
+    """A driver bag (gyro thermal lag fitted) played into the node: apply's Imu, float64-equal, every field."""
+    run = simulate(DRIVER_RUN)
+    rng = np.random.default_rng(5)
+    quaternions = rng.normal(size=(len(run.driver.stamp_ns), 4))
+    quaternions /= np.linalg.norm(quaternions, axis=1, keepdims=True)
+    driver = replace(run.driver, orientation=quaternions,
+                     orientation_covariance=rng.uniform(0.0, 1e-3, (len(quaternions), 9)))
+    bag, params = tmp_path / 'driver.mcap', tmp_path / 'tak_params.yaml'
+    write_driver_record(bag, driver)
+    assert cli.main(['fit', str(bag), '-o', str(params), '--no-progress', '--gyro-effects', 'thermal_lag']) == 0
+    unit = load_unit(params)
+    assert unit.input_kind is InputKind.IMU and [e.name for e in unit.gyro.effects] == ['thermal_lag']
+    expected, imu = node_and_apply(bag, params, driver, ros_env, tmp_path)
+    assert len(imu) == len(expected.stamp_ns) == len(driver.stamp_ns)
     got = {
-        'stamp': np.array([stamp_of(m) for m in ros.imu]),
+        'stamp': np.array([stamp_of(m) for m in imu]),
         'accel': np.array([(m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z)
-                           for m in ros.imu]),
-        'gyro': np.array([(m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z) for m in ros.imu]),
+                           for m in imu]),
+        'gyro': np.array([(m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z) for m in imu]),
         'orientation': np.array([(m.orientation.x, m.orientation.y, m.orientation.z, m.orientation.w)
-                                 for m in ros.imu]),
-        'orientation_covariance': np.array([m.orientation_covariance for m in ros.imu]),
-        'angular_velocity_covariance': np.array([m.angular_velocity_covariance for m in ros.imu]),
-        'linear_acceleration_covariance': np.array([m.linear_acceleration_covariance for m in ros.imu]),
+                                 for m in imu]),
+        'orientation_covariance': np.array([m.orientation_covariance for m in imu]),
+        'angular_velocity_covariance': np.array([m.angular_velocity_covariance for m in imu]),
+        'linear_acceleration_covariance': np.array([m.linear_acceleration_covariance for m in imu]),
     }
     assert got['accel'].dtype == got['gyro'].dtype == np.float64
     assert np.array_equal(got['stamp'], expected.stamp_ns)
@@ -374,7 +384,7 @@ def test_driver_node_output_equals_tak_calib_apply_on_both_sensors(tmp_path, ros
     assert np.array_equal(got['angular_velocity_covariance'], expected.angular_velocity_covariance)
     assert np.array_equal(got['linear_acceleration_covariance'], expected.linear_acceleration_covariance)
     assert got['angular_velocity_covariance'][0, 0] > 0.0  # from the gyroscope's fit, not the driver's
-    assert [m.header.frame_id for m in ros.imu] == expected.frame_ids
+    assert [m.header.frame_id for m in imu] == expected.frame_ids
     # The lag's state matters: the same link without the effect differs by far more than the noise.
     samples = align(driver.six_channels(), use_reference=False)
     without_lag = UnitCorrector(replace(unit, gyro=replace(unit.gyro, effects=()))).correct(

@@ -6,10 +6,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from node_helpers import Harness, NodeProcess, node_command
-from test_node import DRIVER_RUN, driver_params, play_driver
-from tak_thermo_ros import cli
-from tak_thermo_ros.bagio import read_imu_messages, write_driver_record
+from test_node import DRIVER_RUN, driver_params, node_and_apply
+from tak_thermo_ros.bagio import write_driver_record
 from tak_thermo_ros.core.noise.model import NoiseModel
 from tak_thermo_ros.core.records.calibration_file import load_unit
 from tak_thermo_ros.core.simulation.imu import Scenario, simulate
@@ -24,7 +22,7 @@ GYRO_NOISE = replace(ACCEL_NOISE, white_noise_density=(1e-4, 2e-4, 1.5e-4), rand
 
 def test_node_covariances_follow_the_noise_model_and_equal_apply(tmp_path, ros_env):
     unit = replace(UNIT, accel=replace(UNIT.accel, noise=ACCEL_NOISE), gyro=replace(UNIT.gyro, noise=GYRO_NOISE))
-    params, bag, corrected = tmp_path / 'params.yaml', tmp_path / 'run.mcap', tmp_path / 'out.mcap'
+    params, bag = tmp_path / 'params.yaml', tmp_path / 'run.mcap'
     driver_params(params, unit)
     loaded = load_unit(params)
     assert loaded.accel.noise == ACCEL_NOISE
@@ -32,21 +30,14 @@ def test_node_covariances_follow_the_noise_model_and_equal_apply(tmp_path, ros_e
     driver = replace(DRIVER_RUN, plateau_hours=0.002)
     record = simulate(driver).driver
     write_driver_record(bag, record)
-    assert cli.main(['apply', str(bag), '--params', str(params), '-o', str(corrected), '--no-progress']) == 0
-    expected = read_imu_messages(corrected, topic='/imu/data_compensated')
-    with NodeProcess(node_command('--params-file', str(params), '-p', 'qos:=reliable'), ros_env,
-                     tmp_path / 'node.log') as node, \
-            Harness(int(ros_env['ROS_DOMAIN_ID']), driver=True) as ros:
-        ros.wait_matched()
-        play_driver(ros, record)
-        assert node.stop() == 0
-    assert len(ros.imu) == len(expected.stamp_ns) > 100
-    linear = np.array([m.linear_acceleration_covariance for m in ros.imu])
-    angular = np.array([m.angular_velocity_covariance for m in ros.imu])
+    expected, imu = node_and_apply(bag, params, record, ros_env, tmp_path)
+    assert len(imu) == len(expected.stamp_ns) > 100
+    linear = np.array([m.linear_acceleration_covariance for m in imu])
+    angular = np.array([m.angular_velocity_covariance for m in imu])
     assert np.array_equal(linear, expected.linear_acceleration_covariance)
     assert np.array_equal(angular, expected.angular_velocity_covariance)
     assert np.array_equal(np.array([(m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z)
-                                    for m in ros.imu]), expected.angular_velocity)
+                                    for m in imu]), expected.angular_velocity)
     per_sample = {name: model.allan_variance([1.0 / 200.0])[0]  # white^2 * 200 and the rest at 5 ms
                   for name, model in (('accel', ACCEL_NOISE), ('gyro', GYRO_NOISE))}
     assert np.allclose(per_sample['gyro'], np.array(GYRO_NOISE.white_noise_density) ** 2 * 200.0, rtol=0.01)

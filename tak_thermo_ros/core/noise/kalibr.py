@@ -30,7 +30,6 @@ import os
 from pathlib import Path
 from typing import Any, Mapping
 
-import yaml
 
 from tak_thermo_ros.core.noise.model import NoiseModel, floor_tau
 from tak_thermo_ros.errors import NoiseError
@@ -142,16 +141,8 @@ def read_kalibr(path: str | os.PathLike[str]) -> dict[str, NoiseModel]:
 
     :raises NoiseError: a missing or unreadable file, or a bad one (one line naming the file and key).
     """
-    path = Path(path)
-    try:
-        raw = yaml.safe_load(path.read_text(encoding='utf-8'))
-    except FileNotFoundError:
-        msg = f'{path}: no such noise file'
-        raise NoiseError(msg) from None
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
-        msg = f'{path}: cannot read the noise file ({type(err).__name__})'
-        raise NoiseError(msg) from None
-    return kalibr_from_mapping(raw, str(path))[0]
+    from tak_thermo_ros.core.records.files import read_yaml
+    return kalibr_from_mapping(read_yaml(path, 'noise file', NoiseError), str(Path(path)))[0]
 
 
 def kalibr_text(models: Mapping[str, NoiseModel], *, rostopic: str, update_rate: float | None = None,

@@ -25,9 +25,9 @@ import shutil
 import stat
 import tempfile
 from pathlib import Path
-from typing import Iterator
+from typing import Any, Iterator
 
-from tak_thermo_ros.errors import OutputError
+from tak_thermo_ros.errors import OutputError, TakError
 
 FILE = 'file'
 BAG = 'bag'
@@ -203,3 +203,21 @@ def atomic_directory(path: str | os.PathLike[str]) -> Iterator[Path]:
             raise _user_error(err, path) from err
     finally:
         shutil.rmtree(staging, ignore_errors=True)
+
+
+def read_yaml(path: str | os.PathLike[str], what: str, error: type[TakError]) -> Any:
+    """The YAML document in ``path`` (``None`` for an empty file).
+
+    :param what: the file's name in a message (``'noise file'``, ``'scenario file'``).
+    :raises error: one line naming the file when it is missing, unreadable or not YAML.
+    """
+    import yaml
+    path = Path(path)
+    try:
+        return yaml.safe_load(path.read_text(encoding='utf-8'))
+    except FileNotFoundError:
+        msg = f'{path}: no such {what}'
+        raise error(msg) from None
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
+        msg = f'{path}: cannot read the {what} ({type(err).__name__})'
+        raise error(msg) from None

@@ -28,7 +28,6 @@ from tak_thermo_ros.core.effects import resolve_effect
 from tak_thermo_ros.core.effects.base import Effect
 
 import numpy as np
-import yaml
 
 from tak_thermo_ros.core.link.model import AXES, AxisModel, Calibration, InputKind, UnitCalibration
 from tak_thermo_ros.core.noise.model import NoiseModel, floor_tau
@@ -714,15 +713,8 @@ def _unit_from_mapping(raw: Any, base: tuple[AxisTruth, ...]) -> tuple[AxisTruth
 
 def load_scenario(path: str | Path) -> Scenario:
     """Read a scenario YAML; a missing key keeps its default."""
-    path = Path(path)
-    try:
-        raw = yaml.safe_load(path.read_text(encoding='utf-8'))
-    except FileNotFoundError:
-        msg = f'{path}: no such scenario file'
-        raise ScenarioError(msg) from None
-    except (OSError, yaml.YAMLError) as err:
-        msg = f'{path}: cannot read scenario ({type(err).__name__})'
-        raise ScenarioError(msg) from None
+    from tak_thermo_ros.core.records.files import read_yaml
+    raw = read_yaml(path, 'scenario file', ScenarioError)
     try:
         return scenario_from_mapping(raw or {})
     except ScenarioError as err:
