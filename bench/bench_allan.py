@@ -97,7 +97,7 @@ def end_to_end(hours: float, rate: float, workdir: Path) -> int:
     """``tak_calib noise`` on a simulated static driver bag against rosbags reading it."""
     from bench_fit import BASELINE_SCRIPT, run_child
     from benchlib import tak_calib_command
-    from tak_thermo_ros.bagio import write_driver_record
+    from tak_thermo_ros.formats.bag import write_driver_record
     from tak_thermo_ros.core.simulation.imu import scenario_from_mapping, simulate
     axis = {'noise_counts': WHITE * math.sqrt(rate), 'bias_instability': BIAS, 'bias_instability_tau': BIAS_TAU,
             'random_walk': WALK}

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tak_thermo_ros.core.records.calibration_file import write_text_atomic
+from tak_thermo_ros.formats.calibration_file import write_text_atomic
 from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.core.simulation.imu import Scenario
 

@@ -10,7 +10,7 @@ in m/s^2, a status and a temperature column; a static board and a temperature sw
 generated in a child process under ``--workdir`` and removed afterwards unless ``--keep``.
 Each measured command runs in its own child; its peak RSS is ``wait4``'s ``ru_maxrss``:
 
-- interpreter: ``python -c 'import tak_thermo_ros.cli, tak_thermo_ros.bagio'``;
+- interpreter: ``python -c 'import tak_thermo_ros.cli, tak_thermo_ros.formats.bag'``;
 - import: ``tak_calib import-csv LOG -o BAG --time-unit us ...``;
 - ``--compare TAK_CALIB``: the same import with another installation (e.g. before the change).
 
@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from benchlib import machine, tak_calib_command
-from tak_thermo_ros.core.records.calibration_file import write_text_atomic
+from tak_thermo_ros.formats.calibration_file import write_text_atomic
 
 RESULTS = Path(__file__).resolve().parent / 'results'
 TARGET_MISSED = 3
@@ -115,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
     file_bytes = log.stat().st_size
     with log.open('rb') as stream:
         rows = sum(1 for _ in stream) - 1
-    _, interpreter, _, _, _ = run_child([sys.executable, '-c', 'import tak_thermo_ros.cli, tak_thermo_ros.bagio'])
+    _, interpreter, _, _, _ = run_child([sys.executable, '-c', 'import tak_thermo_ros.cli, tak_thermo_ros.formats.bag'])
     bag = args.workdir / 'imported'
     this = measure_import(tak_calib_command(), log, bag)
     kept = rows * KEPT_BYTES_PER_ROW

@@ -1,4 +1,4 @@
-"""Benchmark: block CDR decoding (``tak_thermo_ros.cdr``) against rosbags' per-message deserialisation.
+"""Benchmark: block CDR decoding (``tak_thermo_ros.formats.cdr``) against rosbags' per-message deserialisation.
 
 Two measurements, each side in its own subprocess so that its peak resident set (``VmHWM`` of
 ``/proc/self/status``, which starts afresh at ``exec``, unlike ``ru_maxrss``) is its own:
@@ -46,8 +46,8 @@ START_NS = 1_700_000_000_000_000_000
 
 def _template(msgtype: str) -> tuple[bytes, int, int]:
     """One serialised message, the byte offset of its main field and that field's width in float64s."""
-    from tak_thermo_ros.bagio import TYPESTORE
-    from tak_thermo_ros.cdr import decode_message
+    from tak_thermo_ros.formats.bag import TYPESTORE
+    from tak_thermo_ros.formats.cdr import decode_message
     types = TYPESTORE.types
     header = types['std_msgs/msg/Header'](stamp=types['builtin_interfaces/msg/Time'](sec=0, nanosec=0),
                                           frame_id='imu_link')
@@ -89,8 +89,8 @@ def _chunks(msgtype: str, total: int, seed: int = 1):
 
 def worker_decode(msgtype: str, total: int, decoder: str) -> dict[str, object]:
     """Decode ``total`` messages with one decoder; timing excludes the generation of raw bytes."""
-    from tak_thermo_ros.bagio import TYPESTORE
-    from tak_thermo_ros.cdr import decode_messages
+    from tak_thermo_ros.formats.bag import TYPESTORE
+    from tak_thermo_ros.formats.cdr import decode_messages
     deserialize = TYPESTORE.deserialize_cdr
     field = MAIN_FIELD[msgtype]
     width = 1 if field == 'temperature' else 3
@@ -122,7 +122,7 @@ def worker_decode(msgtype: str, total: int, decoder: str) -> dict[str, object]:
 
 def worker_record(bag: str, decoder: str) -> dict[str, object]:
     """``read_record`` of a bag with one decoder, timed."""
-    from tak_thermo_ros.bagio import read_record
+    from tak_thermo_ros.formats.bag import read_record
     start = time.perf_counter()
     record = read_record(bag, progress=False, decoder=decoder)
     seconds = time.perf_counter() - start
@@ -177,7 +177,7 @@ def bench_decode(totals: list[int], repeat: int) -> list[dict[str, object]]:
 
 
 def bench_record(messages: int, storages: list[str], repeat: int, workdir: Path) -> list[dict[str, object]]:
-    from tak_thermo_ros.bagio import write_record
+    from tak_thermo_ros.formats.bag import write_record
     from tak_thermo_ros.core.simulation.imu import Scenario, simulate
     base = Scenario(sample_rate_hz=RATE_HZ, plateaus_celsius=(10.0, 30.0), ramp_celsius_per_minute=20.0)
     ramps_s = base.duration_s() - len(base.plateaus_celsius) * base.plateau_hours * 3600.0

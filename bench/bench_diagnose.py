@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from benchlib import machine, stretched, tak_calib_command
-from tak_thermo_ros.core.records.calibration_file import save_calibration, write_text_atomic
+from tak_thermo_ros.formats.calibration_file import save_calibration, write_text_atomic
 from tak_thermo_ros.core.diagnose import diagnose
 from tak_thermo_ros.core.effects import LIBRARY, resolve_effect, seconds_from_ns
 from tak_thermo_ros.core.fit import fit_model, residual_counts
@@ -67,7 +67,7 @@ def bench_scenario(hours: float, rate_hz: float) -> Scenario:
 
 def bench_speed(workdir: Path, hours: float, rate_hz: float) -> dict[str, object]:
     """Time ``tak_calib diagnose --report`` end to end and in stages."""
-    from tak_thermo_ros.bagio import read_record, write_record
+    from tak_thermo_ros.formats.bag import read_record, write_record
     from tak_thermo_ros.report import write_report
 
     workdir.mkdir(parents=True, exist_ok=True)
@@ -102,7 +102,7 @@ def bench_speed(workdir: Path, hours: float, rate_hz: float) -> dict[str, object
     subprocess.run(command, capture_output=True, text=True, check=True, env=single)
     wall_single = time.perf_counter() - start
 
-    from tak_thermo_ros.core.records.calibration_file import load_calibration
+    from tak_thermo_ros.formats.calibration_file import load_calibration
     calibration = load_calibration(params)
     stages = {}
     start = time.perf_counter()

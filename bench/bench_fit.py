@@ -31,7 +31,7 @@ from pathlib import Path
 
 
 from benchlib import machine, stretched, tak_calib_command
-from tak_thermo_ros.core.records.calibration_file import write_text_atomic
+from tak_thermo_ros.formats.calibration_file import write_text_atomic
 from tak_thermo_ros.core.simulation.imu import Scenario
 
 RESULTS = Path(__file__).resolve().parent / 'results'
@@ -71,7 +71,7 @@ def build_bag(workdir: Path, hours: float, rate_hz: float, storage: str) -> Path
     bag = bag_path(workdir, hours, rate_hz, storage)
     if bag.exists():
         return bag
-    from tak_thermo_ros.bagio import write_record
+    from tak_thermo_ros.formats.bag import write_record
     from tak_thermo_ros.core.simulation.imu import simulate
     workdir.mkdir(parents=True, exist_ok=True)
     scenario = bench_scenario(hours, rate_hz)

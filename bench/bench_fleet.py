@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from benchlib import machine, stretched, tak_calib_command
-from tak_thermo_ros.core.records.calibration_file import write_text_atomic
+from tak_thermo_ros.formats.calibration_file import write_text_atomic
 from tak_thermo_ros.core.simulation.imu import DEFAULT_UNIT, Scenario
 
 RESULTS = Path(__file__).resolve().parent / 'results'
@@ -48,7 +48,7 @@ def unit_scenario(index: int, hours: float, rate_hz: float) -> Scenario:
 
 def build_batch(workdir: Path, units: int, hours: float, rate_hz: float) -> tuple[list[Path], list[Path]]:
     """Write (or reuse) the calibration and validation bags of every unit."""
-    from tak_thermo_ros.bagio import write_record
+    from tak_thermo_ros.formats.bag import write_record
     from tak_thermo_ros.core.simulation.imu import simulate
     batch = workdir / f'fleet_{units}u_{hours:g}h_{rate_hz:g}hz'
     (batch / 'bags').mkdir(parents=True, exist_ok=True)

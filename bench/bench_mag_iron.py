@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from tak_thermo_ros.core.magnetometer.iron import fit_ellipsoid
-from tak_thermo_ros.core.records.calibration_file import write_text_atomic
+from tak_thermo_ros.formats.calibration_file import write_text_atomic
 from tak_thermo_ros.core.simulation.magnetometer import MagnetometerTruth, rotation_record
 from tak_thermo_ros.errors import FitError
 

@@ -30,7 +30,7 @@ import numpy as np
 
 from bench_fit import BASELINE_SCRIPT, run_child
 from benchlib import machine, tak_calib_command
-from tak_thermo_ros.core.records.calibration_file import write_text_atomic
+from tak_thermo_ros.formats.calibration_file import write_text_atomic
 
 RESULTS = Path(__file__).resolve().parent / 'results'
 MEMORY_TARGET_BYTES = 1024 ** 3
@@ -68,7 +68,7 @@ def temperature_code(t_s: np.ndarray, duration_s: float, low: float, high: float
 def write_bag(path: str | os.PathLike[str], hours: float, *, seed: int = 1) -> None:
     """Generate and write a counts-contract bag of ``hours`` at 1 kHz, chunk by chunk."""
     from rosbags.rosbag2 import StoragePlugin, Writer  # the bench only: the package reads bags via bagio
-    from tak_thermo_ros.bagio import NOMINAL_SCALE_KEY, TEMPERATURE, TYPESTORE, VECTOR3_STAMPED, Topics
+    from tak_thermo_ros.formats.bag import NOMINAL_SCALE_KEY, TEMPERATURE, TYPESTORE, VECTOR3_STAMPED, Topics
     from tak_thermo_ros.core.simulation.imu import Scenario
     truth = Scenario().truth()
     noise = Scenario().unit[0].noise_counts

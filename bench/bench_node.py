@@ -393,7 +393,7 @@ def in_process_cost(params: Path, count: int = 200_000) -> dict:
     from geometry_msgs.msg import Vector3Stamped
     from sensor_msgs.msg import Imu
 
-    from tak_thermo_ros.core.records.calibration_file import load_calibration
+    from tak_thermo_ros.formats.calibration_file import load_calibration
     from tak_thermo_ros.core.link.online import OnlineCompensator
     core = OnlineCompensator(load_calibration(params))
     core.process_temperature(8300.0, 0.0)
@@ -603,7 +603,7 @@ def main() -> int:
     soak_count = 20_000 if args.quick else 1_000_000
     rounds = 2 if args.quick else 10
 
-    from tak_thermo_ros.core.records.calibration_file import save_calibration
+    from tak_thermo_ros.formats.calibration_file import save_calibration
     from tak_thermo_ros.core.simulation.imu import Scenario
 
     with tempfile.TemporaryDirectory(prefix='bench_node_') as tmp:
@@ -743,7 +743,7 @@ def in_process_driver_cost(params: Path, count: int = 50_000) -> dict:
     """
     from sensor_msgs.msg import Imu
 
-    from tak_thermo_ros.core.records.calibration_file import load_unit
+    from tak_thermo_ros.formats.calibration_file import load_unit
     from tak_thermo_ros.core.link.online import OnlineCompensator
     core = OnlineCompensator(load_unit(params))
     core.process_temperature(21.0, 0.0)
@@ -779,7 +779,7 @@ def in_process_driver_cost(params: Path, count: int = 50_000) -> dict:
 
 def driver_params(path: Path) -> None:
     """The simulator's default driver unit as a version-2 calibration file."""
-    from tak_thermo_ros.core.records.calibration_file import save_unit
+    from tak_thermo_ros.formats.calibration_file import save_unit
     from tak_thermo_ros.core.simulation.imu import Scenario
     save_unit(path, Scenario(output='imu').driver_truth())
 

@@ -49,8 +49,8 @@ def draw(figures: dict) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from tak_thermo_ros.bagio import read_record
-    from tak_thermo_ros.core.records.calibration_file import load_calibration
+    from tak_thermo_ros.formats.bag import read_record
+    from tak_thermo_ros.formats.calibration_file import load_calibration
     from tak_thermo_ros.core.records.record import align
     from tak_thermo_ros.core.link.validate import validate_gravity
 

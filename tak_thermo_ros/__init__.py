@@ -5,7 +5,7 @@ Layers
 ``tak_thermo_ros.core``
     The maths: model, correction link, fit, simulator, validation. Imports neither
     rclpy nor rosbags.
-``tak_thermo_ros.bagio``
+``tak_thermo_ros.formats.bag``
     The only module that reads or writes rosbags.
 ``tak_thermo_ros.node``
     The only module that imports rclpy.

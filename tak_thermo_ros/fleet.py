@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import copy
 import io
 import json
 import logging
@@ -36,10 +35,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence, TextIO
 
-from tak_thermo_ros.core.records.calibration_file import calibration_section, write_text_atomic
-from tak_thermo_ros.core.link.correction import OutOfRange
+from tak_thermo_ros.formats.calibration_file import calibration_section, write_text_atomic
 from tak_thermo_ros.core.diagnose.fleet import (
-    DEFAULT_FLAG_SIGMA,
     MIN_UNITS_FOR_SPREAD,
     batch_spreads,
     calibration_metrics,
@@ -437,48 +434,3 @@ def cmd_fit_fleet(args: argparse.Namespace, fit_actions: Sequence[argparse.Actio
                f'see {fleet_json}')
         raise TakError(msg)
     return 0
-
-
-def add_fleet_parser(commands: Any, fit_parser: argparse.ArgumentParser, command: Command) -> argparse.ArgumentParser:
-    """Add ``fit-fleet`` to the ``tak_calib`` subcommands; it takes over every option of ``fit_parser``.
-
-    The fit options are copied from the ``fit`` subcommand (so that a new fit option is at once
-    a fleet option) and handed to ``tak_calib fit`` for every unit.
-    """
-    fleet = commands.add_parser(
-        'fit-fleet', help='calibrate a batch of units on Dask, with a spread report and outlier flags',
-        description='Fit, diagnose and (optionally) validate every unit of a production batch on Dask workers; '
-                    'write OUT_DIR/units/<unit>/, OUT_DIR/fleet.json and OUT_DIR/fleet.html (see docs/fleet.md). '
-                    'Exit status 0 when at least one unit was calibrated (failed units are listed in fleet.json), '
-                    '2 when none was.')
-    fleet.add_argument('bags', nargs='+', metavar='BAG',
-                       help='one calibration bag per unit (the unit is named after it)')
-    fleet.add_argument('-o', '--output', required=True, metavar='OUT_DIR')
-    fleet.add_argument('--validate', nargs='+', metavar='BAG',
-                       help='one validation bag per unit, in the order of the BAGs (|g| error after correction)')
-    where = fleet.add_mutually_exclusive_group()
-    where.add_argument('--scheduler', metavar='ADDRESS',
-                       help='a running Dask scheduler, e.g. tcp://host:8786 (default: a local cluster)')
-    where.add_argument('--workers', type=int, metavar='N',
-                       help=f'worker processes of the local cluster, one thread each (default {DEFAULT_WORKERS})')
-    fleet.add_argument('--flag-sigma', type=float, default=DEFAULT_FLAG_SIGMA, metavar='K',
-                       help='flag a unit whose coefficient or residual lies more than K robust sigmas '
-                            f'(1.4826 x MAD) from the batch median (default {DEFAULT_FLAG_SIGMA:g})')
-    fleet.add_argument('--force', action='store_true', help='replace an existing OUT_DIR/fleet.json')
-    diagnose = fleet.add_argument_group('diagnose and validate options (every unit)')
-    diagnose.add_argument('--folds', type=int, default=5, help='cross-validation folds of diagnose (default 5)')
-    diagnose.add_argument('--candidates', metavar='NAME[,NAME...]', help='effects diagnose tries (see diagnose)')
-    diagnose.add_argument('--gravity', type=float, default=STANDARD_GRAVITY, help='local gravity, m/s^2')
-    diagnose.add_argument('--out-of-range', choices=[p.value for p in OutOfRange], default=OutOfRange.CLAMP.value,
-                          help='validate: temperature codes outside the calibrated range (default clamp)')
-    fit_group = fleet.add_argument_group('fit options (passed to tak_calib fit for every unit)')
-    # Copies of fit's own option actions (argparse offers no public way to share them). One whose
-    # name fit-fleet already uses is left out rather than breaking every command (a test checks).
-    taken = set(fleet._option_string_actions)
-    fit_actions = [copy.copy(action) for action in fit_parser._actions
-                   if action.option_strings and action.dest not in NOT_PASSED_TO_FIT
-                   and not taken.intersection(action.option_strings)]
-    for action in fit_actions:
-        fit_group._add_action(action)
-    fleet.set_defaults(handler=lambda args: cmd_fit_fleet(args, fit_actions, command))
-    return fleet

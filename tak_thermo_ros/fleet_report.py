@@ -22,7 +22,7 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from tak_thermo_ros.core.records.calibration_file import write_text_atomic  # noqa: E402
+from tak_thermo_ros.formats.calibration_file import write_text_atomic  # noqa: E402
 from tak_thermo_ros.core.link.model import AXES  # noqa: E402
 
 NORMAL = '#1f77b4'

@@ -50,7 +50,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, MagneticField, Temperature
 
-from tak_thermo_ros.core.records.calibration_file import (
+from tak_thermo_ros.formats.calibration_file import (
     NODE_NAME,
     flatten_parameters,
     load_unit,

@@ -145,11 +145,11 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
     :param expect_kind: called with the bag's kind before the pass (raises on a mismatch).
     :raises NoiseError: a counts bag without a calibration, a run too short for five averaging times.
     """
-    from tak_thermo_ros.bagio import bag_streams
+    from tak_thermo_ros.formats.records import record_streams
     from tak_thermo_ros.streaming import SensorPass, open_calibration_run, run_passes
     from tak_thermo_ros.core.records.blocks import BlockAligner
     path = Path(path)
-    kind = bag_streams(path, topics=options.topics).kind
+    kind = record_streams(path, topics=options.topics).kind
     if expect_kind is not None:
         expect_kind(kind)
     if unit is not None and kind is not unit.input_kind:
@@ -221,7 +221,7 @@ def noise_models(*, unit: UnitCalibration | None, options: StreamOptions, noise_
     models: dict[str, NoiseModel] = {}
     said: list[str] = []
     if noise_file is not None:
-        from tak_thermo_ros.core.noise.kalibr import read_kalibr
+        from tak_thermo_ros.formats.kalibr import read_kalibr
         from_file = read_kalibr(noise_file)
         models.update({s: m for s, m in from_file.items() if s in sensors})
         said.append(f'{", ".join(sorted(models))} from {noise_file}')

@@ -1,6 +1,6 @@
 """``tak_calib``'s passes over a bag in blocks: fit, apply, validate and diagnose in bounded memory.
 
-Each pass reads the bag once in log order (:func:`tak_thermo_ros.bagio.iter_blocks`), aligns
+Each pass reads the bag once in log order (:func:`tak_thermo_ros.formats.bag.iter_blocks`), aligns
 each block on the main stream with the held values carried over
 (:class:`~tak_thermo_ros.core.records.blocks.BlockAligner`) and hands the block to an accumulator:
 the blocked-QR fit (:class:`~tak_thermo_ros.core.fit.stream.StreamingFit`), the corrector
@@ -37,7 +37,7 @@ from tak_thermo_ros.core.fit.stream import StreamingEffectFit, StreamingFit
 from tak_thermo_ros.errors import FitError, TakError
 
 if TYPE_CHECKING:
-    from tak_thermo_ros.bagio import Topics
+    from tak_thermo_ros.formats.bag import Topics
 
 DIAGNOSE_MAX_SAMPLES = 1_000_000
 """``diagnose`` works on at most about this many samples, spread evenly over the run."""
@@ -58,7 +58,7 @@ def sensors_of(kind: InputKind) -> tuple[str, ...]:
 class StreamOptions:
     """How a pass reads the bag.
 
-    :param topics: the bag's topic names (:class:`tak_thermo_ros.bagio.Topics`).
+    :param topics: the bag's topic names (:class:`tak_thermo_ros.formats.bag.Topics`).
     :param progress: show a progress bar on a terminal.
     :param block_samples: main-stream messages per block.
     """
@@ -73,7 +73,7 @@ class _StaticRun:
 
     def __init__(self, path: Path, options: StreamOptions, *, recorded_reference: bool, recorded_rate: bool,
                  gravity: float, latitude: float | None) -> None:
-        from tak_thermo_ros.bagio import iter_blocks
+        from tak_thermo_ros.formats.records import record_blocks
         topics = options.topics
         self.path = path
         self.recorded_reference = recorded_reference
@@ -89,8 +89,8 @@ class _StaticRun:
             return
         total = np.zeros(3)
         count = 0
-        for block in iter_blocks(path, topics=topics, kind=InputKind.IMU, block_samples=options.block_samples,
-                                 references=False, progress=options.progress):
+        for block in record_blocks(path, topics=topics, kind=InputKind.IMU, block_samples=options.block_samples,
+                                   references=False, progress=options.progress):
             finite = np.all(np.isfinite(block.accel), axis=1)  # type: ignore[union-attr]
             total += block.accel[finite].sum(axis=0)  # type: ignore[union-attr]
             count += int(np.count_nonzero(finite))
@@ -187,10 +187,10 @@ def open_calibration_run(path: Path, options: StreamOptions, *, gravity: float, 
     Its input kind, the number of main messages, and for driver bags the static-run reference
     (the specific force and rate at each turntable position, recorded or estimated).
     """
-    from tak_thermo_ros.bagio import bag_streams
-    streams = bag_streams(path, topics=options.topics)
+    from tak_thermo_ros.formats.records import record_streams
+    streams = record_streams(path, topics=options.topics)
     if require_reference and streams.kind is InputKind.COUNTS:
-        streams = bag_streams(path, topics=options.topics, require_reference=True)
+        streams = record_streams(path, topics=options.topics, require_reference=True)
     static = None
     if streams.kind is InputKind.IMU:
         static = _StaticRun(path, options, recorded_reference=streams.reference > 0,
@@ -200,11 +200,11 @@ def open_calibration_run(path: Path, options: StreamOptions, *, gravity: float, 
 
 def run_passes(path: Path, options: StreamOptions, opened: OpenedRun, passes: Sequence[SensorPass]) -> list[str]:
     """Read the bag once, feeding each sensor's pass; the reference lines (driver bags)."""
-    from tak_thermo_ros.bagio import iter_blocks
+    from tak_thermo_ros.formats.records import record_blocks
     if opened.static is not None:
         opened.static.rewind()
-    for block in iter_blocks(path, topics=options.topics, kind=opened.kind,
-                             block_samples=options.block_samples, progress=options.progress):
+    for block in record_blocks(path, topics=options.topics, kind=opened.kind,
+                               block_samples=options.block_samples, progress=options.progress):
         if opened.static is not None:
             block = opened.static.check_block(block)
         records = _sensor_records(block, opened.kind)
@@ -283,8 +283,8 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
         raise TakError(msg)
     nominal = dict(settings.nominal_scale)
     if kind is InputKind.COUNTS and nominal_for is not None:
-        from tak_thermo_ros.bagio import bag_streams
-        nominal['accel'] = nominal_for(kind, bag_streams(path, topics=options.topics).nominal_scale)
+        from tak_thermo_ros.formats.records import record_streams
+        nominal['accel'] = nominal_for(kind, record_streams(path, topics=options.topics).nominal_scale)
     elif kind is InputKind.IMU:
         nominal = {sensor: (1.0, 1.0, 1.0) for sensor in sensors}
 
@@ -457,13 +457,14 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
               storage: str = 'mcap', out_of_range: OutOfRange = OutOfRange.CLAMP, force: bool = False) -> Applied:
     """Correct a bag block by block into an Imu bag that stays open (``tak_calib apply``).
 
-    :param force: replace an existing output bag (:func:`tak_thermo_ros.core.records.files.check_output`).
+    :param force: replace an existing output bag (:func:`tak_thermo_ros.formats.files.check_output`).
     :raises TakError: a corrected value is not finite (nothing is written).
     """
-    from tak_thermo_ros.bagio import ImuBagWriter, bag_streams, iter_blocks
+    from tak_thermo_ros.formats.bag import ImuBagWriter
+    from tak_thermo_ros.formats.records import record_blocks, record_streams
     path = Path(path)
     topics = options.topics
-    kind = bag_streams(path, topics=topics).kind
+    kind = record_streams(path, topics=topics).kind
     topic = topics.imu if kind is InputKind.COUNTS else topics.compensated_imu
     aligner = BlockAligner(use_reference=False)
     corrector = BlockUnitCorrector(unit, out_of_range=out_of_range)
@@ -474,7 +475,7 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
     outside = 0
     frame_id = ''
     magnetometer = None
-    if kind is InputKind.IMU and unit.mag is not None and bag_streams(path, topics=topics).mag:
+    if kind is InputKind.IMU and unit.mag is not None and record_streams(path, topics=topics).mag:
         from tak_thermo_ros.streaming_mag import MagApplier
         magnetometer = MagApplier(unit.mag, out_of_range=out_of_range, topic=topics.compensated_mag)
     with ImuBagWriter(output, topic=topic, storage=storage, force=force) as writer:
@@ -499,8 +500,8 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
                              orientation=orientation, orientation_covariance=covariance)
             writer.write(samples.stamp_ns, frame_id, corrected[:, :3], accel_variance, **extra)
 
-        for block in iter_blocks(path, topics=topics, kind=kind, block_samples=options.block_samples,
-                                 references=False, progress=options.progress):
+        for block in record_blocks(path, topics=topics, kind=kind, block_samples=options.block_samples,
+                                   references=False, progress=options.progress):
             if isinstance(block, DriverRecord):
                 passing.add(block.orientation, block.orientation_covariance)
                 record = block.six_channels()
@@ -544,9 +545,9 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
 
     :param expect_kind: called with the bag's kind before the pass (raises on a mismatch).
     """
-    from tak_thermo_ros.bagio import bag_streams
+    from tak_thermo_ros.formats.records import record_streams
     path = Path(path)
-    kind = bag_streams(path, topics=options.topics).kind
+    kind = record_streams(path, topics=options.topics).kind
     if expect_kind is not None:
         expect_kind(kind)
     calibration_run = kind is InputKind.IMU

@@ -43,8 +43,8 @@ NO_IRON_NOTE = 'hard and soft iron not fitted (no --iron-run): hard_iron 0, soft
 
 def has_mag(path: str | Path, topics) -> bool:
     """Whether a driver bag holds magnetometer messages."""
-    from tak_thermo_ros.bagio import bag_streams
-    streams = bag_streams(path, topics=topics)
+    from tak_thermo_ros.formats.records import record_streams
+    streams = record_streams(path, topics=topics)
     return streams.kind is InputKind.IMU and streams.mag > 0
 
 
@@ -54,10 +54,10 @@ def _mag_blocks(path: Path, options, *, references: bool):
     The first block with finite values is checked to be in tesla (:func:`check_tesla`): a topic
     in gauss-sized numbers is refused before anything is computed from it.
     """
-    from tak_thermo_ros.bagio import iter_blocks
+    from tak_thermo_ros.formats.records import record_blocks
     checked = False
-    for block in iter_blocks(path, topics=options.topics, kind=InputKind.IMU, block_samples=options.block_samples,
-                             references=references, progress=options.progress):
+    for block in record_blocks(path, topics=options.topics, kind=InputKind.IMU, block_samples=options.block_samples,
+                               references=references, progress=options.progress):
         record = block.channel('mag')
         if not checked:
             finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
@@ -96,9 +96,9 @@ def _calibration_pass(path: Path, options, consumers) -> _CalibrationPass:
     The reference is the recorded field, or a static run's mean field; refuses a static run
     that turned and a topic not in tesla.
     """
-    from tak_thermo_ros.bagio import bag_streams
+    from tak_thermo_ros.formats.records import record_streams
     topics = options.topics
-    static = bag_streams(path, topics=topics).mag_reference == 0
+    static = record_streams(path, topics=topics).mag_reference == 0
     mean = _mean_field(path, options) if static else None
     aligner = BlockAligner(use_reference=True, reference_expected=True)
     max_turn = 0.0
@@ -133,9 +133,9 @@ def bounded_mag_run(path: str | Path, options, *, max_samples: int) -> tuple[Ali
 
     Every n-th sample, at most about ``max_samples``, the reference held as for the fit.
     """
-    from tak_thermo_ros.bagio import bag_streams
+    from tak_thermo_ros.formats.records import record_streams
     path = Path(path)
-    count = bag_streams(path, topics=options.topics).mag
+    count = record_streams(path, topics=options.topics).mag
     stride = stride_for(count, max_samples)
     subsample = Subsample(stride, expected=count // stride + 1)
     calibration_pass = _calibration_pass(path, options, [subsample])
@@ -177,13 +177,13 @@ def fit_mag_bag(path: str | Path, options, *, bias_order: int = 3, scale_order: 
     """
     path = Path(path)
     topics = options.topics
-    from tak_thermo_ros.bagio import bag_streams
+    from tak_thermo_ros.formats.records import record_streams
     fit = StreamingFit(bias_order=bias_order, scale_order=scale_order, temp_code_ref=temp_code_ref,
                        nominal_scale=(1.0, 1.0, 1.0))
     consumers = [fit.add]
     subsample = None
     if effects:
-        count = bag_streams(path, topics=topics).mag
+        count = record_streams(path, topics=topics).mag
         subsample = Subsample(stride_for(count, max_effect_samples), expected=count)
         consumers.append(subsample)
     calibration_pass = _calibration_pass(path, options, consumers)
@@ -228,9 +228,9 @@ def _microtesla(values) -> str:
 
 def _fit_iron(path: Path, options, link) -> tuple[EllipsoidFit, int]:
     """The ellipsoid of a rotation record, corrected by the thermal link first; samples out of its range."""
-    from tak_thermo_ros.bagio import bag_streams
+    from tak_thermo_ros.formats.records import record_streams
     topic = options.topics.mag
-    streams = bag_streams(path, topics=options.topics)
+    streams = record_streams(path, topics=options.topics)
     if streams.kind is not InputKind.IMU or streams.mag == 0:
         msg = f'{path}: no messages on {topic} (the rotation record for --iron-run)'
         raise BagError(msg)
@@ -349,9 +349,9 @@ def validate_mag(path: str | Path, mag: MagnetometerCalibration, options, *,
 
     Against ``/tak/reference_field`` when recorded, else about the run's mean (a static run).
     """
-    from tak_thermo_ros.bagio import bag_streams
+    from tak_thermo_ros.formats.records import record_streams
     path = Path(path)
-    streams = bag_streams(path, topics=options.topics)
+    streams = record_streams(path, topics=options.topics)
     with_reference = streams.mag_reference > 0
     corrector = MagCorrector(mag, out_of_range=out_of_range)
     aligner = BlockAligner(use_reference=with_reference, reference_expected=with_reference)

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 from rosbags.rosbag2 import Writer
 
-from tak_thermo_ros.bagio import TEMPERATURE, TYPESTORE, VECTOR3_STAMPED, Topics
+from tak_thermo_ros.formats.bag import TEMPERATURE, TYPESTORE, VECTOR3_STAMPED, Topics
 from tak_thermo_ros.core.records.record import NANOSECONDS, ChannelRecord
 
 _types = TYPESTORE.types

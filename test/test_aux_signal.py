@@ -12,8 +12,8 @@ import yaml
 
 from conftest import SHORT
 from tak_thermo_ros import cli
-from tak_thermo_ros.bagio import read_driver_record, read_record
-from tak_thermo_ros.core.records.calibration_file import (
+from tak_thermo_ros.formats.bag import read_driver_record, read_record
+from tak_thermo_ros.formats.calibration_file import (
     calibration_from_mapping,
     calibration_to_mapping,
     load_unit,

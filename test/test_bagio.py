@@ -11,7 +11,7 @@ from rosbags.rosbag2 import Writer
 from rosbags.typesys import Stores, get_typestore
 
 from conftest import SHORT
-from tak_thermo_ros.bagio import Topics, read_imu, read_record, write_imu, write_record
+from tak_thermo_ros.formats.bag import Topics, read_imu, read_record, write_imu, write_record
 from tak_thermo_ros.core.records.record import ChannelRecord
 from tak_thermo_ros.core.simulation.imu import simulate
 from tak_thermo_ros.errors import BagError

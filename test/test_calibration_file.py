@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from tak_thermo_ros.core.records.calibration_file import (
+from tak_thermo_ros.formats.calibration_file import (
     calibration_from_mapping,
     calibration_to_mapping,
     flatten_parameters,

@@ -21,7 +21,7 @@ from rclpy.context import Context
 from rclpy.node import Node
 
 from node_helpers import domain_id, ros_environment
-from tak_thermo_ros.core.records.calibration_file import (
+from tak_thermo_ros.formats.calibration_file import (
     LIMITS,
     flatten_parameters,
     load_calibration,

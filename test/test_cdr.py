@@ -15,9 +15,16 @@ from rosbags.rosbag2 import Reader, Writer
 from rosbags.serde import SerdeError
 
 from conftest import SHORT
-from tak_thermo_ros import bagio
-from tak_thermo_ros.bagio import TYPESTORE, iter_topic_arrays, read_record, write_record
-from tak_thermo_ros.cdr import MAX_LAYOUT_ROUNDS, SCHEMAS, MessageArrays, concatenate, decode_message, decode_messages
+from tak_thermo_ros.formats import bag as bagio
+from tak_thermo_ros.formats.bag import TYPESTORE, iter_topic_arrays, read_record, write_record
+from tak_thermo_ros.formats.cdr import (
+    MAX_LAYOUT_ROUNDS,
+    SCHEMAS,
+    MessageArrays,
+    concatenate,
+    decode_message,
+    decode_messages,
+)
 from tak_thermo_ros.core.simulation.imu import simulate
 from tak_thermo_ros.errors import BagError, CdrError
 
@@ -471,7 +478,7 @@ def test_read_record_names_a_corrupt_message(tmp_path, tiny_record):
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
 def test_driver_bag_block_decoder_equals_rosbags(tmp_path, storage):
     """A driver bag (Imu, temperature, both references) reads the same through both decoders."""
-    from tak_thermo_ros.bagio import read_driver_record, write_driver_record
+    from tak_thermo_ros.formats.bag import read_driver_record, write_driver_record
     from tak_thermo_ros.core.simulation.imu import RATE_TABLE_POSITIONS, RATE_TABLE_RATES, Scenario, simulate
     scenario = Scenario(output='imu', plateaus_celsius=(10.0, 30.0), plateau_hours=0.05, ramp_celsius_per_minute=4.0,
                         dwell_s=20.0, positions=RATE_TABLE_POSITIONS, table_rates=RATE_TABLE_RATES, seed=5)

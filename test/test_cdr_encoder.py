@@ -13,11 +13,11 @@ from hypothesis import strategies as st
 from rosbags.rosbag2 import Reader
 
 from conftest import SHORT
-from tak_thermo_ros import bagio
-from tak_thermo_ros.bagio import TYPESTORE, read_imu_messages, write_driver_record, write_record
-from tak_thermo_ros.cdr import decode_messages, encode_imus, encode_messages
+from tak_thermo_ros.formats import bag as bagio
+from tak_thermo_ros.formats.bag import TYPESTORE, read_imu_messages, write_driver_record, write_record
+from tak_thermo_ros.formats.cdr import decode_messages, encode_imus, encode_messages
 from tak_thermo_ros.cli import main
-from tak_thermo_ros.core.records.calibration_file import save_calibration, save_unit
+from tak_thermo_ros.formats.calibration_file import save_calibration, save_unit
 from tak_thermo_ros.core.simulation.imu import simulate
 from tak_thermo_ros.errors import CdrError
 

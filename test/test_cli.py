@@ -13,9 +13,9 @@ import pytest
 import yaml
 
 from conftest import SHORT
-from tak_thermo_ros.bagio import read_imu, read_record, write_record
+from tak_thermo_ros.formats.bag import read_imu, read_record, write_record
 from tak_thermo_ros.cli import main
-from tak_thermo_ros.core.records.calibration_file import load_calibration
+from tak_thermo_ros.formats.calibration_file import load_calibration
 from tak_thermo_ros.core.link.correction import Corrector, acceleration_variance
 from tak_thermo_ros.core.records.record import align
 from tak_thermo_ros.core.simulation.imu import simulate
@@ -92,7 +92,7 @@ def test_bad_counts_are_dropped_and_reported(tmp_path):
     counts[12, 2] = 32767.0
     write_record(tmp_path / 'bad', replace(run.record, counts=counts))
     calibration = run.truth
-    from tak_thermo_ros.core.records.calibration_file import save_calibration
+    from tak_thermo_ros.formats.calibration_file import save_calibration
     save_calibration(tmp_path / 'p.yaml', calibration)
     result = _run('apply', str(tmp_path / 'bad'), '--params', str(tmp_path / 'p.yaml'), '-o', str(tmp_path / 'imu'))
     assert result.returncode == 0, result.stderr
@@ -150,7 +150,7 @@ def test_usage_errors_exit_2(capsys):
 
 def test_diagnose_candidates_expand_library():
     """--candidates: comma-separated, 'library' stands for every library effect, no repeats."""
-    from tak_thermo_ros.cli import expand_candidates
+    from tak_thermo_ros.cli.diagnose import expand_candidates
     from tak_thermo_ros.core.effects import LIBRARY
     assert expand_candidates('mymodule:Creep') == ['mymodule:Creep']
     assert expand_candidates('library, mymodule:Creep,thermal_lag') == [*LIBRARY, 'mymodule:Creep']
@@ -178,7 +178,7 @@ def test_long_runs_are_fitted_and_diagnosed_on_a_bounded_subsample(workspace, tm
 
 def test_a_driver_bags_diagnosis_speaks_of_degrees_not_codes():
     """On driver bags the verdict's words name the temperature (degrees C), not the paper's codes."""
-    from tak_thermo_ros.cli import _in_driver_words
+    from tak_thermo_ros.cli.common import in_driver_words as _in_driver_words
     text = _in_driver_words('no function of the temperature code predicts it; a play operator of width '
                             'width_codes; the temperature codes of this run')
     assert 'code ' not in text.replace('_codes', '') and 'temperatures of this run' in text

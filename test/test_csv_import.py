@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tak_thermo_ros.bagio import read_record
+from tak_thermo_ros.formats.bag import read_record
 from tak_thermo_ros.cli import main
-from tak_thermo_ros.core.records.csv_log import CsvImportOptions, parse_csv_log, read_csv_log
+from tak_thermo_ros.formats.csv_log import CsvImportOptions, parse_csv_log, read_csv_log
 from tak_thermo_ros.core.simulation.imu import STANDARD_GRAVITY
 from tak_thermo_ros.errors import LogError
 
@@ -135,7 +135,7 @@ def test_bad_log_gives_one_line_and_exit_code_2(case, tmp_path, capsys):
 
 def test_gyro_columns_make_a_driver_bag_with_the_logged_values(tmp_path, capsys):
     """--gyro-columns: the real log becomes a driver bag, values as logged (SI units), temperature in C."""
-    from tak_thermo_ros.bagio import bag_input_kind, read_driver_record
+    from tak_thermo_ros.formats.bag import bag_input_kind, read_driver_record
     from tak_thermo_ros.core.link.model import InputKind
     gyro = ['--gyro-columns', 'imu.gyro.x', 'imu.gyro.y', 'imu.gyro.z']
     assert main(['import-csv', str(REAL_LOG), '-o', str(tmp_path / 'driver'), *REAL_COLUMNS, *gyro]) == 0

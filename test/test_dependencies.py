@@ -50,8 +50,8 @@ def test_the_node_imports_no_offline_library():
     added = set(node['top']) - set(ros['top']) - set(sys.stdlib_module_names)
     assert {name for name in added if not name.startswith('_')} <= {'numpy', 'yaml', 'tak_thermo_ros'}
     offline_modules = ('tak_thermo_ros.core.fit', 'tak_thermo_ros.core.diagnose', 'tak_thermo_ros.core.simulation',
-                       'tak_thermo_ros.bagio', 'tak_thermo_ros.cdr', 'tak_thermo_ros.streaming', 'tak_thermo_ros.cli',
-                       'tak_thermo_ros.report', 'tak_thermo_ros.fleet')
+                       'tak_thermo_ros.formats.bag', 'tak_thermo_ros.formats.cdr', 'tak_thermo_ros.streaming',
+                       'tak_thermo_ros.cli', 'tak_thermo_ros.report', 'tak_thermo_ros.fleet')
     assert not [m for m in node['own'] if m.startswith(offline_modules)], node['own']
 
 
@@ -154,7 +154,7 @@ def test_a_missing_optional_library_is_one_line_naming_the_pip_package(monkeypat
 
 def test_fit_fleet_without_dask_exits_2_in_one_line(tmp_path):
     """`tak_calib fit-fleet` where dask[distributed] is missing: one line, exit 2, no traceback."""
-    from tak_thermo_ros.bagio import write_record
+    from tak_thermo_ros.formats.bag import write_record
     from tak_thermo_ros.core.simulation.imu import Scenario, simulate
     bag = tmp_path / 'unit1'
     write_record(bag, simulate(Scenario(plateaus_celsius=(10.0, 30.0), plateau_hours=0.02, dwell_s=5.0,

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from conftest import SHORT
-from tak_thermo_ros.bagio import bag_input_kind, read_driver_record, write_driver_record, write_record
+from tak_thermo_ros.formats.bag import bag_input_kind, read_driver_record, write_driver_record, write_record
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.core.diagnose import design_driver_run, diagnose
 from tak_thermo_ros.core.diagnose.design import driver_table
@@ -29,9 +29,9 @@ from tak_thermo_ros.core.simulation.imu import (
     RATE_TABLE_RATES,
     Scenario,
     chamber_profile,
-    load_scenario,
     simulate,
 )
+from tak_thermo_ros.formats.scenario import load_scenario
 
 GYRO_LAG = {'tau_s': 900.0, 'slope_x': 4.0e-4, 'slope_y': 0.0, 'slope_z': -5.0e-4}
 """rad/s of bias per degree C of lag: at 1 C/min and tau 900 s, several times the gyro noise on x and z."""

@@ -15,19 +15,21 @@ import pytest
 
 from conftest import SHORT
 from conftest import noise_floor as noise_floor_of
-from tak_thermo_ros.core.records.calibration_file import (
+from tak_thermo_ros.formats.calibration_file import (
     calibration_from_mapping,
     calibration_to_mapping,
     flatten_parameters,
 )
 from tak_thermo_ros.core.link.correction import Corrector
-from tak_thermo_ros.core.diagnose import ModelScore, design_run, diagnose, write_design
+from tak_thermo_ros.core.diagnose import ModelScore, design_files, design_run, diagnose
 from tak_thermo_ros.core.diagnose.crossval import paired_block_t
 from tak_thermo_ros.core.diagnose.verdict import per_axis_t_threshold
 from tak_thermo_ros.core.effects import PER_AXIS, resolve_effect
 from tak_thermo_ros.core.fit import fit_model, residual_counts
 from tak_thermo_ros.core.records.record import AlignedSamples, align
-from tak_thermo_ros.core.simulation.imu import PROFILES, Scenario, chamber_profile, load_scenario, simulate
+from tak_thermo_ros.core.simulation.imu import PROFILES, Scenario, chamber_profile, simulate
+from tak_thermo_ros.formats.files import write_texts
+from tak_thermo_ros.formats.scenario import load_scenario
 from tak_thermo_ros.core.link.validate import validate_gravity
 from tak_thermo_ros.errors import FitError
 
@@ -245,7 +247,7 @@ def test_design_run_proposes_a_profile_that_separates_lag_from_hysteresis_better
     assert set(design.candidates) == {'thermal_lag', 'hysteresis'}
     assert design.best.separation_sigmas == max(p.separation_sigmas for p in design.tried)
     assert design.best.separation_sigmas > 2.0 * design.baseline_sigmas, design.as_dict()
-    scenario_path, schedule_path, json_path = write_design(design, tmp_path / 'design')
+    scenario_path, schedule_path, json_path = write_texts(tmp_path / 'design', design_files(design))
     proposed = load_scenario(scenario_path)
     assert proposed.duration_s() / 3600.0 == pytest.approx(design.best.hours)
     schedule = np.loadtxt(schedule_path, delimiter=',', skiprows=1)

@@ -9,9 +9,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from tak_thermo_ros.bagio import read_imu_messages, write_driver_record, write_record
+from tak_thermo_ros.formats.bag import read_imu_messages, write_driver_record, write_record
 from tak_thermo_ros.cli import main
-from tak_thermo_ros.core.records.calibration_file import load_unit, save_calibration
+from tak_thermo_ros.formats.calibration_file import load_unit, save_calibration
 from tak_thermo_ros.core.link.correction import UnitCorrector, acceleration_variance
 from tak_thermo_ros.core.records.record import DriverRecord, align
 from tak_thermo_ros.core.simulation.imu import RATE_TABLE_POSITIONS, RATE_TABLE_RATES, Scenario, simulate

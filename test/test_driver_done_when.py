@@ -18,7 +18,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from tak_thermo_ros.bagio import read_imu_messages, write_driver_record
+from tak_thermo_ros.formats.bag import read_imu_messages, write_driver_record
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.core.simulation.imu import RATE_TABLE_POSITIONS, RATE_TABLE_RATES, Scenario, simulate
 

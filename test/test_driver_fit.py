@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tak_thermo_ros.bagio import Topics, write_driver_record
+from tak_thermo_ros.formats.bag import Topics, write_driver_record
 from tak_thermo_ros.cli import main
-from tak_thermo_ros.core.records.calibration_file import load_unit
+from tak_thermo_ros.formats.calibration_file import load_unit
 from tak_thermo_ros.core.link.model import Calibration, InputKind
 from tak_thermo_ros.core.records.record import align
 from tak_thermo_ros.core.simulation.imu import RATE_TABLE_POSITIONS, RATE_TABLE_RATES, Scenario, simulate

@@ -14,9 +14,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from tak_thermo_ros.bagio import write_driver_record
+from tak_thermo_ros.formats.bag import write_driver_record
 from tak_thermo_ros.cli import main
-from tak_thermo_ros.core.records.calibration_file import load_unit
+from tak_thermo_ros.formats.calibration_file import load_unit
 from tak_thermo_ros.core.effects import LIBRARY
 from tak_thermo_ros.core.fit import fit_model
 from tak_thermo_ros.core.records.record import align

@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from conftest import CREEP_MODULE, EXAMPLES
-from tak_thermo_ros.core.records.calibration_file import (
+from tak_thermo_ros.formats.calibration_file import (
     calibration_from_mapping,
     calibration_to_mapping,
     flatten_parameters,

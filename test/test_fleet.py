@@ -24,7 +24,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from conftest import SHORT
-from tak_thermo_ros.bagio import write_record
+from tak_thermo_ros.formats.bag import write_record
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.core.diagnose.fleet import (
     MAD_TO_SIGMA,

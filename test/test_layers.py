@@ -1,4 +1,4 @@
-"""The maths imports neither rclpy nor rosbags; bag I/O and the node stay in their modules."""
+"""Three layers: the maths imports no file format, no command and no ROS; formats and the node stay in their rooms."""
 
 from __future__ import annotations
 
@@ -45,14 +45,39 @@ def _imported_roots(path: Path) -> set[str]:
     return roots
 
 
-def test_only_bagio_imports_rosbags_and_only_node_imports_rclpy():
-    """`rosbags` appears in bagio.py alone; rclpy and ROS message packages in node.py alone."""
+def test_only_the_bag_format_imports_rosbags_and_only_node_imports_rclpy():
+    """`rosbags` appears in formats/bag.py alone; rclpy and ROS message packages in node.py alone."""
     for path in PACKAGE.rglob('*.py'):
         roots = _imported_roots(path)
         relative = path.relative_to(PACKAGE).as_posix()
         if 'rosbags' in roots:
-            assert relative == 'bagio.py', f'{relative} imports rosbags'
+            assert relative == 'formats/bag.py', f'{relative} imports rosbags'
         ros_runtime = roots & {'rclpy', 'sensor_msgs', 'geometry_msgs', 'diagnostic_msgs', 'std_msgs',
                                'builtin_interfaces', 'rcl_interfaces'}
         if ros_runtime:
             assert relative == 'node.py', f'{relative} imports {sorted(ros_runtime)}'
+
+
+def _own_imports(path: Path) -> set[str]:
+    """The package's own modules a file imports (absolute imports, at any depth of the file)."""
+    tree = ast.parse(path.read_text(encoding='utf-8'))
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith('tak_thermo_ros'):
+            names.add(node.module)
+        elif isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names if alias.name.startswith('tak_thermo_ros'))
+    return names
+
+
+def test_the_maths_imports_no_format_and_no_command_and_formats_no_command():
+    """core/ imports only core/ and the leaves (errors, optional); formats/ never imports the commands or passes."""
+    leaves = ('tak_thermo_ros.core', 'tak_thermo_ros.errors', 'tak_thermo_ros.optional', 'tak_thermo_ros.progress')
+    for path in (PACKAGE / 'core').rglob('*.py'):
+        upward = [name for name in _own_imports(path) if not name.startswith(leaves)]
+        assert not upward, f'{path.relative_to(PACKAGE)} imports {upward}'
+    commands = ('tak_thermo_ros.cli', 'tak_thermo_ros.streaming', 'tak_thermo_ros.noise_run', 'tak_thermo_ros.node',
+                'tak_thermo_ros.fleet', 'tak_thermo_ros.report')
+    for path in (PACKAGE / 'formats').rglob('*.py'):
+        upward = [name for name in _own_imports(path) if name.startswith(commands)]
+        assert not upward, f'{path.relative_to(PACKAGE)} imports {upward}'

@@ -14,12 +14,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from tak_thermo_ros.bagio import MAGNETIC_FIELD, iter_topic_arrays, write_driver_record
+from tak_thermo_ros.formats.bag import MAGNETIC_FIELD, iter_topic_arrays, write_driver_record
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.errors import BagError
 from tak_thermo_ros.core.link.correction import OutOfRange
 from tak_thermo_ros.core.magnetometer.channel import MagCorrector
-from tak_thermo_ros.core.records.calibration_file import load_unit
+from tak_thermo_ros.formats.calibration_file import load_unit
 from tak_thermo_ros.core.records.record import hold_last_index
 from tak_thermo_ros.core.simulation.imu import Scenario, simulate
 from tak_thermo_ros.core.simulation.magnetometer import MagnetometerTruth, rotation_record
@@ -173,8 +173,8 @@ def test_a_reference_field_fits_the_scale_drift_and_a_static_run_that_turned_is_
 
 
 def test_the_block_decoder_and_encoder_handle_magnetic_field_as_rosbags_does(tmp_path):
-    from tak_thermo_ros.bagio import TYPESTORE, iter_blocks
-    from tak_thermo_ros.cdr import decode_messages, encode_messages
+    from tak_thermo_ros.formats.bag import TYPESTORE, iter_blocks
+    from tak_thermo_ros.formats.cdr import decode_messages, encode_messages
     from tak_thermo_ros.core.link.model import InputKind
     driver = simulate(replace(CHAMBER, plateau_hours=0.02)).driver
     write_driver_record(tmp_path / 'bag', driver)
@@ -250,7 +250,7 @@ def test_effect_standard_errors_do_not_depend_on_the_sensor_unit():
 
 
 def test_apply_says_when_the_calibration_has_no_magnetometer(bags, tmp_path, capsys):
-    from tak_thermo_ros.core.records.calibration_file import save_unit
+    from tak_thermo_ros.formats.calibration_file import save_unit
     save_unit(tmp_path / 'imu_only.yaml', replace(load_unit(bags / 'p.yaml'), mag=None))
     capsys.readouterr()
     assert main(['apply', str(bags / 'run2'), '--params', str(tmp_path / 'imu_only.yaml'), '-o', str(tmp_path / 'out'),

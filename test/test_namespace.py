@@ -11,7 +11,7 @@ import yaml
 
 from node_helpers import Harness, NodeProcess, fitted_driver_params, node_command, run_to_exit
 from tak_thermo_ros.core.link.correction import UnitCorrector
-from tak_thermo_ros.core.records.calibration_file import load_unit
+from tak_thermo_ros.formats.calibration_file import load_unit
 
 START_NS = 1_700_000_000 * 1_000_000_000
 SAMPLE = (0.1, -0.2, 9.81, 0.01, -0.02, 0.03)

@@ -22,8 +22,8 @@ from node_helpers import (
     wait_until,
 )
 from tak_thermo_ros import cli
-from tak_thermo_ros.bagio import read_imu, read_imu_messages, read_record, write_driver_record, write_record
-from tak_thermo_ros.core.records.calibration_file import (
+from tak_thermo_ros.formats.bag import read_imu, read_imu_messages, read_record, write_driver_record, write_record
+from tak_thermo_ros.formats.calibration_file import (
     calibration_yaml,
     load_calibration,
     load_unit,

@@ -20,7 +20,7 @@ from node_helpers import (
     status_values,
 )
 from tak_thermo_ros import cli
-from tak_thermo_ros.bagio import (
+from tak_thermo_ros.formats.bag import (
     AUX_TYPES,
     read_driver_record,
     read_imu,
@@ -29,7 +29,7 @@ from tak_thermo_ros.bagio import (
     write_driver_record,
     write_record,
 )
-from tak_thermo_ros.core.records.calibration_file import unit_yaml, write_text_atomic
+from tak_thermo_ros.formats.calibration_file import unit_yaml, write_text_atomic
 from tak_thermo_ros.core.link.online import as_unit
 from tak_thermo_ros.core.effects import aux_effect_class
 from tak_thermo_ros.core.simulation.imu import Scenario, simulate

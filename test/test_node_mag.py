@@ -18,10 +18,10 @@ from sensor_msgs.msg import MagneticField
 from conftest import examples
 from node_helpers import RELIABLE, Harness, NodeProcess, header_stamp, node_command, stamp_of, status_values
 from tak_thermo_ros import cli
-from tak_thermo_ros.bagio import MAGNETIC_FIELD, iter_topic_arrays, write_driver_record
+from tak_thermo_ros.formats.bag import MAGNETIC_FIELD, iter_topic_arrays, write_driver_record
 from tak_thermo_ros.core.link.online import ONLINE_DROP_REASONS, OnlineCompensator
 from tak_thermo_ros.core.magnetometer.channel import MagCorrector
-from tak_thermo_ros.core.records.calibration_file import load_unit
+from tak_thermo_ros.formats.calibration_file import load_unit
 from tak_thermo_ros.core.simulation.imu import Scenario, simulate
 from tak_thermo_ros.core.simulation.magnetometer import MagnetometerTruth, rotation_record
 from tak_thermo_ros.errors import CalibrationError
@@ -114,7 +114,7 @@ def test_the_node_publishes_the_corrected_field_equal_to_apply(tmp_path, ros_env
 def test_bad_magnetometer_input_is_dropped_and_counted_like_the_imu(tmp_path, ros_env):
     unit = Scenario(output='imu', magnetometer=MagnetometerTruth()).driver_truth()
     params = tmp_path / 'p.yaml'
-    from tak_thermo_ros.core.records.calibration_file import unit_yaml, write_text_atomic
+    from tak_thermo_ros.formats.calibration_file import unit_yaml, write_text_atomic
     write_text_atomic(params, unit_yaml(unit, extra_parameters={'qos': 'reliable', 'temp_timeout': 30.0}))
     corrector = MagCorrector(load_unit(params).mag)
     start = 1_700_000_000 * 1_000_000_000
@@ -205,7 +205,7 @@ def test_every_magnetometer_message_is_published_or_dropped_and_published_ones_e
 
 
 def test_magnetometer_calibration_updates_at_run_time_are_checked_and_put_in_force(tmp_path, ros_env):
-    from tak_thermo_ros.core.records.calibration_file import unit_yaml, write_text_atomic
+    from tak_thermo_ros.formats.calibration_file import unit_yaml, write_text_atomic
     params = tmp_path / 'p.yaml'
     write_text_atomic(params, unit_yaml(_UNIT, extra_parameters={'qos': 'reliable'}))
     start = 1_700_000_000 * 1_000_000_000

@@ -12,11 +12,12 @@ import pytest
 import yaml
 
 from tak_thermo_ros import cli
-from tak_thermo_ros.bagio import Topics, read_imu_messages, write_driver_record, write_record
+from tak_thermo_ros.cli.common import noise_axis_line
+from tak_thermo_ros.formats.bag import Topics, read_imu_messages, write_driver_record, write_record
 from tak_thermo_ros.core.link.correction import acceleration_variance
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
-from tak_thermo_ros.core.noise.kalibr import read_kalibr
-from tak_thermo_ros.core.records.calibration_file import load_unit, save_unit
+from tak_thermo_ros.formats.kalibr import read_kalibr
+from tak_thermo_ros.formats.calibration_file import load_unit, save_unit
 from tak_thermo_ros.core.simulation.imu import Scenario, scenario_from_mapping, simulate
 from tak_thermo_ros.noise_run import noise_bag, noise_models
 from tak_thermo_ros.streaming import StreamOptions
@@ -178,7 +179,7 @@ def test_a_counts_bag_needs_params(tmp_path, capsys):
 
 def test_noise_axis_line_converts_to_data_sheet_units():
     model = scenario_from_mapping(STATIC).noise_truth('gyro')
-    line = cli.noise_axis_line('gyro', replace(model, bias_instability=(math.radians(10.0) / 3600.0,) * 3), 0, 'rad/s')
+    line = noise_axis_line('gyro', replace(model, bias_instability=(math.radians(10.0) / 3600.0,) * 3), 0, 'rad/s')
     assert 'bias instability 4.848e-05 rad/s (10 deg/h)' in line
     assert f'({2.4e-4 / math.sqrt(2.0) * 180 / math.pi * 60:.3g} deg/sqrt(h))' in line
 

@@ -18,7 +18,7 @@ from tak_thermo_ros.core.noise.allan import (
     confidence_interval,
     equivalent_degrees_of_freedom,
 )
-from tak_thermo_ros.core.noise.kalibr import kalibr_from_mapping, kalibr_text, read_kalibr, write_kalibr
+from tak_thermo_ros.formats.kalibr import kalibr_from_mapping, kalibr_text, read_kalibr, write_kalibr
 from tak_thermo_ros.core.noise.model import (
     FLICKER_FLOOR,
     TERMS,

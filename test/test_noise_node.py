@@ -7,9 +7,9 @@ from dataclasses import replace
 import numpy as np
 
 from test_node import DRIVER_RUN, driver_params, node_and_apply
-from tak_thermo_ros.bagio import write_driver_record
+from tak_thermo_ros.formats.bag import write_driver_record
 from tak_thermo_ros.core.noise.model import NoiseModel
-from tak_thermo_ros.core.records.calibration_file import load_unit
+from tak_thermo_ros.formats.calibration_file import load_unit
 from tak_thermo_ros.core.simulation.imu import Scenario, simulate
 
 UNIT = Scenario(output='imu').driver_truth()

@@ -23,14 +23,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from tak_thermo_ros.bagio import write_driver_record
+from tak_thermo_ros.formats.bag import write_driver_record
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.core.diagnose import diagnose
 from tak_thermo_ros.core.diagnose.verdict import student_t_quantile
 from tak_thermo_ros.core.diagnose.yardstick import AllanCheck, allan_check, bin_labels, simulate_noise, whitener
 from tak_thermo_ros.core.fit import fit_model, residual_counts
 from tak_thermo_ros.core.link.validate import AveragedError
-from tak_thermo_ros.core.noise.kalibr import write_kalibr
+from tak_thermo_ros.formats.kalibr import write_kalibr
 from tak_thermo_ros.core.noise.residual import RESIDUAL_LONGEST_TAU_S, model_from_residual
 from tak_thermo_ros.core.records.record import align
 from tak_thermo_ros.core.simulation.imu import (

@@ -339,7 +339,7 @@ def test_driver_message_with_one_non_finite_value_dropped_whole(index, bad):
 ])
 def test_absurd_driver_calibration_values_refused_by_the_one_parser(key, change, reason):
     """Values that pass a type check but would overflow later are refused, with the key."""
-    from tak_thermo_ros.core.records.calibration_file import unit_from_mapping, unit_to_mapping
+    from tak_thermo_ros.formats.calibration_file import unit_from_mapping, unit_to_mapping
     from tak_thermo_ros.errors import CalibrationError
     mapping = unit_to_mapping(DRIVER)
     mapping['gyro']['x'].update(change)
@@ -396,7 +396,7 @@ def test_generated_streams_keep_every_invariant(events):
     Received == published + dropped, outputs finite and equal to UnitCorrector.correct on the published subset (per
     calibration in force), stamps dropped by the previous-message rule.
     """
-    from tak_thermo_ros.core.records.calibration_file import unit_from_mapping, unit_to_mapping
+    from tak_thermo_ros.formats.calibration_file import unit_from_mapping, unit_to_mapping
     from tak_thermo_ros.errors import CalibrationError
     core = OnlineCompensator(DRIVER, temp_timeout_s=0.5)
     now, stamp, previous_stamp = 0.0, SEC * 1_000_000_000, None

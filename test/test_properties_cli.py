@@ -35,7 +35,7 @@ from hypothesis import strategies as st
 
 from bag_writer import write_with_header_stamps
 from conftest import SHORT, examples
-from tak_thermo_ros.bagio import read_imu, read_record, write_record
+from tak_thermo_ros.formats.bag import read_imu, read_record, write_record
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.core.simulation.imu import simulate
 

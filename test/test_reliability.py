@@ -23,13 +23,13 @@ import yaml
 
 from bag_writer import write_with_header_stamps
 from conftest import CREEP_MODULE, SHORT
-from tak_thermo_ros import bagio
-from tak_thermo_ros.bagio import read_imu, read_record, write_record
+from tak_thermo_ros.formats import bag as bagio
+from tak_thermo_ros.formats.bag import read_imu, read_record, write_record
 from tak_thermo_ros.cli import main
-from tak_thermo_ros.core.records.calibration_file import save_calibration
+from tak_thermo_ros.formats.calibration_file import save_calibration
 from tak_thermo_ros.core.link.correction import Corrector
-from tak_thermo_ros.core.records.csv_log import MAX_STAMP_NS, CsvImportOptions, parse_csv_log
-from tak_thermo_ros.core.records.files import write_text_atomic
+from tak_thermo_ros.formats.csv_log import MAX_STAMP_NS, CsvImportOptions, parse_csv_log
+from tak_thermo_ros.formats.files import write_text_atomic
 from tak_thermo_ros.core.records.record import TEMP_CODE_LIMIT, ChannelRecord, align
 from tak_thermo_ros.core.simulation.imu import simulate
 from tak_thermo_ros.errors import BagError, LogError, OutputError
@@ -509,7 +509,7 @@ def test_a_temperature_code_beyond_any_sensor_code_names_row_and_column():
 
 def test_csv_rows_are_converted_in_chunks(monkeypatch):
     """Chunk boundaries change nothing: the same arrays with chunks of 3 rows as with one chunk."""
-    from tak_thermo_ros.core.records import csv_log
+    from tak_thermo_ros.formats import csv_log
     lines = _csv([str(i) for i in range(10)])
     whole = parse_csv_log(lines, CSV_OPTIONS)
     monkeypatch.setattr(csv_log, 'CHUNK_ROWS', 3)

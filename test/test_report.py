@@ -80,7 +80,7 @@ def test_tak_calib_diagnose_writes_json_and_report(tmp_path, capsys):
     """The command prints the verdict, writes the JSON the issue asks for and the HTML page."""
     import json
 
-    from tak_thermo_ros.bagio import write_record
+    from tak_thermo_ros.formats.bag import write_record
     from tak_thermo_ros.cli import main
 
     run = simulate(replace(SHORT, sample_rate_hz=0.25, seed=23,
@@ -107,7 +107,7 @@ def test_tak_calib_diagnose_writes_json_and_report(tmp_path, capsys):
 
 def test_tak_calib_diagnose_without_reference_is_one_line_error(tmp_path, capsys):
     """A bag without the reference stream cannot be diagnosed: one line, exit status 2."""
-    from tak_thermo_ros.bagio import write_record
+    from tak_thermo_ros.formats.bag import write_record
     from tak_thermo_ros.cli import main
 
     run = simulate(replace(SHORT, sample_rate_hz=0.25, seed=24))

@@ -25,7 +25,7 @@ import yaml
 
 from node_helpers import Harness, NodeProcess, copy_package, fitted_driver_params, run_to_exit, wait_until
 from tak_thermo_ros.core.link.correction import UnitCorrector
-from tak_thermo_ros.core.records.calibration_file import load_unit
+from tak_thermo_ros.formats.calibration_file import load_unit
 
 PACKAGE = 'tak_thermo_ros'
 START_NS = 1_700_000_000 * 1_000_000_000

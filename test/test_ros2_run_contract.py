@@ -17,7 +17,7 @@ import pytest
 
 from node_helpers import Harness, NodeProcess, copy_package, domain_id, ros_environment, stamp_of
 
-from tak_thermo_ros.core.records.calibration_file import load_calibration
+from tak_thermo_ros.formats.calibration_file import load_calibration
 from tak_thermo_ros.core.link.correction import Corrector
 
 PACKAGE = 'tak_thermo_ros'
@@ -112,7 +112,7 @@ def test_ros2_run_with_a_driver_calibration(installed, tmp_path, monkeypatch):
     Nothing else: imu/data_raw + imu/temperature in, imu/data_compensated out, as apply.
     """
     from tak_thermo_ros import cli
-    from tak_thermo_ros.bagio import read_imu_messages, write_driver_record
+    from tak_thermo_ros.formats.bag import read_imu_messages, write_driver_record
     from tak_thermo_ros.core.simulation.imu import Scenario, simulate
     _, prefix = installed
     run = simulate(Scenario(output='imu', sample_rate_hz=10.0, plateaus_celsius=(10.0, 30.0), plateau_hours=0.005,

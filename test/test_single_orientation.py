@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import yaml
 
-from tak_thermo_ros.bagio import write_record
+from tak_thermo_ros.formats.bag import write_record
 from tak_thermo_ros.cli import main
-from tak_thermo_ros.core.records.calibration_file import load_calibration, save_calibration
+from tak_thermo_ros.formats.calibration_file import load_calibration, save_calibration
 from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.core.fit import fit_calibration
 from tak_thermo_ros.core.records.record import align

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from conftest import SHORT
-from tak_thermo_ros.bagio import (
+from tak_thermo_ros.formats.bag import (
     AUX_TYPES,
     DECODERS,
     Topics,

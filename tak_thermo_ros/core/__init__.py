@@ -5,7 +5,9 @@
 - :mod:`~tak_thermo_ros.core.effects`: one class per physical effect;
 - :mod:`~tak_thermo_ros.core.diagnose`: residual views, cross-validation, verdicts, run design;
 - :mod:`~tak_thermo_ros.core.simulation`: simulated runs;
-- :mod:`~tak_thermo_ros.core.records`: streams as arrays, the calibration file, atomic outputs.
+- :mod:`~tak_thermo_ros.core.records`: streams as arrays, their alignment, static runs.
+
+Files (bags, CSV, the calibration file, Kalibr) are read and written by :mod:`tak_thermo_ros.formats`.
 
 The names below are importable from here, but nothing is imported until one is asked for
 (PEP 562), so that the node, which needs only the link, does not load the fit's libraries.
@@ -17,15 +19,12 @@ import importlib
 from typing import Any
 
 _HOMES = {
-    'tak_thermo_ros.core.records.calibration_file': (
-        'calibration_from_mapping', 'calibration_to_mapping', 'load_calibration', 'load_unit',
-        'save_calibration', 'save_unit', 'unit_from_mapping', 'unit_to_mapping'),
     'tak_thermo_ros.core.link.correction': ('Corrector', 'OutOfRange', 'UnitCorrector', 'acceleration_variance'),
     'tak_thermo_ros.core.fit': ('FitResult', 'fit_calibration', 'fit_model', 'residual_counts'),
     'tak_thermo_ros.core.link.model': ('AXES', 'SENSORS', 'AxisModel', 'Calibration', 'InputKind', 'UnitCalibration'),
     'tak_thermo_ros.core.fit.plus_minus': ('fit_plus_minus', 'plus_minus'),
     'tak_thermo_ros.core.records.record': ('AlignedSamples', 'ChannelRecord', 'DriverRecord', 'align'),
-    'tak_thermo_ros.core.simulation': ('Scenario', 'SimulatedRun', 'load_scenario', 'simulate'),
+    'tak_thermo_ros.core.simulation': ('Scenario', 'SimulatedRun', 'simulate'),
     'tak_thermo_ros.core.link.validate': ('GravityValidation', 'RateValidation', 'validate_gravity', 'validate_rate'),
 }
 _MODULE_OF = {name: module for module, names in _HOMES.items() for name in names}

@@ -57,10 +57,10 @@ from tak_thermo_ros.core.diagnose.design import (
     RunDesign,
     SensorDesign,
     design_driver_run,
+    design_files,
+    driver_design_files,
     design_run,
     recorded_signal_note,
-    write_design,
-    write_driver_design,
 )
 from tak_thermo_ros.core.diagnose.discover import diagnose, null_heldout
 from tak_thermo_ros.core.diagnose.values import (
@@ -125,6 +125,8 @@ __all__ = [
     'cross_validate',
     'decimate',
     'design_driver_run',
+    'design_files',
+    'driver_design_files',
     'design_run',
     'diagnose',
     'explained_fraction',
@@ -136,6 +138,4 @@ __all__ = [
     'segment_breaks',
     'temperature_rate',
     'unresolved_shapes',
-    'write_design',
-    'write_driver_design',
 ]

@@ -15,7 +15,7 @@ temperature profiles (plateaus visited from both sides, ramp rates, dwell times)
    of the two directions.
 
 The profile with the largest separation is written as a simulator scenario (YAML,
-:func:`tak_thermo_ros.core.simulation.imu.load_scenario` format) and as a chamber schedule (CSV of
+:func:`tak_thermo_ros.formats.scenario.load_scenario` format) and as a chamber schedule (CSV of
 ``time_s, setpoint_C``). Temperatures in Celsius map to temperature codes through the scenario's
 sensor gain (``temp_code_ref``, ``codes_per_celsius``; the simulator's defaults unless given).
 
@@ -32,13 +32,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import yaml
 
-from tak_thermo_ros.core.records.calibration_file import write_text_atomic
 from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.core.diagnose.crossval import _effect_specs, _settings_of, _with_range, decimate
 from tak_thermo_ros.core.diagnose.values import Diagnosis
@@ -532,25 +530,20 @@ def _corners(scenario: Scenario) -> list[tuple[float, float]]:
     return [(float(t), float(c)) for t, c in zip(corners, values)]
 
 
-def _write_files(directory: str | Path, scenario: dict[str, Any], header: str,
-                 schedule: list[tuple[float, float]], document: dict[str, Any],
-                 flow_lists: bool = False) -> tuple[Path, Path, Path]:
+def _texts(scenario: dict[str, Any], header: str, schedule: list[tuple[float, float]], document: dict[str, Any],
+           flow_lists: bool = False) -> dict[str, str]:
     import json
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    scenario_path = directory / 'scenario.yaml'
-    write_text_atomic(scenario_path, header + yaml.safe_dump(scenario, sort_keys=False,
-                                                             default_flow_style=None if flow_lists else False))
-    schedule_path = directory / 'schedule.csv'
     rows = ''.join(f'{t:.1f},{c:.3f}\n' for t, c in schedule)
-    write_text_atomic(schedule_path, 'time_s,setpoint_C\n' + rows)
-    json_path = directory / 'design.json'
-    write_text_atomic(json_path, json.dumps(document, indent=2) + '\n')
-    return scenario_path, schedule_path, json_path
+    return {'scenario.yaml': header + yaml.safe_dump(scenario, sort_keys=False,
+                                                     default_flow_style=None if flow_lists else False),
+            'schedule.csv': 'time_s,setpoint_C\n' + rows,
+            'design.json': json.dumps(document, indent=2) + '\n'}
 
 
-def write_driver_design(design: DriverRunDesign, directory: str | Path) -> tuple[Path, Path, Path]:
-    """Write a driver bag's proposal: ``scenario.yaml`` (``output: imu``), ``schedule.csv``, ``design.json``.
+def driver_design_files(design: DriverRunDesign) -> dict[str, str]:
+    """A driver bag's proposal as files: ``scenario.yaml`` (``output: imu``), ``schedule.csv``, ``design.json``.
+
+    Each file's name and text (:func:`tak_thermo_ros.formats.files.write_texts` writes them).
 
     :raises FitError: when no run was designed (no sensor had anything to separate).
     """
@@ -561,17 +554,16 @@ def write_driver_design(design: DriverRunDesign, directory: str | Path) -> tuple
                       f'({d.tried[design.choice].separation_sigmas:.0f} noise sigmas)' for d in design.sensors)
     header = (f'# chamber run proposed by tak_calib diagnose --design-run to tell {pairs}\n'
               f'# {design.best.label}; one run for both sensors: {COMBINATION_RULE}\n')
-    return _write_files(directory, design.scenario(), header, design.schedule(), design.as_dict(), flow_lists=True)
+    return _texts(design.scenario(), header, design.schedule(), design.as_dict(), flow_lists=True)
 
 
-def write_design(design: RunDesign, directory: str | Path, *,
-                 sensor: Scenario | None = None) -> tuple[Path, Path, Path]:
-    """Write ``scenario.yaml`` (the simulator runs it), ``schedule.csv`` and ``design.json``.
+def design_files(design: RunDesign, *, sensor: Scenario | None = None) -> dict[str, str]:
+    """The proposal as files: ``scenario.yaml`` (the simulator runs it), ``schedule.csv`` and ``design.json``.
 
-    :returns: the three paths.
+    Each file's name and text (:func:`tak_thermo_ros.formats.files.write_texts` writes them).
     """
     scenario = {**design.best.scenario, 'sample_rate_hz': design.sample_rate_hz}
     header = (f'# chamber run proposed by tak_calib diagnose --design-run to tell {design.candidates[0]} from '
               f'{design.candidates[1]}\n# {design.best.label}; simulated separation '
               f'{design.best.separation_sigmas:.0f} noise sigmas\n')
-    return _write_files(directory, scenario, header, design.schedule(sensor), design.as_dict())
+    return _texts(scenario, header, design.schedule(sensor), design.as_dict())

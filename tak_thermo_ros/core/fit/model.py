@@ -18,7 +18,7 @@ from tak_thermo_ros.core.effects.base import Effect
 from tak_thermo_ros.core.fit.design import Column, Frame
 from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.core.link.model import AXES, AxisModel, Calibration
-from tak_thermo_ros.core.records.calibration_file import check_scale_positive
+from tak_thermo_ros.core.link.model import check_scale_positive
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import CalibrationError, FitError
 

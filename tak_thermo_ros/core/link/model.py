@@ -295,3 +295,16 @@ class UnitCalibration:
             msg = f'calibration.{name}: not in this calibration'
             raise CalibrationError(msg)
         return calibration
+
+
+def check_scale_positive(calibration: Calibration, *, key: str = 'calibration') -> None:
+    """Raise unless ``F_c(n) > 0`` over the whole calibrated range on every axis."""
+    n_low, n_high = calibration.code_offset_range()
+    grid = np.linspace(n_low, n_high, 1001)
+    for name, axis in zip(AXES, calibration.axes):
+        factor = axis.scale_factor(grid)
+        if not np.all(factor > 0.0):
+            worst = float(grid[int(np.argmin(factor))]) + calibration.temp_code_ref
+            msg = (f'{key}.{name}.scale_shape: F_c <= 0 inside the calibrated range '
+                   f'(at temperature code {worst:.1f})')
+            raise CalibrationError(msg)

@@ -1,5 +1,8 @@
-"""Simulated runs: the IMU's chamber and rate-table runs with hidden effects (:mod:`.imu`)."""
+"""Simulated runs: the IMU's chamber and rate-table runs with hidden effects (:mod:`.imu`).
 
-from tak_thermo_ros.core.simulation.imu import Scenario, SimulatedRun, load_scenario, simulate
+A scenario file is read by :func:`tak_thermo_ros.formats.scenario.load_scenario`.
+"""
 
-__all__ = ['Scenario', 'SimulatedRun', 'load_scenario', 'simulate']
+from tak_thermo_ros.core.simulation.imu import Scenario, SimulatedRun, simulate
+
+__all__ = ['Scenario', 'SimulatedRun', 'simulate']

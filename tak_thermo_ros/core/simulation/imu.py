@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, fields, replace
-from pathlib import Path
 from typing import Any, Mapping
 
 from tak_thermo_ros.core.effects import resolve_effect
@@ -709,14 +708,3 @@ def _unit_from_mapping(raw: Any, base: tuple[AxisTruth, ...]) -> tuple[AxisTruth
                 changes[key] = float(value)
         axes[AXES.index(name)] = replace(axes[AXES.index(name)], **changes)
     return tuple(axes)
-
-
-def load_scenario(path: str | Path) -> Scenario:
-    """Read a scenario YAML; a missing key keeps its default."""
-    from tak_thermo_ros.core.records.files import read_yaml
-    raw = read_yaml(path, 'scenario file', ScenarioError)
-    try:
-        return scenario_from_mapping(raw or {})
-    except ScenarioError as err:
-        msg = f'{path}: {err}'
-        raise ScenarioError(msg) from None

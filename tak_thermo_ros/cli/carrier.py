@@ -1,4 +1,4 @@
-"""``tak_calib carrier-*``: the carrier method (docs/magnetometer.md), registered from :mod:`tak_thermo_ros.cli`.
+"""``tak_calib carrier-*``: the carrier method (docs/magnetometer.md).
 
 - ``carrier-simulate -o record.csv [--seed N]``: the seed's three stages with its instrument errors;
 - ``carrier-fit record.csv [--json F]``: the Earth field, the Poisson coefficients, the hard iron
@@ -7,7 +7,7 @@
   seed's figures and, with ``--report``, the sweeps (tilt range, step, each instrument error)
   as a PNG in an HTML page.
 
-Every output obeys the overwrite rule (:mod:`tak_thermo_ros.core.records.files`).
+Every output obeys the overwrite rule (:mod:`tak_thermo_ros.formats.files`).
 """
 
 from __future__ import annotations
@@ -18,10 +18,10 @@ import html
 import json
 import math
 import sys
-from typing import Any, Callable
+from typing import Any
 
-from tak_thermo_ros import options as bounds
-from tak_thermo_ros.core.records.files import FILE, REPORT
+from tak_thermo_ros.cli import options as bounds
+from tak_thermo_ros.formats.files import FILE, REPORT
 
 OUTPUTS: dict[str, tuple[tuple[str, str, str], ...]] = {
     'carrier-simulate': (('output', FILE, '-o'),),
@@ -52,7 +52,7 @@ def _errors(args: argparse.Namespace):
 
 def cmd_carrier_simulate(args: argparse.Namespace) -> int:
     """Simulate the seed's stages into a CSV record."""
-    from tak_thermo_ros.core.records.files import write_text_atomic
+    from tak_thermo_ros.formats.files import write_text_atomic
     from tak_thermo_ros.core.simulation.carrier import CarrierScenario, record_csv, simulate_carrier
     scenario = CarrierScenario(errors=_errors(args), seed=args.seed, tilt_range_deg=args.tilt_range,
                                tilt_step_deg=args.tilt_step, second_tilt_axis=args.second_tilt)
@@ -67,7 +67,7 @@ def cmd_carrier_simulate(args: argparse.Namespace) -> int:
 def cmd_carrier_fit(args: argparse.Namespace) -> int:
     """Fit Poisson's model to a CSV record; one line per parameter."""
     from tak_thermo_ros.core.magnetometer.carrier import fit_carrier
-    from tak_thermo_ros.core.records.files import write_text_atomic
+    from tak_thermo_ros.formats.files import write_text_atomic
     from tak_thermo_ros.core.simulation.carrier import read_record_csv
     model = _model(args)
     fit = fit_carrier(read_record_csv(args.record), model, _errors(args))
@@ -124,7 +124,7 @@ def _sweep_figure(results: dict[str, Any]) -> bytes:
 def cmd_carrier_budget(args: argparse.Namespace) -> int:
     """The Monte Carlo error budget beside the seed's table; with --report, the sweeps."""
     from tak_thermo_ros.core.magnetometer.budget import SWEEPS, monte_carlo, sweep, table_text
-    from tak_thermo_ros.core.records.files import atomic_directory, write_text_atomic
+    from tak_thermo_ros.formats.files import atomic_directory, write_text_atomic
     from tak_thermo_ros.core.simulation.carrier import CarrierScenario
     model = _model(args)
     scenario = CarrierScenario(errors=_errors(args), tilt_range_deg=args.tilt_range, tilt_step_deg=args.tilt_step,
@@ -207,10 +207,8 @@ def _design(parser: argparse.ArgumentParser) -> None:
     group.add_argument('--second-tilt', choices=['roll'], help='stage 3 also tilts about roll (default: pitch only)')
 
 
-def add_carrier_parsers(commands: Any, outputs: dict[str, tuple[tuple[str, str, str], ...]],
-                        command: Callable[..., int] | None = None) -> None:
-    """Add ``carrier-simulate``, ``carrier-fit`` and ``carrier-budget`` and register their outputs."""
-    outputs.update(OUTPUTS)
+def add_parsers(commands: Any) -> None:
+    """Add ``carrier-simulate``, ``carrier-fit`` and ``carrier-budget`` (their outputs: :data:`OUTPUTS`)."""
     sim = commands.add_parser('carrier-simulate', help="simulate the carrier method's three stages into a CSV record")
     sim.add_argument('-o', '--output', required=True, metavar='RECORD.csv')
     sim.add_argument('--seed', type=bounds.seed, default=0, help='random seed (default 0)')

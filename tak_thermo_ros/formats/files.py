@@ -150,6 +150,16 @@ def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
         raise
 
 
+def write_texts(directory: str | os.PathLike[str], texts: dict[str, str]) -> tuple[Path, ...]:
+    """Write each ``name: text`` into ``directory`` (made if missing), each file atomically; their paths."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    paths = tuple(directory / name for name in texts)
+    for path, text in zip(paths, texts.values()):
+        write_text_atomic(path, text)
+    return paths
+
+
 def staging_directory(path: Path) -> Path:
     """A new empty hidden ``.NAME.*.partial`` directory beside ``path``.
 

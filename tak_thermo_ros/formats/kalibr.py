@@ -141,7 +141,7 @@ def read_kalibr(path: str | os.PathLike[str]) -> dict[str, NoiseModel]:
 
     :raises NoiseError: a missing or unreadable file, or a bad one (one line naming the file and key).
     """
-    from tak_thermo_ros.core.records.files import read_yaml
+    from tak_thermo_ros.formats.files import read_yaml
     return kalibr_from_mapping(read_yaml(path, 'noise file', NoiseError), str(Path(path)))[0]
 
 
@@ -179,8 +179,8 @@ def _yaml_float(value: float) -> str:
 
 def write_kalibr(path: str | os.PathLike[str], models: Mapping[str, NoiseModel], *, rostopic: str,
                  update_rate: float | None = None, header: str = '', force: bool = False) -> None:
-    """Write :func:`kalibr_text` atomically (the overwrite rule of ``core/records/files.py``)."""
-    from tak_thermo_ros.core.records.files import check_output, write_text_atomic
+    """Write :func:`kalibr_text` atomically (the overwrite rule of ``formats/files.py``)."""
+    from tak_thermo_ros.formats.files import check_output, write_text_atomic
     check_output(path, force=force)
     write_text_atomic(path, kalibr_text(models, rostopic=rostopic, update_rate=update_rate, header=header))
 

@@ -1,4 +1,6 @@
-"""Bounds of the numeric ``tak_calib`` options, checked where the command line is parsed.
+"""The options ``tak_calib``'s commands share, and the bounds of every numeric option.
+
+The bounds are checked where the command line is parsed.
 
 Each function here is an ``argparse`` ``type=``: it turns the text into a number or raises
 ``argparse.ArgumentTypeError``, so that argparse prints its own one line
@@ -25,6 +27,7 @@ import math
 from typing import Callable
 
 from tak_thermo_ros.core.records.record import REFERENCE_LIMIT, TEMP_CODE_LIMIT
+from tak_thermo_ros.core.values import STANDARD_GRAVITY
 
 GRAVITY_MIN = 9.7
 """Lowest accepted local gravity, m/s^2."""
@@ -127,3 +130,47 @@ sample_budget = int_within(MIN_SAMPLE_BUDGET, MAX_SAMPLE_BUDGET)
 """``fit --effect-samples``, ``diagnose --max-samples``."""
 latitude = float_within(-90.0, 90.0, "degrees")
 """``--latitude`` (a static driver bag's Earth rate)."""
+
+
+# The options several commands share: each command's module adds its own and calls these.
+
+def add_topic_options(parser: argparse.ArgumentParser, *, imu: bool = False) -> None:
+    """The bag's topics, ``--no-progress``, ``--force`` and ``--debug`` (every command that reads a bag)."""
+    group = parser.add_argument_group('topics (the input kind is taken from the bag: counts topic or driver Imu)')
+    group.add_argument('--counts-topic', default='/tak/counts', help='channel codes (Vector3Stamped)')
+    group.add_argument('--raw-imu-topic', default='/imu/data_raw', help="a driver's Imu (default /imu/data_raw)")
+    group.add_argument('--temp-topic', help='temperature (Temperature): codes /tak/temp_code with counts, '
+                                            'degrees C /imu/temperature with a driver Imu')
+    group.add_argument('--reference-topic', default='/tak/reference', help='true specific force (Vector3Stamped)')
+    group.add_argument('--mag-topic', default='/imu/mag', help="a driver's magnetometer (MagneticField, tesla)")
+    group.add_argument('--reference-field-topic', default='/tak/reference_field',
+                       help='true magnetic field along the sensor axes, tesla (Vector3Stamped; a coil)')
+    group.add_argument('--reference-rate-topic', default='/tak/reference_rate',
+                       help='true angular rate, rad/s (Vector3Stamped; driver bags)')
+    if imu:
+        group.add_argument('--imu-topic', help='corrected output (Imu): default /tak/imu/data_raw with counts, '
+                                               '/imu/data_compensated with a driver Imu')
+    parser.add_argument('--no-progress', action='store_true', help='no progress bar even on a terminal')
+    parser.add_argument('--force', action='store_true',
+                        help='replace an existing output (a regular file, a bag or a report directory; '
+                             'nothing else is ever replaced)')
+    parser.add_argument('--debug', action='store_true', default=argparse.SUPPRESS,
+                        help='show the traceback of an error')
+
+
+def add_static_options(parser: argparse.ArgumentParser) -> None:
+    """``--gravity`` and ``--latitude``: the reference of a driver bag without reference topics."""
+    group = parser.add_argument_group('driver bags without reference topics (a static run)')
+    group.add_argument('--gravity', type=gravity, default=STANDARD_GRAVITY,
+                       help='local gravity, m/s^2: the magnitude of the estimated specific-force reference')
+    group.add_argument('--latitude', type=latitude, metavar='DEG',
+                       help="adds the Earth rate's vertical component (Omega_E sin(latitude), along the "
+                            'measured up direction) to the rate reference; default zero')
+
+
+def add_out_of_range(parser: argparse.ArgumentParser) -> None:
+    """``--out-of-range``: what a correction does outside the calibrated temperature range."""
+    from tak_thermo_ros.core.link.correction import OutOfRange
+    parser.add_argument('--out-of-range', choices=[p.value for p in OutOfRange], default=OutOfRange.CLAMP.value,
+                        help='temperature codes outside the calibrated range: clamp to the edge (default) '
+                             'or extrapolate the polynomials; either way the count is reported')

@@ -55,7 +55,7 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
-from tak_thermo_ros.core.records.files import write_text_atomic  # noqa: F401 (re-exported: one writer of text files)
+from tak_thermo_ros.formats.files import write_text_atomic  # noqa: F401 (re-exported: one writer of text files)
 from tak_thermo_ros.core.link.model import (
     AXES,
     CALIBRATION_VERSION,
@@ -67,6 +67,7 @@ from tak_thermo_ros.core.link.model import (
     InputKind,
     MagnetometerCalibration,
     UnitCalibration,
+    check_scale_positive,
 )
 from tak_thermo_ros.core.noise.model import NoiseModel, noise_model_from_mapping
 from tak_thermo_ros.core.values import finite_number
@@ -219,19 +220,6 @@ def effects_to_mapping(effects: Any) -> dict[str, Any]:
         entry.update({name: float(value) for name, value in effect.values.items()})
         mapping[effect.name] = entry
     return mapping
-
-
-def check_scale_positive(calibration: Calibration, *, key: str = 'calibration') -> None:
-    """Raise unless ``F_c(n) > 0`` over the whole calibrated range on every axis."""
-    n_low, n_high = calibration.code_offset_range()
-    grid = np.linspace(n_low, n_high, 1001)
-    for name, axis in zip(AXES, calibration.axes):
-        factor = axis.scale_factor(grid)
-        if not np.all(factor > 0.0):
-            worst = float(grid[int(np.argmin(factor))]) + calibration.temp_code_ref
-            msg = (f'{key}.{name}.scale_shape: F_c <= 0 inside the calibrated range '
-                   f'(at temperature code {worst:.1f})')
-            raise CalibrationError(msg)
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ The bag contract (each topic name is an option):
 
 Both rosbag2 storages (mcap, sqlite3) are read; bags are written to a temporary directory
 beside the target and renamed into place, so a failed write leaves nothing behind; an existing
-output is refused unless ``force`` (:mod:`tak_thermo_ros.core.records.files`).
+output is refused unless ``force`` (:mod:`tak_thermo_ros.formats.files`).
 """
 
 from __future__ import annotations
@@ -32,10 +32,10 @@ import numpy as np
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer, WriterError
 from rosbags.typesys import Stores, get_typestore
 
-from tak_thermo_ros.cdr import MessageArrays, decode_messages, encode_imus, encode_messages
+from tak_thermo_ros.formats.cdr import MessageArrays, decode_messages, encode_imus, encode_messages
 from tak_thermo_ros.core.effects import aux_signal
 from tak_thermo_ros.core.link.correction import imu_covariances
-from tak_thermo_ros.core.records.files import BAG, check_output, install_directory, staging_directory
+from tak_thermo_ros.formats.files import BAG, check_output, install_directory, staging_directory
 from tak_thermo_ros.core.link.model import InputKind
 from tak_thermo_ros.core.records.record import NANOSECONDS, ChannelRecord, DriverRecord
 from tak_thermo_ros.errors import BagError, CdrError, OutputError
@@ -50,10 +50,10 @@ NOMINAL_SCALE_KEY = 'tak_thermo_ros.nominal_scale'
 """Bag metadata ``custom_data`` key: nominal K0 per axis as ``'x,y,z'`` (counts per m/s^2)."""
 STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
 DECODERS = ('block', 'rosbags')
-"""``block``: raw messages decoded chunk by chunk into arrays (:mod:`tak_thermo_ros.cdr`);
+"""``block``: raw messages decoded chunk by chunk into arrays (:mod:`tak_thermo_ros.formats.cdr`);
 ``rosbags``: one ``deserialize_cdr`` call per message (the reference)."""
 ENCODERS = ('block', 'rosbags')
-"""``block``: a block of Imu messages serialised at once into arrays (:func:`tak_thermo_ros.cdr.encode_imus`);
+"""``block``: a block of Imu messages serialised at once into arrays (:func:`tak_thermo_ros.formats.cdr.encode_imus`);
 ``rosbags``: one message object and one ``serialize_cdr`` call per message (the reference). Both
 give the same bytes."""
 IMU_ENCODER = 'block'
@@ -171,9 +171,9 @@ def iter_topic_arrays(source: str | os.PathLike[str] | Reader, topic: str, msgty
     """Decode one topic of a bag chunk by chunk into arrays (rosbags reads the storage only).
 
     :param source: a bag directory, or a :class:`rosbags.rosbag2.Reader` that is open.
-    :param msgtype: the topic's expected type, one of :data:`tak_thermo_ros.cdr.SCHEMAS`.
+    :param msgtype: the topic's expected type, one of :data:`tak_thermo_ros.formats.cdr.SCHEMAS`.
     :param chunk: raw messages decoded at once (default :data:`CHUNK_MESSAGES`).
-    :returns: one :class:`~tak_thermo_ros.cdr.MessageArrays` per chunk, in bag order.
+    :returns: one :class:`~tak_thermo_ros.formats.cdr.MessageArrays` per chunk, in bag order.
     :raises BagError: missing bag or topic, wrong type, malformed message
         (:class:`~tak_thermo_ros.errors.CdrError`), unreadable file.
     """
@@ -290,7 +290,7 @@ def read_aux_signals(reader: Reader, path: Path, *,
     Each topic of a type in :data:`AUX_FIELDS` (except the topics in ``exclude``, e.g. the
     temperature in use) gives ``aux:TOPIC`` (its obvious number) and ``aux:TOPIC:FIELD`` for its
     other numeric fields. Stamps are the header stamps, or the bag time for a type without a
-    header (``std_msgs``). Decoded by the block decoder (:mod:`tak_thermo_ros.cdr`).
+    header (``std_msgs``). Decoded by the block decoder (:mod:`tak_thermo_ros.formats.cdr`).
     """
     by_topic: dict[str, list] = {}
     for connection in reader.connections:
@@ -498,7 +498,7 @@ def _read_vectors(topic: _TopicReader, bar: Progress, path: Path, *,
 class _AtomicBag:
     """A Writer into a temporary directory that is renamed to ``path`` on success.
 
-    The overwrite rule of :mod:`tak_thermo_ros.core.records.files` holds: an existing output is
+    The overwrite rule of :mod:`tak_thermo_ros.formats.files` holds: an existing output is
     refused unless ``force``, and only a bag directory is ever replaced. A failure (a full
     disk, no permission) or an interruption removes the temporary directory; the error names
     ``path``.
@@ -568,7 +568,7 @@ def write_record(path: str | os.PathLike[str], record: ChannelRecord, *, topics:
                  storage: str = 'mcap', force: bool = False, aux_types: dict[str, str] | None = None) -> None:
     """Write a run in the bag contract (messages in stamp order, bag time = header stamp).
 
-    :param force: replace an existing bag at ``path`` (:func:`tak_thermo_ros.core.records.files.check_output`).
+    :param force: replace an existing bag at ``path`` (:func:`tak_thermo_ros.formats.files.check_output`).
     :param aux_types: message type of each of the record's auxiliary signals ``aux:TOPIC``
         (default ``std_msgs/msg/Float64``); each is written on its topic, bag time = its stamp.
     """
@@ -619,7 +619,7 @@ def write_driver_record(path: str | os.PathLike[str], record: DriverRecord, *, t
                         storage: str = 'mcap', force: bool = False, aux_types: dict[str, str] | None = None) -> None:
     """Write a driver run (Imu, temperature in C, references if any) in stamp order.
 
-    :param force: replace an existing bag at ``path`` (:func:`tak_thermo_ros.core.records.files.check_output`).
+    :param force: replace an existing bag at ``path`` (:func:`tak_thermo_ros.formats.files.check_output`).
     :param aux_types: as :func:`write_record`.
     """
     serialize = TYPESTORE.serialize_cdr
@@ -714,7 +714,7 @@ def write_imu(path: str | os.PathLike[str], stamp_ns: np.ndarray, frame_id: str,
     corrected angular velocity, and the driver's orientation and its covariance passed through
     per message.
 
-    :param force: replace an existing bag at ``path`` (:func:`tak_thermo_ros.core.records.files.check_output`).
+    :param force: replace an existing bag at ``path`` (:func:`tak_thermo_ros.formats.files.check_output`).
     :param encoder: one of :data:`ENCODERS` (default :data:`IMU_ENCODER`).
     """
     with _AtomicBag(path, storage, force=force) as writer:
@@ -960,7 +960,7 @@ def iter_blocks(path: str | os.PathLike[str], *, topics: Topics = Topics(), kind
     of a block are collected per topic and decoded together.
 
     :param references: also read the reference topics (``False``: ``apply``).
-    :param decoder: one of :data:`DECODERS`: ``block`` (:func:`tak_thermo_ros.cdr.decode_messages`)
+    :param decoder: one of :data:`DECODERS`: ``block`` (:func:`tak_thermo_ros.formats.cdr.decode_messages`)
         or ``rosbags`` (``decode_*``, one ``deserialize_cdr`` per message, the reference); both
         give the same blocks.
     :raises BagError: as the whole-bag readers (missing topic, wrong type, changing frame_id,

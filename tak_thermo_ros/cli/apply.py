@@ -1,0 +1,60 @@
+"""``tak_calib apply``: correct a record with a calibration file, writing a bag."""
+
+from __future__ import annotations
+
+import argparse
+
+from tak_thermo_ros.cli import common, options
+from tak_thermo_ros.core.link.correction import OutOfRange
+from tak_thermo_ros.core.link.model import InputKind
+from tak_thermo_ros.formats.calibration_file import load_unit
+from tak_thermo_ros.formats.files import BAG
+
+NAME = 'apply'
+OUTPUTS = (('output', BAG, '-o'),)
+"""This command's outputs: ``(argument, kind, option)``, checked before any work is done."""
+
+
+def add_parser(commands) -> argparse.ArgumentParser:
+    """Add the command to ``tak_calib``'s subcommands."""
+    parser = commands.add_parser('apply', help='correct a bag, writing sensor_msgs/msg/Imu')
+    parser.add_argument('bag', metavar='BAG')
+    parser.add_argument('--params', required=True, metavar='PARAMS.yaml')
+    parser.add_argument('-o', '--output', required=True, metavar='OUT_BAG')
+    parser.add_argument('--storage', choices=['mcap', 'sqlite3'], default='mcap')
+    options.add_out_of_range(parser)
+    options.add_topic_options(parser, imu=True)
+    parser.set_defaults(handler=run)
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    """Correct a bag's counts or driver Imu and write Imu messages (block by block, bounded memory)."""
+    from tak_thermo_ros.formats.records import input_kind
+    from tak_thermo_ros.streaming import apply_bag
+    unit = load_unit(args.params)
+    topics = common.topics(args)
+    kind = input_kind(args.bag, topics=topics)
+    common.check_kind(args, unit, kind)
+    applied = apply_bag(args.bag, unit, args.output, common.stream_options(args), storage=args.storage,
+                        out_of_range=OutOfRange(args.out_of_range), force=args.force)
+    print(f'wrote {applied.written} Imu messages on {applied.topic} to {args.output}')
+    if kind is InputKind.IMU and unit.mag is None:
+        from tak_thermo_ros.streaming_mag import has_mag
+        if has_mag(args.bag, topics):
+            print(f'note: {args.params} holds no magnetometer: {topics.mag} is not corrected (nothing written for it)')
+    if applied.mag_written or applied.mag_topic:
+        print(f'wrote {applied.mag_written} MagneticField messages on {applied.mag_topic}')
+        if applied.mag_dropped:
+            print(f'dropped MagneticField messages: {common.describe_dropped(applied.mag_dropped)}')
+    common.print_ignored(applied, args, kind)
+    if applied.dropped:
+        what = 'counts' if kind is InputKind.COUNTS else 'Imu'
+        print(f'dropped {what} messages: {common.describe_dropped(applied.dropped)}')
+    outside = applied.out_of_range
+    if outside:
+        low, high = unit.accel.temp_code_min, unit.accel.temp_code_max
+        what = 'temperature code' if kind is InputKind.COUNTS else 'temperature'
+        print(f'warning: {outside} samples had a {what} outside the calibrated range '
+              f'{low:g}..{high:g} ({args.out_of_range})')
+    return 0

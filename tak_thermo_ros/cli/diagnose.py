@@ -1,0 +1,263 @@
+"""``tak_calib diagnose``: where the model fails against a run, and which effect is missing."""
+
+from __future__ import annotations
+
+import argparse
+
+from pathlib import Path
+from tak_thermo_ros.cli import common, options
+from tak_thermo_ros.core.effects.aux_signal import signals_with_values
+from tak_thermo_ros.core.link.correction import Corrector
+from tak_thermo_ros.core.link.model import AXES
+from tak_thermo_ros.core.link.model import InputKind
+from tak_thermo_ros.core.link.model import UnitCalibration
+from tak_thermo_ros.formats.calibration_file import load_unit
+from tak_thermo_ros.formats.files import FILE
+from tak_thermo_ros.formats.files import REPORT
+from tak_thermo_ros.formats.files import atomic_directory
+from tak_thermo_ros.formats.files import check_output
+from tak_thermo_ros.formats.files import write_text_atomic
+from tak_thermo_ros.core.records.record import AlignedSamples
+from tak_thermo_ros.core.records.record import require_signals
+from tak_thermo_ros.core.values import STANDARD_GRAVITY
+from tak_thermo_ros.streaming import DIAGNOSE_MAX_SAMPLES
+import numpy as np
+import sys
+
+NAME = 'diagnose'
+OUTPUTS = (('json', FILE, '--json'), ('report', REPORT, '--report'))
+"""This command's outputs: ``(argument, kind, option)``, checked before any work is done."""
+
+
+def add_parser(commands) -> argparse.ArgumentParser:
+    """Add the command to ``tak_calib``'s subcommands."""
+    parser = commands.add_parser('diagnose', help='compare a calibration with a run and find the missing effect')
+    parser.add_argument('bag', metavar='BAG')
+    parser.add_argument('--params', required=True, metavar='PARAMS.yaml')
+    parser.add_argument('--json', metavar='OUT.json', help='write the verdict, RMS, floor and candidates as JSON')
+    parser.add_argument('--report', metavar='DIR', help='write PNG figures and report.html into DIR')
+    parser.add_argument('--candidates', metavar='NAME[,NAME...]',
+                        help='effects to try (default: every library effect the calibration lacks and every '
+                             'recorded signal aux:TOPIC in the bag); '
+                             "module:Class for a user-defined effect (see docs/effects.md); 'library' "
+                             "stands for every library effect, e.g. library,mymodule:MyEffect")
+    parser.add_argument('--folds', type=options.folds, default=5,
+                        help=f'cross-validation folds, 2..{options.MAX_FOLDS} (default 5)')
+    parser.add_argument('--settle-time', type=options.seconds_not_negative, default=0.0, metavar='SECONDS',
+                        help='leave out samples this long after each reference change (as for fit)')
+    parser.add_argument('--max-samples', type=options.sample_budget, default=DIAGNOSE_MAX_SAMPLES, metavar='N',
+                        help=f'diagnose at most about N samples, spread evenly over the run '
+                             f'(default {DIAGNOSE_MAX_SAMPLES:,})')
+    parser.add_argument('--gravity', type=options.gravity, default=STANDARD_GRAVITY,
+                        help=f'local gravity for the |g| figure and a static reference, m/s^2 '
+                             f'({options.GRAVITY_MIN:g}..{options.GRAVITY_MAX:g})')
+    parser.add_argument('--latitude', type=options.latitude, metavar='DEG',
+                        help="driver bags without a rate reference: add the Earth rate's vertical component")
+    parser.add_argument('--design-run', metavar='DIR',
+                        help='propose the chamber run that tells the two best candidates apart (driver bags: '
+                             'one run for both sensors): writes DIR/scenario.yaml (for tak_calib simulate), '
+                             'DIR/schedule.csv (time_s, setpoint_C) and DIR/design.json with the simulated separation')
+    parser.add_argument('--noise', metavar='IMU.yaml',
+                        help="the sensors' noise model, a Kalibr-style imu.yaml (as tak_calib noise writes): the "
+                             'verdict is judged against it at every averaging time (docs/discovery.md)')
+    parser.add_argument('--noise-run', metavar='BAG',
+                        help='a static run at constant temperature: its Allan variance gives the noise model')
+    options.add_topic_options(parser)
+    parser.set_defaults(handler=run)
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    """Compare a calibration with a run: noise floor, residual views, the missing effect, per sensor."""
+    from tak_thermo_ros.formats.records import input_kind
+    from tak_thermo_ros.core.diagnose import diagnose
+    from tak_thermo_ros.streaming import bounded_run
+    unit = load_unit(args.params)
+    common.check_kind(args, unit, input_kind(args.bag, topics=common.topics(args)))
+    run = bounded_run(args.bag, common.stream_options(args), settle_time_s=args.settle_time,
+                      gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
+                      max_samples=args.max_samples)
+    _add_magnetometer(args, unit, run)
+    verbose = not args.no_progress and sys.stderr.isatty()
+    candidates = expand_candidates(args.candidates) if args.candidates else None
+    for line in run.reference_lines:
+        print(line)
+    noise_models = common.given_noise_models(args, unit, run.input_kind, tuple(run.samples))
+    results = {}
+    used: dict[str, AlignedSamples] = {}
+    if run.stride > 1:
+        print(f'diagnosing 1 sample in {run.stride}, spread evenly over the run '
+              f'(at most about {args.max_samples:,} samples, --max-samples; {run.usable["accel"]:,} usable in the bag)')
+    for sensor, samples in run.samples.items():
+        tried = (signals_with_values(samples.aux) if candidates is None
+                 else [spec for spec in candidates if spec.startswith('aux:')])
+        samples = require_signals(samples, [*Corrector(unit.sensor(sensor)).signals, *tried])
+        used[sensor] = samples
+        unit_name = common.UNITS[run.input_kind, sensor]
+        label = '' if run.input_kind is InputKind.COUNTS else f'{common.SENSOR_NAMES[sensor]}: '
+
+        def progress(text: str, label: str = label) -> None:
+            if verbose:
+                print(f'{label}cross-validating {text} ...', file=sys.stderr)
+
+        noise = noise_models.get(sensor)
+        if noise is None or noise.source == 'residual':
+            # A stored model fitted to the calibration run's residual at every averaging time is
+            # no yardstick: diagnose fits its own, at short averaging times only.
+            from tak_thermo_ros.core.fit import residual_counts
+            from tak_thermo_ros.core.noise.residual import model_from_residual
+            noise = model_from_residual(residual_counts(unit.sensor(sensor), samples), samples.stamp_ns)
+        result = diagnose(unit.sensor(sensor), samples, candidates=candidates, folds=args.folds, progress=progress,
+                          noise=noise)
+        results[sensor] = result
+        print(f'{label}diagnosed {len(samples)} samples of {args.bag} against {args.params} '
+              f'(model: {result.ladder[0].label})')
+        print(_noise_line(noise, unit_name, result.averaging_time_s))
+        if samples.dropped:
+            print(f'left out: {common.describe_dropped(samples.dropped)}')
+        common.print_ignored(samples, args, run.input_kind)
+        for name, axis in zip(AXES, result.axes):
+            if result.averaging_time_s:
+                print(f'  {name}: residual RMS {axis.rms:.4g} {unit_name}, white floor {axis.white_floor:.4g}; '
+                      f'held-out {result.averaging_time_s:.3g} s means {axis.heldout_rms:.4g} '
+                      f'({axis.heldout_rms / axis.noise_floor:.2f}x the noise model\'s {axis.noise_floor:.4g})')
+            else:
+                print(f'  {name}: residual RMS {axis.rms:.4g} {unit_name}, noise floor {axis.noise_floor:.4g}; '
+                      f'held-out {axis.heldout_rms:.4g} ({axis.heldout_rms / axis.noise_floor:.2f}x the floor)')
+        if result.allan:
+            check = result.allan[-1][1]
+            print(f'  against the noise model, {"after the ladder" if len(result.allan) > 1 else "the residual"}: '
+                  f'{check.describe()} ({"inside" if check.consistent else "beyond"} '
+                  f'the bound {check.worst_bound():.2f}x)'
+                  if len(check.taus) else '  Allan deviation: the run is too short to estimate it')
+        if result.candidates:
+            print(f'candidates, best first (held-out RMS x y z in {unit_name}; '
+                  f'share of the excess over the floor removed):')
+            for candidate in result.candidates:
+                rms = ' '.join(f'{v:8.4g}' for v in candidate.rms_after)
+                print(f'  {candidate.effect:<20} {rms}  {round(100.0 * candidate.explained):5d}%')
+        for name, reason in result.skipped.items():
+            print(f'  {name:<20} not tried: {reason}')
+        if len(result.ladder) > 1:
+            print('model ladder (held-out RMS x y z): ' + '; '.join(
+                f'{step.label}: {" ".join(f"{v:.4g}" for v in step.heldout_rms)}' for step in result.ladder))
+        print(f'{label}verdict: {result.verdict}')
+        print(common.in_driver_words(result.message) if run.input_kind is InputKind.IMU else result.message)
+        walk = _walk_line(result, sensor, run.input_kind)
+        if walk:
+            print(walk)
+    if args.json:
+        document = {**results['accel'].as_dict(), 'samples_diagnosed': len(used['accel']),
+                    'samples_usable': run.usable['accel'], 'subsample_stride': run.stride}
+        if run.input_kind is InputKind.IMU:
+            document['sensors'] = {sensor: {**result.as_dict(), 'unit': common.UNITS[run.input_kind, sensor],
+                                            'samples_diagnosed': len(used[sensor]),
+                                            'samples_usable': run.usable[sensor]}
+                                   for sensor, result in results.items()}
+        write_text_atomic(args.json, common.json_text(document, args.json))
+        print(f'wrote {args.json}')
+    if getattr(args, 'design_run', None):
+        from tak_thermo_ros.formats.files import write_texts
+        from tak_thermo_ros.core.diagnose import (
+            design_driver_run,
+            design_run,
+            recorded_signal_note,
+            design_files,
+            driver_design_files,
+        )
+        note = recorded_signal_note(results['accel']) if run.input_kind is InputKind.COUNTS else None
+        if note is not None:
+            print(note)
+        elif run.input_kind is InputKind.COUNTS:
+            design = design_run(results['accel'], run.samples['accel'])
+            paths = write_texts(args.design_run, design_files(design))
+            print(design.message())
+            print('wrote ' + ', '.join(str(path) for path in paths))
+        else:
+            def design_progress(text: str) -> None:
+                if verbose:
+                    print(f'design: {text} ...', file=sys.stderr)
+
+            imu_results = {sensor: result for sensor, result in results.items() if sensor != 'mag'}
+            driver_design = design_driver_run(imu_results, used, progress=design_progress)
+            for line in driver_design.lines():
+                print(line)
+            if driver_design.designed:
+                paths = write_texts(args.design_run, driver_design_files(driver_design))
+                print('wrote ' + ', '.join(str(path) for path in paths))
+            else:
+                print(f'--design-run: no chamber run to propose; nothing written to {args.design_run}')
+    if args.report:
+        from tak_thermo_ros.report import write_report, write_sensor_index
+        check_output(args.report, REPORT, force=args.force, option='--report')
+        with atomic_directory(args.report) as staging:
+            if run.input_kind is InputKind.COUNTS:
+                files = write_report(results['accel'], used['accel'], staging,
+                                     source=Path(args.bag).name, gravity=args.gravity)
+                written = f'{Path(args.report) / files.html.name} ({len(files.figures)} figures)'
+            else:
+                pages = {}
+                for sensor, result in results.items():
+                    files = write_report(result, used[sensor], Path(staging) / sensor,
+                                         source=f'{Path(args.bag).name}, {common.SENSOR_NAMES[sensor]}',
+                                         gravity=args.gravity, sensor=sensor, unit=common.UNITS[run.input_kind, sensor])
+                    pages[sensor] = (files, result)
+                index = write_sensor_index(pages, staging, source=Path(args.bag).name)
+                written = (f'{Path(args.report) / index.name} ({" and ".join(common.SENSOR_NAMES[s] for s in pages)}, '
+                           f'{sum(len(files.figures) for files, _ in pages.values())} figures)')
+        print(f'wrote {written}')
+    return 0
+
+
+def _walk_line(result, sensor: str, kind: InputKind) -> str:
+    """The rate random walk that would explain an excess over a short-term model, in a gyro's units."""
+    from tak_thermo_ros.core.noise.residual import RESIDUAL_LONGEST_TAU_S
+    check = result.allan[0][1] if result.allan else None
+    if (result.verdict != 'unexplained' or check is None or check.source != 'residual' or check.consistent
+            or sensor != 'gyro' or kind is not InputKind.IMU):
+        return ''
+    walk = check.walk_to_explain(RESIDUAL_LONGEST_TAU_S) * np.degrees(1.0) * 3600.0 * 60.0
+    return f'  that rate random walk in deg/h/sqrt(h): {" ".join(f"{value:.3g}" for value in walk)} (x y z)'
+
+
+def _add_magnetometer(args: argparse.Namespace, unit: UnitCalibration, run) -> None:
+    """``diagnose``'s magnetometer (its thermal link) when the calibration and the bag hold one."""
+    from tak_thermo_ros.streaming_mag import bounded_mag_run, has_mag
+    options = common.stream_options(args)
+    if run.input_kind is not InputKind.IMU or unit.mag is None:
+        return
+    if not has_mag(args.bag, options.topics):
+        print(f'magnetometer: {args.bag} holds no messages on {options.topics.mag}; not diagnosed')
+        return
+    samples, usable, line = bounded_mag_run(args.bag, options, max_samples=args.max_samples)
+    print(line)
+    run.samples['mag'] = samples
+    run.usable['mag'] = usable
+
+
+def _noise_line(noise, unit: str, averaging_s: float) -> str:
+    """One line: the noise model per axis and where it comes from."""
+    if noise is None:
+        return '  noise model: none (the run is too short for an Allan fit): judged against the white floor'
+
+    def triple(values) -> str:
+        return ' '.join(f'{float(v):.3g}' for v in values)
+    said = {'file': 'from the file', 'static_run': 'from the static run',
+            'residual': "fitted to this run's own residual up to 30 s (no --noise or --noise-run: "
+                        "the verdict uses the white floor, then the Allan deviation beyond 30 s)"}
+    text = (f'  noise model {said[noise.source]}: white {triple(noise.white_noise_density)} {unit}/sqrt(Hz), '
+            f'bias instability {triple(noise.bias_instability)} {unit}, random walk {triple(noise.random_walk)} '
+            f'{unit}*sqrt(Hz) (x y z)')
+    if averaging_s:
+        text += f'; judged on held-out {averaging_s:.3g} s means'
+    return text
+
+
+def expand_candidates(text: str) -> list[str]:
+    """``--candidates`` as a list: comma-separated specs, ``library`` = every library effect."""
+    from tak_thermo_ros.core.effects import LIBRARY
+    candidates: list[str] = []
+    for spec in (part.strip() for part in text.split(',')):
+        names = list(LIBRARY) if spec == 'library' else [spec] if spec else []
+        candidates += [name for name in names if name not in candidates]
+    return candidates

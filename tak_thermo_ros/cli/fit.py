@@ -1,0 +1,206 @@
+"""``tak_calib fit``: the correction link of every sensor in a record, written as a calibration file."""
+
+from __future__ import annotations
+
+import argparse
+
+from dataclasses import replace
+from pathlib import Path
+from tak_thermo_ros.cli import common, options
+from tak_thermo_ros.core.link.model import AXES
+from tak_thermo_ros.core.link.model import InputKind
+from tak_thermo_ros.core.link.model import UnitCalibration
+from tak_thermo_ros.formats.calibration_file import save_unit
+from tak_thermo_ros.formats.files import FILE
+from tak_thermo_ros.core.values import STANDARD_GRAVITY
+from tak_thermo_ros.errors import TakError
+from tak_thermo_ros.streaming import EFFECT_FIT_MAX_SAMPLES
+
+NAME = 'fit'
+OUTPUTS = (('output', FILE, '-o'),)
+"""This command's outputs: ``(argument, kind, option)``, checked before any work is done."""
+
+
+def add_parser(commands) -> argparse.ArgumentParser:
+    """Add the command to ``tak_calib``'s subcommands."""
+    parser = commands.add_parser('fit', help='fit the correction link to a calibration bag')
+    parser.add_argument('bag', metavar='BAG')
+    parser.add_argument('-o', '--output', required=True, metavar='PARAMS.yaml')
+    parser.add_argument('--bias-order', type=options.polynomial_order, default=3, help='order q of F_s (default 3)')
+    parser.add_argument('--scale-order', type=options.polynomial_order, default=2,
+                        help='order p of F_c (default 2; 0 = no scale drift)')
+    parser.add_argument('--temp-code-ref', type=options.temp_code,
+                        help='N_t,ref (default: middle of the calibrated range)')
+    parser.add_argument('--nominal-scale', type=options.nominal_scale, nargs='+', metavar='K0',
+                        help='nominal counts per m/s^2 (one value or x y z), held for an axis that sees one '
+                             'input only; default: the bag metadata written by simulate / import-csv')
+    parser.add_argument('--effects', metavar='NAME[,NAME...]',
+                        help='effects to fit beyond the paper\'s model: thermal_lag, hysteresis, scale_nonlinearity, '
+                             'cross_axis, warmup, temperature_shape, the per-axis forms thermal_lag_per_axis, '
+                             'hysteresis_per_axis, warmup_per_axis, a recorded signal aux:TOPIC[:FIELD] '
+                             '(e.g. aux:/power/battery_state), or module:Class (see docs/effects.md)')
+    parser.add_argument('--gyro-effects', metavar='NAME[,NAME...]',
+                        help='effects to fit on the gyroscope (driver bags), the same names as --effects')
+    parser.add_argument('--effect-samples', type=options.sample_budget, default=EFFECT_FIT_MAX_SAMPLES, metavar='N',
+                        help=f'search the effects\' shapes on at most about N samples spread evenly over the run '
+                             f'(default {EFFECT_FIT_MAX_SAMPLES:,}; the amplitudes use every sample)')
+    parser.add_argument('--mag-effects', metavar='NAME[,NAME...]',
+                        help="effects on the magnetometer's thermal link, as --effects (what diagnose names)")
+    parser.add_argument('--iron-run', metavar='BAG',
+                        help="the magnetometer's rotation record (installed, turned through every orientation): "
+                             'hard and soft iron by an ellipsoid fit, after the thermal link (default: not fitted)')
+    parser.add_argument('--settle-time', type=options.seconds_not_negative, default=0.0, metavar='SECONDS',
+                        help='leave out samples this long after each reference change (turntable settling)')
+    noise_group = parser.add_argument_group('noise model written with the calibration (the node\'s Imu covariances)')
+    noise_group.add_argument('--noise', metavar='IMU.yaml',
+                             help='a Kalibr-style imu.yaml (noise densities, random walks)')
+    noise_group.add_argument('--noise-run', metavar='BAG', help='a static, constant-temperature run: its noise model '
+                                                                '(compensated with the fitted calibration)')
+    noise_group.add_argument('--noise-from-residual', action='store_true',
+                             help='the noise model of this run\'s residual after the fit (one more pass over the bag)')
+    options.add_static_options(parser)
+    options.add_topic_options(parser)
+    parser.set_defaults(handler=run)
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    """Fit the correction link to a calibration bag (counts, or a driver's Imu: both sensors), block by block."""
+    from tak_thermo_ros.streaming import FitSettings, fit_bag
+    effects = {'accel': common.effect_list(args.effects), 'gyro': common.effect_list(args.gyro_effects)}
+    settings = FitSettings(effects=effects, bias_order=args.bias_order, scale_order=args.scale_order,
+                           temp_code_ref=args.temp_code_ref, settle_time_s=args.settle_time,
+                           gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
+                           max_effect_samples=args.effect_samples)
+    fitted = fit_bag(args.bag, settings, common.stream_options(args),
+                     nominal_for=lambda kind, bag_nominal: _nominal(args, bag_nominal))
+    results = fitted.results
+    magnetometer = _fit_magnetometer(args, fitted.input_kind)
+    unit = UnitCalibration(fitted.input_kind, results['accel'].calibration,
+                           results['gyro'].calibration if 'gyro' in results else None,
+                           magnetometer.calibration if magnetometer is not None else None)
+    noise_line = ''
+    if args.noise or args.noise_run or args.noise_from_residual:
+        unit, noise_line = _with_noise(args, unit)
+    applied = ', '.join(f'{sensor} {", ".join(e.name for e in calibration.effects)}'
+                        for sensor, calibration in unit.sensors if calibration.effects)
+    header = (f'tak_thermo_ros calibration fitted from {args.bag}\n'
+              f'{results["accel"].samples} samples, bias order {args.bias_order}, scale order {args.scale_order}'
+              f'{", effects " + applied if applied else ""}\n'
+              f'load with: ros2 run tak_thermo_ros compensator --ros-args --params-file {Path(args.output).name}')
+    save_unit(args.output, unit, header=header)
+    kind = fitted.input_kind
+    print(f'fitted {results["accel"].samples} samples from {args.bag}'
+          f'{" (driver Imu: accelerometer and gyroscope)" if kind is InputKind.IMU else ""}')
+    for line in fitted.reference_lines:
+        print(line)
+    for sensor in fitted.sensors:
+        result = results[sensor]
+        calibration = result.calibration
+        unit_name = common.UNITS[kind, sensor]
+        prefix = '' if kind is InputKind.COUNTS else f'{common.SENSOR_NAMES[sensor]}: '
+        if result.dropped:
+            print(f'{prefix}left out: {common.describe_dropped(result.dropped)}')
+        ignored = common.IgnoredCounts(fitted.ignored_temp_codes[sensor], fitted.ignored_references[sensor])
+        common.print_ignored(ignored, args, kind, sensor)
+        stride = fitted.effect_stride.get(sensor, 1)
+        if stride > 1:
+            print(f'{prefix}effect shapes searched on 1 sample in {stride} '
+                  f'(about {fitted.usable[sensor] // stride} of {fitted.usable[sensor]}); '
+                  f'amplitudes and the paper\'s link fitted on all of them')
+        if kind is InputKind.COUNTS:
+            print(f'calibrated temperature-code range {calibration.temp_code_min:g}..{calibration.temp_code_max:g}, '
+                  f'reference {calibration.temp_code_ref:g}')
+        elif sensor == 'accel':
+            print(f'calibrated temperature range {calibration.temp_code_min:g}..{calibration.temp_code_max:g} C, '
+                  f'reference {calibration.temp_code_ref:g} C')
+        if prefix:
+            print(prefix.rstrip())
+        for name, axis, stats in zip(AXES, calibration.axes, result.axes):
+            print(f'  {name}: residual RMS {common.amount(stats.residual_rms, unit_name)}'
+                  f'{common.in_si(stats.residual_rms / axis.scale, unit_name)}; '
+                  f'scale {axis.scale:.6g}{" counts/(m/s^2)" if unit_name == "counts" else ""}'
+                  f'{"" if axis.scale_observable else " (held)"}, '
+                  f'offset {common.amount(axis.offset, unit_name)}, '
+                  f'offset span {common.amount(axis.offset_span, unit_name)}')
+        common.print_effects(calibration, result, unit_name)
+        for note in calibration.notes:
+            print(f'note: {prefix}{note}')
+        noise = unit.sensor(sensor).noise
+        if noise is not None:
+            print(f'  noise ({noise.source}):')
+            for i, name in enumerate(AXES):
+                print(f'  {name}: {common.noise_axis_line(sensor, noise, i, unit_name)}')
+    if noise_line:
+        print(f'{noise_line} (written with the calibration: the node\'s Imu covariances come from it)')
+    if magnetometer is not None:
+        _print_magnetometer(magnetometer, args)
+    print(f'wrote {args.output}')
+    return 0
+
+
+def _with_noise(args: argparse.Namespace, unit: UnitCalibration) -> tuple[UnitCalibration, str]:
+    """The fitted unit with each sensor's noise model (``fit --noise / --noise-run / --noise-from-residual``)."""
+    from tak_thermo_ros.noise_run import noise_models
+    found = noise_models(unit=unit, options=common.stream_options(args), noise_file=args.noise,
+                         noise_run=args.noise_run,
+                         calibration_run=args.bag if args.noise_from_residual else None, use_stored=False,
+                         gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None))
+    accel = replace(unit.accel, noise=found.models['accel'])
+    gyro = replace(unit.gyro, noise=found.models['gyro']) if unit.gyro is not None else None
+    return UnitCalibration(unit.input_kind, accel, gyro, unit.mag), found.line
+
+
+DEG = 180.0 / 3.141592653589793
+
+
+def _nominal(args: argparse.Namespace, nominal: tuple[float, float, float] | None
+             ) -> tuple[float, float, float] | None:
+    """A counts bag's nominal scale: ``--nominal-scale`` (one value or x y z), else the bag's metadata."""
+    if args.nominal_scale is not None:
+        nominal = tuple(args.nominal_scale * 3 if len(args.nominal_scale) == 1 else args.nominal_scale)
+        if len(nominal) != 3:
+            msg = f'--nominal-scale takes one value or three (x y z), got {len(args.nominal_scale)}'
+            raise TakError(msg)
+    return nominal
+
+
+def _fit_magnetometer(args: argparse.Namespace, kind: InputKind):
+    """The magnetometer's fit when the driver bag holds one (``--iron-run``: its rotation record)."""
+    from tak_thermo_ros.streaming_mag import fit_mag_bag, has_mag
+    iron_run = getattr(args, 'iron_run', None)
+    effects = common.effect_list(getattr(args, 'mag_effects', None))
+    options = common.stream_options(args)
+    if kind is not InputKind.IMU or not has_mag(args.bag, options.topics):
+        for option, given in (('--iron-run', iron_run is not None), ('--mag-effects', bool(effects))):
+            if given:
+                msg = f'{option}: {args.bag} holds no magnetometer on {options.topics.mag} to calibrate'
+                raise TakError(msg)
+        return None
+    return fit_mag_bag(args.bag, options, bias_order=args.bias_order, scale_order=args.scale_order,
+                       temp_code_ref=args.temp_code_ref, iron_run=iron_run, effects=effects,
+                       max_effect_samples=args.effect_samples)
+
+
+def _print_magnetometer(fitted, args: argparse.Namespace) -> None:
+    """``fit``'s lines for the magnetometer, in microtesla."""
+    thermal, link = fitted.thermal, fitted.calibration.thermal
+    for line in fitted.lines:
+        print(line)
+    if thermal.dropped:
+        print(f'magnetometer: left out: {common.describe_dropped(thermal.dropped)}')
+    print(f'magnetometer ({common.topics(args).mag}), {thermal.samples} samples:')
+    for name, axis, stats in zip(AXES, link.axes, thermal.axes):
+        print(f'  {name}: residual RMS {stats.residual_rms * 1e6:.4g} uT; scale {axis.scale:.6g}'
+              f'{"" if axis.scale_observable else " (held)"}, offset {axis.offset * 1e6:.4g} uT, '
+              f'offset span {axis.offset_span * 1e6:.4g} uT')
+    common.print_effects(link, thermal, 'T')
+    iron = fitted.iron
+    mag = fitted.calibration
+    if iron is not None:
+        rows = '; '.join(' '.join(f'{v:.4f}' for v in mag.soft_iron[3 * i:3 * i + 3]) for i in range(3))
+        print(f'  hard iron {" ".join(f"{v * 1e6:+.3f}" for v in mag.hard_iron)} uT; soft iron [{rows}]')
+        print(f'  ellipsoid: radius {iron.radius * 1e6:.3f} uT, residual RMS {iron.residual_rms * 1e6:.3f} uT, '
+              f'{iron.sections} of 20 sections, spread {iron.spread:.2f}')
+    for note in link.notes:
+        print(f'note: magnetometer: {note}')

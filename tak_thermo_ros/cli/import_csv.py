@@ -1,0 +1,104 @@
+"""``tak_calib import-csv``: a delimited log into a bag."""
+
+from __future__ import annotations
+
+import argparse
+
+from tak_thermo_ros.cli import common, options
+from tak_thermo_ros.formats.files import BAG
+from tak_thermo_ros.core.values import STANDARD_GRAVITY
+
+NAME = 'import-csv'
+OUTPUTS = (('output', BAG, '-o'),)
+"""This command's outputs: ``(argument, kind, option)``, checked before any work is done."""
+
+
+def add_parser(commands) -> argparse.ArgumentParser:
+    """Add the command to ``tak_calib``'s subcommands."""
+    parser = commands.add_parser('import-csv', help='convert a delimited log of a static thermal run into a bag')
+    parser.add_argument('log', metavar='LOG.csv')
+    parser.add_argument('-o', '--output', required=True, metavar='OUT_BAG')
+    parser.add_argument('--acc-columns', nargs=3, required=True, metavar=('X', 'Y', 'Z'),
+                        help='the acceleration columns along the sensor axes x, y, z')
+    parser.add_argument('--temp-column', required=True, help='the temperature column (degrees Celsius)')
+    parser.add_argument('--time-column', default='timestamp', help='the time column (default: timestamp)')
+    parser.add_argument('--time-unit', choices=['s', 'ms', 'us', 'ns'], default='s',
+                        help='unit of the time column (default s)')
+    parser.add_argument('--acc-unit', choices=['m/s^2', 'g'], default='m/s^2',
+                        help='unit of the acceleration columns (1 g = 9.80665 m/s^2; default m/s^2)')
+    parser.add_argument('--acc-resolution', type=options.positive, default=1e-3, metavar='M/S^2',
+                        help='m/s^2 per channel count: counts = round(a / resolution) (default 0.001); '
+                             'the nominal scale 1/resolution goes into the bag metadata')
+    parser.add_argument('--temp-resolution', type=options.positive, default=0.01, metavar='CELSIUS',
+                        help='degrees per temperature code: N_t = round(T / resolution) (default 0.01)')
+    parser.add_argument('--gravity', type=options.gravity, default=STANDARD_GRAVITY,
+                        help=f'local gravity, m/s^2 ({options.GRAVITY_MIN:g}..{options.GRAVITY_MAX:g}): magnitude '
+                             'of the '
+                             'estimated reference (default 9.80665)')
+    parser.add_argument('--reference', type=options.specific_force, nargs=3, metavar=('X', 'Y', 'Z'),
+                        help='the specific force in the sensor frame, m/s^2, if known (default: the mean '
+                             'measured direction scaled to --gravity)')
+    parser.add_argument('--delimiter', help='field delimiter: tab, comma, semicolon or one character '
+                                            '(default: sniffed from the header line)')
+    parser.add_argument('--frame-id', default='imu', help='frame_id of the counts messages (default imu)')
+    parser.add_argument('--gyro-columns', nargs=3, metavar=('X', 'Y', 'Z'),
+                        help='angular-rate columns along the sensor axes: the log becomes a driver bag '
+                             '(Imu in m/s^2 and rad/s, temperature in C) instead of counts')
+    parser.add_argument('--gyro-unit', choices=['rad/s', 'deg/s'], default='rad/s',
+                        help='unit of the angular-rate columns (default rad/s)')
+    parser.add_argument('--storage', choices=['mcap', 'sqlite3'], default='mcap')
+    options.add_topic_options(parser)
+    parser.set_defaults(handler=run)
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    """Convert a delimited log of a static thermal run into a bag (counts, or a driver bag with a gyroscope)."""
+    from tak_thermo_ros.formats.bag import write_driver_record, write_record
+    from tak_thermo_ros.formats.csv_log import CsvImportOptions, delimiter_from_option, read_csv_log
+    options = CsvImportOptions(
+        acc_columns=tuple(args.acc_columns), temp_column=args.temp_column, time_column=args.time_column,
+        time_unit=args.time_unit, acc_unit=args.acc_unit, acc_resolution=args.acc_resolution,
+        temp_resolution=args.temp_resolution, gravity=args.gravity,
+        reference=tuple(args.reference) if args.reference else None,
+        delimiter=delimiter_from_option(args.delimiter) if args.delimiter else None, frame_id=args.frame_id,
+        gyro_columns=tuple(args.gyro_columns) if args.gyro_columns else None, gyro_unit=args.gyro_unit)
+    log = read_csv_log(args.log, options)
+    record = log.record
+    topics = common.topics(args)
+    if log.driver is not None:
+        write_driver_record(args.output, log.driver, topics=topics, storage=args.storage, force=args.force)
+    else:
+        write_record(args.output, record, topics=topics, storage=args.storage, force=args.force)
+    print(f'read {args.log}: {log.rows} rows ({log.delimiter_name}-delimited), {log.duration_s:.1f} s '
+          f'at {(log.rows - 1) / max(log.duration_s, 1e-9):.3g} Hz')
+    if log.driver is not None:
+        rate = log.driver.gyro
+        print(f'driver bag: acceleration {" ".join(options.acc_columns)} in {options.acc_unit} and angular rate '
+              f'{" ".join(options.gyro_columns)} in {options.gyro_unit} written as {topics.raw_imu} (m/s^2, rad/s: '
+              f'{rate.min():.4g}..{rate.max():.4g} rad/s), temperature {options.temp_column} as {topics.temperature} '
+              f'in degrees C ({log.temperature.min():.2f}..{log.temperature.max():.2f})')
+        x, y, z = (float(v) for v in log.reference)
+        if log.reference_estimated:
+            print(f'no reference topic written: fit takes the run as static (mean direction scaled to gravity, '
+                  f'here ({x:.4f}, {y:.4f}, {z:.4f}) m/s^2, largest deviation {log.max_tilt_deg:.2f} deg; rate zero)')
+        else:
+            print(f'reference (given): ({x:.4f}, {y:.4f}, {z:.4f}) m/s^2 on {topics.reference}, written once')
+        print(f'wrote {args.output} ({args.storage})')
+        return 0
+    print(f'acceleration {" ".join(options.acc_columns)} in {options.acc_unit}: counts = round(a / '
+          f'{options.acc_resolution:g} m/s^2), {record.counts.min():.0f}..{record.counts.max():.0f}; '
+          f'nominal scale {options.nominal_scale:g} counts/(m/s^2) (bag metadata)')
+    print(f'temperature {options.temp_column}: {log.temperature.min():.2f}..{log.temperature.max():.2f} C, '
+          f'codes = round(T / {options.temp_resolution:g} C) = '
+          f'{record.temp_code.min():.0f}..{record.temp_code.max():.0f}')
+    x, y, z = (float(v) for v in log.reference)
+    if log.reference_estimated:
+        dx, dy, dz = (float(v) for v in log.mean_direction)
+        print(f'reference (static run): mean measured direction ({dx:.5f}, {dy:.5f}, {dz:.5f}) scaled to gravity '
+              f'{options.gravity:g} m/s^2 = ({x:.4f}, {y:.4f}, {z:.4f}) m/s^2 in the sensor frame '
+              f'(largest deviation {log.max_tilt_deg:.2f} deg), written once at the start')
+    else:
+        print(f'reference (given): ({x:.4f}, {y:.4f}, {z:.4f}) m/s^2 in the sensor frame, written once at the start')
+    print(f'wrote {args.output} ({args.storage})')
+    return 0

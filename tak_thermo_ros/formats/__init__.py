@@ -1,0 +1,14 @@
+"""Files in and out, one module per format; the maths (:mod:`tak_thermo_ros.core`) reads none.
+
+- :mod:`~tak_thermo_ros.formats.bag`: rosbag2 (mcap, sqlite3) through rosbags, in blocks; the only
+  module that imports rosbags;
+- :mod:`~tak_thermo_ros.formats.cdr`: the block decoder and encoder of CDR messages (numpy only);
+- :mod:`~tak_thermo_ros.formats.csv_log`: delimited logs;
+- :mod:`~tak_thermo_ros.formats.calibration_file`: the calibration file (the node's parameters YAML)
+  and its one parser;
+- :mod:`~tak_thermo_ros.formats.kalibr`: Kalibr-style imu.yaml noise files;
+- :mod:`~tak_thermo_ros.formats.scenario`: the simulator's scenario file;
+- :mod:`~tak_thermo_ros.formats.files`: atomic outputs and the one overwrite rule.
+
+Nothing is imported here: the node loads the calibration file's parser without rosbags.
+"""
