@@ -39,6 +39,13 @@ def run(args: argparse.Namespace) -> int:
     applied = apply_bag(args.bag, unit, args.output, common.stream_options(args), storage=args.storage,
                         out_of_range=OutOfRange(args.out_of_range), force=args.force)
     print(f'wrote {applied.written} Imu messages on {applied.topic} to {args.output}')
+    if applied.sensor_written:
+        carried = ', '.join(f'{count} with the {common.SENSOR_NAMES[sensor]}'
+                            for sensor, count in applied.sensor_written.items())
+        print(f'the sensors come at their own stamps: {carried} (the other marked absent, covariance[0] = -1)')
+        for sensor, dropped in applied.sensor_dropped.items():
+            if dropped:
+                print(f'dropped {common.SENSOR_NAMES[sensor]} samples: {common.describe_dropped(dropped)}')
     if kind is InputKind.IMU and unit.mag is None:
         from tak_thermo_ros.streaming_mag import has_mag
         if has_mag(args.bag, topics):
