@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Callable, Iterator, Sequence
 import numpy as np
 
 from tak_thermo_ros.core.records.blocks import BlockAligner, Subsample, add_counts, stride_for
+from tak_thermo_ros.core.records.extremes import RunExtremes
 from tak_thermo_ros.core.link.correction import Corrector, OutOfRange, acceleration_variance
 from tak_thermo_ros.core.fit import FitResult, fit_model
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
@@ -259,6 +260,10 @@ class StreamedFit:
     reference_lines: tuple[str, ...]
     ignored_temp_codes: dict[str, dict[str, int]] = field(default_factory=dict)
     ignored_references: dict[str, dict[str, int]] = field(default_factory=dict)
+    temperature_rate_max: float = 0.0
+    """The run's fastest temperature change over 60 s (the accelerometer's samples), per second."""
+    rate_max: float = 0.0
+    """The largest rate reference of a driver run, rad/s (0 for a static run without latitude)."""
 
 
 def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
@@ -297,11 +302,12 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
         return Required([spec for spec in settings.effects.get(sensor, ()) if spec.startswith('aux:')])
 
     passes, fits, subsamples, requirements = [], {}, {}, {}
+    extremes = {sensor: RunExtremes() for sensor in sensors}
     for sensor in sensors:
         fits[sensor] = StreamingFit(bias_order=settings.bias_order, scale_order=settings.scale_order,
                                     temp_code_ref=settings.temp_code_ref, nominal_scale=nominal.get(sensor))
         requirements[sensor] = required(sensor)
-        consumers = [fits[sensor].add]
+        consumers = [fits[sensor].add, extremes[sensor]]
         if settings.effects.get(sensor):
             stride = stride_for(opened.main, settings.max_effect_samples)
             subsamples[sensor] = Subsample(stride, expected=opened.main // stride + 1)
@@ -350,7 +356,9 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
                        effect_stride={sensor: subsample.stride for sensor, subsample in subsamples.items()},
                        reference_lines=tuple(lines),
                        ignored_temp_codes={p.sensor: dict(p.aligner.ignored_temp_codes) for p in passes},
-                       ignored_references={p.sensor: dict(p.aligner.ignored_references) for p in passes})
+                       ignored_references={p.sensor: dict(p.aligner.ignored_references) for p in passes},
+                       temperature_rate_max=extremes['accel'].temperature_rate_max,
+                       rate_max=extremes['gyro'].reference_max if 'gyro' in extremes else 0.0)
 
 
 def _with_shape_uncertainty(errors: dict[str, float], shaped: FitResult, shape_names: set[str],

@@ -39,7 +39,8 @@ def topics(args: argparse.Namespace):
                   compensated_imu=getattr(args, 'imu_topic', None) or defaults.compensated_imu,
                   mag=getattr(args, 'mag_topic', defaults.mag),
                   reference_field=getattr(args, 'reference_field_topic', defaults.reference_field),
-                  compensated_mag=getattr(args, 'mag_output_topic', None) or defaults.compensated_mag)
+                  compensated_mag=getattr(args, 'mag_output_topic', None) or defaults.compensated_mag,
+                  instance=getattr(args, 'instance', defaults.instance))
 
 
 def stream_options(args: argparse.Namespace):

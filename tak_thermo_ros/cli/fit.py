@@ -78,7 +78,8 @@ def run(args: argparse.Namespace) -> int:
     magnetometer = _fit_magnetometer(args, fitted.input_kind)
     unit = UnitCalibration(fitted.input_kind, results['accel'].calibration,
                            results['gyro'].calibration if 'gyro' in results else None,
-                           magnetometer.calibration if magnetometer is not None else None)
+                           magnetometer.calibration if magnetometer is not None else None,
+                           _source(args, fitted))
     noise_line = ''
     if args.noise or args.noise_run or args.noise_from_residual:
         unit, noise_line = _with_noise(args, unit)
@@ -139,6 +140,17 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _source(args: argparse.Namespace, fitted) -> dict[str, str | int | float] | None:
+    """The calibration file's ``source``: the record's format, a flight log's instance and device IDs, its extremes."""
+    if fitted.input_kind is not InputKind.IMU:
+        return None
+    from tak_thermo_ros.formats.records import record_source
+    source: dict[str, str | int | float] = dict(record_source(args.bag, topics=common.topics(args)) or {'format': 'bag'})
+    source['temperature_rate_max'] = round(float(fitted.temperature_rate_max), 9)
+    source['rate_max'] = round(float(fitted.rate_max), 9)
+    return source
+
+
 def _with_noise(args: argparse.Namespace, unit: UnitCalibration) -> tuple[UnitCalibration, str]:
     """The fitted unit with each sensor's noise model (``fit --noise / --noise-run / --noise-from-residual``)."""
     from tak_thermo_ros.noise_run import noise_models
@@ -148,7 +160,7 @@ def _with_noise(args: argparse.Namespace, unit: UnitCalibration) -> tuple[UnitCa
                          gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None))
     accel = replace(unit.accel, noise=found.models['accel'])
     gyro = replace(unit.gyro, noise=found.models['gyro']) if unit.gyro is not None else None
-    return UnitCalibration(unit.input_kind, accel, gyro, unit.mag), found.line
+    return UnitCalibration(unit.input_kind, accel, gyro, unit.mag, unit.source), found.line
 
 
 DEG = 180.0 / 3.141592653589793

@@ -1,4 +1,4 @@
-"""``tak_calib``: simulate, fit, apply, validate, diagnose; the noise model; a batch on Dask; the carrier method.
+"""``tak_calib``: simulate, fit, apply, validate, diagnose; the noise model; PX4 and ArduPilot parameters; a batch on Dask; the carrier method.
 
 One module per command (:mod:`tak_thermo_ros.cli.fit`, ...), each with ``add_parser`` and
 ``run``; the options they share are in :mod:`tak_thermo_ros.cli.options`. Every deliberate
@@ -17,7 +17,7 @@ import sys
 import traceback
 from typing import Callable, Sequence
 
-from tak_thermo_ros.cli import apply, carrier, diagnose, fit, fit_fleet, import_csv, noise, simulate, validate
+from tak_thermo_ros.cli import apply, carrier, diagnose, export, fit, fit_fleet, import_csv, noise, simulate, validate
 from tak_thermo_ros.formats.files import check_output
 from tak_thermo_ros.errors import TakError
 
@@ -25,7 +25,7 @@ EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
 EXIT_TERMINATED = 143
 
-COMMANDS = (simulate, fit, apply, validate, import_csv, diagnose, noise)
+COMMANDS = (simulate, fit, apply, validate, import_csv, diagnose, noise, export)
 """The commands with a module of their own, in the order ``tak_calib --help`` lists them."""
 
 OUTPUTS: dict[str, tuple[tuple[str, str, str], ...]] = {

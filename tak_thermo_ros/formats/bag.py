@@ -93,6 +93,8 @@ class Topics:
     mag: str = '/imu/mag'
     reference_field: str = '/tak/reference_field'
     compensated_mag: str = '/imu/mag_compensated'
+    instance: int = 0
+    """A flight log's sensor instance (PX4 ``multi_id``, ArduPilot ``I``); a bag has none."""
 
 
 def bag_input_kind(path: str | os.PathLike[str], *, topics: Topics = Topics()) -> InputKind:

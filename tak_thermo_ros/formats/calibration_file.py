@@ -64,6 +64,7 @@ from tak_thermo_ros.core.link.model import (
     AxisModel,
     Calibration,
     MAG_SENSOR,
+    SOURCE_KEYS,
     InputKind,
     MagnetometerCalibration,
     UnitCalibration,
@@ -391,7 +392,8 @@ def unit_from_mapping(raw: Any, *, key: str = 'calibration') -> UnitCalibration:
     - version 2 (``input: imu``, a driver's Imu and a temperature in degrees C): ``accel`` and
       ``gyro``, each with ``temperature_ref/min/max``, ``x``, ``y``, ``z``, optional ``notes``
       and ``effects``; optional ``mag`` (the magnetometer, tesla): the same keys plus
-      ``hard_iron`` (3) and ``soft_iron`` (9, row-major, symmetric).
+      ``hard_iron`` (3) and ``soft_iron`` (9, row-major, symmetric); optional ``source`` (what
+      the record was, for an export: :data:`~tak_thermo_ros.core.link.model.SOURCE_KEYS`).
 
     :raises CalibrationError: naming the first wrong key.
     """
@@ -401,7 +403,7 @@ def unit_from_mapping(raw: Any, *, key: str = 'calibration') -> UnitCalibration:
     if _version(raw, key) == CALIBRATION_VERSION:
         return UnitCalibration(InputKind.COUNTS, _link_from_mapping(raw, key, InputKind.COUNTS,
                                                                     extra_keys=('version',)))
-    unknown = sorted(str(name) for name in set(raw) - {'version', 'input', *SENSORS, MAG_SENSOR})
+    unknown = sorted(str(name) for name in set(raw) - {'version', 'input', 'source', *SENSORS, MAG_SENSOR})
     if unknown:
         msg = f'{key}.{unknown[0]}: unknown key'
         raise CalibrationError(msg)
@@ -416,7 +418,38 @@ def unit_from_mapping(raw: Any, *, key: str = 'calibration') -> UnitCalibration:
     accel, gyro = (_link_from_mapping(raw[sensor], f'{key}.{sensor}', InputKind.IMU, extra_keys=())
                    for sensor in SENSORS)
     mag = _mag_from_mapping(raw[MAG_SENSOR], f'{key}.{MAG_SENSOR}') if MAG_SENSOR in raw else None
-    return UnitCalibration(InputKind.IMU, accel, gyro, mag)
+    source = _source_from_mapping(raw['source'], f'{key}.source') if 'source' in raw else None
+    return UnitCalibration(InputKind.IMU, accel, gyro, mag, source)
+
+
+def _source_from_mapping(raw: Any, key: str) -> dict[str, str | int | float]:
+    """The optional ``source`` section (:data:`~tak_thermo_ros.core.link.model.SOURCE_KEYS`)."""
+    if not isinstance(raw, Mapping):
+        msg = f'{key}: expected a mapping of {", ".join(SOURCE_KEYS)}'
+        raise CalibrationError(msg)
+    source: dict[str, str | int | float] = {}
+    for name, value in raw.items():
+        kind = SOURCE_KEYS.get(str(name))
+        if kind is None:
+            msg = f'{key}.{name}: unknown key'
+            raise CalibrationError(msg)
+        if kind is str:
+            if not isinstance(value, str):
+                msg = f'{key}.{name}: expected a string, got {value!r}'
+                raise CalibrationError(msg)
+            source[str(name)] = value
+        elif kind is int:
+            if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < 2 ** 32:
+                msg = f'{key}.{name}: expected a whole number 0..2**32-1, got {value!r}'
+                raise CalibrationError(msg)
+            source[str(name)] = int(value)
+        else:
+            number = finite_number(value, f'{key}.{name}')
+            if number < 0.0:
+                msg = f'{key}.{name}: must be >= 0, got {number}'
+                raise CalibrationError(msg)
+            source[str(name)] = number
+    return source
 
 
 MAG_IRON_KEYS = ('hard_iron', 'soft_iron')
@@ -472,6 +505,8 @@ def unit_to_mapping(unit: UnitCalibration) -> dict[str, Any]:
         mapping[MAG_SENSOR] = {**_link_to_mapping(unit.mag.thermal, unit.input_kind),
                                'hard_iron': [float(v) for v in unit.mag.hard_iron],
                                'soft_iron': [float(v) for v in unit.mag.soft_iron]}
+    if unit.source:
+        mapping['source'] = dict(unit.source)
     return mapping
 
 

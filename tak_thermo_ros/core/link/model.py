@@ -262,12 +262,15 @@ class UnitCalibration:
     :param gyro: the gyroscope's link (required with :attr:`InputKind.IMU`, absent with counts).
     :param mag: the magnetometer's correction (optional, driver input only). It is not one of
         :attr:`sensors`: its messages come on their own topic, with their own stamps.
+    :param source: what the record it was fitted from was (driver input only; the file's
+        ``source`` section, :data:`SOURCE_KEYS`): the correction does not use it, an export does.
     """
 
     input_kind: InputKind
     accel: Calibration
     gyro: Calibration | None = None
     mag: MagnetometerCalibration | None = None
+    source: dict[str, str | int | float] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, 'input_kind', InputKind(self.input_kind))
@@ -295,6 +298,15 @@ class UnitCalibration:
             msg = f'calibration.{name}: not in this calibration'
             raise CalibrationError(msg)
         return calibration
+
+
+SOURCE_KEYS: dict[str, type] = {
+    'format': str, 'instance': int, 'accel_device_id': int, 'gyro_device_id': int, 'mag_device_id': int,
+    'temperature_rate_max': float, 'rate_max': float,
+}
+"""A calibration's ``source``: the record's format (``bag``, ``ulog``, ``dataflash``), the flight
+log's sensor instance and the sensors' device IDs (0: none), the record's fastest temperature
+change (C/s, over 60 s) and largest angular rate (rad/s, the reference or the measured)."""
 
 
 def check_scale_positive(calibration: Calibration, *, key: str = 'calibration') -> None:
