@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from dataclasses import dataclass
 from pathlib import Path
 from tak_thermo_ros.cli import common, options
 from tak_thermo_ros.core.effects.aux_signal import signals_with_values
@@ -17,6 +18,7 @@ from tak_thermo_ros.formats.files import REPORT
 from tak_thermo_ros.formats.files import atomic_directory
 from tak_thermo_ros.formats.files import check_output
 from tak_thermo_ros.formats.files import write_text_atomic
+from tak_thermo_ros.core.records.extremes import TemperatureCourse, temperature_course
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.core.records.record import require_signals
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
@@ -146,6 +148,9 @@ def run(args: argparse.Namespace) -> int:
         walk = _walk_line(result, sensor, run.input_kind)
         if walk:
             print(walk)
+    record = _one_way_lines(unit, used) if run.input_kind is InputKind.IMU else None
+    for line in record.lines if record is not None else ():
+        print(line)
     if args.json:
         document = {**results['accel'].as_dict(), 'samples_diagnosed': len(used['accel']),
                     'samples_usable': run.usable['accel'], 'subsample_stride': run.stride}
@@ -154,6 +159,8 @@ def run(args: argparse.Namespace) -> int:
                                             'samples_diagnosed': len(used[sensor]),
                                             'samples_usable': run.usable[sensor]}
                                    for sensor, result in results.items()}
+            if record is not None:
+                document['record'] = record.as_dict()
         write_text_atomic(args.json, common.json_text(document, args.json))
         print(f'wrote {args.json}')
     if getattr(args, 'design_run', None):
@@ -251,6 +258,46 @@ def _noise_line(noise, unit: str, averaging_s: float) -> str:
     if averaging_s:
         text += f'; judged on held-out {averaging_s:.3g} s means'
     return text
+
+
+@dataclass(frozen=True)
+class OneWay:
+    """A record whose temperature moved one way only, and what a lag it cannot show would do to its curve.
+
+    :param bend_per_minute: per sensor, the largest offset error each minute of lag between the
+        sensing element and its thermometer leaves at the record's fastest rate (sensor units).
+    """
+
+    course: TemperatureCourse
+    bend_per_minute: dict[str, float]
+    lines: tuple[str, ...]
+
+    def as_dict(self) -> dict[str, object]:
+        """For ``--json``: the course and the bend per minute of lag."""
+        return {'one_way': self.course.one_way, 'low_c': self.course.low, 'high_c': self.course.high,
+                'rate_max_c_per_s': self.course.rate_max, 'lag_bend_per_minute': self.bend_per_minute}
+
+
+def _one_way_lines(unit: UnitCalibration, used: dict[str, AlignedSamples]) -> OneWay | None:
+    """A warm-up (or cool-down) only: a lag of the elements behind the thermometer hides in its curve; its size."""
+    from tak_thermo_ros.formats.firmware import offset_cubic, size
+    samples = used['accel']
+    course = temperature_course(samples.stamp_s, samples.temp_code)
+    if not course.one_way or course.high - course.low < 1.0:
+        return None
+    bend = {}
+    for sensor in ('accel', 'gyro'):
+        cubic = offset_cubic(unit.sensor(sensor), about=unit.sensor(sensor).temp_code_ref)
+        bend[sensor] = float(cubic.steepest.max()) * course.rate_max * 60.0
+    verb = 'rose' if course.rise >= course.fall else 'fell'
+    lines = (f'record: the temperature only {verb}, {course.low:.1f}..{course.high:.1f} C, at up to '
+             f'{course.rate_max * 60.0:.3g} C/min',
+             'record: a lag of the sensing elements behind the thermometer cannot be told from the curve here',
+             f'record: each minute of such a lag bends the curve by up to {size(bend["gyro"], "gyro")} (gyroscope), '
+             f'{size(bend["accel"], "accel")} (accelerometer)',
+             f'record: to determine a lag, record the way back too (kept powered, {"cooled" if verb == "rose" else "warmed"}), '
+             f'or change the temperature slower')
+    return OneWay(course, bend, lines)
 
 
 def expand_candidates(text: str) -> list[str]:

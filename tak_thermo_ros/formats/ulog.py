@@ -45,6 +45,23 @@ def _pyulog():
     return require('pyulog', 'reading a PX4 ULog')
 
 
+HEADER_BYTES = 16
+"""A ULog's file header: magic, version, start timestamp; then messages of ``uint16 size, uint8 type, payload``."""
+
+
+def _cut_at(path: Path) -> int | None:
+    """The byte at which the file's last message starts if the file ends inside it (a truncated log), else ``None``."""
+    data = path.read_bytes()
+    end = len(data)
+    position = HEADER_BYTES
+    while position + 3 <= end:
+        size = data[position] | (data[position + 1] << 8)
+        if position + 3 + size > end:
+            return position
+        position += 3 + size
+    return position if position < end else None
+
+
 def read_ulog(path: str | os.PathLike[str], instance: int = 0) -> FlightLog:
     """Instance ``instance`` of a ULog's IMU topics (read once per process: :func:`~tak_thermo_ros.formats.flight_log.cached`).
 
@@ -62,8 +79,10 @@ def _read(path: Path, instance: int) -> FlightLog:
         detail = str(err).splitlines()[0] if str(err) else type(err).__name__
         msg = f'{path}: not a readable ULog ({detail})'
         raise FlightLogError(msg) from None
-    if ulog.file_corruption:
-        msg = f'{path}: the ULog is truncated or corrupt (pyulog found damaged data); nothing read from it'
+    cut = _cut_at(path)
+    if ulog.file_corruption or cut is not None:
+        where = f' (its last message, at byte {cut}, is cut short)' if cut is not None else ' (pyulog found damaged data)'
+        msg = f'{path}: the ULog is truncated or corrupt{where}; nothing read from it'
         raise FlightLogError(msg)
     found = {(d.name, d.multi_id): d for d in ulog.data_list}
     for sensor in ('accel', 'gyro'):
