@@ -216,6 +216,34 @@ def real_ulogs(repository: str, work: Path) -> list[dict[str, object]]:
     return found
 
 
+LAG_GRID_S = (30.0, 60.0, 100.0, 150.0, 250.0, 400.0, 800.0)
+
+
+def lag_profile(run: PoweredRun) -> dict[str, object]:
+    """How well the record tells the lag's time constant: the fit's residual with a lag fixed at each tau.
+
+    The gyroscope's residual sum of squares over the white noise's variance, above its smallest
+    over the grid (a lag the record determines: a clear dip at 150 s; one it cannot: a few units
+    everywhere); and the score the static curve of each of those fits leaves in use.
+    """
+    from tak_thermo_ros.core.effects.thermal_lag import ThermalLag
+    from tak_thermo_ros.core.fit import fit_model
+    from tak_thermo_ros.core.records.record import AlignedSamples
+    sim = simulate_powered(run)
+    stamps = sim.record.sensor_stamps('gyro')
+    samples = AlignedSamples(stamp_ns=stamps, counts=sim.record.gyro,
+                             temp_code=hold_signal(sim.record.temp_stamp_ns, sim.record.temperature, stamps),
+                             reference=np.zeros((len(stamps), 3)), dropped={})
+    squares = []
+    for tau in LAG_GRID_S:
+        result = fit_model(samples, effects=[ThermalLag(tau_s=tau)], bias_order=3, scale_order=0,
+                           nominal_scale=(1.0, 1.0, 1.0))
+        squares.append([axis.residual_rms ** 2 * result.samples for axis in result.axes])
+    squares = np.array(squares) / sim.noise['gyro'] ** 2
+    excess = squares - squares.min(axis=0)
+    return {'tau_s': list(LAG_GRID_S), 'gyro_rss_over_sigma2_above_min': np.round(excess, 1).tolist()}
+
+
 def compare(scenario: str, run: PoweredRun, work: Path, px4_script: Path, ardupilot_script: Path, ulog_use,
             bin_use) -> dict[str, object]:
     """One calibration record, as PX4 and as ArduPilot log it, through both peers' scripts and ours; the scores."""
@@ -258,6 +286,7 @@ def compare(scenario: str, run: PoweredRun, work: Path, px4_script: Path, ardupi
                       (('tempcal_IMU', ardupilot_theirs), ('tak_calib', ardupilot_ours),
                        ('true_static_curve', ardupilot_truth))},
         'ours_said': {'ulog': said_ulog, 'bin': said_bin, 'export': export_lines},
+        'lag_profile': lag_profile(run),
         'seconds': {'process_sensor_caldata': round(px4_time, 1), 'tempcal_IMU': round(ardupilot_time, 1),
                     'tak_calib_diagnose_fit_fit_both_logs': round(ours_time, 1)}}
 

@@ -46,6 +46,11 @@ def add_parser(commands) -> argparse.ArgumentParser:
                              '(Imu in m/s^2 and rad/s, temperature in C) instead of counts')
     parser.add_argument('--gyro-unit', choices=['rad/s', 'deg/s'], default='rad/s',
                         help='unit of the angular-rate columns (default rad/s)')
+    parser.add_argument('--gyro-file', metavar='GYRO.csv',
+                        help='the angular-rate columns are in this file, with its own time column (the gyroscope '
+                             'logged apart at its own rate; each sensor keeps its own stamps, nothing is resampled)')
+    parser.add_argument('--gyro-time-column', metavar='NAME',
+                        help="--gyro-file's time column (default: --time-column), in --time-unit")
     parser.add_argument('--storage', choices=['mcap', 'sqlite3'], default='mcap')
     options.add_topic_options(parser)
     parser.set_defaults(handler=run)
@@ -62,7 +67,8 @@ def run(args: argparse.Namespace) -> int:
         temp_resolution=args.temp_resolution, gravity=args.gravity,
         reference=tuple(args.reference) if args.reference else None,
         delimiter=delimiter_from_option(args.delimiter) if args.delimiter else None, frame_id=args.frame_id,
-        gyro_columns=tuple(args.gyro_columns) if args.gyro_columns else None, gyro_unit=args.gyro_unit)
+        gyro_columns=tuple(args.gyro_columns) if args.gyro_columns else None, gyro_unit=args.gyro_unit,
+        gyro_file=args.gyro_file, gyro_time_column=args.gyro_time_column)
     log = read_csv_log(args.log, options)
     record = log.record
     topics = common.topics(args)
@@ -72,6 +78,15 @@ def run(args: argparse.Namespace) -> int:
         write_record(args.output, record, topics=topics, storage=args.storage, force=args.force)
     print(f'read {args.log}: {log.rows} rows ({log.delimiter_name}-delimited), {log.duration_s:.1f} s '
           f'at {(log.rows - 1) / max(log.duration_s, 1e-9):.3g} Hz')
+    if log.driver is not None and not log.driver.shared_stamps:
+        counts = {sensor: log.driver.sensor_stamps(sensor) for sensor in ('accel', 'gyro')}
+        rates = ', '.join(f'{common.SENSOR_NAMES[sensor]} {len(stamps)} samples at '
+                          f'{(len(stamps) - 1) / max((stamps[-1] - stamps[0]) * 1e-9, 1e-9):.3g} Hz'
+                          for sensor, stamps in counts.items())
+        print(f'each sensor on its own stamps, nothing resampled: {rates}, {len(log.temperature)} temperatures')
+    elif len(log.temperature) != log.rows or len(log.record.counts_stamp_ns) != log.rows:
+        print(f'rows without a sample left empty: {len(log.record.counts_stamp_ns)} acceleration, '
+              f'{len(log.temperature)} temperature samples')
     if log.driver is not None:
         rate = log.driver.gyro
         print(f'driver bag: acceleration {" ".join(options.acc_columns)} in {options.acc_unit} and angular rate '
