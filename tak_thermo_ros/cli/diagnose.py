@@ -293,10 +293,10 @@ def _one_way_lines(unit: UnitCalibration, used: dict[str, AlignedSamples]) -> On
     lines = (f'record: the temperature only {verb}, {course.low:.1f}..{course.high:.1f} C, at up to '
              f'{course.rate_max * 60.0:.3g} C/min',
              'record: a lag of the sensing elements behind the thermometer cannot be told from the curve here',
-             f'record: each minute of such a lag bends the curve by up to {size(bend["gyro"], "gyro")} (gyroscope), '
-             f'{size(bend["accel"], "accel")} (accelerometer)',
-             f'record: to determine a lag, record the way back too (kept powered, {"cooled" if verb == "rose" else "warmed"}), '
-             f'or change the temperature slower')
+             f'record: each minute of such a lag bends the gyroscope\'s curve by up to {size(bend["gyro"], "gyro")}',
+             f'record: and the accelerometer\'s by up to {size(bend["accel"], "accel")}',
+             f'record: to determine a lag, record the way back too ({"cooled" if verb == "rose" else "warmed"}, '
+             f'powered), or go slower')
     return OneWay(course, bend, lines)
 
 

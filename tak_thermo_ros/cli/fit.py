@@ -72,6 +72,9 @@ def run(args: argparse.Namespace) -> int:
                            temp_code_ref=args.temp_code_ref, settle_time_s=args.settle_time,
                            gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
                            max_effect_samples=args.effect_samples)
+    from tak_thermo_ros.formats.records import record_lines
+    for line in record_lines(args.bag, topics=common.topics(args)):
+        print(line)
     fitted = fit_bag(args.bag, settings, common.stream_options(args),
                      nominal_for=lambda kind, bag_nominal: _nominal(args, bag_nominal))
     results = fitted.results

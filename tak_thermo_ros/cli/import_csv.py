@@ -80,10 +80,10 @@ def run(args: argparse.Namespace) -> int:
           f'at {(log.rows - 1) / max(log.duration_s, 1e-9):.3g} Hz')
     if log.driver is not None and not log.driver.shared_stamps:
         counts = {sensor: log.driver.sensor_stamps(sensor) for sensor in ('accel', 'gyro')}
-        rates = ', '.join(f'{common.SENSOR_NAMES[sensor]} {len(stamps)} samples at '
-                          f'{(len(stamps) - 1) / max((stamps[-1] - stamps[0]) * 1e-9, 1e-9):.3g} Hz'
-                          for sensor, stamps in counts.items())
-        print(f'each sensor on its own stamps, nothing resampled: {rates}, {len(log.temperature)} temperatures')
+        print(f'each sensor on its own stamps, nothing resampled ({len(log.temperature)} temperatures):')
+        for sensor, stamps in counts.items():
+            print(f'  {common.SENSOR_NAMES[sensor]}: {len(stamps)} samples at '
+                  f'{(len(stamps) - 1) / max((stamps[-1] - stamps[0]) * 1e-9, 1e-9):.3g} Hz')
     elif len(log.temperature) != log.rows or len(log.record.counts_stamp_ns) != log.rows:
         print(f'rows without a sample left empty: {len(log.record.counts_stamp_ns)} acceleration, '
               f'{len(log.temperature)} temperature samples')

@@ -38,13 +38,13 @@ def ardupilot_parameters(unit: UnitCalibration, *, instance: int) -> ParameterSe
                 values[f'{prefix}{code}{order}_{name.upper()}'] = (float(cubic.coefficients[order, axis]) * SCALE_FACTOR,
                                                                    FLOAT)
         lines.extend(not_carried(unit, sensor, cubic, 'ArduPilot'))
-        lines.append(f'{SENSOR_NAMES[sensor]}: ArduPilot keeps no constant term: its ordinary offsets '
-                     f'(INS_{code}OFFS, calibrated at INS_{code}{instance + 1}_CALTEMP) supply it')
+        lines.append(f'{SENSOR_NAMES[sensor]}: no constant in INS_TCAL: the offsets INS_{code}OFFS '
+                     f'(at INS_{code}{instance + 1}_CALTEMP) hold it')
     if (low, high) != (cubics['accel'].low, cubics['accel'].high) or (low, high) != (cubics['gyro'].low,
                                                                                      cubics['gyro'].high):
         lines.append(f'both sensors clamp to {low:.1f}..{high:.1f} C: ArduPilot has one range per IMU')
     if unit.mag is not None:
-        lines.append('magnetometer: not exported (ArduPilot has no temperature calibration of the compass)')
+        lines.append('magnetometer: not exported (ArduPilot calibrates no compass against temperature)')
     return ParameterSet(values=values, lines=tuple(lines), cubics=cubics)
 
 

@@ -257,8 +257,7 @@ def _read(path: Path, instance: int) -> FlightLog:
     accel_stamps, accel, _ = checked_sensor(path, 'accel', stamp_ns, accel, None, where)
     gyro_stamps, gyro, _ = checked_sensor(path, 'gyro', stamp_ns, gyro, None, where)
     temp_stamps, temperature = checked_temperature(path, stamp_ns, temperature, f'{where} T')
-    lines.append(f'{path.name}: instance {instance}: {len(accel_stamps)} {kind.name} samples (accelerometer and '
-                 f'gyroscope on shared stamps), temperature T')
+    lines.append(f'{path.name}: instance {instance}: {len(accel_stamps)} {kind.name} samples, both sensors, T')
     return FlightLog(path=path, format='dataflash', instance=instance,
                      stamps={'accel': accel_stamps, 'gyro': gyro_stamps, 'mag': np.zeros(0, dtype=np.int64)},
                      values={'accel': accel, 'gyro': gyro, 'mag': np.zeros((0, 3))}, temp_stamp_ns=temp_stamps,
@@ -322,9 +321,8 @@ def _undo_firmware(path: Path, parameters: _Parameters, instance: int, accel: np
                 accel = accel + applied
             else:
                 gyro = gyro + applied
-        undone.append(f'the temperature calibration {tcal}* in use ({tmin:g}..{tmax:g} C)')
-    lines.append(f'{path.name}: undone from the log\'s parameters, as the firmware applied them: '
-                 f'{", ".join(u for u in undone if u)}')
+        undone.append(f'{tcal}* ({tmin:g}..{tmax:g} C)')
+    lines.append(f'{path.name}: undone as the firmware applied it: {", ".join(u for u in undone if u)}')
     return accel, gyro
 
 
@@ -353,8 +351,8 @@ def _tclr(path: Path, data: np.ndarray, by_name: dict[str, MessageType], positio
                                                    np.concatenate([t[1] for t in temperatures]),
                                                    f'TCLR instance {instance} Temp')
     stamps['mag'], values['mag'] = np.zeros(0, dtype=np.int64), np.zeros((0, 3))
-    lines.append(f'{path.name}: instance {instance}: no IMU messages, the firmware\'s learning records TCLR '
-                 f'({len(stamps["accel"])} accelerometer, {len(stamps["gyro"])} gyroscope, on their own stamps)')
+    lines.append(f'{path.name}: instance {instance}: no IMU messages; the learning records TCLR, '
+                 f'{len(stamps["accel"])} + {len(stamps["gyro"])} samples')
     device_ids = {sensor: int(parameters.at(f'INS_{prefix}{_suffix(instance)}_ID', 0))
                   for sensor, prefix in (('accel', 'ACC'), ('gyro', 'GYR'))}
     return FlightLog(path=path, format='dataflash', instance=instance, stamps=stamps, values=values,

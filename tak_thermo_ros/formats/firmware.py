@@ -92,13 +92,11 @@ def not_carried(unit: UnitCalibration, sensor: str, cubic: OffsetCubic, firmware
     lines = []
     worst = float(np.max(cubic.deviation))
     if worst > 1e-9 * max(1.0, float(np.max(np.abs(cubic.coefficients)))):
-        lines.append(f'{name}: the offset curve is above third order: {firmware}\'s cubic departs from it by up to '
-                     f'{size(worst, sensor)}')
+        lines.append(f'{name}: its offset curve is above 3rd order: the cubic departs by up to {size(worst, sensor)}')
     lines.append(_scale_line(calibration, sensor, source, firmware))
     for effect in calibration.effects:
-        lines.append(_effect_line(effect, sensor, source, firmware))
-    lines.append(f'{name}: outside {cubic.low:.1f}..{cubic.high:.1f} C {firmware} holds the edge value (clamps), '
-                 f'as tak_calib apply does by default')
+        lines.extend(_effect_line(effect, sensor, source, firmware).splitlines())
+    lines.append(f'{name}: outside {cubic.low:.1f}..{cubic.high:.1f} C {firmware} clamps to the edge, as apply does')
     return [line for line in lines if line]
 
 
@@ -106,21 +104,20 @@ def _scale_line(calibration: Calibration, sensor: str, source: dict, firmware: s
     """The scale drift the firmware has no term for: its error at 1 g, or at the run's largest rate."""
     name = SENSOR_NAMES[sensor]
     if not any(axis.scale_observable for axis in calibration.axes):
-        return f'{name}: scale drift: none fitted (the record shows each axis one input); {firmware} has no scale term'
+        return f'{name}: no scale drift fitted (one input per axis); {firmware} has no scale term'
     grid = np.linspace(calibration.temp_code_min, calibration.temp_code_max, GRID_POINTS) - calibration.temp_code_ref
     drift = max(float(np.max(np.abs(axis.scale_factor(grid) - 1.0))) for axis in calibration.axes
                 if axis.scale_observable)
     if sensor == 'accel':
-        return (f'{name}: scale drift not carried ({firmware} has no scale term): up to '
-                f'{drift * 1000.0:.3g} mg at 1 g')
+        return f'{name}: scale drift not carried ({firmware} has no scale term): up to {drift * 1000.0:.3g} mg at 1 g'
     rate = float(source.get('rate_max', 0.0))
-    at = (f'{size(drift * rate, sensor)} at {rate * DEG:.3g} deg/s, the run\'s largest rate' if rate > 0.0
-          else 'the run holds no rate to size it at')
-    return f'{name}: scale drift not carried ({firmware} has no scale term): {drift * 1e6:.3g} ppm, {at}'
+    at = (f'{size(drift * rate, sensor)} at {rate * DEG:.3g} deg/s (the run\'s largest)' if rate > 0.0
+          else 'no rate in the run to size it at')
+    return f'{name}: scale drift not carried: {drift * 1e6:.3g} ppm, {at}'
 
 
 def _effect_line(effect, sensor: str, source: dict, firmware: str) -> str:
-    """An effect the firmware cannot apply: the export holds the static curve; the error it still leaves."""
+    """An effect the firmware cannot apply (two lines for a lag): the export holds the static curve; what it leaves."""
     name = SENSOR_NAMES[sensor]
     amplitudes = np.abs(np.array([a for axis in effect.amplitudes() for a in axis], dtype=float))
     largest = float(amplitudes.max()) if amplitudes.size else 0.0
@@ -129,8 +126,7 @@ def _effect_line(effect, sensor: str, source: dict, firmware: str) -> str:
         taus = [v for k, v in values.items() if k.startswith('tau_s')]
         tau = max(taus) if taus else 0.0
         rate = float(source.get('temperature_rate_max', 0.0))
-        return (f'{name}: {effect.name} not carried ({firmware} has no lag term): the export holds the lag-free '
-                f'static curve; a ramp at the log\'s fastest {rate * 60.0:.3g} C/min still leaves up to '
-                f'{size(largest * rate * tau, sensor)} (slope {size(largest, sensor)} per C, tau {tau:.3g} s)')
-    return (f'{name}: {effect.name} not carried ({firmware} applies only the offset cubic): its amplitude is up to '
-            f'{size(largest, sensor)} per unit of its basis signal; the export holds the curve without it')
+        return (f'{name}: {effect.name} not carried ({firmware} has no lag): the export holds the static curve\n'
+                f'{name}: a ramp at the log\'s fastest {rate * 60.0:.3g} C/min still leaves up to '
+                f'{size(largest * rate * tau, sensor)} ({tau:.3g} s lag)')
+    return f'{name}: {effect.name} not carried: up to {size(largest, sensor)} per unit of its basis signal'

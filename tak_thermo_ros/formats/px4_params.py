@@ -55,15 +55,14 @@ def px4_parameters(unit: UnitCalibration, *, instance: int) -> ParameterSet:
             for axis, name in enumerate(AXES):
                 values[f'{prefix}X{order}_{axis}'] = (float(cubic.coefficients[order, axis]), FLOAT)
         if not device_id:
-            lines.append(f'{SENSOR_NAMES[sensor]}: no device ID in the calibration (fitted from a bag): set {prefix}ID '
-                         f'to the sensor\'s device_id, or PX4 applies none of {prefix}*')
+            lines.append(f'{SENSOR_NAMES[sensor]}: no device ID (fitted from a bag): set {prefix}ID, or PX4 applies '
+                         f'none of it')
         lines.extend(not_carried(unit, sensor, cubic, 'PX4'))
         steepest = float(cubic.steepest.max())
-        lines.append(f'{SENSOR_NAMES[sensor]}: PX4 recomputes the offset only after a {UPDATE_STEP_C:g} C change: '
-                     f'between updates up to {size(steepest * UPDATE_STEP_C, sensor)} at the curve\'s steepest')
+        lines.append(f'{SENSOR_NAMES[sensor]}: PX4 updates the offset per {UPDATE_STEP_C:g} C change: up to '
+                     f'{size(steepest * UPDATE_STEP_C, sensor)} between updates')
     if unit.mag is not None:
-        lines.append('magnetometer: not exported (PX4 applies TC_M against the magnetometer\'s own thermometer, this '
-                     'calibration\'s link is against the IMU\'s)')
+        lines.append('magnetometer: not exported (PX4\'s TC_M is against the magnetometer\'s own thermometer)')
     return ParameterSet(values=values, lines=tuple(lines), cubics=cubics)
 
 

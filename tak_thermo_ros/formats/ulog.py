@@ -118,8 +118,8 @@ def _read(path: Path, instance: int) -> FlightLog:
         chosen = (where, np.zeros(0, dtype=np.int64), np.zeros(0))
     temp_stamps, temperature = checked_temperature(path, chosen[1], chosen[2], chosen[0])
     lines = [f'{path.name}: PX4 ULog, instance {instance}: {len(stamps["accel"])} sensor_accel, '
-             f'{len(stamps["gyro"])} sensor_gyro, {len(stamps["mag"])} sensor_mag samples on their own stamps; '
-             f'temperature {chosen[0]}']
+             f'{len(stamps["gyro"])} sensor_gyro, {len(stamps["mag"])} sensor_mag samples',
+             f'{path.name}: each sensor on its own stamps; the temperature is {chosen[0]}']
     return FlightLog(path=path, format='ulog', instance=instance, stamps=stamps, values=values,
                      temp_stamp_ns=temp_stamps, temperature=temperature, device_ids=device_ids, lines=tuple(lines),
                      temperature_source=chosen[0])
