@@ -291,6 +291,35 @@ def compare(scenario: str, run: PoweredRun, work: Path, px4_script: Path, ardupi
                     'tak_calib_diagnose_fit_fit_both_logs': round(ours_time, 1)}}
 
 
+ARDUPILOT_EXAMPLE_LOG = 'libraries/AP_Logger/examples/AP_Logger_AllTypes/output.BIN'
+"""The one DataFlash log in ArduPilot's repository (GPL-3): AP_Logger's example of every field type."""
+
+
+def real_dataflash(repository: str, work: Path) -> dict[str, object]:
+    """ArduPilot's own example log through our reader and DFReader: the same messages per type; what fit says."""
+    from pymavlink import DFReader
+    from tak_thermo_ros.formats.dataflash import index_messages
+    path = work / 'output.BIN'
+    try:
+        git_file(repository, ARDUPILOT_EXAMPLE_LOG, path)
+    except subprocess.CalledProcessError:
+        return {'log': ARDUPILOT_EXAMPLE_LOG, 'read': 'not in the snapshot'}
+    types, positions, skipped = index_messages(path, path.read_bytes())
+    ours_counts = {types[kind].name: len(rows) for kind, rows in positions.items() if kind != 128}
+    theirs: dict[str, int] = {}
+    log = DFReader.DFReader_binary(str(path), zero_time_base=False)
+    while (message := log.recv_match()) is not None:
+        name = message.get_type()
+        if name != 'FMT':
+            theirs[name] = theirs.get(name, 0) + 1
+    result = subprocess.run([*tak_calib_command(), 'fit', str(path), '-o', str(work / 'output.yaml'), '--no-progress'],
+                            capture_output=True, text=True)
+    return {'log': ARDUPILOT_EXAMPLE_LOG, 'ours': ours_counts, 'dfreader': theirs, 'skipped_bytes': skipped,
+            'same': {k: v for k, v in ours_counts.items() if k not in ('FMTU', 'UNIT', 'MULT')} ==
+                    {k: v for k, v in theirs.items() if k not in ('FMTU', 'UNIT', 'MULT')},
+            'fit': result.stderr.strip().splitlines()[-1] if result.returncode else 'fitted'}
+
+
 def main() -> int:
     """Run the comparison; write ``bench/results/flight_logs.json``."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -327,6 +356,7 @@ def main() -> int:
         results['dataflash_reader']['messages'] = len(use_bin.stamps['accel'])
         if args.pyulog:
             results['pyulog_test_logs'] = real_ulogs(args.pyulog, work)
+        results['ardupilot_example_log'] = real_dataflash(args.ardupilot, work)
     Path(args.out).write_text(json.dumps(results, indent=2) + '\n')
     for scenario in SCENARIOS:
         for firmware in ('px4', 'ardupilot'):
