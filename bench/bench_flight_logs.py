@@ -116,7 +116,7 @@ def px4_scores(params: dict[str, float], in_use, log) -> dict[str, object]:
 
 
 def ardupilot_scores(params: dict[str, float], in_use, log, rate_hz: float) -> dict[str, object]:
-    """ArduPilot's firmware applied to the in-use ``.bin`` (read back); CALTEMP the log's first temperature."""
+    """The in-use ``.bin`` (read back) corrected as ArduPilot's firmware does; CALTEMP its first temperature."""
     out = {}
     for sensor, code in (('accel', 'ACC'), ('gyro', 'GYR')):
         stamps = log.stamps[sensor]
@@ -181,7 +181,7 @@ def reader_speed(path: Path) -> dict[str, float]:
 
 
 def real_ulogs(repository: str, work: Path) -> list[dict[str, object]]:
-    """pyulog's own test logs through our reader: what each holds, or its one-line refusal."""
+    """The test logs of pyulog through our reader: what each holds, or its one-line refusal."""
     names = subprocess.run(['git', '--git-dir', repository, 'ls-tree', '--name-only', 'HEAD', 'test/'], check=True,
                            capture_output=True, text=True).stdout.split()
     found = []
@@ -296,7 +296,7 @@ ARDUPILOT_EXAMPLE_LOG = 'libraries/AP_Logger/examples/AP_Logger_AllTypes/output.
 
 
 def real_dataflash(repository: str, work: Path) -> dict[str, object]:
-    """ArduPilot's own example log through our reader and DFReader: the same messages per type; what fit says."""
+    """The example log of ArduPilot through our reader and DFReader: the same messages per type; what fit says."""
     from pymavlink import DFReader
     from tak_thermo_ros.formats.dataflash import index_messages
     path = work / 'output.BIN'
@@ -336,11 +336,10 @@ def main() -> int:
         px4_script = git_file(args.px4, 'Tools/process_sensor_caldata.py', work / 'process_sensor_caldata.py')
         ardupilot_script = git_file(args.ardupilot, 'Tools/scripts/tempcal_IMU.py', work / 'tempcal_IMU.py')
         results['peer_scripts'] = {
-            'px4': subprocess.run(['git', '--git-dir', args.px4, 'log', '-1', '--format=%H %ci',
-                                   '--', 'Tools/process_sensor_caldata.py'], capture_output=True, text=True).stdout.strip(),
-            'ardupilot': subprocess.run(['git', '--git-dir', args.ardupilot, 'log', '-1', '--format=%H %ci',
-                                         '--', 'Tools/scripts/tempcal_IMU.py'], capture_output=True,
-                                        text=True).stdout.strip()}
+            name: subprocess.run(['git', '--git-dir', repository, 'log', '-1', '--format=%H %ci', '--', script],
+                                 capture_output=True, text=True).stdout.strip()
+            for name, repository, script in (('px4', args.px4, 'Tools/process_sensor_caldata.py'),
+                                             ('ardupilot', args.ardupilot, 'Tools/scripts/tempcal_IMU.py'))}
         in_use_ulog = simulate_powered(IN_USE)
         in_use_bin = simulate_powered(PoweredRun(**{**IN_USE.__dict__, 'accel_rate_hz': 25.0, 'gyro_rate_hz': 25.0,
                                                     'gyro_phase_s': 0.0, 'seed': 6}))

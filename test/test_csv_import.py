@@ -168,7 +168,7 @@ def test_gyro_unit_deg_per_second_is_converted_to_rad_per_second(tmp_path):
 
 
 def _multi_rate_lines(rows: int = 60) -> tuple[list[str], np.ndarray, np.ndarray]:
-    """A log whose gyroscope comes every row, the accelerometer every third, the temperature every second (empty cells)."""
+    """A log: the gyroscope every row, the accelerometer every third, the temperature every second (empty cells)."""
     rng = np.random.default_rng(4)
     accel = np.array([0.1, -0.2, 9.8]) + rng.normal(0.0, 0.01, (rows, 3))
     gyro = rng.normal(0.0, 0.001, (rows, 3))

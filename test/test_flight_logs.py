@@ -1,4 +1,4 @@
-"""PX4 ULogs and ArduPilot DataFlash logs through every command; PX4's and ArduPilot's parameters out, as they apply them."""
+"""PX4 ULogs and ArduPilot DataFlash logs through every command; their parameters out, as the firmware applies them."""
 
 from __future__ import annotations
 
@@ -46,7 +46,7 @@ def logs(tmp_path_factory):
 
 
 def test_a_ulog_reads_each_sensor_on_its_own_stamps(logs):
-    """pyulog's file back: every sample of each topic at its timestamp_sample, the temperature, the device IDs."""
+    """The file written by pyulog, read back: each topic's samples at timestamp_sample, the temperature, the IDs."""
     root, sim, _ = logs
     log = read_ulog(root / 'warm.ulg', 0)
     for sensor, values in (('accel', sim.record.accel), ('gyro', sim.record.gyro)):
@@ -291,3 +291,45 @@ write_dataflash(_SMALL_DIRECTORY / 'small.bin', {'IMU': (*IMU_FORMAT, {
     'TimeUS': np.arange(40) * 40_000, 'I': np.zeros(40, dtype=int), 'AccZ': np.full(40, -9.8),
     'T': np.linspace(20.0, 21.0, 40)})}, parameters={'AHRS_ORIENTATION': 0})
 _SMALL_BIN = (_SMALL_DIRECTORY / 'small.bin').read_bytes()
+
+
+def test_tclr_records_give_each_sensor_its_own_stamps(tmp_path):
+    """A .bin of the firmware's learning records only (TCLR): accelerometer and gyroscope on their own stamps."""
+    count = 30
+    stamps = np.arange(count) * 100_000
+    rows = {'TimeUS': np.concatenate([stamps, stamps + 37_000]), 'I': np.zeros(2 * count, dtype=int),
+            'SType': np.repeat([0, 1], count), 'Temp': np.tile(np.linspace(20.0, 30.0, count), 2),
+            'X': np.concatenate([np.full(count, 0.1), np.full(count, 0.01)]), 'Y': np.zeros(2 * count),
+            'Z': np.concatenate([np.full(count, -9.8), np.zeros(count)])}
+    write_dataflash(tmp_path / 'tclr.bin', {'TCLR': ('QBBffff', 'TimeUS,I,SType,Temp,X,Y,Z', rows)})
+    log = read_dataflash(tmp_path / 'tclr.bin', 0)
+    assert np.array_equal(log.stamps['accel'], stamps * 1000)
+    assert np.array_equal(log.stamps['gyro'], (stamps + 37_000) * 1000)
+    np.testing.assert_allclose(log.values['accel'][:, 2], -9.8, rtol=1e-6)
+    assert not log.shared_stamps and 'TCLR' in log.lines[-1]
+
+
+def test_simulate_writes_the_docs_flight_logs(tmp_path, capsys):
+    """tak_calib simulate OUT.ulg / OUT.bin from docs/scenarios/px4_warm_up.yaml: what the docs show."""
+    scenario = Path(__file__).resolve().parents[1] / 'docs' / 'scenarios' / 'px4_warm_up.yaml'
+    for name in ('warm_up.ulg', 'warm_up.bin'):
+        assert main(['simulate', str(tmp_path / name), '--scenario', str(scenario)]) == 0
+    out = capsys.readouterr().out
+    assert 'wrote' in out and '1801 sensor_accel (2 Hz), 2700 sensor_gyro (3 Hz)' in out
+    assert read_ulog(tmp_path / 'warm_up.ulg', 0).count('gyro') == 2700
+    assert read_dataflash(tmp_path / 'warm_up.bin', 0).shared_stamps
+    assert main(['simulate', str(tmp_path / 'warm_up.ulg'), '--scenario', str(scenario)]) == 2  # exists: --force
+
+
+def test_the_source_section_survives_the_nodes_parameters(logs):
+    """calibration.source as ROS 2 parameters (flattened, nested back): the same unit, the source kept."""
+    from tak_thermo_ros.formats.calibration_file import (
+        flatten_parameters,
+        nest_parameters,
+        unit_from_mapping,
+        unit_to_mapping,
+    )
+    root, _, _ = logs
+    unit = load_unit(root / 'ulog.yaml')
+    back = unit_from_mapping(nest_parameters(flatten_parameters(unit_to_mapping(unit))))
+    assert back.source == unit.source and back.accel == unit.accel

@@ -148,7 +148,8 @@ def _source(args: argparse.Namespace, fitted) -> dict[str, str | int | float] | 
     if fitted.input_kind is not InputKind.IMU:
         return None
     from tak_thermo_ros.formats.records import record_source
-    source: dict[str, str | int | float] = dict(record_source(args.bag, topics=common.topics(args)) or {'format': 'bag'})
+    found = record_source(args.bag, topics=common.topics(args))
+    source: dict[str, str | int | float] = dict(found or {'format': 'bag'})
     source['temperature_rate_max'] = round(float(fitted.temperature_rate_max), 9)
     source['rate_max'] = round(float(fitted.rate_max), 9)
     return source

@@ -1,4 +1,4 @@
-"""``tak_calib``: simulate, fit, apply, validate, diagnose; the noise model; PX4 and ArduPilot parameters; a batch on Dask; the carrier method.
+"""``tak_calib``: simulate, fit, apply, validate, diagnose; the noise model; a batch on Dask; the carrier method.
 
 One module per command (:mod:`tak_thermo_ros.cli.fit`, ...), each with ``add_parser`` and
 ``run``; the options they share are in :mod:`tak_thermo_ros.cli.options`. Every deliberate

@@ -35,8 +35,8 @@ def ardupilot_parameters(unit: UnitCalibration, *, instance: int) -> ParameterSe
         cubic = cubics[sensor]
         for order in (1, 2, 3):
             for axis, name in enumerate(AXES):
-                values[f'{prefix}{code}{order}_{name.upper()}'] = (float(cubic.coefficients[order, axis]) * SCALE_FACTOR,
-                                                                   FLOAT)
+                coefficient = float(cubic.coefficients[order, axis]) * SCALE_FACTOR
+                values[f'{prefix}{code}{order}_{name.upper()}'] = (coefficient, FLOAT)
         lines.extend(not_carried(unit, sensor, cubic, 'ArduPilot'))
         lines.append(f'{SENSOR_NAMES[sensor]}: no constant in INS_TCAL: the offsets INS_{code}OFFS '
                      f'(at INS_{code}{instance + 1}_CALTEMP) hold it')

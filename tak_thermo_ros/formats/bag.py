@@ -687,8 +687,9 @@ def write_driver_record(path: str | os.PathLike[str], record: DriverRecord, *, t
                 ax, ay, az = (float(v) for v in record.accel[accel_row]) if accel_row >= 0 else (0.0, 0.0, 0.0)
                 gx, gy, gz = (float(v) for v in record.gyro[gyro_row]) if gyro_row >= 0 else (0.0, 0.0, 0.0)
                 message = _Imu(header=header, orientation=_Quaternion(x=qx, y=qy, z=qz, w=qw),
-                               orientation_covariance=(np.asarray(record.orientation_covariance[message_row], dtype=float)
-                                                       if message_row >= 0 else absent),
+                               orientation_covariance=(
+                                   np.asarray(record.orientation_covariance[message_row], dtype=float)
+                                   if message_row >= 0 else absent),
                                angular_velocity=_Vector3(x=gx, y=gy, z=gz),
                                angular_velocity_covariance=zero_covariance if gyro_row >= 0 else absent,
                                linear_acceleration=_Vector3(x=ax, y=ay, z=az),
@@ -938,7 +939,7 @@ def decode_temperatures(raws: list[bytes]) -> tuple[np.ndarray, np.ndarray]:
 
 
 def decode_imus(raws: list[bytes]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[str],
-                                             np.ndarray, np.ndarray]:
+                                            np.ndarray, np.ndarray]:
     """Stamps, accel ``(k, 3)``, gyro ``(k, 3)``, orientation ``(k, 4)``, its covariance ``(k, 9)``, frame ids.
 
     Then the first element of the linear-acceleration and angular-velocity covariances, ``(k,)``

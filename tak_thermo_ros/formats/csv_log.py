@@ -234,7 +234,7 @@ class _Table:
 
 def _read_table(lines: Iterable[str], time_column: str, columns: tuple[str, ...], options: CsvImportOptions,
                 source: str) -> _Table:
-    """The rows of a delimited file, :data:`CHUNK_ROWS` at a time; an empty cell is NaN, any other non-number refused."""
+    """A delimited file's rows, :data:`CHUNK_ROWS` at a time: an empty cell is NaN, another non-number refused."""
     iterator = iter(lines)
     header_line, skipped = _first_non_blank(iterator)
     if header_line is None:
@@ -505,7 +505,7 @@ def _stamp_ns(text: str, factor: int, place: tuple[str, int, int], column: str) 
 
 
 def _number(text: str, place: tuple[str, int, int], column: str) -> float:
-    """A cell's number; an empty cell is NaN (no sample there: :func:`_present` decides), anything else must be finite."""
+    """A cell's number; an empty cell is NaN (no sample: :func:`_present` decides), anything else must be finite."""
     if not text:
         return math.nan
     try:

@@ -275,7 +275,8 @@ def _imu_messages(path: Path, data: np.ndarray, by_name: dict[str, MessageType],
         records = decode(data, kind, positions[kind.type])
         held = sorted(set(records['I'].tolist()))
         if instance not in held:
-            msg = f'{path}: no IMU instance {instance} (instances in the log: {", ".join(map(str, held))}; --instance N)'
+            listed = ', '.join(map(str, held))
+            msg = f'{path}: no IMU instance {instance} (instances in the log: {listed}; --instance N)'
             raise FlightLogError(msg)
         return kind, records[records['I'] == instance]
     name = 'IMU' if instance == 0 else f'IMU{instance + 1}'
@@ -397,7 +398,8 @@ def write_dataflash(path: str | os.PathLike[str], messages: dict[str, tuple[str,
     for number, (name, (fmt, columns)) in enumerate(every.items(), start=64):
         kinds[name] = MessageType(number, 3 + MessageType(0, 0, name, fmt, tuple(columns.split(','))).dtype().itemsize,
                                   name, fmt, tuple(columns.split(',')))
-    fmt_rows = {'Type': np.array([k.type for k in kinds.values()]), 'Length': np.array([k.length for k in kinds.values()]),
+    fmt_rows = {'Type': np.array([k.type for k in kinds.values()]),
+                'Length': np.array([k.length for k in kinds.values()]),
                 'Name': np.array([k.name.encode() for k in kinds.values()]),
                 'Format': np.array([k.format.encode() for k in kinds.values()]),
                 'Columns': np.array([','.join(k.columns).encode() for k in kinds.values()])}

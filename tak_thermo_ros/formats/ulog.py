@@ -63,7 +63,7 @@ def _cut_at(path: Path) -> int | None:
 
 
 def read_ulog(path: str | os.PathLike[str], instance: int = 0) -> FlightLog:
-    """Instance ``instance`` of a ULog's IMU topics (read once per process: :func:`~tak_thermo_ros.formats.flight_log.cached`).
+    """Instance ``instance`` of a ULog's IMU topics, read once per process (:func:`~.flight_log.cached`).
 
     :raises FlightLogError: as the module says.
     :raises DependencyError: pyulog is not installed.
@@ -81,7 +81,8 @@ def _read(path: Path, instance: int) -> FlightLog:
         raise FlightLogError(msg) from None
     cut = _cut_at(path)
     if ulog.file_corruption or cut is not None:
-        where = f' (its last message, at byte {cut}, is cut short)' if cut is not None else ' (pyulog found damaged data)'
+        where = (f' (its last message, at byte {cut}, is cut short)' if cut is not None
+                 else ' (pyulog found damaged data)')
         msg = f'{path}: the ULog is truncated or corrupt{where}; nothing read from it'
         raise FlightLogError(msg)
     found = {(d.name, d.multi_id): d for d in ulog.data_list}
