@@ -134,12 +134,16 @@ class PoweredRecord:
     def true_offsets(self, sensor: str) -> np.ndarray:
         """``(k, 3)``: what the sensor gives without noise minus its true input, at each of its samples."""
         unit = self.run.accel_unit if sensor == 'accel' else self.run.gyro_unit
-        n = self.element_celsius[sensor] - self.run.reference_celsius
         force = self.specific_force if sensor == 'accel' else np.zeros(3)
-        return np.column_stack([
-            AxisModel.from_polynomials(scale=a.scale, offset=a.offset, offset_coeffs=a.offset_coeffs,
-                                       scale_coeffs=a.scale_coeffs, code_offset_range=(-1.0, 1.0)).forward(
-                np.full(len(n), force[i]), n) - force[i] for i, a in enumerate(unit)])
+        return _exact(unit, force, self.element_celsius[sensor] - self.run.reference_celsius) - force
+
+
+def _exact(unit: tuple[AxisTruth, ...], inputs: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """``(k, 3)``: the noise-free output for a constant input at element temperatures ``n`` from the reference."""
+    return np.column_stack([
+        AxisModel.from_polynomials(scale=a.scale, offset=a.offset, offset_coeffs=a.offset_coeffs,
+                                   scale_coeffs=a.scale_coeffs, code_offset_range=(-1.0, 1.0)).forward(
+            np.full(len(n), inputs[i]), n) for i, a in enumerate(unit)])
 
 
 def simulate_powered(run: PoweredRun) -> PoweredRecord:
@@ -154,11 +158,7 @@ def simulate_powered(run: PoweredRun) -> PoweredRecord:
         time_s = phase + np.arange(int(math.floor((run.duration_s - phase) * rate)) + 1) / rate
         die = run.die_celsius(time_s)
         element[sensor] = first_order_lag(die, time_s, run.element_lag_s, float(run.die_celsius(np.zeros(1))[0]))
-        n = element[sensor] - run.reference_celsius
-        exact = np.column_stack([
-            AxisModel.from_polynomials(scale=a.scale, offset=a.offset, offset_coeffs=a.offset_coeffs,
-                                       scale_coeffs=a.scale_coeffs, code_offset_range=(-1.0, 1.0)).forward(
-                np.full(len(n), inputs[i]), n) for i, a in enumerate(unit)])
+        exact = _exact(unit, inputs, element[sensor] - run.reference_celsius)
         noise[sensor] = np.array([a.noise_counts for a in unit])
         values[sensor] = exact + rng.standard_normal(exact.shape) * noise[sensor]
         stamps[sensor] = np.round((run.start_time_s + time_s) * NANOSECONDS).astype(np.int64)
