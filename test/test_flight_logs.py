@@ -333,3 +333,23 @@ def test_the_source_section_survives_the_nodes_parameters(logs):
     unit = load_unit(root / 'ulog.yaml')
     back = unit_from_mapping(nest_parameters(flatten_parameters(unit_to_mapping(unit))))
     assert back.source == unit.source and back.accel == unit.accel
+
+
+def test_without_pyulog_a_ulog_is_one_line_naming_it(logs, tmp_path, capsys, monkeypatch):
+    """pyulog is optional: a command given a ULog without it stops in one line naming the pip package."""
+    from tak_thermo_ros.formats import flight_log
+    root, _, _ = logs
+    monkeypatch.setitem(__import__('sys').modules, 'pyulog', None)
+    flight_log._CACHE.clear()
+    line = _one_line_error(capsys, ['fit', str(root / 'warm.ulg'), '-o', str(tmp_path / 'p.yaml'), '--no-progress'],
+                           tmp_path / 'p.yaml')
+    assert line.endswith("needs the optional Python package pyulog: pip install 'pyulog'")
+
+
+def test_a_log_name_that_is_no_log_is_one_line(tmp_path, capsys):
+    """A .ulg or .bin that is missing or holds something else: one line, not taken for a bag."""
+    (tmp_path / 'text.bin').write_text('not a log\n')
+    for name, expected in (('missing.ulg', 'no such file'), ('text.bin', 'neither a ULog nor a DataFlash log')):
+        line = _one_line_error(capsys, ['fit', str(tmp_path / name), '-o', str(tmp_path / 'p.yaml')],
+                               tmp_path / 'p.yaml')
+        assert expected in line

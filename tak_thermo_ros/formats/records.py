@@ -21,7 +21,8 @@ from typing import Iterator
 from tak_thermo_ros.core.link.model import InputKind
 from tak_thermo_ros.core.records.record import ChannelRecord, DriverRecord
 
-FLIGHT_LOG_FORMATS = {'ulog': 'a PX4 ULog', 'dataflash': 'an ArduPilot DataFlash log'}
+LOG_SUFFIXES = ('.ulg', '.bin')
+"""A file named so is meant as a flight log: one that is none is refused as such, not taken for a bag."""
 
 
 def flight_log_format(path: str | os.PathLike[str]) -> str | None:
@@ -32,6 +33,11 @@ def flight_log_format(path: str | os.PathLike[str]) -> str | None:
         return 'ulog'
     if is_dataflash(path):
         return 'dataflash'
+    if Path(path).suffix.lower() in LOG_SUFFIXES and not Path(path).is_dir():
+        from tak_thermo_ros.errors import FlightLogError
+        what = 'no such file' if not Path(path).exists() else 'neither a ULog nor a DataFlash log (its first bytes)'
+        msg = f'{path}: {what}'
+        raise FlightLogError(msg)
     return None
 
 
@@ -87,8 +93,3 @@ def record_lines(path: str | os.PathLike[str], *, topics) -> tuple[str, ...]:
     """What the reader of a flight log says about it (one statement each); nothing for a bag."""
     log = flight_log(path, topics=topics)
     return () if log is None else log.lines
-
-
-def describe_path(path: str | os.PathLike[str]) -> str:
-    """``a PX4 ULog``, ``an ArduPilot DataFlash log`` or ``a bag``: what kind of record ``path`` is."""
-    return FLIGHT_LOG_FORMATS.get(flight_log_format(Path(path)) or '', 'a bag')
