@@ -353,3 +353,23 @@ def test_a_log_name_that_is_no_log_is_one_line(tmp_path, capsys):
         line = _one_line_error(capsys, ['fit', str(tmp_path / name), '-o', str(tmp_path / 'p.yaml')],
                                tmp_path / 'p.yaml')
         assert expected in line
+
+
+@given(st.integers(1, 4000))
+def test_a_ulog_cut_anywhere_is_read_whole_or_refused_in_one_line(cut):
+    """Cutting a ULog at any byte: its samples up to there, or a FlightLogError (never another exception)."""
+    from tak_thermo_ros.formats import flight_log
+    path = _SMALL_DIRECTORY / f'cut_{cut}.ulg'
+    path.write_bytes(_SMALL_ULOG[:max(len(_SMALL_ULOG) - cut, 0)])
+    flight_log._CACHE.clear()
+    try:
+        log = read_ulog(path, 0)
+    except FlightLogError as err:
+        assert '\n' not in str(err)
+    else:
+        assert log.count('accel') <= 120
+
+
+write_ulog(_SMALL_DIRECTORY / 'small.ulg', driver_topics(simulate_powered(
+    replace(WARM_UP, duration_s=60.0, accel_rate_hz=2.0, gyro_rate_hz=2.0)).record, device_ids=IDS))
+_SMALL_ULOG = (_SMALL_DIRECTORY / 'small.ulg').read_bytes()
