@@ -336,7 +336,7 @@ def test_the_source_section_survives_the_nodes_parameters(logs):
 
 
 def test_without_pyulog_a_ulog_is_one_line_naming_it(logs, tmp_path, capsys, monkeypatch):
-    """pyulog is optional: a command given a ULog without it stops in one line naming the pip package."""
+    """An optional pyulog: a command given a ULog without it stops in one line naming the pip package."""
     from tak_thermo_ros.formats import flight_log
     root, _, _ = logs
     monkeypatch.setitem(__import__('sys').modules, 'pyulog', None)
