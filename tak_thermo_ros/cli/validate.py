@@ -13,6 +13,7 @@ from tak_thermo_ros.formats.files import FILE
 from tak_thermo_ros.formats.files import write_text_atomic
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import TakError
+from tak_thermo_ros.units import in_reader_unit, readables
 import numpy as np
 
 NAME = 'validate'
@@ -108,8 +109,8 @@ def _validate_imu(args: argparse.Namespace, unit: UnitCalibration, run, document
         print(f'gyroscope bias error over {rate.samples} samples (rate minus reference, per axis x y z):')
         for label, stats in (('before (nominal scale and offset):', rate_before),
                              ('after  (full correction link):', rate_after)):
-            print(f'  {label:<35}RMS ' + ' '.join(f'{v:.3e}' for v in stats.rms) + ' rad/s; mean '
-                  + ' '.join(f'{v:+.3e}' for v in stats.mean) + ' rad/s')
+            print(f'  {label:<35}RMS {readables(stats.rms, "rad/s")}; mean '
+                  + ' '.join(f'{in_reader_unit(v, "rad/s"):+.3g}' for v in stats.mean) + ' deg/h')
         document['gyro'] = {'samples': rate.samples, 'before': rate_before.as_dict(), 'after': rate_after.as_dict()}
         averaged['gyro'] = _averaged_bias(rate, given.get('gyro'), 'gyro', args.gravity)
     for sensor, found in averaged.items():

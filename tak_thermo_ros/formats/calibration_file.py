@@ -65,7 +65,6 @@ from tak_thermo_ros.core.link.model import (
     Calibration,
     MAG_SENSOR,
     THERMAL_FITTED,
-    THERMAL_HELD,
     THERMAL_NONE,
     THERMAL_STATES,
     InputKind,
@@ -305,8 +304,8 @@ def _link_from_mapping(raw: Any, key: str, input_kind: InputKind, *, extra_keys:
     allowed = {*needed, 'thermal', 'notes', 'effects', 'noise', *extra_keys}
     unknown = sorted(str(name) for name in set(raw) - allowed)
     if unknown:
-        msg = f'{key}.{unknown[0]}: unknown key' + (' (thermal: none holds no temperatures)'
-                                                     if unknown[0] in range_keys else '')
+        why = ' (thermal: none holds no temperatures)' if unknown[0] in range_keys else ''
+        msg = f'{key}.{unknown[0]}: unknown key{why}'
         raise CalibrationError(msg)
     ref, low, high = ((finite_number(raw[name], f'{key}.{name}') for name in range_keys)
                       if thermal != THERMAL_NONE else (0.0, 0.0, 0.0))

@@ -1,4 +1,4 @@
-"""Import a delimited (CSV/TSV) log of a static thermal run into the bag contract.
+"""Import a delimited (CSV/TSV) log into the bag contract: a static thermal run, or a driver's log.
 
 Most users calibrate the way PX4 and ArduPilot do: the board lies still in one orientation and
 the temperature is swept; the log comes as a delimited text file with a time column, three
@@ -22,6 +22,11 @@ Units and rounding
   count as saturated): a value beyond it is an error naming the column and the row.
 - Temperature: the column in degrees Celsius becomes the sensor code
   ``N_t = round(T / temp_resolution)``, ``temp_resolution`` in degrees per code.
+- A driver's log (gyroscope columns): the values as logged, in SI units; the temperature column
+  is optional (a driver that logs none: no temperature topic) and may be constant (a noise run);
+  magnetometer columns (``mag_columns``, in ``mag_unit``) become ``/imu/mag`` in tesla at the
+  same stamps. No reference is written unless given, and the board may move (a unit turned by
+  hand): ``fit`` decides what the record determines.
 - Reference (the true specific force, m/s^2, sensor frame): the run is static, so it is one
   constant vector, written once at the first stamp. Unless given explicitly, it is estimated
   as the mean measured direction scaled to local gravity,
@@ -65,6 +70,12 @@ CHUNK_ROWS = 65_536
 """Rows converted to arrays at a time: the text of a large log is never held as Python objects."""
 GYRO_UNITS = {'rad/s': 1.0, 'deg/s': math.pi / 180.0}
 """Angular-rate units of a log and their factor to rad/s."""
+MAG_UNITS = {'T': 1.0, 'uT': 1e-6, 'mT': 1e-3, 'gauss': 1e-4, 'mG': 1e-7}
+"""Magnetic-field units of a log and their factor to tesla."""
+FIELD_RANGE_T = (2e-6, 1e-3)
+"""Median ``|B|`` magnetometer columns may give, tesla: the Earth's field is 22-67 uT; below 2 uT
+or above 1 mT (beyond a magnetometer's range) the unit is wrong (gauss read as microtesla,
+microtesla as gauss)."""
 
 _DELIMITER_NAMES = {'\t': 'tab', ',': 'comma', ';': 'semicolon', ' ': 'space', '|': 'pipe'}
 
@@ -89,10 +100,15 @@ class CsvImportOptions:
         driver bag (``sensor_msgs/msg/Imu`` in SI units and the temperature in degrees C, no
         rounding to codes) instead of the paper's counts.
     :param gyro_unit: unit of the angular-rate columns, one of :data:`GYRO_UNITS`.
+    :param mag_columns: names of the x, y, z magnetic-field columns (a driver bag only).
+    :param mag_unit: unit of the magnetic-field columns, one of :data:`MAG_UNITS`.
+
+    ``temp_column`` is optional for a driver's log (``gyro_columns`` given); the paper's counts
+    need it.
     """
 
     acc_columns: tuple[str, str, str]
-    temp_column: str
+    temp_column: str | None = None
     time_column: str = 'timestamp'
     time_unit: str = 's'
     acc_unit: str = 'm/s^2'
@@ -104,9 +120,18 @@ class CsvImportOptions:
     frame_id: str = 'imu'
     gyro_columns: tuple[str, str, str] | None = None
     gyro_unit: str = 'rad/s'
+    mag_columns: tuple[str, str, str] | None = None
+    mag_unit: str = 'T'
 
     def __post_init__(self) -> None:
         checks = (
+            (self.mag_columns is None or len(self.mag_columns) == 3, 'mag_columns',
+             f'needs three names (x y z), got {len(self.mag_columns or ())}'),
+            (self.mag_columns is None or self.gyro_columns is not None, 'mag_columns',
+             'a magnetometer goes into a driver bag: give the gyroscope columns too'),
+            (self.mag_unit in MAG_UNITS, 'mag_unit', f'{self.mag_unit!r} is not one of {", ".join(MAG_UNITS)}'),
+            (self.temp_column is not None or self.gyro_columns is not None, 'temp_column',
+             "the paper's counts bag (no gyroscope columns) needs the temperature column"),
             (self.gyro_columns is None or len(self.gyro_columns) == 3, 'gyro_columns',
              f'needs three names (x y z), got {len(self.gyro_columns or ())}'),
             (self.gyro_unit in GYRO_UNITS, 'gyro_unit', f'{self.gyro_unit!r} is not one of {", ".join(GYRO_UNITS)}'),
@@ -154,6 +179,8 @@ class ImportedLog:
     :param max_tilt_deg: largest angle between a sample and the mean direction, degrees.
     :param driver: with gyroscope columns, the driver bag's contents (then ``record`` is its
         accelerometer channel).
+
+    A driver's log without a temperature column has ``temperature`` empty.
     """
 
     record: ChannelRecord
@@ -228,7 +255,9 @@ def parse_csv_log(lines: Iterable[str], options: CsvImportOptions, *, source: st
         raise LogError(msg)
     delimiter = options.delimiter or _sniff_delimiter(header_line, source)
     header = tuple(name.strip() for name in next(csv.reader([header_line], delimiter=delimiter)))
-    wanted = (options.time_column, *options.acc_columns, options.temp_column, *(options.gyro_columns or ()))
+    temp_columns = (options.temp_column,) if options.temp_column is not None else ()
+    wanted = (options.time_column, *options.acc_columns, *temp_columns, *(options.gyro_columns or ()),
+              *(options.mag_columns or ()))
     index = []
     for name in wanted:
         if name not in header:
@@ -283,14 +312,18 @@ def parse_csv_log(lines: Iterable[str], options: CsvImportOptions, *, source: st
     table = np.concatenate(value_parts)
     value_parts.clear()
     _check_increasing(stamp_ns, source, line_numbers, options.time_column)
-    _check_not_constant(table[:, :4], wanted[1:5], source)  # a gyroscope at rest may read one value
+    # A gyroscope at rest may read one value; so may a driver's temperature (a noise run).
+    driver = options.gyro_columns is not None
+    _check_not_constant(table[:, :3 if driver else 4], wanted[1:4 if driver else 5], source)
     acceleration = table[:, :3] * ACC_UNITS[options.acc_unit]
-    temperature = table[:, 3].copy()
-    rate = table[:, 4:7] * GYRO_UNITS[options.gyro_unit] if options.gyro_columns else None
+    first = 3 + len(temp_columns)
+    temperature = table[:, 3].copy() if temp_columns else np.zeros(0)
+    rate = table[:, first:first + 3] * GYRO_UNITS[options.gyro_unit] if driver else None
+    field = table[:, first + 3:first + 6] * MAG_UNITS[options.mag_unit] if options.mag_columns else None
     del table
     if rate is not None:
         return _driver_log(stamp_ns, acceleration, rate, temperature, options, source, line_numbers,
-                           delimiter, header)
+                           delimiter, header, field)
     counts = np.round(acceleration / options.acc_resolution)
     _check_code_range(counts, acceleration, options, source, line_numbers)
     temp_code = np.round(temperature / options.temp_resolution)
@@ -332,15 +365,15 @@ def _reference(acceleration: np.ndarray, options: CsvImportOptions, source: str,
 
 def _driver_log(stamp_ns: np.ndarray, acceleration: np.ndarray, rate: np.ndarray, temperature: np.ndarray,
                 options: CsvImportOptions, source: str, line_numbers: np.ndarray, delimiter: str,
-                header: tuple[str, ...]) -> ImportedLog:
+                header: tuple[str, ...], field: np.ndarray | None = None) -> ImportedLog:
     """A log with gyroscope columns as a driver bag: values as logged (SI units), temperature in C.
 
-    Without ``--reference`` no reference topic is written: ``fit`` takes the run as static (the
-    mean direction scaled to gravity, zero rate), as for any driver bag recorded without one.
+    Without ``--reference`` no reference topic is written and the board may move: ``fit`` takes
+    a run in one orientation as static (the mean direction scaled to gravity, zero rate), as for
+    any driver bag recorded without one, and decides what a moving one determines. The
+    temperature may be constant or absent (``temperature`` empty: no temperature topic); the
+    magnetic field (``field``, tesla) is written on ``/imu/mag`` at the same stamps.
     """
-    if np.ptp(temperature) <= 0.0:
-        msg = f'{source}: column {options.temp_column!r} does not vary: no temperature sweep'
-        raise LogError(msg)
     low, high = TEMPERATURE_RANGE['imu']
     outside = np.flatnonzero(~((temperature > low) & (temperature < high)))
     if outside.size:
@@ -348,22 +381,38 @@ def _driver_log(stamp_ns: np.ndarray, acceleration: np.ndarray, rate: np.ndarray
         msg = (f'{source}: row {row + 1} (line {line_numbers[row]}): temperature {temperature[row]:g} C is outside '
                f'{low:g}..{high:g} C (is the column in degrees Celsius?)')
         raise LogError(msg)
-    static, reference = _reference(acceleration, options, source, line_numbers)
+    if field is not None:
+        _check_field(field, options, source)
+    static = static_reference(acceleration, gravity=options.gravity)
+    reference = np.asarray(options.reference, dtype=float) if options.reference is not None else static.specific_force
     count = len(stamp_ns)
     orientation = np.zeros((count, 4))
     orientation[:, 3] = 1.0
     orientation_covariance = np.zeros((count, 9))
     orientation_covariance[:, 0] = -1.0  # REP 145: a log gives no orientation
     given = options.reference is not None
+    mag = {} if field is None else dict(mag_stamp_ns=stamp_ns.copy(), mag=field, mag_frame_id=options.frame_id)
     driver = DriverRecord(
         stamp_ns=stamp_ns, accel=acceleration, gyro=rate, orientation=orientation,
-        orientation_covariance=orientation_covariance, temp_stamp_ns=stamp_ns.copy(), temperature=temperature,
+        orientation_covariance=orientation_covariance,
+        temp_stamp_ns=stamp_ns.copy() if len(temperature) else np.zeros(0, dtype=np.int64), temperature=temperature,
         reference_stamp_ns=stamp_ns[:1].copy() if given else np.zeros(0, dtype=np.int64),
-        reference=reference.reshape(1, 3) if given else np.zeros((0, 3)), frame_id=options.frame_id)
+        reference=reference.reshape(1, 3) if given else np.zeros((0, 3)), frame_id=options.frame_id, **mag)
     return ImportedLog(record=driver.channel('accel'), rows=count, delimiter=delimiter, header=header,
                        acceleration=acceleration, temperature=temperature, reference=reference,
                        mean_direction=static.direction, reference_estimated=not given,
                        max_tilt_deg=static.max_tilt_deg, driver=driver)
+
+
+def _check_field(field: np.ndarray, options: CsvImportOptions, source: str) -> None:
+    """The magnetometer columns, in tesla, give a plausible field (else the unit is wrong), in one line."""
+    median = float(np.median(np.linalg.norm(field, axis=1)))
+    low, high = FIELD_RANGE_T
+    if not low <= median <= high:
+        columns = ' '.join(options.mag_columns or ())
+        msg = (f'{source}: columns {columns} in {options.mag_unit} give a median |B| of {median * 1e6:.3g} uT, '
+               f'outside {low * 1e6:g}..{high * 1e6:g} uT (the Earth\'s field is 22-67 uT): wrong --mag-unit?')
+        raise LogError(msg)
 
 
 def _first_non_blank(iterator) -> tuple[str | None, int]:

@@ -757,7 +757,10 @@ class OnlineCompensator:
         return now_s - self._temp_arrival_s
 
     def is_stale(self, now_s: float) -> bool:
-        """Whether the last temperature is older than ``temp_timeout`` (``False`` before the first, or when none is read)."""
+        """Whether the last temperature is older than ``temp_timeout``.
+
+        ``False`` before the first, and when the calibration reads none.
+        """
         return (self._needs_temperature and self._temperature is not None
                 and now_s - self._temp_arrival_s > self._timeout_s)
 

@@ -216,6 +216,16 @@ def _matrices(quaternion: np.ndarray) -> np.ndarray:
                      np.column_stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)])], axis=1)
 
 
+def rotation_truth(truth: MagnetometerTruth, *, samples: int = 2000, turn: str = 'tumble',
+                   seed: int = 0) -> np.ndarray:
+    """``(samples, 3)`` the Earth's field in the sensor frame that :func:`rotation_record` turns through.
+
+    The same random draws as the record of the same ``samples``, ``turn`` and ``seed`` (its first).
+    """
+    rotations = random_rotations(samples, np.random.default_rng([seed, 18]), turn)
+    return np.einsum('kji,j->ki', rotations, np.asarray(truth.earth_field))
+
+
 def rotation_record(truth: MagnetometerTruth, *, samples: int = 2000, rate_hz: float = 10.0,
                     temperature_celsius: float = 20.0, reference_celsius: float = 20.0, turn: str = 'tumble',
                     seed: int = 0, start_time_s: float = 1_700_000_000.0, frame_id: str = 'tak_imu',
