@@ -43,6 +43,9 @@ from tak_thermo_ros.errors import BagError, FitError, TakError
 
 MAX_STATIC_TURN_DEG = 10.0
 """Largest angle between a sample of a static run's field and its mean (the unit moved)."""
+CORRUPT_FIELD_T = 1e6
+"""A field component at or beyond this is a corrupt message, whatever unit a driver mistook for tesla
+(microtesla-sized numbers reach some 1e3; those, and gauss-sized ones, are refused by :func:`check_tesla`)."""
 MAX_ROTATION_SAMPLES = 100_000
 """A rotation record's fit takes at most about this many samples, spread evenly over it."""
 NO_IRON_NOTE = 'hard and soft iron not fitted (no --iron-run): hard_iron 0, soft_iron identity'
@@ -59,13 +62,19 @@ def _mag_blocks(path: Path, options, *, references: bool):
     """The bag's blocks as the magnetometer's :class:`ChannelRecord` (its stamps, tesla).
 
     The first block with finite values is checked to be in tesla (:func:`check_tesla`): a topic
-    in gauss-sized numbers is refused before anything is computed from it.
+    in gauss-sized numbers is refused before anything is computed from it. A sample with a
+    component of :data:`CORRUPT_FIELD_T` or more is a corrupt message, not a field: it is made
+    NaN, so that the alignment leaves it out and counts it (``non_finite``) as it does a NaN.
     """
     from tak_thermo_ros.formats.records import record_blocks
     checked = False
     for block in record_blocks(path, topics=options.topics, kind=InputKind.IMU, block_samples=options.block_samples,
                                references=references, progress=options.progress):
         record = block.channel('mag')
+        with np.errstate(invalid='ignore'):
+            corrupt = np.any(np.abs(record.counts) >= CORRUPT_FIELD_T, axis=1)
+        if corrupt.any():
+            record = replace(record, counts=np.where(corrupt[:, None], np.nan, record.counts))
         if not checked:
             finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
             if len(finite):
