@@ -193,8 +193,7 @@ def temperature_expected(path: Path, streams, options: StreamOptions, *, needed:
     """
     present = streams.kind is InputKind.COUNTS or streams.temperature > 0
     if needed and not present:
-        msg = (f'{path}: holds no temperature on {options.topics.temperature}, and {what} has temperature terms '
-               f'(a calibration fitted without them corrects a record without one)')
+        msg = f'{path}: no temperature on {options.topics.temperature}, and {what} has temperature terms'
         raise TakError(msg)
     return needed and present
 
@@ -302,8 +301,7 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
     streams = record_streams(path, topics=options.topics)
     if streams.kind is InputKind.IMU and not streams.temperature:
         reason = f'no temperature on {options.topics.temperature}'
-        raise ImuLinkUndetermined(f'{path}: {reason}: the thermal link of the accelerometer and gyroscope '
-                                  f'cannot be fitted', reason)
+        raise ImuLinkUndetermined(f'{path}: {reason}: no thermal link of the accelerometer and gyroscope', reason)
     try:
         opened = open_calibration_run(path, options, gravity=settings.gravity, latitude=settings.latitude,
                                       require_reference=True)
@@ -399,8 +397,8 @@ class ImuLinkUndetermined(FitError):
         self.reason = reason
 
 
-MOVED = 'no reference topics and the board moved'
-HELD_IMU_NOTE = 'held at nominal (offset 0, scale 1, no temperature terms), not fitted: {reason}'
+MOVED = 'the board moved, no reference'
+HELD_IMU_NOTE = 'held at nominal (offset 0, scale 1): {reason}'
 """The note of a sensor held at nominal by :func:`fit_imu`, in the file and in one line of ``fit``."""
 
 
@@ -702,8 +700,7 @@ def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: floa
     path = Path(path)
     streams = record_streams(path, topics=options.topics)
     if streams.kind is InputKind.IMU and not streams.temperature:
-        msg = (f'{path}: holds no temperature on {options.topics.temperature}: diagnose compares the thermal model '
-               f'with a run against its temperature (validate and noise take a record without one)')
+        msg = f'{path}: no temperature on {options.topics.temperature}: diagnose looks at the residual against it'
         raise TakError(msg)
     opened = open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=True)
     stride = stride_for(opened.main, max_samples)

@@ -153,8 +153,7 @@ def _calibration_pass(path: Path, options, consumers, survey: FieldSurvey | None
     streams = record_streams(path, topics=topics)
     static = streams.mag_reference == 0
     if not streams.temperature:
-        msg = (f'magnetometer: {path} holds no temperature on {topics.temperature}: the thermal link is fitted '
-               f'against it (a record turned through every orientation gives the iron without one)')
+        msg = f'magnetometer: {path}: no temperature on {topics.temperature}: the static run\'s link is fitted against it'
         raise FitError(msg)
     mean = (survey or survey_field(path, options)).mean if static else None
     aligner = BlockAligner(use_reference=True, reference_expected=True)
@@ -316,16 +315,15 @@ def fit_rotation_bag(path: Path, options, survey: FieldSurvey, *, bias_order: in
     subsample(aligner.finish())
     samples = subsample.samples(aligner.dropped)
     temperature = samples.temp_code if streams.temperature else None
-    where = f'magnetometer: {path}: {topics.mag} (a rotation record)'
+    where = f'magnetometer: {path}'
     rotation = fit_rotation(samples.counts, temperature, bias_order=bias_order, scale_order=scale_order,
                             temp_ref=temp_code_ref, where=where,
-                            held_because=f'the record holds no temperature on {topics.temperature}')
+                            held_because=f'no temperature on {topics.temperature}')
     ellipsoid = rotation.ellipsoid
     thermal = FitResult(calibration=rotation.calibration.thermal,
                         axes=(AxisFit(ellipsoid.residual_rms, 0, 0.0),) * 3,  # type: ignore[arg-type]
                         samples=len(samples), dropped=dict(aligner.dropped))
-    lines = [f'magnetometer: {path} is a rotation record (the field turns up to {largest_turn:.0f} deg from its '
-             f'mean): the iron from it, no static run needed',
+    lines = [f'magnetometer: a rotation record (the field turns up to {largest_turn:.0f} deg): the iron from it alone',
              *(f'magnetometer: {line}' for line in rotation.lines)]
     if stride > 1:
         lines.append(f'magnetometer: fitted on 1 sample in {stride} ({len(samples)} of {subsample.usable})')

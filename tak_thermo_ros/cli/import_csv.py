@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
         x, y, z = (float(v) for v in log.reference)
         if log.reference_estimated and log.max_tilt_deg > STATIC_TOLERANCE_DEG:
             print(f'no reference topic written; the board moves (up to {log.max_tilt_deg:.0f} deg from its mean '
-                  f'direction): not one static orientation')
+                  f'direction)')
         elif log.reference_estimated:
             print(f'no reference topic written: fit takes the run as static (mean direction scaled to gravity, '
                   f'here ({x:.4f}, {y:.4f}, {z:.4f}) m/s^2, largest deviation {log.max_tilt_deg:.2f} deg; rate zero)')
@@ -121,11 +121,10 @@ def _print_driver(log, options, topics) -> None:
           f'{" ".join(options.gyro_columns)} in {options.gyro_unit} written as {topics.raw_imu} (m/s^2, rad/s: '
           f'{rate.min():.4g}..{rate.max():.4g} rad/s)')
     if not len(log.temperature):
-        print(f'no temperature column: no {topics.temperature} (noise and the iron need none; '
-              f'a thermal fit does)')
+        print(f'no temperature column: no {topics.temperature} (noise and the iron need none)')
     elif float(log.temperature.max() - log.temperature.min()) == 0.0:
         print(f'temperature {options.temp_column} as {topics.temperature}: constant at '
-              f'{log.temperature[0]:.2f} C (no sweep: a thermal fit holds its terms)')
+              f'{log.temperature[0]:.2f} C (no sweep)')
     else:
         print(f'temperature {options.temp_column} as {topics.temperature} in degrees C '
               f'({log.temperature.min():.2f}..{log.temperature.max():.2f})')

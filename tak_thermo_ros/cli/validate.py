@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
         # magnetometer is still checked (|B| in every orientation).
         if unit.mag is None or not has_mag(args.bag, options.topics):
             raise
-        print('accelerometer and gyroscope: not validated (no reference topics and the board moved)')
+        print('accelerometer and gyroscope: not validated (the board moved, no reference)')
         run = None
     if run is not None:
         _validate_imu(args, unit, run, document)
@@ -131,8 +131,9 @@ def _validate_magnetometer(args: argparse.Namespace, unit: UnitCalibration) -> d
     result = validate_mag(args.bag, unit.mag, options, out_of_range=OutOfRange(args.out_of_range))
     rotation = result.reference == 'rotation'
     if rotation:
-        print(f'magnetometer over {result.samples} samples of a rotation record: |B| about its mean (the field '
-              f'strength is one in every orientation; the direction needs a reference field)')
+        print(f'magnetometer: a rotation record, {result.samples} samples: |B| about its mean (one in every '
+              f'orientation)')
+        print('magnetometer: its direction is not checked (that takes a reference field)')
     else:
         against = ('about the run\'s mean field (static run)' if result.reference == 'static'
                    else f'against {result.reference}')

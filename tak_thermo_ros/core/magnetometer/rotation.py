@@ -51,7 +51,7 @@ MIN_THERMAL_SPAN_C = 2.0
 """Smallest temperature span, C, over which a rotation record's thermal drift is fitted."""
 MICROTESLA = 1e6
 """The fit works in microtesla (fields of order 50): its numbers stay near one."""
-SCALE_NOTE = 'a rotation record: scale K0 held at 1 (its isotropic part is the field strength, in W and R)'
+SCALE_NOTE = 'scale K0 held at 1: a rotation record sees the field strength, not the gain'
 
 
 @dataclass(frozen=True)
@@ -92,23 +92,21 @@ def fit_rotation(values: np.ndarray, temperature: np.ndarray | None, *, bias_ord
     centred = values - values.mean(axis=0)
     covered = sections_hit(centred / np.maximum(np.linalg.norm(centred, axis=1), 1e-300)[:, None])
     if covered < SECTIONS_NEEDED:
-        msg = (f'{where}: covers too few orientations: about its mean the field points into {covered} of the 20 '
-               f'sections of the sphere (at least {SECTIONS_NEEDED}): turn it through more (flip it over)')
+        msg = (f'{where}: covers too few orientations ({covered} of the 20 sections of the sphere, '
+               f'{SECTIONS_NEEDED} needed): turn it through more, flip it over')
         raise FitError(msg)
     if temperature is None:
-        return _held(values, None, where, held_because or 'the record holds no temperature')
+        return _held(values, None, where, held_because or 'no temperature')
     temperature = np.asarray(temperature, dtype=float)
     if not np.all(np.isfinite(temperature)):
         msg = f'{where}: {int(np.count_nonzero(~np.isfinite(temperature)))} temperatures are not finite'
         raise FitError(msg)
     low, high = float(temperature.min()), float(temperature.max())
     if high - low < MIN_THERMAL_SPAN_C:
-        return _held(values, temperature, where, f'the temperature spans only {high - low:.2g} C '
-                                                 f'({low:.1f}..{high:.1f} C; at least {MIN_THERMAL_SPAN_C:g} C needed)')
+        return _held(values, temperature, where, f'{low:.1f}..{high:.1f} C spans less than {MIN_THERMAL_SPAN_C:g} C')
     order, band = _covered_order(values, temperature, bias_order)
     if order == 0:
-        return _held(values, temperature, where, f'the temperature band {band} is not turned through every '
-                                                 f'orientation (each band must be, for the drift)')
+        return _held(values, temperature, where, f'the band {band} is not turned enough')
     scale = min(scale_order, order)
     ref = float(round((low + high) / 2.0)) if temp_ref is None else float(temp_ref)
     t_scale = max(abs(low - ref), abs(high - ref), 1.0)
@@ -140,11 +138,10 @@ def fit_rotation(values: np.ndarray, temperature: np.ndarray | None, *, bias_ord
                                   tuple(float(v) for v in soft.ravel()))
     ellipsoid = _figures(values, temperature, mag, radius, spread, where)
     mag = _with_residual(mag, ellipsoid.residual_rms)
-    lines = [f'the iron and the thermal drift fitted together ({low:.1f}..{high:.1f} C, reference {ref:g} C): '
+    lines = [f'the iron and the thermal drift fitted together over {low:.1f}..{high:.1f} C (reference {ref:g} C)',
              f'centre drift order {order}, scale drift order {scale}']
     if order < bias_order:
-        lines.append(f'centre drift order {order} of the {bias_order} asked: the band {band} is not turned through '
-                     f'every orientation')
+        lines.append(f'centre drift order {order} of the {bias_order} asked: the band {band} is not turned enough')
     return RotationFit(mag, ellipsoid, order, scale, tuple(lines))
 
 
@@ -157,7 +154,7 @@ def _held(values: np.ndarray, temperature: np.ndarray | None, where: str, reason
     note = f'thermal link held (no temperature terms): {reason}'
     link = held_link(residual_rms=(fit.residual_rms,) * 3, temperatures=temperatures, notes=(SCALE_NOTE, note))
     mag = MagnetometerCalibration(link, fit.hard_iron, fit.soft_iron)
-    return RotationFit(mag, fit, 0, 0, (f'{note}; the iron from the ellipsoid of the whole record',))
+    return RotationFit(mag, fit, 0, 0, ())
 
 
 def _covered_order(values: np.ndarray, temperature: np.ndarray, bias_order: int) -> tuple[int, str]:
@@ -178,7 +175,7 @@ def _covered_order(values: np.ndarray, temperature: np.ndarray, bias_order: int)
                 break
         if worst is None:
             return order, failed
-        failed = f'{worst[0]:.1f}..{worst[1]:.1f} C (spread {worst[2]:.2f}, at least {MIN_SPREAD:g})'
+        failed = f'{worst[0]:.1f}..{worst[1]:.1f} C (spread {worst[2]:.2f} < {MIN_SPREAD:g})'
     return 0, failed
 
 
