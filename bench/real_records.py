@@ -15,9 +15,10 @@
    temperature column (``import-csv`` with no ``--temp-column``), then ``noise`` writes a Kalibr
    file; and ``fit`` refuses it in one line (no temperature, no magnetometer: nothing to fit).
 
-Run: ``.venv/bin/python bench/real_records.py --ck-explorer /work/.mirror/CK-Explorer+Magnetometer-and-Accelerometer-Calibration/repo``
-(the git directory ``fetch`` gives; the data are read with ``git show`` and never copied into
-this repository). Writes ``bench/results/real_records.json`` with the commands run.
+Run: ``.venv/bin/python bench/real_records.py --ck-explorer GIT_DIR``, ``GIT_DIR`` the git directory of a
+snapshot of the repository (here ``/work/.mirror/CK-Explorer+Magnetometer-and-Accelerometer-Calibration/repo``,
+as ``fetch`` gave it); the data are read with ``git show`` and never copied into this repository.
+Writes ``bench/results/real_records.json`` with the commands run.
 """
 
 from __future__ import annotations

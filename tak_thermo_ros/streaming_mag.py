@@ -153,7 +153,7 @@ def _calibration_pass(path: Path, options, consumers, survey: FieldSurvey | None
     streams = record_streams(path, topics=topics)
     static = streams.mag_reference == 0
     if not streams.temperature:
-        msg = f'magnetometer: {path}: no temperature on {topics.temperature}: the static run\'s link is fitted against it'
+        msg = f'magnetometer: {path}: no temperature on {topics.temperature}: a static run fits the link against it'
         raise FitError(msg)
     mean = (survey or survey_field(path, options)).mean if static else None
     aligner = BlockAligner(use_reference=True, reference_expected=True)
