@@ -39,7 +39,8 @@ def significant(value: float, digits: int = DIGITS) -> str:
     """``value`` to ``digits`` significant figures (``0.000123``, ``12.3``, ``1.23e+05``); ``nan`` said so."""
     if not math.isfinite(value):
         return 'nan' if value != value else ('inf' if value > 0 else '-inf')
-    return f'{value:.{digits}g}'
+    text = f'{value:#.{digits}g}'  # '#': trailing zeros are figures too (0.2000, not 0.2)
+    return text[:-1] if text.endswith('.') else text
 
 
 def readable(value: float, unit: str, digits: int = DIGITS) -> str:
