@@ -39,6 +39,8 @@ def significant(value: float, digits: int = DIGITS) -> str:
     """``value`` to ``digits`` significant figures (``0.000123``, ``12.3``, ``1.23e+05``); ``nan`` said so."""
     if not math.isfinite(value):
         return 'nan' if value != value else ('inf' if value > 0 else '-inf')
+    if 10 ** digits <= abs(value) < 1e6:  # 1003 deg/h, not 1.00e+03
+        return f'{value:.0f}'
     text = f'{value:#.{digits}g}'  # '#': trailing zeros are figures too (0.2000, not 0.2)
     return text[:-1] if text.endswith('.') else text
 

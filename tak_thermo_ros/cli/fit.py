@@ -209,9 +209,9 @@ def _print_magnetometer(fitted, args: argparse.Namespace) -> None:
         print(f'magnetometer: left out: {common.describe_dropped(thermal.dropped)}')
     print(f'magnetometer ({common.topics(args).mag}), {thermal.samples} samples:')
     for name, axis, stats in zip(AXES, link.axes, thermal.axes):
-        print(f'  {name}: residual RMS {stats.residual_rms * 1e6:.4g} uT; scale {axis.scale:.6g}'
-              f'{"" if axis.scale_observable else " (held)"}, offset {axis.offset * 1e6:.4g} uT, '
-              f'offset span {axis.offset_span * 1e6:.4g} uT')
+        print(f'  {name}: residual RMS {common.amount(stats.residual_rms, "T")}; scale {axis.scale:.6g}'
+              f'{"" if axis.scale_observable else " (held)"}, offset {common.amount(axis.offset, "T")}, '
+              f'offset span {common.amount(axis.offset_span, "T")}')
     common.print_effects(link, thermal, 'T')
     iron = fitted.iron
     mag = fitted.calibration
