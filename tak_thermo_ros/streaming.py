@@ -175,12 +175,11 @@ def _sensor_records(block: ChannelRecord | DriverRecord, kind: InputKind) -> dic
 
 @dataclass(frozen=True)
 class OpenedRun:
-    """A bag opened for a calibration-run pass (references held); ``temperature``: it holds one."""
+    """A bag opened for a calibration-run pass (references held)."""
 
     kind: InputKind
     main: int
     static: _StaticRun | None
-    temperature: bool = True
 
 
 def temperature_expected(path: Path, streams, options: StreamOptions, *, needed: bool, what: str) -> bool:
@@ -188,7 +187,7 @@ def temperature_expected(path: Path, streams, options: StreamOptions, *, needed:
 
     :param streams: the record's :class:`~tak_thermo_ros.formats.bag.BagStreams`.
     :param needed: the pass reads a temperature (a correction with temperature terms).
-    :param what: what needs it, for the message (``'the calibration's accelerometer'``).
+    :param what: what needs it, for the message (``'the calibration'``).
     :raises TakError: it is needed and the record holds none.
     """
     present = streams.kind is InputKind.COUNTS or streams.temperature > 0
@@ -213,8 +212,7 @@ def open_calibration_run(path: Path, options: StreamOptions, *, gravity: float, 
     if streams.kind is InputKind.IMU:
         static = _StaticRun(path, options, recorded_reference=streams.reference > 0,
                             recorded_rate=streams.rate_reference > 0, gravity=gravity, latitude=latitude)
-    return OpenedRun(streams.kind, streams.main, static,
-                     temperature=streams.kind is InputKind.COUNTS or streams.temperature > 0)
+    return OpenedRun(streams.kind, streams.main, static)
 
 
 def run_passes(path: Path, options: StreamOptions, opened: OpenedRun, passes: Sequence[SensorPass]) -> list[str]:
