@@ -25,9 +25,11 @@ from tak_thermo_ros.core.records.blocks import BlockAligner, Subsample, add_coun
 from tak_thermo_ros.core.records.extremes import RunExtremes
 from tak_thermo_ros.core.link.correction import Corrector, OutOfRange, acceleration_variance
 from tak_thermo_ros.core.fit import FitResult, fit_model
-from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
+from tak_thermo_ros.core.fit.model import AxisFit
+from tak_thermo_ros.core.link.model import InputKind, UnitCalibration, held_link
 from tak_thermo_ros.core.records.record import AlignedSamples, ChannelRecord, DriverRecord, require_signals
 from tak_thermo_ros.core.records.static_run import (
+    NotStatic,
     StaticReference,
     check_static,
     rate_line,
@@ -183,6 +185,21 @@ class OpenedRun:
     static: _StaticRun | None
 
 
+def temperature_expected(path: Path, streams, options: StreamOptions, *, needed: bool, what: str) -> bool:
+    """Whether a pass holds the record's temperature: it needs one and the record has one.
+
+    :param streams: the record's :class:`~tak_thermo_ros.formats.bag.BagStreams`.
+    :param needed: the pass reads a temperature (a correction with temperature terms).
+    :param what: what needs it, for the message (``'the calibration'``).
+    :raises TakError: it is needed and the record holds none.
+    """
+    present = streams.kind is InputKind.COUNTS or streams.temperature > 0
+    if needed and not present:
+        msg = f'{path}: no temperature on {options.topics.temperature}, and {what} has temperature terms'
+        raise TakError(msg)
+    return needed and present
+
+
 def open_calibration_run(path: Path, options: StreamOptions, *, gravity: float, latitude: float | None,
                          require_reference: bool) -> OpenedRun:
     """Open ``path`` for a calibration-run pass.
@@ -250,6 +267,7 @@ class StreamedFit:
         effects' fit used (1: all).
     :param ignored_temp_codes: per sensor, the temperature messages ignored (not held), by reason.
     :param ignored_references: per sensor, the reference messages ignored, by reason.
+    :param held: the sensors held at nominal, not fitted (:func:`fit_imu`; their note says why).
     """
 
     input_kind: InputKind
@@ -264,6 +282,7 @@ class StreamedFit:
     """The run's fastest temperature change over 60 s (the accelerometer's samples), per second."""
     rate_max: float = 0.0
     """The largest rate reference of a driver run, rad/s (0 for a static run without latitude)."""
+    held: tuple[str, ...] = ()
 
 
 def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
@@ -279,10 +298,20 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
     :param nominal_for: ``(kind, the bag's nominal scale) -> nominal scale`` (counts bags;
         the command line may override the bag's metadata).
     :raises FitError: as :func:`fit_model`, prefixed with the sensor on driver bags.
+    :raises ImuLinkUndetermined: a driver bag that today's paths cannot fit (no reference and the
+        board moved; no temperature): see :func:`fit_imu`.
     """
+    from tak_thermo_ros.formats.records import record_streams
     path = Path(path)
-    opened = open_calibration_run(path, options, gravity=settings.gravity, latitude=settings.latitude,
-                                  require_reference=True)
+    streams = record_streams(path, topics=options.topics)
+    if streams.kind is InputKind.IMU and not streams.temperature:
+        reason = f'no temperature on {options.topics.temperature}'
+        raise ImuLinkUndetermined(f'{path}: {reason}: no thermal link of the accelerometer and gyroscope', reason)
+    try:
+        opened = open_calibration_run(path, options, gravity=settings.gravity, latitude=settings.latitude,
+                                      require_reference=True)
+    except NotStatic as err:
+        raise ImuLinkUndetermined(str(err), MOVED) from None
     kind = opened.kind
     sensors = sensors_of(kind)
     if kind is InputKind.COUNTS and settings.effects.get('gyro'):
@@ -313,7 +342,10 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
             subsamples[sensor] = Subsample(stride, expected=opened.main // stride + 1)
             consumers.append(subsamples[sensor])
         passes.append(SensorPass(sensor, aligner(), [_feeding(requirements[sensor], consumers)]))
-    lines = run_passes(path, options, opened, passes)
+    try:
+        lines = run_passes(path, options, opened, passes)
+    except NotStatic as err:
+        raise ImuLinkUndetermined(str(err), MOVED) from None
     results: dict[str, FitResult] = {}
     usable: dict[str, int] = {}
     second: dict[str, tuple[StreamingEffectFit, FitResult]] = {}
@@ -359,6 +391,51 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
                        ignored_references={p.sensor: dict(p.aligner.ignored_references) for p in passes},
                        temperature_rate_max=extremes['accel'].temperature_rate_max,
                        rate_max=extremes['gyro'].reference_max if 'gyro' in extremes else 0.0)
+
+
+class ImuLinkUndetermined(FitError):
+    """A driver record from which today's fit paths cannot determine the accelerometer's and gyroscope's link.
+
+    No reference topics and the board moved (turned by hand), or no temperature at all;
+    ``reason`` says which in a few words.
+    """
+
+    def __init__(self, message: str, reason: str) -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+MOVED = 'the board moved, no reference'
+HELD_IMU_NOTE = 'held at nominal (offset 0, scale 1): {reason}'
+"""The note of a sensor held at nominal by :func:`fit_imu`, in the file and in one line of ``fit``."""
+
+
+def fit_imu(path: str | Path, settings: FitSettings, options: StreamOptions,
+            nominal_for: Callable[[InputKind, tuple[float, float, float] | None], tuple[float, float, float] | None]
+            | None = None, *, hold_undetermined: bool = False) -> StreamedFit:
+    """The accelerometer's and gyroscope's link from a record (:func:`fit_bag`), or held at nominal.
+
+    THE decision point for a driver record that today's paths cannot fit
+    (:class:`ImuLinkUndetermined`: no reference and the board moved, or no temperature): with
+    ``hold_undetermined`` (the record determines something else, its magnetometer) both sensors
+    are held at nominal (offset 0, scale 1, no temperature terms) and one line says why;
+    otherwise the record is refused as before. A hand-held fit (still intervals, issue 22)
+    takes this point's place.
+    """
+    try:
+        return fit_bag(path, settings, options, nominal_for)
+    except ImuLinkUndetermined as err:
+        if not hold_undetermined:
+            raise
+        reason = err.reason
+    results = {}
+    for sensor in ('accel', 'gyro'):
+        link = held_link(notes=(HELD_IMU_NOTE.format(reason=reason),))
+        results[sensor] = FitResult(calibration=link, axes=(AxisFit(0.0, 0, 0.0),) * 3, samples=0,  # type: ignore
+                                    dropped={})
+    return StreamedFit(input_kind=InputKind.IMU, sensors=('accel', 'gyro'), results=results, usable={},
+                       effect_stride={}, reference_lines=(), ignored_temp_codes={'accel': {}, 'gyro': {}},
+                       ignored_references={'accel': {}, 'gyro': {}}, held=('accel', 'gyro'))
 
 
 def _with_shape_uncertainty(errors: dict[str, float], shaped: FitResult, shape_names: set[str],
@@ -481,11 +558,13 @@ class _OwnStamps:
 
     SENSORS = ('accel', 'gyro')
 
-    def __init__(self, unit: UnitCalibration, *, out_of_range: OutOfRange, output: Path) -> None:
+    def __init__(self, unit: UnitCalibration, *, out_of_range: OutOfRange, output: Path,
+                 temperature_expected: bool = True) -> None:
         self.correctors = {sensor: BlockCorrector(unit.sensor(sensor), out_of_range=out_of_range)
                            for sensor in self.SENSORS}
         self.variances = {sensor: acceleration_variance(unit.sensor(sensor)) for sensor in self.SENSORS}
-        self.aligners = {sensor: BlockAligner(use_reference=False) for sensor in self.SENSORS}
+        self.aligners = {sensor: BlockAligner(use_reference=False, temperature_expected=temperature_expected)
+                         for sensor in self.SENSORS}
         self.required = {sensor: Required(self.correctors[sensor].signals) for sensor in self.SENSORS}
         self.ready: dict[str, tuple[np.ndarray, np.ndarray]] = {
             sensor: (np.zeros(0, dtype=np.int64), np.zeros((0, 3))) for sensor in self.SENSORS}
@@ -592,16 +671,18 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
     from tak_thermo_ros.formats.records import record_blocks, record_streams
     path = Path(path)
     topics = options.topics
-    kind = record_streams(path, topics=topics).kind
+    streams = record_streams(path, topics=topics)
+    kind = streams.kind
+    expected = temperature_expected(path, streams, options, needed=unit.needs_temperature, what='the calibration')
     blocks = record_blocks(path, topics=topics, kind=kind, block_samples=options.block_samples, references=False,
                            progress=options.progress)
     first = next(blocks, None)
     if isinstance(first, DriverRecord) and not first.shared_stamps:
         return _apply_own_stamps(path, unit, output, options, first, blocks, storage=storage,
-                                 out_of_range=out_of_range, force=force)
+                                 out_of_range=out_of_range, force=force, temperature_expected=expected)
     blocks = itertools.chain([] if first is None else [first], blocks)
     topic = topics.imu if kind is InputKind.COUNTS else topics.compensated_imu
-    aligner = BlockAligner(use_reference=False)
+    aligner = BlockAligner(use_reference=False, temperature_expected=expected)
     corrector = BlockUnitCorrector(unit, out_of_range=out_of_range)
     required = Required(corrector.signals)
     accel_variance = acceleration_variance(unit.accel)
@@ -610,9 +691,12 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
     outside = 0
     frame_id = ''
     magnetometer = None
-    if kind is InputKind.IMU and unit.mag is not None and record_streams(path, topics=topics).mag:
+    if kind is InputKind.IMU and unit.mag is not None and streams.mag:
         from tak_thermo_ros.streaming_mag import MagApplier
-        magnetometer = MagApplier(unit.mag, out_of_range=out_of_range, topic=topics.compensated_mag)
+        magnetometer = MagApplier(unit.mag, out_of_range=out_of_range, topic=topics.compensated_mag,
+                                  temperature_expected=temperature_expected(
+                                      path, streams, options, needed=unit.mag.thermal.needs_temperature,
+                                      what="the calibration's magnetometer"))
     with ImuBagWriter(output, topic=topic, storage=storage, force=force) as writer:
 
         def write(aligned: AlignedSamples) -> None:
@@ -662,16 +746,21 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
 
 def _apply_own_stamps(path: Path, unit: UnitCalibration, output: str | Path, options: StreamOptions,
                       first: DriverRecord, blocks: Iterator, *, storage: str, out_of_range: OutOfRange,
-                      force: bool) -> Applied:
+                      force: bool, temperature_expected: bool = True) -> Applied:
     """``apply`` of a driver record whose sensors have their own stamps (:class:`_OwnStamps`)."""
     from tak_thermo_ros.formats.bag import ImuBagWriter
     from tak_thermo_ros.formats.records import record_streams
     topics = options.topics
-    applier = _OwnStamps(unit, out_of_range=out_of_range, output=Path(output))
+    applier = _OwnStamps(unit, out_of_range=out_of_range, output=Path(output),
+                         temperature_expected=temperature_expected)
     magnetometer = None
-    if unit.mag is not None and record_streams(path, topics=topics).mag:
+    streams = record_streams(path, topics=topics)
+    if unit.mag is not None and streams.mag:
         from tak_thermo_ros.streaming_mag import MagApplier
-        magnetometer = MagApplier(unit.mag, out_of_range=out_of_range, topic=topics.compensated_mag)
+        magnetometer = MagApplier(unit.mag, out_of_range=out_of_range, topic=topics.compensated_mag,
+                                  temperature_expected=temperature_expected(
+                                      path, streams, options, needed=unit.mag.thermal.needs_temperature,
+                                      what="the calibration's magnetometer"))
     with ImuBagWriter(output, topic=topics.compensated_imu, storage=storage, force=force) as writer:
         for block in itertools.chain([first], blocks):
             applier.push(writer, block)
@@ -715,9 +804,11 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
     """
     from tak_thermo_ros.formats.records import record_streams
     path = Path(path)
-    kind = record_streams(path, topics=options.topics).kind
+    streams = record_streams(path, topics=options.topics)
+    kind = streams.kind
     if expect_kind is not None:
         expect_kind(kind)
+    holding = temperature_expected(path, streams, options, needed=unit.needs_temperature, what='the calibration')
     calibration_run = kind is InputKind.IMU
     if calibration_run:
         opened = open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=False)
@@ -731,11 +822,12 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
         samples = accel_required(aligned)
         gravity_check.add(samples.counts, samples.temp_code, samples.stamp_s, aux=samples.aux)
 
-    accel_pass = SensorPass('accel', BlockAligner(use_reference=calibration_run, reference_expected=calibration_run),
-                            [add_gravity])
+    accel_pass = SensorPass('accel', BlockAligner(use_reference=calibration_run, reference_expected=calibration_run,
+                                                  temperature_expected=holding), [add_gravity])
     passes = [accel_pass]
     if calibration_run:
-        gyro_pass = SensorPass('gyro', BlockAligner(use_reference=True, reference_expected=True))
+        gyro_pass = SensorPass('gyro', BlockAligner(use_reference=True, reference_expected=True,
+                                                    temperature_expected=holding))
         if rate_check is not None:
             gyro_required = Required(Corrector(unit.gyro).signals)  # type: ignore[arg-type]
 
@@ -772,8 +864,17 @@ class BoundedRun:
 
 def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: float = 0.0, gravity: float = 9.80665,
                 latitude: float | None = None, max_samples: int = DIAGNOSE_MAX_SAMPLES) -> BoundedRun:
-    """One pass collecting a bounded subsample spread evenly over the run, references held."""
+    """One pass collecting a bounded subsample spread evenly over the run, references held.
+
+    :raises TakError: a driver record without a temperature (the diagnosis looks at the residual
+        against the temperature).
+    """
+    from tak_thermo_ros.formats.records import record_streams
     path = Path(path)
+    streams = record_streams(path, topics=options.topics)
+    if streams.kind is InputKind.IMU and not streams.temperature:
+        msg = f'{path}: no temperature on {options.topics.temperature}: diagnose looks at the residual against it'
+        raise TakError(msg)
     opened = open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=True)
     stride = stride_for(opened.main, max_samples)
     passes, subsamples = [], {}

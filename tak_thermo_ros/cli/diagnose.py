@@ -23,6 +23,7 @@ from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.core.records.record import require_signals
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.streaming import DIAGNOSE_MAX_SAMPLES
+from tak_thermo_ros.units import in_reader_unit, reader_unit, significant
 import numpy as np
 import sys
 
@@ -118,14 +119,18 @@ def run(args: argparse.Namespace) -> int:
         if samples.dropped:
             print(f'left out: {common.describe_dropped(samples.dropped)}')
         common.print_ignored(samples, args, run.input_kind)
+        shown = reader_unit(unit_name)
+
+        def value(number: float) -> str:
+            return significant(in_reader_unit(number, unit_name), 4)
         for name, axis in zip(AXES, result.axes):
             if result.averaging_time_s:
-                print(f'  {name}: residual RMS {axis.rms:.4g} {unit_name}, white floor {axis.white_floor:.4g}; '
-                      f'held-out {result.averaging_time_s:.3g} s means {axis.heldout_rms:.4g} '
-                      f'({axis.heldout_rms / axis.noise_floor:.2f}x the noise model\'s {axis.noise_floor:.4g})')
+                print(f'  {name}: residual RMS {value(axis.rms)} {shown}, white floor {value(axis.white_floor)}; '
+                      f'held-out {result.averaging_time_s:.3g} s means {value(axis.heldout_rms)} '
+                      f'({axis.heldout_rms / axis.noise_floor:.2f}x the noise model\'s {value(axis.noise_floor)})')
             else:
-                print(f'  {name}: residual RMS {axis.rms:.4g} {unit_name}, noise floor {axis.noise_floor:.4g}; '
-                      f'held-out {axis.heldout_rms:.4g} ({axis.heldout_rms / axis.noise_floor:.2f}x the floor)')
+                print(f'  {name}: residual RMS {value(axis.rms)} {shown}, noise floor {value(axis.noise_floor)}; '
+                      f'held-out {value(axis.heldout_rms)} ({axis.heldout_rms / axis.noise_floor:.2f}x the floor)')
         if result.allan:
             check = result.allan[-1][1]
             print(f'  against the noise model, {"after the ladder" if len(result.allan) > 1 else "the residual"}: '
@@ -133,16 +138,16 @@ def run(args: argparse.Namespace) -> int:
                   f'the bound {check.worst_bound():.2f}x)'
                   if len(check.taus) else '  Allan deviation: the run is too short to estimate it')
         if result.candidates:
-            print(f'candidates, best first (held-out RMS x y z in {unit_name}; '
+            print(f'candidates, best first (held-out RMS x y z in {shown}; '
                   f'share of the excess over the floor removed):')
             for candidate in result.candidates:
-                rms = ' '.join(f'{v:8.4g}' for v in candidate.rms_after)
+                rms = ' '.join(f'{value(v):>8}' for v in candidate.rms_after)
                 print(f'  {candidate.effect:<20} {rms}  {round(100.0 * candidate.explained):5d}%')
         for name, reason in result.skipped.items():
             print(f'  {name:<20} not tried: {reason}')
         if len(result.ladder) > 1:
-            print('model ladder (held-out RMS x y z): ' + '; '.join(
-                f'{step.label}: {" ".join(f"{v:.4g}" for v in step.heldout_rms)}' for step in result.ladder))
+            print(f'model ladder (held-out RMS x y z, {shown}): ' + '; '.join(
+                f'{step.label}: {" ".join(value(v) for v in step.heldout_rms)}' for step in result.ladder))
         print(f'{label}verdict: {result.verdict}')
         print(common.in_driver_words(result.message) if run.input_kind is InputKind.IMU else result.message)
         walk = _walk_line(result, sensor, run.input_kind)
@@ -229,12 +234,17 @@ def _walk_line(result, sensor: str, kind: InputKind) -> str:
 
 def _add_magnetometer(args: argparse.Namespace, unit: UnitCalibration, run) -> None:
     """``diagnose``'s magnetometer (its thermal link) when the calibration and the bag hold one."""
-    from tak_thermo_ros.streaming_mag import bounded_mag_run, has_mag
+    from tak_thermo_ros.formats.records import record_streams
+    from tak_thermo_ros.streaming_mag import bounded_mag_run, has_mag, survey_field
     options = common.stream_options(args)
     if run.input_kind is not InputKind.IMU or unit.mag is None:
         return
     if not has_mag(args.bag, options.topics):
         print(f'magnetometer: {args.bag} holds no messages on {options.topics.mag}; not diagnosed')
+        return
+    if not record_streams(args.bag, topics=options.topics).mag_reference and survey_field(args.bag, options).turned:
+        print(f'magnetometer: not diagnosed: {args.bag} is a rotation record (its field turns); the thermal '
+              f'diagnosis takes a static run or a reference field')
         return
     samples, usable, line = bounded_mag_run(args.bag, options, max_samples=args.max_samples)
     print(line)

@@ -66,7 +66,8 @@ def add_parser(commands) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Fit the correction link to a calibration bag (counts, or a driver's Imu: both sensors), block by block."""
-    from tak_thermo_ros.streaming import FitSettings, fit_bag
+    from tak_thermo_ros.streaming import FitSettings, fit_imu
+    from tak_thermo_ros.streaming_mag import has_mag
     effects = {'accel': common.effect_list(args.effects), 'gyro': common.effect_list(args.gyro_effects)}
     settings = FitSettings(effects=effects, bias_order=args.bias_order, scale_order=args.scale_order,
                            temp_code_ref=args.temp_code_ref, settle_time_s=args.settle_time,
@@ -75,8 +76,18 @@ def run(args: argparse.Namespace) -> int:
     from tak_thermo_ros.formats.records import record_lines
     for line in record_lines(args.bag, topics=common.topics(args)):
         print(line)
-    fitted = fit_bag(args.bag, settings, common.stream_options(args),
-                     nominal_for=lambda kind, bag_nominal: _nominal(args, bag_nominal))
+    # A record that determines the magnetometer alone (turned by hand, or without a temperature)
+    # holds the accelerometer and gyroscope at nominal, said in one line; else it is refused.
+    options = common.stream_options(args)
+    fitted = fit_imu(args.bag, settings, options, nominal_for=lambda kind, bag_nominal: _nominal(args, bag_nominal),
+                     hold_undetermined=has_mag(args.bag, options.topics))
+    if fitted.held:
+        for option, given in (('--effects', bool(effects['accel'])), ('--gyro-effects', bool(effects['gyro'])),
+                              ('--noise-from-residual', args.noise_from_residual)):
+            if given:
+                msg = (f'{option}: the accelerometer and gyroscope of {args.bag} are not fitted '
+                       f'({fitted.results["accel"].calibration.notes[0]})')
+                raise TakError(msg)
     results = fitted.results
     magnetometer = _fit_magnetometer(args, fitted.input_kind)
     unit = UnitCalibration(fitted.input_kind, results['accel'].calibration,
@@ -88,17 +99,24 @@ def run(args: argparse.Namespace) -> int:
         unit, noise_line = _with_noise(args, unit)
     applied = ', '.join(f'{sensor} {", ".join(e.name for e in calibration.effects)}'
                         for sensor, calibration in unit.sensors if calibration.effects)
+    fitted_what = (f'{results["accel"].samples} samples' if not fitted.held else
+                   f'magnetometer only ({magnetometer.thermal.samples} samples; accelerometer and gyroscope held)')
     header = (f'tak_thermo_ros calibration fitted from {args.bag}\n'
-              f'{results["accel"].samples} samples, bias order {args.bias_order}, scale order {args.scale_order}'
+              f'{fitted_what}, bias order {args.bias_order}, scale order {args.scale_order}'
               f'{", effects " + applied if applied else ""}\n'
               f'load with: ros2 run tak_thermo_ros compensator --ros-args --params-file {Path(args.output).name}')
     save_unit(args.output, unit, header=header)
     kind = fitted.input_kind
-    print(f'fitted {results["accel"].samples} samples from {args.bag}'
-          f'{" (driver Imu: accelerometer and gyroscope)" if kind is InputKind.IMU else ""}')
+    if fitted.held:
+        print(f'accelerometer and gyroscope: {results["accel"].calibration.notes[0]}')
+    else:
+        print(f'fitted {results["accel"].samples} samples from {args.bag}'
+              f'{" (driver Imu: accelerometer and gyroscope)" if kind is InputKind.IMU else ""}')
     for line in fitted.reference_lines:
         print(line)
     for sensor in fitted.sensors:
+        if sensor in fitted.held:
+            continue
         result = results[sensor]
         calibration = result.calibration
         unit_name = common.UNITS[kind, sensor]
@@ -207,9 +225,9 @@ def _print_magnetometer(fitted, args: argparse.Namespace) -> None:
         print(f'magnetometer: left out: {common.describe_dropped(thermal.dropped)}')
     print(f'magnetometer ({common.topics(args).mag}), {thermal.samples} samples:')
     for name, axis, stats in zip(AXES, link.axes, thermal.axes):
-        print(f'  {name}: residual RMS {stats.residual_rms * 1e6:.4g} uT; scale {axis.scale:.6g}'
-              f'{"" if axis.scale_observable else " (held)"}, offset {axis.offset * 1e6:.4g} uT, '
-              f'offset span {axis.offset_span * 1e6:.4g} uT')
+        print(f'  {name}: residual RMS {common.amount(stats.residual_rms, "T")}; scale {axis.scale:.6g}'
+              f'{"" if axis.scale_observable else " (held)"}, offset {common.amount(axis.offset, "T")}, '
+              f'offset span {common.amount(axis.offset_span, "T")}')
     common.print_effects(link, thermal, 'T')
     iron = fitted.iron
     mag = fitted.calibration

@@ -62,10 +62,11 @@ def run(args: argparse.Namespace) -> int:
                             aux_types=aux_types)
         hours = ((driver.stamp_ns[-1] - driver.stamp_ns[0]) * 1e-9 if scenario.rotation
                  else scenario.duration_s()) / 3600.0
+        span = (f'temperature {driver.temperature.min():.2f}..{driver.temperature.max():.2f} C'
+                if len(driver.temperature) else 'no temperature published')
         print(f'wrote {args.out_bag}: {len(driver.stamp_ns)} Imu, {len(driver.temp_stamp_ns)} temperature, '
               f'{len(driver.reference_stamp_ns)} reference changes, {hours:.2f} h at '
-              f'{scenario.sample_rate_hz:g} Hz ({args.storage}); temperature '
-              f'{driver.temperature.min():.2f}..{driver.temperature.max():.2f} C')
+              f'{scenario.sample_rate_hz:g} Hz ({args.storage}); {span}')
         if len(driver.mag_stamp_ns):
             print(f'  magnetometer: {len(driver.mag_stamp_ns)} MagneticField on {common.topics(args).mag}'
                   f'{f" ({scenario.rotation} rotation record)" if scenario.rotation else ""}, '

@@ -253,7 +253,7 @@ def read_record(path: str | os.PathLike[str], *, topics: Topics = Topics(),
 
 def read_driver_record(path: str | os.PathLike[str], *, topics: Topics = Topics(),
                        progress: bool = True, decoder: str = 'block') -> DriverRecord:
-    """Read a driver bag: the Imu, the temperature (degrees C) and the optional references.
+    """Read a driver bag: the Imu, the temperature (degrees C; optional) and the optional references.
 
     :param decoder: one of :data:`DECODERS`; both give the same arrays.
 
@@ -263,10 +263,10 @@ def read_driver_record(path: str | os.PathLike[str], *, topics: Topics = Topics(
     path = Path(path)
     with _reading(path, decoder) as reader:
         imu_topic = _TopicReader(reader, path, topics.raw_imu, IMU, required=True)
-        temp_topic = _TopicReader(reader, path, topics.temperature, TEMPERATURE, required=True)
+        temp_topic = _TopicReader(reader, path, topics.temperature, TEMPERATURE, required=False)
         reference_topic = _TopicReader(reader, path, topics.reference, VECTOR3_STAMPED, required=False)
         rate_topic = _TopicReader(reader, path, topics.reference_rate, VECTOR3_STAMPED, required=False)
-        for topic in (imu_topic, temp_topic):
+        for topic in (imu_topic,):
             if topic.count == 0:
                 msg = f'{path}: no messages on {topic.topic}'
                 raise BagError(msg)
@@ -647,7 +647,8 @@ def write_driver_record(path: str | os.PathLike[str], record: DriverRecord, *, t
     with _AtomicBag(path, storage, force=force) as writer:
         aux_writes = _aux_writers(writer, aux_streams, aux_types, record.frame_id)
         imu_conn = writer.add_connection(topics.raw_imu, IMU, typestore=TYPESTORE)
-        temp_conn = writer.add_connection(topics.temperature, TEMPERATURE, typestore=TYPESTORE)
+        temp_conn = (writer.add_connection(topics.temperature, TEMPERATURE, typestore=TYPESTORE)
+                     if len(record.temp_stamp_ns) else None)
         reference_conn = (writer.add_connection(topics.reference, VECTOR3_STAMPED, typestore=TYPESTORE)
                           if len(record.reference_stamp_ns) else None)
         rate_conn = (writer.add_connection(topics.reference_rate, VECTOR3_STAMPED, typestore=TYPESTORE)
@@ -849,7 +850,7 @@ class BagStreams:
 
     :param kind: the paper's counts topic, or a driver's Imu.
     :param main: messages on the counts (or Imu) topic.
-    :param temperature: messages on the temperature topic.
+    :param temperature: messages on the temperature topic (a driver bag may hold none: 0).
     :param reference: messages on the specific-force reference topic (0 when absent).
     :param rate_reference: messages on the rate reference topic (driver bags; 0 when absent).
     :param nominal_scale: the bag metadata's nominal K0 (counts bags), or ``None``.
@@ -887,8 +888,11 @@ def bag_streams(path: str | os.PathLike[str], *, topics: Topics = Topics(),
                 require_reference: bool = False) -> BagStreams:
     """The kind and message counts of a bag, its topics' types checked, without reading messages.
 
-    :raises BagError: missing bag or topic, wrong type, an empty main, temperature or (when
-        required) reference topic.
+    A driver bag's temperature is optional (a driver that publishes none): its count is then 0,
+    and each pass decides whether it needs one.
+
+    :raises BagError: missing bag or topic, wrong type, an empty main, counts temperature-code or
+        (when required) reference topic.
     """
     path = Path(path)
     kind = bag_input_kind(path, topics=topics)
@@ -896,7 +900,8 @@ def bag_streams(path: str | os.PathLike[str], *, topics: Topics = Topics(),
         with Reader(path) as reader:
             counts = {}
             for role, topic, msgtype in _stream_topics(kind, topics):
-                required = role in ('main', 'temperature') or (role == 'reference' and require_reference)
+                required = (role == 'main' or (role == 'temperature' and kind is InputKind.COUNTS)
+                            or (role == 'reference' and require_reference))
                 stream = _TopicReader(reader, path, topic, msgtype, required=required)
                 if required and stream.count == 0:
                     msg = f'{path}: no messages on {topic}'

@@ -65,6 +65,9 @@ from tak_thermo_ros.core.link.model import (
     Calibration,
     MAG_SENSOR,
     SOURCE_KEYS,
+    THERMAL_FITTED,
+    THERMAL_NONE,
+    THERMAL_STATES,
     InputKind,
     MagnetometerCalibration,
     UnitCalibration,
@@ -289,16 +292,25 @@ def _link_from_mapping(raw: Any, key: str, input_kind: InputKind, *, extra_keys:
     if not isinstance(raw, Mapping):
         msg = f'{key}: expected a mapping'
         raise CalibrationError(msg)
-    for name in (*range_keys, *AXES):
+    thermal = raw.get('thermal', THERMAL_FITTED)
+    if thermal not in THERMAL_STATES:
+        msg = f'{key}.thermal: expected one of {", ".join(THERMAL_STATES)}, got {thermal!r}'
+        raise CalibrationError(msg)
+    # A link without any temperature (thermal: none) has no temperatures to state.
+    needed = AXES if thermal == THERMAL_NONE else (*range_keys, *AXES)
+    for name in needed:
         if name not in raw:
             msg = f'{key}.{name}: missing'
             raise CalibrationError(msg)
-    unknown = sorted(str(name) for name in set(raw) - {*range_keys, *AXES, 'notes', 'effects', 'noise', *extra_keys})
+    allowed = {*needed, 'thermal', 'notes', 'effects', 'noise', *extra_keys}
+    unknown = sorted(str(name) for name in set(raw) - allowed)
     if unknown:
-        msg = f'{key}.{unknown[0]}: unknown key'
+        why = ' (thermal: none holds no temperatures)' if unknown[0] in range_keys else ''
+        msg = f'{key}.{unknown[0]}: unknown key{why}'
         raise CalibrationError(msg)
-    ref, low, high = (finite_number(raw[name], f'{key}.{name}') for name in range_keys)
-    if low >= high:
+    ref, low, high = ((finite_number(raw[name], f'{key}.{name}') for name in range_keys)
+                      if thermal != THERMAL_NONE else (0.0, 0.0, 0.0))
+    if low >= high and thermal == THERMAL_FITTED or low > high:
         msg = f'{key}.{range_keys[1]}: must be below {range_keys[2]}, got {low} >= {high}'
         raise CalibrationError(msg)
     notes = raw.get('notes', [])
@@ -309,9 +321,12 @@ def _link_from_mapping(raw: Any, key: str, input_kind: InputKind, *, extra_keys:
     axes = tuple(_axis_from_mapping(raw[name], f'{key}.{name}') for name in AXES)
     effects = effects_from_mapping(raw['effects'], key=f'{key}.effects') if 'effects' in raw else ()
     noise = _noise_from_mapping(raw['noise'], f'{key}.noise') if 'noise' in raw else None
-    calibration = Calibration(temp_code_ref=ref, temp_code_min=low, temp_code_max=high,
-                              axes=axes, version=CALIBRATION_VERSION,  # type: ignore[arg-type]
-                              notes=tuple(notes), effects=effects, noise=noise)
+    try:
+        calibration = Calibration(temp_code_ref=ref, temp_code_min=low, temp_code_max=high,
+                                  axes=axes, version=CALIBRATION_VERSION,  # type: ignore[arg-type]
+                                  notes=tuple(notes), effects=effects, noise=noise, thermal=thermal)
+    except CalibrationError as err:
+        raise CalibrationError(f'{key}.{str(err).removeprefix("calibration.")}') from None
     _check_limits(calibration, limits, key)
     check_scale_positive(calibration, key=key)
     return calibration
@@ -319,11 +334,13 @@ def _link_from_mapping(raw: Any, key: str, input_kind: InputKind, *, extra_keys:
 
 def _link_to_mapping(calibration: Calibration, input_kind: InputKind) -> dict[str, Any]:
     stem = LIMITS[input_kind].temperature_name
-    mapping: dict[str, Any] = {
-        f'{stem}_ref': float(calibration.temp_code_ref),
-        f'{stem}_min': float(calibration.temp_code_min),
-        f'{stem}_max': float(calibration.temp_code_max),
-    }
+    mapping: dict[str, Any] = {}
+    if calibration.thermal != THERMAL_FITTED:
+        mapping['thermal'] = calibration.thermal
+    if calibration.thermal != THERMAL_NONE:
+        mapping.update({f'{stem}_ref': float(calibration.temp_code_ref),
+                        f'{stem}_min': float(calibration.temp_code_min),
+                        f'{stem}_max': float(calibration.temp_code_max)})
     if calibration.notes:
         mapping['notes'] = list(calibration.notes)
     for name, axis in zip(AXES, calibration.axes):

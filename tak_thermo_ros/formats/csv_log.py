@@ -1,4 +1,4 @@
-"""Import a delimited (CSV/TSV) log of a static thermal run into the bag contract.
+"""Import a delimited (CSV/TSV) log into the bag contract: a static thermal run, or a driver's log.
 
 Most users calibrate the way PX4 and ArduPilot do: the board lies still in one orientation and
 the temperature is swept; the log comes as a delimited text file with a time column, three
@@ -22,6 +22,12 @@ Units and rounding
   count as saturated): a value beyond it is an error naming the column and the row.
 - Temperature: the column in degrees Celsius becomes the sensor code
   ``N_t = round(T / temp_resolution)``, ``temp_resolution`` in degrees per code.
+- A driver's log (gyroscope columns): the values as logged, in SI units; the temperature column
+  is optional (a driver that logs none: no temperature topic) and may be constant (a noise run);
+  magnetometer columns (``mag_columns``, in ``mag_unit``) become ``/imu/mag`` in tesla (at
+  their own stamps where their cells are empty in other rows). No reference is written unless
+  given, and the board may move (a unit turned by hand): ``fit`` decides what the record
+  determines.
 - Reference (the true specific force, m/s^2, sensor frame): the run is static, so it is one
   constant vector, written once at the first stamp. Unless given explicitly, it is estimated
   as the mean measured direction scaled to local gravity,
@@ -65,6 +71,12 @@ CHUNK_ROWS = 65_536
 """Rows converted to arrays at a time: the text of a large log is never held as Python objects."""
 GYRO_UNITS = {'rad/s': 1.0, 'deg/s': math.pi / 180.0}
 """Angular-rate units of a log and their factor to rad/s."""
+MAG_UNITS = {'T': 1.0, 'uT': 1e-6, 'mT': 1e-3, 'gauss': 1e-4, 'mG': 1e-7}
+"""Magnetic-field units of a log and their factor to tesla."""
+FIELD_RANGE_T = (2e-6, 1e-3)
+"""Median ``|B|`` magnetometer columns may give, tesla: the Earth's field is 22-67 uT; below 2 uT
+or above 1 mT (beyond a magnetometer's range) the unit is wrong (gauss read as microtesla,
+microtesla as gauss)."""
 
 _DELIMITER_NAMES = {'\t': 'tab', ',': 'comma', ';': 'semicolon', ' ': 'space', '|': 'pipe'}
 
@@ -92,10 +104,15 @@ class CsvImportOptions:
     :param gyro_file: a second file that holds the angular-rate columns with its own time
         column (the gyroscope logged apart at its own rate), or ``None``: they are in the log.
     :param gyro_time_column: that file's time column (default: ``time_column``), in ``time_unit``.
+    :param mag_columns: names of the x, y, z magnetic-field columns (a driver bag only).
+    :param mag_unit: unit of the magnetic-field columns, one of :data:`MAG_UNITS`.
+
+    ``temp_column`` is optional for a driver's log (``gyro_columns`` given); the paper's counts
+    need it.
     """
 
     acc_columns: tuple[str, str, str]
-    temp_column: str
+    temp_column: str | None = None
     time_column: str = 'timestamp'
     time_unit: str = 's'
     acc_unit: str = 'm/s^2'
@@ -109,9 +126,18 @@ class CsvImportOptions:
     gyro_unit: str = 'rad/s'
     gyro_file: str | None = None
     gyro_time_column: str | None = None
+    mag_columns: tuple[str, str, str] | None = None
+    mag_unit: str = 'T'
 
     def __post_init__(self) -> None:
         checks = (
+            (self.mag_columns is None or len(self.mag_columns) == 3, 'mag_columns',
+             f'needs three names (x y z), got {len(self.mag_columns or ())}'),
+            (self.mag_columns is None or self.gyro_columns is not None, 'mag_columns',
+             'a magnetometer goes into a driver bag: give the gyroscope columns too'),
+            (self.mag_unit in MAG_UNITS, 'mag_unit', f'{self.mag_unit!r} is not one of {", ".join(MAG_UNITS)}'),
+            (self.temp_column is not None or self.gyro_columns is not None, 'temp_column',
+             "the paper's counts bag (no gyroscope columns) needs the temperature column"),
             (self.gyro_file is None or self.gyro_columns is not None, 'gyro_file',
              'needs the gyro columns (--gyro-columns X Y Z) it holds'),
             (self.gyro_columns is None or len(self.gyro_columns) == 3, 'gyro_columns',
@@ -161,6 +187,8 @@ class ImportedLog:
     :param max_tilt_deg: largest angle between a sample and the mean direction, degrees.
     :param driver: with gyroscope columns, the driver bag's contents (then ``record`` is its
         accelerometer channel).
+
+    A driver's log without a temperature column has ``temperature`` empty.
     """
 
     record: ChannelRecord
@@ -335,19 +363,31 @@ def parse_csv_log(lines: Iterable[str], options: CsvImportOptions, *, source: st
         empty file; one line naming the row or column.
     """
     in_log = options.gyro_columns if options.gyro_columns and gyro_lines is None else ()
-    columns = (*options.acc_columns, options.temp_column, *in_log)
+    temp_columns = (options.temp_column,) if options.temp_column is not None else ()
+    mag_columns = options.mag_columns or ()
+    columns = (*options.acc_columns, *temp_columns, *in_log, *mag_columns)
     main = _read_table(lines, options.time_column, columns, options, source)
     stamp_ns, table, line_numbers = main.stamp_ns, main.values, main.line_numbers
     accel_rows = _present(table[:, :3], options.acc_columns, source, line_numbers)
-    temp_rows = _present(table[:, 3:4], (options.temp_column,), source, line_numbers)
-    _check_not_constant(table[:, :4], columns[:4], source)  # a gyroscope at rest may read one value
+    temp_rows = (_present(table[:, 3:4], temp_columns, source, line_numbers) if temp_columns
+                 else np.zeros(len(stamp_ns), dtype=bool))
+    # A gyroscope at rest may read one value; so may a driver's temperature (a noise run).
+    driver = options.gyro_columns is not None
+    checked = 3 if driver else 3 + len(temp_columns)
+    _check_not_constant(table[:, :checked], columns[:checked], source)
     acceleration = table[accel_rows, :3] * ACC_UNITS[options.acc_unit]
-    temperature = table[temp_rows, 3].copy()
+    temperature = table[temp_rows, 3].copy() if temp_columns else np.zeros(0)
+    first = 3 + len(temp_columns)
     gyro = None
     if in_log:
-        gyro_rows = _present(table[:, 4:7], in_log, source, line_numbers)
-        gyro = (stamp_ns[gyro_rows], table[gyro_rows, 4:7] * GYRO_UNITS[options.gyro_unit])
-    elif gyro_lines is not None and options.gyro_columns is not None:
+        gyro_rows = _present(table[:, first:first + 3], in_log, source, line_numbers)
+        gyro = (stamp_ns[gyro_rows], table[gyro_rows, first:first + 3] * GYRO_UNITS[options.gyro_unit])
+    field = None
+    if mag_columns:
+        at = first + len(in_log)
+        mag_rows = _present(table[:, at:at + 3], mag_columns, source, line_numbers)
+        field = (stamp_ns[mag_rows], table[mag_rows, at:at + 3] * MAG_UNITS[options.mag_unit])
+    if gyro is None and gyro_lines is not None and options.gyro_columns is not None:
         own = _read_table(gyro_lines, options.gyro_time_column or options.time_column, options.gyro_columns,
                           options, gyro_source)
         rows = _present(own.values, options.gyro_columns, gyro_source, own.line_numbers)
@@ -356,7 +396,7 @@ def parse_csv_log(lines: Iterable[str], options: CsvImportOptions, *, source: st
     streams = _Streams(stamp_ns[accel_rows], stamp_ns[temp_rows], line_numbers[accel_rows], line_numbers[temp_rows])
     if gyro is not None:
         return _driver_log(streams, acceleration, gyro, temperature, options, source, main.delimiter, main.header,
-                           rows=len(stamp_ns))
+                           rows=len(stamp_ns), field=field)
     delimiter, header = main.delimiter, main.header
     if not len(streams.accel_stamp_ns):
         msg = f'{source}: no row holds the acceleration columns'
@@ -413,17 +453,18 @@ class _Streams:
 
 def _driver_log(streams: _Streams, acceleration: np.ndarray, gyro: tuple[np.ndarray, np.ndarray],
                 temperature: np.ndarray, options: CsvImportOptions, source: str, delimiter: str,
-                header: tuple[str, ...], *, rows: int) -> ImportedLog:
+                header: tuple[str, ...], *, rows: int,
+                field: tuple[np.ndarray, np.ndarray] | None = None) -> ImportedLog:
     """A log with gyroscope columns as a driver bag: values as logged (SI units), temperature in C.
 
-    Without ``--reference`` no reference topic is written: ``fit`` takes the run as static (the
-    mean direction scaled to gravity, zero rate), as for any driver bag recorded without one.
-    Where the accelerometer's and the gyroscope's stamps differ, each keeps its own.
+    Without ``--reference`` no reference topic is written and the board may move: ``fit`` takes
+    a run in one orientation as static (the mean direction scaled to gravity, zero rate), as for
+    any driver bag recorded without one, and decides what a moving one determines. Where the
+    accelerometer's and the gyroscope's stamps differ, each keeps its own. The temperature may be
+    constant or absent (``temperature`` empty: no temperature topic); the magnetic field
+    (``field``: its stamps and values in tesla) is written on ``/imu/mag``.
     """
     gyro_stamp_ns, rate = gyro
-    if np.ptp(temperature) <= 0.0:
-        msg = f'{source}: column {options.temp_column!r} does not vary: no temperature sweep'
-        raise LogError(msg)
     low, high = TEMPERATURE_RANGE['imu']
     outside = np.flatnonzero(~((temperature > low) & (temperature < high)))
     if outside.size:
@@ -435,7 +476,10 @@ def _driver_log(streams: _Streams, acceleration: np.ndarray, gyro: tuple[np.ndar
         if len(stamps) < 2:
             msg = f'{source}: {len(stamps)} rows hold the {name} columns: a run needs more'
             raise LogError(msg)
-    static, reference = _reference(acceleration, options, source, streams.accel_lines)
+    if field is not None:
+        _check_field(field[1], options, source)
+    static = static_reference(acceleration, gravity=options.gravity)
+    reference = np.asarray(options.reference, dtype=float) if options.reference is not None else static.specific_force
     accel_stamp_ns = streams.accel_stamp_ns
     shared = np.array_equal(accel_stamp_ns, gyro_stamp_ns)
     messages = accel_stamp_ns if shared else np.union1d(accel_stamp_ns, gyro_stamp_ns)
@@ -446,16 +490,28 @@ def _driver_log(streams: _Streams, acceleration: np.ndarray, gyro: tuple[np.ndar
     orientation_covariance[:, 0] = -1.0  # REP 145: a log gives no orientation
     given = options.reference is not None
     first = min(int(accel_stamp_ns[0]), int(gyro_stamp_ns[0]))
+    mag = {} if field is None else dict(mag_stamp_ns=field[0], mag=field[1], mag_frame_id=options.frame_id)
     driver = DriverRecord(
         stamp_ns=messages, accel=acceleration, gyro=rate, orientation=orientation,
         orientation_covariance=orientation_covariance, temp_stamp_ns=streams.temp_stamp_ns, temperature=temperature,
         reference_stamp_ns=np.array([first], dtype=np.int64) if given else np.zeros(0, dtype=np.int64),
-        reference=reference.reshape(1, 3) if given else np.zeros((0, 3)), frame_id=options.frame_id,
+        reference=reference.reshape(1, 3) if given else np.zeros((0, 3)), frame_id=options.frame_id, **mag,
         **({} if shared else {'accel_stamp_ns': accel_stamp_ns, 'gyro_stamp_ns': gyro_stamp_ns}))
     return ImportedLog(record=driver.channel('accel'), rows=rows, delimiter=delimiter, header=header,
                        acceleration=acceleration, temperature=temperature, reference=reference,
                        mean_direction=static.direction, reference_estimated=not given,
                        max_tilt_deg=static.max_tilt_deg, driver=driver)
+
+
+def _check_field(field: np.ndarray, options: CsvImportOptions, source: str) -> None:
+    """The magnetometer columns, in tesla, give a plausible field (else the unit is wrong), in one line."""
+    median = float(np.median(np.linalg.norm(field, axis=1)))
+    low, high = FIELD_RANGE_T
+    if not low <= median <= high:
+        columns = ' '.join(options.mag_columns or ())
+        msg = (f'{source}: columns {columns} in {options.mag_unit} give a median |B| of {median * 1e6:.3g} uT, '
+               f'outside {low * 1e6:g}..{high * 1e6:g} uT (the Earth\'s field is 22-67 uT): wrong --mag-unit?')
+        raise LogError(msg)
 
 
 def _first_non_blank(iterator) -> tuple[str | None, int]:

@@ -270,7 +270,8 @@ class AlignedSamples:
 
 
 def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: float = 0.0,
-          drop_saturated: bool = True, previous_stamp_ns: int | None = None) -> AlignedSamples:
+          drop_saturated: bool = True, previous_stamp_ns: int | None = None,
+          require_temperature: bool = True) -> AlignedSamples:
     """Hold temperature code and reference on the counts stamps and keep usable samples.
 
     Counts samples are left out, and counted by reason, in this order: the header stamp is
@@ -288,6 +289,9 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
 
     :param previous_stamp_ns: the stamp of the counts message before the record's first one
         (a run aligned in blocks, :mod:`tak_thermo_ros.core.records.blocks`), or ``None``.
+    :param require_temperature: ``False`` for a pass that reads no temperature (a record without
+        one, or a correction without temperature terms): no sample is left out for want of a
+        temperature, and a sample before the first one holds NaN.
     """
     stamps = record.counts_stamp_ns
     counts = record.counts
@@ -309,7 +313,8 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
     temp_problems = temp_code_problems(record.temp_code, record.input_kind)
     temp_index = _usable_hold_index(record.temp_stamp_ns, temp_problems, stamps,
                                     ignored_temp_codes)
-    leave_out('before_first_temp_code', temp_index < 0)
+    if require_temperature:
+        leave_out('before_first_temp_code', temp_index < 0)
     reference = None
     ignored_references: dict[str, int] = {}
     if use_reference and record.has_reference:
@@ -320,8 +325,10 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
         if settle_time_s > 0.0:
             leave_out('settling', _within_settle_time(record, stamps, settle_time_s, usable_references))
         reference = record.reference[reference_index[keep]]
-    return AlignedSamples(stamp_ns=stamps[keep], counts=counts[keep],
-                          temp_code=record.temp_code[temp_index[keep]].astype(float),
+    held_temp = temp_index[keep]
+    temp_code = np.where(held_temp >= 0, np.asarray(record.temp_code, dtype=float)[np.maximum(held_temp, 0)]
+                         if len(record.temp_code) else np.nan, np.nan)
+    return AlignedSamples(stamp_ns=stamps[keep], counts=counts[keep], temp_code=temp_code,
                           reference=reference, dropped=dropped, rows=np.flatnonzero(keep),
                           ignored_temp_codes=ignored_temp_codes, ignored_references=ignored_references,
                           aux={name: hold_signal(signal_stamps, values, stamps[keep])
