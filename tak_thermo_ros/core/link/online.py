@@ -25,10 +25,14 @@ The correction is :meth:`UnitCorrector.correct_sample`, bit-identical to the vec
 
 Bad input, each with a defined outcome, checks in this order:
 
-- a header stamp equal to (``duplicate_stamp``) or earlier than (``time_backwards``) the
-  previous input message's, whatever became of that one: dropped, as ``align()`` does offline;
+- a header stamp that does not go on from the previous input message's (whatever became of
+  that one) nor from the last kept one's: equal (``duplicate_stamp``), earlier
+  (``time_backwards``) or more than 10 s later (``stamp_jump``: a message stamped in the
+  future is dropped alone; after a real jump the next message goes on from it): dropped, by
+  :func:`~tak_thermo_ros.core.records.record.stamp_kept`, as ``align()`` does offline;
 - values NaN / infinite (``non_finite``), for counts also not whole (``non_integer``) or at
-  a 16-bit rail (``saturated``): dropped, never corrected;
+  a 16-bit rail (``saturated``), for a driver of magnitude 1e4 or more (``non_physical``):
+  dropped, never corrected;
 - no temperature yet: dropped (``waiting_for_temperature``) and a throttled warning;
 - temperature older than ``temp_timeout`` (on the arrival clock): held (``hold``) or the
   message dropped (``drop``: ``stale_temperature``); diagnostics at ERROR either way;
@@ -65,8 +69,12 @@ from tak_thermo_ros.core.link.model import Calibration, InputKind, UnitCalibrati
 from tak_thermo_ros.core.records.record import (
     DROP_REASONS,
     NANOSECONDS,
+    STAMP_JUMP_NS,
+    STAMP_JUMP_S,
     counts_problem,
     seconds,
+    stamp_kept,
+    stamp_problem,
     temp_code_problem,
     values_problem,
 )
@@ -74,11 +82,12 @@ from tak_thermo_ros.errors import CalibrationError
 
 DUPLICATE_STAMP = 'duplicate_stamp'
 TIME_BACKWARDS = 'time_backwards'
+STAMP_JUMP = 'stamp_jump'
 WAITING_FOR_TEMPERATURE = 'waiting_for_temperature'
 STALE_TEMPERATURE = 'stale_temperature'
 CORRECTION_FAILED = 'correction_failed'
 NON_FINITE_OUTPUT = 'non_finite_output'
-STAMP_DROP_REASONS: tuple[str, ...] = (DUPLICATE_STAMP, TIME_BACKWARDS)
+STAMP_DROP_REASONS: tuple[str, ...] = (DUPLICATE_STAMP, TIME_BACKWARDS, STAMP_JUMP)
 ONLINE_DROP_REASONS: tuple[str, ...] = (*STAMP_DROP_REASONS, *DROP_REASONS, WAITING_FOR_TEMPERATURE,
                                         STALE_TEMPERATURE, CORRECTION_FAILED, NON_FINITE_OUTPUT)
 """Why an input message is not published, in the order the checks run."""
@@ -174,11 +183,12 @@ class _Throttle:
         self.next_s = -math.inf
         self.held_back = 0
 
-    def due(self, now_s: float) -> bool:
+    def due(self, now_s: float, held: int = 1) -> bool:
+        """Whether a report is due now; if not, ``held`` more occurrences were held back (0: a tick)."""
         if now_s >= self.next_s:
             self.next_s = now_s + self.period_s
             return True
-        self.held_back += 1
+        self.held_back += held
         return False
 
     def take_held_back(self) -> int:
@@ -343,6 +353,7 @@ class OnlineCompensator:
         self.signal_messages: dict[str, int] = {}
         self.signal_rejected: dict[str, int] = {}
         self._last_stamp_ns: int | None = None
+        self._kept_stamp_ns: int | None = None
         self._temperature: float | None = None
         self._temp_arrival_s = -math.inf
         self._temp_outside = False
@@ -586,9 +597,10 @@ class OnlineCompensator:
         stamp_ns = sec * NANOSECONDS + nanosec
         last = self._last_stamp_ns
         self._last_stamp_ns = stamp_ns
-        if last is not None and stamp_ns <= last:
-            return self._drop_out_of_order(DUPLICATE_STAMP if stamp_ns == last else TIME_BACKWARDS,
-                                           stamp_ns, last, now_s)
+        if last is not None and not 0 < stamp_ns - last <= STAMP_JUMP_NS:  # stamp_kept, its usual case inline
+            if not stamp_kept(stamp_ns, last, self._kept_stamp_ns):
+                return self._drop_out_of_order(stamp_problem(stamp_ns - last), stamp_ns, last, now_s)
+        self._kept_stamp_ns = stamp_ns
         problem = self._problem(*values)
         if problem is not None:
             self.dropped[problem] += 1
@@ -673,11 +685,13 @@ class OnlineCompensator:
         self.dropped[reason] += 1
         if self._throttles['stamp_order'].due(now_s):
             held = self._throttles['stamp_order'].take_held_back()
-            relation = 'equal to' if reason == DUPLICATE_STAMP else f'{(last_ns - stamp_ns) * 1e-9:.6f} s before'
+            relation = ('equal to' if reason == DUPLICATE_STAMP
+                        else f'{abs(stamp_ns - last_ns) * 1e-9:.6f} s '
+                             f'{"before" if reason == TIME_BACKWARDS else f"(> {STAMP_JUMP_S:g} s) after"}')
             self._notice(Level.WARN, 'stamp_order',
                          f'{self._message_word} header stamp {relation} the previous one: dropped '
                          f'({self.dropped[DUPLICATE_STAMP]} duplicate, {self.dropped[TIME_BACKWARDS]} '
-                         f'backwards so far{self._since(held)})')
+                         f'backwards, {self.dropped[STAMP_JUMP]} jumped ahead so far{self._since(held)})')
         return reason
 
     def _drop_failed(self, reason: str, detail: str, now_s: float) -> str:
@@ -712,8 +726,8 @@ class OnlineCompensator:
                      f'({self.dropped[WAITING_FOR_TEMPERATURE]} {self._message_word} messages dropped so far'
                      f'{self._since(held)})')
 
-    def _report_stale(self, now_s: float) -> None:
-        if not self._throttles[STALE_TEMPERATURE].due(now_s):
+    def _report_stale(self, now_s: float, held: int = 1) -> None:
+        if not self._throttles[STALE_TEMPERATURE].due(now_s, held):
             return
         self._throttles[STALE_TEMPERATURE].take_held_back()
         self._stale_reported = True
@@ -743,12 +757,15 @@ class OnlineCompensator:
         return self._temperature is not None and now_s - self._temp_arrival_s > self._timeout_s
 
     def tick(self, now_s: float) -> None:
-        """Periodic checks that need no message (the node calls it with its diagnostics)."""
+        """Periodic checks that need no message (the node calls it with its diagnostics).
+
+        A tick is not a message: it holds nothing back (the reports count messages).
+        """
         if self._temperature is None:
-            if self._throttles[WAITING_FOR_TEMPERATURE].due(now_s):
+            if self._throttles[WAITING_FOR_TEMPERATURE].due(now_s, held=0):
                 self._report_waiting()
         elif self.is_stale(now_s):
-            self._report_stale(now_s)
+            self._report_stale(now_s, held=0)
 
     def dropped_total(self) -> int:
         """Input messages dropped, all reasons."""

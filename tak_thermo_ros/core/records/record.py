@@ -88,8 +88,13 @@ class ChannelRecord:
         return len(self.reference_stamp_ns) > 0
 
 
-DROP_REASONS = ('non_finite', 'non_integer', 'saturated')
-"""Why a counts sample is never corrected, in the order the checks run."""
+DROP_REASONS = ('non_finite', 'non_integer', 'saturated', 'non_physical')
+"""Why a sample is never corrected, in the order the checks run (counts: the first three; a
+driver's values: ``non_finite`` and ``non_physical``)."""
+VALUE_LIMIT = 1.0e4
+"""Magnitude from which a driver's value (m/s^2, rad/s, tesla) is non-physical: 1000 g, or
+95,000 rpm, beyond the full scale of any IMU (the calibration file's limit on offsets). Such a
+message is dropped (``non_physical``), never corrected: a corrupt field, not a measurement."""
 
 
 def counts_problem(x: float, y: float, z: float) -> str | None:
@@ -111,12 +116,16 @@ def counts_problem(x: float, y: float, z: float) -> str | None:
 def values_problem(*values: float) -> str | None:
     """Why one driver sample (any number of channels) cannot be corrected, or ``None``.
 
-    Driver values are already in SI units: only a NaN or an infinity is refused
-    (``non_finite``), as by :func:`counts_problems` with ``whole_codes=False``.
+    Driver values are already in SI units: a NaN or an infinity (``non_finite``) or a magnitude
+    of :data:`VALUE_LIMIT` or more (``non_physical``) is refused, as by :func:`counts_problems`
+    with ``whole_codes=False``.
     """
     for value in values:
-        if not isfinite(value):
-            return 'non_finite'
+        if not -VALUE_LIMIT < value < VALUE_LIMIT:  # also false for NaN
+            for other in values:
+                if not isfinite(other):
+                    return 'non_finite'
+            return 'non_physical'
     return None
 
 
@@ -125,22 +134,30 @@ def counts_problems(counts: np.ndarray, *, whole_codes: bool = True) -> dict[str
 
     :param counts: ``(k, c)`` values, one row per sample.
     :param whole_codes: the paper's codes (whole numbers inside the 16-bit range); ``False``
-        for a driver's values, where only ``non_finite`` applies.
+        for a driver's values, where ``non_finite`` and ``non_physical`` apply.
     """
     finite = np.all(np.isfinite(counts), axis=1)
-    if not whole_codes:
-        nothing = np.zeros(len(counts), dtype=bool)
-        return {'non_finite': ~finite, 'non_integer': nothing, 'saturated': nothing.copy()}
     safe = np.where(np.isfinite(counts), counts, 0.0)
+    nothing = np.zeros(len(counts), dtype=bool)
+    if not whole_codes:
+        large = np.any(np.abs(safe) >= VALUE_LIMIT, axis=1)
+        return {'non_finite': ~finite, 'non_integer': nothing, 'saturated': nothing.copy(),
+                'non_physical': finite & large}
     integer = np.all(safe == np.round(safe), axis=1)
     rail = np.any((safe <= COUNTS_MIN) | (safe >= COUNTS_MAX), axis=1)
     return {'non_finite': ~finite,
             'non_integer': finite & ~integer,
-            'saturated': finite & integer & rail}
+            'saturated': finite & integer & rail,
+            'non_physical': nothing}
 
 
-STAMP_DROP_REASONS = ('duplicate_stamp', 'time_backwards')
-"""Why a counts sample is left out for its header stamp, checked before :data:`DROP_REASONS`."""
+STAMP_DROP_REASONS = ('duplicate_stamp', 'time_backwards', 'stamp_jump')
+"""Why a sample is left out for its header stamp, checked before :data:`DROP_REASONS`."""
+STAMP_JUMP_S = 10.0
+"""Largest forward step of the header stamp from one message to the next that is taken as the
+stream going on; a larger one is a ``stamp_jump`` (a message stamped in the future, or a pause
+or clock step, which the next message then confirms)."""
+STAMP_JUMP_NS = int(STAMP_JUMP_S * NANOSECONDS)
 TEMP_CODE_PROBLEMS = ('non_finite', 'implausible')
 """Why a temperature code is ignored (not held)."""
 
@@ -194,26 +211,70 @@ def _usable_hold_index(source_stamp_ns: np.ndarray, problems: dict[str, np.ndarr
     return np.where(held >= 0, rows[np.maximum(held, 0)], -1)
 
 
-def stamp_problems(stamp_ns: np.ndarray, *, previous_stamp_ns: int | None = None) -> dict[str, np.ndarray]:
+def stamp_problem(step_ns: int) -> str:
+    """The reason a message whose stamp is ``step_ns`` after the previous message's is dropped.
+
+    Only asked of a message :func:`stamp_kept` refuses: ``duplicate_stamp`` (equal),
+    ``time_backwards`` (earlier) or ``stamp_jump`` (more than :data:`STAMP_JUMP_S` later).
+    """
+    if step_ns == 0:
+        return 'duplicate_stamp'
+    return 'time_backwards' if step_ns < 0 else 'stamp_jump'
+
+
+def stamp_kept(stamp_ns: int, previous_ns: int | None, kept_ns: int | None) -> bool:
+    """The stamp rule, one message at a time (the node's, and :func:`stamp_problems`' own).
+
+    A message is kept when its header stamp is later than the previous message's (whatever
+    became of that one) by at most :data:`STAMP_JUMP_S`, or later than the last kept message's
+    by at most that. So a stream 1, 2, 3, 10, 4, 5 s drops the 4 (the 10 was kept); a stream
+    1, 2, 3, 3603, 4, 5 s drops the 3603 alone (stamped an hour ahead), and the 4 goes on
+    from the 3; after a real jump (1, 2, 3, 3603, 3604, ...: a pause or a clock step) the
+    first message after it is dropped and the next one, going on from it, is kept.
+
+    :param previous_ns: the previous message's stamp, or ``None`` for the first message.
+    :param kept_ns: the stamp of the last message kept, or ``None``.
+    """
+    if previous_ns is None or 0 < stamp_ns - previous_ns <= STAMP_JUMP_NS:
+        return True
+    return kept_ns is not None and 0 < stamp_ns - kept_ns <= STAMP_JUMP_NS
+
+
+def stamp_problems(stamp_ns: np.ndarray, *, previous_stamp_ns: int | None = None,
+                   kept_stamp_ns: int | None = None) -> dict[str, np.ndarray]:
     """Masks ``(k,)`` per reason of :data:`STAMP_DROP_REASONS`, in bag (arrival) order.
 
-    A counts sample whose header stamp equals the previous counts message's (whatever became
-    of that one) is a ``duplicate_stamp``; one stamped earlier is ``time_backwards``. The node
+    :func:`stamp_kept` on every message, vectorised (the messages that do not simply go on from
+    the previous one are taken one by one); the reason is :func:`stamp_problem`'s. The node
     applies the same rule per message.
 
     :param previous_stamp_ns: the stamp of the message before the first one (a run read in
         blocks), or ``None``.
+    :param kept_stamp_ns: the stamp of the last message kept before the first one, or ``None``.
     """
     stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
-    if previous_stamp_ns is not None:
-        with_previous = np.concatenate([np.array([previous_stamp_ns], dtype=np.int64), stamp_ns])
-        return {reason: mask[1:] for reason, mask in stamp_problems(with_previous).items()}
-    duplicate = np.zeros(len(stamp_ns), dtype=bool)
-    backwards = np.zeros(len(stamp_ns), dtype=bool)
-    if len(stamp_ns) > 1:
-        duplicate[1:] = stamp_ns[1:] == stamp_ns[:-1]
-        backwards[1:] = stamp_ns[1:] < stamp_ns[:-1]
-    return {'duplicate_stamp': duplicate, 'time_backwards': backwards}
+    count = len(stamp_ns)
+    step = np.zeros(count, dtype=np.int64)
+    regular = np.ones(count, dtype=bool)
+    if count:
+        step[1:] = stamp_ns[1:] - stamp_ns[:-1]
+        if previous_stamp_ns is not None:
+            step[0] = stamp_ns[0] - previous_stamp_ns
+        regular = (step > 0) & (step <= STAMP_JUMP_NS)
+        if previous_stamp_ns is None:
+            regular[0] = True
+    kept = regular.copy()
+    last_kept = kept_stamp_ns
+    for index in np.flatnonzero(~regular).tolist():
+        if index > 0 and kept[index - 1]:
+            last_kept = int(stamp_ns[index - 1])
+        previous = int(stamp_ns[index - 1]) if index else previous_stamp_ns
+        kept[index] = stamp_kept(int(stamp_ns[index]), previous, last_kept)
+        if kept[index]:
+            last_kept = int(stamp_ns[index])
+    dropped = ~kept
+    return {'duplicate_stamp': dropped & (step == 0), 'time_backwards': dropped & (step < 0),
+            'stamp_jump': dropped & (step > 0)}
 
 
 def hold_last_index(source_stamp_ns: np.ndarray, target_stamp_ns: np.ndarray) -> np.ndarray:
@@ -241,6 +302,8 @@ class AlignedSamples:
     :param ignored_references: the same for reference messages (:func:`reference_problems`).
     :param aux: recorded signal name -> ``(k,)`` its value held at each kept sample's stamp
         (NaN before its first finite value; :func:`require_signals` leaves those samples out).
+    :param kept_stamp_ns: the stamp of the last sample the stamp rule kept (whatever the other
+        checks made of it), for the next block of a run, or ``None``.
     """
 
     stamp_ns: np.ndarray
@@ -252,6 +315,7 @@ class AlignedSamples:
     ignored_temp_codes: dict[str, int] = field(default_factory=dict)
     ignored_references: dict[str, int] = field(default_factory=dict)
     aux: dict[str, np.ndarray] = field(default_factory=dict)
+    kept_stamp_ns: int | None = None
 
     def __len__(self) -> int:
         return len(self.stamp_ns)
@@ -270,14 +334,17 @@ class AlignedSamples:
 
 
 def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: float = 0.0,
-          drop_saturated: bool = True, previous_stamp_ns: int | None = None) -> AlignedSamples:
+          drop_saturated: bool = True, previous_stamp_ns: int | None = None,
+          kept_stamp_ns: int | None = None) -> AlignedSamples:
     """Hold temperature code and reference on the counts stamps and keep usable samples.
 
-    Counts samples are left out, and counted by reason, in this order: the header stamp is
-    not later than the previous counts message's (:func:`stamp_problems`: ``duplicate_stamp``,
-    ``time_backwards``); for the reasons of :func:`counts_problems`: a code is NaN or infinite
-    (``non_finite``), not a whole number (``non_integer``), or at a 16-bit rail (``saturated``,
-    unless ``drop_saturated`` is false); no temperature code has arrived yet
+    Counts samples are left out, and counted by reason, in this order: the header stamp does
+    not go on from the previous message's or the last kept one's (:func:`stamp_kept`:
+    ``duplicate_stamp``, ``time_backwards``, ``stamp_jump``); for the reasons of
+    :func:`counts_problems`: a code is NaN or infinite (``non_finite``), not a whole number
+    (``non_integer``), or at a 16-bit rail (``saturated``, unless ``drop_saturated`` is false),
+    a driver's value of magnitude :data:`VALUE_LIMIT` or more (``non_physical``); no
+    temperature code has arrived yet
     (``before_first_temp_code``); no reference yet (``before_first_reference``); within
     ``settle_time_s`` after a reference change (``settling``).
 
@@ -288,6 +355,8 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
 
     :param previous_stamp_ns: the stamp of the counts message before the record's first one
         (a run aligned in blocks, :mod:`tak_thermo_ros.core.records.blocks`), or ``None``.
+    :param kept_stamp_ns: the stamp of the last counts message the stamp rule kept before the
+        record's first one (blocks), or ``None``.
     """
     stamps = record.counts_stamp_ns
     counts = record.counts
@@ -300,8 +369,12 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
             dropped[reason] = dropped.get(reason, 0) + int(np.count_nonzero(newly))
             keep[newly] = False
 
-    for reason, mask in stamp_problems(stamps, previous_stamp_ns=previous_stamp_ns).items():
+    for reason, mask in stamp_problems(stamps, previous_stamp_ns=previous_stamp_ns,
+                                       kept_stamp_ns=kept_stamp_ns).items():
         leave_out(reason, mask)
+    stamp_kept_rows = np.flatnonzero(keep)
+    if len(stamp_kept_rows):
+        kept_stamp_ns = int(stamps[stamp_kept_rows[-1]])
     for reason, mask in counts_problems(counts, whole_codes=record.input_kind == 'counts').items():
         if reason != 'saturated' or drop_saturated:
             leave_out(reason, mask)
@@ -325,7 +398,8 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
                           reference=reference, dropped=dropped, rows=np.flatnonzero(keep),
                           ignored_temp_codes=ignored_temp_codes, ignored_references=ignored_references,
                           aux={name: hold_signal(signal_stamps, values, stamps[keep])
-                               for name, (signal_stamps, values) in record.aux.items()})
+                               for name, (signal_stamps, values) in record.aux.items()},
+                          kept_stamp_ns=kept_stamp_ns)
 
 
 def hold_signal(source_stamp_ns: np.ndarray, values: np.ndarray, target_stamp_ns: np.ndarray) -> np.ndarray:
