@@ -217,7 +217,8 @@ class CompensatorNode(Node):
         self._signal_subscriptions: dict[str, Any] = {}
         deadline = time.monotonic() + SIGNAL_DISCOVERY_S
         self._subscribe_signals()
-        while len(self._signal_subscriptions) < len(self._core.signals) and time.monotonic() < deadline:
+        while (len(self._signal_subscriptions) < len(self._core.signals) and time.monotonic() < deadline
+               and self.context.ok()):
             time.sleep(0.05)
             self._subscribe_signals()
         if self._mag_core is not None:
@@ -587,9 +588,9 @@ def main(args: Sequence[str] | None = None, *, signals: SignalGuard | None = Non
     """Entry point of ``compensator`` (Jazzy node skeleton); 2 when it cannot start.
 
     A SIGINT or SIGTERM at any moment ends it with status 0 (``signals``, installed here when
-    the caller has not: :mod:`tak_thermo_ros.node_main`); one that comes while it starts
-    interrupts whatever rclpy was doing, which then fails on the shut-down context: it says
-    so in one line, no traceback.
+    the caller has not: :mod:`tak_thermo_ros.node_main`). One that comes while it starts stops
+    the imports or ``rclpy.init``, or shuts the context down under the node being built, whose
+    next rcl call then fails: that failure is the stop, said in one line, no traceback.
     """
     signals = signals if signals is not None else SignalGuard().install()
     node = executor = None
@@ -606,6 +607,7 @@ def main(args: Sequence[str] | None = None, *, signals: SignalGuard | None = Non
             print(f'[FATAL] [{NODE_NAME}]: cannot start: {detail[0] if detail else type(err).__name__}',
                   file=sys.stderr)
             return EXIT_ERROR
+        signals.disarm()  # rclpy's handlers shut the context down from now on
         try:
             node = CompensatorNode()
         except (TakError, ValueError) as err:
@@ -625,7 +627,7 @@ def main(args: Sequence[str] | None = None, *, signals: SignalGuard | None = Non
     finally:
         # Ctrl-C under `ros2 launch` reaches the node twice (the terminal's process group, then
         # launch forwarding it): a second signal must not break the teardown with a traceback.
-        signals.quiet()
+        signals.disarm()
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         if executor is not None:
             executor.shutdown()

@@ -19,18 +19,21 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 class SignalGuard:
-    """SIGINT and SIGTERM: the first raises :class:`KeyboardInterrupt` in the main thread, later ones nothing.
+    """SIGINT and SIGTERM while the node starts: remembered, and before rclpy is initialised, raised.
 
-    Installed for both signals before rclpy, whose own handlers (shut the context down) then
-    call it after theirs. So a SIGTERM ends the node as a SIGINT does, at any moment, and a
-    second signal (``ros2 launch`` forwards Ctrl-C to a node that had it already) cannot break
-    the teardown.
+    Installed for both signals before the imports. Until :meth:`disarm` (called once rclpy is
+    initialised), the first signal raises :class:`KeyboardInterrupt` in the main thread: the
+    imports or ``rclpy.init`` stop there. From then on rclpy's own handlers, which call this
+    one after theirs, shut the context down, and this one only remembers the signal: raising
+    then could land inside rclpy's C++ (the EventsExecutor calls Python while it adds the
+    node), which aborts the process; rcl calls on the shut-down context fail instead, and the
+    node takes that failure for the stop it is.
     """
 
     def __init__(self) -> None:
         self.received: str | None = None
         """Name of the first signal received (``'SIGTERM'``), or ``None``."""
-        self._quiet = False
+        self._armed = True
 
     def install(self) -> SignalGuard:
         """Handle both signals from now on; the guard itself."""
@@ -38,15 +41,16 @@ class SignalGuard:
             signal.signal(number, self._on_signal)
         return self
 
-    def quiet(self) -> None:
-        """From now on take signals without raising (the node is being torn down)."""
-        self._quiet = True
+    def disarm(self) -> None:
+        """From now on remember signals without raising (rclpy's handlers stop the node)."""
+        self._armed = False
 
     def _on_signal(self, number: int, frame: Any) -> None:
-        if self.received is not None or self._quiet:
-            return
-        self.received = signal.Signals(number).name
-        raise KeyboardInterrupt
+        if self.received is None:
+            self.received = signal.Signals(number).name
+        if self._armed:
+            self._armed = False
+            raise KeyboardInterrupt
 
     def say_stopped(self, name: str) -> None:
         """One line saying the node stopped on the signal before it was running."""
@@ -58,8 +62,10 @@ def main(args: Sequence[str] | None = None) -> int:
     signals = SignalGuard().install()
     try:
         from tak_thermo_ros import node
-    except KeyboardInterrupt:
-        signals.quiet()
+    except BaseException:  # the KeyboardInterrupt, or what an extension module's import made of it
+        if signals.received is None:
+            raise
+        signals.disarm()
         signals.say_stopped('compensator')
         return 0
     return node.main(args, signals=signals)
