@@ -174,7 +174,13 @@ class Configuration:
 
 
 class _Throttle:
-    """First report at once, then at most one per period, counting what was held back."""
+    """First report at once, then at most one per period, counting what happened since the last one.
+
+    What it counts is what the report's "so far" counts (messages, samples, messages lost), the
+    occurrence that makes a report due included, so that a report's "N more since the last
+    report" is its "so far" less the previous report's. A periodic check that makes a report due
+    (a tick) counts nothing.
+    """
 
     __slots__ = ('period_s', 'next_s', 'held_back')
 
@@ -183,15 +189,17 @@ class _Throttle:
         self.next_s = -math.inf
         self.held_back = 0
 
-    def due(self, now_s: float, held: int = 1) -> bool:
-        """Whether a report is due now; if not, ``held`` more occurrences were held back (0: a tick)."""
+    def due(self, now_s: float, count: int = 1) -> bool:
+        """Count ``count`` occurrences (0: a tick); whether a report is due now."""
+        if self.next_s > -math.inf:  # the first report has nothing "since the last report"
+            self.held_back += count
         if now_s >= self.next_s:
             self.next_s = now_s + self.period_s
             return True
-        self.held_back += held
         return False
 
     def take_held_back(self) -> int:
+        """What was counted since the last report, and start again."""
         held, self.held_back = self.held_back, 0
         return held
 
@@ -646,7 +654,7 @@ class OnlineCompensator:
         if count <= 0:
             return
         self.lost[stream] = self.lost.get(stream, 0) + count
-        if self._throttles['message_lost'].due(now_s):
+        if self._throttles['message_lost'].due(now_s, count):
             held = self._throttles['message_lost'].take_held_back()
             self._notice(Level.WARN, 'message_lost',
                          f'{count} {stream} messages lost in transport ({self.lost_total()} so far'
@@ -667,7 +675,7 @@ class OnlineCompensator:
             return
         gap = number - last - 1
         self.sequence_gaps[stream] = self.sequence_gaps.get(stream, 0) + gap
-        if self._throttles['sequence_gap'].due(now_s):
+        if self._throttles['sequence_gap'].due(now_s, gap):
             held = self._throttles['sequence_gap'].take_held_back()
             self._notice(Level.WARN, 'sequence_gap',
                          f'{gap} {stream} messages never received (publication sequence numbers '
@@ -726,8 +734,8 @@ class OnlineCompensator:
                      f'({self.dropped[WAITING_FOR_TEMPERATURE]} {self._message_word} messages dropped so far'
                      f'{self._since(held)})')
 
-    def _report_stale(self, now_s: float, held: int = 1) -> None:
-        if not self._throttles[STALE_TEMPERATURE].due(now_s, held):
+    def _report_stale(self, now_s: float, count: int = 1) -> None:
+        if not self._throttles[STALE_TEMPERATURE].due(now_s, count):
             return
         self._throttles[STALE_TEMPERATURE].take_held_back()
         self._stale_reported = True
@@ -762,10 +770,10 @@ class OnlineCompensator:
         A tick is not a message: it holds nothing back (the reports count messages).
         """
         if self._temperature is None:
-            if self._throttles[WAITING_FOR_TEMPERATURE].due(now_s, held=0):
+            if self._throttles[WAITING_FOR_TEMPERATURE].due(now_s, 0):
                 self._report_waiting()
         elif self.is_stale(now_s):
-            self._report_stale(now_s, held=0)
+            self._report_stale(now_s, 0)
 
     def dropped_total(self) -> int:
         """Input messages dropped, all reasons."""
