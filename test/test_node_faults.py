@@ -15,7 +15,16 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from node_helpers import NANOSECONDS, Harness, NodeProcess, node_command, run_to_exit, stamp_of, status_values, wait_until
+from node_helpers import (
+    NANOSECONDS,
+    Harness,
+    NodeProcess,
+    node_command,
+    run_to_exit,
+    stamp_of,
+    status_values,
+    wait_until,
+)
 from tak_thermo_ros.core.link.correction import UnitCorrector
 from tak_thermo_ros.core.records.record import stamp_problems
 from tak_thermo_ros.core.simulation.imu import Scenario
@@ -80,11 +89,12 @@ MOMENTS = [('importing', signal.SIGINT), ('rclpy_up', signal.SIGTERM), ('reading
 
 
 def test_a_signal_at_any_moment_of_start_up_ends_the_node_cleanly(tmp_path, ros_env):
-    """SIGINT or SIGTERM while the node imports, while rclpy is up and the node is built, while it
-    reads its calibration (a FIFO holds it there), and as it becomes ready: exit 0, no traceback.
+    """SIGINT or SIGTERM at six moments of start-up: exit 0, no traceback.
 
-    Each moment is reached by a condition on the process (its signal mask, its sockets, its open
-    FIFO, its log line), not by a sleep.
+    While the node imports, while rclpy is up and the node is built, while it reads its
+    calibration (a FIFO holds it there), and as it becomes ready. Each moment is reached by a
+    condition on the process (its signal mask, its sockets, its open FIFO, its log line), not by
+    a sleep.
     """
     params = driver_params(tmp_path / 'params.yaml')
     for index, (moment, number) in enumerate(MOMENTS):
@@ -119,8 +129,10 @@ def test_a_signal_at_any_moment_of_start_up_ends_the_node_cleanly(tmp_path, ros_
 # -- 2. two compensators on one /diagnostics --------------------------------------------------------
 
 def test_two_compensators_in_two_namespaces_are_told_apart_in_diagnostics(tmp_path, ros_env):
-    """The README's two-IMU set-up, one file: each status names its node (/imu0/compensator,
-    /imu1/compensator) and carries its unit's hardware_id, before the first Imu already."""
+    """The README's two-IMU set-up, one file: each status names its node and carries its unit's id.
+
+    /imu0/compensator and /imu1/compensator, with their hardware_id, before the first Imu already.
+    """
     params = driver_params(tmp_path / 'params.yaml')
     domain = int(ros_env['ROS_DOMAIN_ID'])
     with NodeProcess(node_command('-r', '__ns:=/imu0', '--params-file', str(params), '-p', 'hardware_id:=SN-0'),
@@ -144,9 +156,12 @@ def test_two_compensators_in_two_namespaces_are_told_apart_in_diagnostics(tmp_pa
 # -- 4 and 5. a future-stamped Imu, a non-physical one, a nonsense parameter ----------------------
 
 def test_a_future_stamped_imu_costs_only_itself_and_nonsense_is_refused(tmp_path, ros_env):
-    """An Imu stamped an hour ahead is dropped and said, the good one after it published (the
-    offline rule drops the same); an Imu of 1e308 m/s^2 is dropped and counted; a live
-    offset_shape that makes the gyroscope read 31 rad/s is refused, the old correction stays."""
+    """An Imu stamped an hour ahead costs only itself; 1e308 m/s^2 is dropped; a nonsense update is refused.
+
+    The outlier is dropped and said, the good Imu after it published (the offline rule drops the
+    same); the 1e308 one dropped and counted; a live offset_shape that makes the gyroscope read
+    31 rad/s refused, the old correction still published.
+    """
     params = driver_params(tmp_path / 'params.yaml', qos='reliable')
     corrector = UnitCorrector(DRIVER_UNIT)
     hour = 3600 * NANOSECONDS
@@ -196,4 +211,3 @@ def test_an_implausible_calibration_file_is_refused_in_one_line(tmp_path, ros_en
     lines = (result.stdout + result.stderr).strip().splitlines()
     assert result.returncode == 2 and len(lines) == 1, lines
     assert '[FATAL]' in lines[0] and 'calibration.gyro.z.offset_shape: the offset drifts by' in lines[0]
-

@@ -84,8 +84,10 @@ def test_the_docs_state_the_temperature_bounds_the_code_applies():
 
 
 def test_a_throttled_report_counts_messages_not_its_own_ticks():
-    """Messages at 10 Hz without a temperature and the 1 Hz diagnostics ticks: each report's
-    "N more since the last report" is its "so far" less the previous report's, ticks or not."""
+    """A report's "N more since the last report" is its "so far" less the previous one's, ticks or not.
+
+    Messages at 10 Hz without a temperature, the diagnostics ticking at 1 Hz in between.
+    """
     core = OnlineCompensator(DRIVER)
     reports = []
     for k in range(200):  # 20 s
@@ -123,8 +125,11 @@ def test_bad_counts_dropped_by_reason_as_apply_drops_them(counts, reason):
 
 
 def test_a_future_stamped_outlier_is_dropped_and_said_not_the_good_message_after_it():
-    """1, 2, 3, 3603, 4, 5 s: the 3603 alone is dropped (stamp_jump) and said; a real jump (a pause, a
-    clock step) costs its first message, the next goes on from it; the offline rule drops the same."""
+    """1, 2, 3, 3603, 4, 5 s: the 3603 alone is dropped (stamp_jump), and said.
+
+    A real jump (a pause, a clock step) costs its first message, the next goes on from it; the
+    offline rule drops the same.
+    """
     core = make()
     core.process_temperature(8200.0, now_s=0.0)
     seconds = [1, 2, 3, 3603, 4, 5, 100, 101, 102, 50, 51]
