@@ -770,7 +770,7 @@ def measure_transport_loss(params: Path, workdir: Path, *, count: int = TRANSPOR
     return rows
 
 
-def in_process_driver_cost(params: Path, count: int = 50_000) -> dict:
+def in_process_driver_cost(params: Path, count: int = 50_000, *, with_sequence: bool = True) -> dict:
     """Microseconds per message of the driver-input callback's own work, without DDS.
 
     The six values out of an Imu, ``process_values``, the corrected Imu filled (as ``_on_imu``);
@@ -823,15 +823,46 @@ def in_process_driver_cost(params: Path, count: int = 50_000) -> dict:
             on_imu(message, k + 1)
 
     timings = {}
-    for name, path in (('driver_callback_us', compensator_path), ('without_sequence_us', without_sequence)):
+    paths = (('driver_callback_us', compensator_path), ('without_sequence_us', without_sequence))
+    for name, path in paths if with_sequence else paths[1:]:
         best = float('inf')
         for _ in range(3):
             started = time.perf_counter()
             path()
             best = min(best, time.perf_counter() - started)
         timings[name] = best / count * 1e6
+    if not with_sequence:
+        return {**timings, 'messages': count}
     return {**timings, 'sequence_us': timings['driver_callback_us'] - timings['without_sequence_us'],
             'messages': count}
+
+
+IN_PROCESS_ROUNDS = 7
+
+
+def in_process_against_baseline(params: Path, baseline: Path, rounds: int = IN_PROCESS_ROUNDS) -> dict:
+    """The callback's own work in this version and in the baseline's, fresh interpreters taking turns.
+
+    Both without the sequence-number wrapper (the baseline's EventsExecutor path had none), then
+    this version's whole path; the ratio is the median of the per-round ratios.
+    """
+    runs: dict[str, list[dict]] = {'this': [], 'baseline': []}
+    for _ in range(rounds):
+        for name, tree in (('this', REPO), ('baseline', baseline.resolve())):
+            code = (f'import sys, json; sys.path.insert(0, {str(tree)!r}); '
+                    f'sys.path.insert(1, {str(Path(__file__).parent)!r}); '
+                    f'import bench_node; print(json.dumps(bench_node.in_process_driver_cost('
+                    f'bench_node.Path({str(params)!r}), 20_000, with_sequence={name == "this"})))')
+            result = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, check=True)
+            runs[name].append(json.loads(result.stdout.strip().splitlines()[-1]))
+    ratios = [t['without_sequence_us'] / b['without_sequence_us'] for t, b in zip(runs['this'], runs['baseline'])]
+    return {'rounds': rounds, 'runs': runs,
+            'this_without_sequence_us_median': statistics.median(r['without_sequence_us'] for r in runs['this']),
+            'baseline_us_median': statistics.median(r['without_sequence_us'] for r in runs['baseline']),
+            'this_with_sequence_us_median': statistics.median(r['driver_callback_us'] for r in runs['this']),
+            'ratio_without_sequence_median': statistics.median(ratios),
+            'ratio_with_sequence_median': statistics.median(
+                t['driver_callback_us'] / b['without_sequence_us'] for t, b in zip(runs['this'], runs['baseline']))}
 
 
 def driver_params(path: Path) -> None:
@@ -855,6 +886,8 @@ def driver_only(*, quick: bool, baseline: Path | None = None) -> int:
         driver_input['transport_loss'] = measure_transport_loss(params, workdir,
                                                                 count=2_000 if quick else TRANSPORT_BURST)
         driver_input['in_process'] = in_process_driver_cost(params)
+        if baseline is not None:
+            driver_input['in_process_against_baseline'] = in_process_against_baseline(params, baseline)
     driver_input['wall_s'] = time.time() - started
     driver_input['load_average_1min_before'] = load
     driver_input['load_average_1min_after'] = os.getloadavg()[0]
