@@ -171,7 +171,7 @@ def test_a_future_stamped_imu_costs_only_itself_and_nonsense_is_refused(tmp_path
             (START_NS + 5_000_000, (1e308, *GOOD[1:])),  # non-physical
             (START_NS + 6_000_000, GOOD)]
     stamps = np.array([stamp for stamp, _ in sent], dtype=np.int64)
-    offline = stamp_problems(stamps)
+    offline, _ = stamp_problems(stamps)
     assert offline['stamp_jump'].tolist() == [False, False, True, False, False, False, False]
     expected = [stamp for (stamp, values), jump in zip(sent, offline['stamp_jump']) if not jump and values == GOOD]
     with NodeProcess(node_command('--params-file', str(params)), ros_env, tmp_path / 'node.log') as node, \

@@ -132,16 +132,40 @@ def test_a_future_stamped_outlier_is_dropped_and_said_not_the_good_message_after
     """
     core = make()
     core.process_temperature(8200.0, now_s=0.0)
-    seconds = [1, 2, 3, 3603, 4, 5, 100, 101, 102, 50, 51]
+    seconds = [1, 2, 3, 3603, 4, 5, 500, 501, 502, 50, 51]  # steps of 1 s: a jump is beyond 100 s
     results = [core.process_counts(SEC + t, 0, 1.0, 2.0, 3.0, now_s=0.1) for t in seconds]
     reasons = [r if isinstance(r, str) else 'published' for r in results]
     assert reasons == ['published', 'published', 'published', 'stamp_jump', 'published', 'published',
                        'stamp_jump', 'published', 'published', 'time_backwards', 'published']
-    offline = stamp_problems(np.array([(SEC + t) * 1_000_000_000 for t in seconds], dtype=np.int64))
+    offline, _ = stamp_problems(np.array([(SEC + t) * 1_000_000_000 for t in seconds], dtype=np.int64))
     assert [next((r for r, mask in offline.items() if mask[i]), 'published') for i in range(len(seconds))] == reasons
     notice = core.take_notices()[0]
     assert notice.kind == 'stamp_order' and 'header stamp 3600.000000 s (> 10 s) after the previous one' in notice.text
     assert core.status(0.2).value('dropped.stamp_jump') == '2' and balanced(core)
+    # A sparse stream (a message every 30 s) goes on 30 s at a time; an hour ahead is still a jump.
+    sparse = make()
+    sparse.process_temperature(8200.0, now_s=0.0)
+    seconds = [0, 30, 60, 90, 3690, 120, 150]
+    results = [sparse.process_counts(SEC + t, 0, 1.0, 2.0, 3.0, now_s=0.1) for t in seconds]
+    assert [r if isinstance(r, str) else 'published' for r in results] == ['published'] * 4 + [
+        'stamp_jump', 'published', 'published']
+
+
+def test_the_stamp_rule_across_blocks_is_the_rule_over_the_whole_run():
+    """stamp_problems over a run cut in blocks (its history carried) drops what it drops over the whole run."""
+    rng = np.random.default_rng(3)
+    steps = rng.choice([1_000_000, 2_000_000, 0, -3_000_000, 3_600_000_000_000, -3_600_000_000_000,
+                        30_000_000_000], size=400, p=[0.6, 0.2, 0.04, 0.04, 0.04, 0.04, 0.04])
+    stamps = SEC * 1_000_000_000 + np.cumsum(steps)
+    whole, _ = stamp_problems(stamps)
+    assert all(whole[reason].any() for reason in STAMP_DROP_REASONS)
+    cuts = sorted(rng.choice(np.arange(1, 400), size=12, replace=False).tolist())
+    history, parts = None, []
+    for start, end in zip([0, *cuts], [*cuts, 400]):
+        masks, history = stamp_problems(stamps[start:end], history=history)
+        parts.append(masks)
+    for reason in STAMP_DROP_REASONS:
+        assert np.array_equal(np.concatenate([part[reason] for part in parts]), whole[reason])
 
 
 def test_backwards_and_duplicate_stamps_dropped_counted():
@@ -501,7 +525,7 @@ def test_generated_streams_keep_every_invariant(events):
                 except CalibrationError:
                     assert what.startswith(('absurd', 'tiny')) and core.unit is before
         assert balanced(core)
-    offline = stamp_problems(np.array(stamps_sent, dtype=np.int64))
+    offline, _ = stamp_problems(np.array(stamps_sent, dtype=np.int64))
     assert stamp_drops == [next((reason for reason, mask in offline.items() if mask[i]), None)
                            for i in range(len(stamps_sent))]
     for corrector, values, temperatures, stamps, results in published.values():

@@ -27,9 +27,10 @@ Bad input, each with a defined outcome, checks in this order:
 
 - a header stamp that does not go on from the previous input message's (whatever became of
   that one) nor from the last kept one's: equal (``duplicate_stamp``), earlier
-  (``time_backwards``) or more than 10 s later (``stamp_jump``: a message stamped in the
-  future is dropped alone; after a real jump the next message goes on from it): dropped, by
-  :func:`~tak_thermo_ros.core.records.record.stamp_kept`, as ``align()`` does offline;
+  (``time_backwards``) or later by more than 10 s and 100 steps of the stream (``stamp_jump``: a
+  message stamped in the future is dropped alone; after a real jump the next message goes on
+  from it): dropped, by :func:`~tak_thermo_ros.core.records.record.stamp_kept`, as ``align()``
+  does offline;
 - values NaN / infinite (``non_finite``), for counts also not whole (``non_integer``) or at
   a 16-bit rail (``saturated``), for a driver of magnitude 1e4 or more (``non_physical``):
   dropped, never corrected;
@@ -71,6 +72,7 @@ from tak_thermo_ros.core.records.record import (
     NANOSECONDS,
     STAMP_JUMP_NS,
     STAMP_JUMP_S,
+    StampHistory,
     counts_problem,
     seconds,
     stamp_kept,
@@ -362,6 +364,7 @@ class OnlineCompensator:
         self.signal_rejected: dict[str, int] = {}
         self._last_stamp_ns: int | None = None
         self._kept_stamp_ns: int | None = None
+        self._stream_step_ns: int | None = None
         self._temperature: float | None = None
         self._temp_arrival_s = -math.inf
         self._temp_outside = False
@@ -605,9 +608,12 @@ class OnlineCompensator:
         stamp_ns = sec * NANOSECONDS + nanosec
         last = self._last_stamp_ns
         self._last_stamp_ns = stamp_ns
-        if last is not None and not 0 < stamp_ns - last <= STAMP_JUMP_NS:  # stamp_kept, its usual case inline
-            if not stamp_kept(stamp_ns, last, self._kept_stamp_ns):
+        kept = self._kept_stamp_ns
+        # stamp_kept and StampHistory.after, their usual case (a step forward within 10 s) inline
+        if last is not None and not 0 < stamp_ns - last <= STAMP_JUMP_NS:
+            if not stamp_kept(stamp_ns, StampHistory(last, kept, self._stream_step_ns)):
                 return self._drop_out_of_order(stamp_problem(stamp_ns - last), stamp_ns, last, now_s)
+        self._stream_step_ns = stamp_ns - kept if kept is not None and stamp_ns > kept else None
         self._kept_stamp_ns = stamp_ns
         problem = self._problem(*values)
         if problem is not None:

@@ -154,10 +154,17 @@ def counts_problems(counts: np.ndarray, *, whole_codes: bool = True) -> dict[str
 STAMP_DROP_REASONS = ('duplicate_stamp', 'time_backwards', 'stamp_jump')
 """Why a sample is left out for its header stamp, checked before :data:`DROP_REASONS`."""
 STAMP_JUMP_S = 10.0
-"""Largest forward step of the header stamp from one message to the next that is taken as the
-stream going on; a larger one is a ``stamp_jump`` (a message stamped in the future, or a pause
-or clock step, which the next message then confirms)."""
+"""A forward step of the header stamp from one message to the next that is taken as the stream
+going on, whatever the stream: up to 10 s (a step beyond both this and :data:`STAMP_JUMP_STEPS`
+steps of the stream is a ``stamp_jump``: a message stamped in the future, or the first after a
+pause or a clock step, which the next message then confirms)."""
 STAMP_JUMP_NS = int(STAMP_JUMP_S * NANOSECONDS)
+STAMP_JUMP_STEPS = 100
+"""A forward step also goes on when it is at most this many steps of the stream (the last kept
+message's advance over the kept one before it): a stream with a message every 30 s goes on 30 s
+at a time."""
+_STEP_CAP_NS = np.iinfo(np.int64).max // STAMP_JUMP_STEPS
+"""Steps beyond this make a limit beyond any step (stamps are within +-2**31 s): capped, for int64."""
 TEMP_CODE_PROBLEMS = ('non_finite', 'implausible')
 """Why a temperature code is ignored (not held)."""
 
@@ -215,66 +222,118 @@ def stamp_problem(step_ns: int) -> str:
     """The reason a message whose stamp is ``step_ns`` after the previous message's is dropped.
 
     Only asked of a message :func:`stamp_kept` refuses: ``duplicate_stamp`` (equal),
-    ``time_backwards`` (earlier) or ``stamp_jump`` (more than :data:`STAMP_JUMP_S` later).
+    ``time_backwards`` (earlier) or ``stamp_jump`` (later by more than :func:`step_limit`).
     """
     if step_ns == 0:
         return 'duplicate_stamp'
     return 'time_backwards' if step_ns < 0 else 'stamp_jump'
 
 
-def stamp_kept(stamp_ns: int, previous_ns: int | None, kept_ns: int | None) -> bool:
+def step_limit(stream_step_ns: int | None) -> int | None:
+    """The largest forward step that goes on, in a stream stepping ``stream_step_ns``.
+
+    :data:`STAMP_JUMP_S`, or :data:`STAMP_JUMP_STEPS` steps of the stream when more; ``None`` (no
+    limit) while the stream's step is unknown (one message kept so far, or the stamps went back).
+    """
+    if stream_step_ns is None:
+        return None
+    return max(STAMP_JUMP_NS, STAMP_JUMP_STEPS * min(stream_step_ns, _STEP_CAP_NS))
+
+
+@dataclass(frozen=True)
+class StampHistory:
+    """What the stamp rule knows of the messages before: for a run read in blocks, and the node.
+
+    :param previous_ns: the previous message's stamp (whatever became of it).
+    :param kept_ns: the stamp of the last message kept, or ``None``.
+    :param stream_step_ns: the last kept message's advance over the kept one before it (> 0), or
+        ``None`` when unknown.
+    """
+
+    previous_ns: int
+    kept_ns: int | None = None
+    stream_step_ns: int | None = None
+
+    def after(self, stamp_ns: int, kept: bool) -> StampHistory:
+        """The history once a message stamped ``stamp_ns`` is kept, or dropped."""
+        if not kept:
+            return StampHistory(stamp_ns, self.kept_ns, self.stream_step_ns)
+        return StampHistory(stamp_ns, stamp_ns, _advance(stamp_ns, self.kept_ns))
+
+
+def _advance(stamp_ns: int, kept_ns: int | None) -> int | None:
+    """The stream's step once ``stamp_ns`` is kept after ``kept_ns``: unknown unless it went forward."""
+    return stamp_ns - kept_ns if kept_ns is not None and stamp_ns > kept_ns else None
+
+
+def stamp_kept(stamp_ns: int, history: StampHistory | None) -> bool:
     """The stamp rule, one message at a time (the node's, and :func:`stamp_problems`' own).
 
     A message is kept when its header stamp is later than the previous message's (whatever
-    became of that one) by at most :data:`STAMP_JUMP_S`, or later than the last kept message's
-    by at most that. So a stream 1, 2, 3, 10, 4, 5 s drops the 4 (the 10 was kept); a stream
-    1, 2, 3, 3603, 4, 5 s drops the 3603 alone (stamped an hour ahead), and the 4 goes on
-    from the 3; after a real jump (1, 2, 3, 3603, 3604, ...: a pause or a clock step) the
-    first message after it is dropped and the next one, going on from it, is kept.
+    became of that one), or than the last kept message's, by at most :func:`step_limit` (10 s,
+    or 100 steps of the stream). So a stream 1, 2, 3, 10, 4, 5 s drops the 4 (the 10 was kept);
+    a stream 1, 2, 3, 3603, 4, 5 s drops the 3603 alone (stamped an hour ahead), and the 4 goes
+    on from the 3; after a real jump (1, 2, 3, 3603, 3604, ...: a pause or a clock step) the
+    first message after it is dropped and the next one, going on from it, is kept; a stream of
+    a message every 30 s goes on.
 
-    :param previous_ns: the previous message's stamp, or ``None`` for the first message.
-    :param kept_ns: the stamp of the last message kept, or ``None``.
+    :param history: what is known of the messages before, ``None`` for the first message.
     """
-    if previous_ns is None or 0 < stamp_ns - previous_ns <= STAMP_JUMP_NS:
+    if history is None:
         return True
-    return kept_ns is not None and 0 < stamp_ns - kept_ns <= STAMP_JUMP_NS
+    limit = step_limit(history.stream_step_ns)
+    for start in (history.previous_ns, history.kept_ns):
+        if start is not None and 0 < stamp_ns - start and (limit is None or stamp_ns - start <= limit):
+            return True
+    return False
 
 
-def stamp_problems(stamp_ns: np.ndarray, *, previous_stamp_ns: int | None = None,
-                   kept_stamp_ns: int | None = None) -> dict[str, np.ndarray]:
-    """Masks ``(k,)`` per reason of :data:`STAMP_DROP_REASONS`, in bag (arrival) order.
+def stamp_problems(stamp_ns: np.ndarray, *, history: StampHistory | None = None
+                   ) -> tuple[dict[str, np.ndarray], StampHistory | None]:
+    """Masks ``(k,)`` per reason of :data:`STAMP_DROP_REASONS`, in bag (arrival) order; the history after.
 
-    :func:`stamp_kept` on every message, vectorised (the messages that do not simply go on from
-    the previous one are taken one by one); the reason is :func:`stamp_problem`'s. The node
-    applies the same rule per message.
+    :func:`stamp_kept` on every message, vectorised: a stretch where each message steps forward
+    by at most the limit its predecessor's step sets is kept whole; the messages around the others
+    are taken one by one. The reason is :func:`stamp_problem`'s. The node applies the same rule
+    per message.
 
-    :param previous_stamp_ns: the stamp of the message before the first one (a run read in
-        blocks), or ``None``.
-    :param kept_stamp_ns: the stamp of the last message kept before the first one, or ``None``.
+    :param history: the messages before the first one (a run read in blocks), or ``None``.
     """
     stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
     count = len(stamp_ns)
+    if not count:
+        return {reason: np.zeros(0, dtype=bool) for reason in STAMP_DROP_REASONS}, history
     step = np.zeros(count, dtype=np.int64)
-    regular = np.ones(count, dtype=bool)
-    if count:
-        step[1:] = stamp_ns[1:] - stamp_ns[:-1]
-        if previous_stamp_ns is not None:
-            step[0] = stamp_ns[0] - previous_stamp_ns
-        regular = (step > 0) & (step <= STAMP_JUMP_NS)
-        if previous_stamp_ns is None:
-            regular[0] = True
-    kept = regular.copy()
-    last_kept = kept_stamp_ns
-    for index in np.flatnonzero(~regular).tolist():
-        if index > 0 and kept[index - 1]:
-            last_kept = int(stamp_ns[index - 1])
-        previous = int(stamp_ns[index - 1]) if index else previous_stamp_ns
-        kept[index] = stamp_kept(int(stamp_ns[index]), previous, last_kept)
-        if kept[index]:
-            last_kept = int(stamp_ns[index])
+    step[1:] = stamp_ns[1:] - stamp_ns[:-1]
+    if history is not None:
+        step[0] = stamp_ns[0] - history.previous_ns
+    # Where message i-1 went on from i-2 (both kept), the stream steps step[i-1]: i goes on when
+    # 0 < step[i] <= step_limit(step[i-1]) (no limit after a step that was not forward).
+    stream_step = np.zeros(count, dtype=np.int64)
+    stream_step[1:] = step[:-1]
+    limit = np.maximum(STAMP_JUMP_NS, STAMP_JUMP_STEPS * np.clip(stream_step, 0, _STEP_CAP_NS))
+    goes_on = (step > 0) & ((stream_step <= 0) | (step <= limit))
+    stops = np.flatnonzero(~goes_on)
+    kept = np.zeros(count, dtype=bool)
+    state = history
+    index = 0
+    while index < count:
+        if (index > 0 and goes_on[index] and state.kept_ns == int(stamp_ns[index - 1])
+                and state.stream_step_ns == (int(step[index - 1]) if step[index - 1] > 0 else None)):
+            position = int(np.searchsorted(stops, index))
+            stop = int(stops[position]) if position < len(stops) else count
+            kept[index:stop] = True
+            last = int(stamp_ns[stop - 1])
+            state = StampHistory(last, last, int(step[stop - 1]))
+            index = stop
+            continue
+        stamp = int(stamp_ns[index])
+        kept[index] = stamp_kept(stamp, state)
+        state = state.after(stamp, bool(kept[index])) if state is not None else StampHistory(stamp, stamp)
+        index += 1
     dropped = ~kept
-    return {'duplicate_stamp': dropped & (step == 0), 'time_backwards': dropped & (step < 0),
-            'stamp_jump': dropped & (step > 0)}
+    return ({'duplicate_stamp': dropped & (step == 0), 'time_backwards': dropped & (step < 0),
+             'stamp_jump': dropped & (step > 0)}, state)
 
 
 def hold_last_index(source_stamp_ns: np.ndarray, target_stamp_ns: np.ndarray) -> np.ndarray:
@@ -302,8 +361,8 @@ class AlignedSamples:
     :param ignored_references: the same for reference messages (:func:`reference_problems`).
     :param aux: recorded signal name -> ``(k,)`` its value held at each kept sample's stamp
         (NaN before its first finite value; :func:`require_signals` leaves those samples out).
-    :param kept_stamp_ns: the stamp of the last sample the stamp rule kept (whatever the other
-        checks made of it), for the next block of a run, or ``None``.
+    :param stamp_history: what the stamp rule knows after the last sample (kept or not), for
+        the next block of a run, or ``None``.
     """
 
     stamp_ns: np.ndarray
@@ -315,7 +374,7 @@ class AlignedSamples:
     ignored_temp_codes: dict[str, int] = field(default_factory=dict)
     ignored_references: dict[str, int] = field(default_factory=dict)
     aux: dict[str, np.ndarray] = field(default_factory=dict)
-    kept_stamp_ns: int | None = None
+    stamp_history: StampHistory | None = None
 
     def __len__(self) -> int:
         return len(self.stamp_ns)
@@ -334,8 +393,7 @@ class AlignedSamples:
 
 
 def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: float = 0.0,
-          drop_saturated: bool = True, previous_stamp_ns: int | None = None,
-          kept_stamp_ns: int | None = None) -> AlignedSamples:
+          drop_saturated: bool = True, stamp_history: StampHistory | None = None) -> AlignedSamples:
     """Hold temperature code and reference on the counts stamps and keep usable samples.
 
     Counts samples are left out, and counted by reason, in this order: the header stamp does
@@ -353,10 +411,8 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
     in :attr:`AlignedSamples.ignored_temp_codes`. A reference message likewise
     (:func:`reference_problems`, :attr:`AlignedSamples.ignored_references`).
 
-    :param previous_stamp_ns: the stamp of the counts message before the record's first one
-        (a run aligned in blocks, :mod:`tak_thermo_ros.core.records.blocks`), or ``None``.
-    :param kept_stamp_ns: the stamp of the last counts message the stamp rule kept before the
-        record's first one (blocks), or ``None``.
+    :param stamp_history: what the stamp rule knows of the counts messages before the record's
+        first one (a run aligned in blocks, :mod:`tak_thermo_ros.core.records.blocks`), or ``None``.
     """
     stamps = record.counts_stamp_ns
     counts = record.counts
@@ -369,12 +425,9 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
             dropped[reason] = dropped.get(reason, 0) + int(np.count_nonzero(newly))
             keep[newly] = False
 
-    for reason, mask in stamp_problems(stamps, previous_stamp_ns=previous_stamp_ns,
-                                       kept_stamp_ns=kept_stamp_ns).items():
+    stamp_masks, stamp_history = stamp_problems(stamps, history=stamp_history)
+    for reason, mask in stamp_masks.items():
         leave_out(reason, mask)
-    stamp_kept_rows = np.flatnonzero(keep)
-    if len(stamp_kept_rows):
-        kept_stamp_ns = int(stamps[stamp_kept_rows[-1]])
     for reason, mask in counts_problems(counts, whole_codes=record.input_kind == 'counts').items():
         if reason != 'saturated' or drop_saturated:
             leave_out(reason, mask)
@@ -399,7 +452,7 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
                           ignored_temp_codes=ignored_temp_codes, ignored_references=ignored_references,
                           aux={name: hold_signal(signal_stamps, values, stamps[keep])
                                for name, (signal_stamps, values) in record.aux.items()},
-                          kept_stamp_ns=kept_stamp_ns)
+                          stamp_history=stamp_history)
 
 
 def hold_signal(source_stamp_ns: np.ndarray, values: np.ndarray, target_stamp_ns: np.ndarray) -> np.ndarray:
