@@ -45,7 +45,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from benchlib import stop
+from benchlib import bench_domain, stop
 
 REPO = Path(__file__).resolve().parent.parent
 RESULTS = REPO / 'bench' / 'results' / 'node.json'
@@ -368,7 +368,7 @@ def measure(params: Path, workdir: Path, *, throughput_count: int, latency_count
     try:
         for index, kind in enumerate(('relay', 'compensator')):
             env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
-                   'ROS_DOMAIN_ID': str(1 + (os.getpid() + 37 * index) % 100), 'ROS_HOME': str(home),
+                   'ROS_DOMAIN_ID': str(bench_domain(index)), 'ROS_HOME': str(home),
                    'ROS_LOG_DIR': str(home / 'log'), 'RCUTILS_COLORIZED_OUTPUT': '0'}
             subjects.append(Subject(kind, params, env, workdir))
         for subject in subjects:
@@ -386,6 +386,19 @@ def measure(params: Path, workdir: Path, *, throughput_count: int, latency_count
     relay, compensator = (subject.summary() for subject in subjects)
     relay['exit_code'], compensator['exit_code'] = codes
     return relay, compensator
+
+
+def per_message_us(paths, count: int, repeats: int = 3) -> dict[str, float]:
+    """Name -> microseconds per message of each ``(name, function)``: the best of ``repeats`` calls of ``count``."""
+    timings = {}
+    for name, path in paths:
+        best = float('inf')
+        for _ in range(repeats):
+            started = time.perf_counter()
+            path()
+            best = min(best, time.perf_counter() - started)
+        timings[name] = best / count * 1e6
+    return timings
 
 
 def in_process_cost(params: Path, count: int = 200_000) -> dict:
@@ -420,14 +433,8 @@ def in_process_cost(params: Path, count: int = 200_000) -> dict:
             vector = message.vector
             acceleration.x, acceleration.y, acceleration.z = vector.x, vector.y, vector.z
 
-    timings = {}
-    for name, path in (('relay_callback_us', relay_path), ('compensator_callback_us', compensator_path)):
-        best = float('inf')
-        for _ in range(3):
-            started = time.perf_counter()
-            path()
-            best = min(best, time.perf_counter() - started)
-        timings[name] = best / count * 1e6
+    timings = per_message_us((('relay_callback_us', relay_path), ('compensator_callback_us', compensator_path)),
+                             count)
     timings['added_us'] = timings['compensator_callback_us'] - timings['relay_callback_us']
     profiler = cProfile.Profile()
     profiler.runcall(compensator_path)
@@ -556,7 +563,7 @@ def measure_driver_input(params: Path, workdir: Path, *, rates: tuple[float, ...
         try:
             for subject_index, kind in enumerate(kinds):
                 env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
-                       'ROS_DOMAIN_ID': str(1 + (os.getpid() + 37 * (3 * executor_index + subject_index) + 11) % 100),
+                       'ROS_DOMAIN_ID': str(bench_domain(2 + 3 * executor_index + subject_index)),
                        'ROS_HOME': str(home), 'ROS_LOG_DIR': str(home / 'log'), 'RCUTILS_COLORIZED_OUTPUT': '0'}
                 node_arguments = ['--ros-args', '--params-file', str(params), '-p', 'qos:=reliable',
                                   '-p', f'qos_depth:={DEPTH}', '-p', f'executor:={executor}']
@@ -717,7 +724,7 @@ def measure_transport_loss(params: Path, workdir: Path, *, count: int = TRANSPOR
     for index, (executor, qos) in enumerate((('events', 'reliable'), ('events', 'sensor_data'),
                                              ('single_threaded', 'reliable'), ('single_threaded', 'sensor_data'))):
         env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
-               'ROS_DOMAIN_ID': str(1 + (os.getpid() + 41 * index + 5) % 100),
+               'ROS_DOMAIN_ID': str(bench_domain(8 + index)),
                'ROS_HOME': str(home), 'ROS_LOG_DIR': str(home / 'log'), 'RCUTILS_COLORIZED_OUTPUT': '0'}
         command = [sys.executable, '-m', 'tak_thermo_ros.node', '--ros-args', '--params-file', str(params),
                    '-p', f'qos:={qos}', '-p', f'qos_depth:={DEPTH}', '-p', f'executor:={executor}']
@@ -822,15 +829,8 @@ def in_process_driver_cost(params: Path, count: int = 50_000, *, with_sequence: 
         for k in range(count):
             on_imu(message, k + 1)
 
-    timings = {}
     paths = (('driver_callback_us', compensator_path), ('without_sequence_us', without_sequence))
-    for name, path in paths if with_sequence else paths[1:]:
-        best = float('inf')
-        for _ in range(3):
-            started = time.perf_counter()
-            path()
-            best = min(best, time.perf_counter() - started)
-        timings[name] = best / count * 1e6
+    timings = per_message_us(paths if with_sequence else paths[1:], count)
     if not with_sequence:
         return {**timings, 'messages': count}
     return {**timings, 'sequence_us': timings['driver_callback_us'] - timings['without_sequence_us'],

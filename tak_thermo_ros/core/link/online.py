@@ -77,6 +77,7 @@ from tak_thermo_ros.core.records.record import (
     seconds,
     stamp_kept,
     stamp_problem,
+    stream_step,
     temp_code_problem,
     values_problem,
 )
@@ -364,7 +365,7 @@ class OnlineCompensator:
         self.signal_rejected: dict[str, int] = {}
         self._last_stamp_ns: int | None = None
         self._kept_stamp_ns: int | None = None
-        self._stream_step_ns: int | None = None
+        self._kept_before_ns: int | None = None
         self._temperature: float | None = None
         self._temp_arrival_s = -math.inf
         self._temp_outside = False
@@ -608,12 +609,13 @@ class OnlineCompensator:
         stamp_ns = sec * NANOSECONDS + nanosec
         last = self._last_stamp_ns
         self._last_stamp_ns = stamp_ns
-        kept = self._kept_stamp_ns
-        # stamp_kept and StampHistory.after, their usual case (a step forward within 10 s) inline
+        # stamp_kept, its usual case (a step forward within 10 s) inline
         if last is not None and not 0 < stamp_ns - last <= STAMP_JUMP_NS:
-            if not stamp_kept(stamp_ns, StampHistory(last, kept, self._stream_step_ns)):
+            kept = self._kept_stamp_ns
+            history = StampHistory(last, kept, stream_step(kept, self._kept_before_ns))
+            if not stamp_kept(stamp_ns, history):
                 return self._drop_out_of_order(stamp_problem(stamp_ns - last), stamp_ns, last, now_s)
-        self._stream_step_ns = stamp_ns - kept if kept is not None and stamp_ns > kept else None
+        self._kept_before_ns = self._kept_stamp_ns
         self._kept_stamp_ns = stamp_ns
         problem = self._problem(*values)
         if problem is not None:

@@ -113,15 +113,16 @@ def counts_problem(x: float, y: float, z: float) -> str | None:
     return None
 
 
-def values_problem(*values: float) -> str | None:
+def values_problem(*values: float, _low: float = -VALUE_LIMIT, _high: float = VALUE_LIMIT) -> str | None:
     """Why one driver sample (any number of channels) cannot be corrected, or ``None``.
 
     Driver values are already in SI units: a NaN or an infinity (``non_finite``) or a magnitude
     of :data:`VALUE_LIMIT` or more (``non_physical``) is refused, as by :func:`counts_problems`
-    with ``whole_codes=False``.
+    with ``whole_codes=False``. (``_low`` and ``_high`` are the limit as local names: the node
+    asks this of every message.)
     """
     for value in values:
-        if not -VALUE_LIMIT < value < VALUE_LIMIT:  # also false for NaN
+        if not _low < value < _high:  # also false for NaN
             for other in values:
                 if not isfinite(other):
                     return 'non_finite'
@@ -258,12 +259,13 @@ class StampHistory:
         """The history once a message stamped ``stamp_ns`` is kept, or dropped."""
         if not kept:
             return StampHistory(stamp_ns, self.kept_ns, self.stream_step_ns)
-        return StampHistory(stamp_ns, stamp_ns, _advance(stamp_ns, self.kept_ns))
+        return StampHistory(stamp_ns, stamp_ns, stream_step(stamp_ns, self.kept_ns))
 
 
-def _advance(stamp_ns: int, kept_ns: int | None) -> int | None:
-    """The stream's step once ``stamp_ns`` is kept after ``kept_ns``: unknown unless it went forward."""
-    return stamp_ns - kept_ns if kept_ns is not None and stamp_ns > kept_ns else None
+def stream_step(kept_ns: int | None, kept_before_ns: int | None) -> int | None:
+    """The stream's step: a kept stamp's advance over the kept one before it; unknown unless forward."""
+    return kept_ns - kept_before_ns if kept_ns is not None and kept_before_ns is not None and (
+        kept_ns > kept_before_ns) else None
 
 
 def stamp_kept(stamp_ns: int, history: StampHistory | None) -> bool:
