@@ -45,7 +45,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from benchlib import stop
+from benchlib import bench_domain, stop
 
 REPO = Path(__file__).resolve().parent.parent
 RESULTS = REPO / 'bench' / 'results' / 'node.json'
@@ -368,7 +368,7 @@ def measure(params: Path, workdir: Path, *, throughput_count: int, latency_count
     try:
         for index, kind in enumerate(('relay', 'compensator')):
             env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
-                   'ROS_DOMAIN_ID': str(1 + (os.getpid() + 37 * index) % 100), 'ROS_HOME': str(home),
+                   'ROS_DOMAIN_ID': str(bench_domain(index)), 'ROS_HOME': str(home),
                    'ROS_LOG_DIR': str(home / 'log'), 'RCUTILS_COLORIZED_OUTPUT': '0'}
             subjects.append(Subject(kind, params, env, workdir))
         for subject in subjects:
@@ -386,6 +386,19 @@ def measure(params: Path, workdir: Path, *, throughput_count: int, latency_count
     relay, compensator = (subject.summary() for subject in subjects)
     relay['exit_code'], compensator['exit_code'] = codes
     return relay, compensator
+
+
+def per_message_us(paths, count: int, repeats: int = 3) -> dict[str, float]:
+    """Name -> microseconds per message of each ``(name, function)``: the best of ``repeats`` calls of ``count``."""
+    timings = {}
+    for name, path in paths:
+        best = float('inf')
+        for _ in range(repeats):
+            started = time.perf_counter()
+            path()
+            best = min(best, time.perf_counter() - started)
+        timings[name] = best / count * 1e6
+    return timings
 
 
 def in_process_cost(params: Path, count: int = 200_000) -> dict:
@@ -420,14 +433,8 @@ def in_process_cost(params: Path, count: int = 200_000) -> dict:
             vector = message.vector
             acceleration.x, acceleration.y, acceleration.z = vector.x, vector.y, vector.z
 
-    timings = {}
-    for name, path in (('relay_callback_us', relay_path), ('compensator_callback_us', compensator_path)):
-        best = float('inf')
-        for _ in range(3):
-            started = time.perf_counter()
-            path()
-            best = min(best, time.perf_counter() - started)
-        timings[name] = best / count * 1e6
+    timings = per_message_us((('relay_callback_us', relay_path), ('compensator_callback_us', compensator_path)),
+                             count)
     timings['added_us'] = timings['compensator_callback_us'] - timings['relay_callback_us']
     profiler = cProfile.Profile()
     profiler.runcall(compensator_path)
@@ -540,54 +547,84 @@ class ImuDriver:
         rclpy.try_shutdown(context=self.context)
 
 
-def measure_driver_input(params: Path, workdir: Path, *, rates: tuple[float, ...], seconds: float) -> dict:
-    """Relay and compensator on each executor, open loop at each rate: loss and CPU per message."""
+def measure_driver_input(params: Path, workdir: Path, *, rates: tuple[float, ...], seconds: float,
+                         baseline: Path | None = None) -> dict:
+    """Relay and compensator (and the baseline's compensator) on each executor, open loop at each rate.
+
+    Per executor the nodes run side by side (own domains), each driven in turn at each rate, so
+    that a change in the machine's load hits all of them: messages lost and CPU per message.
+    """
     home = workdir / 'ros_home'
     home.mkdir(exist_ok=True)
+    kinds = ('relay', 'compensator', *(('baseline',) if baseline is not None else ()))
     results: dict = {}
     for executor_index, executor in enumerate(('events', 'single_threaded')):
-        for subject_index, kind in enumerate(('relay', 'compensator')):
-            env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
-                   'ROS_DOMAIN_ID': str(1 + (os.getpid() + 37 * (2 * executor_index + subject_index) + 11) % 100),
-                   'ROS_HOME': str(home), 'ROS_LOG_DIR': str(home / 'log'), 'RCUTILS_COLORIZED_OUTPUT': '0'}
-            if kind == 'relay':
-                command = [sys.executable, str(Path(__file__).resolve()), 'driver_relay', executor, '--ros-args']
-            else:
-                command = [sys.executable, '-m', 'tak_thermo_ros.node', '--ros-args', '--params-file', str(params),
-                           '-p', 'qos:=reliable', '-p', f'qos_depth:={DEPTH}', '-p', f'executor:={executor}']
-            log = workdir / f'driver_{executor}_{kind}.log'
-            process = subprocess.Popen(command, env=env, stdout=open(log, 'wb'), stderr=subprocess.STDOUT,
-                                       stdin=subprocess.DEVNULL, start_new_session=True)
-            driver = ImuDriver(int(env['ROS_DOMAIN_ID']), f'bench_imu_driver_{kind}')
-            rows = []
-            try:
-                driver.warm_up()
-                for rate in rates:
-                    count = int(rate * seconds)
-                    cpu_before = cpu_s(process.pid)
-                    received, achieved = driver.paced(rate, count)
-                    cpu = cpu_s(process.pid) - cpu_before
-                    rows.append({'rate_hz': rate, 'sent': count, 'achieved_send_rate_hz': achieved,
-                                 'received': received, 'lost': count - received,
-                                 'cpu_us_per_message': cpu / max(received, 1) * 1e6,
-                                 'cpu_fraction': cpu / (count / achieved)})
+        processes, drivers, rows = {}, {}, {kind: [] for kind in kinds}
+        try:
+            for subject_index, kind in enumerate(kinds):
+                env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+                       'ROS_DOMAIN_ID': str(bench_domain(2 + 3 * executor_index + subject_index)),
+                       'ROS_HOME': str(home), 'ROS_LOG_DIR': str(home / 'log'), 'RCUTILS_COLORIZED_OUTPUT': '0'}
+                node_arguments = ['--ros-args', '--params-file', str(params), '-p', 'qos:=reliable',
+                                  '-p', f'qos_depth:={DEPTH}', '-p', f'executor:={executor}']
+                if kind == 'relay':
+                    command = [sys.executable, str(Path(__file__).resolve()), 'driver_relay', executor, '--ros-args']
+                elif kind == 'compensator':
+                    command = [sys.executable, '-m', 'tak_thermo_ros.node', *node_arguments]
+                else:
+                    command = [*baseline_node_command(baseline), *node_arguments]
+                log = workdir / f'driver_{executor}_{kind}.log'
+                processes[kind] = subprocess.Popen(command, env=env, stdout=open(log, 'wb'), stderr=subprocess.STDOUT,
+                                                   stdin=subprocess.DEVNULL, start_new_session=True)
+                drivers[kind] = ImuDriver(int(env['ROS_DOMAIN_ID']), f'bench_imu_driver_{kind}')
+                drivers[kind].warm_up()
+            for rate in rates:
+                count = int(rate * seconds)
+                for kind in kinds:
+                    cpu_before = cpu_s(processes[kind].pid)
+                    received, achieved = drivers[kind].paced(rate, count)
+                    cpu = cpu_s(processes[kind].pid) - cpu_before
+                    rows[kind].append({'rate_hz': rate, 'sent': count, 'achieved_send_rate_hz': achieved,
+                                       'received': received, 'lost': count - received,
+                                       'cpu_us_per_message': cpu / max(received, 1) * 1e6,
+                                       'cpu_fraction': cpu / (count / achieved)})
                     print(f'  driver input, {executor:15s} {kind:11s} {rate:6.0f} Hz (sent at {achieved:6.0f}): '
-                          f'{count - received:5d} of {count} lost, {rows[-1]["cpu_us_per_message"]:6.0f} us CPU '
-                          f'per message', flush=True)
-            finally:
-                driver.close()
-                code = stop(process)
-            without_loss = [row['rate_hz'] for row in rows if row['lost'] == 0]
+                          f'{count - received:5d} of {count} lost, {rows[kind][-1]["cpu_us_per_message"]:6.0f} us '
+                          f'CPU per message', flush=True)
+        finally:
+            codes = {}
+            for kind in kinds:
+                if kind in drivers:
+                    drivers[kind].close()
+                if kind in processes:
+                    codes[kind] = stop(processes[kind])
+        for kind in kinds:
+            without_loss = [row['rate_hz'] for row in rows[kind] if row['lost'] == 0]
             results.setdefault(executor, {})[kind] = {
-                'rates': rows, 'exit_code': code,
+                'rates': rows[kind], 'exit_code': codes.get(kind),
                 'sustained_rate_without_loss_hz': max(without_loss) if without_loss else 0.0,
-                'cpu_us_per_message_at_1khz': next((r['cpu_us_per_message'] for r in rows if r['rate_hz'] == 1000.0),
-                                                   None)}
+                'cpu_us_per_message_at_1khz': next((r['cpu_us_per_message'] for r in rows[kind]
+                                                    if r['rate_hz'] == 1000.0), None)}
         pair = results[executor]
         pair['added_cpu_us_per_message_at_1khz'] = (
             pair['compensator']['cpu_us_per_message_at_1khz'] - pair['relay']['cpu_us_per_message_at_1khz']
             if pair['relay']['cpu_us_per_message_at_1khz'] is not None else None)
+        if baseline is not None:  # at the rates where neither lost anything (loss inflates the CPU per message)
+            ratios = [c['cpu_us_per_message'] / b['cpu_us_per_message']
+                      for c, b in zip(pair['compensator']['rates'], pair['baseline']['rates'])
+                      if c['lost'] == 0 and b['lost'] == 0]
+            pair['cpu_ratio_to_baseline_without_loss'] = ratios
+            pair['cpu_ratio_to_baseline_median'] = statistics.median(ratios) if ratios else None
     return results
+
+
+BASELINE_MAIN = 'import sys; sys.path.insert(0, {!r}); from tak_thermo_ros.node import main; sys.exit(main())'
+"""The compensator of another version of the package (``--baseline DIR``: a tree holding ``tak_thermo_ros/``)."""
+
+
+def baseline_node_command(baseline: Path) -> list[str]:
+    """The command line running the node of the package under ``baseline`` (its ``node.main``)."""
+    return [sys.executable, '-c', BASELINE_MAIN.format(str(baseline.resolve()))]
 
 
 def main() -> int:
@@ -595,9 +632,13 @@ def main() -> int:
     parser.add_argument('--quick', action='store_true', help='small counts (a smoke run, not the figures)')
     parser.add_argument('--driver-only', action='store_true',
                         help='only the driver-input part (both executors, rates up to 2 kHz); updates node.json')
+    parser.add_argument('--baseline', type=Path, metavar='DIR',
+                        help='with --driver-only: also drive the compensator of another version of the package '
+                             '(DIR holds its tak_thermo_ros/, e.g. `git archive main | tar -x -C DIR`), in turn '
+                             'with this one at each rate')
     args = parser.parse_args()
     if args.driver_only:
-        return driver_only(quick=args.quick)
+        return driver_only(quick=args.quick, baseline=args.baseline)
     throughput_count = 5_000 if args.quick else 10_000
     latency_count = 2_000 if args.quick else 10_000
     soak_count = 20_000 if args.quick else 1_000_000
@@ -673,8 +714,10 @@ TRANSPORT_BURST = 20_000
 def measure_transport_loss(params: Path, workdir: Path, *, count: int = TRANSPORT_BURST) -> list[dict]:
     """``count`` driver Imu as fast as this process publishes them into the compensator, per executor and input QoS.
 
-    What the node received, what Fast DDS reported lost (``message_lost``), and what is left unaccounted (``sent -
-    received - message_lost``).
+    What the node received, what Fast DDS reported lost (``message_lost``), what is left unaccounted by that (``sent -
+    received - message_lost``), and the messages never received by the sequence numbers (``sequence_gap``). One more
+    Imu follows the burst once the node has settled, so that a loss at the burst's tail shows too (a gap is seen
+    when a later message arrives): ``received + sequence_gap`` is then ``sent`` + 1.
     """
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
     rows = []
@@ -683,7 +726,7 @@ def measure_transport_loss(params: Path, workdir: Path, *, count: int = TRANSPOR
     for index, (executor, qos) in enumerate((('events', 'reliable'), ('events', 'sensor_data'),
                                              ('single_threaded', 'reliable'), ('single_threaded', 'sensor_data'))):
         env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
-               'ROS_DOMAIN_ID': str(1 + (os.getpid() + 41 * index + 5) % 100),
+               'ROS_DOMAIN_ID': str(bench_domain(8 + index)),
                'ROS_HOME': str(home), 'ROS_LOG_DIR': str(home / 'log'), 'RCUTILS_COLORIZED_OUTPUT': '0'}
         command = [sys.executable, '-m', 'tak_thermo_ros.node', '--ros-args', '--params-file', str(params),
                    '-p', f'qos:={qos}', '-p', f'qos_depth:={DEPTH}', '-p', f'executor:={executor}']
@@ -713,9 +756,9 @@ def measure_transport_loss(params: Path, workdir: Path, *, count: int = TRANSPOR
             for k in range(1, count + 1):
                 driver.publish(k)
             rate = count / (time.perf_counter() - started)
-            end = time.monotonic() + 4.0  # two diagnostics periods after the burst
-            while time.monotonic() < end:
-                driver.executor.spin_once(timeout_sec=0.05)
+            settled(driver, statuses, latest)
+            driver.publish(count + 1)  # the tail's losses show when a later message arrives
+            settled(driver, statuses, latest)
             after = latest()
             keys = ('received', 'published', 'dropped', 'message_lost')
             values = {key: int(after[key]) - int(before[key]) for key in keys}
@@ -725,21 +768,43 @@ def measure_transport_loss(params: Path, workdir: Path, *, count: int = TRANSPOR
             driver.close()
             stop(process)
         received = values['received']
-        row = {'executor': executor, 'qos': qos, 'depth': DEPTH, 'sent': count, 'send_rate_hz': rate,
+        sent = count + 1  # the burst and the message after it
+        row = {'executor': executor, 'qos': qos, 'depth': DEPTH, 'sent': sent, 'send_rate_hz': rate,
                'received_by_node': received, 'published': values['published'], 'dropped': values['dropped'],
                'message_lost_reported': values['message_lost'], 'sequence_gap': values['sequence_gap'],
-               'unaccounted': count - received - values['message_lost']}
+               'unaccounted': sent - received - values['message_lost'],
+               'received_plus_sequence_gap': (received + values['sequence_gap']
+                                              if values['sequence_gap'] is not None else None)}
         rows.append(row)
-        print(f'  burst of {count} at {rate:.0f} Hz, {executor:15s} {qos:11s}: node received {received}, '
-              f'message_lost {row["message_lost_reported"]}, unaccounted {row["unaccounted"]}, sequence_gap '
-              f'{row["sequence_gap"]}', flush=True)
+        print(f'  burst of {count} at {rate:.0f} Hz (and one more), {executor:15s} {qos:11s}: node received '
+              f'{received}, message_lost {row["message_lost_reported"]}, unaccounted by it {row["unaccounted"]}, '
+              f'sequence_gap {row["sequence_gap"]}: received + sequence_gap = {row["received_plus_sequence_gap"]} '
+              f'of {sent}', flush=True)
     return rows
 
 
-def in_process_driver_cost(params: Path, count: int = 50_000) -> dict:
+def settled(driver: ImuDriver, statuses: list, latest, timeout: float = 30.0) -> None:
+    """Spin until two statuses in a row, after a fresh one, show the node's counters unchanged."""
+    seen = len(statuses)
+    last = None
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        driver.executor.spin_once(timeout_sec=0.05)
+        if len(statuses) > seen:
+            seen = len(statuses)
+            now = latest()
+            if last is not None and now['received'] == last['received']:
+                return
+            last = now
+
+
+def in_process_driver_cost(params: Path, count: int = 50_000, *, with_sequence: bool = True) -> dict:
     """Microseconds per message of the driver-input callback's own work, without DDS.
 
-    The six values out of an Imu, ``process_values``, the corrected Imu filled (as ``_on_imu``).
+    The six values out of an Imu, ``process_values``, the corrected Imu filled (as ``_on_imu``);
+    ``driver_callback_us`` with, ``without_sequence_us`` without, what the node's
+    ``_with_sequence`` adds before it (the ``(message, info)`` pair the EventsExecutor hands over
+    unpacked, the publication sequence number counted).
     """
     from sensor_msgs.msg import Imu
 
@@ -753,28 +818,75 @@ def in_process_driver_cost(params: Path, count: int = 50_000) -> dict:
     out = Imu()
     acceleration, rate = out.linear_acceleration, out.angular_velocity
     process = core.process_values
+    sequence = core.sequence
+
+    def on_imu(message: Imu, k: int) -> None:
+        header = message.header
+        stamp = header.stamp
+        a = message.linear_acceleration
+        w = message.angular_velocity
+        result = process(stamp.sec, k, (a.x, a.y, a.z, w.x, w.y, w.z), 0.5)
+        if result.__class__ is tuple:
+            out.header = header
+            out.orientation = message.orientation
+            out.orientation_covariance = message.orientation_covariance
+            acceleration.x, acceleration.y, acceleration.z, rate.x, rate.y, rate.z = result
+        if core.notices:
+            core.take_notices()
+
+    def with_sequence(pair: tuple, info: dict | None = None) -> None:
+        if info is None:
+            pair, info = pair
+        number = info.get('publication_sequence_number')
+        if number is not None:
+            sequence('imu', number, 0.5)
+        on_imu(pair, number)
 
     def compensator_path() -> None:
         for k in range(count):
-            header = message.header
-            stamp = header.stamp
-            a = message.linear_acceleration
-            w = message.angular_velocity
-            result = process(stamp.sec, k, (a.x, a.y, a.z, w.x, w.y, w.z), 0.5)
-            if result.__class__ is tuple:
-                out.header = header
-                out.orientation = message.orientation
-                out.orientation_covariance = message.orientation_covariance
-                acceleration.x, acceleration.y, acceleration.z, rate.x, rate.y, rate.z = result
-            if core.notices:
-                core.take_notices()
+            with_sequence((message, {'publication_sequence_number': k + 1}))
 
-    best = float('inf')
-    for _ in range(3):
-        started = time.perf_counter()
-        compensator_path()
-        best = min(best, time.perf_counter() - started)
-    return {'driver_callback_us': best / count * 1e6, 'messages': count}
+    def without_sequence() -> None:
+        for k in range(count):
+            on_imu(message, k + 1)
+
+    paths = (('driver_callback_us', compensator_path), ('without_sequence_us', without_sequence))
+    timings = per_message_us(paths if with_sequence else paths[1:], count)
+    if not with_sequence:
+        return {**timings, 'messages': count}
+    return {**timings, 'sequence_us': timings['driver_callback_us'] - timings['without_sequence_us'],
+            'messages': count}
+
+
+IN_PROCESS_ROUNDS = 15
+
+
+def in_process_against_baseline(params: Path, baseline: Path, rounds: int = IN_PROCESS_ROUNDS) -> dict:
+    """The callback's own work in this version and in the baseline's, fresh interpreters taking turns.
+
+    Both without the sequence-number wrapper (the baseline's EventsExecutor path had none), then
+    this version's whole path; the ratio is the median of the per-round ratios.
+    """
+    runs: dict[str, list[dict]] = {'this': [], 'baseline': []}
+    for _ in range(rounds):
+        for name, tree in (('this', REPO), ('baseline', baseline.resolve())):
+            code = (f'import sys, json; sys.path.insert(0, {str(tree)!r}); '
+                    f'sys.path.insert(1, {str(Path(__file__).parent)!r}); '
+                    f'import bench_node; print(json.dumps(bench_node.in_process_driver_cost('
+                    f'bench_node.Path({str(params)!r}), 20_000, with_sequence={name == "this"})))')
+            result = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, check=True)
+            runs[name].append(json.loads(result.stdout.strip().splitlines()[-1]))
+    ratios = [t['without_sequence_us'] / b['without_sequence_us'] for t, b in zip(runs['this'], runs['baseline'])]
+    return {'rounds': rounds, 'runs': runs,
+            'this_without_sequence_us_best': min(r['without_sequence_us'] for r in runs['this']),
+            'baseline_us_best': min(r['without_sequence_us'] for r in runs['baseline']),
+            'this_with_sequence_us_best': min(r['driver_callback_us'] for r in runs['this']),
+            'this_without_sequence_us_median': statistics.median(r['without_sequence_us'] for r in runs['this']),
+            'baseline_us_median': statistics.median(r['without_sequence_us'] for r in runs['baseline']),
+            'this_with_sequence_us_median': statistics.median(r['driver_callback_us'] for r in runs['this']),
+            'ratio_without_sequence_median': statistics.median(ratios),
+            'ratio_with_sequence_median': statistics.median(
+                t['driver_callback_us'] / b['without_sequence_us'] for t, b in zip(runs['this'], runs['baseline']))}
 
 
 def driver_params(path: Path) -> None:
@@ -784,7 +896,7 @@ def driver_params(path: Path) -> None:
     save_unit(path, Scenario(output='imu').driver_truth())
 
 
-def driver_only(*, quick: bool) -> int:
+def driver_only(*, quick: bool, baseline: Path | None = None) -> int:
     """Run the driver-input part and merge it into the results file."""
     import platform
     with tempfile.TemporaryDirectory(prefix='bench_node_driver_') as tmp:
@@ -794,12 +906,16 @@ def driver_only(*, quick: bool) -> int:
         started = time.time()
         load = os.getloadavg()[0]
         driver_input = measure_driver_input(params, workdir, rates=(500.0, 2000.0) if quick else DRIVER_RATES_HZ,
-                                            seconds=1.0 if quick else DRIVER_SECONDS)
+                                            seconds=1.0 if quick else DRIVER_SECONDS, baseline=baseline)
         driver_input['transport_loss'] = measure_transport_loss(params, workdir,
                                                                 count=2_000 if quick else TRANSPORT_BURST)
         driver_input['in_process'] = in_process_driver_cost(params)
+        if baseline is not None:
+            driver_input['in_process_against_baseline'] = in_process_against_baseline(params, baseline)
     driver_input['wall_s'] = time.time() - started
     driver_input['load_average_1min_before'] = load
+    driver_input['load_average_1min_after'] = os.getloadavg()[0]
+    driver_input['baseline'] = str(baseline) if baseline is not None else None
     driver_input['machine'] = {'cpus': os.cpu_count(), 'python': platform.python_version()}
     results = RESULTS.with_name('node_quick.json') if quick else RESULTS
     document = json.loads(results.read_text(encoding='utf-8')) if results.exists() else {}
@@ -808,7 +924,10 @@ def driver_only(*, quick: bool) -> int:
     results.write_text(json.dumps(document, indent=2) + '\n', encoding='utf-8')
     for executor in ('events', 'single_threaded'):
         pair = driver_input[executor]
-        for kind in ('relay', 'compensator'):
+        if baseline is not None:
+            ratios = ', '.join(f'{r:.2f}' for r in pair['cpu_ratio_to_baseline_without_loss'])
+            print(f'{executor:15s} compensator / baseline CPU per message (rates without loss): {ratios or "none"}')
+        for kind in [k for k in ('relay', 'compensator', 'baseline') if k in pair]:
             cpu = ', '.join(f'{row["rate_hz"]:.0f} Hz {row["cpu_us_per_message"]:.0f} us'
                             for row in pair[kind]['rates'])
             print(f'{executor:15s} {kind:11s}: no loss up to {pair[kind]["sustained_rate_without_loss_hz"]:.0f} Hz; '

@@ -10,7 +10,15 @@ subscriptions and publisher, rclpy and messages only, no package import): the di
 what the package adds. Also, in fresh interpreters: the import time of ``tak_thermo_ros.node``
 and of what it needs from ROS alone (``rclpy`` and the message packages).
 
-Usage: ``python bench/bench_startup.py [--rounds N]``; writes ``bench/results/startup.json``;
+With ``--baseline DIR`` (a tree holding another version's ``tak_thermo_ros/``, e.g.
+``git archive main tak_thermo_ros | tar -x -C DIR``), that version's node (its ``node.main``)
+and this one's (its entry point ``node_main.main``) are also started the same way, as
+``python -c`` (the console script reads the installed entry points first, the same cost for
+both versions but not part of a ``python -c``), in the same rounds, in turn with the others:
+the ratio of the medians, and the median of the per-round ratios, say whether this version
+starts slower.
+
+Usage: ``python bench/bench_startup.py [--rounds N] [--baseline DIR]``; writes ``bench/results/startup.json``;
 exits 3 when a target is missed: the package adds more than ``ADDED_TARGET_S`` to the start-up,
 or an offline library (scipy, matplotlib, dask, rosbags, pandas, ...) is loaded by the node.
 """
@@ -27,7 +35,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from benchlib import machine, stop
+from benchlib import bench_domain, machine, stop
 
 REPO = Path(__file__).resolve().parent.parent
 RESULTS = REPO / 'bench' / 'results' / 'startup.json'
@@ -167,6 +175,8 @@ def main() -> int:
     """Measure, print, write ``bench/results/startup.json``."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--rounds', type=int, default=10, help='starts of each node (default 10)')
+    parser.add_argument('--baseline', type=Path, metavar='DIR',
+                        help="also start another version's node (DIR holds its tak_thermo_ros/), in the same rounds")
     args = parser.parse_args()
     script = Path(sys.executable).parent / 'compensator'
     node_command = ([str(script)] if script.exists() else [sys.executable, '-m', 'tak_thermo_ros.node'])
@@ -176,15 +186,22 @@ def main() -> int:
     offline = offline_modules_loaded()
     imports = {'tak_thermo_ros.node': summary(import_seconds('import tak_thermo_ros.node', args.rounds)),
                'rclpy and the message packages': summary(import_seconds(ROS_ONLY, args.rounds))}
-    starts: dict[str, list[dict[str, float]]] = {'compensator': [], 'relay': []}
+    subjects = [('relay', relay_command, 'ready'), ('compensator', node_command, 'correcting ')]
+    if args.baseline is not None:
+        for name, tree, module in (('this_python_c', REPO, 'node_main'), ('baseline', args.baseline.resolve(), 'node')):
+            main_code = (f'import sys; sys.path.insert(0, {str(tree)!r}); '
+                         f'from tak_thermo_ros.{module} import main; sys.exit(main())')
+            subjects.append((name, [sys.executable, '-c', main_code, '--ros-args', '--params-file', str(CONFIG)],
+                             'correcting '))
+    starts: dict[str, list[dict[str, float]]] = {name: [] for name, _, _ in subjects}
+    load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory(prefix='bench_startup_') as tmp:
         home = Path(tmp) / 'ros_home'
         env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', 'ROS_HOME': str(home),
-               'ROS_LOG_DIR': str(home / 'log'), 'ROS_DOMAIN_ID': str(60 + os.getpid() % 30),
+               'ROS_LOG_DIR': str(home / 'log'), 'ROS_DOMAIN_ID': str(bench_domain(0)),
                'PYTHONUNBUFFERED': '1'}
         for index in range(args.rounds):
-            for name, command, ready_text in (('relay', relay_command, 'ready'),
-                                              ('compensator', node_command, 'correcting ')):
+            for name, command, ready_text in subjects:
                 starts[name].append(start_to_output(command, env, Path(tmp) / f'{name}_{index}.log', ready_text))
     first = {name: summary([s['first_corrected_s'] for s in runs]) for name, runs in starts.items()}
     matched = {name: summary([s['subscriptions_matched_s'] for s in runs]) for name, runs in starts.items()}
@@ -196,20 +213,35 @@ def main() -> int:
         'import': imports, 'offline_libraries_loaded_by_the_node': offline,
         'start_to_ready': ready, 'start_to_first_corrected_imu': first, 'start_to_subscriptions_matched': matched,
         'added_by_the_package_s': added, 'added_target_s': ADDED_TARGET_S,
+        'load_average_1min_before': load_before, 'load_average_1min_after': os.getloadavg()[0],
         'runs': starts,
     }
+    if args.baseline is not None:
+        document['baseline'] = {
+            'directory': str(args.baseline),
+            'command': "python -c '...from tak_thermo_ros.node import main...' (this version: node_main)",
+            'ready_ratio_of_medians': round(ready['this_python_c']['median_s'] / ready['baseline']['median_s'], 3),
+            'ready_ratio_median_per_round': round(statistics.median(
+                c['ready_s'] / b['ready_s'] for c, b in zip(starts['this_python_c'], starts['baseline'])), 3),
+            'first_corrected_ratio_of_medians': round(
+                first['this_python_c']['median_s'] / first['baseline']['median_s'], 3)}
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     RESULTS.write_text(json.dumps(document, indent=2) + '\n', encoding='utf-8')
     for name, value in imports.items():
         print(f'import {name:32s} median {value["median_s"]:.3f} s ({value["min_s"]:.3f}..{value["max_s"]:.3f})')
     print(f'offline libraries loaded by the node: {", ".join(offline) or "none"}')
-    for name in ('relay', 'compensator'):
+    for name in starts:
         print(f'{name:11s}: start -> ready (log line) {ready[name]["median_s"]:.3f} s, '
               f'-> subscriptions matched {matched[name]["median_s"]:.3f} s, '
               f'-> first corrected Imu {first[name]["median_s"]:.3f} s '
               f'({first[name]["min_s"]:.3f}..{first[name]["max_s"]:.3f}, {args.rounds} starts)')
     print(f'added by the package (start -> ready, medians): {added:.3f} s (target <= {ADDED_TARGET_S} s); '
           f'wrote {RESULTS}')
+    if args.baseline is not None:
+        base = document['baseline']
+        print(f'this version / baseline, start -> ready: {base["ready_ratio_of_medians"]:.3f} (medians), '
+              f'{base["ready_ratio_median_per_round"]:.3f} (median of per-round ratios); load average '
+              f'{load_before:.1f} -> {os.getloadavg()[0]:.1f}')
     return TARGET_MISSED if offline or added > ADDED_TARGET_S else 0
 
 

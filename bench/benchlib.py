@@ -37,6 +37,15 @@ def stop(process: subprocess.Popen) -> int:
     return process.returncode
 
 
+def bench_domain(index: int) -> int:
+    """A ROS domain for a benchmark's node ``index``: in 101..200, clear of the tests' 1..100.
+
+    The machine may run other jobs' tests beside a benchmark; a node of theirs in the same domain
+    (localhost discovery) would join this one's topics and spoil its counts.
+    """
+    return 101 + (os.getpid() + 37 * index) % 100
+
+
 def machine() -> dict[str, object]:
     """What the figures were measured on, and how busy it was."""
     model = ''

@@ -33,6 +33,7 @@ back into a message. The only module of the package that imports rclpy.
 from __future__ import annotations
 
 import array
+import inspect
 import signal
 import sys
 import time
@@ -63,6 +64,7 @@ from tak_thermo_ros.core.effects.aux_signal import AUX_FIELDS, signal_field, spl
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.link.online import Level, OnlineCompensator, StaleTemperature
 from tak_thermo_ros.errors import CalibrationError, TakError
+from tak_thermo_ros.node_main import SignalGuard
 
 COUNTS_TOPIC = 'tak/counts'
 TEMP_TOPIC = 'tak/temp_code'
@@ -85,6 +87,9 @@ SIGNAL_DISCOVERY_S = 5.0
 
 _DIAGNOSTIC_LEVELS = {Level.OK: DiagnosticStatus.OK, Level.WARN: DiagnosticStatus.WARN,
                       Level.ERROR: DiagnosticStatus.ERROR}
+_WITH_MESSAGE_INFO = inspect.Signature([inspect.Parameter(name, inspect.Parameter.POSITIONAL_ONLY)
+                                        for name in ('message', 'info')])
+"""A callback of this signature is handed the MessageInfo by rclpy (``Subscription.callback``)."""
 
 
 def _tunables() -> dict[str, tuple[Any, str, bool]]:
@@ -105,6 +110,8 @@ def _tunables() -> dict[str, tuple[Any, str, bool]]:
                                       "temperature or 'drop' the messages", False),
         'out_of_range': ('clamp', "temperatures outside the calibrated range: 'clamp' to the "
                                   "edge or 'extrapolate' (always counted and logged)", False),
+        'hardware_id': ('', "the unit's identifier (e.g. its serial number) in /diagnostics; empty: "
+                            "the input's frame_id", True),
     }
 
 
@@ -201,16 +208,17 @@ class CompensatorNode(Node):
         self._diagnostics_publisher = self.create_publisher(
             DiagnosticArray, DIAGNOSTICS_TOPIC, 10,
             event_callbacks=PublisherEventCallbacks(use_default_callbacks=False))
-        # rclpy 7's EventsExecutor calls a callback with the message only; the single-threaded
-        # executor also hands over the MessageInfo, whose publication sequence numbers show
-        # every message that never arrived (Fast DDS's message-lost event shows only some).
+        # The input callbacks take the MessageInfo (either executor, _with_sequence), whose
+        # publication sequence numbers show every message that never arrived (Fast DDS's
+        # message-lost event shows only some).
         # Recorded-signal subscriptions before the input one too (same creation-order rule); a
         # signal topic not yet advertised is looked up again every diagnostics period.
         self._signal_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=reliability)
         self._signal_subscriptions: dict[str, Any] = {}
         deadline = time.monotonic() + SIGNAL_DISCOVERY_S
         self._subscribe_signals()
-        while len(self._signal_subscriptions) < len(self._core.signals) and time.monotonic() < deadline:
+        while (len(self._signal_subscriptions) < len(self._core.signals) and time.monotonic() < deadline
+               and self.context.ok()):
             time.sleep(0.05)
             self._subscribe_signals()
         if self._mag_core is not None:
@@ -220,18 +228,16 @@ class CompensatorNode(Node):
             self._mag_publisher = self.create_publisher(MagneticField, COMPENSATED_MAG_TOPIC, output_qos)
             self._publish_mag = self._mag_publisher.publish
             self._process_mag = self._mag_core.process_values
-            on_mag = self._on_mag
-            if self.executor_kind == 'single_threaded':
-                on_mag = self._with_sequence(on_mag, self._mag_core, 'mag')
             self._mag_subscription = self.create_subscription(
-                MagneticField, MAG_TOPIC, on_mag, input_qos,
+                MagneticField, MAG_TOPIC, self._with_sequence(self._on_mag, self._mag_core, 'mag'), input_qos,
                 event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_mag_lost))
-        on_input = self._on_imu if driver else self._on_counts
-        if self.executor_kind == 'single_threaded':
-            on_input = self._with_sequence(on_input)
+        on_input = self._with_sequence(self._on_imu if driver else self._on_counts)
         self._input_subscription = self.create_subscription(
             input_type, input_topic, on_input, input_qos,
             event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_input_lost))
+        # Statuses named by the fully qualified node name: two compensators (/imu0, /imu1) differ.
+        self._status_prefix = self.get_fully_qualified_name()
+        self._hardware_id = str(self._value('hardware_id'))
         self._diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self._on_diagnostics_timer)
         self._pending: Any = None
         self._mag_pending: Any = None
@@ -405,16 +411,24 @@ class CompensatorNode(Node):
             self._log_notices()
 
     def _with_sequence(self, on_message: Any, core: OnlineCompensator | None = None, name: str = '') -> Any:
-        """``on_message`` preceded by the count of sequence gaps (a callback taking the MessageInfo)."""
+        """``on_message`` preceded by the count of sequence gaps (a callback taking the MessageInfo).
+
+        Its signature asks rclpy for the MessageInfo: the single-threaded executor then calls it
+        with the message and the info, rclpy 7's EventsExecutor with one ``(message, info)``
+        tuple; either way the publication sequence numbers are counted.
+        """
         sequence = (core or self._core).sequence
         name = name or self._input_name
 
-        def on_message_with_info(message: Any, info: dict[str, Any]) -> None:
+        def on_message_with_info(message: Any, info: Any = None) -> None:
+            if info is None:  # the EventsExecutor: (message, info) in one tuple
+                message, info = message
             number = info.get('publication_sequence_number')
             if number is not None:
                 sequence(name, number, time.monotonic())
             on_message(message)
 
+        on_message_with_info.__signature__ = _WITH_MESSAGE_INFO  # type: ignore[attr-defined]
         return on_message_with_info
 
     def _on_input_lost(self, info: QoSMessageLostInfo) -> None:
@@ -438,18 +452,18 @@ class CompensatorNode(Node):
         diagnostics.header.stamp = self.get_clock().now().to_msg()
         diagnostics.status = [DiagnosticStatus(
             level=_DIAGNOSTIC_LEVELS[status.level],
-            name=f'{self.get_name()}: temperature compensation',
+            name=f'{self._status_prefix}: temperature compensation',
             message=status.message,
-            hardware_id=self._imu.header.frame_id,
+            hardware_id=self._hardware_id or self._imu.header.frame_id,
             values=[KeyValue(key=key, value=value) for key, value in status.values])]
         if self._mag_core is not None:
             self._mag_core.tick(now)
             mag_status = self._mag_core.status(now, imu_subscribers=self._mag_publisher.get_subscription_count())
             diagnostics.status.append(DiagnosticStatus(
                 level=_DIAGNOSTIC_LEVELS[mag_status.level],
-                name=f'{self.get_name()}: magnetometer compensation',
+                name=f'{self._status_prefix}: magnetometer compensation',
                 message=mag_status.message,
-                hardware_id=self._mag.header.frame_id,
+                hardware_id=self._hardware_id or self._mag.header.frame_id,
                 values=[KeyValue(key=key, value=value) for key, value in mag_status.values]))
         try:
             self._diagnostics_publisher.publish(diagnostics)
@@ -571,38 +585,58 @@ def spin(node: Node, executor: Executor) -> None:
             break  # the executor noticed the shutdown first, in its own words
 
 
-def main(args: Sequence[str] | None = None) -> int:
-    """Entry point of ``compensator`` (Jazzy node skeleton); 2 when it cannot start."""
+def main(args: Sequence[str] | None = None, *, signals: SignalGuard | None = None) -> int:
+    """Entry point of ``compensator`` (Jazzy node skeleton); 2 when it cannot start.
+
+    A SIGINT or SIGTERM at any moment ends it with status 0 (``signals``, installed here when
+    the caller has not: :mod:`tak_thermo_ros.node_main`). One that comes while it starts stops
+    the imports or ``rclpy.init``, or shuts the context down under the node being built, whose
+    next rcl call then fails: that failure is the stop, said in one line, no traceback.
+    """
+    signals = signals if signals is not None else SignalGuard().install()
+    node = executor = None
+    running = False
     try:
-        rclpy.init(args=args)
-    except Exception as err:  # rcl refuses bad --ros-args or an unreadable params file
-        detail = str(err).strip().splitlines()
-        print(f'[FATAL] [{NODE_NAME}]: cannot start: {detail[0] if detail else type(err).__name__}',
-              file=sys.stderr)
-        return EXIT_ERROR
-    try:
-        node = CompensatorNode()
-    except (TakError, ValueError) as err:
-        rclpy.logging.get_logger(NODE_NAME).fatal(f'cannot start: {err}')
-        rclpy.try_shutdown()
-        return EXIT_ERROR
-    except KeyboardInterrupt:
-        rclpy.try_shutdown()
-        return 0
-    executor = None
-    try:
+        if signals.received:  # arrived while the caller imported this module
+            raise KeyboardInterrupt
+        try:
+            rclpy.init(args=args)
+        except Exception as err:  # rcl refuses bad --ros-args or an unreadable params file
+            if signals.received:
+                raise KeyboardInterrupt from None
+            detail = str(err).strip().splitlines()
+            print(f'[FATAL] [{NODE_NAME}]: cannot start: {detail[0] if detail else type(err).__name__}',
+                  file=sys.stderr)
+            return EXIT_ERROR
+        signals.disarm()  # rclpy's handlers shut the context down from now on
+        try:
+            node = CompensatorNode()
+        except (TakError, ValueError) as err:
+            if signals.received or not rclpy.ok():
+                raise KeyboardInterrupt from None
+            rclpy.logging.get_logger(NODE_NAME).fatal(f'cannot start: {err}')
+            return EXIT_ERROR
         executor = make_executor(node.executor_kind, node.context)
+        running = True
         spin(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        if signals.received is None and rclpy.ok():
+            raise
+        # a signal shut the context down under rclpy (RCLError: context is invalid)
     finally:
         # Ctrl-C under `ros2 launch` reaches the node twice (the terminal's process group, then
-        # launch forwarding it): a second SIGINT must not break the teardown with a traceback.
+        # launch forwarding it): a second signal must not break the teardown with a traceback.
+        signals.disarm()
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         if executor is not None:
             executor.shutdown()
-        node.destroy_node()
+        if node is not None:
+            node.destroy_node()
         rclpy.try_shutdown()
+        if not running and signals.received:
+            signals.say_stopped(NODE_NAME)
     return 0
 
 

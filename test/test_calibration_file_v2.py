@@ -33,7 +33,7 @@ from tak_thermo_ros.formats.calibration_file import (
     unit_yaml,
 )
 from tak_thermo_ros.core.effects import LIBRARY
-from tak_thermo_ros.core.link.model import AxisModel, Calibration, InputKind, UnitCalibration
+from tak_thermo_ros.core.link.model import SENSOR_RANGE, AxisModel, Calibration, InputKind, UnitCalibration
 from tak_thermo_ros.core.simulation.imu import Scenario
 from tak_thermo_ros.errors import CalibrationError
 
@@ -217,9 +217,13 @@ def _finite(low: float, high: float) -> st.SearchStrategy[float]:
 
 
 @st.composite
-def calibrations(draw, kind: InputKind) -> Calibration:
-    """A valid link: random coefficients inside the physical limits of the input kind."""
+def calibrations(draw, kind: InputKind, sensor: str = 'counts') -> Calibration:
+    """A valid link: random coefficients inside the physical limits of the input kind and the sensor.
+
+    The offset removed stays within the sensor's range (``SENSOR_RANGE``), as ``check_plausible`` asks.
+    """
     limits = LIMITS[kind]
+    bound = SENSOR_RANGE[sensor][0]
     low_t, high_t = (-40.0, 85.0) if kind is InputKind.IMU else (0.0, 20000.0)
     t_min = draw(_finite(low_t, high_t - 1.0))
     t_max = draw(_finite(t_min + 0.5, high_t))
@@ -232,11 +236,12 @@ def calibrations(draw, kind: InputKind) -> Calibration:
         bias_order = draw(st.integers(1, 8))
         scale_order = draw(st.integers(0, 8))
         # offset polynomial: coefficients scaled to the range, normalised by from_polynomials
-        offset_coeffs = [draw(_finite(-1.0, 1.0)) * 0.1 * limits.value / reach ** (k + 1) for k in range(bias_order)]
-        # F_c stays within 1 +- 0.5 over the range
-        scale_coeffs = [draw(_finite(-1.0, 1.0)) * 0.5 / scale_order / reach ** (k + 1) for k in range(scale_order)]
+        offset_coeffs = [draw(_finite(-1.0, 1.0)) * 0.05 * bound / bias_order / reach ** (k + 1)
+                         for k in range(bias_order)]
+        # F_c stays within 1 +- 0.4 over the range
+        scale_coeffs = [draw(_finite(-1.0, 1.0)) * 0.4 / scale_order / reach ** (k + 1) for k in range(scale_order)]
         residual = draw(st.none() | _finite(0.0, limits.value))
-        axis = AxisModel.from_polynomials(scale=scale, offset=draw(_finite(-limits.value, limits.value)),
+        axis = AxisModel.from_polynomials(scale=scale, offset=draw(_finite(-0.5 * bound, 0.5 * bound)),
                                           offset_coeffs=offset_coeffs, scale_coeffs=scale_coeffs,
                                           code_offset_range=n_range, residual_rms=residual,
                                           scale_observable=draw(st.booleans()))
@@ -252,7 +257,7 @@ def calibrations(draw, kind: InputKind) -> Calibration:
 
 
 units = (calibrations(InputKind.COUNTS).map(lambda cal: UnitCalibration(InputKind.COUNTS, cal))
-         | st.tuples(calibrations(InputKind.IMU), calibrations(InputKind.IMU)).map(
+         | st.tuples(calibrations(InputKind.IMU, 'accel'), calibrations(InputKind.IMU, 'gyro')).map(
              lambda pair: UnitCalibration(InputKind.IMU, *pair)))
 
 PROPERTY = settings(max_examples=60, deadline=None, database=None,

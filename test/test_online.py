@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -21,7 +22,14 @@ from tak_thermo_ros.core.link.online import (
     OnlineCompensator,
     StaleTemperature,
 )
-from tak_thermo_ros.core.records.record import counts_problems, seconds_from_ns
+from tak_thermo_ros.core.records.record import (
+    STAMP_DROP_REASONS,
+    TEMP_CODE_LIMIT,
+    TEMPERATURE_RANGE,
+    counts_problems,
+    seconds_from_ns,
+    stamp_problems,
+)
 from tak_thermo_ros.core.simulation.imu import Scenario
 
 CALIBRATION = Scenario().truth()  # temperature-code range 7600..8800
@@ -65,6 +73,36 @@ def test_waiting_for_temperature_publishes_nothing_and_warns_with_topic():
     assert balanced(core)
 
 
+def test_the_docs_state_the_temperature_bounds_the_code_applies():
+    """docs/node.md's bad-input table gives the plausible temperatures of each input kind as the code has them."""
+    from pathlib import Path
+    docs = (Path(__file__).resolve().parent.parent / 'docs' / 'node.md').read_text(encoding='utf-8')
+    row = next(line for line in docs.splitlines() if line.startswith('| temperature NaN'))
+    low, high = TEMPERATURE_RANGE['imu']
+    assert f'outside {low:g}..{high:g} C' in row and f'{TEMP_CODE_LIMIT:.0e}'.replace('e+0', 'e') in row
+    assert TEMPERATURE_RANGE['counts'] == (-TEMP_CODE_LIMIT, TEMP_CODE_LIMIT)
+
+
+def test_a_throttled_report_counts_messages_not_its_own_ticks():
+    """A report's "N more since the last report" is its "so far" less the previous one's, ticks or not.
+
+    Messages at 10 Hz without a temperature, the diagnostics ticking at 1 Hz in between.
+    """
+    core = OnlineCompensator(DRIVER)
+    reports = []
+    for k in range(200):  # 20 s
+        now = 0.1 * k
+        core.process_values(SEC, k, (0.1, -0.2, 9.8, 0.01, 0.02, -0.03), now_s=now)
+        if k % 10 == 5:
+            core.tick(now)
+        reports += [n.text for n in core.take_notices()]
+    pattern = re.compile(r'\((\d+) Imu messages dropped so far(?:; (\d+) more since the last report)?\)')
+    counts = [tuple(int(g) if g else 0 for g in pattern.search(text).groups()) for text in reports]
+    assert len(counts) == 4 and counts[0] == (1, 0) and counts[-1][0] <= 200
+    assert all(now[1] == now[0] - before[0] for before, now in zip(counts, counts[1:])), reports
+    assert core.dropped['waiting_for_temperature'] == 200
+
+
 @pytest.mark.parametrize(('counts', 'reason'), [
     ((math.nan, 0.0, 0.0), 'non_finite'),
     ((0.0, math.inf, 0.0), 'non_finite'),
@@ -84,6 +122,50 @@ def test_bad_counts_dropped_by_reason_as_apply_drops_them(counts, reason):
     offline = counts_problems(np.array([counts]))
     assert [name for name, mask in offline.items() if mask[0]] == [reason]
     assert core.dropped[reason] == 1 and core.published == 0 and balanced(core)
+
+
+def test_a_future_stamped_outlier_is_dropped_and_said_not_the_good_message_after_it():
+    """1, 2, 3, 3603, 4, 5 s: the 3603 alone is dropped (stamp_jump), and said.
+
+    A real jump (a pause, a clock step) costs its first message, the next goes on from it; the
+    offline rule drops the same.
+    """
+    core = make()
+    core.process_temperature(8200.0, now_s=0.0)
+    seconds = [1, 2, 3, 3603, 4, 5, 500, 501, 502, 50, 51]  # steps of 1 s: a jump is beyond 100 s
+    results = [core.process_counts(SEC + t, 0, 1.0, 2.0, 3.0, now_s=0.1) for t in seconds]
+    reasons = [r if isinstance(r, str) else 'published' for r in results]
+    assert reasons == ['published', 'published', 'published', 'stamp_jump', 'published', 'published',
+                       'stamp_jump', 'published', 'published', 'time_backwards', 'published']
+    offline, _ = stamp_problems(np.array([(SEC + t) * 1_000_000_000 for t in seconds], dtype=np.int64))
+    assert [next((r for r, mask in offline.items() if mask[i]), 'published') for i in range(len(seconds))] == reasons
+    notice = core.take_notices()[0]
+    assert notice.kind == 'stamp_order' and 'header stamp 3600.000000 s (> 10 s) after the previous one' in notice.text
+    assert core.status(0.2).value('dropped.stamp_jump') == '2' and balanced(core)
+    # A sparse stream (a message every 30 s) goes on 30 s at a time; an hour ahead is still a jump.
+    sparse = make()
+    sparse.process_temperature(8200.0, now_s=0.0)
+    seconds = [0, 30, 60, 90, 3690, 120, 150]
+    results = [sparse.process_counts(SEC + t, 0, 1.0, 2.0, 3.0, now_s=0.1) for t in seconds]
+    assert [r if isinstance(r, str) else 'published' for r in results] == ['published'] * 4 + [
+        'stamp_jump', 'published', 'published']
+
+
+def test_the_stamp_rule_across_blocks_is_the_rule_over_the_whole_run():
+    """stamp_problems over a run cut in blocks (its history carried) drops what it drops over the whole run."""
+    rng = np.random.default_rng(3)
+    steps = rng.choice([1_000_000, 2_000_000, 0, -3_000_000, 3_600_000_000_000, -3_600_000_000_000,
+                        30_000_000_000], size=400, p=[0.6, 0.2, 0.04, 0.04, 0.04, 0.04, 0.04])
+    stamps = SEC * 1_000_000_000 + np.cumsum(steps)
+    whole, _ = stamp_problems(stamps)
+    assert all(whole[reason].any() for reason in STAMP_DROP_REASONS)
+    cuts = sorted(rng.choice(np.arange(1, 400), size=12, replace=False).tolist())
+    history, parts = None, []
+    for start, end in zip([0, *cuts], [*cuts, 400]):
+        masks, history = stamp_problems(stamps[start:end], history=history)
+        parts.append(masks)
+    for reason in STAMP_DROP_REASONS:
+        assert np.array_equal(np.concatenate([part[reason] for part in parts]), whole[reason])
 
 
 def test_backwards_and_duplicate_stamps_dropped_counted():
@@ -160,7 +242,8 @@ def test_out_of_range_clamped_or_extrapolated_and_never_silent(policy):
     assert kinds(core) == []
     core.process_counts(SEC, 9, 200.0, 200.0, 200.0, now_s=5.2)
     notices = core.take_notices()
-    assert len(notices) == 1 and '(5 samples so far; 3 more since the last report)' in notices[0].text
+    # "so far" less the previous report's "so far" (1): the samples since the last report, this one included
+    assert len(notices) == 1 and '(5 samples so far; 4 more since the last report)' in notices[0].text
     status = core.status(5.3)
     assert status.level is Level.WARN and status.value('out_of_range') == '5'
     assert status.value('out_of_range_policy') == policy.value
@@ -202,7 +285,7 @@ def test_counters_balance_and_appear_in_status():
     """Over a random mix of inputs: received == published + dropped, and the status says so."""
     rng = np.random.default_rng(7)
     core = make(stale_temperature=StaleTemperature.DROP, temp_timeout_s=0.05)
-    now = 0.0
+    now, step_ahead = 0.0, 0
     bad = [math.nan, math.inf, 0.5, 32767.0, -32768.0]
     for k in range(3000):
         now += float(rng.uniform(0.0, 0.02))
@@ -211,11 +294,13 @@ def test_counters_balance_and_appear_in_status():
         x, y, z = (float(v) for v in np.round(rng.uniform(-100.0, 100.0, 3)))
         if rng.random() < 0.05:
             x = float(rng.choice(bad))
-        stamp = SEC * 1_000_000_000 + k * 1_000_000 - int(rng.integers(0, 3)) * 1_000_000
+        if rng.random() < 0.01:  # the clock steps 20 s ahead: one stamp_jump, then the stream goes on
+            step_ahead += 20_000_000_000
+        stamp = SEC * 1_000_000_000 + step_ahead + k * 1_000_000 - int(rng.integers(0, 3)) * 1_000_000
         core.process_counts(*divmod(stamp, 1_000_000_000), x, y, z, now_s=now)
     assert balanced(core)
     assert all(core.dropped[reason] > 0 for reason in ONLINE_DROP_REASONS
-               if reason not in ('correction_failed', 'non_finite_output'))
+               if reason not in ('correction_failed', 'non_finite_output', 'non_physical'))  # counts: rails
     assert core.out_of_range > 0
     values = dict(core.status(now).values)
     dropped = sum(int(values[f'dropped.{reason}']) for reason in ONLINE_DROP_REASONS)
@@ -328,8 +413,8 @@ def test_driver_message_with_one_non_finite_value_dropped_whole(index, bad):
     values[index] = bad
     assert core.process_values(SEC, 0, tuple(values), now_s=0.1) == 'non_finite'
     assert core.published == 0 and balanced(core)
-    # Rails and fractions mean nothing for a driver's SI values: corrected.
-    assert isinstance(core.process_values(SEC, 1, (32767.0, 0.5, 1.25, -32768.0, 0.0, 0.0), now_s=0.2), tuple)
+    # Rails and fractions mean nothing for a driver's SI values: corrected (below the physical limit).
+    assert isinstance(core.process_values(SEC, 1, (3276.7, 0.5, 1.25, -3276.8, 0.0, 0.0), now_s=0.2), tuple)
 
 
 @pytest.mark.parametrize(('key', 'change', 'reason'), [
@@ -365,9 +450,10 @@ def test_counts_calibration_whose_covariance_or_correction_overflows_is_refused(
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
-_value = st.one_of(st.floats(-50.0, 50.0), st.sampled_from([math.nan, math.inf, -math.inf, 0.0, 1e6]))
+_value = st.one_of(st.floats(-50.0, 50.0), st.sampled_from([math.nan, math.inf, -math.inf, 0.0, 1e6, 1e308]))
 _event = st.one_of(
-    st.tuples(st.just('imu'), st.integers(-3, 4), st.tuples(*[_value] * 6), st.floats(0.0, 0.3)),
+    st.tuples(st.just('imu'), st.integers(-3, 4) | st.sampled_from([3_600_000, -3_600_000, 20_000]),  # ms
+              st.tuples(*[_value] * 6), st.floats(0.0, 0.3)),
     st.tuples(st.just('temp'), st.one_of(st.floats(-10.0, 50.0), st.sampled_from([math.nan, -math.inf, 2e7])),
               st.floats(0.0, 0.3)),
     st.tuples(st.just('param'), st.sampled_from(['offset', 'range', 'extrapolate', 'clamp', 'drop', 'hold',
@@ -394,14 +480,15 @@ def test_generated_streams_keep_every_invariant(events):
     """NaN, rails, stamps backwards, temperature gaps, parameter updates in the middle.
 
     Received == published + dropped, outputs finite and equal to UnitCorrector.correct on the published subset (per
-    calibration in force), stamps dropped by the previous-message rule.
+    calibration in force), stamps (with jumps of an hour either way) dropped exactly as the offline rule drops them.
     """
     from tak_thermo_ros.formats.calibration_file import unit_from_mapping, unit_to_mapping
     from tak_thermo_ros.errors import CalibrationError
     core = OnlineCompensator(DRIVER, temp_timeout_s=0.5)
-    now, stamp, previous_stamp = 0.0, SEC * 1_000_000_000, None
+    now, stamp = 0.0, SEC * 1_000_000_000
     published: dict[int, tuple] = {}
-    expected_order_drops = 0
+    stamps_sent: list[int] = []
+    stamp_drops: list[str | None] = []
     for event in events:
         if event[0] == 'temp':
             now += event[2]
@@ -409,10 +496,9 @@ def test_generated_streams_keep_every_invariant(events):
         elif event[0] == 'imu':
             now += event[3]
             stamp += event[1] * 1_000_000
-            if previous_stamp is not None and stamp <= previous_stamp:
-                expected_order_drops += 1
-            previous_stamp = stamp
             result = core.process_values(*divmod(stamp, 1_000_000_000), event[2], now_s=now)
+            stamps_sent.append(stamp)
+            stamp_drops.append(result if result in STAMP_DROP_REASONS else None)
             if isinstance(result, tuple):
                 assert all(math.isfinite(v) for v in result)
                 group = published.setdefault(id(core.corrector), (core.corrector, [], [], [], []))
@@ -439,7 +525,9 @@ def test_generated_streams_keep_every_invariant(events):
                 except CalibrationError:
                     assert what.startswith(('absurd', 'tiny')) and core.unit is before
         assert balanced(core)
-    assert core.dropped['time_backwards'] + core.dropped['duplicate_stamp'] == expected_order_drops
+    offline, _ = stamp_problems(np.array(stamps_sent, dtype=np.int64))
+    assert stamp_drops == [next((reason for reason, mask in offline.items() if mask[i]), None)
+                           for i in range(len(stamps_sent))]
     for corrector, values, temperatures, stamps, results in published.values():
         offline = UnitCorrector(corrector.unit, out_of_range=corrector.correctors[0].out_of_range).correct(
             np.array(values), np.array(temperatures), stamp_s=seconds_from_ns(np.array(stamps, dtype=np.int64)))

@@ -71,6 +71,7 @@ from tak_thermo_ros.core.link.model import (
     InputKind,
     MagnetometerCalibration,
     UnitCalibration,
+    check_plausible,
     check_scale_positive,
 )
 from tak_thermo_ros.core.noise.model import NoiseModel, noise_model_from_mapping
@@ -284,8 +285,12 @@ def _check_limits(calibration: Calibration, limits: Limits, key: str) -> None:
             raise CalibrationError(msg)
 
 
-def _link_from_mapping(raw: Any, key: str, input_kind: InputKind, *, extra_keys: tuple[str, ...]) -> Calibration:
-    """One sensor's :class:`Calibration` from its mapping (temperature range, axes, effects)."""
+def _link_from_mapping(raw: Any, key: str, input_kind: InputKind, *, extra_keys: tuple[str, ...],
+                       sensor: str) -> Calibration:
+    """One sensor's :class:`Calibration` from its mapping (temperature range, axes, effects).
+
+    :param sensor: ``counts``, ``accel``, ``gyro`` or ``mag`` (the plausible range of its correction).
+    """
     limits = LIMITS[input_kind]
     stem = limits.temperature_name
     range_keys = (f'{stem}_ref', f'{stem}_min', f'{stem}_max')
@@ -329,6 +334,7 @@ def _link_from_mapping(raw: Any, key: str, input_kind: InputKind, *, extra_keys:
         raise CalibrationError(f'{key}.{str(err).removeprefix("calibration.")}') from None
     _check_limits(calibration, limits, key)
     check_scale_positive(calibration, key=key)
+    check_plausible(calibration, sensor, key=key)
     return calibration
 
 
@@ -419,7 +425,7 @@ def unit_from_mapping(raw: Any, *, key: str = 'calibration') -> UnitCalibration:
         raise CalibrationError(msg)
     if _version(raw, key) == CALIBRATION_VERSION:
         return UnitCalibration(InputKind.COUNTS, _link_from_mapping(raw, key, InputKind.COUNTS,
-                                                                    extra_keys=('version',)))
+                                                                    extra_keys=('version',), sensor='counts'))
     unknown = sorted(str(name) for name in set(raw) - {'version', 'input', 'source', *SENSORS, MAG_SENSOR})
     if unknown:
         msg = f'{key}.{unknown[0]}: unknown key'
@@ -432,7 +438,7 @@ def unit_from_mapping(raw: Any, *, key: str = 'calibration') -> UnitCalibration:
         if sensor not in raw:
             msg = f'{key}.{sensor}: missing'
             raise CalibrationError(msg)
-    accel, gyro = (_link_from_mapping(raw[sensor], f'{key}.{sensor}', InputKind.IMU, extra_keys=())
+    accel, gyro = (_link_from_mapping(raw[sensor], f'{key}.{sensor}', InputKind.IMU, extra_keys=(), sensor=sensor)
                    for sensor in SENSORS)
     mag = _mag_from_mapping(raw[MAG_SENSOR], f'{key}.{MAG_SENSOR}') if MAG_SENSOR in raw else None
     source = _source_from_mapping(raw['source'], f'{key}.source') if 'source' in raw else None
@@ -478,7 +484,7 @@ SOFT_IRON_EIGENVALUES = (0.2, 5.0)
 
 def _mag_from_mapping(raw: Any, key: str) -> MagnetometerCalibration:
     """The magnetometer: a sensor's keys (tesla) plus ``hard_iron`` (3) and ``soft_iron`` (9, row-major)."""
-    thermal = _link_from_mapping(raw, key, InputKind.IMU, extra_keys=MAG_IRON_KEYS)
+    thermal = _link_from_mapping(raw, key, InputKind.IMU, extra_keys=MAG_IRON_KEYS, sensor=MAG_SENSOR)
     for name in MAG_IRON_KEYS:
         if name not in raw:
             msg = f'{key}.{name}: missing'

@@ -369,3 +369,60 @@ def check_scale_positive(calibration: Calibration, *, key: str = 'calibration') 
             msg = (f'{key}.{name}.scale_shape: F_c <= 0 inside the calibrated range '
                    f'(at temperature code {worst:.1f})')
             raise CalibrationError(msg)
+
+
+SENSOR_RANGE = {'counts': (32768.0, 'codes', 'the 16-bit code range'),
+                'accel': (2000.0, 'm/s^2', "any accelerometer's range"),
+                'gyro': (100.0, 'rad/s', "any gyroscope's range"),
+                'mag': (0.01, 'T', "any magnetometer's range")}
+"""Per sensor, a bound beyond any unit's full scale, its unit and its name: the paper's 16-bit
+codes; 2000 m/s^2 (about 200 g); 100 rad/s (5700 deg/s); 0.01 T (100 gauss). No offset a
+sensor can output lies beyond it."""
+DRIFT_SLACK = 10.0
+"""How far the offset drift over the calibrated range may exceed ``offset_span``, the largest
+change of the offset over that range by the file's own definition (``max |F_s| = 1``)."""
+SCALE_FACTOR_RANGE = (0.5, 2.0)
+"""Open interval of ``F_c`` over the calibrated range: the scale changes with temperature by
+percent, not by a factor of two."""
+
+
+def check_plausible(calibration: Calibration, sensor: str, *, key: str = 'calibration') -> None:
+    """Refuse a correction that is implausible over its own calibrated range.
+
+    On every axis, at 1001 temperatures across the range: the offset it removes,
+    ``|dNs0 + D F_s(n)|``, stays within the sensor's :data:`SENSOR_RANGE`; the offset drift
+    ``|D F_s(n)|`` within :data:`DRIFT_SLACK` times ``offset_span`` (what was fitted: the fit
+    normalises ``F_s`` to a largest magnitude of 1 over the range; a shape or a range that
+    makes it more extrapolates the fit far beyond its data); ``F_c(n)`` within
+    :data:`SCALE_FACTOR_RANGE`. The one rule for a file and for a node's parameter update.
+
+    :param sensor: a key of :data:`SENSOR_RANGE`.
+    :raises CalibrationError: one line naming the key, the value, where and the bound.
+    """
+    full_scale, unit, what = SENSOR_RANGE[sensor]
+    n_low, n_high = calibration.code_offset_range()
+    grid = np.linspace(n_low, n_high, 1001)
+    low, high = SCALE_FACTOR_RANGE
+    for name, axis in zip(AXES, calibration.axes):
+        with np.errstate(all='ignore'):
+            drift = axis.offset_drift(grid)
+            factor = axis.scale_factor(grid)
+        at = int(np.argmax(np.abs(drift)))
+        where = f'at temperature {float(grid[at]) + calibration.temp_code_ref:g}'
+        if abs(drift[at]) > DRIFT_SLACK * axis.offset_span:
+            msg = (f'{key}.{name}.offset_shape: the offset drifts by {drift[at]:.3g} {unit} {where}, '
+                   f'{abs(drift[at]) / axis.offset_span:.3g} x offset_span ({axis.offset_span:.3g} {unit}; '
+                   f'at most {DRIFT_SLACK:g} x): beyond what was fitted')
+            raise CalibrationError(msg)
+        removed = axis.offset + drift
+        at = int(np.argmax(np.abs(removed)))
+        if abs(removed[at]) > full_scale:
+            msg = (f'{key}.{name}: the correction removes an offset of {removed[at]:.3g} {unit} at temperature '
+                   f'{float(grid[at]) + calibration.temp_code_ref:g}, beyond {what} ({full_scale:g} {unit})')
+            raise CalibrationError(msg)
+        if not np.all((factor > low) & (factor < high)):
+            at = int(np.argmax(np.abs(factor - 1.0)))
+            msg = (f'{key}.{name}.scale_shape: F_c = {factor[at]:.3g} at temperature '
+                   f'{float(grid[at]) + calibration.temp_code_ref:g}, outside {low:g}..{high:g}: the scale '
+                   f'changes with temperature by percent')
+            raise CalibrationError(msg)

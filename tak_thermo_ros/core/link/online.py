@@ -25,10 +25,15 @@ The correction is :meth:`UnitCorrector.correct_sample`, bit-identical to the vec
 
 Bad input, each with a defined outcome, checks in this order:
 
-- a header stamp equal to (``duplicate_stamp``) or earlier than (``time_backwards``) the
-  previous input message's, whatever became of that one: dropped, as ``align()`` does offline;
+- a header stamp that does not go on from the previous input message's (whatever became of
+  that one) nor from the last kept one's: equal (``duplicate_stamp``), earlier
+  (``time_backwards``) or later by more than 10 s and 100 steps of the stream (``stamp_jump``: a
+  message stamped in the future is dropped alone; after a real jump the next message goes on
+  from it): dropped, by :func:`~tak_thermo_ros.core.records.record.stamp_kept`, as ``align()``
+  does offline;
 - values NaN / infinite (``non_finite``), for counts also not whole (``non_integer``) or at
-  a 16-bit rail (``saturated``): dropped, never corrected;
+  a 16-bit rail (``saturated``), for a driver of magnitude 1e4 or more (``non_physical``):
+  dropped, never corrected;
 - no temperature yet: dropped (``waiting_for_temperature``) and a throttled warning; a
   calibration without temperature terms (``thermal: held`` or ``none`` on every sensor the
   channel corrects) reads no temperature: it neither waits for one nor calls one stale;
@@ -67,8 +72,14 @@ from tak_thermo_ros.core.link.model import Calibration, InputKind, UnitCalibrati
 from tak_thermo_ros.core.records.record import (
     DROP_REASONS,
     NANOSECONDS,
+    STAMP_JUMP_NS,
+    STAMP_JUMP_S,
+    StampHistory,
     counts_problem,
     seconds,
+    stamp_kept,
+    stamp_problem,
+    stream_step,
     temp_code_problem,
     values_problem,
 )
@@ -76,11 +87,12 @@ from tak_thermo_ros.errors import CalibrationError
 
 DUPLICATE_STAMP = 'duplicate_stamp'
 TIME_BACKWARDS = 'time_backwards'
+STAMP_JUMP = 'stamp_jump'
 WAITING_FOR_TEMPERATURE = 'waiting_for_temperature'
 STALE_TEMPERATURE = 'stale_temperature'
 CORRECTION_FAILED = 'correction_failed'
 NON_FINITE_OUTPUT = 'non_finite_output'
-STAMP_DROP_REASONS: tuple[str, ...] = (DUPLICATE_STAMP, TIME_BACKWARDS)
+STAMP_DROP_REASONS: tuple[str, ...] = (DUPLICATE_STAMP, TIME_BACKWARDS, STAMP_JUMP)
 ONLINE_DROP_REASONS: tuple[str, ...] = (*STAMP_DROP_REASONS, *DROP_REASONS, WAITING_FOR_TEMPERATURE,
                                         STALE_TEMPERATURE, CORRECTION_FAILED, NON_FINITE_OUTPUT)
 """Why an input message is not published, in the order the checks run."""
@@ -168,7 +180,13 @@ class Configuration:
 
 
 class _Throttle:
-    """First report at once, then at most one per period, counting what was held back."""
+    """First report at once, then at most one per period, counting what happened since the last one.
+
+    What it counts is what the report's "so far" counts (messages, samples, messages lost), the
+    occurrence that makes a report due included, so that a report's "N more since the last
+    report" is its "so far" less the previous report's. A periodic check that makes a report due
+    (a tick) counts nothing.
+    """
 
     __slots__ = ('period_s', 'next_s', 'held_back')
 
@@ -177,14 +195,17 @@ class _Throttle:
         self.next_s = -math.inf
         self.held_back = 0
 
-    def due(self, now_s: float) -> bool:
+    def due(self, now_s: float, count: int = 1) -> bool:
+        """Count ``count`` occurrences (0: a tick); whether a report is due now."""
+        if self.next_s > -math.inf:  # the first report has nothing "since the last report"
+            self.held_back += count
         if now_s >= self.next_s:
             self.next_s = now_s + self.period_s
             return True
-        self.held_back += 1
         return False
 
     def take_held_back(self) -> int:
+        """What was counted since the last report, and start again."""
         held, self.held_back = self.held_back, 0
         return held
 
@@ -346,6 +367,8 @@ class OnlineCompensator:
         self.signal_messages: dict[str, int] = {}
         self.signal_rejected: dict[str, int] = {}
         self._last_stamp_ns: int | None = None
+        self._kept_stamp_ns: int | None = None
+        self._kept_before_ns: int | None = None
         self._temperature: float | None = None
         self._temp_arrival_s = -math.inf
         self._temp_outside = False
@@ -597,9 +620,14 @@ class OnlineCompensator:
         stamp_ns = sec * NANOSECONDS + nanosec
         last = self._last_stamp_ns
         self._last_stamp_ns = stamp_ns
-        if last is not None and stamp_ns <= last:
-            return self._drop_out_of_order(DUPLICATE_STAMP if stamp_ns == last else TIME_BACKWARDS,
-                                           stamp_ns, last, now_s)
+        # stamp_kept, its usual case (a step forward within 10 s) inline
+        if last is not None and not 0 < stamp_ns - last <= STAMP_JUMP_NS:
+            kept = self._kept_stamp_ns
+            history = StampHistory(last, kept, stream_step(kept, self._kept_before_ns))
+            if not stamp_kept(stamp_ns, history):
+                return self._drop_out_of_order(stamp_problem(stamp_ns - last), stamp_ns, last, now_s)
+        self._kept_before_ns = self._kept_stamp_ns
+        self._kept_stamp_ns = stamp_ns
         problem = self._problem(*values)
         if problem is not None:
             self.dropped[problem] += 1
@@ -648,7 +676,7 @@ class OnlineCompensator:
         if count <= 0:
             return
         self.lost[stream] = self.lost.get(stream, 0) + count
-        if self._throttles['message_lost'].due(now_s):
+        if self._throttles['message_lost'].due(now_s, count):
             held = self._throttles['message_lost'].take_held_back()
             self._notice(Level.WARN, 'message_lost',
                          f'{count} {stream} messages lost in transport ({self.lost_total()} so far'
@@ -669,7 +697,7 @@ class OnlineCompensator:
             return
         gap = number - last - 1
         self.sequence_gaps[stream] = self.sequence_gaps.get(stream, 0) + gap
-        if self._throttles['sequence_gap'].due(now_s):
+        if self._throttles['sequence_gap'].due(now_s, gap):
             held = self._throttles['sequence_gap'].take_held_back()
             self._notice(Level.WARN, 'sequence_gap',
                          f'{gap} {stream} messages never received (publication sequence numbers '
@@ -687,11 +715,13 @@ class OnlineCompensator:
         self.dropped[reason] += 1
         if self._throttles['stamp_order'].due(now_s):
             held = self._throttles['stamp_order'].take_held_back()
-            relation = 'equal to' if reason == DUPLICATE_STAMP else f'{(last_ns - stamp_ns) * 1e-9:.6f} s before'
+            relation = ('equal to' if reason == DUPLICATE_STAMP
+                        else f'{abs(stamp_ns - last_ns) * 1e-9:.6f} s '
+                             f'{"before" if reason == TIME_BACKWARDS else f"(> {STAMP_JUMP_S:g} s) after"}')
             self._notice(Level.WARN, 'stamp_order',
                          f'{self._message_word} header stamp {relation} the previous one: dropped '
                          f'({self.dropped[DUPLICATE_STAMP]} duplicate, {self.dropped[TIME_BACKWARDS]} '
-                         f'backwards so far{self._since(held)})')
+                         f'backwards, {self.dropped[STAMP_JUMP]} jumped ahead so far{self._since(held)})')
         return reason
 
     def _drop_failed(self, reason: str, detail: str, now_s: float) -> str:
@@ -730,8 +760,8 @@ class OnlineCompensator:
                      f'({self.dropped[WAITING_FOR_TEMPERATURE]} {self._message_word} messages dropped so far'
                      f'{self._since(held)})')
 
-    def _report_stale(self, now_s: float) -> None:
-        if not self._throttles[STALE_TEMPERATURE].due(now_s):
+    def _report_stale(self, now_s: float, count: int = 1) -> None:
+        if not self._throttles[STALE_TEMPERATURE].due(now_s, count):
             return
         self._throttles[STALE_TEMPERATURE].take_held_back()
         self._stale_reported = True
@@ -765,12 +795,15 @@ class OnlineCompensator:
                 and now_s - self._temp_arrival_s > self._timeout_s)
 
     def tick(self, now_s: float) -> None:
-        """Periodic checks that need no message (the node calls it with its diagnostics)."""
+        """Periodic checks that need no message (the node calls it with its diagnostics).
+
+        A tick is not a message: it holds nothing back (the reports count messages).
+        """
         if self.waiting_for_temperature:
-            if self._throttles[WAITING_FOR_TEMPERATURE].due(now_s):
+            if self._throttles[WAITING_FOR_TEMPERATURE].due(now_s, 0):
                 self._report_waiting()
         elif self.is_stale(now_s):
-            self._report_stale(now_s)
+            self._report_stale(now_s, 0)
 
     def dropped_total(self) -> int:
         """Input messages dropped, all reasons."""

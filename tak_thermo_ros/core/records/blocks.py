@@ -28,6 +28,7 @@ import numpy as np
 from tak_thermo_ros.core.records.record import (
     AlignedSamples,
     ChannelRecord,
+    StampHistory,
     align,
     hold_last_index,
     reference_problems,
@@ -57,8 +58,9 @@ class AlignState:
     :param last_stamp_ns: the largest stamp among the aligned main samples, or ``None``.
     :param temp_seen_ns: the largest temperature stamp read, or ``None``.
     :param reference_seen_ns: the largest reference stamp read, or ``None``.
-    :param previous_stamp_ns: the stamp of the last main sample aligned (kept or dropped), for
-        the ``duplicate_stamp`` / ``time_backwards`` rule across block edges, or ``None``.
+    :param stamp_history: what the stamp rule (:func:`~tak_thermo_ros.core.records.record.stamp_kept`)
+        knows of the main samples aligned so far (the last one's stamp and step, the last kept
+        one's stamp), across block edges, or ``None``.
     :param aux: carried recorded signals, name -> ``(stamp_ns, values)`` (finite values only).
     :param aux_seen_ns: per recorded signal the largest stamp read, or ``None``.
     """
@@ -73,7 +75,7 @@ class AlignState:
     last_stamp_ns: int | None = None
     temp_seen_ns: int | None = None
     reference_seen_ns: int | None = None
-    previous_stamp_ns: int | None = None
+    stamp_history: StampHistory | None = None
     aux: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     aux_seen_ns: dict[str, int | None] = field(default_factory=dict)
 
@@ -220,7 +222,7 @@ def align_block(state: AlignState, block: ChannelRecord, *, final: bool, use_ref
                          reference=part_reference, frame_id=block.frame_id, nominal_scale=block.nominal_scale,
                          input_kind=block.input_kind, aux=aux)
     aligned = align(part, use_reference=use_reference, settle_time_s=settle_time_s, drop_saturated=drop_saturated,
-                    previous_stamp_ns=state.previous_stamp_ns, require_temperature=temperature_expected)
+                    stamp_history=state.stamp_history, require_temperature=temperature_expected)
     rows = aligned.rows + state.rows_done if aligned.rows is not None else None
     aligned = replace(aligned, rows=rows, ignored_temp_codes=ignored_temp_codes,
                       ignored_references=ignored_references)
@@ -240,7 +242,7 @@ def align_block(state: AlignState, block: ChannelRecord, *, final: bool, use_ref
                             pending_stamp_ns=stamps[ready:].copy(), pending_values=values[ready:].copy(),
                             rows_done=state.rows_done + ready, last_stamp_ns=horizon,
                             temp_seen_ns=temp_seen, reference_seen_ns=reference_seen,
-                            previous_stamp_ns=int(stamps[ready - 1]) if ready else state.previous_stamp_ns,
+                            stamp_history=aligned.stamp_history,
                             aux=carried_aux, aux_seen_ns=aux_seen)
     return aligned, next_state
 

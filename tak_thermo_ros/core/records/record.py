@@ -88,8 +88,13 @@ class ChannelRecord:
         return len(self.reference_stamp_ns) > 0
 
 
-DROP_REASONS = ('non_finite', 'non_integer', 'saturated')
-"""Why a counts sample is never corrected, in the order the checks run."""
+DROP_REASONS = ('non_finite', 'non_integer', 'saturated', 'non_physical')
+"""Why a sample is never corrected, in the order the checks run (counts: the first three; a
+driver's values: ``non_finite`` and ``non_physical``)."""
+VALUE_LIMIT = 1.0e4
+"""Magnitude from which a driver's value (m/s^2, rad/s, tesla) is non-physical: 1000 g, or
+95,000 rpm, beyond the full scale of any IMU (the calibration file's limit on offsets). Such a
+message is dropped (``non_physical``), never corrected: a corrupt field, not a measurement."""
 
 
 def counts_problem(x: float, y: float, z: float) -> str | None:
@@ -108,15 +113,20 @@ def counts_problem(x: float, y: float, z: float) -> str | None:
     return None
 
 
-def values_problem(*values: float) -> str | None:
+def values_problem(*values: float, _low: float = -VALUE_LIMIT, _high: float = VALUE_LIMIT) -> str | None:
     """Why one driver sample (any number of channels) cannot be corrected, or ``None``.
 
-    Driver values are already in SI units: only a NaN or an infinity is refused
-    (``non_finite``), as by :func:`counts_problems` with ``whole_codes=False``.
+    Driver values are already in SI units: a NaN or an infinity (``non_finite``) or a magnitude
+    of :data:`VALUE_LIMIT` or more (``non_physical``) is refused, as by :func:`counts_problems`
+    with ``whole_codes=False``. (``_low`` and ``_high`` are the limit as local names: the node
+    asks this of every message.)
     """
     for value in values:
-        if not isfinite(value):
-            return 'non_finite'
+        if not _low < value < _high:  # also false for NaN
+            for other in values:
+                if not isfinite(other):
+                    return 'non_finite'
+            return 'non_physical'
     return None
 
 
@@ -125,22 +135,37 @@ def counts_problems(counts: np.ndarray, *, whole_codes: bool = True) -> dict[str
 
     :param counts: ``(k, c)`` values, one row per sample.
     :param whole_codes: the paper's codes (whole numbers inside the 16-bit range); ``False``
-        for a driver's values, where only ``non_finite`` applies.
+        for a driver's values, where ``non_finite`` and ``non_physical`` apply.
     """
     finite = np.all(np.isfinite(counts), axis=1)
-    if not whole_codes:
-        nothing = np.zeros(len(counts), dtype=bool)
-        return {'non_finite': ~finite, 'non_integer': nothing, 'saturated': nothing.copy()}
     safe = np.where(np.isfinite(counts), counts, 0.0)
+    nothing = np.zeros(len(counts), dtype=bool)
+    if not whole_codes:
+        large = np.any(np.abs(safe) >= VALUE_LIMIT, axis=1)
+        return {'non_finite': ~finite, 'non_integer': nothing, 'saturated': nothing.copy(),
+                'non_physical': finite & large}
     integer = np.all(safe == np.round(safe), axis=1)
     rail = np.any((safe <= COUNTS_MIN) | (safe >= COUNTS_MAX), axis=1)
     return {'non_finite': ~finite,
             'non_integer': finite & ~integer,
-            'saturated': finite & integer & rail}
+            'saturated': finite & integer & rail,
+            'non_physical': nothing}
 
 
-STAMP_DROP_REASONS = ('duplicate_stamp', 'time_backwards')
-"""Why a counts sample is left out for its header stamp, checked before :data:`DROP_REASONS`."""
+STAMP_DROP_REASONS = ('duplicate_stamp', 'time_backwards', 'stamp_jump')
+"""Why a sample is left out for its header stamp, checked before :data:`DROP_REASONS`."""
+STAMP_JUMP_S = 10.0
+"""A forward step of the header stamp from one message to the next that is taken as the stream
+going on, whatever the stream: up to 10 s (a step beyond both this and :data:`STAMP_JUMP_STEPS`
+steps of the stream is a ``stamp_jump``: a message stamped in the future, or the first after a
+pause or a clock step, which the next message then confirms)."""
+STAMP_JUMP_NS = int(STAMP_JUMP_S * NANOSECONDS)
+STAMP_JUMP_STEPS = 100
+"""A forward step also goes on when it is at most this many steps of the stream (the last kept
+message's advance over the kept one before it): a stream with a message every 30 s goes on 30 s
+at a time."""
+_STEP_CAP_NS = np.iinfo(np.int64).max // STAMP_JUMP_STEPS
+"""Steps beyond this make a limit beyond any step (stamps are within +-2**31 s): capped, for int64."""
 TEMP_CODE_PROBLEMS = ('non_finite', 'implausible')
 """Why a temperature code is ignored (not held)."""
 
@@ -194,26 +219,123 @@ def _usable_hold_index(source_stamp_ns: np.ndarray, problems: dict[str, np.ndarr
     return np.where(held >= 0, rows[np.maximum(held, 0)], -1)
 
 
-def stamp_problems(stamp_ns: np.ndarray, *, previous_stamp_ns: int | None = None) -> dict[str, np.ndarray]:
-    """Masks ``(k,)`` per reason of :data:`STAMP_DROP_REASONS`, in bag (arrival) order.
+def stamp_problem(step_ns: int) -> str:
+    """The reason a message whose stamp is ``step_ns`` after the previous message's is dropped.
 
-    A counts sample whose header stamp equals the previous counts message's (whatever became
-    of that one) is a ``duplicate_stamp``; one stamped earlier is ``time_backwards``. The node
-    applies the same rule per message.
+    Only asked of a message :func:`stamp_kept` refuses: ``duplicate_stamp`` (equal),
+    ``time_backwards`` (earlier) or ``stamp_jump`` (later by more than :func:`step_limit`).
+    """
+    if step_ns == 0:
+        return 'duplicate_stamp'
+    return 'time_backwards' if step_ns < 0 else 'stamp_jump'
 
-    :param previous_stamp_ns: the stamp of the message before the first one (a run read in
-        blocks), or ``None``.
+
+def step_limit(stream_step_ns: int | None) -> int | None:
+    """The largest forward step that goes on, in a stream stepping ``stream_step_ns``.
+
+    :data:`STAMP_JUMP_S`, or :data:`STAMP_JUMP_STEPS` steps of the stream when more; ``None`` (no
+    limit) while the stream's step is unknown (one message kept so far, or the stamps went back).
+    """
+    if stream_step_ns is None:
+        return None
+    return max(STAMP_JUMP_NS, STAMP_JUMP_STEPS * min(stream_step_ns, _STEP_CAP_NS))
+
+
+@dataclass(frozen=True)
+class StampHistory:
+    """What the stamp rule knows of the messages before: for a run read in blocks, and the node.
+
+    :param previous_ns: the previous message's stamp (whatever became of it).
+    :param kept_ns: the stamp of the last message kept, or ``None``.
+    :param stream_step_ns: the last kept message's advance over the kept one before it (> 0), or
+        ``None`` when unknown.
+    """
+
+    previous_ns: int
+    kept_ns: int | None = None
+    stream_step_ns: int | None = None
+
+    def after(self, stamp_ns: int, kept: bool) -> StampHistory:
+        """The history once a message stamped ``stamp_ns`` is kept, or dropped."""
+        if not kept:
+            return StampHistory(stamp_ns, self.kept_ns, self.stream_step_ns)
+        return StampHistory(stamp_ns, stamp_ns, stream_step(stamp_ns, self.kept_ns))
+
+
+def stream_step(kept_ns: int | None, kept_before_ns: int | None) -> int | None:
+    """The stream's step: a kept stamp's advance over the kept one before it; unknown unless forward."""
+    return kept_ns - kept_before_ns if kept_ns is not None and kept_before_ns is not None and (
+        kept_ns > kept_before_ns) else None
+
+
+def stamp_kept(stamp_ns: int, history: StampHistory | None) -> bool:
+    """The stamp rule, one message at a time (the node's, and :func:`stamp_problems`' own).
+
+    A message is kept when its header stamp is later than the previous message's (whatever
+    became of that one), or than the last kept message's, by at most :func:`step_limit` (10 s,
+    or 100 steps of the stream). So a stream 1, 2, 3, 10, 4, 5 s drops the 4 (the 10 was kept);
+    a stream 1, 2, 3, 3603, 4, 5 s drops the 3603 alone (stamped an hour ahead), and the 4 goes
+    on from the 3; after a real jump (1, 2, 3, 3603, 3604, ...: a pause or a clock step) the
+    first message after it is dropped and the next one, going on from it, is kept; a stream of
+    a message every 30 s goes on.
+
+    :param history: what is known of the messages before, ``None`` for the first message.
+    """
+    if history is None:
+        return True
+    limit = step_limit(history.stream_step_ns)
+    for start in (history.previous_ns, history.kept_ns):
+        if start is not None and 0 < stamp_ns - start and (limit is None or stamp_ns - start <= limit):
+            return True
+    return False
+
+
+def stamp_problems(stamp_ns: np.ndarray, *, history: StampHistory | None = None
+                   ) -> tuple[dict[str, np.ndarray], StampHistory | None]:
+    """Masks ``(k,)`` per reason of :data:`STAMP_DROP_REASONS`, in bag (arrival) order; the history after.
+
+    :func:`stamp_kept` on every message, vectorised: a stretch where each message steps forward
+    by at most the limit its predecessor's step sets is kept whole; the messages around the others
+    are taken one by one. The reason is :func:`stamp_problem`'s. The node applies the same rule
+    per message.
+
+    :param history: the messages before the first one (a run read in blocks), or ``None``.
     """
     stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
-    if previous_stamp_ns is not None:
-        with_previous = np.concatenate([np.array([previous_stamp_ns], dtype=np.int64), stamp_ns])
-        return {reason: mask[1:] for reason, mask in stamp_problems(with_previous).items()}
-    duplicate = np.zeros(len(stamp_ns), dtype=bool)
-    backwards = np.zeros(len(stamp_ns), dtype=bool)
-    if len(stamp_ns) > 1:
-        duplicate[1:] = stamp_ns[1:] == stamp_ns[:-1]
-        backwards[1:] = stamp_ns[1:] < stamp_ns[:-1]
-    return {'duplicate_stamp': duplicate, 'time_backwards': backwards}
+    count = len(stamp_ns)
+    if not count:
+        return {reason: np.zeros(0, dtype=bool) for reason in STAMP_DROP_REASONS}, history
+    step = np.zeros(count, dtype=np.int64)
+    step[1:] = stamp_ns[1:] - stamp_ns[:-1]
+    if history is not None:
+        step[0] = stamp_ns[0] - history.previous_ns
+    # Where message i-1 went on from i-2 (both kept), the stream steps step[i-1]: i goes on when
+    # 0 < step[i] <= step_limit(step[i-1]) (no limit after a step that was not forward).
+    stream_step = np.zeros(count, dtype=np.int64)
+    stream_step[1:] = step[:-1]
+    limit = np.maximum(STAMP_JUMP_NS, STAMP_JUMP_STEPS * np.clip(stream_step, 0, _STEP_CAP_NS))
+    goes_on = (step > 0) & ((stream_step <= 0) | (step <= limit))
+    stops = np.flatnonzero(~goes_on)
+    kept = np.zeros(count, dtype=bool)
+    state = history
+    index = 0
+    while index < count:
+        if (index > 0 and goes_on[index] and state.kept_ns == int(stamp_ns[index - 1])
+                and state.stream_step_ns == (int(step[index - 1]) if step[index - 1] > 0 else None)):
+            position = int(np.searchsorted(stops, index))
+            stop = int(stops[position]) if position < len(stops) else count
+            kept[index:stop] = True
+            last = int(stamp_ns[stop - 1])
+            state = StampHistory(last, last, int(step[stop - 1]))
+            index = stop
+            continue
+        stamp = int(stamp_ns[index])
+        kept[index] = stamp_kept(stamp, state)
+        state = state.after(stamp, bool(kept[index])) if state is not None else StampHistory(stamp, stamp)
+        index += 1
+    dropped = ~kept
+    return ({'duplicate_stamp': dropped & (step == 0), 'time_backwards': dropped & (step < 0),
+             'stamp_jump': dropped & (step > 0)}, state)
 
 
 def hold_last_index(source_stamp_ns: np.ndarray, target_stamp_ns: np.ndarray) -> np.ndarray:
@@ -241,6 +363,8 @@ class AlignedSamples:
     :param ignored_references: the same for reference messages (:func:`reference_problems`).
     :param aux: recorded signal name -> ``(k,)`` its value held at each kept sample's stamp
         (NaN before its first finite value; :func:`require_signals` leaves those samples out).
+    :param stamp_history: what the stamp rule knows after the last sample (kept or not), for
+        the next block of a run, or ``None``.
     """
 
     stamp_ns: np.ndarray
@@ -252,6 +376,7 @@ class AlignedSamples:
     ignored_temp_codes: dict[str, int] = field(default_factory=dict)
     ignored_references: dict[str, int] = field(default_factory=dict)
     aux: dict[str, np.ndarray] = field(default_factory=dict)
+    stamp_history: StampHistory | None = None
 
     def __len__(self) -> int:
         return len(self.stamp_ns)
@@ -270,15 +395,17 @@ class AlignedSamples:
 
 
 def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: float = 0.0,
-          drop_saturated: bool = True, previous_stamp_ns: int | None = None,
+          drop_saturated: bool = True, stamp_history: StampHistory | None = None,
           require_temperature: bool = True) -> AlignedSamples:
     """Hold temperature code and reference on the counts stamps and keep usable samples.
 
-    Counts samples are left out, and counted by reason, in this order: the header stamp is
-    not later than the previous counts message's (:func:`stamp_problems`: ``duplicate_stamp``,
-    ``time_backwards``); for the reasons of :func:`counts_problems`: a code is NaN or infinite
-    (``non_finite``), not a whole number (``non_integer``), or at a 16-bit rail (``saturated``,
-    unless ``drop_saturated`` is false); no temperature code has arrived yet
+    Counts samples are left out, and counted by reason, in this order: the header stamp does
+    not go on from the previous message's or the last kept one's (:func:`stamp_kept`:
+    ``duplicate_stamp``, ``time_backwards``, ``stamp_jump``); for the reasons of
+    :func:`counts_problems`: a code is NaN or infinite (``non_finite``), not a whole number
+    (``non_integer``), or at a 16-bit rail (``saturated``, unless ``drop_saturated`` is false),
+    a driver's value of magnitude :data:`VALUE_LIMIT` or more (``non_physical``); no
+    temperature code has arrived yet
     (``before_first_temp_code``); no reference yet (``before_first_reference``); within
     ``settle_time_s`` after a reference change (``settling``).
 
@@ -287,8 +414,8 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
     in :attr:`AlignedSamples.ignored_temp_codes`. A reference message likewise
     (:func:`reference_problems`, :attr:`AlignedSamples.ignored_references`).
 
-    :param previous_stamp_ns: the stamp of the counts message before the record's first one
-        (a run aligned in blocks, :mod:`tak_thermo_ros.core.records.blocks`), or ``None``.
+    :param stamp_history: what the stamp rule knows of the counts messages before the record's
+        first one (a run aligned in blocks, :mod:`tak_thermo_ros.core.records.blocks`), or ``None``.
     :param require_temperature: ``False`` for a pass that reads no temperature (a record without
         one, or a correction without temperature terms): no sample is left out for want of a
         temperature, and a sample before the first one holds NaN.
@@ -304,7 +431,8 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
             dropped[reason] = dropped.get(reason, 0) + int(np.count_nonzero(newly))
             keep[newly] = False
 
-    for reason, mask in stamp_problems(stamps, previous_stamp_ns=previous_stamp_ns).items():
+    stamp_masks, stamp_history = stamp_problems(stamps, history=stamp_history)
+    for reason, mask in stamp_masks.items():
         leave_out(reason, mask)
     for reason, mask in counts_problems(counts, whole_codes=record.input_kind == 'counts').items():
         if reason != 'saturated' or drop_saturated:
@@ -332,7 +460,8 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
                           reference=reference, dropped=dropped, rows=np.flatnonzero(keep),
                           ignored_temp_codes=ignored_temp_codes, ignored_references=ignored_references,
                           aux={name: hold_signal(signal_stamps, values, stamps[keep])
-                               for name, (signal_stamps, values) in record.aux.items()})
+                               for name, (signal_stamps, values) in record.aux.items()},
+                          stamp_history=stamp_history)
 
 
 def hold_signal(source_stamp_ns: np.ndarray, values: np.ndarray, target_stamp_ns: np.ndarray) -> np.ndarray:

@@ -1,0 +1,213 @@
+"""The ``compensator`` under the faults an adversarial run found (issue 27), with the real rclpy.
+
+A signal at any moment of start-up; two compensators in two namespaces on one /diagnostics; a
+future-stamped Imu; a live parameter and an Imu value that make nonsense. (Losses under a burst
+with the default executor: ``test_node.py``; the pure rules: ``test_online.py``.)
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from node_helpers import (
+    NANOSECONDS,
+    Harness,
+    NodeProcess,
+    node_command,
+    run_to_exit,
+    stamp_of,
+    status_values,
+    wait_until,
+)
+from tak_thermo_ros.core.link.correction import UnitCorrector
+from tak_thermo_ros.core.records.record import stamp_problems
+from tak_thermo_ros.core.simulation.imu import Scenario
+from tak_thermo_ros.formats.calibration_file import unit_to_mapping, unit_yaml, write_text_atomic
+
+START_NS = 1_700_000_000 * NANOSECONDS
+DRIVER_UNIT = Scenario(output='imu').driver_truth()  # 5..35 C
+GOOD = (0.1, -0.2, 9.81, 0.01, -0.02, 0.03)
+COMPENSATOR = Path(sys.executable).with_name('compensator')
+"""The console script: what ``ros2 run tak_thermo_ros compensator`` and launch execute."""
+
+
+def driver_params(path: Path, **parameters) -> Path:
+    """A params file with the simulator's driver calibration and the node's parameters."""
+    write_text_atomic(path, unit_yaml(DRIVER_UNIT, extra_parameters=parameters))
+    return path
+
+
+def values_of(message) -> tuple[float, ...]:
+    """An Imu's accelerometer and gyroscope values."""
+    a, w = message.linear_acceleration, message.angular_velocity
+    return (a.x, a.y, a.z, w.x, w.y, w.z)
+
+
+# -- 1. a signal while the node starts ------------------------------------------------------------
+
+def _caught(pid: int, number: int) -> bool:
+    """Whether process ``pid`` handles signal ``number`` (its SigCgt mask)."""
+    status = Path(f'/proc/{pid}/status').read_text()
+    mask = next(line for line in status.splitlines() if line.startswith('SigCgt:')).split()[1]
+    return bool(int(mask, 16) >> (number - 1) & 1)
+
+
+def _has_socket(pid: int) -> bool:
+    """Whether process ``pid`` holds a socket: the middleware is up (``rclpy.init``)."""
+    for fd in os.listdir(f'/proc/{pid}/fd'):
+        try:
+            if os.readlink(f'/proc/{pid}/fd/{fd}').startswith('socket:'):
+                return True
+        except OSError:
+            continue
+    return False
+
+
+def _writer_once_read(fifo: Path, timeout: float) -> int:
+    """Wait until a reader opens ``fifo``; the writing end (kept open: the reader then waits in read())."""
+    writers: list[int] = []
+
+    def reader_waiting() -> bool:
+        try:  # without a reader a non-blocking open for writing fails (ENXIO)
+            writers.append(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
+        except OSError:
+            return False
+        return True
+
+    wait_until(reader_waiting, timeout, what=f'the node to open {fifo.name}')
+    return writers[0]
+
+
+MOMENTS = [('importing', signal.SIGINT), ('rclpy_up', signal.SIGTERM), ('reading_calibration', signal.SIGTERM),
+           ('reading_calibration', signal.SIGINT), ('ready', signal.SIGINT), ('ready', signal.SIGTERM)]
+
+
+def test_a_signal_at_any_moment_of_start_up_ends_the_node_cleanly(tmp_path, ros_env):
+    """SIGINT or SIGTERM at six moments of start-up: exit 0, no traceback.
+
+    While the node imports, while rclpy is up and the node is built, while it reads its
+    calibration (a FIFO holds it there), and as it becomes ready. Each moment is reached by a
+    condition on the process (its signal mask, its sockets, its open FIFO, its log line), not by
+    a sleep.
+    """
+    params = driver_params(tmp_path / 'params.yaml')
+    for index, (moment, number) in enumerate(MOMENTS):
+        log = tmp_path / f'node_{index}_{moment}.log'
+        fifo, writer = tmp_path / f'calibration_{index}.yaml', None
+        arguments = ['--params-file', str(params)]
+        if moment == 'reading_calibration':
+            os.mkfifo(fifo)
+            arguments = ['-p', f'calibration_file:={fifo}']
+        with NodeProcess([str(COMPENSATOR), '--ros-args', *arguments], ros_env, log) as node:
+            pid = node.process.pid
+            if moment == 'importing':  # the guard is in place; the imports take most of a second
+                wait_until(lambda: _caught(pid, signal.SIGTERM), 20.0, what='the signal guard')
+            elif moment == 'rclpy_up':
+                wait_until(lambda: _has_socket(pid), 30.0, what='the middleware')
+            elif moment == 'reading_calibration':
+                writer = _writer_once_read(fifo, 30.0)
+            else:
+                wait_until(lambda: 'correcting' in node.log(), 30.0, what='the ready line')
+            os.killpg(pid, number)
+            if writer is not None:  # the calibration arrives after the signal: the node goes on building
+                os.write(writer, unit_yaml(DRIVER_UNIT).encode())
+                os.close(writer)
+            node.process.wait(timeout=20.0)
+            said = node.log()
+            assert node.process.returncode == 0, (moment, number, said)
+            assert 'Traceback' not in said and 'terminate called' not in said, (moment, said)
+            if moment != 'ready':
+                assert f'stopped by {signal.Signals(number).name} while starting' in said, (moment, said)
+
+
+# -- 2. two compensators on one /diagnostics --------------------------------------------------------
+
+def test_two_compensators_in_two_namespaces_are_told_apart_in_diagnostics(tmp_path, ros_env):
+    """The README's two-IMU set-up, one file: each status names its node and carries its unit's id.
+
+    /imu0/compensator and /imu1/compensator, with their hardware_id, before the first Imu already.
+    """
+    params = driver_params(tmp_path / 'params.yaml')
+    domain = int(ros_env['ROS_DOMAIN_ID'])
+    with NodeProcess(node_command('-r', '__ns:=/imu0', '--params-file', str(params), '-p', 'hardware_id:=SN-0'),
+                     ros_env, tmp_path / 'imu0.log') as imu0, \
+            NodeProcess(node_command('-r', '__ns:=/imu1', '--params-file', str(params), '-p', 'hardware_id:=SN-1'),
+                        ros_env, tmp_path / 'imu1.log') as imu1, \
+            Harness(domain, namespace='imu0', driver=True) as ros:
+        def seen() -> dict[str, str]:
+            return {s.name: s.hardware_id for array in ros.diagnostics for s in array.status}
+
+        names = {'/imu0/compensator: temperature compensation': 'SN-0',
+                 '/imu1/compensator: temperature compensation': 'SN-1'}
+        ros.wait(lambda: names.items() <= seen().items(), 30.0, 'a status of each compensator')
+        assert {name for name in seen() if 'compensation' in name} == set(names)
+        for array in ros.diagnostics:
+            for status in array.status:  # each says what it waits for, in its own namespace
+                assert f'{status.name[:5]}/imu/temperature' in status.message, status
+        assert imu0.stop() == 0 and imu1.stop() == 0
+
+
+# -- 4 and 5. a future-stamped Imu, a non-physical one, a nonsense parameter ----------------------
+
+def test_a_future_stamped_imu_costs_only_itself_and_nonsense_is_refused(tmp_path, ros_env):
+    """An Imu stamped an hour ahead costs only itself; 1e308 m/s^2 is dropped; a nonsense update is refused.
+
+    The outlier is dropped and said, the good Imu after it published (the offline rule drops the
+    same); the 1e308 one dropped and counted; a live offset_shape that makes the gyroscope read
+    31 rad/s refused, the old correction still published.
+    """
+    params = driver_params(tmp_path / 'params.yaml', qos='reliable')
+    corrector = UnitCorrector(DRIVER_UNIT)
+    hour = 3600 * NANOSECONDS
+    sent = [(START_NS + 1_000_000, GOOD), (START_NS + 2_000_000, GOOD),
+            (START_NS + 2_000_000 + hour, GOOD),  # a driver glitch: stamped an hour ahead
+            (START_NS + 3_000_000, GOOD), (START_NS + 4_000_000, GOOD),
+            (START_NS + 5_000_000, (1e308, *GOOD[1:])),  # non-physical
+            (START_NS + 6_000_000, GOOD)]
+    stamps = np.array([stamp for stamp, _ in sent], dtype=np.int64)
+    offline, _ = stamp_problems(stamps)
+    assert offline['stamp_jump'].tolist() == [False, False, True, False, False, False, False]
+    expected = [stamp for (stamp, values), jump in zip(sent, offline['stamp_jump']) if not jump and values == GOOD]
+    with NodeProcess(node_command('--params-file', str(params)), ros_env, tmp_path / 'node.log') as node, \
+            Harness(int(ros_env['ROS_DOMAIN_ID']), driver=True) as ros:
+        ros.wait_matched()
+        ros.send_temperature_and_wait(START_NS, 20.0)
+        for stamp, values in sent:
+            ros.send_imu(stamp, values)
+        ros.wait(lambda: len(ros.imu) == len(expected), 10.0, 'the good Imu')
+        ros.wait(lambda: status_values(ros.latest_status())['received'] == str(len(sent)), 10.0, 'the counters')
+        assert [stamp_of(m) for m in ros.imu] == expected
+        assert all(values_of(m) == corrector.correct_sample(GOOD, 20.0) for m in ros.imu)
+        values = status_values(ros.latest_status())
+        assert (values['dropped.stamp_jump'], values['dropped.non_physical'], values['dropped.time_backwards']) == (
+            '1', '1', '0')
+        assert int(values['received']) == int(values['published']) + int(values['dropped'])
+        wait_until(lambda: 'header stamp 3600.000000 s (> 10 s) after the previous one: dropped' in node.log(), 10.0,
+                   what='the stamp-jump warning')
+
+        refused = ros.set_parameters({'calibration.gyro.z.offset_shape': [1.0, 2.0, 3.0]})[0]
+        assert not refused.successful and refused.reason.startswith('calibration.gyro.z.offset_shape: the offset')
+        assert 'beyond what was fitted' in refused.reason
+        ros.send_imu(START_NS + 7_000_000, GOOD)
+        ros.wait(lambda: len(ros.imu) == len(expected) + 1, 10.0, 'an Imu after the refusal')
+        assert values_of(ros.imu[-1]) == corrector.correct_sample(GOOD, 20.0)
+        assert node.stop() == 0
+    assert 'Traceback' not in node.log()
+
+
+def test_an_implausible_calibration_file_is_refused_in_one_line(tmp_path, ros_env):
+    """The same nonsense from the file: exit 2, one FATAL line naming the key."""
+    mapping = unit_to_mapping(DRIVER_UNIT)
+    mapping['gyro']['z']['offset_shape'] = [1.0, 2.0, 3.0]
+    path = tmp_path / 'implausible.yaml'
+    path.write_text(yaml.safe_dump({'/**/compensator': {'ros__parameters': {'calibration': mapping}}}))
+    result = run_to_exit(node_command('--params-file', str(path)), ros_env)
+    lines = (result.stdout + result.stderr).strip().splitlines()
+    assert result.returncode == 2 and len(lines) == 1, lines
+    assert '[FATAL]' in lines[0] and 'calibration.gyro.z.offset_shape: the offset drifts by' in lines[0]
