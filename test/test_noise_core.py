@@ -18,7 +18,7 @@ from tak_thermo_ros.core.noise.allan import (
     confidence_interval,
     equivalent_degrees_of_freedom,
 )
-from tak_thermo_ros.formats.kalibr import kalibr_from_mapping, kalibr_text, read_kalibr, write_kalibr
+from tak_thermo_ros.formats.kalibr import kalibr_from_mapping, kalibr_text, kalibr_values, read_kalibr, write_kalibr
 from tak_thermo_ros.core.noise.model import (
     FLICKER_FLOOR,
     TERMS,
@@ -364,14 +364,24 @@ triple = st.tuples(term, term, term)
 
 
 @settings(max_examples=60, deadline=None)
-@given(triple, triple, triple, triple, triple, st.floats(0.1, 1e5))
-def test_any_model_round_trips_through_the_kalibr_text(white, bias, walk, quantum, ramp, rate):
+@given(triple, triple, triple, triple, triple, triple, st.floats(0.1, 1e5))
+def test_any_model_round_trips_through_the_kalibr_text(white, bias, walk, bound, quantum, ramp, rate):
+    """What is written reads back: the walk where measured, its bound where not; a density or walk of 0 refused."""
     import yaml
     tau = floor_tau(white, bias, walk, quantum, ramp, taus=(1e-3, 1e6))
+    bound = tuple(0.0 if k > 0.0 else b for k, b in zip(walk, bound))
     model = NoiseModel(white_noise_density=white, bias_instability=bias, bias_instability_tau=tau, random_walk=walk,
-                       update_rate=rate, source='residual', quantization=quantum, rate_ramp=ramp)
+                       update_rate=rate, source='residual', quantization=quantum, rate_ramp=ramp,
+                       random_walk_bound=bound)
+    if not any(w > 0.0 or b > 0.0 for w, b in zip(walk, bound)) or not any(model.sample_variance()):
+        with pytest.raises(NoiseError, match='Kalibr refuses a value <= 0'):
+            kalibr_text({'gyro': model}, rostopic='/imu')
+        return
     back, topic = kalibr_from_mapping(yaml.safe_load(kalibr_text({'gyro': model}, rostopic='/imu')))
     assert topic == '/imu' and set(back) == {'gyro'}
-    for name in (*TERMS, 'bias_instability_tau'):
+    written = kalibr_values(model)
+    assert np.allclose(back['gyro'].white_noise_density, written['noise_density'], rtol=1e-6, atol=0.0)
+    for name in ('bias_instability', 'random_walk', 'random_walk_bound', 'quantization', 'rate_ramp',
+                 'bias_instability_tau'):
         assert np.allclose(getattr(back['gyro'], name), getattr(model, name), rtol=1e-6, atol=0.0), name
     assert back['gyro'].update_rate == rate

@@ -65,7 +65,10 @@ def run(args: argparse.Namespace) -> int:
             print(f'  warning: {noise.out_of_range} samples outside the calibrated temperature range '
                   f'({args.out_of_range})')
         for i, name in enumerate(AXES):
-            print(f'  {name}: {common.noise_axis_line(sensor, model, i, unit_name)}')
+            for line in common.noise_axis_lines(sensor, model, i, unit_name, noise.fit):
+                print(f'  {name}: {line}')
+        if noise.fit is not None:
+            print(f'  {common.noise_slope_line(noise.fit)}')
         document['sensors'][sensor] = noise_document(noise)  # type: ignore[index]
     if args.output:
         header = (f'noise model of {args.bag} ('

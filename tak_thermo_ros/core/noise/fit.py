@@ -25,8 +25,9 @@ to an overlapping Allan variance:
    random walk, in that order): when dropping one raises the misfit by less than
    :data:`DROP_THRESHOLD`, the model has none. Where that leaves no random walk, ``random_walk_bound`` holds the
    largest walk the record allows: ``min over tau of sqrt(3 avar_high(tau) / tau)`` with
-   ``avar_high`` the upper one-sided 95 % limit of the measured Allan variance (every term
-   adds, so a walk above that would lift the curve beyond what was measured).
+   ``avar_high`` the upper one-sided 95 % limit of the measured Allan variance, joint over the
+   averaging times (every term adds, so a walk above that would lift the curve beyond what
+   was measured).
 
 **Goodness of fit** (:class:`AxisFit`): at every averaging time of two samples and longer, the
 model against the :data:`BAND_CONFIDENCE` band of the measured Allan variance (chi-square on
@@ -71,10 +72,12 @@ GAUSS_MARKOV_PER_DECADE = 5
 """Correlation times tried per decade for a Gauss-Markov process."""
 MAX_GAUSS_MARKOV = 3
 """At most this many Gauss-Markov processes per axis."""
-GAUSS_MARKOV_LONGEST = 30.0
-"""A Gauss-Markov process's correlation time is at most the longest averaging time over this: its
-bump (at 1.89 T) and fall must lie well inside the measurement (four octaves and more before
-its end, where the few degrees of freedom let a random walk's estimate bend either way)."""
+GAUSS_MARKOV_FALL = 8.0
+"""A Gauss-Markov process is tried only where the measurement shows its fall: at this many times
+its correlation time the Allan variance must still hold :data:`GAUSS_MARKOV_EDF` degrees of
+freedom (else the few degrees of freedom at the longest averaging times let a random walk's
+estimate bend like a bump)."""
+GAUSS_MARKOV_EDF = 30.0
 ADD_THRESHOLD = 16.0
 """A Gauss-Markov process joins when it lowers the misfit by this much (three sigmas for its two numbers)."""
 DROP_THRESHOLD = 4.0
@@ -156,9 +159,9 @@ class AxisFit:
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
-        return {'within_band': self.within, 'worst_ratio': self.worst_ratio, 'worst_tau_s': self.worst_tau,
-                'band': [self.band_low, self.band_high], 'walk_shown': self.walk_shown,
-                'misfits': [vars(m) for m in self.misfits], 'step': vars(self.step) if self.step else None}
+        return _finite({'within_band': self.within, 'worst_ratio': self.worst_ratio, 'worst_tau_s': self.worst_tau,
+                        'band': [self.band_low, self.band_high], 'walk_shown': self.walk_shown,
+                        'misfits': [vars(m) for m in self.misfits], 'step': vars(self.step) if self.step else None})
 
 
 @dataclass(frozen=True)
@@ -179,7 +182,8 @@ class SlopeLines:
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
-        return {name: {'value': list(value), 'tau_s': list(self.taus[name])} for name, value in self.values.items()}
+        return _finite({name: {'value': list(value), 'tau_s': list(self.taus[name])}
+                        for name, value in self.values.items()})
 
 
 @dataclass(frozen=True)
@@ -199,10 +203,21 @@ class NoiseFit:
     objective: tuple[float, float, float] = field(default=(0.0, 0.0, 0.0))
 
     def as_dict(self) -> dict[str, Any]:
-        """JSON-ready form (the model is written beside it)."""
-        return {'band_confidence': BAND_CONFIDENCE, 'band_from_tau_s': self.band_from,
-                'axes': {name: axis.as_dict() for name, axis in zip('xyz', self.axes)},
-                'slope_lines': self.slope_lines.as_dict(), 'floor': list(self.model.floor())}
+        """JSON-ready form (the model is written beside it; a floor that is none is null)."""
+        return _finite({'band_confidence': BAND_CONFIDENCE, 'band_from_tau_s': self.band_from,
+                        'axes': {name: axis.as_dict() for name, axis in zip('xyz', self.axes)},
+                        'slope_lines': self.slope_lines.as_dict(), 'floor': list(self.model.floor())})
+
+
+def _finite(value: Any) -> Any:
+    """``value`` with every non-finite float as ``None`` (strict JSON), lists and mappings followed."""
+    if isinstance(value, dict):
+        return {key: _finite(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(item) for item in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
 
 
 # ------------------------------------------------------------------------------------ columns
@@ -256,7 +271,10 @@ def _solve(design: _Design, measured: np.ndarray, edf_of: dict[int, np.ndarray],
     times of one record are strongly correlated, so two per octave count as one.
     """
     from scipy.optimize import nnls
-    tiny = max(float(measured[measured > 0.0].min()) * 1e-6, 1e-300) if np.any(measured > 0.0) else 1e-300
+    # An averaging time whose measured Allan variance is 0 (an output stuck between two codes)
+    # says nothing on a relative scale: it is left out.
+    spacing = np.where(measured > 0.0, spacing, 0.0)
+    tiny = float(np.max(measured, initial=0.0)) * 1e-12 or 1e-300
     reference = np.maximum(measured, tiny)
     edf = edf_of[0]
     coefficients = np.zeros(design.columns.shape[1])
@@ -383,7 +401,8 @@ def _fit_axis(taus: np.ndarray, rate: float, measured: np.ndarray, edf_of: dict[
     terms = allowed
     best = best_filter((), terms)
     if 'gauss_markov' in allowed:
-        low, high = max(3.0 / rate, float(taus[0])), float(taus[-1]) / GAUSS_MARKOV_LONGEST
+        shown = taus[edf_of[0] >= GAUSS_MARKOV_EDF]
+        low, high = max(3.0 / rate, float(taus[0])), float(shown.max()) / GAUSS_MARKOV_FALL if len(shown) else 0.0
         count = max(int(round(math.log10(high / low) * GAUSS_MARKOV_PER_DECADE)) + 1, 1) if high > low else 0
         grid = np.geomspace(low, high, count) if count else np.zeros(0)
         while len(best.design.gauss_markov_times) < MAX_GAUSS_MARKOV:
@@ -416,8 +435,9 @@ def _model_error(solution: _Solution, spacing: np.ndarray) -> float:
 
     ``sqrt(mean(ln^2 (measured / model) - 2 / edf))`` (weighted by ``spacing``), within :data:`MODEL_ERROR`.
     """
-    excess = np.log(solution.measured / solution.predicted) ** 2 - 2.0 / solution.edf
-    spread = float(np.sum(spacing * excess) / max(float(np.sum(spacing)), 1e-300))
+    seen = solution.measured > 0.0
+    excess = np.log(solution.measured[seen] / solution.predicted[seen]) ** 2 - 2.0 / solution.edf[seen]
+    spread = float(np.sum(spacing[seen] * excess) / max(float(np.sum(spacing[seen])), 1e-300))
     return float(np.clip(math.sqrt(max(spread, 0.0)), MODEL_ERROR[0], MODEL_ERROR[1]))
 
 
@@ -466,12 +486,19 @@ def _model_of(solutions: list[_Solution], taus: np.ndarray, rate: float, update_
 
 
 def _walk_bound(taus: np.ndarray, solution: _Solution, judged: np.ndarray) -> float:
-    """The largest random walk the measurement allows: ``min sqrt(3 avar_high / tau)``, one-sided 95 %."""
+    """The largest random walk the measurement allows: ``min sqrt(3 avar_high / tau)``.
+
+    ``avar_high``: the upper one-sided limit of each measured Allan variance, jointly at
+    :data:`BAND_CONFIDENCE` over the averaging times (Bonferroni), on the degrees of freedom of
+    the process that dominates there. Every term adds to the Allan variance, so a walk above
+    this would have lifted the curve beyond what was measured at some averaging time.
+    """
     from scipy.stats import chi2
     if not np.any(judged):
         return 0.0
     edf = solution.edf[judged]
-    high = solution.measured[judged] * edf / chi2.ppf(1.0 - BAND_CONFIDENCE, edf)
+    level = (1.0 - BAND_CONFIDENCE) / int(np.count_nonzero(judged))
+    high = solution.measured[judged] * edf / chi2.ppf(level, edf)
     return float(np.min(np.sqrt(3.0 * high / taus[judged])))
 
 

@@ -237,8 +237,8 @@ class NoiseModel:
             share, constant = self.filter_share[axis], self.filter_time_constant[axis]
             shape = unit[:, 1]
             if share > 0.0 and constant > 0.0:
-                shape = (1.0 - share) * shape + share * filtered_white_allan_variance(taus, self.update_rate,
-                                                                                     constant)
+                filtered = filtered_white_allan_variance(taus, self.update_rate, constant)
+                shape = (1.0 - share) * shape + share * filtered
             white[:, axis] = self.white_noise_density[axis] ** 2 * shape
         parts['white_noise_density'] = white
         bumps = np.zeros((len(taus), 3))
