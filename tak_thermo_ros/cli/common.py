@@ -278,15 +278,18 @@ def noise_fit_lines(fit, axis: int, unit: str) -> list[str]:
 
 
 def periodic(found) -> tuple[float, float] | None:
-    """The period a sinusoid would have, from the misfits: a dip with a bump at 0.15-0.65 of its averaging times.
+    """The averaging times that would hold a sinusoid's period, from the misfits; ``None`` without the pattern.
 
     A sinusoid's Allan deviation peaks at 0.37 times its period and vanishes at the period: the
-    averaging times of such a dip hold the period. ``None`` without that pattern.
+    largest bump no term follows, then a dip at 1.5 to 7 times its averaging time (the one
+    nearest 2.7 times).
     """
     dips = [m for m in found.misfits if m.kind == 'dip']
-    bumps = [m for m in found.misfits if m.kind == 'bump']
-    for dip in sorted(dips, key=lambda m: m.ratio, reverse=True):
-        if any(0.15 * dip.low <= bump.at <= 0.65 * dip.high for bump in bumps):
+    for bump in sorted((m for m in found.misfits if m.kind == 'bump'), key=lambda m: abs(math.log(m.ratio)),
+                       reverse=True):
+        after = [dip for dip in dips if 1.5 * bump.at <= dip.at <= 7.0 * bump.at]
+        if after:
+            dip = min(after, key=lambda d: abs(math.log(d.at / (2.7 * bump.at))))
             return dip.low, dip.high
     return None
 

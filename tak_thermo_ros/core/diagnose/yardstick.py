@@ -239,9 +239,9 @@ def simulate_noise(noise: Any, count: int, sample_period_s: float, white_floor: 
     white = rng.standard_normal((count, 3)) * np.asarray(white_floor, dtype=float)
     centre = tuple(float(min(max(t, 2.0 * sample_period_s), longest_s)) if math.isfinite(t) else float(longest_s)
                    for t in _triple(noise.bias_instability_tau))
-    markov = tuple(tuple((float(sigma[axis]), float(time[axis]))
-                         for sigma, time in zip(getattr(noise, 'gauss_markov', ()), getattr(noise, 'gauss_markov_time', ()))
-                         if sigma[axis] > 0.0) for axis in range(3))
+    processes = tuple(zip(getattr(noise, 'gauss_markov', ()), getattr(noise, 'gauss_markov_time', ())))
+    markov = tuple(tuple((float(sigma[axis]), float(time[axis])) for sigma, time in processes if sigma[axis] > 0.0)
+                   for axis in range(3))
     wander = bias_wander([*np.atleast_1d(seed).tolist(), 1], count, 1.0 / sample_period_s,
                          tuple(float(v) for v in _triple(noise.bias_instability)), centre,  # type: ignore[arg-type]
                          tuple(float(v) for v in _triple(noise.random_walk)), markov)  # type: ignore[arg-type]

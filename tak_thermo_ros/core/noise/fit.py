@@ -85,9 +85,14 @@ DROP_THRESHOLD = 4.0
 shows a random walk, a bias-instability floor, a ramp, a quantisation only when they pass it."""
 ITERATIONS = 3
 """Re-weightings of each solve (the first with the measured Allan variance)."""
+SLOPE_LINE_EDF = 5.0
+"""IEEE 952's slope lines are read at averaging times with at least this many degrees of freedom."""
 STEP_ALPHA = 0.001
 """False-alarm probability of the step test per axis (Bonferroni over averaging times and terms)."""
 
+_EDF_ROW = np.zeros(5, dtype=np.int64)
+_EDF_ROW[[2, 0, -1, -2]] = (0, 1, 2, 3)
+"""Row of the degrees-of-freedom table (alpha 2, 0, -1, -2) of a power-law exponent (indexed by alpha)."""
 _ALPHA_OF = {'quantization': 2, 'white': 0, 'filtered': 0, 'bias_instability': -1, 'random_walk': -2,
              'rate_ramp': -2}
 """The power-law exponent of each column's noise (its equivalent degrees of freedom)."""
@@ -291,8 +296,8 @@ def _solve(design: _Design, measured: np.ndarray, edf_of: dict[int, np.ndarray],
         predicted = np.maximum(parts.sum(axis=1), tiny)
         reference = predicted
         dominant = np.argmax(parts, axis=1)
-        alphas = design.alphas[np.arange(len(dominant)), dominant]
-        edf = np.select([alphas == a for a in (2, 0, -1)], [edf_of[2], edf_of[0], edf_of[-1]], edf_of[-2])
+        rows = np.arange(len(dominant))
+        edf = edf_of['table'][_EDF_ROW[design.alphas[rows, dominant]], rows]
     # The misfit: the deviance of a chi-square (gamma) estimate on its degrees of freedom, the model's
     # own error folded in (2 / nu = 2 / edf + model_error^2); ~ the squared normalised log ratio when
     # nu is large, and as skewed as the estimate is when it is small.
@@ -353,6 +358,7 @@ def fit_noise(allan: Any, *, source: str, update_rate: float | None = None, min_
     clusters = allan.clusters[usable].astype(float)
     judged = clusters >= 2.0
     edf_of = {alpha: equivalent_degrees_of_freedom(allan, alpha)[usable] for alpha in (2, 0, -1, -2)}
+    edf_of['table'] = np.vstack([edf_of[2], edf_of[0], edf_of[-1], edf_of[-2]])  # type: ignore[index]
     solutions = []
     for axis in range(3):
         measured = allan.avar[usable, axis]
@@ -577,7 +583,14 @@ def find_step(allan: Any, axis: int, usable: np.ndarray | None = None) -> Step |
 
 
 def slope_lines(allan: Any, keep: np.ndarray) -> SlopeLines:
-    """IEEE 952's slope lines under the measured Allan deviation (see :class:`SlopeLines`)."""
+    """IEEE 952's slope lines under the measured Allan deviation (see :class:`SlopeLines`).
+
+    Read where the curve is known: averaging times in ``keep`` with at least
+    :data:`SLOPE_LINE_EDF` degrees of freedom (a walk's, the fewest), not the last few points
+    whose estimate can fall to a tenth of its value.
+    """
+    from tak_thermo_ros.core.noise.allan import equivalent_degrees_of_freedom
+    keep = keep & (equivalent_degrees_of_freedom(allan, -2) >= SLOPE_LINE_EDF)
     taus = allan.taus[keep][:, None]
     adev = np.sqrt(allan.avar[keep])
     readings = {'quantization': adev * taus / math.sqrt(3.0), 'white_noise_density': adev * np.sqrt(taus),
