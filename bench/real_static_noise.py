@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from benchlib import machine, tak_calib_command
+from benchlib import import_real_log, machine, run_tak_calib as run
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))
 
@@ -48,7 +48,6 @@ from tak_thermo_ros.formats.kalibr import kalibr_text  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / 'bench' / 'results'
-LOG = ROOT / 'data' / 'tofupilot-imu-thermal' / 'imu_raw_data.csv'
 RECORDS = {'static_7.5min': 'calibration data/example_data_tinit_calc.csv',
            'static_100s': 'results test data/imu_static_test.csv'}
 ACCEL_LSB = 16384.0
@@ -138,13 +137,10 @@ def static_records(snapshot: Path) -> dict[str, object]:
 
 def own_log() -> dict[str, object]:
     """The repository's real log: its residual after the paper's polynomials, through ``tak_calib noise --params``."""
-    def run(*args: str) -> str:
-        return subprocess.run([*tak_calib_command(), *args], capture_output=True, text=True, check=True).stdout
     with tempfile.TemporaryDirectory() as directory:
         def at(name: str) -> str:
             return str(Path(directory) / name)
-        run('import-csv', str(LOG), '-o', at('real'), '--time-unit', 'us', '--acc-columns', 'imu.acc.x', 'imu.acc.y',
-            'imu.acc.z', '--temp-column', 'imu.temperature', '--gyro-columns', 'imu.gyro.x', 'imu.gyro.y', 'imu.gyro.z')
+        import_real_log(at('real'))
         run('fit', at('real'), '-o', at('base.yaml'))
         printed = run('noise', at('real'), '--params', at('base.yaml'), '--json', at('noise.json'), '-o',
                       at('imu.yaml'), '--no-progress')

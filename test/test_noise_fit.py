@@ -150,7 +150,8 @@ def test_a_step_is_said_with_where_and_how_large():
     assert step.time_s == pytest.approx(start / RATE, abs=5.0 * step.tau)
     assert step.size == pytest.approx(1e-3, rel=0.3)
     lines = noise_axis_lines('gyro', fit.model, 1, 'rad/s', fit)
-    assert any(line.startswith('a step in the record near') for line in lines), lines
+    assert any(line.startswith('a step at ') and 'into the record' in line for line in lines), lines
+    assert all(len(line) <= 95 for line in lines)
 
 
 def test_the_streamed_step_statistics_equal_the_in_memory_ones():

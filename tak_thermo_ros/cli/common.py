@@ -270,10 +270,12 @@ def noise_fit_lines(fit, axis: int, unit: str) -> list[str]:
                          f'where a sinusoid\'s Allan deviation vanishes')
     step = found.step
     if step is not None:
-        lines.append(f'a step in the record near {step.time_s:.4g} s: averages over {step.tau:.3g} s differ by '
+        lines.append(f'a step at {step.time_s:.4g} s into the record: {step.sigmas:.3g} sigmas, standing out '
+                     f'from {step.low:.3g} to {step.high:.3g} s')
+        lines.append(f'its size: {step.tau:.3g} s averages before and after differ by '
                      f'{_noise_amount(step.size, "rate", unit)}')
-        lines.append(f'that step is {step.sigmas:.3g} sigmas; it dominates the Allan deviation from '
-                     f'{step.low:.3g} to {step.high:.3g} s (a walk fitted there may be the step)')
+        if fit.model.random_walk[axis] > 0.0:
+            lines.append('the random walk fitted may be that step\'s, not the sensor\'s')
     return lines
 
 
@@ -295,10 +297,15 @@ def periodic(found) -> tuple[float, float] | None:
 
 
 def noise_slope_line(fit) -> str:
-    """IEEE 952's slope lines as a cross-check: the fit's white noise and random walk over theirs, per axis."""
+    """IEEE 952's slope lines as a cross-check: the fit's white noise and random walk over theirs, per axis.
+
+    A line under the curve bounds its term from above where nothing lowers the curve: 1 where
+    the term dominates somewhere, less where it never does; above 1 on the white noise where a
+    driver's filter lowers the shortest averaging times (the slope-line reading is then low).
+    """
     def ratios(name: str) -> str:
         fitted = getattr(fit.model, name)
         lines = fit.slope_lines.values[name]
         return ' '.join(f'{f / l:.2g}' if l > 0.0 and math.isfinite(l) else '-' for f, l in zip(fitted, lines))
-    return (f'fit / IEEE 952 slope line (its upper bound): white {ratios("white_noise_density")}, '
+    return (f'fit / IEEE 952 slope line: white {ratios("white_noise_density")}, '
             f'walk {ratios("random_walk")} (x y z)')

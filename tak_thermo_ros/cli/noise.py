@@ -46,9 +46,10 @@ def run(args: argparse.Namespace) -> int:
     for line in run.reference_lines:
         print(line)
     what = ('the thermally compensated output (--params) minus the reference' if run.compensated else
-            'the measured output minus the reference, NOT compensated (no --params): thermal drift counts as '
-            'bias wander here')
+            'the measured output minus the reference, NOT compensated (no --params)')
     print(f'noise of {args.bag}: {what}')
+    if not run.compensated:
+        print('without --params, thermal drift counts as bias wander here')
     document: dict[str, object] = {'bag': str(args.bag), 'params': args.params, 'compensated': run.compensated,
                                    'sensors': {}}
     for sensor, noise in run.sensors.items():

@@ -259,6 +259,12 @@ def kalibr_text(models: Mapping[str, NoiseModel], *, rostopic: str, update_rate:
                 numbers = ', '.join(_yaml_float(v) for triple in processes for v in triple)
                 lines.append(f'{prefix}_{suffix}: [{numbers}]')
         lines.append(f'{prefix}_noise_source: {model.source}')
+    lines.append('# OpenVINS reads the four Kalibr keys above under imu0: of its kalibr_imu_chain.yaml')
+    if 'accel' in models and 'gyro' in models:
+        vins = {name: max(kalibr_values(models[sensor])[suffix]) for name, sensor, suffix in
+                (('acc_n', 'accel', 'noise_density'), ('acc_w', 'accel', 'random_walk'),
+                 ('gyr_n', 'gyro', 'noise_density'), ('gyr_w', 'gyro', 'random_walk'))}
+        lines.append('# VINS-Fusion takes them as ' + ', '.join(f'{k}: {v:.4e}' for k, v in vins.items()))
     lines.append(f'rostopic: {json.dumps(rostopic)}')
     lines.append(f'update_rate: {float(rate)!r}   # Hz')
     return '\n'.join(lines) + '\n'

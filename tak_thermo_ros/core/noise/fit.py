@@ -398,7 +398,7 @@ def _fit_axis(taus: np.ndarray, rate: float, measured: np.ndarray, edf_of: dict[
             return tried[0]
         low, high = filters[max(best - 1, 1)], filters[min(best + 1, len(filters) - 1)]
         found = minimize_scalar(lambda x: solve(math.exp(x), times, terms).objective,
-                                bounds=(math.log(low), math.log(high)), method='bounded', options={'xatol': 0.005})
+                                bounds=(math.log(low), math.log(high)), method='bounded', options={'xatol': 0.02})
         refined = min(solve(math.exp(found.x), times, terms), tried[best], key=lambda s: s.objective)
         # A filter is two numbers, as a Gauss-Markov process: kept on the same evidence.
         return refined if refined.objective < tried[0].objective - ADD_THRESHOLD else tried[0]
@@ -421,6 +421,8 @@ def _fit_axis(taus: np.ndarray, rate: float, measured: np.ndarray, edf_of: dict[
             if trial.objective > best.objective - ADD_THRESHOLD:
                 break
             best = trial
+    # The filter shapes the shortest averaging times, the processes added and the terms dropped the
+    # longer ones: the filter is searched again only when a process was added.
     changed = bool(best.design.gauss_markov_times)
     # The simplest model the record supports: a term whose removal costs less than DROP_THRESHOLD goes
     # (the flat flicker term must not stand in for a walk, nor a walk for what the record cannot show).
@@ -430,7 +432,7 @@ def _fit_axis(taus: np.ndarray, rate: float, measured: np.ndarray, edf_of: dict[
         simpler = solve(best.design.filter_time_constant, best.design.gauss_markov_times, terms - {name})
         if best.coefficients[best.design.labels.index(name)] == 0.0 or \
                 simpler.objective < best.objective + DROP_THRESHOLD:
-            best, terms, changed = simpler, terms - {name}, True
+            best, terms = simpler, terms - {name}
     if changed and len(filters) > 1:
         best = min(best, best_filter(best.design.gauss_markov_times, terms), key=lambda s: s.objective)
     return best
