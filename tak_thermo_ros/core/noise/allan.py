@@ -55,7 +55,8 @@ class AllanVariance:
     :param samples: number of samples that entered the estimate.
     :param peak: ``(t, axes)`` the largest ``|x_(k+2m) - 2 x_(k+m) + x_k|`` of each sum (``m`` times
         the largest difference of adjacent cluster averages: a step in the record stands out
-        there), or ``None``.
+        there; :class:`AllanAccumulator` keeps it at the exact cluster sizes that are powers of
+        two and at the binned ones, NaN at the others), or ``None``.
     :param peak_index: ``(t, axes)`` its ``k`` (the first sample of the first cluster).
     """
 
@@ -162,9 +163,12 @@ def allan_variance(samples: np.ndarray, rate: float, *, per_octave: int = 1,
 
 
 def _peak(second: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per column the largest absolute value of ``second`` and its row."""
-    where = np.argmax(np.abs(second), axis=0)
-    return np.abs(second[where, np.arange(second.shape[1])]), where
+    """Per column the largest absolute value of ``second`` and its row (the largest and the least, no copy)."""
+    columns = np.arange(second.shape[1])
+    high, low = second.argmax(axis=0), second.argmin(axis=0)
+    top, bottom = second[high, columns], -second[low, columns]
+    up = top >= bottom
+    return np.where(up, top, bottom), np.where(up, high, low)
 
 
 class AllanAccumulator:
@@ -191,7 +195,10 @@ class AllanAccumulator:
         self.exact_max = exact_max
         self._exact = cluster_sizes(exact_max, per_octave)
         self._sum_sq = np.zeros((len(self._exact), axes))
-        self._peak = np.zeros((len(self._exact), axes))
+        # The largest term (a step's mark) at one cluster size per octave, the powers of two: it
+        # costs two passes over a block, as much as the sum of squares.
+        self._tracked = (self._exact & (self._exact - 1)) == 0
+        self._peak = np.where(self._tracked[:, None], 0.0, np.nan) * np.ones((1, axes))
         self._peak_index = np.zeros((len(self._exact), axes), dtype=np.int64)
         self._terms = np.zeros(len(self._exact), dtype=np.int64)
         self._history = np.zeros((1, axes))  # the last cumulative sums (x_0 = 0 at first)
@@ -224,11 +231,12 @@ class AllanAccumulator:
             second = (joined[begin:] - 2.0 * joined[begin - m:len(joined) - m]
                       + joined[begin - 2 * m:len(joined) - 2 * m])
             self._sum_sq[i] += np.einsum('ij,ij->j', second, second)
-            peak, where = _peak(second)
-            larger = peak > self._peak[i]
-            self._peak[i] = np.where(larger, peak, self._peak[i])
-            # The term's k: its first cumulative sum's global index.
-            self._peak_index[i] = np.where(larger, first_global + begin - 2 * m + where, self._peak_index[i])
+            if self._tracked[i]:
+                peak, where = _peak(second)
+                larger = peak > self._peak[i]
+                self._peak[i] = np.where(larger, peak, self._peak[i])
+                # The term's k: its first cumulative sum's global index.
+                self._peak_index[i] = np.where(larger, first_global + begin - 2 * m + where, self._peak_index[i])
             self._terms[i] += len(second)
         self._history = joined[-(2 * self.exact_max + 1):].copy()
         first_bin = -(-start // self.bin_size) * self.bin_size
