@@ -98,7 +98,7 @@ def band_figures(allan: AllanVariance, model: NoiseModel) -> dict[str, list[floa
         low, high = confidence_interval(measured[:, axis], edf, 1.0 - (1.0 - BAND_CONFIDENCE) / judged.sum())
         inside.append(bool(np.all((low <= predicted[:, axis]) & (predicted[:, axis] <= high))))
         long = (allan.taus[judged] >= 10.0) & (edf >= 30.0)
-        above.append(float(np.sqrt(np.max(predicted[long, axis] / measured[long, axis]))))
+        above.append(float(np.sqrt(np.max(predicted[long, axis] / measured[long, axis]))) if long.any() else math.nan)
     return {'inside': inside, 'worst_ratio_10s': above}
 
 
