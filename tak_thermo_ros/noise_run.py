@@ -4,7 +4,7 @@
 sensor's residual (measured minus reference; the thermally compensated output minus the
 reference when a calibration is given) and feeds it to an
 :class:`~tak_thermo_ros.core.noise.allan.AllanAccumulator` (bounded memory), then fits the
-five-term noise model per axis (:func:`~tak_thermo_ros.core.noise.model.fit_noise_model`).
+noise model per axis (:func:`~tak_thermo_ros.core.noise.fit.fit_noise`, which says how it follows the measurement).
 
 :func:`noise_models` gives the per-sensor models from the sources in the order of preference
 of issue 16: a Kalibr-style file (``--noise FILE``), a static constant-temperature run
@@ -97,7 +97,7 @@ class _SensorNoise:
 class SensorNoise:
     """One sensor's noise from a bag.
 
-    :param model: the fitted five-term model (SI units of the corrected output; counts without
+    :param model: the fitted model (SI units of the corrected output; counts without
         a calibration on a counts bag are refused).
     :param allan: the residual's Allan variance (the per-axis measurement behind the model).
     :param gaps: steps between stamps longer than 1.5 sampling intervals (the samples are
@@ -136,7 +136,7 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
               source: str | None = None, gravity: float = STANDARD_GRAVITY, latitude: float | None = None,
               out_of_range: OutOfRange = OutOfRange.CLAMP, per_octave: int = PER_OCTAVE,
               settle_time_s: float = 0.0, expect_kind: Callable[[InputKind], None] | None = None) -> NoiseRun:
-    """Each sensor's five-term noise model from one streamed pass (two for a static driver run).
+    """Each sensor's noise model from one streamed pass (two for a static driver run).
 
     :param unit: a calibration: the residual is the corrected output minus the reference (the
         thermally compensated signal). Without it: the measured value minus the reference
