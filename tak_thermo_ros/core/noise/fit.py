@@ -23,11 +23,12 @@ to an overlapping Allan variance:
    squared normalised log residuals) by :data:`ADD_THRESHOLD`; at most :data:`MAX_GAUSS_MARKOV`.
 5. **Terms the record does not demand are dropped** (bias instability, ramp, quantisation,
    random walk, in that order): when dropping one raises the misfit by less than
-   :data:`DROP_THRESHOLD`, the model has none. Where that leaves no random walk, ``random_walk_bound`` holds the
-   largest walk the record allows: ``min over tau of sqrt(3 avar_high(tau) / tau)`` with
-   ``avar_high`` the upper one-sided 95 % limit of the measured Allan variance, joint over the
-   averaging times (every term adds, so a walk above that would lift the curve beyond what
-   was measured).
+   :data:`DROP_THRESHOLD`, the model has none (not in a fit without a random walk among its
+   terms, a run's own short-term model, whose flicker term competes with no walk). Where
+   that leaves no random walk, ``random_walk_bound`` holds the largest walk the record allows:
+   ``min over tau of sqrt(3 avar_high(tau) / tau)`` with ``avar_high`` the upper one-sided 95 %
+   limit of the measured Allan variance, joint over the averaging times (every term adds, so
+   a walk above that would lift the curve beyond what was measured).
 
 **Goodness of fit** (:class:`AxisFit`): at every averaging time of two samples and longer, the
 model against the :data:`BAND_CONFIDENCE` band of the measured Allan variance (chi-square on
@@ -426,7 +427,9 @@ def _fit_axis(taus: np.ndarray, rate: float, measured: np.ndarray, edf_of: dict[
     changed = bool(best.design.gauss_markov_times)
     # The simplest model the record supports: a term whose removal costs less than DROP_THRESHOLD goes
     # (the flat flicker term must not stand in for a walk, nor a walk for what the record cannot show).
-    for name in ('bias_instability', 'rate_ramp', 'quantization', 'random_walk'):
+    # A fit without a walk among its terms (a run's own short-term model) keeps its few terms: the
+    # flicker term is its only slow one, and it competes with no walk.
+    for name in ('bias_instability', 'rate_ramp', 'quantization', 'random_walk') if 'random_walk' in allowed else ():
         if name not in best.design.labels:
             continue
         simpler = solve(best.design.filter_time_constant, best.design.gauss_markov_times, terms - {name})
