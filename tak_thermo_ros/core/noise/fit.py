@@ -19,8 +19,8 @@ to an overlapping Allan variance:
 3. **The driver's filter** (a first-order low-pass on a share of the white noise): its time
    constant is searched on :data:`FILTER_GRID` (in sample periods), none included.
 4. **Gauss-Markov processes** are added one at a time (correlation times on a log grid,
-   :data:`GAUSS_MARKOV_PER_DECADE`) while the new process lowers the misfit (the sum of
-   squared normalised log residuals) by :data:`ADD_THRESHOLD`; at most :data:`MAX_GAUSS_MARKOV`.
+   :data:`GAUSS_MARKOV_PER_DECADE`) while the new process lowers the misfit (the deviance of
+   the chi-square estimates, :func:`_solve`) by :data:`ADD_THRESHOLD`; at most :data:`MAX_GAUSS_MARKOV`.
 5. **Terms the record does not demand are dropped** (bias instability, ramp, quantisation,
    random walk, in that order): when dropping one raises the misfit by less than
    :data:`DROP_THRESHOLD`, the model has none (not in a fit without a random walk among its
@@ -79,8 +79,10 @@ its correlation time the Allan variance must still hold :data:`GAUSS_MARKOV_EDF`
 freedom (else the few degrees of freedom at the longest averaging times let a random walk's
 estimate bend like a bump)."""
 GAUSS_MARKOV_EDF = 30.0
+"""See :data:`GAUSS_MARKOV_FALL`."""
 ADD_THRESHOLD = 16.0
-"""A Gauss-Markov process joins when it lowers the misfit by this much (three sigmas for its two numbers)."""
+"""A Gauss-Markov process (or the filter) joins when it lowers the misfit by this much: four sigmas,
+for its two numbers and its correlation time chosen among a grid's."""
 DROP_THRESHOLD = 4.0
 """A term stays only when dropping it raises the misfit by at least this (two sigmas): the record
 shows a random walk, a bias-instability floor, a ramp, a quantisation only when they pass it."""
