@@ -6,7 +6,7 @@ bench_fit: rosbags alone deserialises the 59.4 million messages of a 15 h, 1 kHz
 645 s on this machine); it is not measured again here (reading it takes 11 minutes).
 
 What is timed: :class:`~tak_thermo_ros.core.noise.allan.AllanAccumulator` ``add`` over blocks of
-65,536 samples (the block size of ``tak_calib``'s passes), its ``result`` and the five-term fit
+65,536 samples (the block size of ``tak_calib``'s passes), its ``result`` and the fit
 (``tak_calib noise``'s settings: two averaging times per octave). The samples (white noise,
 bias instability and random walk of a consumer MEMS gyroscope, from the simulator's noise
 processes) are generated block by block in the same process; their generation is timed

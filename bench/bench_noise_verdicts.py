@@ -21,8 +21,13 @@ then the residual's Allan deviation judged beyond that), on the same runs:
   would explain the excess (``AllanCheck.walk_to_explain``) over the simulator's true one;
 - **a supply-voltage drift** on the accelerometer: the share of ``unexplained``.
 
-Run: ``.venv/bin/python bench/bench_noise_verdicts.py [--seeds 20] [--own-noise]``. Writes
-``bench/results/noise_verdicts.json`` (``noise_verdicts_own.json`` with ``--own-noise``).
+**Against a fitted model** (``--fitted``, issue 25): the same runs, each diagnosed against the
+noise model fitted (``core/noise/fit.py``) to a simulated 3 h static run of the same unit at
+20 C (another seed), as ``--noise-run`` gives it, instead of the true model.
+
+Run: ``.venv/bin/python bench/bench_noise_verdicts.py [--seeds 20] [--own-noise | --fitted]``.
+Writes ``bench/results/noise_verdicts.json`` (``noise_verdicts_own.json`` with ``--own-noise``,
+``noise_verdicts_fitted.json`` with ``--fitted``).
 """
 
 from __future__ import annotations
@@ -42,7 +47,37 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))
 
 from test_noise_verdicts import ACCEL, GYRO, _diagnose, wandering_run  # noqa: E402
 
+from tak_thermo_ros.core.diagnose import diagnose  # noqa: E402
+from tak_thermo_ros.core.fit import fit_model  # noqa: E402
+from tak_thermo_ros.core.noise.allan import allan_variance  # noqa: E402
+from tak_thermo_ros.core.noise.fit import fit_noise  # noqa: E402
 from tak_thermo_ros.core.noise.residual import RESIDUAL_LONGEST_TAU_S  # noqa: E402
+from tak_thermo_ros.core.records.record import align  # noqa: E402
+from tak_thermo_ros.core.simulation.imu import simulate  # noqa: E402
+
+FITTED = False
+"""``--fitted``: diagnose against the model fitted to a static run of the unit, not the truth."""
+
+
+def static_model(scenario, sensor: str):
+    """The noise model fitted to a 3 h static run of the unit at 20 C (another seed), as ``--noise-run`` gives it."""
+    static = replace(scenario, plateaus_celsius=(20.0,), start_celsius=20.0, plateau_hours=3.0,
+                     positions=((0.0, 0.0, 1.0),), table_rates=(), record_references=False, gyro_effects={},
+                     effects={}, seed=scenario.seed + 5000)
+    driver = simulate(static).driver
+    values = driver.gyro if sensor == 'gyro' else driver.accel
+    allan = allan_variance(values - values.mean(axis=0), scenario.sample_rate_hz, per_octave=2)
+    return fit_noise(allan, source='static_run').model
+
+
+def _judged(scenario, sensor: str, effects=()):
+    """The diagnosis against the true model, or with ``--fitted`` against the static run's fitted model."""
+    if not FITTED:
+        return _diagnose(scenario, sensor, effects)
+    samples = align(simulate(scenario).driver.channel(sensor))
+    calibration = fit_model(samples, effects=effects).calibration
+    return diagnose(calibration, samples, noise=static_model(scenario, sensor))
+
 
 RESULTS = Path(__file__).resolve().parent / 'results'
 
@@ -52,7 +87,7 @@ def false_alarms(seeds: int, quiet: float) -> dict[str, object]:
     rows = []
     for seed in range(seeds):
         for sensor in ('gyro', 'accel'):
-            result = _diagnose(wandering_run(seed=1000 + seed, quiet=quiet), sensor)
+            result = _judged(wandering_run(seed=1000 + seed, quiet=quiet), sensor)
             rows.append({'seed': 1000 + seed, 'sensor': sensor, 'verdict': result.verdict})
             print(f'wander, white x{quiet:g}, seed {1000 + seed}, {sensor}: {result.verdict}', flush=True)
     alarms = sum(row['verdict'] != 'none' for row in rows)
@@ -64,8 +99,8 @@ def detection(seeds: int, slope: float) -> dict[str, object]:
     rows = []
     for seed in range(seeds):
         scenario = wandering_run(seed=2000 + seed, slope=slope)
-        first = _diagnose(scenario, 'gyro')
-        refit = _diagnose(scenario, 'gyro', effects=('thermal_lag',)) if first.verdict == 'thermal_lag' else None
+        first = _judged(scenario, 'gyro')
+        refit = _judged(scenario, 'gyro', effects=('thermal_lag',)) if first.verdict == 'thermal_lag' else None
         rows.append({'seed': 2000 + seed, 'verdict': first.verdict, 'refit': refit.verdict if refit else None})
         print(f'lag {slope:g}, seed {2000 + seed}: {first.verdict} -> {refit.verdict if refit else "-"}', flush=True)
     named = sum(row['verdict'] == 'thermal_lag' for row in rows)
@@ -112,7 +147,10 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--seeds', type=int, default=20)
     parser.add_argument('--own-noise', action='store_true', help='the runs without a noise model only')
+    parser.add_argument('--fitted', action='store_true', help='against the model fitted to a static run of the unit')
     args = parser.parse_args()
+    global FITTED
+    FITTED = args.fitted
     start = time.perf_counter()
     if args.own_noise:
         found = own_noise(args.seeds)
@@ -134,7 +172,8 @@ def main() -> int:
     }
     result['seconds'] = time.perf_counter() - start
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / 'noise_verdicts.json').write_text(json.dumps(result, indent=2) + '\n')
+    name = 'noise_verdicts_fitted.json' if args.fitted else 'noise_verdicts.json'
+    (RESULTS / name).write_text(json.dumps(result, indent=2) + '\n')
     for case, found in result['false_alarms'].items():
         print(f'false alarms, {case}: {found["alarms"]} of {found["runs"]} ({100 * found["rate"]:.1f} %)')
     for case in ('small_lag', 'large_lag'):

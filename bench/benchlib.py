@@ -25,6 +25,22 @@ def tak_calib_command() -> list[str]:
     return [str(script)] if script.exists() else [sys.executable, '-m', 'tak_thermo_ros.cli']
 
 
+REAL_LOG = Path(__file__).resolve().parents[1] / 'data' / 'tofupilot-imu-thermal' / 'imu_raw_data.csv'
+"""The repository's real log (a MEMS IMU's thermal cycle, MIT)."""
+
+
+def run_tak_calib(*args: str) -> str:
+    """What ``tak_calib ARGS`` prints (raises on a failure)."""
+    return subprocess.run([*tak_calib_command(), *args], capture_output=True, text=True, check=True).stdout
+
+
+def import_real_log(output: str) -> None:
+    """:data:`REAL_LOG` imported as a driver bag at ``output``: both sensors and the temperature."""
+    run_tak_calib('import-csv', str(REAL_LOG), '-o', output, '--time-unit', 'us', '--acc-columns', 'imu.acc.x',
+                  'imu.acc.y', 'imu.acc.z', '--temp-column', 'imu.temperature', '--gyro-columns', 'imu.gyro.x',
+                  'imu.gyro.y', 'imu.gyro.z')
+
+
 def stop(process: subprocess.Popen) -> int:
     """SIGINT to a node's process group (started with ``start_new_session``), SIGKILL after 10 s; the exit code."""
     if process.poll() is None:

@@ -15,23 +15,16 @@ from __future__ import annotations
 
 import json
 import shutil
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
-from benchlib import machine, tak_calib_command
+from benchlib import import_real_log, machine, run_tak_calib as run
 
 ROOT = Path(__file__).resolve().parents[1]
-LOG = ROOT / 'data' / 'tofupilot-imu-thermal' / 'imu_raw_data.csv'
 RESULTS = ROOT / 'bench' / 'results'
 FIGURES = ROOT / 'docs' / 'figures'
 TAUS = (65.0, 259.0)
-
-
-def run(*args: str) -> str:
-    done = subprocess.run([*tak_calib_command(), *args], capture_output=True, text=True, check=True)
-    return done.stdout
 
 
 def allan_at(check: dict, tau: float) -> list[float]:
@@ -45,8 +38,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as directory:
         def at(name: str) -> str:
             return str(Path(directory) / name)
-        run('import-csv', str(LOG), '-o', at('real'), '--time-unit', 'us', '--acc-columns', 'imu.acc.x', 'imu.acc.y',
-            'imu.acc.z', '--temp-column', 'imu.temperature', '--gyro-columns', 'imu.gyro.x', 'imu.gyro.y', 'imu.gyro.z')
+        import_real_log(at('real'))
         run('fit', at('real'), '-o', at('base.yaml'))
         run('diagnose', at('real'), '--params', at('base.yaml'), '--json', at('base.json'), '--no-progress')
         base = json.loads(Path(at('base.json')).read_text())

@@ -4,7 +4,7 @@
 sensor's residual (measured minus reference; the thermally compensated output minus the
 reference when a calibration is given) and feeds it to an
 :class:`~tak_thermo_ros.core.noise.allan.AllanAccumulator` (bounded memory), then fits the
-five-term noise model per axis (:func:`~tak_thermo_ros.core.noise.model.fit_noise_model`).
+noise model per axis (:func:`~tak_thermo_ros.core.noise.fit.fit_noise`, which says how it follows the measurement).
 
 :func:`noise_models` gives the per-sensor models from the sources in the order of preference
 of issue 16: a Kalibr-style file (``--noise FILE``), a static constant-temperature run
@@ -24,7 +24,8 @@ from tak_thermo_ros.core.link.correction import OutOfRange
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.link.stream_correction import BlockCorrector
 from tak_thermo_ros.core.noise.allan import AllanAccumulator, AllanVariance
-from tak_thermo_ros.core.noise.model import NoiseModel, fit_noise_model
+from tak_thermo_ros.core.noise.fit import NoiseFit, fit_noise
+from tak_thermo_ros.core.noise.model import NoiseModel
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import NoiseError
@@ -96,13 +97,14 @@ class _SensorNoise:
 class SensorNoise:
     """One sensor's noise from a bag.
 
-    :param model: the fitted five-term model (SI units of the corrected output; counts without
+    :param model: the fitted model (SI units of the corrected output; counts without
         a calibration on a counts bag are refused).
     :param allan: the residual's Allan variance (the per-axis measurement behind the model).
     :param gaps: steps between stamps longer than 1.5 sampling intervals (the samples are
         taken as evenly spaced: said in one line); ``missing``: samples those gaps lack.
     :param dropped: samples left out by the alignment, by reason.
     :param out_of_range: samples corrected outside the calibrated temperature range.
+    :param fit: the fit behind ``model``: how it follows the measurement, IEEE 952's slope lines.
     """
 
     model: NoiseModel
@@ -111,6 +113,7 @@ class SensorNoise:
     missing: int
     dropped: dict[str, int]
     out_of_range: int
+    fit: NoiseFit | None = None
 
 
 @dataclass(frozen=True)
@@ -133,7 +136,7 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
               source: str | None = None, gravity: float = STANDARD_GRAVITY, latitude: float | None = None,
               out_of_range: OutOfRange = OutOfRange.CLAMP, per_octave: int = PER_OCTAVE,
               settle_time_s: float = 0.0, expect_kind: Callable[[InputKind], None] | None = None) -> NoiseRun:
-    """Each sensor's five-term noise model from one streamed pass (two for a static driver run).
+    """Each sensor's noise model from one streamed pass (two for a static driver run).
 
     :param unit: a calibration: the residual is the corrected output minus the reference (the
         thermally compensated signal). Without it: the measured value minus the reference
@@ -183,15 +186,16 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
             msg = f'{path}: no usable samples of the {sensor_pass.sensor} to take the noise of'
             raise NoiseError(msg)
         try:
-            model = fit_noise_model(allan, source=source)
+            fit = fit_noise(allan, source=source)
         except NoiseError as err:
             msg = f'{path}: {sensor_pass.sensor}: {err}'
             raise NoiseError(msg) from None
         dropped = dict(sensor_pass.aligner.dropped)
         for reason, count in stream.dropped.items():
             dropped[reason] = dropped.get(reason, 0) + count
-        found[sensor_pass.sensor] = SensorNoise(model=model, allan=allan, gaps=stream.gaps, missing=stream.missing,
-                                                dropped=dropped, out_of_range=stream.outside)
+        found[sensor_pass.sensor] = SensorNoise(model=fit.model, allan=allan, gaps=stream.gaps,
+                                                missing=stream.missing, dropped=dropped, out_of_range=stream.outside,
+                                                fit=fit)
     topic = options.topics.counts if opened.kind is InputKind.COUNTS else options.topics.raw_imu
     return NoiseRun(input_kind=opened.kind, sensors=found, compensated=unit is not None,
                     reference_lines=tuple(lines), topic=topic)
@@ -260,10 +264,14 @@ def noise_document(noise: SensorNoise) -> dict[str, object]:
     """JSON of one sensor's noise.
 
     The model's terms (lists, SI; a floor time at infinity is null), its source and update rate,
-    the samples and gaps, and the Allan deviation behind it.
+    the samples and gaps, the Allan deviation behind it, and how the model follows it (``fit``:
+    per axis within the band or not, the worst ratio, bumps, dips, a step; IEEE 952's slope
+    lines; the floor, the Allan deviation's minimum).
     """
     document: dict[str, object] = noise.model.to_json()
     allan = noise.allan
     document.update(samples=allan.samples, gaps=noise.gaps, missing_samples=noise.missing,
                     allan={'taus': allan.taus.tolist(), 'adev': allan.adev.tolist(), 'counts': allan.counts.tolist()})
+    if noise.fit is not None:
+        document['fit'] = noise.fit.as_dict()
     return document

@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from tak_thermo_ros import cli
-from tak_thermo_ros.cli.common import noise_axis_line
+from tak_thermo_ros.cli.common import noise_axis_lines
 from tak_thermo_ros.formats.bag import Topics, read_imu_messages, write_driver_record, write_record
 from tak_thermo_ros.core.link.correction import acceleration_variance
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
@@ -177,11 +177,17 @@ def test_a_counts_bag_needs_params(tmp_path, capsys):
     assert err.startswith('tak_calib: error:') and 'give --params' in err and len(err.splitlines()) == 1
 
 
-def test_noise_axis_line_converts_to_data_sheet_units():
+def test_noise_axis_lines_convert_to_data_sheet_units_and_name_both_bias_instabilities():
     model = scenario_from_mapping(STATIC).noise_truth('gyro')
-    line = noise_axis_line('gyro', replace(model, bias_instability=(math.radians(10.0) / 3600.0,) * 3), 0, 'rad/s')
-    assert 'bias instability 4.848e-05 rad/s (10 deg/h)' in line
-    assert f'({2.4e-4 / math.sqrt(2.0) * 180 / math.pi * 60:.3g} deg/sqrt(h))' in line
+    model = replace(model, bias_instability=(math.radians(10.0) / 3600.0,) * 3)
+    lines = noise_axis_lines('gyro', model, 0, 'rad/s')
+    assert all(len(line) <= 94 for line in lines)  # printed after '  x: '
+    text = '\n'.join(lines)
+    assert 'bias instability B 4.848e-05 rad/s (10 deg/h) (IEEE 952)' in text
+    assert f'({2.4e-4 / math.sqrt(2.0) * 180 / math.pi * 60:.3g} deg/sqrt(h))' in text
+    floor = model.floor()[0]
+    assert f'floor {floor:.4g} rad/s ({floor * 180 / math.pi * 3600:.3g} deg/h) at ' in text
+    assert '(Allan deviation minimum)' in text
 
 
 def test_a_counts_bag_with_params_gives_the_corrected_outputs_noise(tmp_path, capsys):

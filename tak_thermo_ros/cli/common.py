@@ -186,28 +186,130 @@ def in_driver_words(text: str) -> str:
     return re.sub(r'\b(\w+)_codes\b', r'\1_codes (in C here)', text)
 
 
-def noise_axis_line(sensor: str, model, axis: int, unit: str) -> str:
-    """One axis of a noise model in SI and in the units of a data sheet.
+NOISE_UNITS = {
+    'rad/s': {'rate': ('rad/s', DEG * 3600.0, 'deg/h'), 'density': ('rad/s/sqrt(Hz)', DEG * 60.0, 'deg/sqrt(h)'),
+              'walk': ('rad/s^2/sqrt(Hz)', DEG * 3600.0 * 60.0, 'deg/h/sqrt(h)'), 'angle': 'rad', 'ramp': 'rad/s^2'},
+    'm/s^2': {'rate': ('m/s^2', 1e3 / STANDARD_GRAVITY, 'mg'),
+              'density': ('m/s^2/sqrt(Hz)', 1e6 / STANDARD_GRAVITY, 'ug/sqrt(Hz)'),
+              'walk': ('m/s^3/sqrt(Hz)', 1e3 * 60.0 / STANDARD_GRAVITY, 'mg/sqrt(h)'), 'angle': 'm/s', 'ramp': 'm/s^3'},
+}
+"""Per output unit, the SI unit of each noise quantity, the factor to a data sheet's unit, and that unit."""
 
-    White density, bias instability at its floor time, random walk (deg/sqrt(h), deg/h; ug/sqrt(Hz), mg).
+
+def _noise_amount(value: float, kind: str, unit: str) -> str:
+    """``'4.831e-05 rad/s (9.96 deg/h)'``: SI and data-sheet units (a counts calibration's output is m/s^2)."""
+    units = NOISE_UNITS.get('m/s^2' if unit == 'counts' else unit)
+    if units is None:
+        return f'{value:.4g} ({unit})'
+    si, factor, sheet = units[kind]
+    return f'{value:.4g} {si} ({value * factor:.3g} {sheet})'
+
+
+def noise_axis_lines(sensor: str, model, axis: int, unit: str, fit=None) -> list[str]:
+    """One axis of a noise model, one statement per line, in SI and in the units of a data sheet.
+
+    White density, random walk (or the bound the record allows), IEEE 952's bias instability
+    ``B`` and the Allan deviation's minimum with its averaging time (the convention of data
+    sheets), the terms beyond (quantisation, ramp, the driver's filter, Gauss-Markov
+    processes); with ``fit`` (:class:`~tak_thermo_ros.core.noise.fit.NoiseFit`) how the model
+    follows the measurement (:func:`noise_fit_lines`).
     """
-    white, bias = model.white_noise_density[axis], model.bias_instability[axis]
-    tau, walk = model.bias_instability_tau[axis], model.random_walk[axis]
-    at = f'{tau:.3g} s' if tau < float('inf') else 'no floor within the averaging times'
-    if unit == 'rad/s':
-        text = (f'white {white:.3e} rad/s/sqrt(Hz) ({white * DEG * 60.0:.3g} deg/sqrt(h)); '
-                f'bias instability {bias:.3e} rad/s ({bias * DEG * 3600.0:.3g} deg/h) at {at}; '
-                f'random walk {walk:.3e} rad/s^2/sqrt(Hz) ({walk * DEG * 3600.0 * 60.0:.3g} deg/h/sqrt(h))')
-    elif unit in ('m/s^2', 'counts'):  # a counts calibration's corrected output is m/s^2
-        g = STANDARD_GRAVITY
-        text = (f'white {white:.3e} m/s^2/sqrt(Hz) ({white / g * 1e6:.3g} ug/sqrt(Hz), '
-                f'{white * 60.0:.3g} m/s/sqrt(h)); '
-                f'bias instability {bias:.3e} m/s^2 ({bias / g * 1e3:.3g} mg) at {at}; '
-                f'random walk {walk:.3e} m/s^3/sqrt(Hz) ({walk / g * 1e3 * 60.0:.3g} mg/sqrt(h))')
+    units = NOISE_UNITS.get('m/s^2' if unit == 'counts' else unit, {})
+    lines = [f'white {_noise_amount(model.white_noise_density[axis], "density", unit)}']
+    if unit in ('m/s^2', 'counts'):
+        lines[0] += f', {model.white_noise_density[axis] * 60.0:.3g} m/s/sqrt(h)'
+    walk, bound = model.random_walk[axis], model.random_walk_bound[axis]
+    if walk > 0.0 or bound == 0.0:
+        lines.append(f'random walk {_noise_amount(walk, "walk", unit)}')
     else:
-        text = f'white {white:.3e}; bias instability {bias:.3e} at {at}; random walk {walk:.3e} ({unit})'
-    extra_units = {'rad/s': ('rad', 'rad/s^2')}.get(unit, ('m/s', 'm/s^3') if unit in ('m/s^2', 'counts') else ('', ''))
-    extra = [f'{name} {getattr(model, name)[axis]:.3e} {extra_unit}'.rstrip()
-             for name, extra_unit in zip(('quantization', 'rate_ramp'), extra_units)
-             if getattr(model, name)[axis] > 0.0]
-    return text + (f'; {", ".join(extra)}' if extra else '')
+        lines.append(f'random walk at most {_noise_amount(bound, "walk", unit)}: none shown')
+    lines.append(f'bias instability B {_noise_amount(model.bias_instability[axis], "rate", unit)} (IEEE 952)')
+    tau = model.bias_instability_tau[axis]
+    if math.isfinite(tau):
+        lines.append(f'floor {_noise_amount(model.floor()[axis], "rate", unit)} at {tau:.3g} s '
+                     f'(Allan deviation minimum)')
+    else:
+        lines.append('floor: none within the averaging times (the Allan deviation still falls)')
+    extra = []
+    if model.quantization[axis] > 0.0:
+        extra.append(f'quantization {model.quantization[axis]:.3g} {units.get("angle", "")}'.rstrip())
+    if model.rate_ramp[axis] > 0.0:
+        extra.append(f'rate ramp {model.rate_ramp[axis]:.3g} {units.get("ramp", "")}'.rstrip())
+    if model.filter_share[axis] > 0.0:
+        extra.append(f'driver filter {model.filter_time_constant[axis]:.3g} s on '
+                     f'{100.0 * model.filter_share[axis]:.0f} % of the white noise')
+    if extra:
+        lines.append('; '.join(extra))
+    for sigma, time in zip(model.gauss_markov, model.gauss_markov_time):
+        if sigma[axis] > 0.0:
+            lines.append(f'Gauss-Markov {_noise_amount(sigma[axis], "rate", unit)}, correlation time '
+                         f'{time[axis]:.3g} s')
+    if fit is not None:
+        lines += noise_fit_lines(fit, axis, unit)
+    return lines
+
+
+def noise_fit_lines(fit, axis: int, unit: str) -> list[str]:
+    """How an axis's model follows its measured Allan deviation: within the band, or where and how not."""
+    found = fit.axes[axis]
+    lines = []
+    worst = f'worst {found.worst_ratio:.3g}x at {found.worst_tau:.3g} s'
+    if found.within:
+        lines.append(f'fit: within the 95 % band from {fit.band_from:.3g} s (2 samples) on; {worst}')
+    else:
+        lines.append(f'fit: OUTSIDE the 95 % band of the measurement; {worst} '
+                     f'(band {found.band_low:.3g}-{found.band_high:.3g}x)')
+        ranked = sorted(found.misfits, key=lambda m: -abs(math.log(m.ratio)))[:3]
+        for misfit in sorted(ranked, key=lambda m: m.low):
+            span = f'{misfit.low:.3g} s' if misfit.low == misfit.high else f'{misfit.low:.3g}-{misfit.high:.3g} s'
+            if misfit.kind == 'bump':
+                lines.append(f'a bump at {span} no term follows: the measurement {1.0 / misfit.ratio:.3g}x '
+                             f'the model at {misfit.at:.3g} s')
+            else:
+                lines.append(f'a dip at {span} under every term: the measurement {1.0 / misfit.ratio:.3g}x '
+                             f'the model at {misfit.at:.3g} s')
+        period = periodic(found)
+        if period is not None:
+            lines.append(f'a periodic disturbance? period about {period[0]:.3g}-{period[1]:.3g} s, '
+                         f'where a sinusoid\'s Allan deviation vanishes')
+    step = found.step
+    if step is not None:
+        lines.append(f'a step at {step.time_s:.4g} s into the record: {step.sigmas:.3g} sigmas, standing out '
+                     f'from {step.low:.3g} to {step.high:.3g} s')
+        lines.append(f'its size: {step.tau:.3g} s averages before and after differ by '
+                     f'{_noise_amount(step.size, "rate", unit)}')
+        if fit.model.random_walk[axis] > 0.0:
+            lines.append('the random walk fitted may be that step\'s, not the sensor\'s')
+    return lines
+
+
+def periodic(found) -> tuple[float, float] | None:
+    """The averaging times that would hold a sinusoid's period, from the misfits; ``None`` without the pattern.
+
+    A sinusoid's Allan deviation peaks at 0.37 times its period and vanishes at the period: the
+    largest bump no term follows, then a dip at 1.5 to 7 times its averaging time (the one
+    nearest 2.7 times).
+    """
+    dips = [m for m in found.misfits if m.kind == 'dip']
+    for bump in sorted((m for m in found.misfits if m.kind == 'bump'), key=lambda m: abs(math.log(m.ratio)),
+                       reverse=True):
+        after = [dip for dip in dips if 1.5 * bump.at <= dip.at <= 7.0 * bump.at]
+        if after:
+            dip = min(after, key=lambda d: abs(math.log(d.at / (2.7 * bump.at))))
+            return dip.low, dip.high
+    return None
+
+
+def noise_slope_line(fit) -> str:
+    """IEEE 952's slope lines as a cross-check: the fit's white noise and random walk over theirs, per axis.
+
+    A line under the curve bounds its term from above where nothing lowers the curve: 1 where
+    the term dominates somewhere, less where it never does; above 1 on the white noise where a
+    driver's filter lowers the shortest averaging times (the slope-line reading is then low).
+    """
+    def ratios(name: str) -> str:
+        fitted = getattr(fit.model, name)
+        lines = fit.slope_lines.values[name]
+        return ' '.join(f'{f / l:.2g}' if l > 0.0 and math.isfinite(l) else '-' for f, l in zip(fitted, lines))
+    return (f'fit / IEEE 952 slope line: white {ratios("white_noise_density")}, '
+            f'walk {ratios("random_walk")} (x y z)')

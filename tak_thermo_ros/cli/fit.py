@@ -152,7 +152,8 @@ def run(args: argparse.Namespace) -> int:
         if noise is not None:
             print(f'  noise ({noise.source}):')
             for i, name in enumerate(AXES):
-                print(f'  {name}: {common.noise_axis_line(sensor, noise, i, unit_name)}')
+                for line in common.noise_axis_lines(sensor, noise, i, unit_name):
+                    print(f'  {name}: {line}')
     if noise_line:
         print(f'{noise_line} (written with the calibration: the node\'s Imu covariances come from it)')
     if magnetometer is not None:

@@ -46,9 +46,10 @@ def run(args: argparse.Namespace) -> int:
     for line in run.reference_lines:
         print(line)
     what = ('the thermally compensated output (--params) minus the reference' if run.compensated else
-            'the measured output minus the reference, NOT compensated (no --params): thermal drift counts as '
-            'bias wander here')
+            'the measured output minus the reference, NOT compensated (no --params)')
     print(f'noise of {args.bag}: {what}')
+    if not run.compensated:
+        print('without --params, thermal drift counts as bias wander here')
     document: dict[str, object] = {'bag': str(args.bag), 'params': args.params, 'compensated': run.compensated,
                                    'sensors': {}}
     for sensor, noise in run.sensors.items():
@@ -65,7 +66,10 @@ def run(args: argparse.Namespace) -> int:
             print(f'  warning: {noise.out_of_range} samples outside the calibrated temperature range '
                   f'({args.out_of_range})')
         for i, name in enumerate(AXES):
-            print(f'  {name}: {common.noise_axis_line(sensor, model, i, unit_name)}')
+            for line in common.noise_axis_lines(sensor, model, i, unit_name, noise.fit):
+                print(f'  {name}: {line}')
+        if noise.fit is not None:
+            print(f'  {common.noise_slope_line(noise.fit)}')
         document['sensors'][sensor] = noise_document(noise)  # type: ignore[index]
     if args.output:
         header = (f'noise model of {args.bag} ('

@@ -1,6 +1,6 @@
 """Kalibr-style ``imu.yaml``: read a user's noise file, write the fitted noise models.
 
-Kalibr (and OpenVINS, VINS-Fusion, ORB-SLAM3 through it) reads one number per key::
+Kalibr reads one number per key::
 
     accelerometer_noise_density: 2.0e-3   # m/s^2/sqrt(Hz)   white noise (velocity random walk)
     accelerometer_random_walk:   3.0e-4   # m/s^3/sqrt(Hz)   bias random walk
@@ -9,10 +9,25 @@ Kalibr (and OpenVINS, VINS-Fusion, ORB-SLAM3 through it) reads one number per ke
     rostopic:                    /imu/data_raw
     update_rate:                 200.0    # Hz
 
-:func:`write_kalibr` writes these keys with the **largest axis** (what Kalibr can use), and
-the per-axis values under extra keys that Kalibr ignores: ``<sensor>_<term>_xyz`` (three
-numbers, x y z) for the four Kalibr terms and for the bias instability, its averaging time,
-the quantisation and the rate ramp, plus ``<sensor>_noise_source``.
+and refuses (``kalibr_common/ConfigReader.py``, ``ImuParameters``) a ``rostopic`` that is not a
+string, an ``update_rate <= 0`` and any of the four values ``<= 0`` ("invalid
+accelerometer_random_walk"). OpenVINS reads the same four keys under ``imu0:`` of its
+``kalibr_imu_chain.yaml``; VINS-Fusion the same numbers as ``acc_n``, ``acc_w``, ``gyr_n``,
+``gyr_w`` of its own configuration (a walk of 0 there leaves the bias without process noise: its
+covariance is then singular). :func:`write_kalibr` writes every one of them positive:
+
+- the four keys hold the **largest axis** (what Kalibr can use); the per-axis values go under
+  extra keys that Kalibr ignores: ``<sensor>_<term>_xyz`` (three numbers, x y z) for the two
+  Kalibr terms, the bias instability (IEEE 952's ``B``), the floor (``allan_floor``: the Allan
+  deviation's minimum, the data-sheet convention) and its averaging time
+  (``bias_instability_tau``), the quantisation, the rate ramp and the driver's filter;
+  ``<sensor>_gauss_markov_sigma`` / ``_time`` (three numbers per process); ``<sensor>_noise_source``;
+- where the record shows **no random walk**, the walk written is the largest the record allows
+  (``random_walk_bound``, from its longest averaging times), said in a comment and under
+  ``<sensor>_random_walk_bound_xyz`` (0 where the walk is measured);
+- a white noise density of 0 (a fit that put all of it into quantisation) is written as the
+  density of white noise with the model's Allan variance at one sample period (what the
+  node's covariance uses), said in a comment.
 
 :func:`read_kalibr` gives a :class:`~tak_thermo_ros.core.noise.model.NoiseModel` per sensor
 found (``source='file'``): the ``_xyz`` keys when present (their largest value must equal the
@@ -20,6 +35,7 @@ single key, so that an edited single number is never silently ignored), else the
 number on all three axes. A Kalibr file has no bias instability: it is 0 (the model is
 white noise and random walk; its Allan deviation floor is where the two cross,
 ``bias_instability_tau = sqrt(3) N / K``), unless ``<sensor>_bias_instability_xyz`` is given.
+An axis with a ``random_walk_bound`` reads as a model without a walk and with that bound.
 """
 
 from __future__ import annotations
@@ -31,7 +47,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 
-from tak_thermo_ros.core.noise.model import NoiseModel, floor_tau
+from tak_thermo_ros.core.noise.model import NoiseModel, model_floor_tau
 from tak_thermo_ros.errors import NoiseError
 
 KALIBR_SENSORS = {'accel': 'accelerometer', 'gyro': 'gyroscope'}
@@ -40,8 +56,10 @@ KALIBR_TERMS = {'white_noise_density': 'noise_density', 'random_walk': 'random_w
 """Our term names and Kalibr's key suffixes."""
 UNITS = {'accel': {'noise_density': 'm/s^2/sqrt(Hz)', 'random_walk': 'm/s^3/sqrt(Hz)'},
          'gyro': {'noise_density': 'rad/s/sqrt(Hz)', 'random_walk': 'rad/s^2/sqrt(Hz)'}}
-_EXTRA_TERMS = ('white_noise_density', 'random_walk', 'bias_instability', 'bias_instability_tau',
-                'quantization', 'rate_ramp')
+_EXTRA_TERMS = ('white_noise_density', 'random_walk', 'random_walk_bound', 'bias_instability', 'allan_floor',
+                'bias_instability_tau', 'quantization', 'rate_ramp', 'filter_time_constant', 'filter_share')
+_PROCESS_KEYS = {'gauss_markov_sigma': 'gauss_markov', 'gauss_markov_time': 'gauss_markov_time'}
+"""Per Gauss-Markov process three numbers (x y z, x y z, ...): the key's suffix, the model's field."""
 _OTHER_KEYS = ('rostopic', 'update_rate')
 
 
@@ -49,11 +67,14 @@ def _key(sensor: str, term: str) -> str:
     return f'{KALIBR_SENSORS[sensor]}_{KALIBR_TERMS.get(term, term)}'
 
 
-def _number(value: Any, where: str, *, positive: bool = False, allow_inf: bool = False) -> float:
+def _number(value: Any, where: str, *, positive: bool = False, allow_inf: bool = False,
+            allow_nan: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         msg = f'{where}: expected a number, got {type(value).__name__} {value!r}'
         raise NoiseError(msg)
     number = float(value)
+    if allow_nan and math.isnan(number):
+        return number
     bad = math.isnan(number) or (math.isinf(number) and not (allow_inf and number > 0)) or number < 0.0 \
         or (positive and number == 0.0)
     if bad:
@@ -75,6 +96,7 @@ def kalibr_from_mapping(raw: Any, where: str = 'imu.yaml') -> tuple[dict[str, No
     for sensor in KALIBR_SENSORS:
         known |= {_key(sensor, term) for term in KALIBR_TERMS}
         known |= {f'{_key(sensor, term)}_xyz' for term in _EXTRA_TERMS}
+        known |= {f'{KALIBR_SENSORS[sensor]}_{suffix}' for suffix in _PROCESS_KEYS}
         known.add(f'{KALIBR_SENSORS[sensor]}_noise_source')
     unknown = sorted(str(k) for k in raw if k not in known)
     if unknown:
@@ -110,8 +132,24 @@ def kalibr_from_mapping(raw: Any, where: str = 'imu.yaml') -> tuple[dict[str, No
                     msg = f'{where}: {extra}: expected three numbers [x, y, z], got {items!r}'
                     raise NoiseError(msg)
                 values[term] = tuple(_number(v, f'{where}: {extra}[{a}]', allow_inf=term == 'bias_instability_tau',
-                                             positive=term == 'bias_instability_tau')
+                                             positive=term == 'bias_instability_tau', allow_nan=term == 'allan_floor')
                                      for a, v in zip('xyz', items))  # type: ignore[assignment]
+        values.pop('allan_floor', None)  # written for people: the model gives it again
+        processes: dict[str, Any] = {}
+        for suffix, name in _PROCESS_KEYS.items():
+            key = f'{prefix}_{suffix}'
+            if key in raw:
+                items = raw[key]
+                if not isinstance(items, list) or len(items) % 3:
+                    msg = f'{where}: {key}: expected three numbers (x, y, z) per process, got {items!r}'
+                    raise NoiseError(msg)
+                times = suffix.endswith('time')
+                processes[name] = tuple(tuple(_number(v, f'{where}: {key}[{i * 3 + a}]', positive=times)
+                                              for a, v in enumerate(items[i * 3:i * 3 + 3]))
+                                        for i in range(len(items) // 3))
+        if len(processes.get('gauss_markov', ())) != len(processes.get('gauss_markov_time', ())):
+            msg = f'{where}: {prefix}_gauss_markov_sigma and {prefix}_gauss_markov_time: as many processes in each'
+            raise NoiseError(msg)
         for term in KALIBR_TERMS:
             single = _number(raw[_key(sensor, term)], f'{where}: {_key(sensor, term)}')
             if term in values:
@@ -125,11 +163,25 @@ def kalibr_from_mapping(raw: Any, where: str = 'imu.yaml') -> tuple[dict[str, No
         zero = (0.0, 0.0, 0.0)
         for term in ('bias_instability', 'quantization', 'rate_ramp'):
             values.setdefault(term, zero)
+        if 'random_walk_bound' in values:
+            # The walk written where the record shows none is its bound: the model has no walk there.
+            bound, written = values['random_walk_bound'], values['random_walk']
+            for a, (b, w) in enumerate(zip(bound, written)):
+                if b > 0.0 and not math.isclose(b, w, rel_tol=1e-6):
+                    msg = (f'{where}: {_key(sensor, "random_walk")}_xyz[{"xyz"[a]}] {w:g} is not the bound '
+                           f'{b:g} of {_key(sensor, "random_walk_bound")}_xyz: edit both')
+                    raise NoiseError(msg)
+            values['random_walk'] = tuple(0.0 if b > 0.0 else w for b, w in zip(bound, written))  # type: ignore
+        try:
+            model = NoiseModel(update_rate=rate, source='file', **{'bias_instability_tau': (1.0, 1.0, 1.0),
+                                                                   **values, **processes})
+        except NoiseError as err:
+            msg = f'{where}: {prefix}: {err}'
+            raise NoiseError(msg) from None
         if 'bias_instability_tau' not in values:
-            values['bias_instability_tau'] = floor_tau(values['white_noise_density'], values['bias_instability'],
-                                                       values['random_walk'], values['quantization'],
-                                                       values['rate_ramp'])
-        models[sensor] = NoiseModel(update_rate=rate, source='file', **values)
+            from dataclasses import replace
+            model = replace(model, bias_instability_tau=model_floor_tau(model))
+        models[sensor] = model
     if not models:
         msg = f'{where}: no accelerometer_* or gyroscope_* noise keys'
         raise NoiseError(msg)
@@ -145,12 +197,27 @@ def read_kalibr(path: str | os.PathLike[str]) -> dict[str, NoiseModel]:
     return kalibr_from_mapping(read_yaml(path, 'noise file', NoiseError), str(Path(path)))[0]
 
 
+def kalibr_values(model: NoiseModel) -> dict[str, tuple[float, float, float]]:
+    """Per axis what a Kalibr file gets: ``noise_density`` and ``random_walk``, every one positive where it can be.
+
+    The white density, or where it is 0 the density of white noise with the model's Allan
+    variance at one sample period; the random walk, or where it is 0 its bound.
+    """
+    per_sample = model.sample_variance()
+    density = tuple(n if n > 0.0 else math.sqrt(v / model.update_rate)
+                    for n, v in zip(model.white_noise_density, per_sample))
+    walk = tuple(k if k > 0.0 else b for k, b in zip(model.random_walk, model.random_walk_bound))
+    return {'noise_density': density, 'random_walk': walk}  # type: ignore[dict-item]
+
+
 def kalibr_text(models: Mapping[str, NoiseModel], *, rostopic: str, update_rate: float | None = None,
                 header: str = '') -> str:
-    """The imu.yaml text: Kalibr's keys (largest axis) and the per-axis ``_xyz`` keys.
+    """The imu.yaml text: Kalibr's keys (largest axis, positive) and the per-axis ``_xyz`` keys.
 
     :param update_rate: Hz (default: the first model's).
     :param header: comment lines written first (without ``#``).
+    :raises NoiseError: no model, or a sensor whose density or walk is 0 on every axis with no
+        bound to write instead (Kalibr refuses a value ``<= 0``).
     """
     if not models:
         msg = 'imu.yaml: no noise model to write'
@@ -161,20 +228,50 @@ def kalibr_text(models: Mapping[str, NoiseModel], *, rostopic: str, update_rate:
         if sensor not in models:
             continue
         model = models[sensor]
-        lines.append(f'# {KALIBR_SENSORS[sensor]} (largest axis; per axis x y z under *_xyz)')
+        prefix = KALIBR_SENSORS[sensor]
+        written = kalibr_values(model)
+        lines.append(f'# {prefix} (largest axis; per axis x y z under *_xyz)')
         for term, suffix in KALIBR_TERMS.items():
-            lines.append(f'{_key(sensor, term)}: {max(getattr(model, term)):.6e}   # {UNITS[sensor][suffix]}')
+            value = max(written[suffix])
+            if not value > 0.0:
+                msg = (f'imu.yaml: {_key(sensor, term)}: the {prefix} model has none on any axis and no bound: '
+                       f'Kalibr refuses a value <= 0')
+                raise NoiseError(msg)
+            note = ''
+            if term == 'random_walk' and any(model.random_walk_bound):
+                axes = ' '.join(a for a, b in zip('xyz', model.random_walk_bound) if b > 0.0)
+                note = f'; on {axes} an upper bound, the record shows no walk there'
+            if term == 'white_noise_density' and not all(model.white_noise_density):
+                axes = ' '.join(a for a, n in zip('xyz', model.white_noise_density) if n == 0.0)
+                note = f'; on {axes} from the Allan variance at one sample (no white term fitted)'
+            lines.append(f'{_key(sensor, term)}: {value:.6e}   # {UNITS[sensor][suffix]}{note}')
         for term in _EXTRA_TERMS:
-            values = ', '.join(_yaml_float(v) for v in getattr(model, term))
-            lines.append(f'{_key(sensor, term)}_xyz: [{values}]')
-        lines.append(f'{KALIBR_SENSORS[sensor]}_noise_source: {model.source}')
+            if term in ('filter_time_constant', 'filter_share') and not any(model.filter_share):
+                continue
+            if term == 'random_walk_bound' and not any(model.random_walk_bound):
+                continue
+            numbers = {'white_noise_density': written['noise_density'], 'random_walk': written['random_walk'],
+                       'allan_floor': model.floor()}.get(term) or getattr(model, term)
+            lines.append(f'{_key(sensor, term)}_xyz: [{", ".join(_yaml_float(v) for v in numbers)}]')
+        for suffix, name in _PROCESS_KEYS.items():
+            processes = getattr(model, name)
+            if any(any(sigma) for sigma in model.gauss_markov):
+                numbers = ', '.join(_yaml_float(v) for triple in processes for v in triple)
+                lines.append(f'{prefix}_{suffix}: [{numbers}]')
+        lines.append(f'{prefix}_noise_source: {model.source}')
+    lines.append('# OpenVINS reads the four Kalibr keys above under imu0: of its kalibr_imu_chain.yaml')
+    if 'accel' in models and 'gyro' in models:
+        vins = {name: max(kalibr_values(models[sensor])[suffix]) for name, sensor, suffix in
+                (('acc_n', 'accel', 'noise_density'), ('acc_w', 'accel', 'random_walk'),
+                 ('gyr_n', 'gyro', 'noise_density'), ('gyr_w', 'gyro', 'random_walk'))}
+        lines.append('# VINS-Fusion takes them as ' + ', '.join(f'{k}: {v:.4e}' for k, v in vins.items()))
     lines.append(f'rostopic: {json.dumps(rostopic)}')
     lines.append(f'update_rate: {float(rate)!r}   # Hz')
     return '\n'.join(lines) + '\n'
 
 
 def _yaml_float(value: float) -> str:
-    return '.inf' if math.isinf(value) else f'{value:.6e}'
+    return '.inf' if math.isinf(value) else '.nan' if math.isnan(value) else f'{value:.6e}'
 
 
 def write_kalibr(path: str | os.PathLike[str], models: Mapping[str, NoiseModel], *, rostopic: str,
@@ -185,4 +282,4 @@ def write_kalibr(path: str | os.PathLike[str], models: Mapping[str, NoiseModel],
     write_text_atomic(path, kalibr_text(models, rostopic=rostopic, update_rate=update_rate, header=header))
 
 
-__all__ = ['KALIBR_SENSORS', 'kalibr_from_mapping', 'kalibr_text', 'read_kalibr', 'write_kalibr']
+__all__ = ['KALIBR_SENSORS', 'kalibr_from_mapping', 'kalibr_text', 'kalibr_values', 'read_kalibr', 'write_kalibr']

@@ -63,9 +63,12 @@ def wander_avar(noise: Any, taus: np.ndarray) -> np.ndarray:
     """``(t, 3)`` the Allan variance of the noise model without its white and quantisation terms.
 
     The white part of the residual is measured on the run itself (successive differences);
-    the noise model supplies what white noise does not: bias instability, random walk, ramp.
+    the noise model supplies what white noise does not: bias instability, random walk, ramp,
+    Gauss-Markov processes.
     """
     taus = np.asarray(taus, dtype=float)
+    if hasattr(noise, 'wander_allan_variance'):
+        return np.asarray(noise.wander_allan_variance(taus), dtype=float).reshape(len(taus), -1)
     full = np.asarray(noise.allan_deviation(taus), dtype=float) ** 2
     full = full.reshape(len(taus), -1)
     white = _triple(noise.white_noise_density) ** 2 / taus[:, None]
@@ -156,7 +159,8 @@ def whitener(noise: Any, time_s: np.ndarray, white_variance: np.ndarray) -> Call
     """The noise model's whitening filter for a residual sampled at ``time_s``.
 
     A Kalman filter per axis whose state is the sensor's bias (a random walk plus the
-    Gauss-Markov process of its bias instability, as :func:`simulate_noise` draws them) and
+    Gauss-Markov process of its bias instability and the model's own Gauss-Markov processes,
+    as :func:`simulate_noise` draws them) and
     whose measurement noise is white with ``white_variance`` (``(k, 3)`` or ``(3,)``). Its
     innovations, each divided by its predicted standard deviation and multiplied by the mean
     white standard deviation, are white at that level when the residual is the noise model's
@@ -170,43 +174,49 @@ def whitener(noise: Any, time_s: np.ndarray, white_variance: np.ndarray) -> Call
     walk = _triple(noise.random_walk) ** 2
     instability = (0.664 / 0.6182 * _triple(noise.bias_instability)) ** 2
     correlation = np.maximum(_triple(getattr(noise, 'bias_instability_tau', 100.0)) / 1.89, 1e-9)
-    if not np.any(walk > 0.0) and not np.any(instability > 0.0):
+    markov = [(_triple(sigma) ** 2, np.maximum(_triple(time), 1e-9))
+              for sigma, time in zip(getattr(noise, 'gauss_markov', ()), getattr(noise, 'gauss_markov_time', ()))]
+    if not np.any(walk > 0.0) and not np.any(instability > 0.0) and not any(np.any(v > 0.0) for v, _ in markov):
         return lambda residual: np.asarray(residual, dtype=float)
     duration = float(time_s[-1] - time_s[0]) if count else 0.0
-    # State per axis: (walk, Gauss-Markov), the walk starting at zero (the fit takes the mean
-    # bias) with the spread it reaches over the run. Covariances (3, 2, 2).
-    cov = np.zeros((3, 2, 2))
+    # State per axis: the walk (starting at zero: the fit takes the mean bias; with the spread it
+    # reaches over the run), the bias instability's Gauss-Markov process, the model's own
+    # Gauss-Markov processes. Covariances (3, n, n); the measurement is the sum of the states.
+    levels = np.column_stack([walk, instability, *(v for v, _ in markov)])
+    times = np.column_stack([np.full(3, np.inf), correlation, *(t for _, t in markov)])
+    states = levels.shape[1]
+    cov = np.zeros((3, states, states))
     cov[:, 0, 0] = walk * max(duration, 1.0)
-    cov[:, 1, 1] = instability
-    gains = np.zeros((count, 3, 2))
+    for j in range(1, states):
+        cov[:, j, j] = levels[:, j]
+    gains = np.zeros((count, 3, states))
     scale = np.zeros((count, 3))
-    decays = np.ones((count, 3))
+    decays = np.ones((count, 3, states))
     for k in range(count):
         step = float(time_s[k] - time_s[k - 1]) if k else 0.0
-        decay = np.exp(-step / correlation)
+        decay = np.exp(-step / times)
         decays[k] = decay
         if k:
-            cov[:, 1, 1] *= decay ** 2
-            cov[:, 0, 1] *= decay
-            cov[:, 1, 0] *= decay
+            cov = cov * decay[:, :, None] * decay[:, None, :]
             cov[:, 0, 0] += walk * step
-            cov[:, 1, 1] += instability * (1.0 - decay ** 2)
-        predicted = cov[:, 0, 0] + cov[:, 1, 1] + 2.0 * cov[:, 0, 1] + variance[k]
-        gain = (cov[:, :, 0] + cov[:, :, 1]) / predicted[:, None]
+            for j in range(1, states):
+                cov[:, j, j] += levels[:, j] * (1.0 - decay[:, j] ** 2)
+        row = cov.sum(axis=1)  # H P with H = (1, ..., 1): each state's covariance with the sum
+        predicted = row.sum(axis=1) + variance[k]
+        gain = row / predicted[:, None]
         gains[k] = gain
         scale[k] = np.sqrt(predicted)
-        # Joseph-free update: P = P - g (H P), with H P the row sums of P.
-        row = cov[:, 0, :] + cov[:, 1, :]
+        # Joseph-free update: P = P - g (H P).
         cov = cov - gain[:, :, None] * row[:, None, :]
     level = np.sqrt(np.mean(variance, axis=0))
 
     def whiten(residual: np.ndarray) -> np.ndarray:
         residual = np.asarray(residual, dtype=float)
-        state = np.zeros((3, 2))
+        state = np.zeros((3, states))
         out = np.empty_like(residual)
         for k in range(count):
-            state[:, 1] *= decays[k]
-            innovation = residual[k] - state[:, 0] - state[:, 1]
+            state *= decays[k]
+            innovation = residual[k] - state.sum(axis=1)
             state += gains[k] * innovation[:, None]
             out[k] = innovation / scale[k] * level
         return out
@@ -220,18 +230,21 @@ def simulate_noise(noise: Any, count: int, sample_period_s: float, white_floor: 
                    seed: int | list[int], *, longest_s: float = math.inf) -> np.ndarray:
     """``(count, 3)`` a residual that the noise model predicts at a steady sample rate.
 
-    White at the measured floor plus the model's bias instability and random walk
-    (:func:`~tak_thermo_ros.core.simulation.noise.bias_wander`, centred on the model's
-    bias-instability time, at most ``longest_s``).
+    White at the measured floor plus the model's bias instability, random walk and Gauss-Markov
+    processes (:func:`~tak_thermo_ros.core.simulation.noise.bias_wander`, the flicker centred on
+    the model's bias-instability time, at most ``longest_s``).
     """
     from tak_thermo_ros.core.simulation.noise import bias_wander
     rng = np.random.default_rng(seed)
     white = rng.standard_normal((count, 3)) * np.asarray(white_floor, dtype=float)
     centre = tuple(float(min(max(t, 2.0 * sample_period_s), longest_s)) if math.isfinite(t) else float(longest_s)
                    for t in _triple(noise.bias_instability_tau))
+    processes = tuple(zip(getattr(noise, 'gauss_markov', ()), getattr(noise, 'gauss_markov_time', ())))
+    markov = tuple(tuple((float(sigma[axis]), float(time[axis])) for sigma, time in processes if sigma[axis] > 0.0)
+                   for axis in range(3))
     wander = bias_wander([*np.atleast_1d(seed).tolist(), 1], count, 1.0 / sample_period_s,
                          tuple(float(v) for v in _triple(noise.bias_instability)), centre,  # type: ignore[arg-type]
-                         tuple(float(v) for v in _triple(noise.random_walk)))  # type: ignore[arg-type]
+                         tuple(float(v) for v in _triple(noise.random_walk)), markov)  # type: ignore[arg-type]
     return white + wander
 
 

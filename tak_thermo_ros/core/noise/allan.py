@@ -53,6 +53,11 @@ class AllanVariance:
         the bin size of :class:`AllanAccumulator`'s long cluster sizes).
     :param rate: sample rate, Hz.
     :param samples: number of samples that entered the estimate.
+    :param peak: ``(t, axes)`` the largest ``|x_(k+2m) - 2 x_(k+m) + x_k|`` of each sum (``m`` times
+        the largest difference of adjacent cluster averages: a step in the record stands out
+        there; :class:`AllanAccumulator` keeps it at the exact cluster sizes that are powers of
+        two and at the binned ones, NaN at the others), or ``None``.
+    :param peak_index: ``(t, axes)`` its ``k`` (the first sample of the first cluster).
     """
 
     taus: np.ndarray
@@ -62,6 +67,8 @@ class AllanVariance:
     strides: np.ndarray
     rate: float
     samples: int
+    peak: np.ndarray | None = None
+    peak_index: np.ndarray | None = None
 
     @property
     def adev(self) -> np.ndarray:
@@ -72,6 +79,14 @@ class AllanVariance:
     def axes(self) -> int:
         """Number of channels."""
         return int(self.avar.shape[1])
+
+    def select(self, keep: np.ndarray) -> AllanVariance:
+        """The averaging times where ``keep`` (a boolean ``(t,)``) is true."""
+        from dataclasses import replace
+        return replace(self, taus=self.taus[keep], avar=self.avar[keep], counts=self.counts[keep],
+                       clusters=self.clusters[keep], strides=self.strides[keep],
+                       peak=None if self.peak is None else self.peak[keep],
+                       peak_index=None if self.peak_index is None else self.peak_index[keep])
 
 
 def cluster_sizes(largest: int, per_octave: int = 1, *, smallest: int = 1) -> np.ndarray:
@@ -134,13 +149,26 @@ def allan_variance(samples: np.ndarray, rate: float, *, per_octave: int = 1,
     if count:
         np.cumsum(values - values[0], axis=0, out=phase[1:])
     avar = np.empty((len(clusters), values.shape[1]))
+    peak = np.empty_like(avar)
+    peak_index = np.zeros(avar.shape, dtype=np.int64)
     terms = np.empty(len(clusters), dtype=np.int64)
     for i, m in enumerate(clusters):
         second = phase[2 * m:] - 2.0 * phase[m:count + 1 - m] + phase[:count + 1 - 2 * m]
         terms[i] = len(second)
         avar[i] = np.einsum('ij,ij->j', second, second) / (2.0 * float(m) ** 2 * terms[i])
+        peak[i], peak_index[i] = _peak(second)
     return AllanVariance(taus=clusters / rate, avar=avar, counts=terms, clusters=clusters,
-                         strides=np.ones(len(clusters), dtype=np.int64), rate=rate, samples=count)
+                         strides=np.ones(len(clusters), dtype=np.int64), rate=rate, samples=count,
+                         peak=peak, peak_index=peak_index)
+
+
+def _peak(second: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per column the largest absolute value of ``second`` and its row (the largest and the least, no copy)."""
+    columns = np.arange(second.shape[1])
+    high, low = second.argmax(axis=0), second.argmin(axis=0)
+    top, bottom = second[high, columns], -second[low, columns]
+    up = top >= bottom
+    return np.where(up, top, bottom), np.where(up, high, low)
 
 
 class AllanAccumulator:
@@ -167,6 +195,11 @@ class AllanAccumulator:
         self.exact_max = exact_max
         self._exact = cluster_sizes(exact_max, per_octave)
         self._sum_sq = np.zeros((len(self._exact), axes))
+        # The largest term (a step's mark) at one cluster size per octave, the powers of two: it
+        # costs two passes over a block, as much as the sum of squares.
+        self._tracked = (self._exact & (self._exact - 1)) == 0
+        self._peak = np.where(self._tracked[:, None], 0.0, np.nan) * np.ones((1, axes))
+        self._peak_index = np.zeros((len(self._exact), axes), dtype=np.int64)
         self._terms = np.zeros(len(self._exact), dtype=np.int64)
         self._history = np.zeros((1, axes))  # the last cumulative sums (x_0 = 0 at first)
         self._offset: np.ndarray | None = None
@@ -198,6 +231,12 @@ class AllanAccumulator:
             second = (joined[begin:] - 2.0 * joined[begin - m:len(joined) - m]
                       + joined[begin - 2 * m:len(joined) - 2 * m])
             self._sum_sq[i] += np.einsum('ij,ij->j', second, second)
+            if self._tracked[i]:
+                peak, where = _peak(second)
+                larger = peak > self._peak[i]
+                self._peak[i] = np.where(larger, peak, self._peak[i])
+                # The term's k: its first cumulative sum's global index.
+                self._peak_index[i] = np.where(larger, first_global + begin - 2 * m + where, self._peak_index[i])
             self._terms[i] += len(second)
         self._history = joined[-(2 * self.exact_max + 1):].copy()
         first_bin = -(-start // self.bin_size) * self.bin_size
@@ -223,6 +262,7 @@ class AllanAccumulator:
         exact = self._exact[used]
         clusters = [exact]
         avar = [self._sum_sq[used] / (2.0 * exact[:, None].astype(float) ** 2 * self._terms[used, None])]
+        peaks, peak_indices = [self._peak[used]], [self._peak_index[used]]
         counts = [self._terms[used]]
         strides = [np.ones(len(exact), dtype=np.int64)]
         largest = largest_cluster(self.samples)
@@ -232,22 +272,29 @@ class AllanAccumulator:
             grid = np.unique(np.maximum(np.round(grid / size), 1).astype(np.int64) * size)
             grid = grid[(grid > self.exact_max) & (grid <= largest)]
             phase = self._bins[:self._bin_count]
-            long_avar, long_counts = [], []
+            long_avar, long_counts, long_peak, long_index = [], [], [], []
             for m in grid:
                 j = int(m // size)
                 second = phase[2 * j:] - 2.0 * phase[j:len(phase) - j] + phase[:len(phase) - 2 * j]
                 long_counts.append(len(second))
                 long_avar.append(np.einsum('ij,ij->j', second, second) / (2.0 * float(m) ** 2 * max(len(second), 1)))
+                peak, where = _peak(second) if len(second) else (np.zeros(self.axes), np.zeros(self.axes, np.int64))
+                long_peak.append(peak)
+                long_index.append(where * size)
             keep = np.asarray(long_counts, dtype=np.int64) > 0
             if np.any(keep):
                 clusters.append(grid[keep])
                 avar.append(np.asarray(long_avar)[keep])
+                peaks.append(np.asarray(long_peak)[keep])
+                peak_indices.append(np.asarray(long_index, dtype=np.int64)[keep])
                 counts.append(np.asarray(long_counts, dtype=np.int64)[keep])
                 strides.append(np.full(int(keep.sum()), size, dtype=np.int64))
         all_clusters = np.concatenate(clusters)
         return AllanVariance(taus=all_clusters / self.rate, avar=np.concatenate(avar).reshape(-1, self.axes),
                              counts=np.concatenate(counts), clusters=all_clusters,
-                             strides=np.concatenate(strides), rate=self.rate, samples=self.samples)
+                             strides=np.concatenate(strides), rate=self.rate, samples=self.samples,
+                             peak=np.concatenate(peaks).reshape(-1, self.axes),
+                             peak_index=np.concatenate(peak_indices).reshape(-1, self.axes))
 
 
 def _edf_power_law(phases: np.ndarray, m: np.ndarray, alpha: np.ndarray) -> np.ndarray:

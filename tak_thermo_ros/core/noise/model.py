@@ -1,7 +1,8 @@
-"""A sensor's noise model per axis: the five IEEE 952 terms, and their fit to an Allan variance.
+"""A sensor's noise model per axis: the IEEE 952 terms, a driver's filter, Gauss-Markov bumps.
 
-For a rate signal (gyroscope rad/s, accelerometer m/s^2) the Allan variance of the five
-IEEE 952 (Annex C) noise terms adds up::
+For a rate signal (gyroscope rad/s, accelerometer m/s^2) sampled every ``tau0 = 1 / rate``
+seconds the Allan variances of independent noise processes add up. The five IEEE 952 (Annex C)
+terms::
 
     avar(tau) = 3 Q^2 / tau^2       quantisation          Q  units*s
               + N^2 / tau           white noise density    N  units/sqrt(Hz) (angle / velocity random walk)
@@ -9,12 +10,24 @@ IEEE 952 (Annex C) noise terms adds up::
               + K^2 tau / 3         random walk            K  units*sqrt(Hz) (rate / velocity random walk)
               + R^2 tau^2 / 2       rate ramp              R  units/s
 
-:func:`fit_noise_model` fits the five squares, per axis, by non-negative least squares on the
-Allan variance, each averaging time weighted by its equivalent degrees of freedom (the
-variance of an Allan variance estimate with ``edf`` degrees of freedom is ``2 avar^2 / edf``),
-re-weighted with the model's own prediction and the degrees of freedom of the noise type that
-dominates there. This module imports numpy only (the node loads :class:`NoiseModel`);
-scipy is imported by the fit.
+and what real parts show besides:
+
+- **a driver's low-pass filter** (and decimation): a share ``filter_share`` of the white noise
+  density squared passes a first-order low-pass of time constant ``filter_time_constant``
+  before the samples are taken, so neighbouring samples are correlated (an AR(1) process at
+  the output rate, exactly so for a one-pole filter at any internal rate followed by
+  decimation). Its Allan variance falls below ``N^2 / tau`` at the shortest averaging times
+  and joins it beyond a few time constants; the density ``N`` stays the long-term one;
+- **Gauss-Markov processes** (exponentially correlated, IEEE 952 lists them; a bump in the
+  Allan deviation at about 1.89 times the correlation time): ``gauss_markov`` (their standard
+  deviations) and ``gauss_markov_time`` (their correlation times), per process three numbers.
+
+The Allan variance of an AR(1) process of variance ``s^2`` and lag-one correlation
+``rho = exp(-tau0 / T)`` at ``m`` samples is exact (:func:`ar1_allan_variance`):
+``(4 D(m) - D(2m)) / (2 m^2)`` with ``D(n) = s^2 (n + 2 rho (n (1 - rho) - 1 + rho^n) / (1 - rho)^2)``,
+the variance of a sum of ``n`` samples. The fit of all this to a measured Allan variance is in
+:mod:`tak_thermo_ros.core.noise.fit`. This module imports numpy only (the node loads
+:class:`NoiseModel`).
 """
 
 from __future__ import annotations
@@ -34,24 +47,72 @@ SOURCES = ('file', 'static_run', 'residual')
 the calibration run's own residual after the fitted thermal model."""
 TERMS = ('quantization', 'white_noise_density', 'bias_instability', 'random_walk', 'rate_ramp')
 """The five IEEE 952 terms, in the order of the Allan variance's slope (-2 to +2)."""
-_SLOPES = np.array([-2, -1, 0, 1, 2])
-_ALPHAS = np.array([2, 0, -1, -2, -2])  # the power-law exponent of each term (ramp: as random walk)
-FIT_ITERATIONS = 4
-"""Re-weightings of the fit (the first uses the measured Allan variance and white-rate weights)."""
 FLOOR_GRID = 4000
 """Points per search of the Allan deviation's minimum (log-spaced)."""
+GAUSS_MARKOV_PEAK = 1.8926
+"""A Gauss-Markov process's Allan deviation peaks at ``tau = 1.89 T`` (its correlation time ``T``)."""
+_SERIES_BELOW = 1e-2
+"""Below this ``n tau0 / T`` the AR(1) sums use their Taylor series (the closed form cancels)."""
 
 Triple = tuple[float, float, float]
+ZERO: Triple = (0.0, 0.0, 0.0)
 
 
 def allan_terms(taus: np.ndarray) -> np.ndarray:
-    """``(t, 5)``: the Allan variance of each unit term at ``taus`` (coefficients: the squared terms)."""
+    """``(t, 5)``: the Allan variance of each unit IEEE 952 term at ``taus`` (coefficients: the squared terms)."""
     taus = np.asarray(taus, dtype=float)
     return np.column_stack([3.0 / taus ** 2, 1.0 / taus, np.full(taus.shape, FLICKER_FLOOR ** 2),
                             taus / 3.0, taus ** 2 / 2.0])
 
 
-def _triple(value: Any, key: str, *, allow_inf: bool = False, positive: bool = False) -> Triple:
+def _sum_variance(n: np.ndarray, decay: float) -> np.ndarray:
+    """``D(n) / s^2``: the variance of a sum of ``n`` samples of an AR(1) process of unit variance.
+
+    ``decay = tau0 / T`` (the lag-one correlation is ``exp(-decay)``).
+    """
+    n = np.asarray(n, dtype=float)
+    rho = math.exp(-decay)
+    gap = -math.expm1(-decay)  # 1 - rho, without cancellation
+    x = n * decay
+    with np.errstate(over='ignore', invalid='ignore'):
+        closed = n * gap + np.expm1(-x)  # n (1 - rho) - (1 - rho^n)
+    # Taylor series of the same in decay (with x = n decay small): no cancellation.
+    series = decay ** 2 * (n * n - n) / 2.0 - decay ** 3 * (n ** 3 - n) / 6.0 + decay ** 4 * (n ** 4 - n) / 24.0
+    inner = np.where(x < _SERIES_BELOW, series, closed)
+    return n + 2.0 * rho * inner / gap ** 2
+
+
+def ar1_allan_variance(clusters: np.ndarray, decay: float, variance: float = 1.0) -> np.ndarray:
+    """The exact Allan variance at ``clusters`` samples of an AR(1) process sampled every ``tau0``.
+
+    ``decay = tau0 / T`` with ``T`` the correlation time (lag-one correlation ``exp(-decay)``);
+    ``variance``: the process's. A Gauss-Markov process sampled at ``tau0`` is such a process;
+    for ``T >> tau0`` this is the continuous-time formula ``(2 s^2 T / tau) [1 - T / (2 tau)
+    (3 - 4 e^(-tau/T) + e^(-2 tau/T))]``; ``decay`` infinite is white noise (``variance / m``).
+    """
+    m = np.asarray(clusters, dtype=float)
+    if not math.isfinite(decay):
+        return variance / m
+    return variance * (4.0 * _sum_variance(m, decay) - _sum_variance(2.0 * m, decay)) / (2.0 * m * m)
+
+
+def filtered_white_allan_variance(taus: np.ndarray, rate: float, time_constant: float) -> np.ndarray:
+    """The Allan variance of unit-density white noise after a first-order low-pass, sampled at ``rate``.
+
+    Beyond a few time constants it is ``1 / tau``; below, less (neighbouring samples are alike).
+    A time constant of 0 is plain white noise.
+    """
+    taus = np.asarray(taus, dtype=float)
+    if time_constant <= 0.0:
+        return 1.0 / taus
+    decay = 1.0 / (rate * time_constant)
+    # An AR(1) of per-sample variance s^2 has the long-term density tau0 s^2 (1 + rho) / (1 - rho).
+    variance = math.tanh(decay / 2.0) * rate
+    return ar1_allan_variance(taus * rate, decay, variance)
+
+
+def _triple(value: Any, key: str, *, allow_inf: bool = False, positive: bool = False,
+            at_most: float | None = None) -> Triple:
     items = value.tolist() if isinstance(value, np.ndarray) else value
     if isinstance(items, (int, float)) and not isinstance(items, bool):
         items = (items,) * 3
@@ -69,8 +130,25 @@ def _triple(value: Any, key: str, *, allow_inf: bool = False, positive: bool = F
             kind = 'positive' if positive else 'non-negative'
             msg = f'{key}[{axis}]: expected a {kind} finite number, got {number}'
             raise NoiseError(msg)
+        if at_most is not None and number > at_most:
+            msg = f'{key}[{axis}]: expected at most {at_most:g}, got {number}'
+            raise NoiseError(msg)
         out.append(number)
     return (out[0], out[1], out[2])
+
+
+def _triples(value: Any, key: str, *, positive: bool = False) -> tuple[Triple, ...]:
+    """Per process three numbers: a list of triples, or a flat list of ``3 k`` numbers (x y z, x y z, ...)."""
+    items = value.tolist() if isinstance(value, np.ndarray) else value
+    if not isinstance(items, (list, tuple)):
+        msg = f'{key}: expected a list of three numbers (x, y, z) per process, got {value!r}'
+        raise NoiseError(msg)
+    if items and not isinstance(items[0], (list, tuple, np.ndarray)):
+        if len(items) % 3:
+            msg = f'{key}: expected three numbers (x, y, z) per process, got {len(items)} numbers'
+            raise NoiseError(msg)
+        items = [items[i:i + 3] for i in range(0, len(items), 3)]
+    return tuple(_triple(item, f'{key}[{i}]', positive=positive) for i, item in enumerate(items))
 
 
 @dataclass(frozen=True)
@@ -79,7 +157,9 @@ class NoiseModel:
 
     :param white_noise_density: units/sqrt(Hz): angle random walk of a gyroscope (rad/s/sqrt(Hz)),
         velocity random walk of an accelerometer (m/s^2/sqrt(Hz)); Kalibr's ``*_noise_density``.
-    :param bias_instability: units; the flicker term, whose flat Allan deviation is 0.664 times it.
+        The long-term density (a driver's filter shapes only the shortest averaging times).
+    :param bias_instability: units; the flicker term, whose flat Allan deviation is 0.664 times it
+        (IEEE 952's ``B``).
     :param bias_instability_tau: s, the averaging time where the model's Allan deviation is
         lowest (the floor); ``inf`` when nothing rises at long times (a fitted model: not within
         the measured averaging times).
@@ -89,6 +169,15 @@ class NoiseModel:
     :param source: ``file``, ``static_run`` or ``residual`` (:data:`SOURCES`).
     :param quantization: units*s (Allan variance ``3 Q^2 / tau^2``).
     :param rate_ramp: units/s (Allan variance ``R^2 tau^2 / 2``).
+    :param filter_time_constant: s, a first-order low-pass (the driver's) on a share of the white
+        noise; 0: none.
+    :param filter_share: the share (0..1) of ``white_noise_density^2`` that passes that filter.
+    :param gauss_markov: per Gauss-Markov process, its standard deviation per axis (units); 0
+        where an axis has no such process.
+    :param gauss_markov_time: per process, its correlation time per axis (s, positive).
+    :param random_walk_bound: units*sqrt(Hz): where the record shows no random walk
+        (``random_walk`` 0), the largest one it allows (from its longest averaging times); 0
+        where the walk is measured or nothing is known.
     """
 
     white_noise_density: Triple
@@ -97,14 +186,28 @@ class NoiseModel:
     random_walk: Triple
     update_rate: float
     source: str
-    quantization: Triple = (0.0, 0.0, 0.0)
-    rate_ramp: Triple = (0.0, 0.0, 0.0)
+    quantization: Triple = ZERO
+    rate_ramp: Triple = ZERO
+    filter_time_constant: Triple = ZERO
+    filter_share: Triple = ZERO
+    gauss_markov: tuple[Triple, ...] = ()
+    gauss_markov_time: tuple[Triple, ...] = ()
+    random_walk_bound: Triple = ZERO
 
     def __post_init__(self) -> None:
-        for name in ('white_noise_density', 'bias_instability', 'random_walk', 'quantization', 'rate_ramp'):
+        for name in ('white_noise_density', 'bias_instability', 'random_walk', 'quantization', 'rate_ramp',
+                     'filter_time_constant', 'random_walk_bound'):
             object.__setattr__(self, name, _triple(getattr(self, name), name))
+        object.__setattr__(self, 'filter_share', _triple(self.filter_share, 'filter_share', at_most=1.0))
         object.__setattr__(self, 'bias_instability_tau',
                            _triple(self.bias_instability_tau, 'bias_instability_tau', allow_inf=True, positive=True))
+        object.__setattr__(self, 'gauss_markov', _triples(self.gauss_markov, 'gauss_markov'))
+        object.__setattr__(self, 'gauss_markov_time', _triples(self.gauss_markov_time, 'gauss_markov_time',
+                                                               positive=True))
+        if len(self.gauss_markov) != len(self.gauss_markov_time):
+            msg = (f'gauss_markov: {len(self.gauss_markov)} processes but gauss_markov_time has '
+                   f'{len(self.gauss_markov_time)}')
+            raise NoiseError(msg)
         rate = self.update_rate
         if isinstance(rate, bool) or not isinstance(rate, (int, float, np.floating, np.integer)) \
                 or not math.isfinite(float(rate)) or float(rate) <= 0.0:
@@ -116,16 +219,53 @@ class NoiseModel:
             raise NoiseError(msg)
 
     def coefficients(self) -> np.ndarray:
-        """``(3, 5)``: per axis the squares of the five terms, in the order of :data:`TERMS`."""
+        """``(3, 5)``: per axis the squares of the five IEEE 952 terms, in the order of :data:`TERMS`."""
         return np.array([getattr(self, name) for name in TERMS], dtype=float).T ** 2
+
+    def parts(self, taus: Sequence[float] | np.ndarray) -> dict[str, np.ndarray]:
+        """Each process's Allan variance ``(t, 3)`` at ``taus`` (s); they add up to :meth:`allan_variance`.
+
+        Keys: the five :data:`TERMS` (``white_noise_density`` with the driver's filter) and
+        ``gauss_markov`` (all processes together).
+        """
+        taus = np.asarray(taus, dtype=float).reshape(-1)
+        unit = allan_terms(taus)
+        coefficients = self.coefficients()
+        parts = {name: unit[:, [i]] * coefficients[:, i][None, :] for i, name in enumerate(TERMS)}
+        white = np.empty((len(taus), 3))
+        for axis in range(3):
+            share, constant = self.filter_share[axis], self.filter_time_constant[axis]
+            shape = unit[:, 1]
+            if share > 0.0 and constant > 0.0:
+                filtered = filtered_white_allan_variance(taus, self.update_rate, constant)
+                shape = (1.0 - share) * shape + share * filtered
+            white[:, axis] = self.white_noise_density[axis] ** 2 * shape
+        parts['white_noise_density'] = white
+        bumps = np.zeros((len(taus), 3))
+        clusters = taus * self.update_rate
+        for sigma, times in zip(self.gauss_markov, self.gauss_markov_time):
+            for axis in range(3):
+                if sigma[axis] > 0.0:
+                    bumps[:, axis] += ar1_allan_variance(clusters, 1.0 / (self.update_rate * times[axis]),
+                                                         sigma[axis] ** 2)
+        parts['gauss_markov'] = bumps
+        return parts
 
     def allan_variance(self, taus: Sequence[float] | np.ndarray) -> np.ndarray:
         """The Allan variance ``(t, 3)`` this model predicts at ``taus`` (s)."""
-        return allan_terms(np.asarray(taus, dtype=float)) @ self.coefficients().T
+        return sum(self.parts(taus).values())  # type: ignore[return-value]
 
     def allan_deviation(self, taus: Sequence[float] | np.ndarray) -> np.ndarray:
         """The Allan deviation ``(t, 3)`` this model predicts at ``taus`` (s)."""
         return np.sqrt(self.allan_variance(taus))
+
+    def wander_allan_variance(self, taus: Sequence[float] | np.ndarray) -> np.ndarray:
+        """``(t, 3)`` the Allan variance of the slow processes: bias instability, random walk, ramp, Gauss-Markov.
+
+        What the white noise (filtered or not) and the quantisation leave out: the bias's wander.
+        """
+        parts = self.parts(taus)
+        return parts['bias_instability'] + parts['random_walk'] + parts['rate_ramp'] + parts['gauss_markov']
 
     def sample_variance(self) -> Triple:
         """Per axis, the variance of one sample's noise: the model's Allan variance at one sample period.
@@ -138,10 +278,40 @@ class NoiseModel:
         """
         return _triple(self.allan_variance([1.0 / self.update_rate])[0].tolist(), 'sample_variance')
 
+    def floor(self) -> Triple:
+        """Per axis the model's lowest Allan deviation (at ``bias_instability_tau``); NaN where it has none.
+
+        The convention of data sheets for in-run bias stability (ADI, Bosch, TDK state the
+        Allan deviation's minimum), beside IEEE 952's ``B`` (:attr:`bias_instability`).
+        """
+        out = []
+        for axis, tau in enumerate(self.bias_instability_tau):
+            out.append(float(self.allan_deviation([tau])[0, axis]) if math.isfinite(tau) else math.nan)
+        return (out[0], out[1], out[2])
+
+    def has_extra_terms(self) -> bool:
+        """Whether the model holds more than the five IEEE 952 terms (a filter, Gauss-Markov processes)."""
+        return any(self.filter_share) or any(any(sigma) for sigma in self.gauss_markov)
+
     def to_mapping(self) -> dict[str, Any]:
-        """Plain numbers and lists (YAML); :func:`noise_model_from_mapping` reads it back."""
-        return {f.name: (list(getattr(self, f.name)) if isinstance(getattr(self, f.name), tuple)
-                         else getattr(self, f.name)) for f in fields(self)}
+        """Plain numbers and lists (YAML, ROS 2 parameters); :func:`noise_model_from_mapping` reads it back.
+
+        The terms beyond the five are written only when present: the filter's two triples, the
+        Gauss-Markov processes as flat lists of three numbers per process (x y z, x y z, ...),
+        the random-walk bound.
+        """
+        mapping: dict[str, Any] = {}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name in ('gauss_markov', 'gauss_markov_time'):
+                if value:
+                    mapping[f.name] = [v for triple in value for v in triple]
+            elif f.name in ('filter_time_constant', 'filter_share', 'random_walk_bound'):
+                if any(value):
+                    mapping[f.name] = list(value)
+            else:
+                mapping[f.name] = list(value) if isinstance(value, tuple) else value
+        return mapping
 
     def to_json(self) -> dict[str, Any]:
         """As :meth:`to_mapping`, with a floor time at infinity as ``None`` (strict JSON has no infinity)."""
@@ -152,8 +322,9 @@ class NoiseModel:
 def noise_model_from_mapping(raw: Any, where: str) -> NoiseModel:
     """A :class:`NoiseModel` from the keys of :meth:`NoiseModel.to_mapping`.
 
-    ``quantization`` and ``rate_ramp`` are optional (0), ``bias_instability_tau`` too (the floor of
-    the other terms, :func:`floor_tau`); a single number stands for all three axes.
+    ``quantization``, ``rate_ramp`` and the terms beyond the five are optional (0, none),
+    ``bias_instability_tau`` too (the floor of the other terms, :func:`floor_tau`); a single
+    number stands for all three axes.
 
     :raises NoiseError: naming ``where`` and the key, on a missing, unknown or bad value.
     """
@@ -173,21 +344,16 @@ def noise_model_from_mapping(raw: Any, where: str) -> NoiseModel:
     values = dict(raw)
     try:
         if 'bias_instability_tau' not in values:
-            values['bias_instability_tau'] = floor_tau(
-                _triple(values['white_noise_density'], 'white_noise_density'),
-                _triple(values['bias_instability'], 'bias_instability'),
-                _triple(values['random_walk'], 'random_walk'),
-                _triple(values.get('quantization', 0.0), 'quantization'),
-                _triple(values.get('rate_ramp', 0.0), 'rate_ramp'))
+            values['bias_instability_tau'] = model_floor_tau(NoiseModel(**{**values, 'bias_instability_tau': 1.0}))
         return NoiseModel(**values)
     except NoiseError as err:
         msg = f'{where}.{err}'
         raise NoiseError(msg) from None
 
 
-def floor_tau(white: Triple, bias: Triple, random_walk: Triple, quantization: Triple = (0.0, 0.0, 0.0),
-              rate_ramp: Triple = (0.0, 0.0, 0.0), *, taus: tuple[float, float] | None = None) -> Triple:
-    """Per axis, the averaging time (s) where the model's Allan deviation is lowest.
+def floor_tau(white: Triple, bias: Triple, random_walk: Triple, quantization: Triple = ZERO,
+              rate_ramp: Triple = ZERO, *, taus: tuple[float, float] | None = None) -> Triple:
+    """Per axis, the averaging time (s) where the five IEEE 952 terms' Allan deviation is lowest.
 
     Without quantisation and ramp it is ``sqrt(3) N / K`` (where white noise and random walk
     cross; a flat flicker term does not move it), ``inf`` when ``K`` is 0. Otherwise it is searched
@@ -209,72 +375,30 @@ def floor_tau(white: Triple, bias: Triple, random_walk: Triple, quantization: Tr
     return (out[0], out[1], out[2])
 
 
-def fit_noise_model(allan: Any, *, source: str, update_rate: float | None = None,
-                    min_terms: int = 2, terms: Sequence[str] = TERMS) -> NoiseModel:
-    """The five IEEE 952 terms of each axis of an Allan variance, by weighted non-negative least squares.
+def model_floor_tau(model: NoiseModel, taus: tuple[float, float] | None = None) -> Triple:
+    """Per axis where ``model``'s Allan deviation is lowest, searched over ``taus`` (s).
 
-    :param allan: an :class:`~tak_thermo_ros.core.noise.allan.AllanVariance` of a rate signal.
-    :param source: ``file``, ``static_run`` or ``residual``.
-    :param update_rate: Hz (default: the Allan variance's sample rate).
-    :param min_terms: averaging times with fewer terms than this are left out.
-    :param terms: the terms fitted (:data:`TERMS` by default); the others are zero.
-    :raises NoiseError: fewer than five usable averaging times, or not three axes, or an unknown term.
-
-    Weights: the relative error of an Allan variance with ``edf`` equivalent degrees of freedom
-    is ``sqrt(2 / edf)``; the first fit divides by the measured value and uses white-rate degrees
-    of freedom, each re-weighting (:data:`FIT_ITERATIONS`) divides by the model's prediction and
-    uses the degrees of freedom of the term that dominates the prediction at that averaging
-    time (so that the fit is not pulled towards low measured values). Columns are normalised
-    before ``scipy.optimize.nnls`` (the terms span many decades). The bias instability's floor
-    time is the minimum of the fitted Allan deviation over the measured averaging times.
+    A model of the five terms alone without ``taus``: :func:`floor_tau` (analytic where it can
+    be). Otherwise a log grid over ``taus`` (default: two samples to 1e9 s); a minimum at its
+    upper end is ``inf`` (still falling).
     """
-    from scipy.optimize import nnls
+    if taus is None and not model.has_extra_terms():
+        return floor_tau(model.white_noise_density, model.bias_instability, model.random_walk,
+                         model.quantization, model.rate_ramp)
+    low, high = taus or (2.0 / model.update_rate, 1e9)
+    grid = np.geomspace(low, high, FLOOR_GRID)
+    avar = model.allan_variance(grid)
+    best = np.argmin(avar, axis=0)
+    out = [math.inf if int(b) == len(grid) - 1 else float(grid[int(b)]) for b in best]
+    return (out[0], out[1], out[2])
 
-    from tak_thermo_ros.core.noise.allan import equivalent_degrees_of_freedom
-    if allan.axes != 3:
-        msg = f'noise model: expected three axes, got {allan.axes}'
-        raise NoiseError(msg)
-    usable = (allan.counts >= min_terms) & np.all(np.isfinite(allan.avar), axis=1)
-    if int(np.count_nonzero(usable)) < len(TERMS):
-        msg = (f'noise model: only {int(np.count_nonzero(usable))} averaging times with enough data '
-               f'({allan.samples} samples at {allan.rate:g} Hz); at least {len(TERMS)} are needed')
-        raise NoiseError(msg)
-    unknown = sorted(set(terms) - set(TERMS))
-    if unknown or not terms:
-        msg = f'noise model: unknown terms {", ".join(unknown)} (known: {", ".join(TERMS)})' if unknown else \
-            'noise model: no term to fit'
-        raise NoiseError(msg)
-    fitted = np.array([name in terms for name in TERMS])
-    taus = allan.taus[usable]
-    basis = allan_terms(taus) * fitted
-    edf_by_alpha = {alpha: equivalent_degrees_of_freedom(allan, alpha)[usable] for alpha in (2, 0, -1, -2)}
-    coefficients = np.zeros((3, len(TERMS)))
-    for axis in range(3):
-        measured = allan.avar[usable, axis]
-        if not np.any(measured > 0.0):
-            continue  # a constant channel: every term is zero
-        tiny = measured[measured > 0.0].min() * 1e-6
-        reference = np.maximum(measured, tiny)
-        edf = edf_by_alpha[0]
-        solution = np.zeros(len(TERMS))
-        for _ in range(FIT_ITERATIONS):
-            weights = np.sqrt(edf / 2.0) / reference
-            design = basis * weights[:, None]
-            scale = np.linalg.norm(design, axis=0)
-            scale[scale == 0.0] = 1.0
-            scaled, _residual = nnls(design / scale, measured * weights)
-            solution = np.where(fitted, scaled / scale, 0.0)
-            parts = basis * solution
-            predicted = parts.sum(axis=1)
-            reference = np.maximum(np.where(predicted > 0.0, predicted, measured), tiny)
-            dominant = _ALPHAS[np.argmax(parts, axis=1)]
-            edf = np.select([dominant == a for a in (2, 0, -1)], [edf_by_alpha[2], edf_by_alpha[0], edf_by_alpha[-1]],
-                            edf_by_alpha[-2])
-        coefficients[axis] = solution
-    terms = np.sqrt(coefficients)
-    per_term = {name: tuple(float(v) for v in terms[:, i]) for i, name in enumerate(TERMS)}
-    tau_range = (float(taus.min()), float(taus.max()))
-    floor = floor_tau(per_term['white_noise_density'], per_term['bias_instability'], per_term['random_walk'],
-                      per_term['quantization'], per_term['rate_ramp'], taus=tau_range)
-    return NoiseModel(bias_instability_tau=floor, update_rate=update_rate or allan.rate, source=source,
-                      **per_term)  # type: ignore[arg-type]
+
+def fit_noise_model(allan: Any, *, source: str, update_rate: float | None = None,
+                    min_terms: int = 2, terms: Sequence[str] | None = None) -> NoiseModel:
+    """The noise model of each axis of an Allan variance (:func:`tak_thermo_ros.core.noise.fit.fit_noise`).
+
+    :param terms: the terms fitted (default: all, :data:`tak_thermo_ros.core.noise.fit.FIT_TERMS`).
+    :raises NoiseError: fewer than five usable averaging times, or not three axes, or an unknown term.
+    """
+    from tak_thermo_ros.core.noise.fit import fit_noise
+    return fit_noise(allan, source=source, update_rate=update_rate, min_terms=min_terms, terms=terms).model

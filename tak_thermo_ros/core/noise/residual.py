@@ -42,8 +42,10 @@ def in_counts(model: NoiseModel, axis_scales: Sequence[float]) -> NoiseModel:
     def scaled(name: str) -> tuple[float, float, float]:
         values = np.asarray(getattr(model, name), dtype=float) * scale
         return float(values[0]), float(values[1]), float(values[2])
-    terms = ('white_noise_density', 'bias_instability', 'random_walk', 'quantization', 'rate_ramp')
-    return replace(model, **{name: scaled(name) for name in terms})
+    terms = ('white_noise_density', 'bias_instability', 'random_walk', 'quantization', 'rate_ramp',
+             'random_walk_bound')
+    bumps = tuple(tuple(float(v) for v in np.asarray(sigma) * scale) for sigma in model.gauss_markov)
+    return replace(model, gauss_markov=bumps, **{name: scaled(name) for name in terms})
 
 
 def short_term_model(allan: AllanVariance) -> NoiseModel:
@@ -53,9 +55,7 @@ def short_term_model(allan: AllanVariance) -> NoiseModel:
 
     :raises NoiseError: fewer than five usable averaging times there.
     """
-    keep = allan.taus <= RESIDUAL_LONGEST_TAU_S * (1.0 + 1e-9)
-    short = replace(allan, taus=allan.taus[keep], avar=allan.avar[keep], counts=allan.counts[keep],
-                    clusters=allan.clusters[keep], strides=allan.strides[keep])
+    short = allan.select(allan.taus <= RESIDUAL_LONGEST_TAU_S * (1.0 + 1e-9))
     return fit_noise_model(short, source='residual', terms=RESIDUAL_TERMS)
 
 

@@ -29,8 +29,8 @@ from tak_thermo_ros.core.effects.base import Effect
 import numpy as np
 
 from tak_thermo_ros.core.link.model import AXES, AxisModel, Calibration, InputKind, UnitCalibration
-from tak_thermo_ros.core.noise.model import NoiseModel, floor_tau
-from tak_thermo_ros.core.simulation.noise import bias_wander
+from tak_thermo_ros.core.noise.model import NoiseModel, floor_tau, model_floor_tau
+from tak_thermo_ros.core.simulation.noise import bias_wander, filtered_white
 from tak_thermo_ros.core.records.record import (
     COUNTS_MAX,
     COUNTS_MIN,
@@ -98,6 +98,14 @@ class AxisTruth:
         (:mod:`tak_thermo_ros.core.simulation.noise`). 0 = off.
     :param bias_instability_tau: s, the middle of that flat band.
     :param random_walk: the bias's random walk ``K``, counts*sqrt(Hz) (Allan variance ``K^2 tau / 3``). 0 = off.
+    :param gauss_markov: standard deviations of Gauss-Markov processes in the bias (counts; driver
+        units), one per process; empty = none.
+    :param gauss_markov_time: their correlation times, s (as many).
+    :param filter_time_constant: s, a driver's first-order low-pass on the white noise, run at
+        ``Scenario.decimation`` times the output rate before every ``decimation``-th sample is
+        kept (the density ``noise_counts / sqrt(rate)`` is the long-term one). 0 = none.
+    :param resolution: a driver output's quantum (driver units): the output is rounded to whole
+        multiples of it. 0 = none (a counts run is rounded to whole codes anyway).
     """
 
     scale: float
@@ -108,6 +116,10 @@ class AxisTruth:
     bias_instability: float = 0.0
     bias_instability_tau: float = 100.0
     random_walk: float = 0.0
+    gauss_markov: tuple[float, ...] = ()
+    gauss_markov_time: tuple[float, ...] = ()
+    filter_time_constant: float = 0.0
+    resolution: float = 0.0
 
 
 DEFAULT_UNIT: tuple[AxisTruth, AxisTruth, AxisTruth] = (
@@ -190,6 +202,8 @@ class Scenario:
         ``start_celsius`` towards this (a time constant of a third of the record); ``None``: constant.
     :param record_temperature: with ``output: imu``, publish the temperature on ``/imu/temperature``;
         ``false``: a driver that publishes none (the sensors still drift with the board's temperature).
+    :param decimation: the driver's internal rate over ``sample_rate_hz``: an axis's
+        ``filter_time_constant`` runs at that rate before the samples are kept (1: at the output rate).
     :param magnetometer: with ``output: imu``, a magnetometer on ``/imu/mag``
         (:mod:`tak_thermo_ros.core.simulation.magnetometer`; YAML: a mapping, ``{}`` for the
         defaults), or ``None`` (default: none).
@@ -228,6 +242,7 @@ class Scenario:
     rotation: str = ''
     warm_to_celsius: float | None = None
     record_temperature: bool = True
+    decimation: int = 1
 
     def __post_init__(self) -> None:
         for key in ('effects', 'gyro_effects'):
@@ -283,6 +298,16 @@ class Scenario:
               for name, unit in (('unit', self.unit), ('accel_unit', self.accel_unit), ('gyro_unit', self.gyro_unit))),
             (math.isfinite(self.supply_voltage_drift) and self.supply_voltage_drift >= 0,
              'supply_voltage_drift', 'must be a finite number >= 0 (counts)'),
+            (self.decimation >= 1, 'decimation', 'must be an integer >= 1'),
+            *((all(math.isfinite(getattr(a, key)) and getattr(a, key) >= 0 for a in unit), f'{name}.*.{key}',
+               'must be a finite number >= 0')
+              for name, unit in (('unit', self.unit), ('accel_unit', self.accel_unit), ('gyro_unit', self.gyro_unit))
+              for key in ('filter_time_constant', 'resolution')),
+            *((all(len(a.gauss_markov) == len(a.gauss_markov_time) and all(v >= 0 for v in a.gauss_markov)
+                   and all(math.isfinite(t) and t > 0 for t in a.gauss_markov_time) for a in unit),
+               f'{name}.*.gauss_markov', 'needs as many standard deviations >= 0 as correlation times > 0 '
+               '(gauss_markov_time)')
+              for name, unit in (('unit', self.unit), ('accel_unit', self.accel_unit), ('gyro_unit', self.gyro_unit))),
         )
         for ok, key, problem in checks:
             if not ok:
@@ -317,12 +342,29 @@ class Scenario:
         ``gyro`` is ``gyro_unit`` (rad/s). ``source='file'``: the truth, as a user's file gives it.
         """
         unit = self.sensor_unit(sensor)
-        white = tuple(a.noise_counts / math.sqrt(self.sample_rate_hz) for a in unit)
+        rate = self.sample_rate_hz
+        filtered = [a.noise_counts ** 2 / rate for a in unit]
+        # Rounding to the resolution adds white noise of variance q^2 / 12 per sample (the noise
+        # spans several quanta), after the filter.
+        rounding = [(a.resolution ** 2 / 12.0 if self.output == 'imu' else 0.0) / rate for a in unit]
+        white = tuple(math.sqrt(f + q) for f, q in zip(filtered, rounding))
         bias = tuple(a.bias_instability for a in unit)
         walk = tuple(a.random_walk for a in unit)
-        return NoiseModel(white_noise_density=white, bias_instability=bias, random_walk=walk,  # type: ignore[arg-type]
-                          bias_instability_tau=floor_tau(white, bias, walk),  # type: ignore[arg-type]
-                          update_rate=self.sample_rate_hz, source='file')
+        share = tuple(f / (f + q) if a.filter_time_constant > 0.0 and f > 0.0 else 0.0
+                      for a, f, q in zip(unit, filtered, rounding))
+        slots = max(len(a.gauss_markov) for a in unit)
+        sigmas = tuple(tuple(a.gauss_markov[i] if i < len(a.gauss_markov) else 0.0 for a in unit)
+                       for i in range(slots))
+        times = tuple(tuple(a.gauss_markov_time[i] if i < len(a.gauss_markov) else 1.0 for a in unit)
+                      for i in range(slots))
+        model = NoiseModel(white_noise_density=white, bias_instability=bias, random_walk=walk,  # type: ignore[arg-type]
+                           bias_instability_tau=floor_tau(white, bias, walk),  # type: ignore[arg-type]
+                           update_rate=rate, source='file', gauss_markov=sigmas,  # type: ignore[arg-type]
+                           gauss_markov_time=times, filter_share=share,  # type: ignore[arg-type]
+                           filter_time_constant=tuple(a.filter_time_constant for a in unit))  # type: ignore[arg-type]
+        if model.has_extra_terms():
+            return replace(model, bias_instability_tau=model_floor_tau(model))
+        return model
 
     def sensor_unit(self, sensor: str) -> tuple[AxisTruth, ...]:
         """The true axes of ``accel`` (``unit`` on a counts run, ``accel_unit`` on a driver run) or ``gyro``."""
@@ -450,7 +492,7 @@ def simulate(scenario: Scenario | None = None) -> SimulatedRun:
                                    scale_coeffs=a.scale_coeffs, code_offset_range=(-1.0, 1.0)
                                    ).forward(force[:, i], n_true)
         for i, a in enumerate(scenario.unit)])
-    noise = rng.standard_normal((count, 3)) * np.array([a.noise_counts for a in scenario.unit])
+    noise = white_noise(scenario, scenario.unit, 0, rng, count)
     noise += sensor_wander(scenario, scenario.unit, 0, count)
     stamps = np.round((scenario.start_time_s + time_s) * NANOSECONDS).astype(np.int64)
     exact = exact + hidden_terms(scenario, force, true_code, seconds_from_ns(stamps), time_s)
@@ -522,8 +564,9 @@ def _simulate_driver(scenario: Scenario) -> SimulatedRun:
         exact += _effect_terms(scenario.effect_instances(key), inputs, board, stamp_s)
         if scenario.supply_voltage_drift > 0.0 and key == 'effects':
             exact += _supply_terms(scenario, time_s)
-        exact += rng.standard_normal((count, 3)) * np.array([a.noise_counts for a in unit])
-        return exact + sensor_wander(scenario, unit, 0 if key == 'effects' else 1, count)
+        index = 0 if key == 'effects' else 1
+        exact += white_noise(scenario, unit, index, rng, count)
+        return quantized(exact + sensor_wander(scenario, unit, index, count), unit)
 
     accel = channels(scenario.accel_unit, 'effects', force)
     gyro = channels(scenario.gyro_unit, 'gyro_effects', rate)
@@ -557,17 +600,44 @@ def _simulate_driver(scenario: Scenario) -> SimulatedRun:
 
 
 def sensor_wander(scenario: Scenario, unit: tuple[AxisTruth, ...], sensor_index: int, count: int) -> np.ndarray:
-    """``(count, 3)``: the bias instability and random walk of a sensor's axes (zeros when off).
+    """``(count, 3)``: the bias instability, random walk and Gauss-Markov processes of a sensor's axes.
 
-    Drawn from their own stream (``[seed, 16, sensor_index]``): a scenario without them draws the
-    same white noise as before they existed.
+    Zeros when off. Drawn from their own stream (``[seed, 16, sensor_index]``): a scenario without
+    them draws the same white noise as before they existed.
     """
     bias = tuple(a.bias_instability for a in unit)
     walk = tuple(a.random_walk for a in unit)
-    if not any(bias) and not any(walk):
+    markov = tuple(tuple(zip(a.gauss_markov, a.gauss_markov_time)) for a in unit)
+    if not any(bias) and not any(walk) and not any(markov):
         return np.zeros((count, 3))
     return bias_wander([scenario.seed, 16, sensor_index], count, scenario.sample_rate_hz, bias,
-                       tuple(a.bias_instability_tau for a in unit), walk)
+                       tuple(a.bias_instability_tau for a in unit), walk, markov)
+
+
+def white_noise(scenario: Scenario, unit: tuple[AxisTruth, ...], sensor_index: int, rng: np.random.Generator,
+                count: int) -> np.ndarray:
+    """``(count, 3)``: a sensor's white noise, through the driver's filter and decimation where an axis has one.
+
+    The run's own stream draws as before (so the other channels do not change); a filtered
+    axis takes its noise from its own stream (``[seed, 17, sensor_index, axis]``) instead.
+    """
+    noise = rng.standard_normal((count, 3)) * np.array([a.noise_counts for a in unit])
+    for axis, truth in enumerate(unit):
+        if truth.filter_time_constant > 0.0:
+            own = np.random.default_rng([scenario.seed, 17, sensor_index, axis])
+            noise[:, axis] = filtered_white(own, count, scenario.sample_rate_hz,
+                                            truth.noise_counts / math.sqrt(scenario.sample_rate_hz),
+                                            truth.filter_time_constant, scenario.decimation)
+    return noise
+
+
+def quantized(values: np.ndarray, unit: tuple[AxisTruth, ...]) -> np.ndarray:
+    """``values`` rounded to each axis's ``resolution`` (axes without one unchanged)."""
+    out = np.asarray(values, dtype=float).copy()
+    for axis, truth in enumerate(unit):
+        if truth.resolution > 0.0:
+            out[:, axis] = np.round(out[:, axis] / truth.resolution) * truth.resolution
+    return out
 
 
 def _rotation_run(scenario: Scenario) -> SimulatedRun:
@@ -712,7 +782,7 @@ def _unit_from_mapping(raw: Any, base: tuple[AxisTruth, ...]) -> tuple[AxisTruth
             if key not in known:
                 msg = f'unit.{name}.{key}: unknown key (known: {", ".join(sorted(known))})'
                 raise ScenarioError(msg)
-            if key in ('offset_coeffs', 'scale_coeffs'):
+            if key in ('offset_coeffs', 'scale_coeffs', 'gauss_markov', 'gauss_markov_time'):
                 changes[key] = _tuple_of_floats(value, f'unit.{name}.{key}')
             elif isinstance(value, bool) or not isinstance(value, (int, float)):
                 msg = f'unit.{name}.{key}: expected a number'
