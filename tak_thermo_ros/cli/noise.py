@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 
 from tak_thermo_ros.cli import common, options
+from tak_thermo_ros.core.diagnose.yardstick import tau_text
 from tak_thermo_ros.core.link.correction import OutOfRange
-from tak_thermo_ros.core.link.model import AXES
 from tak_thermo_ros.formats.calibration_file import load_unit
 from tak_thermo_ros.formats.files import FILE
 from tak_thermo_ros.formats.files import write_text_atomic
@@ -46,16 +46,18 @@ def run(args: argparse.Namespace) -> int:
     for line in run.reference_lines:
         print(line)
     what = ('the thermally compensated output (--params) minus the reference' if run.compensated else
-            'the measured output minus the reference, NOT compensated (no --params): thermal drift counts as '
-            'bias wander here')
+            'the measured output minus the reference, NOT compensated (no --params)')
     print(f'noise of {args.bag}: {what}')
+    if not run.compensated:
+        print('not compensated: any thermal drift in the run counts as bias wander here')
     document: dict[str, object] = {'bag': str(args.bag), 'params': args.params, 'compensated': run.compensated,
                                    'sensors': {}}
     for sensor, noise in run.sensors.items():
         allan, model = noise.allan, noise.model
         unit_name = 'm/s^2' if sensor == 'accel' else 'rad/s'
-        print(f'{common.SENSOR_NAMES[sensor]}: {allan.samples} samples at {allan.rate:.6g} Hz, averaging times '
-              f'{allan.taus[0]:.3g} to {allan.taus[-1]:.4g} s, source {model.source}')
+        print(f'{common.SENSOR_NAMES[sensor]}: {allan.samples} samples at {allan.rate:.3g} Hz, averaging times '
+              f'{tau_text(allan.taus[0])} to {tau_text(allan.taus[-1])}')
+        print(f'  source {model.source}: {common.SOURCE_WORDS[model.source]}{noise.span_words}')
         if noise.dropped:
             print(f'  left out: {common.describe_dropped(noise.dropped)}')
         if noise.gaps:
@@ -64,8 +66,9 @@ def run(args: argparse.Namespace) -> int:
         if noise.out_of_range:
             print(f'  warning: {noise.out_of_range} samples outside the calibrated temperature range '
                   f'({args.out_of_range})')
-        for i, name in enumerate(AXES):
-            print(f'  {name}: {common.noise_axis_line(sensor, model, i, unit_name)}')
+        print('  per axis x y z:')
+        for line in common.noise_lines(model, unit_name):
+            print(f'  {line}')
         document['sensors'][sensor] = noise_document(noise)  # type: ignore[index]
     if args.output:
         header = (f'noise model of {args.bag} ('

@@ -45,20 +45,20 @@ def run(args: argparse.Namespace) -> int:
                             aux_types=aux_types)
         hours = ((driver.stamp_ns[-1] - driver.stamp_ns[0]) * 1e-9 if scenario.rotation
                  else scenario.duration_s()) / 3600.0
-        print(f'wrote {args.out_bag}: {len(driver.stamp_ns)} Imu, {len(driver.temp_stamp_ns)} temperature, '
-              f'{len(driver.reference_stamp_ns)} reference changes, {hours:.2f} h at '
-              f'{scenario.sample_rate_hz:g} Hz ({args.storage}); temperature '
+        print(f'wrote {args.out_bag} ({args.storage}): {hours:.2f} h at {scenario.sample_rate_hz:g} Hz, temperature '
               f'{driver.temperature.min():.2f}..{driver.temperature.max():.2f} C')
+        print(f'  {len(driver.stamp_ns)} Imu, {len(driver.temp_stamp_ns)} temperature and '
+              f'{len(driver.reference_stamp_ns)} reference messages')
         if len(driver.mag_stamp_ns):
             print(f'  magnetometer: {len(driver.mag_stamp_ns)} MagneticField on {common.topics(args).mag}'
                   f'{f" ({scenario.rotation} rotation record)" if scenario.rotation else ""}, '
-                  f'{len(driver.mag_reference_stamp_ns)} reference field changes')
+                  f'{len(driver.mag_reference_stamp_ns)} reference field messages')
         return 0
     write_record(args.out_bag, run.record, topics=common.topics(args), storage=args.storage, force=args.force,
                  aux_types=aux_types)
     record = run.record
-    print(f'wrote {args.out_bag}: {len(record.counts_stamp_ns)} counts, {len(record.temp_stamp_ns)} temperature codes, '
-          f'{len(record.reference_stamp_ns)} reference changes, {scenario.duration_s() / 3600.0:.2f} h '
-          f'at {scenario.sample_rate_hz:g} Hz ({args.storage}); temperature code '
-          f'{record.temp_code.min():.0f}..{record.temp_code.max():.0f}')
+    print(f'wrote {args.out_bag} ({args.storage}): {scenario.duration_s() / 3600.0:.2f} h at '
+          f'{scenario.sample_rate_hz:g} Hz, temperature code {record.temp_code.min():.0f}..{record.temp_code.max():.0f}')
+    print(f'  {len(record.counts_stamp_ns)} counts, {len(record.temp_stamp_ns)} temperature-code and '
+          f'{len(record.reference_stamp_ns)} reference messages')
     return 0

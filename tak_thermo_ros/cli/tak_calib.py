@@ -17,7 +17,7 @@ import sys
 import traceback
 from typing import Callable, Sequence
 
-from tak_thermo_ros.cli import apply, carrier, diagnose, fit, fit_fleet, import_csv, noise, simulate, validate
+from tak_thermo_ros.cli import apply, carrier, common, diagnose, fit, fit_fleet, import_csv, noise, simulate, validate
 from tak_thermo_ros.formats.files import check_output
 from tak_thermo_ros.errors import TakError
 
@@ -46,6 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
     """The ``tak_calib`` argument parser."""
     parser = _Parser(prog='tak_calib', description=__doc__.splitlines()[0].strip('`').replace('``', ''))
     parser.add_argument('--debug', action='store_true', help='show the traceback of an error')
+    parser.add_argument('-v', '--verbose', action='store_true',
+                        help='print the detail too (the physics behind a verdict, ...)')
     commands = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
     parsers = {command.NAME: command.add_parser(commands) for command in COMMANDS}
     fit_fleet.add_parser(commands, parsers[fit.NAME], main)
@@ -88,7 +90,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         previous = None
     try:
         _check_outputs(args)
-        return handler(args)
+        with common.wrapped_output():
+            return handler(args)
     except TakError as err:
         _report(str(err), err, debug)
         return EXIT_ERROR
