@@ -17,7 +17,8 @@ import sys
 import traceback
 from typing import Callable, Sequence
 
-from tak_thermo_ros.cli import apply, carrier, common, diagnose, fit, fit_fleet, import_csv, noise, simulate, validate
+from tak_thermo_ros.cli import (apply, carrier, common, diagnose, fit, fit_fleet, import_csv, noise, play, simulate,
+                                validate)
 from tak_thermo_ros.formats.files import check_output
 from tak_thermo_ros.errors import TakError
 
@@ -25,7 +26,7 @@ EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
 EXIT_TERMINATED = 143
 
-COMMANDS = (simulate, fit, apply, validate, import_csv, diagnose, noise)
+COMMANDS = (simulate, fit, apply, validate, import_csv, diagnose, noise, play)
 """The commands with a module of their own, in the order ``tak_calib --help`` lists them."""
 
 OUTPUTS: dict[str, tuple[tuple[str, str, str], ...]] = {
