@@ -206,7 +206,7 @@ def fit_mag_bag(path: str | Path, options, *, bias_order: int = 3, scale_order: 
         lines.append(f'magnetometer: the link and its effects fitted on 1 sample in {subsample.stride} '
                      f'({subsample.count} of {subsample.usable})')
     link = thermal.calibration
-    notes = list(link.notes)
+    notes = [_in_microtesla(note, link, mean) if static else note for note in link.notes]
     iron = None
     if iron_run is None:
         notes.append(NO_IRON_NOTE)
@@ -222,6 +222,16 @@ def fit_mag_bag(path: str | Path, options, *, bias_order: int = 3, scale_order: 
     calibration = MagnetometerCalibration(link, hard, soft)  # type: ignore[arg-type]
     return MagFit(calibration=calibration, thermal=replace(thermal, calibration=link), iron=iron, lines=tuple(lines),
                   max_turn_deg=max_turn)
+
+
+def _in_microtesla(note: str, link, mean) -> str:
+    """A held-scale note of the fit, whose inputs are tesla, said in uT (the static run's mean field is the input)."""
+    from tak_thermo_ros.core.fit import held_scale_note
+    if not note.startswith('scale held at nominal'):
+        return note
+    held = [not axis.scale_observable for axis in link.axes]
+    return held_scale_note(held, [f'{name} input {value * 1e6:.4g} uT at nominal scale 1'
+                                  for name, value, is_held in zip('xyz', mean, held) if is_held])
 
 
 def _microtesla(values) -> str:

@@ -115,11 +115,11 @@ def run(args: argparse.Namespace) -> int:
         results[sensor] = result
         print(f'{label}diagnosed {len(samples)} samples of {args.bag} against {args.params} '
               f'(model: {result.ladder[0].label})')
+        if samples.dropped:
+            print(f'  left out: {common.describe_dropped(samples.dropped)}')
+        common.print_ignored(samples, args, run.input_kind)
         for line in _noise_lines(noise, unit_name, result.averaging_time_s, verbose):
             print(line)
-        if samples.dropped:
-            print(f'left out: {common.describe_dropped(samples.dropped)}')
-        common.print_ignored(samples, args, run.input_kind)
         _print_axes(result, unit_name)
         if result.allan:
             check = result.allan[-1][1]

@@ -101,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
         dx, dy, dz = (float(v) for v in log.mean_direction)
         print(f'reference (static run): mean measured direction ({dx:.5f}, {dy:.5f}, {dz:.5f}), written once')
         print(f'reference: that direction scaled to gravity {options.gravity:g} m/s^2 = '
-              f'({x:.4f}, {y:.4f}, {z:.4f}) m/s^2 in the sensor frame')
+              f'({x:.4f}, {y:.4f}, {z:.4f}) m/s^2')
         print(f'the board\'s largest deviation from that direction: {log.max_tilt_deg:.2f} deg')
     else:
         print(f'reference (given): ({x:.4f}, {y:.4f}, {z:.4f}) m/s^2 in the sensor frame, written once at the start')

@@ -129,8 +129,7 @@ def _before_words(kind: InputKind, unit: UnitCalibration, params: str) -> str:
     """What *before* is: a driver's values as recorded; codes through the file's flat scale and offset."""
     if kind is InputKind.IMU:
         return "the driver's values as recorded (the same whatever calibration is given)"
-    return (f'the codes through {params}\'s scale and offset at N_t,ref {unit.accel.temp_code_ref:.0f}, '
-            f'every temperature term off')
+    return f"codes through {params}'s scale and offset at N_t,ref {unit.accel.temp_code_ref:.0f}, no temperature term"
 
 
 def _averaged_bias(check, noise, sensor: str, gravity: float) -> dict | None:
