@@ -321,7 +321,7 @@ def noise_lines(model, unit: str) -> list[str]:
 
     def beside(values, which: int) -> str:
         return f' ({numbers(values * reader[which][1], 3)} {reader[which][0]})' if reader else ''
-    floor = ' '.join(f'{tau:.3g}' if math.isfinite(tau) else 'inf' for tau in taus)
+    floor = ' '.join(significant(tau, 3) if math.isfinite(tau) else 'inf' for tau in taus)
     lines = [f'  white noise density  {numbers(white, 3)} {shown}/sqrt(Hz){beside(white, 0)}',
              f'  bias instability     {numbers(bias, 3)} {shown}{beside(bias, 1)}',
              f'  its floor at         {floor} s' + (' (inf: still falling at the longest averaging time)'

@@ -21,7 +21,7 @@ def add_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument('out_bag', metavar='OUT_BAG')
     parser.add_argument('--scenario', metavar='FILE.yaml',
                         help='scenario overrides, every key optional (README: The simulator)')
-    parser.add_argument('--seed', type=options.seed, help='random seed, 0 .. 2**63-1 (overrides the scenario)')
+    parser.add_argument('--seed', type=options.seed, help='random seed, 0 .. 2^63 - 1 (overrides the scenario)')
     parser.add_argument('--storage', choices=['mcap', 'sqlite3'], default='mcap')
     options.add_topic_options(parser)
     parser.set_defaults(handler=run)

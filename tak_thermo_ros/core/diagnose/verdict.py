@@ -148,7 +148,7 @@ def _wander_statements(allan: Any, unit: str, scale: float, *, excess_said: bool
                 Statement('This run alone cannot tell the sensor\'s own bias wander from a cause that is not in '
                           'the bag: give the sensor\'s noise model (--noise imu.yaml) or a static run at constant '
                           'temperature (--noise-run BAG) to judge it.', detail=True)]
-    against = '' if excess_said else f'; against it, {allan.describe()}'
+    against = '' if excess_said else f'; against it, {allan.describe()}, beyond its bound {allan.worst_bound():.3g}x'
     return [Statement(f'{_OWN_MODEL}{against}.', detail=excess_said), *_walk_statements(allan, unit, scale)]
 
 
@@ -309,6 +309,14 @@ def _verdict_message(verdict: str, axes: Sequence[AxisSummary], ladder: Sequence
             drivers, judged=judged,
             lead_in=f'Structure remains on {", ".join(n for n, s in zip(AXES, still_significant) if s)}: the residual '
                     f'still follows')
-        if allan is not None and allan.source == 'residual':
-            found += _wander_statements(allan, unit, scale)
+    own = allan is not None and allan.source == 'residual'
+    if own and still_significant.any():
+        found += _wander_statements(allan, unit, scale)
+    elif allan is not None and not allan.consistent:
+        # Held-out blocks find nothing more (or the structure is said above), the Allan test finds this: said too.
+        model = 'this run\'s own short-term noise model' if own else f'the noise model ({allan.source})'
+        found.append(Statement(f'Slow structure remains after it, though: {allan.describe()}, beyond the bound '
+                               f'{allan.worst_bound():.3g}x of {model}.'))
+        if own:
+            found += _walk_statements(allan, unit, scale)
     return found
