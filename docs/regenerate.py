@@ -1,4 +1,4 @@
-"""Docs that cannot drift: run the ``console`` transcripts of the README and docs/, check them or regenerate them.
+r"""Docs that cannot drift: run the ``console`` transcripts of the README and docs/, check them or regenerate them.
 
 The convention (every doc follows it; ``test/test_docs.py`` checks it, this script regenerates):
 
@@ -84,8 +84,9 @@ class Tolerance:
     @classmethod
     def parse(cls, value: str, percent: bool) -> Tolerance:
         """``5`` with ``%``: relative 0.05; without: absolute 5."""
-        return cls(relative=float(value) / 100.0, absolute=0.0) if percent else cls(relative=0.0,
-                                                                                   absolute=float(value))
+        if percent:
+            return cls(relative=float(value) / 100.0, absolute=0.0)
+        return cls(relative=0.0, absolute=float(value))
 
     def allows(self, shown: str, printed: str) -> bool:
         """Whether the shown number stands for the printed one."""

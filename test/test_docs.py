@@ -72,7 +72,7 @@ def test_a_transcript_that_agrees_passes(tmp_path, body):
 
 
 @pytest.mark.parametrize('body, why', [
-    ("$ printf 'share -2%%\\n'\nshare -19%\n", 'other numbers'),                    # issue 26: -19 % shown, -2 % printed
+    ("$ printf 'share -2%%\\n'\nshare -19%\n", 'other numbers'),  # issue 26: -19 % shown, -2 % printed
     ("$ printf 'noise model: 0.0801\\n'\nnoise model: 130\n", 'other numbers'),
     ("$ printf 'x: 1.234\\n'\nx: 1.25\n", 'other numbers'),                         # two units off
     ("$ printf 'a\\nb\\n'\nb\na\n", 'in this order'),                               # order matters

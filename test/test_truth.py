@@ -92,7 +92,8 @@ def test_a_given_noise_model_is_projected_onto_g_over_the_orientations_of_the_ru
     scenario = replace(scenario, accel_unit=accel)
     write_driver_record(tmp_path / 'run', simulate(scenario).driver)
     save_unit(tmp_path / 'truth.yaml', scenario.driver_truth())
-    write_kalibr(tmp_path / 'imu.yaml', {s: scenario.noise_truth(s) for s in ('accel', 'gyro')}, rostopic='/imu/data_raw')
+    write_kalibr(tmp_path / 'imu.yaml', {s: scenario.noise_truth(s) for s in ('accel', 'gyro')},
+                 rostopic='/imu/data_raw')
     assert _run('validate', str(tmp_path / 'run'), '--params', str(tmp_path / 'truth.yaml'), '--noise',
                 str(tmp_path / 'imu.yaml'), '--json', str(tmp_path / 'v.json')) == 0
     averaged = json.loads((tmp_path / 'v.json').read_text())['averaged_bias_error']
@@ -193,8 +194,8 @@ def test_every_verdict_says_what_its_numbers_say(verdict, ratios, allan_ratio, b
     candidates = candidates or [Candidate('warmup', (0.001, 0.002, 0.003), explained, 1.0, '')]
     drivers = [Driver('time', (0.6, 0.2, 0.1)), Driver('temperature code', (0.3, 0.1, 0.1))]
     statements = _verdict_message(verdict, axes, steps, candidates, drivers, drivers, np.array(significant),
-                                  max(explained, 0.0), {}, allan=allan, judged=judged, averaging_s=30.0 if judged else 0.0,
-                                  wander=wander, unit='rad/s')
+                                  max(explained, 0.0), {}, allan=allan, judged=judged,
+                                  averaging_s=30.0 if judged else 0.0, wander=wander, unit='rad/s')
     message = message_text(statements)
     assert disagreements(verdict, message, axes, allan, judged=judged) == [], message
     assert any(not s.detail for s in statements)
@@ -302,7 +303,7 @@ def test_details_are_behind_verbose_and_all_in_the_json(runs, tmp_path, capsys):
 
 
 def test_the_env_of_the_tests_keeps_blas_single_threaded():
-    """conftest sets what tak_calib sets, before numpy loads (the doc transcripts run in this process)."""
+    """The conftest sets what tak_calib sets, before numpy loads (the doc transcripts run in this process)."""
     assert os.environ.get('OPENBLAS_NUM_THREADS') == '1'
 
 

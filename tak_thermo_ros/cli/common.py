@@ -53,6 +53,23 @@ def wrap(line: str, width: int = WIDTH) -> list[str]:
                          break_long_words=False, break_on_hyphens=False) or [line]
 
 
+def unwrap(text: str) -> list[str]:
+    """The statements of wrapped output, one per line: the inverse of :func:`wrap`, for a script that reads it.
+
+    A line indented by exactly :data:`HANG` more than the statement it follows goes on that statement.
+    """
+    statements: list[str] = []
+    indent = -1
+    for line in text.splitlines():
+        own = len(line) - len(line.lstrip())
+        if statements and line.strip() and own == indent + len(HANG):
+            statements[-1] += ' ' + line.strip()
+        else:
+            statements.append(line)
+            indent = own
+    return statements
+
+
 class _Wrapping(io.TextIOBase):
     """A text stream that wraps every line longer than :data:`WIDTH` before it passes it on."""
 
@@ -291,8 +308,8 @@ def print_effects(calibration, result, unit_name: str) -> None:
             text += f' {unit}' if unit else ''
             if in_sensor_unit and reader is not None:
                 rest = unit[len(shown_unit):] if unit.startswith(shown_unit) else ''
-                text += (f' ({p.value * scale * reader[1]:.3g}'
-                         + (f' +- {error * scale * reader[1]:.2g}' if error is not None else '') + f' {reader[0]}{rest})')
+                spread = f' +- {error * scale * reader[1]:.2g}' if error is not None else ''
+                text += f' ({p.value * scale * reader[1]:.3g}{spread} {reader[0]}{rest})'
             print(f'  effect {effect.name}: {p.name} {text}')
 
 

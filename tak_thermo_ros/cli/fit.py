@@ -110,8 +110,8 @@ def run(args: argparse.Namespace) -> int:
                   f'(about {fitted.usable[sensor] // stride} of {fitted.usable[sensor]}); '
                   f'amplitudes and the paper\'s link fitted on all of them')
         if kind is InputKind.COUNTS:
-            print(f'calibrated temperature-code range {calibration.temp_code_min:.0f}..{calibration.temp_code_max:.0f}, '
-                  f'reference {calibration.temp_code_ref:.0f}')
+            print(f'calibrated temperature-code range {calibration.temp_code_min:.0f}..'
+                  f'{calibration.temp_code_max:.0f}, reference {calibration.temp_code_ref:.0f}')
         elif sensor == 'accel':
             print(f'calibrated temperature range {calibration.temp_code_min:.2f}..{calibration.temp_code_max:.2f} C, '
                   f'reference {calibration.temp_code_ref:.3g} C')

@@ -135,7 +135,7 @@ latitude = float_within(-90.0, 90.0, "degrees")
 # The options several commands share: each command's module adds its own and calls these.
 
 def add_topic_options(parser: argparse.ArgumentParser, *, imu: bool = False) -> None:
-    """The bag's topics, ``--no-progress``, ``--force``, ``--verbose`` and ``--debug`` (every command that reads a bag)."""
+    """The bag's topics, ``--no-progress``, ``--force``, ``--verbose``, ``--debug`` (every command reading a bag)."""
     group = parser.add_argument_group('topics (the input kind is taken from the bag: counts topic or driver Imu)')
     group.add_argument('--counts-topic', default='/tak/counts', help='channel codes (Vector3Stamped)')
     group.add_argument('--raw-imu-topic', default='/imu/data_raw', help="a driver's Imu (default /imu/data_raw)")

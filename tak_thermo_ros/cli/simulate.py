@@ -58,7 +58,8 @@ def run(args: argparse.Namespace) -> int:
                  aux_types=aux_types)
     record = run.record
     print(f'wrote {args.out_bag} ({args.storage}): {scenario.duration_s() / 3600.0:.2f} h at '
-          f'{scenario.sample_rate_hz:g} Hz, temperature code {record.temp_code.min():.0f}..{record.temp_code.max():.0f}')
+          f'{scenario.sample_rate_hz:g} Hz, temperature code '
+          f'{record.temp_code.min():.0f}..{record.temp_code.max():.0f}')
     print(f'  {len(record.counts_stamp_ns)} counts, {len(record.temp_stamp_ns)} temperature-code and '
           f'{len(record.reference_stamp_ns)} reference messages')
     return 0

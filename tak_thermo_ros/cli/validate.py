@@ -178,7 +178,7 @@ def _averaged_bias(check, noise, sensor: str, gravity: float) -> dict | None:
         if predicted is not None:
             text += f'   noise model: {common.numbers(predicted[t] * factor, 3)}'
             entry['noise_model'] = [float(v * factor) for v in predicted[t]]
-        lines.append(f'  {tau:5.0f} s: {text}')
+        lines.append(f'  at {tau:g} s: {text}')
         document[f'{tau:g}'] = entry
     return {'lines': lines, 'document': {'source': noise.source if predicted is not None else None,
                                          'taus': document}}

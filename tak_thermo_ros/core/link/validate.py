@@ -75,7 +75,8 @@ def validate_gravity(calibration: Calibration, counts: np.ndarray, temp_code: np
     """
     corrector = Corrector(calibration, out_of_range=out_of_range)
     after = corrector.correct(counts, temp_code, stamp_s=stamp_s, aux=aux)
-    before = Corrector(calibration.uncorrected(as_recorded=raw_before), out_of_range=out_of_range).correct(counts, temp_code)
+    flat = Corrector(calibration.uncorrected(as_recorded=raw_before), out_of_range=out_of_range)
+    before = flat.correct(counts, temp_code)
     return GravityValidation(gravity=gravity,
                              magnitude_before=np.linalg.norm(before, axis=1),
                              magnitude_after=np.linalg.norm(after, axis=1),
@@ -137,7 +138,8 @@ def validate_rate(calibration: Calibration, rate: np.ndarray, temperature: np.nd
     """
     corrector = Corrector(calibration, out_of_range=out_of_range)
     after = corrector.correct(rate, temperature, stamp_s=stamp_s, aux=aux)
-    before = Corrector(calibration.uncorrected(as_recorded=raw_before), out_of_range=out_of_range).correct(rate, temperature)
+    flat = Corrector(calibration.uncorrected(as_recorded=raw_before), out_of_range=out_of_range)
+    before = flat.correct(rate, temperature)
     return RateValidation(before=RateError.of(before - reference), after=RateError.of(after - reference),
                           out_of_range=corrector.out_of_range_count(temperature))
 
