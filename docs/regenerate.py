@@ -4,7 +4,7 @@ The convention (every doc follows it; ``test/test_docs.py`` checks it, this scri
 
 - A transcript is a fenced block whose info string starts with ``console``. Other blocks (``sh``,
   ``yaml``, plain) are never run.
-- A line that starts with ``$ `` is a command; a command line that ends with `` \\`` goes on on the
+- A line that starts with ``$ `` is a command; a command line that ends with `` \`` goes on on the
   next line. The lines after a command, up to the next command or the block's end, are a
   selection of what it prints (stdout and stderr together): each must appear in that order in
   what it prints (other lines may come between them).
@@ -23,9 +23,11 @@ The convention (every doc follows it; ``test/test_docs.py`` checks it, this scri
   script runs every block. A block after a slow one must not need what the slow one made (mark
   it slow as well).
 - Where the commands run: each doc file in a temporary directory of its own, its commands in
-  the order of the file; ``docs`` and ``data`` there are the repository's (links), so a doc
-  names a shipped scenario by its path, ``docs/scenarios/NAME.yaml``, as a user does from the
-  repository's root. ``tak_calib`` and ``compensator`` are the virtual environment's.
+  the order of the file; the repository's top level is there as links (``docs``, ``data``, the
+  ``Makefile``, ...), so a doc names a shipped scenario by its path,
+  ``docs/scenarios/NAME.yaml``, as a user does from the repository's root, and what the
+  commands write stays in the temporary directory. ``tak_calib`` and ``compensator`` are the
+  virtual environment's.
 - No line a ``tak_calib`` command prints may be longer than :data:`MAX_LINE` characters (an
   error, one line by the tool's rule, excepted).
 
@@ -287,10 +289,11 @@ class Session:
 
     def __init__(self, directory: Path, *, domain: int = 77) -> None:
         self.directory = directory
-        for name in ('docs', 'data'):
-            link = directory / name
-            if not link.exists():
-                link.symlink_to(ROOT / name, target_is_directory=True)
+        for entry in ROOT.iterdir():  # the repository's top level, as links: docs/scenarios, data, Makefile, .venv
+            link = directory / entry.name
+            if entry.name != '.git' and (not entry.name.startswith('.') or entry.name == '.venv') \
+                    and not link.exists():
+                link.symlink_to(entry, target_is_directory=entry.is_dir())
         bin_directory = Path(sys.executable).parent
         ros_home = directory / '.ros'
         ros_home.mkdir(exist_ok=True)
