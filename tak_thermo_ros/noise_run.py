@@ -130,10 +130,10 @@ class SensorNoise:
 
     @property
     def span_words(self) -> str:
-        """`` (temperature 19.9..20.1 C)``: the span behind the source, to print beside it."""
+        """`` (19.98..20.02 C)``: the temperature span behind the source, to print beside it."""
         low, high = self.temperature
         if self.temperature_unit == 'C':
-            return f' (temperature {low:.2f}..{high:.2f} C)'
+            return f' ({low:.2f}..{high:.2f} C)'
         return f' (temperature code {low:.0f}..{high:.0f})'
 
 

@@ -32,7 +32,7 @@ UNITS = {(InputKind.COUNTS, 'accel'): 'counts', (InputKind.IMU, 'accel'): 'm/s^2
 DEG = 180.0 / math.pi
 """Degrees per radian."""
 SOURCE_WORDS = {'file': 'from a file', 'static_run': 'from a run at constant temperature',
-                'residual': "from a run's residual after a temperature model"}
+                'residual': 'from a run whose temperature moves'}
 """What each ``source`` of a noise model says (:data:`~tak_thermo_ros.core.noise.model.SOURCES`)."""
 WIDTH = 100
 """The longest line ``tak_calib`` prints (an error, one line by rule, excepted)."""

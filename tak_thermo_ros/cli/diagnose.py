@@ -263,9 +263,9 @@ def _print_axes(result, unit: str) -> None:
     if result.averaging_time_s:
         means = f'{result.averaging_time_s:.3g} s means'
         print(f'  white floor         {common.amount([a.white_floor for a in axes], unit)}')
-        print(f'  RMS of held-out {means}, as the noise model predicts: '
-              f'{common.amount([a.noise_floor for a in axes], unit)}')
-        print(f'  RMS of held-out {means}, measured: {common.amount([a.heldout_rms for a in axes], unit)}')
+        print(f'  RMS of held-out {means}:')
+        print(f'    the noise model   {common.amount([a.noise_floor for a in axes], unit)}')
+        print(f'    measured          {common.amount([a.heldout_rms for a in axes], unit)}')
         print(f'  held-out / model    {ratios}')
     else:
         print(f'  noise floor         {common.amount([a.noise_floor for a in axes], unit)}')

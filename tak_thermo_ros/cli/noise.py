@@ -58,6 +58,8 @@ def run(args: argparse.Namespace) -> int:
         print(f'{common.SENSOR_NAMES[sensor]}: {allan.samples} samples at {allan.rate:.3g} Hz, averaging times '
               f'{tau_text(allan.taus[0])} to {tau_text(allan.taus[-1])}')
         print(f'  source {model.source}: {common.SOURCE_WORDS[model.source]}{noise.span_words}')
+        if model.source == 'residual':
+            print('  what no thermal model removes of its drift counts as noise here')
         if noise.dropped:
             print(f'  left out: {common.describe_dropped(noise.dropped)}')
         if noise.gaps:
