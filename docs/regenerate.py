@@ -28,8 +28,8 @@ The convention (every doc follows it; ``test/test_docs.py`` checks it, this scri
   ``docs/scenarios/NAME.yaml``, as a user does from the repository's root, and what the
   commands write stays in the temporary directory. ``tak_calib`` and ``compensator`` are the
   virtual environment's.
-- No line a ``tak_calib`` command prints may be longer than :data:`MAX_LINE` characters (an
-  error, one line by the tool's rule, excepted).
+- No line a ``tak_calib`` command (or ``make demo``) prints may be longer than :data:`MAX_LINE`
+  characters (an error, one line by the tool's rule, excepted).
 
 Usage::
 
@@ -65,6 +65,8 @@ DOCS = (ROOT / 'README.md', *sorted((ROOT / 'docs').glob('*.md')))
 MAX_LINE = 100
 """The longest line a ``tak_calib`` command may print."""
 ERROR = 'tak_calib: error:'
+LINE_CHECKED = ('tak_calib', 'make')
+"""The commands whose every line :data:`MAX_LINE` holds: the tool, and ``make demo`` (which runs it)."""
 """An error is one line by the tool's rule, however long: the only line exempt from :data:`MAX_LINE`."""
 BACKGROUND_STOP_S = 20.0
 """How long a background command has to exit after SIGINT before it is killed."""
@@ -406,7 +408,7 @@ def problems_of(block: Block, command: Command, ran: Ran) -> list[str]:
         tail = '\n'.join(ran.output.splitlines()[-5:])
         found.append(f'exit status {ran.status}, the doc says {command.exit_status}:\n{tail}')
     found += compare(command, ran.output, block.tolerance)
-    if command.text.split()[0] == 'tak_calib':
+    if command.text.split()[0] in LINE_CHECKED:
         found += long_lines(command, ran.output)
     return [f'{where}\n  {problem}' for problem in found]
 
@@ -428,7 +430,7 @@ def regenerate(path: Path, *, full: bool = False, directory: Path) -> list[str]:
         where = _where(block, command)
         if not command.background and ran.status != command.exit_status:
             problems.append(f'{where}\n  exit status {ran.status}, the doc says {command.exit_status}:\n{ran.output}')
-        if command.text.split()[0] == 'tak_calib':
+        if command.text.split()[0] in LINE_CHECKED:
             problems += [f'{where}\n  {p}' for p in long_lines(command, ran.output)]
         if full:
             first = command.last_index + 1

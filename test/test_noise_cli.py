@@ -112,7 +112,7 @@ def test_noise_of_the_compensated_signal_is_the_sensors_and_fit_writes_it(tmp_pa
     assert cli.main(['fit', str(bag), '-o', str(params), '--no-progress', '--noise-from-residual']) == 0
     printed = ' '.join(capsys.readouterr().out.split())  # statements wrap at 100 columns
     assert 'noise model: accel, gyro from the residual of' in printed
-    assert "noise model (from a run's residual after a temperature model), per axis x y z:" in printed
+    assert 'noise model (from a run whose temperature moves), per axis x y z:' in printed
     unit = load_unit(params)
     for sensor in ('accel', 'gyro'):
         truth, stored = scenario.noise_truth(sensor), unit.sensor(sensor).noise

@@ -74,7 +74,8 @@ def run(args: argparse.Namespace) -> int:
     averaged = {'accel': _averaged_bias(result, given.get('accel'), 'accel', args.gravity)}
     document = {'bag': str(args.bag), 'params': str(args.params), 'gravity': args.gravity,
                 'samples': result.samples, 'out_of_range': result.out_of_range,
-                'before': before.as_dict(), 'after': after.as_dict()}
+                'before': before.as_dict(), 'after': after.as_dict(),
+                'before_is': 'as_recorded' if run.input_kind is InputKind.IMU else 'nominal'}
     if unit.gyro is not None and run.rate is not None:
         for line in run.reference_lines:
             if line.startswith('rate reference'):
