@@ -461,7 +461,7 @@ def main(argv: list[str] | None = None) -> int:
     for path in paths:
         if not parse(path):
             continue
-        print(f'{path.relative_to(ROOT)} ...', flush=True)
+        print(f'{path.relative_to(ROOT) if path.is_relative_to(ROOT) else path} ...', flush=True)
         with tempfile.TemporaryDirectory(prefix='tak-docs-') as directory:
             if args.check:
                 problems += check(path, slow=True, directory=Path(directory))
