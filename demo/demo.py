@@ -14,6 +14,7 @@ Runs the real command-line tool, printing each command as a user would type it:
 from __future__ import annotations
 
 import json
+import math
 import shlex
 import shutil
 import subprocess
@@ -100,11 +101,14 @@ def main() -> int:
     worst_before = max(abs(v['mean']) for v in driver['before'].values())
     worst_after = max(abs(v['mean']) for v in driver['after'].values())
     before, after = figures['before']['rms'], figures['after']['rms']
-    print(f'\n|g| error on the second run: RMS {before:.4f} -> {after:.4f} m/s^2 '
-          f'({before / after:.1f}x lower); max {figures["before"]["max"]:.4f} -> {figures["after"]["max"]:.4f} m/s^2')
-    print(f'driver unit, gyroscope bias on the second run (largest axis mean): {worst_before * 1e3:.3f} -> '
-          f'{worst_after * 1e3:.3f} mrad/s')
-    print(f'outputs in {OUT} (figure: gravity_before_after.png); {time.monotonic() - started:.0f} s')
+    mg = 1e3 / figures['gravity']
+    deg_h = 180.0 / math.pi * 3600.0
+    print(f'\n|g| error on the second run: RMS {before * mg:.3g} -> {after * mg:.3g} mg '
+          f'({before / after:.1f}x lower), max {figures["before"]["max"] * mg:.3g} -> '
+          f'{figures["after"]["max"] * mg:.3g} mg')
+    print(f'driver unit, second run, gyroscope bias (largest axis mean): {worst_before * deg_h:.3g} -> '
+          f'{worst_after * deg_h:.3g} deg/h')
+    print(f'outputs in {OUT.name}/ (figure: gravity_before_after.png); {time.monotonic() - started:.0f} s')
     return 0
 
 

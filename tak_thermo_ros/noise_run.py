@@ -33,6 +33,13 @@ from tak_thermo_ros.streaming import StreamOptions, sensors_of
 
 GAP_FACTOR = 1.5
 """A step between two samples' stamps longer than this many sampling intervals is a gap."""
+CONSTANT_TEMPERATURE_C = 2.0
+"""A driver run whose temperature spans at most this many degrees C is a run at constant
+temperature (``source='static_run'``: a chamber holds its setpoint to about +-0.5 C; self-heating
+after power-on moves a board a degree or two); a wider span makes the model ``residual``."""
+CONSTANT_TEMPERATURE_FRACTION = 0.05
+"""The same for a counts run, whose codes have no unit: at most this share of the calibrated
+temperature-code range (1.5 C of a 5..35 C chamber calibration)."""
 PER_OCTAVE = 2
 """Averaging times per doubling of ``tak_calib noise``'s Allan deviation."""
 
@@ -51,6 +58,7 @@ class _SensorNoise:
     missing: int = 0
     dropped: dict[str, int] = field(default_factory=dict)
     outside: int = 0
+    temperature: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         from tak_thermo_ros.streaming import Required
@@ -80,6 +88,9 @@ class _SensorNoise:
             self.gaps += len(long)
             self.missing += int(np.sum(np.round(long / self.interval_ns) - 1))
         self.last_stamp_ns = int(stamps[-1])
+        low, high = float(np.min(samples.temp_code)), float(np.max(samples.temp_code))
+        self.temperature = (low, high) if self.temperature is None else (min(low, self.temperature[0]),
+                                                                         max(high, self.temperature[1]))
         if self.accumulator is None:
             self.accumulator = AllanAccumulator(1.0, 3, per_octave=self.per_octave)
         self.accumulator.add(measured - samples.reference)
@@ -105,6 +116,9 @@ class SensorNoise:
     :param dropped: samples left out by the alignment, by reason.
     :param out_of_range: samples corrected outside the calibrated temperature range.
     :param fit: the fit behind ``model``: how it follows the measurement, IEEE 952's slope lines.
+    :param temperature: the lowest and highest temperature of the samples (degrees C; codes for a
+        counts run), which decide the model's ``source``.
+    :param temperature_unit: ``C``, or ``codes``.
     """
 
     model: NoiseModel
@@ -114,6 +128,16 @@ class SensorNoise:
     dropped: dict[str, int]
     out_of_range: int
     fit: NoiseFit | None = None
+    temperature: tuple[float, float] = (0.0, 0.0)
+    temperature_unit: str = 'C'
+
+    @property
+    def span_words(self) -> str:
+        """`` (19.98..20.02 C)``: the temperature span behind the source, to print beside it."""
+        low, high = self.temperature
+        if self.temperature_unit == 'C':
+            return f' ({low:.2f}..{high:.2f} C)'
+        return f' (temperature code {low:.0f}..{high:.0f})'
 
 
 @dataclass(frozen=True)
@@ -141,7 +165,11 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
     :param unit: a calibration: the residual is the corrected output minus the reference (the
         thermally compensated signal). Without it: the measured value minus the reference
         (driver bags only; a counts bag's codes are not in SI).
-    :param source: the models' ``source`` (default ``residual`` with a calibration, else ``static_run``).
+    :param source: the models' ``source``; by default it follows the run's temperature:
+        ``static_run`` when it spans at most :data:`CONSTANT_TEMPERATURE_C` (a counts run: at most
+        :data:`CONSTANT_TEMPERATURE_FRACTION` of the calibrated code range), else ``residual`` (the
+        model holds what the temperature model, or its absence, leaves of the thermal drift),
+        with a calibration or without.
     :param settle_time_s: leave out the samples this long after each reference change (a table
         settling, as ``fit --settle-time``); the gaps this leaves are counted, the rest taken as
         evenly spaced.
@@ -177,7 +205,9 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
                          [noises[sensor]])
               for sensor in sensors]
     lines = run_passes(path, options, opened, passes)
-    source = source or ('residual' if unit is not None else 'static_run')
+    spans = [noises[sensor].temperature for sensor in sensors if noises[sensor].temperature is not None]
+    temperature = (min(low for low, _ in spans), max(high for _, high in spans)) if spans else (0.0, 0.0)
+    source = source or run_source(temperature, kind, unit)
     found = {}
     for sensor_pass in passes:
         stream = noises[sensor_pass.sensor]
@@ -195,10 +225,22 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
             dropped[reason] = dropped.get(reason, 0) + count
         found[sensor_pass.sensor] = SensorNoise(model=fit.model, allan=allan, gaps=stream.gaps,
                                                 missing=stream.missing, dropped=dropped, out_of_range=stream.outside,
-                                                fit=fit)
+                                                fit=fit, temperature=temperature,
+                                                temperature_unit='codes' if kind is InputKind.COUNTS else 'C')
     topic = options.topics.counts if opened.kind is InputKind.COUNTS else options.topics.raw_imu
     return NoiseRun(input_kind=opened.kind, sensors=found, compensated=unit is not None,
                     reference_lines=tuple(lines), topic=topic)
+
+
+def run_source(temperature: tuple[float, float], kind: InputKind, unit: UnitCalibration | None) -> str:
+    """``static_run`` for a run at constant temperature, else ``residual`` (:func:`noise_bag`'s ``source``)."""
+    span = temperature[1] - temperature[0]
+    if kind is InputKind.COUNTS and unit is not None:
+        calibrated = unit.accel.temp_code_max - unit.accel.temp_code_min
+        constant = span <= CONSTANT_TEMPERATURE_FRACTION * calibrated
+    else:
+        constant = span <= CONSTANT_TEMPERATURE_C
+    return 'static_run' if constant else 'residual'
 
 
 @dataclass(frozen=True)
@@ -218,7 +260,7 @@ def noise_models(*, unit: UnitCalibration | None, options: StreamOptions, noise_
 
     1. ``noise_file``: a Kalibr-style imu.yaml (``source='file'``);
     2. ``noise_run``: a static, constant-temperature run, compensated with ``unit`` when given
-       (``source='static_run'``);
+       (``source='static_run'``; ``residual`` when its temperature is not constant, and said);
     3. ``use_stored`` and every sensor of ``unit`` carries a ``noise`` section (written by
        ``tak_calib fit``): those (their own ``source``);
     4. ``calibration_run``: its residual after ``unit``'s correction (``source='residual'``).
@@ -236,10 +278,15 @@ def noise_models(*, unit: UnitCalibration | None, options: StreamOptions, noise_
         models.update({s: m for s, m in from_file.items() if s in sensors})
         said.append(f'{", ".join(sorted(models))} from {noise_file}')
     if noise_run is not None and any(s not in models for s in sensors):
-        run = noise_bag(noise_run, options, unit=unit, source='static_run', gravity=gravity, latitude=latitude)
+        run = noise_bag(noise_run, options, unit=unit, gravity=gravity, latitude=latitude)
         new = {s: m for s, m in run.models.items() if s not in models}
         models.update(new)
-        said.append(f'{", ".join(sorted(new))} from the static run {noise_run}')
+        span = next(iter(run.sensors.values())).span_words
+        if all(model.source == 'static_run' for model in new.values()):
+            said.append(f'{", ".join(sorted(new))} from the static run {noise_run}{span}')
+        else:
+            said.append(f'{", ".join(sorted(new))} from {noise_run}, which is NOT at constant temperature{span}: '
+                        f'labelled residual, no independent yardstick')
     if use_stored and unit is not None and any(s not in models for s in sensors):
         stored = {s: unit.sensor(s).noise for s in sensors if s not in models and unit.sensor(s).noise is not None}
         models.update(stored)  # type: ignore[arg-type]

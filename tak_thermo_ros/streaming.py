@@ -814,8 +814,10 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
         opened = open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=False)
     else:
         opened = OpenedRun(kind, 0, None)
-    gravity_check = GravityCheck(unit.accel, gravity=gravity, out_of_range=out_of_range)
-    rate_check = RateCheck(unit.gyro, out_of_range=out_of_range) if unit.gyro is not None else None
+    # Before correction: a driver's values as recorded; codes through the file's nominal scale and offset.
+    gravity_check = GravityCheck(unit.accel, gravity=gravity, out_of_range=out_of_range, raw_before=calibration_run)
+    rate_check = (RateCheck(unit.gyro, out_of_range=out_of_range, raw_before=True)
+                  if unit.gyro is not None else None)
     accel_required = Required(Corrector(unit.accel).signals)
 
     def add_gravity(aligned: AlignedSamples) -> None:

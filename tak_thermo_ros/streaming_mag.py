@@ -196,7 +196,7 @@ def bounded_mag_run(path: str | Path, options, *, max_samples: int) -> tuple[Ali
     subsample = Subsample(stride, expected=count // stride + 1)
     calibration_pass = _calibration_pass(path, options, [subsample])
     line = (f'magnetometer: reference field {options.topics.reference_field} as recorded' if not calibration_pass.static
-            else f'magnetometer: static run, reference the mean field {_microtesla(calibration_pass.mean)} uT')
+            else f'magnetometer: static run, reference the mean field x y z {_microtesla(calibration_pass.mean)} uT')
     return subsample.samples(calibration_pass.aligner.dropped), calibration_pass.aligner.kept, line
 
 
@@ -263,13 +263,15 @@ def fit_mag_bag(path: str | Path, options, *, bias_order: int = 3, scale_order: 
     except FitError as err:
         raise FitError(f'magnetometer: {err}') from None
     lines = [f'magnetometer: reference field {topics.reference_field} as recorded' if not static else
-             f'magnetometer: static run, reference the mean field {_microtesla(mean)} uT '
-             f'(|B| {np.linalg.norm(mean) * 1e6:.2f} uT; largest turn from it {max_turn:.2f} deg)']
+             f'magnetometer: static run, reference the mean field x y z {_microtesla(mean)} uT']
+    if static:
+        lines.append(f'magnetometer: |B| {np.linalg.norm(mean) * 1e6:.2f} uT; the field turned from its mean by at '
+                     f'most {max_turn:.2f} deg')
     if subsample is not None and subsample.stride > 1:
         lines.append(f'magnetometer: the link and its effects fitted on 1 sample in {subsample.stride} '
                      f'({subsample.count} of {subsample.usable})')
     link = thermal.calibration
-    notes = list(link.notes)
+    notes = [_in_microtesla(note, link, mean) if static else note for note in link.notes]
     iron = None
     if iron_run is None:
         notes.append(NO_IRON_NOTE)
@@ -280,7 +282,7 @@ def fit_mag_bag(path: str | Path, options, *, bias_order: int = 3, scale_order: 
         lines.append(f'magnetometer: iron from {iron_run} ({iron.samples} samples)')
         if outside:
             lines.append(f'warning: magnetometer: {outside} samples of {iron_run} outside the calibrated temperature '
-                         f'range {link.temp_code_min:g}..{link.temp_code_max:g} C (clamped to its edge)')
+                         f'range {link.temp_code_min:.2f}..{link.temp_code_max:.2f} C (clamped to its edge)')
     link = replace(link, notes=tuple(notes))
     calibration = MagnetometerCalibration(link, hard, soft)  # type: ignore[arg-type]
     return MagFit(calibration=calibration, thermal=replace(thermal, calibration=link), iron=iron, lines=tuple(lines),
@@ -329,6 +331,16 @@ def fit_rotation_bag(path: Path, options, survey: FieldSurvey, *, bias_order: in
         lines.append(f'magnetometer: fitted on 1 sample in {stride} ({len(samples)} of {subsample.usable})')
     return MagFit(calibration=rotation.calibration, thermal=thermal, iron=ellipsoid, lines=tuple(lines),
                   max_turn_deg=largest_turn)
+
+
+def _in_microtesla(note: str, link, mean) -> str:
+    """A held-scale note of the fit, whose inputs are tesla, said in uT (the static run's mean field is the input)."""
+    from tak_thermo_ros.core.fit import held_scale_note
+    if not note.startswith('scale held at nominal'):
+        return note
+    held = [not axis.scale_observable for axis in link.axes]
+    return held_scale_note(held, [f'{name} input {value * 1e6:.4g} uT at nominal scale 1'
+                                  for name, value, is_held in zip('xyz', mean, held) if is_held])
 
 
 def _microtesla(values) -> str:

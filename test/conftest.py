@@ -3,14 +3,19 @@
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import replace
 
-import numpy as np
-import pytest
+# As tak_calib does (tak_thermo_ros/cli/__init__.py): small least-squares problems run fastest on
+# one BLAS thread, and the tests call the commands in this process, where numpy loads first.
+os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 
-from node_helpers import domain_id, ros_environment
-from tak_thermo_ros.core.records.record import align
-from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from node_helpers import domain_id, ros_environment  # noqa: E402
+from tak_thermo_ros.core.records.record import align  # noqa: E402
+from tak_thermo_ros.core.simulation.imu import Scenario, simulate  # noqa: E402
 
 SHORT = Scenario(plateau_hours=0.5, ramp_celsius_per_minute=1.0, board_lag_s=300.0, dwell_s=30.0)
 """The paper's five plateaus, shortened: about 3 h of 1 Hz samples."""
@@ -66,8 +71,6 @@ def short_samples(short_run):
 
 
 # ----- Hypothesis: one profile for `make test`, a longer one for `make fuzz` ---------------------
-
-import os  # noqa: E402
 
 from hypothesis import HealthCheck, settings  # noqa: E402
 

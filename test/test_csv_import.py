@@ -64,7 +64,7 @@ def test_cli_import_prints_the_reference_and_the_bag_holds_it(tmp_path, capsys):
     assert main(['import-csv', str(REAL_LOG), '-o', str(bag), *REAL_COLUMNS]) == 0
     out = capsys.readouterr().out
     assert '8400 rows (tab-delimited)' in out
-    line = next(text for text in out.splitlines() if text.startswith('reference (static run): mean measured direction'))
+    line = next(text for text in out.splitlines() if text.startswith('reference: that direction scaled to gravity'))
     printed = [float(v) for v in line.split('= (')[1].split(')')[0].split(',')]
     record = read_record(bag, require_reference=True, progress=False)
     np.testing.assert_allclose(record.reference[0], printed, atol=5e-5)

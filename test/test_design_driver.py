@@ -19,6 +19,7 @@ import pytest
 from conftest import SHORT
 from tak_thermo_ros.formats.bag import bag_input_kind, read_driver_record, write_driver_record, write_record
 from tak_thermo_ros.cli import main
+from tak_thermo_ros.cli.common import unwrap
 from tak_thermo_ros.core.diagnose import design_driver_run, diagnose
 from tak_thermo_ros.core.diagnose.design import driver_table
 from tak_thermo_ros.core.fit import fit_model
@@ -125,7 +126,7 @@ def test_a_recorded_signal_on_top_gets_one_clear_line_and_no_design(tmp_path, ca
                        sample_rate_hz=0.1)
     write_driver_record(tmp_path / 'run', simulate(scenario).driver)
     out = _diagnose_with_supply_candidate(tmp_path, capsys)
-    lines = [line for line in out.splitlines() if line.startswith('accelerometer: no chamber run designed')]
+    lines = [line for line in unwrap(out) if line.startswith('accelerometer: no chamber run designed')]
     assert len(lines) == 1, out
     assert 'aux:/power/battery_state' in lines[0] and 'independently of the temperature' in lines[0]
     assert 'gyroscope: nothing to separate (verdict none)' in out

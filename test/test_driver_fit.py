@@ -15,6 +15,7 @@ import pytest
 
 from tak_thermo_ros.formats.bag import Topics, write_driver_record
 from tak_thermo_ros.cli import main
+from tak_thermo_ros.cli.common import unwrap
 from tak_thermo_ros.formats.calibration_file import load_unit
 from tak_thermo_ros.core.link.model import Calibration, InputKind
 from tak_thermo_ros.core.records.record import align
@@ -40,7 +41,7 @@ INPUT_MAGNITUDE = {'accel': RATE_TABLE.gravity, 'gyro': 1.0}
 
 def _fit(bag: Path, output: Path, capsys, *options: str) -> str:
     assert main(['fit', str(bag), '-o', str(output), '--no-progress', *options]) == 0
-    return capsys.readouterr().out
+    return '\n'.join(unwrap(capsys.readouterr().out))  # one statement a line, as printed before wrapping
 
 
 def _curves(calibration: Calibration, temperature: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -80,7 +81,7 @@ def test_rate_table_fit_recovers_scale_offset_and_drift_of_both_sensors(rate_tab
     write_driver_record(bag, run.driver, storage=storage)
     stdout = _fit(bag, root / f'params_{storage}.yaml', capsys)
     assert 'reference: /tak/reference and /tak/reference_rate as recorded' in stdout
-    assert 'accelerometer:' in stdout and 'gyroscope:' in stdout
+    assert 'accelerometer, per axis x y z:' in stdout and 'gyroscope, per axis x y z:' in stdout
     unit = load_unit(root / f'params_{storage}.yaml')
     assert unit.input_kind is InputKind.IMU
     units = {'accel': RATE_TABLE.accel_unit, 'gyro': RATE_TABLE.gyro_unit}
@@ -123,7 +124,8 @@ def test_static_run_estimates_the_reference_holds_scale_and_recovers_the_gyro_dr
     lines = stdout.splitlines()
     mean = run.driver.accel.mean(axis=0)
     expected = STATIC.gravity * mean / np.linalg.norm(mean)
-    line = next(line for line in lines if line.startswith('reference (static run): mean measured direction'))
+    line = next(line for line in lines if line.startswith('  = ('))
+    assert 'reference (static run): mean measured direction scaled to gravity' in stdout
     assert f'({expected[0]:.4f}, {expected[1]:.4f}, {expected[2]:.4f}) m/s^2' in line
     assert 'rate reference (static run): zero' in lines
     for sensor in ('accelerometer', 'gyroscope'):

@@ -64,7 +64,7 @@ def test_gyro_effect_is_recovered_through_the_command_line(name, tmp_path, capsy
     assert main(['fit', str(tmp_path / 'cal'), '-o', str(tmp_path / 'p.yaml'), '--gyro-effects', name,
                  '--no-progress']) == 0
     stdout = capsys.readouterr().out
-    assert f'effect {name}:' in stdout and 'counts' not in stdout.split('gyroscope:')[1]
+    assert f'effect {name}:' in stdout and 'counts' not in stdout.split('gyroscope, per axis x y z:')[1]
     unit = load_unit(tmp_path / 'p.yaml')
     assert unit.accel.effects == ()
     (fitted,) = unit.gyro.effects

@@ -13,6 +13,7 @@ import yaml
 
 from tak_thermo_ros import cli
 from tak_thermo_ros.cli.common import noise_axis_lines
+from tak_thermo_ros.cli.common import noise_lines
 from tak_thermo_ros.formats.bag import Topics, read_imu_messages, write_driver_record, write_record
 from tak_thermo_ros.core.link.correction import acceleration_variance
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
@@ -110,8 +111,9 @@ def test_noise_of_the_compensated_signal_is_the_sensors_and_fit_writes_it(tmp_pa
         hour = allan.taus > 1800.0  # the drift folded into the long averaging times
         assert np.all(allan.adev[hour] > 3.0 * truth.allan_deviation(allan.taus[hour]))
     assert cli.main(['fit', str(bag), '-o', str(params), '--no-progress', '--noise-from-residual']) == 0
-    printed = capsys.readouterr().out
-    assert 'noise model: accel, gyro from the residual of' in printed and '  noise (residual):' in printed
+    printed = ' '.join(capsys.readouterr().out.split())  # statements wrap at 100 columns
+    assert 'noise model: accel, gyro from the residual of' in printed
+    assert 'noise model (from a run whose temperature moves), per axis x y z:' in printed
     unit = load_unit(params)
     for sensor in ('accel', 'gyro'):
         truth, stored = scenario.noise_truth(sensor), unit.sensor(sensor).noise
@@ -122,7 +124,7 @@ def test_noise_of_the_compensated_signal_is_the_sensors_and_fit_writes_it(tmp_pa
         assert np.allclose(variance, np.array(stored.white_noise_density) ** 2 * 2.0, rtol=0.2)  # mostly white
     output = tmp_path / 'compensated.yaml'
     assert cli.main(['noise', str(bag), '--params', str(params), '-o', str(output), '--no-progress']) == 0
-    assert 'thermally compensated' in capsys.readouterr().out
+    assert 'thermally compensated' in ' '.join(capsys.readouterr().out.split())
     again = read_kalibr(output)
     assert np.allclose(again['gyro'].white_noise_density, unit.gyro.noise.white_noise_density, rtol=1e-6)
 
@@ -190,6 +192,17 @@ def test_noise_axis_lines_convert_to_data_sheet_units_and_name_both_bias_instabi
     assert '(Allan deviation minimum)' in text
 
 
+def test_noise_lines_convert_to_data_sheet_units():
+    """One term a line, x y z, SI then a data sheet's units; one spelling of the random walk."""
+    model = scenario_from_mapping(STATIC).noise_truth('gyro')
+    lines = noise_lines(replace(model, bias_instability=(math.radians(10.0) / 3600.0,) * 3), 'rad/s')
+    assert '  bias instability     4.85e-05 4.85e-05 4.85e-05 rad/s (10 10 10 deg/h)' in lines
+    density = f'{2.4e-4 / math.sqrt(2.0) * 180 / math.pi * 60:.3g}'
+    assert any(line.startswith('  white noise density') and f'({density} {density} {density} deg/sqrt(h))' in line
+               for line in lines)
+    assert any('rad/s^2/sqrt(Hz)' in line and 'deg/h/sqrt(h)' in line for line in lines)
+
+
 def test_a_counts_bag_with_params_gives_the_corrected_outputs_noise(tmp_path, capsys):
     """The paper's codes, corrected with the true link.
 
@@ -253,7 +266,7 @@ def test_validate_of_a_counts_bag_takes_its_noise_model_from_a_static_counts_run
     document = tmp_path / 'v.json'
     assert cli.main(['validate', str(bag), '--params', str(params), '--noise-run', str(static_bag),
                      '--json', str(document)]) == 0
-    assert f'accel from the static run {static_bag}' in capsys.readouterr().out
+    assert f'accel from the static run {static_bag}' in ' '.join(capsys.readouterr().out.split())
     averaged = json.loads(document.read_text())['averaged_bias_error']
     assert averaged['source'] == 'static_run'
     for tau, tolerance in (('1', 0.05), ('60', 0.35)):

@@ -7,10 +7,15 @@ more of them need is here, and their shared options are in :mod:`tak_thermo_ros.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import json
 import math
 import re
+import sys
+import textwrap
 from dataclasses import dataclass
+from typing import Iterator
 
 import numpy as np
 
@@ -19,7 +24,6 @@ from tak_thermo_ros.core.records.record import REFERENCE_LIMIT, TEMPERATURE_RANG
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import TakError
 from tak_thermo_ros.streaming import SENSOR_NAMES  # noqa: F401  (re-exported: each command prints it)
-from tak_thermo_ros.units import READABLE, readable
 
 UNITS = {(InputKind.COUNTS, 'accel'): 'counts', (InputKind.IMU, 'accel'): 'm/s^2', (InputKind.IMU, 'gyro'): 'rad/s',
          (InputKind.IMU, 'mag'): 'T'}
@@ -27,6 +31,82 @@ UNITS = {(InputKind.COUNTS, 'accel'): 'counts', (InputKind.IMU, 'accel'): 'm/s^2
 
 DEG = 180.0 / math.pi
 """Degrees per radian."""
+SOURCE_WORDS = {'file': 'from a file', 'static_run': 'from a run at constant temperature',
+                'residual': 'from a run whose temperature moves'}
+"""What each ``source`` of a noise model says (:data:`~tak_thermo_ros.core.noise.model.SOURCES`)."""
+WIDTH = 100
+"""The longest line ``tak_calib`` prints (an error, one line by rule, excepted)."""
+HANG = '    '
+"""The indent of a wrapped statement's further lines, beyond its own."""
+
+
+def wrap(line: str, width: int = WIDTH) -> list[str]:
+    """One printed statement as lines of at most ``width`` characters, its further lines indented.
+
+    The statement's own indent is kept; its further lines get :data:`HANG` more. A word longer
+    than the line (a path) stays whole.
+    """
+    if len(line) <= width:
+        return [line]
+    indent = line[:len(line) - len(line.lstrip())]
+    return textwrap.wrap(line.strip(), width=width, initial_indent=indent, subsequent_indent=indent + HANG,
+                         break_long_words=False, break_on_hyphens=False) or [line]
+
+
+def unwrap(text: str) -> list[str]:
+    """The statements of wrapped output, one per line: the inverse of :func:`wrap`, for a script that reads it.
+
+    A line indented by exactly :data:`HANG` more than the statement it follows goes on that statement.
+    """
+    statements: list[str] = []
+    indent = -1
+    for line in text.splitlines():
+        own = len(line) - len(line.lstrip())
+        if statements and line.strip() and own == indent + len(HANG):
+            statements[-1] += ' ' + line.strip()
+        else:
+            statements.append(line)
+            indent = own
+    return statements
+
+
+class _Wrapping(io.TextIOBase):
+    """A text stream that wraps every line longer than :data:`WIDTH` before it passes it on."""
+
+    def __init__(self, target) -> None:
+        super().__init__()
+        self.target = target
+        self.pending = ''
+
+    def write(self, text: str) -> int:
+        self.pending += text
+        *lines, self.pending = self.pending.split('\n')
+        for line in lines:
+            self.target.write('\n'.join(wrap(line)) + '\n')
+        return len(text)
+
+    def flush(self) -> None:
+        if self.pending:
+            self.target.write('\n'.join(wrap(self.pending)))
+            self.pending = ''
+        self.target.flush()
+
+    def isatty(self) -> bool:
+        return self.target.isatty()
+
+    def writable(self) -> bool:
+        return True
+
+
+@contextlib.contextmanager
+def wrapped_output() -> Iterator[None]:
+    """Within: every line printed to stdout wrapped to :data:`WIDTH` columns (a terminal of 80-100)."""
+    stream = _Wrapping(sys.stdout)
+    with contextlib.redirect_stdout(stream):
+        try:
+            yield
+        finally:
+            stream.flush()
 
 
 def topics(args: argparse.Namespace):
@@ -140,43 +220,98 @@ def given_noise_models(args: argparse.Namespace, unit: UnitCalibration, kind: In
     return models
 
 
-def amount(value: float, unit: str) -> str:
-    """A residual or offset: counts to three decimals; SI to four digits beside the reader's unit (mg, deg/h, uT)."""
-    if unit == 'counts':
-        return f'{value:.3f} counts'
-    if unit == 'T':
-        return readable(value, unit, 4)
-    if unit in READABLE:
-        return f'{value:.4g} {unit} ({readable(value, unit)})'
-    return f'{value:.4g} {unit}'
+def reader_unit(unit: str) -> tuple[str, float] | None:
+    """The unit a person reads a sensor's small values in, and the factor from the data's unit.
+
+    Accelerometer errors in mg beside m/s^2, gyroscope biases and errors in deg/h beside rad/s;
+    ``None`` for the magnetometer (printed in uT, :func:`display_unit`) and for codes.
+    """
+    return {'m/s^2': ('mg', 1e3 / STANDARD_GRAVITY), 'rad/s': ('deg/h', DEG * 3600.0)}.get(unit)
 
 
-def in_si(value: float, unit: str) -> str:
-    """A counts residual in mm/s^2 beside it (nothing for a driver's SI units)."""
-    return f' ({value * 1000.0:.3f} mm/s^2)' if unit == 'counts' else ''
+def display_unit(unit: str) -> tuple[str, float]:
+    """The unit a sensor's values are printed in, and the factor from the data's unit (tesla -> uT)."""
+    return ('uT', 1e6) if unit == 'T' else (unit, 1.0)
+
+
+def significant(value: float, digits: int = 4, *, sign: bool = False) -> str:
+    """A value to ``digits`` significant figures: ``0.000397``, ``1.64e-05``, ``1003`` (not ``1e+03``)."""
+    value = float(value) + 0.0  # no -0
+    plus = '+' if sign else ''
+    if math.isfinite(value) and 10.0 ** digits <= abs(value) < 1e15:
+        return f'{value:{plus}.0f}'
+    return f'{value:{plus}.{digits}g}'
+
+
+def numbers(values, digits: int = 4, *, sign: bool = False) -> str:
+    """Values to ``digits`` significant figures (:func:`significant`), space-separated."""
+    return ' '.join(significant(v, digits, sign=sign) for v in np.atleast_1d(values))
+
+
+def amount(value, unit: str, digits: int = 4) -> str:
+    """One value or a triple in a sensor's unit, with the unit a person reads beside it.
+
+    ``0.001756 rad/s (362 deg/h)``, ``0.00397 0.00401 0.00495 m/s^2 (0.405 0.409 0.505 mg)``,
+    ``0.1954 uT`` (a magnetometer's tesla printed in uT), ``1.521 counts``.
+    """
+    shown, factor = display_unit(unit)
+    values = np.atleast_1d(np.asarray(value, dtype=float)) * factor
+    text = f'{numbers(values, digits)} {shown}'
+    reader = reader_unit(unit)
+    if reader is not None:
+        text += f' ({numbers(values * reader[1], 3)} {reader[0]})'
+    return text
+
+
+def in_si(value, unit: str) -> str:
+    """A counts residual (already divided by the scale, so in m/s^2) in mg beside it; nothing for SI units."""
+    if unit != 'counts':
+        return ''
+    return f' ({numbers(np.asarray(value, dtype=float) * 1e3 / STANDARD_GRAVITY, 3)} mg)'
+
+
+def walk_unit(unit: str) -> str:
+    """The unit of a random walk (``K``, Allan variance ``K^2 tau / 3``) of a sensor in ``unit``: one spelling each."""
+    from tak_thermo_ros.core.values import random_walk_unit
+    return random_walk_unit(display_unit(unit)[0])
 
 
 def effect_unit(unit: str, sensor_unit: str) -> str:
     """An effect parameter's unit for the sensor's input: the library states it for codes.
 
-    With a driver's input, counts are the sensor's unit (m/s^2 or rad/s), its input is in the
-    same unit, and the temperature code is the temperature in degrees C.
+    With a driver's input, counts are the sensor's unit (m/s^2, rad/s, or uT for a magnetometer's
+    tesla), its input is in the same unit, and the temperature code is the temperature in degrees C.
     """
     if sensor_unit == 'counts':
         return unit
+    sensor_unit = display_unit(sensor_unit)[0]
     unit = re.sub(r'\bm/s\^2\b', '@', unit)
     unit = re.sub(r'\bcodes?\b', 'C', unit)
     return unit.replace('counts', sensor_unit).replace('@', sensor_unit)
 
 
 def print_effects(calibration, result, unit_name: str) -> None:
-    """One line per fitted effect: its parameters with their standard errors and units."""
+    """One line per fitted effect parameter: its value with its standard error and unit.
+
+    A parameter in the sensor's unit (an amplitude, a slope per degree) is printed as the sensor
+    is: a magnetometer's in uT, with mg or deg/h beside m/s^2 or rad/s.
+    """
     errors = result.parameter_errors
+    shown_unit, factor = display_unit(unit_name)
+    reader = reader_unit(unit_name)
     for effect in calibration.effects:
-        shown = ', '.join(f'{p.name} {p.value:.4g}' + (f' +- {errors[effect.name + "." + p.name]:.2g}'
-                                                       if effect.name + '.' + p.name in errors else '')
-                          + (f' {effect_unit(p.unit, unit_name)}' if p.unit else '') for p in effect.parameters)
-        print(f'  effect {effect.name}: {shown}')
+        for p in effect.parameters:
+            unit = effect_unit(p.unit, unit_name) if p.unit else ''
+            in_sensor_unit = unit_name != 'counts' and 'counts' in (p.unit or '')
+            scale = factor if in_sensor_unit else 1.0
+            error = errors.get(f'{effect.name}.{p.name}')
+            text = f'{p.value * scale:.4g}' + (f' +- {error * scale:.2g}' if error is not None else '')
+            text += f' {unit}' if unit else ''
+            if in_sensor_unit and reader is not None:
+                rest = unit[len(shown_unit):] if unit.startswith(shown_unit) else ''
+                spread = f' +- {error * scale * reader[1]:.2g}' if error is not None else ''
+                text += f' ({p.value * scale * reader[1]:.3g}{spread} {reader[0]}{rest})'
+            print(f'  effect {effect.name}: {p.name} {text}')
 
 
 def in_driver_words(text: str) -> str:
@@ -313,3 +448,36 @@ def noise_slope_line(fit) -> str:
         return ' '.join(f'{f / l:.2g}' if l > 0.0 and math.isfinite(l) else '-' for f, l in zip(fitted, lines))
     return (f'fit / IEEE 952 slope line: white {ratios("white_noise_density")}, '
             f'walk {ratios("random_walk")} (x y z)')
+
+
+def noise_lines(model, unit: str) -> list[str]:
+    """A noise model, one term per line, x y z, in SI and in the units of a data sheet.
+
+    White noise density (deg/sqrt(h); ug/sqrt(Hz)), bias instability (deg/h; mg) and the averaging
+    time of its floor, random walk (deg/h/sqrt(h); mg/sqrt(h)); quantisation and ramp when present.
+    ``unit``: the sensor's data unit (``rad/s``, ``m/s^2``; ``counts`` for a counts calibration,
+    whose corrected output is m/s^2).
+    """
+    unit = 'm/s^2' if unit == 'counts' else unit
+    shown, factor = display_unit(unit)
+    g = STANDARD_GRAVITY
+    white, bias = np.asarray(model.white_noise_density) * factor, np.asarray(model.bias_instability) * factor
+    walk, taus = np.asarray(model.random_walk) * factor, np.asarray(model.bias_instability_tau)
+    reader = {'rad/s': (('deg/sqrt(h)', DEG * 60.0), ('deg/h', DEG * 3600.0), ('deg/h/sqrt(h)', DEG * 3600.0 * 60.0)),
+              'm/s^2': (('ug/sqrt(Hz)', 1e6 / g), ('mg', 1e3 / g), ('mg/sqrt(h)', 1e3 / g * 60.0))}.get(unit)
+
+    def beside(values, which: int) -> str:
+        return f' ({numbers(values * reader[which][1], 3)} {reader[which][0]})' if reader else ''
+    floor = ' '.join(significant(tau, 3) if math.isfinite(tau) else 'inf' for tau in taus)
+    lines = [f'  white noise density  {numbers(white, 3)} {shown}/sqrt(Hz){beside(white, 0)}',
+             f'  bias instability     {numbers(bias, 3)} {shown}{beside(bias, 1)}',
+             f'  its floor at         {floor} s' + (' (inf: still falling at the longest averaging time)'
+                                                    if not np.all(np.isfinite(taus)) else ''),
+             f'  random walk          {numbers(walk, 3)} {walk_unit(unit)}{beside(walk, 2)}']
+    integrated = {'rad/s': 'rad', 'm/s^2': 'm/s'}.get(unit, f'{shown}*s')
+    ramp = {'rad/s': 'rad/s^2', 'm/s^2': 'm/s^3'}.get(unit, f'{shown}/s')
+    for name, term_unit in (('quantization', integrated), ('rate_ramp', ramp)):
+        values = np.asarray(getattr(model, name)) * factor
+        if np.any(values > 0.0):
+            lines.append(f'  {name.replace("_", " "):<20} {numbers(values, 3)} {term_unit}')
+    return lines

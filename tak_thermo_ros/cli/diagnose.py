@@ -23,7 +23,7 @@ from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.core.records.record import require_signals
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.streaming import DIAGNOSE_MAX_SAMPLES
-from tak_thermo_ros.units import in_reader_unit, reader_unit, significant
+from tak_thermo_ros.core.diagnose.yardstick import tau_text
 import numpy as np
 import sys
 
@@ -81,7 +81,8 @@ def run(args: argparse.Namespace) -> int:
                       gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
                       max_samples=args.max_samples)
     _add_magnetometer(args, unit, run)
-    verbose = not args.no_progress and sys.stderr.isatty()
+    progress_shown = not args.no_progress and sys.stderr.isatty()
+    verbose = bool(getattr(args, 'verbose', False))
     candidates = expand_candidates(args.candidates) if args.candidates else None
     for line in run.reference_lines:
         print(line)
@@ -97,10 +98,11 @@ def run(args: argparse.Namespace) -> int:
         samples = require_signals(samples, [*Corrector(unit.sensor(sensor)).signals, *tried])
         used[sensor] = samples
         unit_name = common.UNITS[run.input_kind, sensor]
+        shown_unit, scale = common.display_unit(unit_name)
         label = '' if run.input_kind is InputKind.COUNTS else f'{common.SENSOR_NAMES[sensor]}: '
 
         def progress(text: str, label: str = label) -> None:
-            if verbose:
+            if progress_shown:
                 print(f'{label}cross-validating {text} ...', file=sys.stderr)
 
         noise = noise_models.get(sensor)
@@ -111,45 +113,40 @@ def run(args: argparse.Namespace) -> int:
             from tak_thermo_ros.core.noise.residual import model_from_residual
             noise = model_from_residual(residual_counts(unit.sensor(sensor), samples), samples.stamp_ns)
         result = diagnose(unit.sensor(sensor), samples, candidates=candidates, folds=args.folds, progress=progress,
-                          noise=noise)
+                          noise=noise, unit=shown_unit, unit_scale=scale)
         results[sensor] = result
         print(f'{label}diagnosed {len(samples)} samples of {args.bag} against {args.params} '
               f'(model: {result.ladder[0].label})')
-        print(_noise_line(noise, unit_name, result.averaging_time_s))
         if samples.dropped:
-            print(f'left out: {common.describe_dropped(samples.dropped)}')
+            print(f'  left out: {common.describe_dropped(samples.dropped)}')
         common.print_ignored(samples, args, run.input_kind)
-        shown = reader_unit(unit_name)
-
-        def value(number: float) -> str:
-            return significant(in_reader_unit(number, unit_name), 4)
-        for name, axis in zip(AXES, result.axes):
-            if result.averaging_time_s:
-                print(f'  {name}: residual RMS {value(axis.rms)} {shown}, white floor {value(axis.white_floor)}; '
-                      f'held-out {result.averaging_time_s:.3g} s means {value(axis.heldout_rms)} '
-                      f'({axis.heldout_rms / axis.noise_floor:.2f}x the noise model\'s {value(axis.noise_floor)})')
-            else:
-                print(f'  {name}: residual RMS {value(axis.rms)} {shown}, noise floor {value(axis.noise_floor)}; '
-                      f'held-out {value(axis.heldout_rms)} ({axis.heldout_rms / axis.noise_floor:.2f}x the floor)')
+        for line in _noise_lines(noise, unit_name, result.averaging_time_s, verbose):
+            print(line)
+        _print_axes(result, unit_name)
         if result.allan:
             check = result.allan[-1][1]
-            print(f'  against the noise model, {"after the ladder" if len(result.allan) > 1 else "the residual"}: '
-                  f'{check.describe()} ({"inside" if check.consistent else "beyond"} '
-                  f'the bound {check.worst_bound():.2f}x)'
-                  if len(check.taus) else '  Allan deviation: the run is too short to estimate it')
+            which = ' after the ladder' if len(result.allan) > 1 else ''
+            if len(check.taus):
+                tau, axis, ratio = check.worst()
+                print(f'  residual\'s Allan deviation{which}: at most {ratio:.3g}x the noise model, at tau '
+                      f'{tau_text(tau)} on {AXES[axis]}')
+                print(f'  {"inside" if check.consistent else "BEYOND"} the bound of {check.worst_bound():.3g}x there '
+                      f'(what the noise model\'s own scatter allows)')
+            else:
+                print('  Allan deviation: the run is too short to estimate it')
         if result.candidates:
-            print(f'candidates, best first (held-out RMS x y z in {shown}; '
-                  f'share of the excess over the floor removed):')
+            print(f'candidates, best first: held-out RMS x y z in {shown_unit}, share of the excess removed')
             for candidate in result.candidates:
-                rms = ' '.join(f'{value(v):>8}' for v in candidate.rms_after)
+                rms = ' '.join(f'{v * scale:9.4g}' for v in candidate.rms_after)
                 print(f'  {candidate.effect:<20} {rms}  {round(100.0 * candidate.explained):5d}%')
         for name, reason in result.skipped.items():
             print(f'  {name:<20} not tried: {reason}')
         if len(result.ladder) > 1:
-            print(f'model ladder (held-out RMS x y z, {shown}): ' + '; '.join(
-                f'{step.label}: {" ".join(value(v) for v in step.heldout_rms)}' for step in result.ladder))
+            print(f'model ladder: held-out RMS x y z in {shown_unit}')
+            for step in result.ladder:
+                print(f'  {step.label:<28} {" ".join(f"{v * scale:.4g}" for v in step.heldout_rms)}')
         print(f'{label}verdict: {result.verdict}')
-        print(common.in_driver_words(result.message) if run.input_kind is InputKind.IMU else result.message)
+        _print_statements(result, run.input_kind, verbose)
         walk = _walk_line(result, sensor, run.input_kind)
         if walk:
             print(walk)
@@ -187,7 +184,7 @@ def run(args: argparse.Namespace) -> int:
             print('wrote ' + ', '.join(str(path) for path in paths))
         else:
             def design_progress(text: str) -> None:
-                if verbose:
+                if progress_shown:
                     print(f'design: {text} ...', file=sys.stderr)
 
             imu_results = {sensor: result for sensor, result in results.items() if sensor != 'mag'}
@@ -224,9 +221,11 @@ def run(args: argparse.Namespace) -> int:
 def _walk_line(result, sensor: str, kind: InputKind) -> str:
     """The rate random walk that would explain an excess over a short-term model, in a gyro's units."""
     from tak_thermo_ros.core.noise.residual import RESIDUAL_LONGEST_TAU_S
-    check = result.allan[0][1] if result.allan else None
-    if (result.verdict != 'unexplained' or check is None or check.source != 'residual' or check.consistent
-            or sensor != 'gyro' or kind is not InputKind.IMU):
+    if not result.allan:
+        return ''
+    # The check the message speaks of: the calibration as given when no effect is named, else the ladder's.
+    check = result.allan[0][1] if result.verdict in ('none', 'unexplained') else result.allan[-1][1]
+    if check.source != 'residual' or check.consistent or sensor != 'gyro' or kind is not InputKind.IMU:
         return ''
     walk = check.walk_to_explain(RESIDUAL_LONGEST_TAU_S) * np.degrees(1.0) * 3600.0 * 60.0
     return f'  that rate random walk in deg/h/sqrt(h): {" ".join(f"{value:.3g}" for value in walk)} (x y z)'
@@ -252,22 +251,50 @@ def _add_magnetometer(args: argparse.Namespace, unit: UnitCalibration, run) -> N
     run.usable['mag'] = usable
 
 
-def _noise_line(noise, unit: str, averaging_s: float) -> str:
-    """One line: the noise model per axis and where it comes from."""
+def _noise_lines(noise, unit: str, averaging_s: float, verbose: bool) -> list[str]:
+    """Where the noise model comes from, one line; its terms per axis with ``--verbose`` (the JSON holds them)."""
     if noise is None:
-        return '  noise model: none (the run is too short for an Allan fit): judged against the white floor'
-
-    def triple(values) -> str:
-        return ' '.join(f'{float(v):.3g}' for v in values)
-    said = {'file': 'from the file', 'static_run': 'from the static run',
-            'residual': "fitted to this run's own residual up to 30 s (no --noise or --noise-run: "
-                        "the verdict uses the white floor, then the Allan deviation beyond 30 s)"}
-    text = (f'  noise model {said[noise.source]}: white {triple(noise.white_noise_density)} {unit}/sqrt(Hz), '
-            f'bias instability {triple(noise.bias_instability)} {unit}, random walk {triple(noise.random_walk)} '
-            f'{unit}*sqrt(Hz) (x y z)')
+        return ['  noise model: none (the run is too short for an Allan fit): judged against the white floor']
+    said = {'file': 'from the file given', 'static_run': 'from the static run given',
+            'residual': "fitted to this run's own residual up to 30 s (no --noise, no --noise-run)"}
+    lines = [f'  noise model {said.get(noise.source, noise.source)}']
+    if noise.source == 'residual':
+        lines.append('  the verdict uses the white floor, then the Allan deviation beyond 30 s')
     if averaging_s:
-        text += f'; judged on held-out {averaging_s:.3g} s means'
-    return text
+        lines.append(f'  judged on held-out {averaging_s:.3g} s means')
+    if verbose:
+        lines += ['  noise model, per axis x y z:', *(f'  {line}' for line in common.noise_lines(noise, unit))]
+    return lines
+
+
+def _print_axes(result, unit: str) -> None:
+    """The residual per axis against the floor, one quantity per line (x y z)."""
+    axes = result.axes
+    ratios = ' '.join(f'{a.heldout_rms / a.noise_floor:.2f}x' for a in axes)
+    print(f'  residual RMS x y z  {common.amount([a.rms for a in axes], unit)}')
+    if result.averaging_time_s:
+        means = f'{result.averaging_time_s:.3g} s means'
+        print(f'  white floor         {common.amount([a.white_floor for a in axes], unit)}')
+        print(f'  RMS of held-out {means}:')
+        print(f'    the noise model   {common.amount([a.noise_floor for a in axes], unit)}')
+        print(f'    measured          {common.amount([a.heldout_rms for a in axes], unit)}')
+        print(f'  held-out / model    {ratios}')
+    else:
+        print(f'  noise floor         {common.amount([a.noise_floor for a in axes], unit)}')
+        print(f'  held-out RMS        {common.amount([a.heldout_rms for a in axes], unit)}')
+        print(f'  held-out / floor    {ratios}')
+
+
+def _print_statements(result, kind: InputKind, verbose: bool) -> None:
+    """The verdict's message, one statement a line (wrapped), the details with ``--verbose`` only."""
+    statements = result.statements
+    texts = ([statement.text for statement in statements if verbose or not statement.detail] if statements
+             else [result.message])
+    for text in texts:
+        print('  ' + (common.in_driver_words(text) if kind is InputKind.IMU else text))
+    hidden = sum(1 for statement in statements if statement.detail) if not verbose else 0
+    if hidden:
+        print(f'  ({hidden} more in --verbose and the JSON: the physics behind it, what to do next)')
 
 
 @dataclass(frozen=True)

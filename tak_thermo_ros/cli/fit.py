@@ -15,6 +15,7 @@ from tak_thermo_ros.formats.files import FILE
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import TakError
 from tak_thermo_ros.streaming import EFFECT_FIT_MAX_SAMPLES
+import numpy as np
 
 NAME = 'fit'
 OUTPUTS = (('output', FILE, '-o'),)
@@ -131,29 +132,20 @@ def run(args: argparse.Namespace) -> int:
                   f'(about {fitted.usable[sensor] // stride} of {fitted.usable[sensor]}); '
                   f'amplitudes and the paper\'s link fitted on all of them')
         if kind is InputKind.COUNTS:
-            print(f'calibrated temperature-code range {calibration.temp_code_min:g}..{calibration.temp_code_max:g}, '
-                  f'reference {calibration.temp_code_ref:g}')
+            print(f'calibrated temperature-code range {calibration.temp_code_min:.0f}..'
+                  f'{calibration.temp_code_max:.0f}, reference {calibration.temp_code_ref:.0f}')
         elif sensor == 'accel':
-            print(f'calibrated temperature range {calibration.temp_code_min:g}..{calibration.temp_code_max:g} C, '
-                  f'reference {calibration.temp_code_ref:g} C')
-        if prefix:
-            print(prefix.rstrip())
-        for name, axis, stats in zip(AXES, calibration.axes, result.axes):
-            print(f'  {name}: residual RMS {common.amount(stats.residual_rms, unit_name)}'
-                  f'{common.in_si(stats.residual_rms / axis.scale, unit_name)}; '
-                  f'scale {axis.scale:.6g}{" counts/(m/s^2)" if unit_name == "counts" else ""}'
-                  f'{"" if axis.scale_observable else " (held)"}, '
-                  f'offset {common.amount(axis.offset, unit_name)}, '
-                  f'offset span {common.amount(axis.offset_span, unit_name)}')
+            print(f'calibrated temperature range {calibration.temp_code_min:.2f}..{calibration.temp_code_max:.2f} C, '
+                  f'reference {calibration.temp_code_ref:.3g} C')
+        print_axes(common.SENSOR_NAMES[sensor], calibration, [stats.residual_rms for stats in result.axes], unit_name)
         common.print_effects(calibration, result, unit_name)
         for note in calibration.notes:
             print(f'note: {prefix}{note}')
         noise = unit.sensor(sensor).noise
         if noise is not None:
-            print(f'  noise ({noise.source}):')
-            for i, name in enumerate(AXES):
-                for line in common.noise_axis_lines(sensor, noise, i, unit_name):
-                    print(f'  {name}: {line}')
+            print(f'  noise model ({common.SOURCE_WORDS[noise.source]}), per axis x y z:')
+            for line in common.noise_lines(noise, unit_name):
+                print(f'  {line}')
     if noise_line:
         print(f'{noise_line} (written with the calibration: the node\'s Imu covariances come from it)')
     if magnetometer is not None:
@@ -224,18 +216,36 @@ def _print_magnetometer(fitted, args: argparse.Namespace) -> None:
         print(line)
     if thermal.dropped:
         print(f'magnetometer: left out: {common.describe_dropped(thermal.dropped)}')
-    print(f'magnetometer ({common.topics(args).mag}), {thermal.samples} samples:')
-    for name, axis, stats in zip(AXES, link.axes, thermal.axes):
-        print(f'  {name}: residual RMS {common.amount(stats.residual_rms, "T")}; scale {axis.scale:.6g}'
-              f'{"" if axis.scale_observable else " (held)"}, offset {common.amount(axis.offset, "T")}, '
-              f'offset span {common.amount(axis.offset_span, "T")}')
+    print(f'magnetometer: {thermal.samples} samples on {common.topics(args).mag}')
+    print_axes('magnetometer', link, [stats.residual_rms for stats in thermal.axes], 'T')
     common.print_effects(link, thermal, 'T')
     iron = fitted.iron
     mag = fitted.calibration
     if iron is not None:
         rows = '; '.join(' '.join(f'{v:.4f}' for v in mag.soft_iron[3 * i:3 * i + 3]) for i in range(3))
-        print(f'  hard iron {" ".join(f"{v * 1e6:+.3f}" for v in mag.hard_iron)} uT; soft iron [{rows}]')
-        print(f'  ellipsoid: radius {iron.radius * 1e6:.3f} uT, residual RMS {iron.residual_rms * 1e6:.3f} uT, '
-              f'{iron.sections} of 20 sections, spread {iron.spread:.2f}')
+        print(f'  hard iron x y z {" ".join(f"{v * 1e6:+.3f}" for v in mag.hard_iron)} uT')
+        print(f'  soft iron [{rows}]')
+        print(f'  ellipsoid: radius {iron.radius * 1e6:.3f} uT, residual RMS {iron.residual_rms * 1e6:.3f} uT')
+        print(f'  ellipsoid: {iron.sections} of 20 sections of the sphere covered, spread {iron.spread:.2f}')
     for note in link.notes:
         print(f'note: magnetometer: {note}')
+
+
+def print_axes(sensor: str, calibration, residual_rms, unit: str) -> None:
+    """A sensor's fitted link, one quantity per line, x y z: residual, scale, offset, offset span.
+
+    In the sensor's unit with the one a person reads beside it (mg, deg/h; the magnetometer in uT;
+    codes with mg beside), significant figures.
+    """
+    axes = calibration.axes
+    scales = np.array([axis.scale for axis in axes])
+    held = [name for name, axis in zip(AXES, axes) if not axis.scale_observable]
+    per = ' counts/(m/s^2)' if unit == 'counts' else ''
+    at = (f'at N_t,ref {calibration.temp_code_ref:.0f}' if unit == 'counts'
+          else f'at {calibration.temp_code_ref:.3g} C')
+    print(f'{sensor}, per axis x y z:')
+    print(f'  residual RMS  {common.amount(residual_rms, unit)}{common.in_si(np.asarray(residual_rms) / scales, unit)}')
+    print(f'  scale         {common.numbers(scales, 6)}{per}'
+          + (f' (held on {" ".join(held)}: see the note)' if held else ''))
+    print(f'  offset        {common.amount([axis.offset for axis in axes], unit)} {at}')
+    print(f'  offset span   {common.amount([axis.offset_span for axis in axes], unit)} over the calibrated range')

@@ -103,26 +103,29 @@ def run(args: argparse.Namespace) -> int:
         x, y, z = (float(v) for v in log.reference)
         if log.reference_estimated and log.max_tilt_deg > STATIC_TOLERANCE_DEG:
             print(f'no reference topic written; the board moves (up to {log.max_tilt_deg:.0f} deg from its mean '
-                  f'direction)')
+                  f'direction): fit decides what it determines')
         elif log.reference_estimated:
-            print(f'no reference topic written: fit takes the run as static (mean direction scaled to gravity, '
-                  f'here ({x:.4f}, {y:.4f}, {z:.4f}) m/s^2, largest deviation {log.max_tilt_deg:.2f} deg; rate zero)')
+            print('no reference topic written: fit takes the run as static, with zero rate and the mean direction '
+                  'scaled to gravity')
+            print(f'that reference here: ({x:.4f}, {y:.4f}, {z:.4f}) m/s^2; the board\'s largest deviation from it '
+                  f'{log.max_tilt_deg:.2f} deg')
         else:
             print(f'reference (given): ({x:.4f}, {y:.4f}, {z:.4f}) m/s^2 on {topics.reference}, written once')
         print(f'wrote {args.output} ({args.storage})')
         return 0
     print(f'acceleration {" ".join(options.acc_columns)} in {options.acc_unit}: counts = round(a / '
-          f'{options.acc_resolution:g} m/s^2), {record.counts.min():.0f}..{record.counts.max():.0f}; '
-          f'nominal scale {options.nominal_scale:g} counts/(m/s^2) (bag metadata)')
+          f'{options.acc_resolution:g} m/s^2), {record.counts.min():.0f}..{record.counts.max():.0f}')
+    print(f'nominal scale {options.nominal_scale:g} counts/(m/s^2), in the bag\'s metadata')
     print(f'temperature {options.temp_column}: {log.temperature.min():.2f}..{log.temperature.max():.2f} C, '
           f'codes = round(T / {options.temp_resolution:g} C) = '
           f'{record.temp_code.min():.0f}..{record.temp_code.max():.0f}')
     x, y, z = (float(v) for v in log.reference)
     if log.reference_estimated:
         dx, dy, dz = (float(v) for v in log.mean_direction)
-        print(f'reference (static run): mean measured direction ({dx:.5f}, {dy:.5f}, {dz:.5f}) scaled to gravity '
-              f'{options.gravity:g} m/s^2 = ({x:.4f}, {y:.4f}, {z:.4f}) m/s^2 in the sensor frame '
-              f'(largest deviation {log.max_tilt_deg:.2f} deg), written once at the start')
+        print(f'reference (static run): mean measured direction ({dx:.5f}, {dy:.5f}, {dz:.5f}), written once')
+        print(f'reference: that direction scaled to gravity {options.gravity:g} m/s^2 = '
+              f'({x:.4f}, {y:.4f}, {z:.4f}) m/s^2')
+        print(f'the board\'s largest deviation from that direction: {log.max_tilt_deg:.2f} deg')
     else:
         print(f'reference (given): ({x:.4f}, {y:.4f}, {z:.4f}) m/s^2 in the sensor frame, written once at the start')
     print(f'wrote {args.output} ({args.storage})')
@@ -130,19 +133,20 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _print_driver(log, options, topics) -> None:
-    """What a driver bag holds: the Imu, the temperature (or none), the magnetometer."""
+    """What a driver bag holds: the Imu, the temperature (or none), the magnetometer; one statement a line."""
     rate = log.driver.gyro
-    print(f'driver bag: acceleration {" ".join(options.acc_columns)} in {options.acc_unit} and angular rate '
-          f'{" ".join(options.gyro_columns)} in {options.gyro_unit} written as {topics.raw_imu} (m/s^2, rad/s: '
-          f'{rate.min():.4g}..{rate.max():.4g} rad/s)')
+    print(f'driver bag: {topics.raw_imu} (m/s^2, rad/s) from acceleration {" ".join(options.acc_columns)} in '
+          f'{options.acc_unit}')
+    print(f'driver bag: angular rate from {" ".join(options.gyro_columns)} in {options.gyro_unit}, '
+          f'{rate.min():.4g}..{rate.max():.4g} rad/s')
     if not len(log.temperature):
         print(f'no temperature column: no {topics.temperature} (noise and the iron need none)')
     elif float(log.temperature.max() - log.temperature.min()) == 0.0:
-        print(f'temperature {options.temp_column} as {topics.temperature}: constant at '
+        print(f'driver bag: {topics.temperature} from {options.temp_column}, constant at '
               f'{log.temperature[0]:.2f} C (no sweep)')
     else:
-        print(f'temperature {options.temp_column} as {topics.temperature} in degrees C '
-              f'({log.temperature.min():.2f}..{log.temperature.max():.2f})')
+        print(f'driver bag: {topics.temperature} from {options.temp_column} in degrees C, '
+              f'{log.temperature.min():.2f}..{log.temperature.max():.2f} C')
     if options.mag_columns:
         field = np.linalg.norm(log.driver.mag, axis=1) * 1e6
         print(f'magnetic field {" ".join(options.mag_columns)} in {options.mag_unit} as {topics.mag} in tesla '

@@ -5,8 +5,9 @@ from __future__ import annotations
 import argparse
 
 from tak_thermo_ros.cli import common, options
-from tak_thermo_ros.core.link.correction import OutOfRange
 from tak_thermo_ros.core.link.model import AXES
+from tak_thermo_ros.core.diagnose.yardstick import tau_text
+from tak_thermo_ros.core.link.correction import OutOfRange
 from tak_thermo_ros.formats.calibration_file import load_unit
 from tak_thermo_ros.formats.files import FILE
 from tak_thermo_ros.formats.files import write_text_atomic
@@ -49,14 +50,17 @@ def run(args: argparse.Namespace) -> int:
             'the measured output minus the reference, NOT compensated (no --params)')
     print(f'noise of {args.bag}: {what}')
     if not run.compensated:
-        print('without --params, thermal drift counts as bias wander here')
+        print('not compensated: any thermal drift in the run counts as bias wander here')
     document: dict[str, object] = {'bag': str(args.bag), 'params': args.params, 'compensated': run.compensated,
                                    'sensors': {}}
     for sensor, noise in run.sensors.items():
         allan, model = noise.allan, noise.model
         unit_name = 'm/s^2' if sensor == 'accel' else 'rad/s'
-        print(f'{common.SENSOR_NAMES[sensor]}: {allan.samples} samples at {allan.rate:.6g} Hz, averaging times '
-              f'{allan.taus[0]:.3g} to {allan.taus[-1]:.4g} s, source {model.source}')
+        print(f'{common.SENSOR_NAMES[sensor]}: {allan.samples} samples at {allan.rate:.3g} Hz, averaging times '
+              f'{tau_text(allan.taus[0])} to {tau_text(allan.taus[-1])}')
+        print(f'  source {model.source}: {common.SOURCE_WORDS[model.source]}{noise.span_words}')
+        if model.source == 'residual':
+            print('  what no thermal model removes of its drift counts as noise here')
         if noise.dropped:
             print(f'  left out: {common.describe_dropped(noise.dropped)}')
         if noise.gaps:

@@ -137,7 +137,7 @@ latitude = float_within(-90.0, 90.0, "degrees")
 # The options several commands share: each command's module adds its own and calls these.
 
 def add_topic_options(parser: argparse.ArgumentParser, *, imu: bool = False) -> None:
-    """The bag's topics, ``--no-progress``, ``--force`` and ``--debug`` (every command that reads a bag)."""
+    """The bag's topics, ``--no-progress``, ``--force``, ``--verbose``, ``--debug`` (every command reading a bag)."""
     group = parser.add_argument_group('topics (the input kind is taken from the bag: counts topic or driver Imu)')
     group.add_argument('--counts-topic', default='/tak/counts', help='channel codes (Vector3Stamped)')
     group.add_argument('--raw-imu-topic', default='/imu/data_raw', help="a driver's Imu (default /imu/data_raw)")
@@ -159,6 +159,8 @@ def add_topic_options(parser: argparse.ArgumentParser, *, imu: bool = False) -> 
     parser.add_argument('--force', action='store_true',
                         help='replace an existing output (a regular file, a bag or a report directory; '
                              'nothing else is ever replaced)')
+    parser.add_argument('-v', '--verbose', action='store_true', default=argparse.SUPPRESS,
+                        help='print the detail too (the physics behind a verdict, ...); the JSON holds it all')
     parser.add_argument('--debug', action='store_true', default=argparse.SUPPRESS,
                         help='show the traceback of an error')
 

@@ -35,7 +35,7 @@ def add_parser(commands) -> argparse.ArgumentParser:
                              "powered board (the scenario's powered: section)")
     parser.add_argument('--scenario', metavar='FILE.yaml',
                         help='scenario overrides, every key optional (README: The simulator)')
-    parser.add_argument('--seed', type=options.seed, help='random seed, 0 .. 2**63-1 (overrides the scenario)')
+    parser.add_argument('--seed', type=options.seed, help='random seed, 0 .. 2^63 - 1 (overrides the scenario)')
     parser.add_argument('--storage', choices=['mcap', 'sqlite3'], default='mcap')
     options.add_topic_options(parser)
     parser.set_defaults(handler=run)
@@ -64,21 +64,22 @@ def run(args: argparse.Namespace) -> int:
                  else scenario.duration_s()) / 3600.0
         span = (f'temperature {driver.temperature.min():.2f}..{driver.temperature.max():.2f} C'
                 if len(driver.temperature) else 'no temperature published')
-        print(f'wrote {args.out_bag}: {len(driver.stamp_ns)} Imu, {len(driver.temp_stamp_ns)} temperature, '
-              f'{len(driver.reference_stamp_ns)} reference changes, {hours:.2f} h at '
-              f'{scenario.sample_rate_hz:g} Hz ({args.storage}); {span}')
+        print(f'wrote {args.out_bag} ({args.storage}): {hours:.2f} h at {scenario.sample_rate_hz:g} Hz, {span}')
+        print(f'  {len(driver.stamp_ns)} Imu, {len(driver.temp_stamp_ns)} temperature and '
+              f'{len(driver.reference_stamp_ns)} reference messages')
         if len(driver.mag_stamp_ns):
             print(f'  magnetometer: {len(driver.mag_stamp_ns)} MagneticField on {common.topics(args).mag}'
                   f'{f" ({scenario.rotation} rotation record)" if scenario.rotation else ""}, '
-                  f'{len(driver.mag_reference_stamp_ns)} reference field changes')
+                  f'{len(driver.mag_reference_stamp_ns)} reference field messages')
         return 0
     write_record(args.out_bag, run.record, topics=common.topics(args), storage=args.storage, force=args.force,
                  aux_types=aux_types)
     record = run.record
-    print(f'wrote {args.out_bag}: {len(record.counts_stamp_ns)} counts, {len(record.temp_stamp_ns)} temperature codes, '
-          f'{len(record.reference_stamp_ns)} reference changes, {scenario.duration_s() / 3600.0:.2f} h '
-          f'at {scenario.sample_rate_hz:g} Hz ({args.storage}); temperature code '
+    print(f'wrote {args.out_bag} ({args.storage}): {scenario.duration_s() / 3600.0:.2f} h at '
+          f'{scenario.sample_rate_hz:g} Hz, temperature code '
           f'{record.temp_code.min():.0f}..{record.temp_code.max():.0f}')
+    print(f'  {len(record.counts_stamp_ns)} counts, {len(record.temp_stamp_ns)} temperature-code and '
+          f'{len(record.reference_stamp_ns)} reference messages')
     return 0
 
 

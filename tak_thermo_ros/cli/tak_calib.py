@@ -17,7 +17,8 @@ import sys
 import traceback
 from typing import Callable, Sequence
 
-from tak_thermo_ros.cli import apply, carrier, diagnose, export, fit, fit_fleet, import_csv, noise, simulate, validate
+from tak_thermo_ros.cli import (apply, carrier, common, diagnose, export, fit, fit_fleet, import_csv, noise, play,
+                                simulate, validate)
 from tak_thermo_ros.formats.files import check_output
 from tak_thermo_ros.errors import TakError
 
@@ -25,7 +26,7 @@ EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
 EXIT_TERMINATED = 143
 
-COMMANDS = (simulate, fit, apply, validate, import_csv, diagnose, noise, export)
+COMMANDS = (simulate, fit, apply, validate, import_csv, diagnose, noise, export, play)
 """The commands with a module of their own, in the order ``tak_calib --help`` lists them."""
 
 OUTPUTS: dict[str, tuple[tuple[str, object, str], ...]] = {
@@ -46,6 +47,8 @@ def build_parser() -> argparse.ArgumentParser:
     """The ``tak_calib`` argument parser."""
     parser = _Parser(prog='tak_calib', description=__doc__.splitlines()[0].strip('`').replace('``', ''))
     parser.add_argument('--debug', action='store_true', help='show the traceback of an error')
+    parser.add_argument('-v', '--verbose', action='store_true',
+                        help='print the detail too (the physics behind a verdict, ...)')
     commands = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
     parsers = {command.NAME: command.add_parser(commands) for command in COMMANDS}
     fit_fleet.add_parser(commands, parsers[fit.NAME], main)
@@ -89,7 +92,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         previous = None
     try:
         _check_outputs(args)
-        return handler(args)
+        with common.wrapped_output():
+            return handler(args)
     except TakError as err:
         _report(str(err), err, debug)
         return EXIT_ERROR

@@ -13,8 +13,8 @@ from tak_thermo_ros.formats.files import FILE
 from tak_thermo_ros.formats.files import write_text_atomic
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import TakError
-from tak_thermo_ros.units import in_reader_unit, readables
 import numpy as np
+from dataclasses import replace
 
 NAME = 'validate'
 OUTPUTS = (('json', FILE, '--json'),)
@@ -88,29 +88,28 @@ def _validate_imu(args: argparse.Namespace, unit: UnitCalibration, run, document
     if run.accel_dropped:
         print(f'left out: {common.describe_dropped(run.accel_dropped)}')
     print(f'|g| error over {result.samples} samples of {args.bag} (gravity {args.gravity:g} m/s^2):')
-    print(f'  before (nominal scale and offset): RMS {before.rms:.5f} m/s^2 '
-          f'({before.rms / args.gravity * 1e3:.3f} mg), '
-          f'max {before.max:.5f} m/s^2')
-    print(f'  after  (full correction link):     RMS {after.rms:.5f} m/s^2 ({after.rms / args.gravity * 1e3:.3f} mg), '
-          f'max {after.max:.5f} m/s^2')
+    for label, stats in (('before', before), ('after ', after)):
+        print(f'  {label} correction: RMS {common.amount(stats.rms, "m/s^2")}, max {common.amount(stats.max, "m/s^2")}')
+    print(f'  before: {_before_words(run.input_kind, unit, args.params)}')
     if result.out_of_range:
         print(f'warning: {result.out_of_range} samples outside the calibrated temperature range ({args.out_of_range})')
     # The corrected output is in SI units whatever the input kind: a file's model as it stands.
     given = common.given_noise_models(args, unit, InputKind.IMU, ('accel',) if unit.gyro is None else ('accel', 'gyro'))
     averaged = {'accel': _averaged_bias(result, given.get('accel'), 'accel', args.gravity)}
     document.update({'samples': result.samples, 'out_of_range': result.out_of_range,
-                     'before': before.as_dict(), 'after': after.as_dict()})
+                     'before': before.as_dict(), 'after': after.as_dict(),
+                     'before_is': 'as_recorded' if run.input_kind is InputKind.IMU else 'nominal'})
     if unit.gyro is not None and run.rate is not None:
         for line in run.reference_lines:
             if line.startswith('rate reference'):
                 print(line)
         rate = run.rate
         rate_before, rate_after = rate.before.rate_error(), rate.after.rate_error()
-        print(f'gyroscope bias error over {rate.samples} samples (rate minus reference, per axis x y z):')
-        for label, stats in (('before (nominal scale and offset):', rate_before),
-                             ('after  (full correction link):', rate_after)):
-            print(f'  {label:<35}RMS {readables(stats.rms, "rad/s")}; mean '
-                  + ' '.join(f'{in_reader_unit(v, "rad/s"):+.3g}' for v in stats.mean) + ' deg/h')
+        print(f'gyroscope error over {rate.samples} samples (rate minus reference), per axis x y z:')
+        for label, stats in (('before', rate_before), ('after ', rate_after)):
+            print(f'  {label} correction: RMS  {common.amount(stats.rms, "rad/s")}')
+            print(f'  {label} correction: mean {common.amount(stats.mean, "rad/s")}')
+        print(f'  before: {_before_words(run.input_kind, unit, args.params)}')
         document['gyro'] = {'samples': rate.samples, 'before': rate_before.as_dict(), 'after': rate_after.as_dict()}
         averaged['gyro'] = _averaged_bias(rate, given.get('gyro'), 'gyro', args.gravity)
     for sensor, found in averaged.items():
@@ -131,16 +130,19 @@ def _validate_magnetometer(args: argparse.Namespace, unit: UnitCalibration) -> d
     result = validate_mag(args.bag, unit.mag, options, out_of_range=OutOfRange(args.out_of_range))
     rotation = result.reference == 'rotation'
     if rotation:
-        print(f'magnetometer: a rotation record, {result.samples} samples: |B| about its mean (one in every '
-              f'orientation)')
+        print(f'magnetometer: a rotation record, {result.samples} samples: |B| about its mean')
         print('magnetometer: its direction is not checked (that takes a reference field)')
     else:
         against = ('about the run\'s mean field (static run)' if result.reference == 'static'
                    else f'against {result.reference}')
-        print(f'magnetometer field error over {result.samples} samples, {against} (per axis x y z, |B|):')
-    for label, values in (('before (raw field):', result.before), ('after  (thermal link and iron):', result.after)):
-        axes = '' if rotation else 'RMS ' + ' '.join(f'{v * 1e6:.3f}' for v in values[:3]) + ' uT; '
-        print(f'  {label:<35}{axes}|B| {values[3] * 1e6:.3f} uT')
+        print(f'magnetometer field error over {result.samples} samples, {against}:')
+    for label, values in (('before', result.before), ('after ', result.after)):
+        if rotation:
+            print(f'  {label} correction: |B| {values[3] * 1e6:.4g} uT')
+        else:
+            print(f'  {label} correction: RMS per axis x y z '
+                  f'{common.numbers(np.asarray(values[:3]) * 1e6)} uT, |B| {values[3] * 1e6:.4g} uT')
+    print('  before: the field as recorded; after: the thermal link, then the hard and soft iron')
     if result.out_of_range:
         print(f'warning: {result.out_of_range} magnetometer samples outside the calibrated temperature range '
               f'({args.out_of_range})')
@@ -149,20 +151,34 @@ def _validate_magnetometer(args: argparse.Namespace, unit: UnitCalibration) -> d
                     'before_magnitude_rms_t': result.before[3], 'after_magnitude_rms_t': result.after[3]}}
 
 
+def _before_words(kind: InputKind, unit: UnitCalibration, params: str) -> str:
+    """What *before* is: a driver's values as recorded; codes through the file's flat scale and offset."""
+    if kind is InputKind.IMU:
+        return "the driver's values as recorded (the same whatever calibration is given)"
+    return f"codes through {params}'s scale and offset at N_t,ref {unit.accel.temp_code_ref:.0f}, no temperature term"
+
+
 def _averaged_bias(check, noise, sensor: str, gravity: float) -> dict | None:
     """``validate``'s bias error of the corrected output averaged over 1, 60 and 600 s.
 
     In deg/h for the gyroscope per axis, mg for |g|, next to what the noise model predicts (its
-    Allan deviation).
+    Allan deviation). A given model's per-axis Allan variance is projected onto |g| by the mean
+    squares of the measured direction's components; without one, white noise and bias
+    instability are fitted to the error itself (the |g| error, whatever the orientations of the
+    run) up to 30 s: what its short-term noise alone predicts.
     """
     import math
-    rms = check.gravity_averaged.rms() if sensor == 'accel' else check.noise.averaged.rms()
-    windows = check.gravity_averaged.windows() if sensor == 'accel' else check.noise.averaged.windows()
-    source = 'given'
+    rms, windows = check.noise.averaged.rms(), check.noise.averaged.windows()
+    own = False
     if noise is None and check.noise.allan is not None:
         from tak_thermo_ros.core.noise.residual import short_term_model
+        allan = check.noise.allan.result()
+        if allan.axes == 1:  # the |g| error: fitted as three equal axes, read on the first
+            per_axis = ('avar', 'peak', 'peak_index')
+            allan = replace(allan, **{name: np.repeat(getattr(allan, name), 3, axis=1) for name in per_axis
+                                      if getattr(allan, name) is not None})
         try:
-            noise = short_term_model(check.noise.allan.result())
+            noise, own = short_term_model(allan), True
         except TakError:
             noise = None
     taus = np.array(sorted(rms))
@@ -170,27 +186,27 @@ def _averaged_bias(check, noise, sensor: str, gravity: float) -> dict | None:
     if noise is not None:
         avar = noise.allan_variance(taus)
         if sensor == 'accel':
-            direction = check.direction / max(float(np.linalg.norm(check.direction)), 1e-300)
-            predicted = np.sqrt(avar @ direction ** 2)[:, None]
+            predicted = np.sqrt(avar[:, :1] if own else avar @ check.direction_squares[:, None])
         else:
             predicted = np.sqrt(avar)
-        source = noise.source
     if sensor == 'gyro':
-        factor, unit, name = 180.0 / math.pi * 3600.0, 'deg/h', 'gyroscope bias error (x y z)'
+        factor, unit, name = 180.0 / math.pi * 3600.0, 'deg/h', 'gyroscope bias error x y z'
     else:
         factor, unit, name = 1000.0 / gravity, 'mg', '|g| error'
-    said = {'file': 'the noise model from the file', 'static_run': 'the noise model from the static run',
-            'residual': "white noise and bias instability fitted to this run's corrected output up to 30 s"}
-    lines = [f'{name} of the corrected output averaged over 1 s, 60 s, 600 s, RMS of the averages in {unit}'
-             + (f' (next to what {said[source]} predicts, its Allan deviation):' if predicted is not None else ':')]
+    lines = [f"{name}: RMS of the corrected output's means over 1 s, 60 s and 600 s, in {unit}:"]
+    if predicted is not None:
+        words = ('white noise and bias instability fitted to it up to 30 s' if own
+                 else f'the one given, {common.SOURCE_WORDS[noise.source]}')
+        lines.append(f'  noise model (its Allan deviation): {words}')
     document = {}
     for t, tau in enumerate(taus):
         values = np.atleast_1d(rms[tau]) * factor
-        text = ' '.join(f'{v:.3g}' for v in values) if windows[tau] else 'run shorter than one window'
+        text = common.numbers(values, 3) if windows[tau] else 'run shorter than one window'
         entry = {'windows': windows[tau], 'rms': [float(v) for v in values], 'unit': unit}
         if predicted is not None:
-            text += '   noise model: ' + ' '.join(f'{v * factor:.3g}' for v in predicted[t])
+            text += f'   noise model: {common.numbers(predicted[t] * factor, 3)}'
             entry['noise_model'] = [float(v * factor) for v in predicted[t]]
-        lines.append(f'  {tau:5.0f} s: {text}')
+        lines.append(f'  at {tau:g} s: {text}')
         document[f'{tau:g}'] = entry
-    return {'lines': lines, 'document': {'source': source if predicted is not None else None, 'taus': document}}
+    return {'lines': lines, 'document': {'source': noise.source if predicted is not None else None,
+                                         'taus': document}}

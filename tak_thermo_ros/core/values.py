@@ -25,3 +25,12 @@ def finite_number(value: object, key: str) -> float:
         msg = f'{key}: must be finite, got {number}'
         raise CalibrationError(msg)
     return number
+
+
+def random_walk_unit(unit: str) -> str:
+    """The unit of a random walk ``K`` of a signal in ``unit`` (Allan variance ``K^2 tau / 3``): one spelling.
+
+    Kalibr's: ``rad/s^2/sqrt(Hz)`` for a gyroscope, ``m/s^3/sqrt(Hz)`` for an accelerometer;
+    ``<unit>/s/sqrt(Hz)`` otherwise (codes, uT). The same dimension as ``<unit>*sqrt(Hz)``.
+    """
+    return {'rad/s': 'rad/s^2/sqrt(Hz)', 'm/s^2': 'm/s^3/sqrt(Hz)'}.get(unit, f'{unit}/s/sqrt(Hz)')

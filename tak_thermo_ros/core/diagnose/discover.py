@@ -37,6 +37,8 @@ from tak_thermo_ros.core.diagnose.verdict import (
     _percent,
     _rung,
     _verdict_message,
+    Statement,
+    message_text,
     gain_t_threshold,
     per_axis_t_threshold,
     rms_text,
@@ -115,7 +117,7 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
              bias_order: int | None = None, scale_order: int | None = None,
              rate_window_s: float | None = None,
              progress: Callable[[str], None] | None = None, per_axis: bool = True,
-             noise: Any | None = None, seed: int = 0) -> Diagnosis:
+             noise: Any | None = None, seed: int = 0, unit: str = 'counts', unit_scale: float = 1.0) -> Diagnosis:
     """Compare the calibration with a run, find where it fails and which effect it misses.
 
     :param calibration: the model to diagnose (base model, possibly with effects).
@@ -144,6 +146,8 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
         this run's residual (``'residual'``) or ``None``, against the white floor, and the Allan
         deviation against the model is reported.
     :param seed: seed of the simulated copies of the run.
+    :param unit: the residual's unit in the verdict's message, ``unit_scale`` the factor from the
+        residual to it (a magnetometer's tesla in uT: ``'uT'``, 1e6).
     :raises FitError: when the run has no reference or too few samples.
     """
     if samples.reference is None:
@@ -498,14 +502,15 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
                                 evidence=candidate.evidence + (f' Fitted: {text}.' if text else ''))
         candidates_out.append(candidate)
 
-    message = _verdict_message(verdict, axes, ladder, candidates_out, drivers, base_drivers,
-                               significant_axes(current), explained_total, unresolved,
-                               allan=final_allan, judged=judged, averaging_s=averaging_s if judged else 0.0,
-                               wander=wander)
+    statements = _verdict_message(verdict, axes, ladder, candidates_out, drivers, base_drivers,
+                                  significant_axes(current), explained_total, unresolved,
+                                  allan=final_allan, judged=judged, averaging_s=averaging_s if judged else 0.0,
+                                  wander=wander, unit=unit, scale=unit_scale)
     if pruned and verdict not in (VERDICT_NONE, VERDICT_UNEXPLAINED):
-        message += (f' Not needed once the others are in: {", ".join(pruned)} (held-out blocks do not '
-                    f'notice its removal).')
-    return Diagnosis(verdict=verdict, message=message, axes=axes,  # type: ignore[arg-type]
+        statements.append(Statement(f'Not needed once the others are in: {", ".join(pruned)} (held-out blocks do '
+                                    f'not notice its removal).'))
+    return Diagnosis(verdict=verdict, message=message_text(statements), axes=axes,  # type: ignore[arg-type]
+                     statements=tuple(statements),
                      candidates=tuple(candidates_out), skipped=skipped, ladder=tuple(ladder), drivers=drivers,
                      base_drivers=base_drivers,
                      residual=residual, residual_after=residual_after, calibration=calibration,

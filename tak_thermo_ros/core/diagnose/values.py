@@ -209,6 +209,9 @@ class Diagnosis:
     :param averaging_time_s: the averaging bins of the cross-validation, judged against a noise
         model from a file or a static run; 0 otherwise (per sample).
     :param yardstick_replicates: simulated copies of the run under the noise model.
+    :param statements: ``message`` one sentence at a time
+        (:class:`~tak_thermo_ros.core.diagnose.verdict.Statement`: its text, and whether it is a
+        detail that only ``--verbose`` prints).
     """
 
     verdict: str
@@ -236,6 +239,7 @@ class Diagnosis:
     allan: tuple[tuple[str, Any], ...] = ()
     averaging_time_s: float = 0.0
     yardstick_replicates: int = 0
+    statements: tuple[Any, ...] = ()
 
     @property
     def noise_floor(self) -> np.ndarray:

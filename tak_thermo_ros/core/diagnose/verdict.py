@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import math
+from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
@@ -12,6 +13,7 @@ from tak_thermo_ros.core.diagnose.values import AxisSummary, Candidate, Driver, 
 from tak_thermo_ros.core.diagnose.yardstick import tau_text
 from tak_thermo_ros.core.noise.residual import RESIDUAL_LONGEST_TAU_S
 from tak_thermo_ros.core.link.model import AXES
+from tak_thermo_ros.core.values import random_walk_unit
 
 VERDICT_NONE = 'none'
 VERDICT_UNEXPLAINED = 'unexplained'
@@ -106,44 +108,68 @@ def _driver_sentence(drivers: Sequence[Driver], *, exclude: Sequence[str] = ()) 
     return ', '.join(parts)
 
 
-def _wander_sentence(allan: Any, *, excess_said: bool = False) -> str:
+@dataclass(frozen=True)
+class Statement:
+    """One sentence of a verdict's message; ``detail``: printed with ``--verbose`` only (the JSON holds all)."""
+
+    text: str
+    detail: bool = False
+
+
+def message_text(statements: Sequence[Statement]) -> str:
+    """The statements as one paragraph (the JSON's and the report's ``message``)."""
+    return ' '.join(statement.text for statement in statements)
+
+
+_OWN_MODEL = ('No noise model was given (--noise, --noise-run): the one here is white noise and bias '
+              'instability fitted to this run\'s own residual at averaging times up to half a minute, where '
+              'no thermal effect acts')
+
+
+def _walk_statements(allan: Any, unit: str, scale: float) -> list[Statement]:
+    """The rate random walk that would explain an excess over a short-term model, with its unit, and what to do."""
+    walk = ' '.join(f'{value * scale:.2g}' for value in allan.walk_to_explain(RESIDUAL_LONGEST_TAU_S))
+    return [Statement(f'The sensor\'s own rate random walk, which half a minute does not show, would explain the '
+                      f'excess only if it were at least {walk} (x y z, {random_walk_unit(unit)}).'),
+            Statement('If the part\'s data sheet or a static run at constant temperature (--noise-run BAG) gives '
+                      'less, the cause is not in the bag; if as much, it is the sensor\'s own noise (give that '
+                      'model with --noise imu.yaml to judge it).', detail=True)]
+
+
+def _wander_statements(allan: Any, unit: str, scale: float, *, excess_said: bool = False) -> list[Statement]:
     """What a noise model fitted to the run's own residual can and cannot say.
 
     ``excess_said``: the message already names the excess over it (not repeated).
     """
     tau, axis, ratio = allan.worst()
-    fitted = ('No noise model was given (--noise, --noise-run): the one here is white noise and bias instability '
-              'fitted to this run\'s own residual at averaging times up to half a minute, where no thermal effect '
-              'acts')
     if allan.consistent:
-        return (f'{fitted}; what remains is consistent with it at every averaging time (Allan deviation at most '
-                f'{ratio:.2f}x it, at tau {tau_text(tau)} on {AXES[axis]}). This run alone cannot tell the sensor\'s '
-                f'own bias wander from a cause that is not in the bag: give the sensor\'s noise model (--noise '
-                f'imu.yaml) or a static run at constant temperature (--noise-run BAG) to judge it.')
-    walk = ' '.join(f'{value:.2g}' for value in allan.walk_to_explain(RESIDUAL_LONGEST_TAU_S))
-    against = '' if excess_said else f'; against it, {allan.describe()}'
-    return (f'{fitted}{against}. The sensor\'s own rate random walk, which half a minute '
-            f'does not show, would explain the excess only if it were at least {walk} (x y z, in the residual\'s unit '
-            f'times sqrt(Hz)): if the part\'s data sheet or a static run at constant temperature (--noise-run BAG) '
-            f'gives less, the cause is not in the bag; if as much, it is the sensor\'s own noise (give that model '
-            f'with --noise imu.yaml to judge it).')
+        return [Statement(f'{_OWN_MODEL}; what remains is consistent with it at every averaging time (Allan '
+                          f'deviation at most {ratio:.3g}x it, at tau {tau_text(tau)} on {AXES[axis]}).', detail=True),
+                Statement('This run alone cannot tell the sensor\'s own bias wander from a cause that is not in '
+                          'the bag: give the sensor\'s noise model (--noise imu.yaml) or a static run at constant '
+                          'temperature (--noise-run BAG) to judge it.', detail=True)]
+    against = '' if excess_said else f'; against it, {allan.describe()}, beyond its bound {allan.worst_bound():.3g}x'
+    return [Statement(f'{_OWN_MODEL}{against}.', detail=excess_said), *_walk_statements(allan, unit, scale)]
 
 
-def _wander_none_text(allan: Any, ratios: str) -> str:
+def _wander_none_statements(allan: Any, ratios: str) -> list[Statement]:
     """``none`` because the excess over the white floor is this run's own bias wander."""
     tau, axis, ratio = allan.worst()
-    return (f'The residual is consistent with this sensor\'s own noise at every averaging time: it stands above '
-            f'the white floor ({ratios}), no library effect explains that on held-out blocks, and its Allan '
-            f'deviation stays within the bound of a noise model fitted to this run\'s residual at averaging '
-            f'times up to half a minute (white noise and bias instability, where no thermal effect acts), '
-            f'up to tau {tau_text(float(allan.taus.max()))} (at most {ratio:.2f}x the model, at tau {tau_text(tau)} '
-            f'on {AXES[axis]}): bias wander, which no temperature model can or should follow; no structure left '
-            f'for an effect to explain. The noise model comes from this run itself: give the sensor\'s noise '
-            f'model (--noise imu.yaml) or a static run at constant temperature (--noise-run BAG) to judge the '
-            f'residual against an independent one.')
+    return [Statement('The residual is consistent with this sensor\'s own noise at every averaging time: bias '
+                      'wander, which no temperature model can or should follow; no structure left for an effect '
+                      'to explain.'),
+            Statement(f'It stands above the white floor ({ratios}) and no library effect explains that on '
+                      f'held-out blocks; its Allan deviation stays within the bound of a noise model fitted to '
+                      f'this run\'s residual at averaging times up to half a minute (white noise and bias '
+                      f'instability, where no thermal effect acts), up to tau {tau_text(float(allan.taus.max()))} '
+                      f'(at most {ratio:.3g}x the model, at tau {tau_text(tau)} on {AXES[axis]}).'),
+            Statement('The noise model comes from this run itself: give the sensor\'s noise model (--noise '
+                      'imu.yaml) or a static run at constant temperature (--noise-run BAG) to judge the residual '
+                      'against an independent one.', detail=True)]
 
 
-def _unexplained_sentence(drivers: Sequence[Driver], *, judged: bool = False) -> str:
+def _unexplained_statements(drivers: Sequence[Driver], *, judged: bool = False,
+                            lead_in: str = 'The residual still follows') -> list[Statement]:
     """What a residual that no library effect explains still follows, and what that suggests.
 
     Called only when no library effect explains the structure: the temperature effects (a
@@ -152,30 +178,32 @@ def _unexplained_sentence(drivers: Sequence[Driver], *, judged: bool = False) ->
     """
     by_name = {d.name: d for d in drivers}
     lead = drivers[0]
-    text = f'the residual still follows {_driver_sentence(drivers)}'
+    found = [Statement(f'{lead_in} {_driver_sentence(drivers)}.')]
+    look = ('look for a quantity that is not in the bag (supply voltage, humidity, mechanical stress, a '
+            'reference that moves)')
     if lead.name in ('time', 'time at fixed temperature') and judged:
-        text += ('; it is a drift in time beyond the bias wander the noise model predicts, that no function of '
-                 'the temperature code or of its history in the library predicts on held-out time blocks: look for '
-                 'a quantity that is not in the bag (supply voltage, humidity, mechanical stress, a reference that '
-                 'moves)')
+        found.append(Statement(f'It is a drift in time beyond the bias wander the noise model predicts, that no '
+                               f'function of the temperature code or of its history in the library predicts on '
+                               f'held-out time blocks: {look}.'))
     elif lead.name in ('time', 'time at fixed temperature'):
-        text += ('; it is a slow drift in time that no function of the temperature code or of its history in '
-                 'the library predicts on held-out time blocks: look for a quantity that is not in the bag '
-                 '(supply voltage, humidity, mechanical stress, a reference that moves)')
+        found.append(Statement(f'It is a slow drift in time that no function of the temperature code or of its '
+                               f'history in the library predicts on held-out time blocks: {look}.'))
         code = by_name['temperature code'].largest
         if code > 0.2:
-            text += (f'. The temperature code sorts {_percent(code)} of it as well, because temperature and time '
-                     f'move together over parts of the run; yet no function of temperature predicts it on '
-                     f'held-out blocks. A run that holds one temperature for hours would show the drift alone')
+            found.append(Statement(f'The temperature code sorts {_percent(code)} of it as well, because temperature '
+                                   f'and time move together over parts of the run; yet no function of temperature '
+                                   f'predicts it on held-out blocks. A run that holds one temperature for hours '
+                                   f'would show the drift alone.', detail=True))
     elif lead.name in ('temperature rate', 'heating vs cooling'):
-        text += ('; it follows the temperature history, but neither the library lag nor its hysteresis '
-                 'models it: consider a user-defined effect (docs/effects.md)')
+        found.append(Statement('It follows the temperature history, but neither the library lag nor its '
+                               'hysteresis models it: consider a user-defined effect (docs/effects.md).'))
     elif lead.name == 'temperature code':
-        text += ('; it follows the temperature code in a way neither the power series nor the spline of '
-                 'temperature_shape predicts on held-out blocks: try higher orders (--bias-order, --scale-order)')
+        found.append(Statement('It follows the temperature code in a way neither the power series nor the spline '
+                               'of temperature_shape predicts on held-out blocks: try higher orders '
+                               '(--bias-order, --scale-order).'))
     elif lead.name in ('own input', 'other inputs'):
-        text += '; it depends on the input: check the reference stream and the turntable positions'
-    return text
+        found.append(Statement('It depends on the input: check the reference stream and the turntable positions.'))
+    return found
 
 
 def _rung(model: ModelScore) -> LadderStep:
@@ -188,78 +216,107 @@ def _verdict_message(verdict: str, axes: Sequence[AxisSummary], ladder: Sequence
                      candidates: Sequence[Candidate], drivers: Sequence[Driver],
                      base_drivers: Sequence[Driver], still_significant: np.ndarray,
                      explained_total: float, unresolved: dict[str, str], *, allan: Any = None,
-                     judged: bool = False, averaging_s: float = 0.0, wander: bool = False) -> str:
+                     judged: bool = False, averaging_s: float = 0.0, wander: bool = False,
+                     unit: str = 'counts', scale: float = 1.0) -> list[Statement]:
+    """The verdict's message, one statement per sentence, each saying what its numbers say.
+
+    ``unit`` and ``scale``: the residual's unit in the message and the factor to it (a
+    magnetometer's tesla in uT: ``'uT'``, 1e6). ``allan``: the Allan test the message speaks of
+    (the final rung's, or the calibration's as given when no effect is named).
+    """
     ratios = ', '.join(f'{name} {a.heldout_rms / a.noise_floor:.2f}x' for name, a in zip(AXES, axes))
     if judged:
         ratios = f'held-out RMS of {tau_text(averaging_s)} means / the noise model\'s: {ratios}'
     else:
         ratios = f'held-out RMS / floor: {ratios}'
+
+    def rms(values: Sequence[float]) -> str:
+        return ', '.join(rms_text(v * scale) for v in values)
+    beyond_own = allan is not None and not judged and allan.source == 'residual' and not allan.consistent
     if verdict == VERDICT_NONE:
         if judged:
             tau, axis, ratio = allan.worst()
-            text = (f'The residual is consistent with the noise model ({allan.source}) at every averaging time '
-                    f'({ratios}; Allan deviation at most {ratio:.2f}x the model, at tau {tau_text(tau)} on '
-                    f'{AXES[axis]}, within the bound): no structure left for an effect to explain.')
+            found = [Statement(f'The residual is consistent with the noise model ({allan.source}) at every averaging '
+                               f'time ({ratios}; Allan deviation at most {ratio:.3g}x the model, at tau '
+                               f'{tau_text(tau)} on {AXES[axis]}, within the bound): no structure left for an '
+                               f'effect to explain.')]
         elif wander:
-            return _wander_none_text(allan, ratios)
+            return _wander_none_statements(allan, ratios)
+        elif beyond_own:
+            # The white floor finds nothing for an effect; the Allan test finds slow structure. Both said.
+            found = [Statement(f'No effect to add: the held-out residual is at the white noise floor ({ratios}) and '
+                               f'no library effect lowers it.'),
+                     Statement(f'Slow structure remains, though: {allan.describe()}, beyond the bound '
+                               f'{allan.worst_bound():.3g}x of this run\'s own short-term noise model (white noise '
+                               f'and bias instability fitted up to half a minute).'),
+                     *_walk_statements(allan, unit, scale)]
         else:
-            text = f'The residual is at the noise floor ({ratios}): no structure left for an effect to explain.'
-
+            found = [Statement(f'The residual is at the noise floor ({ratios}): no structure left for an effect to '
+                               f'explain.')]
         refit = [] if judged else [name for name, a in zip(AXES, axes) if a.rms > 1.1 * a.heldout_rms]
         if refit:
-            text += (f' The calibration as given fits this run worse than a refit of the same model '
-                     f'(axes {", ".join(refit)}): refit it on this run.')
-        return text
+            found.append(Statement(f'The calibration as given fits this run worse than a refit of the same model '
+                                   f'(axes {", ".join(refit)}): refit it on this run.'))
+        return found
     if verdict == VERDICT_UNEXPLAINED:
         first = ladder[1].effects[-1] if len(ladder) > 1 else ''
+        best: list[Statement]
         if first in unresolved:
-            best = (f' {ladder[-1].label} removes {_percent(explained_total)} of the held-out excess, but the '
-                    f'fit of {first} runs to the edge of what this run resolves ({unresolved[first]}): the run '
-                    f'does not identify it, so it is not named (a longer run, or longer plateaus, would tell).')
-            follows = f'the residual follows {_driver_sentence(base_drivers)}'
+            best = [Statement(f'{ladder[-1].label} removes {_percent(explained_total)} of the held-out excess, but '
+                              f'the fit of {first} runs to the edge of what this run resolves ({unresolved[first]}): '
+                              f'the run does not identify it, so it is not named (a longer run, or longer plateaus, '
+                              f'would tell).')]
+            follows = [Statement(f'The residual follows {_driver_sentence(base_drivers)}.')]
         elif len(ladder) > 1:
-            best = (f' {ladder[-1].label} removes {_percent(explained_total)} of the held-out excess, '
-                    f'too little to name it the cause.')
-            follows = _unexplained_sentence(drivers)
+            best = [Statement(f'{ladder[-1].label} removes {_percent(explained_total)} of the held-out excess, '
+                              f'too little to name it the cause.')]
+            follows = _unexplained_statements(drivers)
         else:
             if candidates and candidates[0].explained > 0.0:
-                best = (f' The best library effect, {candidates[0].effect}, removes only '
-                        f'{_percent(candidates[0].explained)} of the held-out excess.')
+                best = [Statement(f'The best library effect, {candidates[0].effect}, removes only '
+                                  f'{_percent(candidates[0].explained)} of the held-out excess.')]
             else:
-                best = ' No library effect lowers the held-out error.'
-            follows = _unexplained_sentence(base_drivers)
+                best = [Statement('No library effect lowers the held-out error.')]
+            follows = _unexplained_statements(base_drivers)
         if judged:
-            follows = _unexplained_sentence(drivers if len(ladder) > 1 else base_drivers, judged=True)
-            return (f'Significant structure remains beyond the noise model ({allan.source}): '
-                    f'{allan.describe()} ({ratios}), which no library effect explains with parameters this run '
-                    f'resolves.{best} {follows[0].upper()}{follows[1:]}.')
-        beyond = ''
-        if allan is not None and allan.source == 'residual' and not allan.consistent:
-            beyond = f' and beyond this run\'s short-term noise model ({allan.describe()})'
-        text = (f'Significant structure remains above the noise floor ({ratios}){beyond} '
-                f'that no library effect explains with parameters this run resolves.{best} '
-                f'{follows[0].upper()}{follows[1:]}.')
+            follows = _unexplained_statements(drivers if len(ladder) > 1 else base_drivers, judged=True)
+            return [Statement(f'Significant structure remains beyond the noise model ({allan.source}): '
+                              f'{allan.describe()} ({ratios}), which no library effect explains with parameters '
+                              f'this run resolves.'), *best, *follows]
+        beyond = f' and beyond this run\'s short-term noise model ({allan.describe()})' if beyond_own else ''
+        found = [Statement(f'Significant structure remains above the noise floor ({ratios}){beyond} that no library '
+                           f'effect explains with parameters this run resolves.'), *best, *follows]
         if allan is not None:
-            text += f' {_wander_sentence(allan, excess_said=bool(beyond))}'
-        return text
-    best = next((c for c in candidates if c.effect == verdict), candidates[0])
+            found += _wander_statements(allan, unit, scale, excess_said=bool(beyond))
+        return found
+    best_candidate = next((c for c in candidates if c.effect == verdict), candidates[0])
     over = 'over the noise model' if judged else 'over the noise floor'
-    text = (f'The model misses {verdict}: it removes {_percent(best.explained)} of the held-out excess '
-            f'{over} ({ratios} before). {best.summary}')
+    found = [Statement(f'The model misses {verdict}: it removes {_percent(best_candidate.explained)} of the held-out '
+                       f'excess {over} ({ratios} before).'),
+             Statement(best_candidate.summary, detail=True)]
     if verdict.endswith('_per_axis'):
         shared = next((c for c in candidates if c.effect == verdict[:-len('_per_axis')]), None)
         if shared is not None:
-            text += (f' The per-axis form beats the shared {shared.effect} on held-out blocks '
-                     f'(held-out RMS {", ".join(rms_text(v) for v in shared.rms_after)} shared, '
-                     f'{", ".join(rms_text(v) for v in best.rms_after)} per axis).')
+            found.append(Statement(f'The per-axis form beats the shared {shared.effect} on held-out blocks (held-out '
+                                   f'RMS {rms(shared.rms_after)} shared, {rms(best_candidate.rms_after)} per axis).'))
     if len(ladder) > 2:
-        text += (' Then: ' + ', '.join(step.effects[-1] for step in ladder[2:])
-                 + f' ({_percent(explained_total)} of the excess in all).')
+        found.append(Statement('Then: ' + ', '.join(step.effects[-1] for step in ladder[2:])
+                               + f' ({_percent(explained_total)} of the excess in all).'))
     for name, edges in unresolved.items():
-        text += f' The fit of {name} runs to the edge of what this run resolves ({edges}).'
+        found.append(Statement(f'The fit of {name} runs to the edge of what this run resolves ({edges}).'))
     if still_significant.any():
-        text += (f' Structure remains on {", ".join(n for n, s in zip(AXES, still_significant) if s)}: '
-                 f'{_unexplained_sentence(drivers, judged=judged)}.')
-        if allan is not None and allan.source == 'residual':
-            text += f' {_wander_sentence(allan)}'
-    return text
+        found += _unexplained_statements(
+            drivers, judged=judged,
+            lead_in=f'Structure remains on {", ".join(n for n, s in zip(AXES, still_significant) if s)}: the residual '
+                    f'still follows')
+    own = allan is not None and allan.source == 'residual'
+    if own and still_significant.any():
+        found += _wander_statements(allan, unit, scale)
+    elif allan is not None and not allan.consistent:
+        # Held-out blocks find nothing more (or the structure is said above), the Allan test finds this: said too.
+        model = 'this run\'s own short-term noise model' if own else f'the noise model ({allan.source})'
+        found.append(Statement(f'Slow structure remains after it, though: {allan.describe()}, beyond the bound '
+                               f'{allan.worst_bound():.3g}x of {model}.'))
+        if own:
+            found += _walk_statements(allan, unit, scale)
+    return found

@@ -367,9 +367,9 @@ class AllanCheck:
         return np.sqrt(np.maximum(gap.max(axis=0), 0.0))
 
     def describe(self) -> str:
-        """``'residual Allan deviation 3.1x the noise model at tau 300 s on z'``."""
+        """``'residual Allan deviation 3.14x the noise model at tau 300 s on z'`` (three figures, as the bound)."""
         tau, axis, ratio = self.worst()
-        return f'residual Allan deviation {ratio:.1f}x the noise model at tau {tau_text(tau)} on {AXES[axis]}'
+        return f'residual Allan deviation {ratio:.3g}x the noise model at tau {tau_text(tau)} on {AXES[axis]}'
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready form."""

@@ -231,6 +231,21 @@ class Calibration:
                      for axis in self.axes)
         return replace(self, axes=flat, effects=())  # type: ignore[arg-type]
 
+    def as_recorded(self) -> Calibration:
+        """The same unit with scale 1, no offset, no temperature term, no effect: a driver's values as recorded.
+
+        ``validate``'s *before* on a driver's bag (what the driver gives without this package), the
+        same whatever calibration is given; codes have no unit without a scale, so a counts bag's
+        *before* is :meth:`nominal`.
+        """
+        flat = tuple(replace(axis, scale=1.0, offset=0.0, offset_span=0.0, offset_shape=(0.0,), scale_shape=(0.0,))
+                     for axis in self.axes)
+        return replace(self, axes=flat, effects=())  # type: ignore[arg-type]
+
+    def uncorrected(self, *, as_recorded: bool) -> Calibration:
+        """``validate``'s *before*: :meth:`as_recorded` (a driver's values), else :meth:`nominal` (codes)."""
+        return self.as_recorded() if as_recorded else self.nominal()
+
     def forward(self, specific_force: np.ndarray, temp_code: np.ndarray) -> np.ndarray:
         """The paper's forward model: unrounded codes ``(k, 3)`` for specific force ``(k, 3)`` in m/s^2.
 

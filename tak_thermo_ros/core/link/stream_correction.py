@@ -143,45 +143,58 @@ class NoiseSums:
 
 
 class GravityCheck:
-    """:func:`~tak_thermo_ros.core.link.validate.validate_gravity` accumulated over blocks."""
+    """:func:`~tak_thermo_ros.core.link.validate.validate_gravity` accumulated over blocks.
 
-    def __init__(self, calibration: Calibration, *, gravity: float, out_of_range: OutOfRange) -> None:
+    Beside the RMS and max of the |g| error it keeps (``noise``) that error's means over 1, 60 and
+    600 s and its Allan variance (the |g| error itself, whatever the orientation, so that a table's
+    positions are no steps in it) and the mean square of each axis's share of the measured
+    direction (``direction_squares``: how a per-axis noise model projects onto |g|).
+    ``raw_before``: *before* is the values as recorded (a driver's), not the nominal scale and offset.
+    """
+
+    def __init__(self, calibration: Calibration, *, gravity: float, out_of_range: OutOfRange,
+                 raw_before: bool = False) -> None:
         self.gravity = gravity
         self.corrector = BlockCorrector(calibration, out_of_range=out_of_range)
-        self.nominal = Corrector(calibration.nominal(), out_of_range=out_of_range)
+        self.nominal = Corrector(calibration.uncorrected(as_recorded=raw_before), out_of_range=out_of_range)
         self.before = ErrorSums(1)
         self.after = ErrorSums(1)
         self.out_of_range = 0
         self.samples = 0
-        self.noise = NoiseSums(3)
-        self.direction = np.zeros(3)
-        from tak_thermo_ros.core.link.validate import AveragedError
-        self.gravity_averaged = AveragedError(columns=1)
+        self.noise = NoiseSums(1)
+        self._direction_squares = np.zeros(3)
+
+    @property
+    def direction_squares(self) -> np.ndarray:
+        """``(3,)`` the mean over the samples of the squared components of the measured unit direction."""
+        return self._direction_squares / self.samples if self.samples else np.full(3, 1.0 / 3.0)
 
     def add(self, counts: np.ndarray, temp_code: np.ndarray, stamp_s: np.ndarray, *,
             aux: Mapping[str, np.ndarray] | None = None) -> None:
         """Add a block of aligned samples (``aux``: their held recorded signals, by name)."""
         after = self.corrector.correct(counts, temp_code, stamp_s=stamp_s, aux=aux)
         before = self.nominal.correct(counts, temp_code)
-        self.after.add(np.linalg.norm(after, axis=1) - self.gravity)
+        magnitude = np.linalg.norm(after, axis=1)
+        self.after.add(magnitude - self.gravity)
         self.before.add(np.linalg.norm(before, axis=1) - self.gravity)
-        # The |g| error averaged over 1, 60, 600 s; per axis, the corrected specific force about
-        # its first block's mean (a static run), whose Allan variance gives each channel's noise.
         if len(after):
-            if not self.direction.any():
-                self.direction = np.mean(after, axis=0)
-            self.noise.add(np.asarray(stamp_s, dtype=float), after - self.direction)
-            self.gravity_averaged.add(np.asarray(stamp_s, dtype=float), np.linalg.norm(after, axis=1) - self.gravity)
+            stamps = np.asarray(stamp_s, dtype=float)
+            self.noise.add(stamps, (magnitude - self.gravity)[:, None])
+            unit = after / np.where(magnitude > 0.0, magnitude, 1.0)[:, None]
+            self._direction_squares += np.sum(unit ** 2, axis=0)
         self.out_of_range += self.corrector.out_of_range_count(temp_code)
         self.samples += len(counts)
 
 
 class RateCheck:
-    """:func:`~tak_thermo_ros.core.link.validate.validate_rate` accumulated over blocks."""
+    """:func:`~tak_thermo_ros.core.link.validate.validate_rate` accumulated over blocks.
 
-    def __init__(self, calibration: Calibration, *, out_of_range: OutOfRange) -> None:
+    ``raw_before``: *before* is the values as recorded (a driver's), not the nominal scale and offset.
+    """
+
+    def __init__(self, calibration: Calibration, *, out_of_range: OutOfRange, raw_before: bool = False) -> None:
         self.corrector = BlockCorrector(calibration, out_of_range=out_of_range)
-        self.nominal = Corrector(calibration.nominal(), out_of_range=out_of_range)
+        self.nominal = Corrector(calibration.uncorrected(as_recorded=raw_before), out_of_range=out_of_range)
         self.before = ErrorSums(3)
         self.after = ErrorSums(3)
         self.out_of_range = 0

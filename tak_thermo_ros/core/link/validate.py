@@ -1,7 +1,8 @@
 """Validation as in the paper's Figs. 4-5: |g| from the three corrected channels.
 
-*Before* applies the nominal scale and offset only (every temperature term off); *after*
-applies the whole correction link. Meaningful on a static run, or on a turntable run whose
+*Before* applies the nominal scale and offset only (every temperature term off), or for a
+driver's values (``raw_before``) nothing: the values as recorded; *after* applies the whole
+correction link. Meaningful on a static run, or on a turntable run whose
 positions all see the same |g|.
 """
 
@@ -65,15 +66,17 @@ def validate_gravity(calibration: Calibration, counts: np.ndarray, temp_code: np
                      gravity: float = STANDARD_GRAVITY,
                      out_of_range: OutOfRange = OutOfRange.CLAMP,
                      stamp_s: np.ndarray | None = None,
-                     aux: Mapping[str, np.ndarray] | None = None) -> GravityValidation:
+                     aux: Mapping[str, np.ndarray] | None = None, raw_before: bool = False) -> GravityValidation:
     """Compare |g| from the three channels with local gravity, before and after correction.
 
     :param stamp_s: ``(k,)`` stamps in seconds, needed by effects with memory.
     :param aux: ``(k,)`` held recorded signals by name, needed by ``aux:`` effects.
+    :param raw_before: *before* is the values as recorded (a driver's), not the nominal scale and offset.
     """
     corrector = Corrector(calibration, out_of_range=out_of_range)
     after = corrector.correct(counts, temp_code, stamp_s=stamp_s, aux=aux)
-    before = Corrector(calibration.nominal(), out_of_range=out_of_range).correct(counts, temp_code)
+    flat = Corrector(calibration.uncorrected(as_recorded=raw_before), out_of_range=out_of_range)
+    before = flat.correct(counts, temp_code)
     return GravityValidation(gravity=gravity,
                              magnitude_before=np.linalg.norm(before, axis=1),
                              magnitude_after=np.linalg.norm(after, axis=1),
@@ -124,17 +127,19 @@ class RateValidation:
 def validate_rate(calibration: Calibration, rate: np.ndarray, temperature: np.ndarray,
                   reference: np.ndarray, *, out_of_range: OutOfRange = OutOfRange.CLAMP,
                   stamp_s: np.ndarray | None = None,
-                  aux: Mapping[str, np.ndarray] | None = None) -> RateValidation:
+                  aux: Mapping[str, np.ndarray] | None = None, raw_before: bool = False) -> RateValidation:
     """Compare the corrected angular rate with the reference (zero on a static run), per axis.
 
     :param rate: ``(k, 3)`` the driver's angular velocity, rad/s.
     :param temperature: ``(k,)`` held temperature.
     :param reference: ``(k, 3)`` held true rate, rad/s.
     :param stamp_s: ``(k,)`` stamps in seconds, needed by effects with memory.
+    :param raw_before: *before* is the rates as recorded, not the nominal scale and offset.
     """
     corrector = Corrector(calibration, out_of_range=out_of_range)
     after = corrector.correct(rate, temperature, stamp_s=stamp_s, aux=aux)
-    before = Corrector(calibration.nominal(), out_of_range=out_of_range).correct(rate, temperature)
+    flat = Corrector(calibration.uncorrected(as_recorded=raw_before), out_of_range=out_of_range)
+    before = flat.correct(rate, temperature)
     return RateValidation(before=RateError.of(before - reference), after=RateError.of(after - reference),
                           out_of_range=corrector.out_of_range_count(temperature))
 

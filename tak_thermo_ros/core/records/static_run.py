@@ -96,10 +96,10 @@ def check_static(static: StaticReference, *, gravity: float, max_tilt_deg: float
 
 
 def reference_line(static: StaticReference, *, gravity: float, max_tilt_deg: float) -> str:
-    """How a static run's specific-force reference was obtained, one line."""
+    """How a static run's specific-force reference was obtained: two lines (the rule, then the vector)."""
     x, y, z = (float(v) for v in static.specific_force)
-    return (f'reference (static run): mean measured direction scaled to gravity {gravity:g} m/s^2 = '
-            f'({x:.4f}, {y:.4f}, {z:.4f}) m/s^2 (largest deviation {max_tilt_deg:.2f} deg)')
+    return (f'reference (static run): mean measured direction scaled to gravity {gravity:g} m/s^2\n'
+            f'  = ({x:.4f}, {y:.4f}, {z:.4f}) m/s^2; the board turned from it by at most {max_tilt_deg:.2f} deg')
 
 
 def rate_line(static: StaticReference, latitude_deg: float | None) -> str:
