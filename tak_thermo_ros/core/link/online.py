@@ -935,7 +935,7 @@ class OnlineCompensator:
         relation = ('equal to' if reason == DUPLICATE_STAMP
                     else f'{abs(stamp_ns - last_ns) * 1e-9:.6f} s '
                          f'{"before" if reason == TIME_BACKWARDS else f"(> {STAMP_JUMP_S:g} s) after"}')
-        what, previous = ((f'{self._message_word} {SENSOR_WORDS[sensor]}', f'the previous {sensor} sample\'s')
+        what, previous = ((f"{self._message_word} {SENSOR_WORDS[sensor]} sample's", "the previous one's")
                           if sensor else (self._message_word, 'the previous one'))
         counts = rule.dropped
         self._notice(Level.WARN, 'stamp_order',
@@ -951,13 +951,12 @@ class OnlineCompensator:
         """The throttled log line of a message (or, ``sensor``, one sensor's sample) whose correction failed."""
         if self._throttles['correction'].due(now_s):
             held = self._throttles['correction'].take_held_back()
-            what = f'{self._message_word} {SENSOR_WORDS[sensor]} sample left out' if sensor else \
-                f'{self._message_word} message dropped'
+            what, so_far = ((f'{self._message_word} {SENSOR_WORDS[sensor]} sample left out', '') if sensor else
+                            (f'{self._message_word} message dropped',
+                             f'; {self.dropped[CORRECTION_FAILED] + self.dropped[NON_FINITE_OUTPUT]} so far'))
             self._notice(Level.ERROR, reason,
                          f'{what}, the correction gave no finite number at {self._temperature_word} '
-                         f'{self._temperature_text()} ({reason}: {detail}; '
-                         f'{self.dropped[CORRECTION_FAILED] + self.dropped[NON_FINITE_OUTPUT]} messages so far'
-                         f'{self._since(held)})')
+                         f'{self._temperature_text()} ({reason}: {detail}{so_far}{self._since(held)})')
         return reason
 
     # -- reports ----------------------------------------------------------------------------
