@@ -349,21 +349,11 @@ def node_and_apply(bag: Path, params: Path, driver, ros_env: dict[str, str], tmp
     return expected, list(ros.imu)
 
 
-def test_driver_node_output_equals_tak_calib_apply_on_both_sensors(tmp_path, ros_env):
-    """A driver bag (gyro thermal lag fitted) played into the node: apply's Imu, float64-equal, every field."""
-    run = simulate(DRIVER_RUN)
-    rng = np.random.default_rng(5)
-    quaternions = rng.normal(size=(len(run.driver.stamp_ns), 4))
-    quaternions /= np.linalg.norm(quaternions, axis=1, keepdims=True)
-    driver = replace(run.driver, orientation=quaternions,
-                     orientation_covariance=rng.uniform(0.0, 1e-3, (len(quaternions), 9)))
-    bag, params = tmp_path / 'driver.mcap', tmp_path / 'tak_params.yaml'
-    write_driver_record(bag, driver)
-    assert cli.main(['fit', str(bag), '-o', str(params), '--no-progress', '--gyro-effects', 'thermal_lag']) == 0
-    unit = load_unit(params)
-    assert unit.input_kind is InputKind.IMU and [e.name for e in unit.gyro.effects] == ['thermal_lag']
-    expected, imu = node_and_apply(bag, params, driver, ros_env, tmp_path)
-    assert len(imu) == len(expected.stamp_ns) == len(driver.stamp_ns)
+def imu_equal_to_applied(imu: list, expected) -> dict[str, np.ndarray]:
+    """Assert the node's Imu messages equal apply's (``read_imu_messages``), float64 for float64, every field.
+
+    :returns: the node's fields as arrays (``stamp``, ``accel``, ``gyro``, ``orientation`` and the three covariances).
+    """
     got = {
         'stamp': np.array([stamp_of(m) for m in imu]),
         'accel': np.array([(m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z)
@@ -379,12 +369,32 @@ def test_driver_node_output_equals_tak_calib_apply_on_both_sensors(tmp_path, ros
     assert np.array_equal(got['stamp'], expected.stamp_ns)
     assert np.array_equal(got['accel'], expected.linear_acceleration)
     assert np.array_equal(got['gyro'], expected.angular_velocity)
-    assert np.array_equal(got['orientation'], expected.orientation) and np.array_equal(got['orientation'], quaternions)
+    assert np.array_equal(got['orientation'], expected.orientation)
     assert np.array_equal(got['orientation_covariance'], expected.orientation_covariance)
     assert np.array_equal(got['angular_velocity_covariance'], expected.angular_velocity_covariance)
     assert np.array_equal(got['linear_acceleration_covariance'], expected.linear_acceleration_covariance)
-    assert got['angular_velocity_covariance'][0, 0] > 0.0  # from the gyroscope's fit, not the driver's
     assert [m.header.frame_id for m in imu] == expected.frame_ids
+    return got
+
+
+def test_driver_node_output_equals_tak_calib_apply_on_both_sensors(tmp_path, ros_env):
+    """A driver bag (gyro thermal lag fitted) played into the node: apply's Imu, float64-equal, every field."""
+    run = simulate(DRIVER_RUN)
+    rng = np.random.default_rng(5)
+    quaternions = rng.normal(size=(len(run.driver.stamp_ns), 4))
+    quaternions /= np.linalg.norm(quaternions, axis=1, keepdims=True)
+    driver = replace(run.driver, orientation=quaternions,
+                     orientation_covariance=rng.uniform(0.0, 1e-3, (len(quaternions), 9)))
+    bag, params = tmp_path / 'driver.mcap', tmp_path / 'tak_params.yaml'
+    write_driver_record(bag, driver)
+    assert cli.main(['fit', str(bag), '-o', str(params), '--no-progress', '--gyro-effects', 'thermal_lag']) == 0
+    unit = load_unit(params)
+    assert unit.input_kind is InputKind.IMU and [e.name for e in unit.gyro.effects] == ['thermal_lag']
+    expected, imu = node_and_apply(bag, params, driver, ros_env, tmp_path)
+    assert len(imu) == len(expected.stamp_ns) == len(driver.stamp_ns)
+    got = imu_equal_to_applied(imu, expected)
+    assert np.array_equal(got['orientation'], quaternions)
+    assert got['angular_velocity_covariance'][0, 0] > 0.0  # from the gyroscope's fit, not the driver's
     # The lag's state matters: the same link without the effect differs by far more than the noise.
     samples = align(driver.six_channels(), use_reference=False)
     without_lag = UnitCorrector(replace(unit, gyro=replace(unit.gyro, effects=()))).correct(
@@ -479,8 +489,9 @@ def test_a_record_with_its_own_stamps_per_sensor_equals_apply_marks_included(tmp
                 ros.wait(lambda: len(ros.imu) >= answered, 20.0, f'the node to catch up ({len(ros.imu)})')
                 ros.send_temperature(stamp, record.temperature[row])
                 continue
-            ros.send_imu(stamp, (*raw.linear_acceleration[row], *raw.angular_velocity[row]), frame_id=raw.frame_ids[row],
-                         orientation=raw.orientation[row], orientation_covariance=raw.orientation_covariance[row],
+            ros.send_imu(stamp, (*raw.linear_acceleration[row], *raw.angular_velocity[row]),
+                         frame_id=raw.frame_ids[row], orientation=raw.orientation[row],
+                         orientation_covariance=raw.orientation_covariance[row],
                          linear_acceleration_covariance=raw.linear_acceleration_covariance[row],
                          angular_velocity_covariance=raw.angular_velocity_covariance[row])
             sent += 1
@@ -491,26 +502,7 @@ def test_a_record_with_its_own_stamps_per_sensor_equals_apply_marks_included(tmp
         assert node.stop() == 0
     imu = ros.imu
     assert len(imu) == len(expected.stamp_ns) < len(raw.stamp_ns)
-    got = {
-        'stamp': np.array([stamp_of(m) for m in imu]),
-        'accel': np.array([(m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z)
-                           for m in imu]),
-        'gyro': np.array([(m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z) for m in imu]),
-        'orientation': np.array([(m.orientation.x, m.orientation.y, m.orientation.z, m.orientation.w)
-                                 for m in imu]),
-        'orientation_covariance': np.array([m.orientation_covariance for m in imu]),
-        'angular_velocity_covariance': np.array([m.angular_velocity_covariance for m in imu]),
-        'linear_acceleration_covariance': np.array([m.linear_acceleration_covariance for m in imu]),
-    }
-    assert got['accel'].dtype == got['gyro'].dtype == np.float64
-    assert np.array_equal(got['stamp'], expected.stamp_ns)
-    assert np.array_equal(got['accel'], expected.linear_acceleration)
-    assert np.array_equal(got['gyro'], expected.angular_velocity)
-    assert np.array_equal(got['orientation'], expected.orientation)
-    assert np.array_equal(got['orientation_covariance'], expected.orientation_covariance)
-    assert np.array_equal(got['angular_velocity_covariance'], expected.angular_velocity_covariance)
-    assert np.array_equal(got['linear_acceleration_covariance'], expected.linear_acceleration_covariance)
-    assert [m.header.frame_id for m in imu] == expected.frame_ids
+    got = imu_equal_to_applied(imu, expected)
     # The marks: a message without the accelerometer (gyroscope) says so, its values zero; the other's covariance
     # is the fit's.
     accel_absent = got['linear_acceleration_covariance'][:, 0] == -1.0

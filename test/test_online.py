@@ -563,7 +563,7 @@ from own_stamps import absent_marks, core_output, own_stamps_record, own_stamps_
 from tak_thermo_ros.core.effects import Effect, ParameterSpec, aux_effect_class  # noqa: E402
 from tak_thermo_ros.core.link.correction import NOT_PROVIDED  # noqa: E402
 from tak_thermo_ros.core.link.online import IMU_DROP_REASONS, SENSORS, SIGNAL_DROP_REASONS, OneSensor  # noqa: E402
-from tak_thermo_ros.core.records.record import counts_problems, temp_code_problem  # noqa: E402
+from tak_thermo_ros.core.records.record import temp_code_problem  # noqa: E402
 
 APART = own_stamps_unit()
 """The driver unit with an effect with memory on each sensor (accelerometer hysteresis, gyroscope lag)."""
@@ -801,4 +801,3 @@ def test_generated_streams_of_one_and_two_sensor_messages_follow_the_offline_rul
             assert np.array_equal(np.array([sample[3] for sample in published[s]]), offline)
     values = dict(core.status(now).values)
     assert int(values['received']) == int(values['published']) + int(values['dropped']) == len(messages)
-
