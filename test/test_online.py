@@ -563,7 +563,7 @@ from own_stamps import absent_marks, core_output, own_stamps_record, own_stamps_
 from tak_thermo_ros.core.effects import Effect, ParameterSpec, aux_effect_class  # noqa: E402
 from tak_thermo_ros.core.link.correction import NOT_PROVIDED  # noqa: E402
 from tak_thermo_ros.core.link.online import IMU_DROP_REASONS, SENSORS, SIGNAL_DROP_REASONS, OneSensor  # noqa: E402
-from tak_thermo_ros.core.records.record import temp_code_problem  # noqa: E402
+from tak_thermo_ros.core.records.record import sensor_messages, temp_code_problem  # noqa: E402
 
 APART = own_stamps_unit()
 """The driver unit with an effect with memory on each sensor (accelerometer hysteresis, gyroscope lag)."""
@@ -592,6 +592,8 @@ def test_one_sensor_messages_are_corrected_on_each_sensors_own_samples_and_publi
     # The gyroscope's own stream: the accelerometer's stamp is no duplicate of it; its absent values are not read.
     gyro_only = core.process_values(SEC, STEP_NS, (*NAN3, 0.03, 0.01, 0.02), 0.3, NOT_PROVIDED, 0.0)
     assert isinstance(gyro_only, OneSensor) and gyro_only.sensor == 'gyro'
+    # One message out per message in; apply's writer puts the two samples of one stamp in one message (docs/node.md).
+    assert len(sensor_messages(np.array([SEC * 10**9 + STEP_NS]), np.array([SEC * 10**9 + STEP_NS])).stamp_ns) == 1
     assert core.process_values(SEC, STEP_NS, (0.3, 0.0, 9.9, *NAN3), 0.35, 0.0, NOT_PROVIDED) == 'duplicate_stamp'
     assert 'Imu accelerometer sample\'s header stamp equal to the previous one\'s' in core.take_notices()[0].text
     last = (0.0, 0.1, 9.6, -0.01, 0.0, 0.04)
@@ -623,7 +625,7 @@ def test_before_any_mark_a_bad_sensor_drops_the_whole_message_after_it_only_that
     assert core.process_values(SEC, 3 * STEP_NS, both_bad, 0.4) == 'non_physical'  # the first sensor's reason
     assert core.process_values(SEC, 4 * STEP_NS, (*NAN3, *NAN3), 0.5, NOT_PROVIDED, NOT_PROVIDED) == 'no_sensor'
     status = core.status(0.6)
-    assert status.level is Level.WARN and 'published without a sensor left out: 1 gyro non_finite' in status.message
+    assert status.level is Level.WARN and 'left out of published messages: 1 gyro non_finite' in status.message
     assert status.value('sensor_dropped.gyro.non_finite') == '1' and status.value('dropped.no_sensor') == '1'
     assert (status.value('dropped.non_finite'), status.value('dropped.non_physical')) == ('1', '1')
     assert int(status.value('received')) == 5 == int(status.value('published')) + int(status.value('dropped'))
@@ -672,6 +674,8 @@ def test_a_correction_that_fails_on_one_sensor_leaves_that_sensor_out():
     result = core.process_values(SEC, 2 * STEP_NS, (0.0, 0.0, 9.8, 0.0, 0.0, 0.0), 0.3)
     assert result == OneSensor('accel', Corrector(unit.accel).correct_sample(0.0, 0.0, 9.8, 20.0))
     assert core.sensor_dropped == {'gyro.correction_failed': 1} and core.dropped['correction_failed'] == 2
+    status = core.status(0.4)
+    assert status.level is Level.ERROR and 'left out of published messages: 1 gyro correction_failed' in status.message
     texts = [n.text for n in core.take_notices() if n.kind == 'correction_failed']
     assert texts[0].startswith('Imu message dropped') and texts[0].endswith('; 1 so far)')
     assert texts[1].startswith('Imu gyroscope sample left out, the correction gave no finite number')

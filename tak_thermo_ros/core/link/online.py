@@ -217,6 +217,8 @@ class Configuration:
 class OneSensor(NamedTuple):
     """An Imu message published with one sensor; the caller marks the other absent (covariance[0] = -1).
 
+    A tuple subclass: a caller tells it from the six values of a message with both by its class.
+
     :param sensor: the sensor it carries, ``'accel'`` or ``'gyro'``.
     :param values: its three corrected values.
     """
@@ -1090,7 +1092,8 @@ class OnlineCompensator:
                   'dropped ' + ', '.join(f'{n} {reason}' for reason, n in dropped_now.items()))
         left_out = {key: new[f'sensor_dropped.{key}'] for key in self.sensor_dropped if new[f'sensor_dropped.{key}']}
         if left_out:
-            worse(Level.WARN, 'published without a sensor left out: ' + ', '.join(
+            failed = any(key.endswith((f'.{CORRECTION_FAILED}', f'.{NON_FINITE_OUTPUT}')) for key in left_out)
+            worse(Level.ERROR if failed else Level.WARN, 'left out of published messages: ' + ', '.join(
                 f'{n} {key.replace(".", " ")}' for key, n in left_out.items()))
         if new['message_lost']:
             worse(Level.WARN, f'{new["message_lost"]} messages lost in transport')
