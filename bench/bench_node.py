@@ -25,15 +25,20 @@ messages lost (sent - received) and the node's CPU per message. The sustained ra
 is the highest rate at which nothing was lost. ``--driver-only`` runs only this part and
 updates ``driver_input`` in ``node.json``.
 
-Usage: ``python bench/bench_node.py [--quick] [--driver-only]``; writes ``bench/results/node.json`` (with
-``--quick``: ``node_quick.json``, a smoke run, not the figures); exits 3
-(as every ``bench/bench_*.py``) when a target is missed.
+``--marks --baseline DIR`` measures only the real node's Imu callback (publish stubbed, no DDS),
+this version against another's in fresh interpreters taking turns: what honouring an absent
+sensor's mark (covariance[0] = -1) costs an ordinary two-sensor message; key ``one_sensor_marks``.
+
+Usage: ``python bench/bench_node.py [--quick] [--driver-only] [--marks --baseline DIR]``; writes
+``bench/results/node.json`` (with ``--quick``: ``node_quick.json``, a smoke run, not the figures);
+exits 3 (as every ``bench/bench_*.py``) when a target is missed.
 """
 
 from __future__ import annotations
 
 import argparse
 import cProfile
+import inspect
 import io
 import json
 import os
@@ -636,7 +641,14 @@ def main() -> int:
                         help='with --driver-only: also drive the compensator of another version of the package '
                              '(DIR holds its tak_thermo_ros/, e.g. `git archive main | tar -x -C DIR`), in turn '
                              'with this one at each rate')
+    parser.add_argument('--marks', action='store_true',
+                        help="with --baseline: only the real node's Imu callback, this version against the "
+                             "baseline's (the cost of honouring an absent sensor's mark); updates node.json")
     args = parser.parse_args()
+    if args.marks:
+        if args.baseline is None:
+            parser.error('--marks needs --baseline DIR')
+        return marks_only(args.baseline)
     if args.driver_only:
         return driver_only(quick=args.quick, baseline=args.baseline)
     throughput_count = 5_000 if args.quick else 10_000
@@ -819,13 +831,19 @@ def in_process_driver_cost(params: Path, count: int = 50_000, *, with_sequence: 
     acceleration, rate = out.linear_acceleration, out.angular_velocity
     process = core.process_values
     sequence = core.sequence
+    # A version that honours an absent sensor's mark reads the two covariance[0] too, as its node does.
+    marks = 'accel_mark' in inspect.signature(process).parameters
 
     def on_imu(message: Imu, k: int) -> None:
         header = message.header
         stamp = header.stamp
         a = message.linear_acceleration
         w = message.angular_velocity
-        result = process(stamp.sec, k, (a.x, a.y, a.z, w.x, w.y, w.z), 0.5)
+        if marks:
+            result = process(stamp.sec, k, (a.x, a.y, a.z, w.x, w.y, w.z), 0.5,
+                             message.linear_acceleration_covariance[0], message.angular_velocity_covariance[0])
+        else:
+            result = process(stamp.sec, k, (a.x, a.y, a.z, w.x, w.y, w.z), 0.5)
         if result.__class__ is tuple:
             out.header = header
             out.orientation = message.orientation
@@ -861,21 +879,34 @@ def in_process_driver_cost(params: Path, count: int = 50_000, *, with_sequence: 
 IN_PROCESS_ROUNDS = 15
 
 
-def in_process_against_baseline(params: Path, baseline: Path, rounds: int = IN_PROCESS_ROUNDS) -> dict:
-    """The callback's own work in this version and in the baseline's, fresh interpreters taking turns.
+def taking_turns(baseline: Path, rounds: int, call, environment: dict[str, str] | None = None) -> dict[str, list[dict]]:
+    """Run a function of this module in fresh interpreters, this version and the baseline's taking turns.
 
-    Both without the sequence-number wrapper (the baseline's EventsExecutor path had none), then
-    this version's whole path; the ratio is the median of the per-round ratios.
+    :param call: ``name -> 'function(arguments)'`` (``name`` is ``'this'`` or ``'baseline'``), the
+        expression evaluated in ``bench_node`` imported with that version of the package first on
+        ``sys.path``; it gives a JSON-serialisable result.
+    :returns: ``{'this': [...], 'baseline': [...]}``, one result per round each.
     """
     runs: dict[str, list[dict]] = {'this': [], 'baseline': []}
     for _ in range(rounds):
         for name, tree in (('this', REPO), ('baseline', baseline.resolve())):
             code = (f'import sys, json; sys.path.insert(0, {str(tree)!r}); '
                     f'sys.path.insert(1, {str(Path(__file__).parent)!r}); '
-                    f'import bench_node; print(json.dumps(bench_node.in_process_driver_cost('
-                    f'bench_node.Path({str(params)!r}), 20_000, with_sequence={name == "this"})))')
-            result = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, check=True)
+                    f'import bench_node; print(json.dumps(bench_node.{call(name)}))')
+            result = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, check=True,
+                                    env=environment)
             runs[name].append(json.loads(result.stdout.strip().splitlines()[-1]))
+    return runs
+
+
+def in_process_against_baseline(params: Path, baseline: Path, rounds: int = IN_PROCESS_ROUNDS) -> dict:
+    """The callback's own work in this version and in the baseline's, fresh interpreters taking turns.
+
+    Both without the sequence-number wrapper (the baseline's EventsExecutor path had none), then
+    this version's whole path; the ratio is the median of the per-round ratios.
+    """
+    runs = taking_turns(baseline, rounds, lambda name: f'in_process_driver_cost(bench_node.Path({str(params)!r}), '
+                                                       f'20_000, with_sequence={name == "this"})')
     ratios = [t['without_sequence_us'] / b['without_sequence_us'] for t, b in zip(runs['this'], runs['baseline'])]
     return {'rounds': rounds, 'runs': runs,
             'this_without_sequence_us_best': min(r['without_sequence_us'] for r in runs['this']),
@@ -887,6 +918,116 @@ def in_process_against_baseline(params: Path, baseline: Path, rounds: int = IN_P
             'ratio_without_sequence_median': statistics.median(ratios),
             'ratio_with_sequence_median': statistics.median(
                 t['driver_callback_us'] / b['without_sequence_us'] for t, b in zip(runs['this'], runs['baseline']))}
+
+
+CALLBACK_ROUNDS = 21
+
+
+def node_callback_cost(params: Path, count: int = 5_000, repeats: int = 30) -> dict:
+    """Microseconds per message of the real node's Imu callback (``CompensatorNode._on_imu``), without DDS.
+
+    rclpy is initialised on a benchmark domain, the node built from ``params`` (any version of the
+    package that is first on ``sys.path``), its Imu publish replaced by a no-op (the middleware's
+    share is the same for every version), and the callback called directly with a two-sensor Imu
+    whose stamp goes on by 1 us: the best of ``repeats`` short runs of ``count`` (on a shared
+    machine the best of many short runs is the one least disturbed). Where the version
+    honours the marks of an absent sensor (``core.link.online.OneSensor``), also the callback on
+    messages that carry one sensor each, alternately the accelerometer and the gyroscope.
+    """
+    import rclpy
+    from sensor_msgs.msg import Imu, Temperature
+
+    from tak_thermo_ros.node import CompensatorNode
+    try:
+        from tak_thermo_ros.core.link.online import OneSensor  # noqa: F401 - this version's one-sensor path
+        marks = True
+    except ImportError:
+        marks = False
+    context = rclpy.context.Context()
+    rclpy.init(args=['--ros-args', '--params-file', str(params), '-p', 'temp_timeout:=1000.0'], context=context,
+               domain_id=bench_domain(7))
+    node = CompensatorNode(context=context)
+    node._publish_imu = lambda message: None  # noqa: SLF001 - the callback alone, not the middleware
+    temperature = Temperature()
+    temperature.temperature = 21.0
+    node._on_temperature(temperature)  # noqa: SLF001
+    on_imu = node._on_imu  # noqa: SLF001
+
+    def messages(one_sensor: bool) -> list:
+        out = []
+        for sensor in range(2):
+            message = Imu()
+            message.linear_acceleration.z = 9.81
+            message.angular_velocity.x = 0.01
+            if one_sensor:
+                covariance = message.angular_velocity_covariance if sensor == 0 else \
+                    message.linear_acceleration_covariance
+                covariance[0] = -1.0
+            out.append(message)
+        return out
+
+    second = [1_700_000_000]
+
+    def run(pair: list) -> None:
+        second[0] += 1
+        for message in pair:
+            message.header.stamp.sec = second[0]
+        for k in range(count):
+            message = pair[k & 1]
+            message.header.stamp.nanosec = k * 1000
+            on_imu(message)
+
+    timings = per_message_us((('two_sensor_us', lambda: run(messages(False))),), count, repeats)
+    if marks:
+        timings.update(per_message_us((('one_sensor_us', lambda: run(messages(True))),), count, repeats))
+    status = node._core.status(0.0)  # noqa: SLF001
+    timings['published'] = int(status.value('published'))
+    timings['received'] = int(status.value('received'))
+    node.destroy_node()
+    rclpy.shutdown(context=context)
+    return {**timings, 'messages': count, 'marks': marks}
+
+
+def callback_against_baseline(params: Path, baseline: Path, rounds: int = CALLBACK_ROUNDS) -> dict:
+    """:func:`node_callback_cost` of this version and the baseline's, fresh interpreters taking turns.
+
+    The ratio is the median of the per-round ratios (a change in the machine's load hits both).
+    """
+    environment = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+    with tempfile.TemporaryDirectory(prefix='bench_node_callback_') as home:
+        environment.update(ROS_HOME=home, ROS_LOG_DIR=str(Path(home) / 'log'))
+        runs = taking_turns(baseline, rounds, lambda name: f'node_callback_cost(bench_node.Path({str(params)!r}))',
+                            environment)
+    ratios = [t['two_sensor_us'] / b['two_sensor_us'] for t, b in zip(runs['this'], runs['baseline'])]
+    return {'rounds': rounds, 'runs': runs,
+            'this_two_sensor_us_best': min(r['two_sensor_us'] for r in runs['this']),
+            'baseline_two_sensor_us_best': min(r['two_sensor_us'] for r in runs['baseline']),
+            'this_two_sensor_us_median': statistics.median(r['two_sensor_us'] for r in runs['this']),
+            'baseline_two_sensor_us_median': statistics.median(r['two_sensor_us'] for r in runs['baseline']),
+            'this_one_sensor_us_median': statistics.median(r['one_sensor_us'] for r in runs['this']),
+            'ratio_median': statistics.median(ratios), 'ratios': ratios}
+
+
+def marks_only(baseline: Path, rounds: int = CALLBACK_ROUNDS) -> int:
+    """The callback's cost against the baseline's (``--marks``); merged into ``node.json`` as ``one_sensor_marks``."""
+    with tempfile.TemporaryDirectory(prefix='bench_node_marks_') as tmp:
+        params = Path(tmp) / 'driver_params.yaml'
+        driver_params(params)
+        load = os.getloadavg()[0]
+        started = time.time()
+        result = callback_against_baseline(params, baseline, rounds)
+    result.update(baseline=str(baseline), wall_s=time.time() - started, load_average_1min_before=load,
+                  load_average_1min_after=os.getloadavg()[0])
+    document = json.loads(RESULTS.read_text(encoding='utf-8')) if RESULTS.exists() else {}
+    document['one_sensor_marks'] = result
+    RESULTS.write_text(json.dumps(document, indent=2) + '\n', encoding='utf-8')
+    print(f'two-sensor Imu callback: {result["this_two_sensor_us_median"]:.2f} us (best '
+          f'{result["this_two_sensor_us_best"]:.2f}) against {result["baseline_two_sensor_us_median"]:.2f} us '
+          f'(best {result["baseline_two_sensor_us_best"]:.2f}) before, medians of {rounds} rounds; '
+          f'ratio {result["ratio_median"]:.3f} (median of the per-round ratios)')
+    print(f'one-sensor Imu callback: {result["this_one_sensor_us_median"]:.2f} us (median)')
+    print(f'wrote {RESULTS}')
+    return 0
 
 
 def driver_params(path: Path) -> None:

@@ -9,7 +9,8 @@ The calibration's input kind chooses the topics (relative names: namespaces and 
 - a driver calibration (file version 2, ``input: imu``): subscribes ``imu/data_raw``
   (``sensor_msgs/msg/Imu``) and ``imu/temperature`` (``sensor_msgs/msg/Temperature``, degrees
   C); publishes ``imu/data_compensated`` (``sensor_msgs/msg/Imu``, accelerometer and gyroscope
-  corrected, exactly as ``tak_calib apply`` writes it);
+  corrected, exactly as ``tak_calib apply`` writes it; a message that carries one sensor, the
+  other's covariance[0] = -1, is published with that one corrected and the other still marked);
   with a magnetometer in the calibration (``mag``), also subscribes ``imu/mag``
   (``sensor_msgs/msg/MagneticField``, tesla) and publishes ``imu/mag_compensated`` (corrected for
   temperature and iron, covariance from the calibration, exactly as ``tak_calib apply``);
@@ -59,10 +60,10 @@ from tak_thermo_ros.formats.calibration_file import (
     unit_from_mapping,
     unit_to_mapping,
 )
-from tak_thermo_ros.core.link.correction import OutOfRange
+from tak_thermo_ros.core.link.correction import NOT_PROVIDED_COVARIANCE, OutOfRange
 from tak_thermo_ros.core.effects.aux_signal import AUX_FIELDS, signal_field, split_signal_name
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
-from tak_thermo_ros.core.link.online import Level, OnlineCompensator, StaleTemperature
+from tak_thermo_ros.core.link.online import SENSORS, Level, OneSensor, OnlineCompensator, StaleTemperature
 from tak_thermo_ros.errors import CalibrationError, TakError
 from tak_thermo_ros.node_main import SignalGuard
 
@@ -200,6 +201,11 @@ class CompensatorNode(Node):
         self._imu.orientation.w = 1.0
         self._acceleration = self._imu.linear_acceleration
         self._angular_velocity = self._imu.angular_velocity
+        # A driver's message that carries one sensor is published with the other marked absent
+        # (zeros, covariance[0] = -1): one message per sensor it carries, its absent one never written.
+        self._imu_only = {sensor: Imu() for sensor in SENSORS} if driver else {}
+        self._only_vector = {sensor: imu.linear_acceleration if sensor == 'accel' else imu.angular_velocity
+                             for sensor, imu in self._imu_only.items()}
         self._set_covariances()
         self._imu_publisher = self.create_publisher(Imu, output_topic, output_qos)
         self._publish_imu = self._imu_publisher.publish
@@ -344,6 +350,9 @@ class CompensatorNode(Node):
             self._imu.orientation_covariance = orientation
         self._imu.angular_velocity_covariance = angular
         self._imu.linear_acceleration_covariance = linear
+        for sensor, imu in self._imu_only.items():
+            imu.angular_velocity_covariance = angular if sensor == 'gyro' else NOT_PROVIDED_COVARIANCE
+            imu.linear_acceleration_covariance = linear if sensor == 'accel' else NOT_PROVIDED_COVARIANCE
 
     # -- messages ---------------------------------------------------------------------------
 
@@ -398,7 +407,9 @@ class CompensatorNode(Node):
         stamp = header.stamp
         a = message.linear_acceleration
         w = message.angular_velocity
-        result = self._process_values(stamp.sec, stamp.nanosec, (a.x, a.y, a.z, w.x, w.y, w.z), time.monotonic())
+        # covariance[0] = -1 marks a sensor the message does not carry (sensor_msgs): handed to the core
+        result = self._process_values(stamp.sec, stamp.nanosec, (a.x, a.y, a.z, w.x, w.y, w.z), time.monotonic(),
+                                      message.linear_acceleration_covariance[0], message.angular_velocity_covariance[0])
         if result.__class__ is tuple:
             imu = self._imu
             imu.header = header
@@ -407,8 +418,20 @@ class CompensatorNode(Node):
             acceleration, rate = self._acceleration, self._angular_velocity
             acceleration.x, acceleration.y, acceleration.z, rate.x, rate.y, rate.z = result
             self._publish_imu(imu)
+        elif result.__class__ is OneSensor:
+            self._publish_one_sensor(message, result)
         if self._core.notices:
             self._log_notices()
+
+    def _publish_one_sensor(self, message: Imu, result: OneSensor) -> None:
+        """Publish a message that carries one sensor, the other marked absent (its template's covariance)."""
+        imu = self._imu_only[result.sensor]
+        imu.header = message.header
+        imu.orientation = message.orientation
+        imu.orientation_covariance = message.orientation_covariance
+        vector = self._only_vector[result.sensor]
+        vector.x, vector.y, vector.z = result.values
+        self._publish_imu(imu)
 
     def _with_sequence(self, on_message: Any, core: OnlineCompensator | None = None, name: str = '') -> Any:
         """``on_message`` preceded by the count of sequence gaps (a callback taking the MessageInfo).

@@ -215,8 +215,14 @@ class Harness:
 
     def send_imu(self, stamp_ns: int, values: Sequence[float], *, frame_id: str = 'imu_link',
                  orientation: Sequence[float] = (0.0, 0.0, 0.0, 1.0),
-                 orientation_covariance: Sequence[float] = (-1.0, 0, 0, 0, 0, 0, 0, 0, 0)) -> None:
-        """Publish one driver Imu: accelerometer x y z, gyroscope x y z, orientation (x y z w)."""
+                 orientation_covariance: Sequence[float] = (-1.0, 0, 0, 0, 0, 0, 0, 0, 0),
+                 linear_acceleration_covariance: Sequence[float] = (7.0,) * 9,
+                 angular_velocity_covariance: Sequence[float] = (7.0,) * 9) -> None:
+        """Publish one driver Imu: accelerometer x y z, gyroscope x y z, orientation (x y z w).
+
+        The sensors' covariances default to 7 (the node replaces them with the fit's); a
+        covariance[0] of -1 marks that sensor absent (the message carries the other only).
+        """
         message = Imu()
         header_stamp(message, stamp_ns)
         message.header.frame_id = frame_id
@@ -224,8 +230,8 @@ class Harness:
         a.x, a.y, a.z, w.x, w.y, w.z = (float(v) for v in values)
         q.x, q.y, q.z, q.w = (float(v) for v in orientation)
         message.orientation_covariance = [float(v) for v in orientation_covariance]
-        message.angular_velocity_covariance = [7.0] * 9  # the node replaces these with the fit's
-        message.linear_acceleration_covariance = [7.0] * 9
+        message.angular_velocity_covariance = [float(v) for v in angular_velocity_covariance]
+        message.linear_acceleration_covariance = [float(v) for v in linear_acceleration_covariance]
         self.counts.publish(message)
 
     def set_parameters(self, values: dict[str, Any], *, atomically: bool = False,

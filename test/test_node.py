@@ -349,21 +349,11 @@ def node_and_apply(bag: Path, params: Path, driver, ros_env: dict[str, str], tmp
     return expected, list(ros.imu)
 
 
-def test_driver_node_output_equals_tak_calib_apply_on_both_sensors(tmp_path, ros_env):
-    """A driver bag (gyro thermal lag fitted) played into the node: apply's Imu, float64-equal, every field."""
-    run = simulate(DRIVER_RUN)
-    rng = np.random.default_rng(5)
-    quaternions = rng.normal(size=(len(run.driver.stamp_ns), 4))
-    quaternions /= np.linalg.norm(quaternions, axis=1, keepdims=True)
-    driver = replace(run.driver, orientation=quaternions,
-                     orientation_covariance=rng.uniform(0.0, 1e-3, (len(quaternions), 9)))
-    bag, params = tmp_path / 'driver.mcap', tmp_path / 'tak_params.yaml'
-    write_driver_record(bag, driver)
-    assert cli.main(['fit', str(bag), '-o', str(params), '--no-progress', '--gyro-effects', 'thermal_lag']) == 0
-    unit = load_unit(params)
-    assert unit.input_kind is InputKind.IMU and [e.name for e in unit.gyro.effects] == ['thermal_lag']
-    expected, imu = node_and_apply(bag, params, driver, ros_env, tmp_path)
-    assert len(imu) == len(expected.stamp_ns) == len(driver.stamp_ns)
+def imu_equal_to_applied(imu: list, expected) -> dict[str, np.ndarray]:
+    """Assert the node's Imu messages equal apply's (``read_imu_messages``), float64 for float64, every field.
+
+    :returns: the node's fields as arrays (``stamp``, ``accel``, ``gyro``, ``orientation`` and the three covariances).
+    """
     got = {
         'stamp': np.array([stamp_of(m) for m in imu]),
         'accel': np.array([(m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z)
@@ -379,12 +369,32 @@ def test_driver_node_output_equals_tak_calib_apply_on_both_sensors(tmp_path, ros
     assert np.array_equal(got['stamp'], expected.stamp_ns)
     assert np.array_equal(got['accel'], expected.linear_acceleration)
     assert np.array_equal(got['gyro'], expected.angular_velocity)
-    assert np.array_equal(got['orientation'], expected.orientation) and np.array_equal(got['orientation'], quaternions)
+    assert np.array_equal(got['orientation'], expected.orientation)
     assert np.array_equal(got['orientation_covariance'], expected.orientation_covariance)
     assert np.array_equal(got['angular_velocity_covariance'], expected.angular_velocity_covariance)
     assert np.array_equal(got['linear_acceleration_covariance'], expected.linear_acceleration_covariance)
-    assert got['angular_velocity_covariance'][0, 0] > 0.0  # from the gyroscope's fit, not the driver's
     assert [m.header.frame_id for m in imu] == expected.frame_ids
+    return got
+
+
+def test_driver_node_output_equals_tak_calib_apply_on_both_sensors(tmp_path, ros_env):
+    """A driver bag (gyro thermal lag fitted) played into the node: apply's Imu, float64-equal, every field."""
+    run = simulate(DRIVER_RUN)
+    rng = np.random.default_rng(5)
+    quaternions = rng.normal(size=(len(run.driver.stamp_ns), 4))
+    quaternions /= np.linalg.norm(quaternions, axis=1, keepdims=True)
+    driver = replace(run.driver, orientation=quaternions,
+                     orientation_covariance=rng.uniform(0.0, 1e-3, (len(quaternions), 9)))
+    bag, params = tmp_path / 'driver.mcap', tmp_path / 'tak_params.yaml'
+    write_driver_record(bag, driver)
+    assert cli.main(['fit', str(bag), '-o', str(params), '--no-progress', '--gyro-effects', 'thermal_lag']) == 0
+    unit = load_unit(params)
+    assert unit.input_kind is InputKind.IMU and [e.name for e in unit.gyro.effects] == ['thermal_lag']
+    expected, imu = node_and_apply(bag, params, driver, ros_env, tmp_path)
+    assert len(imu) == len(expected.stamp_ns) == len(driver.stamp_ns)
+    got = imu_equal_to_applied(imu, expected)
+    assert np.array_equal(got['orientation'], quaternions)
+    assert got['angular_velocity_covariance'][0, 0] > 0.0  # from the gyroscope's fit, not the driver's
     # The lag's state matters: the same link without the effect differs by far more than the noise.
     samples = align(driver.six_channels(), use_reference=False)
     without_lag = UnitCorrector(replace(unit, gyro=replace(unit.gyro, effects=()))).correct(
@@ -446,6 +456,68 @@ def test_driver_bad_input_and_time_backwards(tmp_path, ros_env):
         assert node.stop() == 0
     log = node.log()
     assert 'temperature 60 outside the calibrated range 5..35' in log and 'Traceback' not in log
+
+
+def test_a_record_with_its_own_stamps_per_sensor_equals_apply_marks_included(tmp_path, ros_env):
+    """A bag whose Imu messages carry one sensor or both, played into the node: apply's Imu, float64-equal.
+
+    Every field, the absent sensor's mark (covariance[0] = -1, values zero) included; each sensor's
+    effect with memory (accelerometer hysteresis, gyroscope thermal lag) on its own samples; the
+    faults on one sensor's own samples (a NaN gyroscope sample beside a good accelerometer one, a
+    non-physical accelerometer sample, a duplicate accelerometer stamp) as apply treats them; the
+    diagnostics count every message.
+    """
+    from own_stamps import core_output, own_stamps_record, own_stamps_unit, play_order
+    bag, params, applied = tmp_path / 'apart.mcap', tmp_path / 'tak_params.yaml', tmp_path / 'applied.mcap'
+    write_driver_record(bag, own_stamps_record())
+    unit = own_stamps_unit()
+    driver_params(params, unit)
+    assert cli.main(['apply', str(bag), '--params', str(params), '-o', str(applied), '--no-progress']) == 0
+    expected = read_imu_messages(applied, topic='/imu/data_compensated')
+    raw, record, events = play_order(bag)
+    # Pacing only (the assertions hold the node to apply): how many Imu the node publishes so far.
+    _, _, results = core_output(bag, load_unit(params))
+    published_after = np.cumsum([not isinstance(result, str) for result in results])
+    with NodeProcess(node_command('--params-file', str(params), '-p', 'qos:=reliable'), ros_env,
+                     tmp_path / 'node.log') as node, \
+            Harness(int(ros_env['ROS_DOMAIN_ID']), driver=True) as ros:
+        ros.wait_matched()
+        sent = 0
+        for stamp, stream, row in events:
+            answered = int(published_after[sent - 1]) if sent else 0
+            if stream == 0:  # before a temperature, the node has corrected everything sent
+                ros.wait(lambda: len(ros.imu) >= answered, 20.0, f'the node to catch up ({len(ros.imu)})')
+                ros.send_temperature(stamp, record.temperature[row])
+                continue
+            ros.send_imu(stamp, (*raw.linear_acceleration[row], *raw.angular_velocity[row]),
+                         frame_id=raw.frame_ids[row], orientation=raw.orientation[row],
+                         orientation_covariance=raw.orientation_covariance[row],
+                         linear_acceleration_covariance=raw.linear_acceleration_covariance[row],
+                         angular_velocity_covariance=raw.angular_velocity_covariance[row])
+            sent += 1
+        ros.wait(lambda: len(ros.imu) >= int(published_after[-1]), 20.0, 'the last Imu')
+        ros.wait(lambda: ros.latest_status() is not None
+                 and status_values(ros.latest_status())['received'] == str(sent), 10.0, 'the final status')
+        values = status_values(ros.latest_status())
+        assert node.stop() == 0
+    imu = ros.imu
+    assert len(imu) == len(expected.stamp_ns) < len(raw.stamp_ns)
+    got = imu_equal_to_applied(imu, expected)
+    # The marks: a message without the accelerometer (gyroscope) says so, its values zero; the other's covariance
+    # is the fit's.
+    accel_absent = got['linear_acceleration_covariance'][:, 0] == -1.0
+    gyro_absent = got['angular_velocity_covariance'][:, 0] == -1.0
+    assert accel_absent.sum() > 30 and gyro_absent.sum() > 10 and not np.any(accel_absent & gyro_absent)
+    assert not got['accel'][accel_absent].any() and not got['gyro'][gyro_absent].any()
+    assert np.all(got['linear_acceleration_covariance'][~accel_absent, 0] > 0.0)
+    assert np.all(got['angular_velocity_covariance'][~gyro_absent, 0] > 0.0)
+    assert int(values['received']) == int(values['published']) + int(values['dropped']) == len(raw.stamp_ns)
+    assert (values['dropped.duplicate_stamp'], values['dropped.non_physical']) == ('1', '1')
+    assert values['sensor_dropped.gyro.non_finite'] == '1' and values['sensor_stamps'].startswith('own')
+    assert int(values['one_sensor_messages']) == int(np.count_nonzero(
+        (raw.linear_acceleration_covariance[:, 0] == -1.0) | (raw.angular_velocity_covariance[:, 0] == -1.0)))
+    log = node.log()
+    assert 'marks the accelerometer absent (covariance[0] = -1)' in log and 'Traceback' not in log
 
 
 def test_absurd_parameter_updates_refused_and_the_node_keeps_publishing(tmp_path, ros_env):

@@ -554,3 +554,254 @@ def test_sequence_gaps_count_every_message_never_received():
     assert [n.kind for n in core.take_notices()] == ['message_lost']
     core.sequence('imu', 12, now_s=100.0)
     assert [n.kind for n in core.take_notices()] == ['sequence_gap']
+
+
+# -- a driver's messages that carry one sensor (covariance[0] = -1 marks the other absent) ---------
+
+from own_stamps import absent_marks, core_output, own_stamps_record, own_stamps_unit  # noqa: E402
+
+from tak_thermo_ros.core.effects import Effect, ParameterSpec, aux_effect_class  # noqa: E402
+from tak_thermo_ros.core.link.correction import NOT_PROVIDED  # noqa: E402
+from tak_thermo_ros.core.link.online import IMU_DROP_REASONS, SENSORS, SIGNAL_DROP_REASONS, OneSensor  # noqa: E402
+from tak_thermo_ros.core.records.record import sensor_messages, temp_code_problem  # noqa: E402
+
+APART = own_stamps_unit()
+"""The driver unit with an effect with memory on each sensor (accelerometer hysteresis, gyroscope lag)."""
+NAN3 = (math.nan, math.nan, math.nan)
+STEP_NS = 10_000_000
+
+
+def _sensor_series(unit, sensor: str, samples: list[tuple]) -> np.ndarray:
+    """``correct`` of one sensor's samples ``(values, temperature, stamp_ns)`` from the effects' initial state."""
+    values, temperatures, stamps = (np.array(column) for column in zip(*samples))
+    return Corrector(unit.sensor(sensor)).correct(values, temperatures,
+                                                  stamp_s=seconds_from_ns(stamps.astype(np.int64)))
+
+
+def test_one_sensor_messages_are_corrected_on_each_sensors_own_samples_and_published_marked():
+    """A mark starts per-sensor streams: own stamps, own effect state; absent values never read, published marked."""
+    core = OnlineCompensator(APART)
+    core.process_temperature(20.0, now_s=0.0)
+    first = (0.1, -0.2, 9.8, 0.01, 0.02, -0.03)
+    assert isinstance(core.process_values(SEC, 0, first, 0.1), tuple) and core.own_stamps_since is None
+    accel_only = core.process_values(SEC, STEP_NS, (0.2, -0.1, 9.7, *NAN3), 0.2, 0.5, NOT_PROVIDED)
+    assert isinstance(accel_only, OneSensor) and accel_only.sensor == 'accel'
+    notice = core.take_notices()[0]
+    assert notice.kind == 'own_stamps' and 'Imu message 2 marks the gyroscope absent' in notice.text
+    core.process_temperature(24.0, now_s=0.25)
+    # The gyroscope's own stream: the accelerometer's stamp is no duplicate of it; its absent values are not read.
+    gyro_only = core.process_values(SEC, STEP_NS, (*NAN3, 0.03, 0.01, 0.02), 0.3, NOT_PROVIDED, 0.0)
+    assert isinstance(gyro_only, OneSensor) and gyro_only.sensor == 'gyro'
+    # One message out per message in; apply's writer puts the two samples of one stamp in one message (docs/node.md).
+    assert len(sensor_messages(np.array([SEC * 10**9 + STEP_NS]), np.array([SEC * 10**9 + STEP_NS])).stamp_ns) == 1
+    assert core.process_values(SEC, STEP_NS, (0.3, 0.0, 9.9, *NAN3), 0.35, 0.0, NOT_PROVIDED) == 'duplicate_stamp'
+    assert 'Imu accelerometer sample\'s header stamp equal to the previous one\'s' in core.take_notices()[0].text
+    last = (0.0, 0.1, 9.6, -0.01, 0.0, 0.04)
+    both = core.process_values(SEC, 2 * STEP_NS, last, 0.4)  # no mark: both, each on its own stream now
+    assert both.__class__ is tuple and len(both) == 6
+    accel = [(first[:3], 20.0, SEC * 10**9), ((0.2, -0.1, 9.7), 20.0, SEC * 10**9 + STEP_NS),
+             (last[:3], 24.0, SEC * 10**9 + 2 * STEP_NS)]
+    gyro = [(first[3:], 20.0, SEC * 10**9), ((0.03, 0.01, 0.02), 24.0, SEC * 10**9 + STEP_NS),
+            (last[3:], 24.0, SEC * 10**9 + 2 * STEP_NS)]
+    assert np.array_equal(_sensor_series(APART, 'accel', accel)[1:], [accel_only.values, both[:3]])
+    assert np.array_equal(_sensor_series(APART, 'gyro', gyro)[1:], [gyro_only.values, both[3:]])
+    status = core.status(0.5)
+    assert status.value('sensor_stamps') == 'own (each sensor apart from message 2 on)'
+    assert status.value('one_sensor_messages') == '3' and status.value('sensor_dropped') == '0'
+    assert status.value('dropped.duplicate_stamp') == '1' and status.value('dropped.no_sensor') == '0'
+    assert (core.received, core.published) == (5, 4) and balanced(core)
+
+
+def test_before_any_mark_a_bad_sensor_drops_the_whole_message_after_it_only_that_sensor():
+    """The one difference from apply (docs/node.md): the node cannot know the sensors come apart before a mark."""
+    core = OnlineCompensator(APART)
+    core.process_temperature(20.0, now_s=0.0)
+    bad_gyro = (0.1, -0.2, 9.8, 0.01, math.nan, -0.03)
+    assert core.process_values(SEC, 0, bad_gyro, 0.1) == 'non_finite'  # shared: dropped whole, as ever
+    assert isinstance(core.process_values(SEC, STEP_NS, (*NAN3, 0.0, 0.0, 0.0), 0.2, NOT_PROVIDED, 0.0), OneSensor)
+    kept = core.process_values(SEC, 2 * STEP_NS, bad_gyro, 0.3)  # apart: the accelerometer is published
+    assert kept == OneSensor('accel', kept.values) and core.sensor_dropped == {'gyro.non_finite': 1}
+    both_bad = (1e308, 0.0, 9.8, math.inf, 0.0, 0.0)
+    assert core.process_values(SEC, 3 * STEP_NS, both_bad, 0.4) == 'non_physical'  # the first sensor's reason
+    assert core.process_values(SEC, 4 * STEP_NS, (*NAN3, *NAN3), 0.5, NOT_PROVIDED, NOT_PROVIDED) == 'no_sensor'
+    status = core.status(0.6)
+    assert status.level is Level.WARN and 'left out of published messages: 1 gyro non_finite' in status.message
+    assert status.value('sensor_dropped.gyro.non_finite') == '1' and status.value('dropped.no_sensor') == '1'
+    assert (status.value('dropped.non_finite'), status.value('dropped.non_physical')) == ('1', '1')
+    assert int(status.value('received')) == 5 == int(status.value('published')) + int(status.value('dropped'))
+
+
+def test_a_recorded_signal_is_waited_for_by_the_sensor_whose_terms_need_it():
+    """Apart, the accelerometer goes on while the gyroscope's aux term waits for its signal."""
+    supply = aux_effect_class('aux:/power/battery_state')(tau_s=0.0, reference=12.0, slope_x=0.002)
+    unit = replace(DRIVER, gyro=replace(DRIVER.gyro, effects=(supply,)))
+    core = OnlineCompensator(unit)
+    core.process_temperature(20.0, now_s=0.0)
+    assert core.process_values(SEC, 0, (0.0, 0.0, 9.8, 0.0, 0.0, 0.0), 0.1) == 'waiting_for_signal'
+    assert core.process_values(SEC, STEP_NS, (0.0, 0.0, 9.8, *NAN3), 0.2, 0.0, NOT_PROVIDED) == OneSensor(
+        'accel', Corrector(unit.accel).correct_sample(0.0, 0.0, 9.8, 20.0))
+    result = core.process_values(SEC, 2 * STEP_NS, (0.0, 0.0, 9.8, 0.0, 0.0, 0.0), 0.3)
+    assert isinstance(result, OneSensor) and core.sensor_dropped == {'gyro.waiting_for_signal': 1}
+    assert core.process_values(SEC, 3 * STEP_NS, (*NAN3, 0.0, 0.0, 0.0), 0.4, NOT_PROVIDED, 0.0) == \
+        'waiting_for_signal'
+    core.process_signal('aux:/power/battery_state', 12.5, now_s=0.45)
+    assert core.process_values(SEC, 4 * STEP_NS, (0.0, 0.0, 9.8, 0.0, 0.0, 0.0), 0.5).__class__ is tuple
+    assert balanced(core) and set(SIGNAL_DROP_REASONS) <= set(core.dropped)
+
+
+class _Fragile(Effect):
+    """A user effect that fails in service (a stamp after 2020), not over the calibrated range at start-up."""
+
+    name = 'fragile'
+    summary = 'Raises on a stamp after 2020.'
+    confirm = 'None.'
+    needs_stamps = True
+    amplitude = ParameterSpec('rate', 0.0, -1.0, 1.0, 'counts')
+
+    def step(self, state, stamp_s, temp_code):
+        if stamp_s > 1.6e9:
+            raise RuntimeError('fragile')
+        return state, (0.0,)
+
+
+def test_a_correction_that_fails_on_one_sensor_leaves_that_sensor_out():
+    """Apart, the gyroscope's failing effect leaves its sample out; the accelerometer's is published."""
+    unit = replace(DRIVER, gyro=replace(DRIVER.gyro, effects=(_Fragile(),)))
+    core = OnlineCompensator(unit, warn_period_s=0.0)
+    core.process_temperature(20.0, now_s=0.0)
+    assert core.process_values(SEC, 0, (0.0, 0.0, 9.8, 0.0, 0.0, 0.0), 0.1) == 'correction_failed'
+    assert core.process_values(SEC, STEP_NS, (*NAN3, 0.0, 0.0, 0.0), 0.2, NOT_PROVIDED, 0.0) == 'correction_failed'
+    result = core.process_values(SEC, 2 * STEP_NS, (0.0, 0.0, 9.8, 0.0, 0.0, 0.0), 0.3)
+    assert result == OneSensor('accel', Corrector(unit.accel).correct_sample(0.0, 0.0, 9.8, 20.0))
+    assert core.sensor_dropped == {'gyro.correction_failed': 1} and core.dropped['correction_failed'] == 2
+    status = core.status(0.4)
+    assert status.level is Level.ERROR and 'left out of published messages: 1 gyro correction_failed' in status.message
+    texts = [n.text for n in core.take_notices() if n.kind == 'correction_failed']
+    assert texts[0].startswith('Imu message dropped') and texts[0].endswith('; 1 so far)')
+    assert texts[1].startswith('Imu gyroscope sample left out, the correction gave no finite number')
+    assert balanced(core)
+
+
+def test_a_bag_whose_sensors_come_apart_is_corrected_as_apply_writes_it_but_the_documented_message(tmp_path):
+    """Apply of a bag with its own stamps per sensor, and the core fed its messages: equal, marks included.
+
+    Except the one message before the first mark whose gyroscope sample is NaN: apply keeps its
+    accelerometer sample, the node drops it whole (the accelerometer has no effect with memory
+    here, so nothing after it differs).
+    """
+    from tak_thermo_ros import cli
+    from tak_thermo_ros.formats.bag import read_imu_messages, write_driver_record
+    from tak_thermo_ros.formats.calibration_file import load_unit, save_unit
+    bag, params, applied = tmp_path / 'apart.mcap', tmp_path / 'params.yaml', tmp_path / 'applied.mcap'
+    write_driver_record(bag, own_stamps_record(shared_fault=True))
+    save_unit(params, own_stamps_unit(accel_memory=False))
+    assert cli.main(['apply', str(bag), '--params', str(params), '-o', str(applied), '--no-progress']) == 0
+    expected = read_imu_messages(applied, topic='/imu/data_compensated')
+    core, got, _ = core_output(bag, load_unit(params))
+    only_apply = np.setdiff1d(expected.stamp_ns, got['stamp_ns'])
+    assert len(only_apply) == 1 and only_apply[0] == expected.stamp_ns[2]  # the third message, before the mark
+    assert expected.angular_velocity_covariance[2, 0] == NOT_PROVIDED  # apply: its accelerometer alone
+    keep = expected.stamp_ns != only_apply[0]
+    assert np.array_equal(got['stamp_ns'], expected.stamp_ns[keep])
+    assert np.array_equal(got['accel'], expected.linear_acceleration[keep])
+    assert np.array_equal(got['gyro'], expected.angular_velocity[keep])
+    assert np.array_equal(got['accel_absent'], expected.linear_acceleration_covariance[keep, 0] == NOT_PROVIDED)
+    assert np.array_equal(got['gyro_absent'], expected.angular_velocity_covariance[keep, 0] == NOT_PROVIDED)
+    assert np.array_equal(got['orientation'], expected.orientation[keep])
+    assert got['accel_absent'].sum() > 30 and got['gyro_absent'].sum() > 10 and core.own_stamps_since == 6
+    assert core.dropped['non_finite'] == 1 and core.sensor_dropped == {'gyro.non_finite': 1}
+    assert core.received == core.published + core.dropped_total() and core.received > absent_marks(
+        read_imu_messages(bag, topic='/imu/data_raw'))
+
+
+# The property: generated streams mixing both-sensor and one-sensor messages, the offline rule as the oracle.
+
+_CARRIED = st.sampled_from([(True, True)] * 3 + [(True, False), (False, True)] * 2 + [(False, False)])
+_apart_event = st.one_of(
+    st.tuples(st.just('imu'), st.integers(-3, 4) | st.sampled_from([0, 3_600_000, -3_600_000, 20_000]),  # ms
+              st.tuples(*[_value] * 6), _CARRIED, st.floats(0.0, 0.3)),
+    st.tuples(st.just('temp'), st.one_of(st.floats(-10.0, 50.0), st.sampled_from([math.nan, 2e7])),
+              st.floats(0.0, 0.3)),
+)
+
+
+def _offline_reasons(stamps: list[int], values: list[tuple]) -> list[str | None]:
+    """Per sample of one stream, why the offline rule leaves it out (stamps, then values), or ``None``."""
+    if not stamps:
+        return []
+    masks, _ = stamp_problems(np.array(stamps, dtype=np.int64))
+    problems = counts_problems(np.array(values, dtype=float), whole_codes=False)
+    return [next((reason for reason, mask in (*masks.items(), *problems.items()) if mask[i]), None)
+            for i in range(len(stamps))]
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(_apart_event, min_size=1, max_size=120))
+def test_generated_streams_of_one_and_two_sensor_messages_follow_the_offline_rule(events):
+    """Received == published + dropped after every message; what is published, dropped and left out is apply's rule.
+
+    The oracle: before the first mark, the shared rule over whole messages (stamps, then the six
+    values); from it on, each sensor's stamps and values alone (``stamp_problems``,
+    ``counts_problems`` per sensor stream); no temperature yet drops the message; each sensor's
+    published values equal ``Corrector.correct`` of that sensor's published samples, effects with
+    memory included.
+    """
+    core = OnlineCompensator(APART, temp_timeout_s=0.5)
+    now, stamp = 0.0, SEC * 1_000_000_000
+    messages, temperature_known = [], False
+    for event in events:
+        if event[0] == 'temp':
+            now += event[2]
+            core.process_temperature(event[1], now_s=now)
+            temperature_known = temperature_known or temp_code_problem(event[1], 'imu') is None
+        else:
+            _, step_ms, values, carried, dt = event
+            now += dt
+            stamp += step_ms * 1_000_000
+            marks = tuple(0.0 if there else NOT_PROVIDED for there in carried)
+            result = core.process_values(*divmod(stamp, 1_000_000_000), values, now, *marks)
+            messages.append((stamp, values, carried, temperature_known, core.temperature, result))
+        assert balanced(core)
+    apart_from = next((i for i, m in enumerate(messages) if not all(m[2])), len(messages))
+    shared_reasons = _offline_reasons([m[0] for m in messages[:apart_from]], [m[1] for m in messages[:apart_from]])
+    sensor_rows = [[i for i, m in enumerate(messages) if m[2][s]] for s in (0, 1)]
+    sensor_reasons = [dict(zip(rows, _offline_reasons([messages[i][0] for i in rows],
+                                                      [messages[i][1][3 * s:3 * s + 3] for i in rows])))
+                      for s, rows in enumerate(sensor_rows)]
+    published: list[list[tuple]] = [[], []]
+    left_out: dict[str, int] = {}
+    for i, (stamp_ns, values, carried, known, temperature, result) in enumerate(messages):
+        if i < apart_from:
+            reason = shared_reasons[i] or (None if known else 'waiting_for_temperature')
+            expected = reason or 'both'
+        elif not any(carried):
+            expected = 'no_sensor'
+        else:
+            reasons = [sensor_reasons[s].get(i) if carried[s] else None for s in (0, 1)]
+            live = [s for s in (0, 1) if carried[s] and reasons[s] is None]
+            if not live:
+                expected = reasons[0] if carried[0] else reasons[1]
+            elif not known:
+                expected = 'waiting_for_temperature'
+            else:
+                expected = 'both' if len(live) == 2 else SENSORS[live[0]]
+                for s in (0, 1):
+                    if carried[s] and s not in live:
+                        key = f'{SENSORS[s]}.{reasons[s]}'
+                        left_out[key] = left_out.get(key, 0) + 1
+        got = ('both' if result.__class__ is tuple else result.sensor if isinstance(result, OneSensor) else result)
+        assert got == expected, (i, messages[i])
+        assert result in (*ONLINE_DROP_REASONS, *IMU_DROP_REASONS) if isinstance(result, str) else True
+        outputs = result if result.__class__ is tuple else (
+            (*result.values, None, None, None) if got == 'accel' else (None, None, None, *result.values)
+            if got == 'gyro' else ())
+        for s in (0, 1):
+            if outputs and outputs[3 * s] is not None:
+                published[s].append((values[3 * s:3 * s + 3], temperature, stamp_ns, outputs[3 * s:3 * s + 3]))
+    assert core.sensor_dropped == left_out
+    for s, sensor in enumerate(SENSORS):
+        if published[s]:
+            offline = _sensor_series(APART, sensor, [sample[:3] for sample in published[s]])
+            assert np.array_equal(np.array([sample[3] for sample in published[s]]), offline)
+    values = dict(core.status(now).values)
+    assert int(values['received']) == int(values['published']) + int(values['dropped']) == len(messages)

@@ -34,7 +34,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from tak_thermo_ros.formats.cdr import MessageArrays, decode_messages, encode_imus, encode_messages
 from tak_thermo_ros.core.effects import aux_signal
-from tak_thermo_ros.core.link.correction import imu_covariances
+from tak_thermo_ros.core.link.correction import NOT_PROVIDED, NOT_PROVIDED_COVARIANCE, imu_covariances
 from tak_thermo_ros.formats.files import BAG, check_output, install_directory, staging_directory
 from tak_thermo_ros.core.link.model import InputKind
 from tak_thermo_ros.core.records.record import NANOSECONDS, ChannelRecord, DriverRecord
@@ -642,7 +642,7 @@ def write_driver_record(path: str | os.PathLike[str], record: DriverRecord, *, t
     imu_stream = 3 + len(aux_streams)
     mag_stream, field_stream = imu_stream + 1, imu_stream + 2
     zero_covariance = np.zeros(9)
-    absent = np.array([NOT_PROVIDED, *[0.0] * 8])
+    absent = np.array(NOT_PROVIDED_COVARIANCE)
     identity = np.array([0.0, 0.0, 0.0, 1.0])
     with _AtomicBag(path, storage, force=force) as writer:
         aux_writes = _aux_writers(writer, aux_streams, aux_types, record.frame_id)
@@ -975,10 +975,6 @@ def decode_imus(raws: list[bytes]) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     return stamps, accel, gyro, orientation, covariance, frames, accel_mark, gyro_mark
 
 
-NOT_PROVIDED = -1.0
-"""``covariance[0]`` of a quantity an Imu message does not carry (``sensor_msgs/msg/Imu``)."""
-
-
 def driver_sensors(stamps: np.ndarray, accel: np.ndarray, gyro: np.ndarray, accel_mark: np.ndarray,
                    gyro_mark: np.ndarray) -> dict[str, Any]:
     """A driver record's sensor fields from Imu messages, each sensor on its own stamps where they differ.
@@ -1270,7 +1266,7 @@ def _write_imu_messages(writer: Writer, connection, stamp_ns: np.ndarray, frame_
                         accel_present: np.ndarray | None = None, gyro_present: np.ndarray | None = None) -> None:
     orientation_cov, angular_cov, linear_cov = (np.array(c) for c in imu_covariances(variance, angular_variance))
     # a message without one sensor's sample: zeros, its covariance[0] = -1 (not provided)
-    absent = np.array([NOT_PROVIDED, *[0.0] * 8])
+    absent = np.array(NOT_PROVIDED_COVARIANCE)
     if accel_present is not None and not np.all(accel_present):
         acceleration = np.where(accel_present[:, None], acceleration, 0.0)
         linear_cov = np.where(accel_present[:, None], linear_cov, absent)

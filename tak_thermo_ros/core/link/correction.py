@@ -24,6 +24,11 @@ import numpy as np
 from tak_thermo_ros.core.link.effect_link import EffectLink
 from tak_thermo_ros.core.link.model import Calibration, UnitCalibration, correction_terms, offset_and_gain
 
+NOT_PROVIDED = -1.0
+"""``covariance[0]`` of a quantity a ``sensor_msgs/msg/Imu`` does not carry (REP 145): an orientation a
+driver does not estimate, or a sensor's sample a message does not hold (its values then zero)."""
+NOT_PROVIDED_COVARIANCE: tuple[float, ...] = (NOT_PROVIDED, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+"""The whole covariance of such a quantity, as the node and ``tak_calib apply`` write it."""
 BLOCK_SAMPLES = 16384
 """Samples per block of :meth:`Corrector.correct` (its scratch arrays stay in the CPU cache)."""
 
@@ -303,7 +308,7 @@ def imu_covariances(variance: tuple[float, float, float],
     gyroscope calibration (``angular_variance`` None). Provided quantities get a diagonal
     covariance from the fit residual (all zero when unknown).
     """
-    not_provided = (-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    not_provided = NOT_PROVIDED_COVARIANCE
 
     def diagonal(values: tuple[float, float, float]) -> tuple[float, ...]:
         x, y, z = (float(v) for v in values)

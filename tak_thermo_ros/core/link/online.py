@@ -51,6 +51,27 @@ Bad input, each with a defined outcome, checks in this order:
   older than ``temp_timeout``: held or dropped (``stale_signal``) by the same policy; a
   non-finite value ignored and counted.
 
+A driver's Imu message may carry one sensor (a flight log's ``sensor_accel`` and
+``sensor_gyro`` at their own times): ``sensor_msgs/msg/Imu`` marks the other absent by its
+covariance[0] = -1 (:data:`~tak_thermo_ros.core.link.correction.NOT_PROVIDED`), the caller hands
+the two marks over with the values, and the rule is ``tak_calib apply``'s for a record whose
+sensors have their own stamps:
+
+- from the first message that marks a sensor absent on, each sensor is a stream of its own:
+  the stamp rule runs on each sensor's own stamps (the messages that carry it), a sensor's
+  values are checked alone, each sensor's effects with memory (a thermal lag, hysteresis) step
+  on its own samples only, and a recorded signal is waited for by the sensors whose terms need
+  it; the temperature (and its staleness) is the message's;
+- the published message carries what survived: both sensors, or one (:class:`OneSensor`; the
+  node publishes the other marked absent: zeros, covariance[0] = -1); a carried sensor left out
+  of a published message is counted in :attr:`OnlineCompensator.sensor_dropped`; a message
+  none of whose sensors survives is dropped for the first one's reason (the accelerometer's,
+  then the gyroscope's), a message that marks both absent as ``no_sensor``;
+- before that first message the node cannot know that the stream carries its sensors apart
+  (``apply`` reads the whole record first): a message one of whose two sensors cannot be
+  corrected (a non-finite or non-physical value, a recorded signal one sensor's terms need and
+  that has not arrived) is dropped whole, where ``apply`` keeps the other sensor's sample.
+
 The magnetometer (``channel='mag'``, a driver calibration holding ``mag``) is a second
 instance on its own topic: three values in tesla corrected by
 :class:`~tak_thermo_ros.core.magnetometer.channel.MagCorrector` (the thermal link, then the
@@ -65,9 +86,15 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, NamedTuple
 
-from tak_thermo_ros.core.link.correction import OutOfRange, UnitCorrector, acceleration_variance, imu_covariances
+from tak_thermo_ros.core.link.correction import (
+    NOT_PROVIDED,
+    OutOfRange,
+    UnitCorrector,
+    acceleration_variance,
+    imu_covariances,
+)
 from tak_thermo_ros.core.link.model import Calibration, InputKind, UnitCalibration
 from tak_thermo_ros.core.records.record import (
     DROP_REASONS,
@@ -101,6 +128,14 @@ STALE_SIGNAL = 'stale_signal'
 SIGNAL_DROP_REASONS: tuple[str, ...] = (WAITING_FOR_SIGNAL, STALE_SIGNAL)
 """Why an input message is not published when the calibration needs a recorded signal
 (checked after the temperature)."""
+
+NO_SENSOR = 'no_sensor'
+IMU_DROP_REASONS: tuple[str, ...] = (NO_SENSOR,)
+"""Why a driver's Imu message is not published besides :data:`ONLINE_DROP_REASONS`: it marks
+both sensors absent (covariance[0] = -1 on both), so it carries nothing to correct."""
+SENSORS: tuple[str, str] = ('accel', 'gyro')
+"""The sensors of a driver's Imu message, in the order of its six values."""
+SENSOR_WORDS = {'accel': 'accelerometer', 'gyro': 'gyroscope'}
 
 WARN_PERIOD_S = 5.0
 """Default least time between two reports of the same kind of problem."""
@@ -177,6 +212,57 @@ class Configuration:
     low: float
     high: float
     needs_temperature: bool = True
+
+
+class OneSensor(NamedTuple):
+    """An Imu message published with one sensor; the caller marks the other absent (covariance[0] = -1).
+
+    A tuple subclass: a caller tells it from the six values of a message with both by its class.
+
+    :param sensor: the sensor it carries, ``'accel'`` or ``'gyro'``.
+    :param values: its three corrected values.
+    """
+
+    sensor: str
+    values: tuple[float, float, float]
+
+
+class _StampRule:
+    """The stamp rule's state over one stream (:func:`~tak_thermo_ros.core.records.record.stamp_kept`).
+
+    The messages', or, once a driver's sensors come apart, one sensor's own samples. It counts
+    its drops by reason (for the log line).
+    """
+
+    __slots__ = ('last_ns', 'kept_ns', 'kept_before_ns', 'dropped')
+
+    def __init__(self) -> None:
+        self.last_ns: int | None = None
+        self.kept_ns: int | None = None
+        self.kept_before_ns: int | None = None
+        self.dropped = dict.fromkeys(STAMP_DROP_REASONS, 0)
+
+    def problem(self, stamp_ns: int) -> str | None:
+        """Why the next message, stamped ``stamp_ns``, is dropped, or ``None``; the state moves on."""
+        last = self.last_ns
+        self.last_ns = stamp_ns
+        # stamp_kept, its usual case (a step forward within 10 s) inline
+        if last is not None and not 0 < stamp_ns - last <= STAMP_JUMP_NS:
+            kept = self.kept_ns
+            if not stamp_kept(stamp_ns, StampHistory(last, kept, stream_step(kept, self.kept_before_ns))):
+                reason = stamp_problem(stamp_ns - last)
+                self.dropped[reason] += 1
+                return reason
+        self.kept_before_ns = self.kept_ns
+        self.kept_ns = stamp_ns
+        return None
+
+    def copy(self) -> _StampRule:
+        """The same state, to go on apart."""
+        twin = _StampRule()
+        twin.last_ns, twin.kept_ns, twin.kept_before_ns = self.last_ns, self.kept_ns, self.kept_before_ns
+        twin.dropped = dict(self.dropped)
+        return twin
 
 
 class _Throttle:
@@ -344,7 +430,17 @@ class OnlineCompensator:
         self._problem: Callable[..., str | None] = counts_problem if counts else values_problem
         self.received = 0
         self.published = 0
-        self.dropped: dict[str, int] = dict.fromkeys((*ONLINE_DROP_REASONS, *SIGNAL_DROP_REASONS), 0)
+        self._sensors_apart = channel != MAG_CHANNEL and not counts
+        """Whether the input is a driver's Imu, whose messages may carry one sensor each."""
+        self.dropped: dict[str, int] = dict.fromkeys(
+            (*ONLINE_DROP_REASONS, *SIGNAL_DROP_REASONS, *(IMU_DROP_REASONS if self._sensors_apart else ())), 0)
+        self.one_sensor_messages = 0
+        """Driver Imu messages received that mark one sensor (or both) absent."""
+        self.sensor_dropped: dict[str, int] = {}
+        """``'<sensor>.<reason>'`` -> samples of a sensor left out of messages published with the other."""
+        self.own_stamps_since: int | None = None
+        """The number of the first message that marked a sensor absent (from it on each sensor
+        is a stream of its own), or ``None``."""
         self.lost: dict[str, int] = {}
         """Messages lost in transport (reported by the middleware), per input stream."""
         self.sequence_gaps: dict[str, int] | None = None
@@ -366,9 +462,11 @@ class OnlineCompensator:
         self._signal_arrival_s: dict[str, float] = {}
         self.signal_messages: dict[str, int] = {}
         self.signal_rejected: dict[str, int] = {}
-        self._last_stamp_ns: int | None = None
-        self._kept_stamp_ns: int | None = None
-        self._kept_before_ns: int | None = None
+        self._stamps = _StampRule()
+        self._own_stamps = False
+        self._sensor_stamps: tuple[_StampRule, _StampRule] | None = None
+        self._sensor_correct: tuple[Callable[..., tuple[float, float, float]], ...] = ()
+        self._sensor_signals: tuple[tuple[str, ...], ...] = ()
         self._temperature: float | None = None
         self._temp_arrival_s = -math.inf
         self._temp_outside = False
@@ -509,6 +607,9 @@ class OnlineCompensator:
         self._drop_stale = configuration.stale is StaleTemperature.DROP
         self._correct = configuration.corrector.correct_sample
         self._signals = configuration.corrector.signals
+        if self._sensors_apart:  # each sensor's own correction, for messages that carry one
+            self._sensor_correct = tuple(c.correct_sample for c in configuration.corrector.correctors)
+            self._sensor_signals = tuple(c.signals for c in configuration.corrector.correctors)
         for name in self._signals:
             self.signal_messages.setdefault(name, 0)
             self.signal_rejected.setdefault(name, 0)
@@ -580,9 +681,9 @@ class OnlineCompensator:
         self._signal_arrival_s[name] = now_s
         return True
 
-    def _signal_problem(self, now_s: float) -> str | None:
-        """Why the input cannot be corrected for want of a recorded signal, or ``None``."""
-        for name in self._signals:
+    def _signal_problem(self, now_s: float, names: tuple[str, ...] | None = None) -> str | None:
+        """Why the input cannot be corrected for want of a recorded signal (of ``names``: all), or ``None``."""
+        for name in self._signals if names is None else names:
             if name not in self._signal_values:
                 if self._throttles[WAITING_FOR_SIGNAL].due(now_s):
                     self._notice(Level.WARN, WAITING_FOR_SIGNAL, f'waiting for {name}: publishing nothing '
@@ -599,13 +700,36 @@ class OnlineCompensator:
                     return STALE_SIGNAL
         return None
 
+    def _temperature_now(self, now_s: float) -> float | str:
+        """The temperature to correct a message with now, or why it is dropped (counted and reported)."""
+        temperature = self._temperature
+        if not self._needs_temperature:
+            # The correction reads no temperature: the calibration's reference (or the last one) stands in.
+            return self.calibration.temp_code_ref if temperature is None else temperature
+        if temperature is None:
+            self.dropped[WAITING_FOR_TEMPERATURE] += 1
+            if self._throttles[WAITING_FOR_TEMPERATURE].due(now_s):
+                self._report_waiting()
+            return WAITING_FOR_TEMPERATURE
+        if now_s - self._temp_arrival_s > self._timeout_s:
+            self._report_stale(now_s)
+            if self._drop_stale:
+                self.dropped[STALE_TEMPERATURE] += 1
+                return STALE_TEMPERATURE
+        return temperature
+
+    def _count_out_of_range(self, now_s: float) -> None:
+        self.out_of_range += 1
+        if self._throttles['out_of_range'].due(now_s):
+            self._report_out_of_range()
+
     def process_counts(self, sec: int, nanosec: int, x: float, y: float, z: float,
                        now_s: float) -> tuple[float, ...] | str:
         """:meth:`process_values` of one counts message (three channel codes)."""
         return self.process_values(sec, nanosec, (x, y, z), now_s)
 
-    def process_values(self, sec: int, nanosec: int, values: tuple[float, ...],
-                       now_s: float) -> tuple[float, ...] | str:
+    def process_values(self, sec: int, nanosec: int, values: tuple[float, ...], now_s: float,
+                       accel_mark: float = 0.0, gyro_mark: float = 0.0) -> tuple[float, ...] | OneSensor | str:
         """Correct one input message, or tell why it is dropped.
 
         :param sec: header stamp, whole seconds (``builtin_interfaces/Time.sec``).
@@ -613,39 +737,40 @@ class OnlineCompensator:
         :param values: the message's values, :attr:`channels` plain floats (counts x y z; or
             the driver's accelerometer x y z then gyroscope x y z).
         :param now_s: arrival time on the caller's monotonic clock, seconds.
-        :returns: the corrected values as plain floats, or the drop reason (a ``str`` of
-            :data:`ONLINE_DROP_REASONS`).
+        :param accel_mark: a driver's Imu: its ``linear_acceleration_covariance[0]``;
+            :data:`~tak_thermo_ros.core.link.correction.NOT_PROVIDED` (-1) says the message
+            carries no accelerometer sample (its values are then not read).
+        :param gyro_mark: likewise its ``angular_velocity_covariance[0]`` for the gyroscope.
+        :returns: the corrected values as plain floats, a :class:`OneSensor` when the message is
+            published with one sensor, or the drop reason (a ``str`` of
+            :data:`ONLINE_DROP_REASONS`, :data:`SIGNAL_DROP_REASONS` or :data:`IMU_DROP_REASONS`).
         """
+        if accel_mark == NOT_PROVIDED or gyro_mark == NOT_PROVIDED or self._own_stamps:
+            return self._process_sensors(sec, nanosec, values, now_s, accel_mark != NOT_PROVIDED,
+                                         gyro_mark != NOT_PROVIDED)
         self.received += 1
         stamp_ns = sec * NANOSECONDS + nanosec
-        last = self._last_stamp_ns
-        self._last_stamp_ns = stamp_ns
-        # stamp_kept, its usual case (a step forward within 10 s) inline
-        if last is not None and not 0 < stamp_ns - last <= STAMP_JUMP_NS:
-            kept = self._kept_stamp_ns
-            history = StampHistory(last, kept, stream_step(kept, self._kept_before_ns))
-            if not stamp_kept(stamp_ns, history):
-                return self._drop_out_of_order(stamp_problem(stamp_ns - last), stamp_ns, last, now_s)
-        self._kept_before_ns = self._kept_stamp_ns
-        self._kept_stamp_ns = stamp_ns
+        stamps = self._stamps
+        last = stamps.last_ns
+        if last is not None and 0 < stamp_ns - last <= STAMP_JUMP_NS:
+            # _StampRule.problem's usual case inline (a step forward within 10 s): the per-message cost
+            stamps.kept_before_ns = stamps.kept_ns
+            stamps.last_ns = stamps.kept_ns = stamp_ns
+        else:
+            reason = stamps.problem(stamp_ns)
+            if reason is not None:
+                self.dropped[reason] += 1
+                self._report_stamp_order(reason, stamp_ns, last, stamps, now_s)
+                return reason
         problem = self._problem(*values)
         if problem is not None:
             self.dropped[problem] += 1
             return problem
         temperature = self._temperature
-        if not self._needs_temperature:
-            # The correction reads no temperature: the calibration's reference (or the last one) stands in.
-            temperature = self.calibration.temp_code_ref if temperature is None else temperature
-        elif temperature is None:
-            self.dropped[WAITING_FOR_TEMPERATURE] += 1
-            if self._throttles[WAITING_FOR_TEMPERATURE].due(now_s):
-                self._report_waiting()
-            return WAITING_FOR_TEMPERATURE
-        elif now_s - self._temp_arrival_s > self._timeout_s:
-            self._report_stale(now_s)
-            if self._drop_stale:
-                self.dropped[STALE_TEMPERATURE] += 1
-                return STALE_TEMPERATURE
+        if temperature is None or now_s - self._temp_arrival_s > self._timeout_s or not self._needs_temperature:
+            temperature = self._temperature_now(now_s)  # none yet, stale, or not read
+            if temperature.__class__ is str:
+                return temperature
         aux = None
         if self._signals:
             signal_problem = self._signal_problem(now_s)
@@ -654,9 +779,7 @@ class OnlineCompensator:
                 return signal_problem
             aux = self._signal_values
         if self._temp_outside:
-            self.out_of_range += 1
-            if self._throttles['out_of_range'].due(now_s):
-                self._report_out_of_range()
+            self._count_out_of_range(now_s)
         try:
             # The stamp in seconds exactly as the offline path computes it (seconds_from_ns).
             if aux is None:
@@ -670,6 +793,100 @@ class OnlineCompensator:
                 return self._drop_failed(NON_FINITE_OUTPUT, f'output {result}', now_s)
         self.published += 1
         return result
+
+    def _process_sensors(self, sec: int, nanosec: int, values: tuple[float, ...], now_s: float,
+                         accel: bool, gyro: bool) -> tuple[float, ...] | OneSensor | str:
+        """:meth:`process_values` once the sensors come apart: each on its own stamps (the module's rule).
+
+        :param accel: whether the message carries an accelerometer sample; ``gyro`` likewise.
+        """
+        if not self._sensors_apart:
+            msg = f'{self._message_word} messages carry no sensor marks (a driver Imu only)'
+            raise ValueError(msg)
+        self.received += 1
+        carried = (accel, gyro)
+        if not self._own_stamps:
+            self._start_own_stamps(carried)
+        if not (accel and gyro):
+            self.one_sensor_messages += 1
+            if not (accel or gyro):
+                self.dropped[NO_SENSOR] += 1
+                return NO_SENSOR
+        stamp_ns = sec * NANOSECONDS + nanosec
+        left_out: list[str | None] = [None, None]  # per sensor, why its sample is left out
+        for index, rule in enumerate(self._sensor_stamps):
+            if carried[index]:
+                last = rule.last_ns
+                reason = rule.problem(stamp_ns)
+                if reason is not None:
+                    self._report_stamp_order(reason, stamp_ns, last, rule, now_s, SENSORS[index])
+                else:
+                    reason = self._problem(*values[3 * index:3 * index + 3])
+                left_out[index] = reason
+        live = [index for index in (0, 1) if carried[index] and left_out[index] is None]
+        if not live:
+            return self._drop_sensors(carried, left_out)
+        temperature = self._temperature_now(now_s)
+        if temperature.__class__ is str:
+            return temperature
+        aux = None
+        if self._signals:
+            for index in tuple(live):
+                names = self._sensor_signals[index]
+                problem = self._signal_problem(now_s, names) if names else None
+                if problem is not None:
+                    left_out[index] = problem
+                    live.remove(index)
+            if not live:
+                return self._drop_sensors(carried, left_out)
+            aux = self._signal_values
+        if self._temp_outside:
+            self._count_out_of_range(now_s)
+        stamp_s = seconds(sec, nanosec)
+        corrected: list[tuple[float, float, float] | None] = [None, None]
+        for index in live:
+            x, y, z = values[3 * index:3 * index + 3]
+            try:
+                result = self._sensor_correct[index](x, y, z, temperature, stamp_s=stamp_s, aux=aux)
+            except Exception as err:  # a user effect may raise anything: the sample is left out, never the node
+                left_out[index] = self._report_failed(CORRECTION_FAILED, f'{type(err).__name__}: {err}', now_s,
+                                                      SENSORS[index])
+                continue
+            if not all(-math.inf < value < math.inf for value in result):
+                left_out[index] = self._report_failed(NON_FINITE_OUTPUT, f'output {result}', now_s, SENSORS[index])
+                continue
+            corrected[index] = result
+        accel_out, gyro_out = corrected
+        if accel_out is None and gyro_out is None:
+            return self._drop_sensors(carried, left_out)
+        self.published += 1
+        for index in (0, 1):
+            if carried[index] and corrected[index] is None:
+                key = f'{SENSORS[index]}.{left_out[index]}'
+                self.sensor_dropped[key] = self.sensor_dropped.get(key, 0) + 1
+        if accel_out is None:
+            return OneSensor('gyro', gyro_out)
+        if gyro_out is None:
+            return OneSensor('accel', accel_out)
+        return accel_out + gyro_out
+
+    def _start_own_stamps(self, carried: tuple[bool, bool]) -> None:
+        """The first message that marks a sensor absent: from it on each sensor is a stream of its own."""
+        self._own_stamps = True
+        self.own_stamps_since = self.received
+        # Every message so far carried both sensors: each sensor's stamps were the messages'.
+        self._sensor_stamps = (self._stamps.copy(), self._stamps.copy())
+        absent = ' and the '.join(SENSOR_WORDS[sensor] for sensor, there in zip(SENSORS, carried) if not there)
+        self._notice(Level.OK, 'own_stamps',
+                     f'{self._message_word} message {self.received} marks the {absent} absent (covariance[0] = -1): '
+                     f'from it on each sensor is corrected on its own samples and stamps, an absent one '
+                     f'published marked')
+
+    def _drop_sensors(self, carried: tuple[bool, bool], left_out: list[str | None]) -> str:
+        """Drop a message none of whose sensors survived, for the first one's reason."""
+        reason = left_out[0] if carried[0] else left_out[1]
+        self.dropped[reason] += 1
+        return reason
 
     def message_lost(self, stream: str, count: int, now_s: float) -> None:
         """Count ``count`` messages of input ``stream`` that the middleware reports lost in transport."""
@@ -711,28 +928,37 @@ class OnlineCompensator:
         """Messages lost in transport, every input stream."""
         return sum(self.lost.values())
 
-    def _drop_out_of_order(self, reason: str, stamp_ns: int, last_ns: int, now_s: float) -> str:
-        self.dropped[reason] += 1
-        if self._throttles['stamp_order'].due(now_s):
-            held = self._throttles['stamp_order'].take_held_back()
-            relation = ('equal to' if reason == DUPLICATE_STAMP
-                        else f'{abs(stamp_ns - last_ns) * 1e-9:.6f} s '
-                             f'{"before" if reason == TIME_BACKWARDS else f"(> {STAMP_JUMP_S:g} s) after"}')
-            self._notice(Level.WARN, 'stamp_order',
-                         f'{self._message_word} header stamp {relation} the previous one: dropped '
-                         f'({self.dropped[DUPLICATE_STAMP]} duplicate, {self.dropped[TIME_BACKWARDS]} '
-                         f'backwards, {self.dropped[STAMP_JUMP]} jumped ahead so far{self._since(held)})')
-        return reason
+    def _report_stamp_order(self, reason: str, stamp_ns: int, last_ns: int, rule: _StampRule, now_s: float,
+                            sensor: str = '') -> None:
+        """The throttled log line of a message (or, ``sensor``, one sensor's sample) left out for its stamp."""
+        if not self._throttles['stamp_order'].due(now_s):
+            return
+        held = self._throttles['stamp_order'].take_held_back()
+        relation = ('equal to' if reason == DUPLICATE_STAMP
+                    else f'{abs(stamp_ns - last_ns) * 1e-9:.6f} s '
+                         f'{"before" if reason == TIME_BACKWARDS else f"(> {STAMP_JUMP_S:g} s) after"}')
+        what, previous = ((f"{self._message_word} {SENSOR_WORDS[sensor]} sample's", "the previous one's")
+                          if sensor else (self._message_word, 'the previous one'))
+        counts = rule.dropped
+        self._notice(Level.WARN, 'stamp_order',
+                     f'{what} header stamp {relation} {previous}: dropped ({counts[DUPLICATE_STAMP]} duplicate, '
+                     f'{counts[TIME_BACKWARDS]} backwards, {counts[STAMP_JUMP]} jumped ahead so far'
+                     f'{self._since(held)})')
 
     def _drop_failed(self, reason: str, detail: str, now_s: float) -> str:
         self.dropped[reason] += 1
+        return self._report_failed(reason, detail, now_s)
+
+    def _report_failed(self, reason: str, detail: str, now_s: float, sensor: str = '') -> str:
+        """The throttled log line of a message (or, ``sensor``, one sensor's sample) whose correction failed."""
         if self._throttles['correction'].due(now_s):
             held = self._throttles['correction'].take_held_back()
+            what, so_far = ((f'{self._message_word} {SENSOR_WORDS[sensor]} sample left out', '') if sensor else
+                            (f'{self._message_word} message dropped',
+                             f'; {self.dropped[CORRECTION_FAILED] + self.dropped[NON_FINITE_OUTPUT]} so far'))
             self._notice(Level.ERROR, reason,
-                         f'{self._message_word} message dropped, the correction gave no finite number '
-                         f'at {self._temperature_word} {self._temperature_text()} ({reason}: {detail}; '
-                         f'{self.dropped[CORRECTION_FAILED] + self.dropped[NON_FINITE_OUTPUT]} so far'
-                         f'{self._since(held)})')
+                         f'{what}, the correction gave no finite number at {self._temperature_word} '
+                         f'{self._temperature_text()} ({reason}: {detail}{so_far}{self._since(held)})')
         return reason
 
     # -- reports ----------------------------------------------------------------------------
@@ -805,6 +1031,14 @@ class OnlineCompensator:
         elif self.is_stale(now_s):
             self._report_stale(now_s, 0)
 
+    def _sensor_values(self) -> list[tuple[str, str]]:
+        """The status values of a driver's messages that carry one sensor (:meth:`status`)."""
+        return [('sensor_stamps', 'shared' if self.own_stamps_since is None
+                 else f'own (each sensor apart from message {self.own_stamps_since} on)'),
+                ('one_sensor_messages', str(self.one_sensor_messages)),
+                ('sensor_dropped', str(sum(self.sensor_dropped.values()))),
+                *((f'sensor_dropped.{key}', str(count)) for key, count in sorted(self.sensor_dropped.items()))]
+
     def dropped_total(self) -> int:
         """Input messages dropped, all reasons."""
         return sum(self.dropped.values())
@@ -818,7 +1052,8 @@ class OnlineCompensator:
         counters = {'received': self.received, 'published': self.published,
                     'out_of_range': self.out_of_range, 'temperature_rejected': self.temperature_rejected,
                     'message_lost': self.lost_total(), 'sequence_gap': self.sequence_gap_total(),
-                    **{f'dropped.{reason}': count for reason, count in self.dropped.items()}}
+                    **{f'dropped.{reason}': count for reason, count in self.dropped.items()},
+                    **{f'sensor_dropped.{key}': count for key, count in self.sensor_dropped.items()}}
         new = {key: count - self._previous.get(key, 0) for key, count in counters.items()}
         self._previous = counters
         level = Level.OK
@@ -855,6 +1090,11 @@ class OnlineCompensator:
             failed = dropped_now.keys() & {CORRECTION_FAILED, NON_FINITE_OUTPUT}
             worse(Level.ERROR if failed else Level.WARN,
                   'dropped ' + ', '.join(f'{n} {reason}' for reason, n in dropped_now.items()))
+        left_out = {key: new[f'sensor_dropped.{key}'] for key in self.sensor_dropped if new[f'sensor_dropped.{key}']}
+        if left_out:
+            failed = any(key.endswith((f'.{CORRECTION_FAILED}', f'.{NON_FINITE_OUTPUT}')) for key in left_out)
+            worse(Level.ERROR if failed else Level.WARN, 'left out of published messages: ' + ', '.join(
+                f'{n} {key.replace(".", " ")}' for key, n in left_out.items()))
         if new['message_lost']:
             worse(Level.WARN, f'{new["message_lost"]} messages lost in transport')
         if new['sequence_gap']:
@@ -872,6 +1112,7 @@ class OnlineCompensator:
             ('published', str(self.published)),
             ('dropped', str(self.dropped_total())),
             *((f'dropped.{reason}', str(count)) for reason, count in self.dropped.items()),
+            *(self._sensor_values() if self._sensors_apart else ()),
             ('message_lost', str(self.lost_total())),
             *((f'message_lost.{stream}', str(count)) for stream, count in sorted(self.lost.items())),
             ('sequence_gap', 'unavailable' if self.sequence_gaps is None else str(self.sequence_gap_total())),
