@@ -122,6 +122,7 @@ class NoiseRun:
     compensated: bool
     reference_lines: tuple[str, ...]
     topic: str
+    survey: object = None
 
     @property
     def models(self) -> dict[str, NoiseModel]:
@@ -161,6 +162,11 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
                'give --params (the calibration) to take its noise')
         raise NoiseError(msg)
     opened = open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=True)
+    if opened.survey is not None and opened.static is None:
+        msg = (f'{path}: no reference topics and the unit moves ({opened.survey.still.orientations()} orientations '
+               f'at rest, {100.0 * opened.survey.still.still_fraction:.0f} % of the time): a noise model needs a '
+               f'static record')
+        raise NoiseError(msg)
     sensors = sensors_of(opened.kind)
     streams = {sensor: _SensorNoise(unit.sensor(sensor) if unit is not None else None, out_of_range, per_octave)
                for sensor in sensors}
@@ -188,7 +194,7 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
                                                 dropped=dropped, out_of_range=stream.outside)
     topic = options.topics.counts if opened.kind is InputKind.COUNTS else options.topics.raw_imu
     return NoiseRun(input_kind=opened.kind, sensors=found, compensated=unit is not None,
-                    reference_lines=tuple(lines), topic=topic)
+                    reference_lines=tuple(lines), topic=topic, survey=opened.finished_survey())
 
 
 @dataclass(frozen=True)

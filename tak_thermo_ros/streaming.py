@@ -16,7 +16,7 @@ import math
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Iterator, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -25,6 +25,7 @@ from tak_thermo_ros.core.link.correction import Corrector, OutOfRange, accelerat
 from tak_thermo_ros.core.fit import FitResult, fit_model
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.records.record import AlignedSamples, ChannelRecord, DriverRecord, require_signals
+from tak_thermo_ros.core.records.survey import Plan, RecordSurvey, SurveyCollector
 from tak_thermo_ros.core.records.static_run import (
     StaticReference,
     check_static,
@@ -72,7 +73,7 @@ class _StaticRun:
     """A driver bag's missing references, estimated as a static run (one extra pass, the mean)."""
 
     def __init__(self, path: Path, options: StreamOptions, *, recorded_reference: bool, recorded_rate: bool,
-                 gravity: float, latitude: float | None) -> None:
+                 gravity: float, latitude: float | None, survey: RecordSurvey | None = None) -> None:
         from tak_thermo_ros.formats.records import record_blocks
         topics = options.topics
         self.path = path
@@ -87,13 +88,16 @@ class _StaticRun:
         if recorded_reference and recorded_rate:
             self.lines.append(f'reference: {topics.reference} and {topics.reference_rate} as recorded')
             return
-        total = np.zeros(3)
-        count = 0
-        for block in record_blocks(path, topics=topics, kind=InputKind.IMU, block_samples=options.block_samples,
-                                   references=False, progress=options.progress):
-            finite = np.all(np.isfinite(block.accel), axis=1)  # type: ignore[union-attr]
-            total += block.accel[finite].sum(axis=0)  # type: ignore[union-attr]
-            count += int(np.count_nonzero(finite))
+        if survey is not None:  # the survey's pass took the mean already
+            total, count = survey.mean * survey.samples, survey.samples
+        else:
+            total = np.zeros(3)
+            count = 0
+            for block in record_blocks(path, topics=topics, kind=InputKind.IMU, block_samples=options.block_samples,
+                                       references=False, progress=options.progress):
+                finite = np.all(np.isfinite(block.accel), axis=1)  # type: ignore[union-attr]
+                total += block.accel[finite].sum(axis=0)  # type: ignore[union-attr]
+                count += int(np.count_nonzero(finite))
         mean = total / count if count else np.zeros(3)
         self.static = static_reference(mean.reshape(1, 3) if count else np.zeros((0, 3)), gravity=gravity,
                                        latitude_deg=latitude)
@@ -173,11 +177,26 @@ def _sensor_records(block: ChannelRecord | DriverRecord, kind: InputKind) -> dic
 
 @dataclass(frozen=True)
 class OpenedRun:
-    """A bag opened for a calibration-run pass (references held)."""
+    """A bag opened for a calibration-run pass (references held).
+
+    :param survey: what the record holds, when a first pass was needed to know it (a driver
+        bag without reference topics); else ``collector`` gathers it during the pass.
+    :param streams: ``(role, topic, messages)`` of the record's streams (for the survey).
+    """
 
     kind: InputKind
     main: int
     static: _StaticRun | None
+    survey: RecordSurvey | None = None
+    collector: SurveyCollector | None = None
+    streams: tuple[tuple[str, str, int], ...] = ()
+
+    def finished_survey(self) -> RecordSurvey:
+        """The survey, after the pass (the one taken first, else what the pass gathered)."""
+        if self.survey is not None:
+            return self.survey
+        assert self.collector is not None
+        return self.collector.finish(self.streams)
 
 
 def open_calibration_run(path: Path, options: StreamOptions, *, gravity: float, latitude: float | None,
@@ -191,11 +210,41 @@ def open_calibration_run(path: Path, options: StreamOptions, *, gravity: float, 
     streams = record_streams(path, topics=options.topics)
     if require_reference and streams.kind is InputKind.COUNTS:
         streams = record_streams(path, topics=options.topics, require_reference=True)
+    listed = stream_list(streams, options.topics)
     static = None
+    survey = None
     if streams.kind is InputKind.IMU:
-        static = _StaticRun(path, options, recorded_reference=streams.reference > 0,
-                            recorded_rate=streams.rate_reference > 0, gravity=gravity, latitude=latitude)
-    return OpenedRun(streams.kind, streams.main, static)
+        if not streams.reference:
+            # Without references the record itself says what it is (static, hand-held): one pass first.
+            survey = survey_record(path, options, streams.kind, listed)
+        if survey is None or survey.plan is Plan.STATIC:
+            static = _StaticRun(path, options, recorded_reference=streams.reference > 0,
+                                recorded_rate=streams.rate_reference > 0, gravity=gravity, latitude=latitude,
+                                survey=survey)
+    collector = None if survey is not None else SurveyCollector(streams.kind.value)
+    return OpenedRun(streams.kind, streams.main, static, survey, collector, listed)
+
+
+def stream_list(streams, topics) -> tuple[tuple[str, str, int], ...]:
+    """``(role, topic, messages)`` of a record's streams (:class:`~tak_thermo_ros.formats.bag.BagStreams`)."""
+    if streams.kind is InputKind.COUNTS:
+        return (('main', topics.counts, streams.main), ('temperature', topics.temp_code, streams.temperature),
+                ('reference', topics.reference, streams.reference))
+    return (('main', topics.raw_imu, streams.main), ('temperature', topics.temperature, streams.temperature),
+            ('reference', topics.reference, streams.reference),
+            ('rate_reference', topics.reference_rate, streams.rate_reference), ('mag', topics.mag, streams.mag),
+            ('mag_reference', topics.reference_field, streams.mag_reference))
+
+
+def survey_record(path: Path, options: StreamOptions, kind: InputKind,
+                  listed: tuple[tuple[str, str, int], ...]) -> RecordSurvey:
+    """What a record holds, from one pass over its main and temperature streams."""
+    from tak_thermo_ros.formats.records import record_blocks
+    collector = SurveyCollector(kind.value)
+    for block in record_blocks(path, topics=options.topics, kind=kind, block_samples=options.block_samples,
+                               references=False, progress=options.progress):
+        collector.add(block)
+    return collector.finish(listed)
 
 
 def run_passes(path: Path, options: StreamOptions, opened: OpenedRun, passes: Sequence[SensorPass]) -> list[str]:
@@ -205,6 +254,8 @@ def run_passes(path: Path, options: StreamOptions, opened: OpenedRun, passes: Se
         opened.static.rewind()
     for block in record_blocks(path, topics=options.topics, kind=opened.kind,
                                block_samples=options.block_samples, progress=options.progress):
+        if opened.collector is not None:
+            opened.collector.add(block)
         if opened.static is not None:
             block = opened.static.check_block(block)
         records = _sensor_records(block, opened.kind)
@@ -257,6 +308,8 @@ class StreamedFit:
     reference_lines: tuple[str, ...]
     ignored_temp_codes: dict[str, dict[str, int]] = field(default_factory=dict)
     ignored_references: dict[str, dict[str, int]] = field(default_factory=dict)
+    survey: RecordSurvey | None = None
+    handheld: Any = None
 
 
 def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
@@ -276,6 +329,9 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
     path = Path(path)
     opened = open_calibration_run(path, options, gravity=settings.gravity, latitude=settings.latitude,
                                   require_reference=True)
+    if opened.survey is not None and decided(path, opened.survey) is Plan.HANDHELD:
+        from tak_thermo_ros.streaming_handheld import fit_handheld_bag
+        return fit_handheld_bag(path, settings, options, opened.survey)
     kind = opened.kind
     sensors = sensors_of(kind)
     if kind is InputKind.COUNTS and settings.effects.get('gyro'):
@@ -348,7 +404,26 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
                        effect_stride={sensor: subsample.stride for sensor, subsample in subsamples.items()},
                        reference_lines=tuple(lines),
                        ignored_temp_codes={p.sensor: dict(p.aligner.ignored_temp_codes) for p in passes},
-                       ignored_references={p.sensor: dict(p.aligner.ignored_references) for p in passes})
+                       ignored_references={p.sensor: dict(p.aligner.ignored_references) for p in passes},
+                       survey=opened.finished_survey())
+
+
+def decided(path: Path, survey: RecordSurvey) -> Plan:
+    """The plan of a record without reference topics (:func:`~tak_thermo_ros.core.records.survey.fit_plan`).
+
+    The one place a reference-less record is taken as hand-held or static; a record that never
+    rests is refused here.
+
+    :raises TakError: the unit never rests (no still interval).
+    """
+    from tak_thermo_ros.core.records.still import MIN_STILL_S
+    plan = survey.plan
+    if plan is Plan.MOVING:
+        msg = (f'{path}: no reference topics and no still interval (the unit never rested {MIN_STILL_S:g} s or more, '
+               f'still {100.0 * survey.still.still_fraction:.0f} % of the time): nothing to fit; rest 5-10 s in each '
+               f'orientation (docs/handheld.md)')
+        raise TakError(msg)
+    return plan
 
 
 def _with_shape_uncertainty(errors: dict[str, float], shaped: FitResult, shape_names: set[str],
@@ -414,6 +489,7 @@ class Applied:
     mag_written: int = 0
     mag_topic: str = ''
     mag_dropped: dict[str, int] = field(default_factory=dict)
+    survey: RecordSurvey | None = None
 
 
 class Required:
@@ -464,7 +540,9 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
     from tak_thermo_ros.formats.records import record_blocks, record_streams
     path = Path(path)
     topics = options.topics
-    kind = record_streams(path, topics=topics).kind
+    streams = record_streams(path, topics=topics)
+    kind = streams.kind
+    survey = SurveyCollector(kind.value)
     topic = topics.imu if kind is InputKind.COUNTS else topics.compensated_imu
     aligner = BlockAligner(use_reference=False)
     corrector = BlockUnitCorrector(unit, out_of_range=out_of_range)
@@ -502,6 +580,7 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
 
         for block in record_blocks(path, topics=topics, kind=kind, block_samples=options.block_samples,
                                    references=False, progress=options.progress):
+            survey.add(block)
             if isinstance(block, DriverRecord):
                 passing.add(block.orientation, block.orientation_covariance)
                 record = block.six_channels()
@@ -519,7 +598,8 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
                    ignored_temp_codes=dict(aligner.ignored_temp_codes),
                    ignored_references=dict(aligner.ignored_references),
                    mag_written=writer.written_mag, mag_topic=topics.compensated_mag if magnetometer else '',
-                   mag_dropped=dict(magnetometer.aligner.dropped) if magnetometer else {})
+                   mag_dropped=dict(magnetometer.aligner.dropped) if magnetometer else {},
+                   survey=survey.finish(stream_list(streams, topics)))
 
 
 # ----- validate -------------------------------------------------------------------------------------
@@ -536,12 +616,15 @@ class Validated:
     accel_dropped: dict[str, int] = field(default_factory=dict)
     accel_ignored_temp_codes: dict[str, int] = field(default_factory=dict)
     accel_ignored_references: dict[str, int] = field(default_factory=dict)
+    survey: RecordSurvey | None = None
 
 
 def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions, *, gravity: float,
                  latitude: float | None = None, out_of_range: OutOfRange = OutOfRange.CLAMP,
-                 expect_kind: Callable[[InputKind], None] | None = None) -> Validated:
-    """``tak_calib validate`` in one pass (two for a static driver run).
+                 expect_kind: Callable[[InputKind], None] | None = None) -> Validated | Any:
+    """``tak_calib validate`` in one pass (two for a static driver run or a hand-held record).
+
+    A hand-held record gives a :class:`~tak_thermo_ros.streaming_handheld.HandheldValidated`.
 
     :param expect_kind: called with the bag's kind before the pass (raises on a mismatch).
     """
@@ -553,8 +636,14 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
     calibration_run = kind is InputKind.IMU
     if calibration_run:
         opened = open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=False)
+        if opened.survey is not None and decided(path, opened.survey) is Plan.HANDHELD:
+            from tak_thermo_ros.streaming_handheld import validate_handheld_bag
+            return validate_handheld_bag(path, unit, options, opened.survey, gravity=gravity, latitude=latitude,
+                                         out_of_range=out_of_range)
     else:
-        opened = OpenedRun(kind, 0, None)
+        from tak_thermo_ros.formats.records import record_streams as streams_of
+        opened = OpenedRun(kind, 0, None, collector=SurveyCollector(kind.value),
+                           streams=stream_list(streams_of(path, topics=options.topics), options.topics))
     gravity_check = GravityCheck(unit.accel, gravity=gravity, out_of_range=out_of_range)
     rate_check = RateCheck(unit.gyro, out_of_range=out_of_range) if unit.gyro is not None else None
     accel_required = Required(Corrector(unit.accel).signals)
@@ -581,7 +670,8 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
     return Validated(input_kind=kind, gravity=gravity_check, rate=rate_check, reference_lines=tuple(lines),
                      accel_dropped=accel_required.dropped,
                      accel_ignored_temp_codes=dict(accel_pass.aligner.ignored_temp_codes),
-                     accel_ignored_references=dict(accel_pass.aligner.ignored_references))
+                     accel_ignored_references=dict(accel_pass.aligner.ignored_references),
+                     survey=opened.finished_survey())
 
 
 # ----- diagnose -------------------------------------------------------------------------------------
@@ -600,13 +690,28 @@ class BoundedRun:
     usable: dict[str, int]
     stride: int
     reference_lines: tuple[str, ...]
+    survey: RecordSurvey | None = None
+    handheld: Any = None
 
 
 def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: float = 0.0, gravity: float = 9.80665,
-                latitude: float | None = None, max_samples: int = DIAGNOSE_MAX_SAMPLES) -> BoundedRun:
-    """One pass collecting a bounded subsample spread evenly over the run, references held."""
+                latitude: float | None = None, max_samples: int = DIAGNOSE_MAX_SAMPLES,
+                unit: UnitCalibration | None = None) -> BoundedRun:
+    """One pass collecting a bounded subsample spread evenly over the run, references held.
+
+    A hand-held record (no reference topics, several still orientations) gives its still
+    samples with the references it has (gravity along each rest's up direction as ``unit``
+    corrects it, zero rate) and ``handheld``, the turns' closure (``unit`` required).
+    """
     path = Path(path)
     opened = open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=True)
+    if opened.survey is not None and unit is not None and decided(path, opened.survey) is Plan.HANDHELD:
+        from tak_thermo_ros.streaming_handheld import handheld_record, rest_samples
+        record, _ = handheld_record(path, options, opened.survey, budget=max_samples)
+        samples, check = rest_samples(record, unit, gravity=gravity, latitude=latitude)
+        usable = {sensor: int(opened.survey.still.samples.sum()) for sensor in samples}
+        return BoundedRun(input_kind=InputKind.IMU, samples=samples, usable=usable, stride=record.stride,
+                          reference_lines=(), survey=opened.survey, handheld=check)
     stride = stride_for(opened.main, max_samples)
     passes, subsamples = [], {}
     for sensor in sensors_of(opened.kind):
@@ -617,4 +722,4 @@ def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: floa
     return BoundedRun(input_kind=opened.kind,
                       samples={p.sensor: subsamples[p.sensor].samples(p.aligner.dropped) for p in passes},
                       usable={p.sensor: p.aligner.kept for p in passes}, stride=stride,
-                      reference_lines=tuple(lines))
+                      reference_lines=tuple(lines), survey=opened.finished_survey())

@@ -51,6 +51,9 @@ def run(args: argparse.Namespace) -> int:
     run = validate_bag(args.bag, unit, common.stream_options(args), gravity=args.gravity,
                        latitude=getattr(args, 'latitude', None), out_of_range=OutOfRange(args.out_of_range),
                        expect_kind=lambda kind: common.check_kind(args, unit, kind))
+    if not hasattr(run, 'gravity'):
+        return _validate_handheld(args, run)
+    common.print_survey(run.survey, 'validate')
     result = run.gravity
     if not result.samples:
         left_out = f' (left out: {common.describe_dropped(run.accel_dropped)})' if run.accel_dropped else ''
@@ -170,3 +173,47 @@ def _averaged_bias(check, noise, sensor: str, gravity: float) -> dict | None:
         lines.append(f'  {tau:5.0f} s: {text}')
         document[f'{tau:g}'] = entry
     return {'lines': lines, 'document': {'source': source if predicted is not None else None, 'taus': document}}
+
+
+def _validate_handheld(args: argparse.Namespace, run) -> int:
+    """``validate`` of a hand-held record: the rests' |g| and rate, the turns' closure, before and after."""
+    common.print_survey(run.survey, 'validate')
+    before, after = run.before, run.after
+    if not after.samples:
+        msg = f'{args.bag}: no usable still samples to validate'
+        raise TakError(msg)
+    g = args.gravity
+    common.require_finite([before.gravity_rms, after.gravity_rms, *after.rate_rms], f'{args.bag}: the errors')
+    print(f'|g| error of the {len(after.gravity_error)} rests\' mean specific force (gravity {g:g} m/s^2):')
+    for label, check in (('before (nominal scale and offset):', before), ('after  (full correction link):', after)):
+        print(f'  {label:<35}RMS {check.gravity_rms:.3g} m/s^2 ({check.gravity_rms / g * 1e3:.3g} mg), '
+              f'max {np.max(np.abs(check.gravity_error)):.3g} m/s^2')
+    print(f'  the noise alone:                   RMS {after.gravity_floor:.3g} m/s^2 '
+          f'({after.gravity_floor / g * 1e3:.3g} mg)')
+    rest = 'the Earth rate\'s vertical component' if args.latitude is not None else 'zero'
+    print(f'gyroscope: the rests\' mean rate against {rest}, RMS per axis x y z:')
+    for label, check in (('before (nominal scale and offset):', before), ('after  (full correction link):', after)):
+        rms = check.rate_rms
+        print(f'  {label:<35}' + ' '.join(f'{v:.3g}' for v in rms) + ' rad/s ('
+              + ' '.join(f'{v * 180.0 / np.pi * 3600.0:.3g}' for v in rms) + ' deg/h)')
+    floor = after.rate_floor
+    print(f'  {"the noise alone:":<35}' + ' '.join(f'{v:.3g}' for v in floor) + ' rad/s ('
+          + ' '.join(f'{v * 180.0 / np.pi * 3600.0:.3g}' for v in floor) + ' deg/h)')
+    closure = after.closure
+    if len(closure.angle_rad):
+        print(f'turns: closure of {len(closure.angle_rad)} turns, RMS {np.degrees(before.closure.rms_rad):.3g} deg '
+              f'before, {np.degrees(closure.rms_rad):.3g} deg after (the noise alone {np.degrees(closure.floor_rad):.3g} deg)')
+    if after.out_of_range:
+        print(f'warning: {after.out_of_range} samples outside the calibrated temperature range ({args.out_of_range})')
+    document = {'bag': str(args.bag), 'params': str(args.params), 'gravity': g, 'record': 'handheld',
+                'rests': len(after.gravity_error), 'samples': after.samples, 'out_of_range': after.out_of_range,
+                'before': {'gravity_rms': before.gravity_rms, 'rate_rms': [float(v) for v in before.rate_rms],
+                           'closure_rms_rad': before.closure.rms_rad},
+                'after': {'gravity_rms': after.gravity_rms, 'rate_rms': [float(v) for v in after.rate_rms],
+                          'closure_rms_rad': after.closure.rms_rad},
+                'floor': {'gravity_rms': after.gravity_floor, 'rate_rms': [float(v) for v in after.rate_floor],
+                          'closure_rms_rad': closure.floor_rad}}
+    if args.json:
+        write_text_atomic(args.json, common.json_text(document, args.json))
+        print(f'wrote {args.json}')
+    return 0
