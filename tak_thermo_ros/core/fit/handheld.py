@@ -726,8 +726,9 @@ def _calibration(solved: _Solved, layout: _Layout, terms: _Terms, notes: tuple[s
     """The correction link of a solve: the axes, the misalignment when any coupling was fitted, the effects."""
     betas = [layout.axis_part(solved.theta, axis) for axis in range(3)]
     fitted_couplings = any(layout.kinds[j] == 'coupling' for j in solved.free)
-    templates = ([CrossAxis()] if fitted_couplings else []) + list(terms.effects)
-    effects = fitted_effects(templates, layout.columns, betas)
+    effects = fitted_effects([CrossAxis(), *terms.effects], layout.columns, betas)
+    if not fitted_couplings:
+        effects = effects[1:]
     calibration = calibration_from(terms.frame, betas, bias_order=terms.bias_order, scale_order=terms.scale_order,
                                    held_scales=(None, None, None), notes=notes, effects=effects)
     held_scale = [layout.index(f'{name}.scale') in solved.held for name in AXES]

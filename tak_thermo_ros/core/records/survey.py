@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tak_thermo_ros.core.records.record import TEMPERATURE_RANGE, ChannelRecord, DriverRecord
+from tak_thermo_ros.core.records.record import REFERENCE_LIMIT, TEMPERATURE_RANGE, ChannelRecord, DriverRecord
 from tak_thermo_ros.core.records.still import ORIENTATION_DEG, StillDetector, StillIntervals, distinct_directions
 
 MOVING_FRACTION = 0.5
@@ -138,8 +138,10 @@ class SurveyCollector:
         self.temperatures += len(temperature)
         if len(reference):
             self.reference_count += len(reference)
+            plausible_rows = np.all(np.isfinite(reference) & (np.abs(reference) < REFERENCE_LIMIT), axis=1)
+            reference = reference[plausible_rows]
             norms = np.linalg.norm(reference, axis=1)
-            ok = np.isfinite(norms) & (norms > 0.0)
+            ok = norms > 0.0
             directions = reference[ok] / norms[ok, None]
             if len(directions):
                 kept = distinct_directions(np.vstack([*self.references, directions]), degrees=ORIENTATION_DEG)
@@ -154,5 +156,5 @@ class SurveyCollector:
         return RecordSurvey(
             kind=self.kind, streams=listed, duration_s=duration,
             temperature=(self.low, self.high) if self.low <= self.high else None, still=still,
-            reference_directions=len(self.references[0]) if self.references else None,
+            reference_directions=(len(self.references[0]) if self.references else 0) if self.reference_count else None,
             mean=self.total / self.finite if self.finite else np.zeros(3), samples=self.finite)
