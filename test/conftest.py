@@ -2,15 +2,21 @@
 
 from __future__ import annotations
 
-import math
-from dataclasses import replace
+import os
 
-import numpy as np
-import pytest
+# As tak_calib does (cli/__init__.py): small least-squares problems on a 2-core machine run fastest
+# single-threaded; set before numpy loads, a user's value wins.
+os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 
-from node_helpers import domain_id, ros_environment
-from tak_thermo_ros.core.records.record import align
-from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+import math  # noqa: E402
+from dataclasses import replace  # noqa: E402
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from node_helpers import domain_id, ros_environment  # noqa: E402
+from tak_thermo_ros.core.records.record import align  # noqa: E402
+from tak_thermo_ros.core.simulation.imu import Scenario, simulate  # noqa: E402
 
 SHORT = Scenario(plateau_hours=0.5, ramp_celsius_per_minute=1.0, board_lag_s=300.0, dwell_s=30.0)
 """The paper's five plateaus, shortened: about 3 h of 1 Hz samples."""

@@ -231,8 +231,10 @@ def _print_handheld(handheld) -> None:
         print(line)
     closure = fitted.closure
     if len(closure.angle_rad):
-        print(f'turns: closure RMS {np.degrees(fitted.closure_before.rms_rad):.3g} deg with the driver\'s values, '
-              f'{np.degrees(closure.rms_rad):.3g} deg fitted (the noise alone: {np.degrees(closure.floor_rad):.3g} deg)')
+        angles = (fitted.closure_before.rms_rad, closure.rms_rad, closure.floor_rad)
+        before, after, floor = (np.degrees(angle) for angle in angles)
+        print(f'turns: closure RMS {before:.3g} deg with the driver\'s values, {after:.3g} deg fitted '
+              f'(the noise alone: {floor:.3g} deg)')
     if fitted.plus_minus:
         print("the paper's +/- method, eqs. (3)-(5), per plateau with all six faces, beside the fitted link:")
         for row in fitted.plus_minus:

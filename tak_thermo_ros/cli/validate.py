@@ -201,8 +201,9 @@ def _validate_handheld(args: argparse.Namespace, run) -> int:
           + ' '.join(f'{v * 180.0 / np.pi * 3600.0:.3g}' for v in floor) + ' deg/h)')
     closure = after.closure
     if len(closure.angle_rad):
-        print(f'turns: closure of {len(closure.angle_rad)} turns, RMS {np.degrees(before.closure.rms_rad):.3g} deg '
-              f'before, {np.degrees(closure.rms_rad):.3g} deg after (the noise alone {np.degrees(closure.floor_rad):.3g} deg)')
+        angles = [np.degrees(value) for value in (before.closure.rms_rad, closure.rms_rad, closure.floor_rad)]
+        print(f'turns: closure of {len(closure.angle_rad)} turns, RMS {angles[0]:.3g} deg before, {angles[1]:.3g} deg '
+              f'after (the noise alone {angles[2]:.3g} deg)')
     if after.out_of_range:
         print(f'warning: {after.out_of_range} samples outside the calibrated temperature range ({args.out_of_range})')
     document = {'bag': str(args.bag), 'params': str(args.params), 'gravity': g, 'record': 'handheld',

@@ -237,6 +237,20 @@ class _Terms:
         return _Layout.of([design.columns for design in self.designs(powers, dummy, dummy, bases)])
 
 
+def _inverse(matrix: np.ndarray) -> np.ndarray:
+    """The inverses of ``(n, 3, 3)`` matrices by the adjugate (many small systems at once)."""
+    adjugate = np.empty_like(matrix)
+    for i in range(3):
+        for j in range(3):
+            rows = [r for r in range(3) if r != j]
+            cols = [c for c in range(3) if c != i]
+            minor = (matrix[:, rows[0], cols[0]] * matrix[:, rows[1], cols[1]]
+                     - matrix[:, rows[0], cols[1]] * matrix[:, rows[1], cols[0]])
+            adjugate[:, i, j] = minor if (i + j) % 2 == 0 else -minor
+    determinant = np.einsum('ni,ni->n', matrix[:, 0, :], adjugate[:, :, 0])
+    return adjugate / determinant[:, None, None]
+
+
 def _matrix(theta: np.ndarray, layout: _Layout, powers: Sequence[np.ndarray], scale_order: int) -> np.ndarray:
     """``M(T)`` ``(n, 3, 3)``: ``K0 F_c(T)`` on the diagonal, the couplings off it."""
     count = len(powers[0])
@@ -310,16 +324,22 @@ class _Solved:
         return {layout.names[j]: float(deviation) for j, deviation in zip(self.free, deviations)}
 
 
-def _solve(system: _System, held: dict[int, float], width: int, *, extra_dof: int = 0) -> _Solved:
-    """Solve with ``held`` fixed; the covariance of the free terms scaled by the weighted residual."""
+def _solve(system: _System, held: dict[int, float], width: int, *, rows: int | None = None,
+           extra_rss: float = 0.0) -> _Solved:
+    """Solve with ``held`` fixed; the covariance of the free terms scaled by the weighted residual.
+
+    :param rows: the degrees of freedom before the free terms (default the system's rows; a
+        compressed system gives its samples' rows less the directions eliminated).
+    :param extra_rss: residual the compression left out.
+    """
     reduced, free = system.reduced(held)
     solution = solve_factor(reduced.factor, max(reduced.count, 1))
     theta = np.zeros(width)
     for j, value in held.items():
         theta[j] = value
     theta[free] = solution.coefficients
-    dof = max(system.count - len(free) - extra_dof, 1)
-    variance = solution.rss / dof
+    dof = max((system.count if rows is None else rows) - len(free), 1)
+    variance = (solution.rss + extra_rss) / dof
     singular = solution.singular
     _, _, vt = np.linalg.svd(solution.scaled)
     keep = singular > NULL_RELATIVE * singular[0] if len(singular) else np.zeros(0, dtype=bool)
@@ -351,11 +371,11 @@ def _holds(solved: _Solved, layout: _Layout, sensor: str) -> dict[int, float]:
 
 
 def _solve_holding(system: _System, held: dict[int, float], layout: _Layout, sensor: str, *,
-                   extra_dof: int = 0) -> _Solved:
+                   rows: int | None = None, extra_rss: float = 0.0) -> _Solved:
     """:func:`_solve`, holding undetermined terms until every free one is determined."""
     held = dict(held)
     while True:
-        solved = _solve(system, held, layout.width, extra_dof=extra_dof)
+        solved = _solve(system, held, layout.width, rows=rows, extra_rss=extra_rss)
         more = _holds(solved, layout, sensor)
         if not more:
             return solved
@@ -373,71 +393,100 @@ def _segments(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 class _AccelProblem:
-    """The accelerometer's still samples, their directions, weights and rows."""
+    """The accelerometer's still samples, compressed interval by interval, their directions and weights.
+
+    Within a still interval the specific force is constant, so each axis's model is linear in the
+    temperature powers and the effects' basis signals there: the interval's samples are replaced
+    by the triangular factor of ``[powers | bases | N]`` (a few rows instead of hundreds), which
+    gives the same least squares for any parameters and direction. Its rows go through
+    :meth:`_Terms.designs` like samples; the couplings' columns (constant over an interval) take
+    the factor's first column (that of the constant power).
+    """
 
     def __init__(self, counts: np.ndarray, temperature: np.ndarray, interval: np.ndarray, terms: _Terms,
                  bases: Sequence[np.ndarray], gravity: float, noise: np.ndarray) -> None:
-        self.counts = counts
-        self.interval = interval
         self.terms = terms
-        self.bases = bases
         self.gravity = gravity
         self.sigma = np.maximum(np.asarray(noise, dtype=float), 1e-12)
-        self.powers = terms.frame.powers(temperature, max(terms.bias_order, terms.scale_order))
         self.layout = terms.layout()
         self.count = int(interval.max()) + 1 if len(interval) else 0
-        self.chunks = _chunks(interval)
+        self.orders = max(terms.bias_order, terms.scale_order) + 1
+        self.widths = [basis.shape[1] for basis in bases]
+        regressors = np.column_stack([*terms.frame.powers(temperature, self.orders - 1), *bases])
+        inner = regressors.shape[1]
+        starts = np.flatnonzero(np.diff(interval, prepend=-1) != 0)
+        ends = np.append(starts[1:], len(interval))
+        factors, owners, remainder = [], [], np.zeros(3)
+        for start, end in zip(starts, ends):
+            factor = np.linalg.qr(np.column_stack([regressors[start:end], counts[start:end]]), mode='r')
+            kept = min(len(factor), inner)
+            factors.append(factor[:kept])
+            owners.append(np.full(kept, interval[start]))
+            remainder += np.sum(factor[kept:, inner:] ** 2, axis=0)
+        compressed = np.vstack(factors) if factors else np.zeros((0, inner + 3))
+        self.regressors = compressed[:, :inner]
+        self.counts = compressed[:, inner:]
+        self.interval = np.concatenate(owners) if owners else np.zeros(0, dtype=np.int64)
+        self.remainder = remainder
+        self.samples = len(interval)
 
-    def rows(self, theta: np.ndarray, up: np.ndarray, rows: slice
+    def rows(self, theta: np.ndarray, up: np.ndarray
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """A block's weighted design ``(m, 3, W)``, target ``(m, 3)``, direction columns ``(m, 3, 2)``.
+        """The weighted design ``(m, 3, W)``, target ``(m, 3)``, direction columns ``(m, 3, 2)``.
 
-        And each sample's run (of equal intervals, from 0) and each run's interval.
+        And each row's run (of equal intervals, from 0) and each run's interval.
         """
-        interval = self.interval[rows]
-        powers = [p[rows] for p in self.powers]
-        force = self.gravity * up[interval]
-        designs = self.terms.designs(powers, force, self.counts[rows], [b[rows] for b in self.bases])
+        powers = [self.regressors[:, j] for j in range(self.orders)]
+        edges = np.cumsum([self.orders, *self.widths])
+        bases = [self.regressors[:, a:b] for a, b in zip(edges[:-1], edges[1:])]
+        force = self.gravity * up[self.interval]
+        designs = self.terms.designs(powers, force, self.counts, bases)
+        constant = self.regressors[:, 0]
+        for axis, design in enumerate(designs):
+            coupling = [c for c, label in enumerate(design.columns) if label.effect == CrossAxis.name]
+            design.matrix[:, coupling] *= constant[:, None]
         design = _joint(designs, self.layout) / self.sigma[None, :, None]
-        target = self.counts[rows] / self.sigma[None, :]
+        target = self.counts / self.sigma[None, :]
+        tangent = tangent_basis(up)[self.interval] * self.gravity  # (m, 3, 2)
         matrix = _matrix(theta, self.layout, powers, self.terms.scale_order)
-        directions = (matrix @ tangent_basis(up)[interval]) * self.gravity / self.sigma[None, :, None]
-        starts, run = _segments(interval)
-        return design, target, directions, run, interval[starts]
+        diagonal = np.einsum('maa->ma', matrix)
+        couplings = matrix[0] - np.diag(np.diag(matrix[0])) if len(matrix) else np.zeros((3, 3))
+        directions = (diagonal[:, :, None] * tangent
+                      + constant[:, None, None] * np.einsum('il,mlb->mib', couplings, tangent))
+        directions = directions / self.sigma[None, :, None]
+        starts, run = _segments(self.interval)
+        return design, target, directions, run, self.interval[starts]
 
     def system(self, theta: np.ndarray, up: np.ndarray) -> _System:
-        blocks = []
-        for rows in self.chunks:
-            design, target, directions, run, _ = self.rows(theta, up, rows)
-            projected = _project(directions, run, design, target)
-            blocks.append(np.column_stack([projected[0].reshape(-1, self.layout.width),
-                                           projected[1].reshape(-1)]))
-        return _System.of_rows(blocks, self.layout.width)
+        design, target, directions, run, _ = self.rows(theta, up)
+        projected = _project(directions, run, design, target)
+        return _System.of_rows([np.column_stack([projected[0].reshape(-1, self.layout.width),
+                                                 projected[1].reshape(-1)])], self.layout.width)
+
+    @property
+    def extra_rss(self) -> float:
+        """The weighted residual sum of squares the compression left out (no parameter changes it)."""
+        return float(np.sum(self.remainder / self.sigma ** 2))
 
     def sensitivity(self, theta: np.ndarray, up: np.ndarray) -> np.ndarray:
         """``(k, 2, W)``: how each interval's best up direction (two tangent angles) moves with the terms."""
         out = np.zeros((self.count, 2, self.layout.width))
-        for rows in self.chunks:
-            design, _, directions, run, owners = self.rows(theta, up, rows)
-            starts = np.flatnonzero(np.diff(run, prepend=-1) != 0)
-            q1, q2, factor = _orthonormal(directions, run)
-            along = np.stack([np.add.reduceat(np.einsum('ma,maw->mw', q, design), starts, axis=0)
-                              for q in (q1, q2)], axis=1)
-            out[owners] = -np.linalg.solve(factor, along)
+        design, _, directions, run, owners = self.rows(theta, up)
+        starts = np.flatnonzero(np.diff(run, prepend=-1) != 0)
+        q1, q2, factor = _orthonormal(directions, run)
+        along = np.stack([np.add.reduceat(np.einsum('ma,maw->mw', q, design), starts, axis=0)
+                          for q in (q1, q2)], axis=1)
+        out[owners] = -np.linalg.solve(factor, along)
         return out
 
-    def directions(self, theta: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The up directions after one Gauss-Newton step given ``theta``, and the unweighted residual."""
+    def directions(self, theta: np.ndarray, up: np.ndarray) -> np.ndarray:
+        """The up directions after one Gauss-Newton step given ``theta``."""
         new_up = up.copy()
-        residual = np.empty_like(self.counts)
-        for rows in self.chunks:
-            design, target, directions, run, owners = self.rows(theta, up, rows)
-            weighted = target - design @ theta
-            step = _interval_step(directions, run, weighted)
-            moved = up[owners] + np.einsum('kab,kb->ka', tangent_basis(up[owners]), step)
-            new_up[owners] = moved / np.linalg.norm(moved, axis=1, keepdims=True)
-            residual[rows] = weighted * self.sigma[None, :]
-        return new_up, residual
+        design, target, directions, run, owners = self.rows(theta, up)
+        step = _interval_step(directions, run, target - design @ theta)
+        moved = up[owners] + np.einsum('kab,kb->ka', tangent_basis(up[owners]), step)
+        new_up[owners] = moved / np.linalg.norm(moved, axis=1, keepdims=True)
+        return new_up
 
 
 def _chunks(labels: np.ndarray) -> list[slice]:
@@ -493,24 +542,25 @@ def _interval_step(directions: np.ndarray, run: np.ndarray, residual: np.ndarray
     return np.linalg.solve(factor, along[:, :, None])[:, :, 0]
 
 
-def _fit_accel(problem: _AccelProblem, up: np.ndarray, held: dict[int, float]
-               ) -> tuple[_Solved, np.ndarray, np.ndarray]:
+def _fit_accel(problem: _AccelProblem, up: np.ndarray, held: dict[int, float]) -> tuple[_Solved, np.ndarray]:
     """Gauss-Newton on the accelerometer's terms and the up directions; holds grow while terms are undetermined.
 
-    :returns: the solve, the up directions, the residual ``(n, 3)`` at the last step.
+    :returns: the solve and the up directions.
     """
     layout = problem.layout
     theta = layout.initial()
     for j, value in held.items():
         theta[j] = value
+    dof = 3 * problem.samples - 2 * problem.count
     for _ in range(MAX_ITERATIONS):
-        solved = _solve_holding(problem.system(theta, up), held, layout, 'accel', extra_dof=2 * problem.count)
+        solved = _solve_holding(problem.system(theta, up), held, layout, 'accel', rows=dof,
+                                extra_rss=problem.extra_rss)
         held = solved.held
-        up, residual = problem.directions(solved.theta, up)
+        up = problem.directions(solved.theta, up)
         if _converged(solved, theta):
             break
         theta = solved.theta
-    return solved, up, residual
+    return solved, up
 
 
 def _converged(solved: _Solved, previous: np.ndarray) -> bool:
@@ -564,8 +614,9 @@ class _GyroProblem:
         designs = self.terms.designs(self.turn_powers, zero, self.turn_counts, self.turn_bases)
         offsets = _joint(designs, self.layout) @ theta  # the force columns are zero: the offsets alone
         matrix = _matrix(theta, self.layout, self.turn_powers, self.terms.scale_order)
-        rate = np.linalg.solve(matrix, (self.turn_counts - offsets)[:, :, None])[:, :, 0]
-        return rate, matrix, np.zeros(0)
+        inverse = _inverse(matrix)
+        rate = np.einsum('mab,mb->ma', inverse, self.turn_counts - offsets)
+        return rate, inverse, np.zeros(0)
 
     def turn_rows(self, theta: np.ndarray, covariance_scale: float = 1.0) -> _TurnRows:
         """Two whitened rows ``[J | J theta - r]`` per turn, and the closure at ``theta``."""
@@ -574,10 +625,10 @@ class _GyroProblem:
         if not count:
             return _TurnRows(np.zeros((0, width + 1)), _no_closure(), np.zeros((0, 2, 2)), np.zeros((0, 3, 2)),
                              np.zeros((0, 3, 3)))
-        rate, matrix, _ = self.rates(theta)
+        rate, inverse, _ = self.rates(theta)
         rotations, jacobians = integrate_segments(rate, self.turn_stamps, self.turn_index, count, jacobian=True)
         designs = self.terms.designs(self.turn_powers, rate, self.turn_counts, self.turn_bases)
-        derivative = -np.linalg.solve(matrix, _joint(designs, self.layout))  # d rate / d theta, (m, 3, W)
+        derivative = -inverse @ _joint(designs, self.layout)  # d rate / d theta, (m, 3, W)
         starts = np.flatnonzero(np.diff(self.turn_index, prepend=-1) != 0)
         moved = np.zeros((count, 3, width))
         moved[self.turn_index[starts]] = np.add.reduceat(jacobians @ derivative, starts, axis=0)
@@ -806,20 +857,20 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
     accel_terms = _Terms(frame, bias_order, scale_order)
     gauge = {accel_terms.layout().index(f'cross_axis.{name}'): 0.0 for name in GAUGE}
     problem = _AccelProblem(accel_counts, temperature, interval, accel_terms, [], settings.gravity, noise[:3])
-    accel, up, _ = _fit_accel(problem, up, gauge)
+    accel, up = _fit_accel(problem, up, gauge)
     shapes: dict[str, FitResult] = {}
     if effects['accel']:
         reference = settings.gravity * up[interval]
         shaped = _shapes(sensor_samples(record.still, 'accel', reference), effects['accel'], accel, problem.layout,
                          accel_terms, frame)
         shapes['accel'] = shaped
-        accel_terms = _Terms(frame, bias_order, scale_order, tuple(e for e in shaped.calibration.effects
-                                                                  if not isinstance(e, CrossAxis)))
+        offsets = tuple(effect for effect in shaped.calibration.effects if not isinstance(effect, CrossAxis))
+        accel_terms = _Terms(frame, bias_order, scale_order, offsets)
         still_bases, _ = _union_bases(accel_terms.effects, frame, record)
         gauge = {accel_terms.layout().index(f'cross_axis.{name}'): 0.0 for name in GAUGE}
         problem = _AccelProblem(accel_counts, temperature, interval, accel_terms, still_bases, settings.gravity,
                                 problem.sigma)
-        accel, up, _ = _fit_accel(problem, up, gauge)
+        accel, up = _fit_accel(problem, up, gauge)
     accel_layout = problem.layout
     accel_sigma = problem.sigma
 

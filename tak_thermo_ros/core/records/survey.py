@@ -125,7 +125,8 @@ class SurveyCollector:
             self.rate_references += len(block.rate_reference_stamp_ns)
             self.mags += len(block.mag_stamp_ns)
         else:
-            stamps, values, temperature, reference = block.counts_stamp_ns, block.counts, block.temp_code, block.reference
+            stamps, values = block.counts_stamp_ns, block.counts
+            temperature, reference = block.temp_code, block.reference
         self.detector.push(stamps, values)
         finite = np.all(np.isfinite(values), axis=1)
         self.total += values[finite, :3].sum(axis=0)

@@ -94,7 +94,8 @@ def motion_from_mapping(raw: Any) -> HandheldMotion:
     :raises ScenarioError: naming the key.
     """
     if not isinstance(raw, Mapping):
-        msg = 'handheld: expected a mapping (every key optional: ' + ', '.join(f.name for f in fields(HandheldMotion)) + ')'
+        known = ', '.join(f.name for f in fields(HandheldMotion))
+        msg = f'handheld: expected a mapping (every key optional: {known})'
         raise ScenarioError(msg)
     known = {f.name: f for f in fields(HandheldMotion)}
     values: dict[str, Any] = {}
@@ -164,20 +165,18 @@ def _pose(up: np.ndarray, heading: float) -> np.ndarray:
 
 def rest_poses(motion: HandheldMotion, count: int, rng: np.random.Generator) -> np.ndarray:
     """``(count, 3, 3)`` the poses of the rests, by the motion's pattern."""
-    poses = []
-    for k in range(count):
-        if motion.pattern == 'one_axis':
-            poses.append(exp_map(np.array([rng.uniform(0.0, 2.0 * math.pi), 0.0, 0.0])))
-            continue
-        if motion.pattern == 'six_faces':
-            up = np.array(FACE_UP[k % len(FACE_UP)])
-            tilt = math.radians(motion.tilt_deg) * math.sqrt(rng.uniform())
-            axis = np.cross(up, rng.standard_normal(3))
-            up = exp_map(tilt * axis / np.linalg.norm(axis)) @ up
-        else:
-            up = rng.standard_normal(3)
-        poses.append(_pose(up, rng.uniform(0.0, 2.0 * math.pi)))
-    return np.array(poses)
+    if motion.pattern == 'one_axis':
+        angles = rng.uniform(0.0, 2.0 * math.pi, count)
+        return exp_map(np.column_stack([angles, np.zeros(count), np.zeros(count)]))
+    if motion.pattern == 'six_faces':
+        up = np.array(FACE_UP)[np.arange(count) % len(FACE_UP)]
+        tilt = math.radians(motion.tilt_deg) * np.sqrt(rng.uniform(size=count))
+        axis = np.cross(up, rng.standard_normal((count, 3)))
+        up = np.einsum('kab,kb->ka', exp_map(tilt[:, None] * axis / np.linalg.norm(axis, axis=1, keepdims=True)), up)
+    else:
+        up = rng.standard_normal((count, 3))
+    headings = rng.uniform(0.0, 2.0 * math.pi, count)
+    return np.array([_pose(direction, heading) for direction, heading in zip(up, headings)])
 
 
 def hand_trajectory(motion: HandheldMotion, *, rate_hz: float, gravity: float, seed: int,
@@ -210,16 +209,16 @@ def hand_trajectory(motion: HandheldMotion, *, rate_hz: float, gravity: float, s
     rate = np.zeros((count, 3))
     alpha = np.zeros((count, 3))
     turning = segment % 2 == 1
-    for k in np.unique(segment[turning]):
-        rows = segment == k
-        start, end = poses[k // 2], poses[k // 2 + 1]
-        phi = log_map(start.T @ end)
-        length = edges[k + 1] - edges[k]
-        tau = (time_s[rows] - edges[k]) / length
-        s, ds, dds = _minimum_jerk(tau)
-        rotation[rows] = start @ exp_map(s[:, None] * phi)
-        rate[rows] = ds[:, None] * phi / length
-        alpha[rows] = dds[:, None] * phi / length ** 2
+    if len(poses) > 1:
+        # Each turn about one axis of the sensor frame: phi = Log(R_a^T R_b), all turns at once.
+        phi = log_map(np.swapaxes(poses[:-1], 1, 2) @ poses[1:])
+        rows = np.flatnonzero(turning)
+        turn = segment[rows] // 2
+        length = (edges[1:] - edges[:-1])[segment[rows]]
+        s, ds, dds = _minimum_jerk((time_s[rows] - edges[segment[rows]]) / length)
+        rotation[rows] = poses[turn] @ exp_map(s[:, None] * phi[turn])
+        rate[rows] = ds[:, None] * phi[turn] / length[:, None]
+        alpha[rows] = dds[:, None] * phi[turn] / length[:, None] ** 2
     up_body = rotation[:, 2, :]  # R^T e_z: the third row of R
     lever = np.cross(alpha, arm) + np.cross(rate, np.cross(rate, arm))
     force = gravity * up_body + lever
