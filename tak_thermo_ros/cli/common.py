@@ -211,10 +211,9 @@ def noise_axis_line(sensor: str, model, axis: int, unit: str) -> str:
 
 PLAN_WORDS = {
     'fit': {'table': 'a table run (reference topics): offset and scale against temperature per axis',
-            'static': 'a static run (no reference topics, one orientation): offsets against temperature, '
-                      'scales held',
-            'handheld': 'a hand-held record (no reference topics, {orientations} orientations at rest): offset, '
-                        'scale and misalignment of both sensors {against}'},
+            'static': 'a static run (no reference topics, one orientation)\noffsets against temperature, scales held',
+            'handheld': 'a hand-held record (no reference topics, {orientations} orientations at rest)\n'
+                        'offset, scale and misalignment of both sensors {against}'},
     'apply': {plan: 'every message corrected with the calibration' for plan in ('table', 'static', 'handheld')},
     'validate': {'table': '|g| and the rate against the recorded references',
                  'static': '|g| and the rate at rest (one orientation)',
@@ -226,7 +225,8 @@ PLAN_WORDS = {
               'static': "each sensor's residual at rest (Allan deviation)",
               'handheld': 'the unit moves (a hand-held record): a noise model needs a static record'},
 }
-"""What each command does with each kind of record (:class:`~tak_thermo_ros.core.records.survey.Plan`)."""
+"""What each command does with each kind of record (:class:`~tak_thermo_ros.core.records.survey.Plan`); a newline
+starts a second line."""
 
 
 def duration_text(seconds: float) -> str:
@@ -272,7 +272,8 @@ def survey_lines(survey, command: str) -> list[str]:
     if words:
         span = survey.temperature_span
         against = 'against temperature' if span >= SPAN_PER_ORDER_C else 'at one temperature'
-        lines.append(f'{command}: ' + words.format(orientations=still.orientations(), against=against))
+        text = words.format(orientations=still.orientations(), against=against)
+        lines += [f'{command}: {part}' for part in text.split('\n')]
     return lines
 
 
