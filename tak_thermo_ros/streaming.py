@@ -6,8 +6,10 @@ each block on the main stream with the held values carried over
 the blocked-QR fit (:class:`~tak_thermo_ros.core.fit.stream.StreamingFit`), the corrector
 that carries the effects' state (:class:`~tak_thermo_ros.core.link.stream_correction.BlockUnitCorrector`)
 and an open bag writer, the validation sums, or a bounded, evenly spread subsample (the
-effects' shape search, ``diagnose``). A driver bag without reference topics (a static run)
-takes one extra pass for the mean measured direction first. See docs/streaming.md.
+effects' shape search, ``diagnose``). A driver bag without reference topics is surveyed in one
+extra pass first (:mod:`tak_thermo_ros.core.records.survey`): a static run takes its mean
+measured direction as the reference, a hand-held record goes to
+:mod:`tak_thermo_ros.streaming_handheld`. See docs/streaming.md.
 """
 
 from __future__ import annotations
@@ -70,7 +72,7 @@ class StreamOptions:
 
 
 class _StaticRun:
-    """A driver bag's missing references, estimated as a static run (one extra pass, the mean)."""
+    """A driver bag's missing references, estimated as a static run (the mean: the survey's, or one extra pass)."""
 
     def __init__(self, path: Path, options: StreamOptions, *, recorded_reference: bool, recorded_rate: bool,
                  gravity: float, latitude: float | None, survey: RecordSurvey | None = None) -> None:

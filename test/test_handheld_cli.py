@@ -65,7 +65,7 @@ def test_fit_says_what_the_record_holds_and_fits_both_sensors(bags, tmp_path, ca
     unit = load_unit(params)
     accel = {effect.name: effect for effect in unit.accel.effects}['cross_axis']
     assert accel['c_xy'] == accel['c_xz'] == accel['c_yz'] == 0.0
-    assert any(note.startswith('accelerometer: misalignment in its own frame') for note in unit.accel.notes)
+    assert any(note.startswith('accelerometer: gauge c_xy = c_xz = c_yz = 0: corrected x along its x axis') for note in unit.accel.notes)
     assert [effect.name for effect in unit.gyro.effects] == ['cross_axis']
     assert params.read_text().startswith(f'# tak_thermo_ros calibration fitted from {bags["cal"]} (a hand-held record)')
 
@@ -168,3 +168,19 @@ def test_a_hidden_gyroscope_lag_is_named_and_the_refit_reaches_the_floor():
     assert np.all(after.rate_rms < 1.2 * after.rate_floor)
     assert np.all(np.array([a.residual_rms for a in refit.results['gyro'].calibration.axes])
                   < 1.02 * record.intervals.noise[3:6])
+
+
+def test_a_counts_table_run_says_first_what_it_holds(tmp_path, capsys):
+    """The paper's codes on a table: the reference's directions counted, the table plan, before the fit's lines."""
+    from tak_thermo_ros.formats.bag import write_record
+    bag = tmp_path / 'table'
+    write_record(bag, simulate(Scenario(plateau_hours=0.1, ramp_celsius_per_minute=2.0, board_lag_s=60.0,
+                                        dwell_s=30.0)).record)
+    status, lines = run_cli(capsys, 'fit', str(bag), '-o', str(tmp_path / 'p.yaml'))
+    assert status == 0, lines
+    assert lines[0].startswith('record: /tak/counts ') and ' at 1 Hz, /tak/temp_code ' in lines[0]
+    assert lines[1].startswith('record: also /tak/reference ')
+    assert lines[2].startswith('record: temperature code 7') and lines[2].endswith(')')
+    assert lines[5] == 'record: the reference holds 10 directions'
+    assert lines[6] == 'fit: a table run (reference topics): offset and scale against temperature per axis'
+    assert lines[7].startswith('fitted ')

@@ -222,7 +222,7 @@ def _print_handheld(handheld) -> None:
     """What a hand-held fit used and held, the turns' closure, the paper's +/- table on plateaus."""
     record, fitted = handheld.record, handheld.fit
     skipped = record.skipped_turns
-    reasons = {'gap': 'across a gap in the stamps', 'long': 'longer than 60 s'}
+    reasons = {'gap': 'across a gap in the stamps', 'long': 'longer than 60 s', 'budget': 'beyond the sample budget'}
     not_used = '; '.join(f'{count} {reasons[reason]}' for reason, count in sorted(skipped.items()))
     kept = 'every sample' if record.stride == 1 else f'1 sample in {record.stride}'
     print(f'hand-held: {len(record.still):,} still samples ({kept}) in {len(np.unique(record.still_interval))} rests, '

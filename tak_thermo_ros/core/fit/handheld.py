@@ -608,30 +608,40 @@ class _GyroProblem:
             blocks.append(np.column_stack([design.reshape(-1, self.layout.width), target.reshape(-1)]))
         return _System.of_rows(blocks, self.layout.width)
 
-    def rates(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The turns' corrected rates ``(m, 3)``, ``M(T)`` and the design at them."""
-        zero = np.zeros_like(self.turn_counts)
-        designs = self.terms.designs(self.turn_powers, zero, self.turn_counts, self.turn_bases)
+    def rates(self, theta: np.ndarray, rows: slice) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], list]:
+        """Some turn samples' corrected rates ``(m, 3)``, ``M(T)^-1``, their powers and bases."""
+        powers = [p[rows] for p in self.turn_powers]
+        bases = [b[rows] for b in self.turn_bases]
+        counts = self.turn_counts[rows]
+        designs = self.terms.designs(powers, np.zeros_like(counts), counts, bases)
         offsets = _joint(designs, self.layout) @ theta  # the force columns are zero: the offsets alone
-        matrix = _matrix(theta, self.layout, self.turn_powers, self.terms.scale_order)
-        inverse = _inverse(matrix)
-        rate = np.einsum('mab,mb->ma', inverse, self.turn_counts - offsets)
-        return rate, inverse, np.zeros(0)
+        inverse = _inverse(_matrix(theta, self.layout, powers, self.terms.scale_order))
+        return np.einsum('mab,mb->ma', inverse, counts - offsets), inverse, powers, bases
 
     def turn_rows(self, theta: np.ndarray, covariance_scale: float = 1.0) -> _TurnRows:
-        """Two whitened rows ``[J | J theta - r]`` per turn, and the closure at ``theta``."""
+        """Two whitened rows ``[J | J theta - r]`` per turn, and the closure at ``theta``.
+
+        The turns are integrated a block of whole turns at a time (bounded memory).
+        """
         count = len(self.pairs)
         width = self.layout.width
         if not count:
             return _TurnRows(np.zeros((0, width + 1)), _no_closure(), np.zeros((0, 2, 2)), np.zeros((0, 3, 2)),
                              np.zeros((0, 3, 3)))
-        rate, inverse, _ = self.rates(theta)
-        rotations, jacobians = integrate_segments(rate, self.turn_stamps, self.turn_index, count, jacobian=True)
-        designs = self.terms.designs(self.turn_powers, rate, self.turn_counts, self.turn_bases)
-        derivative = -inverse @ _joint(designs, self.layout)  # d rate / d theta, (m, 3, W)
-        starts = np.flatnonzero(np.diff(self.turn_index, prepend=-1) != 0)
+        rotations = np.zeros((count, 3, 3))
+        jacobians = np.zeros((len(self.turn_index), 3, 3))
         moved = np.zeros((count, 3, width))
-        moved[self.turn_index[starts]] = np.add.reduceat(jacobians @ derivative, starts, axis=0)
+        for rows in _chunks(self.turn_index):
+            index = self.turn_index[rows]
+            first, local = int(index[0]), int(index[-1] - index[0] + 1)
+            rate, inverse, powers, bases = self.rates(theta, rows)
+            rotation, jacobian = integrate_segments(rate, self.turn_stamps[rows], index - first, local, jacobian=True)
+            rotations[first:first + local] = rotation
+            jacobians[rows] = jacobian
+            designs = self.terms.designs(powers, rate, self.turn_counts[rows], bases)
+            derivative = -inverse @ _joint(designs, self.layout)  # d rate / d theta, (m, 3, W)
+            starts = np.flatnonzero(np.diff(index, prepend=-1) != 0)
+            moved[index[starts]] = np.add.reduceat(jacobian @ derivative, starts, axis=0)
         terms = closure_terms(rotations, jacobians, self.turn_index, self.pairs, self.up, self.up_noise, self.sigma)
         basis = terms.basis
         jacobian = -np.einsum('tab,tac,tcw->tbw', basis, hat(terms.carried), moved)
@@ -902,8 +912,7 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
     gyro = replace(gyro, covariance=gyro.covariance + through_frame)
     closure = replace(turns.closure, seconds=turns_record.turn_seconds())
 
-    gauge_line = ('accelerometer: misalignment in its own frame: c_xy = c_xz = c_yz = 0 (corrected x along its '
-                  'x axis, y in its x-y plane)')
+    gauge_line = 'accelerometer: gauge c_xy = c_xz = c_yz = 0: corrected x along its x axis, y in its x-y plane'
     accel_held = held_lines('accel', accel, accel_layout, gauge=GAUGE)
     gyro_held = held_lines('gyro', gyro, gyro_problem.layout)
     lines += [gauge_line, *accel_held, *gyro_held]

@@ -6,7 +6,8 @@ kept whole (the rotation they integrate to needs every one). A turn that crosses
 stamps is not used (the rotation during the gap is unknown), nor one longer than
 :data:`MAX_TURN_S` (the unit was not carried from one rest to the next; the integrated noise
 would hide the scale). The still samples are kept every ``stride``-th (of each interval), so
-that at most a given budget stays in memory; each keeps its held temperature.
+that at most a given budget stays in memory, and beyond as many turn samples every n-th turn is
+used; each sample keeps its held temperature.
 
 Both come as :class:`~tak_thermo_ros.core.records.record.AlignedSamples` of six channels
 (accelerometer x y z, gyroscope x y z): :func:`sensor_samples` takes one sensor's three.
@@ -73,8 +74,12 @@ def sensor_samples(samples: AlignedSamples, sensor: str, reference: np.ndarray |
     return replace(samples, counts=samples.counts[:, columns], reference=reference)
 
 
-def planned_turns(intervals: StillIntervals) -> tuple[np.ndarray, dict[str, int]]:
-    """``(t, 2)`` the pairs of consecutive still intervals whose turn is used, and the others by reason."""
+def planned_turns(intervals: StillIntervals, *, budget: int = 10 ** 9) -> tuple[np.ndarray, dict[str, int]]:
+    """``(t, 2)`` the pairs of consecutive still intervals whose turn is used, and the others by reason.
+
+    :param budget: keep about this many turn samples at most: beyond it, every n-th turn is used
+        (the others are counted as ``budget``).
+    """
     pairs = []
     skipped: dict[str, int] = {}
     for before in range(len(intervals) - 1):
@@ -86,7 +91,15 @@ def planned_turns(intervals: StillIntervals) -> tuple[np.ndarray, dict[str, int]
             skipped['long'] = skipped.get('long', 0) + 1
         else:
             pairs.append((before, before + 1))
-    return np.array(pairs, dtype=np.int64).reshape(-1, 2), skipped
+    pairs_array = np.array(pairs, dtype=np.int64).reshape(-1, 2)
+    if len(pairs_array) and intervals.period_s > 0.0:
+        seconds = (intervals.start_ns[pairs_array[:, 1]] - intervals.end_ns[pairs_array[:, 0]]) * 1e-9
+        samples = seconds / intervals.period_s
+        stride = max(1, math.ceil(float(np.sum(samples + 1.0)) / max(budget, 1)))
+        if stride > 1:
+            skipped['budget'] = len(pairs_array) - len(pairs_array[::stride])
+            pairs_array = pairs_array[::stride]
+    return pairs_array, skipped
 
 
 def still_stride(intervals: StillIntervals, budget: int) -> int:
@@ -98,12 +111,13 @@ class HandheldCollector:
     """Gathers a :class:`HandheldRecord` from aligned six-channel blocks in time order.
 
     :param intervals: the still intervals (a first pass over the record).
-    :param budget: keep at most about this many still samples (every ``stride``-th).
+    :param budget: keep at most about this many still samples (every ``stride``-th), and as many
+        turn samples (every n-th turn).
     """
 
     def __init__(self, intervals: StillIntervals, *, budget: int) -> None:
         self.intervals = intervals
-        self.turns, self.skipped = planned_turns(intervals)
+        self.turns, self.skipped = planned_turns(intervals, budget=budget)
         self.stride = still_stride(intervals, budget)
         self._turn_start = intervals.end_ns[self.turns[:, 0]] if len(self.turns) else np.zeros(0, dtype=np.int64)
         self._turn_end = intervals.start_ns[self.turns[:, 1]] if len(self.turns) else np.zeros(0, dtype=np.int64)
