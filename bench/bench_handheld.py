@@ -66,7 +66,7 @@ def build_bag(workdir: Path, hours: float) -> Path:
 
 
 def measure(bag: Path, workdir: Path) -> dict[str, object]:
-    """rosbags reading the bag, then ``tak_calib fit``: times, peak memory, what the fit printed."""
+    """Time rosbags reading the bag, then ``tak_calib fit``: times, peak memory, what the fit printed."""
     wall, cpu, rss, out = run_child([sys.executable, '-c', BASELINE_SCRIPT, str(bag)])
     baseline = json.loads(out)
     params = workdir / 'handheld_params.yaml'

@@ -184,6 +184,8 @@ class OpenedRun:
     :param survey: what the record holds, when a first pass was needed to know it (a driver
         bag without reference topics); else ``collector`` gathers it during the pass.
     :param streams: ``(role, topic, messages)`` of the record's streams (for the survey).
+    :param replay: the survey's blocks, kept when the record holds at most
+        :data:`SURVEY_REPLAY_SAMPLES` messages (a hand-held record is then not read again).
     """
 
     kind: InputKind
@@ -192,6 +194,7 @@ class OpenedRun:
     survey: RecordSurvey | None = None
     collector: SurveyCollector | None = None
     streams: tuple[tuple[str, str, int], ...] = ()
+    replay: tuple[DriverRecord, ...] | None = None
 
     def finished_survey(self) -> RecordSurvey:
         """The survey, after the pass (the one taken first, else what the pass gathered)."""
@@ -215,16 +218,20 @@ def open_calibration_run(path: Path, options: StreamOptions, *, gravity: float, 
     listed = stream_list(streams, options.topics)
     static = None
     survey = None
+    replay = None
     if streams.kind is InputKind.IMU:
         if not streams.reference:
             # Without references the record itself says what it is (static, hand-held): one pass first.
-            survey = survey_record(path, options, streams.kind, listed)
+            survey, replay = survey_record(path, options, streams.kind, listed,
+                                           keep=streams.main <= SURVEY_REPLAY_SAMPLES)
         if survey is None or survey.plan is Plan.STATIC:
             static = _StaticRun(path, options, recorded_reference=streams.reference > 0,
                                 recorded_rate=streams.rate_reference > 0, gravity=gravity, latitude=latitude,
                                 survey=survey)
     collector = None if survey is not None else SurveyCollector(streams.kind.value)
-    return OpenedRun(streams.kind, streams.main, static, survey, collector, listed)
+    if survey is not None and survey.plan is not Plan.HANDHELD:
+        replay = None  # only a hand-held record reads its blocks again
+    return OpenedRun(streams.kind, streams.main, static, survey, collector, listed, replay)
 
 
 def stream_list(streams, topics) -> tuple[tuple[str, str, int], ...]:
@@ -238,15 +245,27 @@ def stream_list(streams, topics) -> tuple[tuple[str, str, int], ...]:
             ('mag_reference', topics.reference_field, streams.mag_reference))
 
 
-def survey_record(path: Path, options: StreamOptions, kind: InputKind,
-                  listed: tuple[tuple[str, str, int], ...]) -> RecordSurvey:
-    """What a record holds, from one pass over its main and temperature streams."""
+SURVEY_REPLAY_SAMPLES = 2_000_000
+"""A record of at most this many main messages keeps its survey's blocks (about 60 bytes a message)."""
+
+
+def survey_record(path: Path, options: StreamOptions, kind: InputKind, listed: tuple[tuple[str, str, int], ...],
+                  *, keep: bool = False) -> tuple[RecordSurvey, tuple[DriverRecord, ...] | None]:
+    """What a record holds, from one pass over its main and temperature streams; its blocks if ``keep``.
+
+    The kept blocks hold what a later pass over a driver record needs (stamps, the two sensors, the
+    temperature and recorded signals), not the orientation the driver passes through.
+    """
     from tak_thermo_ros.formats.records import record_blocks
     collector = SurveyCollector(kind.value)
+    kept: list[DriverRecord] | None = [] if keep and kind is InputKind.IMU else None
     for block in record_blocks(path, topics=options.topics, kind=kind, block_samples=options.block_samples,
                                references=False, progress=options.progress):
         collector.add(block)
-    return collector.finish(listed)
+        if kept is not None:
+            kept.append(replace(block, orientation=np.zeros((0, 4)), orientation_covariance=np.zeros((0, 9)),
+                                mag_stamp_ns=np.zeros(0, dtype=np.int64), mag=np.zeros((0, 3))))
+    return collector.finish(listed), tuple(kept) if kept is not None else None
 
 
 def run_passes(path: Path, options: StreamOptions, opened: OpenedRun, passes: Sequence[SensorPass]) -> list[str]:
@@ -333,7 +352,7 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
                                   require_reference=True)
     if opened.survey is not None and decided(path, opened.survey) is Plan.HANDHELD:
         from tak_thermo_ros.streaming_handheld import fit_handheld_bag
-        return fit_handheld_bag(path, settings, options, opened.survey)
+        return fit_handheld_bag(path, settings, options, opened.survey, replay=opened.replay)
     kind = opened.kind
     sensors = sensors_of(kind)
     if kind is InputKind.COUNTS and settings.effects.get('gyro'):
@@ -641,7 +660,7 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
         if opened.survey is not None and decided(path, opened.survey) is Plan.HANDHELD:
             from tak_thermo_ros.streaming_handheld import validate_handheld_bag
             return validate_handheld_bag(path, unit, options, opened.survey, gravity=gravity, latitude=latitude,
-                                         out_of_range=out_of_range)
+                                         out_of_range=out_of_range, replay=opened.replay)
     else:
         from tak_thermo_ros.formats.records import record_streams as streams_of
         opened = OpenedRun(kind, 0, None, collector=SurveyCollector(kind.value),
@@ -709,7 +728,7 @@ def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: floa
     opened = open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=True)
     if opened.survey is not None and unit is not None and decided(path, opened.survey) is Plan.HANDHELD:
         from tak_thermo_ros.streaming_handheld import handheld_record, rest_samples
-        record, _ = handheld_record(path, options, opened.survey, budget=max_samples)
+        record, _ = handheld_record(path, options, opened.survey, budget=max_samples, replay=opened.replay)
         samples, check = rest_samples(record, unit, gravity=gravity, latitude=latitude)
         usable = {sensor: int(opened.survey.still.samples.sum()) for sensor in samples}
         return BoundedRun(input_kind=InputKind.IMU, samples=samples, usable=usable, stride=record.stride,

@@ -1,8 +1,9 @@
 """``tak_calib``'s passes over a hand-held record: its still and turn samples gathered, then fit, validate, diagnose.
 
 A record without reference topics whose unit rests in two or more orientations
-(:func:`~tak_thermo_ros.core.records.survey.fit_plan`) is read twice: the survey's pass finds
-the still intervals (:mod:`tak_thermo_ros.streaming`), then one pass aligns the six channels
+(:func:`~tak_thermo_ros.core.records.survey.fit_plan`) is read once by the survey, which finds
+the still intervals (:mod:`tak_thermo_ros.streaming`) and keeps the blocks of a record of at most
+2 M messages; then one pass (over those blocks, else over the record again) aligns the six channels
 block by block with the temperature held and keeps the still samples (every ``stride``-th, at
 most :data:`HANDHELD_MAX_STILL_SAMPLES`) and every sample of the turns
 (:class:`~tak_thermo_ros.core.records.handheld.HandheldCollector`). The fit, the validation and
@@ -42,22 +43,27 @@ class HandheldBag:
 
 
 def handheld_record(path: str | Path, options: StreamOptions, survey: RecordSurvey, *,
-                    budget: int = HANDHELD_MAX_STILL_SAMPLES) -> tuple[HandheldRecord, dict[str, int]]:
-    """The still and turn samples of a record (one pass), and the temperature messages ignored by reason."""
+                    budget: int = HANDHELD_MAX_STILL_SAMPLES, replay=None) -> tuple[HandheldRecord, dict[str, int]]:
+    """The still and turn samples of a record, and the temperature messages ignored by reason.
+
+    :param replay: the survey's blocks (then the record is not read again), or ``None`` (one pass).
+    """
     from tak_thermo_ros.formats.records import record_blocks
     collector = HandheldCollector(survey.still, budget=budget)
     aligner = BlockAligner(use_reference=False)
-    for block in record_blocks(path, topics=options.topics, kind=InputKind.IMU, block_samples=options.block_samples,
-                               references=False, progress=options.progress):
+    blocks = replay if replay is not None else record_blocks(
+        path, topics=options.topics, kind=InputKind.IMU, block_samples=options.block_samples, references=False,
+        progress=options.progress)
+    for block in blocks:
         collector.add(aligner.push(block.six_channels()))  # type: ignore[union-attr]
     collector.add(aligner.finish())
     return collector.record(), dict(aligner.ignored_temp_codes)
 
 
-def fit_handheld_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
-                     survey: RecordSurvey) -> StreamedFit:
+def fit_handheld_bag(path: str | Path, settings: FitSettings, options: StreamOptions, survey: RecordSurvey, *,
+                     replay=None) -> StreamedFit:
     """``tak_calib fit`` of a hand-held record: both sensors from its still intervals and turns."""
-    record, ignored = handheld_record(path, options, survey)
+    record, ignored = handheld_record(path, options, survey, replay=replay)
     handheld = HandheldSettings(bias_order=settings.bias_order, scale_order=settings.scale_order,
                                 temp_code_ref=settings.temp_code_ref, gravity=settings.gravity,
                                 latitude=settings.latitude,
@@ -88,9 +94,10 @@ def nominal_unit(unit: UnitCalibration) -> UnitCalibration:
 
 
 def validate_handheld_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions, survey: RecordSurvey, *,
-                          gravity: float, latitude: float | None, out_of_range: OutOfRange) -> HandheldValidated:
+                          gravity: float, latitude: float | None, out_of_range: OutOfRange,
+                          replay=None) -> HandheldValidated:
     """The rests' |g| and rate errors and the turns' closure, before and after correction."""
-    record, ignored = handheld_record(path, options, survey)
+    record, ignored = handheld_record(path, options, survey, replay=replay)
     before = check_handheld(record, nominal_unit(unit), gravity=gravity, latitude=latitude, out_of_range=out_of_range)
     after = check_handheld(record, unit, gravity=gravity, latitude=latitude, out_of_range=out_of_range)
     return HandheldValidated(before, after, record, survey, ignored)

@@ -392,21 +392,21 @@ def _segments(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return starts, run
 
 
-class _AccelProblem:
-    """The accelerometer's still samples, compressed interval by interval, their directions and weights.
+class _Rests:
+    """A sensor's still samples, compressed rest by rest.
 
-    Within a still interval the specific force is constant, so each axis's model is linear in the
-    temperature powers and the effects' basis signals there: the interval's samples are replaced
-    by the triangular factor of ``[powers | bases | N]`` (a few rows instead of hundreds), which
-    gives the same least squares for any parameters and direction. Its rows go through
-    :meth:`_Terms.designs` like samples; the couplings' columns (constant over an interval) take
-    the factor's first column (that of the constant power).
+    Within a rest the input (gravity along the rest's up direction, or the rate at rest) is
+    constant, so each axis's model is linear in the temperature powers and the effects' basis
+    signals there: the rest's samples are replaced by the triangular factor of
+    ``[powers | bases | N]`` (a few rows instead of hundreds), which gives the same least squares
+    for any parameters and input. Its rows go through :meth:`_Terms.designs` like samples; the
+    couplings' columns (constant over a rest) take the factor's first column (that of the
+    constant power).
     """
 
     def __init__(self, counts: np.ndarray, temperature: np.ndarray, interval: np.ndarray, terms: _Terms,
-                 bases: Sequence[np.ndarray], gravity: float, noise: np.ndarray) -> None:
+                 bases: Sequence[np.ndarray], noise: np.ndarray) -> None:
         self.terms = terms
-        self.gravity = gravity
         self.sigma = np.maximum(np.asarray(noise, dtype=float), 1e-12)
         self.layout = terms.layout()
         self.count = int(interval.max()) + 1 if len(interval) else 0
@@ -430,29 +430,49 @@ class _AccelProblem:
         self.remainder = remainder
         self.samples = len(interval)
 
+    @property
+    def powers(self) -> list[np.ndarray]:
+        """The compressed rows' temperature powers ``u^0 .. u^m``."""
+        return [self.regressors[:, j] for j in range(self.orders)]
+
+    def design(self, force: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The weighted design ``(m, 3, W)`` and target ``(m, 3)`` for the input ``force`` ``(m, 3)`` per row."""
+        edges = np.cumsum([self.orders, *self.widths])
+        bases = [self.regressors[:, a:b] for a, b in zip(edges[:-1], edges[1:])]
+        designs = self.terms.designs(self.powers, force, self.counts, bases)
+        constant = self.regressors[:, 0]
+        for design in designs:
+            coupling = [c for c, label in enumerate(design.columns) if label.effect == CrossAxis.name]
+            design.matrix[:, coupling] *= constant[:, None]
+        return _joint(designs, self.layout) / self.sigma[None, :, None], self.counts / self.sigma[None, :]
+
+    @property
+    def extra_rss(self) -> float:
+        """The weighted residual sum of squares the compression left out (no parameter changes it)."""
+        return float(np.sum(self.remainder / self.sigma ** 2))
+
+
+class _AccelProblem(_Rests):
+    """The accelerometer's rests (:class:`_Rests`): the input is gravity along each rest's unknown up direction."""
+
+    def __init__(self, counts: np.ndarray, temperature: np.ndarray, interval: np.ndarray, terms: _Terms,
+                 bases: Sequence[np.ndarray], gravity: float, noise: np.ndarray) -> None:
+        super().__init__(counts, temperature, interval, terms, bases, noise)
+        self.gravity = gravity
+
     def rows(self, theta: np.ndarray, up: np.ndarray
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The weighted design ``(m, 3, W)``, target ``(m, 3)``, direction columns ``(m, 3, 2)``.
 
         And each row's run (of equal intervals, from 0) and each run's interval.
         """
-        powers = [self.regressors[:, j] for j in range(self.orders)]
-        edges = np.cumsum([self.orders, *self.widths])
-        bases = [self.regressors[:, a:b] for a, b in zip(edges[:-1], edges[1:])]
-        force = self.gravity * up[self.interval]
-        designs = self.terms.designs(powers, force, self.counts, bases)
-        constant = self.regressors[:, 0]
-        for axis, design in enumerate(designs):
-            coupling = [c for c, label in enumerate(design.columns) if label.effect == CrossAxis.name]
-            design.matrix[:, coupling] *= constant[:, None]
-        design = _joint(designs, self.layout) / self.sigma[None, :, None]
-        target = self.counts / self.sigma[None, :]
+        design, target = self.design(self.gravity * up[self.interval])
         tangent = tangent_basis(up)[self.interval] * self.gravity  # (m, 3, 2)
-        matrix = _matrix(theta, self.layout, powers, self.terms.scale_order)
+        matrix = _matrix(theta, self.layout, self.powers, self.terms.scale_order)
         diagonal = np.einsum('maa->ma', matrix)
         couplings = matrix[0] - np.diag(np.diag(matrix[0])) if len(matrix) else np.zeros((3, 3))
         directions = (diagonal[:, :, None] * tangent
-                      + constant[:, None, None] * np.einsum('il,mlb->mib', couplings, tangent))
+                      + self.regressors[:, 0, None, None] * np.einsum('il,mlb->mib', couplings, tangent))
         directions = directions / self.sigma[None, :, None]
         starts, run = _segments(self.interval)
         return design, target, directions, run, self.interval[starts]
@@ -462,11 +482,6 @@ class _AccelProblem:
         projected = _project(directions, run, design, target)
         return _System.of_rows([np.column_stack([projected[0].reshape(-1, self.layout.width),
                                                  projected[1].reshape(-1)])], self.layout.width)
-
-    @property
-    def extra_rss(self) -> float:
-        """The weighted residual sum of squares the compression left out (no parameter changes it)."""
-        return float(np.sum(self.remainder / self.sigma ** 2))
 
     def sensitivity(self, theta: np.ndarray, up: np.ndarray) -> np.ndarray:
         """``(k, 2, W)``: how each interval's best up direction (two tangent angles) moves with the terms."""
@@ -584,10 +599,8 @@ class _GyroProblem:
         self.sigma = np.maximum(np.asarray(noise, dtype=float), 1e-12)
         order = max(terms.bias_order, terms.scale_order)
         still = record.still
-        self.counts = still.counts[:, 3:6]
+        self.rests = _Rests(still.counts[:, 3:6], still.temp_code, interval, terms, still_bases, noise)
         self.reference = earth_reference(up, interval, latitude)
-        self.still_powers = terms.frame.powers(still.temp_code, order)
-        self.still_bases = still_bases
         turn = record.turn
         self.turn_counts = turn.counts[:, 3:6]
         self.turn_powers = terms.frame.powers(np.clip(turn.temp_code, terms.frame.low, terms.frame.high), order)
@@ -597,16 +610,14 @@ class _GyroProblem:
         self.pairs = record.turns
         self.up = up
         self.up_noise = up_noise
+        self.latitude = latitude
 
     def still_system(self) -> _System:
-        blocks = []
-        for rows in _chunks(np.arange(len(self.counts)) // CHUNK_SAMPLES):
-            designs = self.terms.designs([p[rows] for p in self.still_powers], self.reference[rows],
-                                         self.counts[rows], [b[rows] for b in self.still_bases])
-            design = _joint(designs, self.layout) / self.sigma[None, :, None]
-            target = self.counts[rows] / self.sigma[None, :]
-            blocks.append(np.column_stack([design.reshape(-1, self.layout.width), target.reshape(-1)]))
-        return _System.of_rows(blocks, self.layout.width)
+        """The rests' rows (linear: the rate at rest is known), compressed rest by rest."""
+        force = earth_reference(self.up, self.rests.interval, self.latitude)
+        design, target = self.rests.design(force)
+        return _System.of_rows([np.column_stack([design.reshape(-1, self.layout.width), target.reshape(-1)])],
+                               self.layout.width)
 
     def rates(self, theta: np.ndarray, rows: slice) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], list]:
         """Some turn samples' corrected rates ``(m, 3)``, ``M(T)^-1``, their powers and bases."""
@@ -699,14 +710,16 @@ def _fit_gyro(problem: _GyroProblem, held: dict[int, float]) -> tuple[_Solved, _
     """
     layout = problem.layout
     still = problem.still_system()
+    rows, extra = 3 * problem.rests.samples, problem.rests.extra_rss
     start = dict(held)
     start.update({j: (1.0 if kind == 'scale' else 0.0) for j, kind in enumerate(layout.kinds)
                   if kind in ('scale', 'scale_T', 'coupling')})
-    theta = _solve(still, start, layout.width).theta
+    theta = _solve(still, start, layout.width, rows=rows, extra_rss=extra).theta
     scale = 1.0
     for _ in range(MAX_ITERATIONS):
         turns = problem.turn_rows(theta, scale)
-        solved = _solve_holding(still.plus(turns.rows), held, layout, 'gyro')
+        solved = _solve_holding(still.plus(turns.rows), held, layout, 'gyro', rows=rows + len(turns.rows),
+                                extra_rss=extra)
         held = solved.held
         if _converged(solved, theta):
             residual = turns.rows[:, :-1] @ solved.theta - turns.rows[:, -1]
@@ -896,11 +909,9 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
     gyro_problem = _GyroProblem(turns_record, interval, gyro_terms, [], [], up, noise[3:6], up_noise, settings.latitude)
     gyro, turns, turn_scale = _fit_gyro(gyro_problem, {})
     if effects['gyro']:
-        reference = np.zeros((len(interval), 3))
-        at_rest = record.still.counts[:, 3:6] - np.einsum(
-            'nab,nb->na', _matrix(gyro.theta, gyro_problem.layout, gyro_problem.still_powers, scale_order),
-            gyro_problem.reference)
-        samples = replace(sensor_samples(record.still, 'gyro', reference), counts=at_rest)
+        # The Earth rate (1e-4 rad/s at most) taken off at nominal scale: the scale's error (1e-3) leaves 1e-7.
+        at_rest = record.still.counts[:, 3:6] - gyro_problem.reference
+        samples = replace(sensor_samples(record.still, 'gyro', np.zeros((len(interval), 3))), counts=at_rest)
         shaped = _shapes(samples, effects['gyro'], gyro, gyro_problem.layout, gyro_terms, frame)
         shapes['gyro'] = shaped
         gyro_terms = _Terms(frame, bias_order, scale_order, tuple(shaped.calibration.effects))

@@ -109,7 +109,7 @@ class StillIntervals:
         return len(distinct_directions(self.directions))
 
     def faces(self) -> tuple[str, ...]:
-        """The faces (``+x`` up, ...) that some interval's up direction lies within :data:`FACE_DEG` of."""
+        """Each face up (``+x``, ``-x``, ...) that some interval's up direction lies within :data:`FACE_DEG` of."""
         if not len(self):
             return ()
         cosine = math.cos(math.radians(FACE_DEG))
