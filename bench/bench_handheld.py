@@ -7,8 +7,9 @@ random orientations, a 0.12 m lever arm), the default driver unit plus a misalig
 sensors; no reference topics, an mcap bag. Per length (default 1 h and 2 h): rosbags' own
 message-by-message deserialisation of the bag (``bench_fit.BASELINE_SCRIPT``), then
 ``tak_calib fit`` (wall and CPU time, peak RSS from ``wait4``), and the growth of the fit's peak
-memory per hour. The fit reads the bag twice (the survey finds the still intervals, then one
-pass keeps the rests' samples, at most 1 M, and the turns' samples, at most 1 M).
+memory per hour. The fit reads the bag once when it holds at most 2 M messages (the survey finds
+the still intervals and keeps its blocks, which then give the rests' samples, at most 1 M, and
+the turns', at most 1 M), else twice.
 
 Run: ``.venv/bin/python bench/bench_handheld.py [--hours 1 2] [--workdir /tmp/tak_bench]``.
 """

@@ -168,7 +168,9 @@ def run(args: argparse.Namespace) -> int:
                                    for sensor, result in results.items()}
         write_text_atomic(args.json, common.json_text(document, args.json))
         print(f'wrote {args.json}')
-    if getattr(args, 'design_run', None):
+    if getattr(args, 'design_run', None) and run.handheld is not None:
+        print(f'--design-run: a hand-held record: no chamber run to propose; nothing written to {args.design_run}')
+    elif getattr(args, 'design_run', None):
         from tak_thermo_ros.formats.files import write_texts
         from tak_thermo_ros.core.diagnose import (
             design_driver_run,

@@ -77,7 +77,13 @@ def run(args: argparse.Namespace) -> int:
     fitted = fit_bag(args.bag, settings, common.stream_options(args),
                      nominal_for=lambda kind, bag_nominal: _nominal(args, bag_nominal))
     results = fitted.results
-    magnetometer = _fit_magnetometer(args, fitted.input_kind)
+    if fitted.handheld is not None:
+        for option, given in (('--iron-run', getattr(args, 'iron_run', None)),
+                              ('--mag-effects', getattr(args, 'mag_effects', None))):
+            if given:
+                msg = f'{option}: {args.bag} is a hand-held record: its magnetometer is not fitted here (the IMU only)'
+                raise TakError(msg)
+    magnetometer = _fit_magnetometer(args, fitted.input_kind) if fitted.handheld is None else None
     unit = UnitCalibration(fitted.input_kind, results['accel'].calibration,
                            results['gyro'].calibration if 'gyro' in results else None,
                            magnetometer.calibration if magnetometer is not None else None)
@@ -102,6 +108,9 @@ def run(args: argparse.Namespace) -> int:
         print(line)
     if handheld is not None:
         _print_handheld(handheld)
+        from tak_thermo_ros.streaming_mag import has_mag
+        if has_mag(args.bag, common.topics(args)):
+            print(f'magnetometer: {common.topics(args).mag} not fitted from a hand-held record (the IMU only)')
     for sensor in fitted.sensors:
         result = results[sensor]
         calibration = result.calibration

@@ -625,14 +625,18 @@ class _GyroProblem:
         bases = [b[rows] for b in self.turn_bases]
         counts = self.turn_counts[rows]
         designs = self.terms.designs(powers, np.zeros_like(counts), counts, bases)
-        offsets = _joint(designs, self.layout) @ theta  # the force columns are zero: the offsets alone
+        # The force columns are zero here: each axis's design times its terms is its offset.
+        offsets = np.column_stack([design.matrix @ self.layout.axis_part(theta, axis)
+                                   for axis, design in enumerate(designs)])
         inverse = _inverse(_matrix(theta, self.layout, powers, self.terms.scale_order))
         return np.einsum('mab,mb->ma', inverse, counts - offsets), inverse, powers, bases
 
-    def turn_rows(self, theta: np.ndarray, covariance_scale: float = 1.0) -> _TurnRows:
+    def turn_rows(self, theta: np.ndarray, covariance_scale: float = 1.0, *, rows_needed: bool = True) -> _TurnRows:
         """Two whitened rows ``[J | J theta - r]`` per turn, and the closure at ``theta``.
 
         The turns are integrated a block of whole turns at a time (bounded memory).
+
+        :param rows_needed: ``False``: the closure only (the rows are left empty).
         """
         count = len(self.pairs)
         width = self.layout.width
@@ -649,11 +653,19 @@ class _GyroProblem:
             rotation, jacobian = integrate_segments(rate, self.turn_stamps[rows], index - first, local, jacobian=True)
             rotations[first:first + local] = rotation
             jacobians[rows] = jacobian
+            if not rows_needed:
+                continue
             designs = self.terms.designs(powers, rate, self.turn_counts[rows], bases)
-            derivative = -inverse @ _joint(designs, self.layout)  # d rate / d theta, (m, 3, W)
+            # d rate / d theta = -M^-1 D, D block-diagonal by axis: each axis's columns take one column of C M^-1.
+            carried = -jacobian @ inverse
             starts = np.flatnonzero(np.diff(index, prepend=-1) != 0)
-            moved[index[starts]] = np.add.reduceat(jacobian @ derivative, starts, axis=0)
+            for axis, design in enumerate(designs):
+                start = self.layout.starts[axis]
+                block = carried[:, :, axis, None] * design.matrix[:, None, :]
+                moved[index[starts], :, start:start + design.matrix.shape[1]] = np.add.reduceat(block, starts, axis=0)
         terms = closure_terms(rotations, jacobians, self.turn_index, self.pairs, self.up, self.up_noise, self.sigma)
+        if not rows_needed:
+            return _TurnRows(np.zeros((0, width + 1)), terms.closure, np.zeros((0, 2, 2)), terms.basis, rotations)
         basis = terms.basis
         jacobian = -np.einsum('tab,tac,tcw->tbw', basis, hat(terms.carried), moved)
         whitening = np.linalg.cholesky(np.linalg.inv(terms.covariance * covariance_scale))  # L L^T = C^-1
@@ -935,7 +947,8 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
         'gyro': _result(gyro_cal, gyro, gyro_problem.layout,
                         sensor_samples(record.still, 'gyro', gyro_problem.reference), record, shapes),
     }
-    before = replace(gyro_problem.turn_rows(gyro_problem.layout.initial(), 1.0).closure, seconds=closure.seconds)
+    before = replace(gyro_problem.turn_rows(gyro_problem.layout.initial(), rows_needed=False).closure,
+                     seconds=closure.seconds)
     if turn_scale > 1.0:
         lines.append(f'gyroscope: the turns close {math.sqrt(turn_scale):.2f}x worse than the noise predicts; '
                      f'their weight is lowered by that much')
