@@ -4,14 +4,14 @@ Target (issue 22): the fit of a 2 h hand-held record at 100 Hz in bounded memory
 time than rosbags needs to read the bag. The record: a cold unit (5 C) warming towards 35 C
 with a 30 min time constant, turned by hand through still orientations (8 s rests, 2 s turns,
 random orientations, a 0.12 m lever arm), the default driver unit plus a misalignment of both
-sensors; no reference topics, an mcap bag. Per length (default 1 h and 2 h): rosbags' own
+sensors; no reference topics, an mcap bag. Per length (default 1, 2 and 6 h): rosbags' own
 message-by-message deserialisation of the bag (``bench_fit.BASELINE_SCRIPT``), then
 ``tak_calib fit`` (wall and CPU time, peak RSS from ``wait4``), and the growth of the fit's peak
 memory per hour. The fit reads the bag once when it holds at most 2 M messages (the survey finds
-the still intervals and keeps its blocks, which then give the rests' samples, at most 1 M, and
-the turns', at most 1 M), else twice.
+the still intervals and keeps its blocks, which then give the rests' samples, at most 500,000,
+and the turns', at most 500,000), else twice.
 
-Run: ``.venv/bin/python bench/bench_handheld.py [--hours 1 2] [--workdir /tmp/tak_bench]``.
+Run: ``.venv/bin/python bench/bench_handheld.py [--hours 1 2 6] [--workdir /tmp/tak_bench]``.
 """
 
 from __future__ import annotations
@@ -86,7 +86,8 @@ def main(argv: list[str] | None = None) -> int:
     """Build (or reuse) the bags, measure each length, print and write ``handheld.json``."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--workdir', type=Path, default=Path('/tmp/tak_bench'), help='bag cache directory')
-    parser.add_argument('--hours', type=float, nargs='+', default=[1.0, 2.0], help='record lengths (default 1 2)')
+    parser.add_argument('--hours', type=float, nargs='+', default=[1.0, 2.0, 6.0],
+                        help='record lengths (default 1 2 6)')
     args = parser.parse_args(argv)
     rows = {}
     for hours in args.hours:

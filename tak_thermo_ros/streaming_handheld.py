@@ -29,8 +29,9 @@ from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.core.records.survey import RecordSurvey
 from tak_thermo_ros.streaming import FitSettings, StreamedFit, StreamOptions
 
-HANDHELD_MAX_STILL_SAMPLES = 1_000_000
-"""A hand-held fit keeps at most about this many still samples (every n-th, spread evenly); turns are kept whole."""
+HANDHELD_MAX_STILL_SAMPLES = 500_000
+"""A hand-held fit keeps at most about this many still samples (every n-th, spread evenly), and as many
+turn samples (whole turns: beyond, every n-th turn)."""
 
 
 @dataclass(frozen=True)

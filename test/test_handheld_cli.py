@@ -65,7 +65,8 @@ def test_fit_says_what_the_record_holds_and_fits_both_sensors(bags, tmp_path, ca
     unit = load_unit(params)
     accel = {effect.name: effect for effect in unit.accel.effects}['cross_axis']
     assert accel['c_xy'] == accel['c_xz'] == accel['c_yz'] == 0.0
-    assert any(note.startswith('accelerometer: gauge c_xy = c_xz = c_yz = 0: corrected x along its x axis') for note in unit.accel.notes)
+    gauge = 'accelerometer: gauge c_xy = c_xz = c_yz = 0: corrected x along its x axis'
+    assert any(note.startswith(gauge) for note in unit.accel.notes)
     assert [effect.name for effect in unit.gyro.effects] == ['cross_axis']
     assert params.read_text().startswith(f'# tak_thermo_ros calibration fitted from {bags["cal"]} (a hand-held record)')
 
