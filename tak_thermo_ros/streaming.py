@@ -726,8 +726,11 @@ def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: floa
     """
     path = Path(path)
     opened = open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=True)
-    if opened.survey is not None and unit is not None and decided(path, opened.survey) is Plan.HANDHELD:
+    if opened.survey is not None and decided(path, opened.survey) is Plan.HANDHELD:
         from tak_thermo_ros.streaming_handheld import handheld_record, rest_samples
+        if unit is None:
+            msg = f'{path}: a hand-held record: its references come from a calibration (give one)'
+            raise TakError(msg)
         record, _ = handheld_record(path, options, opened.survey, budget=max_samples, replay=opened.replay)
         samples, check = rest_samples(record, unit, gravity=gravity, latitude=latitude)
         usable = {sensor: int(opened.survey.still.samples.sum()) for sensor in samples}

@@ -92,6 +92,13 @@ def test_validate_and_apply_a_second_hand_held_record(bags, tmp_path, capsys):
     assert lines[4] == 'apply: every message corrected with the calibration'
     written = read_imu_messages(output, topic='/imu/data_compensated')
     assert len(written.stamp_ns) == len(simulate(SECOND).driver.stamp_ns)
+    diagnosis = tmp_path / 'd.json'
+    status, lines = run_cli(capsys, 'diagnose', str(bags['run2']), '--params', str(params), '--json', str(diagnosis))
+    assert status == 0, lines
+    assert lines[4].startswith('diagnose: the residual at the rests') and lines[5].startswith('turns: closure RMS ')
+    figures = json.loads(diagnosis.read_text())
+    assert figures['handheld']['closure_rms_rad'] < 1.5 * figures['handheld']['closure_floor_rad']
+    assert figures['sensors']['accel']['verdict'] == figures['sensors']['gyro']['verdict'] == 'none'
 
 
 def test_bad_hand_held_records_get_one_line(tmp_path, capsys):

@@ -166,6 +166,10 @@ def run(args: argparse.Namespace) -> int:
                                             'samples_diagnosed': len(used[sensor]),
                                             'samples_usable': run.usable[sensor]}
                                    for sensor, result in results.items()}
+        if run.handheld is not None:
+            closure = run.handheld.closure
+            document['handheld'] = {'turns': len(closure.angle_rad), 'closure_rms_rad': closure.rms_rad,
+                                    'closure_floor_rad': closure.floor_rad}
         write_text_atomic(args.json, common.json_text(document, args.json))
         print(f'wrote {args.json}')
     if getattr(args, 'design_run', None) and run.handheld is not None:
