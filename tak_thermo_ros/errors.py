@@ -57,3 +57,7 @@ class DependencyError(TakError):
 
 class CarrierError(TakError):
     """A record of the carrier method's stages (or its model) is unusable: NaN, gauss-sized numbers, no turn."""
+
+
+class FlightLogError(TakError):
+    """A flight log (a PX4 ULog, an ArduPilot DataFlash ``.bin``) cannot be read as a record."""

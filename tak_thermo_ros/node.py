@@ -239,10 +239,11 @@ class CompensatorNode(Node):
         self.add_post_set_parameters_callback(self._apply_parameters)
         low, high = self._core.calibrated_range
         what = 'accelerometer and gyroscope, temperature (C)' if driver else 'temperature-code'
+        span = f'{what} range {low:g}..{high:g}' if self._core.needs_temperature else 'no temperature terms'
         self.get_logger().info(
             f'correcting {self._input_subscription.topic_name} with {self._temp_subscription.topic_name} '
             f'-> {self._imu_publisher.topic_name}; calibration ({unit.input_kind.value} input) from {source}, '
-            f'{what} range {low:g}..{high:g}; qos {qos_name} (depth {depth}), executor {self.executor_kind}, '
+            f'{span}; qos {qos_name} (depth {depth}), executor {self.executor_kind}, '
             f'out_of_range {self._core.out_of_range_policy.value}, stale_temperature '
             f'{self._core.stale_policy.value} after {self._core.temp_timeout_s:g} s')
         if self._mag_core is not None:

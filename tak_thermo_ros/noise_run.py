@@ -147,10 +147,11 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
     :raises NoiseError: a counts bag without a calibration, a run too short for five averaging times.
     """
     from tak_thermo_ros.formats.records import record_streams
-    from tak_thermo_ros.streaming import SensorPass, open_calibration_run, run_passes
+    from tak_thermo_ros.streaming import SensorPass, open_calibration_run, run_passes, temperature_expected
     from tak_thermo_ros.core.records.blocks import BlockAligner
     path = Path(path)
-    kind = record_streams(path, topics=options.topics).kind
+    streams = record_streams(path, topics=options.topics)
+    kind = streams.kind
     if expect_kind is not None:
         expect_kind(kind)
     if unit is not None and kind is not unit.input_kind:
@@ -161,6 +162,10 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
         msg = (f'{path}: a counts bag holds channel codes, not SI values: '
                'give --params (the calibration) to take its noise')
         raise NoiseError(msg)
+    # The raw output's noise needs no temperature (held as before where the record has one); a
+    # correction with temperature terms needs it.
+    holding = (temperature_expected(path, streams, options, needed=unit.needs_temperature, what='the calibration')
+               if unit is not None else streams.kind is InputKind.COUNTS or streams.temperature > 0)
     opened = open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=True)
     if opened.survey is not None and opened.static is None:
         msg = (f'{path}: no reference topics and the unit moves ({opened.survey.still.orientations()} orientations '
@@ -168,16 +173,17 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
                f'static record')
         raise NoiseError(msg)
     sensors = sensors_of(opened.kind)
-    streams = {sensor: _SensorNoise(unit.sensor(sensor) if unit is not None else None, out_of_range, per_octave)
-               for sensor in sensors}
+    noises = {sensor: _SensorNoise(unit.sensor(sensor) if unit is not None else None, out_of_range, per_octave)
+              for sensor in sensors}
     passes = [SensorPass(sensor, BlockAligner(use_reference=True, reference_expected=True,
-                                              settle_time_s=settle_time_s), [streams[sensor]])
+                                              settle_time_s=settle_time_s, temperature_expected=holding),
+                         [noises[sensor]])
               for sensor in sensors]
     lines = run_passes(path, options, opened, passes)
     source = source or ('residual' if unit is not None else 'static_run')
     found = {}
     for sensor_pass in passes:
-        stream = streams[sensor_pass.sensor]
+        stream = noises[sensor_pass.sensor]
         allan = stream.allan()
         if allan is None:
             msg = f'{path}: no usable samples of the {sensor_pass.sensor} to take the noise of'

@@ -17,8 +17,13 @@ OPTIONAL = {
     'distributed': 'dask[distributed]',
     'statsmodels': 'statsmodels',
     'allantools': 'allantools',
+    'pyulog': 'pyulog',
+    'pymavlink': 'pymavlink',
 }
-"""Module -> pip package of each optional library (no rosdep key; listed in the README)."""
+"""Module -> pip package of each optional library (no rosdep key; listed in the README).
+
+``pyulog`` reads PX4 ULogs; ``pymavlink`` serves the tests and benchmarks only (the reference
+DataFlash reader; the package reads ``.bin`` files itself)."""
 
 
 def require(module: str, command: str) -> ModuleType:

@@ -48,6 +48,7 @@ from tak_thermo_ros.core.link.model import AXES  # noqa: E402
 from tak_thermo_ros.core.records.record import AlignedSamples  # noqa: E402
 from tak_thermo_ros.core.simulation.imu import STANDARD_GRAVITY  # noqa: E402
 from tak_thermo_ros.core.link.validate import validate_gravity  # noqa: E402
+from tak_thermo_ros.units import in_reader_unit, reader_unit, significant  # noqa: E402
 
 HEATING = '#d62728'
 COOLING = '#1f77b4'
@@ -512,7 +513,10 @@ figure img{width:100%;height:auto}figcaption{font-size:13px;color:#444;padding:4
 """
 
 
-def _axes_table(diagnosis: Diagnosis) -> str:
+def _axes_table(diagnosis: Diagnosis, unit: str = 'counts') -> str:
+    """Per axis the residual, the floor and the held-out RMS in the reader's unit (mg, deg/h, uT), 3 figures."""
+    def cell(value: float) -> str:
+        return f'<td>{significant(in_reader_unit(value, unit))}</td>'
     rows = []
     for name, axis in zip(AXES, diagnosis.axes):
         ratio = axis.heldout_rms / axis.noise_floor
@@ -522,24 +526,29 @@ def _axes_table(diagnosis: Diagnosis) -> str:
             index = AXES.index(name)
             after_rms = float(np.sqrt(np.mean(diagnosis.residual_after[:, index] ** 2)))
             held = diagnosis.ladder[-1].heldout_rms[index]
-            after = f'<td>{after_rms:.3f}</td><td>{held:.3f}</td><td>{held / axis.noise_floor:.2f}x</td>'
-        rows.append(f'<tr><td>{name}</td><td>{axis.rms:.3f}</td><td>{axis.noise_floor:.3f}</td>'
-                    f'<td>{axis.heldout_rms:.3f}</td><td class="{css}">{ratio:.2f}x</td>{after}</tr>')
+            after = f'{cell(after_rms)}{cell(held)}<td>{held / axis.noise_floor:.2f}x</td>'
+        rows.append(f'<tr><td>{name}</td>{cell(axis.rms)}{cell(axis.noise_floor)}'
+                    f'{cell(axis.heldout_rms)}<td class="{css}">{ratio:.2f}x</td>{after}</tr>')
     head_after = ''
     if diagnosis.residual_after is not None:
         label = html.escape(diagnosis.ladder[-1].label)
         head_after = f'<th>{label}: RMS</th><th>held-out RMS</th><th>/ floor</th>'
-    return ('<table><tr><th>axis</th><th>RMS (counts)</th><th>noise floor</th><th>held-out RMS (refit)</th>'
-            f'<th>/ floor</th>{head_after}</tr>' + ''.join(rows) + '</table>')
+    return (f'<table><tr><th>axis</th><th>RMS ({html.escape(reader_unit(unit))})</th><th>noise floor</th>'
+            f'<th>held-out RMS (refit)</th><th>/ floor</th>{head_after}</tr>' + ''.join(rows) + '</table>')
 
 
-def _candidates_table(diagnosis: Diagnosis) -> str:
+def _triple(values, unit: str) -> str:
+    """Three values in the reader's unit, three significant figures each."""
+    return ', '.join(significant(in_reader_unit(v, unit)) for v in values)
+
+
+def _candidates_table(diagnosis: Diagnosis, unit: str = 'counts') -> str:
     if not diagnosis.candidates:
         return '<p class="small">No candidate was tried: the current model leaves nothing above the floor.</p>'
     rows = []
     for candidate in diagnosis.candidates:
         css = ' style="background:#fff3e0"' if candidate.effect == diagnosis.verdict else ''
-        rms = ', '.join(f'{v:.3f}' for v in candidate.rms_after)
+        rms = _triple(candidate.rms_after, unit)
         rows.append(f'<tr{css}><td>{html.escape(candidate.effect)}</td><td>{rms}</td>'
                     f'<td>{round(100 * candidate.explained)}%</td><td>{candidate.significance:.1f}</td>'
                     f'<td style="text-align:left">{html.escape(candidate.evidence)}</td></tr>')
@@ -548,7 +557,7 @@ def _candidates_table(diagnosis: Diagnosis) -> str:
     for form in getattr(diagnosis, 'per_axis_forms', ()):
         if form.effect in listed:
             continue
-        rms = ', '.join(f'{v:.3f}' for v in form.rms_after)
+        rms = _triple(form.rms_after, unit)
         verdict = 'chosen over the shared form' if form.effect in chosen else 'not better than the shared form'
         rows.append(f'<tr><td>{html.escape(form.effect)}</td><td>{rms}</td>'
                     f'<td>{round(100 * form.explained)}%</td><td>{form.significance:.1f}</td>'
@@ -556,7 +565,8 @@ def _candidates_table(diagnosis: Diagnosis) -> str:
                     f'{html.escape(form.evidence)}</td></tr>')
     skipped = ''.join(f'<tr><td>{html.escape(name)}</td><td colspan="4" style="text-align:left">not tried: '
                       f'{html.escape(reason)}</td></tr>' for name, reason in diagnosis.skipped.items())
-    return ('<table><tr><th>effect</th><th>held-out RMS x, y, z</th><th>excess removed</th>'
+    return (f'<table><tr><th>effect</th><th>held-out RMS x, y, z ({html.escape(reader_unit(unit))})</th>'
+            '<th>excess removed</th>'
             '<th>noise sigmas</th><th style="text-align:left">evidence</th></tr>'
             + ''.join(rows) + skipped + '</table>')
 
@@ -585,9 +595,9 @@ def _effect_card(diagnosis: Diagnosis) -> str:
 
 
 def _gravity_table(series: list[tuple[str, np.ndarray]], gravity: float) -> str:
-    rows = ''.join(f'<tr><td>{html.escape(label)}</td><td>{float(np.sqrt(np.mean(e ** 2))):.5f}</td>'
-                   f'<td>{float(np.sqrt(np.mean(e ** 2))) / gravity * 1e3:.3f}</td>'
-                   f'<td>{float(np.max(np.abs(e))):.5f}</td></tr>' for label, e in series)
+    rows = ''.join(f'<tr><td>{html.escape(label)}</td><td>{significant(float(np.sqrt(np.mean(e ** 2))), 4)}</td>'
+                   f'<td>{significant(float(np.sqrt(np.mean(e ** 2))) / gravity * 1e3)}</td>'
+                   f'<td>{significant(float(np.max(np.abs(e))), 4)}</td></tr>' for label, e in series)
     return ('<table><tr><th>correction</th><th>RMS |g| error (m/s^2)</th><th>RMS (mg)</th>'
             f'<th>max (m/s^2)</th></tr>{rows}</table>')
 
@@ -669,7 +679,8 @@ def write_report(diagnosis: Diagnosis, samples: AlignedSamples, directory: str |
     title = f'Model diagnosis{": " + source if source else ""}'
     ladder_rows = ''.join(
         f'<tr><td>{html.escape(step.label)}</td>' + ''.join(
-            f'<td>{v:.3f} ({v / f:.2f}x)</td>' for v, f in zip(step.heldout_rms, diagnosis.noise_floor)) + '</tr>'
+            f'<td>{significant(in_reader_unit(v, unit))} ({v / f:.2f}x)</td>'
+            for v, f in zip(step.heldout_rms, diagnosis.noise_floor)) + '</tr>'
         for step in diagnosis.ladder)
     stride_text = ('on all samples' if diagnosis.cv_stride == 1 else
                    f'on every {diagnosis.cv_stride}th sample')
@@ -690,9 +701,9 @@ def write_report(diagnosis: Diagnosis, samples: AlignedSamples, directory: str |
 model: {html.escape(diagnosis.ladder[0].label)};
 written {stamp} by tak_calib diagnose</div>
 <div class="verdict {kind}"><b>{html.escape(headline)}</b>{html.escape(diagnosis.message)}</div>
-<div class="card"><b>Residual against the noise floor</b> ({unit}; the floor is estimated from successive differences
-of the residual and includes the code rounding)
-{_axes_table(diagnosis).replace('RMS (counts)', f'RMS ({unit})')}</div>
+<div class="card"><b>Residual against the noise floor</b> ({html.escape(reader_unit(unit))}; the floor is estimated
+from successive differences of the residual and includes the code rounding)
+{_axes_table(diagnosis, unit)}</div>
 {_effect_card(diagnosis)}
 <h2>Where the model fails</h2>
 {blocks['residual_time.png']}
@@ -702,10 +713,10 @@ of the residual and includes the code rounding)
 {blocks['residual_inputs.png']}
 <h2>Which effect explains it</h2>
 {blocks['ladder.png']}
-<div class="card"><b>Model ladder</b>: held-out RMS per axis, {unit} (over the floor)
+<div class="card"><b>Model ladder</b>: held-out RMS per axis, {html.escape(reader_unit(unit))} (over the floor)
 <table><tr><th>model</th><th>x</th><th>y</th><th>z</th></tr>{ladder_rows}</table>
 <b>Candidates</b>, best first
-{_candidates_table(diagnosis)}
+{_candidates_table(diagnosis, unit)}
 <p class="small">Blocked cross-validation: {diagnosis.blocks} contiguous time blocks dealt round-robin into
 {diagnosis.folds} folds; each model is fitted without one fold and scored on it (stateful effects run over the
 whole series), {stride_text}. An effect joins the ladder when it removes at least half of the

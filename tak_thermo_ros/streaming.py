@@ -14,6 +14,7 @@ measured direction as the reference, a hand-held record goes to
 
 from __future__ import annotations
 
+import itertools
 import math
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
@@ -23,19 +24,22 @@ from typing import TYPE_CHECKING, Any, Callable, Iterator, Sequence
 import numpy as np
 
 from tak_thermo_ros.core.records.blocks import BlockAligner, Subsample, add_counts, stride_for
+from tak_thermo_ros.core.records.extremes import RunExtremes
 from tak_thermo_ros.core.link.correction import Corrector, OutOfRange, acceleration_variance
 from tak_thermo_ros.core.fit import FitResult, fit_model
-from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
+from tak_thermo_ros.core.fit.model import AxisFit
+from tak_thermo_ros.core.link.model import InputKind, UnitCalibration, held_link
 from tak_thermo_ros.core.records.record import AlignedSamples, ChannelRecord, DriverRecord, require_signals
 from tak_thermo_ros.core.records.survey import Plan, RecordSurvey, SurveyCollector
 from tak_thermo_ros.core.records.static_run import (
+    NotStatic,
     StaticReference,
     check_static,
     rate_line,
     reference_line,
     static_reference,
 )
-from tak_thermo_ros.core.link.stream_correction import BlockUnitCorrector, GravityCheck, RateCheck
+from tak_thermo_ros.core.link.stream_correction import BlockCorrector, BlockUnitCorrector, GravityCheck, RateCheck
 from tak_thermo_ros.core.fit.stream import StreamingEffectFit, StreamingFit
 from tak_thermo_ros.errors import FitError, TakError
 
@@ -123,10 +127,11 @@ class _StaticRun:
                 norms = np.linalg.norm(accel, axis=1)
                 cosine = np.clip((accel @ self.static.direction) / np.where(norms > 0.0, norms, 1.0), -1.0, 1.0)
                 self.max_tilt_deg = max(self.max_tilt_deg, float(np.degrees(np.arccos(cosine)).max()))
-        if not self._first_block or not len(block.stamp_ns):
+        if not self._first_block or block.first_stamp_ns is None:
             return block
         self._first_block = False
-        first = block.stamp_ns[:1].copy()
+        # held from the first sample of either sensor (their own stamps: the earlier one)
+        first = block.stamp_ns[:1].copy() if block.shared_stamps else np.array([block.first_stamp_ns], dtype=np.int64)
         if not self.recorded_reference:
             block = replace(block, reference_stamp_ns=first, reference=self.static.specific_force.reshape(1, 3))
         if not self.recorded_rate:
@@ -202,6 +207,21 @@ class OpenedRun:
             return self.survey
         assert self.collector is not None
         return self.collector.finish(self.streams)
+
+
+def temperature_expected(path: Path, streams, options: StreamOptions, *, needed: bool, what: str) -> bool:
+    """Whether a pass holds the record's temperature: it needs one and the record has one.
+
+    :param streams: the record's :class:`~tak_thermo_ros.formats.bag.BagStreams`.
+    :param needed: the pass reads a temperature (a correction with temperature terms).
+    :param what: what needs it, for the message (``'the calibration'``).
+    :raises TakError: it is needed and the record holds none.
+    """
+    present = streams.kind is InputKind.COUNTS or streams.temperature > 0
+    if needed and not present:
+        msg = f'{path}: no temperature on {options.topics.temperature}, and {what} has temperature terms'
+        raise TakError(msg)
+    return needed and present
 
 
 def open_calibration_run(path: Path, options: StreamOptions, *, gravity: float, latitude: float | None,
@@ -319,6 +339,7 @@ class StreamedFit:
         effects' fit used (1: all).
     :param ignored_temp_codes: per sensor, the temperature messages ignored (not held), by reason.
     :param ignored_references: per sensor, the reference messages ignored, by reason.
+    :param held: the sensors held at nominal, not fitted (:func:`fit_imu`; their note says why).
     """
 
     input_kind: InputKind
@@ -331,6 +352,11 @@ class StreamedFit:
     ignored_references: dict[str, dict[str, int]] = field(default_factory=dict)
     survey: RecordSurvey | None = None
     handheld: Any = None
+    temperature_rate_max: float = 0.0
+    """The run's fastest temperature change over 60 s (the accelerometer's samples), per second."""
+    rate_max: float = 0.0
+    """The largest rate reference of a driver run, rad/s (0 for a static run without latitude)."""
+    held: tuple[str, ...] = ()
 
 
 def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
@@ -346,10 +372,20 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
     :param nominal_for: ``(kind, the bag's nominal scale) -> nominal scale`` (counts bags;
         the command line may override the bag's metadata).
     :raises FitError: as :func:`fit_model`, prefixed with the sensor on driver bags.
+    :raises ImuLinkUndetermined: a driver bag that today's paths cannot fit (no reference and the
+        board moved; no temperature): see :func:`fit_imu`.
     """
+    from tak_thermo_ros.formats.records import record_streams
     path = Path(path)
-    opened = open_calibration_run(path, options, gravity=settings.gravity, latitude=settings.latitude,
-                                  require_reference=True)
+    streams = record_streams(path, topics=options.topics)
+    if streams.kind is InputKind.IMU and not streams.temperature:
+        reason = f'no temperature on {options.topics.temperature}'
+        raise ImuLinkUndetermined(f'{path}: {reason}: no thermal link of the accelerometer and gyroscope', reason)
+    try:
+        opened = open_calibration_run(path, options, gravity=settings.gravity, latitude=settings.latitude,
+                                      require_reference=True)
+    except NotStatic as err:
+        raise ImuLinkUndetermined(str(err), MOVED) from None
     if opened.survey is not None and decided(path, opened.survey) is Plan.HANDHELD:
         from tak_thermo_ros.streaming_handheld import fit_handheld_bag
         return fit_handheld_bag(path, settings, options, opened.survey, replay=opened.replay)
@@ -372,17 +408,21 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
         return Required([spec for spec in settings.effects.get(sensor, ()) if spec.startswith('aux:')])
 
     passes, fits, subsamples, requirements = [], {}, {}, {}
+    extremes = {sensor: RunExtremes() for sensor in sensors}
     for sensor in sensors:
         fits[sensor] = StreamingFit(bias_order=settings.bias_order, scale_order=settings.scale_order,
                                     temp_code_ref=settings.temp_code_ref, nominal_scale=nominal.get(sensor))
         requirements[sensor] = required(sensor)
-        consumers = [fits[sensor].add]
+        consumers = [fits[sensor].add, extremes[sensor]]
         if settings.effects.get(sensor):
             stride = stride_for(opened.main, settings.max_effect_samples)
             subsamples[sensor] = Subsample(stride, expected=opened.main // stride + 1)
             consumers.append(subsamples[sensor])
         passes.append(SensorPass(sensor, aligner(), [_feeding(requirements[sensor], consumers)]))
-    lines = run_passes(path, options, opened, passes)
+    try:
+        lines = run_passes(path, options, opened, passes)
+    except NotStatic as err:
+        raise ImuLinkUndetermined(str(err), MOVED) from None
     results: dict[str, FitResult] = {}
     usable: dict[str, int] = {}
     second: dict[str, tuple[StreamingEffectFit, FitResult]] = {}
@@ -426,16 +466,64 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
                        reference_lines=tuple(lines),
                        ignored_temp_codes={p.sensor: dict(p.aligner.ignored_temp_codes) for p in passes},
                        ignored_references={p.sensor: dict(p.aligner.ignored_references) for p in passes},
+                       temperature_rate_max=extremes['accel'].temperature_rate_max,
+                       rate_max=extremes['gyro'].reference_max if 'gyro' in extremes else 0.0,
                        survey=opened.finished_survey())
+
+
+class ImuLinkUndetermined(FitError):
+    """A driver record from which today's fit paths cannot determine the accelerometer's and gyroscope's link.
+
+    No reference topics and the board moved (turned by hand), or no temperature at all;
+    ``reason`` says which in a few words.
+    """
+
+    def __init__(self, message: str, reason: str) -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+MOVED = 'the board moved, no reference'
+HELD_IMU_NOTE = 'held at nominal (offset 0, scale 1): {reason}'
+"""The note of a sensor held at nominal by :func:`fit_imu`, in the file and in one line of ``fit``."""
+
+
+def fit_imu(path: str | Path, settings: FitSettings, options: StreamOptions,
+            nominal_for: Callable[[InputKind, tuple[float, float, float] | None], tuple[float, float, float] | None]
+            | None = None, *, hold_undetermined: bool = False) -> StreamedFit:
+    """The accelerometer's and gyroscope's link from a record (:func:`fit_bag`), or held at nominal.
+
+    THE decision point for a driver record that today's paths cannot fit
+    (:class:`ImuLinkUndetermined`: no reference and the board moved, or no temperature): with
+    ``hold_undetermined`` (the record determines something else, its magnetometer) both sensors
+    are held at nominal (offset 0, scale 1, no temperature terms) and one line says why;
+    otherwise the record is refused as before. A hand-held fit (still intervals, issue 22)
+    takes this point's place.
+    """
+    try:
+        return fit_bag(path, settings, options, nominal_for)
+    except ImuLinkUndetermined as err:
+        if not hold_undetermined:
+            raise
+        reason = err.reason
+    results = {}
+    for sensor in ('accel', 'gyro'):
+        link = held_link(notes=(HELD_IMU_NOTE.format(reason=reason),))
+        results[sensor] = FitResult(calibration=link, axes=(AxisFit(0.0, 0, 0.0),) * 3, samples=0,  # type: ignore
+                                    dropped={})
+    return StreamedFit(input_kind=InputKind.IMU, sensors=('accel', 'gyro'), results=results, usable={},
+                       effect_stride={}, reference_lines=(), ignored_temp_codes={'accel': {}, 'gyro': {}},
+                       ignored_references={'accel': {}, 'gyro': {}}, held=('accel', 'gyro'))
 
 
 def decided(path: Path, survey: RecordSurvey) -> Plan:
     """The plan of a record without reference topics (:func:`~tak_thermo_ros.core.records.survey.fit_plan`).
 
-    The one place a reference-less record is taken as hand-held or static; a record that never
-    rests is refused here.
-
-    :raises TakError: the unit never rests (no still interval).
+    The one place a reference-less record is taken as hand-held or static. A record that never
+    rests, and a hand-held record whose sensors come at their own stamps (a flight log: the
+    turns need both sensors in every message), determine no link of the accelerometer and
+    gyroscope (:class:`ImuLinkUndetermined`: :func:`fit_imu` holds them when the record determines
+    its magnetometer, else refuses it in one line).
     """
     from tak_thermo_ros.core.records.still import MIN_STILL_S
     plan = survey.plan
@@ -443,7 +531,12 @@ def decided(path: Path, survey: RecordSurvey) -> Plan:
         msg = (f'{path}: no reference topics and no still interval (the unit never rested {MIN_STILL_S:g} s or more, '
                f'still {100.0 * survey.still.still_fraction:.0f} % of the time): nothing to fit; rest 5-10 s in each '
                f'orientation (docs/handheld.md)')
-        raise TakError(msg)
+        raise ImuLinkUndetermined(msg, MOVED)
+    if plan is Plan.HANDHELD and not survey.shared_stamps:
+        reason = 'turned by hand, its sensors at their own stamps'
+        msg = (f'{path}: {reason}: a hand-held fit takes both sensors in every message (a driver\'s Imu); '
+               f'nothing to fit')
+        raise ImuLinkUndetermined(msg, reason)
     return plan
 
 
@@ -510,6 +603,10 @@ class Applied:
     mag_written: int = 0
     mag_topic: str = ''
     mag_dropped: dict[str, int] = field(default_factory=dict)
+    sensor_written: dict[str, int] = field(default_factory=dict)
+    """With sensors at their own stamps: per sensor the messages that carry it (else empty)."""
+    sensor_dropped: dict[str, dict[str, int]] = field(default_factory=dict)
+    """With sensors at their own stamps: per sensor its samples left out, by reason."""
     survey: RecordSurvey | None = None
 
 
@@ -550,9 +647,125 @@ class _RowsBuffer:
         return picked
 
 
+class _OwnStamps:
+    """``apply`` of a driver record whose sensors come at their own stamps.
+
+    Each sensor is aligned and corrected on its own samples (no resampling); the corrected
+    samples are merged into Imu messages by stamp
+    (:func:`~tak_thermo_ros.core.records.record.sensor_messages`): an accelerometer and a
+    gyroscope sample with the same stamp share a message, any other message carries one sensor
+    and marks the other absent (zeros, its covariance[0] = -1, as ``sensor_msgs/msg/Imu``
+    says). A message's orientation is passed through from the input message at that stamp.
+    Messages are written once both sensors' alignments have moved past their stamps.
+    """
+
+    SENSORS = ('accel', 'gyro')
+
+    def __init__(self, unit: UnitCalibration, *, out_of_range: OutOfRange, output: Path,
+                 temperature_expected: bool = True) -> None:
+        self.correctors = {sensor: BlockCorrector(unit.sensor(sensor), out_of_range=out_of_range)
+                           for sensor in self.SENSORS}
+        self.variances = {sensor: acceleration_variance(unit.sensor(sensor)) for sensor in self.SENSORS}
+        self.aligners = {sensor: BlockAligner(use_reference=False, temperature_expected=temperature_expected)
+                         for sensor in self.SENSORS}
+        self.required = {sensor: Required(self.correctors[sensor].signals) for sensor in self.SENSORS}
+        self.ready: dict[str, tuple[np.ndarray, np.ndarray]] = {
+            sensor: (np.zeros(0, dtype=np.int64), np.zeros((0, 3))) for sensor in self.SENSORS}
+        self.last_read: dict[str, int | None] = {sensor: None for sensor in self.SENSORS}
+        self.messages = (np.zeros(0, dtype=np.int64), np.zeros((0, 4)), np.zeros((0, 9)))
+        self.output = output
+        self.outside = 0
+        self.written = {sensor: 0 for sensor in self.SENSORS}
+        self.frame_id = ''
+
+    def push(self, writer, block: DriverRecord) -> None:
+        """Align, correct and hold one block's samples; write the messages that became final."""
+        self.frame_id = self.frame_id or block.frame_id
+        stamps, orientation, covariance = self.messages
+        self.messages = (np.concatenate([stamps, block.stamp_ns]), np.concatenate([orientation, block.orientation]),
+                         np.concatenate([covariance, block.orientation_covariance]))
+        for sensor in self.SENSORS:
+            record = block.channel(sensor)
+            if len(record.counts_stamp_ns):
+                top = int(record.counts_stamp_ns.max())
+                last = self.last_read[sensor]
+                self.last_read[sensor] = top if last is None else max(last, top)
+            self._correct(sensor, self.aligners[sensor].push(record))
+        self._write(writer, final=False)
+
+    def finish(self, writer) -> None:
+        """The samples still pending at the end of the run."""
+        for sensor in self.SENSORS:
+            self._correct(sensor, self.aligners[sensor].finish())
+        self._write(writer, final=True)
+
+    def _correct(self, sensor: str, aligned: AlignedSamples) -> None:
+        samples = self.required[sensor](aligned)
+        if not len(samples):
+            return
+        corrector = self.correctors[sensor]
+        corrected = corrector.correct(samples.counts, samples.temp_code, stamp_s=samples.stamp_s, aux=samples.aux)
+        bad = int(np.count_nonzero(~np.isfinite(corrected)))
+        if bad:
+            msg = f'{self.output}: corrected values: {bad} values are not finite (NaN or infinite); nothing written'
+            raise TakError(msg)
+        self.outside += corrector.out_of_range_count(samples.temp_code)
+        stamps, values = self.ready[sensor]
+        self.ready[sensor] = (np.concatenate([stamps, samples.stamp_ns]), np.concatenate([values, corrected]))
+
+    def _horizon(self, sensor: str) -> float:
+        """Every sample of ``sensor`` stamped at or before this is corrected (stamps read in order)."""
+        pending = self.aligners[sensor].state.pending_stamp_ns
+        if len(pending):
+            return float(pending.min()) - 1.0
+        last = self.last_read[sensor]
+        return math.inf if last is None else float(last)
+
+    def _write(self, writer, *, final: bool) -> None:
+        from tak_thermo_ros.core.records.record import sensor_messages
+        from tak_thermo_ros.formats.bag import rows_at
+        horizon = math.inf if final else min(self._horizon(sensor) for sensor in self.SENSORS)
+        parts = {}
+        for sensor in self.SENSORS:
+            stamps, values = self.ready[sensor]
+            now = stamps <= horizon
+            parts[sensor] = (stamps[now], values[now])
+            self.ready[sensor] = (stamps[~now], values[~now])
+        (accel_stamps, accel), (gyro_stamps, gyro) = parts['accel'], parts['gyro']
+        paired = sensor_messages(accel_stamps, gyro_stamps)
+        if not len(paired.stamp_ns):
+            return
+        stamps, orientation, covariance = self.messages
+        row = rows_at(stamps, paired.stamp_ns)
+        known = row >= 0
+        quaternion = np.where(known[:, None], orientation[np.maximum(row, 0)] if len(stamps) else 0.0,
+                              np.array([0.0, 0.0, 0.0, 1.0]))
+        orientation_covariance = np.where(known[:, None], covariance[np.maximum(row, 0)] if len(stamps) else 0.0,
+                                          np.array([-1.0, *[0.0] * 8]))
+        keep = stamps > paired.stamp_ns[-1]
+        self.messages = (stamps[keep], orientation[keep], covariance[keep])
+        accel_present, gyro_present = paired.accel_row >= 0, paired.gyro_row >= 0
+        writer.write(paired.stamp_ns, self.frame_id, accel[np.maximum(paired.accel_row, 0)] if len(accel) else
+                     np.zeros((len(paired.stamp_ns), 3)), self.variances['accel'],
+                     angular_velocity=gyro[np.maximum(paired.gyro_row, 0)] if len(gyro) else
+                     np.zeros((len(paired.stamp_ns), 3)), angular_variance=self.variances['gyro'],
+                     orientation=quaternion, orientation_covariance=orientation_covariance,
+                     accel_present=accel_present, gyro_present=gyro_present)
+        self.written['accel'] += int(np.count_nonzero(accel_present))
+        self.written['gyro'] += int(np.count_nonzero(gyro_present))
+
+    def dropped(self) -> dict[str, dict[str, int]]:
+        """Per sensor, its samples left out by reason."""
+        return {sensor: dict(self.required[sensor].dropped) for sensor in self.SENSORS}
+
+
 def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, options: StreamOptions, *,
               storage: str = 'mcap', out_of_range: OutOfRange = OutOfRange.CLAMP, force: bool = False) -> Applied:
     """Correct a bag block by block into an Imu bag that stays open (``tak_calib apply``).
+
+    A driver record whose sensors have their own stamps (a flight log, Imu messages that carry
+    one sensor) is corrected per sensor (:class:`_OwnStamps`); otherwise a message is corrected
+    or dropped whole, as in the node.
 
     :param force: replace an existing output bag (:func:`tak_thermo_ros.formats.files.check_output`).
     :raises TakError: a corrected value is not finite (nothing is written).
@@ -564,8 +777,16 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
     streams = record_streams(path, topics=topics)
     kind = streams.kind
     survey = SurveyCollector(kind.value)
+    expected = temperature_expected(path, streams, options, needed=unit.needs_temperature, what='the calibration')
+    blocks = record_blocks(path, topics=topics, kind=kind, block_samples=options.block_samples, references=False,
+                           progress=options.progress)
+    first = next(blocks, None)
+    if isinstance(first, DriverRecord) and not first.shared_stamps:
+        return _apply_own_stamps(path, unit, output, options, first, blocks, storage=storage,
+                                 out_of_range=out_of_range, force=force, temperature_expected=expected)
+    blocks = itertools.chain([] if first is None else [first], blocks)
     topic = topics.imu if kind is InputKind.COUNTS else topics.compensated_imu
-    aligner = BlockAligner(use_reference=False)
+    aligner = BlockAligner(use_reference=False, temperature_expected=expected)
     corrector = BlockUnitCorrector(unit, out_of_range=out_of_range)
     required = Required(corrector.signals)
     accel_variance = acceleration_variance(unit.accel)
@@ -574,9 +795,12 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
     outside = 0
     frame_id = ''
     magnetometer = None
-    if kind is InputKind.IMU and unit.mag is not None and record_streams(path, topics=topics).mag:
+    if kind is InputKind.IMU and unit.mag is not None and streams.mag:
         from tak_thermo_ros.streaming_mag import MagApplier
-        magnetometer = MagApplier(unit.mag, out_of_range=out_of_range, topic=topics.compensated_mag)
+        magnetometer = MagApplier(unit.mag, out_of_range=out_of_range, topic=topics.compensated_mag,
+                                  temperature_expected=temperature_expected(
+                                      path, streams, options, needed=unit.mag.thermal.needs_temperature,
+                                      what="the calibration's magnetometer"))
     with ImuBagWriter(output, topic=topic, storage=storage, force=force) as writer:
 
         def write(aligned: AlignedSamples) -> None:
@@ -599,10 +823,13 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
                              orientation=orientation, orientation_covariance=covariance)
             writer.write(samples.stamp_ns, frame_id, corrected[:, :3], accel_variance, **extra)
 
-        for block in record_blocks(path, topics=topics, kind=kind, block_samples=options.block_samples,
-                                   references=False, progress=options.progress):
+        for block in blocks:
             survey.add(block)
             if isinstance(block, DriverRecord):
+                if not block.shared_stamps:
+                    msg = (f'{path}: its first Imu messages carry both sensors, later ones one sensor each: a '
+                           f'record that changes so is not supported (split it)')
+                    raise TakError(msg)
                 passing.add(block.orientation, block.orientation_covariance)
                 record = block.six_channels()
                 if magnetometer is not None:
@@ -621,6 +848,41 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
                    mag_written=writer.written_mag, mag_topic=topics.compensated_mag if magnetometer else '',
                    mag_dropped=dict(magnetometer.aligner.dropped) if magnetometer else {},
                    survey=survey.finish(stream_list(streams, topics)))
+
+
+def _apply_own_stamps(path: Path, unit: UnitCalibration, output: str | Path, options: StreamOptions,
+                      first: DriverRecord, blocks: Iterator, *, storage: str, out_of_range: OutOfRange,
+                      force: bool, temperature_expected: bool = True) -> Applied:
+    """``apply`` of a driver record whose sensors have their own stamps (:class:`_OwnStamps`)."""
+    from tak_thermo_ros.formats.bag import ImuBagWriter
+    from tak_thermo_ros.formats.records import record_streams
+    topics = options.topics
+    applier = _OwnStamps(unit, out_of_range=out_of_range, output=Path(output),
+                         temperature_expected=temperature_expected)
+    magnetometer = None
+    streams = record_streams(path, topics=topics)
+    if unit.mag is not None and streams.mag:
+        from tak_thermo_ros.streaming_mag import MagApplier
+        magnetometer = MagApplier(unit.mag, out_of_range=out_of_range, topic=topics.compensated_mag,
+                                  temperature_expected=temperature_expected(
+                                      path, streams, options, needed=unit.mag.thermal.needs_temperature,
+                                      what="the calibration's magnetometer"))
+    with ImuBagWriter(output, topic=topics.compensated_imu, storage=storage, force=force) as writer:
+        for block in itertools.chain([first], blocks):
+            applier.push(writer, block)
+            if magnetometer is not None:
+                magnetometer.push(writer, block.channel('mag'), output)
+        applier.finish(writer)
+        if magnetometer is not None:
+            magnetometer.finish(writer, applier.frame_id, output)
+        written = writer.written
+    accel_aligner = applier.aligners['accel']
+    return Applied(written=written, dropped={}, out_of_range=applier.outside, topic=topics.compensated_imu,
+                   ignored_temp_codes=dict(accel_aligner.ignored_temp_codes),
+                   ignored_references=dict(accel_aligner.ignored_references),
+                   mag_written=writer.written_mag, mag_topic=topics.compensated_mag if magnetometer else '',
+                   mag_dropped=dict(magnetometer.aligner.dropped) if magnetometer else {},
+                   sensor_written=dict(applier.written), sensor_dropped=applier.dropped())
 
 
 # ----- validate -------------------------------------------------------------------------------------
@@ -651,9 +913,11 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
     """
     from tak_thermo_ros.formats.records import record_streams
     path = Path(path)
-    kind = record_streams(path, topics=options.topics).kind
+    streams = record_streams(path, topics=options.topics)
+    kind = streams.kind
     if expect_kind is not None:
         expect_kind(kind)
+    holding = temperature_expected(path, streams, options, needed=unit.needs_temperature, what='the calibration')
     calibration_run = kind is InputKind.IMU
     if calibration_run:
         opened = open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=False)
@@ -673,11 +937,12 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
         samples = accel_required(aligned)
         gravity_check.add(samples.counts, samples.temp_code, samples.stamp_s, aux=samples.aux)
 
-    accel_pass = SensorPass('accel', BlockAligner(use_reference=calibration_run, reference_expected=calibration_run),
-                            [add_gravity])
+    accel_pass = SensorPass('accel', BlockAligner(use_reference=calibration_run, reference_expected=calibration_run,
+                                                  temperature_expected=holding), [add_gravity])
     passes = [accel_pass]
     if calibration_run:
-        gyro_pass = SensorPass('gyro', BlockAligner(use_reference=True, reference_expected=True))
+        gyro_pass = SensorPass('gyro', BlockAligner(use_reference=True, reference_expected=True,
+                                                    temperature_expected=holding))
         if rate_check is not None:
             gyro_required = Required(Corrector(unit.gyro).signals)  # type: ignore[arg-type]
 
@@ -723,8 +988,16 @@ def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: floa
     A hand-held record (no reference topics, several still orientations) gives its still
     samples with the references it has (gravity along each rest's up direction as ``unit``
     corrects it, zero rate) and ``handheld``, the turns' closure (``unit`` required).
+
+    :raises TakError: a driver record without a temperature (the diagnosis looks at the residual
+        against the temperature).
     """
+    from tak_thermo_ros.formats.records import record_streams
     path = Path(path)
+    streams = record_streams(path, topics=options.topics)
+    if streams.kind is InputKind.IMU and not streams.temperature:
+        msg = f'{path}: no temperature on {options.topics.temperature}: diagnose looks at the residual against it'
+        raise TakError(msg)
     opened = open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=True)
     if opened.survey is not None and decided(path, opened.survey) is Plan.HANDHELD:
         from tak_thermo_ros.streaming_handheld import handheld_record, rest_samples

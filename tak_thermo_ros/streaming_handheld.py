@@ -87,6 +87,7 @@ class HandheldValidated:
     record: HandheldRecord
     survey: RecordSurvey
     ignored_temp_codes: dict[str, int]
+    input_kind: InputKind = InputKind.IMU
 
 
 def nominal_unit(unit: UnitCalibration) -> UnitCalibration:

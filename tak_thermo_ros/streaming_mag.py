@@ -15,6 +15,10 @@ aligned on its own stamps with the same temperature held
   the installation, measured by turning the vehicle at whatever temperature, while the
   chamber run is of a unit that stays still; the rotation record is corrected by the thermal
   link just fitted before the ellipsoid is fitted to it.
+- A record whose field turns (:func:`survey_field`: a unit turned by hand, no reference field)
+  is itself the rotation record: the iron, and the thermal link where its temperature
+  determines one (the ellipsoid's centre follows the temperature), come from it alone
+  (:func:`~tak_thermo_ros.core.magnetometer.rotation.fit_rotation`); a temperature is optional.
 """
 
 from __future__ import annotations
@@ -32,12 +36,18 @@ from tak_thermo_ros.core.link.correction import Corrector, OutOfRange
 from tak_thermo_ros.core.link.model import IDENTITY_3X3, InputKind, MagnetometerCalibration
 from tak_thermo_ros.core.magnetometer.channel import MagCorrector, check_tesla
 from tak_thermo_ros.core.magnetometer.iron import EllipsoidFit, fit_ellipsoid
+from tak_thermo_ros.core.fit.model import AxisFit
 from tak_thermo_ros.core.records.blocks import BlockAligner, Subsample, stride_for
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import BagError, FitError, TakError
 
 MAX_STATIC_TURN_DEG = 10.0
 """Largest angle between a sample of a static run's field and its mean (the unit moved)."""
+CORRUPT_FIELD_T = 1e6
+"""A field component at or beyond this is a corrupt message, whatever unit a driver mistook for tesla
+(microtesla-sized numbers reach some 1e3; those, and gauss-sized ones, are refused by :func:`check_tesla`)."""
+MAX_ROTATION_SAMPLES = 100_000
+"""A rotation record's fit takes at most about this many samples, spread evenly over it."""
 NO_IRON_NOTE = 'hard and soft iron not fitted (no --iron-run): hard_iron 0, soft_iron identity'
 
 
@@ -52,13 +62,19 @@ def _mag_blocks(path: Path, options, *, references: bool):
     """The bag's blocks as the magnetometer's :class:`ChannelRecord` (its stamps, tesla).
 
     The first block with finite values is checked to be in tesla (:func:`check_tesla`): a topic
-    in gauss-sized numbers is refused before anything is computed from it.
+    in gauss-sized numbers is refused before anything is computed from it. A sample with a
+    component of :data:`CORRUPT_FIELD_T` or more is a corrupt message, not a field: it is made
+    NaN, so that the alignment leaves it out and counts it (``non_finite``) as it does a NaN.
     """
     from tak_thermo_ros.formats.records import record_blocks
     checked = False
     for block in record_blocks(path, topics=options.topics, kind=InputKind.IMU, block_samples=options.block_samples,
                                references=references, progress=options.progress):
         record = block.channel('mag')
+        with np.errstate(invalid='ignore'):
+            corrupt = np.any(np.abs(record.counts) >= CORRUPT_FIELD_T, axis=1)
+        if corrupt.any():
+            record = replace(record, counts=np.where(corrupt[:, None], np.nan, record.counts))
         if not checked:
             finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
             if len(finite):
@@ -67,17 +83,53 @@ def _mag_blocks(path: Path, options, *, references: bool):
         yield record
 
 
-def _mean_field(path: Path, options) -> np.ndarray:
-    """The mean measured field of a static run (one pass); refuses a topic not in tesla."""
-    total, count = np.zeros(3), 0
+@dataclass(frozen=True)
+class FieldSurvey:
+    """What one pass over a record's magnetometer shows: its mean field and whether it turns.
+
+    :param mean: the mean measured field, tesla.
+    :param spread: the field's largest standard deviation along one direction, tesla.
+    :param magnitude: the RMS of ``|B|``, tesla.
+    :param count: finite samples.
+    """
+
+    mean: np.ndarray
+    spread: float
+    magnitude: float
+    count: int
+
+    @property
+    def turned(self) -> bool:
+        """Whether the field turns as a rotation record's does (beyond a static run's tolerance).
+
+        A static run's field wanders by its noise and drift only; one turned through orientations
+        spreads by a good part of its magnitude (about 0.58 of it over the whole sphere).
+        """
+        return self.spread > math.sin(math.radians(MAX_STATIC_TURN_DEG)) * self.magnitude
+
+
+def survey_field(path: Path, options) -> FieldSurvey:
+    """The mean field and its spread (one pass, sums only); refuses a topic not in tesla."""
+    total, squares, count, energy = np.zeros(3), np.zeros((3, 3)), 0, 0.0
+    shift = None
     for record in _mag_blocks(path, options, references=False):
         finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
-        total += finite.sum(axis=0)
+        if not len(finite):
+            continue
+        if shift is None:
+            shift = finite[0].copy()
+        centred = finite - shift
+        total += centred.sum(axis=0)
+        squares += centred.T @ centred
+        energy += float(np.sum(finite * finite))
         count += len(finite)
-    if not count:
+    if not count or shift is None:
         msg = f'{path}: no finite messages on {options.topics.mag}'
         raise BagError(msg)
-    return total / count
+    mean_centred = total / count
+    covariance = squares / count - np.outer(mean_centred, mean_centred)
+    spread = math.sqrt(max(float(np.linalg.eigvalsh((covariance + covariance.T) / 2.0)[-1]), 0.0))
+    return FieldSurvey(mean=mean_centred + shift, spread=spread, magnitude=math.sqrt(energy / count), count=count)
 
 
 @dataclass(frozen=True)
@@ -90,16 +142,20 @@ class _CalibrationPass:
     aligner: BlockAligner
 
 
-def _calibration_pass(path: Path, options, consumers) -> _CalibrationPass:
+def _calibration_pass(path: Path, options, consumers, survey: FieldSurvey | None = None) -> _CalibrationPass:
     """Align the magnetometer on its reference and hand each block to ``consumers``.
 
-    The reference is the recorded field, or a static run's mean field; refuses a static run
-    that turned and a topic not in tesla.
+    The reference is the recorded field, or a static run's mean field (``survey``'s, or one pass
+    more); refuses a static run that turned, one without a temperature and a topic not in tesla.
     """
     from tak_thermo_ros.formats.records import record_streams
     topics = options.topics
-    static = record_streams(path, topics=topics).mag_reference == 0
-    mean = _mean_field(path, options) if static else None
+    streams = record_streams(path, topics=topics)
+    static = streams.mag_reference == 0
+    if not streams.temperature:
+        msg = f'magnetometer: {path}: no temperature on {topics.temperature}: a static run fits the link against it'
+        raise FitError(msg)
+    mean = (survey or survey_field(path, options)).mean if static else None
     aligner = BlockAligner(use_reference=True, reference_expected=True)
     max_turn = 0.0
     first = True
@@ -175,9 +231,18 @@ def fit_mag_bag(path: str | Path, options, *, bias_order: int = 3, scale_order: 
         be determined, a rotation record that fails the ellipsoid's checks).
     :raises TakError: a topic not in tesla.
     """
+    from tak_thermo_ros.formats.records import record_streams
     path = Path(path)
     topics = options.topics
-    from tak_thermo_ros.formats.records import record_streams
+    survey = survey_field(path, options) if record_streams(path, topics=topics).mag_reference == 0 else None
+    if survey is not None and survey.turned:
+        for given, option in ((iron_run is not None, '--iron-run'), (bool(effects), '--mag-effects')):
+            if given:
+                msg = (f'magnetometer: {option}: {path} is itself a rotation record (its field turns), whose iron and '
+                       f'thermal drift are fitted from it; {option} goes with a static chamber run')
+                raise FitError(msg)
+        return fit_rotation_bag(path, options, survey, bias_order=bias_order, scale_order=scale_order,
+                                temp_code_ref=temp_code_ref)
     fit = StreamingFit(bias_order=bias_order, scale_order=scale_order, temp_code_ref=temp_code_ref,
                        nominal_scale=(1.0, 1.0, 1.0))
     consumers = [fit.add]
@@ -186,7 +251,7 @@ def fit_mag_bag(path: str | Path, options, *, bias_order: int = 3, scale_order: 
         count = record_streams(path, topics=topics).mag
         subsample = Subsample(stride_for(count, max_effect_samples), expected=count)
         consumers.append(subsample)
-    calibration_pass = _calibration_pass(path, options, consumers)
+    calibration_pass = _calibration_pass(path, options, consumers, survey)
     static, mean, max_turn, aligner = (calibration_pass.static, calibration_pass.mean, calibration_pass.max_turn_deg,
                                        calibration_pass.aligner)
     try:
@@ -220,6 +285,50 @@ def fit_mag_bag(path: str | Path, options, *, bias_order: int = 3, scale_order: 
     calibration = MagnetometerCalibration(link, hard, soft)  # type: ignore[arg-type]
     return MagFit(calibration=calibration, thermal=replace(thermal, calibration=link), iron=iron, lines=tuple(lines),
                   max_turn_deg=max_turn)
+
+
+def fit_rotation_bag(path: Path, options, survey: FieldSurvey, *, bias_order: int = 3, scale_order: int = 2,
+                     temp_code_ref: float | None = None) -> MagFit:
+    """The magnetometer of a rotation record: the iron, and its thermal link where the temperature determines it.
+
+    One pass collects at most about :data:`MAX_ROTATION_SAMPLES` samples (spread evenly) with the
+    temperature held (none when the record holds none), for
+    :func:`~tak_thermo_ros.core.magnetometer.rotation.fit_rotation`.
+
+    :raises FitError: one line prefixed ``magnetometer:`` (too few orientations, the acceptance checks).
+    """
+    from tak_thermo_ros.core.magnetometer.rotation import fit_rotation
+    from tak_thermo_ros.formats.records import record_streams
+    topics = options.topics
+    streams = record_streams(path, topics=topics)
+    stride = stride_for(streams.mag, MAX_ROTATION_SAMPLES)
+    subsample = Subsample(stride, expected=streams.mag // stride + 1)
+    aligner = BlockAligner(use_reference=False, temperature_expected=streams.temperature > 0)
+    largest_turn = 0.0
+    direction = survey.mean / max(float(np.linalg.norm(survey.mean)), 1e-300)
+    for record in _mag_blocks(path, options, references=False):
+        finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
+        if len(finite):
+            cosine = (finite @ direction) / np.maximum(np.linalg.norm(finite, axis=1), 1e-300)
+            largest_turn = max(largest_turn, float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))).max()))
+        subsample(aligner.push(record))
+    subsample(aligner.finish())
+    samples = subsample.samples(aligner.dropped)
+    temperature = samples.temp_code if streams.temperature else None
+    where = f'magnetometer: {path}'
+    rotation = fit_rotation(samples.counts, temperature, bias_order=bias_order, scale_order=scale_order,
+                            temp_ref=temp_code_ref, where=where,
+                            held_because=f'no temperature on {topics.temperature}')
+    ellipsoid = rotation.ellipsoid
+    thermal = FitResult(calibration=rotation.calibration.thermal,
+                        axes=(AxisFit(ellipsoid.residual_rms, 0, 0.0),) * 3,  # type: ignore[arg-type]
+                        samples=len(samples), dropped=dict(aligner.dropped))
+    lines = [f'magnetometer: a rotation record (the field turns up to {largest_turn:.0f} deg): the iron from it alone',
+             *(f'magnetometer: {line}' for line in rotation.lines)]
+    if stride > 1:
+        lines.append(f'magnetometer: fitted on 1 sample in {stride} ({len(samples)} of {subsample.usable})')
+    return MagFit(calibration=rotation.calibration, thermal=thermal, iron=ellipsoid, lines=tuple(lines),
+                  max_turn_deg=largest_turn)
 
 
 def _microtesla(values) -> str:
@@ -261,11 +370,12 @@ def _fit_iron(path: Path, options, link) -> tuple[EllipsoidFit, int]:
 class MagApplier:
     """The magnetometer's part of ``apply``: each block aligned, corrected, written (``/imu/mag_compensated``)."""
 
-    def __init__(self, mag: MagnetometerCalibration, *, out_of_range: OutOfRange, topic: str) -> None:
+    def __init__(self, mag: MagnetometerCalibration, *, out_of_range: OutOfRange, topic: str,
+                 temperature_expected: bool = True) -> None:
         from tak_thermo_ros.core.magnetometer.channel import magnetic_covariance
         self.corrector = MagCorrector(mag, out_of_range=out_of_range)
         self.covariance = magnetic_covariance(mag)
-        self.aligner = BlockAligner(use_reference=False)
+        self.aligner = BlockAligner(use_reference=False, temperature_expected=temperature_expected)
         self.topic = topic
         self.out_of_range = 0
         self.checked = False
@@ -331,7 +441,8 @@ class MagValidated:
     """``validate``'s figures for the magnetometer, tesla.
 
     :param samples: samples compared.
-    :param reference: ``'static'`` (error about the run's mean field) or the reference topic.
+    :param reference: ``'static'`` (error about the run's mean field), ``'rotation'`` (a record
+        whose field turns: ``|B|`` about its mean only, the axes' figures NaN) or the reference topic.
     :param before: RMS per axis x, y, z and of ``|B|`` of the raw field.
     :param after: the same after the correction (thermal link and iron).
     """
@@ -347,14 +458,21 @@ def validate_mag(path: str | Path, mag: MagnetometerCalibration, options, *,
                  out_of_range: OutOfRange = OutOfRange.CLAMP) -> MagValidated:
     """The field error before and after the correction.
 
-    Against ``/tak/reference_field`` when recorded, else about the run's mean (a static run).
+    Against ``/tak/reference_field`` when recorded, else about the run's mean: a static run's
+    field per axis and ``|B|``, a rotation record's ``|B|`` alone (its spread: the field strength
+    is one in every orientation, the direction needs a reference).
     """
     from tak_thermo_ros.formats.records import record_streams
+    from tak_thermo_ros.streaming import temperature_expected
     path = Path(path)
     streams = record_streams(path, topics=options.topics)
     with_reference = streams.mag_reference > 0
+    rotation = not with_reference and survey_field(path, options).turned
     corrector = MagCorrector(mag, out_of_range=out_of_range)
-    aligner = BlockAligner(use_reference=with_reference, reference_expected=with_reference)
+    holding = temperature_expected(path, streams, options, needed=mag.thermal.needs_temperature,
+                                   what="the calibration's magnetometer")
+    aligner = BlockAligner(use_reference=with_reference, reference_expected=with_reference,
+                           temperature_expected=holding)
     before, after = _FieldSums(), _FieldSums()
     outside = 0
 
@@ -384,5 +502,9 @@ def validate_mag(path: str | Path, mag: MagnetometerCalibration, options, *,
     if not all(math.isfinite(v) for v in values_before + values_after):
         msg = f'{path}: magnetometer field error is not finite'
         raise TakError(msg)
-    return MagValidated(samples=before.count, reference=options.topics.reference_field if with_reference else 'static',
-                        before=values_before, after=values_after, out_of_range=outside)  # type: ignore[arg-type]
+    if rotation:  # per axis about the mean says nothing of a field that turns
+        values_before = (math.nan,) * 3 + values_before[3:]
+        values_after = (math.nan,) * 3 + values_after[3:]
+    reference = options.topics.reference_field if with_reference else 'rotation' if rotation else 'static'
+    return MagValidated(samples=before.count, reference=reference, before=values_before,  # type: ignore[arg-type]
+                        after=values_after, out_of_range=outside)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -164,3 +165,58 @@ def test_gyro_unit_deg_per_second_is_converted_to_rad_per_second(tmp_path):
     with pytest.raises(LogError, match='gyro_unit'):
         CsvImportOptions(acc_columns=('ax', 'ay', 'az'), temp_column='temp', gyro_columns=('a', 'b', 'c'),
                          gyro_unit='rpm')
+
+
+def _multi_rate_lines(rows: int = 60) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """A log: the gyroscope every row, the accelerometer every third, the temperature every second (empty cells)."""
+    rng = np.random.default_rng(4)
+    accel = np.array([0.1, -0.2, 9.8]) + rng.normal(0.0, 0.01, (rows, 3))
+    gyro = rng.normal(0.0, 0.001, (rows, 3))
+    lines = ['t,ax,ay,az,temp,gx,gy,gz']
+    for i in range(rows):
+        a = ','.join(f'{v:.6f}' for v in accel[i]) if i % 3 == 0 else ',,'
+        temp = f'{20.0 + 0.2 * i:.2f}' if i % 2 == 0 else ''
+        lines.append(f'{0.01 * i:.2f},{a},{temp},' + ','.join(f'{v:.6f}' for v in gyro[i]))
+    return lines, accel, gyro
+
+
+def test_sensors_at_their_own_rates_keep_their_own_samples(tmp_path, capsys):
+    """Empty cells: each sensor's rows only, on its own stamps (nothing resampled); the bag round-trips them."""
+    from tak_thermo_ros.formats.bag import read_driver_record
+    lines, accel, gyro = _multi_rate_lines()
+    options = CsvImportOptions(acc_columns=('ax', 'ay', 'az'), temp_column='temp', time_column='t',
+                               gyro_columns=('gx', 'gy', 'gz'))
+    driver = parse_csv_log(lines, options).driver
+    assert not driver.shared_stamps
+    np.testing.assert_array_equal(driver.sensor_stamps('accel'), np.arange(0, 60, 3) * 10_000_000)
+    np.testing.assert_allclose(driver.accel, accel[::3], atol=1e-6)
+    np.testing.assert_allclose(driver.gyro, gyro, atol=1e-6)
+    np.testing.assert_array_equal(driver.temp_stamp_ns, np.arange(0, 60, 2) * 10_000_000)
+    log = tmp_path / 'log.csv'
+    log.write_text('\n'.join(lines) + '\n')
+    assert main(['import-csv', str(log), '-o', str(tmp_path / 'bag'), '--acc-columns', 'ax', 'ay', 'az',
+                 '--temp-column', 'temp', '--time-column', 't', '--gyro-columns', 'gx', 'gy', 'gz']) == 0
+    assert 'each sensor on its own stamps, nothing resampled' in capsys.readouterr().out
+    back = read_driver_record(tmp_path / 'bag', progress=False)
+    assert np.array_equal(back.sensor_stamps('accel'), driver.sensor_stamps('accel'))
+    np.testing.assert_array_equal(back.gyro, driver.gyro)
+
+
+def test_a_gyroscope_in_a_file_of_its_own_keeps_its_time_column(tmp_path):
+    """--gyro-file: its own time column and rate; the same record as the columns in one file with empty cells."""
+    lines, _, gyro = _multi_rate_lines()
+    main_lines = [','.join(line.split(',')[:5]) for line in lines]
+    main_lines = [line for line in main_lines if line.split(',')[1] or line.startswith('t')]  # accelerometer rows
+    (tmp_path / 'accel.csv').write_text('\n'.join(main_lines) + '\n')
+    (tmp_path / 'gyro.csv').write_text('time,gx,gy,gz\n' + ''.join(
+        f'{0.01 * i:.2f},' + ','.join(f'{v:.6f}' for v in gyro[i]) + '\n' for i in range(len(gyro))))
+    options = CsvImportOptions(acc_columns=('ax', 'ay', 'az'), temp_column='temp', time_column='t',
+                               gyro_columns=('gx', 'gy', 'gz'), gyro_file=str(tmp_path / 'gyro.csv'),
+                               gyro_time_column='time')
+    driver = read_csv_log(tmp_path / 'accel.csv', options).driver
+    np.testing.assert_array_equal(driver.sensor_stamps('gyro'), np.arange(60) * 10_000_000)
+    np.testing.assert_array_equal(driver.sensor_stamps('accel'), np.arange(0, 60, 3) * 10_000_000)
+    np.testing.assert_allclose(driver.gyro, gyro, atol=1e-6)
+    with pytest.raises(LogError, match="bad.csv: no column 'gx'"):
+        (tmp_path / 'bad.csv').write_text('time,x,y,z\n0,1,2,3\n')
+        read_csv_log(tmp_path / 'accel.csv', replace(options, gyro_file=str(tmp_path / 'bad.csv')))

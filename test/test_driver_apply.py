@@ -136,3 +136,11 @@ def test_diagnose_json_and_report_cover_both_sensors(bags, tmp_path, capsys):
         assert (tmp_path / 'report' / sensor / 'report.html').exists()
         assert f'{sensor}/report.html' in index
         assert list((tmp_path / 'report' / sensor).glob('*.png'))
+    # Each sensor's residual table in its reader's unit, three significant figures (not 0.001 0.001 0.001).
+    from tak_thermo_ros.units import readable
+    for sensor, name, shown in (('accel', 'm/s^2', 'mg'), ('gyro', 'rad/s', 'deg/h')):
+        page = (tmp_path / 'report' / sensor / 'report.html').read_text()
+        assert f'<th>RMS ({shown})</th>' in page
+        for axis in 'xyz':
+            rms = document['sensors'][sensor]['axes'][axis]['rms']
+            assert f'<td>{readable(rms, name).split()[0]}</td>' in page

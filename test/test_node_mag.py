@@ -240,3 +240,40 @@ def test_the_magnetometer_channel_refuses_a_calibration_without_it():
         core.prepare(calibration=replace(_UNIT, mag=None))
     with pytest.raises(CalibrationError, match='calibration.mag: missing'):
         OnlineCompensator(replace(_UNIT, mag=None), channel='mag')
+
+
+def test_a_calibration_without_temperature_terms_corrects_with_no_temperature_topic(tmp_path, ros_env):
+    """A rotation record without a temperature: its file (thermal: none) loads through rcl.
+
+    The node publishes the Imu and the field without ever waiting for a temperature, equal to the
+    offline correction.
+    """
+    from tak_thermo_ros.core.link.correction import UnitCorrector
+    record = rotation_record(MagnetometerTruth(), samples=400, seed=81)
+    record = replace(record, temp_stamp_ns=np.zeros(0, dtype=np.int64), temperature=np.zeros(0))
+    write_driver_record(tmp_path / 'turned', record)
+    params = tmp_path / 'p.yaml'
+    assert cli.main(['fit', str(tmp_path / 'turned'), '-o', str(params), '--no-progress']) == 0
+    unit = load_unit(params)
+    assert not unit.needs_temperature and not unit.mag.thermal.needs_temperature
+    start = 1_700_000_000 * 1_000_000_000
+    with NodeProcess(node_command('--params-file', str(params), '-p', 'qos:=reliable'), ros_env,
+                     tmp_path / 'node.log') as node, MagHarness(int(ros_env['ROS_DOMAIN_ID'])) as ros:
+        ros.wait_mag_matched()
+        for row in range(3):
+            ros.send_imu(start + row, (*record.accel[row], *record.gyro[row]))
+            ros.send_mag(start + row, record.mag[row])
+        ros.wait(lambda: len(ros.imu) == 3 and len(ros.mag) == 3, 10.0, 'three corrected messages of each')
+        ros.wait(lambda: status_values(ros.mag_status())['received'] == '3', 10.0, 'the magnetometer status')
+        for status in (ros.latest_status(), ros.mag_status()):
+            values = status_values(status)
+            assert values['dropped'] == '0' and 'waiting' not in status.message, status.message
+        assert node.stop() == 0
+    imu = UnitCorrector(unit)
+    for row, message in enumerate(ros.imu):
+        got = (message.linear_acceleration.x, message.linear_acceleration.y, message.linear_acceleration.z,
+               message.angular_velocity.x, message.angular_velocity.y, message.angular_velocity.z)
+        assert got == imu.correct_sample((*record.accel[row], *record.gyro[row]), 0.0)
+    for row, message in enumerate(ros.mag):
+        got = (message.magnetic_field.x, message.magnetic_field.y, message.magnetic_field.z)
+        assert got == MagCorrector(unit.mag).correct_sample(tuple(record.mag[row]), 0.0)

@@ -104,6 +104,12 @@ def check_outcome(code: int, out: str, err: str, directory: Path, protected: dic
             record = read_record(path, progress=False)
             for array in (record.counts, record.temp_code, record.reference):
                 assert np.all(np.isfinite(array))
+        elif kind == 'driver_bag':
+            from tak_thermo_ros.formats.bag import iter_blocks
+            from tak_thermo_ros.core.link.model import InputKind
+            for block in iter_blocks(path, kind=InputKind.IMU, progress=False):
+                for array in (block.accel, block.gyro, block.temperature, block.mag):
+                    assert np.all(np.isfinite(array))
 
 
 # ----- CSV logs ------------------------------------------------------------------------------
@@ -184,6 +190,109 @@ def test_import_csv_of_generated_logs_keeps_the_invariant(log, existing, force, 
         check_outcome(code, stdout, stderr, directory, protected, {out: 'bag'})
         if existing:  # a regular file where a bag goes is refused even with --force
             assert code == 2
+
+
+MAG_IN = {'T': 1.0, 'uT': 1e6, 'mT': 1e3, 'gauss': 1e4, 'mG': 1e7}
+"""A field in tesla times this is the field in the unit."""
+
+
+@st.composite
+def driver_csv_logs(draw) -> tuple[str, list[str]]:
+    """A driver's log: Imu columns, a temperature column or none (constant or not), magnetometer columns in a unit.
+
+    The board held still or turned; the field's unit said right or wrong; generated mistakes in any column.
+    """
+    rows = draw(st.integers(2, 30))
+    temperature = draw(st.sampled_from(['none', 'constant', 'sweep']))
+    with_mag, with_gyro = draw(st.booleans()), draw(st.booleans()) or draw(st.booleans())
+    unit = draw(st.sampled_from(sorted(MAG_IN)))
+    logged_unit = unit if draw(st.booleans()) else draw(st.sampled_from(sorted(MAG_IN)))
+    turned = draw(st.booleans())
+    rng = np.random.default_rng(draw(st.integers(0, 2 ** 32 - 1)))
+    header = ['t', 'ax', 'ay', 'az', 'gx', 'gy', 'gz'] + (['temp'] if temperature != 'none' else [])
+    header += ['mx', 'my', 'mz'] if with_mag else []
+    table = []
+    for i in range(rows):
+        turn = np.linalg.qr(rng.normal(size=(3, 3)))[0] if turned else np.eye(3)
+        acc = turn.T @ np.array([0.0, 0.0, 9.81]) + rng.normal(0.0, 0.01, 3)
+        row = [f'{i * 0.1:.2f}', *(f'{v:.5f}' for v in acc), *(f'{v:.5f}' for v in rng.normal(0.0, 1e-3, 3))]
+        if temperature != 'none':
+            row.append('25.0' if temperature == 'constant' else f'{20.0 + i:.2f}')
+        if with_mag:
+            field = turn.T @ np.array([20e-6, 2e-6, 44e-6]) * MAG_IN[logged_unit]
+            row += [repr(float(v)) for v in field]
+        table.append(row)
+    for _ in range(draw(st.integers(0, 3))):
+        row, column = draw(st.integers(0, rows - 1)), draw(st.integers(1, len(header) - 1))
+        table[row][column] = draw(JUNK)
+    text = ','.join(header) + '\n' + ''.join(','.join(r) + '\n' for r in table)
+    options = ['--time-column', 't', '--acc-columns', 'ax', 'ay', 'az']
+    options += ['--gyro-columns', 'gx', 'gy', 'gz'] if with_gyro else []
+    options += ['--temp-column', 'temp'] if temperature != 'none' else []
+    options += ['--mag-columns', 'mx', 'my', 'mz', '--mag-unit', unit] if with_mag else []
+    return text, options
+
+
+@settings(max_examples=examples(30))
+@given(log=driver_csv_logs(), storage=st.sampled_from(['mcap', 'sqlite3']))
+def test_import_csv_of_generated_driver_logs_and_their_fit_keep_the_invariant(log, storage):
+    """A driver log without a temperature, with a constant one, with a magnetometer in any unit; then fit."""
+    text, options = log
+    with tempfile.TemporaryDirectory() as name:
+        directory = Path(name)
+        (directory / 'log.csv').write_text(text, encoding='utf-8')
+        out = directory / 'out'
+        code, stdout, stderr = _run(['import-csv', str(directory / 'log.csv'), '-o', str(out), '--storage', storage,
+                                     '--no-progress', *options])
+        check_outcome(code, stdout, stderr, directory, {}, {out: 'driver_bag'})
+        if code == 0:
+            params = directory / 'p.yaml'
+            code, stdout, stderr = _run(['fit', str(out), '-o', str(params), '--no-progress'])
+            check_outcome(code, stdout, stderr, directory, {}, {params: 'yaml'})
+
+
+@pytest.fixture(scope='module')
+def turned_run(tmp_path_factory):
+    """A small record turned by hand (a magnetometer, a warming unit) and the calibration fitted from it."""
+    from tak_thermo_ros.core.simulation.magnetometer import MagnetometerTruth, rotation_record
+    from tak_thermo_ros.formats.bag import write_driver_record
+    record = rotation_record(MagnetometerTruth(), samples=400, seed=91, temperature_celsius=15.0,
+                             warm_to_celsius=30.0)
+    root = tmp_path_factory.mktemp('turned')
+    write_driver_record(root / 'cal', record)
+    code, _, err = _run(['fit', str(root / 'cal'), '-o', str(root / 'params.yaml'), '--no-progress'])
+    assert code == 0, err
+    return record, root / 'params.yaml'
+
+
+@settings(max_examples=examples(12))
+@given(data=st.data(), command=st.sampled_from(('fit', 'apply', 'validate')), drop_temperature=st.booleans())
+def test_commands_on_changed_rotation_records_keep_the_invariant(turned_run, data, command, drop_temperature):
+    """NaN, huge and gauss-sized fields, NaN and implausible temperatures, stamps back, no temperature topic."""
+    from tak_thermo_ros.formats.bag import write_driver_record
+    record, params = turned_run
+    mag, temperature, stamps = record.mag.copy(), record.temperature.copy(), record.mag_stamp_ns.copy()
+    for row, value in data.draw(st.lists(st.tuples(st.integers(0, len(mag) - 1),
+                                                   st.sampled_from([math.nan, math.inf, 1e300, 0.5])), max_size=5)):
+        mag[row] = value
+    for row, value in data.draw(st.lists(st.tuples(st.integers(0, len(temperature) - 1),
+                                                   st.sampled_from([math.nan, 1e9, -300.0])), max_size=4)):
+        temperature[row] = value
+    for row in data.draw(st.lists(st.integers(1, len(stamps) - 1), max_size=3)):
+        stamps[row] = stamps[row - 1]
+    changed = replace(record, mag=mag, mag_stamp_ns=stamps, temperature=temperature)
+    if drop_temperature:
+        changed = replace(changed, temp_stamp_ns=np.zeros(0, dtype=np.int64), temperature=np.zeros(0))
+    with tempfile.TemporaryDirectory() as name:
+        directory = Path(name)
+        write_driver_record(directory / 'bag', changed)
+        out = directory / 'out'
+        argv = {'fit': ['fit', str(directory / 'bag'), '-o', str(out)],
+                'apply': ['apply', str(directory / 'bag'), '--params', str(params), '-o', str(out)],
+                'validate': ['validate', str(directory / 'bag'), '--params', str(params), '--json', str(out)]}[command]
+        code, stdout, stderr = _run([*argv, '--no-progress'])
+        kinds = {'fit': 'yaml', 'apply': 'driver_bag', 'validate': 'json'}
+        check_outcome(code, stdout, stderr, directory, {}, {} if command == 'apply' else {out: kinds[command]})
 
 
 # ----- bags ----------------------------------------------------------------------------------

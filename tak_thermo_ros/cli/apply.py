@@ -40,6 +40,14 @@ def run(args: argparse.Namespace) -> int:
                         out_of_range=OutOfRange(args.out_of_range), force=args.force)
     common.print_survey(applied.survey, 'apply')
     print(f'wrote {applied.written} Imu messages on {applied.topic} to {args.output}')
+    if applied.sensor_written:
+        carried = ', '.join(f'{count} {common.SENSOR_NAMES[sensor]}'
+                            for sensor, count in applied.sensor_written.items())
+        print(f'each sensor on its own stamps: messages carry {carried} samples')
+        print('a message without a sensor marks it absent: its covariance[0] = -1 (sensor_msgs/Imu)')
+        for sensor, dropped in applied.sensor_dropped.items():
+            if dropped:
+                print(f'dropped {common.SENSOR_NAMES[sensor]} samples: {common.describe_dropped(dropped)}')
     if kind is InputKind.IMU and unit.mag is None:
         from tak_thermo_ros.streaming_mag import has_mag
         if has_mag(args.bag, topics):

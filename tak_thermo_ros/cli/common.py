@@ -19,6 +19,7 @@ from tak_thermo_ros.core.records.record import REFERENCE_LIMIT, TEMPERATURE_RANG
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import TakError
 from tak_thermo_ros.streaming import SENSOR_NAMES  # noqa: F401  (re-exported: each command prints it)
+from tak_thermo_ros.units import READABLE, readable
 
 UNITS = {(InputKind.COUNTS, 'accel'): 'counts', (InputKind.IMU, 'accel'): 'm/s^2', (InputKind.IMU, 'gyro'): 'rad/s',
          (InputKind.IMU, 'mag'): 'T'}
@@ -39,7 +40,8 @@ def topics(args: argparse.Namespace):
                   compensated_imu=getattr(args, 'imu_topic', None) or defaults.compensated_imu,
                   mag=getattr(args, 'mag_topic', defaults.mag),
                   reference_field=getattr(args, 'reference_field_topic', defaults.reference_field),
-                  compensated_mag=getattr(args, 'mag_output_topic', None) or defaults.compensated_mag)
+                  compensated_mag=getattr(args, 'mag_output_topic', None) or defaults.compensated_mag,
+                  instance=getattr(args, 'instance', defaults.instance))
 
 
 def stream_options(args: argparse.Namespace):
@@ -139,11 +141,13 @@ def given_noise_models(args: argparse.Namespace, unit: UnitCalibration, kind: In
 
 
 def amount(value: float, unit: str) -> str:
-    """A residual or offset in a sensor's unit (counts to three decimals, SI to four digits)."""
+    """A residual or offset: counts to three decimals; SI to four digits beside the reader's unit (mg, deg/h, uT)."""
     if unit == 'counts':
         return f'{value:.3f} counts'
-    if unit == 'rad/s':
-        return f'{value:.4g} rad/s ({value * DEG:.4g} deg/s)'
+    if unit == 'T':
+        return readable(value, unit, 4)
+    if unit in READABLE:
+        return f'{value:.4g} {unit} ({readable(value, unit)})'
     return f'{value:.4g} {unit}'
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from dataclasses import dataclass, replace
 from pathlib import Path
 from tak_thermo_ros.cli import common, options
 from tak_thermo_ros.core.effects.aux_signal import signals_with_values
@@ -17,10 +18,12 @@ from tak_thermo_ros.formats.files import REPORT
 from tak_thermo_ros.formats.files import atomic_directory
 from tak_thermo_ros.formats.files import check_output
 from tak_thermo_ros.formats.files import write_text_atomic
+from tak_thermo_ros.core.records.extremes import TemperatureCourse, temperature_course
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.core.records.record import require_signals
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.streaming import DIAGNOSE_MAX_SAMPLES
+from tak_thermo_ros.units import in_reader_unit, reader_unit, significant
 import numpy as np
 import sys
 
@@ -80,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     common.print_survey(run.survey, 'diagnose')
     if run.handheld is not None:
         from tak_thermo_ros.streaming_handheld import at_rest
-        unit = UnitCalibration(unit.input_kind, unit.accel, at_rest(unit.gyro), unit.mag)
+        unit = replace(unit, gyro=at_rest(unit.gyro))
         closure = run.handheld.closure
         if len(closure.angle_rad):
             print(f'turns: closure RMS {np.degrees(closure.rms_rad):.3g} deg over {len(closure.angle_rad)} turns, '
@@ -128,14 +131,18 @@ def run(args: argparse.Namespace) -> int:
         if samples.dropped:
             print(f'left out: {common.describe_dropped(samples.dropped)}')
         common.print_ignored(samples, args, run.input_kind)
+        shown = reader_unit(unit_name)
+
+        def value(number: float) -> str:
+            return significant(in_reader_unit(number, unit_name), 4)
         for name, axis in zip(AXES, result.axes):
             if result.averaging_time_s:
-                print(f'  {name}: residual RMS {axis.rms:.4g} {unit_name}, white floor {axis.white_floor:.4g}; '
-                      f'held-out {result.averaging_time_s:.3g} s means {axis.heldout_rms:.4g} '
-                      f'({axis.heldout_rms / axis.noise_floor:.2f}x the noise model\'s {axis.noise_floor:.4g})')
+                print(f'  {name}: residual RMS {value(axis.rms)} {shown}, white floor {value(axis.white_floor)}; '
+                      f'held-out {result.averaging_time_s:.3g} s means {value(axis.heldout_rms)} '
+                      f'({axis.heldout_rms / axis.noise_floor:.2f}x the noise model\'s {value(axis.noise_floor)})')
             else:
-                print(f'  {name}: residual RMS {axis.rms:.4g} {unit_name}, noise floor {axis.noise_floor:.4g}; '
-                      f'held-out {axis.heldout_rms:.4g} ({axis.heldout_rms / axis.noise_floor:.2f}x the floor)')
+                print(f'  {name}: residual RMS {value(axis.rms)} {shown}, noise floor {value(axis.noise_floor)}; '
+                      f'held-out {value(axis.heldout_rms)} ({axis.heldout_rms / axis.noise_floor:.2f}x the floor)')
         if result.allan:
             check = result.allan[-1][1]
             print(f'  against the noise model, {"after the ladder" if len(result.allan) > 1 else "the residual"}: '
@@ -143,21 +150,24 @@ def run(args: argparse.Namespace) -> int:
                   f'the bound {check.worst_bound():.2f}x)'
                   if len(check.taus) else '  Allan deviation: the run is too short to estimate it')
         if result.candidates:
-            print(f'candidates, best first (held-out RMS x y z in {unit_name}; '
+            print(f'candidates, best first (held-out RMS x y z in {shown}; '
                   f'share of the excess over the floor removed):')
             for candidate in result.candidates:
-                rms = ' '.join(f'{v:8.4g}' for v in candidate.rms_after)
+                rms = ' '.join(f'{value(v):>8}' for v in candidate.rms_after)
                 print(f'  {candidate.effect:<20} {rms}  {round(100.0 * candidate.explained):5d}%')
         for name, reason in result.skipped.items():
             print(f'  {name:<20} not tried: {reason}')
         if len(result.ladder) > 1:
-            print('model ladder (held-out RMS x y z): ' + '; '.join(
-                f'{step.label}: {" ".join(f"{v:.4g}" for v in step.heldout_rms)}' for step in result.ladder))
+            print(f'model ladder (held-out RMS x y z, {shown}): ' + '; '.join(
+                f'{step.label}: {" ".join(value(v) for v in step.heldout_rms)}' for step in result.ladder))
         print(f'{label}verdict: {result.verdict}')
         print(common.in_driver_words(result.message) if run.input_kind is InputKind.IMU else result.message)
         walk = _walk_line(result, sensor, run.input_kind)
         if walk:
             print(walk)
+    record = _one_way_lines(unit, used) if run.input_kind is InputKind.IMU else None
+    for line in record.lines if record is not None else ():
+        print(line)
     if args.json:
         document = {**results['accel'].as_dict(), 'samples_diagnosed': len(used['accel']),
                     'samples_usable': run.usable['accel'], 'subsample_stride': run.stride}
@@ -166,6 +176,8 @@ def run(args: argparse.Namespace) -> int:
                                             'samples_diagnosed': len(used[sensor]),
                                             'samples_usable': run.usable[sensor]}
                                    for sensor, result in results.items()}
+            if record is not None:
+                document['record'] = record.as_dict()
         if run.handheld is not None:
             closure = run.handheld.closure
             document['handheld'] = {'turns': len(closure.angle_rad), 'closure_rms_rad': closure.rms_rad,
@@ -240,12 +252,17 @@ def _walk_line(result, sensor: str, kind: InputKind) -> str:
 
 def _add_magnetometer(args: argparse.Namespace, unit: UnitCalibration, run) -> None:
     """``diagnose``'s magnetometer (its thermal link) when the calibration and the bag hold one."""
-    from tak_thermo_ros.streaming_mag import bounded_mag_run, has_mag
+    from tak_thermo_ros.formats.records import record_streams
+    from tak_thermo_ros.streaming_mag import bounded_mag_run, has_mag, survey_field
     options = common.stream_options(args)
     if run.input_kind is not InputKind.IMU or unit.mag is None:
         return
     if not has_mag(args.bag, options.topics):
         print(f'magnetometer: {args.bag} holds no messages on {options.topics.mag}; not diagnosed')
+        return
+    if not record_streams(args.bag, topics=options.topics).mag_reference and survey_field(args.bag, options).turned:
+        print(f'magnetometer: not diagnosed: {args.bag} is a rotation record (its field turns); the thermal '
+              f'diagnosis takes a static run or a reference field')
         return
     samples, usable, line = bounded_mag_run(args.bag, options, max_samples=args.max_samples)
     print(line)
@@ -269,6 +286,46 @@ def _noise_line(noise, unit: str, averaging_s: float) -> str:
     if averaging_s:
         text += f'; judged on held-out {averaging_s:.3g} s means'
     return text
+
+
+@dataclass(frozen=True)
+class OneWay:
+    """A record whose temperature moved one way only, and what a lag it cannot show would do to its curve.
+
+    :param bend_per_minute: per sensor, the largest offset error each minute of lag between the
+        sensing element and its thermometer leaves at the record's fastest rate (sensor units).
+    """
+
+    course: TemperatureCourse
+    bend_per_minute: dict[str, float]
+    lines: tuple[str, ...]
+
+    def as_dict(self) -> dict[str, object]:
+        """For ``--json``: the course and the bend per minute of lag."""
+        return {'one_way': self.course.one_way, 'low_c': self.course.low, 'high_c': self.course.high,
+                'rate_max_c_per_s': self.course.rate_max, 'lag_bend_per_minute': self.bend_per_minute}
+
+
+def _one_way_lines(unit: UnitCalibration, used: dict[str, AlignedSamples]) -> OneWay | None:
+    """A warm-up (or cool-down) only: a lag of the elements behind the thermometer hides in its curve; its size."""
+    from tak_thermo_ros.formats.firmware import offset_cubic, size
+    samples = used['accel']
+    course = temperature_course(samples.stamp_s, samples.temp_code)
+    if not course.one_way or course.high - course.low < 1.0:
+        return None
+    bend = {}
+    for sensor in ('accel', 'gyro'):
+        cubic = offset_cubic(unit.sensor(sensor), about=unit.sensor(sensor).temp_code_ref)
+        bend[sensor] = float(cubic.steepest.max()) * course.rate_max * 60.0
+    verb = 'rose' if course.rise >= course.fall else 'fell'
+    lines = (f'record: the temperature only {verb}, {course.low:.1f}..{course.high:.1f} C, at up to '
+             f'{course.rate_max * 60.0:.3g} C/min',
+             'record: a lag of the sensing elements behind the thermometer cannot be told from the curve here',
+             f'record: each minute of such a lag bends the gyroscope\'s curve by up to {size(bend["gyro"], "gyro")}',
+             f'record: and the accelerometer\'s by up to {size(bend["accel"], "accel")}',
+             f'record: to determine a lag, record the way back too ({"cooled" if verb == "rose" else "warmed"}, '
+             f'powered), or go slower')
+    return OneWay(course, bend, lines)
 
 
 def expand_candidates(text: str) -> list[str]:

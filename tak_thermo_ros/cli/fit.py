@@ -68,25 +68,34 @@ def add_parser(commands) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Fit the correction link to a calibration bag (counts, or a driver's Imu: both sensors), block by block."""
-    from tak_thermo_ros.streaming import FitSettings, fit_bag
+    from tak_thermo_ros.streaming import FitSettings, fit_imu
+    from tak_thermo_ros.streaming_mag import has_mag
     effects = {'accel': common.effect_list(args.effects), 'gyro': common.effect_list(args.gyro_effects)}
     settings = FitSettings(effects=effects, bias_order=args.bias_order, scale_order=args.scale_order,
                            temp_code_ref=args.temp_code_ref, settle_time_s=args.settle_time,
                            gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
                            max_effect_samples=args.effect_samples)
-    fitted = fit_bag(args.bag, settings, common.stream_options(args),
-                     nominal_for=lambda kind, bag_nominal: _nominal(args, bag_nominal))
-    results = fitted.results
-    if fitted.handheld is not None:
-        for option, given in (('--iron-run', getattr(args, 'iron_run', None)),
-                              ('--mag-effects', getattr(args, 'mag_effects', None))):
+    from tak_thermo_ros.formats.records import record_lines
+    for line in record_lines(args.bag, topics=common.topics(args)):
+        print(line)
+    # A record that determines the magnetometer alone (turned by hand, or without a temperature)
+    # holds the accelerometer and gyroscope at nominal, said in one line; else it is refused.
+    options = common.stream_options(args)
+    fitted = fit_imu(args.bag, settings, options, nominal_for=lambda kind, bag_nominal: _nominal(args, bag_nominal),
+                     hold_undetermined=has_mag(args.bag, options.topics))
+    if fitted.held:
+        for option, given in (('--effects', bool(effects['accel'])), ('--gyro-effects', bool(effects['gyro'])),
+                              ('--noise-from-residual', args.noise_from_residual)):
             if given:
-                msg = f'{option}: {args.bag} is a hand-held record: its magnetometer is not fitted here (the IMU only)'
+                msg = (f'{option}: the accelerometer and gyroscope of {args.bag} are not fitted '
+                       f'({fitted.results["accel"].calibration.notes[0]})')
                 raise TakError(msg)
-    magnetometer = _fit_magnetometer(args, fitted.input_kind) if fitted.handheld is None else None
+    results = fitted.results
+    magnetometer = _fit_magnetometer(args, fitted.input_kind)
     unit = UnitCalibration(fitted.input_kind, results['accel'].calibration,
                            results['gyro'].calibration if 'gyro' in results else None,
-                           magnetometer.calibration if magnetometer is not None else None)
+                           magnetometer.calibration if magnetometer is not None else None,
+                           _source(args, fitted))
     noise_line = ''
     if args.noise or args.noise_run or args.noise_from_residual:
         unit, noise_line = _with_noise(args, unit)
@@ -94,24 +103,28 @@ def run(args: argparse.Namespace) -> int:
                         for sensor, calibration in unit.sensors if calibration.effects)
     handheld = fitted.handheld
     orders = handheld.fit.orders if handheld is not None else (args.bias_order, args.scale_order)
+    fitted_what = (f'{results["accel"].samples} samples' if not fitted.held else
+                   f'magnetometer only ({magnetometer.thermal.samples} samples; accelerometer and gyroscope held)')
     header = (f'tak_thermo_ros calibration fitted from {args.bag}'
               f'{" (a hand-held record)" if handheld is not None else ""}\n'
-              f'{results["accel"].samples} samples, bias order {orders[0]}, scale order {orders[1]}'
+              f'{fitted_what}, bias order {orders[0]}, scale order {orders[1]}'
               f'{", effects " + applied if applied else ""}\n'
               f'load with: ros2 run tak_thermo_ros compensator --ros-args --params-file {Path(args.output).name}')
     save_unit(args.output, unit, header=header)
     kind = fitted.input_kind
     common.print_survey(fitted.survey, 'fit')
-    print(f'fitted {results["accel"].samples} samples from {args.bag}'
-          f'{" (driver Imu: accelerometer and gyroscope)" if kind is InputKind.IMU else ""}')
+    if fitted.held:
+        print(f'accelerometer and gyroscope: {results["accel"].calibration.notes[0]}')
+    else:
+        print(f'fitted {results["accel"].samples} samples from {args.bag}'
+              f'{" (driver Imu: accelerometer and gyroscope)" if kind is InputKind.IMU else ""}')
     for line in fitted.reference_lines:
         print(line)
     if handheld is not None:
         _print_handheld(handheld)
-        from tak_thermo_ros.streaming_mag import has_mag
-        if has_mag(args.bag, common.topics(args)):
-            print(f'magnetometer: {common.topics(args).mag} not fitted from a hand-held record (the IMU only)')
     for sensor in fitted.sensors:
+        if sensor in fitted.held:
+            continue
         result = results[sensor]
         calibration = result.calibration
         unit_name = common.UNITS[kind, sensor]
@@ -160,6 +173,18 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _source(args: argparse.Namespace, fitted) -> dict[str, str | int | float] | None:
+    """The calibration file's ``source``: the record's format, a flight log's instance and device IDs, its extremes."""
+    if fitted.input_kind is not InputKind.IMU:
+        return None
+    from tak_thermo_ros.formats.records import record_source
+    found = record_source(args.bag, topics=common.topics(args))
+    source: dict[str, str | int | float] = dict(found or {'format': 'bag'})
+    source['temperature_rate_max'] = round(float(fitted.temperature_rate_max), 9)
+    source['rate_max'] = round(float(fitted.rate_max), 9)
+    return source
+
+
 def _with_noise(args: argparse.Namespace, unit: UnitCalibration) -> tuple[UnitCalibration, str]:
     """The fitted unit with each sensor's noise model (``fit --noise / --noise-run / --noise-from-residual``)."""
     from tak_thermo_ros.noise_run import noise_models
@@ -169,7 +194,7 @@ def _with_noise(args: argparse.Namespace, unit: UnitCalibration) -> tuple[UnitCa
                          gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None))
     accel = replace(unit.accel, noise=found.models['accel'])
     gyro = replace(unit.gyro, noise=found.models['gyro']) if unit.gyro is not None else None
-    return UnitCalibration(unit.input_kind, accel, gyro, unit.mag), found.line
+    return UnitCalibration(unit.input_kind, accel, gyro, unit.mag, unit.source), found.line
 
 
 DEG = 180.0 / 3.141592653589793
@@ -212,9 +237,9 @@ def _print_magnetometer(fitted, args: argparse.Namespace) -> None:
         print(f'magnetometer: left out: {common.describe_dropped(thermal.dropped)}')
     print(f'magnetometer ({common.topics(args).mag}), {thermal.samples} samples:')
     for name, axis, stats in zip(AXES, link.axes, thermal.axes):
-        print(f'  {name}: residual RMS {stats.residual_rms * 1e6:.4g} uT; scale {axis.scale:.6g}'
-              f'{"" if axis.scale_observable else " (held)"}, offset {axis.offset * 1e6:.4g} uT, '
-              f'offset span {axis.offset_span * 1e6:.4g} uT')
+        print(f'  {name}: residual RMS {common.amount(stats.residual_rms, "T")}; scale {axis.scale:.6g}'
+              f'{"" if axis.scale_observable else " (held)"}, offset {common.amount(axis.offset, "T")}, '
+              f'offset span {common.amount(axis.offset_span, "T")}')
     common.print_effects(link, thermal, 'T')
     iron = fitted.iron
     mag = fitted.calibration

@@ -5,8 +5,11 @@ from __future__ import annotations
 import argparse
 
 from tak_thermo_ros.cli import common, options
+from tak_thermo_ros.formats.csv_log import MAG_UNITS
 from tak_thermo_ros.formats.files import BAG
+from tak_thermo_ros.core.records.static_run import STATIC_TOLERANCE_DEG
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
+import numpy as np
 
 NAME = 'import-csv'
 OUTPUTS = (('output', BAG, '-o'),)
@@ -15,12 +18,14 @@ OUTPUTS = (('output', BAG, '-o'),)
 
 def add_parser(commands) -> argparse.ArgumentParser:
     """Add the command to ``tak_calib``'s subcommands."""
-    parser = commands.add_parser('import-csv', help='convert a delimited log of a static thermal run into a bag')
+    parser = commands.add_parser('import-csv', help='convert a delimited log (a static thermal run, a driver log) '
+                                                    'into a bag')
     parser.add_argument('log', metavar='LOG.csv')
     parser.add_argument('-o', '--output', required=True, metavar='OUT_BAG')
     parser.add_argument('--acc-columns', nargs=3, required=True, metavar=('X', 'Y', 'Z'),
                         help='the acceleration columns along the sensor axes x, y, z')
-    parser.add_argument('--temp-column', required=True, help='the temperature column (degrees Celsius)')
+    parser.add_argument('--temp-column', help='the temperature column (degrees Celsius); optional with '
+                                              '--gyro-columns (a driver that logs none), and may be constant')
     parser.add_argument('--time-column', default='timestamp', help='the time column (default: timestamp)')
     parser.add_argument('--time-unit', choices=['s', 'ms', 'us', 'ns'], default='s',
                         help='unit of the time column (default s)')
@@ -46,6 +51,16 @@ def add_parser(commands) -> argparse.ArgumentParser:
                              '(Imu in m/s^2 and rad/s, temperature in C) instead of counts')
     parser.add_argument('--gyro-unit', choices=['rad/s', 'deg/s'], default='rad/s',
                         help='unit of the angular-rate columns (default rad/s)')
+    parser.add_argument('--gyro-file', metavar='GYRO.csv',
+                        help='the angular-rate columns are in this file, with its own time column (the gyroscope '
+                             'logged apart at its own rate; each sensor keeps its own stamps, nothing is resampled)')
+    parser.add_argument('--gyro-time-column', metavar='NAME',
+                        help="--gyro-file's time column (default: --time-column), in --time-unit")
+    parser.add_argument('--mag-columns', nargs=3, metavar=('X', 'Y', 'Z'),
+                        help='magnetic-field columns along the sensor axes (with --gyro-columns): written as '
+                             '/imu/mag in tesla at the same stamps')
+    parser.add_argument('--mag-unit', choices=list(MAG_UNITS), default='T',
+                        help='unit of the magnetic-field columns (1 gauss = 1e-4 T; default T)')
     parser.add_argument('--storage', choices=['mcap', 'sqlite3'], default='mcap')
     options.add_topic_options(parser)
     parser.set_defaults(handler=run)
@@ -62,7 +77,9 @@ def run(args: argparse.Namespace) -> int:
         temp_resolution=args.temp_resolution, gravity=args.gravity,
         reference=tuple(args.reference) if args.reference else None,
         delimiter=delimiter_from_option(args.delimiter) if args.delimiter else None, frame_id=args.frame_id,
-        gyro_columns=tuple(args.gyro_columns) if args.gyro_columns else None, gyro_unit=args.gyro_unit)
+        gyro_columns=tuple(args.gyro_columns) if args.gyro_columns else None, gyro_unit=args.gyro_unit,
+        gyro_file=args.gyro_file, gyro_time_column=args.gyro_time_column,
+        mag_columns=tuple(args.mag_columns) if args.mag_columns else None, mag_unit=args.mag_unit)
     log = read_csv_log(args.log, options)
     record = log.record
     topics = common.topics(args)
@@ -72,14 +89,22 @@ def run(args: argparse.Namespace) -> int:
         write_record(args.output, record, topics=topics, storage=args.storage, force=args.force)
     print(f'read {args.log}: {log.rows} rows ({log.delimiter_name}-delimited), {log.duration_s:.1f} s '
           f'at {(log.rows - 1) / max(log.duration_s, 1e-9):.3g} Hz')
+    if log.driver is not None and not log.driver.shared_stamps:
+        counts = {sensor: log.driver.sensor_stamps(sensor) for sensor in ('accel', 'gyro')}
+        print(f'each sensor on its own stamps, nothing resampled ({len(log.temperature)} temperatures):')
+        for sensor, stamps in counts.items():
+            print(f'  {common.SENSOR_NAMES[sensor]}: {len(stamps)} samples at '
+                  f'{(len(stamps) - 1) / max((stamps[-1] - stamps[0]) * 1e-9, 1e-9):.3g} Hz')
+    elif len(log.temperature) != log.rows or len(log.record.counts_stamp_ns) != log.rows:
+        print(f'rows without a sample left empty: {len(log.record.counts_stamp_ns)} acceleration, '
+              f'{len(log.temperature)} temperature samples')
     if log.driver is not None:
-        rate = log.driver.gyro
-        print(f'driver bag: acceleration {" ".join(options.acc_columns)} in {options.acc_unit} and angular rate '
-              f'{" ".join(options.gyro_columns)} in {options.gyro_unit} written as {topics.raw_imu} (m/s^2, rad/s: '
-              f'{rate.min():.4g}..{rate.max():.4g} rad/s), temperature {options.temp_column} as {topics.temperature} '
-              f'in degrees C ({log.temperature.min():.2f}..{log.temperature.max():.2f})')
+        _print_driver(log, options, topics)
         x, y, z = (float(v) for v in log.reference)
-        if log.reference_estimated:
+        if log.reference_estimated and log.max_tilt_deg > STATIC_TOLERANCE_DEG:
+            print(f'no reference topic written; the board moves (up to {log.max_tilt_deg:.0f} deg from its mean '
+                  f'direction)')
+        elif log.reference_estimated:
             print(f'no reference topic written: fit takes the run as static (mean direction scaled to gravity, '
                   f'here ({x:.4f}, {y:.4f}, {z:.4f}) m/s^2, largest deviation {log.max_tilt_deg:.2f} deg; rate zero)')
         else:
@@ -102,3 +127,23 @@ def run(args: argparse.Namespace) -> int:
         print(f'reference (given): ({x:.4f}, {y:.4f}, {z:.4f}) m/s^2 in the sensor frame, written once at the start')
     print(f'wrote {args.output} ({args.storage})')
     return 0
+
+
+def _print_driver(log, options, topics) -> None:
+    """What a driver bag holds: the Imu, the temperature (or none), the magnetometer."""
+    rate = log.driver.gyro
+    print(f'driver bag: acceleration {" ".join(options.acc_columns)} in {options.acc_unit} and angular rate '
+          f'{" ".join(options.gyro_columns)} in {options.gyro_unit} written as {topics.raw_imu} (m/s^2, rad/s: '
+          f'{rate.min():.4g}..{rate.max():.4g} rad/s)')
+    if not len(log.temperature):
+        print(f'no temperature column: no {topics.temperature} (noise and the iron need none)')
+    elif float(log.temperature.max() - log.temperature.min()) == 0.0:
+        print(f'temperature {options.temp_column} as {topics.temperature}: constant at '
+              f'{log.temperature[0]:.2f} C (no sweep)')
+    else:
+        print(f'temperature {options.temp_column} as {topics.temperature} in degrees C '
+              f'({log.temperature.min():.2f}..{log.temperature.max():.2f})')
+    if options.mag_columns:
+        field = np.linalg.norm(log.driver.mag, axis=1) * 1e6
+        print(f'magnetic field {" ".join(options.mag_columns)} in {options.mag_unit} as {topics.mag} in tesla '
+              f'(|B| {field.min():.4g}..{field.max():.4g} uT)')

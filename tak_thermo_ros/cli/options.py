@@ -48,6 +48,8 @@ Fewer cannot show an effect's shape against the noise.
 """
 MAX_SAMPLE_BUDGET = 10 ** 9
 """Most samples those options accept."""
+MAX_INSTANCE = 255
+"""Largest sensor instance of a flight log (PX4's ``multi_id`` and ArduPilot's ``I`` are one byte)."""
 
 
 def _float(text: str) -> float:
@@ -147,6 +149,9 @@ def add_topic_options(parser: argparse.ArgumentParser, *, imu: bool = False) -> 
                        help='true magnetic field along the sensor axes, tesla (Vector3Stamped; a coil)')
     group.add_argument('--reference-rate-topic', default='/tak/reference_rate',
                        help='true angular rate, rad/s (Vector3Stamped; driver bags)')
+    group.add_argument('--instance', type=int_within(0, MAX_INSTANCE), default=0, metavar='N',
+                       help='a flight log (PX4 ULog, ArduPilot .bin) in place of the bag: the sensor instance to read '
+                            '(default 0)')
     if imu:
         group.add_argument('--imu-topic', help='corrected output (Imu): default /tak/imu/data_raw with counts, '
                                                '/imu/data_compensated with a driver Imu')

@@ -13,14 +13,28 @@ from dataclasses import replace
 import numpy as np
 
 NAME = 'simulate'
-OUTPUTS = (('out_bag', BAG, 'OUT_BAG'),)
+FLIGHT_LOG_SUFFIXES = {'.ulg': 'ulog', '.bin': 'dataflash'}
+"""An output named so is a flight log (a powered board's record, ``powered:`` in the scenario), not a bag."""
+
+
+def output_kind(args: argparse.Namespace) -> str:
+    """A bag directory, or a file for a flight log (by the output's suffix)."""
+    from pathlib import Path
+    from tak_thermo_ros.formats.files import FILE
+    return FILE if Path(args.out_bag).suffix.lower() in FLIGHT_LOG_SUFFIXES else BAG
+
+
+OUTPUTS = (('out_bag', output_kind, 'OUT_BAG'),)
 """This command's outputs: ``(argument, kind, option)``, checked before any work is done."""
 
 
 def add_parser(commands) -> argparse.ArgumentParser:
     """Add the command to ``tak_calib``'s subcommands."""
-    parser = commands.add_parser('simulate', help='simulate a thermal-chamber run into a bag')
-    parser.add_argument('out_bag', metavar='OUT_BAG')
+    parser = commands.add_parser('simulate', help='simulate a thermal-chamber run into a bag, or a powered board '
+                                                  'into a flight log (OUT.ulg, OUT.bin)')
+    parser.add_argument('out_bag', metavar='OUT_BAG',
+                        help='a bag directory; or OUT.ulg (a PX4 ULog) / OUT.bin (an ArduPilot DataFlash log): a '
+                             "powered board (the scenario's powered: section)")
     parser.add_argument('--scenario', metavar='FILE.yaml',
                         help='scenario overrides, every key optional (README: The simulator)')
     parser.add_argument('--seed', type=options.seed, help='random seed, 0 .. 2**63-1 (overrides the scenario)')
@@ -32,6 +46,9 @@ def add_parser(commands) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Simulate a chamber run into a bag (the paper's counts, or a driver's Imu)."""
+    from pathlib import Path
+    if Path(args.out_bag).suffix.lower() in FLIGHT_LOG_SUFFIXES:
+        return _flight_log(args, FLIGHT_LOG_SUFFIXES[Path(args.out_bag).suffix.lower()])
     from tak_thermo_ros.formats.bag import write_driver_record, write_record
     scenario = load_scenario(args.scenario) if args.scenario else Scenario()
     if args.seed is not None:
@@ -47,10 +64,11 @@ def run(args: argparse.Namespace) -> int:
                             aux_types=aux_types)
         hours = ((driver.stamp_ns[-1] - driver.stamp_ns[0]) * 1e-9 if scenario.rotation or scenario.handheld
                  else scenario.duration_s()) / 3600.0
+        span = (f'temperature {driver.temperature.min():.2f}..{driver.temperature.max():.2f} C'
+                if len(driver.temperature) else 'no temperature published')
         print(f'wrote {args.out_bag}: {len(driver.stamp_ns)} Imu, {len(driver.temp_stamp_ns)} temperature, '
               f'{len(driver.reference_stamp_ns)} reference changes, {hours:.2f} h at '
-              f'{scenario.sample_rate_hz:g} Hz ({args.storage}); temperature '
-              f'{driver.temperature.min():.2f}..{driver.temperature.max():.2f} C')
+              f'{scenario.sample_rate_hz:g} Hz ({args.storage}); {span}')
         if scenario.handheld is not None:
             motion = scenario.handheld
             print(f'  hand-held: {len(run.trajectory.poses)} rests ({motion.pattern}), turns about a point '
@@ -67,4 +85,30 @@ def run(args: argparse.Namespace) -> int:
           f'{len(record.reference_stamp_ns)} reference changes, {scenario.duration_s() / 3600.0:.2f} h '
           f'at {scenario.sample_rate_hz:g} Hz ({args.storage}); temperature code '
           f'{record.temp_code.min():.0f}..{record.temp_code.max():.0f}')
+    return 0
+
+
+def _flight_log(args: argparse.Namespace, kind: str) -> int:
+    """A powered board (:mod:`tak_thermo_ros.core.simulation.powered`) as PX4 or ArduPilot logs it."""
+    from tak_thermo_ros.core.simulation.powered import simulate_powered
+    from tak_thermo_ros.formats.scenario import load_powered
+    run = load_powered(args.scenario)
+    if args.seed is not None:
+        run = replace(run, seed=args.seed)
+    if kind == 'dataflash':  # an IMU message holds both sensors: the gyroscope on the accelerometer's stamps
+        run = replace(run, gyro_rate_hz=run.accel_rate_hz, gyro_phase_s=0.0)
+    record = simulate_powered(run).record
+    if kind == 'ulog':
+        from tak_thermo_ros.formats.ulog import driver_topics, write_ulog
+        write_ulog(args.out_bag, driver_topics(record, instance=args.instance), info={'sys_name': 'PX4'})
+        what = (f'{len(record.accel)} sensor_accel ({run.accel_rate_hz:g} Hz), {len(record.gyro)} sensor_gyro '
+                f'({run.gyro_rate_hz:g} Hz)')
+    else:
+        from tak_thermo_ros.formats.dataflash import driver_messages, write_dataflash
+        write_dataflash(args.out_bag, driver_messages(record, instance=args.instance),
+                        parameters={'AHRS_ORIENTATION': 0})
+        what = f'{len(record.accel)} IMU messages ({run.accel_rate_hz:g} Hz)'
+    print(f'wrote {args.out_bag}: {what}, instance {args.instance}, {run.duration_s / 60.0:.0f} min')
+    print(f'temperature {record.temperature.min():.1f}..{record.temperature.max():.1f} C, the sensing elements '
+          f'{run.element_lag_s:g} s behind the thermometer')
     return 0

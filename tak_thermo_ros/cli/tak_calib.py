@@ -17,7 +17,7 @@ import sys
 import traceback
 from typing import Callable, Sequence
 
-from tak_thermo_ros.cli import apply, carrier, diagnose, fit, fit_fleet, import_csv, noise, simulate, validate
+from tak_thermo_ros.cli import apply, carrier, diagnose, export, fit, fit_fleet, import_csv, noise, simulate, validate
 from tak_thermo_ros.formats.files import check_output
 from tak_thermo_ros.errors import TakError
 
@@ -25,10 +25,10 @@ EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
 EXIT_TERMINATED = 143
 
-COMMANDS = (simulate, fit, apply, validate, import_csv, diagnose, noise)
+COMMANDS = (simulate, fit, apply, validate, import_csv, diagnose, noise, export)
 """The commands with a module of their own, in the order ``tak_calib --help`` lists them."""
 
-OUTPUTS: dict[str, tuple[tuple[str, str, str], ...]] = {
+OUTPUTS: dict[str, tuple[tuple[str, object, str], ...]] = {
     **{command.NAME: command.OUTPUTS for command in COMMANDS}, **carrier.OUTPUTS}
 """Each command's outputs: ``(argument, kind, option)``, checked before any work is done."""
 
@@ -66,7 +66,8 @@ def _check_outputs(args: argparse.Namespace) -> None:
     for name, kind, option in OUTPUTS.get(args.command, ()):
         path = getattr(args, name, None)
         if path is not None:
-            check_output(path, kind, force=args.force, option=option)
+            # a command whose output is a bag or a file by its name (simulate) says so per call
+            check_output(path, kind(args) if callable(kind) else kind, force=args.force, option=option)
 
 
 def _report(message: str, err: BaseException, debug: bool) -> None:

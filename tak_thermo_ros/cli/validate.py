@@ -13,6 +13,7 @@ from tak_thermo_ros.formats.files import FILE
 from tak_thermo_ros.formats.files import write_text_atomic
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import TakError
+from tak_thermo_ros.units import in_reader_unit, readables
 import numpy as np
 
 NAME = 'validate'
@@ -46,14 +47,39 @@ def run(args: argparse.Namespace) -> int:
 
     The bag is read block by block (bounded memory); the errors are accumulated as sums.
     """
+    from tak_thermo_ros.core.records.static_run import NotStatic
     from tak_thermo_ros.streaming import validate_bag
+    from tak_thermo_ros.streaming_mag import has_mag
     unit = load_unit(args.params)
-    run = validate_bag(args.bag, unit, common.stream_options(args), gravity=args.gravity,
-                       latitude=getattr(args, 'latitude', None), out_of_range=OutOfRange(args.out_of_range),
-                       expect_kind=lambda kind: common.check_kind(args, unit, kind))
-    if not hasattr(run, 'gravity'):
-        return _validate_handheld(args, run)
-    common.print_survey(run.survey, 'validate')
+    options = common.stream_options(args)
+    document = {'bag': str(args.bag), 'params': str(args.params), 'gravity': args.gravity}
+    try:
+        run = validate_bag(args.bag, unit, options, gravity=args.gravity,
+                           latitude=getattr(args, 'latitude', None), out_of_range=OutOfRange(args.out_of_range),
+                           expect_kind=lambda kind: common.check_kind(args, unit, kind))
+    except NotStatic:
+        # A record turned by hand has no reference for the accelerometer and gyroscope; its
+        # magnetometer is still checked (|B| in every orientation).
+        if unit.mag is None or not has_mag(args.bag, options.topics):
+            raise
+        print('accelerometer and gyroscope: not validated (the board moved, no reference)')
+        run = None
+    if run is not None:
+        common.print_survey(run.survey, 'validate')
+        if hasattr(run, 'gravity'):
+            _validate_imu(args, unit, run, document)
+        else:
+            _validate_handheld(args, run, document)
+    if unit.mag is not None and (run is None or run.input_kind is InputKind.IMU):
+        document.update(_validate_magnetometer(args, unit))
+    if args.json:
+        write_text_atomic(args.json, common.json_text(document, args.json))
+        print(f'wrote {args.json}')
+    return 0
+
+
+def _validate_imu(args: argparse.Namespace, unit: UnitCalibration, run, document: dict) -> None:
+    """``validate``'s |g| and rate error before and after the correction (into ``document``)."""
     result = run.gravity
     if not result.samples:
         left_out = f' (left out: {common.describe_dropped(run.accel_dropped)})' if run.accel_dropped else ''
@@ -76,9 +102,8 @@ def run(args: argparse.Namespace) -> int:
     # The corrected output is in SI units whatever the input kind: a file's model as it stands.
     given = common.given_noise_models(args, unit, InputKind.IMU, ('accel',) if unit.gyro is None else ('accel', 'gyro'))
     averaged = {'accel': _averaged_bias(result, given.get('accel'), 'accel', args.gravity)}
-    document = {'bag': str(args.bag), 'params': str(args.params), 'gravity': args.gravity,
-                'samples': result.samples, 'out_of_range': result.out_of_range,
-                'before': before.as_dict(), 'after': after.as_dict()}
+    document.update({'samples': result.samples, 'out_of_range': result.out_of_range,
+                     'before': before.as_dict(), 'after': after.as_dict()})
     if unit.gyro is not None and run.rate is not None:
         for line in run.reference_lines:
             if line.startswith('rate reference'):
@@ -88,8 +113,8 @@ def run(args: argparse.Namespace) -> int:
         print(f'gyroscope bias error over {rate.samples} samples (rate minus reference, per axis x y z):')
         for label, stats in (('before (nominal scale and offset):', rate_before),
                              ('after  (full correction link):', rate_after)):
-            print(f'  {label:<35}RMS ' + ' '.join(f'{v:.3e}' for v in stats.rms) + ' rad/s; mean '
-                  + ' '.join(f'{v:+.3e}' for v in stats.mean) + ' rad/s')
+            print(f'  {label:<35}RMS {readables(stats.rms, "rad/s")}; mean '
+                  + ' '.join(f'{in_reader_unit(v, "rad/s"):+.3g}' for v in stats.mean) + ' deg/h')
         document['gyro'] = {'samples': rate.samples, 'before': rate_before.as_dict(), 'after': rate_after.as_dict()}
         averaged['gyro'] = _averaged_bias(rate, given.get('gyro'), 'gyro', args.gravity)
     for sensor, found in averaged.items():
@@ -98,12 +123,6 @@ def run(args: argparse.Namespace) -> int:
         for line in found['lines']:
             print(line)
         (document['gyro'] if sensor == 'gyro' else document)['averaged_bias_error'] = found['document']
-    if unit.mag is not None and run.input_kind is InputKind.IMU:
-        document.update(_validate_magnetometer(args, unit))
-    if args.json:
-        write_text_atomic(args.json, common.json_text(document, args.json))
-        print(f'wrote {args.json}')
-    return 0
 
 
 def _validate_magnetometer(args: argparse.Namespace, unit: UnitCalibration) -> dict:
@@ -114,18 +133,24 @@ def _validate_magnetometer(args: argparse.Namespace, unit: UnitCalibration) -> d
         print(f'magnetometer: {args.bag} holds no messages on {options.topics.mag}; not validated')
         return {}
     result = validate_mag(args.bag, unit.mag, options, out_of_range=OutOfRange(args.out_of_range))
-    against = ('about the run\'s mean field (static run)' if result.reference == 'static'
-               else f'against {result.reference}')
-    print(f'magnetometer field error over {result.samples} samples, {against} (per axis x y z, |B|):')
+    rotation = result.reference == 'rotation'
+    if rotation:
+        print(f'magnetometer: a rotation record, {result.samples} samples: |B| about its mean (one in every '
+              f'orientation)')
+        print('magnetometer: its direction is not checked (that takes a reference field)')
+    else:
+        against = ('about the run\'s mean field (static run)' if result.reference == 'static'
+                   else f'against {result.reference}')
+        print(f'magnetometer field error over {result.samples} samples, {against} (per axis x y z, |B|):')
     for label, values in (('before (raw field):', result.before), ('after  (thermal link and iron):', result.after)):
-        print(f'  {label:<35}RMS ' + ' '.join(f'{v * 1e6:.3f}' for v in values[:3])
-              + f' uT; |B| {values[3] * 1e6:.3f} uT')
+        axes = '' if rotation else 'RMS ' + ' '.join(f'{v * 1e6:.3f}' for v in values[:3]) + ' uT; '
+        print(f'  {label:<35}{axes}|B| {values[3] * 1e6:.3f} uT')
     if result.out_of_range:
         print(f'warning: {result.out_of_range} magnetometer samples outside the calibrated temperature range '
               f'({args.out_of_range})')
-    return {'mag': {'samples': result.samples, 'reference': result.reference,
-                    'before_rms_t': list(result.before[:3]), 'before_magnitude_rms_t': result.before[3],
-                    'after_rms_t': list(result.after[:3]), 'after_magnitude_rms_t': result.after[3]}}
+    axes = {} if rotation else {'before_rms_t': list(result.before[:3]), 'after_rms_t': list(result.after[:3])}
+    return {'mag': {'samples': result.samples, 'reference': result.reference, **axes,
+                    'before_magnitude_rms_t': result.before[3], 'after_magnitude_rms_t': result.after[3]}}
 
 
 def _averaged_bias(check, noise, sensor: str, gravity: float) -> dict | None:
@@ -175,9 +200,8 @@ def _averaged_bias(check, noise, sensor: str, gravity: float) -> dict | None:
     return {'lines': lines, 'document': {'source': source if predicted is not None else None, 'taus': document}}
 
 
-def _validate_handheld(args: argparse.Namespace, run) -> int:
+def _validate_handheld(args: argparse.Namespace, run, document: dict) -> None:
     """``validate`` of a hand-held record: the rests' |g| and rate, the turns' closure, before and after."""
-    common.print_survey(run.survey, 'validate')
     before, after = run.before, run.after
     if not after.samples:
         msg = f'{args.bag}: no usable still samples to validate'
@@ -206,15 +230,11 @@ def _validate_handheld(args: argparse.Namespace, run) -> int:
               f'after (the noise alone {angles[2]:.3g} deg)')
     if after.out_of_range:
         print(f'warning: {after.out_of_range} samples outside the calibrated temperature range ({args.out_of_range})')
-    document = {'bag': str(args.bag), 'params': str(args.params), 'gravity': g, 'record': 'handheld',
-                'rests': len(after.gravity_error), 'samples': after.samples, 'out_of_range': after.out_of_range,
-                'before': {'gravity_rms': before.gravity_rms, 'rate_rms': [float(v) for v in before.rate_rms],
-                           'closure_rms_rad': before.closure.rms_rad},
-                'after': {'gravity_rms': after.gravity_rms, 'rate_rms': [float(v) for v in after.rate_rms],
-                          'closure_rms_rad': after.closure.rms_rad},
-                'floor': {'gravity_rms': after.gravity_floor, 'rate_rms': [float(v) for v in after.rate_floor],
-                          'closure_rms_rad': closure.floor_rad}}
-    if args.json:
-        write_text_atomic(args.json, common.json_text(document, args.json))
-        print(f'wrote {args.json}')
-    return 0
+    document.update({'record': 'handheld', 'rests': len(after.gravity_error), 'samples': after.samples,
+                     'out_of_range': after.out_of_range,
+                     'before': {'gravity_rms': before.gravity_rms, 'rate_rms': [float(v) for v in before.rate_rms],
+                                'closure_rms_rad': before.closure.rms_rad},
+                     'after': {'gravity_rms': after.gravity_rms, 'rate_rms': [float(v) for v in after.rate_rms],
+                               'closure_rms_rad': after.closure.rms_rad},
+                     'floor': {'gravity_rms': after.gravity_floor, 'rate_rms': [float(v) for v in after.rate_floor],
+                               'closure_rms_rad': closure.floor_rad}})

@@ -4,6 +4,11 @@
   module that imports rosbags;
 - :mod:`~tak_thermo_ros.formats.cdr`: the block decoder and encoder of CDR messages (numpy only);
 - :mod:`~tak_thermo_ros.formats.csv_log`: delimited logs;
+- :mod:`~tak_thermo_ros.formats.ulog`, :mod:`~tak_thermo_ros.formats.dataflash`: PX4 ULogs and ArduPilot
+  DataFlash logs (one :class:`~tak_thermo_ros.formats.flight_log.FlightLog`);
+- :mod:`~tak_thermo_ros.formats.px4_params`, :mod:`~tak_thermo_ros.formats.ardupilot_params`: the
+  firmwares' temperature parameters (:mod:`~tak_thermo_ros.formats.firmware`: what they carry);
+- :mod:`~tak_thermo_ros.formats.records`: every record read the same way (the passes' one door);
 - :mod:`~tak_thermo_ros.formats.calibration_file`: the calibration file (the node's parameters YAML)
   and its one parser;
 - :mod:`~tak_thermo_ros.formats.kalibr`: Kalibr-style imu.yaml noise files;

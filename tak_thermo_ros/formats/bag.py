@@ -93,6 +93,8 @@ class Topics:
     mag: str = '/imu/mag'
     reference_field: str = '/tak/reference_field'
     compensated_mag: str = '/imu/mag_compensated'
+    instance: int = 0
+    """A flight log's sensor instance (PX4 ``multi_id``, ArduPilot ``I``); a bag has none."""
 
 
 def bag_input_kind(path: str | os.PathLike[str], *, topics: Topics = Topics()) -> InputKind:
@@ -251,7 +253,7 @@ def read_record(path: str | os.PathLike[str], *, topics: Topics = Topics(),
 
 def read_driver_record(path: str | os.PathLike[str], *, topics: Topics = Topics(),
                        progress: bool = True, decoder: str = 'block') -> DriverRecord:
-    """Read a driver bag: the Imu, the temperature (degrees C) and the optional references.
+    """Read a driver bag: the Imu, the temperature (degrees C; optional) and the optional references.
 
     :param decoder: one of :data:`DECODERS`; both give the same arrays.
 
@@ -261,10 +263,10 @@ def read_driver_record(path: str | os.PathLike[str], *, topics: Topics = Topics(
     path = Path(path)
     with _reading(path, decoder) as reader:
         imu_topic = _TopicReader(reader, path, topics.raw_imu, IMU, required=True)
-        temp_topic = _TopicReader(reader, path, topics.temperature, TEMPERATURE, required=True)
+        temp_topic = _TopicReader(reader, path, topics.temperature, TEMPERATURE, required=False)
         reference_topic = _TopicReader(reader, path, topics.reference, VECTOR3_STAMPED, required=False)
         rate_topic = _TopicReader(reader, path, topics.reference_rate, VECTOR3_STAMPED, required=False)
-        for topic in (imu_topic, temp_topic):
+        for topic in (imu_topic,):
             if topic.count == 0:
                 msg = f'{path}: no messages on {topic.topic}'
                 raise BagError(msg)
@@ -276,11 +278,12 @@ def read_driver_record(path: str | os.PathLike[str], *, topics: Topics = Topics(
                                                           decoder=decoder)
             rate_stamp, rate, _ = _read_vectors(rate_topic, bar, path, check_frame=False, decoder=decoder)
         aux = read_aux_signals(reader, path, exclude=(topics.temperature,))
-    stamps, accel, gyro, orientation, orientation_covariance, frame_id = imu
-    return DriverRecord(stamp_ns=stamps, accel=accel, gyro=gyro, orientation=orientation,
+    stamps, accel, gyro, orientation, orientation_covariance, frame_id, accel_mark, gyro_mark = imu
+    return DriverRecord(stamp_ns=stamps, orientation=orientation,
                         orientation_covariance=orientation_covariance, temp_stamp_ns=temp_stamp,
                         temperature=temperature, reference_stamp_ns=reference_stamp, reference=reference,
-                        rate_reference_stamp_ns=rate_stamp, rate_reference=rate, frame_id=frame_id, aux=aux)
+                        rate_reference_stamp_ns=rate_stamp, rate_reference=rate, frame_id=frame_id, aux=aux,
+                        **driver_sensors(stamps, accel, gyro, accel_mark, gyro_mark))
 
 
 def read_aux_signals(reader: Reader, path: Path, *,
@@ -351,6 +354,8 @@ def _read_imu_messages(topic: _TopicReader, bar: Progress, path: Path, *, decode
     gyro = np.empty((count, 3))
     orientation = np.empty((count, 4))
     orientation_covariance = np.empty((count, 9))
+    accel_mark = np.empty(count)
+    gyro_mark = np.empty(count)
     frame_id = ''
     filled = 0
     if decoder == 'block':
@@ -362,6 +367,8 @@ def _read_imu_messages(topic: _TopicReader, bar: Progress, path: Path, *, decode
             gyro[rows] = arrays['angular_velocity']
             orientation[rows] = arrays['orientation']
             orientation_covariance[rows] = arrays['orientation_covariance']
+            accel_mark[rows] = np.asarray(arrays['linear_acceleration_covariance']).reshape(-1, 9)[:, 0]
+            gyro_mark[rows] = np.asarray(arrays['angular_velocity_covariance']).reshape(-1, 9)[:, 0]
             filled = rows.stop
     else:
         for filled, message in enumerate(topic.messages(bar), start=1):
@@ -375,6 +382,8 @@ def _read_imu_messages(topic: _TopicReader, bar: Progress, path: Path, *, decode
             gyro[row] = (rate.x, rate.y, rate.z)
             orientation[row] = (quaternion.x, quaternion.y, quaternion.z, quaternion.w)
             orientation_covariance[row] = message.orientation_covariance
+            accel_mark[row] = message.linear_acceleration_covariance[0]
+            gyro_mark[row] = message.angular_velocity_covariance[0]
             if row == 0:
                 frame_id = header.frame_id
             elif header.frame_id != frame_id:
@@ -384,7 +393,7 @@ def _read_imu_messages(topic: _TopicReader, bar: Progress, path: Path, *, decode
     if filled != count:
         msg = f'{path}: {topic.topic} holds {filled} of the {count} messages its index lists (truncated bag?)'
         raise BagError(msg)
-    return stamps, accel, gyro, orientation, orientation_covariance, frame_id
+    return stamps, accel, gyro, orientation, orientation_covariance, frame_id, accel_mark, gyro_mark
 
 
 def _nominal_scale(reader: Reader, path: Path) -> tuple[float, float, float] | None:
@@ -624,18 +633,22 @@ def write_driver_record(path: str | os.PathLike[str], record: DriverRecord, *, t
     """
     serialize = TYPESTORE.serialize_cdr
     aux_streams = list(record.aux.items())
+    messages = imu_messages(record)
     # streams 0 temperature, 1 reference, 2 rate reference, then the auxiliary signals, then the Imu,
     # then the magnetometer and its reference field
     events = _merged_order((record.temp_stamp_ns, record.reference_stamp_ns, record.rate_reference_stamp_ns,
-                            *(stamps for _, (stamps, _) in aux_streams), record.stamp_ns,
+                            *(stamps for _, (stamps, _) in aux_streams), messages.stamp_ns,
                             record.mag_stamp_ns, record.mag_reference_stamp_ns))
     imu_stream = 3 + len(aux_streams)
     mag_stream, field_stream = imu_stream + 1, imu_stream + 2
     zero_covariance = np.zeros(9)
+    absent = np.array([NOT_PROVIDED, *[0.0] * 8])
+    identity = np.array([0.0, 0.0, 0.0, 1.0])
     with _AtomicBag(path, storage, force=force) as writer:
         aux_writes = _aux_writers(writer, aux_streams, aux_types, record.frame_id)
         imu_conn = writer.add_connection(topics.raw_imu, IMU, typestore=TYPESTORE)
-        temp_conn = writer.add_connection(topics.temperature, TEMPERATURE, typestore=TYPESTORE)
+        temp_conn = (writer.add_connection(topics.temperature, TEMPERATURE, typestore=TYPESTORE)
+                     if len(record.temp_stamp_ns) else None)
         reference_conn = (writer.add_connection(topics.reference, VECTOR3_STAMPED, typestore=TYPESTORE)
                           if len(record.reference_stamp_ns) else None)
         rate_conn = (writer.add_connection(topics.reference_rate, VECTOR3_STAMPED, typestore=TYPESTORE)
@@ -668,16 +681,58 @@ def write_driver_record(path: str | os.PathLike[str], record: DriverRecord, *, t
             elif stream != imu_stream:
                 aux_writes[stream - 3](stamp, row)
             else:
-                qx, qy, qz, qw = (float(v) for v in record.orientation[row])
-                ax, ay, az = (float(v) for v in record.accel[row])
-                gx, gy, gz = (float(v) for v in record.gyro[row])
+                message_row, accel_row, gyro_row = (int(messages.message_row[row]), int(messages.accel_row[row]),
+                                                    int(messages.gyro_row[row]))
+                quaternion = record.orientation[message_row] if message_row >= 0 else identity
+                qx, qy, qz, qw = (float(v) for v in quaternion)
+                ax, ay, az = (float(v) for v in record.accel[accel_row]) if accel_row >= 0 else (0.0, 0.0, 0.0)
+                gx, gy, gz = (float(v) for v in record.gyro[gyro_row]) if gyro_row >= 0 else (0.0, 0.0, 0.0)
                 message = _Imu(header=header, orientation=_Quaternion(x=qx, y=qy, z=qz, w=qw),
-                               orientation_covariance=np.asarray(record.orientation_covariance[row], dtype=float),
+                               orientation_covariance=(
+                                   np.asarray(record.orientation_covariance[message_row], dtype=float)
+                                   if message_row >= 0 else absent),
                                angular_velocity=_Vector3(x=gx, y=gy, z=gz),
-                               angular_velocity_covariance=zero_covariance,
+                               angular_velocity_covariance=zero_covariance if gyro_row >= 0 else absent,
                                linear_acceleration=_Vector3(x=ax, y=ay, z=az),
-                               linear_acceleration_covariance=zero_covariance)
+                               linear_acceleration_covariance=zero_covariance if accel_row >= 0 else absent)
                 writer.write(imu_conn, stamp, serialize(message, IMU))
+
+
+@dataclass(frozen=True)
+class ImuRows:
+    """The Imu messages a driver record is written as: per message its stamp and the rows it carries.
+
+    ``message_row`` is the record's message (orientation) at that stamp, ``accel_row`` and
+    ``gyro_row`` the sensors' samples; ``-1`` where there is none (a sensor absent: its
+    covariance[0] = -1).
+    """
+
+    stamp_ns: np.ndarray
+    message_row: np.ndarray
+    accel_row: np.ndarray
+    gyro_row: np.ndarray
+
+
+def rows_at(source_stamp_ns: np.ndarray, target_stamp_ns: np.ndarray) -> np.ndarray:
+    """Per target stamp, the last source row with exactly that stamp, ``-1`` where none."""
+    from tak_thermo_ros.core.records.record import hold_last_index
+    source = np.asarray(source_stamp_ns, dtype=np.int64)
+    held = hold_last_index(source, np.asarray(target_stamp_ns, dtype=np.int64))
+    equal = (held >= 0) & (source[np.maximum(held, 0)] == target_stamp_ns) if len(source) else held >= 0
+    return np.where(equal, held, -1)
+
+
+def imu_messages(record: DriverRecord) -> ImuRows:
+    """The Imu messages of a driver record: one per message when the sensors share them.
+
+    Otherwise the sensors' samples paired by stamp (:func:`~tak_thermo_ros.core.records.record.sensor_messages`).
+    """
+    if record.shared_stamps:
+        rows = np.arange(len(record.stamp_ns))
+        return ImuRows(np.asarray(record.stamp_ns, dtype=np.int64), rows, rows, rows)
+    from tak_thermo_ros.core.records.record import sensor_messages
+    paired = sensor_messages(record.sensor_stamps('accel'), record.sensor_stamps('gyro'))
+    return ImuRows(paired.stamp_ns, rows_at(record.stamp_ns, paired.stamp_ns), paired.accel_row, paired.gyro_row)
 
 
 def _aux_writers(writer: Writer, aux_streams: list, aux_types: dict[str, str] | None, frame_id: str) -> list:
@@ -795,7 +850,7 @@ class BagStreams:
 
     :param kind: the paper's counts topic, or a driver's Imu.
     :param main: messages on the counts (or Imu) topic.
-    :param temperature: messages on the temperature topic.
+    :param temperature: messages on the temperature topic (a driver bag may hold none: 0).
     :param reference: messages on the specific-force reference topic (0 when absent).
     :param rate_reference: messages on the rate reference topic (driver bags; 0 when absent).
     :param nominal_scale: the bag metadata's nominal K0 (counts bags), or ``None``.
@@ -833,8 +888,11 @@ def bag_streams(path: str | os.PathLike[str], *, topics: Topics = Topics(),
                 require_reference: bool = False) -> BagStreams:
     """The kind and message counts of a bag, its topics' types checked, without reading messages.
 
-    :raises BagError: missing bag or topic, wrong type, an empty main, temperature or (when
-        required) reference topic.
+    A driver bag's temperature is optional (a driver that publishes none): its count is then 0,
+    and each pass decides whether it needs one.
+
+    :raises BagError: missing bag or topic, wrong type, an empty main, counts temperature-code or
+        (when required) reference topic.
     """
     path = Path(path)
     kind = bag_input_kind(path, topics=topics)
@@ -842,7 +900,8 @@ def bag_streams(path: str | os.PathLike[str], *, topics: Topics = Topics(),
         with Reader(path) as reader:
             counts = {}
             for role, topic, msgtype in _stream_topics(kind, topics):
-                required = role in ('main', 'temperature') or (role == 'reference' and require_reference)
+                required = (role == 'main' or (role == 'temperature' and kind is InputKind.COUNTS)
+                            or (role == 'reference' and require_reference))
                 stream = _TopicReader(reader, path, topic, msgtype, required=required)
                 if required and stream.count == 0:
                     msg = f'{path}: no messages on {topic}'
@@ -884,8 +943,13 @@ def decode_temperatures(raws: list[bytes]) -> tuple[np.ndarray, np.ndarray]:
     return np.array(stamps, dtype=np.int64), np.array(values, dtype=float)
 
 
-def decode_imus(raws: list[bytes]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[str]]:
-    """Stamps, accel ``(k, 3)``, gyro ``(k, 3)``, orientation ``(k, 4)``, its covariance ``(k, 9)``, frame ids."""
+def decode_imus(raws: list[bytes]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[str],
+                                            np.ndarray, np.ndarray]:
+    """Stamps, accel ``(k, 3)``, gyro ``(k, 3)``, orientation ``(k, 4)``, its covariance ``(k, 9)``, frame ids.
+
+    Then the first element of the linear-acceleration and angular-velocity covariances, ``(k,)``
+    each: -1 marks a message that carries no such sample (:func:`driver_sensors`).
+    """
     deserialize = TYPESTORE.deserialize_cdr
     count = len(raws)
     stamps = np.empty(count, dtype=np.int64)
@@ -893,6 +957,8 @@ def decode_imus(raws: list[bytes]) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     gyro = np.empty((count, 3))
     orientation = np.empty((count, 4))
     covariance = np.empty((count, 9))
+    accel_mark = np.empty(count)
+    gyro_mark = np.empty(count)
     frames = []
     for row, raw in enumerate(raws):
         message = deserialize(raw, IMU)
@@ -903,8 +969,31 @@ def decode_imus(raws: list[bytes]) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
         gyro[row] = (rate.x, rate.y, rate.z)
         orientation[row] = (quaternion.x, quaternion.y, quaternion.z, quaternion.w)
         covariance[row] = message.orientation_covariance
+        accel_mark[row] = message.linear_acceleration_covariance[0]
+        gyro_mark[row] = message.angular_velocity_covariance[0]
         frames.append(header.frame_id)
-    return stamps, accel, gyro, orientation, covariance, frames
+    return stamps, accel, gyro, orientation, covariance, frames, accel_mark, gyro_mark
+
+
+NOT_PROVIDED = -1.0
+"""``covariance[0]`` of a quantity an Imu message does not carry (``sensor_msgs/msg/Imu``)."""
+
+
+def driver_sensors(stamps: np.ndarray, accel: np.ndarray, gyro: np.ndarray, accel_mark: np.ndarray,
+                   gyro_mark: np.ndarray) -> dict[str, Any]:
+    """A driver record's sensor fields from Imu messages, each sensor on its own stamps where they differ.
+
+    A message whose linear-acceleration (angular-velocity) covariance[0] is -1 carries no
+    accelerometer (gyroscope) sample: that sensor has its own stamps then, the messages that
+    carry it (``DriverRecord.accel_stamp_ns``, ``gyro_stamp_ns``). Where every message carries
+    both, both share the messages' stamps.
+    """
+    accel_present = np.asarray(accel_mark) != NOT_PROVIDED
+    gyro_present = np.asarray(gyro_mark) != NOT_PROVIDED
+    if accel_present.all() and gyro_present.all():
+        return {'accel': accel, 'gyro': gyro}
+    return {'accel': accel[accel_present], 'gyro': gyro[gyro_present],
+            'accel_stamp_ns': stamps[accel_present], 'gyro_stamp_ns': stamps[gyro_present]}
 
 
 class _FrameCheck:
@@ -1061,7 +1150,7 @@ def _decode_block(path: Path, kind: InputKind, raws: dict[str, list[bytes]], bag
                              reference_stamp_ns=reference_stamp, reference=reference,
                              frame_id=frames.check(frame_ids), nominal_scale=nominal_scale, aux=aux)
     if decoder == 'rosbags' or not raws['main']:
-        stamps, accel, gyro, orientation, covariance, frame_ids = decode_imus(raws['main'])
+        stamps, accel, gyro, orientation, covariance, frame_ids, accel_mark, gyro_mark = decode_imus(raws['main'])
     else:
         arrays = _block_arrays(path, raws['main'], IMU, names['main'])
         stamps = np.asarray(arrays['stamp_ns'], dtype=np.int64)
@@ -1069,18 +1158,21 @@ def _decode_block(path: Path, kind: InputKind, raws: dict[str, list[bytes]], bag
         gyro = np.asarray(arrays['angular_velocity'], dtype=float)
         orientation = np.asarray(arrays['orientation'], dtype=float)
         covariance = np.asarray(arrays['orientation_covariance'], dtype=float)
+        accel_mark = np.asarray(arrays['linear_acceleration_covariance'], dtype=float).reshape(-1, 9)[:, 0]
+        gyro_mark = np.asarray(arrays['angular_velocity_covariance'], dtype=float).reshape(-1, 9)[:, 0]
         frame_ids = arrays
     rate_stamp, rate, _ = _decode_vectors(path, raws.get('rate_reference', []), names.get('rate_reference', ''),
                                           decoder)
     mag_stamp, mag, mag_frame = _decode_mag(path, raws.get('mag', []), names.get('mag', ''), decoder, mag_frames)
     field_stamp, field, _ = _decode_vectors(path, raws.get('mag_reference', []), names.get('mag_reference', ''),
                                             decoder)
-    return DriverRecord(stamp_ns=stamps, accel=accel, gyro=gyro, orientation=orientation,
-                        orientation_covariance=covariance, temp_stamp_ns=temp_stamp, temperature=temperature,
+    return DriverRecord(stamp_ns=stamps, orientation=orientation, orientation_covariance=covariance,
+                        temp_stamp_ns=temp_stamp, temperature=temperature,
                         reference_stamp_ns=reference_stamp, reference=reference,
                         rate_reference_stamp_ns=rate_stamp, rate_reference=rate, frame_id=frames.check(frame_ids),
                         aux=aux, mag_stamp_ns=mag_stamp, mag=mag, mag_reference_stamp_ns=field_stamp,
-                        mag_reference=field, mag_frame_id=mag_frame)
+                        mag_reference=field, mag_frame_id=mag_frame,
+                        **driver_sensors(stamps, accel, gyro, accel_mark, gyro_mark))
 
 
 def decode_magnetic_fields(raws: list[bytes]) -> tuple[np.ndarray, np.ndarray, list[str]]:
@@ -1160,21 +1252,31 @@ class ImuBagWriter:
     def write(self, stamp_ns: np.ndarray, frame_id: str, acceleration: np.ndarray,
               variance: tuple[float, float, float], *, angular_velocity: np.ndarray | None = None,
               angular_variance: tuple[float, float, float] | None = None, orientation: np.ndarray | None = None,
-              orientation_covariance: np.ndarray | None = None) -> None:
+              orientation_covariance: np.ndarray | None = None, accel_present: np.ndarray | None = None,
+              gyro_present: np.ndarray | None = None) -> None:
         """Append one block of corrected samples (see :func:`write_imu`)."""
         assert self._writer is not None, 'ImuBagWriter.write outside its with block'
         _write_imu_messages(self._writer, self._connection, stamp_ns, frame_id, acceleration, variance,
                             angular_velocity=angular_velocity, angular_variance=angular_variance,
                             orientation=orientation, orientation_covariance=orientation_covariance,
-                            encoder=self._encoder)
+                            encoder=self._encoder, accel_present=accel_present, gyro_present=gyro_present)
         self.written += len(stamp_ns)
 
 
 def _write_imu_messages(writer: Writer, connection, stamp_ns: np.ndarray, frame_id: str, acceleration: np.ndarray,
                         variance: tuple[float, float, float], *, angular_velocity: np.ndarray | None,
                         angular_variance: tuple[float, float, float] | None, orientation: np.ndarray | None,
-                        orientation_covariance: np.ndarray | None, encoder: str = 'block') -> None:
+                        orientation_covariance: np.ndarray | None, encoder: str = 'block',
+                        accel_present: np.ndarray | None = None, gyro_present: np.ndarray | None = None) -> None:
     orientation_cov, angular_cov, linear_cov = (np.array(c) for c in imu_covariances(variance, angular_variance))
+    # a message without one sensor's sample: zeros, its covariance[0] = -1 (not provided)
+    absent = np.array([NOT_PROVIDED, *[0.0] * 8])
+    if accel_present is not None and not np.all(accel_present):
+        acceleration = np.where(accel_present[:, None], acceleration, 0.0)
+        linear_cov = np.where(accel_present[:, None], linear_cov, absent)
+    if gyro_present is not None and not np.all(gyro_present) and angular_velocity is not None:
+        angular_velocity = np.where(gyro_present[:, None], angular_velocity, 0.0)
+        angular_cov = np.where(gyro_present[:, None], angular_cov, absent)
     if encoder == 'block':
         raws = encode_imus(stamp_ns, frame_id,
                            orientation=(0.0, 0.0, 0.0, 1.0) if orientation is None else orientation,
@@ -1203,7 +1305,7 @@ def _write_imu_messages(writer: Writer, connection, stamp_ns: np.ndarray, frame_
             covariance = np.asarray(orientation_covariance[row], dtype=float)
         message = _Imu(header=_header(stamp, frame_id), orientation=quaternion,
                        orientation_covariance=covariance, angular_velocity=rate,
-                       angular_velocity_covariance=angular_cov,
+                       angular_velocity_covariance=angular_cov if angular_cov.ndim == 1 else angular_cov[row],
                        linear_acceleration=_Vector3(x=x, y=y, z=z),
-                       linear_acceleration_covariance=linear_cov)
+                       linear_acceleration_covariance=linear_cov if linear_cov.ndim == 1 else linear_cov[row])
         writer.write(connection, stamp, serialize(message, IMU))

@@ -64,6 +64,10 @@ from tak_thermo_ros.core.link.model import (
     AxisModel,
     Calibration,
     MAG_SENSOR,
+    SOURCE_KEYS,
+    THERMAL_FITTED,
+    THERMAL_NONE,
+    THERMAL_STATES,
     InputKind,
     MagnetometerCalibration,
     UnitCalibration,
@@ -288,16 +292,25 @@ def _link_from_mapping(raw: Any, key: str, input_kind: InputKind, *, extra_keys:
     if not isinstance(raw, Mapping):
         msg = f'{key}: expected a mapping'
         raise CalibrationError(msg)
-    for name in (*range_keys, *AXES):
+    thermal = raw.get('thermal', THERMAL_FITTED)
+    if thermal not in THERMAL_STATES:
+        msg = f'{key}.thermal: expected one of {", ".join(THERMAL_STATES)}, got {thermal!r}'
+        raise CalibrationError(msg)
+    # A link without any temperature (thermal: none) has no temperatures to state.
+    needed = AXES if thermal == THERMAL_NONE else (*range_keys, *AXES)
+    for name in needed:
         if name not in raw:
             msg = f'{key}.{name}: missing'
             raise CalibrationError(msg)
-    unknown = sorted(str(name) for name in set(raw) - {*range_keys, *AXES, 'notes', 'effects', 'noise', *extra_keys})
+    allowed = {*needed, 'thermal', 'notes', 'effects', 'noise', *extra_keys}
+    unknown = sorted(str(name) for name in set(raw) - allowed)
     if unknown:
-        msg = f'{key}.{unknown[0]}: unknown key'
+        why = ' (thermal: none holds no temperatures)' if unknown[0] in range_keys else ''
+        msg = f'{key}.{unknown[0]}: unknown key{why}'
         raise CalibrationError(msg)
-    ref, low, high = (finite_number(raw[name], f'{key}.{name}') for name in range_keys)
-    if low >= high:
+    ref, low, high = ((finite_number(raw[name], f'{key}.{name}') for name in range_keys)
+                      if thermal != THERMAL_NONE else (0.0, 0.0, 0.0))
+    if low >= high and thermal == THERMAL_FITTED or low > high:
         msg = f'{key}.{range_keys[1]}: must be below {range_keys[2]}, got {low} >= {high}'
         raise CalibrationError(msg)
     notes = raw.get('notes', [])
@@ -308,9 +321,12 @@ def _link_from_mapping(raw: Any, key: str, input_kind: InputKind, *, extra_keys:
     axes = tuple(_axis_from_mapping(raw[name], f'{key}.{name}') for name in AXES)
     effects = effects_from_mapping(raw['effects'], key=f'{key}.effects') if 'effects' in raw else ()
     noise = _noise_from_mapping(raw['noise'], f'{key}.noise') if 'noise' in raw else None
-    calibration = Calibration(temp_code_ref=ref, temp_code_min=low, temp_code_max=high,
-                              axes=axes, version=CALIBRATION_VERSION,  # type: ignore[arg-type]
-                              notes=tuple(notes), effects=effects, noise=noise)
+    try:
+        calibration = Calibration(temp_code_ref=ref, temp_code_min=low, temp_code_max=high,
+                                  axes=axes, version=CALIBRATION_VERSION,  # type: ignore[arg-type]
+                                  notes=tuple(notes), effects=effects, noise=noise, thermal=thermal)
+    except CalibrationError as err:
+        raise CalibrationError(f'{key}.{str(err).removeprefix("calibration.")}') from None
     _check_limits(calibration, limits, key)
     check_scale_positive(calibration, key=key)
     return calibration
@@ -318,11 +334,13 @@ def _link_from_mapping(raw: Any, key: str, input_kind: InputKind, *, extra_keys:
 
 def _link_to_mapping(calibration: Calibration, input_kind: InputKind) -> dict[str, Any]:
     stem = LIMITS[input_kind].temperature_name
-    mapping: dict[str, Any] = {
-        f'{stem}_ref': float(calibration.temp_code_ref),
-        f'{stem}_min': float(calibration.temp_code_min),
-        f'{stem}_max': float(calibration.temp_code_max),
-    }
+    mapping: dict[str, Any] = {}
+    if calibration.thermal != THERMAL_FITTED:
+        mapping['thermal'] = calibration.thermal
+    if calibration.thermal != THERMAL_NONE:
+        mapping.update({f'{stem}_ref': float(calibration.temp_code_ref),
+                        f'{stem}_min': float(calibration.temp_code_min),
+                        f'{stem}_max': float(calibration.temp_code_max)})
     if calibration.notes:
         mapping['notes'] = list(calibration.notes)
     for name, axis in zip(AXES, calibration.axes):
@@ -391,7 +409,8 @@ def unit_from_mapping(raw: Any, *, key: str = 'calibration') -> UnitCalibration:
     - version 2 (``input: imu``, a driver's Imu and a temperature in degrees C): ``accel`` and
       ``gyro``, each with ``temperature_ref/min/max``, ``x``, ``y``, ``z``, optional ``notes``
       and ``effects``; optional ``mag`` (the magnetometer, tesla): the same keys plus
-      ``hard_iron`` (3) and ``soft_iron`` (9, row-major, symmetric).
+      ``hard_iron`` (3) and ``soft_iron`` (9, row-major, symmetric); optional ``source`` (what
+      the record was, for an export: :data:`~tak_thermo_ros.core.link.model.SOURCE_KEYS`).
 
     :raises CalibrationError: naming the first wrong key.
     """
@@ -401,7 +420,7 @@ def unit_from_mapping(raw: Any, *, key: str = 'calibration') -> UnitCalibration:
     if _version(raw, key) == CALIBRATION_VERSION:
         return UnitCalibration(InputKind.COUNTS, _link_from_mapping(raw, key, InputKind.COUNTS,
                                                                     extra_keys=('version',)))
-    unknown = sorted(str(name) for name in set(raw) - {'version', 'input', *SENSORS, MAG_SENSOR})
+    unknown = sorted(str(name) for name in set(raw) - {'version', 'input', 'source', *SENSORS, MAG_SENSOR})
     if unknown:
         msg = f'{key}.{unknown[0]}: unknown key'
         raise CalibrationError(msg)
@@ -416,7 +435,38 @@ def unit_from_mapping(raw: Any, *, key: str = 'calibration') -> UnitCalibration:
     accel, gyro = (_link_from_mapping(raw[sensor], f'{key}.{sensor}', InputKind.IMU, extra_keys=())
                    for sensor in SENSORS)
     mag = _mag_from_mapping(raw[MAG_SENSOR], f'{key}.{MAG_SENSOR}') if MAG_SENSOR in raw else None
-    return UnitCalibration(InputKind.IMU, accel, gyro, mag)
+    source = _source_from_mapping(raw['source'], f'{key}.source') if 'source' in raw else None
+    return UnitCalibration(InputKind.IMU, accel, gyro, mag, source)
+
+
+def _source_from_mapping(raw: Any, key: str) -> dict[str, str | int | float]:
+    """The optional ``source`` section (:data:`~tak_thermo_ros.core.link.model.SOURCE_KEYS`)."""
+    if not isinstance(raw, Mapping):
+        msg = f'{key}: expected a mapping of {", ".join(SOURCE_KEYS)}'
+        raise CalibrationError(msg)
+    source: dict[str, str | int | float] = {}
+    for name, value in raw.items():
+        kind = SOURCE_KEYS.get(str(name))
+        if kind is None:
+            msg = f'{key}.{name}: unknown key'
+            raise CalibrationError(msg)
+        if kind is str:
+            if not isinstance(value, str):
+                msg = f'{key}.{name}: expected a string, got {value!r}'
+                raise CalibrationError(msg)
+            source[str(name)] = value
+        elif kind is int:
+            if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < 2 ** 32:
+                msg = f'{key}.{name}: expected a whole number 0..2**32-1, got {value!r}'
+                raise CalibrationError(msg)
+            source[str(name)] = int(value)
+        else:
+            number = finite_number(value, f'{key}.{name}')
+            if number < 0.0:
+                msg = f'{key}.{name}: must be >= 0, got {number}'
+                raise CalibrationError(msg)
+            source[str(name)] = number
+    return source
 
 
 MAG_IRON_KEYS = ('hard_iron', 'soft_iron')
@@ -472,6 +522,8 @@ def unit_to_mapping(unit: UnitCalibration) -> dict[str, Any]:
         mapping[MAG_SENSOR] = {**_link_to_mapping(unit.mag.thermal, unit.input_kind),
                                'hard_iron': [float(v) for v in unit.mag.hard_iron],
                                'soft_iron': [float(v) for v in unit.mag.soft_iron]}
+    if unit.source:
+        mapping['source'] = dict(unit.source)
     return mapping
 
 

@@ -1,4 +1,4 @@
-"""Import a delimited (CSV/TSV) log of a static thermal run into the bag contract.
+"""Import a delimited (CSV/TSV) log into the bag contract: a static thermal run, or a driver's log.
 
 Most users calibrate the way PX4 and ArduPilot do: the board lies still in one orientation and
 the temperature is swept; the log comes as a delimited text file with a time column, three
@@ -22,6 +22,12 @@ Units and rounding
   count as saturated): a value beyond it is an error naming the column and the row.
 - Temperature: the column in degrees Celsius becomes the sensor code
   ``N_t = round(T / temp_resolution)``, ``temp_resolution`` in degrees per code.
+- A driver's log (gyroscope columns): the values as logged, in SI units; the temperature column
+  is optional (a driver that logs none: no temperature topic) and may be constant (a noise run);
+  magnetometer columns (``mag_columns``, in ``mag_unit``) become ``/imu/mag`` in tesla (at
+  their own stamps where their cells are empty in other rows). No reference is written unless
+  given, and the board may move (a unit turned by hand): ``fit`` decides what the record
+  determines.
 - Reference (the true specific force, m/s^2, sensor frame): the run is static, so it is one
   constant vector, written once at the first stamp. Unless given explicitly, it is estimated
   as the mean measured direction scaled to local gravity,
@@ -65,6 +71,12 @@ CHUNK_ROWS = 65_536
 """Rows converted to arrays at a time: the text of a large log is never held as Python objects."""
 GYRO_UNITS = {'rad/s': 1.0, 'deg/s': math.pi / 180.0}
 """Angular-rate units of a log and their factor to rad/s."""
+MAG_UNITS = {'T': 1.0, 'uT': 1e-6, 'mT': 1e-3, 'gauss': 1e-4, 'mG': 1e-7}
+"""Magnetic-field units of a log and their factor to tesla."""
+FIELD_RANGE_T = (2e-6, 1e-3)
+"""Median ``|B|`` magnetometer columns may give, tesla: the Earth's field is 22-67 uT; below 2 uT
+or above 1 mT (beyond a magnetometer's range) the unit is wrong (gauss read as microtesla,
+microtesla as gauss)."""
 
 _DELIMITER_NAMES = {'\t': 'tab', ',': 'comma', ';': 'semicolon', ' ': 'space', '|': 'pipe'}
 
@@ -89,10 +101,18 @@ class CsvImportOptions:
         driver bag (``sensor_msgs/msg/Imu`` in SI units and the temperature in degrees C, no
         rounding to codes) instead of the paper's counts.
     :param gyro_unit: unit of the angular-rate columns, one of :data:`GYRO_UNITS`.
+    :param gyro_file: a second file that holds the angular-rate columns with its own time
+        column (the gyroscope logged apart at its own rate), or ``None``: they are in the log.
+    :param gyro_time_column: that file's time column (default: ``time_column``), in ``time_unit``.
+    :param mag_columns: names of the x, y, z magnetic-field columns (a driver bag only).
+    :param mag_unit: unit of the magnetic-field columns, one of :data:`MAG_UNITS`.
+
+    ``temp_column`` is optional for a driver's log (``gyro_columns`` given); the paper's counts
+    need it.
     """
 
     acc_columns: tuple[str, str, str]
-    temp_column: str
+    temp_column: str | None = None
     time_column: str = 'timestamp'
     time_unit: str = 's'
     acc_unit: str = 'm/s^2'
@@ -104,9 +124,22 @@ class CsvImportOptions:
     frame_id: str = 'imu'
     gyro_columns: tuple[str, str, str] | None = None
     gyro_unit: str = 'rad/s'
+    gyro_file: str | None = None
+    gyro_time_column: str | None = None
+    mag_columns: tuple[str, str, str] | None = None
+    mag_unit: str = 'T'
 
     def __post_init__(self) -> None:
         checks = (
+            (self.mag_columns is None or len(self.mag_columns) == 3, 'mag_columns',
+             f'needs three names (x y z), got {len(self.mag_columns or ())}'),
+            (self.mag_columns is None or self.gyro_columns is not None, 'mag_columns',
+             'a magnetometer goes into a driver bag: give the gyroscope columns too'),
+            (self.mag_unit in MAG_UNITS, 'mag_unit', f'{self.mag_unit!r} is not one of {", ".join(MAG_UNITS)}'),
+            (self.temp_column is not None or self.gyro_columns is not None, 'temp_column',
+             "the paper's counts bag (no gyroscope columns) needs the temperature column"),
+            (self.gyro_file is None or self.gyro_columns is not None, 'gyro_file',
+             'needs the gyro columns (--gyro-columns X Y Z) it holds'),
             (self.gyro_columns is None or len(self.gyro_columns) == 3, 'gyro_columns',
              f'needs three names (x y z), got {len(self.gyro_columns or ())}'),
             (self.gyro_unit in GYRO_UNITS, 'gyro_unit', f'{self.gyro_unit!r} is not one of {", ".join(GYRO_UNITS)}'),
@@ -154,6 +187,8 @@ class ImportedLog:
     :param max_tilt_deg: largest angle between a sample and the mean direction, degrees.
     :param driver: with gyroscope columns, the driver bag's contents (then ``record`` is its
         accelerometer channel).
+
+    A driver's log without a temperature column has ``temperature`` empty.
     """
 
     record: ChannelRecord
@@ -196,31 +231,38 @@ def read_csv_log(path: str | Path, options: CsvImportOptions) -> ImportedLog:
     :raises LogError: one line naming the file and the row or column that is wrong.
     """
     path = Path(path)
+    gyro_path = Path(options.gyro_file) if options.gyro_file is not None else None
+    current = path
     try:
         with path.open(encoding='utf-8-sig', newline='') as stream:
-            return parse_csv_log(stream, options, source=str(path))
+            if gyro_path is None:
+                return parse_csv_log(stream, options, source=str(path))
+            current = gyro_path
+            with gyro_path.open(encoding='utf-8-sig', newline='') as gyro_stream:
+                return parse_csv_log(stream, options, source=str(path), gyro_lines=gyro_stream,
+                                     gyro_source=str(gyro_path))
     except FileNotFoundError:
-        msg = f'{path}: no such log file'
+        msg = f'{current}: no such log file'
         raise LogError(msg) from None
     except UnicodeDecodeError as err:
-        msg = f'{path}: not a UTF-8 text file (byte {err.start})'
+        msg = f'{current}: not a UTF-8 text file (byte {err.start})'
         raise LogError(msg) from None
 
 
-def parse_csv_log(lines: Iterable[str], options: CsvImportOptions, *, source: str = '<log>') -> ImportedLog:
-    """Convert the lines of a delimited log (header line first) into the bag contract.
+@dataclass(frozen=True)
+class _Table:
+    """A delimited file's time column (ns), its wanted columns (NaN where a cell is empty) and line numbers."""
 
-    :param lines: the text, one line per item (a file object serves).
-    :param options: columns, units and resolutions.
-    :param source: the name used in messages.
-    The rows are converted to arrays :data:`CHUNK_ROWS` at a time, so that memory stays near
-    the size of the arrays (48 bytes per row), whatever the length of the log.
+    stamp_ns: np.ndarray
+    values: np.ndarray
+    line_numbers: np.ndarray
+    delimiter: str
+    header: tuple[str, ...]
 
-    :raises LogError: missing column, non-numeric field, a stamp outside the bag's time type,
-        time not increasing, a constant
-        column (no temperature sweep, a stuck axis), a value beyond the 16-bit code range,
-        a board that moved, or an empty file; one line naming the row or column.
-    """
+
+def _read_table(lines: Iterable[str], time_column: str, columns: tuple[str, ...], options: CsvImportOptions,
+                source: str) -> _Table:
+    """A delimited file's rows, :data:`CHUNK_ROWS` at a time: an empty cell is NaN, another non-number refused."""
     iterator = iter(lines)
     header_line, skipped = _first_non_blank(iterator)
     if header_line is None:
@@ -228,7 +270,7 @@ def parse_csv_log(lines: Iterable[str], options: CsvImportOptions, *, source: st
         raise LogError(msg)
     delimiter = options.delimiter or _sniff_delimiter(header_line, source)
     header = tuple(name.strip() for name in next(csv.reader([header_line], delimiter=delimiter)))
-    wanted = (options.time_column, *options.acc_columns, options.temp_column, *(options.gyro_columns or ()))
+    wanted = (time_column, *columns)
     index = []
     for name in wanted:
         if name not in header:
@@ -243,16 +285,16 @@ def parse_csv_log(lines: Iterable[str], options: CsvImportOptions, *, source: st
     line_parts: list[np.ndarray] = []
     stamps: list[int] = []
     values: list[float] = []
-    lines: list[int] = []
+    lines_read: list[int] = []
     rows = 0
 
     def flush() -> None:
         stamp_parts.append(np.array(stamps, dtype=np.int64))
         value_parts.append(np.array(values, dtype=float).reshape(-1, len(wanted) - 1))
-        line_parts.append(np.array(lines, dtype=np.int64))
+        line_parts.append(np.array(lines_read, dtype=np.int64))
         stamps.clear()
         values.clear()
-        lines.clear()
+        lines_read.clear()
 
     reader = csv.reader(iterator, delimiter=delimiter)
     value_columns = tuple(zip(index[1:], wanted[1:]))
@@ -264,10 +306,10 @@ def parse_csv_log(lines: Iterable[str], options: CsvImportOptions, *, source: st
         if len(fields) != len(header):
             msg = f'{source}: row {rows} (line {line}): {len(fields)} fields, the header has {len(header)}'
             raise LogError(msg)
-        stamps.append(_stamp_ns(fields[index[0]].strip(), time_factor, (source, rows, line), options.time_column))
+        stamps.append(_stamp_ns(fields[index[0]].strip(), time_factor, (source, rows, line), time_column))
         for i, name in value_columns:
             values.append(_number(fields[i].strip(), (source, rows, line), name))
-        lines.append(line)
+        lines_read.append(line)
         if len(stamps) == CHUNK_ROWS:
             flush()
     if stamps:
@@ -275,26 +317,95 @@ def parse_csv_log(lines: Iterable[str], options: CsvImportOptions, *, source: st
     if not rows:
         msg = f'{source}: no data rows after the header'
         raise LogError(msg)
-
     stamp_ns = np.concatenate(stamp_parts)
     stamp_parts.clear()  # the pieces freed (not del: flush() refers to the list)
     line_numbers = np.concatenate(line_parts)
     line_parts.clear()
     table = np.concatenate(value_parts)
     value_parts.clear()
-    _check_increasing(stamp_ns, source, line_numbers, options.time_column)
-    _check_not_constant(table[:, :4], wanted[1:5], source)  # a gyroscope at rest may read one value
-    acceleration = table[:, :3] * ACC_UNITS[options.acc_unit]
-    temperature = table[:, 3].copy()
-    rate = table[:, 4:7] * GYRO_UNITS[options.gyro_unit] if options.gyro_columns else None
+    _check_increasing(stamp_ns, source, line_numbers, time_column)
+    return _Table(stamp_ns, table, line_numbers, delimiter, header)
+
+
+def _present(values: np.ndarray, names: tuple[str, ...], source: str, line_numbers: np.ndarray) -> np.ndarray:
+    """Rows where a sensor has a sample: all its cells given; all empty is no sample, some empty is refused."""
+    empty = np.isnan(values)
+    none = empty.all(axis=1)
+    partly = np.flatnonzero(empty.any(axis=1) & ~none)
+    if partly.size:
+        row = int(partly[0])
+        column = names[int(np.flatnonzero(empty[row])[0])]
+        msg = (f'{source}: row {row + 1} (line {line_numbers[row]}), column {column!r}: \'\' is not a finite number '
+               f'(a sensor\'s cells are all given, or all empty where it has no sample)')
+        raise LogError(msg)
+    return ~none
+
+
+def parse_csv_log(lines: Iterable[str], options: CsvImportOptions, *, source: str = '<log>',
+                  gyro_lines: Iterable[str] | None = None, gyro_source: str = '<gyro log>') -> ImportedLog:
+    """Convert the lines of a delimited log (header line first) into the bag contract.
+
+    :param lines: the text, one line per item (a file object serves).
+    :param options: columns, units and resolutions.
+    :param source: the name used in messages.
+    :param gyro_lines: the gyroscope's own file (``options.gyro_file``), its own time column.
+    The rows are converted to arrays :data:`CHUNK_ROWS` at a time, so that memory stays near
+    the size of the arrays (48 bytes per row), whatever the length of the log.
+
+    Sensors that come at their own rates are imported without resampling: a row whose cells of
+    a sensor (its three axes; the temperature) are all empty holds no sample of it, and the
+    gyroscope may come in a file of its own. Each sensor then keeps its own stamps (a driver
+    bag's Imu messages carry one sensor each where they differ, the other marked absent).
+
+    :raises LogError: missing column, non-numeric field, a sensor's cells partly empty, a stamp
+        outside the bag's time type, time not increasing, a constant column (no temperature
+        sweep, a stuck axis), a value beyond the 16-bit code range, a board that moved, or an
+        empty file; one line naming the row or column.
+    """
+    in_log = options.gyro_columns if options.gyro_columns and gyro_lines is None else ()
+    temp_columns = (options.temp_column,) if options.temp_column is not None else ()
+    mag_columns = options.mag_columns or ()
+    columns = (*options.acc_columns, *temp_columns, *in_log, *mag_columns)
+    main = _read_table(lines, options.time_column, columns, options, source)
+    stamp_ns, table, line_numbers = main.stamp_ns, main.values, main.line_numbers
+    accel_rows = _present(table[:, :3], options.acc_columns, source, line_numbers)
+    temp_rows = (_present(table[:, 3:4], temp_columns, source, line_numbers) if temp_columns
+                 else np.zeros(len(stamp_ns), dtype=bool))
+    # A gyroscope at rest may read one value; so may a driver's temperature (a noise run).
+    driver = options.gyro_columns is not None
+    checked = 3 if driver else 3 + len(temp_columns)
+    _check_not_constant(table[:, :checked], columns[:checked], source)
+    acceleration = table[accel_rows, :3] * ACC_UNITS[options.acc_unit]
+    temperature = table[temp_rows, 3].copy() if temp_columns else np.zeros(0)
+    first = 3 + len(temp_columns)
+    gyro = None
+    if in_log:
+        gyro_rows = _present(table[:, first:first + 3], in_log, source, line_numbers)
+        gyro = (stamp_ns[gyro_rows], table[gyro_rows, first:first + 3] * GYRO_UNITS[options.gyro_unit])
+    field = None
+    if mag_columns:
+        at = first + len(in_log)
+        mag_rows = _present(table[:, at:at + 3], mag_columns, source, line_numbers)
+        field = (stamp_ns[mag_rows], table[mag_rows, at:at + 3] * MAG_UNITS[options.mag_unit])
+    if gyro is None and gyro_lines is not None and options.gyro_columns is not None:
+        own = _read_table(gyro_lines, options.gyro_time_column or options.time_column, options.gyro_columns,
+                          options, gyro_source)
+        rows = _present(own.values, options.gyro_columns, gyro_source, own.line_numbers)
+        gyro = (own.stamp_ns[rows], own.values[rows] * GYRO_UNITS[options.gyro_unit])
     del table
-    if rate is not None:
-        return _driver_log(stamp_ns, acceleration, rate, temperature, options, source, line_numbers,
-                           delimiter, header)
+    streams = _Streams(stamp_ns[accel_rows], stamp_ns[temp_rows], line_numbers[accel_rows], line_numbers[temp_rows])
+    if gyro is not None:
+        return _driver_log(streams, acceleration, gyro, temperature, options, source, main.delimiter, main.header,
+                           rows=len(stamp_ns), field=field)
+    delimiter, header = main.delimiter, main.header
+    if not len(streams.accel_stamp_ns):
+        msg = f'{source}: no row holds the acceleration columns'
+        raise LogError(msg)
+    line_numbers = streams.accel_lines
     counts = np.round(acceleration / options.acc_resolution)
     _check_code_range(counts, acceleration, options, source, line_numbers)
     temp_code = np.round(temperature / options.temp_resolution)
-    _check_temp_code_range(temp_code, temperature, options, source, line_numbers)
+    _check_temp_code_range(temp_code, temperature, options, source, streams.temp_lines)
     if np.all(temp_code == temp_code[0]):
         msg = (f'{source}: column {options.temp_column!r} varies by only {np.ptp(temperature):g} C, less than '
                f'one code of {options.temp_resolution:g} C: no temperature sweep at this --temp-resolution')
@@ -302,8 +413,8 @@ def parse_csv_log(lines: Iterable[str], options: CsvImportOptions, *, source: st
 
     static, reference = _reference(acceleration, options, source, line_numbers)
     record = ChannelRecord(
-        counts_stamp_ns=stamp_ns, counts=counts, temp_stamp_ns=stamp_ns.copy(), temp_code=temp_code,
-        reference_stamp_ns=stamp_ns[:1].copy(), reference=reference.reshape(1, 3),
+        counts_stamp_ns=streams.accel_stamp_ns, counts=counts, temp_stamp_ns=streams.temp_stamp_ns,
+        temp_code=temp_code, reference_stamp_ns=stamp_ns[:1].copy(), reference=reference.reshape(1, 3),
         frame_id=options.frame_id, nominal_scale=(options.nominal_scale,) * 3)
     return ImportedLog(record=record, rows=len(stamp_ns), delimiter=delimiter, header=header,
                        acceleration=acceleration, temperature=temperature, reference=reference,
@@ -330,40 +441,77 @@ def _reference(acceleration: np.ndarray, options: CsvImportOptions, source: str,
     return static, static.specific_force
 
 
-def _driver_log(stamp_ns: np.ndarray, acceleration: np.ndarray, rate: np.ndarray, temperature: np.ndarray,
-                options: CsvImportOptions, source: str, line_numbers: np.ndarray, delimiter: str,
-                header: tuple[str, ...]) -> ImportedLog:
+@dataclass(frozen=True)
+class _Streams:
+    """The log's stamps of the accelerometer's and the temperature's samples, and their lines."""
+
+    accel_stamp_ns: np.ndarray
+    temp_stamp_ns: np.ndarray
+    accel_lines: np.ndarray
+    temp_lines: np.ndarray
+
+
+def _driver_log(streams: _Streams, acceleration: np.ndarray, gyro: tuple[np.ndarray, np.ndarray],
+                temperature: np.ndarray, options: CsvImportOptions, source: str, delimiter: str,
+                header: tuple[str, ...], *, rows: int,
+                field: tuple[np.ndarray, np.ndarray] | None = None) -> ImportedLog:
     """A log with gyroscope columns as a driver bag: values as logged (SI units), temperature in C.
 
-    Without ``--reference`` no reference topic is written: ``fit`` takes the run as static (the
-    mean direction scaled to gravity, zero rate), as for any driver bag recorded without one.
+    Without ``--reference`` no reference topic is written and the board may move: ``fit`` takes
+    a run in one orientation as static (the mean direction scaled to gravity, zero rate), as for
+    any driver bag recorded without one, and decides what a moving one determines. Where the
+    accelerometer's and the gyroscope's stamps differ, each keeps its own. The temperature may be
+    constant or absent (``temperature`` empty: no temperature topic); the magnetic field
+    (``field``: its stamps and values in tesla) is written on ``/imu/mag``.
     """
-    if np.ptp(temperature) <= 0.0:
-        msg = f'{source}: column {options.temp_column!r} does not vary: no temperature sweep'
-        raise LogError(msg)
+    gyro_stamp_ns, rate = gyro
     low, high = TEMPERATURE_RANGE['imu']
     outside = np.flatnonzero(~((temperature > low) & (temperature < high)))
     if outside.size:
         row = int(outside[0])
-        msg = (f'{source}: row {row + 1} (line {line_numbers[row]}): temperature {temperature[row]:g} C is outside '
+        msg = (f'{source}: line {streams.temp_lines[row]}: temperature {temperature[row]:g} C is outside '
                f'{low:g}..{high:g} C (is the column in degrees Celsius?)')
         raise LogError(msg)
-    static, reference = _reference(acceleration, options, source, line_numbers)
-    count = len(stamp_ns)
+    for name, stamps in (('acceleration', streams.accel_stamp_ns), ('angular-rate', gyro_stamp_ns)):
+        if len(stamps) < 2:
+            msg = f'{source}: {len(stamps)} rows hold the {name} columns: a run needs more'
+            raise LogError(msg)
+    if field is not None:
+        _check_field(field[1], options, source)
+    static = static_reference(acceleration, gravity=options.gravity)
+    reference = np.asarray(options.reference, dtype=float) if options.reference is not None else static.specific_force
+    accel_stamp_ns = streams.accel_stamp_ns
+    shared = np.array_equal(accel_stamp_ns, gyro_stamp_ns)
+    messages = accel_stamp_ns if shared else np.union1d(accel_stamp_ns, gyro_stamp_ns)
+    count = len(messages)
     orientation = np.zeros((count, 4))
     orientation[:, 3] = 1.0
     orientation_covariance = np.zeros((count, 9))
     orientation_covariance[:, 0] = -1.0  # REP 145: a log gives no orientation
     given = options.reference is not None
+    first = min(int(accel_stamp_ns[0]), int(gyro_stamp_ns[0]))
+    mag = {} if field is None else dict(mag_stamp_ns=field[0], mag=field[1], mag_frame_id=options.frame_id)
     driver = DriverRecord(
-        stamp_ns=stamp_ns, accel=acceleration, gyro=rate, orientation=orientation,
-        orientation_covariance=orientation_covariance, temp_stamp_ns=stamp_ns.copy(), temperature=temperature,
-        reference_stamp_ns=stamp_ns[:1].copy() if given else np.zeros(0, dtype=np.int64),
-        reference=reference.reshape(1, 3) if given else np.zeros((0, 3)), frame_id=options.frame_id)
-    return ImportedLog(record=driver.channel('accel'), rows=count, delimiter=delimiter, header=header,
+        stamp_ns=messages, accel=acceleration, gyro=rate, orientation=orientation,
+        orientation_covariance=orientation_covariance, temp_stamp_ns=streams.temp_stamp_ns, temperature=temperature,
+        reference_stamp_ns=np.array([first], dtype=np.int64) if given else np.zeros(0, dtype=np.int64),
+        reference=reference.reshape(1, 3) if given else np.zeros((0, 3)), frame_id=options.frame_id, **mag,
+        **({} if shared else {'accel_stamp_ns': accel_stamp_ns, 'gyro_stamp_ns': gyro_stamp_ns}))
+    return ImportedLog(record=driver.channel('accel'), rows=rows, delimiter=delimiter, header=header,
                        acceleration=acceleration, temperature=temperature, reference=reference,
                        mean_direction=static.direction, reference_estimated=not given,
                        max_tilt_deg=static.max_tilt_deg, driver=driver)
+
+
+def _check_field(field: np.ndarray, options: CsvImportOptions, source: str) -> None:
+    """The magnetometer columns, in tesla, give a plausible field (else the unit is wrong), in one line."""
+    median = float(np.median(np.linalg.norm(field, axis=1)))
+    low, high = FIELD_RANGE_T
+    if not low <= median <= high:
+        columns = ' '.join(options.mag_columns or ())
+        msg = (f'{source}: columns {columns} in {options.mag_unit} give a median |B| of {median * 1e6:.3g} uT, '
+               f'outside {low * 1e6:g}..{high * 1e6:g} uT (the Earth\'s field is 22-67 uT): wrong --mag-unit?')
+        raise LogError(msg)
 
 
 def _first_non_blank(iterator) -> tuple[str | None, int]:
@@ -413,6 +561,9 @@ def _stamp_ns(text: str, factor: int, place: tuple[str, int, int], column: str) 
 
 
 def _number(text: str, place: tuple[str, int, int], column: str) -> float:
+    """A cell's number; an empty cell is NaN (no sample: :func:`_present` decides), anything else must be finite."""
+    if not text:
+        return math.nan
     try:
         value = float(text)
     except ValueError:
@@ -439,11 +590,15 @@ def _check_not_constant(table: np.ndarray, names: tuple[str, ...], source: str) 
         msg = f'{source}: one data row only; a thermal run needs a temperature sweep'
         raise LogError(msg)
     for column, name in enumerate(names):
-        if np.all(table[:, column] == table[0, column]):
+        given = table[~np.isnan(table[:, column]), column]
+        if len(given) < 2:
+            msg = f'{source}: column {name!r} holds {len(given)} value(s): a run needs more'
+            raise LogError(msg)
+        if np.all(given == given[0]):
             what = ('no temperature sweep to calibrate from' if column == 3
                     else 'a stuck or disconnected axis')
-            msg = (f'{source}: column {name!r} is constant ({table[0, column]:g}) over all {len(table)} rows: '
-                   f'{what}')
+            rows = f'all {len(given)} rows' if len(given) == len(table) else f'its {len(given)} rows'
+            msg = f'{source}: column {name!r} is constant ({given[0]:g}) over {rows}: {what}'
             raise LogError(msg)
 
 

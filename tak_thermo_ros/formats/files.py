@@ -112,7 +112,12 @@ def _user_error(err: OSError, path: Path) -> OSError:
 
 
 def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
-    """Write a text file atomically: a temporary file beside it, then a rename.
+    """Write a text file (UTF-8) atomically, as :func:`write_bytes_atomic`."""
+    write_bytes_atomic(path, text.encode('utf-8'))
+
+
+def write_bytes_atomic(path: str | os.PathLike[str], data: bytes) -> None:
+    """Write a file atomically: a temporary file beside it, then a rename.
 
     An existing regular file is replaced (the caller applies the overwrite rule with
     :func:`check_output`); anything else that exists (a link, a FIFO, a device, a directory)
@@ -137,8 +142,8 @@ def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(temporary, 0o666 & ~umask)  # mkstemp makes it owner-only; a normal file is wanted
-        with os.fdopen(handle, 'w', encoding='utf-8') as stream:
-            stream.write(text)
+        with os.fdopen(handle, 'wb') as stream:
+            stream.write(data)
             stream.flush()
             os.fsync(stream.fileno())
         os.replace(temporary, path)

@@ -53,6 +53,9 @@ class Corrector:
         self._high = float(calibration.temp_code_max)
         self._clamp = self.out_of_range is OutOfRange.CLAMP
         self._axes = correction_terms(calibration)
+        # A link without temperature terms reads no temperature: every input is taken at N_t,ref
+        # (NaN where a record holds none), so that nothing downstream sees one.
+        self._fixed = None if calibration.needs_temperature else self._ref
         # Effects (tak_thermo_ros.core.effects) take their own link; without them, the path below.
         self._effect_link = EffectLink(calibration, clamp=self._clamp) if calibration.effects else None
 
@@ -67,7 +70,9 @@ class Corrector:
             self._effect_link.reset()
 
     def code_offset(self, temp_code):
-        """``n = N_t - N_t,ref`` after the out-of-range policy (scalar or array)."""
+        """``n = N_t - N_t,ref`` after the out-of-range policy (scalar or array); 0 without temperature terms."""
+        if self._fixed is not None:
+            return np.zeros(np.shape(temp_code)) if isinstance(temp_code, np.ndarray) else 0.0
         if self._clamp:
             if isinstance(temp_code, np.ndarray):
                 temp_code = np.clip(temp_code, self._low, self._high)
@@ -83,6 +88,8 @@ class Corrector:
         :param stamp_s: the sample's stamp in seconds (for model terms with memory).
         :param aux: held values of the recorded signals in :attr:`signals`, by name.
         """
+        if self._fixed is not None:
+            temp_code = self._fixed
         if self._effect_link is not None:
             return self._effect_link.correct_sample(counts_x, counts_y, counts_z, temp_code, stamp_s, aux)
         n = self.code_offset(temp_code)
@@ -99,6 +106,7 @@ class Corrector:
         :param stamp_s: ``(k,)`` stamps in seconds (for model terms with memory).
         :param aux: ``(k,)`` held values of the recorded signals in :attr:`signals`, by name.
         """
+        temp_code = self._temperatures(temp_code, len(counts))
         if self._effect_link is not None:
             return self._effect_link.correct(counts, temp_code, stamp_s, aux)
         counts = np.asarray(counts, dtype=float)
@@ -113,6 +121,12 @@ class Corrector:
             self._correct_block(counts[start:stop], temp_code[start:stop], out[start:stop],
                                 scratch[:, :stop - start])
         return out
+
+    def _temperatures(self, temp_code, size: int):
+        """The temperature inputs the link reads: as given, or ``N_t,ref`` for a link without temperature terms."""
+        if self._fixed is None:
+            return temp_code
+        return np.full(size, self._fixed)
 
     def _correct_block(self, counts: np.ndarray, temp_code: np.ndarray, out: np.ndarray,
                        scratch: np.ndarray) -> None:
@@ -141,6 +155,7 @@ class Corrector:
         With effects: ``K0 f_hat + dNs0``, the code the same input gives at normal conditions
         without the effects.
         """
+        temp_code = self._temperatures(temp_code, len(counts))
         if self._effect_link is not None:
             force = self._effect_link.correct(counts, temp_code, stamp_s, aux)
             return np.column_stack([axis.scale * force[:, i] + axis.offset
@@ -160,12 +175,15 @@ class Corrector:
 
         The inverse of :meth:`correct` (effects included, from their initial state).
         """
+        temp_code = self._temperatures(temp_code, len(specific_force))
         link = self._effect_link or EffectLink(self.calibration, clamp=self._clamp)
         return link.predict_counts(specific_force, temp_code, stamp_s, aux)
 
     def out_of_range_count(self, temp_code: np.ndarray) -> int:
-        """How many temperature codes lie outside the calibrated range."""
+        """How many temperature codes lie outside the calibrated range (none for a link without temperature terms)."""
         temp_code = np.asarray(temp_code, dtype=float)
+        if self._fixed is not None:
+            return 0
         return int(np.count_nonzero((temp_code < self._low) | (temp_code > self._high)))
 
 
@@ -249,6 +267,8 @@ class UnitCorrector:
         temperature = np.asarray(temperature, dtype=float)
         outside = np.zeros(len(temperature), dtype=bool)
         for _, calibration in self.unit.sensors:
+            if not calibration.needs_temperature:
+                continue
             outside |= (temperature < calibration.temp_code_min) | (temperature > calibration.temp_code_max)
         return int(np.count_nonzero(outside))
 

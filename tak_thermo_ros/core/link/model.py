@@ -37,6 +37,15 @@ SENSORS: tuple[str, str] = ('accel', 'gyro')
 MAG_SENSOR = 'mag'
 """The optional third sensor of a driver unit: the magnetometer (its own topic, tesla)."""
 IDENTITY_3X3: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+THERMAL_FITTED = 'fitted'
+"""A link with its temperature terms (today's files: the correction reads the temperature)."""
+THERMAL_HELD = 'held'
+"""A link taken at one temperature (or too narrow a span): no temperature terms, the record's
+temperatures kept as ``temp_code_ref/min/max`` for the reader; corrected alike at every temperature."""
+THERMAL_NONE = 'none'
+"""A link from a record without any temperature: no temperature terms, no temperatures (0 in the
+model, absent from the file); corrected alike at every temperature."""
+THERMAL_STATES = (THERMAL_FITTED, THERMAL_HELD, THERMAL_NONE)
 
 
 class InputKind(str, enum.Enum):
@@ -164,6 +173,9 @@ class Calibration:
         each name at most once; the correction applies them in this order.
     :param noise: the noise model of the corrected output (SI: m/s^2 or rad/s), or ``None``;
         when given, the Imu covariance is its per-sample variance (``NoiseModel.sample_variance``).
+    :param thermal: :data:`THERMAL_FITTED` (the temperature terms of the paper's link),
+        :data:`THERMAL_HELD` or :data:`THERMAL_NONE` (no temperature terms: every axis has
+        ``offset_span`` 0 and flat shapes, and the correction never reads a temperature).
     """
 
     temp_code_ref: float
@@ -174,11 +186,21 @@ class Calibration:
     notes: tuple[str, ...] = field(default=())
     effects: tuple[Effect, ...] = field(default=())
     noise: NoiseModel | None = None
+    thermal: str = THERMAL_FITTED
 
     def __post_init__(self) -> None:
         if len(self.axes) != 3:
             msg = f'calibration needs 3 axes, got {len(self.axes)}'
             raise CalibrationError(msg)
+        if self.thermal not in THERMAL_STATES:
+            msg = f'calibration.thermal: expected one of {", ".join(THERMAL_STATES)}, got {self.thermal!r}'
+            raise CalibrationError(msg)
+        if self.thermal != THERMAL_FITTED:
+            for name, axis in zip(AXES, self.axes):
+                if axis.offset_span != 0.0 or any(axis.offset_shape) or any(axis.scale_shape):
+                    msg = (f'calibration.{name}: thermal is {self.thermal!r} (no temperature terms) but the axis '
+                           f'holds offset_span {axis.offset_span:g} or a non-zero shape')
+                    raise CalibrationError(msg)
         names = set()
         for effect in self.effects:
             if not isinstance(effect, Effect):
@@ -189,6 +211,11 @@ class Calibration:
                 raise CalibrationError(msg)
             names.add(effect.name)
         object.__setattr__(self, 'effects', tuple(self.effects))
+
+    @property
+    def needs_temperature(self) -> bool:
+        """Whether the correction reads the temperature (a link with temperature terms)."""
+        return self.thermal == THERMAL_FITTED
 
     def axis(self, name: str) -> AxisModel:
         """Return the model of axis ``'x'``, ``'y'`` or ``'z'``."""
@@ -262,12 +289,15 @@ class UnitCalibration:
     :param gyro: the gyroscope's link (required with :attr:`InputKind.IMU`, absent with counts).
     :param mag: the magnetometer's correction (optional, driver input only). It is not one of
         :attr:`sensors`: its messages come on their own topic, with their own stamps.
+    :param source: what the record it was fitted from was (driver input only; the file's
+        ``source`` section, :data:`SOURCE_KEYS`): the correction does not use it, an export does.
     """
 
     input_kind: InputKind
     accel: Calibration
     gyro: Calibration | None = None
     mag: MagnetometerCalibration | None = None
+    source: dict[str, str | int | float] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, 'input_kind', InputKind(self.input_kind))
@@ -287,6 +317,11 @@ class UnitCalibration:
         present = (('accel', self.accel), ('gyro', self.gyro))
         return tuple((name, calibration) for name, calibration in present if calibration is not None)
 
+    @property
+    def needs_temperature(self) -> bool:
+        """Whether correcting the Imu (accelerometer and gyroscope) reads the temperature."""
+        return any(calibration.needs_temperature for _, calibration in self.sensors)
+
     def sensor(self, name: str) -> Calibration:
         """The calibration of sensor ``'accel'`` or ``'gyro'`` (``'mag'``: the magnetometer's thermal link)."""
         mag = self.mag.thermal if self.mag is not None else None
@@ -295,6 +330,32 @@ class UnitCalibration:
             msg = f'calibration.{name}: not in this calibration'
             raise CalibrationError(msg)
         return calibration
+
+
+SOURCE_KEYS: dict[str, type] = {
+    'format': str, 'instance': int, 'accel_device_id': int, 'gyro_device_id': int, 'mag_device_id': int,
+    'temperature_rate_max': float, 'rate_max': float,
+}
+"""A calibration's ``source``: the record's format (``bag``, ``ulog``, ``dataflash``), the flight
+log's sensor instance and the sensors' device IDs (0: none), the record's fastest temperature
+change (C/s, over 60 s) and largest angular rate (rad/s, the reference or the measured)."""
+
+
+def held_link(*, offsets: Sequence[float] = (0.0, 0.0, 0.0), scales: Sequence[float] = (1.0, 1.0, 1.0),
+              residual_rms: Sequence[float | None] = (None, None, None), scale_observable: bool = False,
+              temperatures: tuple[float, float, float] | None = None, notes: Sequence[str] = ()) -> Calibration:
+    """A link without temperature terms: per axis a scale and an offset, the same at every temperature.
+
+    :param temperatures: ``(ref, min, max)`` of the record it was taken from (:data:`THERMAL_HELD`),
+        or ``None``: the record held no temperature (:data:`THERMAL_NONE`).
+    """
+    axes = tuple(AxisModel(scale=float(scale), offset=float(offset), offset_span=0.0, offset_shape=(0.0,),
+                           scale_shape=(0.0,), residual_rms=rms, scale_observable=scale_observable)
+                 for scale, offset, rms in zip(scales, offsets, residual_rms))
+    ref, low, high = temperatures if temperatures is not None else (0.0, 0.0, 0.0)
+    return Calibration(temp_code_ref=float(ref), temp_code_min=float(low), temp_code_max=float(high),
+                       axes=axes, notes=tuple(notes),  # type: ignore[arg-type]
+                       thermal=THERMAL_HELD if temperatures is not None else THERMAL_NONE)
 
 
 def check_scale_positive(calibration: Calibration, *, key: str = 'calibration') -> None:

@@ -29,7 +29,9 @@ Bad input, each with a defined outcome, checks in this order:
   previous input message's, whatever became of that one: dropped, as ``align()`` does offline;
 - values NaN / infinite (``non_finite``), for counts also not whole (``non_integer``) or at
   a 16-bit rail (``saturated``): dropped, never corrected;
-- no temperature yet: dropped (``waiting_for_temperature``) and a throttled warning;
+- no temperature yet: dropped (``waiting_for_temperature``) and a throttled warning; a
+  calibration without temperature terms (``thermal: held`` or ``none`` on every sensor the
+  channel corrects) reads no temperature: it neither waits for one nor calls one stale;
 - temperature older than ``temp_timeout`` (on the arrival clock): held (``hold``) or the
   message dropped (``drop``: ``stale_temperature``); diagnostics at ERROR either way;
 - temperature outside the calibrated range (of any sensor): clamped or extrapolated (the
@@ -162,6 +164,7 @@ class Configuration:
     covariances: tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]
     low: float
     high: float
+    needs_temperature: bool = True
 
 
 class _Throttle:
@@ -401,8 +404,13 @@ class OnlineCompensator:
 
     @property
     def waiting_for_temperature(self) -> bool:
-        """Whether no temperature has arrived yet (nothing is published meanwhile)."""
-        return self._temperature is None
+        """Whether the calibration needs a temperature and none has arrived yet (nothing is published meanwhile)."""
+        return self._needs_temperature and self._temperature is None
+
+    @property
+    def needs_temperature(self) -> bool:
+        """Whether the calibration in force reads the temperature (a link with temperature terms)."""
+        return self._needs_temperature
 
     @property
     def covariances(self) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
@@ -447,7 +455,7 @@ class OnlineCompensator:
         if calibration is None:
             if new_out_of_range is current.out_of_range:
                 return Configuration(current.unit, current.corrector, new_out_of_range, new_stale, new_timeout,
-                                     current.covariances, current.low, current.high)
+                                     current.covariances, current.low, current.high, current.needs_temperature)
             unit = current.unit
         else:
             unit = as_unit(calibration)
@@ -464,11 +472,13 @@ class OnlineCompensator:
             covariances = _covariances(unit, key, self.channel)
         else:
             covariances = current.covariances
-        sensors = channel_sensors(unit, self.channel)
-        low = max(c.temp_code_min for _, c in sensors)
-        high = min(c.temp_code_max for _, c in sensors)
+        thermal = [calibration for _, calibration in channel_sensors(unit, self.channel)
+                   if calibration.needs_temperature]
+        # Without temperature terms no temperature is outside the range (and none is read).
+        low = max((c.temp_code_min for c in thermal), default=-math.inf)
+        high = min((c.temp_code_max for c in thermal), default=math.inf)
         return Configuration(unit, corrector, new_out_of_range, new_stale, new_timeout, covariances,
-                             float(low), float(high))
+                             float(low), float(high), bool(thermal))
 
     def install(self, configuration: Configuration) -> None:
         """Put a prepared configuration in force; the next message uses it. Cannot fail."""
@@ -480,6 +490,7 @@ class OnlineCompensator:
             self.signal_messages.setdefault(name, 0)
             self.signal_rejected.setdefault(name, 0)
         self._low, self._high = configuration.low, configuration.high
+        self._needs_temperature = configuration.needs_temperature
         self._timeout_s = configuration.timeout_s
         if self._temperature is not None:
             self._temp_outside = not self._low <= self._temperature <= self._high
@@ -594,12 +605,15 @@ class OnlineCompensator:
             self.dropped[problem] += 1
             return problem
         temperature = self._temperature
-        if temperature is None:
+        if not self._needs_temperature:
+            # The correction reads no temperature: the calibration's reference (or the last one) stands in.
+            temperature = self.calibration.temp_code_ref if temperature is None else temperature
+        elif temperature is None:
             self.dropped[WAITING_FOR_TEMPERATURE] += 1
             if self._throttles[WAITING_FOR_TEMPERATURE].due(now_s):
                 self._report_waiting()
             return WAITING_FOR_TEMPERATURE
-        if now_s - self._temp_arrival_s > self._timeout_s:
+        elif now_s - self._temp_arrival_s > self._timeout_s:
             self._report_stale(now_s)
             if self._drop_stale:
                 self.dropped[STALE_TEMPERATURE] += 1
@@ -686,7 +700,7 @@ class OnlineCompensator:
             held = self._throttles['correction'].take_held_back()
             self._notice(Level.ERROR, reason,
                          f'{self._message_word} message dropped, the correction gave no finite number '
-                         f'at {self._temperature_word} {self._temperature:g} ({reason}: {detail}; '
+                         f'at {self._temperature_word} {self._temperature_text()} ({reason}: {detail}; '
                          f'{self.dropped[CORRECTION_FAILED] + self.dropped[NON_FINITE_OUTPUT]} so far'
                          f'{self._since(held)})')
         return reason
@@ -700,6 +714,10 @@ class OnlineCompensator:
 
     def _notice(self, level: Level, kind: str, text: str) -> None:
         self.notices.append(Notice(level, kind, text))
+
+    def _temperature_text(self) -> str:
+        """The last temperature for a message, ``none`` before the first."""
+        return 'none' if self._temperature is None else f'{self._temperature:g}'
 
     @staticmethod
     def _since(held_back: int) -> str:
@@ -739,12 +757,16 @@ class OnlineCompensator:
         return now_s - self._temp_arrival_s
 
     def is_stale(self, now_s: float) -> bool:
-        """Whether the last temperature is older than ``temp_timeout`` (``False`` before the first)."""
-        return self._temperature is not None and now_s - self._temp_arrival_s > self._timeout_s
+        """Whether the last temperature is older than ``temp_timeout``.
+
+        ``False`` before the first, and when the calibration reads none.
+        """
+        return (self._needs_temperature and self._temperature is not None
+                and now_s - self._temp_arrival_s > self._timeout_s)
 
     def tick(self, now_s: float) -> None:
         """Periodic checks that need no message (the node calls it with its diagnostics)."""
-        if self._temperature is None:
+        if self.waiting_for_temperature:
             if self._throttles[WAITING_FOR_TEMPERATURE].due(now_s):
                 self._report_waiting()
         elif self.is_stale(now_s):
@@ -775,7 +797,7 @@ class OnlineCompensator:
             problems.append(text)
 
         word, what = self._message_word, self._temperature_word
-        if self._temperature is None:
+        if self.waiting_for_temperature:
             worse(Level.WARN, f'waiting for {what} on {self.temp_topic}')
         elif self.is_stale(now_s):
             action = (f'dropping {word} messages' if self._drop_stale
@@ -826,7 +848,8 @@ class OnlineCompensator:
             (f'{stem}_age_s', 'inf' if math.isinf(age) else f'{age:.3f}'),
             ('temperature_messages', str(self.temperature_messages)),
             ('temperature_rejected', str(self.temperature_rejected)),
-            ('calibrated_range', f'{self._low:g}..{self._high:g}'),
+            ('calibrated_range', f'{self._low:g}..{self._high:g}' if self._needs_temperature
+             else 'any (no temperature terms: the temperature is not read)'),
             ('temp_code_ref' if counts else 'temperature_ref', f'{reference:g}'),
             ('out_of_range_policy', self.out_of_range_policy.value),
             ('stale_temperature_policy', self.stale_policy.value),

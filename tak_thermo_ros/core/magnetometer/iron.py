@@ -143,6 +143,24 @@ def fit_ellipsoid(values: np.ndarray, *, where: str = 'rotation record') -> Elli
         hard iron, diagonal, off-diagonal or residual out of bounds.
     """
     values = np.asarray(values, dtype=float).reshape(-1, 3)
+    spread = check_samples(values, where)
+    hard, soft, radius = algebraic_ellipsoid(values, where)
+    corrected = (values - hard) @ soft.T
+    magnitudes = np.linalg.norm(corrected, axis=1)
+    residual = float(np.sqrt(np.mean((magnitudes - radius) ** 2)))
+    sections = sections_hit(corrected / magnitudes[:, None])
+    fit = EllipsoidFit(hard_iron=tuple(float(v) for v in hard), soft_iron=tuple(float(v) for v in soft.ravel()),
+                       radius=float(radius), residual_rms=residual, samples=len(values), sections=sections,
+                       spread=spread)
+    check_fit(fit, where=where)
+    return fit
+
+
+def check_samples(values: np.ndarray, where: str) -> float:
+    """Enough finite samples, turned about more than one axis; the record's spread (:func:`spread_ratio`).
+
+    :raises FitError: too few samples, non-finite values, too few orientations (one line).
+    """
     if len(values) < MIN_SAMPLES:
         msg = f'{where}: {len(values)} samples; the ellipsoid fit needs at least {MIN_SAMPLES}'
         raise FitError(msg)
@@ -154,6 +172,14 @@ def fit_ellipsoid(values: np.ndarray, *, where: str = 'rotation record') -> Elli
         msg = (f'{where}: covers too few orientations: along its thinnest direction the field spreads {spread:.3f} '
                f'of its magnitude (at least {MIN_SPREAD} needed): turn the unit about more than one axis')
         raise FitError(msg)
+    return spread
+
+
+def algebraic_ellipsoid(values: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray, float]:
+    """The ellipsoid nearest the points ``(k, 3)``: ``h`` (3,), ``W`` (3x3, symmetric, determinant 1), radius.
+
+    :raises FitError: the quadric fitted to the points is not an ellipsoid.
+    """
     mean = values.mean(axis=0)
     size = float(np.median(np.linalg.norm(values - mean, axis=1)))
     points = (values - mean) / size
@@ -172,16 +198,7 @@ def fit_ellipsoid(values: np.ndarray, *, where: str = 'rotation record') -> Elli
     soft = root / determinant ** (1.0 / 3.0)
     soft = (soft + soft.T) / 2.0
     radius = size / determinant ** (1.0 / 3.0)
-    hard = mean + size * centre
-    corrected = (values - hard) @ soft.T
-    magnitudes = np.linalg.norm(corrected, axis=1)
-    residual = float(np.sqrt(np.mean((magnitudes - radius) ** 2)))
-    sections = sections_hit(corrected / magnitudes[:, None])
-    fit = EllipsoidFit(hard_iron=tuple(float(v) for v in hard), soft_iron=tuple(float(v) for v in soft.ravel()),
-                       radius=float(radius), residual_rms=residual, samples=len(values), sections=sections,
-                       spread=spread)
-    check_fit(fit, where=where)
-    return fit
+    return mean + size * centre, soft, float(radius)
 
 
 def check_fit(fit: EllipsoidFit, *, where: str = 'rotation record') -> None:

@@ -145,7 +145,7 @@ def _carried_references(stamps: np.ndarray, values: np.ndarray, horizon: int | N
 
 def align_block(state: AlignState, block: ChannelRecord, *, final: bool, use_reference: bool = True,
                 reference_expected: bool = False, settle_time_s: float = 0.0, drop_saturated: bool = True,
-                max_pending: int = 262_144) -> tuple[AlignedSamples, AlignState]:
+                max_pending: int = 262_144, temperature_expected: bool = True) -> tuple[AlignedSamples, AlignState]:
     """Align one block of a run read in log order (see the module's description).
 
     :param state: what the previous block handed on (``AlignState()`` for the first block).
@@ -156,6 +156,9 @@ def align_block(state: AlignState, block: ChannelRecord, *, final: bool, use_ref
         samples before its first message are dropped as ``before_first_reference``, also in
         blocks that carry no reference message yet.
     :param max_pending: at most this many main samples wait for their held values.
+    :param temperature_expected: the pass reads a temperature (``False``: the record holds none,
+        or the correction has no temperature terms): samples neither wait for one nor are left
+        out before the first (they hold NaN there; see :func:`align`).
     :returns: the block's aligned samples (``rows`` index the whole stream, ``dropped``
         counts this block only) and the state for the next block.
     """
@@ -194,10 +197,12 @@ def align_block(state: AlignState, block: ChannelRecord, *, final: bool, use_ref
 
     ready = len(stamps)
     if not final:
-        horizons = [temp_seen, *aux_seen.values()]
+        horizons = [*([temp_seen] if temperature_expected else []), *aux_seen.values()]
         if holding_reference:
             horizons.append(reference_seen)
-        if any(h is None for h in horizons):
+        if not horizons:  # nothing held to wait for
+            ready = len(stamps)
+        elif any(h is None for h in horizons):
             ready = 0
         else:
             late = np.flatnonzero(stamps > min(horizons))  # type: ignore[type-var]
@@ -215,7 +220,7 @@ def align_block(state: AlignState, block: ChannelRecord, *, final: bool, use_ref
                          reference=part_reference, frame_id=block.frame_id, nominal_scale=block.nominal_scale,
                          input_kind=block.input_kind, aux=aux)
     aligned = align(part, use_reference=use_reference, settle_time_s=settle_time_s, drop_saturated=drop_saturated,
-                    previous_stamp_ns=state.previous_stamp_ns)
+                    previous_stamp_ns=state.previous_stamp_ns, require_temperature=temperature_expected)
     rows = aligned.rows + state.rows_done if aligned.rows is not None else None
     aligned = replace(aligned, rows=rows, ignored_temp_codes=ignored_temp_codes,
                       ignored_references=ignored_references)
@@ -272,13 +277,16 @@ class BlockAligner:
     """:func:`align_block` with its state held: ``push`` each block, then ``finish``.
 
     :param reference_expected: the run has a reference stream (see :func:`align_block`).
+    :param temperature_expected: the pass reads a temperature (see :func:`align_block`).
     """
 
     def __init__(self, *, use_reference: bool = True, reference_expected: bool = False,
-                 settle_time_s: float = 0.0, drop_saturated: bool = True, max_pending: int = 262_144) -> None:
+                 settle_time_s: float = 0.0, drop_saturated: bool = True, max_pending: int = 262_144,
+                 temperature_expected: bool = True) -> None:
         self.state = AlignState()
         self.options = dict(use_reference=use_reference, reference_expected=reference_expected,
-                            settle_time_s=settle_time_s, drop_saturated=drop_saturated, max_pending=max_pending)
+                            settle_time_s=settle_time_s, drop_saturated=drop_saturated, max_pending=max_pending,
+                            temperature_expected=temperature_expected)
         self.dropped: dict[str, int] = {}
         self.ignored_temp_codes: dict[str, int] = {}
         self.ignored_references: dict[str, int] = {}

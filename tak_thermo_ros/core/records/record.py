@@ -270,7 +270,8 @@ class AlignedSamples:
 
 
 def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: float = 0.0,
-          drop_saturated: bool = True, previous_stamp_ns: int | None = None) -> AlignedSamples:
+          drop_saturated: bool = True, previous_stamp_ns: int | None = None,
+          require_temperature: bool = True) -> AlignedSamples:
     """Hold temperature code and reference on the counts stamps and keep usable samples.
 
     Counts samples are left out, and counted by reason, in this order: the header stamp is
@@ -288,6 +289,9 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
 
     :param previous_stamp_ns: the stamp of the counts message before the record's first one
         (a run aligned in blocks, :mod:`tak_thermo_ros.core.records.blocks`), or ``None``.
+    :param require_temperature: ``False`` for a pass that reads no temperature (a record without
+        one, or a correction without temperature terms): no sample is left out for want of a
+        temperature, and a sample before the first one holds NaN.
     """
     stamps = record.counts_stamp_ns
     counts = record.counts
@@ -309,7 +313,8 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
     temp_problems = temp_code_problems(record.temp_code, record.input_kind)
     temp_index = _usable_hold_index(record.temp_stamp_ns, temp_problems, stamps,
                                     ignored_temp_codes)
-    leave_out('before_first_temp_code', temp_index < 0)
+    if require_temperature:
+        leave_out('before_first_temp_code', temp_index < 0)
     reference = None
     ignored_references: dict[str, int] = {}
     if use_reference and record.has_reference:
@@ -320,8 +325,10 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
         if settle_time_s > 0.0:
             leave_out('settling', _within_settle_time(record, stamps, settle_time_s, usable_references))
         reference = record.reference[reference_index[keep]]
-    return AlignedSamples(stamp_ns=stamps[keep], counts=counts[keep],
-                          temp_code=record.temp_code[temp_index[keep]].astype(float),
+    held_temp = temp_index[keep]
+    temp_code = np.where(held_temp >= 0, np.asarray(record.temp_code, dtype=float)[np.maximum(held_temp, 0)]
+                         if len(record.temp_code) else np.nan, np.nan)
+    return AlignedSamples(stamp_ns=stamps[keep], counts=counts[keep], temp_code=temp_code,
                           reference=reference, dropped=dropped, rows=np.flatnonzero(keep),
                           ignored_temp_codes=ignored_temp_codes, ignored_references=ignored_references,
                           aux={name: hold_signal(signal_stamps, values, stamps[keep])
@@ -389,9 +396,19 @@ def _within_settle_time(record: ChannelRecord, stamps: np.ndarray, settle_time_s
 class DriverRecord:
     """A run recorded from a ROS 2 IMU driver (``sensor_msgs/msg/Imu`` plus a temperature).
 
+    Each sensor keeps its own samples. Most drivers publish both in one message: then
+    ``accel_stamp_ns`` and ``gyro_stamp_ns`` are ``None`` and both sensors are stamped by
+    ``stamp_ns``. A record whose sensors come at their own rates (a flight log's
+    ``sensor_accel`` and ``sensor_gyro``, a CSV with empty cells, Imu messages that carry one
+    sensor, the other's covariance[0] = -1) gives each sensor its own stamps; ``stamp_ns``
+    then stamps the messages (what ``orientation`` belongs to), and each sensor's row is
+    aligned, fitted and corrected on its own stamps.
+
     :param stamp_ns: ``(k,)`` header stamps of the Imu messages.
-    :param accel: ``(k, 3)`` linear acceleration (specific force) as the driver gave it, m/s^2.
-    :param gyro: ``(k, 3)`` angular velocity as the driver gave it, rad/s.
+    :param accel: ``(k, 3)`` linear acceleration (specific force) as the driver gave it, m/s^2
+        (``(a, 3)`` with ``accel_stamp_ns``).
+    :param gyro: ``(k, 3)`` angular velocity as the driver gave it, rad/s (``(g, 3)`` with
+        ``gyro_stamp_ns``).
     :param orientation: ``(k, 4)`` orientation quaternion ``(x, y, z, w)``, passed through.
     :param orientation_covariance: ``(k, 9)``, passed through.
     :param temp_stamp_ns: ``(m,)`` stamps of the temperature messages.
@@ -407,6 +424,8 @@ class DriverRecord:
     :param mag_reference_stamp_ns: ``(f,)`` stamps of the reference field (a coil; may be empty).
     :param mag_reference: ``(f, 3)`` the true field along the sensor axes, tesla.
     :param mag_frame_id: frame of the magnetometer's messages.
+    :param accel_stamp_ns: ``(a,)`` the accelerometer's own stamps, or ``None`` (``stamp_ns``).
+    :param gyro_stamp_ns: ``(g,)`` the gyroscope's own stamps, or ``None`` (``stamp_ns``).
     """
 
     stamp_ns: np.ndarray
@@ -427,6 +446,25 @@ class DriverRecord:
     mag_reference_stamp_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     mag_reference: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     mag_frame_id: str = ''
+    accel_stamp_ns: np.ndarray | None = None
+    gyro_stamp_ns: np.ndarray | None = None
+
+    @property
+    def shared_stamps(self) -> bool:
+        """Whether both sensors come in every message (one stamp each for accelerometer and gyroscope)."""
+        return self.accel_stamp_ns is None and self.gyro_stamp_ns is None
+
+    def sensor_stamps(self, sensor: str) -> np.ndarray:
+        """The stamps of ``'accel'``, ``'gyro'`` or ``'mag'``: its own, or the messages'."""
+        own = {'accel': self.accel_stamp_ns, 'gyro': self.gyro_stamp_ns, 'mag': self.mag_stamp_ns}[sensor]
+        return self.stamp_ns if own is None else own
+
+    @property
+    def first_stamp_ns(self) -> int | None:
+        """The earliest stamp of either sensor (``None`` in an empty block)."""
+        firsts = [int(np.min(stamps)) for stamps in (self.sensor_stamps('accel'), self.sensor_stamps('gyro'))
+                  if len(stamps)]
+        return min(firsts) if firsts else None
 
     def channel(self, sensor: str) -> ChannelRecord:
         """One sensor's three channels as a :class:`ChannelRecord` (nominal scale 1).
@@ -446,16 +484,77 @@ class DriverRecord:
         else:
             msg = f'unknown sensor {sensor!r} (accel, gyro or mag)'
             raise ValueError(msg)
-        return ChannelRecord(counts_stamp_ns=self.stamp_ns, counts=values, temp_stamp_ns=self.temp_stamp_ns,
-                             temp_code=self.temperature, reference_stamp_ns=ref_stamps, reference=reference,
-                             frame_id=self.frame_id, nominal_scale=(1.0, 1.0, 1.0), input_kind='imu',
-                             aux=self.aux)
+        return ChannelRecord(counts_stamp_ns=self.sensor_stamps(sensor), counts=values,
+                             temp_stamp_ns=self.temp_stamp_ns, temp_code=self.temperature,
+                             reference_stamp_ns=ref_stamps, reference=reference, frame_id=self.frame_id,
+                             nominal_scale=(1.0, 1.0, 1.0), input_kind='imu', aux=self.aux)
 
     def six_channels(self) -> ChannelRecord:
         """Both sensors side by side, ``(k, 6)`` (accel x y z, gyro x y z), without reference.
 
-        What ``apply`` aligns: a message is corrected or dropped whole, as in the node.
+        What ``apply`` aligns: a message is corrected or dropped whole, as in the node. A
+        record whose sensors have their own stamps has no such rows (``apply`` corrects each
+        sensor on its own stamps).
+
+        :raises ValueError: the sensors have their own stamps.
         """
+        if not self.shared_stamps:
+            msg = 'six_channels: the accelerometer and the gyroscope have their own stamps'
+            raise ValueError(msg)
         return ChannelRecord(counts_stamp_ns=self.stamp_ns, counts=np.hstack([self.accel, self.gyro]),
                              temp_stamp_ns=self.temp_stamp_ns, temp_code=self.temperature,
                              frame_id=self.frame_id, input_kind='imu', aux=self.aux)
+
+
+@dataclass(frozen=True)
+class SensorMessages:
+    """Imu messages of two sensors that come at their own stamps (:func:`sensor_messages`).
+
+    :param stamp_ns: ``(m,)`` each message's stamp, in stamp order.
+    :param accel_row: ``(m,)`` the accelerometer sample each message carries, ``-1`` for none.
+    :param gyro_row: ``(m,)`` the gyroscope sample each message carries, ``-1`` for none.
+    """
+
+    stamp_ns: np.ndarray
+    accel_row: np.ndarray
+    gyro_row: np.ndarray
+
+
+def _occurrence(stamps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The stream in stamp order (stable) and, per sample, how many earlier samples share its stamp."""
+    order = np.argsort(stamps, kind='stable')
+    ordered = stamps[order]
+    run_start = np.flatnonzero(np.r_[True, ordered[1:] != ordered[:-1]]) if len(ordered) else np.zeros(0, int)
+    starts = np.repeat(run_start, np.diff(np.r_[run_start, len(ordered)]))
+    return order, np.arange(len(ordered)) - starts
+
+
+def sensor_messages(accel_stamp_ns: np.ndarray, gyro_stamp_ns: np.ndarray) -> SensorMessages:
+    """The Imu messages that carry two sensors sampled at their own stamps, without resampling.
+
+    An accelerometer and a gyroscope sample with the same stamp share a message (the k-th of
+    each at that stamp pair up); every other sample has a message of its own, in which the
+    other sensor is absent (``sensor_msgs`` marks it by its covariance[0] = -1). The one rule
+    ``apply`` and the bag writer use, so that reading such a bag back gives each sensor its
+    own samples again.
+    """
+    accel = np.asarray(accel_stamp_ns, dtype=np.int64)
+    gyro = np.asarray(gyro_stamp_ns, dtype=np.int64)
+    accel_order, accel_occurrence = _occurrence(accel)
+    gyro_order, gyro_occurrence = _occurrence(gyro)
+    stamps = np.concatenate([accel[accel_order], gyro[gyro_order]])
+    occurrence = np.concatenate([accel_occurrence, gyro_occurrence])
+    keys = np.unique(np.column_stack([stamps, occurrence]), axis=0) if len(stamps) else np.zeros((0, 2), np.int64)
+    message_stamps = keys[:, 0]
+
+    def rows(order: np.ndarray, own: np.ndarray, own_occurrence: np.ndarray) -> np.ndarray:
+        out = np.full(len(keys), -1, dtype=np.int64)
+        if len(order):
+            ordered = own[order]
+            at = np.searchsorted(message_stamps, ordered, side='left')
+            # messages of one stamp are consecutive, in occurrence order
+            out[at + own_occurrence] = order
+        return out
+
+    return SensorMessages(stamp_ns=message_stamps.copy(), accel_row=rows(accel_order, accel, accel_occurrence),
+                          gyro_row=rows(gyro_order, gyro, gyro_occurrence))

@@ -24,6 +24,10 @@ STATIC_TOLERANCE_DEG = 10.0
 """Largest angle between one sample's measured direction and the mean direction of a static run."""
 
 
+class NotStatic(TakError):
+    """A run without a specific-force reference that is not static in one orientation (:func:`check_static`)."""
+
+
 @dataclass(frozen=True)
 class StaticReference:
     """The reference of a static run, estimated from its measurements.
@@ -78,17 +82,17 @@ def check_static(static: StaticReference, *, gravity: float, max_tilt_deg: float
     """Refuse a run without a specific-force reference that is not static in one orientation.
 
     :param where: the bag, named in the message.
-    :raises TakError: the mean is far below gravity, or a sample points more than
+    :raises NotStatic: the mean is far below gravity, or a sample points more than
         :data:`STATIC_TOLERANCE_DEG` away from the mean direction (the board moved).
     """
     if static.magnitude < 0.1 * gravity:
         msg = (f'{where}: no {reference_topic} and the mean acceleration |{static.magnitude:.4g}| m/s^2 is '
                f'far below gravity: not a static run; record the reference')
-        raise TakError(msg)
+        raise NotStatic(msg)
     if max_tilt_deg > STATIC_TOLERANCE_DEG:
         msg = (f'{where}: no {reference_topic} and the board moved (a sample {max_tilt_deg:.1f} deg '
                f'from the mean direction): a static run needs one orientation; record the reference')
-        raise TakError(msg)
+        raise NotStatic(msg)
 
 
 def reference_line(static: StaticReference, *, gravity: float, max_tilt_deg: float) -> str:

@@ -62,6 +62,8 @@ class RecordSurvey:
         (``None`` without one).
     :param mean: ``(3,)`` the mean of the accelerometer's finite samples (a static run's reference).
     :param samples: finite accelerometer samples in that mean.
+    :param shared_stamps: both sensors in every message (``False``: a record whose sensors come at
+        their own stamps, such as a flight log; the rests are then found on the accelerometer alone).
     """
 
     kind: str
@@ -72,6 +74,7 @@ class RecordSurvey:
     reference_directions: int | None
     mean: np.ndarray
     samples: int
+    shared_stamps: bool = True
 
     @property
     def has_reference(self) -> bool:
@@ -106,7 +109,8 @@ class SurveyCollector:
 
     def __init__(self, kind: str) -> None:
         self.kind = kind
-        self.detector = StillDetector(channels=6 if kind == 'imu' else 3)
+        self.detector: StillDetector | None = None
+        self.shared_stamps = True
         self.low = math.inf
         self.high = -math.inf
         self.temperatures = 0
@@ -120,14 +124,21 @@ class SurveyCollector:
     def add(self, block: ChannelRecord | DriverRecord) -> None:
         """One block as the record's reader gives it."""
         if isinstance(block, DriverRecord):
-            stamps, values = block.stamp_ns, np.hstack([block.accel, block.gyro])
+            if block.shared_stamps:
+                stamps, values = block.stamp_ns, np.hstack([block.accel, block.gyro])
+            else:  # the sensors at their own stamps: the rests from the accelerometer alone
+                self.shared_stamps = False
+                stamps, values = block.sensor_stamps('accel'), block.accel
             temperature, reference = block.temperature, block.reference
             self.rate_references += len(block.rate_reference_stamp_ns)
             self.mags += len(block.mag_stamp_ns)
         else:
             stamps, values = block.counts_stamp_ns, block.counts
             temperature, reference = block.temp_code, block.reference
-        self.detector.push(stamps, values)
+        if self.detector is None:
+            self.detector = StillDetector(channels=values.shape[1])
+        if values.shape[1] == self.detector.channels:
+            self.detector.push(stamps, values)
         finite = np.all(np.isfinite(values), axis=1)
         self.total += values[finite, :3].sum(axis=0)
         self.finite += int(np.count_nonzero(finite))
@@ -150,7 +161,7 @@ class SurveyCollector:
 
     def finish(self, streams: tuple[tuple[str, str, int], ...]) -> RecordSurvey:
         """The survey; ``streams``: ``(role, topic, messages)`` from the record's index, main first."""
-        still = self.detector.finish()
+        still = (self.detector or StillDetector(channels=3)).finish()
         duration = still.duration_s
         listed = tuple(Stream(role, topic, count, count / duration if duration > 0.0 else 0.0)
                        for role, topic, count in streams if count)
@@ -158,4 +169,5 @@ class SurveyCollector:
             kind=self.kind, streams=listed, duration_s=duration,
             temperature=(self.low, self.high) if self.low <= self.high else None, still=still,
             reference_directions=(len(self.references[0]) if self.references else 0) if self.reference_count else None,
-            mean=self.total / self.finite if self.finite else np.zeros(3), samples=self.finite)
+            mean=self.total / self.finite if self.finite else np.zeros(3), samples=self.finite,
+            shared_stamps=self.shared_stamps)

@@ -37,6 +37,7 @@ from tak_thermo_ros.core.records.record import (
     NANOSECONDS,
     ChannelRecord,
     DriverRecord,
+    hold_last_index,
     seconds_from_ns,
 )
 from tak_thermo_ros.core.simulation.motion import HandheldMotion, Trajectory, hand_trajectory, motion_from_mapping
@@ -186,6 +187,10 @@ class Scenario:
     :param rotation: with ``output: imu`` and a ``magnetometer``, ``tumble`` (every orientation),
         ``yaw`` (about z only) or ``cap`` (within 40 deg of z up) writes instead a rotation record
         for the iron (2000 samples at ``sample_rate_hz``, at ``start_celsius``); ``''``: a chamber run.
+    :param warm_to_celsius: with ``rotation``, the unit warms while it is turned, from
+        ``start_celsius`` towards this (a time constant of a third of the record); ``None``: constant.
+    :param record_temperature: with ``output: imu``, publish the temperature on ``/imu/temperature``;
+        ``false``: a driver that publishes none (the sensors still drift with the board's temperature).
     :param magnetometer: with ``output: imu``, a magnetometer on ``/imu/mag``
         (:mod:`tak_thermo_ros.core.simulation.magnetometer`; YAML: a mapping, ``{}`` for the
         defaults), or ``None`` (default: none).
@@ -225,6 +230,8 @@ class Scenario:
     record_supply_type: str = 'battery_state'
     magnetometer: MagnetometerTruth | None = None
     rotation: str = ''
+    warm_to_celsius: float | None = None
+    record_temperature: bool = True
     handheld: HandheldMotion | None = None
 
     def __post_init__(self) -> None:
@@ -438,7 +445,11 @@ def simulate(scenario: Scenario | None = None) -> SimulatedRun:
     """Simulate one run of the scenario (deterministic for a given seed)."""
     scenario = scenario or Scenario()
     if scenario.output == 'imu':
-        return _simulate_driver(scenario)
+        run = _simulate_driver(scenario)
+        if scenario.record_temperature:
+            return run
+        driver = replace(run.driver, temp_stamp_ns=np.zeros(0, dtype=np.int64), temperature=np.zeros(0))
+        return replace(run, driver=driver, record=driver.channel('accel'))
     rng = np.random.default_rng(scenario.seed)
     count = int(math.floor(scenario.duration_s() * scenario.sample_rate_hz)) + 1
     time_s = np.arange(count) / scenario.sample_rate_hz
@@ -626,8 +637,10 @@ def _rotation_run(scenario: Scenario) -> SimulatedRun:
     driver = rotation_record(scenario.magnetometer, samples=2000, rate_hz=scenario.sample_rate_hz,
                              temperature_celsius=scenario.start_celsius, reference_celsius=scenario.reference_celsius,
                              turn=scenario.rotation, seed=scenario.seed, start_time_s=scenario.start_time_s,
-                             frame_id=scenario.frame_id)
+                             frame_id=scenario.frame_id, warm_to_celsius=scenario.warm_to_celsius)
     constant = np.full(len(driver.stamp_ns), scenario.start_celsius)
+    if scenario.warm_to_celsius is not None:
+        constant = driver.temperature[hold_last_index(driver.temp_stamp_ns, driver.stamp_ns)]
     unit_truth = scenario.driver_truth()
     return SimulatedRun(record=driver.channel('accel'), board_celsius=constant, chamber_celsius=constant,
                         true_temp_code=constant, specific_force=driver.accel, truth=unit_truth.accel,

@@ -216,19 +216,36 @@ def _matrices(quaternion: np.ndarray) -> np.ndarray:
                      np.column_stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)])], axis=1)
 
 
+def rotation_truth(truth: MagnetometerTruth, *, samples: int = 2000, turn: str = 'tumble',
+                   seed: int = 0) -> np.ndarray:
+    """``(samples, 3)`` the Earth's field in the sensor frame that :func:`rotation_record` turns through.
+
+    The same random draws as the record of the same ``samples``, ``turn`` and ``seed`` (its first).
+    """
+    rotations = random_rotations(samples, np.random.default_rng([seed, 18]), turn)
+    return np.einsum('kji,j->ki', rotations, np.asarray(truth.earth_field))
+
+
 def rotation_record(truth: MagnetometerTruth, *, samples: int = 2000, rate_hz: float = 10.0,
                     temperature_celsius: float = 20.0, reference_celsius: float = 20.0, turn: str = 'tumble',
                     seed: int = 0, start_time_s: float = 1_700_000_000.0, frame_id: str = 'tak_imu',
-                    accel_noise: float = 0.004, gyro_noise: float = 0.0008) -> DriverRecord:
+                    accel_noise: float = 0.004, gyro_noise: float = 0.0008, warm_to_celsius: float | None = None,
+                    record_temperature: bool = True) -> DriverRecord:
     """A rotation record of the installed unit for the ellipsoid fit.
 
-    The driver's Imu (gravity turned with the unit, ideal otherwise), its temperature (constant)
-    and ``/imu/mag``.
+    The driver's Imu (gravity turned with the unit, ideal otherwise), its temperature and
+    ``/imu/mag``. The temperature is constant, or (``warm_to_celsius``) a unit warming up while
+    it is turned: from ``temperature_celsius`` towards ``warm_to_celsius`` with a time constant of
+    a third of the record (95 % of the way at its end). ``record_temperature`` false: the driver
+    publishes none (the field still drifts with the board's temperature).
     """
     rng = np.random.default_rng([seed, 18])
     rotations = random_rotations(samples, rng, turn)
     field = np.einsum('kji,j->ki', rotations, np.asarray(truth.earth_field))
     temperature = np.full(samples, float(temperature_celsius))
+    if warm_to_celsius is not None:
+        progress = 1.0 - np.exp(-3.0 * np.arange(samples) / max(samples - 1, 1))
+        temperature = temperature + (float(warm_to_celsius) - float(temperature_celsius)) * progress
     stamps_s = start_time_s + np.arange(samples) / rate_hz
     mag = truth.measure(field, temperature, reference_celsius, rng, stamps_s)
     gravity = np.einsum('kji,j->ki', rotations, np.array([0.0, 0.0, STANDARD_GRAVITY]))
@@ -237,7 +254,7 @@ def rotation_record(truth: MagnetometerTruth, *, samples: int = 2000, rate_hz: f
     orientation[:, 3] = 1.0
     covariance = np.zeros((samples, 9))
     covariance[:, 0] = -1.0
-    temp_rows = np.arange(0, samples, 5)
+    temp_rows = np.arange(0, samples, 5) if record_temperature else np.zeros(0, dtype=np.int64)
     return DriverRecord(stamp_ns=stamps, accel=gravity + rng.standard_normal((samples, 3)) * accel_noise,
                         gyro=rng.standard_normal((samples, 3)) * gyro_noise, orientation=orientation,
                         orientation_covariance=covariance, temp_stamp_ns=stamps[temp_rows],

@@ -1,0 +1,62 @@
+"""``tak_calib export``: a calibration as PX4's or ArduPilot's temperature parameters, and what they cannot carry."""
+
+from __future__ import annotations
+
+import argparse
+
+from tak_thermo_ros.cli import options
+from tak_thermo_ros.core.link.model import InputKind
+from tak_thermo_ros.errors import TakError
+from tak_thermo_ros.formats.calibration_file import load_unit
+from tak_thermo_ros.formats.files import FILE
+
+NAME = 'export'
+OUTPUTS = (('output', FILE, '-o'),)
+"""This command's outputs: ``(argument, kind, option)``, checked before any work is done."""
+FORMATS = {'px4': 'PX4 TC_* parameters (QGroundControl .params)', 'ardupilot': 'ArduPilot INS_TCALn_* parameters'}
+
+
+def add_parser(commands) -> argparse.ArgumentParser:
+    """Add the command to ``tak_calib``'s subcommands."""
+    parser = commands.add_parser('export', help="write a calibration as PX4's or ArduPilot's temperature parameters")
+    parser.add_argument('params', metavar='PARAMS.yaml', help='a driver calibration (tak_calib fit)')
+    parser.add_argument('--format', required=True, choices=sorted(FORMATS),
+                        help='px4: TC_A/TC_G parameters with the device IDs (QGroundControl .params); '
+                             'ardupilot: INS_TCALn_* (NAME VALUE)')
+    parser.add_argument('-o', '--output', required=True, metavar='FILE', help='FILE.params (px4) or FILE.parm')
+    parser.add_argument('--instance', type=options.int_within(0, 3), metavar='N',
+                        help="the firmware's sensor slot: TC_An/TC_Gn (PX4, 0..3), INS_TCAL<N+1> (ArduPilot, 0..2); "
+                             "default: the flight log's instance the calibration was fitted from, else 0")
+    parser.add_argument('--force', action='store_true', help='replace an existing output file')
+    parser.add_argument('--debug', action='store_true', default=argparse.SUPPRESS,
+                        help='show the traceback of an error')
+    parser.set_defaults(handler=run)
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    """Write the parameters; one line for each thing the firmware's parameters leave out, with its size."""
+    from tak_thermo_ros.formats.ardupilot_params import ardupilot_parameters, write_ardupilot_params
+    from tak_thermo_ros.formats.px4_params import px4_parameters, write_px4_params
+    unit = load_unit(args.params)
+    if unit.input_kind is not InputKind.IMU:
+        msg = (f'{args.params} is a calibration of the paper\'s channel codes: PX4 and ArduPilot take a driver\'s '
+               f'm/s^2 and rad/s (fit a driver bag or a flight log)')
+        raise TakError(msg)
+    source = unit.source or {}
+    instance = args.instance if args.instance is not None else int(source.get('instance', 0))
+    if args.format == 'ardupilot' and instance > 2:
+        msg = f'--instance {instance}: ArduPilot has INS_TCAL1..3 (instances 0..2)'
+        raise TakError(msg)
+    header = (f'tak_thermo_ros: {FORMATS[args.format]} from {args.params} '
+              f'(fitted from {source.get("format", "a record")}, instance {source.get("instance", "-")})')
+    if args.format == 'px4':
+        parameters = px4_parameters(unit, instance=instance)
+        write_px4_params(args.output, parameters, header=header)
+    else:
+        parameters = ardupilot_parameters(unit, instance=instance)
+        write_ardupilot_params(args.output, parameters, header=header)
+    for line in parameters.lines:
+        print(line)
+    print(f'wrote {len(parameters.values)} parameters to {args.output}')
+    return 0
