@@ -478,9 +478,10 @@ class ImuLinkUndetermined(FitError):
     ``reason`` says which in a few words.
     """
 
-    def __init__(self, message: str, reason: str) -> None:
+    def __init__(self, message: str, reason: str, survey: RecordSurvey | None = None) -> None:
         super().__init__(message)
         self.reason = reason
+        self.survey = survey
 
 
 MOVED = 'the board moved, no reference'
@@ -505,7 +506,7 @@ def fit_imu(path: str | Path, settings: FitSettings, options: StreamOptions,
     except ImuLinkUndetermined as err:
         if not hold_undetermined:
             raise
-        reason = err.reason
+        reason, survey = err.reason, err.survey
     results = {}
     for sensor in ('accel', 'gyro'):
         link = held_link(notes=(HELD_IMU_NOTE.format(reason=reason),))
@@ -513,7 +514,7 @@ def fit_imu(path: str | Path, settings: FitSettings, options: StreamOptions,
                                     dropped={})
     return StreamedFit(input_kind=InputKind.IMU, sensors=('accel', 'gyro'), results=results, usable={},
                        effect_stride={}, reference_lines=(), ignored_temp_codes={'accel': {}, 'gyro': {}},
-                       ignored_references={'accel': {}, 'gyro': {}}, held=('accel', 'gyro'))
+                       ignored_references={'accel': {}, 'gyro': {}}, held=('accel', 'gyro'), survey=survey)
 
 
 def decided(path: Path, survey: RecordSurvey) -> Plan:
@@ -531,12 +532,12 @@ def decided(path: Path, survey: RecordSurvey) -> Plan:
         msg = (f'{path}: no reference topics and no still interval (the unit never rested {MIN_STILL_S:g} s or more, '
                f'still {100.0 * survey.still.still_fraction:.0f} % of the time): nothing to fit; rest 5-10 s in each '
                f'orientation (docs/handheld.md)')
-        raise ImuLinkUndetermined(msg, MOVED)
+        raise ImuLinkUndetermined(msg, MOVED, survey)
     if plan is Plan.HANDHELD and not survey.shared_stamps:
         reason = 'turned by hand, its sensors at their own stamps'
         msg = (f'{path}: {reason}: a hand-held fit takes both sensors in every message (a driver\'s Imu); '
                f'nothing to fit')
-        raise ImuLinkUndetermined(msg, reason)
+        raise ImuLinkUndetermined(msg, reason, survey)
     return plan
 
 

@@ -217,8 +217,10 @@ PLAN_WORDS = {
     'fit': {'table': 'a table run (reference topics): offset and scale against temperature per axis',
             'static': 'a static run (no reference topics, one orientation)\noffsets against temperature, scales held',
             'handheld': 'a hand-held record (no reference topics, {orientations} orientations at rest)\n'
-                        'offset, scale and misalignment of both sensors {against}'},
-    'apply': {plan: 'every message corrected with the calibration' for plan in ('table', 'static', 'handheld')},
+                        'offset, scale and misalignment of both sensors {against}',
+            'moving': 'the unit never rests and there is no reference: no accelerometer or gyroscope link'},
+    'apply': {plan: 'every message corrected with the calibration'
+              for plan in ('table', 'static', 'handheld', 'moving')},
     'validate': {'table': '|g| and the rate against the recorded references',
                  'static': '|g| and the rate at rest (one orientation)',
                  'handheld': "|g| and the rate at the rests, and the turns' closure"},

@@ -333,10 +333,14 @@ def _solve(system: _System, held: dict[int, float], width: int, *, rows: int | N
     :param extra_rss: residual the compression left out.
     """
     reduced, free = system.reduced(held)
-    solution = solve_factor(reduced.factor, max(reduced.count, 1))
     theta = np.zeros(width)
     for j, value in held.items():
         theta[j] = value
+    if not free:  # everything held: nothing to solve
+        nothing = np.zeros((0, 0))
+        solution = Solution(np.zeros(0), nothing, np.zeros(0), float(reduced.factor[-1, -1] ** 2), 0, np.zeros(0))
+        return _Solved(theta, free, nothing, dict(held), solution, max(system.count, 1), nothing)
+    solution = solve_factor(reduced.factor, max(reduced.count, 1))
     theta[free] = solution.coefficients
     dof = max((system.count if rows is None else rows) - len(free), 1)
     variance = (solution.rss + extra_rss) / dof

@@ -8,7 +8,8 @@ windows (those whose variance stays within ten times the channel's tenth percent
 drift cancels in a difference, so this is the channel's white noise whatever share of the
 record moves. A window is *still* when on every channel its variance stays below the noise
 times the chi-square quantile of :data:`FALSE_MOVE_PROBABILITY` (the threshold follows the
-data's own noise, as imu_tk's follows its initial rest). Consecutive still windows form a run
+data's own noise, as imu_tk's follows its initial rest), and its specific force points one way
+(:data:`AGREEMENT`). Consecutive still windows form a run
 while each window's mean agrees with the run's recent mean within :data:`MEAN_SIGMAS` standard
 errors on every channel (a slow tilt, or a knock that leaves the unit in a new pose, starts a
 new run). A run loses its first and last window (the start and end of a turn are slow), and
@@ -39,6 +40,10 @@ RECENT_WINDOWS = 8
 """The run's mean that a new window is compared with: over at most this many windows before it."""
 GAP_PERIODS = 5.0
 """A step between stamps longer than this many typical periods is a gap: no window and no interval crosses it."""
+AGREEMENT = 0.95
+"""A still window's specific force points one way: its mean's magnitude is at least this share of
+the mean magnitude of its samples (a unit turning, or samples that are not a continuous signal,
+fail it whatever their noise)."""
 ORIENTATION_DEG = 10.0
 """Two still intervals whose gravity directions lie further apart than this are two orientations."""
 FACE_DEG = 30.0
@@ -222,28 +227,30 @@ class StillDetector:
         mean = shaped.mean(axis=1)
         variance = shaped.var(axis=1, ddof=1)
         differences = 0.5 * np.mean(np.diff(shaped, axis=1) ** 2, axis=1)
+        magnitude = np.linalg.norm(shaped[:, :, :3], axis=2).mean(axis=1, keepdims=True)
         stamps = stamp_ns.reshape(-1, w)
         gap = np.zeros((len(mean), 1))
         gap[0, 0] = 1.0 if self._after_gap else 0.0
         self._after_gap = False
         self._stamps.append(np.column_stack([stamps[:, 0], stamps[:, -1]]))
-        self._rows.append(np.hstack([gap, mean, variance, differences]))
+        self._rows.append(np.hstack([gap, mean, variance, differences, magnitude]))
 
     def finish(self) -> StillIntervals:
         """The still intervals of everything pushed."""
-        rows = np.vstack(self._rows) if self._rows else np.zeros((0, 1 + 3 * self.channels))
+        rows = np.vstack(self._rows) if self._rows else np.zeros((0, 2 + 3 * self.channels))
         stamps = np.vstack(self._stamps) if self._stamps else np.zeros((0, 2), dtype=np.int64)
-        channels = (rows.shape[1] - 1) // 3
+        channels = (rows.shape[1] - 2) // 3
         first, last = stamps[:, 0], stamps[:, 1]
         after_gap = rows[:, 0] > 0.5
         mean = rows[:, 1:1 + channels]
         variance = rows[:, 1 + channels:1 + 2 * channels]
-        differences = rows[:, 1 + 2 * channels:]
+        differences = rows[:, 1 + 2 * channels:1 + 3 * channels]
+        agree = np.linalg.norm(mean[:, :3], axis=1) >= AGREEMENT * rows[:, -1]
         noise = _channel_noise(variance, differences)
         w = self.window_samples
         still = np.zeros(len(rows), dtype=bool)
         if len(rows):
-            still = np.all(variance <= noise ** 2 * _quantile(w - 1), axis=1)
+            still = np.all(variance <= noise ** 2 * _quantile(w - 1), axis=1) & agree
         runs = self._runs(still, after_gap, mean, noise)
         intervals = []
         for run in runs:
