@@ -34,7 +34,7 @@ WARMING = Scenario(output='imu', sample_rate_hz=10.0, start_celsius=5.0, effects
                    gyro_effects=GYRO_MISALIGNMENT,
                    handheld=HandheldMotion(orientations=100, warmup_tau_s=400.0, final_celsius=35.0))
 """A cold unit turned by hand through 100 random orientations while it warms from 5 C (17 min at 10 Hz)."""
-SIX_FACES = replace(WARMING, plateaus_celsius=(5.0, 15.0, 20.0, 30.0, 35.0), plateau_hours=0.06,
+SIX_FACES = replace(WARMING, plateaus_celsius=(5.0, 15.0, 20.0, 30.0, 35.0), plateau_hours=0.1,
                     ramp_celsius_per_minute=5.0, board_lag_s=30.0,
                     handheld=HandheldMotion(pattern='six_faces', temperature='chamber', still_s=12.0, turn_s=3.0))
 """The six faces in turn at five chamber plateaus (the paper's protocol, set down by hand within 2 deg)."""

@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     The bag is read block by block (bounded memory); the errors are accumulated as sums.
     """
     from tak_thermo_ros.core.records.static_run import NotStatic
-    from tak_thermo_ros.streaming import validate_bag
+    from tak_thermo_ros.streaming import ImuLinkUndetermined, validate_bag
     from tak_thermo_ros.streaming_mag import has_mag
     unit = load_unit(args.params)
     options = common.stream_options(args)
@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
         run = validate_bag(args.bag, unit, options, gravity=args.gravity,
                            latitude=getattr(args, 'latitude', None), out_of_range=OutOfRange(args.out_of_range),
                            expect_kind=lambda kind: common.check_kind(args, unit, kind))
-    except NotStatic:
+    except (NotStatic, ImuLinkUndetermined):  # turned, one orientation; or never at rest
         # A record turned by hand has no reference for the accelerometer and gyroscope; its
         # magnetometer is still checked (|B| in every orientation).
         if unit.mag is None or not has_mag(args.bag, options.topics):
