@@ -149,6 +149,7 @@ class NoiseRun:
     compensated: bool
     reference_lines: tuple[str, ...]
     topic: str
+    survey: object = None
 
     @property
     def models(self) -> dict[str, NoiseModel]:
@@ -197,6 +198,11 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
     holding = (temperature_expected(path, streams, options, needed=unit.needs_temperature, what='the calibration')
                if unit is not None else streams.kind is InputKind.COUNTS or streams.temperature > 0)
     opened = open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=True)
+    if opened.survey is not None and opened.static is None:
+        msg = (f'{path}: no reference topics and the unit moves ({opened.survey.still.orientations()} orientations '
+               f'at rest, {100.0 * opened.survey.still.still_fraction:.0f} % of the time): a noise model needs a '
+               f'static record')
+        raise NoiseError(msg)
     sensors = sensors_of(opened.kind)
     noises = {sensor: _SensorNoise(unit.sensor(sensor) if unit is not None else None, out_of_range, per_octave)
               for sensor in sensors}
@@ -229,7 +235,7 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
                                                 temperature_unit='codes' if kind is InputKind.COUNTS else 'C')
     topic = options.topics.counts if opened.kind is InputKind.COUNTS else options.topics.raw_imu
     return NoiseRun(input_kind=opened.kind, sensors=found, compensated=unit is not None,
-                    reference_lines=tuple(lines), topic=topic)
+                    reference_lines=tuple(lines), topic=topic, survey=opened.finished_survey())
 
 
 def run_source(temperature: tuple[float, float], kind: InputKind, unit: UnitCalibration | None) -> str:

@@ -6,8 +6,10 @@ each block on the main stream with the held values carried over
 the blocked-QR fit (:class:`~tak_thermo_ros.core.fit.stream.StreamingFit`), the corrector
 that carries the effects' state (:class:`~tak_thermo_ros.core.link.stream_correction.BlockUnitCorrector`)
 and an open bag writer, the validation sums, or a bounded, evenly spread subsample (the
-effects' shape search, ``diagnose``). A driver bag without reference topics (a static run)
-takes one extra pass for the mean measured direction first. See docs/streaming.md.
+effects' shape search, ``diagnose``). A driver bag without reference topics is surveyed in one
+extra pass first (:mod:`tak_thermo_ros.core.records.survey`): a static run takes its mean
+measured direction as the reference, a hand-held record goes to
+:mod:`tak_thermo_ros.streaming_handheld`. See docs/streaming.md.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ import math
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Iterator, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -28,6 +30,7 @@ from tak_thermo_ros.core.fit import FitResult, fit_model
 from tak_thermo_ros.core.fit.model import AxisFit
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration, held_link
 from tak_thermo_ros.core.records.record import AlignedSamples, ChannelRecord, DriverRecord, require_signals
+from tak_thermo_ros.core.records.survey import Plan, RecordSurvey, SurveyCollector
 from tak_thermo_ros.core.records.static_run import (
     NotStatic,
     StaticReference,
@@ -73,10 +76,10 @@ class StreamOptions:
 
 
 class _StaticRun:
-    """A driver bag's missing references, estimated as a static run (one extra pass, the mean)."""
+    """A driver bag's missing references, estimated as a static run (the mean: the survey's, or one extra pass)."""
 
     def __init__(self, path: Path, options: StreamOptions, *, recorded_reference: bool, recorded_rate: bool,
-                 gravity: float, latitude: float | None) -> None:
+                 gravity: float, latitude: float | None, survey: RecordSurvey | None = None) -> None:
         from tak_thermo_ros.formats.records import record_blocks
         topics = options.topics
         self.path = path
@@ -91,13 +94,16 @@ class _StaticRun:
         if recorded_reference and recorded_rate:
             self.lines.append(f'reference: {topics.reference} and {topics.reference_rate} as recorded')
             return
-        total = np.zeros(3)
-        count = 0
-        for block in record_blocks(path, topics=topics, kind=InputKind.IMU, block_samples=options.block_samples,
-                                   references=False, progress=options.progress):
-            finite = np.all(np.isfinite(block.accel), axis=1)  # type: ignore[union-attr]
-            total += block.accel[finite].sum(axis=0)  # type: ignore[union-attr]
-            count += int(np.count_nonzero(finite))
+        if survey is not None:  # the survey's pass took the mean already
+            total, count = survey.mean * survey.samples, survey.samples
+        else:
+            total = np.zeros(3)
+            count = 0
+            for block in record_blocks(path, topics=topics, kind=InputKind.IMU, block_samples=options.block_samples,
+                                       references=False, progress=options.progress):
+                finite = np.all(np.isfinite(block.accel), axis=1)  # type: ignore[union-attr]
+                total += block.accel[finite].sum(axis=0)  # type: ignore[union-attr]
+                count += int(np.count_nonzero(finite))
         mean = total / count if count else np.zeros(3)
         self.static = static_reference(mean.reshape(1, 3) if count else np.zeros((0, 3)), gravity=gravity,
                                        latitude_deg=latitude)
@@ -178,11 +184,29 @@ def _sensor_records(block: ChannelRecord | DriverRecord, kind: InputKind) -> dic
 
 @dataclass(frozen=True)
 class OpenedRun:
-    """A bag opened for a calibration-run pass (references held)."""
+    """A bag opened for a calibration-run pass (references held).
+
+    :param survey: what the record holds, when a first pass was needed to know it (a driver
+        bag without reference topics); else ``collector`` gathers it during the pass.
+    :param streams: ``(role, topic, messages)`` of the record's streams (for the survey).
+    :param replay: the survey's blocks, kept when the record holds at most
+        :data:`SURVEY_REPLAY_SAMPLES` messages (a hand-held record is then not read again).
+    """
 
     kind: InputKind
     main: int
     static: _StaticRun | None
+    survey: RecordSurvey | None = None
+    collector: SurveyCollector | None = None
+    streams: tuple[tuple[str, str, int], ...] = ()
+    replay: tuple[DriverRecord, ...] | None = None
+
+    def finished_survey(self) -> RecordSurvey:
+        """The survey, after the pass (the one taken first, else what the pass gathered)."""
+        if self.survey is not None:
+            return self.survey
+        assert self.collector is not None
+        return self.collector.finish(self.streams)
 
 
 def temperature_expected(path: Path, streams, options: StreamOptions, *, needed: bool, what: str) -> bool:
@@ -211,11 +235,57 @@ def open_calibration_run(path: Path, options: StreamOptions, *, gravity: float, 
     streams = record_streams(path, topics=options.topics)
     if require_reference and streams.kind is InputKind.COUNTS:
         streams = record_streams(path, topics=options.topics, require_reference=True)
+    listed = stream_list(streams, options.topics)
     static = None
+    survey = None
+    replay = None
     if streams.kind is InputKind.IMU:
-        static = _StaticRun(path, options, recorded_reference=streams.reference > 0,
-                            recorded_rate=streams.rate_reference > 0, gravity=gravity, latitude=latitude)
-    return OpenedRun(streams.kind, streams.main, static)
+        if not streams.reference:
+            # Without references the record itself says what it is (static, hand-held): one pass first.
+            survey, replay = survey_record(path, options, streams.kind, listed,
+                                           keep=streams.main <= SURVEY_REPLAY_SAMPLES)
+        if survey is None or survey.plan is Plan.STATIC:
+            static = _StaticRun(path, options, recorded_reference=streams.reference > 0,
+                                recorded_rate=streams.rate_reference > 0, gravity=gravity, latitude=latitude,
+                                survey=survey)
+    collector = None if survey is not None else SurveyCollector(streams.kind.value)
+    if survey is not None and survey.plan is not Plan.HANDHELD:
+        replay = None  # only a hand-held record reads its blocks again
+    return OpenedRun(streams.kind, streams.main, static, survey, collector, listed, replay)
+
+
+def stream_list(streams, topics) -> tuple[tuple[str, str, int], ...]:
+    """``(role, topic, messages)`` of a record's streams (:class:`~tak_thermo_ros.formats.bag.BagStreams`)."""
+    if streams.kind is InputKind.COUNTS:
+        return (('main', topics.counts, streams.main), ('temperature', topics.temp_code, streams.temperature),
+                ('reference', topics.reference, streams.reference))
+    return (('main', topics.raw_imu, streams.main), ('temperature', topics.temperature, streams.temperature),
+            ('reference', topics.reference, streams.reference),
+            ('rate_reference', topics.reference_rate, streams.rate_reference), ('mag', topics.mag, streams.mag),
+            ('mag_reference', topics.reference_field, streams.mag_reference))
+
+
+SURVEY_REPLAY_SAMPLES = 2_000_000
+"""A record of at most this many main messages keeps its survey's blocks (about 60 bytes a message)."""
+
+
+def survey_record(path: Path, options: StreamOptions, kind: InputKind, listed: tuple[tuple[str, str, int], ...],
+                  *, keep: bool = False) -> tuple[RecordSurvey, tuple[DriverRecord, ...] | None]:
+    """What a record holds, from one pass over its main and temperature streams; its blocks if ``keep``.
+
+    The kept blocks hold what a later pass over a driver record needs (stamps, the two sensors, the
+    temperature and recorded signals), not the orientation the driver passes through.
+    """
+    from tak_thermo_ros.formats.records import record_blocks
+    collector = SurveyCollector(kind.value)
+    kept: list[DriverRecord] | None = [] if keep and kind is InputKind.IMU else None
+    for block in record_blocks(path, topics=options.topics, kind=kind, block_samples=options.block_samples,
+                               references=False, progress=options.progress):
+        collector.add(block)
+        if kept is not None:
+            kept.append(replace(block, orientation=np.zeros((0, 4)), orientation_covariance=np.zeros((0, 9)),
+                                mag_stamp_ns=np.zeros(0, dtype=np.int64), mag=np.zeros((0, 3))))
+    return collector.finish(listed), tuple(kept) if kept is not None else None
 
 
 def run_passes(path: Path, options: StreamOptions, opened: OpenedRun, passes: Sequence[SensorPass]) -> list[str]:
@@ -225,6 +295,8 @@ def run_passes(path: Path, options: StreamOptions, opened: OpenedRun, passes: Se
         opened.static.rewind()
     for block in record_blocks(path, topics=options.topics, kind=opened.kind,
                                block_samples=options.block_samples, progress=options.progress):
+        if opened.collector is not None:
+            opened.collector.add(block)
         if opened.static is not None:
             block = opened.static.check_block(block)
         records = _sensor_records(block, opened.kind)
@@ -278,6 +350,8 @@ class StreamedFit:
     reference_lines: tuple[str, ...]
     ignored_temp_codes: dict[str, dict[str, int]] = field(default_factory=dict)
     ignored_references: dict[str, dict[str, int]] = field(default_factory=dict)
+    survey: RecordSurvey | None = None
+    handheld: Any = None
     temperature_rate_max: float = 0.0
     """The run's fastest temperature change over 60 s (the accelerometer's samples), per second."""
     rate_max: float = 0.0
@@ -312,6 +386,9 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
                                       require_reference=True)
     except NotStatic as err:
         raise ImuLinkUndetermined(str(err), MOVED) from None
+    if opened.survey is not None and decided(path, opened.survey) is Plan.HANDHELD:
+        from tak_thermo_ros.streaming_handheld import fit_handheld_bag
+        return fit_handheld_bag(path, settings, options, opened.survey, replay=opened.replay)
     kind = opened.kind
     sensors = sensors_of(kind)
     if kind is InputKind.COUNTS and settings.effects.get('gyro'):
@@ -390,7 +467,8 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
                        ignored_temp_codes={p.sensor: dict(p.aligner.ignored_temp_codes) for p in passes},
                        ignored_references={p.sensor: dict(p.aligner.ignored_references) for p in passes},
                        temperature_rate_max=extremes['accel'].temperature_rate_max,
-                       rate_max=extremes['gyro'].reference_max if 'gyro' in extremes else 0.0)
+                       rate_max=extremes['gyro'].reference_max if 'gyro' in extremes else 0.0,
+                       survey=opened.finished_survey())
 
 
 class ImuLinkUndetermined(FitError):
@@ -400,9 +478,10 @@ class ImuLinkUndetermined(FitError):
     ``reason`` says which in a few words.
     """
 
-    def __init__(self, message: str, reason: str) -> None:
+    def __init__(self, message: str, reason: str, survey: RecordSurvey | None = None) -> None:
         super().__init__(message)
         self.reason = reason
+        self.survey = survey
 
 
 MOVED = 'the board moved, no reference'
@@ -427,7 +506,7 @@ def fit_imu(path: str | Path, settings: FitSettings, options: StreamOptions,
     except ImuLinkUndetermined as err:
         if not hold_undetermined:
             raise
-        reason = err.reason
+        reason, survey = err.reason, err.survey
     results = {}
     for sensor in ('accel', 'gyro'):
         link = held_link(notes=(HELD_IMU_NOTE.format(reason=reason),))
@@ -435,7 +514,31 @@ def fit_imu(path: str | Path, settings: FitSettings, options: StreamOptions,
                                     dropped={})
     return StreamedFit(input_kind=InputKind.IMU, sensors=('accel', 'gyro'), results=results, usable={},
                        effect_stride={}, reference_lines=(), ignored_temp_codes={'accel': {}, 'gyro': {}},
-                       ignored_references={'accel': {}, 'gyro': {}}, held=('accel', 'gyro'))
+                       ignored_references={'accel': {}, 'gyro': {}}, held=('accel', 'gyro'), survey=survey)
+
+
+def decided(path: Path, survey: RecordSurvey) -> Plan:
+    """The plan of a record without reference topics (:func:`~tak_thermo_ros.core.records.survey.fit_plan`).
+
+    The one place a reference-less record is taken as hand-held or static. A record that never
+    rests, and a hand-held record whose sensors come at their own stamps (a flight log: the
+    turns need both sensors in every message), determine no link of the accelerometer and
+    gyroscope (:class:`ImuLinkUndetermined`: :func:`fit_imu` holds them when the record determines
+    its magnetometer, else refuses it in one line).
+    """
+    from tak_thermo_ros.core.records.still import MIN_STILL_S
+    plan = survey.plan
+    if plan is Plan.MOVING:
+        msg = (f'{path}: no reference topics and no still interval (the unit never rested {MIN_STILL_S:g} s or more, '
+               f'still {100.0 * survey.still.still_fraction:.0f} % of the time): nothing to fit; rest 5-10 s in each '
+               f'orientation (docs/handheld.md)')
+        raise ImuLinkUndetermined(msg, MOVED, survey)
+    if plan is Plan.HANDHELD and not survey.shared_stamps:
+        reason = 'turned by hand, its sensors at their own stamps'
+        msg = (f'{path}: {reason}: a hand-held fit takes both sensors in every message (a driver\'s Imu); '
+               f'nothing to fit')
+        raise ImuLinkUndetermined(msg, reason, survey)
+    return plan
 
 
 def _with_shape_uncertainty(errors: dict[str, float], shaped: FitResult, shape_names: set[str],
@@ -505,6 +608,7 @@ class Applied:
     """With sensors at their own stamps: per sensor the messages that carry it (else empty)."""
     sensor_dropped: dict[str, dict[str, int]] = field(default_factory=dict)
     """With sensors at their own stamps: per sensor its samples left out, by reason."""
+    survey: RecordSurvey | None = None
 
 
 class Required:
@@ -673,6 +777,7 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
     topics = options.topics
     streams = record_streams(path, topics=topics)
     kind = streams.kind
+    survey = SurveyCollector(kind.value)
     expected = temperature_expected(path, streams, options, needed=unit.needs_temperature, what='the calibration')
     blocks = record_blocks(path, topics=topics, kind=kind, block_samples=options.block_samples, references=False,
                            progress=options.progress)
@@ -720,6 +825,7 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
             writer.write(samples.stamp_ns, frame_id, corrected[:, :3], accel_variance, **extra)
 
         for block in blocks:
+            survey.add(block)
             if isinstance(block, DriverRecord):
                 if not block.shared_stamps:
                     msg = (f'{path}: its first Imu messages carry both sensors, later ones one sensor each: a '
@@ -741,7 +847,8 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
                    ignored_temp_codes=dict(aligner.ignored_temp_codes),
                    ignored_references=dict(aligner.ignored_references),
                    mag_written=writer.written_mag, mag_topic=topics.compensated_mag if magnetometer else '',
-                   mag_dropped=dict(magnetometer.aligner.dropped) if magnetometer else {})
+                   mag_dropped=dict(magnetometer.aligner.dropped) if magnetometer else {},
+                   survey=survey.finish(stream_list(streams, topics)))
 
 
 def _apply_own_stamps(path: Path, unit: UnitCalibration, output: str | Path, options: StreamOptions,
@@ -793,12 +900,15 @@ class Validated:
     accel_dropped: dict[str, int] = field(default_factory=dict)
     accel_ignored_temp_codes: dict[str, int] = field(default_factory=dict)
     accel_ignored_references: dict[str, int] = field(default_factory=dict)
+    survey: RecordSurvey | None = None
 
 
 def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions, *, gravity: float,
                  latitude: float | None = None, out_of_range: OutOfRange = OutOfRange.CLAMP,
-                 expect_kind: Callable[[InputKind], None] | None = None) -> Validated:
-    """``tak_calib validate`` in one pass (two for a static driver run).
+                 expect_kind: Callable[[InputKind], None] | None = None) -> Validated | Any:
+    """``tak_calib validate`` in one pass (two for a static driver run or a hand-held record).
+
+    A hand-held record gives a :class:`~tak_thermo_ros.streaming_handheld.HandheldValidated`.
 
     :param expect_kind: called with the bag's kind before the pass (raises on a mismatch).
     """
@@ -812,8 +922,13 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
     calibration_run = kind is InputKind.IMU
     if calibration_run:
         opened = open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=False)
+        if opened.survey is not None and decided(path, opened.survey) is Plan.HANDHELD:
+            from tak_thermo_ros.streaming_handheld import validate_handheld_bag
+            return validate_handheld_bag(path, unit, options, opened.survey, gravity=gravity, latitude=latitude,
+                                         out_of_range=out_of_range, replay=opened.replay)
     else:
-        opened = OpenedRun(kind, 0, None)
+        opened = OpenedRun(kind, 0, None, collector=SurveyCollector(kind.value),
+                           streams=stream_list(streams, options.topics))
     # Before correction: a driver's values as recorded; codes through the file's nominal scale and offset.
     gravity_check = GravityCheck(unit.accel, gravity=gravity, out_of_range=out_of_range, raw_before=calibration_run)
     rate_check = (RateCheck(unit.gyro, out_of_range=out_of_range, raw_before=True)
@@ -843,7 +958,8 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
     return Validated(input_kind=kind, gravity=gravity_check, rate=rate_check, reference_lines=tuple(lines),
                      accel_dropped=accel_required.dropped,
                      accel_ignored_temp_codes=dict(accel_pass.aligner.ignored_temp_codes),
-                     accel_ignored_references=dict(accel_pass.aligner.ignored_references))
+                     accel_ignored_references=dict(accel_pass.aligner.ignored_references),
+                     survey=opened.finished_survey())
 
 
 # ----- diagnose -------------------------------------------------------------------------------------
@@ -862,11 +978,18 @@ class BoundedRun:
     usable: dict[str, int]
     stride: int
     reference_lines: tuple[str, ...]
+    survey: RecordSurvey | None = None
+    handheld: Any = None
 
 
 def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: float = 0.0, gravity: float = 9.80665,
-                latitude: float | None = None, max_samples: int = DIAGNOSE_MAX_SAMPLES) -> BoundedRun:
+                latitude: float | None = None, max_samples: int = DIAGNOSE_MAX_SAMPLES,
+                unit: UnitCalibration | None = None) -> BoundedRun:
     """One pass collecting a bounded subsample spread evenly over the run, references held.
+
+    A hand-held record (no reference topics, several still orientations) gives its still
+    samples with the references it has (gravity along each rest's up direction as ``unit``
+    corrects it, zero rate) and ``handheld``, the turns' closure (``unit`` required).
 
     :raises TakError: a driver record without a temperature (the diagnosis looks at the residual
         against the temperature).
@@ -878,6 +1001,16 @@ def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: floa
         msg = f'{path}: no temperature on {options.topics.temperature}: diagnose looks at the residual against it'
         raise TakError(msg)
     opened = open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=True)
+    if opened.survey is not None and decided(path, opened.survey) is Plan.HANDHELD:
+        from tak_thermo_ros.streaming_handheld import handheld_record, rest_samples
+        if unit is None:
+            msg = f'{path}: a hand-held record: its references come from a calibration (give one)'
+            raise TakError(msg)
+        record, _ = handheld_record(path, options, opened.survey, budget=max_samples, replay=opened.replay)
+        samples, check = rest_samples(record, unit, gravity=gravity, latitude=latitude)
+        usable = {sensor: int(opened.survey.still.samples.sum()) for sensor in samples}
+        return BoundedRun(input_kind=InputKind.IMU, samples=samples, usable=usable, stride=record.stride,
+                          reference_lines=(), survey=opened.survey, handheld=check)
     stride = stride_for(opened.main, max_samples)
     passes, subsamples = [], {}
     for sensor in sensors_of(opened.kind):
@@ -888,4 +1021,4 @@ def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: floa
     return BoundedRun(input_kind=opened.kind,
                       samples={p.sensor: subsamples[p.sensor].samples(p.aligner.dropped) for p in passes},
                       usable={p.sensor: p.aligner.kept for p in passes}, stride=stride,
-                      reference_lines=tuple(lines))
+                      reference_lines=tuple(lines), survey=opened.finished_survey())

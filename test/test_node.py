@@ -35,6 +35,7 @@ from tak_thermo_ros.core.link.correction import Corrector, OutOfRange, UnitCorre
 from tak_thermo_ros.core.link.online import ONLINE_DROP_REASONS
 from tak_thermo_ros.core.records.record import align
 from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+from tak_thermo_ros.core.simulation.motion import HandheldMotion
 
 REPO = Path(__file__).resolve().parent.parent
 START_NS = 1_700_000_000 * NANOSECONDS
@@ -400,6 +401,37 @@ def test_driver_node_output_equals_tak_calib_apply_on_both_sensors(tmp_path, ros
     without_lag = UnitCorrector(replace(unit, gyro=replace(unit.gyro, effects=()))).correct(
         samples.counts, samples.temp_code, stamp_s=samples.stamp_s)
     assert np.max(np.abs(without_lag[:, 3:] - got['gyro'])) > 10.0 * unit.gyro.axes[0].residual_rms
+
+
+HANDHELD_RUN = Scenario(output='imu', sample_rate_hz=10.0, start_celsius=10.0,
+                        effects={'cross_axis': {'c_yx': 0.002, 'c_zx': -0.003, 'c_zy': 0.0015}},
+                        gyro_effects={'cross_axis': {'c_xy': 0.002, 'c_xz': -0.003, 'c_zy': 0.004}},
+                        handheld=HandheldMotion(orientations=24, still_s=6.0, turn_s=1.5, final_celsius=30.0,
+                                                warmup_tau_s=60.0))
+"""About 180 s of a unit turned by hand while it warms: 24 rests, 1800 Imu messages, no reference topics."""
+
+
+def test_node_equals_apply_with_a_hand_held_calibration(tmp_path, ros_env):
+    """A hand-held fit (both sensors' misalignment in the file) corrects in the node as in apply, float64-equal."""
+    driver = simulate(HANDHELD_RUN).driver
+    bag, params = tmp_path / 'handheld.mcap', tmp_path / 'tak_params.yaml'
+    write_driver_record(bag, driver)
+    assert cli.main(['fit', str(bag), '-o', str(params), '--no-progress']) == 0
+    unit = load_unit(params)
+    assert [e.name for e in unit.accel.effects] == [e.name for e in unit.gyro.effects] == ['cross_axis']
+    assert unit.accel.effects[0]['c_xy'] == unit.accel.effects[0]['c_xz'] == unit.accel.effects[0]['c_yz'] == 0.0
+    expected, imu = node_and_apply(bag, params, driver, ros_env, tmp_path)
+    assert len(imu) == len(expected.stamp_ns) == len(driver.stamp_ns)
+    accel = np.array([(m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z) for m in imu])
+    gyro = np.array([(m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z) for m in imu])
+    assert np.array_equal(np.array([stamp_of(m) for m in imu]), expected.stamp_ns)
+    assert np.array_equal(accel, expected.linear_acceleration)
+    assert np.array_equal(gyro, expected.angular_velocity)
+    # The misalignment matters: the same link without it differs by far more than rounding.
+    samples = align(driver.six_channels(), use_reference=False)
+    plain = UnitCorrector(replace(unit, accel=replace(unit.accel, effects=()), gyro=replace(unit.gyro, effects=())))
+    without = plain.correct(samples.counts, samples.temp_code, stamp_s=samples.stamp_s)
+    assert np.max(np.abs(without[:, :3] - accel)) > 1e-3
 
 
 def test_driver_bad_input_and_time_backwards(tmp_path, ros_env):

@@ -38,6 +38,7 @@ def run(args: argparse.Namespace) -> int:
     common.check_kind(args, unit, kind)
     applied = apply_bag(args.bag, unit, args.output, common.stream_options(args), storage=args.storage,
                         out_of_range=OutOfRange(args.out_of_range), force=args.force)
+    common.print_survey(applied.survey, 'apply')
     print(f'wrote {applied.written} Imu messages on {applied.topic} to {args.output}')
     if applied.sensor_written:
         carried = ', '.join(f'{count} {common.SENSOR_NAMES[sensor]}'

@@ -481,3 +481,81 @@ def noise_lines(model, unit: str) -> list[str]:
         if np.any(values > 0.0):
             lines.append(f'  {name.replace("_", " "):<20} {numbers(values, 3)} {term_unit}')
     return lines
+
+
+PLAN_WORDS = {
+    'fit': {'table': 'a table run (reference topics): offset and scale against temperature per axis',
+            'static': 'a static run (no reference topics, one orientation)\noffsets against temperature, scales held',
+            'handheld': 'a hand-held record (no reference topics, {orientations} orientations at rest)\n'
+                        'offset, scale and misalignment of both sensors {against}',
+            'moving': 'the unit never rests and there is no reference: no accelerometer or gyroscope link'},
+    'apply': {plan: 'every message corrected with the calibration'
+              for plan in ('table', 'static', 'handheld', 'moving')},
+    'validate': {'table': '|g| and the rate against the recorded references',
+                 'static': '|g| and the rate at rest (one orientation)',
+                 'handheld': "|g| and the rate at the rests, and the turns' closure"},
+    'diagnose': {'table': 'the residual against the recorded references',
+                 'static': 'the residual at rest (one orientation)',
+                 'handheld': "the residual at the rests (gravity along each rest, zero rate), the turns' closure"},
+    'noise': {'table': "each sensor's residual against the references (Allan deviation)",
+              'static': "each sensor's residual at rest (Allan deviation)",
+              'handheld': 'the unit moves (a hand-held record): a noise model needs a static record'},
+}
+"""What each command does with each kind of record (:class:`~tak_thermo_ros.core.records.survey.Plan`); a newline
+starts a second line."""
+
+
+def duration_text(seconds: float) -> str:
+    """A duration in the unit a person reads: s, min or h."""
+    if seconds < 120.0:
+        return f'{seconds:.3g} s'
+    if seconds < 7200.0:
+        return f'{seconds / 60.0:.3g} min'
+    return f'{seconds / 3600.0:.3g} h'
+
+
+def survey_lines(survey, command: str) -> list[str]:
+    """The first lines of a command: what the record holds, and what the command will therefore do."""
+    from tak_thermo_ros.core.fit.handheld import SPAN_PER_ORDER_C
+    from tak_thermo_ros.core.records.still import FACE_DEG
+    streams = [f'{s.topic} {s.count:,}' + (f' at {s.rate_hz:.3g} Hz' if s.rate_hz else '') for s in survey.streams]
+    lines = [f'record: {", ".join(streams[:2])}; {duration_text(survey.duration_s)}']
+    if len(streams) > 2:
+        lines.append(f'record: also {", ".join(streams[2:])}')
+    counts = survey.kind == 'counts'
+    if survey.temperature is None:
+        lines.append('record: no plausible temperature')
+    else:
+        low, high = survey.temperature
+        unit = '' if counts else ' C'
+        lines.append(f'record: temperature{" code" if counts else ""} {low:.4g}..{high:.4g}{unit} '
+                     f'(span {high - low:.3g}{unit})')
+    still = survey.still
+    if len(still):
+        seconds = still.interval_s
+        lines.append(f'record: at rest {100.0 * still.still_fraction:.0f} % of the time, {len(still)} rests of '
+                     f'{seconds.min():.2g} to {seconds.max():.3g} s (median {np.median(seconds):.2g} s)')
+        faces = still.faces()
+        lines.append(f'record: {still.orientations()} orientations at rest; faces up within {FACE_DEG:g} deg: '
+                     f'{" ".join(faces) or "none"} ({len(faces)} of 6)')
+    else:
+        lines.append(f'record: never at rest for 2 s or more ({100.0 * still.still_fraction:.0f} % of the windows '
+                     f'still)')
+    if survey.has_reference:
+        lines.append(f'record: the reference holds {survey.reference_directions} directions')
+    plan = survey.plan.value
+    words = PLAN_WORDS.get(command, {}).get(plan)
+    if words:
+        span = survey.temperature_span
+        against = 'against temperature' if span >= SPAN_PER_ORDER_C else 'at one temperature'
+        text = words.format(orientations=still.orientations(), against=against)
+        lines += [f'{command}: {part}' for part in text.split('\n')]
+    return lines
+
+
+def print_survey(survey, command: str) -> None:
+    """Print :func:`survey_lines` (nothing without a survey)."""
+    if survey is None:
+        return
+    for line in survey_lines(survey, command):
+        print(line)

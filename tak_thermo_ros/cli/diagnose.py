@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from tak_thermo_ros.cli import common, options
 from tak_thermo_ros.core.effects.aux_signal import signals_with_values
@@ -79,7 +79,16 @@ def run(args: argparse.Namespace) -> int:
     common.check_kind(args, unit, input_kind(args.bag, topics=common.topics(args)))
     run = bounded_run(args.bag, common.stream_options(args), settle_time_s=args.settle_time,
                       gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
-                      max_samples=args.max_samples)
+                      max_samples=args.max_samples, unit=unit)
+    common.print_survey(run.survey, 'diagnose')
+    if run.handheld is not None:
+        from tak_thermo_ros.streaming_handheld import at_rest
+        unit = replace(unit, gyro=at_rest(unit.gyro))
+        closure = run.handheld.closure
+        if len(closure.angle_rad):
+            print(f'turns: closure RMS {np.degrees(closure.rms_rad):.3g} deg over {len(closure.angle_rad)} turns, '
+                  f'{closure.rms_rad / max(closure.floor_rad, 1e-300):.2f}x what the noise alone leaves '
+                  f'({np.degrees(closure.floor_rad):.3g} deg)')
     _add_magnetometer(args, unit, run)
     progress_shown = not args.no_progress and sys.stderr.isatty()
     verbose = bool(getattr(args, 'verbose', False))
@@ -95,6 +104,9 @@ def run(args: argparse.Namespace) -> int:
     for sensor, samples in run.samples.items():
         tried = (signals_with_values(samples.aux) if candidates is None
                  else [spec for spec in candidates if spec.startswith('aux:')])
+        sensor_candidates = candidates
+        if run.handheld is not None and sensor == 'gyro' and candidates is None:
+            sensor_candidates = [*_rest_candidates(), *tried]
         samples = require_signals(samples, [*Corrector(unit.sensor(sensor)).signals, *tried])
         used[sensor] = samples
         unit_name = common.UNITS[run.input_kind, sensor]
@@ -112,8 +124,8 @@ def run(args: argparse.Namespace) -> int:
             from tak_thermo_ros.core.fit import residual_counts
             from tak_thermo_ros.core.noise.residual import model_from_residual
             noise = model_from_residual(residual_counts(unit.sensor(sensor), samples), samples.stamp_ns)
-        result = diagnose(unit.sensor(sensor), samples, candidates=candidates, folds=args.folds, progress=progress,
-                          noise=noise, unit=shown_unit, unit_scale=scale)
+        result = diagnose(unit.sensor(sensor), samples, candidates=sensor_candidates, folds=args.folds,
+                          progress=progress, noise=noise, unit=shown_unit, unit_scale=scale)
         results[sensor] = result
         print(f'{label}diagnosed {len(samples)} samples of {args.bag} against {args.params} '
               f'(model: {result.ladder[0].label})')
@@ -163,9 +175,15 @@ def run(args: argparse.Namespace) -> int:
                                    for sensor, result in results.items()}
             if record is not None:
                 document['record'] = record.as_dict()
+        if run.handheld is not None:
+            closure = run.handheld.closure
+            document['handheld'] = {'turns': len(closure.angle_rad), 'closure_rms_rad': closure.rms_rad,
+                                    'closure_floor_rad': closure.floor_rad}
         write_text_atomic(args.json, common.json_text(document, args.json))
         print(f'wrote {args.json}')
-    if getattr(args, 'design_run', None):
+    if getattr(args, 'design_run', None) and run.handheld is not None:
+        print(f'--design-run: a hand-held record: no chamber run to propose; nothing written to {args.design_run}')
+    elif getattr(args, 'design_run', None):
         from tak_thermo_ros.formats.files import write_texts
         from tak_thermo_ros.core.diagnose import (
             design_driver_run,
@@ -345,3 +363,12 @@ def expand_candidates(text: str) -> list[str]:
         names = list(LIBRARY) if spec == 'library' else [spec] if spec else []
         candidates += [name for name in names if name not in candidates]
     return candidates
+
+
+def _rest_candidates() -> list:
+    """A gyroscope at rest (a hand-held record): the library's offset effects and the recorded signals.
+
+    Its rate is zero there, so the input effects (a scale nonlinearity, the misalignment) cannot show.
+    """
+    from tak_thermo_ros.core.effects import INPUT, LIBRARY
+    return [name for name, cls in LIBRARY.items() if cls.kind != INPUT]

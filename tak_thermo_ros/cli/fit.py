@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 
 from dataclasses import replace
+
+import numpy as np
 from pathlib import Path
 from tak_thermo_ros.cli import common, options
 from tak_thermo_ros.core.link.model import AXES
@@ -15,7 +17,6 @@ from tak_thermo_ros.formats.files import FILE
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import TakError
 from tak_thermo_ros.streaming import EFFECT_FIT_MAX_SAMPLES
-import numpy as np
 
 NAME = 'fit'
 OUTPUTS = (('output', FILE, '-o'),)
@@ -100,14 +101,18 @@ def run(args: argparse.Namespace) -> int:
         unit, noise_line = _with_noise(args, unit)
     applied = ', '.join(f'{sensor} {", ".join(e.name for e in calibration.effects)}'
                         for sensor, calibration in unit.sensors if calibration.effects)
+    handheld = fitted.handheld
+    orders = handheld.fit.orders if handheld is not None else (args.bias_order, args.scale_order)
     fitted_what = (f'{results["accel"].samples} samples' if not fitted.held else
                    f'magnetometer only ({magnetometer.thermal.samples} samples; accelerometer and gyroscope held)')
-    header = (f'tak_thermo_ros calibration fitted from {args.bag}\n'
-              f'{fitted_what}, bias order {args.bias_order}, scale order {args.scale_order}'
+    header = (f'tak_thermo_ros calibration fitted from {args.bag}'
+              f'{" (a hand-held record)" if handheld is not None else ""}\n'
+              f'{fitted_what}, bias order {orders[0]}, scale order {orders[1]}'
               f'{", effects " + applied if applied else ""}\n'
               f'load with: ros2 run tak_thermo_ros compensator --ros-args --params-file {Path(args.output).name}')
     save_unit(args.output, unit, header=header)
     kind = fitted.input_kind
+    common.print_survey(fitted.survey, 'fit')
     if fitted.held:
         print(f'accelerometer and gyroscope: {results["accel"].calibration.notes[0]}')
     else:
@@ -115,6 +120,8 @@ def run(args: argparse.Namespace) -> int:
               f'{" (driver Imu: accelerometer and gyroscope)" if kind is InputKind.IMU else ""}')
     for line in fitted.reference_lines:
         print(line)
+    if handheld is not None:
+        _print_handheld(handheld)
     for sensor in fitted.sensors:
         if sensor in fitted.held:
             continue
@@ -138,9 +145,13 @@ def run(args: argparse.Namespace) -> int:
             print(f'calibrated temperature range {calibration.temp_code_min:.2f}..{calibration.temp_code_max:.2f} C, '
                   f'reference {calibration.temp_code_ref:.3g} C')
         print_axes(common.SENSOR_NAMES[sensor], calibration, [stats.residual_rms for stats in result.axes], unit_name)
-        common.print_effects(calibration, result, unit_name)
+        if handheld is not None:
+            _print_handheld_terms(sensor, calibration, result)
+        else:
+            common.print_effects(calibration, result, unit_name)
         for note in calibration.notes:
-            print(f'note: {prefix}{note}')
+            if handheld is None:
+                print(f'note: {prefix}{note}')
         noise = unit.sensor(sensor).noise
         if noise is not None:
             print(f'  noise model ({common.SOURCE_WORDS[noise.source]}), per axis x y z:')
@@ -249,3 +260,54 @@ def print_axes(sensor: str, calibration, residual_rms, unit: str) -> None:
           + (f' (held on {" ".join(held)}: see the note)' if held else ''))
     print(f'  offset        {common.amount([axis.offset for axis in axes], unit)} {at}')
     print(f'  offset span   {common.amount([axis.offset_span for axis in axes], unit)} over the calibrated range')
+
+
+def _print_handheld(handheld) -> None:
+    """What a hand-held fit used and held, the turns' closure, the paper's +/- table on plateaus."""
+    record, fitted = handheld.record, handheld.fit
+    skipped = record.skipped_turns
+    reasons = {'gap': 'across a gap in the stamps', 'long': 'longer than 60 s', 'budget': 'beyond the sample budget'}
+    not_used = '; '.join(f'{count} {reasons[reason]}' for reason, count in sorted(skipped.items()))
+    kept = 'every sample' if record.stride == 1 else f'1 sample in {record.stride}'
+    print(f'hand-held: {len(record.still):,} still samples ({kept}) in {len(np.unique(record.still_interval))} rests, '
+          f'{len(record.turns)} turns{f" ({not_used}: not used)" if not_used else ""}')
+    for line in fitted.lines:
+        print(line)
+    closure = fitted.closure
+    if len(closure.angle_rad):
+        angles = (fitted.closure_before.rms_rad, closure.rms_rad, closure.floor_rad)
+        before, after, floor = (np.degrees(angle) for angle in angles)
+        print(f'turns: closure RMS {before:.3g} deg with the driver\'s values, {after:.3g} deg fitted '
+              f'(the noise alone: {floor:.3g} deg)')
+    if fitted.plus_minus:
+        print("the paper's +/- method, eqs. (3)-(5), per plateau with all six faces, beside the fitted link:")
+        for row in fitted.plus_minus:
+            print(f'  {row.temperature:5.1f} C {AXES[row.axis]}: (3) offset {row.offset:+.5f} m/s^2, (5) scale '
+                  f'{row.scale:.5f}; link {row.link_offset:+.5f} m/s^2, {row.link_scale:.5f} '
+                  f'(faces within {row.tilt_deg:.1f} deg)')
+
+
+def _print_handheld_terms(sensor: str, calibration, result) -> None:
+    """A hand-held fit's scale and offset at the reference temperature and the misalignment, with 1-sigma errors."""
+    from tak_thermo_ros.core.effects import CrossAxis
+    errors = result.parameter_errors
+    if sensor == 'accel':
+        factor, small = 1e3 / 9.80665, 'mg'
+    else:
+        factor, small = DEG * 3600.0, 'deg/h'
+    unit = common.UNITS[InputKind.IMU, sensor]
+    print(f'  at {calibration.temp_code_ref:g} C, +- one standard error:')
+    for name, axis in zip(AXES, calibration.axes):
+        scale_error = errors.get(f'{name}.scale', float('nan'))
+        offset_error = errors.get(f'{name}.offset', float('nan'))
+        scale = f'{axis.scale:.6f} +- {scale_error:.2g}' if axis.scale_observable else f'{axis.scale:g} (held)'
+        print(f'  {name}: scale {scale}, offset {axis.offset:+.4g} +- {offset_error:.2g} {unit} '
+              f'({axis.offset * factor:+.4g} +- {offset_error * factor:.2g} {small})')
+    for effect in calibration.effects:
+        if isinstance(effect, CrossAxis):
+            terms = [f'{p.name} {p.value * 1e3:+.3f} +- {errors[f"{effect.name}.{p.name}"] * 1e3:.2g}'
+                     for p in effect.parameters if f'{effect.name}.{p.name}' in errors]
+            for start in range(0, len(terms), 3):
+                print(f'  misalignment, mrad: {", ".join(terms[start:start + 3])}')
+        else:
+            common.print_effects(replace(calibration, effects=(effect,)), result, unit)

@@ -44,6 +44,7 @@ def run(args: argparse.Namespace) -> int:
                     latitude=getattr(args, 'latitude', None), out_of_range=OutOfRange(args.out_of_range),
                     settle_time_s=args.settle_time,
                     expect_kind=(lambda kind: common.check_kind(args, unit, kind)) if unit is not None else None)
+    common.print_survey(run.survey, 'noise')
     for line in run.reference_lines:
         print(line)
     what = ('the thermally compensated output (--params) minus the reference' if run.compensated else

@@ -10,6 +10,8 @@ from tak_thermo_ros.core.simulation.imu import Scenario, simulate
 from tak_thermo_ros.formats.scenario import load_scenario
 from dataclasses import replace
 
+import numpy as np
+
 NAME = 'simulate'
 FLIGHT_LOG_SUFFIXES = {'.ulg': 'ulog', '.bin': 'dataflash'}
 """An output named so is a flight log (a powered board's record, ``powered:`` in the scenario), not a bag."""
@@ -60,13 +62,17 @@ def run(args: argparse.Namespace) -> int:
         driver = run.driver
         write_driver_record(args.out_bag, driver, topics=common.topics(args), storage=args.storage, force=args.force,
                             aux_types=aux_types)
-        hours = ((driver.stamp_ns[-1] - driver.stamp_ns[0]) * 1e-9 if scenario.rotation
+        hours = ((driver.stamp_ns[-1] - driver.stamp_ns[0]) * 1e-9 if scenario.rotation or scenario.handheld
                  else scenario.duration_s()) / 3600.0
         span = (f'temperature {driver.temperature.min():.2f}..{driver.temperature.max():.2f} C'
                 if len(driver.temperature) else 'no temperature published')
         print(f'wrote {args.out_bag} ({args.storage}): {hours:.2f} h at {scenario.sample_rate_hz:g} Hz, {span}')
         print(f'  {len(driver.stamp_ns)} Imu, {len(driver.temp_stamp_ns)} temperature and '
               f'{len(driver.reference_stamp_ns)} reference messages')
+        if scenario.handheld is not None:
+            motion = scenario.handheld
+            print(f'  hand-held: {len(run.trajectory.poses)} rests ({motion.pattern}), turns about a point '
+                  f'{1e3 * float(np.linalg.norm(motion.lever_arm_m)):.0f} mm from the sensor; no reference topics')
         if len(driver.mag_stamp_ns):
             print(f'  magnetometer: {len(driver.mag_stamp_ns)} MagneticField on {common.topics(args).mag}'
                   f'{f" ({scenario.rotation} rotation record)" if scenario.rotation else ""}, '

@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     The bag is read block by block (bounded memory); the errors are accumulated as sums.
     """
     from tak_thermo_ros.core.records.static_run import NotStatic
-    from tak_thermo_ros.streaming import validate_bag
+    from tak_thermo_ros.streaming import ImuLinkUndetermined, validate_bag
     from tak_thermo_ros.streaming_mag import has_mag
     unit = load_unit(args.params)
     options = common.stream_options(args)
@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
         run = validate_bag(args.bag, unit, options, gravity=args.gravity,
                            latitude=getattr(args, 'latitude', None), out_of_range=OutOfRange(args.out_of_range),
                            expect_kind=lambda kind: common.check_kind(args, unit, kind))
-    except NotStatic:
+    except (NotStatic, ImuLinkUndetermined):  # turned, one orientation; or never at rest
         # A record turned by hand has no reference for the accelerometer and gyroscope; its
         # magnetometer is still checked (|B| in every orientation).
         if unit.mag is None or not has_mag(args.bag, options.topics):
@@ -65,7 +65,11 @@ def run(args: argparse.Namespace) -> int:
         print('accelerometer and gyroscope: not validated (the board moved, no reference)')
         run = None
     if run is not None:
-        _validate_imu(args, unit, run, document)
+        common.print_survey(run.survey, 'validate')
+        if hasattr(run, 'gravity'):
+            _validate_imu(args, unit, run, document)
+        else:
+            _validate_handheld(args, run, document)
     if unit.mag is not None and (run is None or run.input_kind is InputKind.IMU):
         document.update(_validate_magnetometer(args, unit))
     if args.json:
@@ -210,3 +214,43 @@ def _averaged_bias(check, noise, sensor: str, gravity: float) -> dict | None:
         document[f'{tau:g}'] = entry
     return {'lines': lines, 'document': {'source': noise.source if predicted is not None else None,
                                          'taus': document}}
+
+
+def _validate_handheld(args: argparse.Namespace, run, document: dict) -> None:
+    """``validate`` of a hand-held record: the rests' |g| and rate, the turns' closure, before and after."""
+    before, after = run.before, run.after
+    if not after.samples:
+        msg = f'{args.bag}: no usable still samples to validate'
+        raise TakError(msg)
+    g = args.gravity
+    common.require_finite([before.gravity_rms, after.gravity_rms, *after.rate_rms], f'{args.bag}: the errors')
+    print(f'|g| error of the {len(after.gravity_error)} rests\' mean specific force (gravity {g:g} m/s^2):')
+    for label, check in (('before (nominal scale and offset):', before), ('after  (full correction link):', after)):
+        print(f'  {label:<35}RMS {check.gravity_rms:.3g} m/s^2 ({check.gravity_rms / g * 1e3:.3g} mg), '
+              f'max {np.max(np.abs(check.gravity_error)):.3g} m/s^2')
+    print(f'  the noise alone:                   RMS {after.gravity_floor:.3g} m/s^2 '
+          f'({after.gravity_floor / g * 1e3:.3g} mg)')
+    rest = 'the Earth rate\'s vertical component' if args.latitude is not None else 'zero'
+    print(f'gyroscope: the rests\' mean rate against {rest}, RMS per axis x y z:')
+    for label, check in (('before (nominal scale and offset):', before), ('after  (full correction link):', after)):
+        rms = check.rate_rms
+        print(f'  {label:<35}' + ' '.join(f'{v:.3g}' for v in rms) + ' rad/s ('
+              + ' '.join(f'{v * 180.0 / np.pi * 3600.0:.3g}' for v in rms) + ' deg/h)')
+    floor = after.rate_floor
+    print(f'  {"the noise alone:":<35}' + ' '.join(f'{v:.3g}' for v in floor) + ' rad/s ('
+          + ' '.join(f'{v * 180.0 / np.pi * 3600.0:.3g}' for v in floor) + ' deg/h)')
+    closure = after.closure
+    if len(closure.angle_rad):
+        angles = [np.degrees(value) for value in (before.closure.rms_rad, closure.rms_rad, closure.floor_rad)]
+        print(f'turns: closure of {len(closure.angle_rad)} turns, RMS {angles[0]:.3g} deg before, {angles[1]:.3g} deg '
+              f'after (the noise alone {angles[2]:.3g} deg)')
+    if after.out_of_range:
+        print(f'warning: {after.out_of_range} samples outside the calibrated temperature range ({args.out_of_range})')
+    document.update({'record': 'handheld', 'rests': len(after.gravity_error), 'samples': after.samples,
+                     'out_of_range': after.out_of_range,
+                     'before': {'gravity_rms': before.gravity_rms, 'rate_rms': [float(v) for v in before.rate_rms],
+                                'closure_rms_rad': before.closure.rms_rad},
+                     'after': {'gravity_rms': after.gravity_rms, 'rate_rms': [float(v) for v in after.rate_rms],
+                               'closure_rms_rad': after.closure.rms_rad},
+                     'floor': {'gravity_rms': after.gravity_floor, 'rate_rms': [float(v) for v in after.rate_floor],
+                               'closure_rms_rad': closure.floor_rad}})

@@ -40,6 +40,7 @@ from tak_thermo_ros.core.records.record import (
     hold_last_index,
     seconds_from_ns,
 )
+from tak_thermo_ros.core.simulation.motion import HandheldMotion, Trajectory, hand_trajectory, motion_from_mapping
 from tak_thermo_ros.core.simulation.magnetometer import (
     MagnetometerTruth,
     rotation_record,
@@ -207,6 +208,9 @@ class Scenario:
     :param magnetometer: with ``output: imu``, a magnetometer on ``/imu/mag``
         (:mod:`tak_thermo_ros.core.simulation.magnetometer`; YAML: a mapping, ``{}`` for the
         defaults), or ``None`` (default: none).
+    :param handheld: with ``output: imu``, a record of a unit turned by hand through still
+        orientations instead of a table run (:mod:`tak_thermo_ros.core.simulation.motion`; YAML: a
+        mapping, ``{}`` for the defaults): no reference topics; ``None`` (default): a table run.
     """
 
     sample_rate_hz: float = 1.0
@@ -243,6 +247,7 @@ class Scenario:
     warm_to_celsius: float | None = None
     record_temperature: bool = True
     decimation: int = 1
+    handheld: HandheldMotion | None = None
 
     def __post_init__(self) -> None:
         for key in ('effects', 'gyro_effects'):
@@ -259,6 +264,9 @@ class Scenario:
             raise ScenarioError(msg)
         if self.rotation and (self.magnetometer is None or self.rotation not in ('tumble', 'yaw', 'cap')):
             msg = f"rotation: expected 'tumble', 'yaw' or 'cap' with a magnetometer, got {self.rotation!r}"
+            raise ScenarioError(msg)
+        if self.handheld is not None and (self.output != 'imu' or self.rotation):
+            msg = 'handheld: needs output: imu and no rotation (a driver\'s record of a unit turned by hand)'
             raise ScenarioError(msg)
         if self.magnetometer is not None and self.output != 'imu':
             msg = 'magnetometer: needs output: imu (a driver bag; the paper\'s codes have no magnetometer)'
@@ -394,9 +402,17 @@ class Scenario:
                            temp_code_max=codes[1], axes=axes,  # type: ignore[arg-type]
                            effects=self.effect_instances())
 
+    def temperature_span(self) -> tuple[float, float]:
+        """The lowest and highest temperature the run can reach, degrees C (or its codes' Celsius)."""
+        ends = (self.start_celsius, *self.plateaus_celsius)
+        if self.handheld is not None and self.handheld.temperature == 'warmup':
+            ends = (self.start_celsius, self.handheld.final_celsius)
+        low, high = min(ends), max(ends)
+        return (low, high) if high > low else (low - 0.5, high + 0.5)
+
     def driver_truth(self) -> UnitCalibration:
         """The true links of a driver-output run, in degrees C from ``reference_celsius``."""
-        low, high = min(self.start_celsius, *self.plateaus_celsius), max(self.start_celsius, *self.plateaus_celsius)
+        low, high = self.temperature_span()
         n_range = (low - self.reference_celsius, high - self.reference_celsius)
 
         def link(unit: tuple[AxisTruth, ...], key: str) -> Calibration:
@@ -426,6 +442,7 @@ class SimulatedRun:
         accelerometer channel).
     :param angular_rate: ``(k, 3)`` true angular rate, rad/s (``output: imu``).
     :param unit_truth: with ``output: imu``, the true links of both sensors.
+    :param trajectory: with ``handheld``, the true motion (rests, turns, poses).
     """
 
     record: ChannelRecord
@@ -438,6 +455,7 @@ class SimulatedRun:
     driver: DriverRecord | None = None
     angular_rate: np.ndarray | None = None
     unit_truth: UnitCalibration | None = None
+    trajectory: Trajectory | None = None
 
 
 def chamber_profile(scenario: Scenario, time_s: np.ndarray) -> np.ndarray:
@@ -541,12 +559,13 @@ def _simulate_driver(scenario: Scenario) -> SimulatedRun:
     """A driver bag: the Imu in SI units, the temperature in degrees C, on a tilt and rate table."""
     if scenario.rotation:
         return _rotation_run(scenario)
+    if scenario.handheld is not None:
+        return _handheld_run(scenario)
     rng = np.random.default_rng(scenario.seed)
     count = int(math.floor(scenario.duration_s() * scenario.sample_rate_hz)) + 1
     time_s = np.arange(count) / scenario.sample_rate_hz
     chamber = chamber_profile(scenario, time_s)
     board = first_order_lag(chamber, time_s, scenario.board_lag_s, scenario.start_celsius)
-    n_true = board - scenario.reference_celsius
     positions = np.asarray(scenario.positions, dtype=float)
     position_index = (np.floor(time_s / scenario.dwell_s).astype(np.int64)) % len(positions)
     force = scenario.gravity * positions[position_index]
@@ -554,22 +573,8 @@ def _simulate_driver(scenario: Scenario) -> SimulatedRun:
     rate = rates[position_index][:, None] * positions[position_index]
     stamps = np.round((scenario.start_time_s + time_s) * NANOSECONDS).astype(np.int64)
     stamp_s = seconds_from_ns(stamps)
-
-    def channels(unit: tuple[AxisTruth, ...], key: str, inputs: np.ndarray) -> np.ndarray:
-        exact = np.column_stack([
-            AxisModel.from_polynomials(scale=a.scale, offset=a.offset, offset_coeffs=a.offset_coeffs,
-                                       scale_coeffs=a.scale_coeffs, code_offset_range=(-1.0, 1.0)
-                                       ).forward(inputs[:, i], n_true)
-            for i, a in enumerate(unit)])
-        exact += _effect_terms(scenario.effect_instances(key), inputs, board, stamp_s)
-        if scenario.supply_voltage_drift > 0.0 and key == 'effects':
-            exact += _supply_terms(scenario, time_s)
-        index = 0 if key == 'effects' else 1
-        exact += white_noise(scenario, unit, index, rng, count)
-        return quantized(exact + sensor_wander(scenario, unit, index, count), unit)
-
-    accel = channels(scenario.accel_unit, 'effects', force)
-    gyro = channels(scenario.gyro_unit, 'gyro_effects', rate)
+    accel = _driver_channels(scenario, scenario.accel_unit, 'effects', force, board, stamp_s, time_s, rng)
+    gyro = _driver_channels(scenario, scenario.gyro_unit, 'gyro_effects', rate, board, stamp_s, time_s, rng)
     temp_rows = np.arange(0, count, scenario.temp_code_every)
     quantum = scenario.temperature_resolution_celsius
     step = np.flatnonzero(np.diff(position_index, prepend=-1) != 0)
@@ -597,6 +602,63 @@ def _simulate_driver(scenario: Scenario) -> SimulatedRun:
     return SimulatedRun(record=driver.channel('accel'), board_celsius=board, chamber_celsius=chamber,
                         true_temp_code=board, specific_force=force, truth=unit_truth.accel,
                         scenario=scenario, driver=driver, angular_rate=rate, unit_truth=unit_truth)
+
+
+def _driver_channels(scenario: Scenario, unit: tuple[AxisTruth, ...], key: str, inputs: np.ndarray,
+                     board: np.ndarray, stamp_s: np.ndarray, time_s: np.ndarray,
+                     rng: np.random.Generator) -> np.ndarray:
+    """One sensor's three channels as its driver gives them: the link, hidden effects, noise and wander."""
+    n_true = board - scenario.reference_celsius
+    exact = np.column_stack([
+        AxisModel.from_polynomials(scale=a.scale, offset=a.offset, offset_coeffs=a.offset_coeffs,
+                                   scale_coeffs=a.scale_coeffs, code_offset_range=(-1.0, 1.0)
+                                   ).forward(inputs[:, i], n_true)
+        for i, a in enumerate(unit)])
+    exact += _effect_terms(scenario.effect_instances(key), inputs, board, stamp_s)
+    if scenario.supply_voltage_drift > 0.0 and key == 'effects':
+        exact += _supply_terms(scenario, time_s)
+    index = 0 if key == 'effects' else 1
+    exact += white_noise(scenario, unit, index, rng, len(time_s))
+    return quantized(exact + sensor_wander(scenario, unit, index, len(time_s)), unit)
+
+
+def _handheld_run(scenario: Scenario) -> SimulatedRun:
+    """A unit turned by hand through still orientations (``scenario.handheld``): no reference topics."""
+    motion = scenario.handheld
+    assert motion is not None
+    rng = np.random.default_rng(scenario.seed)
+    duration = scenario.duration_s() if motion.temperature == 'chamber' else None
+    path = hand_trajectory(motion, rate_hz=scenario.sample_rate_hz, gravity=scenario.gravity, seed=scenario.seed,
+                           duration_s=duration)
+    time_s = path.time_s
+    count = len(time_s)
+    if motion.temperature == 'chamber':
+        chamber = chamber_profile(scenario, time_s)
+        board = first_order_lag(chamber, time_s, scenario.board_lag_s, scenario.start_celsius)
+    else:
+        chamber = motion.final_celsius + (scenario.start_celsius - motion.final_celsius) * np.exp(
+            -time_s / motion.warmup_tau_s)
+        board = chamber
+    stamps = np.round((scenario.start_time_s + time_s) * NANOSECONDS).astype(np.int64)
+    stamp_s = seconds_from_ns(stamps)
+    accel = _driver_channels(scenario, scenario.accel_unit, 'effects', path.specific_force, board, stamp_s,
+                             time_s, rng)
+    gyro = _driver_channels(scenario, scenario.gyro_unit, 'gyro_effects', path.rate, board, stamp_s, time_s, rng)
+    temp_rows = np.arange(0, count, scenario.temp_code_every)
+    quantum = scenario.temperature_resolution_celsius
+    orientation = np.zeros((count, 4))
+    orientation[:, 3] = 1.0
+    orientation_covariance = np.zeros((count, 9))
+    orientation_covariance[:, 0] = -1.0
+    driver = DriverRecord(stamp_ns=stamps, accel=accel, gyro=gyro, orientation=orientation,
+                          orientation_covariance=orientation_covariance, temp_stamp_ns=stamps[temp_rows],
+                          temperature=np.round(board[temp_rows] / quantum) * quantum, frame_id=scenario.frame_id,
+                          aux=recorded_supply(scenario, stamps[temp_rows], time_s[temp_rows]))
+    unit_truth = scenario.driver_truth()
+    return SimulatedRun(record=driver.channel('accel'), board_celsius=board, chamber_celsius=chamber,
+                        true_temp_code=board, specific_force=path.specific_force, truth=unit_truth.accel,
+                        scenario=scenario, driver=driver, angular_rate=path.rate, unit_truth=unit_truth,
+                        trajectory=path)
 
 
 def sensor_wander(scenario: Scenario, unit: tuple[AxisTruth, ...], sensor_index: int, count: int) -> np.ndarray:
@@ -729,6 +791,8 @@ def scenario_from_mapping(raw: Mapping[str, Any], *, base: Scenario | None = Non
             changes[key] = _effects_from_mapping(value)
         elif key == 'magnetometer':
             changes[key] = None if value is None else truth_from_mapping(value)
+        elif key == 'handheld':
+            changes[key] = None if value is None else motion_from_mapping(value)
         elif key == 'positions':
             if not isinstance(value, list) or not all(isinstance(p, list) and len(p) == 3 for p in value):
                 msg = 'positions: expected a list of [x, y, z] unit vectors'

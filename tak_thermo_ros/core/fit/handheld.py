@@ -1,0 +1,1045 @@
+"""The fit of a hand-held record: both sensors' links from still intervals and turns, no table.
+
+A unit turned by hand has no recorded reference, but two things are known (Tedaldi et al.,
+ICRA 2014, imu_tk; Basalt's ``calib_bias.hpp``): at rest the specific force has the magnitude
+of local gravity and the rate is zero (or the Earth's), and a turn between two rests carries the
+gravity direction seen before it onto the one seen after it. This module fits the paper's link
+per axis (offset ``b(T)``, scale ``K(T)``) and the triad's misalignment (the ``cross_axis``
+effect) of both sensors from those facts, with the same columns as every other fit
+(:func:`~tak_thermo_ros.core.fit.design.axis_design`), the same solve from a triangular factor
+(:class:`~tak_thermo_ros.core.fit.solve.BlockedQR`, :func:`~tak_thermo_ros.core.fit.solve.solve_factor`)
+and the same model (:func:`~tak_thermo_ros.core.fit.model.calibration_from`,
+:func:`~tak_thermo_ros.core.fit.model.finish_fit`, the residual through the one correction path).
+The effects' shapes are searched by :func:`~tak_thermo_ros.core.fit.fit_model` itself on the
+still samples with the reference the hand-held fit found.
+
+**Accelerometer.** At rest ``N_s = M(T_s) g u_k + b(T_s) + noise`` with ``u_k`` the unknown up
+direction of still interval ``k`` (two angles) and ``M = diag(K0 F_c(T)) + C``. Gauss-Newton on
+the axes' parameters and every ``u_k`` together, the ``u_k`` eliminated interval by interval
+(the rows projected onto the complement of their two columns), the axes weighted by their noise:
+the errors of the parameters carry the unknown directions. Only ``|f|`` and relative
+directions are known, so a rotation of the sensor frame is unobservable: three couplings are held
+at zero (the *gauge*, as Basalt's lower-triangular matrix): ``c_xy = c_xz = c_yz = 0``, the
+corrected x axis is the accelerometer's x sensitive axis and the corrected y axis lies in the
+plane of its x and y axes.
+
+**Gyroscope.** At rest ``N_s = M(T_s) omega_ref + b(T_s) + noise`` (``omega_ref`` zero, or the
+Earth rate's vertical component along ``u_k`` at ``latitude``). A turn from interval ``a`` to
+``b`` integrates the corrected rate (trapezoid rule) to ``R``, which must carry ``u_b`` onto
+``u_a``: two rows ``E_a^T R u_b = 0`` per turn, linearised in the parameters through the
+rotation's Jacobian (:func:`~tak_thermo_ros.core.rotation.integrate_segments`), weighted by
+their predicted covariance (the gyroscope's white noise over the turn, the directions' errors).
+All nine terms of the gyroscope's matrix are fitted: it is tied to the accelerometer's frame.
+The accelerations of a turn (a lever arm) never enter: only still samples and rates are used.
+
+**What a record cannot determine is held and said.** A term is held (scale 1, every other term
+0) when the record does not determine it to within :data:`BOUNDS` (or not at all), in the order
+of :data:`HOLD_ORDER`; each held group is one line and a note in the file. A temperature span
+narrower than :data:`SPAN_PER_ORDER_C` per polynomial order lowers the orders (a span under
+:data:`SPAN_PER_ORDER_C` holds every thermal term: offsets, scales and misalignment at one
+temperature).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Sequence
+
+import numpy as np
+
+from tak_thermo_ros.core.effects import CrossAxis, Effect, resolve_effect
+from tak_thermo_ros.core.effects.base import INPUT, checked_basis, effect_input
+from tak_thermo_ros.core.fit.design import OFFSET_POLYNOMIAL, SCALE_POLYNOMIAL, AxisDesign, Column, Frame, axis_design
+from tak_thermo_ros.core.fit.model import FitResult, calibration_from, finish_fit, fitted_effects, residual_counts
+from tak_thermo_ros.core.fit.solve import BlockedQR, Solution, solve_factor
+from tak_thermo_ros.core.link.model import AXES, Calibration
+from tak_thermo_ros.core.records.handheld import (
+    HandheldRecord,
+    TurnClosure,
+    closure_terms,
+    earth_reference,
+    merged_samples,
+    sensor_samples,
+)
+from tak_thermo_ros.core.records.record import AlignedSamples
+from tak_thermo_ros.core.rotation import hat, integrate_segments, tangent_basis
+from tak_thermo_ros.core.values import STANDARD_GRAVITY
+from tak_thermo_ros.errors import FitError
+
+SPAN_PER_ORDER_C = 2.0
+"""Each order of a temperature polynomial needs this much temperature span, degrees C."""
+ONE_TEMPERATURE_HALF_RANGE_C = 0.5
+"""A calibration at one temperature states the range ``T +- this`` (a file needs a range)."""
+BOUNDS = {'scale': 0.01, 'scale_T': 0.01, 'coupling': 0.01,
+          ('offset', 'accel'): 0.05, ('offset', 'gyro'): 0.005}
+"""Largest standard error of a fitted term: scale and its thermal terms 1 %; a coupling 10 mrad;
+an offset and its thermal terms 50 mm/s^2 (5 mg) or 5 mrad/s (0.29 deg/s)."""
+HOLD_ORDER = ('effect', 'scale_T', 'offset_T', 'coupling', 'scale', 'offset')
+"""Which kind of undetermined term is held first."""
+NULL_RELATIVE = 1e-9
+"""A singular value of the scaled design below this fraction of the largest is a direction the data does not see."""
+NULL_LEVERAGE = 0.01
+"""A term with this much weight in such a direction is not determined at all."""
+GAUGE = ('c_xy', 'c_xz', 'c_yz')
+"""The accelerometer's couplings held at zero: the corrected axes' frame (see the module's description)."""
+MAX_ITERATIONS = 15
+CONVERGED = 1e-4
+"""Gauss-Newton stops when no parameter moves by more than this fraction of its standard error."""
+CHUNK_SAMPLES = 20_000
+"""Still samples per block of rows (bounded memory)."""
+
+
+@dataclass(frozen=True)
+class HandheldSettings:
+    """The options of a hand-held fit.
+
+    :param effects: per sensor, offset effects to fit beyond the paper's link (names, as ``--effects``).
+    """
+
+    bias_order: int = 3
+    scale_order: int = 2
+    temp_code_ref: float | None = None
+    gravity: float = STANDARD_GRAVITY
+    latitude: float | None = None
+    effects: dict[str, tuple] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class PlateauRow:
+    """The paper's +/- quantities (3)-(5) on one plateau and axis, beside the link's values there.
+
+    :param temperature: the plateau's mean temperature, C.
+    :param axis: 0, 1, 2.
+    :param offset: ``(N+ + N-) / 2`` of the still means with the axis up and down.
+    :param scale: ``(N+ - N-) / 2 / g``.
+    :param link_offset: the fitted link's offset at that temperature.
+    :param link_scale: the fitted link's scale at that temperature.
+    :param tilt_deg: the larger of the two faces' tilts from the axis.
+    """
+
+    temperature: float
+    axis: int
+    offset: float
+    scale: float
+    link_offset: float
+    link_scale: float
+    tilt_deg: float
+
+
+@dataclass(frozen=True)
+class HandheldFit:
+    """Both sensors fitted from a hand-held record.
+
+    :param results: per sensor the fit (calibration, residual statistics, ``parameter_errors``:
+        ``'x.scale'``, ``'x.offset'`` at the reference temperature, the couplings and effect terms).
+    :param lines: what the record determined and what was held, one statement each.
+    :param up: ``(k, 3)`` each still interval's up direction in the corrected frame.
+    :param closure: the turns' closure after the fit; ``closure_before`` with the driver's values.
+    :param plus_minus: the paper's quantities per plateau (empty unless the faces came in opposite pairs).
+    :param orders: the bias and scale orders fitted (after the span rule).
+    """
+
+    results: dict[str, FitResult]
+    lines: tuple[str, ...]
+    up: np.ndarray
+    closure: TurnClosure
+    closure_before: TurnClosure
+    plus_minus: tuple[PlateauRow, ...]
+    orders: tuple[int, int]
+
+
+# ----- the joint parameter vector of one sensor ------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """The three axes' columns side by side: one parameter vector per sensor.
+
+    :param columns: per axis its design's labels.
+    :param starts: where each axis's columns begin.
+    :param kinds: per parameter: ``scale``, ``scale_T``, ``offset``, ``offset_T``, ``coupling``, ``effect``.
+    :param names: per parameter its name (``x.scale``, ``x.offset_T2``, ``cross_axis.c_yx``, ``warmup.amplitude_x``).
+    """
+
+    columns: tuple[tuple[Column, ...], ...]
+    starts: tuple[int, ...]
+    kinds: tuple[str, ...]
+    names: tuple[str, ...]
+
+    @classmethod
+    def of(cls, columns: Sequence[tuple[Column, ...]]) -> _Layout:
+        starts, kinds, names = [], [], []
+        for axis, labels in enumerate(columns):
+            starts.append(len(kinds))
+            scale = offset = 0
+            for label in labels:
+                if label.term == SCALE_POLYNOMIAL:
+                    kinds.append('scale' if scale == 0 else 'scale_T')
+                    names.append(f'{AXES[axis]}.scale' + (f'_T{scale}' if scale else ''))
+                    scale += 1
+                elif label.term == OFFSET_POLYNOMIAL:
+                    kinds.append('offset' if offset == 0 else 'offset_T')
+                    names.append(f'{AXES[axis]}.offset' + (f'_T{offset}' if offset else ''))
+                    offset += 1
+                else:
+                    kinds.append('coupling' if label.effect == CrossAxis.name else 'effect')
+                    names.append(f'{label.effect}.{label.parameter}')
+        return cls(tuple(columns), tuple(starts), tuple(kinds), tuple(names))
+
+    @property
+    def width(self) -> int:
+        return len(self.kinds)
+
+    def axis_part(self, theta: np.ndarray, axis: int) -> np.ndarray:
+        start = self.starts[axis]
+        return theta[start:start + len(self.columns[axis])]
+
+    def index(self, name: str) -> int:
+        return self.names.index(name)
+
+    def initial(self) -> np.ndarray:
+        """Scale 1, everything else 0."""
+        theta = np.zeros(self.width)
+        theta[[i for i, kind in enumerate(self.kinds) if kind == 'scale']] = 1.0
+        return theta
+
+
+def _joint(designs: Sequence[AxisDesign], layout: _Layout) -> np.ndarray:
+    """``(n, 3, W)``: each axis's design in its own columns of the sensor's parameter vector."""
+    rows = len(designs[0].target)
+    out = np.zeros((rows, 3, layout.width))
+    for axis, design in enumerate(designs):
+        start = layout.starts[axis]
+        out[:, axis, start:start + design.matrix.shape[1]] = design.matrix
+    return out
+
+
+@dataclass
+class _Terms:
+    """What a sensor's design needs besides the force: the temperature powers, the effects and their bases."""
+
+    frame: Frame
+    bias_order: int
+    scale_order: int
+    effects: tuple[Effect, ...] = ()
+
+    def designs(self, powers: Sequence[np.ndarray], force: np.ndarray, counts: np.ndarray,
+                bases: Sequence[np.ndarray]) -> list[AxisDesign]:
+        offset_bases = [(effect, basis) for effect, basis in zip(self.effects, bases)]
+        return [axis_design(axis, powers, force, counts, bias_order=self.bias_order, scale_order=self.scale_order,
+                            input_effects=(CrossAxis(),), offset_bases=offset_bases) for axis in range(3)]
+
+    def layout(self) -> _Layout:
+        dummy = np.zeros((1, 3))
+        powers = [np.zeros(1)] * (max(self.bias_order, self.scale_order) + 1)
+        bases = [np.zeros((1, len(effect.basis_suffixes()))) for effect in self.effects]
+        return _Layout.of([design.columns for design in self.designs(powers, dummy, dummy, bases)])
+
+
+def _inverse(matrix: np.ndarray) -> np.ndarray:
+    """The inverses of ``(n, 3, 3)`` matrices by the adjugate (many small systems at once)."""
+    adjugate = np.empty_like(matrix)
+    for i in range(3):
+        for j in range(3):
+            rows = [r for r in range(3) if r != j]
+            cols = [c for c in range(3) if c != i]
+            minor = (matrix[:, rows[0], cols[0]] * matrix[:, rows[1], cols[1]]
+                     - matrix[:, rows[0], cols[1]] * matrix[:, rows[1], cols[0]])
+            adjugate[:, i, j] = minor if (i + j) % 2 == 0 else -minor
+    determinant = np.einsum('ni,ni->n', matrix[:, 0, :], adjugate[:, :, 0])
+    return adjugate / determinant[:, None, None]
+
+
+def _matrix(theta: np.ndarray, layout: _Layout, powers: Sequence[np.ndarray], scale_order: int) -> np.ndarray:
+    """``M(T)`` ``(n, 3, 3)``: ``K0 F_c(T)`` on the diagonal, the couplings off it."""
+    count = len(powers[0])
+    out = np.zeros((count, 3, 3))
+    for axis in range(3):
+        part = layout.axis_part(theta, axis)
+        out[:, axis, axis] = sum(part[j] * powers[j] for j in range(scale_order + 1))
+    for index, name in enumerate(layout.names):
+        if layout.kinds[index] == 'coupling':
+            channel, force = AXES.index(name[-2]), AXES.index(name[-1])
+            out[:, channel, force] = theta[index]
+    return out
+
+
+# ----- the solve with held terms --------------------------------------------------------------------
+
+
+@dataclass
+class _System:
+    """The triangular factor of the weighted ``[X | y]`` of one sensor's rows, and its row count."""
+
+    factor: np.ndarray
+    count: int
+
+    @classmethod
+    def of_rows(cls, blocks: Sequence[np.ndarray], width: int) -> _System:
+        accumulated = BlockedQR(width + 1)
+        for block in blocks:
+            if len(block):
+                accumulated.add(block)
+        return cls(accumulated.factor.copy(), accumulated.count)
+
+    def plus(self, rows: np.ndarray) -> _System:
+        if not len(rows):
+            return self
+        stacked = np.linalg.qr(np.vstack([self.factor, rows]), mode='r')
+        return _System(_square(stacked, self.factor.shape[0]), self.count + len(rows))
+
+    def reduced(self, held: dict[int, float]) -> tuple[_System, list[int]]:
+        """The system with the held columns' values moved into the target and the columns taken out."""
+        width = self.factor.shape[1] - 1
+        free = [j for j in range(width) if j not in held]
+        target = self.factor[:, -1].copy()
+        for j, value in held.items():
+            target -= self.factor[:, j] * value
+        matrix = np.column_stack([self.factor[:, free], target])
+        factor = np.linalg.qr(matrix, mode='r')
+        return _System(_square(factor, len(free) + 1), self.count), free
+
+
+def _square(factor: np.ndarray, size: int) -> np.ndarray:
+    if factor.shape[0] < size:
+        factor = np.vstack([factor, np.zeros((size - factor.shape[0], factor.shape[1]))])
+    return factor[:size]
+
+
+@dataclass(frozen=True)
+class _Solved:
+    """A sensor's solve: the full parameter vector, the free parameters' covariance, what was held."""
+
+    theta: np.ndarray
+    free: list[int]
+    covariance: np.ndarray
+    held: dict[int, float]
+    solution: Solution
+    dof: int
+    inverse: np.ndarray
+
+    def errors(self, layout: _Layout) -> dict[str, float]:
+        deviations = np.sqrt(np.maximum(np.diag(self.covariance), 0.0))
+        return {layout.names[j]: float(deviation) for j, deviation in zip(self.free, deviations)}
+
+
+def _solve(system: _System, held: dict[int, float], width: int, *, rows: int | None = None,
+           extra_rss: float = 0.0) -> _Solved:
+    """Solve with ``held`` fixed; the covariance of the free terms scaled by the weighted residual.
+
+    :param rows: the degrees of freedom before the free terms (default the system's rows; a
+        compressed system gives its samples' rows less the directions eliminated).
+    :param extra_rss: residual the compression left out.
+    """
+    reduced, free = system.reduced(held)
+    theta = np.zeros(width)
+    for j, value in held.items():
+        theta[j] = value
+    if not free:  # everything held: nothing to solve
+        nothing = np.zeros((0, 0))
+        solution = Solution(np.zeros(0), nothing, np.zeros(0), float(reduced.factor[-1, -1] ** 2), 0, np.zeros(0))
+        return _Solved(theta, free, nothing, dict(held), solution, max(system.count, 1), nothing)
+    solution = solve_factor(reduced.factor, max(reduced.count, 1))
+    theta[free] = solution.coefficients
+    dof = max((system.count if rows is None else rows) - len(free), 1)
+    variance = (solution.rss + extra_rss) / dof
+    singular = solution.singular
+    _, _, vt = np.linalg.svd(solution.scaled)
+    keep = singular > NULL_RELATIVE * singular[0] if len(singular) else np.zeros(0, dtype=bool)
+    inverse = (vt[keep].T / singular[keep] ** 2) @ vt[keep]
+    covariance = variance * inverse / np.outer(solution.norms, solution.norms)
+    null_leverage = np.sum(vt[~keep] ** 2, axis=0)
+    covariance[np.diag_indices_from(covariance)] = np.where(null_leverage > NULL_LEVERAGE, np.inf,
+                                                            np.diag(covariance))
+    inverse = inverse / np.outer(solution.norms, solution.norms)
+    return _Solved(theta, free, covariance, dict(held), solution, dof, inverse)
+
+
+def _bound(kind: str, sensor: str) -> float:
+    if kind in ('offset', 'offset_T'):
+        return BOUNDS['offset', sensor]
+    return BOUNDS.get(kind, math.inf)
+
+
+def _holds(solved: _Solved, layout: _Layout, sensor: str) -> dict[int, float]:
+    """More terms to hold: the undetermined ones of the first kind in :data:`HOLD_ORDER` that has any."""
+    deviations = np.sqrt(np.diag(solved.covariance))
+    failing = [j for j, deviation in zip(solved.free, deviations)
+               if not deviation <= _bound(layout.kinds[j], sensor)]
+    for kind in HOLD_ORDER:
+        chosen = [j for j in failing if layout.kinds[j] == kind]
+        if chosen:
+            return {j: (1.0 if kind == 'scale' else 0.0) for j in chosen}
+    return {}
+
+
+def _solve_holding(system: _System, held: dict[int, float], layout: _Layout, sensor: str, *,
+                   rows: int | None = None, extra_rss: float = 0.0) -> _Solved:
+    """:func:`_solve`, holding undetermined terms until every free one is determined."""
+    held = dict(held)
+    while True:
+        solved = _solve(system, held, layout.width, rows=rows, extra_rss=extra_rss)
+        more = _holds(solved, layout, sensor)
+        if not more:
+            return solved
+        held.update(more)
+
+
+# ----- the accelerometer ---------------------------------------------------------------------------
+
+
+def _segments(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Starts of the runs of equal labels (non-decreasing) and each sample's run."""
+    starts = np.flatnonzero(np.diff(labels, prepend=labels[0] - 1) != 0)
+    run = np.cumsum(np.diff(labels, prepend=labels[0]) != 0)
+    return starts, run
+
+
+class _Rests:
+    """A sensor's still samples, compressed rest by rest.
+
+    Within a rest the input (gravity along the rest's up direction, or the rate at rest) is
+    constant, so each axis's model is linear in the temperature powers and the effects' basis
+    signals there: the rest's samples are replaced by the triangular factor of
+    ``[powers | bases | N]`` (a few rows instead of hundreds), which gives the same least squares
+    for any parameters and input. Its rows go through :meth:`_Terms.designs` like samples; the
+    couplings' columns (constant over a rest) take the factor's first column (that of the
+    constant power).
+    """
+
+    def __init__(self, counts: np.ndarray, temperature: np.ndarray, interval: np.ndarray, terms: _Terms,
+                 bases: Sequence[np.ndarray], noise: np.ndarray) -> None:
+        self.terms = terms
+        self.sigma = np.maximum(np.asarray(noise, dtype=float), 1e-12)
+        self.layout = terms.layout()
+        self.count = int(interval.max()) + 1 if len(interval) else 0
+        self.orders = max(terms.bias_order, terms.scale_order) + 1
+        self.widths = [basis.shape[1] for basis in bases]
+        regressors = np.column_stack([*terms.frame.powers(temperature, self.orders - 1), *bases])
+        inner = regressors.shape[1]
+        starts = np.flatnonzero(np.diff(interval, prepend=-1) != 0)
+        ends = np.append(starts[1:], len(interval))
+        factors, owners, remainder = [], [], np.zeros(3)
+        for start, end in zip(starts, ends):
+            factor = np.linalg.qr(np.column_stack([regressors[start:end], counts[start:end]]), mode='r')
+            kept = min(len(factor), inner)
+            factors.append(factor[:kept])
+            owners.append(np.full(kept, interval[start]))
+            remainder += np.sum(factor[kept:, inner:] ** 2, axis=0)
+        compressed = np.vstack(factors) if factors else np.zeros((0, inner + 3))
+        self.regressors = compressed[:, :inner]
+        self.counts = compressed[:, inner:]
+        self.interval = np.concatenate(owners) if owners else np.zeros(0, dtype=np.int64)
+        self.remainder = remainder
+        self.samples = len(interval)
+
+    @property
+    def powers(self) -> list[np.ndarray]:
+        """The compressed rows' temperature powers ``u^0 .. u^m``."""
+        return [self.regressors[:, j] for j in range(self.orders)]
+
+    def design(self, force: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The weighted design ``(m, 3, W)`` and target ``(m, 3)`` for the input ``force`` ``(m, 3)`` per row."""
+        edges = np.cumsum([self.orders, *self.widths])
+        bases = [self.regressors[:, a:b] for a, b in zip(edges[:-1], edges[1:])]
+        designs = self.terms.designs(self.powers, force, self.counts, bases)
+        constant = self.regressors[:, 0]
+        for design in designs:
+            coupling = [c for c, label in enumerate(design.columns) if label.effect == CrossAxis.name]
+            design.matrix[:, coupling] *= constant[:, None]
+        return _joint(designs, self.layout) / self.sigma[None, :, None], self.counts / self.sigma[None, :]
+
+    @property
+    def extra_rss(self) -> float:
+        """The weighted residual sum of squares the compression left out (no parameter changes it)."""
+        return float(np.sum(self.remainder / self.sigma ** 2))
+
+
+class _AccelProblem(_Rests):
+    """The accelerometer's rests (:class:`_Rests`): the input is gravity along each rest's unknown up direction."""
+
+    def __init__(self, counts: np.ndarray, temperature: np.ndarray, interval: np.ndarray, terms: _Terms,
+                 bases: Sequence[np.ndarray], gravity: float, noise: np.ndarray) -> None:
+        super().__init__(counts, temperature, interval, terms, bases, noise)
+        self.gravity = gravity
+
+    def rows(self, theta: np.ndarray, up: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The weighted design ``(m, 3, W)``, target ``(m, 3)``, direction columns ``(m, 3, 2)``.
+
+        And each row's run (of equal intervals, from 0) and each run's interval.
+        """
+        design, target = self.design(self.gravity * up[self.interval])
+        tangent = tangent_basis(up)[self.interval] * self.gravity  # (m, 3, 2)
+        matrix = _matrix(theta, self.layout, self.powers, self.terms.scale_order)
+        diagonal = np.einsum('maa->ma', matrix)
+        couplings = matrix[0] - np.diag(np.diag(matrix[0])) if len(matrix) else np.zeros((3, 3))
+        directions = (diagonal[:, :, None] * tangent
+                      + self.regressors[:, 0, None, None] * np.einsum('il,mlb->mib', couplings, tangent))
+        directions = directions / self.sigma[None, :, None]
+        starts, run = _segments(self.interval)
+        return design, target, directions, run, self.interval[starts]
+
+    def system(self, theta: np.ndarray, up: np.ndarray) -> _System:
+        design, target, directions, run, _ = self.rows(theta, up)
+        projected = _project(directions, run, design, target)
+        return _System.of_rows([np.column_stack([projected[0].reshape(-1, self.layout.width),
+                                                 projected[1].reshape(-1)])], self.layout.width)
+
+    def sensitivity(self, theta: np.ndarray, up: np.ndarray) -> np.ndarray:
+        """``(k, 2, W)``: how each interval's best up direction (two tangent angles) moves with the terms."""
+        out = np.zeros((self.count, 2, self.layout.width))
+        design, _, directions, run, owners = self.rows(theta, up)
+        starts = np.flatnonzero(np.diff(run, prepend=-1) != 0)
+        q1, q2, factor = _orthonormal(directions, run)
+        along = np.stack([np.add.reduceat(np.einsum('ma,maw->mw', q, design), starts, axis=0)
+                          for q in (q1, q2)], axis=1)
+        out[owners] = -np.linalg.solve(factor, along)
+        return out
+
+    def directions(self, theta: np.ndarray, up: np.ndarray) -> np.ndarray:
+        """The up directions after one Gauss-Newton step given ``theta``."""
+        new_up = up.copy()
+        design, target, directions, run, owners = self.rows(theta, up)
+        step = _interval_step(directions, run, target - design @ theta)
+        moved = up[owners] + np.einsum('kab,kb->ka', tangent_basis(up[owners]), step)
+        new_up[owners] = moved / np.linalg.norm(moved, axis=1, keepdims=True)
+        return new_up
+
+
+def _chunks(labels: np.ndarray) -> list[slice]:
+    """Slices of whole runs of equal labels, about :data:`CHUNK_SAMPLES` samples each."""
+    if not len(labels):
+        return []
+    starts = np.flatnonzero(np.diff(labels, prepend=labels[0] - 1) != 0)
+    edges = [0]
+    for start in starts[1:]:
+        if start - edges[-1] >= CHUNK_SAMPLES:
+            edges.append(int(start))
+    edges.append(len(labels))
+    return [slice(a, b) for a, b in zip(edges[:-1], edges[1:])]
+
+
+def _orthonormal(directions: np.ndarray, run: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per run, an orthonormal basis ``q1, q2`` ``(m, 3)`` of the two direction columns, and ``R`` ``(r, 2, 2)``."""
+    starts = np.flatnonzero(np.diff(run, prepend=-1) != 0)
+
+    def total(values: np.ndarray) -> np.ndarray:
+        return np.add.reduceat(values, starts, axis=0)
+
+    first, second = directions[..., 0], directions[..., 1]
+    norm1 = np.sqrt(total(np.sum(first * first, axis=1)))
+    q1 = first / norm1[run][:, None]
+    cross = total(np.sum(q1 * second, axis=1))
+    rest = second - q1 * cross[run][:, None]
+    norm2 = np.sqrt(total(np.sum(rest * rest, axis=1)))
+    q2 = rest / norm2[run][:, None]
+    factor = np.zeros((len(starts), 2, 2))
+    factor[:, 0, 0], factor[:, 0, 1], factor[:, 1, 1] = norm1, cross, norm2
+    return q1, q2, factor
+
+
+def _project(directions: np.ndarray, run: np.ndarray, design: np.ndarray, target: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """The rows with each run's two direction columns projected out (the directions eliminated)."""
+    starts = np.flatnonzero(np.diff(run, prepend=-1) != 0)
+    q1, q2, _ = _orthonormal(directions, run)
+    for q in (q1, q2):
+        coefficient = np.add.reduceat(np.einsum('ma,maw->mw', q, design), starts, axis=0)
+        design = design - q[:, :, None] * coefficient[run][:, None, :]
+        along = np.add.reduceat(np.sum(q * target, axis=1), starts)
+        target = target - q * along[run][:, None]
+    return design, target
+
+
+def _interval_step(directions: np.ndarray, run: np.ndarray, residual: np.ndarray) -> np.ndarray:
+    """Per run the two-angle step that best explains the residual by the direction columns."""
+    starts = np.flatnonzero(np.diff(run, prepend=-1) != 0)
+    q1, q2, factor = _orthonormal(directions, run)
+    along = np.column_stack([np.add.reduceat(np.sum(q * residual, axis=1), starts) for q in (q1, q2)])
+    return np.linalg.solve(factor, along[:, :, None])[:, :, 0]
+
+
+def _fit_accel(problem: _AccelProblem, up: np.ndarray, held: dict[int, float]) -> tuple[_Solved, np.ndarray]:
+    """Gauss-Newton on the accelerometer's terms and the up directions; holds grow while terms are undetermined.
+
+    :returns: the solve and the up directions.
+    """
+    layout = problem.layout
+    theta = layout.initial()
+    for j, value in held.items():
+        theta[j] = value
+    dof = 3 * problem.samples - 2 * problem.count
+    for _ in range(MAX_ITERATIONS):
+        solved = _solve_holding(problem.system(theta, up), held, layout, 'accel', rows=dof,
+                                extra_rss=problem.extra_rss)
+        held = solved.held
+        up = problem.directions(solved.theta, up)
+        if _converged(solved, theta):
+            break
+        theta = solved.theta
+    return solved, up
+
+
+def _converged(solved: _Solved, previous: np.ndarray) -> bool:
+    """No free term moved by more than :data:`CONVERGED` of its standard error."""
+    deviations = np.sqrt(np.maximum(np.diag(solved.covariance), 1e-300))
+    moved = np.abs(solved.theta[solved.free] - previous[solved.free]) / deviations
+    return not len(moved) or float(np.max(moved)) < CONVERGED
+
+
+# ----- the gyroscope ---------------------------------------------------------------------------------
+
+
+class _GyroProblem:
+    """The gyroscope's still samples (linear rows) and turns (rows linearised at each step)."""
+
+    def __init__(self, record: HandheldRecord, interval: np.ndarray, terms: _Terms, still_bases: Sequence[np.ndarray],
+                 turn_bases: Sequence[np.ndarray], up: np.ndarray, noise: np.ndarray, up_noise: np.ndarray,
+                 latitude: float | None) -> None:
+        self.terms = terms
+        self.layout = terms.layout()
+        self.sigma = np.maximum(np.asarray(noise, dtype=float), 1e-12)
+        order = max(terms.bias_order, terms.scale_order)
+        still = record.still
+        self.rests = _Rests(still.counts[:, 3:6], still.temp_code, interval, terms, still_bases, noise)
+        self.reference = earth_reference(up, interval, latitude)
+        turn = record.turn
+        self.turn_counts = turn.counts[:, 3:6]
+        self.turn_powers = terms.frame.powers(np.clip(turn.temp_code, terms.frame.low, terms.frame.high), order)
+        self.turn_bases = turn_bases
+        self.turn_stamps = turn.stamp_s
+        self.turn_index = record.turn_index
+        self.pairs = record.turns
+        self.up = up
+        self.up_noise = up_noise
+        self.latitude = latitude
+
+    def still_system(self) -> _System:
+        """The rests' rows (linear: the rate at rest is known), compressed rest by rest."""
+        force = earth_reference(self.up, self.rests.interval, self.latitude)
+        design, target = self.rests.design(force)
+        return _System.of_rows([np.column_stack([design.reshape(-1, self.layout.width), target.reshape(-1)])],
+                               self.layout.width)
+
+    def rates(self, theta: np.ndarray, rows: slice) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], list]:
+        """Some turn samples' corrected rates ``(m, 3)``, ``M(T)^-1``, their powers and bases."""
+        powers = [p[rows] for p in self.turn_powers]
+        bases = [b[rows] for b in self.turn_bases]
+        counts = self.turn_counts[rows]
+        designs = self.terms.designs(powers, np.zeros_like(counts), counts, bases)
+        # The force columns are zero here: each axis's design times its terms is its offset.
+        offsets = np.column_stack([design.matrix @ self.layout.axis_part(theta, axis)
+                                   for axis, design in enumerate(designs)])
+        inverse = _inverse(_matrix(theta, self.layout, powers, self.terms.scale_order))
+        return np.einsum('mab,mb->ma', inverse, counts - offsets), inverse, powers, bases
+
+    def turn_rows(self, theta: np.ndarray, covariance_scale: float = 1.0, *, rows_needed: bool = True) -> _TurnRows:
+        """Two whitened rows ``[J | J theta - r]`` per turn, and the closure at ``theta``.
+
+        The turns are integrated a block of whole turns at a time (bounded memory).
+
+        :param rows_needed: ``False``: the closure only (the rows are left empty).
+        """
+        count = len(self.pairs)
+        width = self.layout.width
+        if not count:
+            return _TurnRows(np.zeros((0, width + 1)), _no_closure(), np.zeros((0, 2, 2)), np.zeros((0, 3, 2)),
+                             np.zeros((0, 3, 3)))
+        rotations = np.zeros((count, 3, 3))
+        jacobians = np.zeros((len(self.turn_index), 3, 3))
+        moved = np.zeros((count, 3, width))
+        for rows in _chunks(self.turn_index):
+            index = self.turn_index[rows]
+            first, local = int(index[0]), int(index[-1] - index[0] + 1)
+            rate, inverse, powers, bases = self.rates(theta, rows)
+            rotation, jacobian = integrate_segments(rate, self.turn_stamps[rows], index - first, local, jacobian=True)
+            rotations[first:first + local] = rotation
+            jacobians[rows] = jacobian
+            if not rows_needed:
+                continue
+            designs = self.terms.designs(powers, rate, self.turn_counts[rows], bases)
+            # d rate / d theta = -M^-1 D, D block-diagonal by axis: each axis's columns take one column of C M^-1.
+            carried = -jacobian @ inverse
+            starts = np.flatnonzero(np.diff(index, prepend=-1) != 0)
+            for axis, design in enumerate(designs):
+                start = self.layout.starts[axis]
+                block = carried[:, :, axis, None] * design.matrix[:, None, :]
+                moved[index[starts], :, start:start + design.matrix.shape[1]] = np.add.reduceat(block, starts, axis=0)
+        terms = closure_terms(rotations, jacobians, self.turn_index, self.pairs, self.up, self.up_noise, self.sigma)
+        if not rows_needed:
+            return _TurnRows(np.zeros((0, width + 1)), terms.closure, np.zeros((0, 2, 2)), terms.basis, rotations)
+        basis = terms.basis
+        jacobian = -np.einsum('tab,tac,tcw->tbw', basis, hat(terms.carried), moved)
+        whitening = np.linalg.cholesky(np.linalg.inv(terms.covariance * covariance_scale))  # L L^T = C^-1
+        weight = np.swapaxes(whitening, 1, 2)
+        rows_design = weight @ jacobian
+        rows_target = np.einsum('tab,tb->ta', weight, np.einsum('tbw,w->tb', jacobian, theta) - terms.residual)
+        rows = np.concatenate([rows_design, rows_target[:, :, None]], axis=2).reshape(-1, width + 1)
+        closure = terms.closure
+        return _TurnRows(rows, closure, weight, basis, rotations)
+
+    def frame_covariance(self, turns: _TurnRows, solved: _Solved, accel: _Solved,
+                         sensitivity: np.ndarray) -> np.ndarray:
+        """What the accelerometer's errors add to the gyroscope's covariance through the up directions.
+
+        The gyroscope's terms are in the frame the accelerometer's fit defines; an error of the
+        accelerometer's terms turns the up directions of every interval together (``sensitivity``:
+        ``d u_k / d theta_a`` as two tangent angles per interval), which the turns carry into the
+        gyroscope's terms: ``S Cov_a S^T`` with ``S = H^-1 J^T W dr/du du/dtheta_a``.
+        """
+        if not len(self.pairs) or not len(accel.free):
+            return np.zeros_like(solved.covariance)
+        moved = np.einsum('kab,kbw->kaw', tangent_basis(self.up), sensitivity[:, :, accel.free])  # (k, 3, Wa)
+        before, after = self.pairs[:, 0], self.pairs[:, 1]
+        change = (np.einsum('tab,taw->tbw', turns.basis, turns.rotations @ moved[after])
+                  - np.einsum('tab,taw->tbw', turns.basis, moved[before]))  # d r / d theta_a, (t, 2, Wa)
+        target = -(turns.weight @ change).reshape(-1, len(accel.free))
+        design = turns.rows[:, :-1][:, solved.free]
+        gain = solved.inverse @ (design.T @ target)  # d theta_g / d theta_a
+        return gain @ accel.covariance @ gain.T
+
+
+@dataclass(frozen=True)
+class _TurnRows:
+    """The turns' whitened rows, their closure, and what the frame's error propagation needs."""
+
+    rows: np.ndarray
+    closure: TurnClosure
+    weight: np.ndarray
+    basis: np.ndarray
+    rotations: np.ndarray
+
+
+def _no_closure() -> TurnClosure:
+    return TurnClosure(np.zeros(0), np.zeros(0), np.zeros(0))
+
+
+def _fit_gyro(problem: _GyroProblem, held: dict[int, float]) -> tuple[_Solved, _TurnRows, float]:
+    """The still rows once, the turn rows again at each Gauss-Newton step.
+
+    When the turns' chi-square exceeds its expectation by more than :data:`CHI2_SLACK` (something
+    the model lacks), their weight is lowered by it and the steps go on.
+
+    :returns: the solve, the turns' rows at the last step, the factor on the turns' variance.
+    """
+    layout = problem.layout
+    still = problem.still_system()
+    rows, extra = 3 * problem.rests.samples, problem.rests.extra_rss
+    start = dict(held)
+    start.update({j: (1.0 if kind == 'scale' else 0.0) for j, kind in enumerate(layout.kinds)
+                  if kind in ('scale', 'scale_T', 'coupling')})
+    theta = _solve(still, start, layout.width, rows=rows, extra_rss=extra).theta
+    scale = 1.0
+    for _ in range(MAX_ITERATIONS):
+        turns = problem.turn_rows(theta, scale)
+        solved = _solve_holding(still.plus(turns.rows), held, layout, 'gyro', rows=rows + len(turns.rows),
+                                extra_rss=extra)
+        held = solved.held
+        if _converged(solved, theta):
+            residual = turns.rows[:, :-1] @ solved.theta - turns.rows[:, -1]
+            chi2 = float(residual @ residual) / max(len(turns.rows), 1)
+            if chi2 <= CHI2_SLACK:
+                break
+            scale = chi2 * scale
+        theta = solved.theta
+    return solved, turns, scale
+
+
+CHI2_SLACK = 1.3
+"""The turns' chi-square per row may exceed 1 by this factor before their weight is lowered."""
+
+
+# ----- the fit of a hand-held record ------------------------------------------------------------------
+
+
+def orders_for_span(span_c: float, bias_order: int, scale_order: int) -> tuple[int, int]:
+    """The polynomial orders a temperature span determines: one order per :data:`SPAN_PER_ORDER_C`."""
+    allowed = int(math.floor(max(span_c, 0.0) / SPAN_PER_ORDER_C + 1e-9))
+    return min(bias_order, allowed), min(scale_order, allowed)
+
+
+def gauge_rotation(matrix: np.ndarray) -> np.ndarray:
+    """``Q`` with ``matrix = L Q``, ``L`` lower triangular with a positive diagonal (the accelerometer's gauge).
+
+    A unit whose accelerometer's sensitivity matrix is ``M`` (sensor frame to channels) is
+    corrected by a hand-held fit into the frame ``Q`` times the sensor frame; its accelerometer
+    reads ``L`` there, its gyroscope ``M_g Q^T``.
+    """
+    orthogonal, upper = np.linalg.qr(np.asarray(matrix, dtype=float).T)  # M^T = Q^T L^T
+    signs = np.sign(np.diag(upper))
+    return (orthogonal * signs[None, :]).T
+
+
+def sensitivity(calibration: Calibration, temperature: float) -> np.ndarray:
+    """The sensor's matrix ``diag(K0 F_c(T)) + C`` at one temperature (channels per unit input)."""
+    n = float(np.clip(temperature, calibration.temp_code_min, calibration.temp_code_max)) - calibration.temp_code_ref
+    matrix = np.diag([axis.scale * float(axis.scale_factor(n)) for axis in calibration.axes])
+    for effect in calibration.effects:
+        if isinstance(effect, CrossAxis):
+            matrix = matrix + np.array(effect.matrix())
+    return matrix
+
+
+def _offset_effects(specs: Sequence, sensor: str) -> tuple[type[Effect], ...]:
+    """The effects asked for one sensor: offset effects only (the misalignment is always fitted)."""
+    classes = []
+    for spec in specs:
+        cls = resolve_effect(spec)
+        if cls is CrossAxis:
+            continue
+        if cls.kind == INPUT:
+            msg = (f'effect {cls.name}: not fitted from a hand-held record (the {sensor} misalignment, cross_axis, '
+                   f'is; a scale nonlinearity needs a table)')
+            raise FitError(msg)
+        classes.append(cls)
+    return tuple(classes)
+
+
+def _union_bases(effects: Sequence[Effect], frame: Frame, record: HandheldRecord
+                 ) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Each effect's basis over the still and turn samples together, in time order (effects with memory)."""
+    if not effects:
+        return [], []
+    series, still_rows, turn_rows = merged_samples(record)
+    still_bases, turn_bases = [], []
+    for effect in effects:
+        inputs = effect_input(effect, np.clip(series.temp_code, frame.low, frame.high), series.aux)
+        basis = checked_basis(effect, series.stamp_s, inputs)
+        still_bases.append(basis[still_rows])
+        turn_bases.append(basis[turn_rows])
+    return still_bases, turn_bases
+
+
+def _calibration(solved: _Solved, layout: _Layout, terms: _Terms, notes: tuple[str, ...]) -> Calibration:
+    """The correction link of a solve: the axes, the misalignment when any coupling was fitted, the effects."""
+    betas = [layout.axis_part(solved.theta, axis) for axis in range(3)]
+    fitted_couplings = any(layout.kinds[j] == 'coupling' for j in solved.free)
+    effects = fitted_effects([CrossAxis(), *terms.effects], layout.columns, betas)
+    if not fitted_couplings:
+        effects = effects[1:]
+    calibration = calibration_from(terms.frame, betas, bias_order=terms.bias_order, scale_order=terms.scale_order,
+                                   held_scales=(None, None, None), notes=notes, effects=effects)
+    held_scale = [layout.index(f'{name}.scale') in solved.held for name in AXES]
+    axes = tuple(replace(axis, scale_observable=False) if held else axis
+                 for axis, held in zip(calibration.axes, held_scale))
+    return replace(calibration, axes=axes)  # type: ignore[arg-type]
+
+
+def held_lines(sensor: str, solved: _Solved, layout: _Layout, *, gauge: Sequence[str] = ()) -> list[str]:
+    """One statement per kind of term the record did not determine (the gauge is said apart)."""
+    name = {'accel': 'accelerometer', 'gyro': 'gyroscope'}[sensor]
+    unit = {'accel': '5 mg', 'gyro': '0.29 deg/s'}[sensor]
+    words = {'scale': ('scale held at 1 on', 'not determined to 1 %'),
+             'scale_T': ("scale's temperature terms held at 0 on", 'not determined to 1 %'),
+             'offset': ('offset held at 0 on', f'not determined to {unit}'),
+             'offset_T': ("offset's temperature terms held at 0 on", f'not determined to {unit}'),
+             'coupling': ('couplings held at 0:', 'not determined to 10 mrad'),
+             'effect': ('effect terms held at 0:', 'not determined by this record')}
+    lines = []
+    for kind in ('scale', 'scale_T', 'offset', 'offset_T', 'coupling', 'effect'):
+        held = [j for j in solved.held if layout.kinds[j] == kind and layout.names[j].split('.')[-1] not in gauge]
+        if not held:
+            continue
+        if kind in ('coupling', 'effect'):
+            what = ', '.join(layout.names[j].split('.')[-1] for j in held)
+        else:
+            what = ' '.join(sorted({layout.names[j].split('.')[0] for j in held}))
+        lead, why = words[kind]
+        lines.append(f'{name}: {lead} {what} ({why} by this record)')
+    return lines
+
+
+def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSettings()) -> HandheldFit:
+    """Fit both sensors of a hand-held record (see the module's description).
+
+    :raises FitError: no still interval, too few samples, an effect that cannot be fitted so.
+    """
+    if not len(record.still):
+        msg = ('no still interval: the unit never rested for 2 s or more (rest 5-10 s in each orientation, '
+               'docs/handheld.md)')
+        raise FitError(msg)
+    temperature = record.still.temp_code
+    low, high = float(temperature.min()), float(temperature.max())
+    bias_order, scale_order = orders_for_span(high - low, settings.bias_order, settings.scale_order)
+    lines: list[str] = []
+    notes: list[str] = []
+    if (bias_order, scale_order) != (settings.bias_order, settings.scale_order):
+        if bias_order == 0 and scale_order == 0:
+            said = (f'temperature span {high - low:.2g} C ({low:.1f}..{high:.1f} C): offsets, scales and '
+                    f'misalignment at {0.5 * (low + high):.1f} C, their temperature terms held at 0 (a fit against '
+                    f'temperature needs {SPAN_PER_ORDER_C:g} C per order)')
+        else:
+            said = (f'temperature span {high - low:.3g} C ({low:.1f}..{high:.1f} C): bias order {bias_order} and '
+                    f'scale order {scale_order} (asked {settings.bias_order} and {settings.scale_order}; '
+                    f'{SPAN_PER_ORDER_C:g} C per order)')
+        lines.append(said)
+        notes.append(said)
+    if high - low < 2.0 * ONE_TEMPERATURE_HALF_RANGE_C:
+        middle = 0.5 * (low + high)
+        low, high = middle - ONE_TEMPERATURE_HALF_RANGE_C, middle + ONE_TEMPERATURE_HALF_RANGE_C
+    frame = Frame.of_range(low, high, settings.temp_code_ref)
+    effects = {sensor: _offset_effects(settings.effects.get(sensor, ()), sensor) for sensor in ('accel', 'gyro')}
+    if any(effects.values()) and bias_order == 0:
+        msg = 'effects need a temperature span: this record was taken at one temperature'
+        raise FitError(msg)
+    _, interval = np.unique(record.still_interval, return_inverse=True)
+    count = int(interval.max()) + 1
+    noise = record.intervals.noise
+    accel_counts = record.still.counts[:, :3]
+    means = np.zeros((count, 3))
+    np.add.at(means, interval, accel_counts)
+    kept = np.bincount(interval, minlength=count)
+    up = means / np.linalg.norm(means, axis=1, keepdims=True)
+
+    accel_terms = _Terms(frame, bias_order, scale_order)
+    gauge = {accel_terms.layout().index(f'cross_axis.{name}'): 0.0 for name in GAUGE}
+    problem = _AccelProblem(accel_counts, temperature, interval, accel_terms, [], settings.gravity, noise[:3])
+    accel, up = _fit_accel(problem, up, gauge)
+    shapes: dict[str, FitResult] = {}
+    if effects['accel']:
+        reference = settings.gravity * up[interval]
+        shaped = _shapes(sensor_samples(record.still, 'accel', reference), effects['accel'], accel, problem.layout,
+                         accel_terms, frame)
+        shapes['accel'] = shaped
+        offsets = tuple(effect for effect in shaped.calibration.effects if not isinstance(effect, CrossAxis))
+        accel_terms = _Terms(frame, bias_order, scale_order, offsets)
+        still_bases, _ = _union_bases(accel_terms.effects, frame, record)
+        gauge = {accel_terms.layout().index(f'cross_axis.{name}'): 0.0 for name in GAUGE}
+        problem = _AccelProblem(accel_counts, temperature, interval, accel_terms, still_bases, settings.gravity,
+                                problem.sigma)
+        accel, up = _fit_accel(problem, up, gauge)
+    accel_layout = problem.layout
+    accel_sigma = problem.sigma
+
+    up_noise = float(np.sqrt(np.mean(accel_sigma ** 2))) / (settings.gravity * np.sqrt(np.maximum(kept, 1)))
+    turn_interval = record.turns
+    if len(turn_interval):
+        mapping = np.full(len(record.intervals), -1)
+        mapping[np.unique(record.still_interval)] = np.arange(count)
+        turn_interval = mapping[turn_interval]
+    used = np.all(turn_interval >= 0, axis=1) if len(turn_interval) else np.zeros(0, dtype=bool)
+    turns_record = _with_turns(record, turn_interval, used)
+    gyro_terms = _Terms(frame, bias_order, scale_order)
+    gyro_problem = _GyroProblem(turns_record, interval, gyro_terms, [], [], up, noise[3:6], up_noise, settings.latitude)
+    gyro, turns, turn_scale = _fit_gyro(gyro_problem, {})
+    if effects['gyro']:
+        # The Earth rate (1e-4 rad/s at most) taken off at nominal scale: the scale's error (1e-3) leaves 1e-7.
+        at_rest = record.still.counts[:, 3:6] - gyro_problem.reference
+        samples = replace(sensor_samples(record.still, 'gyro', np.zeros((len(interval), 3))), counts=at_rest)
+        shaped = _shapes(samples, effects['gyro'], gyro, gyro_problem.layout, gyro_terms, frame)
+        shapes['gyro'] = shaped
+        gyro_terms = _Terms(frame, bias_order, scale_order, tuple(shaped.calibration.effects))
+        still_bases, turn_bases = _union_bases(gyro_terms.effects, frame, turns_record)
+        gyro_problem = _GyroProblem(turns_record, interval, gyro_terms, still_bases, turn_bases, up, noise[3:6],
+                                    up_noise, settings.latitude)
+        gyro, turns, turn_scale = _fit_gyro(gyro_problem, {})
+    through_frame = gyro_problem.frame_covariance(turns, gyro, accel, problem.sensitivity(accel.theta, up))
+    gyro = replace(gyro, covariance=gyro.covariance + through_frame)
+    closure = replace(turns.closure, seconds=turns_record.turn_seconds())
+
+    gauge_line = 'accelerometer: gauge c_xy = c_xz = c_yz = 0: corrected x along its x axis, y in its x-y plane'
+    accel_held = held_lines('accel', accel, accel_layout, gauge=GAUGE)
+    gyro_held = held_lines('gyro', gyro, gyro_problem.layout)
+    lines += [gauge_line, *accel_held, *gyro_held]
+    accel_cal = _calibration(accel, accel_layout, accel_terms, tuple(notes + [gauge_line] + accel_held))
+    gyro_cal = _calibration(gyro, gyro_problem.layout, gyro_terms, tuple(notes + gyro_held))
+    results = {
+        'accel': _result(accel_cal, accel, accel_layout,
+                         sensor_samples(record.still, 'accel', settings.gravity * up[interval]), record, shapes),
+        'gyro': _result(gyro_cal, gyro, gyro_problem.layout,
+                        sensor_samples(record.still, 'gyro', gyro_problem.reference), record, shapes),
+    }
+    before = replace(gyro_problem.turn_rows(gyro_problem.layout.initial(), rows_needed=False).closure,
+                     seconds=closure.seconds)
+    if turn_scale > 1.0:
+        lines.append(f'gyroscope: the turns close {math.sqrt(turn_scale):.2f}x worse than the noise predicts; '
+                     f'their weight is lowered by that much')
+    table = plateau_table(record.still, interval, up, accel_cal, settings.gravity)
+    return HandheldFit(results=results, lines=tuple(lines), up=up, closure=closure, closure_before=before,
+                       plus_minus=table, orders=(bias_order, scale_order))
+
+
+def _with_turns(record: HandheldRecord, pairs: np.ndarray, used: np.ndarray) -> HandheldRecord:
+    """The record with its turns' intervals counted among the kept ones, turns without both left out."""
+    if used.all():
+        return replace(record, turns=pairs.reshape(-1, 2))
+    keep_turn = np.flatnonzero(used)
+    mapping = np.full(len(used), -1)
+    mapping[keep_turn] = np.arange(len(keep_turn))
+    rows = used[record.turn_index]
+    turn = replace(record.turn, stamp_ns=record.turn.stamp_ns[rows], counts=record.turn.counts[rows],
+                   temp_code=record.turn.temp_code[rows],
+                   aux={name: values[rows] for name, values in record.turn.aux.items()})
+    return replace(record, turns=pairs[used], turn=turn, turn_index=mapping[record.turn_index[rows]])
+
+
+def _shapes(samples: AlignedSamples, effects: Sequence[type[Effect]], solved: _Solved, layout: _Layout,
+            terms: _Terms, frame: Frame) -> FitResult:
+    """The effects' shapes, searched by :func:`fit_model` on the still samples with the hand-held reference."""
+    from tak_thermo_ros.core.fit import fit_model
+    nominal = tuple(float(solved.theta[layout.index(f'{name}.scale')]) for name in AXES)
+    try:
+        return fit_model(samples, effects=tuple(effects), bias_order=max(terms.bias_order, 1),
+                         scale_order=terms.scale_order, temp_code_ref=frame.ref, nominal_scale=nominal)
+    except FitError as err:
+        msg = f'the effects\' shapes on the still intervals: {err}'
+        raise FitError(msg) from None
+
+
+def _result(calibration: Calibration, solved: _Solved, layout: _Layout, samples: AlignedSamples,
+            record: HandheldRecord, shapes: dict[str, FitResult]) -> FitResult:
+    """The sensor's :class:`FitResult`: residual at the still samples through the correction path, the errors."""
+    residual = residual_counts(calibration, samples)
+    parameters = [sum(1 for j in solved.free if layout.starts[axis] <= j < layout.starts[axis]
+                      + len(layout.columns[axis])) for axis in range(3)]
+    errors = solved.errors(layout)
+    for shaped in shapes.values():
+        for effect in calibration.effects:
+            for name in effect.shape_names():
+                key = f'{effect.name}.{name}'
+                if key in shaped.parameter_errors:
+                    errors[key] = shaped.parameter_errors[key]
+    return finish_fit(calibration, residual, parameters, dropped=record.dropped, parameter_errors=errors)
+
+
+PLATEAU_C = 1.0
+"""Still intervals within this temperature of each other belong to one plateau (the +/- table)."""
+FACE_TILT_DEG = 10.0
+"""A still interval rests on a face (the +/- table) when its up direction lies within this of an axis."""
+
+
+def plateau_table(still: AlignedSamples, interval: np.ndarray, up: np.ndarray, calibration: Calibration,
+                  gravity: float) -> tuple[PlateauRow, ...]:
+    """The paper's eqs. (3)-(5) on each plateau where all six faces rested, beside the fitted link there."""
+    from tak_thermo_ros.core.fit.plus_minus import plus_minus
+    count = len(up)
+    if not count:
+        return ()
+    kept = np.bincount(interval, minlength=count).astype(float)
+    means = np.zeros((count, 3))
+    np.add.at(means, interval, still.counts[:, :3])
+    means /= kept[:, None]
+    temperature = np.bincount(interval, weights=still.temp_code, minlength=count) / kept
+    order = np.argsort(temperature)
+    groups = np.split(order, np.flatnonzero(np.diff(temperature[order]) > PLATEAU_C) + 1)
+    cosine = math.cos(math.radians(FACE_TILT_DEG))
+    rows: list[PlateauRow] = []
+    for group in groups:
+        faces = [(group[up[group, axis] > cosine], group[up[group, axis] < -cosine]) for axis in range(3)]
+        if not all(len(plus) and len(minus) for plus, minus in faces):
+            continue
+        mean_t = float(np.average(temperature[group], weights=kept[group]))
+        n = float(np.clip(mean_t, calibration.temp_code_min, calibration.temp_code_max)) - calibration.temp_code_ref
+        for axis, (plus, minus) in enumerate(faces):
+            code_plus = float(np.average(means[plus, axis], weights=kept[plus]))
+            code_minus = float(np.average(means[minus, axis], weights=kept[minus]))
+            offset, scale = plus_minus(code_plus, code_minus, gravity)
+            link = calibration.axes[axis]
+            tilt = float(np.degrees(np.arccos(np.clip(np.min(np.abs(up[np.concatenate([plus, minus]), axis])),
+                                                      -1.0, 1.0))))
+            rows.append(PlateauRow(temperature=mean_t, axis=axis, offset=float(offset), scale=float(scale),
+                                   link_offset=float(link.offset + link.offset_drift(n)),
+                                   link_scale=float(link.scale * link.scale_factor(n)), tilt_deg=tilt))
+    return tuple(rows)
