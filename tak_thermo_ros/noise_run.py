@@ -88,9 +88,11 @@ class _SensorNoise:
             self.gaps += len(long)
             self.missing += int(np.sum(np.round(long / self.interval_ns) - 1))
         self.last_stamp_ns = int(stamps[-1])
-        low, high = float(np.min(samples.temp_code)), float(np.max(samples.temp_code))
-        self.temperature = (low, high) if self.temperature is None else (min(low, self.temperature[0]),
-                                                                         max(high, self.temperature[1]))
+        finite = samples.temp_code[np.isfinite(samples.temp_code)]
+        if len(finite):  # a record without a temperature holds none
+            low, high = float(np.min(finite)), float(np.max(finite))
+            self.temperature = (low, high) if self.temperature is None else (min(low, self.temperature[0]),
+                                                                             max(high, self.temperature[1]))
         if self.accumulator is None:
             self.accumulator = AllanAccumulator(1.0, 3, per_octave=self.per_octave)
         self.accumulator.add(measured - samples.reference)
@@ -117,7 +119,7 @@ class SensorNoise:
     :param out_of_range: samples corrected outside the calibrated temperature range.
     :param fit: the fit behind ``model``: how it follows the measurement, IEEE 952's slope lines.
     :param temperature: the lowest and highest temperature of the samples (degrees C; codes for a
-        counts run), which decide the model's ``source``.
+        counts run), which decide the model's ``source``; ``None`` for a run that records none.
     :param temperature_unit: ``C``, or ``codes``.
     """
 
@@ -128,12 +130,14 @@ class SensorNoise:
     dropped: dict[str, int]
     out_of_range: int
     fit: NoiseFit | None = None
-    temperature: tuple[float, float] = (0.0, 0.0)
+    temperature: tuple[float, float] | None = (0.0, 0.0)
     temperature_unit: str = 'C'
 
     @property
     def span_words(self) -> str:
         """`` (19.98..20.02 C)``: the temperature span behind the source, to print beside it."""
+        if self.temperature is None:
+            return ' (no temperature recorded: taken as constant)'
         low, high = self.temperature
         if self.temperature_unit == 'C':
             return f' ({low:.2f}..{high:.2f} C)'
@@ -212,7 +216,7 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
               for sensor in sensors]
     lines = run_passes(path, options, opened, passes)
     spans = [noises[sensor].temperature for sensor in sensors if noises[sensor].temperature is not None]
-    temperature = (min(low for low, _ in spans), max(high for _, high in spans)) if spans else (0.0, 0.0)
+    temperature = (min(low for low, _ in spans), max(high for _, high in spans)) if spans else None
     source = source or run_source(temperature, kind, unit)
     found = {}
     for sensor_pass in passes:
@@ -238,8 +242,13 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
                     reference_lines=tuple(lines), topic=topic, survey=opened.finished_survey())
 
 
-def run_source(temperature: tuple[float, float], kind: InputKind, unit: UnitCalibration | None) -> str:
-    """``static_run`` for a run at constant temperature, else ``residual`` (:func:`noise_bag`'s ``source``)."""
+def run_source(temperature: tuple[float, float] | None, kind: InputKind, unit: UnitCalibration | None) -> str:
+    """``static_run`` for a run at constant temperature, else ``residual`` (:func:`noise_bag`'s ``source``).
+
+    A run that records no temperature is taken as one at constant temperature (said beside the source).
+    """
+    if temperature is None:
+        return 'static_run'
     span = temperature[1] - temperature[0]
     if kind is InputKind.COUNTS and unit is not None:
         calibrated = unit.accel.temp_code_max - unit.accel.temp_code_min

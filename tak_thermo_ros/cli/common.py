@@ -533,10 +533,15 @@ def survey_lines(survey, command: str) -> list[str]:
     still = survey.still
     if len(still):
         seconds = still.interval_s
-        lines.append(f'record: at rest {100.0 * still.still_fraction:.0f} % of the time, {len(still)} rests of '
-                     f'{seconds.min():.2g} to {seconds.max():.3g} s (median {np.median(seconds):.2g} s)')
+        rests = f'{len(still)} rests of {duration_text(seconds.min())} to {duration_text(seconds.max())}'
+        if len(still) == 1:
+            rests = f'1 rest of {duration_text(seconds[0])}'
+        lines.append(f'record: at rest {100.0 * still.still_fraction:.0f} % of the time, {rests} '
+                     f'(median {duration_text(float(np.median(seconds)))})')
         faces = still.faces()
-        lines.append(f'record: {still.orientations()} orientations at rest; faces up within {FACE_DEG:g} deg: '
+        orientations = still.orientations()
+        lines.append(f'record: {orientations} orientation{"s" if orientations != 1 else ""} at rest; faces up '
+                     f'within {FACE_DEG:g} deg: '
                      f'{" ".join(faces) or "none"} ({len(faces)} of 6)')
     else:
         lines.append(f'record: never at rest for 2 s or more ({100.0 * still.still_fraction:.0f} % of the windows '
