@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -192,3 +193,36 @@ def test_a_counts_table_run_says_first_what_it_holds(tmp_path, capsys):
     assert lines[5] == 'record: the reference holds 10 directions'
     assert lines[6] == 'fit: a table run (reference topics): offset and scale against temperature per axis'
     assert lines[7].startswith('fitted ')
+
+
+def test_the_six_faces_with_a_gap_print_the_papers_table_in_lines_of_100_characters(tmp_path, capsys, monkeypatch):
+    """The six faces at three plateaus, 1 s of a turn lost: eqs. (3)-(5) per plateau, the turn not used, said.
+
+    Every line the hand-held fit adds is at most 100 characters (the per-axis summary lines that every
+    driver fit prints are the shared format's, left out here).
+    """
+    scenario = Scenario(output='imu', sample_rate_hz=5.0, start_celsius=10.0, plateaus_celsius=(10.0, 20.0, 30.0),
+                        plateau_hours=0.05, ramp_celsius_per_minute=5.0, board_lag_s=30.0, seed=13, **UNIT,
+                        handheld=HandheldMotion(pattern='six_faces', temperature='chamber', still_s=12.0, turn_s=3.0))
+    run = simulate(scenario)
+    driver = run.driver
+    keep = np.ones(len(driver.stamp_ns), dtype=bool)
+    keep[np.flatnonzero(run.trajectory.segment == 2 * 10 + 1)[3:8]] = False  # 1 s of the 11th turn lost
+    monkeypatch.chdir(tmp_path)  # short paths, as a user's
+    bag = Path('six')
+    write_driver_record(bag, replace(driver, stamp_ns=driver.stamp_ns[keep], accel=driver.accel[keep],
+                                     gyro=driver.gyro[keep], orientation=driver.orientation[keep],
+                                     orientation_covariance=driver.orientation_covariance[keep]))
+    status, lines = run_cli(capsys, 'fit', str(bag), '-o', 'p.yaml')
+    assert status == 0, lines
+    assert lines[3] == 'record: 6 orientations at rest; faces up within 30 deg: +x -x +y -y +z -z (6 of 6)'
+    assert 'hand-held: 1 turns not used (across a gap in the stamps)' in lines
+    header = lines.index("the paper's +/- method per plateau with all six faces, (3) offset and (5) scale, "
+                         "beside the link:")
+    rows = lines[header + 1:header + 10]
+    temperatures, axes = [float(row.split()[0]) for row in rows], [row.split()[2] for row in rows]
+    assert np.allclose(temperatures, np.repeat([10.0, 20.0, 30.0], 3), atol=1.0), temperatures
+    assert axes == ['x:', 'y:', 'z:'] * 3
+    assert all(' m/s^2, (5) ' in row and '; faces tilted <= ' in row for row in rows)
+    own = [line for line in lines if not line.startswith(('  x: residual', '  y: residual', '  z: residual'))]
+    assert all(len(line) <= 100 for line in own), [line for line in own if len(line) > 100]

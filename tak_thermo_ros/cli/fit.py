@@ -267,24 +267,24 @@ def _print_handheld(handheld) -> None:
     record, fitted = handheld.record, handheld.fit
     skipped = record.skipped_turns
     reasons = {'gap': 'across a gap in the stamps', 'long': 'longer than 60 s', 'budget': 'beyond the sample budget'}
-    not_used = '; '.join(f'{count} {reasons[reason]}' for reason, count in sorted(skipped.items()))
     kept = 'every sample' if record.stride == 1 else f'1 sample in {record.stride}'
     print(f'hand-held: {len(record.still):,} still samples ({kept}) in {len(np.unique(record.still_interval))} rests, '
-          f'{len(record.turns)} turns{f" ({not_used}: not used)" if not_used else ""}')
+          f'{len(record.turns)} turns')
+    for reason, count in sorted(skipped.items()):  # one line each: every reason fits in 100 characters
+        print(f'hand-held: {count} turns not used ({reasons[reason]})')
     for line in fitted.lines:
         print(line)
     closure = fitted.closure
     if len(closure.angle_rad):
         angles = (fitted.closure_before.rms_rad, closure.rms_rad, closure.floor_rad)
         before, after, floor = (np.degrees(angle) for angle in angles)
-        print(f'turns: closure RMS {before:.3g} deg with the driver\'s values, {after:.3g} deg fitted '
+        print(f'turns: closure RMS {before:.3g} deg before the fit, {after:.3g} deg after '
               f'(the noise alone: {floor:.3g} deg)')
     if fitted.plus_minus:
-        print("the paper's +/- method, eqs. (3)-(5), per plateau with all six faces, beside the fitted link:")
+        print("the paper's +/- method per plateau with all six faces, (3) offset and (5) scale, beside the link:")
         for row in fitted.plus_minus:
-            print(f'  {row.temperature:5.1f} C {AXES[row.axis]}: (3) offset {row.offset:+.5f} m/s^2, (5) scale '
-                  f'{row.scale:.5f}; link {row.link_offset:+.5f} m/s^2, {row.link_scale:.5f} '
-                  f'(faces within {row.tilt_deg:.1f} deg)')
+            print(f'  {row.temperature:5.1f} C {AXES[row.axis]}: (3) {row.offset:+.5f} m/s^2, (5) {row.scale:.5f}; '
+                  f'link {row.link_offset:+.5f} m/s^2, {row.link_scale:.5f}; faces tilted <= {row.tilt_deg:.1f} deg')
 
 
 def _print_handheld_terms(sensor: str, calibration, result) -> None:
