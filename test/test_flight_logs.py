@@ -311,10 +311,11 @@ def test_tclr_records_give_each_sensor_its_own_stamps(tmp_path):
 
 def test_simulate_writes_the_docs_flight_logs(tmp_path, capsys):
     """tak_calib simulate OUT.ulg / OUT.bin from docs/scenarios/px4_warm_up.yaml: what the docs show."""
+    from tak_thermo_ros.cli.common import unwrap
     scenario = Path(__file__).resolve().parents[1] / 'docs' / 'scenarios' / 'px4_warm_up.yaml'
     for name in ('warm_up.ulg', 'warm_up.bin'):
         assert main(['simulate', str(tmp_path / name), '--scenario', str(scenario)]) == 0
-    out = capsys.readouterr().out
+    out = '\n'.join(unwrap(capsys.readouterr().out))
     assert 'wrote' in out and '1801 sensor_accel (2 Hz), 2700 sensor_gyro (3 Hz)' in out
     assert read_ulog(tmp_path / 'warm_up.ulg', 0).count('gyro') == 2700
     assert read_dataflash(tmp_path / 'warm_up.bin', 0).shared_stamps

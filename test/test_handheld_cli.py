@@ -145,8 +145,8 @@ def test_every_command_says_first_what_a_static_record_holds(tmp_path, capsys):
         status, lines = run_cli(capsys, *argv)
         assert status == 0, (command, lines)
         assert lines[0].startswith('record: /imu/data_raw ') and lines[1].startswith('record: temperature 10')
-        assert lines[2].startswith('record: at rest 100 % of the time, 1 rests of ')
-        assert lines[3] == 'record: 1 orientations at rest; faces up within 30 deg: +z (1 of 6)'
+        assert lines[2].startswith('record: at rest 100 % of the time, 1 rest of ')
+        assert lines[3] == 'record: 1 orientation at rest; faces up within 30 deg: +z (1 of 6)'
         assert lines[4].startswith(f'{command}: ') and ('static' in lines[4] or 'at rest' in lines[4]
                                                         or command == 'apply'), lines[4]
 

@@ -533,11 +533,11 @@ def survey_lines(survey, command: str) -> list[str]:
     still = survey.still
     if len(still):
         seconds = still.interval_s
-        rests = f'{len(still)} rests of {duration_text(seconds.min())} to {duration_text(seconds.max())}'
+        rests = (f'{len(still)} rests of {duration_text(seconds.min())} to {duration_text(seconds.max())} '
+                 f'(median {duration_text(float(np.median(seconds)))})')
         if len(still) == 1:
             rests = f'1 rest of {duration_text(seconds[0])}'
-        lines.append(f'record: at rest {100.0 * still.still_fraction:.0f} % of the time, {rests} '
-                     f'(median {duration_text(float(np.median(seconds)))})')
+        lines.append(f'record: at rest {100.0 * still.still_fraction:.0f} % of the time, {rests}')
         faces = still.faces()
         orientations = still.orientations()
         lines.append(f'record: {orientations} orientation{"s" if orientations != 1 else ""} at rest; faces up '

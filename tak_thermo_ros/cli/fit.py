@@ -300,7 +300,7 @@ def _print_handheld_terms(sensor: str, calibration, result) -> None:
     for name, axis in zip(AXES, calibration.axes):
         scale_error = errors.get(f'{name}.scale', float('nan'))
         offset_error = errors.get(f'{name}.offset', float('nan'))
-        scale = f'{axis.scale:.6f} +- {scale_error:.2g}' if axis.scale_observable else f'{axis.scale:g} (held)'
+        scale = f'{axis.scale:.6g} +- {scale_error:.2g}' if axis.scale_observable else f'{axis.scale:g} (held)'
         print(f'  {name}: scale {scale}, offset {axis.offset:+.4g} +- {offset_error:.2g} {unit} '
               f'({axis.offset * factor:+.4g} +- {offset_error * factor:.2g} {small})')
     for effect in calibration.effects:

@@ -6,7 +6,8 @@ three when there is one): the variance about the window's mean, and half the mea
 successive differences. The noise of each channel is the mean of the latter over the quiet
 windows (those whose variance stays within ten times the channel's tenth percentile): slow
 drift cancels in a difference, so this is the channel's white noise whatever share of the
-record moves. A window is *still* when on every channel its variance stays below the noise
+record moves (never below half a quantisation step: a quantised channel at rest may dither
+between two adjacent levels). A window is *still* when on every channel its variance stays below the noise
 times the chi-square quantile of :data:`FALSE_MOVE_PROBABILITY` (the threshold follows the
 data's own noise, as imu_tk's follows its initial rest), and its specific force points one way
 (:data:`AGREEMENT`). Consecutive still windows form a run
@@ -170,6 +171,7 @@ class StillDetector:
         self._stamps: list[np.ndarray] = []
         self._gaps: list[tuple[int, int]] = []
         self._after_gap = False
+        self._quantum = np.full(channels, np.inf)
 
     def push(self, stamp_ns: np.ndarray, values: np.ndarray) -> None:
         """Add samples ``(k,)`` stamps and ``(k, c)`` values in log order.
@@ -226,7 +228,11 @@ class StillDetector:
         shaped = values.reshape(-1, w, channels)
         mean = shaped.mean(axis=1)
         variance = shaped.var(axis=1, ddof=1)
-        differences = 0.5 * np.mean(np.diff(shaped, axis=1) ** 2, axis=1)
+        steps = np.abs(np.diff(shaped, axis=1))
+        differences = 0.5 * np.mean(steps ** 2, axis=1)
+        # The smallest step between successive samples: a quantised channel's resolution.
+        nonzero = np.where(steps > 0.0, steps, np.inf).min(axis=(0, 1))
+        self._quantum = np.minimum(self._quantum[:channels], nonzero)
         magnitude = np.linalg.norm(shaped[:, :, :3], axis=2).mean(axis=1, keepdims=True)
         stamps = stamp_ns.reshape(-1, w)
         gap = np.zeros((len(mean), 1))
@@ -246,7 +252,12 @@ class StillDetector:
         variance = rows[:, 1 + channels:1 + 2 * channels]
         differences = rows[:, 1 + 2 * channels:1 + 3 * channels]
         agree = np.linalg.norm(mean[:, :3], axis=1) >= AGREEMENT * rows[:, -1]
-        noise = _channel_noise(variance, differences)
+        # A still channel quantised coarser than its noise dithers between two adjacent levels:
+        # its standard deviation reaches half a step, which its difference variance can miss.
+        quantum = self._quantum[:channels] if len(self._quantum) >= channels else np.full(channels, np.inf)
+        noise = np.maximum(_channel_noise(variance, differences), np.where(np.isfinite(quantum), 0.5 * quantum, 0.0))
+        if len(rows):  # a constant channel: its variance is the arithmetic's rounding, not zero
+            noise = np.maximum(noise, 16.0 * np.spacing(np.abs(mean).max(axis=0)))
         w = self.window_samples
         still = np.zeros(len(rows), dtype=bool)
         if len(rows):
