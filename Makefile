@@ -29,7 +29,7 @@ demo: $(STAMP)
 	$(BIN)/python demo/demo.py
 
 test: $(STAMP) ros2cli
-	$(BIN)/python -m pytest -q test
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile test
 
 ros2cli:
 	@if command -v ros2 >/dev/null && command -v colcon >/dev/null; then \
