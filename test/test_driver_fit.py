@@ -21,6 +21,7 @@ from tak_thermo_ros.core.link.model import Calibration, InputKind
 from tak_thermo_ros.core.records.record import align
 from tak_thermo_ros.core.simulation.imu import RATE_TABLE_POSITIONS, RATE_TABLE_RATES, Scenario, simulate
 from tak_thermo_ros.core.records.static_run import EARTH_RATE
+from tak_thermo_ros.core.values import STANDARD_GRAVITY, normal_gravity
 
 SIGMAS = 5.0
 BIAS_ORDER, SCALE_ORDER = 3, 2
@@ -174,7 +175,21 @@ def test_latitude_adds_the_vertical_earth_rate_to_the_gyro_reference(static_run,
         assert with_earth.axes[i].offset == pytest.approx(plain.axes[i].offset - earth[i], abs=1e-12)
         np.testing.assert_allclose(with_earth.axes[i].offset_drift(np.linspace(-15, 15, 7)),
                                    plain.axes[i].offset_drift(np.linspace(-15, 15, 7)), rtol=0, atol=1e-12)
-    assert load_unit(root / 'latitude.yaml').accel == load_unit(root / 'static.yaml').accel
+    # Local gravity from the latitude (WGS-84 normal gravity, no --gravity given): the accelerometer's
+    # reference grows by g(48) - g0 along up, its offsets (scale held) fall by as much.
+    grown = (normal_gravity(48.0) - STANDARD_GRAVITY) * up
+    plain_accel, local_accel = load_unit(root / 'static.yaml').accel, load_unit(root / 'latitude.yaml').accel
+    for i in range(3):
+        assert local_accel.axes[i].offset == pytest.approx(plain_accel.axes[i].offset - grown[i], abs=1e-9)
+    assert f'scaled to gravity {normal_gravity(48.0):.6g} m/s^2' in stdout
+
+
+def test_normal_gravity_follows_the_wgs84_ellipsoid():
+    """Somigliana's formula: 9.7803 m/s^2 at the equator, 9.8322 at the poles, 9.8062 at 45 deg (WGS-84)."""
+    assert normal_gravity(0.0) == pytest.approx(9.7803253, abs=1e-7)
+    assert normal_gravity(90.0) == pytest.approx(9.8321849, abs=1e-7)
+    assert normal_gravity(-90.0) == normal_gravity(90.0)
+    assert normal_gravity(45.0) == pytest.approx(9.806198, abs=1e-6)
 
 
 def test_topic_names_are_options(rate_table, capsys):

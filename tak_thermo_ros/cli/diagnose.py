@@ -51,9 +51,10 @@ def add_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument('--max-samples', type=options.sample_budget, default=DIAGNOSE_MAX_SAMPLES, metavar='N',
                         help=f'diagnose at most about N samples, spread evenly over the run '
                              f'(default {DIAGNOSE_MAX_SAMPLES:,})')
-    parser.add_argument('--gravity', type=options.gravity, default=STANDARD_GRAVITY,
+    parser.add_argument('--gravity', type=options.gravity, default=None,
                         help=f'local gravity for the |g| figure and a static reference, m/s^2 '
-                             f'({options.GRAVITY_MIN:g}..{options.GRAVITY_MAX:g})')
+                             f'({options.GRAVITY_MIN:g}..{options.GRAVITY_MAX:g}; default: from --latitude, '
+                             f'else {STANDARD_GRAVITY:g})')
     parser.add_argument('--latitude', type=options.latitude, metavar='DEG',
                         help="driver bags without a rate reference: add the Earth rate's vertical component")
     parser.add_argument('--design-run', metavar='DIR',

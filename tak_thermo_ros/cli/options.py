@@ -168,11 +168,21 @@ def add_topic_options(parser: argparse.ArgumentParser, *, imu: bool = False) -> 
 def add_static_options(parser: argparse.ArgumentParser) -> None:
     """``--gravity`` and ``--latitude``: the reference of a driver bag without reference topics."""
     group = parser.add_argument_group('driver bags without reference topics (a static run)')
-    group.add_argument('--gravity', type=gravity, default=STANDARD_GRAVITY,
-                       help='local gravity, m/s^2: the magnitude of the estimated specific-force reference')
+    group.add_argument('--gravity', type=gravity, default=None,
+                       help='local gravity, m/s^2: the magnitude of the estimated specific-force reference '
+                            f'(default: from --latitude on the WGS-84 ellipsoid, else {STANDARD_GRAVITY:g})')
     group.add_argument('--latitude', type=latitude, metavar='DEG',
                        help="adds the Earth rate's vertical component (Omega_E sin(latitude), along the "
-                            'measured up direction) to the rate reference; default zero')
+                            'measured up direction) to the rate reference, and gives local gravity where '
+                            '--gravity is not given; default zero')
+
+
+def resolve_gravity(args: argparse.Namespace) -> None:
+    """``--gravity`` as given, else the normal gravity at ``--latitude``, else standard gravity (in place)."""
+    from tak_thermo_ros.core.values import normal_gravity
+    if 'gravity' in vars(args) and args.gravity is None:
+        latitude_deg = getattr(args, 'latitude', None)
+        args.gravity = normal_gravity(latitude_deg) if latitude_deg is not None else STANDARD_GRAVITY
 
 
 def add_out_of_range(parser: argparse.ArgumentParser) -> None:

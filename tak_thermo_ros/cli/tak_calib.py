@@ -18,7 +18,7 @@ import traceback
 from typing import Callable, Sequence
 
 from tak_thermo_ros.cli import (apply, carrier, common, diagnose, export, fit, fit_fleet, import_csv, noise, play,
-                                simulate, validate)
+                                options, simulate, validate)
 from tak_thermo_ros.formats.files import check_output
 from tak_thermo_ros.errors import TakError
 
@@ -83,6 +83,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``tak_calib``."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    options.resolve_gravity(args)
     handler: Callable[[argparse.Namespace], int] = args.handler
     debug = bool(getattr(args, 'debug', False))
     previous = None

@@ -26,8 +26,9 @@ def add_parser(commands) -> argparse.ArgumentParser:
     parser = commands.add_parser('validate', help='|g| from the three channels before and after correction')
     parser.add_argument('bag', metavar='BAG')
     parser.add_argument('--params', required=True, metavar='PARAMS.yaml')
-    parser.add_argument('--gravity', type=options.gravity, default=STANDARD_GRAVITY,
-                        help=f'local gravity, m/s^2 ({options.GRAVITY_MIN:g}..{options.GRAVITY_MAX:g})')
+    parser.add_argument('--gravity', type=options.gravity, default=None,
+                        help=f'local gravity, m/s^2 ({options.GRAVITY_MIN:g}..{options.GRAVITY_MAX:g}; '
+                             f'default: from --latitude, else {STANDARD_GRAVITY:g})')
     parser.add_argument('--json', metavar='OUT.json', help='also write the figures as JSON')
     parser.add_argument('--latitude', type=options.latitude, metavar='DEG',
                         help="driver bags without a rate reference: the Earth rate's vertical component at this "

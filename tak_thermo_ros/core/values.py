@@ -12,6 +12,16 @@ STANDARD_GRAVITY = 9.80665
 """Standard gravity, m/s^2 (the simulator's and the static reference's default)."""
 
 
+def normal_gravity(latitude_deg: float) -> float:
+    """Gravity on the WGS-84 ellipsoid at a latitude, m/s^2 (Somigliana's formula).
+
+    9.7803 m/s^2 at the equator, 9.8322 at the poles; a place's height lowers it by about 3.1e-6
+    m/s^2 per metre (not included: give ``--gravity`` for a measured value).
+    """
+    s2 = math.sin(math.radians(latitude_deg)) ** 2
+    return 9.7803253359 * (1.0 + 0.00193185265241 * s2) / math.sqrt(1.0 - 0.00669437999013 * s2)
+
+
 def finite_number(value: object, key: str) -> float:
     """A finite float from a number (Python or numpy; not a bool), or a one-line error naming ``key``."""
     if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
