@@ -51,15 +51,15 @@ def bags(tmp_path_factory):
 
 
 def test_fit_says_what_the_record_holds_and_fits_both_sensors(bags, tmp_path, capsys):
-    """The first lines: topics, duration, span, rests and orientations, then the hand-held plan; the file."""
+    """The first line: a hand-held record; then topics, duration, span, rests and orientations, the plan; the file."""
     params = tmp_path / 'p.yaml'
     status, lines = run_cli(capsys, 'fit', str(bags['cal']), '-o', str(params))
     assert status == 0, lines
-    assert lines[0].startswith('record: /imu/data_raw 4,') and ' at 10 Hz, /imu/temperature ' in lines[0]
-    assert lines[1].startswith('record: temperature 8..') and float(lines[1].split('(span ')[1].split()[0]) > 15.0
-    assert lines[2].startswith('record: at rest ') and ' 50 rests of ' in lines[2]
-    assert lines[3].startswith('record: ') and ' orientations at rest; faces up within 30 deg: +x -x ' in lines[3]
-    assert lines[4].startswith('fit: a hand-held record (no reference topics, ')
+    assert lines[0].startswith('fit: a hand-held record (no reference topics, ')
+    assert lines[1].startswith('record: /imu/data_raw 4,') and ' at 10 Hz, /imu/temperature ' in lines[1]
+    assert lines[2].startswith('record: temperature 8..') and float(lines[2].split('(span ')[1].split()[0]) > 15.0
+    assert lines[3].startswith('record: at rest ') and ' 50 rests of ' in lines[3]
+    assert lines[4].startswith('record: ') and ' orientations at rest; faces up within 30 deg: +x -x ' in lines[4]
     assert lines[5] == 'fit: offset, scale and misalignment of both sensors against temperature'
     assert all(len(line) <= 100 for line in lines[:6])
     assert 'hand-held: ' in '\n'.join(lines) and any(line.startswith('turns: closure RMS ') for line in lines)
@@ -79,7 +79,7 @@ def test_validate_and_apply_a_second_hand_held_record(bags, tmp_path, capsys):
     report = tmp_path / 'v.json'
     status, lines = run_cli(capsys, 'validate', str(bags['run2']), '--params', str(params), '--json', str(report))
     assert status == 0, lines
-    assert lines[4] == "validate: |g| and the rate at the rests, and the turns' closure"
+    assert lines[0] == "validate: |g| and the rate at the rests, and the turns' closure"
     figures = json.loads(report.read_text())
     assert figures['record'] == 'handheld' and figures['rests'] >= 13
     after, floor, before = figures['after'], figures['floor'], figures['before']
@@ -89,14 +89,14 @@ def test_validate_and_apply_a_second_hand_held_record(bags, tmp_path, capsys):
     output = tmp_path / 'out.mcap'
     status, lines = run_cli(capsys, 'apply', str(bags['run2']), '--params', str(params), '-o', str(output))
     assert status == 0, lines
-    assert lines[0].startswith('record: /imu/data_raw ')
-    assert lines[4] == 'apply: every message corrected with the calibration'
+    assert lines[1].startswith('record: /imu/data_raw ')
+    assert lines[0] == 'apply: every message corrected with the calibration'
     written = read_imu_messages(output, topic='/imu/data_compensated')
     assert len(written.stamp_ns) == len(simulate(SECOND).driver.stamp_ns)
     diagnosis = tmp_path / 'd.json'
     status, lines = run_cli(capsys, 'diagnose', str(bags['run2']), '--params', str(params), '--json', str(diagnosis))
     assert status == 0, lines
-    assert lines[4].startswith('diagnose: the residual at the rests') and lines[5].startswith('turns: closure RMS ')
+    assert lines[0].startswith('diagnose: the residual at the rests') and lines[5].startswith('turns: closure RMS ')
     figures = json.loads(diagnosis.read_text())
     assert figures['handheld']['closure_rms_rad'] < 1.5 * figures['handheld']['closure_floor_rad']
     assert figures['sensors']['accel']['verdict'] == figures['sensors']['gyro']['verdict'] == 'none'
@@ -144,11 +144,11 @@ def test_every_command_says_first_what_a_static_record_holds(tmp_path, capsys):
     for command, argv in commands.items():
         status, lines = run_cli(capsys, *argv)
         assert status == 0, (command, lines)
-        assert lines[0].startswith('record: /imu/data_raw ') and lines[1].startswith('record: temperature 10')
-        assert lines[2].startswith('record: at rest 100 % of the time, 1 rest of ')
-        assert lines[3] == 'record: 1 orientation at rest; faces up within 30 deg: +z (1 of 6)'
-        assert lines[4].startswith(f'{command}: ') and ('static' in lines[4] or 'at rest' in lines[4]
-                                                        or command == 'apply'), lines[4]
+        assert lines[0].startswith(f'{command}: ') and ('static' in lines[0] or 'at rest' in lines[0]
+                                                        or command == 'apply'), lines[0]
+        assert lines[1].startswith('record: /imu/data_raw ') and lines[2].startswith('record: temperature 10')
+        assert lines[3].startswith('record: at rest 100 % of the time, 1 rest of ')
+        assert lines[4] == 'record: 1 orientation at rest; faces up within 30 deg: +z (1 of 6)'
 
 
 def test_a_hidden_gyroscope_lag_is_named_and_the_refit_reaches_the_floor():
@@ -187,11 +187,11 @@ def test_a_counts_table_run_says_first_what_it_holds(tmp_path, capsys):
                                         dwell_s=30.0)).record)
     status, lines = run_cli(capsys, 'fit', str(bag), '-o', str(tmp_path / 'p.yaml'))
     assert status == 0, lines
-    assert lines[0].startswith('record: /tak/counts ') and ' at 1 Hz, /tak/temp_code ' in lines[0]
-    assert lines[1].startswith('record: also /tak/reference ')
-    assert lines[2].startswith('record: temperature code 7') and lines[2].endswith(')')
-    assert lines[5] == 'record: the reference holds 10 directions'
-    assert lines[6] == 'fit: a table run (reference topics): offset and scale against temperature per axis'
+    assert lines[0] == 'fit: a table run (reference topics): offset and scale against temperature per axis'
+    assert lines[1].startswith('record: /tak/counts ') and ' at 1 Hz, /tak/temp_code ' in lines[1]
+    assert lines[2].startswith('record: also /tak/reference ')
+    assert lines[3].startswith('record: temperature code 7') and lines[3].endswith(')')
+    assert lines[6] == 'record: the reference holds 10 directions'
     assert lines[7].startswith('fitted ')
 
 
@@ -215,7 +215,7 @@ def test_the_six_faces_with_a_gap_print_the_papers_table_in_lines_of_100_charact
                                      orientation_covariance=driver.orientation_covariance[keep]))
     status, lines = run_cli(capsys, 'fit', str(bag), '-o', 'p.yaml')
     assert status == 0, lines
-    assert lines[3] == 'record: 6 orientations at rest; faces up within 30 deg: +x -x +y -y +z -z (6 of 6)'
+    assert lines[4] == 'record: 6 orientations at rest; faces up within 30 deg: +x -x +y -y +z -z (6 of 6)'
     assert 'hand-held: 1 turns not used (across a gap in the stamps)' in lines
     header = lines.index("the paper's +/- method per plateau with all six faces, (3) offset and (5) scale, "
                          "beside the link:")

@@ -515,7 +515,7 @@ def duration_text(seconds: float) -> str:
 
 
 def survey_lines(survey, command: str) -> list[str]:
-    """The first lines of a command: what the record holds, and what the command will therefore do."""
+    """The first lines of a command: which kind of record, what it holds, and what the command will therefore do."""
     from tak_thermo_ros.core.fit.handheld import SPAN_PER_ORDER_C
     from tak_thermo_ros.core.records.still import FACE_DEG
     streams = [f'{s.topic} {s.count:,}' + (f' at {s.rate_hz:.3g} Hz' if s.rate_hz else '') for s in survey.streams]
@@ -554,7 +554,9 @@ def survey_lines(survey, command: str) -> list[str]:
         span = survey.temperature_span
         against = 'against temperature' if span >= SPAN_PER_ORDER_C else 'at one temperature'
         text = words.format(orientations=still.orientations(), against=against)
-        lines += [f'{command}: {part}' for part in text.split('\n')]
+        # The first line says which kind of record it is; what the record holds follows, then what is done.
+        first, *rest = [f'{command}: {part}' for part in text.split('\n')]
+        lines = [first, *lines, *rest]
     return lines
 
 
