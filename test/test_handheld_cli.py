@@ -94,9 +94,16 @@ def test_validate_and_apply_a_second_hand_held_record(bags, tmp_path, capsys):
     written = read_imu_messages(output, topic='/imu/data_compensated')
     assert len(written.stamp_ns) == len(simulate(SECOND).driver.stamp_ns)
     diagnosis = tmp_path / 'd.json'
-    status, lines = run_cli(capsys, 'diagnose', str(bags['run2']), '--params', str(params), '--json', str(diagnosis))
+    report = tmp_path / 'report'
+    status, lines = run_cli(capsys, 'diagnose', str(bags['run2']), '--params', str(params), '--json', str(diagnosis),
+                            '--report', str(report))
     assert status == 0, lines
     assert lines[0].startswith('diagnose: the residual at the rests') and lines[5].startswith('turns: closure RMS ')
+    # The report of a hand-held record: one page with each sensor's verdict and figures, in the sensor's units.
+    page = (report / 'report.html').read_text()
+    assert page.count('verdict') >= 2 and 'accel/report.html' in page and 'gyro/report.html' in page
+    gyro_page, accel_page = (report / 'gyro' / 'report.html').read_text(), (report / 'accel' / 'report.html').read_text()
+    assert 'deg/h' in gyro_page and 'mg' in accel_page and 'none' in gyro_page
     figures = json.loads(diagnosis.read_text())
     assert figures['handheld']['closure_rms_rad'] < 1.5 * figures['handheld']['closure_floor_rad']
     assert figures['sensors']['accel']['verdict'] == figures['sensors']['gyro']['verdict'] == 'none'
