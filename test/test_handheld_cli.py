@@ -102,7 +102,8 @@ def test_validate_and_apply_a_second_hand_held_record(bags, tmp_path, capsys):
     # The report of a hand-held record: one page with each sensor's verdict and figures, in the sensor's units.
     page = (report / 'report.html').read_text()
     assert page.count('verdict') >= 2 and 'accel/report.html' in page and 'gyro/report.html' in page
-    gyro_page, accel_page = (report / 'gyro' / 'report.html').read_text(), (report / 'accel' / 'report.html').read_text()
+    gyro_page = (report / 'gyro' / 'report.html').read_text()
+    accel_page = (report / 'accel' / 'report.html').read_text()
     assert 'deg/h' in gyro_page and 'mg' in accel_page and 'none' in gyro_page
     figures = json.loads(diagnosis.read_text())
     assert figures['handheld']['closure_rms_rad'] < 1.5 * figures['handheld']['closure_floor_rad']
