@@ -48,7 +48,7 @@ from tak_thermo_ros.core.link.model import AXES  # noqa: E402
 from tak_thermo_ros.core.records.record import AlignedSamples  # noqa: E402
 from tak_thermo_ros.core.simulation.imu import STANDARD_GRAVITY  # noqa: E402
 from tak_thermo_ros.core.link.validate import validate_gravity  # noqa: E402
-from tak_thermo_ros.units import in_reader_unit, reader_unit, significant  # noqa: E402
+from tak_thermo_ros.units import readable, readable_unit, significant  # noqa: E402
 
 HEATING = '#d62728'
 COOLING = '#1f77b4'
@@ -516,7 +516,7 @@ figure img{width:100%;height:auto}figcaption{font-size:13px;color:#444;padding:4
 def _axes_table(diagnosis: Diagnosis, unit: str = 'counts') -> str:
     """Per axis the residual, the floor and the held-out RMS in the reader's unit (mg, deg/h, uT), 3 figures."""
     def cell(value: float) -> str:
-        return f'<td>{significant(in_reader_unit(value, unit))}</td>'
+        return f'<td>{readable(value, unit).split()[0]}</td>'
     rows = []
     for name, axis in zip(AXES, diagnosis.axes):
         ratio = axis.heldout_rms / axis.noise_floor
@@ -533,13 +533,13 @@ def _axes_table(diagnosis: Diagnosis, unit: str = 'counts') -> str:
     if diagnosis.residual_after is not None:
         label = html.escape(diagnosis.ladder[-1].label)
         head_after = f'<th>{label}: RMS</th><th>held-out RMS</th><th>/ floor</th>'
-    return (f'<table><tr><th>axis</th><th>RMS ({html.escape(reader_unit(unit))})</th><th>noise floor</th>'
+    return (f'<table><tr><th>axis</th><th>RMS ({html.escape(readable_unit(unit)[0])})</th><th>noise floor</th>'
             f'<th>held-out RMS (refit)</th><th>/ floor</th>{head_after}</tr>' + ''.join(rows) + '</table>')
 
 
 def _triple(values, unit: str) -> str:
     """Three values in the reader's unit, three significant figures each."""
-    return ', '.join(significant(in_reader_unit(v, unit)) for v in values)
+    return ', '.join(readable(v, unit).split()[0] for v in values)
 
 
 def _candidates_table(diagnosis: Diagnosis, unit: str = 'counts') -> str:
@@ -565,7 +565,7 @@ def _candidates_table(diagnosis: Diagnosis, unit: str = 'counts') -> str:
                     f'{html.escape(form.evidence)}</td></tr>')
     skipped = ''.join(f'<tr><td>{html.escape(name)}</td><td colspan="4" style="text-align:left">not tried: '
                       f'{html.escape(reason)}</td></tr>' for name, reason in diagnosis.skipped.items())
-    return (f'<table><tr><th>effect</th><th>held-out RMS x, y, z ({html.escape(reader_unit(unit))})</th>'
+    return (f'<table><tr><th>effect</th><th>held-out RMS x, y, z ({html.escape(readable_unit(unit)[0])})</th>'
             '<th>excess removed</th>'
             '<th>noise sigmas</th><th style="text-align:left">evidence</th></tr>'
             + ''.join(rows) + skipped + '</table>')
@@ -596,7 +596,7 @@ def _effect_card(diagnosis: Diagnosis) -> str:
 
 def _gravity_table(series: list[tuple[str, np.ndarray]], gravity: float) -> str:
     rows = ''.join(f'<tr><td>{html.escape(label)}</td><td>{significant(float(np.sqrt(np.mean(e ** 2))), 4)}</td>'
-                   f'<td>{significant(float(np.sqrt(np.mean(e ** 2))) / gravity * 1e3)}</td>'
+                   f'<td>{significant(float(np.sqrt(np.mean(e ** 2))) / gravity * 1e3, 3)}</td>'
                    f'<td>{significant(float(np.max(np.abs(e))), 4)}</td></tr>' for label, e in series)
     return ('<table><tr><th>correction</th><th>RMS |g| error (m/s^2)</th><th>RMS (mg)</th>'
             f'<th>max (m/s^2)</th></tr>{rows}</table>')
@@ -679,7 +679,7 @@ def write_report(diagnosis: Diagnosis, samples: AlignedSamples, directory: str |
     title = f'Model diagnosis{": " + source if source else ""}'
     ladder_rows = ''.join(
         f'<tr><td>{html.escape(step.label)}</td>' + ''.join(
-            f'<td>{significant(in_reader_unit(v, unit))} ({v / f:.2f}x)</td>'
+            f'<td>{readable(v, unit).split()[0]} ({v / f:.2f}x)</td>'
             for v, f in zip(step.heldout_rms, diagnosis.noise_floor)) + '</tr>'
         for step in diagnosis.ladder)
     stride_text = ('on all samples' if diagnosis.cv_stride == 1 else
@@ -701,7 +701,7 @@ def write_report(diagnosis: Diagnosis, samples: AlignedSamples, directory: str |
 model: {html.escape(diagnosis.ladder[0].label)};
 written {stamp} by tak_calib diagnose</div>
 <div class="verdict {kind}"><b>{html.escape(headline)}</b>{html.escape(diagnosis.message)}</div>
-<div class="card"><b>Residual against the noise floor</b> ({html.escape(reader_unit(unit))}; the floor is estimated
+<div class="card"><b>Residual against the noise floor</b> ({html.escape(readable_unit(unit)[0])}; the floor is estimated
 from successive differences of the residual and includes the code rounding)
 {_axes_table(diagnosis, unit)}</div>
 {_effect_card(diagnosis)}
@@ -713,7 +713,7 @@ from successive differences of the residual and includes the code rounding)
 {blocks['residual_inputs.png']}
 <h2>Which effect explains it</h2>
 {blocks['ladder.png']}
-<div class="card"><b>Model ladder</b>: held-out RMS per axis, {html.escape(reader_unit(unit))} (over the floor)
+<div class="card"><b>Model ladder</b>: held-out RMS per axis, {html.escape(readable_unit(unit)[0])} (over the floor)
 <table><tr><th>model</th><th>x</th><th>y</th><th>z</th></tr>{ladder_rows}</table>
 <b>Candidates</b>, best first
 {_candidates_table(diagnosis, unit)}

@@ -1,55 +1,84 @@
 """A sensor's numbers as a reader wants them: in its own unit, with significant figures.
 
 The tools compute in SI (m/s^2, rad/s, tesla) or in the paper's codes; a person reads an
-accelerometer's error in mg, a gyroscope's bias in deg/h and a magnetometer's field in uT.
-:func:`readable` turns a value of a unit into that reading, to a few significant figures (not a
-fixed number of decimals, which prints ``0.001 0.001 0.001`` for a gyroscope's residual).
-The report (:mod:`tak_thermo_ros.report`) and the command line (:mod:`tak_thermo_ros.cli.common`)
-print through it.
+accelerometer's error in mg, a gyroscope's bias in deg/h and a magnetometer's field in uT. The
+command line prints a value in the sensor's unit with the reader's beside it
+(:func:`amount`: ``0.001756 rad/s (362 deg/h)``); the report's tables show the reader's unit
+alone (:func:`readable`). Both to significant figures, not a fixed number of decimals (which
+prints ``0.001 0.001 0.001`` for a gyroscope's residual). The one place for these rules:
+:mod:`tak_thermo_ros.cli.common` and :mod:`tak_thermo_ros.report` print through it.
 """
 
 from __future__ import annotations
 
 import math
 
-STANDARD_GRAVITY = 9.80665
-"""m/s^2 per g (the standard value, as the rest of the package)."""
-READABLE = {
-    'm/s^2': ('mg', 1000.0 / STANDARD_GRAVITY),
-    'rad/s': ('deg/h', 180.0 / math.pi * 3600.0),
-    'T': ('uT', 1e6),
-    'counts': ('counts', 1.0),
-}
-"""An SI (or code) unit -> the unit a reader wants and the factor to it."""
+import numpy as np
+
+from tak_thermo_ros.core.values import STANDARD_GRAVITY
+
+DEG = 180.0 / math.pi
+"""Degrees per radian."""
 DIGITS = 3
-"""Significant figures shown by default."""
+"""Significant figures of a reader's value (mg, deg/h) by default."""
 
 
-def reader_unit(unit: str) -> str:
-    """The unit a reader wants for values of ``unit`` (the unit itself when none is known)."""
-    return READABLE.get(unit, (unit, 1.0))[0]
+def reader_unit(unit: str) -> tuple[str, float] | None:
+    """The unit a person reads a sensor's small values in, and the factor from the data's unit.
+
+    Accelerometer errors in mg beside m/s^2, gyroscope biases and errors in deg/h beside rad/s;
+    ``None`` for the magnetometer (printed in uT, :func:`display_unit`) and for codes.
+    """
+    return {'m/s^2': ('mg', 1e3 / STANDARD_GRAVITY), 'rad/s': ('deg/h', DEG * 3600.0)}.get(unit)
 
 
-def in_reader_unit(value: float, unit: str) -> float:
-    """``value`` (in ``unit``) in :func:`reader_unit`."""
-    return float(value) * READABLE.get(unit, (unit, 1.0))[1]
+def display_unit(unit: str) -> tuple[str, float]:
+    """The unit a sensor's values are printed in, and the factor from the data's unit (tesla -> uT)."""
+    return ('uT', 1e6) if unit == 'T' else (unit, 1.0)
 
 
-def significant(value: float, digits: int = DIGITS) -> str:
-    """``value`` to ``digits`` significant figures (``0.000123``, ``12.3``, ``1.23e+05``); ``nan`` said so."""
-    if not math.isfinite(value):
-        return 'nan' if value != value else ('inf' if value > 0 else '-inf')
-    if 10 ** digits <= abs(value) < 1e6:  # 1003 deg/h, not 1.00e+03
-        return f'{value:.0f}'
-    text = f'{value:#.{digits}g}'  # '#': trailing zeros are figures too (0.2000, not 0.2)
-    return text[:-1] if text.endswith('.') else text
+def significant(value: float, digits: int = 4, *, sign: bool = False) -> str:
+    """A value to ``digits`` significant figures: ``0.000397``, ``1.64e-05``, ``1003`` (not ``1e+03``)."""
+    value = float(value) + 0.0  # no -0
+    plus = '+' if sign else ''
+    if math.isfinite(value) and 10.0 ** digits <= abs(value) < 1e15:
+        return f'{value:{plus}.0f}'
+    return f'{value:{plus}.{digits}g}'
+
+
+def numbers(values, digits: int = 4, *, sign: bool = False) -> str:
+    """Values to ``digits`` significant figures (:func:`significant`), space-separated."""
+    return ' '.join(significant(v, digits, sign=sign) for v in np.atleast_1d(values))
+
+
+def amount(value, unit: str, digits: int = 4) -> str:
+    """One value or a triple in a sensor's unit, with the unit a person reads beside it.
+
+    ``0.001756 rad/s (362 deg/h)``, ``0.00397 0.00401 0.00495 m/s^2 (0.405 0.409 0.505 mg)``,
+    ``0.1954 uT`` (a magnetometer's tesla printed in uT), ``1.521 counts``.
+    """
+    shown, factor = display_unit(unit)
+    values = np.atleast_1d(np.asarray(value, dtype=float)) * factor
+    text = f'{numbers(values, digits)} {shown}'
+    reader = reader_unit(unit)
+    if reader is not None:
+        text += f' ({numbers(values * reader[1], 3)} {reader[0]})'
+    return text
+
+
+def in_si(value, unit: str) -> str:
+    """A counts residual (already divided by the scale, so in m/s^2) in mg beside it; nothing for SI units."""
+    if unit != 'counts':
+        return ''
+    return f' ({numbers(np.asarray(value, dtype=float) * 1e3 / STANDARD_GRAVITY, 3)} mg)'
+
+
+def readable_unit(unit: str) -> tuple[str, float]:
+    """The one unit a table shows values of ``unit`` in, and the factor: mg, deg/h, uT, else ``unit`` itself."""
+    return reader_unit(unit) or display_unit(unit)
 
 
 def readable(value: float, unit: str, digits: int = DIGITS) -> str:
     """``'362 deg/h'``: a value of ``unit`` in the reader's unit, to ``digits`` significant figures."""
-    return f'{significant(in_reader_unit(value, unit), digits)} {reader_unit(unit)}'
-
-
-def readables(values, unit: str, digits: int = DIGITS) -> str:
-    """``'362 170 412 deg/h'``: several values of one unit, the reader's unit said once."""
-    return ' '.join(significant(in_reader_unit(v, unit), digits) for v in values) + f' {reader_unit(unit)}'
+    shown, factor = readable_unit(unit)
+    return f'{significant(float(value) * factor, digits)} {shown}'

@@ -24,6 +24,7 @@ from tak_thermo_ros.core.records.record import REFERENCE_LIMIT, TEMPERATURE_RANG
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import TakError
 from tak_thermo_ros.streaming import SENSOR_NAMES  # noqa: F401  (re-exported: each command prints it)
+from tak_thermo_ros.units import amount, display_unit, in_si, numbers, reader_unit, significant  # noqa: F401
 
 UNITS = {(InputKind.COUNTS, 'accel'): 'counts', (InputKind.IMU, 'accel'): 'm/s^2', (InputKind.IMU, 'gyro'): 'rad/s',
          (InputKind.IMU, 'mag'): 'T'}
@@ -218,56 +219,6 @@ def given_noise_models(args: argparse.Namespace, unit: UnitCalibration, kind: In
         models = {sensor: in_counts(model, [axis.scale for axis in unit.sensor(sensor).axes])
                   for sensor, model in models.items()}
     return models
-
-
-def reader_unit(unit: str) -> tuple[str, float] | None:
-    """The unit a person reads a sensor's small values in, and the factor from the data's unit.
-
-    Accelerometer errors in mg beside m/s^2, gyroscope biases and errors in deg/h beside rad/s;
-    ``None`` for the magnetometer (printed in uT, :func:`display_unit`) and for codes.
-    """
-    return {'m/s^2': ('mg', 1e3 / STANDARD_GRAVITY), 'rad/s': ('deg/h', DEG * 3600.0)}.get(unit)
-
-
-def display_unit(unit: str) -> tuple[str, float]:
-    """The unit a sensor's values are printed in, and the factor from the data's unit (tesla -> uT)."""
-    return ('uT', 1e6) if unit == 'T' else (unit, 1.0)
-
-
-def significant(value: float, digits: int = 4, *, sign: bool = False) -> str:
-    """A value to ``digits`` significant figures: ``0.000397``, ``1.64e-05``, ``1003`` (not ``1e+03``)."""
-    value = float(value) + 0.0  # no -0
-    plus = '+' if sign else ''
-    if math.isfinite(value) and 10.0 ** digits <= abs(value) < 1e15:
-        return f'{value:{plus}.0f}'
-    return f'{value:{plus}.{digits}g}'
-
-
-def numbers(values, digits: int = 4, *, sign: bool = False) -> str:
-    """Values to ``digits`` significant figures (:func:`significant`), space-separated."""
-    return ' '.join(significant(v, digits, sign=sign) for v in np.atleast_1d(values))
-
-
-def amount(value, unit: str, digits: int = 4) -> str:
-    """One value or a triple in a sensor's unit, with the unit a person reads beside it.
-
-    ``0.001756 rad/s (362 deg/h)``, ``0.00397 0.00401 0.00495 m/s^2 (0.405 0.409 0.505 mg)``,
-    ``0.1954 uT`` (a magnetometer's tesla printed in uT), ``1.521 counts``.
-    """
-    shown, factor = display_unit(unit)
-    values = np.atleast_1d(np.asarray(value, dtype=float)) * factor
-    text = f'{numbers(values, digits)} {shown}'
-    reader = reader_unit(unit)
-    if reader is not None:
-        text += f' ({numbers(values * reader[1], 3)} {reader[0]})'
-    return text
-
-
-def in_si(value, unit: str) -> str:
-    """A counts residual (already divided by the scale, so in m/s^2) in mg beside it; nothing for SI units."""
-    if unit != 'counts':
-        return ''
-    return f' ({numbers(np.asarray(value, dtype=float) * 1e3 / STANDARD_GRAVITY, 3)} mg)'
 
 
 def walk_unit(unit: str) -> str:
