@@ -49,7 +49,6 @@ from typing import Any, Sequence
 import numpy as np
 
 from tak_thermo_ros.core.noise.model import (
-    FLICKER_FLOOR,
     TERMS,
     NoiseModel,
     allan_terms,
@@ -599,10 +598,9 @@ def slope_lines(allan: Any, keep: np.ndarray) -> SlopeLines:
     from tak_thermo_ros.core.noise.allan import equivalent_degrees_of_freedom
     keep = keep & (equivalent_degrees_of_freedom(allan, -2) >= SLOPE_LINE_EDF)
     taus = allan.taus[keep][:, None]
-    adev = np.sqrt(allan.avar[keep])
-    readings = {'quantization': adev * taus / math.sqrt(3.0), 'white_noise_density': adev * np.sqrt(taus),
-                'bias_instability': adev / FLICKER_FLOOR, 'random_walk': adev * np.sqrt(3.0 / taus),
-                'rate_ramp': adev * math.sqrt(2.0) / taus}
+    # A term alone at its unit Allan variance (allan_terms): its value is sqrt(avar / unit) at each tau.
+    unit = allan_terms(allan.taus[keep])
+    readings = {name: np.sqrt(allan.avar[keep] / unit[:, [i]]) for i, name in enumerate(TERMS)}
     values, where = {}, {}
     for name, reading in readings.items():
         if not len(reading):
