@@ -723,8 +723,7 @@ class _OwnStamps:
         return math.inf if last is None else float(last)
 
     def _write(self, writer, *, final: bool) -> None:
-        from tak_thermo_ros.core.records.record import sensor_messages
-        from tak_thermo_ros.formats.bag import rows_at
+        from tak_thermo_ros.core.records.record import rows_at, sensor_messages
         horizon = math.inf if final else min(self._horizon(sensor) for sensor in self.SENSORS)
         parts = {}
         for sensor in self.SENSORS:

@@ -37,7 +37,7 @@ from tak_thermo_ros.core.effects import aux_signal
 from tak_thermo_ros.core.link.correction import NOT_PROVIDED, NOT_PROVIDED_COVARIANCE, imu_covariances
 from tak_thermo_ros.formats.files import BAG, check_output, install_directory, staging_directory
 from tak_thermo_ros.core.link.model import InputKind
-from tak_thermo_ros.core.records.record import NANOSECONDS, ChannelRecord, DriverRecord
+from tak_thermo_ros.core.records.record import NANOSECONDS, ChannelRecord, DriverRecord, rows_at, sensor_messages
 from tak_thermo_ros.errors import BagError, CdrError, OutputError
 from tak_thermo_ros.progress import Progress
 
@@ -713,15 +713,6 @@ class ImuRows:
     gyro_row: np.ndarray
 
 
-def rows_at(source_stamp_ns: np.ndarray, target_stamp_ns: np.ndarray) -> np.ndarray:
-    """Per target stamp, the last source row with exactly that stamp, ``-1`` where none."""
-    from tak_thermo_ros.core.records.record import hold_last_index
-    source = np.asarray(source_stamp_ns, dtype=np.int64)
-    held = hold_last_index(source, np.asarray(target_stamp_ns, dtype=np.int64))
-    equal = (held >= 0) & (source[np.maximum(held, 0)] == target_stamp_ns) if len(source) else held >= 0
-    return np.where(equal, held, -1)
-
-
 def imu_messages(record: DriverRecord) -> ImuRows:
     """The Imu messages of a driver record: one per message when the sensors share them.
 
@@ -730,7 +721,6 @@ def imu_messages(record: DriverRecord) -> ImuRows:
     if record.shared_stamps:
         rows = np.arange(len(record.stamp_ns))
         return ImuRows(np.asarray(record.stamp_ns, dtype=np.int64), rows, rows, rows)
-    from tak_thermo_ros.core.records.record import sensor_messages
     paired = sensor_messages(record.sensor_stamps('accel'), record.sensor_stamps('gyro'))
     return ImuRows(paired.stamp_ns, rows_at(record.stamp_ns, paired.stamp_ns), paired.accel_row, paired.gyro_row)
 

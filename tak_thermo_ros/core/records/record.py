@@ -348,6 +348,14 @@ def hold_last_index(source_stamp_ns: np.ndarray, target_stamp_ns: np.ndarray) ->
     return np.where(position >= 0, order[np.maximum(position, 0)], -1)
 
 
+def rows_at(source_stamp_ns: np.ndarray, target_stamp_ns: np.ndarray) -> np.ndarray:
+    """Per target stamp, the last source row with exactly that stamp, ``-1`` where none."""
+    source = np.asarray(source_stamp_ns, dtype=np.int64)
+    held = hold_last_index(source, np.asarray(target_stamp_ns, dtype=np.int64))
+    equal = (held >= 0) & (source[np.maximum(held, 0)] == target_stamp_ns) if len(source) else held >= 0
+    return np.where(equal, held, -1)
+
+
 @dataclass(frozen=True)
 class AlignedSamples:
     """Counts samples with the held temperature code and reference, usable ones only.
