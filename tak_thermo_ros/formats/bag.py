@@ -141,30 +141,24 @@ class _TopicReader:
         self.count = sum(c.msgcount for c in self.connections)
         self.reader = reader
 
-    def messages(self, progress: Progress) -> Iterator[object]:
+    def batches(self, progress: Progress, chunk: int | None = None) -> Iterator[list[bytes]]:
+        """The topic's raw messages ``chunk`` (default :data:`CHUNK_MESSAGES`) at a time."""
         if not self.connections:
             return
-        deserialize = TYPESTORE.deserialize_cdr
-        msgtype = self.msgtype
-        for step, (_, _, raw) in enumerate(self.reader.messages(connections=self.connections)):
-            yield deserialize(raw, msgtype)
-            if step % 4096 == 4095:
-                progress.advance(4096)
+        raws = (raw for _, _, raw in self.reader.messages(connections=self.connections))
+        while batch := list(islice(raws, chunk or CHUNK_MESSAGES)):
+            yield batch
+            progress.advance(len(batch))
 
     def arrays(self, progress: Progress, path: Path, chunk: int | None = None) -> Iterator[MessageArrays]:
         """The topic's messages decoded ``chunk`` (default :data:`CHUNK_MESSAGES`) at a time."""
-        if not self.connections:
-            return
-        chunk = chunk or CHUNK_MESSAGES
-        raws = (raw for _, _, raw in self.reader.messages(connections=self.connections))
         first_index = 0
-        while batch := list(islice(raws, chunk)):
+        for batch in self.batches(progress, chunk):
             try:
                 arrays = decode_messages(batch, self.msgtype, first_index=first_index)
             except CdrError as err:
                 raise CdrError(f'{path}: {self.topic} {err}', err.index) from None
             first_index += len(batch)
-            progress.advance(len(batch))
             yield arrays
 
 
@@ -348,6 +342,7 @@ def _aux_message(msgtype: str, stamp: int, frame_id: str, value: float):
 
 
 def _read_imu_messages(topic: _TopicReader, bar: Progress, path: Path, *, decoder: str):
+    """The Imu topic as :func:`decode_imus`'s columns (one frame_id per run), chunk by chunk into whole arrays."""
     count = topic.count
     stamps = np.empty(count, dtype=np.int64)
     accel = np.empty((count, 3))
@@ -356,44 +351,17 @@ def _read_imu_messages(topic: _TopicReader, bar: Progress, path: Path, *, decode
     orientation_covariance = np.empty((count, 9))
     accel_mark = np.empty(count)
     gyro_mark = np.empty(count)
-    frame_id = ''
+    frames = _FrameCheck(path, topic.topic)
     filled = 0
-    if decoder == 'block':
-        for arrays in topic.arrays(bar, path):
-            rows = _fill_rows(topic, path, filled, len(arrays))
-            frame_id = _block_frame(arrays, frame_id, filled, topic, path, check=True)
-            stamps[rows] = arrays['stamp_ns']
-            accel[rows] = arrays['linear_acceleration']
-            gyro[rows] = arrays['angular_velocity']
-            orientation[rows] = arrays['orientation']
-            orientation_covariance[rows] = arrays['orientation_covariance']
-            accel_mark[rows] = np.asarray(arrays['linear_acceleration_covariance']).reshape(-1, 9)[:, 0]
-            gyro_mark[rows] = np.asarray(arrays['angular_velocity_covariance']).reshape(-1, 9)[:, 0]
-            filled = rows.stop
-    else:
-        for filled, message in enumerate(topic.messages(bar), start=1):
-            row = filled - 1
-            header = message.header
-            stamps[row] = header.stamp.sec * NANOSECONDS + header.stamp.nanosec
-            acc = message.linear_acceleration
-            rate = message.angular_velocity
-            quaternion = message.orientation
-            accel[row] = (acc.x, acc.y, acc.z)
-            gyro[row] = (rate.x, rate.y, rate.z)
-            orientation[row] = (quaternion.x, quaternion.y, quaternion.z, quaternion.w)
-            orientation_covariance[row] = message.orientation_covariance
-            accel_mark[row] = message.linear_acceleration_covariance[0]
-            gyro_mark[row] = message.angular_velocity_covariance[0]
-            if row == 0:
-                frame_id = header.frame_id
-            elif header.frame_id != frame_id:
-                msg = (f'{path}: frame_id on {topic.topic} changes from {frame_id!r} to '
-                       f'{header.frame_id!r} at message {filled}; one frame per run is supported')
-                raise BagError(msg)
-    if filled != count:
-        msg = f'{path}: {topic.topic} holds {filled} of the {count} messages its index lists (truncated bag?)'
-        raise BagError(msg)
-    return stamps, accel, gyro, orientation, orientation_covariance, frame_id, accel_mark, gyro_mark
+    chunks = topic.arrays(bar, path) if decoder == 'block' else topic.batches(bar)
+    for chunk in chunks:
+        rows = _fill_rows(topic, path, filled, len(chunk))
+        (stamps[rows], accel[rows], gyro[rows], orientation[rows], orientation_covariance[rows], frame_ids,
+         accel_mark[rows], gyro_mark[rows]) = _imu_columns(chunk) if decoder == 'block' else decode_imus(chunk)
+        frames.check(frame_ids)
+        filled = rows.stop
+    _check_filled(topic, path, filled)
+    return stamps, accel, gyro, orientation, orientation_covariance, frames.frame_id or '', accel_mark, gyro_mark
 
 
 def _nominal_scale(reader: Reader, path: Path) -> tuple[float, float, float] | None:
@@ -417,19 +385,13 @@ def _read_temperatures(topic: _TopicReader, bar: Progress, path: Path, *,
     temp_stamp = np.empty(topic.count, dtype=np.int64)
     temp_code = np.empty(topic.count)
     filled = 0
-    if decoder == 'block':
-        for arrays in topic.arrays(bar, path):
-            rows = _fill_rows(topic, path, filled, len(arrays))
-            temp_stamp[rows] = arrays['stamp_ns']
-            temp_code[rows] = arrays['temperature']
-            filled = rows.stop
-    else:
-        for filled, message in enumerate(topic.messages(bar), start=1):
-            temp_stamp[filled - 1] = _stamp_ns(message.header)
-            temp_code[filled - 1] = message.temperature
-    if filled != topic.count:
-        msg = f'{path}: {topic.topic} holds {filled} of the {topic.count} messages its index lists (truncated bag?)'
-        raise BagError(msg)
+    chunks = topic.arrays(bar, path) if decoder == 'block' else topic.batches(bar)
+    for chunk in chunks:
+        rows = _fill_rows(topic, path, filled, len(chunk))
+        temp_stamp[rows], temp_code[rows] = (_temperature_columns(chunk) if decoder == 'block'
+                                             else decode_temperatures(chunk))
+        filled = rows.stop
+    _check_filled(topic, path, filled)
     return temp_stamp, temp_code
 
 
@@ -441,67 +403,30 @@ def _fill_rows(topic: _TopicReader, path: Path, filled: int, count: int) -> slic
     return slice(filled, filled + count)
 
 
-def _block_frame(arrays: MessageArrays, frame_id: str, filled: int, topic: _TopicReader, path: Path, *,
-                 check: bool) -> str:
-    """The run's frame_id (the first message's), refused when it changes within a decoded block."""
-    codes, labels = arrays['frame_id'], arrays.labels['frame_id']
-    if filled == 0 and len(codes):
-        frame_id = labels[codes[0]]
-    if check:
-        expected = labels.index(frame_id) if frame_id in labels else -1
-        changed = np.flatnonzero(codes != expected)
-        if changed.size:
-            row = int(changed[0])
-            msg = (f'{path}: frame_id on {topic.topic} changes from {frame_id!r} to '
-                   f'{labels[codes[row]]!r} at message {filled + row + 1}; one frame per run is supported')
-            raise BagError(msg)
-    return frame_id
-
-
-def _read_vector_arrays(topic: _TopicReader, bar: Progress, path: Path, *,
-                        check_frame: bool) -> tuple[np.ndarray, np.ndarray, str]:
-    stamps = np.empty(topic.count, dtype=np.int64)
-    values = np.empty((topic.count, 3))
-    frame_id = ''
-    filled = 0
-    for arrays in topic.arrays(bar, path):
-        rows = _fill_rows(topic, path, filled, len(arrays))
-        frame_id = _block_frame(arrays, frame_id, filled, topic, path, check=check_frame)
-        stamps[rows] = arrays['stamp_ns']
-        values[rows] = arrays['vector']
-        filled = rows.stop
+def _check_filled(topic: _TopicReader, path: Path, filled: int) -> None:
+    """Refuse a topic that holds fewer messages than its index lists."""
     if filled != topic.count:
         msg = f'{path}: {topic.topic} holds {filled} of the {topic.count} messages its index lists (truncated bag?)'
         raise BagError(msg)
-    return stamps, values, frame_id
 
 
 def _read_vectors(topic: _TopicReader, bar: Progress, path: Path, *,
                   check_frame: bool, decoder: str = 'rosbags') -> tuple[np.ndarray, np.ndarray, str]:
-    if decoder == 'block':
-        return _read_vector_arrays(topic, bar, path, check_frame=check_frame)
+    """Stamps, vectors and (``check_frame``: one per run, else not read) the frame_id of a Vector3Stamped topic."""
     stamps = np.empty(topic.count, dtype=np.int64)
     values = np.empty((topic.count, 3))
-    frame_id = ''
+    frames = _FrameCheck(path, topic.topic)
     filled = 0
-    for filled, message in enumerate(topic.messages(bar), start=1):
-        row = filled - 1
-        header = message.header
-        stamps[row] = header.stamp.sec * NANOSECONDS + header.stamp.nanosec
-        vector = message.vector
-        values[row, 0] = vector.x
-        values[row, 1] = vector.y
-        values[row, 2] = vector.z
-        if row == 0:
-            frame_id = header.frame_id
-        elif check_frame and header.frame_id != frame_id:
-            msg = (f'{path}: frame_id on {topic.topic} changes from {frame_id!r} to '
-                   f'{header.frame_id!r} at message {filled}; one frame per run is supported')
-            raise BagError(msg)
-    if filled != topic.count:
-        msg = f'{path}: {topic.topic} holds {filled} of the {topic.count} messages its index lists (truncated bag?)'
-        raise BagError(msg)
-    return stamps, values, frame_id
+    chunks = topic.arrays(bar, path) if decoder == 'block' else topic.batches(bar)
+    for chunk in chunks:
+        rows = _fill_rows(topic, path, filled, len(chunk))
+        stamps[rows], values[rows], frame_ids = (_vector_columns(chunk) if decoder == 'block'
+                                                 else decode_vector3_stamped(chunk))
+        if check_frame:
+            frames.check(frame_ids)
+        filled = rows.stop
+    _check_filled(topic, path, filled)
+    return stamps, values, frames.frame_id or ''
 
 
 class _AtomicBag:
@@ -1101,12 +1026,30 @@ def _block_arrays(path: Path, raws: list[bytes], msgtype: str, topic: str) -> Me
         raise CdrError(f'{path}: {topic} {err}', err.index) from None
 
 
+def _vector_columns(arrays: MessageArrays) -> tuple[np.ndarray, np.ndarray, MessageArrays]:
+    """:func:`decode_vector3_stamped`'s columns of block-decoded ``Vector3Stamped`` messages (frames: the arrays)."""
+    return np.asarray(arrays['stamp_ns'], dtype=np.int64), np.asarray(arrays['vector'], dtype=float), arrays
+
+
+def _temperature_columns(arrays: MessageArrays) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`decode_temperatures`'s columns of block-decoded ``Temperature`` messages."""
+    return np.asarray(arrays['stamp_ns'], dtype=np.int64), np.asarray(arrays['temperature'], dtype=float)
+
+
+def _imu_columns(arrays: MessageArrays) -> tuple:
+    """:func:`decode_imus`'s columns of block-decoded ``Imu`` messages (frames: the arrays)."""
+    return (np.asarray(arrays['stamp_ns'], dtype=np.int64), np.asarray(arrays['linear_acceleration'], dtype=float),
+            np.asarray(arrays['angular_velocity'], dtype=float), np.asarray(arrays['orientation'], dtype=float),
+            np.asarray(arrays['orientation_covariance'], dtype=float), arrays,
+            np.asarray(arrays['linear_acceleration_covariance'], dtype=float).reshape(-1, 9)[:, 0],
+            np.asarray(arrays['angular_velocity_covariance'], dtype=float).reshape(-1, 9)[:, 0])
+
+
 def _decode_vectors(path: Path, raws: list[bytes], topic: str,
                     decoder: str) -> tuple[np.ndarray, np.ndarray, list[str] | MessageArrays]:
     if decoder == 'rosbags' or not raws:
         return decode_vector3_stamped(raws)
-    arrays = _block_arrays(path, raws, VECTOR3_STAMPED, topic)
-    return np.asarray(arrays['stamp_ns'], dtype=np.int64), np.asarray(arrays['vector'], dtype=float), arrays
+    return _vector_columns(_block_arrays(path, raws, VECTOR3_STAMPED, topic))
 
 
 def _decode_block(path: Path, kind: InputKind, raws: dict[str, list[bytes]], bag_times: dict[str, list[int]],
@@ -1117,9 +1060,8 @@ def _decode_block(path: Path, kind: InputKind, raws: dict[str, list[bytes]], bag
     if decoder == 'rosbags' or not temperature_raws:
         temp_stamp, temperature = decode_temperatures(temperature_raws)
     else:
-        arrays = _block_arrays(path, temperature_raws, TEMPERATURE, names['temperature'])
-        temp_stamp = np.asarray(arrays['stamp_ns'], dtype=np.int64)
-        temperature = np.asarray(arrays['temperature'], dtype=float)
+        temp_stamp, temperature = _temperature_columns(
+            _block_arrays(path, temperature_raws, TEMPERATURE, names['temperature']))
     reference_stamp, reference, _ = _decode_vectors(path, raws.get('reference', []), names.get('reference', ''),
                                                     decoder)
     aux: dict[str, tuple[np.ndarray, np.ndarray]] = {}
@@ -1138,15 +1080,8 @@ def _decode_block(path: Path, kind: InputKind, raws: dict[str, list[bytes]], bag
     if decoder == 'rosbags' or not raws['main']:
         stamps, accel, gyro, orientation, covariance, frame_ids, accel_mark, gyro_mark = decode_imus(raws['main'])
     else:
-        arrays = _block_arrays(path, raws['main'], IMU, names['main'])
-        stamps = np.asarray(arrays['stamp_ns'], dtype=np.int64)
-        accel = np.asarray(arrays['linear_acceleration'], dtype=float)
-        gyro = np.asarray(arrays['angular_velocity'], dtype=float)
-        orientation = np.asarray(arrays['orientation'], dtype=float)
-        covariance = np.asarray(arrays['orientation_covariance'], dtype=float)
-        accel_mark = np.asarray(arrays['linear_acceleration_covariance'], dtype=float).reshape(-1, 9)[:, 0]
-        gyro_mark = np.asarray(arrays['angular_velocity_covariance'], dtype=float).reshape(-1, 9)[:, 0]
-        frame_ids = arrays
+        stamps, accel, gyro, orientation, covariance, frame_ids, accel_mark, gyro_mark = _imu_columns(
+            _block_arrays(path, raws['main'], IMU, names['main']))
     rate_stamp, rate, _ = _decode_vectors(path, raws.get('rate_reference', []), names.get('rate_reference', ''),
                                           decoder)
     mag_stamp, mag, mag_frame = _decode_mag(path, raws.get('mag', []), names.get('mag', ''), decoder, mag_frames)
