@@ -227,6 +227,16 @@ def _suffix(instance: int) -> str:
     return '' if instance == 0 else str(instance + 1)
 
 
+def _device_id_names(instance: int) -> dict[str, str]:
+    """Per sensor the parameter naming its device ID (``INS_ACC_ID``, ``INS_GYR2_ID`` ...)."""
+    return {sensor: f'INS_{prefix}{_suffix(instance)}_ID' for sensor, prefix in (('accel', 'ACC'), ('gyro', 'GYR'))}
+
+
+def _device_ids(parameters: _Parameters, instance: int) -> dict[str, int]:
+    """Per sensor its device ID at the log's start (0 where the log names none)."""
+    return {sensor: int(parameters.at(name, 0)) for sensor, name in _device_id_names(instance).items()}
+
+
 def _read(path: Path, instance: int) -> FlightLog:
     raw = path.read_bytes()
     types, positions, skipped = index_messages(path, raw)
@@ -249,10 +259,9 @@ def _read(path: Path, instance: int) -> FlightLog:
     temperature = column(records, kind, 'T')
     accel, gyro = _undo_firmware(path, parameters, instance, accel, gyro, temperature, stamps_us, lines)
     stamp_ns = stamps_us * 1000
-    device_ids = {sensor: int(parameters.at(f'INS_{prefix}{_suffix(instance) or ""}_ID', 0))
-                  for sensor, prefix in (('accel', 'ACC'), ('gyro', 'GYR'))}
-    for name in (f'INS_ACC{_suffix(instance)}_ID', f'INS_GYR{_suffix(instance)}_ID'):
-        parameters.check_constant(path, [name], int(stamps_us.min()), int(stamps_us.max()))
+    device_ids = _device_ids(parameters, instance)
+    parameters.check_constant(path, list(_device_id_names(instance).values()), int(stamps_us.min()),
+                              int(stamps_us.max()))
     where = f'{kind.name} instance {instance}'
     accel_stamps, accel, _ = checked_sensor(path, 'accel', stamp_ns, accel, None, where)
     gyro_stamps, gyro, _ = checked_sensor(path, 'gyro', stamp_ns, gyro, None, where)
@@ -354,8 +363,7 @@ def _tclr(path: Path, data: np.ndarray, by_name: dict[str, MessageType], positio
     stamps['mag'], values['mag'] = np.zeros(0, dtype=np.int64), np.zeros((0, 3))
     lines.append(f'{path.name}: instance {instance}: no IMU messages; the learning records TCLR, '
                  f'{len(stamps["accel"])} + {len(stamps["gyro"])} samples')
-    device_ids = {sensor: int(parameters.at(f'INS_{prefix}{_suffix(instance)}_ID', 0))
-                  for sensor, prefix in (('accel', 'ACC'), ('gyro', 'GYR'))}
+    device_ids = _device_ids(parameters, instance)
     return FlightLog(path=path, format='dataflash', instance=instance, stamps=stamps, values=values,
                      temp_stamp_ns=temp_stamps, temperature=temperature, device_ids=device_ids, lines=tuple(lines),
                      temperature_source='TCLR.Temp')
