@@ -246,8 +246,9 @@ def _walk_line(result, sensor: str, kind: InputKind) -> str:
     check = result.allan[0][1] if result.verdict in ('none', 'unexplained') else result.allan[-1][1]
     if check.source != 'residual' or check.consistent or sensor != 'gyro' or kind is not InputKind.IMU:
         return ''
-    walk = check.walk_to_explain(RESIDUAL_LONGEST_TAU_S) * np.degrees(1.0) * 3600.0 * 60.0
-    return f'  that rate random walk in deg/h/sqrt(h): {" ".join(f"{value:.3g}" for value in walk)} (x y z)'
+    _, factor, sheet = common.NOISE_UNITS['rad/s']['walk']
+    walk = check.walk_to_explain(RESIDUAL_LONGEST_TAU_S) * factor
+    return f'  that rate random walk in {sheet}: {" ".join(f"{value:.3g}" for value in walk)} (x y z)'
 
 
 def _add_magnetometer(args: argparse.Namespace, unit: UnitCalibration, run) -> None:
