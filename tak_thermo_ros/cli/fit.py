@@ -149,8 +149,8 @@ def run(args: argparse.Namespace) -> int:
             _print_handheld_terms(sensor, calibration, result)
         else:
             common.print_effects(calibration, result, unit_name)
-        for note in calibration.notes:
-            if handheld is None:
+        if handheld is None:
+            for note in calibration.notes:
                 print(f'note: {prefix}{note}')
         noise = unit.sensor(sensor).noise
         if noise is not None:
