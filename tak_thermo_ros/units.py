@@ -70,7 +70,8 @@ def in_si(value, unit: str) -> str:
     """A counts residual (already divided by the scale, so in m/s^2) in mg beside it; nothing for SI units."""
     if unit != 'counts':
         return ''
-    return f' ({numbers(np.asarray(value, dtype=float) * 1e3 / STANDARD_GRAVITY, 3)} mg)'
+    small, factor = reader_unit('m/s^2')
+    return f' ({numbers(np.asarray(value, dtype=float) * factor, 3)} {small})'
 
 
 def readable_unit(unit: str) -> tuple[str, float]:

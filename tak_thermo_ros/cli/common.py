@@ -24,14 +24,12 @@ from tak_thermo_ros.core.records.record import REFERENCE_LIMIT, TEMPERATURE_RANG
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import TakError
 from tak_thermo_ros.streaming import SENSOR_NAMES  # noqa: F401  (re-exported: each command prints it)
-from tak_thermo_ros.units import amount, display_unit, in_si, numbers, reader_unit, significant  # noqa: F401
+from tak_thermo_ros.units import DEG, amount, display_unit, in_si, numbers, reader_unit, significant  # noqa: F401
 
 UNITS = {(InputKind.COUNTS, 'accel'): 'counts', (InputKind.IMU, 'accel'): 'm/s^2', (InputKind.IMU, 'gyro'): 'rad/s',
          (InputKind.IMU, 'mag'): 'T'}
 """The unit of a sensor's residuals and offsets, by input kind."""
 
-DEG = 180.0 / math.pi
-"""Degrees per radian."""
 SOURCE_WORDS = {'file': 'from a file', 'static_run': 'from a run at constant temperature',
                 'residual': 'from a run whose temperature moves'}
 """What each ``source`` of a noise model says (:data:`~tak_thermo_ros.core.noise.model.SOURCES`)."""
@@ -411,22 +409,23 @@ def noise_lines(model, unit: str) -> list[str]:
     """
     unit = 'm/s^2' if unit == 'counts' else unit
     shown, factor = display_unit(unit)
-    g = STANDARD_GRAVITY
+    units = NOISE_UNITS.get(unit)
     white, bias = np.asarray(model.white_noise_density) * factor, np.asarray(model.bias_instability) * factor
     walk, taus = np.asarray(model.random_walk) * factor, np.asarray(model.bias_instability_tau)
-    reader = {'rad/s': (('deg/sqrt(h)', DEG * 60.0), ('deg/h', DEG * 3600.0), ('deg/h/sqrt(h)', DEG * 3600.0 * 60.0)),
-              'm/s^2': (('ug/sqrt(Hz)', 1e6 / g), ('mg', 1e3 / g), ('mg/sqrt(h)', 1e3 / g * 60.0))}.get(unit)
 
-    def beside(values, which: int) -> str:
-        return f' ({numbers(values * reader[which][1], 3)} {reader[which][0]})' if reader else ''
+    def beside(values, kind: str) -> str:
+        if units is None:
+            return ''
+        _, to_sheet, sheet = units[kind]
+        return f' ({numbers(values * to_sheet, 3)} {sheet})'
     floor = ' '.join(significant(tau, 3) if math.isfinite(tau) else 'inf' for tau in taus)
-    lines = [f'  white noise density  {numbers(white, 3)} {shown}/sqrt(Hz){beside(white, 0)}',
-             f'  bias instability     {numbers(bias, 3)} {shown}{beside(bias, 1)}',
+    lines = [f'  white noise density  {numbers(white, 3)} {shown}/sqrt(Hz){beside(white, "density")}',
+             f'  bias instability     {numbers(bias, 3)} {shown}{beside(bias, "rate")}',
              f'  its floor at         {floor} s' + (' (inf: still falling at the longest averaging time)'
                                                     if not np.all(np.isfinite(taus)) else ''),
-             f'  random walk          {numbers(walk, 3)} {walk_unit(unit)}{beside(walk, 2)}']
-    integrated = {'rad/s': 'rad', 'm/s^2': 'm/s'}.get(unit, f'{shown}*s')
-    ramp = {'rad/s': 'rad/s^2', 'm/s^2': 'm/s^3'}.get(unit, f'{shown}/s')
+             f'  random walk          {numbers(walk, 3)} {walk_unit(unit)}{beside(walk, "walk")}']
+    integrated = units['angle'] if units else f'{shown}*s'
+    ramp = units['ramp'] if units else f'{shown}/s'
     for name, term_unit in (('quantization', integrated), ('rate_ramp', ramp)):
         values = np.asarray(getattr(model, name)) * factor
         if np.any(values > 0.0):

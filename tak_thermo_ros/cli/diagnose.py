@@ -182,59 +182,71 @@ def run(args: argparse.Namespace) -> int:
                                     'closure_floor_rad': closure.floor_rad}
         write_text_atomic(args.json, common.json_text(document, args.json))
         print(f'wrote {args.json}')
-    if getattr(args, 'design_run', None) and run.handheld is not None:
+    if getattr(args, 'design_run', None):
+        _design_run(args, run, results, used, progress_shown)
+    if args.report:
+        _write_report(args, run, results, used)
+    return 0
+
+
+def _design_run(args: argparse.Namespace, run, results: dict, used: dict[str, AlignedSamples],
+                progress_shown: bool) -> None:
+    """``--design-run``: the chamber run that tells the two best candidates apart, written to its directory."""
+    if run.handheld is not None:
         print(f'--design-run: a hand-held record: no chamber run to propose; nothing written to {args.design_run}')
-    elif getattr(args, 'design_run', None):
-        from tak_thermo_ros.formats.files import write_texts
-        from tak_thermo_ros.core.diagnose import (
-            design_driver_run,
-            design_run,
-            recorded_signal_note,
-            design_files,
-            driver_design_files,
-        )
-        note = recorded_signal_note(results['accel']) if run.input_kind is InputKind.COUNTS else None
-        if note is not None:
-            print(note)
-        elif run.input_kind is InputKind.COUNTS:
-            design = design_run(results['accel'], run.samples['accel'])
-            paths = write_texts(args.design_run, design_files(design))
-            print(design.message())
+        return
+    from tak_thermo_ros.formats.files import write_texts
+    from tak_thermo_ros.core.diagnose import (
+        design_driver_run,
+        design_run,
+        recorded_signal_note,
+        design_files,
+        driver_design_files,
+    )
+    note = recorded_signal_note(results['accel']) if run.input_kind is InputKind.COUNTS else None
+    if note is not None:
+        print(note)
+    elif run.input_kind is InputKind.COUNTS:
+        design = design_run(results['accel'], run.samples['accel'])
+        paths = write_texts(args.design_run, design_files(design))
+        print(design.message())
+        print('wrote ' + ', '.join(str(path) for path in paths))
+    else:
+        def design_progress(text: str) -> None:
+            if progress_shown:
+                print(f'design: {text} ...', file=sys.stderr)
+
+        imu_results = {sensor: result for sensor, result in results.items() if sensor != 'mag'}
+        driver_design = design_driver_run(imu_results, used, progress=design_progress)
+        for line in driver_design.lines():
+            print(line)
+        if driver_design.designed:
+            paths = write_texts(args.design_run, driver_design_files(driver_design))
             print('wrote ' + ', '.join(str(path) for path in paths))
         else:
-            def design_progress(text: str) -> None:
-                if progress_shown:
-                    print(f'design: {text} ...', file=sys.stderr)
+            print(f'--design-run: no chamber run to propose; nothing written to {args.design_run}')
 
-            imu_results = {sensor: result for sensor, result in results.items() if sensor != 'mag'}
-            driver_design = design_driver_run(imu_results, used, progress=design_progress)
-            for line in driver_design.lines():
-                print(line)
-            if driver_design.designed:
-                paths = write_texts(args.design_run, driver_design_files(driver_design))
-                print('wrote ' + ', '.join(str(path) for path in paths))
-            else:
-                print(f'--design-run: no chamber run to propose; nothing written to {args.design_run}')
-    if args.report:
-        from tak_thermo_ros.report import write_report, write_sensor_index
-        check_output(args.report, REPORT, force=args.force, option='--report')
-        with atomic_directory(args.report) as staging:
-            if run.input_kind is InputKind.COUNTS:
-                files = write_report(results['accel'], used['accel'], staging,
-                                     source=Path(args.bag).name, gravity=args.gravity)
-                written = f'{Path(args.report) / files.html.name} ({len(files.figures)} figures)'
-            else:
-                pages = {}
-                for sensor, result in results.items():
-                    files = write_report(result, used[sensor], Path(staging) / sensor,
-                                         source=f'{Path(args.bag).name}, {common.SENSOR_NAMES[sensor]}',
-                                         gravity=args.gravity, sensor=sensor, unit=common.UNITS[run.input_kind, sensor])
-                    pages[sensor] = (files, result)
-                index = write_sensor_index(pages, staging, source=Path(args.bag).name)
-                written = (f'{Path(args.report) / index.name} ({" and ".join(common.SENSOR_NAMES[s] for s in pages)}, '
-                           f'{sum(len(files.figures) for files, _ in pages.values())} figures)')
-        print(f'wrote {written}')
-    return 0
+
+def _write_report(args: argparse.Namespace, run, results: dict, used: dict[str, AlignedSamples]) -> None:
+    """``--report``: the figures and report.html (one page per sensor of a driver record) into its directory."""
+    from tak_thermo_ros.report import write_report, write_sensor_index
+    check_output(args.report, REPORT, force=args.force, option='--report')
+    with atomic_directory(args.report) as staging:
+        if run.input_kind is InputKind.COUNTS:
+            files = write_report(results['accel'], used['accel'], staging,
+                                 source=Path(args.bag).name, gravity=args.gravity)
+            written = f'{Path(args.report) / files.html.name} ({len(files.figures)} figures)'
+        else:
+            pages = {}
+            for sensor, result in results.items():
+                files = write_report(result, used[sensor], Path(staging) / sensor,
+                                     source=f'{Path(args.bag).name}, {common.SENSOR_NAMES[sensor]}',
+                                     gravity=args.gravity, sensor=sensor, unit=common.UNITS[run.input_kind, sensor])
+                pages[sensor] = (files, result)
+            index = write_sensor_index(pages, staging, source=Path(args.bag).name)
+            written = (f'{Path(args.report) / index.name} ({" and ".join(common.SENSOR_NAMES[s] for s in pages)}, '
+                       f'{sum(len(files.figures) for files, _ in pages.values())} figures)')
+    print(f'wrote {written}')
 
 
 def _walk_line(result, sensor: str, kind: InputKind) -> str:
@@ -246,8 +258,9 @@ def _walk_line(result, sensor: str, kind: InputKind) -> str:
     check = result.allan[0][1] if result.verdict in ('none', 'unexplained') else result.allan[-1][1]
     if check.source != 'residual' or check.consistent or sensor != 'gyro' or kind is not InputKind.IMU:
         return ''
-    walk = check.walk_to_explain(RESIDUAL_LONGEST_TAU_S) * np.degrees(1.0) * 3600.0 * 60.0
-    return f'  that rate random walk in deg/h/sqrt(h): {" ".join(f"{value:.3g}" for value in walk)} (x y z)'
+    _, factor, sheet = common.NOISE_UNITS['rad/s']['walk']
+    walk = check.walk_to_explain(RESIDUAL_LONGEST_TAU_S) * factor
+    return f'  that rate random walk in {sheet}: {" ".join(f"{value:.3g}" for value in walk)} (x y z)'
 
 
 def _add_magnetometer(args: argparse.Namespace, unit: UnitCalibration, run) -> None:

@@ -149,8 +149,8 @@ def run(args: argparse.Namespace) -> int:
             _print_handheld_terms(sensor, calibration, result)
         else:
             common.print_effects(calibration, result, unit_name)
-        for note in calibration.notes:
-            if handheld is None:
+        if handheld is None:
+            for note in calibration.notes:
                 print(f'note: {prefix}{note}')
         noise = unit.sensor(sensor).noise
         if noise is not None:
@@ -187,9 +187,6 @@ def _with_noise(args: argparse.Namespace, unit: UnitCalibration) -> tuple[UnitCa
     accel = replace(unit.accel, noise=found.models['accel'])
     gyro = replace(unit.gyro, noise=found.models['gyro']) if unit.gyro is not None else None
     return UnitCalibration(unit.input_kind, accel, gyro, unit.mag, unit.source), found.line
-
-
-DEG = 180.0 / 3.141592653589793
 
 
 def _nominal(args: argparse.Namespace, nominal: tuple[float, float, float] | None
@@ -291,11 +288,8 @@ def _print_handheld_terms(sensor: str, calibration, result) -> None:
     """A hand-held fit's scale and offset at the reference temperature and the misalignment, with 1-sigma errors."""
     from tak_thermo_ros.core.effects import CrossAxis
     errors = result.parameter_errors
-    if sensor == 'accel':
-        factor, small = 1e3 / 9.80665, 'mg'
-    else:
-        factor, small = DEG * 3600.0, 'deg/h'
     unit = common.UNITS[InputKind.IMU, sensor]
+    small, factor = common.reader_unit(unit)
     print(f'  at {calibration.temp_code_ref:g} C, +- one standard error:')
     for name, axis in zip(AXES, calibration.axes):
         scale_error = errors.get(f'{name}.scale', float('nan'))

@@ -64,11 +64,6 @@ def _float(text: str) -> float:
     return value
 
 
-def finite_float(text: str) -> float:
-    """Any finite number."""
-    return _float(text)
-
-
 def float_within(low: float, high: float, unit: str = '', *, low_open: bool = False,
                  high_open: bool = False) -> Callable[[str], float]:
     """A finite number within ``[low, high]``; ``low_open``, ``high_open`` leave a bound out."""

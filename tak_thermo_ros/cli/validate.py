@@ -172,7 +172,6 @@ def _averaged_bias(check, noise, sensor: str, gravity: float) -> dict | None:
     instability are fitted to the error itself (the |g| error, whatever the orientations of the
     run) up to 30 s: what its short-term noise alone predicts.
     """
-    import math
     rms, windows = check.noise.averaged.rms(), check.noise.averaged.windows()
     own = False
     if noise is None and check.noise.allan is not None:
@@ -195,8 +194,8 @@ def _averaged_bias(check, noise, sensor: str, gravity: float) -> dict | None:
         else:
             predicted = np.sqrt(avar)
     if sensor == 'gyro':
-        factor, unit, name = 180.0 / math.pi * 3600.0, 'deg/h', 'gyroscope bias error x y z'
-    else:
+        (unit, factor), name = common.reader_unit('rad/s'), 'gyroscope bias error x y z'
+    else:  # mg of the local gravity
         factor, unit, name = 1000.0 / gravity, 'mg', '|g| error'
     lines = [f"{name}: RMS of the corrected output's means over 1 s, 60 s and 600 s, in {unit}:"]
     if predicted is not None:
@@ -233,13 +232,11 @@ def _validate_handheld(args: argparse.Namespace, run, document: dict) -> None:
           f'({after.gravity_floor / g * 1e3:.3g} mg)')
     rest = 'the Earth rate\'s vertical component' if args.latitude is not None else 'zero'
     print(f'gyroscope: the rests\' mean rate against {rest}, RMS per axis x y z:')
-    for label, check in (('before (nominal scale and offset):', before), ('after  (full correction link):', after)):
-        rms = check.rate_rms
+    small, factor = common.reader_unit('rad/s')
+    for label, rms in (('before (nominal scale and offset):', before.rate_rms),
+                       ('after  (full correction link):', after.rate_rms), ('the noise alone:', after.rate_floor)):
         print(f'  {label:<35}' + ' '.join(f'{v:.3g}' for v in rms) + ' rad/s ('
-              + ' '.join(f'{v * 180.0 / np.pi * 3600.0:.3g}' for v in rms) + ' deg/h)')
-    floor = after.rate_floor
-    print(f'  {"the noise alone:":<35}' + ' '.join(f'{v:.3g}' for v in floor) + ' rad/s ('
-          + ' '.join(f'{v * 180.0 / np.pi * 3600.0:.3g}' for v in floor) + ' deg/h)')
+              + ' '.join(f'{v * factor:.3g}' for v in rms) + f' {small})')
     closure = after.closure
     if len(closure.angle_rad):
         angles = [np.degrees(value) for value in (before.closure.rms_rad, closure.rms_rad, closure.floor_rad)]
