@@ -22,9 +22,9 @@ import numpy as np
 
 from tak_thermo_ros.core.records.blocks import add_counts, concatenate
 from tak_thermo_ros.core.records.record import AlignedSamples
-from tak_thermo_ros.core.records.static_run import EARTH_RATE
 from tak_thermo_ros.core.records.still import StillIntervals
 from tak_thermo_ros.core.rotation import hat, tangent_basis
+from tak_thermo_ros.core.values import EARTH_RATE
 
 MAX_TURN_S = 60.0
 """The longest turn whose rotation is used, seconds."""
