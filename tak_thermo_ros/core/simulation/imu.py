@@ -34,10 +34,11 @@ from tak_thermo_ros.core.simulation.noise import bias_wander, filtered_white
 from tak_thermo_ros.core.records.record import (
     COUNTS_MAX,
     COUNTS_MIN,
-    NANOSECONDS,
     ChannelRecord,
     DriverRecord,
     hold_last_index,
+    no_orientation,
+    ns_from_seconds,
     seconds_from_ns,
 )
 from tak_thermo_ros.core.simulation.motion import HandheldMotion, Trajectory, hand_trajectory, motion_from_mapping
@@ -512,7 +513,7 @@ def simulate(scenario: Scenario | None = None) -> SimulatedRun:
         for i, a in enumerate(scenario.unit)])
     noise = white_noise(scenario, scenario.unit, 0, rng, count)
     noise += sensor_wander(scenario, scenario.unit, 0, count)
-    stamps = np.round((scenario.start_time_s + time_s) * NANOSECONDS).astype(np.int64)
+    stamps = ns_from_seconds(scenario.start_time_s + time_s)
     exact = exact + hidden_terms(scenario, force, true_code, seconds_from_ns(stamps), time_s)
     counts = np.clip(np.round(exact + noise), COUNTS_MIN, COUNTS_MAX)
 
@@ -571,7 +572,7 @@ def _simulate_driver(scenario: Scenario) -> SimulatedRun:
     force = scenario.gravity * positions[position_index]
     rates = np.asarray(scenario.table_rates or (0.0,) * len(positions), dtype=float)
     rate = rates[position_index][:, None] * positions[position_index]
-    stamps = np.round((scenario.start_time_s + time_s) * NANOSECONDS).astype(np.int64)
+    stamps = ns_from_seconds(scenario.start_time_s + time_s)
     stamp_s = seconds_from_ns(stamps)
     accel = _driver_channels(scenario, scenario.accel_unit, 'effects', force, board, stamp_s, time_s, rng)
     gyro = _driver_channels(scenario, scenario.gyro_unit, 'gyro_effects', rate, board, stamp_s, time_s, rng)
@@ -580,10 +581,7 @@ def _simulate_driver(scenario: Scenario) -> SimulatedRun:
     step = np.flatnonzero(np.diff(position_index, prepend=-1) != 0)
     if not scenario.record_references:
         step = step[:0]
-    orientation = np.zeros((count, 4))
-    orientation[:, 3] = 1.0
-    orientation_covariance = np.zeros((count, 9))
-    orientation_covariance[:, 0] = -1.0  # REP 145: the driver gives no orientation
+    orientation, orientation_covariance = no_orientation(count)
     driver = DriverRecord(
         stamp_ns=stamps, accel=accel, gyro=gyro, orientation=orientation,
         orientation_covariance=orientation_covariance, temp_stamp_ns=stamps[temp_rows],
@@ -639,17 +637,14 @@ def _handheld_run(scenario: Scenario) -> SimulatedRun:
         chamber = motion.final_celsius + (scenario.start_celsius - motion.final_celsius) * np.exp(
             -time_s / motion.warmup_tau_s)
         board = chamber
-    stamps = np.round((scenario.start_time_s + time_s) * NANOSECONDS).astype(np.int64)
+    stamps = ns_from_seconds(scenario.start_time_s + time_s)
     stamp_s = seconds_from_ns(stamps)
     accel = _driver_channels(scenario, scenario.accel_unit, 'effects', path.specific_force, board, stamp_s,
                              time_s, rng)
     gyro = _driver_channels(scenario, scenario.gyro_unit, 'gyro_effects', path.rate, board, stamp_s, time_s, rng)
     temp_rows = np.arange(0, count, scenario.temp_code_every)
     quantum = scenario.temperature_resolution_celsius
-    orientation = np.zeros((count, 4))
-    orientation[:, 3] = 1.0
-    orientation_covariance = np.zeros((count, 9))
-    orientation_covariance[:, 0] = -1.0
+    orientation, orientation_covariance = no_orientation(count)
     driver = DriverRecord(stamp_ns=stamps, accel=accel, gyro=gyro, orientation=orientation,
                           orientation_covariance=orientation_covariance, temp_stamp_ns=stamps[temp_rows],
                           temperature=np.round(board[temp_rows] / quantum) * quantum, frame_id=scenario.frame_id,

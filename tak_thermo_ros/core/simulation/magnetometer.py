@@ -28,7 +28,7 @@ import numpy as np
 from tak_thermo_ros.core.effects import resolve_effect
 from tak_thermo_ros.core.link.correction import forward_counts
 from tak_thermo_ros.core.link.model import AxisModel, Calibration, MagnetometerCalibration
-from tak_thermo_ros.core.records.record import NANOSECONDS, DriverRecord
+from tak_thermo_ros.core.records.record import DriverRecord, no_orientation, ns_from_seconds
 from tak_thermo_ros.core.rotation import quaternion_matrix, quaternion_product
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import CalibrationError, FitError, ScenarioError
@@ -235,11 +235,8 @@ def rotation_record(truth: MagnetometerTruth, *, samples: int = 2000, rate_hz: f
     stamps_s = start_time_s + np.arange(samples) / rate_hz
     mag = truth.measure(field, temperature, reference_celsius, rng, stamps_s)
     gravity = np.einsum('kji,j->ki', rotations, np.array([0.0, 0.0, STANDARD_GRAVITY]))
-    stamps = np.round((start_time_s + np.arange(samples) / rate_hz) * NANOSECONDS).astype(np.int64)
-    orientation = np.zeros((samples, 4))
-    orientation[:, 3] = 1.0
-    covariance = np.zeros((samples, 9))
-    covariance[:, 0] = -1.0
+    stamps = ns_from_seconds(stamps_s)
+    orientation, covariance = no_orientation(samples)
     temp_rows = np.arange(0, samples, 5) if record_temperature else np.zeros(0, dtype=np.int64)
     return DriverRecord(stamp_ns=stamps, accel=gravity + rng.standard_normal((samples, 3)) * accel_noise,
                         gyro=rng.standard_normal((samples, 3)) * gyro_noise, orientation=orientation,

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tak_thermo_ros.core.link.model import AxisModel, Calibration, InputKind, UnitCalibration
-from tak_thermo_ros.core.records.record import NANOSECONDS, DriverRecord
+from tak_thermo_ros.core.records.record import DriverRecord, no_orientation, ns_from_seconds
 from tak_thermo_ros.core.simulation.imu import AxisTruth, first_order_lag
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import ScenarioError
@@ -161,15 +161,12 @@ def simulate_powered(run: PoweredRun) -> PoweredRecord:
         exact = _exact(unit, inputs, element[sensor] - run.reference_celsius)
         noise[sensor] = np.array([a.noise_counts for a in unit])
         values[sensor] = exact + rng.standard_normal(exact.shape) * noise[sensor]
-        stamps[sensor] = np.round((run.start_time_s + time_s) * NANOSECONDS).astype(np.int64)
+        stamps[sensor] = ns_from_seconds(run.start_time_s + time_s)
         if sensor == 'accel':
             temperature = np.round(die / run.temperature_quantum) * run.temperature_quantum
     accel_stamps, gyro_stamps = stamps['accel'], stamps['gyro']
     messages = np.union1d(accel_stamps, gyro_stamps)
-    orientation = np.zeros((len(messages), 4))
-    orientation[:, 3] = 1.0
-    covariance = np.zeros((len(messages), 9))
-    covariance[:, 0] = -1.0
+    orientation, covariance = no_orientation(len(messages))
     record = DriverRecord(stamp_ns=messages, accel=values['accel'], gyro=values['gyro'], orientation=orientation,
                           orientation_covariance=covariance, temp_stamp_ns=accel_stamps.copy(),
                           temperature=temperature, frame_id=run.frame_id, accel_stamp_ns=accel_stamps,
