@@ -123,6 +123,17 @@ class AxisTruth:
     filter_time_constant: float = 0.0
     resolution: float = 0.0
 
+    def link(self, code_offset_range: tuple[float, float], residual_rms: float | None = None) -> AxisModel:
+        """This axis as a link's :class:`AxisModel`, ``F_s`` normalised over ``code_offset_range``."""
+        return AxisModel.from_polynomials(scale=self.scale, offset=self.offset, offset_coeffs=self.offset_coeffs,
+                                          scale_coeffs=self.scale_coeffs, code_offset_range=code_offset_range,
+                                          residual_rms=residual_rms)
+
+
+def exact_output(unit: tuple[AxisTruth, ...], inputs: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """``(k, 3)``: the paper's model without noise for inputs ``(k, 3)`` at ``n = T - T_ref`` ``(k,)``."""
+    return np.column_stack([a.link((-1.0, 1.0)).forward(inputs[:, i], n) for i, a in enumerate(unit)])
+
 
 DEFAULT_UNIT: tuple[AxisTruth, AxisTruth, AxisTruth] = (
     AxisTruth(255.1, -12.3, (0.05, 1.5e-5, 2.0e-8), (2.0e-6, 1.0e-9)),
@@ -395,10 +406,7 @@ class Scenario:
         low, high = min(self.start_celsius, *self.plateaus_celsius), max(self.start_celsius, *self.plateaus_celsius)
         codes = sorted(self.temp_code_ref + self.codes_per_celsius * (t - self.reference_celsius) for t in (low, high))
         n_range = (codes[0] - self.temp_code_ref, codes[1] - self.temp_code_ref)
-        axes = tuple(AxisModel.from_polynomials(scale=a.scale, offset=a.offset, offset_coeffs=a.offset_coeffs,
-                                                scale_coeffs=a.scale_coeffs, code_offset_range=n_range,
-                                                residual_rms=a.noise_counts)
-                     for a in self.unit)
+        axes = tuple(a.link(n_range, a.noise_counts) for a in self.unit)
         return Calibration(temp_code_ref=self.temp_code_ref, temp_code_min=codes[0],
                            temp_code_max=codes[1], axes=axes,  # type: ignore[arg-type]
                            effects=self.effect_instances())
@@ -417,10 +425,7 @@ class Scenario:
         n_range = (low - self.reference_celsius, high - self.reference_celsius)
 
         def link(unit: tuple[AxisTruth, ...], key: str) -> Calibration:
-            axes = tuple(AxisModel.from_polynomials(scale=a.scale, offset=a.offset, offset_coeffs=a.offset_coeffs,
-                                                    scale_coeffs=a.scale_coeffs, code_offset_range=n_range,
-                                                    residual_rms=a.noise_counts)
-                         for a in unit)
+            axes = tuple(a.link(n_range, a.noise_counts) for a in unit)
             return Calibration(temp_code_ref=self.reference_celsius, temp_code_min=low, temp_code_max=high,
                                axes=axes, effects=self.effect_instances(key))  # type: ignore[arg-type]
 
@@ -505,12 +510,7 @@ def simulate(scenario: Scenario | None = None) -> SimulatedRun:
     force = scenario.gravity * positions[position_index]
 
     truth = scenario.truth()
-    n_true = true_code - scenario.temp_code_ref
-    exact = np.column_stack([
-        AxisModel.from_polynomials(scale=a.scale, offset=a.offset, offset_coeffs=a.offset_coeffs,
-                                   scale_coeffs=a.scale_coeffs, code_offset_range=(-1.0, 1.0)
-                                   ).forward(force[:, i], n_true)
-        for i, a in enumerate(scenario.unit)])
+    exact = exact_output(scenario.unit, force, true_code - scenario.temp_code_ref)
     noise = white_noise(scenario, scenario.unit, 0, rng, count)
     noise += sensor_wander(scenario, scenario.unit, 0, count)
     stamps = ns_from_seconds(scenario.start_time_s + time_s)
@@ -606,12 +606,7 @@ def _driver_channels(scenario: Scenario, unit: tuple[AxisTruth, ...], key: str, 
                      board: np.ndarray, stamp_s: np.ndarray, time_s: np.ndarray,
                      rng: np.random.Generator) -> np.ndarray:
     """One sensor's three channels as its driver gives them: the link, hidden effects, noise and wander."""
-    n_true = board - scenario.reference_celsius
-    exact = np.column_stack([
-        AxisModel.from_polynomials(scale=a.scale, offset=a.offset, offset_coeffs=a.offset_coeffs,
-                                   scale_coeffs=a.scale_coeffs, code_offset_range=(-1.0, 1.0)
-                                   ).forward(inputs[:, i], n_true)
-        for i, a in enumerate(unit)])
+    exact = exact_output(unit, inputs, board - scenario.reference_celsius)
     exact += _effect_terms(scenario.effect_instances(key), inputs, board, stamp_s)
     if scenario.supply_voltage_drift > 0.0 and key == 'effects':
         exact += _supply_terms(scenario, time_s)

@@ -23,9 +23,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tak_thermo_ros.core.link.model import AxisModel, Calibration, InputKind, UnitCalibration
+from tak_thermo_ros.core.link.model import Calibration, InputKind, UnitCalibration
 from tak_thermo_ros.core.records.record import DriverRecord, no_orientation, ns_from_seconds
-from tak_thermo_ros.core.simulation.imu import AxisTruth, first_order_lag
+from tak_thermo_ros.core.simulation.imu import AxisTruth, exact_output, first_order_lag
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import ScenarioError
 
@@ -106,9 +106,7 @@ class PoweredRun:
 
         def link(unit: tuple[AxisTruth, ...]) -> Calibration:
             span = (low - self.reference_celsius, high - self.reference_celsius)
-            axes = tuple(AxisModel.from_polynomials(scale=a.scale, offset=a.offset, offset_coeffs=a.offset_coeffs,
-                                                    scale_coeffs=a.scale_coeffs, code_offset_range=span)
-                         for a in unit)
+            axes = tuple(a.link(span) for a in unit)
             return Calibration(temp_code_ref=self.reference_celsius, temp_code_min=low, temp_code_max=high,
                                axes=axes)  # type: ignore[arg-type]
 
@@ -139,11 +137,8 @@ class PoweredRecord:
 
 
 def _exact(unit: tuple[AxisTruth, ...], inputs: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """``(k, 3)``: the noise-free output for a constant input at element temperatures ``n`` from the reference."""
-    return np.column_stack([
-        AxisModel.from_polynomials(scale=a.scale, offset=a.offset, offset_coeffs=a.offset_coeffs,
-                                   scale_coeffs=a.scale_coeffs, code_offset_range=(-1.0, 1.0)).forward(
-            np.full(len(n), inputs[i]), n) for i, a in enumerate(unit)])
+    """``(k, 3)``: the noise-free output for a constant input ``(3,)`` at element temperatures ``n``."""
+    return exact_output(unit, np.broadcast_to(inputs, (len(n), 3)), n)
 
 
 def simulate_powered(run: PoweredRun) -> PoweredRecord:
