@@ -50,7 +50,15 @@ import numpy as np
 
 from tak_thermo_ros.core.effects import CrossAxis, Effect, resolve_effect
 from tak_thermo_ros.core.effects.base import INPUT, checked_basis, effect_input
-from tak_thermo_ros.core.fit.design import OFFSET_POLYNOMIAL, SCALE_POLYNOMIAL, AxisDesign, Column, Frame, axis_design
+from tak_thermo_ros.core.fit.design import (
+    OFFSET_POLYNOMIAL,
+    SCALE_POLYNOMIAL,
+    AxisDesign,
+    Column,
+    Frame,
+    axis_design,
+    subset,
+)
 from tak_thermo_ros.core.fit.model import FitResult, calibration_from, finish_fit, fitted_effects, residual_counts
 from tak_thermo_ros.core.fit.solve import BlockedQR, Solution, solve_factor
 from tak_thermo_ros.core.link.model import AXES, Calibration
@@ -60,6 +68,7 @@ from tak_thermo_ros.core.records.handheld import (
     closure_terms,
     earth_reference,
     merged_samples,
+    numbered_rests,
     sensor_samples,
 )
 from tak_thermo_ros.core.records.record import AlignedSamples
@@ -884,8 +893,7 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
     if any(effects.values()) and bias_order == 0:
         msg = 'effects need a temperature span: this record was taken at one temperature'
         raise FitError(msg)
-    _, interval = np.unique(record.still_interval, return_inverse=True)
-    count = int(interval.max()) + 1
+    interval, count, turn_interval, used = numbered_rests(record)
     noise = record.intervals.noise
     accel_counts = record.still.counts[:, :3]
     means = np.zeros((count, 3))
@@ -914,12 +922,6 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
     accel_sigma = problem.sigma
 
     up_noise = float(np.sqrt(np.mean(accel_sigma ** 2))) / (settings.gravity * np.sqrt(np.maximum(kept, 1)))
-    turn_interval = record.turns
-    if len(turn_interval):
-        mapping = np.full(len(record.intervals), -1)
-        mapping[np.unique(record.still_interval)] = np.arange(count)
-        turn_interval = mapping[turn_interval]
-    used = np.all(turn_interval >= 0, axis=1) if len(turn_interval) else np.zeros(0, dtype=bool)
     turns_record = _with_turns(record, turn_interval, used)
     gyro_terms = _Terms(frame, bias_order, scale_order)
     gyro_problem = _GyroProblem(turns_record, interval, gyro_terms, [], [], up, noise[3:6], up_noise, settings.latitude)
@@ -969,10 +971,8 @@ def _with_turns(record: HandheldRecord, pairs: np.ndarray, used: np.ndarray) -> 
     mapping = np.full(len(used), -1)
     mapping[keep_turn] = np.arange(len(keep_turn))
     rows = used[record.turn_index]
-    turn = replace(record.turn, stamp_ns=record.turn.stamp_ns[rows], counts=record.turn.counts[rows],
-                   temp_code=record.turn.temp_code[rows],
-                   aux={name: values[rows] for name, values in record.turn.aux.items()})
-    return replace(record, turns=pairs[used], turn=turn, turn_index=mapping[record.turn_index[rows]])
+    return replace(record, turns=pairs[used], turn=subset(record.turn, rows),
+                   turn_index=mapping[record.turn_index[rows]])
 
 
 def _shapes(samples: AlignedSamples, effects: Sequence[type[Effect]], solved: _Solved, layout: _Layout,

@@ -68,6 +68,19 @@ class HandheldRecord:
         return (ends - starts) * 1e-9
 
 
+def numbered_rests(record: HandheldRecord) -> tuple[np.ndarray, int, np.ndarray, np.ndarray]:
+    """The intervals that kept a still sample, numbered ``0 .. k - 1``, and the turns between two of them.
+
+    :returns: each still sample's number ``(n,)``, ``k``, each turn's pair of numbers ``(t, 2)`` (``-1``:
+        an interval without a kept sample), and whether both of a turn's intervals are numbered ``(t,)``.
+    """
+    kept, number = np.unique(record.still_interval, return_inverse=True)
+    mapping = np.full(len(record.intervals), -1)
+    mapping[kept] = np.arange(len(kept))
+    pairs = mapping[record.turns] if len(record.turns) else np.zeros((0, 2), dtype=np.int64)
+    return number, len(kept), pairs, np.all(pairs >= 0, axis=1)
+
+
 def sensor_samples(samples: AlignedSamples, sensor: str, reference: np.ndarray | None = None) -> AlignedSamples:
     """One sensor's three channels of six-channel samples, with ``reference`` ``(n, 3)`` if given."""
     columns = SENSOR_COLUMNS[sensor]
