@@ -60,7 +60,7 @@ from tak_thermo_ros.core.fit.design import (
     subset,
 )
 from tak_thermo_ros.core.fit.model import FitResult, calibration_from, finish_fit, fitted_effects, residual_counts
-from tak_thermo_ros.core.fit.solve import BlockedQR, Solution, solve_factor
+from tak_thermo_ros.core.fit.solve import BlockedQR, Solution, solve_factor, triangular_factor
 from tak_thermo_ros.core.link.model import AXES, Calibration
 from tak_thermo_ros.core.records.handheld import (
     HandheldRecord,
@@ -295,8 +295,8 @@ class _System:
     def plus(self, rows: np.ndarray) -> _System:
         if not len(rows):
             return self
-        stacked = np.linalg.qr(np.vstack([self.factor, rows]), mode='r')
-        return _System(_square(stacked, self.factor.shape[0]), self.count + len(rows))
+        return _System(triangular_factor(np.vstack([self.factor, rows]), self.factor.shape[0]),
+                       self.count + len(rows))
 
     def reduced(self, held: dict[int, float]) -> tuple[_System, list[int]]:
         """The system with the held columns' values moved into the target and the columns taken out."""
@@ -306,14 +306,7 @@ class _System:
         for j, value in held.items():
             target -= self.factor[:, j] * value
         matrix = np.column_stack([self.factor[:, free], target])
-        factor = np.linalg.qr(matrix, mode='r')
-        return _System(_square(factor, len(free) + 1), self.count), free
-
-
-def _square(factor: np.ndarray, size: int) -> np.ndarray:
-    if factor.shape[0] < size:
-        factor = np.vstack([factor, np.zeros((size - factor.shape[0], factor.shape[1]))])
-    return factor[:size]
+        return _System(triangular_factor(matrix, len(free) + 1), self.count), free
 
 
 @dataclass(frozen=True)
