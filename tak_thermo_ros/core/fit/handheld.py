@@ -832,12 +832,15 @@ def _calibration(solved: _Solved, layout: _Layout, terms: _Terms, notes: tuple[s
 def held_lines(sensor: str, solved: _Solved, layout: _Layout, *, gauge: Sequence[str] = ()) -> list[str]:
     """One statement per kind of term the record did not determine (the gauge is said apart)."""
     name = {'accel': 'accelerometer', 'gyro': 'gyroscope'}[sensor]
-    unit = {'accel': '5 mg', 'gyro': '0.29 deg/s'}[sensor]
-    words = {'scale': ('scale held at 1 on', 'not determined to 1 %'),
-             'scale_T': ("scale's temperature terms held at 0 on", 'not determined to 1 %'),
-             'offset': ('offset held at 0 on', f'not determined to {unit}'),
-             'offset_T': ("offset's temperature terms held at 0 on", f'not determined to {unit}'),
-             'coupling': ('couplings held at 0:', 'not determined to 10 mrad'),
+    # :data:`BOUNDS` in the units a reader expects: 1 %, 10 mrad, 5 mg or 0.29 deg/s.
+    offset = {'accel': f'{BOUNDS["offset", "accel"] / STANDARD_GRAVITY * 1e3:.0f} mg',
+              'gyro': f'{math.degrees(BOUNDS["offset", "gyro"]):.2f} deg/s'}[sensor]
+    scale, scale_t = (f'{100.0 * BOUNDS[kind]:g} %' for kind in ('scale', 'scale_T'))
+    words = {'scale': ('scale held at 1 on', f'not determined to {scale}'),
+             'scale_T': ("scale's temperature terms held at 0 on", f'not determined to {scale_t}'),
+             'offset': ('offset held at 0 on', f'not determined to {offset}'),
+             'offset_T': ("offset's temperature terms held at 0 on", f'not determined to {offset}'),
+             'coupling': ('couplings held at 0:', f'not determined to {1e3 * BOUNDS["coupling"]:g} mrad'),
              'effect': ('effect terms held at 0:', 'not determined by this record')}
     lines = []
     for kind in ('scale', 'scale_T', 'offset', 'offset_T', 'coupling', 'effect'):
