@@ -20,8 +20,7 @@ from tak_thermo_ros.formats.calibration_file import load_unit
 from tak_thermo_ros.core.link.model import Calibration, InputKind
 from tak_thermo_ros.core.records.record import align
 from tak_thermo_ros.core.simulation.imu import RATE_TABLE_POSITIONS, RATE_TABLE_RATES, Scenario, simulate
-from tak_thermo_ros.core.records.static_run import EARTH_RATE
-from tak_thermo_ros.core.values import STANDARD_GRAVITY, normal_gravity
+from tak_thermo_ros.core.values import EARTH_RATE, STANDARD_GRAVITY, normal_gravity
 
 SIGMAS = 5.0
 BIAS_ORDER, SCALE_ORDER = 3, 2

@@ -50,9 +50,17 @@ import numpy as np
 
 from tak_thermo_ros.core.effects import CrossAxis, Effect, resolve_effect
 from tak_thermo_ros.core.effects.base import INPUT, checked_basis, effect_input
-from tak_thermo_ros.core.fit.design import OFFSET_POLYNOMIAL, SCALE_POLYNOMIAL, AxisDesign, Column, Frame, axis_design
+from tak_thermo_ros.core.fit.design import (
+    OFFSET_POLYNOMIAL,
+    SCALE_POLYNOMIAL,
+    AxisDesign,
+    Column,
+    Frame,
+    axis_design,
+    subset,
+)
 from tak_thermo_ros.core.fit.model import FitResult, calibration_from, finish_fit, fitted_effects, residual_counts
-from tak_thermo_ros.core.fit.solve import BlockedQR, Solution, solve_factor
+from tak_thermo_ros.core.fit.solve import BlockedQR, Solution, solve_factor, triangular_factor
 from tak_thermo_ros.core.link.model import AXES, Calibration
 from tak_thermo_ros.core.records.handheld import (
     HandheldRecord,
@@ -60,6 +68,7 @@ from tak_thermo_ros.core.records.handheld import (
     closure_terms,
     earth_reference,
     merged_samples,
+    numbered_rests,
     sensor_samples,
 )
 from tak_thermo_ros.core.records.record import AlignedSamples
@@ -286,8 +295,8 @@ class _System:
     def plus(self, rows: np.ndarray) -> _System:
         if not len(rows):
             return self
-        stacked = np.linalg.qr(np.vstack([self.factor, rows]), mode='r')
-        return _System(_square(stacked, self.factor.shape[0]), self.count + len(rows))
+        return _System(triangular_factor(np.vstack([self.factor, rows]), self.factor.shape[0]),
+                       self.count + len(rows))
 
     def reduced(self, held: dict[int, float]) -> tuple[_System, list[int]]:
         """The system with the held columns' values moved into the target and the columns taken out."""
@@ -297,14 +306,7 @@ class _System:
         for j, value in held.items():
             target -= self.factor[:, j] * value
         matrix = np.column_stack([self.factor[:, free], target])
-        factor = np.linalg.qr(matrix, mode='r')
-        return _System(_square(factor, len(free) + 1), self.count), free
-
-
-def _square(factor: np.ndarray, size: int) -> np.ndarray:
-    if factor.shape[0] < size:
-        factor = np.vstack([factor, np.zeros((size - factor.shape[0], factor.shape[1]))])
-    return factor[:size]
+        return _System(triangular_factor(matrix, len(free) + 1), self.count), free
 
 
 @dataclass(frozen=True)
@@ -830,12 +832,15 @@ def _calibration(solved: _Solved, layout: _Layout, terms: _Terms, notes: tuple[s
 def held_lines(sensor: str, solved: _Solved, layout: _Layout, *, gauge: Sequence[str] = ()) -> list[str]:
     """One statement per kind of term the record did not determine (the gauge is said apart)."""
     name = {'accel': 'accelerometer', 'gyro': 'gyroscope'}[sensor]
-    unit = {'accel': '5 mg', 'gyro': '0.29 deg/s'}[sensor]
-    words = {'scale': ('scale held at 1 on', 'not determined to 1 %'),
-             'scale_T': ("scale's temperature terms held at 0 on", 'not determined to 1 %'),
-             'offset': ('offset held at 0 on', f'not determined to {unit}'),
-             'offset_T': ("offset's temperature terms held at 0 on", f'not determined to {unit}'),
-             'coupling': ('couplings held at 0:', 'not determined to 10 mrad'),
+    # :data:`BOUNDS` in the units a reader expects: 1 %, 10 mrad, 5 mg or 0.29 deg/s.
+    offset = {'accel': f'{BOUNDS["offset", "accel"] / STANDARD_GRAVITY * 1e3:.0f} mg',
+              'gyro': f'{math.degrees(BOUNDS["offset", "gyro"]):.2f} deg/s'}[sensor]
+    scale, scale_t = (f'{100.0 * BOUNDS[kind]:g} %' for kind in ('scale', 'scale_T'))
+    words = {'scale': ('scale held at 1 on', f'not determined to {scale}'),
+             'scale_T': ("scale's temperature terms held at 0 on", f'not determined to {scale_t}'),
+             'offset': ('offset held at 0 on', f'not determined to {offset}'),
+             'offset_T': ("offset's temperature terms held at 0 on", f'not determined to {offset}'),
+             'coupling': ('couplings held at 0:', f'not determined to {1e3 * BOUNDS["coupling"]:g} mrad'),
              'effect': ('effect terms held at 0:', 'not determined by this record')}
     lines = []
     for kind in ('scale', 'scale_T', 'offset', 'offset_T', 'coupling', 'effect'):
@@ -884,8 +889,7 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
     if any(effects.values()) and bias_order == 0:
         msg = 'effects need a temperature span: this record was taken at one temperature'
         raise FitError(msg)
-    _, interval = np.unique(record.still_interval, return_inverse=True)
-    count = int(interval.max()) + 1
+    interval, count, turn_interval, used = numbered_rests(record)
     noise = record.intervals.noise
     accel_counts = record.still.counts[:, :3]
     means = np.zeros((count, 3))
@@ -914,12 +918,6 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
     accel_sigma = problem.sigma
 
     up_noise = float(np.sqrt(np.mean(accel_sigma ** 2))) / (settings.gravity * np.sqrt(np.maximum(kept, 1)))
-    turn_interval = record.turns
-    if len(turn_interval):
-        mapping = np.full(len(record.intervals), -1)
-        mapping[np.unique(record.still_interval)] = np.arange(count)
-        turn_interval = mapping[turn_interval]
-    used = np.all(turn_interval >= 0, axis=1) if len(turn_interval) else np.zeros(0, dtype=bool)
     turns_record = _with_turns(record, turn_interval, used)
     gyro_terms = _Terms(frame, bias_order, scale_order)
     gyro_problem = _GyroProblem(turns_record, interval, gyro_terms, [], [], up, noise[3:6], up_noise, settings.latitude)
@@ -969,10 +967,8 @@ def _with_turns(record: HandheldRecord, pairs: np.ndarray, used: np.ndarray) -> 
     mapping = np.full(len(used), -1)
     mapping[keep_turn] = np.arange(len(keep_turn))
     rows = used[record.turn_index]
-    turn = replace(record.turn, stamp_ns=record.turn.stamp_ns[rows], counts=record.turn.counts[rows],
-                   temp_code=record.turn.temp_code[rows],
-                   aux={name: values[rows] for name, values in record.turn.aux.items()})
-    return replace(record, turns=pairs[used], turn=turn, turn_index=mapping[record.turn_index[rows]])
+    return replace(record, turns=pairs[used], turn=subset(record.turn, rows),
+                   turn_index=mapping[record.turn_index[rows]])
 
 
 def _shapes(samples: AlignedSamples, effects: Sequence[type[Effect]], solved: _Solved, layout: _Layout,

@@ -111,6 +111,14 @@ def solve_factor(factor: np.ndarray, count: int) -> Solution:
                     singular=singular)
 
 
+def triangular_factor(rows: np.ndarray, size: int) -> np.ndarray:
+    """The triangular factor ``R`` of ``rows`` ``(k, c)`` as ``size`` rows (zero rows below when ``k < size``)."""
+    factor = np.linalg.qr(rows, mode='r')
+    if factor.shape[0] < size:
+        factor = np.vstack([factor, np.zeros((size - factor.shape[0], factor.shape[1]))])
+    return factor[:size]
+
+
 class BlockedQR:
     """The triangular factor ``R`` of ``[X | y]``, accumulated block by block: ``R <- qr([R; block])``.
 
@@ -126,10 +134,7 @@ class BlockedQR:
 
     def add(self, block: np.ndarray) -> None:
         """Add rows ``(k, width)`` of ``[X | y]``."""
-        factor = np.linalg.qr(np.vstack([self.factor, block]), mode='r')
-        if factor.shape[0] < self.width:
-            factor = np.vstack([factor, np.zeros((self.width - factor.shape[0], self.width))])
-        self.factor = factor[:self.width]
+        self.factor = triangular_factor(np.vstack([self.factor, block]), self.width)
         self.count += len(block)
 
     def change_columns(self, change: np.ndarray) -> None:

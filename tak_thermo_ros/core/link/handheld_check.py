@@ -23,6 +23,7 @@ from tak_thermo_ros.core.records.handheld import (
     closure_terms,
     earth_reference,
     merged_samples,
+    numbered_rests,
 )
 from tak_thermo_ros.core.rotation import integrate_segments
 
@@ -74,8 +75,7 @@ def check_handheld(record: HandheldRecord, unit: UnitCalibration, *, gravity: fl
                    out_of_range: OutOfRange = OutOfRange.CLAMP) -> HandheldCheck:
     """The errors ``unit`` leaves on ``record`` (a driver calibration: both sensors)."""
     still, turn, outside = corrected(record, unit, out_of_range=out_of_range)
-    _, interval = np.unique(record.still_interval, return_inverse=True)
-    count = int(interval.max()) + 1 if len(interval) else 0
+    interval, count, pairs, used = numbered_rests(record)
     kept = np.bincount(interval, minlength=count).astype(float)
     means = np.zeros((count, 6))
     np.add.at(means, interval, still)
@@ -85,10 +85,6 @@ def check_handheld(record: HandheldRecord, unit: UnitCalibration, *, gravity: fl
     rest = earth_reference(up, np.arange(count), latitude)
     noise = record.intervals.noise
     up_noise = float(np.sqrt(np.mean(noise[:3] ** 2))) / (gravity * np.sqrt(np.maximum(kept, 1.0)))
-    mapping = np.full(len(record.intervals), -1)
-    mapping[np.unique(record.still_interval)] = np.arange(count)
-    pairs = mapping[record.turns] if len(record.turns) else np.zeros((0, 2), dtype=np.int64)
-    used = np.all(pairs >= 0, axis=1)
     rows = used[record.turn_index] if len(record.turn_index) else np.zeros(0, dtype=bool)
     renumber = np.cumsum(used) - 1
     turn_index = renumber[record.turn_index[rows]]

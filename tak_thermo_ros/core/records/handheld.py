@@ -22,9 +22,9 @@ import numpy as np
 
 from tak_thermo_ros.core.records.blocks import add_counts, concatenate
 from tak_thermo_ros.core.records.record import AlignedSamples
-from tak_thermo_ros.core.records.static_run import EARTH_RATE
 from tak_thermo_ros.core.records.still import StillIntervals
 from tak_thermo_ros.core.rotation import hat, tangent_basis
+from tak_thermo_ros.core.values import EARTH_RATE
 
 MAX_TURN_S = 60.0
 """The longest turn whose rotation is used, seconds."""
@@ -66,6 +66,19 @@ class HandheldRecord:
         starts = self.intervals.end_ns[self.turns[:, 0]]
         ends = self.intervals.start_ns[self.turns[:, 1]]
         return (ends - starts) * 1e-9
+
+
+def numbered_rests(record: HandheldRecord) -> tuple[np.ndarray, int, np.ndarray, np.ndarray]:
+    """The intervals that kept a still sample, numbered ``0 .. k - 1``, and the turns between two of them.
+
+    :returns: each still sample's number ``(n,)``, ``k``, each turn's pair of numbers ``(t, 2)`` (``-1``:
+        an interval without a kept sample), and whether both of a turn's intervals are numbered ``(t,)``.
+    """
+    kept, number = np.unique(record.still_interval, return_inverse=True)
+    mapping = np.full(len(record.intervals), -1)
+    mapping[kept] = np.arange(len(kept))
+    pairs = mapping[record.turns] if len(record.turns) else np.zeros((0, 2), dtype=np.int64)
+    return number, len(kept), pairs, np.all(pairs >= 0, axis=1)
 
 
 def sensor_samples(samples: AlignedSamples, sensor: str, reference: np.ndarray | None = None) -> AlignedSamples:

@@ -52,6 +52,24 @@ def seconds(sec: int, nanosec: int) -> float:
     return float(sec) + float(nanosec) * 1e-9
 
 
+def ns_from_seconds(time_s: np.ndarray) -> np.ndarray:
+    """Int64 nanosecond stamps ``(k,)`` of float seconds, rounded to the nanosecond."""
+    return np.round(np.asarray(time_s, dtype=float) * NANOSECONDS).astype(np.int64)
+
+
+def no_orientation(count: int) -> tuple[np.ndarray, np.ndarray]:
+    """The orientation of ``count`` Imu messages that give none (REP 145).
+
+    ``(count, 4)`` identity quaternions ``(x, y, z, w)`` and ``(count, 9)`` covariances whose first
+    element is -1.
+    """
+    orientation = np.zeros((count, 4))
+    orientation[:, 3] = 1.0
+    covariance = np.zeros((count, 9))
+    covariance[:, 0] = -1.0
+    return orientation, covariance
+
+
 @dataclass(frozen=True)
 class ChannelRecord:
     """One recorded run.

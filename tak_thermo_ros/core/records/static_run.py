@@ -15,10 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tak_thermo_ros.core.values import EARTH_RATE
 from tak_thermo_ros.errors import TakError
-
-EARTH_RATE = 7.2921159e-5
-"""The Earth's rotation rate, rad/s (WGS 84)."""
 
 STATIC_TOLERANCE_DEG = 10.0
 """Largest angle between one sample's measured direction and the mean direction of a static run."""

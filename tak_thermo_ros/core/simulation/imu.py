@@ -34,10 +34,11 @@ from tak_thermo_ros.core.simulation.noise import bias_wander, filtered_white
 from tak_thermo_ros.core.records.record import (
     COUNTS_MAX,
     COUNTS_MIN,
-    NANOSECONDS,
     ChannelRecord,
     DriverRecord,
     hold_last_index,
+    no_orientation,
+    ns_from_seconds,
     seconds_from_ns,
 )
 from tak_thermo_ros.core.simulation.motion import HandheldMotion, Trajectory, hand_trajectory, motion_from_mapping
@@ -121,6 +122,17 @@ class AxisTruth:
     gauss_markov_time: tuple[float, ...] = ()
     filter_time_constant: float = 0.0
     resolution: float = 0.0
+
+    def link(self, code_offset_range: tuple[float, float], residual_rms: float | None = None) -> AxisModel:
+        """This axis as a link's :class:`AxisModel`, ``F_s`` normalised over ``code_offset_range``."""
+        return AxisModel.from_polynomials(scale=self.scale, offset=self.offset, offset_coeffs=self.offset_coeffs,
+                                          scale_coeffs=self.scale_coeffs, code_offset_range=code_offset_range,
+                                          residual_rms=residual_rms)
+
+
+def exact_output(unit: tuple[AxisTruth, ...], inputs: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """``(k, 3)``: the paper's model without noise for inputs ``(k, 3)`` at ``n = T - T_ref`` ``(k,)``."""
+    return np.column_stack([a.link((-1.0, 1.0)).forward(inputs[:, i], n) for i, a in enumerate(unit)])
 
 
 DEFAULT_UNIT: tuple[AxisTruth, AxisTruth, AxisTruth] = (
@@ -394,10 +406,7 @@ class Scenario:
         low, high = min(self.start_celsius, *self.plateaus_celsius), max(self.start_celsius, *self.plateaus_celsius)
         codes = sorted(self.temp_code_ref + self.codes_per_celsius * (t - self.reference_celsius) for t in (low, high))
         n_range = (codes[0] - self.temp_code_ref, codes[1] - self.temp_code_ref)
-        axes = tuple(AxisModel.from_polynomials(scale=a.scale, offset=a.offset, offset_coeffs=a.offset_coeffs,
-                                                scale_coeffs=a.scale_coeffs, code_offset_range=n_range,
-                                                residual_rms=a.noise_counts)
-                     for a in self.unit)
+        axes = tuple(a.link(n_range, a.noise_counts) for a in self.unit)
         return Calibration(temp_code_ref=self.temp_code_ref, temp_code_min=codes[0],
                            temp_code_max=codes[1], axes=axes,  # type: ignore[arg-type]
                            effects=self.effect_instances())
@@ -416,10 +425,7 @@ class Scenario:
         n_range = (low - self.reference_celsius, high - self.reference_celsius)
 
         def link(unit: tuple[AxisTruth, ...], key: str) -> Calibration:
-            axes = tuple(AxisModel.from_polynomials(scale=a.scale, offset=a.offset, offset_coeffs=a.offset_coeffs,
-                                                    scale_coeffs=a.scale_coeffs, code_offset_range=n_range,
-                                                    residual_rms=a.noise_counts)
-                         for a in unit)
+            axes = tuple(a.link(n_range, a.noise_counts) for a in unit)
             return Calibration(temp_code_ref=self.reference_celsius, temp_code_min=low, temp_code_max=high,
                                axes=axes, effects=self.effect_instances(key))  # type: ignore[arg-type]
 
@@ -504,15 +510,10 @@ def simulate(scenario: Scenario | None = None) -> SimulatedRun:
     force = scenario.gravity * positions[position_index]
 
     truth = scenario.truth()
-    n_true = true_code - scenario.temp_code_ref
-    exact = np.column_stack([
-        AxisModel.from_polynomials(scale=a.scale, offset=a.offset, offset_coeffs=a.offset_coeffs,
-                                   scale_coeffs=a.scale_coeffs, code_offset_range=(-1.0, 1.0)
-                                   ).forward(force[:, i], n_true)
-        for i, a in enumerate(scenario.unit)])
+    exact = exact_output(scenario.unit, force, true_code - scenario.temp_code_ref)
     noise = white_noise(scenario, scenario.unit, 0, rng, count)
     noise += sensor_wander(scenario, scenario.unit, 0, count)
-    stamps = np.round((scenario.start_time_s + time_s) * NANOSECONDS).astype(np.int64)
+    stamps = ns_from_seconds(scenario.start_time_s + time_s)
     exact = exact + hidden_terms(scenario, force, true_code, seconds_from_ns(stamps), time_s)
     counts = np.clip(np.round(exact + noise), COUNTS_MIN, COUNTS_MAX)
 
@@ -571,7 +572,7 @@ def _simulate_driver(scenario: Scenario) -> SimulatedRun:
     force = scenario.gravity * positions[position_index]
     rates = np.asarray(scenario.table_rates or (0.0,) * len(positions), dtype=float)
     rate = rates[position_index][:, None] * positions[position_index]
-    stamps = np.round((scenario.start_time_s + time_s) * NANOSECONDS).astype(np.int64)
+    stamps = ns_from_seconds(scenario.start_time_s + time_s)
     stamp_s = seconds_from_ns(stamps)
     accel = _driver_channels(scenario, scenario.accel_unit, 'effects', force, board, stamp_s, time_s, rng)
     gyro = _driver_channels(scenario, scenario.gyro_unit, 'gyro_effects', rate, board, stamp_s, time_s, rng)
@@ -580,10 +581,7 @@ def _simulate_driver(scenario: Scenario) -> SimulatedRun:
     step = np.flatnonzero(np.diff(position_index, prepend=-1) != 0)
     if not scenario.record_references:
         step = step[:0]
-    orientation = np.zeros((count, 4))
-    orientation[:, 3] = 1.0
-    orientation_covariance = np.zeros((count, 9))
-    orientation_covariance[:, 0] = -1.0  # REP 145: the driver gives no orientation
+    orientation, orientation_covariance = no_orientation(count)
     driver = DriverRecord(
         stamp_ns=stamps, accel=accel, gyro=gyro, orientation=orientation,
         orientation_covariance=orientation_covariance, temp_stamp_ns=stamps[temp_rows],
@@ -608,12 +606,7 @@ def _driver_channels(scenario: Scenario, unit: tuple[AxisTruth, ...], key: str, 
                      board: np.ndarray, stamp_s: np.ndarray, time_s: np.ndarray,
                      rng: np.random.Generator) -> np.ndarray:
     """One sensor's three channels as its driver gives them: the link, hidden effects, noise and wander."""
-    n_true = board - scenario.reference_celsius
-    exact = np.column_stack([
-        AxisModel.from_polynomials(scale=a.scale, offset=a.offset, offset_coeffs=a.offset_coeffs,
-                                   scale_coeffs=a.scale_coeffs, code_offset_range=(-1.0, 1.0)
-                                   ).forward(inputs[:, i], n_true)
-        for i, a in enumerate(unit)])
+    exact = exact_output(unit, inputs, board - scenario.reference_celsius)
     exact += _effect_terms(scenario.effect_instances(key), inputs, board, stamp_s)
     if scenario.supply_voltage_drift > 0.0 and key == 'effects':
         exact += _supply_terms(scenario, time_s)
@@ -639,17 +632,14 @@ def _handheld_run(scenario: Scenario) -> SimulatedRun:
         chamber = motion.final_celsius + (scenario.start_celsius - motion.final_celsius) * np.exp(
             -time_s / motion.warmup_tau_s)
         board = chamber
-    stamps = np.round((scenario.start_time_s + time_s) * NANOSECONDS).astype(np.int64)
+    stamps = ns_from_seconds(scenario.start_time_s + time_s)
     stamp_s = seconds_from_ns(stamps)
     accel = _driver_channels(scenario, scenario.accel_unit, 'effects', path.specific_force, board, stamp_s,
                              time_s, rng)
     gyro = _driver_channels(scenario, scenario.gyro_unit, 'gyro_effects', path.rate, board, stamp_s, time_s, rng)
     temp_rows = np.arange(0, count, scenario.temp_code_every)
     quantum = scenario.temperature_resolution_celsius
-    orientation = np.zeros((count, 4))
-    orientation[:, 3] = 1.0
-    orientation_covariance = np.zeros((count, 9))
-    orientation_covariance[:, 0] = -1.0
+    orientation, orientation_covariance = no_orientation(count)
     driver = DriverRecord(stamp_ns=stamps, accel=accel, gyro=gyro, orientation=orientation,
                           orientation_covariance=orientation_covariance, temp_stamp_ns=stamps[temp_rows],
                           temperature=np.round(board[temp_rows] / quantum) * quantum, frame_id=scenario.frame_id,

@@ -28,7 +28,8 @@ import numpy as np
 from tak_thermo_ros.core.effects import resolve_effect
 from tak_thermo_ros.core.link.correction import forward_counts
 from tak_thermo_ros.core.link.model import AxisModel, Calibration, MagnetometerCalibration
-from tak_thermo_ros.core.records.record import NANOSECONDS, DriverRecord
+from tak_thermo_ros.core.records.record import DriverRecord, no_orientation, ns_from_seconds
+from tak_thermo_ros.core.rotation import quaternion_matrix, quaternion_product
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import CalibrationError, FitError, ScenarioError
 
@@ -185,35 +186,20 @@ def random_rotations(count: int, rng: np.random.Generator, turn: str = 'tumble')
         rotations[:, 1, 0], rotations[:, 1, 1] = sine, cosine
         rotations[:, 2, 2] = 1.0
         return rotations
-    quaternion = rng.standard_normal((count, 4))
-    quaternion /= np.linalg.norm(quaternion, axis=1)[:, None]
+    quaternion = rng.standard_normal((count, 4))[:, [1, 2, 3, 0]]  # drawn as (w, x, y, z)
     if turn == 'cap':
         # Keep turns about an axis near z, of any angle, plus tilts up to 40 degrees.
         tilt = np.radians(40.0) * np.sqrt(rng.uniform(0.0, 1.0, count))
         azimuth = rng.uniform(0.0, 2.0 * math.pi, count)
         yaw = rng.uniform(0.0, 2.0 * math.pi, count)
         axis = np.column_stack([np.cos(azimuth), np.sin(azimuth), np.zeros(count)])
-        tilt_q = np.column_stack([np.cos(tilt / 2), axis * np.sin(tilt / 2)[:, None]])
-        yaw_q = np.column_stack([np.cos(yaw / 2), np.zeros(count), np.zeros(count), np.sin(yaw / 2)])
-        quaternion = _multiply(tilt_q, yaw_q)
+        tilt_q = np.column_stack([axis * np.sin(tilt / 2)[:, None], np.cos(tilt / 2)])
+        yaw_q = np.column_stack([np.zeros(count), np.zeros(count), np.sin(yaw / 2), np.cos(yaw / 2)])
+        quaternion = quaternion_product(tilt_q, yaw_q)
     elif turn != 'tumble':
         msg = f"turn: expected 'tumble', 'yaw' or 'cap', got {turn!r}"
         raise ScenarioError(msg)
-    return _matrices(quaternion)
-
-
-def _multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    w1, x1, y1, z1 = p.T
-    w2, x2, y2, z2 = q.T
-    return np.column_stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2])
-
-
-def _matrices(quaternion: np.ndarray) -> np.ndarray:
-    w, x, y, z = quaternion.T
-    return np.stack([np.column_stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)]),
-                     np.column_stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)]),
-                     np.column_stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)])], axis=1)
+    return quaternion_matrix(quaternion)
 
 
 def rotation_truth(truth: MagnetometerTruth, *, samples: int = 2000, turn: str = 'tumble',
@@ -249,11 +235,8 @@ def rotation_record(truth: MagnetometerTruth, *, samples: int = 2000, rate_hz: f
     stamps_s = start_time_s + np.arange(samples) / rate_hz
     mag = truth.measure(field, temperature, reference_celsius, rng, stamps_s)
     gravity = np.einsum('kji,j->ki', rotations, np.array([0.0, 0.0, STANDARD_GRAVITY]))
-    stamps = np.round((start_time_s + np.arange(samples) / rate_hz) * NANOSECONDS).astype(np.int64)
-    orientation = np.zeros((samples, 4))
-    orientation[:, 3] = 1.0
-    covariance = np.zeros((samples, 9))
-    covariance[:, 0] = -1.0
+    stamps = ns_from_seconds(stamps_s)
+    orientation, covariance = no_orientation(samples)
     temp_rows = np.arange(0, samples, 5) if record_temperature else np.zeros(0, dtype=np.int64)
     return DriverRecord(stamp_ns=stamps, accel=gravity + rng.standard_normal((samples, 3)) * accel_noise,
                         gyro=rng.standard_normal((samples, 3)) * gyro_noise, orientation=orientation,

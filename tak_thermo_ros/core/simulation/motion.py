@@ -25,6 +25,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from tak_thermo_ros.core.rotation import exp_map, log_map, rotation_between
+from tak_thermo_ros.core.values import EARTH_RATE
 from tak_thermo_ros.errors import ScenarioError
 
 PATTERNS = ('random', 'six_faces', 'one_axis')
@@ -32,8 +33,6 @@ TEMPERATURES = ('warmup', 'chamber')
 FACE_UP: tuple[tuple[float, float, float], ...] = ((0.0, 0.0, 1.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0),
                                                    (0.0, 0.0, -1.0), (-1.0, 0.0, 0.0), (0.0, -1.0, 0.0))
 """The six faces in the order the unit is set on them: the up direction in the sensor frame."""
-EARTH_RATE = 7.2921159e-5
-"""The Earth's rotation rate, rad/s (WGS 84)."""
 
 
 @dataclass(frozen=True)

@@ -23,9 +23,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tak_thermo_ros.core.link.model import AxisModel, Calibration, InputKind, UnitCalibration
-from tak_thermo_ros.core.records.record import NANOSECONDS, DriverRecord
-from tak_thermo_ros.core.simulation.imu import AxisTruth, first_order_lag
+from tak_thermo_ros.core.link.model import Calibration, InputKind, UnitCalibration
+from tak_thermo_ros.core.records.record import DriverRecord, no_orientation, ns_from_seconds
+from tak_thermo_ros.core.simulation.imu import AxisTruth, exact_output, first_order_lag
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import ScenarioError
 
@@ -106,9 +106,7 @@ class PoweredRun:
 
         def link(unit: tuple[AxisTruth, ...]) -> Calibration:
             span = (low - self.reference_celsius, high - self.reference_celsius)
-            axes = tuple(AxisModel.from_polynomials(scale=a.scale, offset=a.offset, offset_coeffs=a.offset_coeffs,
-                                                    scale_coeffs=a.scale_coeffs, code_offset_range=span)
-                         for a in unit)
+            axes = tuple(a.link(span) for a in unit)
             return Calibration(temp_code_ref=self.reference_celsius, temp_code_min=low, temp_code_max=high,
                                axes=axes)  # type: ignore[arg-type]
 
@@ -139,11 +137,8 @@ class PoweredRecord:
 
 
 def _exact(unit: tuple[AxisTruth, ...], inputs: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """``(k, 3)``: the noise-free output for a constant input at element temperatures ``n`` from the reference."""
-    return np.column_stack([
-        AxisModel.from_polynomials(scale=a.scale, offset=a.offset, offset_coeffs=a.offset_coeffs,
-                                   scale_coeffs=a.scale_coeffs, code_offset_range=(-1.0, 1.0)).forward(
-            np.full(len(n), inputs[i]), n) for i, a in enumerate(unit)])
+    """``(k, 3)``: the noise-free output for a constant input ``(3,)`` at element temperatures ``n``."""
+    return exact_output(unit, np.broadcast_to(inputs, (len(n), 3)), n)
 
 
 def simulate_powered(run: PoweredRun) -> PoweredRecord:
@@ -161,15 +156,12 @@ def simulate_powered(run: PoweredRun) -> PoweredRecord:
         exact = _exact(unit, inputs, element[sensor] - run.reference_celsius)
         noise[sensor] = np.array([a.noise_counts for a in unit])
         values[sensor] = exact + rng.standard_normal(exact.shape) * noise[sensor]
-        stamps[sensor] = np.round((run.start_time_s + time_s) * NANOSECONDS).astype(np.int64)
+        stamps[sensor] = ns_from_seconds(run.start_time_s + time_s)
         if sensor == 'accel':
             temperature = np.round(die / run.temperature_quantum) * run.temperature_quantum
     accel_stamps, gyro_stamps = stamps['accel'], stamps['gyro']
     messages = np.union1d(accel_stamps, gyro_stamps)
-    orientation = np.zeros((len(messages), 4))
-    orientation[:, 3] = 1.0
-    covariance = np.zeros((len(messages), 9))
-    covariance[:, 0] = -1.0
+    orientation, covariance = no_orientation(len(messages))
     record = DriverRecord(stamp_ns=messages, accel=values['accel'], gyro=values['gyro'], orientation=orientation,
                           orientation_covariance=covariance, temp_stamp_ns=accel_stamps.copy(),
                           temperature=temperature, frame_id=run.frame_id, accel_stamp_ns=accel_stamps,
