@@ -28,12 +28,12 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, MagneticField, Temperature
 
 from tak_thermo_ros.core.link.model import InputKind
+from tak_thermo_ros.core.records.record import NANOSECONDS
 from tak_thermo_ros.errors import TakError
 
 AHEAD = 50
 """At most this many messages sent and not yet answered."""
 RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
-NANOSECONDS = 1_000_000_000
 
 
 @dataclass
