@@ -203,9 +203,10 @@ class CompensatorNode(Node):
         self._angular_velocity = self._imu.angular_velocity
         # A driver's message that carries one sensor is published with the other marked absent
         # (zeros, covariance[0] = -1): one message per sensor it carries, its absent one never written.
-        self._imu_only = {sensor: Imu() for sensor in SENSORS} if driver else {}
-        self._only_vector = {sensor: imu.linear_acceleration if sensor == 'accel' else imu.angular_velocity
-                             for sensor, imu in self._imu_only.items()}
+        self._imu_only: dict[str, tuple[Imu, Any]] = {}
+        for sensor in SENSORS if driver else ():
+            imu = Imu()
+            self._imu_only[sensor] = imu, imu.linear_acceleration if sensor == 'accel' else imu.angular_velocity
         self._set_covariances()
         self._imu_publisher = self.create_publisher(Imu, output_topic, output_qos)
         self._publish_imu = self._imu_publisher.publish
@@ -350,7 +351,7 @@ class CompensatorNode(Node):
             self._imu.orientation_covariance = orientation
         self._imu.angular_velocity_covariance = angular
         self._imu.linear_acceleration_covariance = linear
-        for sensor, imu in self._imu_only.items():
+        for sensor, (imu, _) in self._imu_only.items():
             imu.angular_velocity_covariance = angular if sensor == 'gyro' else NOT_PROVIDED_COVARIANCE
             imu.linear_acceleration_covariance = linear if sensor == 'accel' else NOT_PROVIDED_COVARIANCE
 
@@ -425,11 +426,10 @@ class CompensatorNode(Node):
 
     def _publish_one_sensor(self, message: Imu, result: OneSensor) -> None:
         """Publish a message that carries one sensor, the other marked absent (its template's covariance)."""
-        imu = self._imu_only[result.sensor]
+        imu, vector = self._imu_only[result.sensor]
         imu.header = message.header
         imu.orientation = message.orientation
         imu.orientation_covariance = message.orientation_covariance
-        vector = self._only_vector[result.sensor]
         vector.x, vector.y, vector.z = result.values
         self._publish_imu(imu)
 

@@ -9,6 +9,15 @@ the node corrects each message with the temperature in force when it was recorde
 most :data:`AHEAD` messages are ever unanswered (reliable QoS does not stop a faster publisher
 from overrunning a history depth). A message the node does not answer within the answer
 timeout (it dropped it: bad input, no temperature yet) is counted, and the play goes on.
+
+A driver record whose sensors have their own stamps (Imu messages that carry one sensor, the
+other marked absent by its covariance[0] = -1) is published as ``apply``'s writer writes it
+(:func:`~tak_thermo_ros.formats.bag.imu_messages`): per message the sensors it carries, the
+other marked absent. The reader keeps each sensor's samples and stamps, not the messages, so
+the messages are rebuilt by that rule: two messages with one stamp, each carrying one sensor,
+are published as one that carries both (as ``apply`` writes them; a bag ``apply`` or
+``simulate`` wrote never holds such a pair, and is published message for message; a pair split
+across two blocks stays two messages).
 """
 
 from __future__ import annotations
@@ -27,13 +36,15 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, MagneticField, Temperature
 
+from tak_thermo_ros.core.link.correction import NOT_PROVIDED, NOT_PROVIDED_COVARIANCE
 from tak_thermo_ros.core.link.model import InputKind
+from tak_thermo_ros.core.records.record import NANOSECONDS
 from tak_thermo_ros.errors import TakError
+from tak_thermo_ros.formats.bag import ImuRows, imu_messages
 
 AHEAD = 50
 """At most this many messages sent and not yet answered."""
 RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
-NANOSECONDS = 1_000_000_000
 
 
 @dataclass
@@ -43,6 +54,8 @@ class Played:
     :param sent: messages published per stream (``imu`` or ``counts``, ``temperature``, ``mag``).
     :param stamp_ns: ``(k,)`` stamps of the corrected Imu received, in arrival order.
     :param accel: ``(k, 3)`` their linear acceleration; ``gyro`` ``(k, 3)`` their angular velocity.
+    :param accel_absent: ``(k,)`` whether each marks its accelerometer absent (covariance[0] = -1);
+        ``gyro_absent`` its gyroscope.
     :param mag: ``(g, 3)`` the corrected magnetic field received (``mag_stamp_ns`` its stamps).
     :param unanswered: messages the node did not answer within the answer timeout.
     :param seconds: wall time of the play.
@@ -53,6 +66,8 @@ class Played:
     stamp_ns: list[int] = field(default_factory=list)
     accel: list[tuple[float, float, float]] = field(default_factory=list)
     gyro: list[tuple[float, float, float]] = field(default_factory=list)
+    accel_absent: list[bool] = field(default_factory=list)
+    gyro_absent: list[bool] = field(default_factory=list)
     mag_stamp_ns: list[int] = field(default_factory=list)
     mag: list[tuple[float, float, float]] = field(default_factory=list)
     unanswered: int = 0
@@ -99,6 +114,8 @@ class _Player:
         a, w = message.linear_acceleration, message.angular_velocity
         self.played.accel.append((a.x, a.y, a.z))
         self.played.gyro.append((w.x, w.y, w.z))
+        self.played.accel_absent.append(message.linear_acceleration_covariance[0] == NOT_PROVIDED)
+        self.played.gyro_absent.append(message.angular_velocity_covariance[0] == NOT_PROVIDED)
 
     def _on_mag(self, message: MagneticField) -> None:
         self.played.mag_stamp_ns.append(_stamp_of(message))
@@ -173,7 +190,8 @@ def play(path: str | Path, options, *, wait_s: float = 30.0, answer_s: float = 5
 def _play_block(player: _Player, block, kind: InputKind, sent: dict[str, int], answer_s: float) -> None:
     """One block's messages in stamp order: the temperature first at equal stamps, then the input, then the field."""
     driver = kind is InputKind.IMU
-    input_stamps = block.stamp_ns if driver else block.counts_stamp_ns
+    messages = imu_messages(block) if driver else None
+    input_stamps = messages.stamp_ns if driver else block.counts_stamp_ns
     temperatures = block.temperature if driver else block.temp_code
     mag_stamps = block.mag_stamp_ns if driver else np.zeros(0, dtype=np.int64)
     events = sorted([(int(s), 0, i) for i, s in enumerate(block.temp_stamp_ns)]
@@ -195,7 +213,7 @@ def _play_block(player: _Player, block, kind: InputKind, sent: dict[str, int], a
             sent['temperature'] += 1
         elif stream == 1:
             caught_up(AHEAD)
-            player.input.publish(_imu(block, row) if driver else _counts(block, row))
+            player.input.publish(_imu(block, messages, row) if driver else _counts(block, row))
             sent['input'] += 1
         else:
             message = MagneticField()
@@ -207,15 +225,27 @@ def _play_block(player: _Player, block, kind: InputKind, sent: dict[str, int], a
             sent['mag'] += 1
 
 
-def _imu(block, row: int) -> Imu:
+def _imu(block, messages: ImuRows, row: int) -> Imu:
+    """The ``row``-th Imu message as ``apply``'s writer writes it: the sensors it carries, an absent one marked."""
     message = Imu()
-    _stamp(message, block.stamp_ns[row])
+    _stamp(message, messages.stamp_ns[row])
     message.header.frame_id = block.frame_id
+    rows = (messages.message_row, messages.accel_row, messages.gyro_row)
+    message_row, accel_row, gyro_row = (int(at[row]) for at in rows)
     a, w, q = message.linear_acceleration, message.angular_velocity, message.orientation
-    a.x, a.y, a.z = (float(v) for v in block.accel[row])
-    w.x, w.y, w.z = (float(v) for v in block.gyro[row])
-    q.x, q.y, q.z, q.w = (float(v) for v in block.orientation[row])
-    message.orientation_covariance = [float(v) for v in block.orientation_covariance[row]]
+    if accel_row >= 0:
+        a.x, a.y, a.z = (float(v) for v in block.accel[accel_row])
+    else:
+        message.linear_acceleration_covariance = NOT_PROVIDED_COVARIANCE
+    if gyro_row >= 0:
+        w.x, w.y, w.z = (float(v) for v in block.gyro[gyro_row])
+    else:
+        message.angular_velocity_covariance = NOT_PROVIDED_COVARIANCE
+    if message_row >= 0:
+        q.x, q.y, q.z, q.w = (float(v) for v in block.orientation[message_row])
+        message.orientation_covariance = [float(v) for v in block.orientation_covariance[message_row]]
+    else:
+        message.orientation_covariance = NOT_PROVIDED_COVARIANCE
     return message
 
 

@@ -66,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _applied(path: str, topics) -> dict[str, np.ndarray]:
     """The corrected Imu (and field) that ``apply`` wrote, as arrays."""
+    from tak_thermo_ros.core.link.correction import NOT_PROVIDED
     from tak_thermo_ros.formats.bag import BagError, read_imu_messages
     for topic in (topics.compensated_imu, topics.imu):
         try:
@@ -73,7 +74,9 @@ def _applied(path: str, topics) -> dict[str, np.ndarray]:
         except BagError:
             continue
         found = {'stamp_ns': messages.stamp_ns, 'accel': messages.linear_acceleration,
-                 'gyro': messages.angular_velocity}
+                 'gyro': messages.angular_velocity,
+                 'absent': np.column_stack([messages.linear_acceleration_covariance[:, 0] == NOT_PROVIDED,
+                                            messages.angular_velocity_covariance[:, 0] == NOT_PROVIDED])}
         found.update(_applied_field(path, topics.compensated_mag))
         return found
     msg = f'--compare {path}: holds neither {topics.compensated_imu} nor {topics.imu} (not written by apply?)'
@@ -100,6 +103,10 @@ def _compare(played, expected: dict[str, np.ndarray], path: str) -> int:
                 'gyro': np.asarray(played.gyro, dtype=float).reshape(-1, 3)}
     same = {name: bool(np.array_equal(received[name], expected[name])) for name in received}
     words = {'stamp_ns': 'stamps', 'accel': 'linear_acceleration', 'gyro': 'angular_velocity'}
+    absent = np.column_stack([np.asarray(played.accel_absent, dtype=bool), np.asarray(played.gyro_absent, dtype=bool)])
+    if absent.any() or expected['absent'].any():  # messages that carry one sensor: the marks too
+        same['absent'] = bool(np.array_equal(absent, expected['absent']))
+        words['absent'] = 'absent marks'
     if 'mag' in expected:
         field = np.asarray(played.mag, dtype=float).reshape(-1, 3)
         same['mag'] = bool(np.array_equal(field, expected['mag']))
