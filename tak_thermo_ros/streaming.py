@@ -782,9 +782,16 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
     blocks = record_blocks(path, topics=topics, kind=kind, block_samples=options.block_samples, references=False,
                            progress=options.progress)
     first = next(blocks, None)
+    magnetometer = None
+    if kind is InputKind.IMU and unit.mag is not None and streams.mag:
+        from tak_thermo_ros.streaming_mag import MagApplier
+        magnetometer = MagApplier(unit.mag, out_of_range=out_of_range, topic=topics.compensated_mag,
+                                  temperature_expected=temperature_expected(
+                                      path, streams, options, needed=unit.mag.thermal.needs_temperature,
+                                      what="the calibration's magnetometer"))
     if isinstance(first, DriverRecord) and not first.shared_stamps:
-        return _apply_own_stamps(path, unit, output, options, first, blocks, storage=storage,
-                                 out_of_range=out_of_range, force=force, temperature_expected=expected)
+        return _apply_own_stamps(unit, output, options, first, blocks, magnetometer, storage=storage,
+                                 out_of_range=out_of_range, force=force, holding=expected)
     blocks = itertools.chain([] if first is None else [first], blocks)
     topic = topics.imu if kind is InputKind.COUNTS else topics.compensated_imu
     aligner = BlockAligner(use_reference=False, temperature_expected=expected)
@@ -795,13 +802,6 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
     passing = _RowsBuffer()
     outside = 0
     frame_id = ''
-    magnetometer = None
-    if kind is InputKind.IMU and unit.mag is not None and streams.mag:
-        from tak_thermo_ros.streaming_mag import MagApplier
-        magnetometer = MagApplier(unit.mag, out_of_range=out_of_range, topic=topics.compensated_mag,
-                                  temperature_expected=temperature_expected(
-                                      path, streams, options, needed=unit.mag.thermal.needs_temperature,
-                                      what="the calibration's magnetometer"))
     with ImuBagWriter(output, topic=topic, storage=storage, force=force) as writer:
 
         def write(aligned: AlignedSamples) -> None:
@@ -851,23 +851,17 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
                    survey=survey.finish(stream_list(streams, topics)))
 
 
-def _apply_own_stamps(path: Path, unit: UnitCalibration, output: str | Path, options: StreamOptions,
-                      first: DriverRecord, blocks: Iterator, *, storage: str, out_of_range: OutOfRange,
-                      force: bool, temperature_expected: bool = True) -> Applied:
-    """``apply`` of a driver record whose sensors have their own stamps (:class:`_OwnStamps`)."""
+def _apply_own_stamps(unit: UnitCalibration, output: str | Path, options: StreamOptions, first: DriverRecord,
+                      blocks: Iterator, magnetometer, *, storage: str, out_of_range: OutOfRange, force: bool,
+                      holding: bool = True) -> Applied:
+    """``apply`` of a driver record whose sensors have their own stamps (:class:`_OwnStamps`).
+
+    :param magnetometer: ``apply_bag``'s :class:`~tak_thermo_ros.streaming_mag.MagApplier`, or ``None``.
+    :param holding: the pass reads a temperature (:func:`temperature_expected`).
+    """
     from tak_thermo_ros.formats.bag import ImuBagWriter
-    from tak_thermo_ros.formats.records import record_streams
     topics = options.topics
-    applier = _OwnStamps(unit, out_of_range=out_of_range, output=Path(output),
-                         temperature_expected=temperature_expected)
-    magnetometer = None
-    streams = record_streams(path, topics=topics)
-    if unit.mag is not None and streams.mag:
-        from tak_thermo_ros.streaming_mag import MagApplier
-        magnetometer = MagApplier(unit.mag, out_of_range=out_of_range, topic=topics.compensated_mag,
-                                  temperature_expected=temperature_expected(
-                                      path, streams, options, needed=unit.mag.thermal.needs_temperature,
-                                      what="the calibration's magnetometer"))
+    applier = _OwnStamps(unit, out_of_range=out_of_range, output=Path(output), temperature_expected=holding)
     with ImuBagWriter(output, topic=topics.compensated_imu, storage=storage, force=force) as writer:
         for block in itertools.chain([first], blocks):
             applier.push(writer, block)
