@@ -165,7 +165,7 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
               source: str | None = None, gravity: float = STANDARD_GRAVITY, latitude: float | None = None,
               out_of_range: OutOfRange = OutOfRange.CLAMP, per_octave: int = PER_OCTAVE,
               settle_time_s: float = 0.0, expect_kind: Callable[[InputKind], None] | None = None) -> NoiseRun:
-    """Each sensor's noise model from one streamed pass (two for a static driver run).
+    """Each sensor's noise model from one streamed pass (a static driver run: after its survey, see :func:`run_passes`).
 
     :param unit: a calibration: the residual is the corrected output minus the reference (the
         thermally compensated signal). Without it: the measured value minus the reference

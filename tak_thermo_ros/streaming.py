@@ -7,8 +7,9 @@ the blocked-QR fit (:class:`~tak_thermo_ros.core.fit.stream.StreamingFit`), the 
 that carries the effects' state (:class:`~tak_thermo_ros.core.link.stream_correction.BlockUnitCorrector`)
 and an open bag writer, the validation sums, or a bounded, evenly spread subsample (the
 effects' shape search, ``diagnose``). A driver bag without reference topics is surveyed in one
-extra pass first (:mod:`tak_thermo_ros.core.records.survey`): a static run takes its mean
-measured direction as the reference, a hand-held record goes to
+extra pass first (:mod:`tak_thermo_ros.core.records.survey`), whose blocks are kept up to
+:data:`SURVEY_REPLAY_SAMPLES` messages and replayed instead of a second read: a static run takes
+its mean measured direction as the reference, a hand-held record goes to
 :mod:`tak_thermo_ros.streaming_handheld`. See docs/streaming.md.
 """
 
@@ -190,7 +191,8 @@ class OpenedRun:
         bag without reference topics); else ``collector`` gathers it during the pass.
     :param streams: ``(role, topic, messages)`` of the record's streams (for the survey).
     :param replay: the survey's blocks, kept when the record holds at most
-        :data:`SURVEY_REPLAY_SAMPLES` messages (a hand-held record is then not read again).
+        :data:`SURVEY_REPLAY_SAMPLES` messages (a hand-held record, or a static run without a
+        recorded rate reference, is then not read again: :func:`run_passes` replays them).
     """
 
     kind: InputKind
@@ -249,8 +251,9 @@ def open_calibration_run(path: Path, options: StreamOptions, *, gravity: float, 
                                 recorded_rate=streams.rate_reference > 0, gravity=gravity, latitude=latitude,
                                 survey=survey)
     collector = None if survey is not None else SurveyCollector(streams.kind.value)
-    if survey is not None and survey.plan is not Plan.HANDHELD:
-        replay = None  # only a hand-held record reads its blocks again
+    if survey is not None and not (survey.plan is Plan.HANDHELD
+                                   or survey.plan is Plan.STATIC and not streams.rate_reference):
+        replay = None  # the kept blocks hold no reference topics: a recorded rate reference is read again
     return OpenedRun(streams.kind, streams.main, static, survey, collector, listed, replay)
 
 
@@ -289,12 +292,13 @@ def survey_record(path: Path, options: StreamOptions, kind: InputKind, listed: t
 
 
 def run_passes(path: Path, options: StreamOptions, opened: OpenedRun, passes: Sequence[SensorPass]) -> list[str]:
-    """Read the bag once, feeding each sensor's pass; the reference lines (driver bags)."""
+    """Read the bag once (or replay the survey's blocks), feeding each sensor's pass; the reference lines."""
     from tak_thermo_ros.formats.records import record_blocks
     if opened.static is not None:
         opened.static.rewind()
-    for block in record_blocks(path, topics=options.topics, kind=opened.kind,
-                               block_samples=options.block_samples, progress=options.progress):
+    blocks = opened.replay if opened.replay is not None else record_blocks(
+        path, topics=options.topics, kind=opened.kind, block_samples=options.block_samples, progress=options.progress)
+    for block in blocks:
         if opened.collector is not None:
             opened.collector.add(block)
         if opened.static is not None:
@@ -362,7 +366,7 @@ class StreamedFit:
 def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
             nominal_for: Callable[[InputKind, tuple[float, float, float] | None], tuple[float, float, float] | None]
             | None = None) -> StreamedFit:
-    """The fit of ``tak_calib fit`` in one pass over the bag (two for a static driver run).
+    """The fit of ``tak_calib fit`` in one pass over the bag (a static driver run: after its survey).
 
     Without effects each sensor's fit is :class:`StreamingFit` (equal to
     :func:`fit_calibration` to rounding). With effects, the fit of :func:`fit_model` runs on
@@ -449,7 +453,7 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
         again = {sensor: required(sensor) for sensor in second}
         amplitude_passes = [SensorPass(sensor, aligner(), [_feeding(again[sensor], [amplitudes.add])])
                             for sensor, (amplitudes, _) in second.items()]
-        run_passes(path, options, OpenedRun(kind, opened.main, opened.static), amplitude_passes)
+        run_passes(path, options, OpenedRun(kind, opened.main, opened.static, replay=opened.replay), amplitude_passes)
         for sensor_pass in amplitude_passes:
             sensor = sensor_pass.sensor
             amplitudes, shaped = second[sensor]
@@ -900,7 +904,7 @@ class Validated:
 def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions, *, gravity: float,
                  latitude: float | None = None, out_of_range: OutOfRange = OutOfRange.CLAMP,
                  expect_kind: Callable[[InputKind], None] | None = None) -> Validated | Any:
-    """``tak_calib validate`` in one pass (two for a static driver run or a hand-held record).
+    """``tak_calib validate`` in one pass (after the survey for a static driver run or a hand-held record).
 
     A hand-held record gives a :class:`~tak_thermo_ros.streaming_handheld.HandheldValidated`.
 
