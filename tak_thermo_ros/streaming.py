@@ -77,7 +77,7 @@ class StreamOptions:
 
 
 class _StaticRun:
-    """A driver bag's missing references, estimated as a static run (the mean: the survey's, or one extra pass)."""
+    """A driver bag's missing references, estimated as a static run (the mean: the survey's, or a pass if used)."""
 
     def __init__(self, path: Path, options: StreamOptions, *, recorded_reference: bool, recorded_rate: bool,
                  gravity: float, latitude: float | None, survey: RecordSurvey | None = None) -> None:
@@ -97,6 +97,8 @@ class _StaticRun:
             return
         if survey is not None:  # the survey's pass took the mean already
             total, count = survey.mean * survey.samples, survey.samples
+        elif recorded_reference and latitude is None:  # the mean would only turn the Earth rate: no pass
+            total, count = np.zeros(3), 0
         else:
             total = np.zeros(3)
             count = 0
