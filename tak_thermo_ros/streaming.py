@@ -228,15 +228,16 @@ def temperature_expected(path: Path, streams, options: StreamOptions, *, needed:
     return needed and present
 
 
-def open_calibration_run(path: Path, options: StreamOptions, *, gravity: float, latitude: float | None,
+def open_calibration_run(path: Path, options: StreamOptions, streams, *, gravity: float, latitude: float | None,
                          require_reference: bool) -> OpenedRun:
     """Open ``path`` for a calibration-run pass.
 
     Its input kind, the number of main messages, and for driver bags the static-run reference
     (the specific force and rate at each turntable position, recorded or estimated).
+
+    :param streams: the record's :class:`~tak_thermo_ros.formats.bag.BagStreams`, as the command read them.
     """
     from tak_thermo_ros.formats.records import record_streams
-    streams = record_streams(path, topics=options.topics)
     if require_reference and streams.kind is InputKind.COUNTS:
         streams = record_streams(path, topics=options.topics, require_reference=True)
     listed = stream_list(streams, options.topics)
@@ -388,7 +389,7 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
         reason = f'no temperature on {options.topics.temperature}'
         raise ImuLinkUndetermined(f'{path}: {reason}: no thermal link of the accelerometer and gyroscope', reason)
     try:
-        opened = open_calibration_run(path, options, gravity=settings.gravity, latitude=settings.latitude,
+        opened = open_calibration_run(path, options, streams, gravity=settings.gravity, latitude=settings.latitude,
                                       require_reference=True)
     except NotStatic as err:
         raise ImuLinkUndetermined(str(err), MOVED) from None
@@ -402,8 +403,7 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
         raise TakError(msg)
     nominal = dict(settings.nominal_scale)
     if kind is InputKind.COUNTS and nominal_for is not None:
-        from tak_thermo_ros.formats.records import record_streams
-        nominal['accel'] = nominal_for(kind, record_streams(path, topics=options.topics).nominal_scale)
+        nominal['accel'] = nominal_for(kind, streams.nominal_scale)
     elif kind is InputKind.IMU:
         nominal = {sensor: (1.0, 1.0, 1.0) for sensor in sensors}
 
@@ -920,15 +920,11 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
         expect_kind(kind)
     holding = temperature_expected(path, streams, options, needed=unit.needs_temperature, what='the calibration')
     calibration_run = kind is InputKind.IMU
-    if calibration_run:
-        opened = open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=False)
-        if opened.survey is not None and decided(path, opened.survey) is Plan.HANDHELD:
-            from tak_thermo_ros.streaming_handheld import validate_handheld_bag
-            return validate_handheld_bag(path, unit, options, opened.survey, gravity=gravity, latitude=latitude,
-                                         out_of_range=out_of_range, replay=opened.replay)
-    else:
-        opened = OpenedRun(kind, 0, None, collector=SurveyCollector(kind.value),
-                           streams=stream_list(streams, options.topics))
+    opened = open_calibration_run(path, options, streams, gravity=gravity, latitude=latitude, require_reference=False)
+    if opened.survey is not None and decided(path, opened.survey) is Plan.HANDHELD:
+        from tak_thermo_ros.streaming_handheld import validate_handheld_bag
+        return validate_handheld_bag(path, unit, options, opened.survey, gravity=gravity, latitude=latitude,
+                                     out_of_range=out_of_range, replay=opened.replay)
     # Before correction: a driver's values as recorded; codes through the file's nominal scale and offset.
     gravity_check = GravityCheck(unit.accel, gravity=gravity, out_of_range=out_of_range, raw_before=calibration_run)
     rate_check = (RateCheck(unit.gyro, out_of_range=out_of_range, raw_before=True)
@@ -1000,7 +996,7 @@ def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: floa
     if streams.kind is InputKind.IMU and not streams.temperature:
         msg = f'{path}: no temperature on {options.topics.temperature}: diagnose looks at the residual against it'
         raise TakError(msg)
-    opened = open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=True)
+    opened = open_calibration_run(path, options, streams, gravity=gravity, latitude=latitude, require_reference=True)
     if opened.survey is not None and decided(path, opened.survey) is Plan.HANDHELD:
         from tak_thermo_ros.streaming_handheld import handheld_record, rest_samples
         if unit is None:
