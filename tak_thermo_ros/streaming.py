@@ -205,6 +205,11 @@ class OpenedRun:
     streams: tuple[tuple[str, str, int], ...] = ()
     replay: tuple[DriverRecord, ...] | None = None
 
+    @property
+    def handheld(self) -> bool:
+        """Whether the survey found a hand-held record (its passes: :mod:`tak_thermo_ros.streaming_handheld`)."""
+        return self.survey is not None and self.survey.plan is Plan.HANDHELD
+
     def finished_survey(self) -> RecordSurvey:
         """The survey, after the pass (the one taken first, else what the pass gathered)."""
         if self.survey is not None:
@@ -229,13 +234,15 @@ def temperature_expected(path: Path, streams, options: StreamOptions, *, needed:
 
 
 def open_calibration_run(path: Path, options: StreamOptions, streams, *, gravity: float, latitude: float | None,
-                         require_reference: bool) -> OpenedRun:
+                         require_reference: bool, decide: bool = True) -> OpenedRun:
     """Open ``path`` for a calibration-run pass.
 
     Its input kind, the number of main messages, and for driver bags the static-run reference
     (the specific force and rate at each turntable position, recorded or estimated).
 
     :param streams: the record's :class:`~tak_thermo_ros.formats.bag.BagStreams`, as the command read them.
+    :param decide: refuse a surveyed record that determines no link (:func:`decided`); ``False``: the
+        caller refuses what it cannot take in its own words (``noise``).
     """
     from tak_thermo_ros.formats.records import record_streams
     if require_reference and streams.kind is InputKind.COUNTS:
@@ -249,6 +256,8 @@ def open_calibration_run(path: Path, options: StreamOptions, streams, *, gravity
             # Without references the record itself says what it is (static, hand-held): one pass first.
             survey, replay = survey_record(path, options, streams.kind, listed,
                                            keep=streams.main <= SURVEY_REPLAY_SAMPLES)
+            if decide:
+                decided(path, survey)
         if survey is None or survey.plan is Plan.STATIC:
             static = _StaticRun(path, options, recorded_reference=streams.reference > 0,
                                 recorded_rate=streams.rate_reference > 0, gravity=gravity, latitude=latitude,
@@ -393,7 +402,7 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
                                       require_reference=True)
     except NotStatic as err:
         raise ImuLinkUndetermined(str(err), MOVED) from None
-    if opened.survey is not None and decided(path, opened.survey) is Plan.HANDHELD:
+    if opened.handheld:
         from tak_thermo_ros.streaming_handheld import fit_handheld_bag
         return fit_handheld_bag(path, settings, options, opened.survey, replay=opened.replay)
     kind = opened.kind
@@ -921,7 +930,7 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
     holding = temperature_expected(path, streams, options, needed=unit.needs_temperature, what='the calibration')
     calibration_run = kind is InputKind.IMU
     opened = open_calibration_run(path, options, streams, gravity=gravity, latitude=latitude, require_reference=False)
-    if opened.survey is not None and decided(path, opened.survey) is Plan.HANDHELD:
+    if opened.handheld:
         from tak_thermo_ros.streaming_handheld import validate_handheld_bag
         return validate_handheld_bag(path, unit, options, opened.survey, gravity=gravity, latitude=latitude,
                                      out_of_range=out_of_range, replay=opened.replay)
@@ -997,7 +1006,7 @@ def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: floa
         msg = f'{path}: no temperature on {options.topics.temperature}: diagnose looks at the residual against it'
         raise TakError(msg)
     opened = open_calibration_run(path, options, streams, gravity=gravity, latitude=latitude, require_reference=True)
-    if opened.survey is not None and decided(path, opened.survey) is Plan.HANDHELD:
+    if opened.handheld:
         from tak_thermo_ros.streaming_handheld import handheld_record, rest_samples
         if unit is None:
             msg = f'{path}: a hand-held record: its references come from a calibration (give one)'
