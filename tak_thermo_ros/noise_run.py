@@ -165,7 +165,7 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
               source: str | None = None, gravity: float = STANDARD_GRAVITY, latitude: float | None = None,
               out_of_range: OutOfRange = OutOfRange.CLAMP, per_octave: int = PER_OCTAVE,
               settle_time_s: float = 0.0, expect_kind: Callable[[InputKind], None] | None = None) -> NoiseRun:
-    """Each sensor's noise model from one streamed pass (two for a static driver run).
+    """Each sensor's noise model from one streamed pass (a static driver run: after its survey, see :func:`run_passes`).
 
     :param unit: a calibration: the residual is the corrected output minus the reference (the
         thermally compensated signal). Without it: the measured value minus the reference
@@ -201,7 +201,8 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
     # correction with temperature terms needs it.
     holding = (temperature_expected(path, streams, options, needed=unit.needs_temperature, what='the calibration')
                if unit is not None else streams.kind is InputKind.COUNTS or streams.temperature > 0)
-    opened = open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=True)
+    opened = open_calibration_run(path, options, streams, gravity=gravity, latitude=latitude, require_reference=True,
+                                  decide=False)
     if opened.survey is not None and opened.static is None:
         msg = (f'{path}: no reference topics and the unit moves ({opened.survey.still.orientations()} orientations '
                f'at rest, {100.0 * opened.survey.still.still_fraction:.0f} % of the time): a noise model needs a '

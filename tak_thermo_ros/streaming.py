@@ -7,8 +7,9 @@ the blocked-QR fit (:class:`~tak_thermo_ros.core.fit.stream.StreamingFit`), the 
 that carries the effects' state (:class:`~tak_thermo_ros.core.link.stream_correction.BlockUnitCorrector`)
 and an open bag writer, the validation sums, or a bounded, evenly spread subsample (the
 effects' shape search, ``diagnose``). A driver bag without reference topics is surveyed in one
-extra pass first (:mod:`tak_thermo_ros.core.records.survey`): a static run takes its mean
-measured direction as the reference, a hand-held record goes to
+extra pass first (:mod:`tak_thermo_ros.core.records.survey`), whose blocks are kept up to
+:data:`SURVEY_REPLAY_SAMPLES` messages and replayed instead of a second read: a static run takes
+its mean measured direction as the reference, a hand-held record goes to
 :mod:`tak_thermo_ros.streaming_handheld`. See docs/streaming.md.
 """
 
@@ -76,7 +77,7 @@ class StreamOptions:
 
 
 class _StaticRun:
-    """A driver bag's missing references, estimated as a static run (the mean: the survey's, or one extra pass)."""
+    """A driver bag's missing references, estimated as a static run (the mean: the survey's, or a pass if used)."""
 
     def __init__(self, path: Path, options: StreamOptions, *, recorded_reference: bool, recorded_rate: bool,
                  gravity: float, latitude: float | None, survey: RecordSurvey | None = None) -> None:
@@ -96,6 +97,8 @@ class _StaticRun:
             return
         if survey is not None:  # the survey's pass took the mean already
             total, count = survey.mean * survey.samples, survey.samples
+        elif recorded_reference and latitude is None:  # the mean would only turn the Earth rate: no pass
+            total, count = np.zeros(3), 0
         else:
             total = np.zeros(3)
             count = 0
@@ -190,7 +193,8 @@ class OpenedRun:
         bag without reference topics); else ``collector`` gathers it during the pass.
     :param streams: ``(role, topic, messages)`` of the record's streams (for the survey).
     :param replay: the survey's blocks, kept when the record holds at most
-        :data:`SURVEY_REPLAY_SAMPLES` messages (a hand-held record is then not read again).
+        :data:`SURVEY_REPLAY_SAMPLES` messages (a hand-held record, or a static run without a
+        recorded rate reference, is then not read again: :func:`run_passes` replays them).
     """
 
     kind: InputKind
@@ -200,6 +204,11 @@ class OpenedRun:
     collector: SurveyCollector | None = None
     streams: tuple[tuple[str, str, int], ...] = ()
     replay: tuple[DriverRecord, ...] | None = None
+
+    @property
+    def handheld(self) -> bool:
+        """Whether the survey found a hand-held record (its passes: :mod:`tak_thermo_ros.streaming_handheld`)."""
+        return self.survey is not None and self.survey.plan is Plan.HANDHELD
 
     def finished_survey(self) -> RecordSurvey:
         """The survey, after the pass (the one taken first, else what the pass gathered)."""
@@ -224,15 +233,18 @@ def temperature_expected(path: Path, streams, options: StreamOptions, *, needed:
     return needed and present
 
 
-def open_calibration_run(path: Path, options: StreamOptions, *, gravity: float, latitude: float | None,
-                         require_reference: bool) -> OpenedRun:
+def open_calibration_run(path: Path, options: StreamOptions, streams, *, gravity: float, latitude: float | None,
+                         require_reference: bool, decide: bool = True) -> OpenedRun:
     """Open ``path`` for a calibration-run pass.
 
     Its input kind, the number of main messages, and for driver bags the static-run reference
     (the specific force and rate at each turntable position, recorded or estimated).
+
+    :param streams: the record's :class:`~tak_thermo_ros.formats.bag.BagStreams`, as the command read them.
+    :param decide: refuse a surveyed record that determines no link (:func:`decided`); ``False``: the
+        caller refuses what it cannot take in its own words (``noise``).
     """
     from tak_thermo_ros.formats.records import record_streams
-    streams = record_streams(path, topics=options.topics)
     if require_reference and streams.kind is InputKind.COUNTS:
         streams = record_streams(path, topics=options.topics, require_reference=True)
     listed = stream_list(streams, options.topics)
@@ -244,13 +256,16 @@ def open_calibration_run(path: Path, options: StreamOptions, *, gravity: float, 
             # Without references the record itself says what it is (static, hand-held): one pass first.
             survey, replay = survey_record(path, options, streams.kind, listed,
                                            keep=streams.main <= SURVEY_REPLAY_SAMPLES)
+            if decide:
+                decided(path, survey)
         if survey is None or survey.plan is Plan.STATIC:
             static = _StaticRun(path, options, recorded_reference=streams.reference > 0,
                                 recorded_rate=streams.rate_reference > 0, gravity=gravity, latitude=latitude,
                                 survey=survey)
     collector = None if survey is not None else SurveyCollector(streams.kind.value)
-    if survey is not None and survey.plan is not Plan.HANDHELD:
-        replay = None  # only a hand-held record reads its blocks again
+    if survey is not None and not (survey.plan is Plan.HANDHELD
+                                   or survey.plan is Plan.STATIC and not streams.rate_reference):
+        replay = None  # the kept blocks hold no reference topics: a recorded rate reference is read again
     return OpenedRun(streams.kind, streams.main, static, survey, collector, listed, replay)
 
 
@@ -289,12 +304,13 @@ def survey_record(path: Path, options: StreamOptions, kind: InputKind, listed: t
 
 
 def run_passes(path: Path, options: StreamOptions, opened: OpenedRun, passes: Sequence[SensorPass]) -> list[str]:
-    """Read the bag once, feeding each sensor's pass; the reference lines (driver bags)."""
+    """Read the bag once (or replay the survey's blocks), feeding each sensor's pass; the reference lines."""
     from tak_thermo_ros.formats.records import record_blocks
     if opened.static is not None:
         opened.static.rewind()
-    for block in record_blocks(path, topics=options.topics, kind=opened.kind,
-                               block_samples=options.block_samples, progress=options.progress):
+    blocks = opened.replay if opened.replay is not None else record_blocks(
+        path, topics=options.topics, kind=opened.kind, block_samples=options.block_samples, progress=options.progress)
+    for block in blocks:
         if opened.collector is not None:
             opened.collector.add(block)
         if opened.static is not None:
@@ -362,7 +378,7 @@ class StreamedFit:
 def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
             nominal_for: Callable[[InputKind, tuple[float, float, float] | None], tuple[float, float, float] | None]
             | None = None) -> StreamedFit:
-    """The fit of ``tak_calib fit`` in one pass over the bag (two for a static driver run).
+    """The fit of ``tak_calib fit`` in one pass over the bag (a static driver run: after its survey).
 
     Without effects each sensor's fit is :class:`StreamingFit` (equal to
     :func:`fit_calibration` to rounding). With effects, the fit of :func:`fit_model` runs on
@@ -382,11 +398,11 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
         reason = f'no temperature on {options.topics.temperature}'
         raise ImuLinkUndetermined(f'{path}: {reason}: no thermal link of the accelerometer and gyroscope', reason)
     try:
-        opened = open_calibration_run(path, options, gravity=settings.gravity, latitude=settings.latitude,
+        opened = open_calibration_run(path, options, streams, gravity=settings.gravity, latitude=settings.latitude,
                                       require_reference=True)
     except NotStatic as err:
         raise ImuLinkUndetermined(str(err), MOVED) from None
-    if opened.survey is not None and decided(path, opened.survey) is Plan.HANDHELD:
+    if opened.handheld:
         from tak_thermo_ros.streaming_handheld import fit_handheld_bag
         return fit_handheld_bag(path, settings, options, opened.survey, replay=opened.replay)
     kind = opened.kind
@@ -396,8 +412,7 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
         raise TakError(msg)
     nominal = dict(settings.nominal_scale)
     if kind is InputKind.COUNTS and nominal_for is not None:
-        from tak_thermo_ros.formats.records import record_streams
-        nominal['accel'] = nominal_for(kind, record_streams(path, topics=options.topics).nominal_scale)
+        nominal['accel'] = nominal_for(kind, streams.nominal_scale)
     elif kind is InputKind.IMU:
         nominal = {sensor: (1.0, 1.0, 1.0) for sensor in sensors}
 
@@ -449,7 +464,7 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
         again = {sensor: required(sensor) for sensor in second}
         amplitude_passes = [SensorPass(sensor, aligner(), [_feeding(again[sensor], [amplitudes.add])])
                             for sensor, (amplitudes, _) in second.items()]
-        run_passes(path, options, OpenedRun(kind, opened.main, opened.static), amplitude_passes)
+        run_passes(path, options, OpenedRun(kind, opened.main, opened.static, replay=opened.replay), amplitude_passes)
         for sensor_pass in amplitude_passes:
             sensor = sensor_pass.sensor
             amplitudes, shaped = second[sensor]
@@ -781,9 +796,16 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
     blocks = record_blocks(path, topics=topics, kind=kind, block_samples=options.block_samples, references=False,
                            progress=options.progress)
     first = next(blocks, None)
+    magnetometer = None
+    if kind is InputKind.IMU and unit.mag is not None and streams.mag:
+        from tak_thermo_ros.streaming_mag import MagApplier
+        magnetometer = MagApplier(unit.mag, out_of_range=out_of_range, topic=topics.compensated_mag,
+                                  temperature_expected=temperature_expected(
+                                      path, streams, options, needed=unit.mag.thermal.needs_temperature,
+                                      what="the calibration's magnetometer"))
     if isinstance(first, DriverRecord) and not first.shared_stamps:
-        return _apply_own_stamps(path, unit, output, options, first, blocks, storage=storage,
-                                 out_of_range=out_of_range, force=force, temperature_expected=expected)
+        return _apply_own_stamps(unit, output, options, first, blocks, magnetometer, storage=storage,
+                                 out_of_range=out_of_range, force=force, holding=expected)
     blocks = itertools.chain([] if first is None else [first], blocks)
     topic = topics.imu if kind is InputKind.COUNTS else topics.compensated_imu
     aligner = BlockAligner(use_reference=False, temperature_expected=expected)
@@ -794,13 +816,6 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
     passing = _RowsBuffer()
     outside = 0
     frame_id = ''
-    magnetometer = None
-    if kind is InputKind.IMU and unit.mag is not None and streams.mag:
-        from tak_thermo_ros.streaming_mag import MagApplier
-        magnetometer = MagApplier(unit.mag, out_of_range=out_of_range, topic=topics.compensated_mag,
-                                  temperature_expected=temperature_expected(
-                                      path, streams, options, needed=unit.mag.thermal.needs_temperature,
-                                      what="the calibration's magnetometer"))
     with ImuBagWriter(output, topic=topic, storage=storage, force=force) as writer:
 
         def write(aligned: AlignedSamples) -> None:
@@ -850,23 +865,17 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
                    survey=survey.finish(stream_list(streams, topics)))
 
 
-def _apply_own_stamps(path: Path, unit: UnitCalibration, output: str | Path, options: StreamOptions,
-                      first: DriverRecord, blocks: Iterator, *, storage: str, out_of_range: OutOfRange,
-                      force: bool, temperature_expected: bool = True) -> Applied:
-    """``apply`` of a driver record whose sensors have their own stamps (:class:`_OwnStamps`)."""
+def _apply_own_stamps(unit: UnitCalibration, output: str | Path, options: StreamOptions, first: DriverRecord,
+                      blocks: Iterator, magnetometer, *, storage: str, out_of_range: OutOfRange, force: bool,
+                      holding: bool = True) -> Applied:
+    """``apply`` of a driver record whose sensors have their own stamps (:class:`_OwnStamps`).
+
+    :param magnetometer: ``apply_bag``'s :class:`~tak_thermo_ros.streaming_mag.MagApplier`, or ``None``.
+    :param holding: the pass reads a temperature (:func:`temperature_expected`).
+    """
     from tak_thermo_ros.formats.bag import ImuBagWriter
-    from tak_thermo_ros.formats.records import record_streams
     topics = options.topics
-    applier = _OwnStamps(unit, out_of_range=out_of_range, output=Path(output),
-                         temperature_expected=temperature_expected)
-    magnetometer = None
-    streams = record_streams(path, topics=topics)
-    if unit.mag is not None and streams.mag:
-        from tak_thermo_ros.streaming_mag import MagApplier
-        magnetometer = MagApplier(unit.mag, out_of_range=out_of_range, topic=topics.compensated_mag,
-                                  temperature_expected=temperature_expected(
-                                      path, streams, options, needed=unit.mag.thermal.needs_temperature,
-                                      what="the calibration's magnetometer"))
+    applier = _OwnStamps(unit, out_of_range=out_of_range, output=Path(output), temperature_expected=holding)
     with ImuBagWriter(output, topic=topics.compensated_imu, storage=storage, force=force) as writer:
         for block in itertools.chain([first], blocks):
             applier.push(writer, block)
@@ -905,7 +914,7 @@ class Validated:
 def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions, *, gravity: float,
                  latitude: float | None = None, out_of_range: OutOfRange = OutOfRange.CLAMP,
                  expect_kind: Callable[[InputKind], None] | None = None) -> Validated | Any:
-    """``tak_calib validate`` in one pass (two for a static driver run or a hand-held record).
+    """``tak_calib validate`` in one pass (after the survey for a static driver run or a hand-held record).
 
     A hand-held record gives a :class:`~tak_thermo_ros.streaming_handheld.HandheldValidated`.
 
@@ -919,15 +928,11 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
         expect_kind(kind)
     holding = temperature_expected(path, streams, options, needed=unit.needs_temperature, what='the calibration')
     calibration_run = kind is InputKind.IMU
-    if calibration_run:
-        opened = open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=False)
-        if opened.survey is not None and decided(path, opened.survey) is Plan.HANDHELD:
-            from tak_thermo_ros.streaming_handheld import validate_handheld_bag
-            return validate_handheld_bag(path, unit, options, opened.survey, gravity=gravity, latitude=latitude,
-                                         out_of_range=out_of_range, replay=opened.replay)
-    else:
-        opened = OpenedRun(kind, 0, None, collector=SurveyCollector(kind.value),
-                           streams=stream_list(streams, options.topics))
+    opened = open_calibration_run(path, options, streams, gravity=gravity, latitude=latitude, require_reference=False)
+    if opened.handheld:
+        from tak_thermo_ros.streaming_handheld import validate_handheld_bag
+        return validate_handheld_bag(path, unit, options, opened.survey, gravity=gravity, latitude=latitude,
+                                     out_of_range=out_of_range, replay=opened.replay)
     # Before correction: a driver's values as recorded; codes through the file's nominal scale and offset.
     gravity_check = GravityCheck(unit.accel, gravity=gravity, out_of_range=out_of_range, raw_before=calibration_run)
     rate_check = (RateCheck(unit.gyro, out_of_range=out_of_range, raw_before=True)
@@ -999,8 +1004,8 @@ def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: floa
     if streams.kind is InputKind.IMU and not streams.temperature:
         msg = f'{path}: no temperature on {options.topics.temperature}: diagnose looks at the residual against it'
         raise TakError(msg)
-    opened = open_calibration_run(path, options, gravity=gravity, latitude=latitude, require_reference=True)
-    if opened.survey is not None and decided(path, opened.survey) is Plan.HANDHELD:
+    opened = open_calibration_run(path, options, streams, gravity=gravity, latitude=latitude, require_reference=True)
+    if opened.handheld:
         from tak_thermo_ros.streaming_handheld import handheld_record, rest_samples
         if unit is None:
             msg = f'{path}: a hand-held record: its references come from a calibration (give one)'

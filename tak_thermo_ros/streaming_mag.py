@@ -184,17 +184,21 @@ def _calibration_pass(path: Path, options, consumers, survey: FieldSurvey | None
     return _CalibrationPass(static, mean, max_turn, aligner)
 
 
-def bounded_mag_run(path: str | Path, options, *, max_samples: int) -> tuple[AlignedSamples, int, str]:
+def bounded_mag_run(path: str | Path, options, *, max_samples: int,
+                    survey: FieldSurvey | None = None) -> tuple[AlignedSamples, int, str]:
     """``diagnose``'s magnetometer samples, the usable count of the whole run and the reference's line.
 
     Every n-th sample, at most about ``max_samples``, the reference held as for the fit.
+
+    :param survey: the record's :func:`survey_field`, when the caller took it (else one pass more
+        for a static run).
     """
     from tak_thermo_ros.formats.records import record_streams
     path = Path(path)
     count = record_streams(path, topics=options.topics).mag
     stride = stride_for(count, max_samples)
     subsample = Subsample(stride, expected=count // stride + 1)
-    calibration_pass = _calibration_pass(path, options, [subsample])
+    calibration_pass = _calibration_pass(path, options, [subsample], survey)
     line = (f'magnetometer: reference field {options.topics.reference_field} as recorded' if not calibration_pass.static
             else f'magnetometer: static run, reference the mean field x y z {_microtesla(calibration_pass.mean)} uT')
     return subsample.samples(calibration_pass.aligner.dropped), calibration_pass.aligner.kept, line

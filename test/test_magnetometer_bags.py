@@ -82,6 +82,21 @@ def test_the_iron_is_the_simulated_one_and_apply_writes_the_corrected_field(bags
     assert covariance[0] > 0 and np.allclose(covariance.reshape(3, 3), covariance.reshape(3, 3).T)
 
 
+def test_apply_writes_the_corrected_field_when_the_imu_sensors_have_their_own_stamps(bags, tmp_path, capsys):
+    """The gyroscope in every other Imu message only: the magnetometer is corrected as on shared stamps."""
+    unit = load_unit(bags / 'p.yaml')
+    driver = simulate(SECOND).driver
+    driver = replace(driver, gyro=driver.gyro[::2], accel_stamp_ns=driver.stamp_ns, gyro_stamp_ns=driver.stamp_ns[::2])
+    write_driver_record(tmp_path / 'apart', driver)
+    assert main(['apply', str(tmp_path / 'apart'), '--params', str(bags / 'p.yaml'), '-o', str(tmp_path / 'out'),
+                 '--no-progress']) == 0
+    assert 'MagneticField messages on /imu/mag_compensated' in capsys.readouterr().out
+    arrays = list(iter_topic_arrays(tmp_path / 'out', '/imu/mag_compensated', MAGNETIC_FIELD))
+    written = np.concatenate([a['magnetic_field'] for a in arrays])
+    held = driver.temperature[hold_last_index(driver.temp_stamp_ns, driver.mag_stamp_ns)]
+    assert np.array_equal(written, MagCorrector(unit.mag, out_of_range=OutOfRange.CLAMP).correct(driver.mag, held))
+
+
 @pytest.mark.parametrize(('iron', 'expected'), [('yaw', 'covers too few orientations'),
                                                 ('cal', 'covers too few orientations')])
 def test_a_rotation_record_without_rotation_is_refused_in_one_line_and_nothing_written(bags, capsys, iron, expected):

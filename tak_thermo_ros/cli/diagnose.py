@@ -273,11 +273,12 @@ def _add_magnetometer(args: argparse.Namespace, unit: UnitCalibration, run) -> N
     if not has_mag(args.bag, options.topics):
         print(f'magnetometer: {args.bag} holds no messages on {options.topics.mag}; not diagnosed')
         return
-    if not record_streams(args.bag, topics=options.topics).mag_reference and survey_field(args.bag, options).turned:
+    field = None if record_streams(args.bag, topics=options.topics).mag_reference else survey_field(args.bag, options)
+    if field is not None and field.turned:
         print(f'magnetometer: not diagnosed: {args.bag} is a rotation record (its field turns); the thermal '
               f'diagnosis takes a static run or a reference field')
         return
-    samples, usable, line = bounded_mag_run(args.bag, options, max_samples=args.max_samples)
+    samples, usable, line = bounded_mag_run(args.bag, options, max_samples=args.max_samples, survey=field)
     print(line)
     run.samples['mag'] = samples
     run.usable['mag'] = usable
