@@ -42,6 +42,7 @@ from tak_thermo_ros.core.records.static_run import (
 )
 from tak_thermo_ros.core.link.stream_correction import BlockCorrector, BlockUnitCorrector, GravityCheck, RateCheck
 from tak_thermo_ros.core.fit.stream import StreamingEffectFit, StreamingFit
+from tak_thermo_ros.core.values import SENSOR_NAMES, STANDARD_GRAVITY
 from tak_thermo_ros.errors import FitError, TakError
 
 if TYPE_CHECKING:
@@ -51,7 +52,6 @@ DIAGNOSE_MAX_SAMPLES = 1_000_000
 """``diagnose`` works on at most about this many samples, spread evenly over the run."""
 EFFECT_FIT_MAX_SAMPLES = 1_000_000
 """``fit --effects`` searches the effects' shapes on at most about this many samples."""
-SENSOR_NAMES = {'accel': 'accelerometer', 'gyro': 'gyroscope', 'mag': 'magnetometer'}
 
 
 def sensors_of(kind: InputKind) -> tuple[str, ...]:
@@ -340,7 +340,7 @@ class FitSettings:
     temp_code_ref: float | None = None
     nominal_scale: dict[str, tuple[float, float, float] | None] = field(default_factory=dict)
     settle_time_s: float = 0.0
-    gravity: float = 9.80665
+    gravity: float = STANDARD_GRAVITY
     latitude: float | None = None
     max_effect_samples: int = EFFECT_FIT_MAX_SAMPLES
 
@@ -986,7 +986,8 @@ class BoundedRun:
     handheld: Any = None
 
 
-def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: float = 0.0, gravity: float = 9.80665,
+def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: float = 0.0,
+                gravity: float = STANDARD_GRAVITY,
                 latitude: float | None = None, max_samples: int = DIAGNOSE_MAX_SAMPLES,
                 unit: UnitCalibration | None = None) -> BoundedRun:
     """One pass collecting a bounded subsample spread evenly over the run, references held.

@@ -22,7 +22,7 @@ from tak_thermo_ros.formats.ardupilot_params import read_ardupilot_params
 from tak_thermo_ros.formats.bag import read_driver_record, read_imu_messages, write_driver_record
 from tak_thermo_ros.formats.calibration_file import load_unit
 from tak_thermo_ros.formats.dataflash import IMU_FORMAT, driver_messages, read_dataflash, write_dataflash
-from tak_thermo_ros.formats.firmware import static_offset
+from tak_thermo_ros.core.link.offset_cubic import static_offset
 from tak_thermo_ros.formats.px4_params import read_px4_params
 from tak_thermo_ros.formats.ulog import driver_topics, read_ulog, write_ulog
 

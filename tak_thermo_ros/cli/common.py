@@ -21,9 +21,8 @@ import numpy as np
 
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.records.record import REFERENCE_LIMIT, TEMPERATURE_RANGE, AlignedSamples
-from tak_thermo_ros.core.values import STANDARD_GRAVITY
+from tak_thermo_ros.core.values import SENSOR_NAMES, STANDARD_GRAVITY  # noqa: F401  (re-exported)
 from tak_thermo_ros.errors import TakError
-from tak_thermo_ros.streaming import SENSOR_NAMES  # noqa: F401  (re-exported: each command prints it)
 from tak_thermo_ros.units import DEG, amount, display_unit, in_si, numbers, reader_unit, significant  # noqa: F401
 
 UNITS = {(InputKind.COUNTS, 'accel'): 'counts', (InputKind.IMU, 'accel'): 'm/s^2', (InputKind.IMU, 'gyro'): 'rad/s',

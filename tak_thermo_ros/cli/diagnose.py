@@ -350,7 +350,8 @@ class OneWay:
 
 def _one_way_lines(unit: UnitCalibration, used: dict[str, AlignedSamples]) -> OneWay | None:
     """A warm-up (or cool-down) only: a lag of the elements behind the thermometer hides in its curve; its size."""
-    from tak_thermo_ros.formats.firmware import offset_cubic, size
+    from tak_thermo_ros.core.link.offset_cubic import offset_cubic
+    from tak_thermo_ros.formats.firmware import size
     samples = used['accel']
     course = temperature_course(samples.stamp_s, samples.temp_code)
     if not course.one_way or course.high - course.low < 1.0:

@@ -10,6 +10,8 @@ from tak_thermo_ros.errors import CalibrationError
 
 STANDARD_GRAVITY = 9.80665
 """Standard gravity, m/s^2 (the simulator's and the static reference's default)."""
+SENSOR_NAMES = {'accel': 'accelerometer', 'gyro': 'gyroscope', 'mag': 'magnetometer'}
+"""Each sensor's name as a person reads it."""
 EARTH_RATE = 7.2921159e-5
 """The Earth's rotation rate, rad/s (WGS 84)."""
 

@@ -14,7 +14,9 @@ import os
 
 from tak_thermo_ros.core.link.model import AXES, UnitCalibration
 from tak_thermo_ros.formats.dataflash import SCALE_FACTOR, TEMP_REFERENCE
-from tak_thermo_ros.formats.firmware import SENSOR_NAMES, not_carried, offset_cubic
+from tak_thermo_ros.core.values import SENSOR_NAMES
+from tak_thermo_ros.core.link.offset_cubic import offset_cubic
+from tak_thermo_ros.formats.firmware import not_carried
 from tak_thermo_ros.formats.px4_params import FLOAT, INT32, ParameterSet
 
 CODES = {'accel': 'ACC', 'gyro': 'GYR'}

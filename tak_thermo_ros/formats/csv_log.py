@@ -54,6 +54,7 @@ from tak_thermo_ros.core.records.record import (
     TEMPERATURE_RANGE,
     ChannelRecord,
     DriverRecord,
+    no_orientation,
 )
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.core.records.static_run import STATIC_TOLERANCE_DEG, StaticReference, static_reference
@@ -484,10 +485,7 @@ def _driver_log(streams: _Streams, acceleration: np.ndarray, gyro: tuple[np.ndar
     shared = np.array_equal(accel_stamp_ns, gyro_stamp_ns)
     messages = accel_stamp_ns if shared else np.union1d(accel_stamp_ns, gyro_stamp_ns)
     count = len(messages)
-    orientation = np.zeros((count, 4))
-    orientation[:, 3] = 1.0
-    orientation_covariance = np.zeros((count, 9))
-    orientation_covariance[:, 0] = -1.0  # REP 145: a log gives no orientation
+    orientation, orientation_covariance = no_orientation(count)  # REP 145: a log gives no orientation
     given = options.reference is not None
     first = min(int(accel_stamp_ns[0]), int(gyro_stamp_ns[0]))
     mag = {} if field is None else dict(mag_stamp_ns=field[0], mag=field[1], mag_frame_id=options.frame_id)

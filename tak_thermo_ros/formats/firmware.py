@@ -4,84 +4,27 @@ Both firmwares subtract an offset polynomial in the temperature from the raw sam
 the temperature clamped to the calibrated range: PX4 a cubic ``X0 + X1 dT + X2 dT^2 + X3 dT^3``
 about ``TREF`` (``TemperatureCompensation.cpp``), ArduPilot a cubic without constant about
 35 C (``AP_InertialSensor_tempcal.cpp``). Neither has a scale term, an effect with memory
-(a lag) or more than three orders. :func:`offset_cubic` is the calibration's static offset
-curve (its effects left out) as such a cubic; :func:`not_carried` says in one line each, with
+(a lag) or more than three orders. :func:`~tak_thermo_ros.core.link.offset_cubic.offset_cubic`
+is the calibration's static offset curve (its effects left out) as such a cubic;
+:func:`not_carried` says in one line each, with
 its size, what the parameters leave out (:mod:`tak_thermo_ros.formats.px4_params`,
 :mod:`tak_thermo_ros.formats.ardupilot_params` write them).
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
-
 import numpy as np
 
 from tak_thermo_ros.core.link.model import Calibration, UnitCalibration
-from tak_thermo_ros.core.values import STANDARD_GRAVITY
-
-DEG = 180.0 / math.pi
-GRID_POINTS = 401
-"""Temperatures at which the static curve is evaluated over the calibrated range."""
-
-
-@dataclass(frozen=True)
-class OffsetCubic:
-    """A sensor's static offset curve as a cubic in ``T - about`` per axis.
-
-    :param coefficients: ``(4, 3)``: constant, linear, square, cube term per axis (x, y, z).
-    :param about: the temperature the powers are counted from, degrees C.
-    :param low: lower end of the calibrated range (the firmware clamps below it).
-    :param high: upper end.
-    :param deviation: ``(3,)`` the largest difference between the cubic and the curve over the range
-        (0 up to rounding unless the calibration's order is above 3).
-    :param steepest: ``(3,)`` the largest ``|d offset / dT|`` over the range, per degree C.
-    """
-
-    coefficients: np.ndarray
-    about: float
-    low: float
-    high: float
-    deviation: np.ndarray
-    steepest: np.ndarray
-
-    def evaluate(self, temperature: np.ndarray) -> np.ndarray:
-        """The cubic at the clamped ``temperature`` ``(k,)``: ``(k, 3)``."""
-        t = (np.clip(np.asarray(temperature, dtype=float), self.low, self.high) - self.about)[:, None]
-        c0, c1, c2, c3 = self.coefficients
-        return c0 + (c1 + (c2 + c3 * t) * t) * t
-
-
-def static_offset(calibration: Calibration, temperature: np.ndarray) -> np.ndarray:
-    """``(k, 3)``: the link's offset ``b0 + D F_s(T - T_ref)`` at ``temperature`` (no effect, no clamp)."""
-    n = np.asarray(temperature, dtype=float) - calibration.temp_code_ref
-    return np.column_stack([axis.offset + axis.offset_drift(n) for axis in calibration.axes])
-
-
-def offset_cubic(calibration: Calibration, about: float) -> OffsetCubic:
-    """The calibration's static offset curve as a cubic about ``about`` over its calibrated range."""
-    low, high = float(calibration.temp_code_min), float(calibration.temp_code_max)
-    grid = np.linspace(low, high, GRID_POINTS)
-    curve = static_offset(calibration, grid)
-    t = grid - about
-    design = np.column_stack([np.ones_like(t), t, t ** 2, t ** 3])
-    coefficients, *_ = np.linalg.lstsq(design, curve, rcond=None)
-    deviation = np.max(np.abs(design @ coefficients - curve), axis=0)
-    slope = np.abs(np.gradient(curve, grid, axis=0)) if len(grid) > 1 else np.zeros((1, 3))
-    return OffsetCubic(coefficients=coefficients, about=float(about), low=low, high=high, deviation=deviation,
-                       steepest=np.max(slope, axis=0))
+from tak_thermo_ros.core.link.offset_cubic import GRID_POINTS, OffsetCubic
+from tak_thermo_ros.core.values import SENSOR_NAMES
+from tak_thermo_ros.units import DEG, readable_unit
 
 
 def size(value: float, sensor: str) -> str:
     """An offset-sized number in the sensor's own units: mg, deg/h, uT."""
-    if sensor == 'accel':
-        return f'{value / STANDARD_GRAVITY * 1000.0:.3g} mg'
-    if sensor == 'gyro':
-        return f'{value * DEG * 3600.0:.3g} deg/h'
-    return f'{value * 1e6:.3g} uT'
-
-
-SENSOR_NAMES = {'accel': 'accelerometer', 'gyro': 'gyroscope', 'mag': 'magnetometer'}
+    shown, factor = readable_unit({'accel': 'm/s^2', 'gyro': 'rad/s', 'mag': 'T'}[sensor])
+    return f'{value * factor:.3g} {shown}'
 
 
 def not_carried(unit: UnitCalibration, sensor: str, cubic: OffsetCubic, firmware: str) -> list[str]:

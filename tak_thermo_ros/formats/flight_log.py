@@ -22,7 +22,7 @@ from typing import Iterator
 
 import numpy as np
 
-from tak_thermo_ros.core.records.record import DriverRecord, sensor_messages
+from tak_thermo_ros.core.records.record import DriverRecord, no_orientation, sensor_messages
 from tak_thermo_ros.errors import FlightLogError
 
 FLIGHT_SENSORS = ('accel', 'gyro', 'mag')
@@ -95,10 +95,7 @@ class FlightLog:
         shared = self.shared_stamps
         messages = accel_stamps if shared else sensor_messages(accel_stamps, gyro_stamps).stamp_ns
         count = len(messages)
-        orientation = np.zeros((count, 4))
-        orientation[:, 3] = 1.0
-        covariance = np.zeros((count, 9))
-        covariance[:, 0] = -1.0  # a log gives no orientation
+        orientation, covariance = no_orientation(count)  # a log gives no orientation
         own = {} if shared else {'accel_stamp_ns': accel_stamps, 'gyro_stamp_ns': gyro_stamps}
         return DriverRecord(stamp_ns=messages, accel=self.values['accel'][rows['accel']],
                             gyro=self.values['gyro'][rows['gyro']], orientation=orientation,

@@ -16,7 +16,9 @@ import os
 from dataclasses import dataclass
 
 from tak_thermo_ros.core.link.model import AXES, UnitCalibration
-from tak_thermo_ros.formats.firmware import SENSOR_NAMES, OffsetCubic, not_carried, offset_cubic, size
+from tak_thermo_ros.core.values import SENSOR_NAMES
+from tak_thermo_ros.core.link.offset_cubic import OffsetCubic, offset_cubic
+from tak_thermo_ros.formats.firmware import not_carried, size
 
 INT32, FLOAT = 6, 9
 """QGroundControl's value types (``MAV_PARAM_TYPE_INT32``, ``MAV_PARAM_TYPE_REAL32``)."""

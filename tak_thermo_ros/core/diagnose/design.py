@@ -41,6 +41,7 @@ from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.core.diagnose.crossval import _effect_specs, _settings_of, _with_range, decimate
 from tak_thermo_ros.core.diagnose.values import Diagnosis
 from tak_thermo_ros.core.diagnose.verdict import VERDICT_NONE
+from tak_thermo_ros.core.values import SENSOR_NAMES
 from tak_thermo_ros.core.effects import AUX_PREFIX, resolve_effect
 from tak_thermo_ros.core.fit import fit_model, residual_counts
 from tak_thermo_ros.core.link.model import AXES, Calibration
@@ -278,7 +279,6 @@ def design_run(diagnosis: Diagnosis, samples: AlignedSamples, *, pair: Sequence[
                      baseline_rms_over_floor=(float(own[0]), float(own[1]), float(own[2])))
 
 
-SENSOR_LABELS = {'accel': 'accelerometer', 'gyro': 'gyroscope'}
 COMBINATION_RULE = 'the profile whose weaker sensor separation is largest'
 """How the sensors' proposals become one chamber run (a single run serves both sensors)."""
 TURNING_RATE = 1e-3
@@ -442,7 +442,7 @@ class DriverRunDesign:
             a, b = design.candidates
             score, own = design.tried[self.choice], design.own_best
             alone = '' if own is score else f'; its own best profile, {own.label}: {own.separation_sigmas:.0f}'
-            out.append(f'{SENSOR_LABELS[sensor]}: to tell {a} from {b}: {score.separation_sigmas:.0f} noise sigmas '
+            out.append(f'{SENSOR_NAMES[sensor]}: to tell {a} from {b}: {score.separation_sigmas:.0f} noise sigmas '
                        f'on the proposed run at {self.sample_rate_hz:.3g} Hz (RMS the other cannot absorb, in '
                        f'units of the floor: {", ".join(f"{n} {v:.2f}" for n, v in zip(AXES, score.rms_over_floor))}); '
                        f'{design.baseline_sigmas:.0f} on the diagnosed run itself{alone}')
@@ -477,7 +477,7 @@ def design_driver_run(diagnoses: Mapping[str, Diagnosis], samples: Mapping[str, 
     notes: dict[str, str] = {}
     fits: dict[str, _CandidateFits] = {}
     for sensor, diagnosis in diagnoses.items():
-        label = f'{SENSOR_LABELS[sensor]}: '
+        label = f'{SENSOR_NAMES[sensor]}: '
         note = _nothing_to_separate(diagnosis, label)
         if note is not None:
             notes[sensor] = note
@@ -495,7 +495,7 @@ def design_driver_run(diagnoses: Mapping[str, Diagnosis], samples: Mapping[str, 
     scores: dict[str, list[ProfileScore]] = {s: [] for s in fits}
     baselines = {}
     for sensor in fits:
-        say(f'{SENSOR_LABELS[sensor]}: separation on the diagnosed run itself')
+        say(f'{SENSOR_NAMES[sensor]}: separation on the diagnosed run itself')
         own = _weakest_direction(fits[sensor], decimate(samples[sensor], diagnoses[sensor].cv_stride), floors[sensor])
         baselines[sensor] = (math.sqrt(len(samples[sensor]) * float(np.sum(own ** 2))), own)
     for label, profile in candidate_profiles(low, high):
@@ -550,7 +550,7 @@ def driver_design_files(design: DriverRunDesign) -> dict[str, str]:
     if not design.designed:
         msg = 'no chamber run was designed: no sensor has two candidates a temperature profile separates'
         raise FitError(msg)
-    pairs = '; '.join(f'{SENSOR_LABELS[d.sensor]}: {d.candidates[0]} from {d.candidates[1]} '
+    pairs = '; '.join(f'{SENSOR_NAMES[d.sensor]}: {d.candidates[0]} from {d.candidates[1]} '
                       f'({d.tried[design.choice].separation_sigmas:.0f} noise sigmas)' for d in design.sensors)
     header = (f'# chamber run proposed by tak_calib diagnose --design-run to tell {pairs}\n'
               f'# {design.best.label}; one run for both sensors: {COMBINATION_RULE}\n')

@@ -73,7 +73,7 @@ from tak_thermo_ros.core.records.handheld import (
 )
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.core.rotation import hat, integrate_segments, tangent_basis
-from tak_thermo_ros.core.values import STANDARD_GRAVITY
+from tak_thermo_ros.core.values import SENSOR_NAMES, STANDARD_GRAVITY
 from tak_thermo_ros.errors import FitError
 
 SPAN_PER_ORDER_C = 2.0
@@ -831,7 +831,7 @@ def _calibration(solved: _Solved, layout: _Layout, terms: _Terms, notes: tuple[s
 
 def held_lines(sensor: str, solved: _Solved, layout: _Layout, *, gauge: Sequence[str] = ()) -> list[str]:
     """One statement per kind of term the record did not determine (the gauge is said apart)."""
-    name = {'accel': 'accelerometer', 'gyro': 'gyroscope'}[sensor]
+    name = SENSOR_NAMES[sensor]
     # :data:`BOUNDS` in the units a reader expects: 1 %, 10 mrad, 5 mg or 0.29 deg/s.
     offset = {'accel': f'{BOUNDS["offset", "accel"] / STANDARD_GRAVITY * 1e3:.0f} mg',
               'gyro': f'{math.degrees(BOUNDS["offset", "gyro"]):.2f} deg/s'}[sensor]
@@ -841,7 +841,7 @@ def held_lines(sensor: str, solved: _Solved, layout: _Layout, *, gauge: Sequence
              'offset': ('offset held at 0 on', f'not determined to {offset}'),
              'offset_T': ("offset's temperature terms held at 0 on", f'not determined to {offset}'),
              'coupling': ('couplings held at 0:', f'not determined to {1e3 * BOUNDS["coupling"]:g} mrad'),
-             'effect': ('effect terms held at 0:', 'not determined by this record')}
+             'effect': ('effect terms held at 0:', 'not determined')}
     lines = []
     for kind in ('scale', 'scale_T', 'offset', 'offset_T', 'coupling', 'effect'):
         held = [j for j in solved.held if layout.kinds[j] == kind and layout.names[j].split('.')[-1] not in gauge]

@@ -110,6 +110,7 @@ from tak_thermo_ros.core.records.record import (
     temp_code_problem,
     values_problem,
 )
+from tak_thermo_ros.core.values import SENSOR_NAMES
 from tak_thermo_ros.errors import CalibrationError
 
 DUPLICATE_STAMP = 'duplicate_stamp'
@@ -135,7 +136,6 @@ IMU_DROP_REASONS: tuple[str, ...] = (NO_SENSOR,)
 both sensors absent (covariance[0] = -1 on both), so it carries nothing to correct."""
 SENSORS: tuple[str, str] = ('accel', 'gyro')
 """The sensors of a driver's Imu message, in the order of its six values."""
-SENSOR_WORDS = {'accel': 'accelerometer', 'gyro': 'gyroscope'}
 
 WARN_PERIOD_S = 5.0
 """Default least time between two reports of the same kind of problem."""
@@ -876,7 +876,7 @@ class OnlineCompensator:
         self.own_stamps_since = self.received
         # Every message so far carried both sensors: each sensor's stamps were the messages'.
         self._sensor_stamps = (self._stamps.copy(), self._stamps.copy())
-        absent = ' and the '.join(SENSOR_WORDS[sensor] for sensor, there in zip(SENSORS, carried) if not there)
+        absent = ' and the '.join(SENSOR_NAMES[sensor] for sensor, there in zip(SENSORS, carried) if not there)
         self._notice(Level.OK, 'own_stamps',
                      f'{self._message_word} message {self.received} marks the {absent} absent (covariance[0] = -1): '
                      f'from it on each sensor is corrected on its own samples and stamps, an absent one '
@@ -937,7 +937,7 @@ class OnlineCompensator:
         relation = ('equal to' if reason == DUPLICATE_STAMP
                     else f'{abs(stamp_ns - last_ns) * 1e-9:.6f} s '
                          f'{"before" if reason == TIME_BACKWARDS else f"(> {STAMP_JUMP_S:g} s) after"}')
-        what, previous = ((f"{self._message_word} {SENSOR_WORDS[sensor]} sample's", "the previous one's")
+        what, previous = ((f"{self._message_word} {SENSOR_NAMES[sensor]} sample's", "the previous one's")
                           if sensor else (self._message_word, 'the previous one'))
         counts = rule.dropped
         self._notice(Level.WARN, 'stamp_order',
@@ -953,7 +953,7 @@ class OnlineCompensator:
         """The throttled log line of a message (or, ``sensor``, one sensor's sample) whose correction failed."""
         if self._throttles['correction'].due(now_s):
             held = self._throttles['correction'].take_held_back()
-            what, so_far = ((f'{self._message_word} {SENSOR_WORDS[sensor]} sample left out', '') if sensor else
+            what, so_far = ((f'{self._message_word} {SENSOR_NAMES[sensor]} sample left out', '') if sensor else
                             (f'{self._message_word} message dropped',
                              f'; {self.dropped[CORRECTION_FAILED] + self.dropped[NON_FINITE_OUTPUT]} so far'))
             self._notice(Level.ERROR, reason,
