@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import array
 import inspect
+import os
 import signal
 import sys
 import time
@@ -588,12 +589,15 @@ def make_executor(kind: str, context: Any) -> Executor:
     return SingleThreadedExecutor(context=context)
 
 
-def spin(node: Node, executor: Executor) -> None:
+def spin(node: Node, executor: Executor) -> bool:
     """Spin until the context shuts down (SIGINT or SIGTERM: rclpy's signal handlers).
 
     ``spin_once`` in a loop, not ``spin()``: the EventsExecutor's ``spin()`` stopped by a
     shutdown from another thread kept running at 100 % CPU in a trial; this loop notices the
     shutdown within :data:`SPIN_PERIOD_S`.
+
+    :returns: whether the executor failed on the shutdown itself (it raised once the context was
+        gone, e.g. while registering the node's entities): see :func:`main`.
     """
     executor.add_node(node)
     context = node.context
@@ -605,7 +609,8 @@ def spin(node: Node, executor: Executor) -> None:
         except Exception:
             if context.ok():
                 raise
-            break  # the executor noticed the shutdown first, in its own words
+            return True  # the executor noticed the shutdown first, in its own words
+    return False
 
 
 def main(args: Sequence[str] | None = None, *, signals: SignalGuard | None = None) -> int:
@@ -618,7 +623,7 @@ def main(args: Sequence[str] | None = None, *, signals: SignalGuard | None = Non
     """
     signals = signals if signals is not None else SignalGuard().install()
     node = executor = None
-    running = False
+    running = failed_on_shutdown = False
     try:
         if signals.received:  # arrived while the caller imported this module
             raise KeyboardInterrupt
@@ -641,7 +646,7 @@ def main(args: Sequence[str] | None = None, *, signals: SignalGuard | None = Non
             return EXIT_ERROR
         executor = make_executor(node.executor_kind, node.context)
         running = True
-        spin(node, executor)
+        failed_on_shutdown = spin(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception:
@@ -660,6 +665,14 @@ def main(args: Sequence[str] | None = None, *, signals: SignalGuard | None = Non
         rclpy.try_shutdown()
         if not running and signals.received:
             signals.say_stopped(NODE_NAME)
+        if failed_on_shutdown and node is not None and node.executor_kind == 'events':
+            # rclpy's EventsExecutor that raised while registering the node's entities (a signal
+            # shut the context down in the middle) can keep a callback it never recorded, and its
+            # C++ destructor then aborts the process ("Destroying callback manager with callbacks
+            # remaining"). Everything is torn down above; end here, before that destructor runs.
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(0)
     return 0
 
 
