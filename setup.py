@@ -27,7 +27,7 @@ setup(
     entry_points={
         'console_scripts': [
             f'tak_calib = {PACKAGE}.cli:main',
-            f'compensator = {PACKAGE}.node_main:main',
+            f'compensator = {PACKAGE}.ros.main:main',
         ],
     },
 )

@@ -52,7 +52,7 @@ def child(hours: float, rate: float) -> dict[str, float]:
     from scipy.signal import lfilter
 
     from tak_thermo_ros.core.noise.allan import AllanAccumulator
-    from tak_thermo_ros.core.noise.model import fit_noise_model
+    from tak_thermo_ros.core.noise.fit import fit_noise_model
     from tak_thermo_ros.core.simulation.noise import bias_instability_poles, bias_instability_variance
     total = int(hours * 3600.0 * rate)
     rng = np.random.default_rng(16)

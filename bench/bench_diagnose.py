@@ -68,7 +68,7 @@ def bench_scenario(hours: float, rate_hz: float) -> Scenario:
 def bench_speed(workdir: Path, hours: float, rate_hz: float) -> dict[str, object]:
     """Time ``tak_calib diagnose --report`` end to end and in stages."""
     from tak_thermo_ros.formats.bag import read_record, write_record
-    from tak_thermo_ros.report import write_report
+    from tak_thermo_ros.reports.diagnose import write_report
 
     workdir.mkdir(parents=True, exist_ok=True)
     scenario = bench_scenario(hours, rate_hz)

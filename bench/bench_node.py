@@ -117,7 +117,7 @@ def driver_relay_main(executor_kind: str) -> int:
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Imu, Temperature
 
-    from tak_thermo_ros.node import make_executor, spin
+    from tak_thermo_ros.ros.node import make_executor, spin
 
     class DriverRelay(Node):
         def __init__(self) -> None:
@@ -294,7 +294,7 @@ def start(kind: str, params: Path, env: dict[str, str], log: Path) -> subprocess
     if kind == 'relay':
         command = [sys.executable, str(Path(__file__).resolve()), 'relay', '--ros-args']
     else:
-        command = [sys.executable, '-m', 'tak_thermo_ros.node', '--ros-args', '--params-file', str(params),
+        command = [sys.executable, '-m', 'tak_thermo_ros.ros.node', '--ros-args', '--params-file', str(params),
                    '-p', 'qos:=reliable', '-p', f'qos_depth:={DEPTH}',
                    '-p', 'executor:=single_threaded']  # the relay's rclpy.spin: the same executor
     return subprocess.Popen(command, env=env, stdout=open(log, 'wb'), stderr=subprocess.STDOUT,
@@ -575,7 +575,7 @@ def measure_driver_input(params: Path, workdir: Path, *, rates: tuple[float, ...
                 if kind == 'relay':
                     command = [sys.executable, str(Path(__file__).resolve()), 'driver_relay', executor, '--ros-args']
                 elif kind == 'compensator':
-                    command = [sys.executable, '-m', 'tak_thermo_ros.node', *node_arguments]
+                    command = [sys.executable, '-m', 'tak_thermo_ros.ros.node', *node_arguments]
                 else:
                     command = [*baseline_node_command(baseline), *node_arguments]
                 log = workdir / f'driver_{executor}_{kind}.log'
@@ -623,7 +623,7 @@ def measure_driver_input(params: Path, workdir: Path, *, rates: tuple[float, ...
     return results
 
 
-BASELINE_MAIN = 'import sys; sys.path.insert(0, {!r}); from tak_thermo_ros.node import main; sys.exit(main())'
+BASELINE_MAIN = 'import sys; sys.path.insert(0, {!r}); from tak_thermo_ros.ros.node import main; sys.exit(main())'
 """The compensator of another version of the package (``--baseline DIR``: a tree holding ``tak_thermo_ros/``)."""
 
 
@@ -740,7 +740,7 @@ def measure_transport_loss(params: Path, workdir: Path, *, count: int = TRANSPOR
         env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
                'ROS_DOMAIN_ID': str(bench_domain(8 + index)),
                'ROS_HOME': str(home), 'ROS_LOG_DIR': str(home / 'log'), 'RCUTILS_COLORIZED_OUTPUT': '0'}
-        command = [sys.executable, '-m', 'tak_thermo_ros.node', '--ros-args', '--params-file', str(params),
+        command = [sys.executable, '-m', 'tak_thermo_ros.ros.node', '--ros-args', '--params-file', str(params),
                    '-p', f'qos:={qos}', '-p', f'qos_depth:={DEPTH}', '-p', f'executor:={executor}']
         log = workdir / f'loss_{executor}_{qos}.log'
         process = subprocess.Popen(command, env=env, stdout=open(log, 'wb'), stderr=subprocess.STDOUT,
@@ -937,7 +937,7 @@ def node_callback_cost(params: Path, count: int = 5_000, repeats: int = 30) -> d
     import rclpy
     from sensor_msgs.msg import Imu, Temperature
 
-    from tak_thermo_ros.node import CompensatorNode
+    from tak_thermo_ros.ros.node import CompensatorNode
     try:
         from tak_thermo_ros.core.link.online import OneSensor  # noqa: F401 - this version's one-sensor path
         marks = True

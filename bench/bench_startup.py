@@ -7,7 +7,7 @@ script (what ``ros2 run tak_thermo_ros compensator`` executes) with the example 
 calibration ``config/compensator_driver.yaml``, and measures from ``Popen`` to the first
 corrected Imu received on ``imu/data_compensated``. The same for a bare relay node (the same
 subscriptions and publisher, rclpy and messages only, no package import): the difference is
-what the package adds. Also, in fresh interpreters: the import time of ``tak_thermo_ros.node``
+what the package adds. Also, in fresh interpreters: the import time of ``tak_thermo_ros.ros.node``
 and of what it needs from ROS alone (``rclpy`` and the message packages).
 
 With ``--baseline DIR`` (a tree holding another version's ``tak_thermo_ros/``, e.g.
@@ -78,8 +78,8 @@ def import_seconds(statement: str, rounds: int) -> list[float]:
 
 
 def offline_modules_loaded() -> list[str]:
-    """Offline-only libraries in ``sys.modules`` after ``import tak_thermo_ros.node``."""
-    code = ('import sys, tak_thermo_ros.node; '
+    """Offline-only libraries in ``sys.modules`` after ``import tak_thermo_ros.ros.node``."""
+    code = ('import sys, tak_thermo_ros.ros.node; '
             f'print(" ".join(m for m in {OFFLINE!r} if m in sys.modules))')
     return subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, check=True,
                           cwd=REPO).stdout.split()
@@ -179,12 +179,12 @@ def main() -> int:
                         help="also start another version's node (DIR holds its tak_thermo_ros/), in the same rounds")
     args = parser.parse_args()
     script = Path(sys.executable).parent / 'compensator'
-    node_command = ([str(script)] if script.exists() else [sys.executable, '-m', 'tak_thermo_ros.node'])
+    node_command = ([str(script)] if script.exists() else [sys.executable, '-m', 'tak_thermo_ros.ros.node'])
     node_command += ['--ros-args', '--params-file', str(CONFIG)]
     relay_command = [sys.executable, '-c', RELAY]
 
     offline = offline_modules_loaded()
-    imports = {'tak_thermo_ros.node': summary(import_seconds('import tak_thermo_ros.node', args.rounds)),
+    imports = {'tak_thermo_ros.ros.node': summary(import_seconds('import tak_thermo_ros.ros.node', args.rounds)),
                'rclpy and the message packages': summary(import_seconds(ROS_ONLY, args.rounds))}
     subjects = [('relay', relay_command, 'ready'), ('compensator', node_command, 'correcting ')]
     if args.baseline is not None:
@@ -219,7 +219,7 @@ def main() -> int:
     if args.baseline is not None:
         document['baseline'] = {
             'directory': str(args.baseline),
-            'command': "python -c '...from tak_thermo_ros.node import main...' (this version: node_main)",
+            'command': "python -c '...from tak_thermo_ros.ros.node import main...' (this version: node_main)",
             'ready_ratio_of_medians': round(ready['this_python_c']['median_s'] / ready['baseline']['median_s'], 3),
             'ready_ratio_median_per_round': round(statistics.median(
                 c['ready_s'] / b['ready_s'] for c, b in zip(starts['this_python_c'], starts['baseline'])), 3),

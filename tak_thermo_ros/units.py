@@ -6,7 +6,7 @@ command line prints a value in the sensor's unit with the reader's beside it
 (:func:`amount`: ``0.001756 rad/s (362 deg/h)``); the report's tables show the reader's unit
 alone (:func:`readable`). Both to significant figures, not a fixed number of decimals (which
 prints ``0.001 0.001 0.001`` for a gyroscope's residual). The one place for these rules:
-:mod:`tak_thermo_ros.cli.common` and :mod:`tak_thermo_ros.report` print through it.
+:mod:`tak_thermo_ros.cli.common` and :mod:`tak_thermo_ros.reports.diagnose` print through it.
 """
 
 from __future__ import annotations

@@ -49,7 +49,7 @@ def ros_environment(tmp_path: Path, domain: int) -> dict[str, str]:
 
 def node_command(*ros_args: str) -> list[str]:
     """Command line running the node module with this interpreter."""
-    return [sys.executable, '-m', 'tak_thermo_ros.node', '--ros-args', *ros_args]
+    return [sys.executable, '-m', 'tak_thermo_ros.ros.node', '--ros-args', *ros_args]
 
 
 class NodeProcess:

@@ -36,7 +36,7 @@ from tak_thermo_ros.core.diagnose.fleet import (
     robust_spread,
 )
 from tak_thermo_ros.core.simulation.imu import DEFAULT_UNIT, simulate
-from tak_thermo_ros.fleet import unit_names
+from tak_thermo_ros.passes.fleet import unit_names
 
 BIN = Path(sys.executable).parent
 TAK_CALIB = [sys.executable, '-m', 'tak_thermo_ros.cli']

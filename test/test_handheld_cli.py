@@ -21,7 +21,7 @@ from tak_thermo_ros.core.simulation.imu import Scenario, simulate
 from tak_thermo_ros.core.simulation.motion import HandheldMotion
 from tak_thermo_ros.formats.bag import read_imu_messages, write_driver_record
 from tak_thermo_ros.formats.calibration_file import load_unit
-from tak_thermo_ros.streaming_handheld import at_rest, rest_samples
+from tak_thermo_ros.passes.handheld import at_rest, rest_samples
 
 UNIT = {'effects': {'cross_axis': {'c_yx': 0.002, 'c_zx': -0.003, 'c_zy': 0.0015, 'c_xy': 0.001}},
         'gyro_effects': {'cross_axis': {'c_xy': 0.002, 'c_xz': -0.003, 'c_zy': 0.004}}}

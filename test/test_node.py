@@ -281,7 +281,7 @@ def test_launch_file_and_example_configs(tmp_path):
     The example configs are valid calibrations (counts and driver) with the node's defaults.
     """
     import py_compile
-    from tak_thermo_ros.node import _tunables
+    from tak_thermo_ros.ros.node import _tunables
     launch_file = REPO / 'launch' / 'compensator.launch.py'
     py_compile.compile(str(launch_file), cfile=str(tmp_path / 'launch.pyc'), doraise=True)
     tree = ast.parse(launch_file.read_text(encoding='utf-8'))
@@ -289,7 +289,7 @@ def test_launch_file_and_example_configs(tmp_path):
     constants = {n.targets[0].id: ast.literal_eval(n.value) for n in tree.body
                  if isinstance(n, ast.Assign) and isinstance(n.targets[0], ast.Name)
                  and n.targets[0].id.endswith('TOPICS')}
-    from tak_thermo_ros import node as node_module
+    from tak_thermo_ros.ros import node as node_module
     assert constants['DRIVER_TOPICS'] == (node_module.RAW_IMU_TOPIC, node_module.TEMPERATURE_TOPIC,
                                           node_module.COMPENSATED_IMU_TOPIC)
     assert constants['COUNTS_TOPICS'] == (node_module.COUNTS_TOPIC, node_module.TEMP_TOPIC, node_module.IMU_TOPIC)

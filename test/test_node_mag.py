@@ -167,7 +167,7 @@ def test_the_online_core_corrects_the_magnetometer_as_the_vectorised_path():
 def test_the_launch_file_remaps_the_magnetometer_topics():
     import ast
     from pathlib import Path
-    from tak_thermo_ros import node as node_module
+    from tak_thermo_ros.ros import node as node_module
     tree = ast.parse((Path(__file__).resolve().parents[1] / 'launch' / 'compensator.launch.py').read_text())
     constants = {n.targets[0].id: ast.literal_eval(n.value) for n in tree.body
                  if isinstance(n, ast.Assign) and isinstance(n.targets[0], ast.Name)

@@ -20,8 +20,8 @@ from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.formats.kalibr import read_kalibr
 from tak_thermo_ros.formats.calibration_file import load_unit, save_unit
 from tak_thermo_ros.core.simulation.imu import Scenario, scenario_from_mapping, simulate
-from tak_thermo_ros.noise_run import noise_bag, noise_models
-from tak_thermo_ros.streaming import StreamOptions
+from tak_thermo_ros.passes.noise import noise_bag, noise_models
+from tak_thermo_ros.passes.run import StreamOptions
 
 GYRO = {'noise_counts': 2.4e-4, 'bias_instability': 2.4e-5, 'bias_instability_tau': 30.0, 'random_walk': 6e-6}
 ACCEL = {'noise_counts': 2.83e-3, 'bias_instability': 1e-4, 'bias_instability_tau': 30.0, 'random_walk': 4e-5}

@@ -24,11 +24,10 @@ from tak_thermo_ros.core.noise.model import (
     TERMS,
     NoiseModel,
     allan_terms,
-    fit_noise_model,
     floor_tau,
     noise_model_from_mapping,
 )
-from tak_thermo_ros.core.noise.fit import fit_noise
+from tak_thermo_ros.core.noise.fit import fit_noise, fit_noise_model
 from tak_thermo_ros.errors import NoiseError, OutputError
 
 

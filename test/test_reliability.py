@@ -546,7 +546,7 @@ def test_write_record_refuses_an_existing_bag_unless_force(tmp_path):
 
 def test_a_full_disk_while_writing_the_report_names_the_report_directory(tiny, tmp_path, monkeypatch, capsys):
     """A figure that cannot be written: one line naming --report's directory, not the temporary one."""
-    from tak_thermo_ros import report as report_module
+    from tak_thermo_ros.reports import diagnose as report_module
     root, _ = tiny
 
     def full_disk(path, data):

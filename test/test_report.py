@@ -15,7 +15,7 @@ from tak_thermo_ros.core.effects import LIBRARY
 from tak_thermo_ros.core.fit import fit_model
 from tak_thermo_ros.core.records.record import align
 from tak_thermo_ros.core.simulation.imu import simulate
-from tak_thermo_ros.report import write_report
+from tak_thermo_ros.reports.diagnose import write_report
 
 HYSTERESIS = {'width_codes': 40.0, 'amplitude_x': 3.0, 'amplitude_y': -2.5, 'amplitude_z': 2.0}
 PNG_SIGNATURE = b'\x89PNG\r\n\x1a\n'

@@ -27,7 +27,10 @@ from tak_thermo_ros.core.fit import fit_calibration, fit_model
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.records.record import align
 from tak_thermo_ros.core.simulation.imu import Scenario, simulate
-from tak_thermo_ros.streaming import FitSettings, StreamOptions, apply_bag, bounded_run, fit_bag
+from tak_thermo_ros.passes.apply import apply_bag
+from tak_thermo_ros.passes.diagnose import bounded_run
+from tak_thermo_ros.passes.fit import fit_bag
+from tak_thermo_ros.passes.run import FitSettings, StreamOptions
 
 SMALL = StreamOptions(topics=Topics(), progress=False, block_samples=500)
 DRIVER = replace(SHORT, output='imu', plateau_hours=0.1, seed=8,

@@ -34,8 +34,8 @@ from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.formats.bag import write_driver_record, write_record
 from tak_thermo_ros.formats.calibration_file import save_unit
 from tak_thermo_ros.formats.kalibr import read_kalibr, write_kalibr
-from tak_thermo_ros.noise_run import noise_bag
-from tak_thermo_ros.streaming import StreamOptions
+from tak_thermo_ros.passes.noise import noise_bag
+from tak_thermo_ros.passes.run import StreamOptions
 from tak_thermo_ros.formats.bag import Topics
 
 OPTIONS = StreamOptions(topics=Topics(), progress=False)

@@ -31,7 +31,7 @@ def add_parser(commands) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     """Correct a bag's counts or driver Imu and write Imu messages (block by block, bounded memory)."""
     from tak_thermo_ros.formats.records import input_kind
-    from tak_thermo_ros.streaming import apply_bag
+    from tak_thermo_ros.passes.apply import apply_bag
     unit = load_unit(args.params)
     topics = common.topics(args)
     kind = input_kind(args.bag, topics=topics)
@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
             if dropped:
                 print(f'dropped {common.SENSOR_NAMES[sensor]} samples: {common.describe_dropped(dropped)}')
     if kind is InputKind.IMU and unit.mag is None:
-        from tak_thermo_ros.streaming_mag import has_mag
+        from tak_thermo_ros.passes.magnetometer import has_mag
         if has_mag(args.bag, topics):
             print(f'note: {args.params} holds no magnetometer: {topics.mag} is not corrected (nothing written for it)')
     if applied.mag_written or applied.mag_topic:

@@ -124,7 +124,7 @@ def topics(args: argparse.Namespace):
 
 def stream_options(args: argparse.Namespace):
     """The streamed passes' options: the topics and whether to draw a progress bar."""
-    from tak_thermo_ros.streaming import StreamOptions
+    from tak_thermo_ros.passes.run import StreamOptions
     return StreamOptions(topics=topics(args), progress=not args.no_progress)
 
 
@@ -193,12 +193,12 @@ def given_noise_models(args: argparse.Namespace, unit: UnitCalibration, kind: In
                        sensors: tuple[str, ...]) -> dict:
     """The sensors' noise models from ``--noise FILE``, ``--noise-run BAG`` or the calibration file's noise section.
 
-    As :func:`~tak_thermo_ros.noise_run.noise_models` gives them (in SI; in codes for ``kind``
+    As :func:`~tak_thermo_ros.passes.noise.noise_models` gives them (in SI; in codes for ``kind``
     counts); empty when none is given.
     """
     from tak_thermo_ros.errors import NoiseError
     from tak_thermo_ros.core.noise.residual import in_counts
-    from tak_thermo_ros.noise_run import noise_models
+    from tak_thermo_ros.passes.noise import noise_models
     if getattr(args, 'noise', None) and getattr(args, 'noise_run', None):
         msg = '--noise and --noise-run: give one noise model source, not both'
         raise TakError(msg)

@@ -22,7 +22,7 @@ from tak_thermo_ros.core.records.extremes import TemperatureCourse, temperature_
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.core.records.record import require_signals
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
-from tak_thermo_ros.streaming import DIAGNOSE_MAX_SAMPLES
+from tak_thermo_ros.passes.diagnose import DIAGNOSE_MAX_SAMPLES
 from tak_thermo_ros.core.diagnose.yardstick import tau_text
 import numpy as np
 import sys
@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     """Compare a calibration with a run: noise floor, residual views, the missing effect, per sensor."""
     from tak_thermo_ros.formats.records import input_kind
     from tak_thermo_ros.core.diagnose import diagnose
-    from tak_thermo_ros.streaming import bounded_run
+    from tak_thermo_ros.passes.diagnose import bounded_run
     unit = load_unit(args.params)
     common.check_kind(args, unit, input_kind(args.bag, topics=common.topics(args)))
     run = bounded_run(args.bag, common.stream_options(args), settle_time_s=args.settle_time,
@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
                       max_samples=args.max_samples, unit=unit)
     common.print_survey(run.survey, 'diagnose')
     if run.handheld is not None:
-        from tak_thermo_ros.streaming_handheld import at_rest
+        from tak_thermo_ros.passes.handheld import at_rest
         unit = replace(unit, gyro=at_rest(unit.gyro))
         closure = run.handheld.closure
         if len(closure.angle_rad):
@@ -229,7 +229,7 @@ def _design_run(args: argparse.Namespace, run, results: dict, used: dict[str, Al
 
 def _write_report(args: argparse.Namespace, run, results: dict, used: dict[str, AlignedSamples]) -> None:
     """``--report``: the figures and report.html (one page per sensor of a driver record) into its directory."""
-    from tak_thermo_ros.report import write_report, write_sensor_index
+    from tak_thermo_ros.reports.diagnose import write_report, write_sensor_index
     check_output(args.report, REPORT, force=args.force, option='--report')
     with atomic_directory(args.report) as staging:
         if run.input_kind is InputKind.COUNTS:
@@ -266,7 +266,7 @@ def _walk_line(result, sensor: str, kind: InputKind) -> str:
 def _add_magnetometer(args: argparse.Namespace, unit: UnitCalibration, run) -> None:
     """``diagnose``'s magnetometer (its thermal link) when the calibration and the bag hold one."""
     from tak_thermo_ros.formats.records import record_streams
-    from tak_thermo_ros.streaming_mag import bounded_mag_run, has_mag, survey_field
+    from tak_thermo_ros.passes.magnetometer import bounded_mag_run, has_mag, survey_field
     options = common.stream_options(args)
     if run.input_kind is not InputKind.IMU or unit.mag is None:
         return

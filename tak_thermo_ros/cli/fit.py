@@ -16,7 +16,7 @@ from tak_thermo_ros.formats.calibration_file import save_unit
 from tak_thermo_ros.formats.files import FILE
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import TakError
-from tak_thermo_ros.streaming import EFFECT_FIT_MAX_SAMPLES
+from tak_thermo_ros.passes.run import EFFECT_FIT_MAX_SAMPLES
 
 NAME = 'fit'
 OUTPUTS = (('output', FILE, '-o'),)
@@ -68,8 +68,9 @@ def add_parser(commands) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Fit the correction link to a calibration bag (counts, or a driver's Imu: both sensors), block by block."""
-    from tak_thermo_ros.streaming import FitSettings, fit_imu
-    from tak_thermo_ros.streaming_mag import has_mag
+    from tak_thermo_ros.passes.fit import fit_imu
+    from tak_thermo_ros.passes.run import FitSettings
+    from tak_thermo_ros.passes.magnetometer import has_mag
     effects = {'accel': common.effect_list(args.effects), 'gyro': common.effect_list(args.gyro_effects)}
     settings = FitSettings(effects=effects, bias_order=args.bias_order, scale_order=args.scale_order,
                            temp_code_ref=args.temp_code_ref, settle_time_s=args.settle_time,
@@ -179,7 +180,7 @@ def _source(args: argparse.Namespace, fitted) -> dict[str, str | int | float] | 
 
 def _with_noise(args: argparse.Namespace, unit: UnitCalibration) -> tuple[UnitCalibration, str]:
     """The fitted unit with each sensor's noise model (``fit --noise / --noise-run / --noise-from-residual``)."""
-    from tak_thermo_ros.noise_run import noise_models
+    from tak_thermo_ros.passes.noise import noise_models
     found = noise_models(unit=unit, options=common.stream_options(args), noise_file=args.noise,
                          noise_run=args.noise_run,
                          calibration_run=args.bag if args.noise_from_residual else None, use_stored=False,
@@ -202,7 +203,7 @@ def _nominal(args: argparse.Namespace, nominal: tuple[float, float, float] | Non
 
 def _fit_magnetometer(args: argparse.Namespace, kind: InputKind):
     """The magnetometer's fit when the driver bag holds one (``--iron-run``: its rotation record)."""
-    from tak_thermo_ros.streaming_mag import fit_mag_bag, has_mag
+    from tak_thermo_ros.passes.magnetometer import fit_mag_bag, has_mag
     iron_run = getattr(args, 'iron_run', None)
     effects = common.effect_list(getattr(args, 'mag_effects', None))
     options = common.stream_options(args)

@@ -1,6 +1,6 @@
 """``tak_calib fit-fleet``: a production batch of units fitted, diagnosed and validated on Dask.
 
-The orchestration is :mod:`tak_thermo_ros.fleet`; this module is the command line.
+The orchestration is :mod:`tak_thermo_ros.passes.fleet`; this module is the command line.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from typing import Any
 from tak_thermo_ros.core.diagnose.fleet import DEFAULT_FLAG_SIGMA
 from tak_thermo_ros.core.link.correction import OutOfRange
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
-from tak_thermo_ros.fleet import cmd_fit_fleet, Command, DEFAULT_WORKERS, NOT_PASSED_TO_FIT
+from tak_thermo_ros.passes.fleet import cmd_fit_fleet, Command, DEFAULT_WORKERS, NOT_PASSED_TO_FIT
 
 NAME = 'fit-fleet'
 

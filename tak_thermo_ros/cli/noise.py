@@ -38,7 +38,7 @@ def add_parser(commands) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     """Each sensor's per-axis noise model (Allan deviation, IEEE 952 fit), streamed; a Kalibr-style imu.yaml."""
     from tak_thermo_ros.formats.kalibr import write_kalibr
-    from tak_thermo_ros.noise_run import noise_bag, noise_document
+    from tak_thermo_ros.passes.noise import noise_bag, noise_document
     unit = load_unit(args.params) if args.params else None
     run = noise_bag(args.bag, common.stream_options(args), unit=unit, gravity=args.gravity,
                     latitude=getattr(args, 'latitude', None), out_of_range=OutOfRange(args.out_of_range),

@@ -3,7 +3,7 @@
 Start the node first (``ros2 run tak_thermo_ros compensator --ros-args --params-file P.yaml -p
 qos:=reliable``), then ``tak_calib play BAG --compare APPLIED``: the bag's Imu (or codes), its
 temperature and its magnetometer are published in stamp order, paced by the node's answers
-(:mod:`tak_thermo_ros.player`), and what the node publishes is compared, float64 for float64,
+(:mod:`tak_thermo_ros.ros.player`), and what the node publishes is compared, float64 for float64,
 with what ``tak_calib apply BAG --params P.yaml -o APPLIED`` wrote. ``rosbag2``'s ``ros2 bag
 play`` would do the publishing where it is installed, but it paces by the clock, not by the
 node, and compares nothing.
@@ -42,7 +42,7 @@ def add_parser(commands) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Play the bag into the node; say what was sent, received and whether it equals ``apply``'s output."""
-    from tak_thermo_ros.player import play
+    from tak_thermo_ros.ros.player import play
     stream_options = common.stream_options(args)
     expected = _applied(args.compare, stream_options.topics) if args.compare else None
     played = play(args.bag, stream_options, wait_s=args.wait, answer_s=args.answer_timeout)

@@ -49,8 +49,9 @@ def run(args: argparse.Namespace) -> int:
     The bag is read block by block (bounded memory); the errors are accumulated as sums.
     """
     from tak_thermo_ros.core.records.static_run import NotStatic
-    from tak_thermo_ros.streaming import ImuLinkUndetermined, validate_bag
-    from tak_thermo_ros.streaming_mag import has_mag
+    from tak_thermo_ros.passes.run import ImuLinkUndetermined
+    from tak_thermo_ros.passes.validate import validate_bag
+    from tak_thermo_ros.passes.magnetometer import has_mag
     unit = load_unit(args.params)
     options = common.stream_options(args)
     document = {'bag': str(args.bag), 'params': str(args.params), 'gravity': args.gravity}
@@ -127,7 +128,7 @@ def _validate_imu(args: argparse.Namespace, unit: UnitCalibration, run, document
 
 def _validate_magnetometer(args: argparse.Namespace, unit: UnitCalibration) -> dict:
     """``validate``'s field error before and after, in microtesla; the JSON entry ``mag``."""
-    from tak_thermo_ros.streaming_mag import has_mag, validate_mag
+    from tak_thermo_ros.passes.magnetometer import has_mag, validate_mag
     options = common.stream_options(args)
     if not has_mag(args.bag, options.topics):
         print(f'magnetometer: {args.bag} holds no messages on {options.topics.mag}; not validated')

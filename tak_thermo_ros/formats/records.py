@@ -1,7 +1,7 @@
 """Every kind of record file read the same way: what it holds, then its messages in blocks.
 
-The commands' passes (:mod:`tak_thermo_ros.streaming`, :mod:`tak_thermo_ros.streaming_mag`,
-:mod:`tak_thermo_ros.noise_run`) read a record only through these functions, so that a new
+The commands' passes (:mod:`tak_thermo_ros.passes`, :mod:`tak_thermo_ros.passes.magnetometer`,
+:mod:`tak_thermo_ros.passes.noise`) read a record only through these functions, so that a new
 file format is one reader that gives the same :class:`~tak_thermo_ros.formats.bag.BagStreams`
 and the same blocks (:class:`~tak_thermo_ros.core.records.record.ChannelRecord` or
 :class:`~tak_thermo_ros.core.records.record.DriverRecord`), and goes through the same fit.

@@ -1,6 +1,6 @@
 """Model discovery: where the fitted model fails, and which physical effect it is missing.
 
-Pure maths on aligned samples and a calibration; no plotting (see ``tak_thermo_ros.report``).
+Pure maths on aligned samples and a calibration; no plotting (see ``tak_thermo_ros.reports.diagnose``).
 
 The steps of :func:`diagnose`:
 

@@ -8,7 +8,7 @@ A unit is flagged for a metric when its value lies more than ``k`` robust sigmas
 median. A unit is also flagged when its diagnosis verdict differs from the verdict that more
 than half of the diagnosed units share.
 
-Pure numbers: no Dask, no bags. ``tak_thermo_ros.fleet`` runs the batch and reports.
+Pure numbers: no Dask, no bags. ``tak_thermo_ros.passes.fleet`` runs the batch and reports.
 """
 
 from __future__ import annotations

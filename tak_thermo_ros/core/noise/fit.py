@@ -610,3 +610,13 @@ def slope_lines(allan: Any, keep: np.ndarray) -> SlopeLines:
         values[name] = tuple(float(reading[b, i]) for i, b in enumerate(best))
         where[name] = tuple(float(taus[b, 0]) for b in best)
     return SlopeLines(values=values, taus=where)  # type: ignore[arg-type]
+
+
+def fit_noise_model(allan: Any, *, source: str, update_rate: float | None = None,
+                    min_terms: int = 2, terms: Sequence[str] | None = None) -> NoiseModel:
+    """The noise model of each axis of an Allan variance (:func:`fit_noise`).
+
+    :param terms: the terms fitted (default: all, :data:`FIT_TERMS`).
+    :raises NoiseError: fewer than five usable averaging times, or not three axes, or an unknown term.
+    """
+    return fit_noise(allan, source=source, update_rate=update_rate, min_terms=min_terms, terms=terms).model

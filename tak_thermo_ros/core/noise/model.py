@@ -391,14 +391,3 @@ def model_floor_tau(model: NoiseModel, taus: tuple[float, float] | None = None) 
     best = np.argmin(avar, axis=0)
     out = [math.inf if int(b) == len(grid) - 1 else float(grid[int(b)]) for b in best]
     return (out[0], out[1], out[2])
-
-
-def fit_noise_model(allan: Any, *, source: str, update_rate: float | None = None,
-                    min_terms: int = 2, terms: Sequence[str] | None = None) -> NoiseModel:
-    """The noise model of each axis of an Allan variance (:func:`tak_thermo_ros.core.noise.fit.fit_noise`).
-
-    :param terms: the terms fitted (default: all, :data:`tak_thermo_ros.core.noise.fit.FIT_TERMS`).
-    :raises NoiseError: fewer than five usable averaging times, or not three axes, or an unknown term.
-    """
-    from tak_thermo_ros.core.noise.fit import fit_noise
-    return fit_noise(allan, source=source, update_rate=update_rate, min_terms=min_terms, terms=terms).model

@@ -1,7 +1,7 @@
 """Noise models that ``diagnose`` and ``validate`` derive: from a run's residual, or in codes.
 
 The given sources (a Kalibr-style file, a static run, the calibration file's noise section) come
-from :func:`tak_thermo_ros.noise_run.noise_models`; here: a model expressed in a counts
+from :func:`tak_thermo_ros.passes.noise.noise_models`; here: a model expressed in a counts
 calibration's codes, and, when none is given, a model fitted to the diagnosed run's own residual
 at short averaging times (``source='residual'``, said as such).
 """
@@ -14,7 +14,8 @@ from typing import Sequence
 import numpy as np
 
 from tak_thermo_ros.core.noise.allan import AllanVariance, allan_variance, cluster_sizes, largest_cluster
-from tak_thermo_ros.core.noise.model import NoiseModel, fit_noise_model
+from tak_thermo_ros.core.noise.fit import fit_noise_model
+from tak_thermo_ros.core.noise.model import NoiseModel
 from tak_thermo_ros.errors import TakError
 
 RESIDUAL_LONGEST_TAU_S = 30.0

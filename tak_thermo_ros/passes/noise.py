@@ -1,6 +1,6 @@
 """A bag's noise model in one streamed pass (``tak_calib noise``), and the three sources of a noise model.
 
-:func:`noise_bag` reads a bag once in blocks (:mod:`tak_thermo_ros.streaming`), takes each
+:func:`noise_bag` reads a bag once in blocks (:mod:`tak_thermo_ros.passes`), takes each
 sensor's residual (measured minus reference; the thermally compensated output minus the
 reference when a calibration is given) and feeds it to an
 :class:`~tak_thermo_ros.core.noise.allan.AllanAccumulator` (bounded memory), then fits the
@@ -29,7 +29,7 @@ from tak_thermo_ros.core.noise.model import NoiseModel
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import NoiseError
-from tak_thermo_ros.streaming import StreamOptions, sensors_of
+from tak_thermo_ros.passes.run import StreamOptions, sensors_of
 
 GAP_FACTOR = 1.5
 """A step between two samples' stamps longer than this many sampling intervals is a gap."""
@@ -61,7 +61,7 @@ class _SensorNoise:
     temperature: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
-        from tak_thermo_ros.streaming import Required
+        from tak_thermo_ros.passes.run import Required
         self.corrector = BlockCorrector(self.calibration, out_of_range=self.out_of_range) \
             if self.calibration is not None else None
         self.required = Required(self.corrector.signals if self.corrector is not None else ())
@@ -182,7 +182,7 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
     :raises NoiseError: a counts bag without a calibration, a run too short for five averaging times.
     """
     from tak_thermo_ros.formats.records import record_streams
-    from tak_thermo_ros.streaming import SensorPass, open_calibration_run, run_passes, temperature_expected
+    from tak_thermo_ros.passes.run import SensorPass, open_calibration_run, run_passes, temperature_expected
     from tak_thermo_ros.core.records.blocks import BlockAligner
     path = Path(path)
     streams = record_streams(path, topics=options.topics)

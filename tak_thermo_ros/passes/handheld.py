@@ -2,7 +2,7 @@
 
 A record without reference topics whose unit rests in two or more orientations
 (:func:`~tak_thermo_ros.core.records.survey.fit_plan`) is read once by the survey, which finds
-the still intervals (:mod:`tak_thermo_ros.streaming`) and keeps the blocks of a record of at most
+the still intervals (:mod:`tak_thermo_ros.passes`) and keeps the blocks of a record of at most
 2 M messages; then one pass (over those blocks, else over the record again) aligns the six channels
 block by block with the temperature held and keeps the still samples (every ``stride``-th, at
 most :data:`HANDHELD_MAX_STILL_SAMPLES`) and every sample of the turns
@@ -27,7 +27,7 @@ from tak_thermo_ros.core.records.blocks import BlockAligner
 from tak_thermo_ros.core.records.handheld import HandheldCollector, HandheldRecord, earth_reference, sensor_samples
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.core.records.survey import RecordSurvey
-from tak_thermo_ros.streaming import FitSettings, StreamedFit, StreamOptions
+from tak_thermo_ros.passes.run import FitSettings, StreamedFit, StreamOptions
 
 HANDHELD_MAX_STILL_SAMPLES = 500_000
 """A hand-held fit keeps at most about this many still samples (every n-th, spread evenly), and as many

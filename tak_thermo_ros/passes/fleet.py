@@ -9,7 +9,7 @@ path). A unit that fails is reported with its one-line error; the batch goes on.
 Outputs under ``OUT_DIR``: ``units/<unit>/{params.yaml, diagnose.json, validation.json,
 log.txt}``, ``fleet.json`` (one row per unit, the batch's robust spread and the flags) and
 ``fleet.html`` (the spread of every coefficient, the flagged units). The statistics live in
-:mod:`tak_thermo_ros.core.diagnose.fleet`, the report in :mod:`tak_thermo_ros.fleet_report`.
+:mod:`tak_thermo_ros.core.diagnose.fleet`, the report in :mod:`tak_thermo_ros.reports.fleet`.
 
 The bags and ``OUT_DIR`` must be reachable under the same paths from every worker (a shared
 file system when the scheduler runs elsewhere).
@@ -392,7 +392,7 @@ def _tasks(args: argparse.Namespace, fit_actions: Sequence[argparse.Action], uni
 
 def cmd_fit_fleet(args: argparse.Namespace, fit_actions: Sequence[argparse.Action], command: Command) -> int:
     """Calibrate a batch of units on Dask; write per-unit outputs, ``fleet.json`` and ``fleet.html``."""
-    from tak_thermo_ros.fleet_report import write_fleet_report
+    from tak_thermo_ros.reports.fleet import write_fleet_report
     out_dir = Path(os.path.abspath(args.output))
     fleet_json = out_dir / FLEET_JSON
     if out_dir.exists() and not out_dir.is_dir():

@@ -1,4 +1,4 @@
-"""``tak_calib``'s passes over the magnetometer of a driver bag, in blocks (as :mod:`tak_thermo_ros.streaming`).
+"""``tak_calib``'s passes over the magnetometer of a driver bag, in blocks (as :mod:`tak_thermo_ros.passes`).
 
 The magnetometer is its own stream (``/imu/mag``, ``sensor_msgs/msg/MagneticField``, tesla),
 aligned on its own stamps with the same temperature held
@@ -479,7 +479,7 @@ def validate_mag(path: str | Path, mag: MagnetometerCalibration, options, *,
     is one in every orientation, the direction needs a reference).
     """
     from tak_thermo_ros.formats.records import record_streams
-    from tak_thermo_ros.streaming import temperature_expected
+    from tak_thermo_ros.passes.run import temperature_expected
     path = Path(path)
     streams = record_streams(path, topics=options.topics)
     with_reference = streams.mag_reference > 0

@@ -66,7 +66,7 @@ from tak_thermo_ros.core.effects.aux_signal import AUX_FIELDS, signal_field, spl
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.link.online import SENSORS, Level, OneSensor, OnlineCompensator, StaleTemperature
 from tak_thermo_ros.errors import CalibrationError, TakError
-from tak_thermo_ros.node_main import SignalGuard
+from tak_thermo_ros.ros.signals import SignalGuard
 
 COUNTS_TOPIC = 'tak/counts'
 TEMP_TOPIC = 'tak/temp_code'
@@ -617,7 +617,7 @@ def main(args: Sequence[str] | None = None, *, signals: SignalGuard | None = Non
     """Entry point of ``compensator`` (Jazzy node skeleton); 2 when it cannot start.
 
     A SIGINT or SIGTERM at any moment ends it with status 0 (``signals``, installed here when
-    the caller has not: :mod:`tak_thermo_ros.node_main`). One that comes while it starts stops
+    the caller has not: :mod:`tak_thermo_ros.ros.main`). One that comes while it starts stops
     the imports or ``rclpy.init``, or shuts the context down under the node being built, whose
     next rcl call then fails: that failure is the stop, said in one line, no traceback.
     """
