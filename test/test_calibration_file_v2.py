@@ -33,7 +33,7 @@ from tak_thermo_ros.formats.calibration_file import (
     unit_yaml,
 )
 from tak_thermo_ros.core.effects import LIBRARY
-from tak_thermo_ros.core.link.model import SENSOR_RANGE, AxisModel, Calibration, InputKind, UnitCalibration
+from tak_thermo_ros.core.link.model import SENSOR_RANGE, AxisModel, Calibration, InputKind, TurnOn, UnitCalibration
 from tak_thermo_ros.core.simulation.imu import Scenario
 from tak_thermo_ros.errors import CalibrationError
 
@@ -108,6 +108,28 @@ def test_v2_round_trip_is_exact(tmp_path):
     assert loaded == unit and loaded.input_kind is InputKind.IMU
     text = (tmp_path / 'p.yaml').read_text()
     assert 'version: 2' in text and 'input: imu' in text and 'temperature_ref' in text and 'temp_code' not in text
+
+
+def test_turn_on_repeatability_round_trips_and_bad_values_are_refused_naming_the_key(tmp_path):
+    """A sensor's ``turn_on`` section round-trips exactly; a bad, missing or extra value is one CalibrationError."""
+    unit = _driver_unit()
+    turn_on = TurnOn(repeatability=(1e-4, 2e-4, 0.0), repeatability_error=(2e-5, 3e-5, 1e-6), records=16)
+    unit = replace(unit, gyro=replace(unit.gyro, turn_on=turn_on))
+    save_unit(tmp_path / 'p.yaml', unit)
+    loaded = load_unit(tmp_path / 'p.yaml')
+    assert loaded == unit and loaded.gyro.turn_on == turn_on and loaded.accel.turn_on is None
+    document = yaml.safe_load((tmp_path / 'p.yaml').read_text())
+    section = document['/**/compensator']['ros__parameters']['calibration']['gyro']['turn_on']
+    for change, named in (({'repeatability': [1e-4, -2e-4, 0.0]}, 'turn_on.repeatability'),
+                          ({'repeatability_error': [1e-4, float('nan'), 0.0]}, 'turn_on.repeatability_error'),
+                          ({'records': 1}, 'turn_on.records'), ({'records': 2.5}, 'turn_on.records'),
+                          ({'spread': [0.0, 0.0, 0.0]}, 'turn_on.spread')):
+        bad = copy.deepcopy(document)
+        bad['/**/compensator']['ros__parameters']['calibration']['gyro']['turn_on'] = {**section, **change}
+        path = tmp_path / 'bad.yaml'
+        path.write_text(yaml.safe_dump(bad))
+        with pytest.raises(CalibrationError, match=named.replace('.', r'\.')):
+            load_unit(path)
 
 
 def test_v1_files_written_before_version_2_load_unchanged(tmp_path):

@@ -73,6 +73,7 @@ from tak_thermo_ros.core.link.model import (
     THERMAL_STATES,
     InputKind,
     MagnetometerCalibration,
+    TurnOn,
     UnitCalibration,
     check_plausible,
     check_scale_positive,
@@ -310,7 +311,7 @@ def _link_from_mapping(raw: Any, key: str, input_kind: InputKind, *, extra_keys:
         if name not in raw:
             msg = f'{key}.{name}: missing'
             raise CalibrationError(msg)
-    allowed = {*needed, 'thermal', 'notes', 'effects', 'noise', *extra_keys}
+    allowed = {*needed, 'thermal', 'notes', 'effects', 'noise', 'turn_on', *extra_keys}
     unknown = sorted(str(name) for name in set(raw) - allowed)
     if unknown:
         why = ' (thermal: none holds no temperatures)' if unknown[0] in range_keys else ''
@@ -329,10 +330,12 @@ def _link_from_mapping(raw: Any, key: str, input_kind: InputKind, *, extra_keys:
     axes = tuple(_axis_from_mapping(raw[name], f'{key}.{name}') for name in AXES)
     effects = effects_from_mapping(raw['effects'], key=f'{key}.effects') if 'effects' in raw else ()
     noise = _noise_from_mapping(raw['noise'], f'{key}.noise') if 'noise' in raw else None
+    turn_on = _turn_on_from_mapping(raw['turn_on'], f'{key}.turn_on') if 'turn_on' in raw else None
     try:
         calibration = Calibration(temp_code_ref=ref, temp_code_min=low, temp_code_max=high,
                                   axes=axes, version=CALIBRATION_VERSION,  # type: ignore[arg-type]
-                                  notes=tuple(notes), effects=effects, noise=noise, thermal=thermal)
+                                  notes=tuple(notes), effects=effects, noise=noise, thermal=thermal,
+                                  turn_on=turn_on)
     except CalibrationError as err:
         raise CalibrationError(f'{key}.{str(err).removeprefix("calibration.")}') from None
     _check_limits(calibration, limits, key)
@@ -369,7 +372,37 @@ def _link_to_mapping(calibration: Calibration, input_kind: InputKind) -> dict[st
         mapping['effects'] = effects_to_mapping(calibration.effects)
     if calibration.noise is not None:
         mapping['noise'] = noise_to_mapping(calibration.noise)
+    if calibration.turn_on is not None:
+        mapping['turn_on'] = {'repeatability': [float(v) for v in calibration.turn_on.repeatability],
+                              'repeatability_error': [float(v) for v in calibration.turn_on.repeatability_error],
+                              'records': int(calibration.turn_on.records)}
     return mapping
+
+
+def _turn_on_from_mapping(raw: Any, key: str) -> TurnOn:
+    """A sensor's ``turn_on`` section: ``repeatability`` and ``repeatability_error`` (x, y, z), ``records``."""
+    if not isinstance(raw, Mapping):
+        msg = f'{key}: expected a mapping'
+        raise CalibrationError(msg)
+    fields_ = ('repeatability', 'repeatability_error', 'records')
+    for name in fields_:
+        if name not in raw:
+            msg = f'{key}.{name}: missing'
+            raise CalibrationError(msg)
+    unknown = sorted(str(name) for name in set(raw) - set(fields_))
+    if unknown:
+        msg = f'{key}.{unknown[0]}: unknown key'
+        raise CalibrationError(msg)
+    spread = _numbers(raw['repeatability'], f'{key}.repeatability', 3)
+    error = _numbers(raw['repeatability_error'], f'{key}.repeatability_error', 3)
+    records = raw['records']
+    if isinstance(records, bool) or not isinstance(records, int):
+        msg = f'{key}.records: expected a whole number, got {records!r}'
+        raise CalibrationError(msg)
+    try:
+        return TurnOn(repeatability=spread, repeatability_error=error, records=records)  # type: ignore[arg-type]
+    except CalibrationError as err:
+        raise CalibrationError(f'{key}.{str(err).removeprefix("turn_on.")}') from None
 
 
 def _noise_from_mapping(raw: Any, key: str) -> NoiseModel:

@@ -20,6 +20,7 @@ so that the vectorised and the per-sample correction paths give the same float64
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import dataclass, field, replace
 from typing import Sequence
 
@@ -160,6 +161,36 @@ class AxisModel:
 
 
 @dataclass(frozen=True)
+class TurnOn:
+    """A sensor's turn-on offset repeatability: how far its offset moves from one power-up to the next.
+
+    A MEMS unit's offset at power-up differs from the curve by a constant for the whole run (bias
+    repeatability, run to run). Fitted from many records of one unit as a random effect (one
+    constant per record, apart from the curve); the node and ``apply`` may take a run's own
+    constant at its first rest, judged against this spread.
+
+    :param repeatability: per axis x, y, z the standard deviation of the turn-on offset over
+        power-ups, in the sensor's unit (m/s^2, rad/s), >= 0.
+    :param repeatability_error: per axis the standard error of ``repeatability``, >= 0.
+    :param records: how many records (power-ups) it was estimated from, >= 2.
+    """
+
+    repeatability: tuple[float, float, float]
+    repeatability_error: tuple[float, float, float]
+    records: int
+
+    def __post_init__(self) -> None:
+        for name in ('repeatability', 'repeatability_error'):
+            values = getattr(self, name)
+            if len(values) != 3 or not all(math.isfinite(v) and v >= 0.0 for v in values):
+                msg = f'turn_on.{name}: expected three finite numbers >= 0, got {list(values)}'
+                raise CalibrationError(msg)
+        if isinstance(self.records, bool) or not isinstance(self.records, int) or self.records < 2:
+            msg = f'turn_on.records: expected a whole number >= 2, got {self.records!r}'
+            raise CalibrationError(msg)
+
+
+@dataclass(frozen=True)
 class Calibration:
     """The whole correction link: three axes and the calibrated temperature-code range.
 
@@ -176,6 +207,8 @@ class Calibration:
     :param thermal: :data:`THERMAL_FITTED` (the temperature terms of the paper's link),
         :data:`THERMAL_HELD` or :data:`THERMAL_NONE` (no temperature terms: every axis has
         ``offset_span`` 0 and flat shapes, and the correction never reads a temperature).
+    :param turn_on: the turn-on offset's repeatability over power-ups (:class:`TurnOn`), or ``None``
+        when the calibration was fitted from one power-up.
     """
 
     temp_code_ref: float
@@ -187,6 +220,7 @@ class Calibration:
     effects: tuple[Effect, ...] = field(default=())
     noise: NoiseModel | None = None
     thermal: str = THERMAL_FITTED
+    turn_on: TurnOn | None = None
 
     def __post_init__(self) -> None:
         if len(self.axes) != 3:
