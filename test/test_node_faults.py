@@ -201,6 +201,40 @@ def test_a_future_stamped_imu_costs_only_itself_and_nonsense_is_refused(tmp_path
     assert 'Traceback' not in node.log()
 
 
+def test_a_lone_imu_stamped_an_hour_ahead_costs_itself_alone_wherever_it_comes(tmp_path, ros_env):
+    """An Imu an hour ahead as the second message ever, and as the second after a pause: each costs itself alone.
+
+    A steady 100 Hz stream: the outliers are dropped (stamp_jump), every good Imu published but
+    the first after the pause (a real jump's own cost, docs/node.md); ``apply``'s rule
+    (``stamp_problems``) drops the same messages.
+    """
+    params = driver_params(tmp_path / 'params.yaml', qos='reliable')
+    hour, step, pause = 3600 * NANOSECONDS, 10_000_000, 1000 * NANOSECONDS
+    stamps = [START_NS + i * step for i in range(20)] + [START_NS + pause + i * step for i in range(20)]
+    outliers = (1, 21)  # the second message ever; the second after the pause
+    for index in outliers:
+        stamps[index] += hour
+    offline, _ = stamp_problems(np.array(stamps, dtype=np.int64))
+    dropped = np.flatnonzero(offline['stamp_jump'] | offline['time_backwards'] | offline['duplicate_stamp'])
+    assert dropped.tolist() == [1, 20, 21] and offline['stamp_jump'][list(outliers)].all()  # 20: after the pause
+    expected = [stamp for i, stamp in enumerate(stamps) if i not in dropped]
+    with NodeProcess(node_command('--params-file', str(params)), ros_env, tmp_path / 'node.log') as node, \
+            Harness(int(ros_env['ROS_DOMAIN_ID']), driver=True) as ros:
+        ros.wait_matched()
+        ros.send_temperature_and_wait(START_NS, 20.0)
+        for stamp in stamps:
+            ros.send_imu(stamp, GOOD)
+        ros.wait(lambda: ros.latest_status() is not None
+                 and status_values(ros.latest_status()).get('received') == str(len(stamps)), 10.0, 'the counters')
+        ros.wait(lambda: len(ros.imu) >= len(expected), 10.0, 'the good Imu')
+        assert [stamp_of(m) for m in ros.imu] == expected
+        values = status_values(ros.latest_status())
+        assert (values['dropped.stamp_jump'], values['dropped.time_backwards'], values['published']) == (
+            '3', '0', str(len(expected)))
+        assert node.stop() == 0
+    assert 'Traceback' not in node.log()
+
+
 def test_an_implausible_calibration_file_is_refused_in_one_line(tmp_path, ros_env):
     """The same nonsense from the file: exit 2, one FATAL line naming the key."""
     mapping = unit_to_mapping(DRIVER_UNIT)

@@ -103,10 +103,9 @@ from tak_thermo_ros.core.records.record import (
     STAMP_JUMP_S,
     StampHistory,
     counts_problem,
+    going_on_step,
     seconds,
-    stamp_kept,
     stamp_problem,
-    stream_step,
     temp_code_problem,
     values_problem,
 )
@@ -234,33 +233,37 @@ class _StampRule:
     its drops by reason (for the log line).
     """
 
-    __slots__ = ('last_ns', 'kept_ns', 'kept_before_ns', 'dropped')
+    __slots__ = ('last_ns', 'before_ns', 'kept_ns', 'step_ns', 'dropped')
 
     def __init__(self) -> None:
         self.last_ns: int | None = None
+        self.before_ns: int | None = None
         self.kept_ns: int | None = None
-        self.kept_before_ns: int | None = None
+        self.step_ns: int | None = None
+        """The stream's step (:class:`~tak_thermo_ros.core.records.record.StampHistory`)."""
         self.dropped = dict.fromkeys(STAMP_DROP_REASONS, 0)
 
     def problem(self, stamp_ns: int) -> str | None:
         """Why the next message, stamped ``stamp_ns``, is dropped, or ``None``; the state moves on."""
-        last = self.last_ns
-        self.last_ns = stamp_ns
-        # stamp_kept, its usual case (a step forward within 10 s) inline
-        if last is not None and not 0 < stamp_ns - last <= STAMP_JUMP_NS:
-            kept = self.kept_ns
-            if not stamp_kept(stamp_ns, StampHistory(last, kept, stream_step(kept, self.kept_before_ns))):
+        last, before = self.last_ns, self.before_ns
+        self.before_ns, self.last_ns = last, stamp_ns
+        step = None if last is None else stamp_ns - last
+        # going_on_step, its usual case (a step forward within 10 s) inline
+        if last is not None and not 0 < step <= STAMP_JUMP_NS:
+            step = going_on_step(stamp_ns, StampHistory(last, self.kept_ns, self.step_ns, before))
+            if step is None:
                 reason = stamp_problem(stamp_ns - last)
                 self.dropped[reason] += 1
                 return reason
-        self.kept_before_ns = self.kept_ns
+        self.step_ns = step
         self.kept_ns = stamp_ns
         return None
 
     def copy(self) -> _StampRule:
         """The same state, to go on apart."""
         twin = _StampRule()
-        twin.last_ns, twin.kept_ns, twin.kept_before_ns = self.last_ns, self.kept_ns, self.kept_before_ns
+        twin.last_ns, twin.before_ns = self.last_ns, self.before_ns
+        twin.kept_ns, twin.step_ns = self.kept_ns, self.step_ns
         twin.dropped = dict(self.dropped)
         return twin
 
@@ -754,7 +757,7 @@ class OnlineCompensator:
         last = stamps.last_ns
         if last is not None and 0 < stamp_ns - last <= STAMP_JUMP_NS:
             # _StampRule.problem's usual case inline (a step forward within 10 s): the per-message cost
-            stamps.kept_before_ns = stamps.kept_ns
+            stamps.step_ns, stamps.before_ns = stamp_ns - last, last
             stamps.last_ns = stamps.kept_ns = stamp_ns
         else:
             reason = stamps.problem(stamp_ns)

@@ -248,14 +248,14 @@ def stamp_problem(step_ns: int) -> str:
     return 'time_backwards' if step_ns < 0 else 'stamp_jump'
 
 
-def step_limit(stream_step_ns: int | None) -> int | None:
+def step_limit(stream_step_ns: int | None) -> int:
     """The largest forward step that goes on, in a stream stepping ``stream_step_ns``.
 
-    :data:`STAMP_JUMP_S`, or :data:`STAMP_JUMP_STEPS` steps of the stream when more; ``None`` (no
-    limit) while the stream's step is unknown (one message kept so far, or the stamps went back).
+    :data:`STAMP_JUMP_S`, or :data:`STAMP_JUMP_STEPS` steps of the stream when more;
+    :data:`STAMP_JUMP_S` while the stream's step is unknown (one message kept so far).
     """
     if stream_step_ns is None:
-        return None
+        return STAMP_JUMP_NS
     return max(STAMP_JUMP_NS, STAMP_JUMP_STEPS * min(stream_step_ns, _STEP_CAP_NS))
 
 
@@ -265,25 +265,52 @@ class StampHistory:
 
     :param previous_ns: the previous message's stamp (whatever became of it).
     :param kept_ns: the stamp of the last message kept, or ``None``.
-    :param stream_step_ns: the last kept message's advance over the kept one before it (> 0), or
-        ``None`` when unknown.
+    :param stream_step_ns: the stream's step: the step by which the last kept message went on
+        (:func:`going_on_step`, > 0), or ``None`` while unknown (one message kept so far).
+    :param before_ns: the stamp of the message before the previous one (whatever became of it),
+        or ``None``.
     """
 
     previous_ns: int
     kept_ns: int | None = None
     stream_step_ns: int | None = None
+    before_ns: int | None = None
 
     def after(self, stamp_ns: int, kept: bool) -> StampHistory:
         """The history once a message stamped ``stamp_ns`` is kept, or dropped."""
         if not kept:
-            return StampHistory(stamp_ns, self.kept_ns, self.stream_step_ns)
-        return StampHistory(stamp_ns, stamp_ns, stream_step(stamp_ns, self.kept_ns))
+            return StampHistory(stamp_ns, self.kept_ns, self.stream_step_ns, self.previous_ns)
+        return StampHistory(stamp_ns, stamp_ns, going_on_step(stamp_ns, self), self.previous_ns)
 
 
-def stream_step(kept_ns: int | None, kept_before_ns: int | None) -> int | None:
-    """The stream's step: a kept stamp's advance over the kept one before it; unknown unless forward."""
-    return kept_ns - kept_before_ns if kept_ns is not None and kept_before_ns is not None and (
-        kept_ns > kept_before_ns) else None
+def going_on_step(stamp_ns: int, history: StampHistory | None) -> int | None:
+    """The step by which a message stamped ``stamp_ns`` goes on, or ``None`` when it does not (dropped).
+
+    From the previous message's stamp (whatever became of that one) when it goes on from it, else,
+    when the previous one was dropped, from the one before it (whatever became of that one), else
+    from the last kept message's: later by
+    more than 0 and at most :func:`step_limit` of the stream's step. While that step is unknown
+    (one message kept so far), a message goes on from the kept one by at most
+    :data:`STAMP_JUMP_S`, or by any step from a later message that was dropped (a stream whose
+    messages are further apart, or one that jumped: it goes on from there). The step is then the
+    stream's step: a lone message stamped far ahead is dropped and sets nothing, and the message
+    after it goes on from the one before it.
+
+    :param history: what is known of the messages before, ``None`` for the first message (kept,
+        with no step).
+    """
+    if history is None:
+        return None
+    limit = step_limit(history.stream_step_ns)
+    unknown = history.stream_step_ns is None
+    # the message before the previous one counts when the previous one was dropped (not the last kept)
+    before = history.before_ns if history.previous_ns != history.kept_ns else None
+    for start in (history.previous_ns, before, history.kept_ns):
+        if start is not None:
+            step = stamp_ns - start
+            if 0 < step and (step <= limit or (unknown and start != history.kept_ns)):
+                return step
+    return None
 
 
 def stamp_kept(stamp_ns: int, history: StampHistory | None) -> bool:
@@ -291,21 +318,18 @@ def stamp_kept(stamp_ns: int, history: StampHistory | None) -> bool:
 
     A message is kept when its header stamp is later than the previous message's (whatever
     became of that one), or than the last kept message's, by at most :func:`step_limit` (10 s,
-    or 100 steps of the stream). So a stream 1, 2, 3, 10, 4, 5 s drops the 4 (the 10 was kept);
-    a stream 1, 2, 3, 3603, 4, 5 s drops the 3603 alone (stamped an hour ahead), and the 4 goes
-    on from the 3; after a real jump (1, 2, 3, 3603, 3604, ...: a pause or a clock step) the
+    or 100 steps of the stream; the stream's step is the step by which the last kept message
+    went on, :func:`going_on_step`). So a stream 1, 2, 3, 10, 4, 5 s drops the 4 (the 10 was
+    kept); a stream 1, 2, 3, 3603, 4, 5 s drops the 3603 alone (stamped an hour ahead), and the
+    4 goes on from the 3, wherever the outlier comes (the second message ever, the second after a
+    pause); after a real jump (1, 2, 3, 3603, 3604, ...: a pause or a clock step) the
     first message after it is dropped and the next one, going on from it, is kept; a stream of
-    a message every 30 s goes on.
+    a message every 30 s goes on (its second message, 30 s after the first while the stream's
+    step is still unknown, is dropped and the third goes on from it).
 
     :param history: what is known of the messages before, ``None`` for the first message.
     """
-    if history is None:
-        return True
-    limit = step_limit(history.stream_step_ns)
-    for start in (history.previous_ns, history.kept_ns):
-        if start is not None and 0 < stamp_ns - start and (limit is None or stamp_ns - start <= limit):
-            return True
-    return False
+    return history is None or going_on_step(stamp_ns, history) is not None
 
 
 def stamp_problems(stamp_ns: np.ndarray, *, history: StampHistory | None = None
@@ -328,11 +352,11 @@ def stamp_problems(stamp_ns: np.ndarray, *, history: StampHistory | None = None
     if history is not None:
         step[0] = stamp_ns[0] - history.previous_ns
     # Where message i-1 went on from i-2 (both kept), the stream steps step[i-1]: i goes on when
-    # 0 < step[i] <= step_limit(step[i-1]) (no limit after a step that was not forward).
+    # 0 < step[i] <= step_limit(step[i-1]) (STAMP_JUMP_NS after the first message kept).
     stream_step = np.zeros(count, dtype=np.int64)
     stream_step[1:] = step[:-1]
     limit = np.maximum(STAMP_JUMP_NS, STAMP_JUMP_STEPS * np.clip(stream_step, 0, _STEP_CAP_NS))
-    goes_on = (step > 0) & ((stream_step <= 0) | (step <= limit))
+    goes_on = (step > 0) & (step <= limit)
     stops = np.flatnonzero(~goes_on)
     kept = np.zeros(count, dtype=bool)
     state = history
@@ -344,7 +368,7 @@ def stamp_problems(stamp_ns: np.ndarray, *, history: StampHistory | None = None
             stop = int(stops[position]) if position < len(stops) else count
             kept[index:stop] = True
             last = int(stamp_ns[stop - 1])
-            state = StampHistory(last, last, int(step[stop - 1]))
+            state = StampHistory(last, last, int(step[stop - 1]), int(stamp_ns[stop - 2]))
             index = stop
             continue
         stamp = int(stamp_ns[index])
