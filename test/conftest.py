@@ -13,6 +13,7 @@ os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
+import node_helpers  # noqa: E402
 from node_helpers import domain_id, ros_environment  # noqa: E402
 from tak_thermo_ros.core.records.record import align  # noqa: E402
 from tak_thermo_ros.core.simulation.imu import Scenario, simulate  # noqa: E402
@@ -88,6 +89,23 @@ FUZZ_SCALE = int(os.environ.get('TAK_FUZZ_SCALE', '25' if HYPOTHESIS_PROFILE == 
 def examples(base: int) -> int:
     """The example budget of a property test: ``base`` in ``make test`` (all together < 60 s)."""
     return base * FUZZ_SCALE
+
+
+@pytest.fixture(autouse=True, scope='session')
+def _no_process_outlives_the_session():
+    """Every process a test module started (``node_helpers.start_process``) is gone when the session ends."""
+    yield
+    left = node_helpers.kill_leftovers()
+    assert not left, f'process groups left running at the end of the session (killed now): {left}'
+
+
+@pytest.fixture(autouse=True)
+def _no_process_outlives_its_test():
+    """A test stops what it starts, whatever the outcome: a group it left running is killed and the test fails."""
+    since = len(node_helpers.STARTED_GROUPS)
+    yield
+    left = node_helpers.kill_leftovers(since)
+    assert not left, f'the test left process groups running (killed now): {left}'
 
 
 @pytest.fixture

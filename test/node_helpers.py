@@ -4,10 +4,17 @@ The node runs as a subprocess in its own session (stopped by SIGINT to its group
 SIGKILL); the test process has its own rclpy context on the same, test-specific, domain.
 Every wait is on a condition (matched endpoints, a message received, a log line), never a
 fixed sleep.
+
+Every process a test starts goes through :func:`start_process`: its own session, killed by the
+kernel when the test process dies (a crashed or killed pytest worker runs no ``finally``: a node
+in its own session would run on for ever), and its group recorded, so that ``conftest.py``'s
+guard finds and kills any group a test left running, and fails that test.
 """
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import os
 import signal
 import subprocess
@@ -25,6 +32,55 @@ from sensor_msgs.msg import Imu, Temperature
 
 NANOSECONDS = 1_000_000_000
 RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+_PR_SET_PDEATHSIG = 1
+_PRCTL = ctypes.CDLL(None, use_errno=True).prctl
+"""Resolved here, not in the child between fork and exec."""
+STARTED_GROUPS: list[int] = []
+"""The process group of every process :func:`start_process` started, in order (each leads its own)."""
+
+
+def _child_setup(parent: int) -> Callable[[], None]:
+    """What the child does before exec: die with the test process, SIGINT at its default."""
+    def setup() -> None:
+        _PRCTL(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+        if os.getppid() != parent:  # the test process died before the line above
+            os._exit(1)
+        # A shell that runs `make test` in the background ignores SIGINT, and a child inherits
+        # that: the tests that send SIGINT expect the default (Python's KeyboardInterrupt).
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+    return setup
+
+
+def start_process(command: Sequence[str], **popen: Any) -> subprocess.Popen:
+    """``subprocess.Popen`` in a session of its own, killed (SIGKILL) when the test process dies; its group recorded."""
+    process = subprocess.Popen(list(command), start_new_session=True, preexec_fn=_child_setup(os.getpid()),
+                               **popen)
+    STARTED_GROUPS.append(process.pid)
+    return process
+
+
+def group_running(group: int) -> bool:
+    """Whether a process of process group ``group`` runs (a zombie does not)."""
+    for entry in os.scandir('/proc'):
+        if not entry.name.isdigit():
+            continue
+        try:
+            fields = Path(entry.path, 'stat').read_text().rsplit(')', 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if int(fields[2]) == group and fields[0] not in 'ZX':
+            return True
+    return False
+
+
+def kill_leftovers(since: int = 0, timeout: float = 10.0) -> list[int]:
+    """SIGKILL every group :func:`start_process` started (from index ``since`` on) that still runs; those groups."""
+    left = [group for group in STARTED_GROUPS[since:] if group_running(group)]
+    for group in left:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(group, signal.SIGKILL)
+    wait_until(lambda: not any(group_running(group) for group in left), timeout, what='the leftovers to die')
+    return left
 
 
 def domain_id(index: int) -> int:
@@ -65,8 +121,8 @@ class NodeProcess:
                  cwd: Path | None = None) -> None:
         self.log_path = log_path
         self._log = open(log_path, 'wb')  # noqa: SIM115 - closed in stop()
-        self.process = subprocess.Popen(list(command), env=env, stdout=self._log, stderr=subprocess.STDOUT,
-                                        stdin=subprocess.DEVNULL, start_new_session=True, cwd=cwd)
+        self.process = start_process(command, env=env, stdout=self._log, stderr=subprocess.STDOUT,
+                                     stdin=subprocess.DEVNULL, cwd=cwd)
 
     def log(self) -> str:
         """Everything the node printed so far."""
@@ -96,8 +152,8 @@ class NodeProcess:
 
 def run_to_exit(command: Sequence[str], env: dict[str, str], timeout: float = 60.0) -> subprocess.CompletedProcess:
     """Run a command that should exit by itself (in its own session, killed on timeout)."""
-    with subprocess.Popen(list(command), env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                          stdin=subprocess.DEVNULL, start_new_session=True) as process:
+    with start_process(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                       stdin=subprocess.DEVNULL) as process:
         try:
             out, err = process.communicate(timeout=timeout)
         except subprocess.TimeoutExpired:

@@ -24,6 +24,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from conftest import SHORT
+from node_helpers import start_process
 from tak_thermo_ros.formats.bag import write_record
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.core.diagnose.fleet import (
@@ -230,9 +231,9 @@ def dask_cluster(tmp_path):
     """A Dask scheduler and one worker process started as separate commands, on 127.0.0.1."""
     scheduler_file = tmp_path / 'scheduler.json'
     logs = (tmp_path / 'scheduler.log').open('w'), (tmp_path / 'worker.log').open('w')
-    scheduler = subprocess.Popen([str(BIN / 'dask'), 'scheduler', '--host', '127.0.0.1', '--port', '0',
-                                  '--no-dashboard', '--scheduler-file', str(scheduler_file)],
-                                 stdout=logs[0], stderr=subprocess.STDOUT, start_new_session=True)
+    scheduler = start_process([str(BIN / 'dask'), 'scheduler', '--host', '127.0.0.1', '--port', '0',
+                               '--no-dashboard', '--scheduler-file', str(scheduler_file)],
+                              stdout=logs[0], stderr=subprocess.STDOUT)
     processes = [scheduler]
     try:
         deadline = time.monotonic() + 60.0
@@ -242,9 +243,9 @@ def dask_cluster(tmp_path):
             time.sleep(0.2)
         address = json.loads(scheduler_file.read_text())['address']
         assert address.startswith('tcp://127.0.0.1:')
-        worker = subprocess.Popen([str(BIN / 'dask'), 'worker', address, '--nworkers', '1', '--nthreads', '1',
-                                   '--host', '127.0.0.1', '--no-dashboard'],
-                                  stdout=logs[1], stderr=subprocess.STDOUT, start_new_session=True)
+        worker = start_process([str(BIN / 'dask'), 'worker', address, '--nworkers', '1', '--nthreads', '1',
+                                '--host', '127.0.0.1', '--no-dashboard'],
+                               stdout=logs[1], stderr=subprocess.STDOUT)
         processes.append(worker)
         from dask.distributed import Client
         with Client(address, timeout='30s') as client:

@@ -7,8 +7,10 @@ with the default executor: ``test_node.py``; the pure rules: ``test_online.py``.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
+import subprocess
 import sys
 from pathlib import Path
 
@@ -17,11 +19,15 @@ import yaml
 
 from node_helpers import (
     NANOSECONDS,
+    STARTED_GROUPS,
     Harness,
     NodeProcess,
+    group_running,
+    kill_leftovers,
     node_command,
     run_to_exit,
     stamp_of,
+    start_process,
     status_values,
     wait_until,
 )
@@ -114,16 +120,61 @@ def test_a_signal_at_any_moment_of_start_up_ends_the_node_cleanly(tmp_path, ros_
                 writer = _writer_once_read(fifo, 30.0)
             else:
                 wait_until(lambda: 'correcting' in node.log(), 30.0, what='the ready line')
-            os.killpg(pid, number)
-            if writer is not None:  # the calibration arrives after the signal: the node goes on building
-                os.write(writer, unit_yaml(DRIVER_UNIT).encode())
-                os.close(writer)
+            try:
+                os.killpg(pid, number)
+                if writer is not None:  # the calibration arrives after the signal: the node goes on building
+                    os.write(writer, unit_yaml(DRIVER_UNIT).encode())
+            finally:
+                if writer is not None:
+                    os.close(writer)
             node.process.wait(timeout=20.0)
             said = node.log()
             assert node.process.returncode == 0, (moment, number, said)
             assert 'Traceback' not in said and 'terminate called' not in said, (moment, said)
             if moment != 'ready':
                 assert f'stopped by {signal.Signals(number).name} while starting' in said, (moment, said)
+
+
+def test_a_node_dies_with_the_test_process_that_started_it(tmp_path, ros_env):
+    """A test process that dies without its ``finally`` (a crashed pytest worker) takes its node with it.
+
+    How a compensator outlived ``make test`` by 78 minutes: it runs in its own session, so only
+    the test's own stop() ends it, and a test process killed (SIGKILL, the OOM killer, a worker
+    crash) runs none. A helper process starts a node as the tests do and is killed at once.
+    """
+    params = driver_params(tmp_path / 'params.yaml')
+    script = (f'import os, signal, sys\n'
+              f'sys.path.insert(0, {str(Path(__file__).parent)!r})\n'
+              f'from pathlib import Path\n'
+              f'from node_helpers import NodeProcess\n'
+              f'node = NodeProcess({node_command("--params-file", str(params))!r}, dict(os.environ), '
+              f'Path({str(tmp_path / "node.log")!r}))\n'
+              f'print(node.process.pid, flush=True)\n'
+              f'os.kill(os.getpid(), signal.SIGKILL)\n')
+    helper = start_process([sys.executable, '-c', script], env=ros_env, stdout=subprocess.PIPE, text=True)
+    node_pid = int(helper.stdout.readline())
+    try:
+        assert helper.wait(timeout=30.0) == -signal.SIGKILL
+        wait_until(lambda: not group_running(node_pid), 20.0, what='the node of the killed test process to die')
+    finally:
+        helper.stdout.close()
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(node_pid, signal.SIGKILL)
+
+
+def test_a_node_its_test_left_running_is_found_and_killed(tmp_path, ros_env):
+    """conftest's guard: a group a test started and never stopped is killed at its end, and said."""
+    since = len(STARTED_GROUPS)
+    node = NodeProcess(node_command('--params-file', str(driver_params(tmp_path / 'params.yaml'))), ros_env,
+                       tmp_path / 'node.log')  # never stopped: a test that forgot
+    try:
+        wait_until(lambda: 'correcting' in node.log(), 30.0, what='the node to start')
+        assert group_running(node.process.pid)
+        assert kill_leftovers(since) == [node.process.pid]
+        assert not group_running(node.process.pid) and kill_leftovers(since) == []
+    finally:
+        node.stop()
+    assert node.process.returncode == -signal.SIGKILL
 
 
 # -- 2. two compensators on one /diagnostics --------------------------------------------------------

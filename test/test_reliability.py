@@ -23,6 +23,7 @@ import yaml
 
 from bag_writer import write_with_header_stamps
 from conftest import CREEP_MODULE, SHORT
+from node_helpers import start_process
 from tak_thermo_ros.formats import bag as bagio
 from tak_thermo_ros.formats.bag import read_imu, read_record, write_record
 from tak_thermo_ros.cli import main
@@ -240,8 +241,15 @@ def test_a_signal_during_a_bag_write_leaves_nothing(tmp_path, signum, status, wo
     scenario = tmp_path / 'long.yaml'
     scenario.write_text(yaml.safe_dump({'plateau_hours': 3.0, 'sample_rate_hz': 20.0}))
     out = tmp_path / 'bag'
-    process = subprocess.Popen([TAK_CALIB, 'simulate', str(out), '--scenario', str(scenario)],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # The test process ignores SIGINT while it starts the command, as a shell running `make test` in the
+    # background does: start_process sets it back to the default in the child (an ignored SIGINT is
+    # inherited, and the command would finish with exit 0).
+    ignored = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        process = start_process([TAK_CALIB, 'simulate', str(out), '--scenario', str(scenario)],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    finally:
+        signal.signal(signal.SIGINT, ignored)
     deadline = time.monotonic() + 120.0
     while not any(p.name.endswith('.partial') for p in tmp_path.iterdir()):
         assert process.poll() is None and time.monotonic() < deadline, 'the bag write never started'

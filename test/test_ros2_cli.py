@@ -23,7 +23,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from node_helpers import Harness, NodeProcess, copy_package, fitted_driver_params, run_to_exit, wait_until
+from node_helpers import (Harness, NodeProcess, copy_package, fitted_driver_params, run_to_exit, start_process,
+                          wait_until)
 from tak_thermo_ros.core.link.correction import UnitCorrector
 from tak_thermo_ros.formats.calibration_file import load_unit
 
@@ -139,10 +140,10 @@ def test_ros2_launch_in_a_namespace_with_the_fitted_file(workspace, fitted, cli_
             return '/imu0/compensator' in listed.stdout.split()
         wait_until(node_listed, 30.0, what='ros2 node list to show /imu0/compensator')
 
-        echo = subprocess.Popen(['bash', str(workspace / 'run.sh'), 'ros2', 'topic', 'echo', '--once', '--no-daemon',
-                                 '/imu0/imu/data_compensated', 'sensor_msgs/msg/Imu'],
-                                env=cli_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                stdin=subprocess.DEVNULL, start_new_session=True)
+        echo = start_process(['bash', str(workspace / 'run.sh'), 'ros2', 'topic', 'echo', '--once', '--no-daemon',
+                              '/imu0/imu/data_compensated', 'sensor_msgs/msg/Imu'],
+                             env=cli_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             stdin=subprocess.DEVNULL)
         try:
             deadline = time.monotonic() + 60.0
             index = 2
