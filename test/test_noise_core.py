@@ -19,6 +19,7 @@ from tak_thermo_ros.core.noise.allan import (
     equivalent_degrees_of_freedom,
 )
 from tak_thermo_ros.formats.kalibr import kalibr_from_mapping, kalibr_text, kalibr_values, read_kalibr, write_kalibr
+from tak_thermo_ros.formats.files import non_finite_number
 from tak_thermo_ros.core.noise.model import (
     FLICKER_FLOOR,
     TERMS,
@@ -376,7 +377,9 @@ def test_any_model_round_trips_through_the_kalibr_text(white, bias, walk, bound,
         with pytest.raises(NoiseError, match='Kalibr refuses a value <= 0'):
             kalibr_text({'gyro': model}, rostopic='/imu')
         return
-    back, topic = kalibr_from_mapping(yaml.safe_load(kalibr_text({'gyro': model}, rostopic='/imu')))
+    raw = yaml.safe_load(kalibr_text({'gyro': model}, rostopic='/imu'))
+    assert non_finite_number(raw) is None  # no floor on an axis: null there, never .nan or .inf
+    back, topic = kalibr_from_mapping(raw)
     assert topic == '/imu' and set(back) == {'gyro'}
     written = kalibr_values(model)
     assert np.allclose(back['gyro'].white_noise_density, written['noise_density'], rtol=1e-6, atol=0.0)

@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import base64
 import html
-import json
 import math
 import sys
 from typing import Any
@@ -67,7 +66,7 @@ def cmd_carrier_simulate(args: argparse.Namespace) -> int:
 def cmd_carrier_fit(args: argparse.Namespace) -> int:
     """Fit Poisson's model to a CSV record; one line per parameter."""
     from tak_thermo_ros.core.magnetometer.carrier import fit_carrier
-    from tak_thermo_ros.formats.files import write_text_atomic
+    from tak_thermo_ros.formats.files import write_json
     from tak_thermo_ros.core.simulation.carrier import read_record_csv
     model = _model(args)
     fit = fit_carrier(read_record_csv(args.record), model, _errors(args))
@@ -83,7 +82,7 @@ def cmd_carrier_fit(args: argparse.Namespace) -> int:
                     'gauge': model.gauge.describe(), 'condition': fit.condition, 'chi2_per_dof': fit.chi2_per_dof,
                     'estimates': {e.name: {'value': e.value, 'sigma': e.sigma, 'unit': e.unit} for e in fit.estimates},
                     'covariance': fit.covariance.tolist()}
-        write_text_atomic(args.json, json.dumps(document, indent=2) + '\n')
+        write_json(args.json, document)
     return 0
 
 
@@ -99,10 +98,11 @@ def _sweep_figure(results: dict[str, Any]) -> bytes:
     figure, axes = plt.subplots(1, len(SWEEPS), figsize=(4.0 * len(SWEEPS), 3.6), sharey=True)
     colours = {'earth': '#1f77b4', 'poisson': '#d62728', 'hard_iron': '#2ca02c'}
     for ax, item in zip(axes, SWEEPS):
-        values = [value for value, _ in results[item.name]]
-        for name in QUANTITIES:
-            ax.plot(values, [summary.rms_percent[name] for _, summary in results[item.name]], 'o-',
-                    color=colours[name], label=LABELS[name])
+        for name in QUANTITIES:  # a point not defined (every run refused, no free coefficient) is left out
+            points = [(value, summary.rms_percent[name]) for value, summary in results[item.name]
+                      if summary.rms_percent[name] is not None]
+            ax.plot([value for value, _ in points], [rms for _, rms in points], 'o-', color=colours[name],
+                    label=LABELS[name])
             ax.axhline(SEED_FIGURES_PERCENT[name], color=colours[name], linestyle=':', linewidth=0.8)
         ax.axvline(item.seed_value, color='#777777', linestyle='--', linewidth=0.8)
         if item.log_x:
@@ -124,12 +124,17 @@ def _sweep_figure(results: dict[str, Any]) -> bytes:
 def cmd_carrier_budget(args: argparse.Namespace) -> int:
     """The Monte Carlo error budget beside the seed's table; with --report, the sweeps."""
     from tak_thermo_ros.core.magnetometer.budget import SWEEPS, monte_carlo, sweep, table_text
-    from tak_thermo_ros.formats.files import atomic_directory, write_text_atomic
+    from tak_thermo_ros.errors import CarrierError
+    from tak_thermo_ros.formats.files import atomic_directory, json_text, write_text_atomic
     from tak_thermo_ros.core.simulation.carrier import CarrierScenario
     model = _model(args)
     scenario = CarrierScenario(errors=_errors(args), tilt_range_deg=args.tilt_range, tilt_step_deg=args.tilt_step,
                                second_tilt_axis=args.second_tilt)
     summary = monte_carlo(scenario, model, args.runs, args.first_seed)
+    if summary.failed == summary.runs:
+        msg = (f'carrier-budget: the fit refused every one of the {args.runs} runs, so there is no figure; '
+               f'the first: {summary.first_refusal}')
+        raise CarrierError(msg)
     table = table_text(summary)
     heading = (f'carrier method, {args.runs} runs; model: Poisson {", ".join(model.poisson) or "none"}, gauge '
                f'{model.gauge.describe()}; errors +/- read as {scenario.errors.distribution} '
@@ -145,10 +150,16 @@ def cmd_carrier_budget(args: argparse.Namespace) -> int:
             print(f'  sweep: {text} ({runs} runs)', file=sys.stderr)
 
         sweeps = sweep(scenario, model, runs, progress=None if args.quiet else progress)
+    if args.json:  # checked before the report is written: one refusal writes neither
+        text = json_text({'heading': heading, 'table': summary.as_json(),
+                          'sweeps': {name: [{'value': value, **s.as_json()} for value, s in points]
+                                     for name, points in sweeps.items()}}, args.json)
+    if args.report:
         png = _sweep_figure(sweeps)
         rows = ''.join(
             f'<tr><td>{html.escape(item.label)}</td><td>{value:g}</td>'
-            + ''.join(f'<td>{s.rms_percent[name]:.3f}</td>' for name in ('earth', 'poisson', 'hard_iron'))
+            + ''.join(f'<td>{"-" if s.rms_percent[name] is None else f"{s.rms_percent[name]:.3f}"}</td>'
+                      for name in ('earth', 'poisson', 'hard_iron'))
             + '</tr>' for item in SWEEPS for value, s in sweeps[item.name])
         page = (f'<!DOCTYPE html><html><head><meta charset="utf-8"><title>carrier method error budget</title></head>'
                 f'<body><h1>Carrier method: error budget</h1><p>{html.escape(heading)}</p>'
@@ -161,10 +172,7 @@ def cmd_carrier_budget(args: argparse.Namespace) -> int:
             (directory / 'report.html').write_text(page, encoding='utf-8')
         print(f'report: {args.report}/report.html')
     if args.json:
-        document = {'heading': heading, 'table': summary.as_json(),
-                    'sweeps': {name: [{'value': value, **s.as_json()} for value, s in points]
-                               for name, points in sweeps.items()}}
-        write_text_atomic(args.json, json.dumps(document, indent=2) + '\n')
+        write_text_atomic(args.json, text)
     return 0
 
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
-import json
 import math
 import re
 import sys
@@ -168,12 +167,9 @@ def require_finite(values, what: str) -> None:
 
 
 def json_text(document: object, path: str) -> str:
-    """A JSON document's text; a non-finite number is refused (JSON has none)."""
-    try:
-        return json.dumps(document, indent=2, allow_nan=False) + '\n'
-    except ValueError:
-        msg = f'{path}: the figures hold a non-finite number (NaN or infinite); not written'
-        raise TakError(msg) from None
+    """A JSON document's text; a non-finite number is refused (:func:`tak_thermo_ros.formats.files.json_text`)."""
+    from tak_thermo_ros.formats.files import json_text as checked
+    return checked(document, path)
 
 
 def effect_list(text: str | None) -> list[str]:

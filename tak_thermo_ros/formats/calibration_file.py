@@ -59,6 +59,7 @@ import numpy as np
 import yaml
 
 from tak_thermo_ros.formats.files import write_text_atomic  # noqa: F401 (re-exported: one writer of text files)
+from tak_thermo_ros.formats.files import check_finite
 from tak_thermo_ros.core.link.model import (
     AXES,
     CALIBRATION_VERSION,
@@ -740,9 +741,14 @@ def calibration_yaml(calibration: Calibration, *, extra_parameters: Mapping[str,
 
 
 def save_unit(path: str | os.PathLike[str], unit: UnitCalibration, *, header: str = '') -> None:
-    """Validate (by a round trip through the one parser) and write the calibration file atomically."""
+    """Validate (by a round trip through the one parser) and write the calibration file atomically.
+
+    :raises OutputError: a number in it is not finite (:func:`~tak_thermo_ros.formats.files.check_finite`).
+    """
     text = unit_yaml(unit, header=header)
-    unit_from_mapping(calibration_section(parse_parameters_yaml(text))['calibration'])
+    document = parse_parameters_yaml(text)
+    check_finite(document, path)
+    unit_from_mapping(calibration_section(document)['calibration'])
     write_text_atomic(path, text)
 
 

@@ -15,11 +15,19 @@ one rule:
   report. Nothing but regular files and the output directories is ever replaced.
 
 Errors name the user's path, never the temporary one.
+
+No JSON or YAML this tool writes holds a non-finite number (JSON has none; a NaN in a YAML
+file is a number nobody can use): :func:`json_text`, :func:`check_finite_yaml` and
+:func:`write_texts` refuse one, naming the file and the key (:func:`check_finite`). A value
+that is not defined is said where it arises (``null`` with its meaning documented, or left out
+with a line), never written as NaN or infinity.
 """
 
 from __future__ import annotations
 
 import contextlib
+import json
+import math
 import os
 import shutil
 import stat
@@ -38,8 +46,8 @@ OUTPUT_KINDS = (FILE, BAG, REPORT)
 _REPORT_SUFFIXES = ('.png', '.html')
 
 
-def _what(mode: int) -> str:
-    """A file type in words."""
+def file_kind(mode: int) -> str:
+    """A file type in words (``a symbolic link``, ``a FIFO (named pipe)``, ...)."""
     for test, name in ((stat.S_ISLNK, 'a symbolic link'), (stat.S_ISFIFO, 'a FIFO (named pipe)'),
                        (stat.S_ISCHR, 'a character device'), (stat.S_ISBLK, 'a block device'),
                        (stat.S_ISSOCK, 'a socket'), (stat.S_ISDIR, 'a directory'), (stat.S_ISREG, 'a regular file')):
@@ -92,7 +100,7 @@ def check_output(path: str | os.PathLike[str], kind: str = FILE, *, force: bool 
     else:
         matches = stat.S_ISDIR(mode) and _is_output_directory(path, kind)
     if not matches:
-        msg = (f'{label}: exists and is {_what(mode)}'
+        msg = (f'{label}: exists and is {file_kind(mode)}'
                f'{" that this tool did not write" if stat.S_ISDIR(mode) and kind != FILE else ""}; '
                f'only {what} is written or replaced here, refusing to touch it')
         raise OutputError(msg)
@@ -131,7 +139,7 @@ def write_bytes_atomic(path: str | os.PathLike[str], data: bytes) -> None:
     with contextlib.suppress(FileNotFoundError):
         mode = os.lstat(path).st_mode
         if not stat.S_ISREG(mode):
-            msg = f'{path}: exists and is {_what(mode)}; only a regular file is written here, refusing to touch it'
+            msg = f'{path}: exists and is {file_kind(mode)}; only a regular file is written here, refusing to touch it'
             raise OutputError(msg)
     try:
         handle, temporary = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.partial',
@@ -155,11 +163,80 @@ def write_bytes_atomic(path: str | os.PathLike[str], data: bytes) -> None:
         raise
 
 
+def non_finite_number(document: Any, where: str = '') -> tuple[str, float] | None:
+    """The key path (``sensors.accel.allan_floor[2]``) and value of the first NaN or infinity in ``document``.
+
+    ``document``: mappings, lists, tuples and numbers (JSON- or YAML-like); ``None`` when every
+    number is finite.
+    """
+    if isinstance(document, float) or (hasattr(document, 'dtype') and getattr(document, 'shape', None) == ()):
+        try:
+            value = float(document)
+        except (TypeError, ValueError):
+            return None
+        return None if math.isfinite(value) else (where or 'the document', value)
+    if isinstance(document, dict):
+        items = ((f'{where}.{key}' if where else str(key), value) for key, value in document.items())
+    elif isinstance(document, (list, tuple)):
+        items = ((f'{where}[{index}]', value) for index, value in enumerate(document))
+    else:
+        return None
+    for key, value in items:
+        found = non_finite_number(value, key)
+        if found is not None:
+            return found
+    return None
+
+
+def check_finite(document: Any, path: str | os.PathLike[str]) -> None:
+    """Refuse a document holding a NaN or infinity: the one check before any JSON or YAML is written.
+
+    :raises OutputError: one line naming ``path``, the key and the value; nothing is written.
+    """
+    found = non_finite_number(document)
+    if found is not None:
+        key, value = found
+        msg = f'{path}: {key} is {value} (not a finite number); not written'
+        raise OutputError(msg)
+
+
+def json_text(document: Any, path: str | os.PathLike[str]) -> str:
+    """A JSON document's text, indented; one holding a non-finite number is refused (:func:`check_finite`)."""
+    check_finite(document, path)
+    return json.dumps(document, indent=2, allow_nan=False) + '\n'
+
+
+def write_json(path: str | os.PathLike[str], document: Any) -> None:
+    """Write a JSON document atomically (:func:`json_text`, :func:`write_text_atomic`)."""
+    write_text_atomic(path, json_text(document, path))
+
+
+def check_finite_yaml(text: str, path: str | os.PathLike[str]) -> None:
+    """Refuse a YAML text that holds a non-finite number (``.nan``, ``.inf``), read back as it is written."""
+    import yaml
+    check_finite(yaml.safe_load(text), path)
+
+
+def _check_text(path: Path, text: str) -> None:
+    """A JSON or YAML file's text (by its suffix), checked as :func:`check_finite`."""
+    if path.suffix == '.json':
+        def refuse(constant: str) -> float:
+            return float(constant)  # NaN, Infinity: found by check_finite
+        check_finite(json.loads(text, parse_constant=refuse), path)
+    elif path.suffix in ('.yaml', '.yml'):
+        check_finite_yaml(text, path)
+
+
 def write_texts(directory: str | os.PathLike[str], texts: dict[str, str]) -> tuple[Path, ...]:
-    """Write each ``name: text`` into ``directory`` (made if missing), each file atomically; their paths."""
+    """Write each ``name: text`` into ``directory`` (made if missing), each file atomically; their paths.
+
+    A ``.json`` or ``.yaml`` text holding a non-finite number is refused before any is written.
+    """
     directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
     paths = tuple(directory / name for name in texts)
+    for path, text in zip(paths, texts.values()):
+        _check_text(path, text)
+    directory.mkdir(parents=True, exist_ok=True)
     for path, text in zip(paths, texts.values()):
         write_text_atomic(path, text)
     return paths

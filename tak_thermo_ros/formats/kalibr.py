@@ -20,7 +20,9 @@ covariance is then singular). :func:`write_kalibr` writes every one of them posi
   extra keys that Kalibr ignores: ``<sensor>_<term>_xyz`` (three numbers, x y z) for the two
   Kalibr terms, the bias instability (IEEE 952's ``B``), the floor (``allan_floor``: the Allan
   deviation's minimum, the data-sheet convention) and its averaging time
-  (``bias_instability_tau``), the quantisation, the rate ramp and the driver's filter;
+  (``bias_instability_tau``; ``null`` on an axis where the record shows no floor: its Allan
+  deviation still falls at the longest averaging time), the quantisation, the rate ramp and the
+  driver's filter;
   ``<sensor>_gauss_markov_sigma`` / ``_time`` (three numbers per process); ``<sensor>_noise_source``;
 - where the record shows **no random walk**, the walk written is the largest the record allows
   (``random_walk_bound``, from its longest averaging times), said in a comment and under
@@ -83,6 +85,20 @@ def _number(value: Any, where: str, *, positive: bool = False, allow_inf: bool =
     return number
 
 
+_NO_FLOOR_TERMS = ('allan_floor', 'bias_instability_tau')
+"""Per-axis terms that are not defined where the record shows no floor: ``null`` there."""
+_NO_FLOOR_WORDS = 'null: no floor (still falling at the longest averaging time)'
+
+
+def _axis_number(value: Any, where: str, term: str) -> float:
+    """One axis of a ``_xyz`` key; ``null`` (or the ``.inf``/``.nan`` of older files) where there is no floor."""
+    if term == 'bias_instability_tau':
+        return math.inf if value is None else _number(value, where, positive=True, allow_inf=True)
+    if term == 'allan_floor':
+        return math.nan if value is None else _number(value, where, allow_nan=True)
+    return _number(value, where)
+
+
 def kalibr_from_mapping(raw: Any, where: str = 'imu.yaml') -> tuple[dict[str, NoiseModel], str]:
     """The noise models (``'accel'``, ``'gyro'``, whichever the file holds) and the ``rostopic`` ('' if none).
 
@@ -131,8 +147,7 @@ def kalibr_from_mapping(raw: Any, where: str = 'imu.yaml') -> tuple[dict[str, No
                 if not isinstance(items, list) or len(items) != 3:
                     msg = f'{where}: {extra}: expected three numbers [x, y, z], got {items!r}'
                     raise NoiseError(msg)
-                values[term] = tuple(_number(v, f'{where}: {extra}[{a}]', allow_inf=term == 'bias_instability_tau',
-                                             positive=term == 'bias_instability_tau', allow_nan=term == 'allan_floor')
+                values[term] = tuple(_axis_number(v, f'{where}: {extra}[{a}]', term)
                                      for a, v in zip('xyz', items))  # type: ignore[assignment]
         values.pop('allan_floor', None)  # written for people: the model gives it again
         processes: dict[str, Any] = {}
@@ -244,7 +259,7 @@ def kalibr_text(models: Mapping[str, NoiseModel], *, rostopic: str, update_rate:
             if term == 'white_noise_density' and not all(model.white_noise_density):
                 axes = ' '.join(a for a, n in zip('xyz', model.white_noise_density) if n == 0.0)
                 note = f'; on {axes} from the Allan variance at one sample (no white term fitted)'
-            lines.append(f'{_key(sensor, term)}: {value:.6e}   # {UNITS[sensor][suffix]}{note}')
+            lines.append(f'{_key(sensor, term)}: {_yaml_float(value)}   # {UNITS[sensor][suffix]}{note}')
         for term in _EXTRA_TERMS:
             if term in ('filter_time_constant', 'filter_share') and not any(model.filter_share):
                 continue
@@ -252,7 +267,10 @@ def kalibr_text(models: Mapping[str, NoiseModel], *, rostopic: str, update_rate:
                 continue
             numbers = {'white_noise_density': written['noise_density'], 'random_walk': written['random_walk'],
                        'allan_floor': model.floor()}.get(term) or getattr(model, term)
-            lines.append(f'{_key(sensor, term)}_xyz: [{", ".join(_yaml_float(v) for v in numbers)}]')
+            undefined = term in _NO_FLOOR_TERMS and not all(math.isfinite(v) for v in numbers)
+            lines.append(f'{_key(sensor, term)}_xyz: '
+                         f'[{", ".join(_yaml_float(v, undefined=term in _NO_FLOOR_TERMS) for v in numbers)}]'
+                         f'{"   # " + _NO_FLOOR_WORDS if undefined else ""}')
         for suffix, name in _PROCESS_KEYS.items():
             processes = getattr(model, name)
             if any(any(sigma) for sigma in model.gauss_markov):
@@ -270,16 +288,24 @@ def kalibr_text(models: Mapping[str, NoiseModel], *, rostopic: str, update_rate:
     return '\n'.join(lines) + '\n'
 
 
-def _yaml_float(value: float) -> str:
-    return '.inf' if math.isinf(value) else '.nan' if math.isnan(value) else f'{value:.6e}'
+def _yaml_float(value: float, *, undefined: bool = False) -> str:
+    """A number as YAML: ``null`` for a non-finite one where that means "not defined", else ``.nan``/``.inf``.
+
+    (which :func:`~tak_thermo_ros.formats.files.check_finite_yaml` refuses to write).
+    """
+    if not math.isfinite(value):
+        return 'null' if undefined else '.inf' if math.isinf(value) else '.nan'
+    return f'{value:.6e}'
 
 
 def write_kalibr(path: str | os.PathLike[str], models: Mapping[str, NoiseModel], *, rostopic: str,
                  update_rate: float | None = None, header: str = '', force: bool = False) -> None:
     """Write :func:`kalibr_text` atomically (the overwrite rule of ``formats/files.py``)."""
-    from tak_thermo_ros.formats.files import check_output, write_text_atomic
+    from tak_thermo_ros.formats.files import check_finite_yaml, check_output, write_text_atomic
     check_output(path, force=force)
-    write_text_atomic(path, kalibr_text(models, rostopic=rostopic, update_rate=update_rate, header=header))
+    text = kalibr_text(models, rostopic=rostopic, update_rate=update_rate, header=header)
+    check_finite_yaml(text, path)
+    write_text_atomic(path, text)
 
 
 __all__ = ['KALIBR_SENSORS', 'kalibr_from_mapping', 'kalibr_text', 'kalibr_values', 'read_kalibr', 'write_kalibr']

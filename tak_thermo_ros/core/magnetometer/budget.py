@@ -12,6 +12,9 @@ relative errors (the seed's rows):
 The statistic reported is the root mean square over the runs (a 1-sigma figure) and the 95th
 percentile (a bound, the closer reading of the seed's "+/-"); the fraction of all estimates that
 lay within two of their own reported standard uncertainties checks those uncertainties.
+
+A figure that is not defined (no free Poisson coefficient; no run the fit accepted) is ``None``
+(``null`` in JSON, ``-`` in the table), never NaN.
 """
 
 from __future__ import annotations
@@ -66,18 +69,24 @@ def within_two_sigma(fit: CarrierFit, truth: CarrierTruth) -> np.ndarray:
 
 @dataclass(frozen=True)
 class BudgetSummary:
-    """The Monte Carlo's figures: per quantity, RMS and 95th percentile of the relative error, in %."""
+    """The Monte Carlo's figures: per quantity, RMS and 95th percentile of the relative error, in %.
+
+    A figure is ``None`` where it is not defined: every run refused, or (Poisson) no free coefficient.
+
+    :param first_refusal: the fit's message for the first run it refused, or ``None``.
+    """
 
     runs: int
     failed: int
-    rms_percent: dict[str, float]
-    p95_percent: dict[str, float]
-    mean_sigma_percent: dict[str, float]
-    coverage_two_sigma: float
-    condition_median: float
+    rms_percent: dict[str, float | None]
+    p95_percent: dict[str, float | None]
+    mean_sigma_percent: dict[str, float | None]
+    coverage_two_sigma: float | None
+    condition_median: float | None
+    first_refusal: str | None = None
 
     def as_json(self) -> dict[str, object]:
-        """The figures as a JSON-ready mapping."""
+        """The figures as a JSON-ready mapping (``null`` where not defined)."""
         return {'runs': self.runs, 'failed': self.failed, 'rms_percent': self.rms_percent,
                 'p95_percent': self.p95_percent, 'mean_predicted_sigma_percent': self.mean_sigma_percent,
                 'coverage_two_sigma': self.coverage_two_sigma, 'condition_median': self.condition_median,
@@ -114,45 +123,58 @@ def monte_carlo(scenario: CarrierScenario, model: CarrierModel | None = None, ru
     covered: list[float] = []
     conditions: list[float] = []
     failed = 0
+    first_refusal = None
     for run in range(runs):
         record, truth = simulate_carrier(replace(scenario, seed=first_seed + run))
         try:
             fit = fit_carrier(record, model, scenario.errors)
-        except FitError:
+        except FitError as err:
             failed += 1
+            first_refusal = first_refusal or str(err)
             continue
         for name, value in relative_errors(fit, truth).items():
-            errors[name].append(value)
+            if math.isfinite(value):  # NaN: not defined (no free Poisson coefficient)
+                errors[name].append(value)
         for name, value in _predicted_relative_sigma(fit, truth).items():
-            sigmas[name].append(value)
+            if math.isfinite(value):
+                sigmas[name].append(value)
         covered.append(float(np.mean(within_two_sigma(fit, truth))))
         conditions.append(fit.condition)
         if progress is not None:
             progress(run + 1, runs)
 
-    def rms(values: list[float]) -> float:
-        return 100.0 * float(np.sqrt(np.mean(np.square(values)))) if values else math.nan
+    def rms(values: list[float]) -> float | None:
+        return 100.0 * float(np.sqrt(np.mean(np.square(values)))) if values else None
 
-    def p95(values: list[float]) -> float:
-        return 100.0 * float(np.percentile(values, 95)) if values else math.nan
+    def p95(values: list[float]) -> float | None:
+        return 100.0 * float(np.percentile(values, 95)) if values else None
 
     return BudgetSummary(runs, failed, {name: rms(errors[name]) for name in QUANTITIES},
                          {name: p95(errors[name]) for name in QUANTITIES},
-                         {name: 100.0 * float(np.mean(sigmas[name])) if sigmas[name] else math.nan
+                         {name: 100.0 * float(np.mean(sigmas[name])) if sigmas[name] else None
                           for name in QUANTITIES},
-                         float(np.mean(covered)) if covered else math.nan,
-                         float(np.median(conditions)) if conditions else math.nan)
+                         float(np.mean(covered)) if covered else None,
+                         float(np.median(conditions)) if conditions else None, first_refusal)
+
+
+def _cell(value: float | None, width: int, form: str) -> str:
+    """A figure in the table, ``-`` where it is not defined."""
+    return f'{"-":>{width}s}' if value is None else f'{value:{width}{form}}'
 
 
 def table_text(summary: BudgetSummary) -> str:
-    """The seed's table beside the Monte Carlo's, as aligned text."""
+    """The seed's table beside the Monte Carlo's, as aligned text (``-``: not defined)."""
     lines = [f'{"relative error, %":28s} {"seed":>7s} {"RMS":>8s} {"95th pct":>9s} {"predicted 1-sigma":>18s}']
     for name in QUANTITIES:
-        lines.append(f'{LABELS[name]:28s} {SEED_FIGURES_PERCENT[name]:7.2f} {summary.rms_percent[name]:8.3f} '
-                     f'{summary.p95_percent[name]:9.3f} {summary.mean_sigma_percent[name]:18.3f}')
+        lines.append(f'{LABELS[name]:28s} {SEED_FIGURES_PERCENT[name]:7.2f} '
+                     f'{_cell(summary.rms_percent[name], 8, ".3f")} {_cell(summary.p95_percent[name], 9, ".3f")} '
+                     f'{_cell(summary.mean_sigma_percent[name], 18, ".3f")}')
+    coverage, condition = summary.coverage_two_sigma, summary.condition_median
     lines.append(f'runs {summary.runs} ({summary.failed} refused); estimates within 2 reported sigma: '
-                 f'{100.0 * summary.coverage_two_sigma:.1f} % (normal: 95.4 %); median condition number '
-                 f'{summary.condition_median:.3g}')
+                 f'{"-" if coverage is None else f"{100.0 * coverage:.1f} %"} (normal: 95.4 %); median condition '
+                 f'number {"-" if condition is None else f"{condition:.3g}"}')
+    if summary.rms_percent['earth'] is not None and summary.rms_percent['poisson'] is None:
+        lines.append('Poisson coefficient(s): none free, so no figure (-)')
     return '\n'.join(lines)
 
 
