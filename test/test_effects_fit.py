@@ -163,5 +163,7 @@ def test_user_defined_effect_through_the_command_line(tmp_path, monkeypatch, cap
     result = fit_model(samples, effects=['user_creep:Creep'])
     assert abs(entry['rate_z'] - 2.0) <= STANDARD_ERRORS * result.parameter_errors['creep.rate_z']
     assert main(['validate', 'run', '--params', 'params.yaml', '--no-progress']) == 0
-    assert main(['fit', 'run', '-o', 'bad.yaml', '--effects', 'user_creep:Nothing', '--no-progress']) == 2
-    assert 'has no Nothing' in capsys.readouterr().err
+    with pytest.raises(SystemExit) as stop:  # refused where the option is parsed, before the bag is read
+        main(['fit', 'run', '-o', 'bad.yaml', '--effects', 'user_creep:Nothing', '--no-progress'])
+    assert stop.value.code == 2
+    assert 'argument --effects: effect \'user_creep:Nothing\': module user_creep has no Nothing' in capsys.readouterr().err

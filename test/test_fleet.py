@@ -205,6 +205,65 @@ def test_validation_bags_must_pair_with_the_bags(batch, tmp_path, capsys):
     assert not (tmp_path / 'out').exists()
 
 
+def test_a_unit_whose_validation_run_lasts_9_minutes_is_calibrated(batch, tmp_path):
+    """A validation run shorter than 600 s (validate --json): its 600-s figure is null (not defined), the unit calibrated.
+
+    Before, the NaN of that figure made validate refuse its JSON, and the unit failed. No library
+    warning reaches stderr (only the fleet's own progress lines).
+    """
+    _, bags, _ = batch
+    short = tmp_path / 'short'
+    run = simulate(replace(BATCH, plateaus_celsius=(20.0,), plateau_hours=0.15, seed=55))
+    assert (run.record.counts_stamp_ns[-1] - run.record.counts_stamp_ns[0]) / 1e9 < 600.0
+    write_record(short, run.record)
+    out = tmp_path / 'out'
+    result = subprocess.run([*TAK_CALIB, 'fit-fleet', str(bags[0]), '-o', str(out), '--validate', str(short),
+                             '--workers', '1', *FIT_OPTIONS], capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    row = json.loads((out / 'fleet.json').read_text())['units'][0]
+    assert row['status'] == 'ok' and math.isfinite(row['validation_rms']), row['error']
+    taus = json.loads((out / 'units' / 'unit0' / 'validation.json').read_text())['averaged_bias_error']['taus']
+    assert taus['600']['windows'] == 0 and taus['600']['rms'] is None
+    assert taus['60']['windows'] > 0 and all(math.isfinite(v) for v in taus['60']['rms'])
+    assert all(line.startswith(('fit-fleet: ', '[1/1] ')) for line in result.stderr.splitlines()), result.stderr
+
+
+@pytest.mark.parametrize('where', ['output_link', 'fleet_json_link', 'params_fifo', 'log_link', 'units_link'])
+def test_what_the_fleet_did_not_write_is_refused_before_any_unit_runs(batch, tmp_path, capsys, where):
+    """A link (-o to a folder elsewhere too) or a FIFO among the outputs: one line, --force or not, nothing touched."""
+    _, bags, _ = batch
+    elsewhere = tmp_path / 'elsewhere'
+    elsewhere.mkdir()
+    (elsewhere / 'victim.txt').write_text('keep')
+    out = tmp_path / 'out'
+    unit = out / 'units' / 'unit0'
+    if where == 'output_link':
+        out.symlink_to(elsewhere, target_is_directory=True)
+        special = out
+    elif where == 'units_link':
+        out.mkdir()
+        (out / 'units').symlink_to(elsewhere, target_is_directory=True)
+        special = out / 'units'
+    else:
+        unit.mkdir(parents=True)
+        special = {'fleet_json_link': out / 'fleet.json', 'params_fifo': unit / 'params.yaml',
+                   'log_link': unit / 'log.txt'}[where]
+        if where == 'params_fifo':
+            os.mkfifo(special)
+        else:
+            special.symlink_to(elsewhere / 'victim.txt')
+    before = os.lstat(special)
+    for force in ([], ['--force']):
+        assert main(['fit-fleet', str(bags[0]), '-o', str(out), *force]) == 2
+        err = capsys.readouterr().err
+        assert err.count('\n') == 1 and err.startswith(f'tak_calib: error: {special}') and 'refusing' in err, err
+    after = os.lstat(special)
+    assert (after.st_mode, after.st_ino) == (before.st_mode, before.st_ino)
+    assert [p.name for p in elsewhere.iterdir()] == ['victim.txt'] and (elsewhere / 'victim.txt').read_text() == 'keep'
+    if where in ('fleet_json_link', 'params_fifo', 'log_link'):  # no unit ran: its directory as it was
+        assert [p.name for p in unit.iterdir()] == ([] if where == 'fleet_json_link' else [special.name])
+
+
 def test_every_fit_option_is_a_fleet_option():
     """The fit options are taken over from fit itself, none lost to a name clash."""
     from tak_thermo_ros.cli import build_parser

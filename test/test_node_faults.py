@@ -163,7 +163,7 @@ def test_a_node_dies_with_the_test_process_that_started_it(tmp_path, ros_env):
 
 
 def test_a_node_its_test_left_running_is_found_and_killed(tmp_path, ros_env):
-    """conftest's guard: a group a test started and never stopped is killed at its end, and said."""
+    """The guard of conftest.py: a group a test started and never stopped is killed at its end, and said."""
     since = len(STARTED_GROUPS)
     node = NodeProcess(node_command('--params-file', str(driver_params(tmp_path / 'params.yaml'))), ros_env,
                        tmp_path / 'node.log')  # never stopped: a test that forgot

@@ -13,12 +13,15 @@ The example budget keeps all of them under a minute in ``make test``; ``make fuz
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import io
 import json
 import math
+import os
 import re
 import shutil
+import stat
 import subprocess
 import sys
 import tempfile
@@ -38,6 +41,7 @@ from conftest import SHORT, examples
 from tak_thermo_ros.formats.bag import read_imu, read_record, write_record
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.errors import TakError
 
 TAK_CALIB = str(Path(sys.executable).with_name('tak_calib'))
 SMALL = replace(SHORT, plateau_hours=0.03, ramp_celsius_per_minute=8.0, board_lag_s=60.0, dwell_s=10.0, seed=21)
@@ -460,3 +464,228 @@ def test_subprocess_runs_keep_the_invariant(small_run, tmp_path, argv):
     assert Path('/dev/null').is_char_device()
     if command[0] == 'apply':
         assert result.returncode == 0 and 'ignored' in result.stdout and 'non-finite temperature codes' in result.stdout
+
+
+# ----- options: every one checked before any input is read, any output opened or any work done --
+
+class _BatchStarted(TakError):
+    """Raised by the stand-in of fit-fleet's Dask batch: everything before it was checked and passed."""
+
+
+def _batch_started(*args, **kwargs):
+    raise _BatchStarted('the batch started')
+
+
+def _typed_options() -> list[tuple[str, argparse.Action]]:
+    """Every option of every command that converts its text (``type=``)."""
+    from tak_thermo_ros.cli import build_parser
+    commands = next(action for action in build_parser()._actions if action.dest == 'command')
+    return [(name, action) for name, sub in commands.choices.items() for action in sub._actions
+            if action.option_strings and action.type is not None]
+
+
+def test_no_option_takes_a_bare_int_or_float():
+    """A bare ``type=int`` / ``float`` takes nan, inf, 0 and -1: every numeric option is bounded in cli/options.py."""
+    bare = [(name, action.option_strings[-1]) for name, action in _typed_options() if action.type in (int, float)]
+    assert bare == []
+
+
+NUMERIC_OPTIONS = sorted((name, action.option_strings[-1]) for name, action in _typed_options()
+                         if getattr(action.type, '__name__', '') in ('number', 'whole number'))
+"""(command, option) of every numeric option (its type is one of cli/options.py's bounded parsers)."""
+OPTION_TEXTS = st.one_of(
+    st.sampled_from(['nan', 'NaN', 'inf', '-inf', 'infinity', '1e400', '-1e400', '-1', '-0', '0', '1', '2', '3', '5',
+                     '100', '101', '255', '256', '1000', '9.7', '9.80665', '9.9', '98', '-9.8', '1e-3', '-1e-3', '0.5',
+                     '1e9', '1e7', '9999999', '90', '-90.5', '', 'x', '1_0', '0x10', ' 4', '4 ', '٣']),
+    st.floats().map(repr), st.integers(-10 ** 20, 10 ** 20).map(str))
+
+
+def _minimal_argv(command: str, missing: Path, out: Path) -> list[str]:
+    """``command`` with inputs that do not exist and outputs in a directory that does not exist (fit-fleet: ``out``)."""
+    return {
+        'simulate': ['simulate', f'{missing}/out'],
+        'fit': ['fit', f'{missing}/bag', '-o', f'{missing}/p.yaml'],
+        'apply': ['apply', f'{missing}/bag', '--params', f'{missing}/p.yaml', '-o', f'{missing}/o'],
+        'validate': ['validate', f'{missing}/bag', '--params', f'{missing}/p.yaml'],
+        'import-csv': ['import-csv', f'{missing}/log.csv', '-o', f'{missing}/o', '--acc-columns', 'a', 'b', 'c',
+                       '--temp-column', 't'],
+        'diagnose': ['diagnose', f'{missing}/bag', '--params', f'{missing}/p.yaml'],
+        'noise': ['noise', f'{missing}/bag'],
+        'export': ['export', f'{missing}/p.yaml', '--format', 'px4', '-o', f'{missing}/o.params'],
+        'play': ['play', f'{missing}/bag'],
+        'fit-fleet': ['fit-fleet', f'{missing}/bag', '-o', str(out)],
+        'carrier-simulate': ['carrier-simulate', '-o', f'{missing}/r.csv'],
+        'carrier-fit': ['carrier-fit', f'{missing}/r.csv', '--no-gauge'],
+        'carrier-budget': ['carrier-budget', '--json', f'{missing}/b.json'],
+    }[command]
+
+
+def _error_lines(stderr: str) -> list[str]:
+    """The lines of stderr, but fit-fleet's progress line before its batch (``fit-fleet: N units on ...``)."""
+    return [line for line in stderr.strip().splitlines() if not re.match(r'fit-fleet: \d+ units on ', line)]
+
+
+def _parses(action: argparse.Action, text: str) -> bool:
+    try:
+        action.type(text)
+    except argparse.ArgumentTypeError:
+        return False
+    return True
+
+
+@settings(max_examples=examples(80))
+@given(option=st.sampled_from(NUMERIC_OPTIONS), text=OPTION_TEXTS)
+def test_a_numeric_option_is_refused_in_one_line_before_any_input_is_read(option, text):
+    """Every numeric option of every command, any text: refused in one line naming it, or taken.
+
+    Taken, the command goes on to its first input or output, which does not exist: one line naming
+    that path, so that no option is checked after an input was read or an output opened. Nothing
+    is written either way (fit-fleet: its batch is never reached with a refused option).
+    """
+    from unittest import mock
+    command, name = option
+    action = dict((a.option_strings[-1], a) for c, a in _typed_options() if c == command)[name]
+    count = {None: 1, '+': 1}.get(action.nargs, action.nargs)
+    if count != 1 and text.startswith('-') and not re.fullmatch(r'-\d+|-\d*\.\d+', text):
+        return  # argparse reads '-1e-3' after an option of several values as an option of its own
+    with tempfile.TemporaryDirectory() as name_dir:
+        directory = Path(name_dir)
+        missing, out = directory / 'missing', directory / 'out'
+        words = [f'{name}={text}'] if count == 1 else [name, *[text] * count]
+        with mock.patch('tak_thermo_ros.passes.fleet.run_batch', _batch_started):
+            code, stdout, stderr = _run([*_minimal_argv(command, missing, out), *words])
+        assert code == 2 and 'Traceback' not in stderr
+        lines = _error_lines(stderr)
+        assert len(lines) == 1 and lines[0].startswith('tak_calib: error: '), stderr
+        assert 'internal error' not in lines[0]
+        if not _parses(action, text):
+            assert f'argument {name}' in lines[0], lines[0]
+            assert sorted(p.name for p in directory.iterdir()) == []
+        elif command == 'fit-fleet':
+            assert lines[0].endswith('the batch started'), lines[0]
+            assert [p.name for p in directory.iterdir()] == ['out'] and list(out.iterdir()) == []
+        else:
+            assert str(missing) in lines[0] and 'argument' not in lines[0], lines[0]
+            assert sorted(p.name for p in directory.iterdir()) == []
+
+
+FLEET_TEXTS = {
+    '--workers': st.sampled_from([None, '1', '2', '0', '-1', '257', 'nan', 'two', '1.5']),
+    '--flag-sigma': st.sampled_from([None, '5', '0.1', '1e6', '0', '-3', 'nan', 'inf', '-inf', '']),
+    '--folds': st.sampled_from([None, '2', '5', '100', '0', '1', '101', 'nan']),
+    '--gravity': st.sampled_from([None, '9.81', '9.7', '9.9', 'nan', 'inf', '0', '-1', '-9.81', '98.1']),
+    '--candidates': st.sampled_from([None, 'warmup', 'library', 'warmup,thermal_lag', 'aux:/power/battery_state',
+                                     'bogus', 'warmup,bogus', 'nomodule_here:Effect', ':', '']),
+    '--settle-time': st.sampled_from([None, '0', '4', '-1', 'nan']),
+    '--bias-order': st.sampled_from([None, '0', '4', '9', '-1']),
+    '--effects': st.sampled_from([None, 'warmup', 'bogus']),
+}
+
+
+@settings(max_examples=examples(40))
+@given(data=st.data())
+def test_fit_fleet_options_are_checked_before_its_cluster_starts(data):
+    """fit-fleet's own options and those it takes over from fit and diagnose, generated.
+
+    A refused one: exit 2, one line naming it, nothing made (not even OUT_DIR); all taken: the
+    batch is reached (a stand-in that stops there), OUT_DIR made and empty.
+    """
+    from unittest import mock
+    chosen = {option: data.draw(texts, label=option) for option, texts in FLEET_TEXTS.items()}
+    with tempfile.TemporaryDirectory() as name:
+        directory = Path(name)
+        (directory / 'cal').mkdir()
+        out = directory / 'out'
+        argv = ['fit-fleet', str(directory / 'cal'), '-o', str(out)]
+        argv += [f'{option}={text}' for option, text in chosen.items() if text is not None]
+        with mock.patch('tak_thermo_ros.passes.fleet.run_batch', _batch_started):
+            code, stdout, stderr = _run(argv)
+        lines = _error_lines(stderr)
+        assert code == 2 and len(lines) == 1 and lines[0].startswith('tak_calib: error: '), stderr
+        actions = {a.option_strings[-1]: a for c, a in _typed_options() if c == 'fit-fleet'}
+        refused = [option for option, text in chosen.items() if text is not None and not _parses(actions[option], text)]
+        if refused:
+            assert 'argument --' in lines[0] and any(f'argument {option}' in lines[0] for option in refused), lines[0]
+            assert not out.exists()
+        else:
+            assert lines[0].endswith('the batch started'), lines[0]
+            assert list(out.iterdir()) == []
+
+
+def _snapshot(directory: Path) -> dict[str, tuple]:
+    """Every entry under ``directory`` (links not followed): its type and its content or target."""
+    entries = {}
+    for path in sorted(directory.rglob('*')):
+        mode = os.lstat(path).st_mode
+        if stat.S_ISLNK(mode):
+            entries[str(path.relative_to(directory))] = ('link', os.readlink(path))
+        elif stat.S_ISREG(mode):
+            entries[str(path.relative_to(directory))] = ('file', path.read_bytes())
+        else:
+            entries[str(path.relative_to(directory))] = (stat.S_IFMT(mode),)
+    return entries
+
+
+def _make(path: Path, kind: str, elsewhere: Path) -> None:
+    if kind == 'file':
+        path.write_bytes(b'precious')
+    elif kind == 'dir':
+        path.mkdir()
+    elif kind == 'fifo':
+        os.mkfifo(path)
+    elif kind == 'link_to_dir':
+        path.symlink_to(elsewhere, target_is_directory=True)
+    elif kind == 'link':
+        path.symlink_to(elsewhere / 'victim.txt')
+
+
+@settings(max_examples=examples(40))
+@given(out_dir=st.sampled_from(['absent', 'dir', 'link_to_dir', 'file', 'fifo']),
+       units=st.sampled_from(['dir', 'link_to_dir']),
+       fleet_json=st.sampled_from(['absent', 'file', 'link', 'fifo']),
+       unit_file=st.sampled_from(['absent', 'file', 'link', 'fifo']),
+       unit_name=st.sampled_from(['params.yaml', 'diagnose.json', 'validation.json', 'log.txt']),
+       validating=st.booleans(), force=st.booleans())
+def test_fit_fleet_applies_the_overwrite_rule_to_every_output_before_it_starts(
+        out_dir, units, fleet_json, unit_file, unit_name, validating, force):
+    """OUT_DIR, fleet.json, units/<unit>/ and each unit's files in any state, with or without --force.
+
+    A link (to a folder elsewhere too), a FIFO or a file where a directory goes, or an existing
+    output without --force: refused in one line before anything is touched; else the batch is
+    reached with everything as it was. Never a file replaced, deleted or written through.
+    """
+    from unittest import mock
+    with tempfile.TemporaryDirectory() as name:
+        root = Path(name)
+        elsewhere = root / 'elsewhere'
+        elsewhere.mkdir()
+        (elsewhere / 'victim.txt').write_bytes(b'keep')
+        (root / 'cal').mkdir()
+        out = root / 'out'
+        _make(out, out_dir, elsewhere)
+        if out_dir == 'dir':
+            _make(out / 'fleet.json', fleet_json, elsewhere)
+            _make(out / 'units', units, elsewhere)
+            if units == 'dir':
+                (out / 'units' / 'cal').mkdir()
+                _make(out / 'units' / 'cal' / unit_name, unit_file, elsewhere)
+        before = _snapshot(root)
+        argv = ['fit-fleet', str(root / 'cal'), '-o', str(out), *(['--validate', str(root / 'cal')] if validating
+                                                                  else []), *(['--force'] if force else [])]
+        with mock.patch('tak_thermo_ros.passes.fleet.run_batch', _batch_started):
+            code, stdout, stderr = _run(argv)
+        lines = _error_lines(stderr)
+        assert code == 2 and len(lines) == 1 and lines[0].startswith('tak_calib: error: '), stderr
+        special = out_dir in ('link_to_dir', 'file', 'fifo') or (out_dir == 'dir' and (
+            fleet_json in ('link', 'fifo') or units == 'link_to_dir'
+            or (unit_file in ('link', 'fifo') and (unit_name != 'validation.json' or validating))))
+        existing = out_dir == 'dir' and (fleet_json == 'file' or (
+            units == 'dir' and unit_file == 'file' and (unit_name != 'validation.json' or validating)))
+        if special or (existing and not force):
+            assert 'refusing' in lines[0] or 'exists already' in lines[0], lines[0]
+            assert _snapshot(root) == before
+        else:
+            assert lines[0].endswith('the batch started'), lines[0]
+            after = _snapshot(root)
+            assert {key: value for key, value in after.items() if key != 'out'} == {
+                key: value for key, value in before.items() if key != 'out'}

@@ -39,7 +39,7 @@ def add_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument('--params', required=True, metavar='PARAMS.yaml')
     parser.add_argument('--json', metavar='OUT.json', help='write the verdict, RMS, floor and candidates as JSON')
     parser.add_argument('--report', metavar='DIR', help='write PNG figures and report.html into DIR')
-    parser.add_argument('--candidates', metavar='NAME[,NAME...]',
+    parser.add_argument('--candidates', type=options.candidates, metavar='NAME[,NAME...]',
                         help='effects to try (default: every library effect the calibration lacks and every '
                              'recorded signal aux:TOPIC in the bag); '
                              "module:Class for a user-defined effect (see docs/effects.md); 'library' "

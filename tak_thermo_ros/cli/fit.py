@@ -36,17 +36,17 @@ def add_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument('--nominal-scale', type=options.nominal_scale, nargs='+', metavar='K0',
                         help='nominal counts per m/s^2 (one value or x y z), held for an axis that sees one '
                              'input only; default: the bag metadata written by simulate / import-csv')
-    parser.add_argument('--effects', metavar='NAME[,NAME...]',
+    parser.add_argument('--effects', type=options.effect_specs, metavar='NAME[,NAME...]',
                         help='effects to fit beyond the paper\'s model: thermal_lag, hysteresis, scale_nonlinearity, '
                              'cross_axis, warmup, temperature_shape, the per-axis forms thermal_lag_per_axis, '
                              'hysteresis_per_axis, warmup_per_axis, a recorded signal aux:TOPIC[:FIELD] '
                              '(e.g. aux:/power/battery_state), or module:Class (see docs/effects.md)')
-    parser.add_argument('--gyro-effects', metavar='NAME[,NAME...]',
+    parser.add_argument('--gyro-effects', type=options.effect_specs, metavar='NAME[,NAME...]',
                         help='effects to fit on the gyroscope (driver bags), the same names as --effects')
     parser.add_argument('--effect-samples', type=options.sample_budget, default=EFFECT_FIT_MAX_SAMPLES, metavar='N',
                         help=f'search the effects\' shapes on at most about N samples spread evenly over the run '
                              f'(default {EFFECT_FIT_MAX_SAMPLES:,}; the amplitudes use every sample)')
-    parser.add_argument('--mag-effects', metavar='NAME[,NAME...]',
+    parser.add_argument('--mag-effects', type=options.effect_specs, metavar='NAME[,NAME...]',
                         help="effects on the magnetometer's thermal link, as --effects (what diagnose names)")
     parser.add_argument('--iron-run', metavar='BAG',
                         help="the magnetometer's rotation record (installed, turned through every orientation): "

@@ -9,6 +9,7 @@ import argparse
 import copy
 from typing import Any
 
+from tak_thermo_ros.cli import options
 from tak_thermo_ros.core.diagnose.fleet import DEFAULT_FLAG_SIGMA
 from tak_thermo_ros.core.link.correction import OutOfRange
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
@@ -37,16 +38,19 @@ def add_parser(commands: Any, fit_parser: argparse.ArgumentParser, command: Comm
     where = fleet.add_mutually_exclusive_group()
     where.add_argument('--scheduler', metavar='ADDRESS',
                        help='a running Dask scheduler, e.g. tcp://host:8786 (default: a local cluster)')
-    where.add_argument('--workers', type=int, metavar='N',
+    where.add_argument('--workers', type=options.int_within(1, options.MAX_WORKERS), metavar='N',
                        help=f'worker processes of the local cluster, one thread each (default {DEFAULT_WORKERS})')
-    fleet.add_argument('--flag-sigma', type=float, default=DEFAULT_FLAG_SIGMA, metavar='K',
+    fleet.add_argument('--flag-sigma', type=options.positive, default=DEFAULT_FLAG_SIGMA, metavar='K',
                        help='flag a unit whose coefficient or residual lies more than K robust sigmas '
                             f'(1.4826 x MAD) from the batch median (default {DEFAULT_FLAG_SIGMA:g})')
     fleet.add_argument('--force', action='store_true', help='replace an existing OUT_DIR/fleet.json')
     diagnose = fleet.add_argument_group('diagnose and validate options (every unit)')
-    diagnose.add_argument('--folds', type=int, default=5, help='cross-validation folds of diagnose (default 5)')
-    diagnose.add_argument('--candidates', metavar='NAME[,NAME...]', help='effects diagnose tries (see diagnose)')
-    diagnose.add_argument('--gravity', type=float, default=STANDARD_GRAVITY, help='local gravity, m/s^2')
+    diagnose.add_argument('--folds', type=options.folds, default=5,
+                          help=f'cross-validation folds of diagnose, 2..{options.MAX_FOLDS} (default 5)')
+    diagnose.add_argument('--candidates', type=options.candidates, metavar='NAME[,NAME...]',
+                          help='effects diagnose tries (see diagnose)')
+    diagnose.add_argument('--gravity', type=options.gravity, default=STANDARD_GRAVITY,
+                          help=f'local gravity, m/s^2 ({options.GRAVITY_MIN:g}..{options.GRAVITY_MAX:g})')
     diagnose.add_argument('--out-of-range', choices=[p.value for p in OutOfRange], default=OutOfRange.CLAMP.value,
                           help='validate: temperature codes outside the calibrated range (default clamp)')
     fit_group = fleet.add_argument_group('fit options (passed to tak_calib fit for every unit)')

@@ -17,7 +17,12 @@ follows from the physics or from what the code downstream can represent:
 - times (``--settle-time``) are finite and not negative; resolutions are positive; a nominal
   scale lies within 0 .. :data:`MAX_NOMINAL_SCALE` counts per m/s^2;
 - polynomial orders lie within 0 .. :data:`MAX_ORDER`; cross-validation needs 2 folds or more;
-- a random seed is a whole number 0 .. 2**63 - 1.
+- a random seed is a whole number 0 .. 2**63 - 1;
+- effect names (``--effects``, ``--candidates``) resolve to an effect: a library name, a recorded
+  signal ``aux:TOPIC[:FIELD]``, or an importable ``module:Class``.
+
+So every option is checked before any input is read or any output opened (``fit-fleet``'s too,
+before its cluster starts).
 """
 
 from __future__ import annotations
@@ -104,6 +109,32 @@ def int_within(low: int, high: int) -> Callable[[str], int]:
     return parse
 
 
+def effect_specs(text: str) -> str:
+    """``--effects NAME[,NAME...]``: the text as given, once every name resolves to an effect class.
+
+    (:func:`~tak_thermo_ros.core.effects.resolve_effect`: a library name, ``aux:TOPIC[:FIELD]``,
+    ``module:Class``); the text stays a text, so that ``fit-fleet`` hands it on as given.
+    """
+    from tak_thermo_ros.core.effects import resolve_effect
+    from tak_thermo_ros.errors import TakError
+    for spec in (part.strip() for part in text.split(',')):
+        if spec:
+            try:
+                resolve_effect(spec)
+            except TakError as err:
+                raise argparse.ArgumentTypeError(str(err)) from None
+    return text
+
+
+def candidates(text: str) -> str:
+    """``diagnose --candidates``: as :func:`effect_specs`, ``library`` standing for every library effect."""
+    effect_specs(','.join(part for part in text.split(',') if part.strip() != 'library'))
+    return text
+
+
+effect_specs.__name__ = candidates.__name__ = 'effect names'
+MAX_WORKERS = 256
+"""Most worker processes of ``fit-fleet``'s local cluster."""
 gravity = float_within(GRAVITY_MIN, GRAVITY_MAX, 'm/s^2 (local gravity on the Earth\'s surface)')
 """``--gravity``."""
 seconds_not_negative = float_within(0.0, math.inf, 's')

@@ -207,7 +207,8 @@ def _averaged_bias(check, noise, sensor: str, gravity: float) -> dict | None:
     for t, tau in enumerate(taus):
         values = np.atleast_1d(rms[tau]) * factor
         text = common.numbers(values, 3) if windows[tau] else 'run shorter than one window'
-        entry = {'windows': windows[tau], 'rms': [float(v) for v in values], 'unit': unit}
+        # not defined for a run shorter than one window: null in the JSON, as the line says
+        entry = {'windows': windows[tau], 'rms': [float(v) for v in values] if windows[tau] else None, 'unit': unit}
         if predicted is not None:
             text += f'   noise model: {common.numbers(predicted[t] * factor, 3)}'
             entry['noise_model'] = [float(v * factor) for v in predicted[t]]

@@ -27,6 +27,7 @@ import os
 import re
 import shlex
 import socket
+import stat
 import sys
 import threading
 import time
@@ -36,6 +37,7 @@ from pathlib import Path
 from typing import Any, Callable, Sequence, TextIO
 
 from tak_thermo_ros.formats.calibration_file import calibration_section, write_text_atomic
+from tak_thermo_ros.formats.files import FILE, check_output, file_kind, json_text
 from tak_thermo_ros.core.diagnose.fleet import (
     MIN_UNITS_FOR_SPREAD,
     batch_spreads,
@@ -46,7 +48,7 @@ from tak_thermo_ros.core.diagnose.fleet import (
 )
 from tak_thermo_ros.core.link.model import AXES
 from tak_thermo_ros.core.simulation.imu import STANDARD_GRAVITY
-from tak_thermo_ros.errors import CalibrationError, TakError
+from tak_thermo_ros.errors import CalibrationError, OutputError, TakError
 from tak_thermo_ros.optional import require
 
 STATUS_OK = 'ok'
@@ -156,7 +158,11 @@ def run_unit(task: UnitTask, command: Command) -> UnitOutcome:
                           openblas_threads=os.environ.get('OPENBLAS_NUM_THREADS'))
     directory.mkdir(parents=True, exist_ok=True)
     for name in (PARAMS_FILE, DIAGNOSE_FILE, VALIDATION_FILE, LOG_FILE):
-        (directory / name).unlink(missing_ok=True)  # a failed step must not leave last run's file
+        # a failed step must not leave last run's file; only a regular file goes (check_outputs
+        # refused anything else before the batch started)
+        path = directory / name
+        if os.path.lexists(path) and not path.is_symlink() and path.is_file():
+            path.unlink()
     params, diagnose_json, validation_json = (str(directory / name)
                                               for name in (PARAMS_FILE, DIAGNOSE_FILE, VALIDATION_FILE))
     steps = [('fit', ['fit', task.bag, '-o', params, *task.fit_options, '--no-progress']),
@@ -390,24 +396,55 @@ def _tasks(args: argparse.Namespace, fit_actions: Sequence[argparse.Action], uni
             for name, bag, check in zip(unit_names(args.bags), bags, validation)]
 
 
+def _own_directory(path: Path, option: str) -> None:
+    """A directory fit-fleet writes into: absent, or a directory itself (a link to one elsewhere is refused)."""
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return
+    if not stat.S_ISDIR(mode):
+        msg = (f'{path} ({option}): exists and is {file_kind(mode)}; fit-fleet writes only into a directory, '
+               'not through a link, refusing to touch it')
+        raise OutputError(msg)
+
+
+def check_outputs(out_dir: Path, units: Sequence[str], *, validating: bool, force: bool) -> None:
+    """The overwrite rule (:mod:`tak_thermo_ros.formats.files`) for every file a batch will write, before it starts.
+
+    ``OUT_DIR``, ``OUT_DIR/units`` and each unit's directory: absent or a directory (not a link);
+    ``fleet.json``, ``fleet.html`` and each unit's ``params.yaml``, ``diagnose.json``,
+    ``validation.json`` (with ``--validate``) and ``log.txt``: absent, or a regular file, replaced
+    only with ``--force``; anything else (a link, a FIFO, a device) is refused, ``--force`` or not.
+
+    :raises OutputError: one line naming the first path that may not be written.
+    """
+    def check_file(path: Path) -> None:
+        if os.path.lexists(path):  # absent: its directory is made when the batch starts
+            check_output(path, FILE, force=force)
+
+    _own_directory(out_dir, '-o')
+    for name in (FLEET_JSON, FLEET_HTML):
+        check_file(out_dir / name)
+    units_dir = out_dir / 'units'
+    _own_directory(units_dir, '-o')
+    files = (PARAMS_FILE, DIAGNOSE_FILE, *((VALIDATION_FILE,) if validating else ()), LOG_FILE)
+    for unit in units:
+        _own_directory(units_dir / unit, '-o')
+        for name in files:
+            check_file(units_dir / unit / name)
+
+
 def cmd_fit_fleet(args: argparse.Namespace, fit_actions: Sequence[argparse.Action], command: Command) -> int:
-    """Calibrate a batch of units on Dask; write per-unit outputs, ``fleet.json`` and ``fleet.html``."""
+    """Calibrate a batch of units on Dask; write per-unit outputs, ``fleet.json`` and ``fleet.html``.
+
+    Every option and every output is checked before the cluster starts (:func:`check_outputs`).
+    """
     from tak_thermo_ros.reports.fleet import write_fleet_report
     out_dir = Path(os.path.abspath(args.output))
     fleet_json = out_dir / FLEET_JSON
-    if out_dir.exists() and not out_dir.is_dir():
-        msg = f'{args.output}: exists and is not a directory'
-        raise TakError(msg)
-    if fleet_json.exists() and not args.force:
-        msg = f'{fleet_json}: exists (a finished batch); pass --force to replace it'
-        raise TakError(msg)
-    if not args.flag_sigma > 0.0:
-        msg = f'--flag-sigma: must be > 0, got {args.flag_sigma}'
-        raise TakError(msg)
-    if args.workers is not None and args.workers < 1:
-        msg = f'--workers: must be >= 1, got {args.workers}'
-        raise TakError(msg)
     tasks = _tasks(args, fit_actions, out_dir / 'units')
+    check_outputs(out_dir, [task.unit for task in tasks], validating=args.validate is not None, force=args.force)
+    require('distributed', 'fit-fleet')  # one line naming dask[distributed] when it is missing
     out_dir.mkdir(parents=True, exist_ok=True)
     workers = args.workers or DEFAULT_WORKERS
     where = f'scheduler {args.scheduler}' if args.scheduler else f'a local cluster of {workers} workers'
@@ -417,7 +454,7 @@ def cmd_fit_fleet(args: argparse.Namespace, fit_actions: Sequence[argparse.Actio
     options = {key: value for key, value in vars(args).items() if key not in ('handler', 'command', 'bags', 'validate')}
     document = fleet_document(outcomes, flag_sigma=args.flag_sigma, options=options)
     document['wall_seconds'] = round(time.perf_counter() - start, 3)
-    write_text_atomic(fleet_json, json.dumps(document, indent=2) + '\n')
+    write_text_atomic(fleet_json, json_text(document, fleet_json))
     html_path = write_fleet_report(document, out_dir / FLEET_HTML)
     for row in document['units']:
         if row['status'] != STATUS_OK:
