@@ -253,21 +253,22 @@ def test_a_future_stamped_imu_costs_only_itself_and_nonsense_is_refused(tmp_path
 
 
 def test_a_lone_imu_stamped_an_hour_ahead_costs_itself_alone_wherever_it_comes(tmp_path, ros_env):
-    """An Imu an hour ahead as the second message ever, and as the second after a pause: each costs itself alone.
+    """An Imu an hour ahead as the second, and as the third, message after a pause: each costs itself alone.
 
-    A steady 100 Hz stream: the outliers are dropped (stamp_jump), every good Imu published but
-    the first after the pause (a real jump's own cost, docs/node.md); ``apply``'s rule
-    (``stamp_problems``) drops the same messages.
+    A steady 100 Hz stream with two pauses of 1000 s: the outliers are dropped (stamp_jump),
+    every good Imu published but the first after each pause (a real jump's own cost,
+    docs/node.md); ``apply``'s rule (``stamp_problems``) drops the same messages. Before, the
+    good Imu after each outlier was dropped as well (and the third-after-pause outlier published).
     """
     params = driver_params(tmp_path / 'params.yaml', qos='reliable')
     hour, step, pause = 3600 * NANOSECONDS, 10_000_000, 1000 * NANOSECONDS
-    stamps = [START_NS + i * step for i in range(20)] + [START_NS + pause + i * step for i in range(20)]
-    outliers = (1, 21)  # the second message ever; the second after the pause
+    stamps = [START_NS + part * pause + i * step for part in range(3) for i in range(20)]
+    outliers = (21, 42)  # the second message after the first pause; the third after the second
     for index in outliers:
         stamps[index] += hour
     offline, _ = stamp_problems(np.array(stamps, dtype=np.int64))
     dropped = np.flatnonzero(offline['stamp_jump'] | offline['time_backwards'] | offline['duplicate_stamp'])
-    assert dropped.tolist() == [1, 20, 21] and offline['stamp_jump'][list(outliers)].all()  # 20: after the pause
+    assert dropped.tolist() == [20, 21, 40, 42] and offline['stamp_jump'][list(outliers)].all()  # 20, 40: the pauses
     expected = [stamp for i, stamp in enumerate(stamps) if i not in dropped]
     with NodeProcess(node_command('--params-file', str(params)), ros_env, tmp_path / 'node.log') as node, \
             Harness(int(ros_env['ROS_DOMAIN_ID']), driver=True) as ros:
@@ -281,7 +282,7 @@ def test_a_lone_imu_stamped_an_hour_ahead_costs_itself_alone_wherever_it_comes(t
         assert [stamp_of(m) for m in ros.imu] == expected
         values = status_values(ros.latest_status())
         assert (values['dropped.stamp_jump'], values['dropped.time_backwards'], values['published']) == (
-            '3', '0', str(len(expected)))
+            '4', '0', str(len(expected)))
         assert node.stop() == 0
     assert 'Traceback' not in node.log()
 

@@ -248,14 +248,14 @@ def stamp_problem(step_ns: int) -> str:
     return 'time_backwards' if step_ns < 0 else 'stamp_jump'
 
 
-def step_limit(stream_step_ns: int | None) -> int:
+def step_limit(stream_step_ns: int | None) -> int | None:
     """The largest forward step that goes on, in a stream stepping ``stream_step_ns``.
 
-    :data:`STAMP_JUMP_S`, or :data:`STAMP_JUMP_STEPS` steps of the stream when more;
-    :data:`STAMP_JUMP_S` while the stream's step is unknown (one message kept so far).
+    :data:`STAMP_JUMP_S`, or :data:`STAMP_JUMP_STEPS` steps of the stream when more; ``None`` (no
+    limit) while the stream's step is unknown (one message kept so far).
     """
     if stream_step_ns is None:
-        return STAMP_JUMP_NS
+        return None
     return max(STAMP_JUMP_NS, STAMP_JUMP_STEPS * min(stream_step_ns, _STEP_CAP_NS))
 
 
@@ -289,12 +289,10 @@ def going_on_step(stamp_ns: int, history: StampHistory | None) -> int | None:
     From the previous message's stamp (whatever became of that one) when it goes on from it, else,
     when the previous one was dropped, from the one before it (whatever became of that one), else
     from the last kept message's: later by
-    more than 0 and at most :func:`step_limit` of the stream's step. While that step is unknown
-    (one message kept so far), a message goes on from the kept one by at most
-    :data:`STAMP_JUMP_S`, or by any step from a later message that was dropped (a stream whose
-    messages are further apart, or one that jumped: it goes on from there). The step is then the
-    stream's step: a lone message stamped far ahead is dropped and sets nothing, and the message
-    after it goes on from the one before it.
+    more than 0 and at most :func:`step_limit` of the stream's step (any forward step while that
+    is unknown: one message kept so far). The step is then the stream's step: a lone message
+    stamped far ahead is dropped and sets nothing, and the message after it goes on from the one
+    before it.
 
     :param history: what is known of the messages before, ``None`` for the first message (kept,
         with no step).
@@ -302,13 +300,12 @@ def going_on_step(stamp_ns: int, history: StampHistory | None) -> int | None:
     if history is None:
         return None
     limit = step_limit(history.stream_step_ns)
-    unknown = history.stream_step_ns is None
     # the message before the previous one counts when the previous one was dropped (not the last kept)
     before = history.before_ns if history.previous_ns != history.kept_ns else None
     for start in (history.previous_ns, before, history.kept_ns):
         if start is not None:
             step = stamp_ns - start
-            if 0 < step and (step <= limit or (unknown and start != history.kept_ns)):
+            if 0 < step and (limit is None or step <= limit):
                 return step
     return None
 
@@ -321,11 +318,11 @@ def stamp_kept(stamp_ns: int, history: StampHistory | None) -> bool:
     or 100 steps of the stream; the stream's step is the step by which the last kept message
     went on, :func:`going_on_step`). So a stream 1, 2, 3, 10, 4, 5 s drops the 4 (the 10 was
     kept); a stream 1, 2, 3, 3603, 4, 5 s drops the 3603 alone (stamped an hour ahead), and the
-    4 goes on from the 3, wherever the outlier comes (the second message ever, the second after a
-    pause); after a real jump (1, 2, 3, 3603, 3604, ...: a pause or a clock step) the
-    first message after it is dropped and the next one, going on from it, is kept; a stream of
-    a message every 30 s goes on (its second message, 30 s after the first while the stream's
-    step is still unknown, is dropped and the third goes on from it).
+    4 goes on from the 3, wherever the outlier comes (the second or third message after a pause
+    too); after a real jump (1, 2, 3, 3603, 3604, ...: a pause or a clock step) the first message
+    after it is dropped and the next one, going on from it, is kept; a stream of a message every
+    30 s goes on. The first step of a stream is not judged (its step is not known yet): an
+    outlier as the second message ever is kept, and the good message after it dropped.
 
     :param history: what is known of the messages before, ``None`` for the first message.
     """
@@ -352,11 +349,11 @@ def stamp_problems(stamp_ns: np.ndarray, *, history: StampHistory | None = None
     if history is not None:
         step[0] = stamp_ns[0] - history.previous_ns
     # Where message i-1 went on from i-2 (both kept), the stream steps step[i-1]: i goes on when
-    # 0 < step[i] <= step_limit(step[i-1]) (STAMP_JUMP_NS after the first message kept).
+    # 0 < step[i] <= step_limit(step[i-1]) (no limit after a step that was not forward).
     stream_step = np.zeros(count, dtype=np.int64)
     stream_step[1:] = step[:-1]
     limit = np.maximum(STAMP_JUMP_NS, STAMP_JUMP_STEPS * np.clip(stream_step, 0, _STEP_CAP_NS))
-    goes_on = (step > 0) & (step <= limit)
+    goes_on = (step > 0) & ((stream_step <= 0) | (step <= limit))
     stops = np.flatnonzero(~goes_on)
     kept = np.zeros(count, dtype=bool)
     state = history
