@@ -12,6 +12,7 @@ from __future__ import annotations
 import ast
 import json
 import math
+import warnings
 from pathlib import Path
 
 import pytest
@@ -115,13 +116,24 @@ def test_carrier_budget_whose_runs_the_fit_all_refuses_is_one_line_and_writes_no
 
 
 def test_carrier_budget_without_a_free_poisson_coefficient_says_it_and_writes_null(tmp_path, capsys):
-    """``--poisson ''``: the Poisson figures are not defined: ``-`` in the table, a line, ``null`` in the JSON."""
+    """``--poisson ''``: the Poisson figures are not defined: ``-`` in the table, a line, ``null`` in the JSON.
+
+    With the sweeps too (``--report``): ``null`` per point, no warning from a library.
+    """
     out = tmp_path / 'b.json'
-    assert main(['carrier-budget', '--runs', '2', '--poisson', '', '--json', str(out)]) == 0
-    printed = capsys.readouterr().out
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        assert main(['carrier-budget', '--runs', '8', '--poisson', '', '--json', str(out), '--report',
+                     str(tmp_path / 'report'), '--quiet']) == 0
+    captured = capsys.readouterr()
+    assert [str(w.message) for w in caught] == [] and captured.err == ''
+    printed = captured.out
     assert 'nan' not in printed.lower() and 'Poisson coefficient(s): none free, so no figure (-)' in printed
     row = next(line for line in printed.splitlines() if line.startswith('Poisson coefficient(s)  '))
     assert row.split()[-3:] == ['-', '-', '-']
-    table = _strict_json(out)['table']
+    document = _strict_json(out)
+    table = document['table']
     assert table['rms_percent']['poisson'] is None and table['p95_percent']['poisson'] is None
     assert math.isfinite(table['rms_percent']['earth']) and table['failed'] == 0
+    points = [point for sweep in document['sweeps'].values() for point in sweep]
+    assert points and all(point['rms_percent']['poisson'] is None for point in points)
