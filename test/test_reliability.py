@@ -86,6 +86,16 @@ def tiny(tmp_path_factory):
       'nan'], '--temp-resolution'),
     (['import-csv', 'L', '-o', 'O', '--acc-columns', 'a', 'b', 'c', '--temp-column', 't', '--reference', '0', '0',
       'inf'], '--reference'),
+    (['fit', 'B', '-o', 'P', '--nominal-scale', '1000', '2000'], '--nominal-scale'),
+    (['fit', 'B', '-o', 'P', '--effects', 'warmup,bogus'], '--effects'),
+    (['diagnose', 'B', '--params', 'P', '--candidates', 'library,nomodule_here:Effect'], '--candidates'),
+    (['fit-fleet', 'B', '-o', 'O', '--flag-sigma', 'inf'], '--flag-sigma'),
+    (['fit-fleet', 'B', '-o', 'O', '--gravity', 'nan'], '--gravity'),
+    (['fit-fleet', 'B', '-o', 'O', '--gravity', '0'], '--gravity'),
+    (['fit-fleet', 'B', '-o', 'O', '--folds', '1'], '--folds'),
+    (['fit-fleet', 'B', '-o', 'O', '--workers', '0'], '--workers'),
+    (['fit-fleet', 'B', '-o', 'O', '--candidates', 'bogus'], '--candidates'),
+    (['fit-fleet', 'B', '-o', 'O', '--nominal-scale', '1', '2'], '--nominal-scale'),
 ])
 def test_out_of_range_options_are_refused_in_one_line(argv, option, capsys):
     """Every numeric option is bounded where it is parsed: one line naming the option, exit 2."""

@@ -33,7 +33,8 @@ def add_parser(commands) -> argparse.ArgumentParser:
                         help='order p of F_c (default 2; 0 = no scale drift)')
     parser.add_argument('--temp-code-ref', type=options.temp_code,
                         help='N_t,ref (default: middle of the calibrated range)')
-    parser.add_argument('--nominal-scale', type=options.nominal_scale, nargs='+', metavar='K0',
+    parser.add_argument('--nominal-scale', type=options.nominal_scale, nargs='+', action=options.OneOrThree,
+                        metavar='K0',
                         help='nominal counts per m/s^2 (one value or x y z), held for an axis that sees one '
                              'input only; default: the bag metadata written by simulate / import-csv')
     parser.add_argument('--effects', type=options.effect_specs, metavar='NAME[,NAME...]',

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import argparse
 import math
-from typing import Callable
+from typing import Any, Callable
 
 from tak_thermo_ros.core.records.record import REFERENCE_LIMIT, TEMP_CODE_LIMIT
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
@@ -133,6 +133,20 @@ def candidates(text: str) -> str:
 
 
 effect_specs.__name__ = candidates.__name__ = 'effect names'
+
+
+class OneOrThree(argparse.Action):
+    """An option of one value or three (x y z): any other count is refused where it is parsed."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        """Store the values, or refuse a count other than one or three."""
+        if len(values) not in (1, 3):
+            msg = f'takes one value or three (x y z), got {len(values)}'
+            raise argparse.ArgumentError(self, msg)
+        setattr(namespace, self.dest, values)
+
+
 MAX_WORKERS = 256
 """Most worker processes of ``fit-fleet``'s local cluster."""
 gravity = float_within(GRAVITY_MIN, GRAVITY_MAX, 'm/s^2 (local gravity on the Earth\'s surface)')
