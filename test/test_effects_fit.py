@@ -166,4 +166,5 @@ def test_user_defined_effect_through_the_command_line(tmp_path, monkeypatch, cap
     with pytest.raises(SystemExit) as stop:  # refused where the option is parsed, before the bag is read
         main(['fit', 'run', '-o', 'bad.yaml', '--effects', 'user_creep:Nothing', '--no-progress'])
     assert stop.value.code == 2
-    assert 'argument --effects: effect \'user_creep:Nothing\': module user_creep has no Nothing' in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "argument --effects: effect 'user_creep:Nothing': module user_creep has no Nothing" in err

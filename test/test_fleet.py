@@ -206,7 +206,7 @@ def test_validation_bags_must_pair_with_the_bags(batch, tmp_path, capsys):
 
 
 def test_a_unit_whose_validation_run_lasts_9_minutes_is_calibrated(batch, tmp_path):
-    """A validation run shorter than 600 s (validate --json): its 600-s figure is null (not defined), the unit calibrated.
+    """A validation run shorter than 600 s (validate --json): its 600-s figure null (not defined), the unit calibrated.
 
     Before, the NaN of that figure made validate refuse its JSON, and the unit failed. No library
     warning reaches stderr (only the fleet's own progress lines).
