@@ -79,6 +79,13 @@ iron), the same temperature, the same rules and the same counters.
 
 Warnings are throttled but never silent: the first of a kind is reported at once, later ones
 at most every ``warn_period_s`` with the number that occurred in between.
+
+The calibration watch (:mod:`tak_thermo_ros.core.link.watch`, ``watch=WatchSettings(...)``; the
+node's default, off here) extends the pipeline once: every message published with all its
+values goes to the watch (a comparison and an append), which finds the rests; :meth:`tick`
+(the node's timer, outside the message path) judges them. With ``turn_on`` or learning, the
+output loses the watch's adjustment (the run's turn-on offset, the learned curve). The watch
+takes messages that carry both sensors: it is off from the first message that marks one absent.
 """
 
 from __future__ import annotations
@@ -96,6 +103,7 @@ from tak_thermo_ros.core.link.correction import (
     imu_covariances,
 )
 from tak_thermo_ros.core.link.model import Calibration, InputKind, UnitCalibration
+from tak_thermo_ros.core.link.watch import CalibrationWatch, WatchSettings, WatchUnavailable, adjust
 from tak_thermo_ros.core.records.record import (
     DROP_REASONS,
     NANOSECONDS,
@@ -442,7 +450,8 @@ class OnlineCompensator:
     def __init__(self, calibration: UnitCalibration | Calibration, *, out_of_range: OutOfRange = OutOfRange.CLAMP,
                  stale_temperature: StaleTemperature = StaleTemperature.HOLD,
                  temp_timeout_s: float = 1.0, temp_topic: str = 'tak/temp_code',
-                 warn_period_s: float = WARN_PERIOD_S, channel: str = 'imu') -> None:
+                 warn_period_s: float = WARN_PERIOD_S, channel: str = 'imu',
+                 watch: WatchSettings | None = None) -> None:
         unit = as_unit(calibration)
         if channel not in CHANNELS:
             msg = f'channel: expected one of {", ".join(CHANNELS)}, got {channel!r}'
@@ -501,6 +510,12 @@ class OnlineCompensator:
         self._stale_reported = False
         self._previous: dict[str, int] = {}
         self._config: Configuration | None = None
+        self.watch_settings = watch if watch is not None and watch.enabled and channel != MAG_CHANNEL else None
+        self.watch: CalibrationWatch | None = None
+        """The calibration watch in force (:mod:`tak_thermo_ros.core.link.watch`), or ``None``."""
+        self.watch_off = 'off (watch: false)' if self.watch_settings is None else ''
+        """Why there is no watch, or ``''``."""
+        self._watch_take: Callable[[int, tuple[float, ...], float], None] | None = None
         self.install(self.prepare(calibration=unit, out_of_range=out_of_range,
                                   stale_temperature=stale_temperature, temp_timeout_s=temp_timeout_s))
 
@@ -646,6 +661,28 @@ class OnlineCompensator:
             self._temp_outside = not self._low <= self._temperature <= self._high
         if previous is not None and configuration.unit is not previous.unit:
             self.calibration_updates += 1
+        if previous is None or configuration.unit is not previous.unit:
+            self._start_watch(configuration.unit)
+
+    def set_watch(self, settings: WatchSettings | None) -> None:
+        """New watch settings (learning switched on or off at run time): a new watch of the calibration in force."""
+        self.watch_settings = settings if settings is not None and settings.enabled else None
+        self.watch_off = 'off (watch: false)' if self.watch_settings is None else ''
+        self._start_watch(self._config.unit)
+
+    def _start_watch(self, unit: UnitCalibration) -> None:
+        """A watch of the calibration in force (a new one with a new calibration: its rests start afresh)."""
+        self.watch = self._watch_take = None
+        settings = self.watch_settings
+        if settings is None or self._apart:
+            return
+        try:
+            self.watch = settings.watch(unit)
+        except WatchUnavailable as err:
+            self.watch_off = f'off: {err}'
+            return
+        self.watch_off = ''
+        self._watch_take = self.watch.take
 
     def set_policies(self, *, out_of_range: OutOfRange | str | None = None,
                      stale_temperature: StaleTemperature | str | None = None,
@@ -847,6 +884,12 @@ class OnlineCompensator:
             self._report_failures(failures, now_s)
         self.published += 1
         if len(output) == self._channels:  # every value of the message
+            take = self._watch_take
+            if take is not None:  # the calibration watch: this message's share of a window
+                take(stamp_ns, output, temperature)
+                adjustment = self.watch.adjustment  # type: ignore[union-attr]
+                if adjustment is not None:  # the run's turn-on offset, or what the watch learned
+                    output = adjust(output, temperature, adjustment, self.watch.reference)  # type: ignore
             return output
         for stream in streams:  # one sensor's values: a carried sensor left out, or the only one carried
             if stream.reason is None:
@@ -886,6 +929,10 @@ class OnlineCompensator:
     def _start_own_stamps(self, carried: tuple[bool, bool]) -> None:
         """The first message that marks a sensor absent: from it on each sensor is a stream of its own."""
         self._apart = True
+        if self.watch is not None:
+            self.watch = self._watch_take = None
+            self.watch_off = (f'off from {self._message_word} message {self.received} on: the sensors come at their '
+                              f'own stamps (the watch takes messages that carry both)')
         self.own_stamps_since = self.received
         # Every message so far carried both sensors: each sensor's stamps were the message's.
         stamps = self._streams[0].stamps
@@ -1050,6 +1097,31 @@ class OnlineCompensator:
                 self._report_waiting()
         elif self.is_stale(now_s):
             self._report_stale(now_s, 0)
+        self.judge_watch()
+
+    def judge_watch(self, *, finish: bool = False) -> None:
+        """Judge the rests the watch found since the last call, outside the message path (the node's timer).
+
+        :param finish: the stream ended (shutdown, end of a record): a rest in progress ends first.
+        """
+        watch = self.watch
+        if watch is None:
+            return
+        if finish:
+            watch.finish()
+        elif watch.pending:
+            watch.judge()
+        for line in watch.notices:
+            self._notice(Level.WARN if line.startswith('calibration stale') else Level.OK, 'calibration_watch', line)
+        watch.notices.clear()
+
+    def watch_status(self) -> Status:
+        """The calibration watch's diagnostics: WARN with "calibration stale: ..." once a test fired, else OK."""
+        watch = self.watch
+        if watch is None:
+            return Status(Level.OK, f'calibration watch {self.watch_off}', (('calibration_watch', self.watch_off),))
+        level = Level.WARN if watch.stale else Level.OK
+        return Status(level, watch.verdict(), (('calibration_watch', 'on'), *watch.values()))
 
     def _sensor_values(self) -> list[tuple[str, str]]:
         """The status values of a driver's messages that carry one sensor (:meth:`status`)."""
