@@ -275,6 +275,7 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
             outside += corrector.out_of_range_count(samples.temp_code)
             if watch is not None:  # the node's turn-on offset: the same rests, the same floats
                 corrected = watch.take_block(samples.stamp_ns, corrected, samples.temp_code)
+                watch.pending.clear()  # only the first rest matters here: nothing is judged
             extra = {}
             if kind is InputKind.IMU:
                 orientation, covariance = passing.take(samples.rows, aligner.state.rows_done)

@@ -103,7 +103,7 @@ from tak_thermo_ros.core.link.correction import (
     imu_covariances,
 )
 from tak_thermo_ros.core.link.model import Calibration, InputKind, UnitCalibration
-from tak_thermo_ros.core.link.watch import CalibrationWatch, WatchSettings, WatchUnavailable, adjust
+from tak_thermo_ros.core.link.watch import CalibrationWatch, RestFinder, WatchSettings, WatchUnavailable, adjust
 from tak_thermo_ros.core.records.record import (
     DROP_REASONS,
     NANOSECONDS,
@@ -515,7 +515,8 @@ class OnlineCompensator:
         """The calibration watch in force (:mod:`tak_thermo_ros.core.link.watch`), or ``None``."""
         self.watch_off = 'off (watch: false)' if self.watch_settings is None else ''
         """Why there is no watch, or ``''``."""
-        self._watch_take: Callable[[int, tuple[float, ...], float], None] | None = None
+        self._watch_finder: RestFinder | None = None
+        self._adjustment: tuple[tuple[float, ...], tuple[float, ...]] | None = None
         self.install(self.prepare(calibration=unit, out_of_range=out_of_range,
                                   stale_temperature=stale_temperature, temp_timeout_s=temp_timeout_s))
 
@@ -672,7 +673,7 @@ class OnlineCompensator:
 
     def _start_watch(self, unit: UnitCalibration) -> None:
         """A watch of the calibration in force (a new one with a new calibration: its rests start afresh)."""
-        self.watch = self._watch_take = None
+        self._stop_watch()
         settings = self.watch_settings
         if settings is None or self._apart:
             return
@@ -682,7 +683,15 @@ class OnlineCompensator:
             self.watch_off = f'off: {err}'
             return
         self.watch_off = ''
-        self._watch_take = self.watch.take
+        self._watch_finder = self.watch.finder
+        self._adjustment = self.watch.adjustment
+        self.watch.on_adjustment = self._take_adjustment
+
+    def _stop_watch(self) -> None:
+        self.watch = self._watch_finder = self._adjustment = None
+
+    def _take_adjustment(self, adjustment: tuple[tuple[float, ...], tuple[float, ...]] | None) -> None:
+        self._adjustment = adjustment
 
     def set_policies(self, *, out_of_range: OutOfRange | str | None = None,
                      stale_temperature: StaleTemperature | str | None = None,
@@ -884,10 +893,12 @@ class OnlineCompensator:
             self._report_failures(failures, now_s)
         self.published += 1
         if len(output) == self._channels:  # every value of the message
-            take = self._watch_take
-            if take is not None:  # the calibration watch: this message's share of a window
-                take(stamp_ns, output, temperature)
-                adjustment = self.watch.adjustment  # type: ignore[union-attr]
+            finder = self._watch_finder
+            if finder is not None:  # the calibration watch: RestFinder.take inline (the per-message cost)
+                if not finder.start_ns <= stamp_ns < finder.end_ns:
+                    finder.next_window(stamp_ns, temperature)
+                finder.append(output)
+                adjustment = self._adjustment
                 if adjustment is not None:  # the run's turn-on offset, or what the watch learned
                     output = adjust(output, temperature, adjustment, self.watch.reference)  # type: ignore
             return output
@@ -930,7 +941,7 @@ class OnlineCompensator:
         """The first message that marks a sensor absent: from it on each sensor is a stream of its own."""
         self._apart = True
         if self.watch is not None:
-            self.watch = self._watch_take = None
+            self._stop_watch()
             self.watch_off = (f'off from {self._message_word} message {self.received} on: the sensors come at their '
                               f'own stamps (the watch takes messages that carry both)')
         self.own_stamps_since = self.received

@@ -53,7 +53,7 @@ Imports numpy only (the node loads it).
 from __future__ import annotations
 
 import math
-from array import array
+from itertools import chain
 from dataclasses import dataclass, field, replace
 from statistics import NormalDist
 from typing import Any, Callable, Mapping, Sequence
@@ -198,10 +198,16 @@ class RestFinder:
     def __init__(self, accel_noise: NoiseModel, gyro_noise: NoiseModel, on_rest: Callable[[Rest], None]) -> None:
         self._noise = (accel_noise, gyro_noise)
         self._on_rest = on_rest
-        self._buffer = array('d')
-        self._start_ns = 0
-        self._end_ns = 0
-        """The window in progress, ``[start, end)``; both 0 until the period is known."""
+        self._buffer: list[Sequence[float]] = []
+        self.append = self._buffer.append
+        """Appends a message's values to the window in progress (the per-message protocol, below)."""
+        self.start_ns = 0
+        self.end_ns = 0
+        """The window in progress, ``[start, end)``; both 0 until the period is known.
+
+        The per-message protocol (:meth:`take`; the node's pipeline runs it inline): a message
+        stamped outside ``[start_ns, end_ns)`` first calls :meth:`next_window`; then its values
+        go to :attr:`append` (a reference to its tuple: cheaper than any arithmetic)."""
         self._measured: list[int] = []
         self.period_ns = 0
         """The stream's typical step between stamps (0: not known yet)."""
@@ -231,9 +237,9 @@ class RestFinder:
 
     def take(self, stamp_ns: int, values: Sequence[float], temperature: float) -> None:
         """One corrected message: six values (accelerometer x y z, gyroscope x y z) at its stamp."""
-        if not self._start_ns <= stamp_ns < self._end_ns:
-            self._next_window(stamp_ns, temperature)
-        self._buffer.extend(values)
+        if not self.start_ns <= stamp_ns < self.end_ns:
+            self.next_window(stamp_ns, temperature)
+        self.append(values)
 
     def finish(self) -> None:
         """The stream ended: the window in progress closes and a rest in progress ends."""
@@ -241,8 +247,8 @@ class RestFinder:
             self._close_window()
             self._end_rest()
 
-    def _next_window(self, stamp_ns: int, temperature: float) -> None:
-        """The message starts a new window (or the period is still being measured)."""
+    def next_window(self, stamp_ns: int, temperature: float) -> None:
+        """A message stamped outside the window in progress: it closes, the next opens (or the period is measured)."""
         if not self.period_ns:
             self._measure(stamp_ns, temperature)
             return
@@ -256,7 +262,7 @@ class RestFinder:
 
     def _measure(self, stamp_ns: int, temperature: float) -> None:
         """The first messages: their steps give the period, hence the window (then the first window opens)."""
-        del self._buffer[:]
+        self._buffer.clear()
         measured = self._measured
         if measured and stamp_ns <= measured[-1]:
             measured.clear()
@@ -276,25 +282,24 @@ class RestFinder:
 
     def _open(self, slot: int, temperature: float) -> None:
         self._slot = slot
-        self._start_ns = self._origin_ns + slot * self.window_ns
-        self._end_ns = self._start_ns + self.window_ns
+        self.start_ns = self._origin_ns + slot * self.window_ns
+        self.end_ns = self.start_ns + self.window_ns
         self._window_temperature = temperature
-        self.last_ns = self._start_ns
+        self.last_ns = self.start_ns
 
     def _close_window(self) -> None:
         """The window in progress: still or not, and what that does to the rest in progress."""
         buffer = self._buffer
-        samples = len(buffer) // 6
+        samples = len(buffer)
         self.windows += 1
         if samples < self._min_samples:
-            del buffer[:]
+            buffer.clear()
             self._end_rest()
             return
-        data = np.frombuffer(buffer, dtype=float, count=6 * samples).reshape(samples, 6)
+        data = np.fromiter(chain.from_iterable(buffer), dtype=float, count=6 * samples).reshape(samples, 6)
+        buffer.clear()
         total = data.sum(axis=0)
         squares = np.einsum('ij,ij->j', data, data)
-        del data
-        del buffer[:]
         mean = total / samples
         # Sums of squares about zero: the corrected values are small beside their squares' precision
         # (|f| 9.8 m/s^2 against a variance of 1e-5: the cancellation costs 1e-11 of it).
@@ -320,11 +325,11 @@ class RestFinder:
             gone, count = self._recent.pop(0)
             self._recent_sum = self._recent_sum - gone * count
             self._recent_samples -= count
-        self._rows.append((mean, samples, self._start_ns, self._end_ns, self._window_temperature))
+        self._rows.append((mean, samples, self.start_ns, self.end_ns, self._window_temperature))
         rows = self._rows
         first = 1 if self._edge_first else 0
         if len(rows) > first and (rows[-1][3] - rows[first][2]) * 1e-9 >= REST_MAX_S:
-            self._emit(rows[first:], closed_ns=self._end_ns)
+            self._emit(rows[first:], closed_ns=self.end_ns)
             self._rows = []
             self._edge_first = False  # the stillness goes on: the next rest has no edge at its start
 
@@ -334,7 +339,7 @@ class RestFinder:
         first = 1 if self._edge_first else 0
         usable = rows[first:-1]
         if usable and (usable[-1][3] - usable[0][2]) * 1e-9 >= MIN_STILL_S:
-            self._emit(usable, closed_ns=self._end_ns)
+            self._emit(usable, closed_ns=self.end_ns)
         self._rows = []
         self._recent = []
         self._recent_sum = np.zeros(6)
@@ -552,6 +557,8 @@ class CalibrationWatch:
         self.adjustment: tuple[tuple[float, ...], tuple[float, ...]] | None = None
         """What the output loses, per value of a message: ``a + b (T - T_ref)`` as ``(a, b)``; ``None``: nothing."""
         self.adjustment_version = 0
+        self.on_adjustment: Callable[[tuple[tuple[float, ...], tuple[float, ...]] | None], None] | None = None
+        """Told every new adjustment (the node's pipeline keeps it at hand)."""
         self.reference = learner.reference if learner is not None else float(unit.gyro.temp_code_ref)  # type: ignore
         """The temperature the adjustment's slope is counted from."""
         self._pairs: dict[tuple[int, int, int], float] = {}
@@ -565,7 +572,7 @@ class CalibrationWatch:
     def _on_rest(self, rest: Rest) -> None:
         """A rest ended (in the message that ended it): queued; the turn-on offset taken at the first."""
         self.pending.append(rest)
-        if rest.index == 1 and self.turn_on_enabled:
+        if rest.index == 1 and self.turn_on_enabled and self.learner is None:  # learning takes its own, judged
             self._take_turn_on(rest)
 
     def take_block(self, stamp_ns: np.ndarray, values: np.ndarray, temperature: np.ndarray) -> np.ndarray:
@@ -877,6 +884,8 @@ class CalibrationWatch:
             adjustment = None
         self.adjustment = adjustment
         self.adjustment_version += 1
+        if self.on_adjustment is not None:
+            self.on_adjustment(adjustment)
 
     # -- what it says ----------------------------------------------------------------------------
 
