@@ -189,6 +189,7 @@ def test_the_learned_file_is_a_calibration_file_that_goes_on_from_where_it_stopp
     save_learned(path, UNIT, state, source='unit.yaml')
     assert load_learned(path) == state and load_learned(tmp_path / 'none.yaml') is None
     learned = load_unit(path)  # what validate, diagnose and export read
+    assert cli.main(['export', str(path), '--format', 'px4', '-o', str(tmp_path / 'px4.params')]) == 0
     assert 'learned by the calibration watch from 17 rests over 2 runs' in learned.gyro.notes[-1]
     low, high = UNIT.gyro.temp_code_min, UNIT.gyro.temp_code_max
     temperature = np.linspace(low, high, 50)
