@@ -121,11 +121,14 @@ def watch_run(simulated: EverydayRecord, unit: UnitCalibration, settings: WatchS
     watch = settings.watch(unit)
     take = watch.take
     fired = None
-    out = np.empty_like(values)
-    for row, (stamp, sample, temp) in enumerate(zip(stamps.tolist(), values.tolist(), temperature.tolist())):
+    adjusting = settings.turn_on or settings.learn is not None
+    published: list = []
+    publish = published.append
+    for stamp, sample, temp in zip(stamps.tolist(), values.tolist(), temperature.tolist()):
         take(stamp, sample, temp)
-        adjustment = watch.adjustment
-        out[row] = sample if adjustment is None else adjust(tuple(sample), temp, adjustment, watch.reference)
+        if adjusting:
+            adjustment = watch.adjustment
+            publish(sample if adjustment is None else adjust(tuple(sample), temp, adjustment, watch.reference))
         if watch.pending:
             watch.judge()
             if fired is None and watch.stale:
@@ -133,7 +136,7 @@ def watch_run(simulated: EverydayRecord, unit: UnitCalibration, settings: WatchS
     watch.finish()
     if fired is None and watch.stale:
         fired = int(stamps[-1])
-    return watch, fired, out
+    return watch, fired, np.array(published) if adjusting else values
 
 
 def rest_ends_ns(simulated: EverydayRecord) -> np.ndarray:

@@ -25,16 +25,18 @@ or ``tak_calib validate``'s replay of a record: the same code, the same verdict)
    random walk ``K``, ``2 s^2 (1 - exp(-S / T_c))`` for a Gauss-Markov process, ``(R S)^2`` for a
    ramp.
 4. **The tests.** The first rest of a run gives the turn-on offset, judged against the
-   calibration's turn-on repeatability where the file holds one (``turn_on``). Every later rest
-   is judged against the first: the differences ``r_i - r_1`` have the covariance the noise
-   model gives (a process with stationary increments: ``(D_i1 + D_j1 - D_ij) / 2`` from the
-   variances ``D`` of the pairwise differences), and generalised least squares tests two kinds
-   of change in them: the offset stepped at some rest since the first, or the offset's slope
-   against temperature changed. A sequential test of the generalised-likelihood kind (the
-   CUSUM's, over every possible change point); its false alarms are bounded by spending
-   :data:`FALSE_ALARMS_PER_HOUR` over the rests in proportion to their length (each rest's
-   tests share ``rate x T / 3600``, split evenly over the channels and the alternatives: by the
-   union bound the expected number of false alarms per hour of rests is at most the rate).
+   calibration's turn-on repeatability where the file holds one (``turn_on``). From then on the
+   rests' residuals (with ``turn_on``: the residuals, the turn-on offset their common random
+   level; without: their differences from the first) have the covariance the noise model gives
+   (a process with stationary increments: ``(D_i1 + D_j1 - D_ij) / 2`` from the variances ``D``
+   of the pairwise differences), and generalised least squares tests three kinds of change: the
+   offset moved (a constant beyond the turn-on spread), the offset stepped at some rest since the
+   first, the offset's slope against temperature changed (:meth:`CalibrationWatch._test`). A
+   sequential test of the generalised-likelihood kind (the CUSUM's, over every possible change
+   point); its false alarms are bounded by spending :data:`FALSE_ALARMS_PER_HOUR` over the rests
+   in proportion to their length (each rest's tests share ``rate x T / 3600``, split over the
+   channels and the alternatives: by the union bound the expected number of false alarms per
+   hour of rests is at most the rate).
 5. **What moved**: the channel, the kind (offset or slope) and the size (gyro x offset +812 deg/h,
    gyro y slope +2.1 deg/h/C, accel z 3.2 mg), once a test fires; the verdict holds for the run.
 6. **Learning, opt-in** (:class:`Learner`): per gyroscope axis an offset and a slope correction
@@ -79,7 +81,7 @@ PERIOD_STEPS = 16
 """Stamp steps the finder measures the stream's period on before its first window."""
 FALSE_ALARMS_PER_HOUR = 0.05
 """The stated false-alarm rate: at most this many "stale" verdicts per hour of rests of a unit
-whose calibration holds (one in 50 hours of rests), by the union bound over every test."""
+whose calibration holds (one in 20 hours of rests), by the union bound over every test."""
 MAX_RESTS_JUDGED = 32
 """Rests a judgement looks at: the run's first and the latest ones (bounded work per rest)."""
 SLOPE_SPAN_C = 1.0
