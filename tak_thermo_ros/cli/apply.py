@@ -23,6 +23,12 @@ def add_parser(commands) -> argparse.ArgumentParser:
     parser.add_argument('-o', '--output', required=True, metavar='OUT_BAG')
     parser.add_argument('--storage', choices=['mcap', 'sqlite3'], default='mcap')
     options.add_out_of_range(parser)
+    group = parser.add_argument_group("a run's turn-on offset (the node's turn_on and latitude)")
+    group.add_argument('--turn-on', choices=['none', 'first-rest'], default='none',
+                       help="first-rest: take the run's turn-on offset at its first rest (judged against the "
+                            "calibration's turn_on repeatability) and subtract it from then on, as the node does")
+    group.add_argument('--latitude', type=options.latitude, metavar='DEG',
+                       help="the Earth rate's vertical part and gravity at rest (with --turn-on; the node's latitude)")
     options.add_topic_options(parser, imu=True)
     parser.set_defaults(handler=run)
     return parser
@@ -31,15 +37,19 @@ def add_parser(commands) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     """Correct a bag's counts or driver Imu and write Imu messages (block by block, bounded memory)."""
     from tak_thermo_ros.formats.records import input_kind
-    from tak_thermo_ros.passes.apply import apply_bag
+    from tak_thermo_ros.passes.apply import TurnOnSettings, apply_bag
     unit = load_unit(args.params)
     topics = common.topics(args)
     kind = input_kind(args.bag, topics=topics)
     common.check_kind(args, unit, kind)
     applied = apply_bag(args.bag, unit, args.output, common.stream_options(args), storage=args.storage,
-                        out_of_range=OutOfRange(args.out_of_range), force=args.force)
+                        out_of_range=OutOfRange(args.out_of_range), force=args.force,
+                        turn_on=TurnOnSettings(args.latitude) if args.turn_on == 'first-rest' else None)
     common.print_survey(applied.survey, 'apply')
     print(f'wrote {applied.written} Imu messages on {applied.topic} to {args.output}')
+    if args.turn_on == 'first-rest':
+        for line in applied.turn_on or ('turn-on offset: no rest found, nothing taken',):
+            print(line)
     if applied.sensor_written:
         carried = ', '.join(f'{count} {common.SENSOR_NAMES[sensor]}'
                             for sensor, count in applied.sensor_written.items())

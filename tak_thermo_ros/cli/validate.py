@@ -55,16 +55,21 @@ def run(args: argparse.Namespace) -> int:
     unit = load_unit(args.params)
     options = common.stream_options(args)
     document = {'bag': str(args.bag), 'params': str(args.params), 'gravity': args.gravity}
+    watched = _calibration_watch(args, unit)
     try:
         run = validate_bag(args.bag, unit, options, gravity=args.gravity,
                            latitude=getattr(args, 'latitude', None), out_of_range=OutOfRange(args.out_of_range),
                            expect_kind=lambda kind: common.check_kind(args, unit, kind))
     except (NotStatic, ImuLinkUndetermined):  # turned, one orientation; or never at rest
         # A record turned by hand has no reference for the accelerometer and gyroscope; its
-        # magnetometer is still checked (|B| in every orientation).
-        if unit.mag is None or not has_mag(args.bag, options.topics):
+        # magnetometer is still checked (|B| in every orientation). An everyday record (rests in
+        # several poses, motion between) is judged by the calibration watch.
+        if watched is None and (unit.mag is None or not has_mag(args.bag, options.topics)):
             raise
-        print('accelerometer and gyroscope: not validated (the board moved, no reference)')
+        if watched is None:
+            print('accelerometer and gyroscope: not validated (the board moved, no reference)')
+        else:
+            print('accelerometer and gyroscope: no reference (the board moved); the calibration watch judges them')
         run = None
     if run is not None:
         common.print_survey(run.survey, 'validate')
@@ -72,6 +77,10 @@ def run(args: argparse.Namespace) -> int:
             _validate_imu(args, unit, run, document)
         else:
             _validate_handheld(args, run, document)
+    if watched is not None:
+        for line in watched.lines():
+            print(line)
+        document['calibration_watch'] = _watch_document(watched)
     if unit.mag is not None and (run is None or run.input_kind is InputKind.IMU):
         document.update(_validate_magnetometer(args, unit))
     if args.json:
@@ -124,6 +133,37 @@ def _validate_imu(args: argparse.Namespace, unit: UnitCalibration, run, document
         for line in found['lines']:
             print(line)
         (document['gyro'] if sensor == 'gyro' else document)['averaged_bias_error'] = found['document']
+
+
+def _calibration_watch(args: argparse.Namespace, unit: UnitCalibration):
+    """The node's calibration watch over a driver record.
+
+    ``None``: a counts record, or a calibration without the noise models the watch judges
+    against. With ``--latitude`` as the node's ``latitude``; ``--gravity`` does not enter it
+    (the node has none).
+    """
+    from tak_thermo_ros.core.link.watch import WatchSettings, watch_unavailable
+    from tak_thermo_ros.formats.records import input_kind
+    from tak_thermo_ros.passes.watch import watch_bag
+    if unit.input_kind is not InputKind.IMU or watch_unavailable(unit):
+        return None
+    options = common.stream_options(args)
+    if input_kind(args.bag, topics=options.topics) is not InputKind.IMU:
+        return None
+    return watch_bag(args.bag, unit, options, settings=WatchSettings(latitude=getattr(args, 'latitude', None)),
+                     out_of_range=OutOfRange(args.out_of_range))
+
+
+def _watch_document(watched) -> dict:
+    """The JSON entry ``calibration_watch``: the verdict, what moved, the figures at the last rest."""
+    watch = watched.watch
+    if watch is None:
+        return {'off': watched.off}
+    return {'verdict': watch.verdict(), 'stale': watch.stale, 'rests': watch.rests_judged,
+            'rest_hours': watch.rest_hours, 'false_alarms_per_hour': watch.false_alarms_per_hour,
+            'findings': [{'channel': f.channel, 'axis': f.axis, 'kind': f.kind, 'size': f.size, 'sigma': f.z,
+                          'rest': f.rest, 'turn_on': f.turn_on, 'text': f.text()} for f in watch.findings.values()],
+            'values': dict(watch.values()), 'messages': watched.messages, 'published': watched.published}
 
 
 def _validate_magnetometer(args: argparse.Namespace, unit: UnitCalibration) -> dict:

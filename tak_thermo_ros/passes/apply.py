@@ -45,6 +45,33 @@ class Applied:
     sensor_dropped: dict[str, dict[str, int]] = field(default_factory=dict)
     """With sensors at their own stamps: per sensor its samples left out, by reason."""
     survey: RecordSurvey | None = None
+    turn_on: tuple[str, ...] = ()
+    """With ``--turn-on first-rest``: what was taken (or not) at the first rest."""
+
+
+@dataclass(frozen=True)
+class TurnOnSettings:
+    """``apply --turn-on first-rest``: the run's turn-on offset from its first rest, as the node's ``turn_on``.
+
+    :param latitude: degrees (the node's ``latitude``), or ``None``.
+    """
+
+    latitude: float | None = None
+
+    def watch(self, unit: UnitCalibration, path: Path):
+        """The watch that finds the first rest and takes the offset.
+
+        :raises TakError: the calibration cannot give it (no noise model, no turn-on repeatability).
+        """
+        from tak_thermo_ros.core.link.watch import CalibrationWatch, watch_unavailable
+        reason = watch_unavailable(unit)
+        if not reason and (unit.gyro is None or unit.gyro.turn_on is None):
+            reason = ("the calibration holds no gyro turn_on section (the turn-on repeatability, fitted from "
+                      "several records: tak_calib fit REC REC ...)")
+        if reason:
+            msg = f'--turn-on first-rest: {reason}'
+            raise TakError(msg)
+        return CalibrationWatch(unit, latitude=self.latitude, turn_on=True)
 
 
 class _RowsBuffer:
@@ -180,7 +207,8 @@ class _OwnStamps:
 
 
 def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, options: StreamOptions, *,
-              storage: str = 'mcap', out_of_range: OutOfRange = OutOfRange.CLAMP, force: bool = False) -> Applied:
+              storage: str = 'mcap', out_of_range: OutOfRange = OutOfRange.CLAMP, force: bool = False,
+              turn_on: TurnOnSettings | None = None) -> Applied:
     """Correct a bag block by block into an Imu bag that stays open (``tak_calib apply``).
 
     A driver record whose sensors have their own stamps (a flight log, Imu messages that carry
@@ -188,7 +216,10 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
     or dropped whole, as in the node.
 
     :param force: replace an existing output bag (:func:`tak_thermo_ros.formats.files.check_output`).
-    :raises TakError: a corrected value is not finite (nothing is written).
+    :param turn_on: take the run's turn-on offset at its first rest (``--turn-on first-rest``), as the node's
+        ``turn_on: first_rest`` does on the same messages; ``None``: not.
+    :raises TakError: a corrected value is not finite (nothing is written); ``turn_on`` on a record the node
+        would not take it from.
     """
     from tak_thermo_ros.formats.bag import ImuBagWriter
     from tak_thermo_ros.formats.records import record_blocks, record_streams
@@ -208,6 +239,12 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
                                   temperature_expected=temperature_expected(
                                       path, streams, options, needed=unit.mag.thermal.needs_temperature,
                                       what="the calibration's magnetometer"))
+    watch = turn_on.watch(unit, path) if turn_on is not None else None
+    apart = isinstance(first, DriverRecord) and not first.shared_stamps
+    if watch is not None and (kind is not InputKind.IMU or apart):
+        msg = (f'{path}: --turn-on first-rest takes a driver\'s Imu whose messages carry both sensors (as the node '
+               f'does); this record\'s sensors come at their own stamps')
+        raise TakError(msg)
     if isinstance(first, DriverRecord) and not first.shared_stamps:
         return _apply_own_stamps(unit, output, options, first, blocks, magnetometer, storage=storage,
                                  out_of_range=out_of_range, force=force, holding=expected)
@@ -236,6 +273,9 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
                 msg = f'{output}: corrected values: {bad} values are not finite (NaN or infinite); nothing written'
                 raise TakError(msg)
             outside += corrector.out_of_range_count(samples.temp_code)
+            if watch is not None:  # the node's turn-on offset: the same rests, the same floats
+                corrected = watch.take_block(samples.stamp_ns, corrected, samples.temp_code)
+                watch.pending.clear()  # only the first rest matters here: nothing is judged
             extra = {}
             if kind is InputKind.IMU:
                 orientation, covariance = passing.take(samples.rows, aligner.state.rows_done)
@@ -262,7 +302,10 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
         if magnetometer is not None:
             magnetometer.finish(writer, frame_id, output)
         written = writer.written
+    if watch is not None:
+        watch.finish()
     return Applied(written=written, dropped=required.dropped, out_of_range=outside, topic=topic,
+                   turn_on=tuple(watch.turn_on_lines) if watch is not None else (),
                    ignored_temp_codes=dict(aligner.ignored_temp_codes),
                    ignored_references=dict(aligner.ignored_references),
                    mag_written=writer.written_mag, mag_topic=topics.compensated_mag if magnetometer else '',

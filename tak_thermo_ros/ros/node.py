@@ -19,7 +19,9 @@ The calibration's input kind chooses the topics (relative names: namespaces and 
   (``sensor_msgs/msg/Temperature``, the raw temperature-sensor code); publishes
   ``tak/imu/data_raw`` (``sensor_msgs/msg/Imu``).
 
-Both publish ``/diagnostics`` at 1 Hz.
+Both publish ``/diagnostics`` at 1 Hz; a driver calibration with noise sections adds the
+calibration watch's status (``<node>: calibration watch``: OK "calibration holds ...", WARN
+"calibration stale: gyro x offset +812 deg/h ..."; docs/watch.md), judged in the same timer.
 
 When the calibration holds a recorded-signal term (``aux:TOPIC``, e.g. the supply voltage on
 ``/power/battery_state``), the node also subscribes that topic, with the type its publisher
@@ -39,6 +41,7 @@ import os
 import signal
 import sys
 import time
+from dataclasses import replace
 from typing import Any, Sequence
 
 import rclpy
@@ -65,6 +68,8 @@ from tak_thermo_ros.core.link.correction import NOT_PROVIDED_COVARIANCE, OutOfRa
 from tak_thermo_ros.core.effects.aux_signal import AUX_FIELDS, signal_field, split_signal_name
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.link.online import SENSORS, Level, OneSensor, OnlineCompensator, StaleTemperature
+from tak_thermo_ros.core.link.watch import LearnedState, WatchSettings, calibration_digest
+from tak_thermo_ros.formats.learned_file import LEARNED_KEY, load_learned, save_learned
 from tak_thermo_ros.errors import CalibrationError, TakError
 from tak_thermo_ros.ros.signals import SignalGuard
 
@@ -114,6 +119,18 @@ def _tunables() -> dict[str, tuple[Any, str, bool]]:
                                   "edge or 'extrapolate' (always counted and logged)", False),
         'hardware_id': ('', "the unit's identifier (e.g. its serial number) in /diagnostics; empty: "
                             "the input's frame_id", True),
+        'watch': (True, 'the calibration watch: rests found online, the calibration judged at each against the '
+                        "file's noise model (/diagnostics '...: calibration watch'); needs the file's noise "
+                        'sections', True),
+        'latitude': ('', "degrees: the Earth rate's vertical part and gravity the watch expects at rest; "
+                         "empty: unknown (counted as noise)", True),
+        'turn_on': ('none', "'first_rest': take each run's turn-on offset at its first rest (judged against "
+                            "the file's turn_on repeatability) and subtract it from then on, as tak_calib apply "
+                            "--turn-on first-rest does; 'none': not", True),
+        'learn': (False, 'learn the gyroscope curve at the rests (offset and slope per axis, bounded) and apply '
+                         'it, writing learned_file; false returns to the calibration file at once', False),
+        'learned_file': ('', 'where learning writes what it learned (a calibration file tak_calib reads), '
+                             'read at the next start; never the calibration file itself', True),
     }
 
 
@@ -191,7 +208,9 @@ class CompensatorNode(Node):
                                                        [p.value for p in StaleTemperature])),
             temp_timeout_s=_timeout(self._value('temp_timeout')),
             temp_topic=self._temp_subscription.topic_name)
-        self._core = OnlineCompensator(unit, **policies)
+        self._original, self._source = unit, source
+        self._core = OnlineCompensator(unit, watch=self._watch_settings(unit, source), **policies)
+        self._learned_written_s = time.monotonic()
         # The magnetometer: a second core on its own topic, the same temperature and rules.
         self._mag_core = (OnlineCompensator(unit, channel='mag', **policies)
                           if driver and unit.mag is not None else None)
@@ -263,6 +282,112 @@ class CompensatorNode(Node):
         if self._mag_core is not None:
             self.get_logger().info(f'correcting {self._mag_subscription.topic_name} (magnetometer: temperature and '
                                    f'iron) -> {self._mag_publisher.topic_name}')
+        self.get_logger().info(self._watch_words())
+
+    def _watch_settings(self, unit: UnitCalibration, source: str) -> WatchSettings:
+        """The watch's parameters (and, learning, the learned file's state)."""
+        latitude = self._value('latitude')
+        if latitude == '':
+            latitude = None
+        elif isinstance(latitude, bool) or not isinstance(latitude, (int, float)) or not -90.0 <= latitude <= 90.0:
+            msg = f'latitude: expected degrees within -90..90 or empty, got {latitude!r}'
+            raise ValueError(msg)
+        enabled = self._value('watch')
+        if not isinstance(enabled, bool):
+            msg = f'watch: expected true or false, got {enabled!r}'
+            raise ValueError(msg)
+        turn_on = _choice(self._value('turn_on'), 'turn_on', TURN_ON_CHOICES) == 'first_rest'
+        learn = self._value('learn')
+        if not isinstance(learn, bool):
+            msg = f'learn: expected true or false, got {learn!r}'
+            raise ValueError(msg)
+        path = self._value('learned_file')
+        if not isinstance(path, str):
+            msg = f'learned_file: expected a path, got {path!r}'
+            raise ValueError(msg)
+        if path and source and os.path.exists(source) and os.path.exists(path) and os.path.samefile(path, source):
+            msg = f'learned_file: {path} is the calibration file itself (the original is never overwritten)'
+            raise CalibrationError(msg)
+        if learn and not path:
+            msg = 'learn: true needs learned_file:=PATH (where what is learned is written)'
+            raise ValueError(msg)
+        if (turn_on or learn) and not enabled:
+            msg = 'turn_on and learn need the watch (watch: true)'
+            raise ValueError(msg)
+        state = None
+        if learn:
+            state = load_learned(path) or LearnedState()
+            if state.original and state.original != calibration_digest(unit):
+                self.get_logger().warning(f'{path} was learned on another calibration: learning starts afresh '
+                                          f'(the file is replaced at the first write)')
+                state = LearnedState()
+        if turn_on and unit.gyro is not None and unit.gyro.turn_on is None:
+            msg = ('turn_on: first_rest needs the calibration\'s gyro turn_on section (the turn-on repeatability, '
+                   'fitted from several records: tak_calib fit REC REC ...)')
+            raise CalibrationError(msg)
+        self._learned_path = path if learn else ''
+        return WatchSettings(enabled=enabled, latitude=latitude, turn_on=turn_on, learn=state)
+
+    def _watch_words(self) -> str:
+        """The start-up line about the watch."""
+        core = self._core
+        if core.watch is None:
+            return f'calibration watch {core.watch_off}'
+        watch = core.watch
+        learner = watch.learner
+        words = [f'calibration watch on: false alarms at most {watch.false_alarms_per_hour:g} per hour of rests',
+                 f'latitude {watch.latitude:g}' if watch.latitude is not None else 'latitude unknown']
+        if watch.turn_on_enabled:
+            words.append('turn-on offset taken at the first rest')
+        if learner is not None:
+            words.append(f'learning into {self._learned_path} (from {learner.start.runs} earlier runs)')
+        return '; '.join(words)
+
+    def save_learned(self, *, force: bool = False) -> None:
+        """Write what the watch learned to ``learned_file`` (atomically), when it changed (``force``: always)."""
+        watch = self._core.watch
+        if not self._learned_path or watch is None or watch.learner is None:
+            return
+        learner = watch.learner
+        if not (learner.changed or force):
+            return
+        try:
+            save_learned(self._learned_path, self._original, learner.state(), source=self._source)
+        except (OSError, TakError) as err:
+            line = f'learned_file: cannot write {self._learned_path} ({err})'
+            try:
+                self.get_logger().error(line)
+            except Exception:  # shutting down: rosout is gone
+                print(f'[ERROR] [{NODE_NAME}]: {line}', file=sys.stderr)
+            return
+        learner.changed = False
+        self._learned_written_s = time.monotonic()
+
+    def _set_learning(self, learn: bool) -> None:
+        """``learn`` set at run time: a new watch, with or without learning.
+
+        False returns to the calibration file at once (what was learned is written first); true
+        starts learning from the learned file (the new watch's rests start afresh).
+        """
+        self.save_learned()
+        settings = self._core.watch_settings
+        state = None
+        if learn:
+            state = load_learned(self._value('learned_file')) or LearnedState()
+        self._learned_path = self._value('learned_file') if learn else ''
+        self._core.set_watch(replace(settings, learn=state))
+        self.get_logger().info(self._watch_words())
+
+    def finish(self) -> None:
+        """At shutdown: the rest in progress judged, the verdict said once more, what was learned written."""
+        self._core.judge_watch(finish=True)
+        self.save_learned()
+        if self._core.watch is not None:
+            line = f'calibration watch at shutdown: {self._core.watch.verdict()}'
+            try:
+                self.get_logger().info(line)
+            except Exception:  # the context is gone (a signal): rosout has no publisher any more
+                print(f'[INFO] [{NODE_NAME}]: {line}', file=sys.stderr)
 
     def _value(self, name: str) -> Any:
         return self.get_parameter(name).value
@@ -277,7 +402,8 @@ class CompensatorNode(Node):
                 description=description, read_only=read_only, dynamic_typing=True))
         known = set(tunables) | {'use_sim_time', 'start_type_description_service'}
         for name in sorted(self.get_parameters_by_prefix('')):
-            if name not in known and not name.startswith((CALIBRATION_PREFIX + '.', 'qos_overrides.')):
+            if name not in known and not name.startswith((CALIBRATION_PREFIX + '.', 'qos_overrides.',
+                                                          LEARNED_KEY + '.')):
                 self.get_logger().warning(f'unknown parameter {name!r} ignored '
                                           f'(known: {", ".join(sorted(tunables))}, calibration.*)')
 
@@ -474,12 +600,22 @@ class CompensatorNode(Node):
         status = self._core.status(now, imu_subscribers=self._imu_publisher.get_subscription_count())
         diagnostics = DiagnosticArray()
         diagnostics.header.stamp = self.get_clock().now().to_msg()
+        watch = self._core.watch_status()
         diagnostics.status = [DiagnosticStatus(
             level=_DIAGNOSTIC_LEVELS[status.level],
             name=f'{self._status_prefix}: temperature compensation',
             message=status.message,
             hardware_id=self._hardware_id or self._imu.header.frame_id,
-            values=[KeyValue(key=key, value=value) for key, value in status.values])]
+            values=[KeyValue(key=key, value=value) for key, value in (*status.values, watch.values[0])])]
+        if self._core.watch is not None:  # a status of its own while it runs (off: the value above says why)
+            diagnostics.status.append(DiagnosticStatus(
+                level=_DIAGNOSTIC_LEVELS[watch.level],
+                name=f'{self._status_prefix}: calibration watch',
+                message=watch.message,
+                hardware_id=self._hardware_id or self._imu.header.frame_id,
+                values=[KeyValue(key=key, value=value) for key, value in watch.values]))
+        if self._learned_path and now - self._learned_written_s >= LEARNED_WRITE_PERIOD_S:
+            self.save_learned()  # outside the message path: the diagnostics timer
         if self._mag_core is not None:
             self._mag_core.tick(now)
             mag_status = self._mag_core.status(now, imu_subscribers=self._mag_publisher.get_subscription_count())
@@ -527,6 +663,8 @@ class CompensatorNode(Node):
         putting the change in force cannot fail. Any error refuses the change with its reason.
         """
         self._pending = None
+        self._learn_pending = None
+        changes_learn = None
         try:
             changes: dict[str, Any] = {}
             calibration_changed = False
@@ -542,6 +680,17 @@ class CompensatorNode(Node):
                         _choice(value, 'out_of_range', [p.value for p in OutOfRange]))
                 elif parameter.name.startswith(CALIBRATION_PREFIX + '.'):
                     calibration_changed = True
+                elif parameter.name == 'learn':
+                    if not isinstance(value, bool):
+                        msg = f'learn: expected true or false, got {value!r}'
+                        raise ValueError(msg)
+                    if value and not self._value('learned_file'):
+                        msg = 'learn: true needs learned_file:=PATH, given at start-up'
+                        raise ValueError(msg)
+                    if self._core.watch is None:
+                        msg = f'learn: the calibration watch is {self._core.watch_off}'
+                        raise ValueError(msg)
+                    changes_learn = value
             if calibration_changed:
                 flat = self._calibration_values()
                 for parameter in parameters:
@@ -562,12 +711,16 @@ class CompensatorNode(Node):
             return SetParametersResult(successful=False, reason=reason)
         self._pending = prepared
         self._mag_pending = mag_prepared
+        self._learn_pending = changes_learn
         return SetParametersResult(successful=True)
 
     def _apply_parameters(self, parameters: list[Parameter]) -> None:
         """Put the validated change in force: runs in the executor, between two messages."""
         prepared, self._pending = self._pending, None
         mag_prepared, self._mag_pending = self._mag_pending, None
+        learn, self._learn_pending = getattr(self, '_learn_pending', None), None
+        if learn is not None:
+            self._set_learning(learn)
         if prepared is None:
             return
         self._core.install(prepared)
@@ -580,6 +733,11 @@ class CompensatorNode(Node):
                                f'stale_temperature {self._core.stale_policy.value}, temp_timeout '
                                f'{self._core.temp_timeout_s:g} s, calibration updates '
                                f'{self._core.calibration_updates}')
+
+
+LEARNED_WRITE_PERIOD_S = 60.0
+"""How often, at most, learning writes ``learned_file`` (and at shutdown), from the diagnostics timer."""
+TURN_ON_CHOICES = ('none', 'first_rest')
 
 
 def make_executor(kind: str, context: Any) -> Executor:
@@ -661,6 +819,7 @@ def main(args: Sequence[str] | None = None, *, signals: SignalGuard | None = Non
         if executor is not None:
             executor.shutdown()
         if node is not None:
+            node.finish()
             node.destroy_node()
         rclpy.try_shutdown()
         if not running and signals.received:

@@ -97,12 +97,23 @@ class Corrector:
             temp_code = self._fixed
         if self._effect_link is not None:
             return self._effect_link.correct_sample(counts_x, counts_y, counts_z, temp_code, stamp_s, aux)
-        n = self.code_offset(temp_code)
+        # code_offset(temp_code) inline (a call less per sensor and message)
+        if self._fixed is not None:
+            n = 0.0
+        elif self._clamp:
+            n = min(max(temp_code, self._low), self._high) - self._ref
+        else:
+            n = temp_code - self._ref
         x_axis, y_axis, z_axis = self._axes
         offset_x, gain_x = offset_and_gain(n, *x_axis)
         offset_y, gain_y = offset_and_gain(n, *y_axis)
         offset_z, gain_z = offset_and_gain(n, *z_axis)
         return (counts_x - offset_x) / gain_x, (counts_y - offset_y) / gain_y, (counts_z - offset_z) / gain_z
+
+    def correct_values(self, values: tuple[float, float, float], temp_code: float, *, stamp_s: float = 0.0,
+                       aux: Mapping[str, float] | None = None) -> tuple[float, float, float]:
+        """:meth:`correct_sample` of the three values of a tuple (one sensor's, in the node)."""
+        return self.correct_sample(values[0], values[1], values[2], temp_code, stamp_s=stamp_s, aux=aux)
 
     def correct(self, counts: np.ndarray, temp_code: np.ndarray, *,
                 stamp_s: np.ndarray | None = None, aux: Mapping[str, np.ndarray] | None = None) -> np.ndarray:

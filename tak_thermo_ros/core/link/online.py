@@ -79,6 +79,13 @@ iron), the same temperature, the same rules and the same counters.
 
 Warnings are throttled but never silent: the first of a kind is reported at once, later ones
 at most every ``warn_period_s`` with the number that occurred in between.
+
+The calibration watch (:mod:`tak_thermo_ros.core.link.watch`, ``watch=WatchSettings(...)``; the
+node's default, off here) extends the pipeline once: every message published with all its
+values goes to the watch (a comparison and an append), which finds the rests; :meth:`tick`
+(the node's timer, outside the message path) judges them. With ``turn_on`` or learning, the
+output loses the watch's adjustment (the run's turn-on offset, the learned curve). The watch
+takes messages that carry both sensors: it is off from the first message that marks one absent.
 """
 
 from __future__ import annotations
@@ -96,6 +103,7 @@ from tak_thermo_ros.core.link.correction import (
     imu_covariances,
 )
 from tak_thermo_ros.core.link.model import Calibration, InputKind, UnitCalibration
+from tak_thermo_ros.core.link.watch import CalibrationWatch, RestFinder, WatchSettings, WatchUnavailable, adjust
 from tak_thermo_ros.core.records.record import (
     DROP_REASONS,
     NANOSECONDS,
@@ -268,6 +276,33 @@ class _StampRule:
         return twin
 
 
+class _Stream:
+    """One stream of samples through the pipeline, with its own stamps, values, correction and signals.
+
+    A message is one stream (every value it carries, its stamps, the whole correction) until a
+    driver's message marks a sensor absent; from then on each sensor is a stream of its own (its
+    three values, its own stamps, its own correction and recorded signals). The per-message
+    pipeline (:meth:`OnlineCompensator.process_values`) runs over the streams a message carries.
+
+    :param sensor: ``''`` for the message's stream, else the sensor (``'accel'``, ``'gyro'``).
+    :param span: the stream's values in the message's.
+    :param stamps: the stamp rule's state over the stream.
+    """
+
+    __slots__ = ('sensor', 'span', 'stamps', 'correct', 'signals', 'reason')
+
+    def __init__(self, sensor: str, span: slice, stamps: _StampRule) -> None:
+        self.sensor = sensor
+        self.span = span
+        self.stamps = stamps
+        self.correct: Callable[..., tuple[float, ...]] | None = None
+        """The correction of the stream's values, ``correct(values, temperature, stamp_s=, aux=)`` (set by install)."""
+        self.signals: tuple[str, ...] = ()
+        """The recorded signals the stream's correction needs."""
+        self.reason: str | None = None
+        """Why the stream's sample in the message at hand is left out, ``None`` while it is not."""
+
+
 class _Throttle:
     """First report at once, then at most one per period, counting what happened since the last one.
 
@@ -418,7 +453,8 @@ class OnlineCompensator:
     def __init__(self, calibration: UnitCalibration | Calibration, *, out_of_range: OutOfRange = OutOfRange.CLAMP,
                  stale_temperature: StaleTemperature = StaleTemperature.HOLD,
                  temp_timeout_s: float = 1.0, temp_topic: str = 'tak/temp_code',
-                 warn_period_s: float = WARN_PERIOD_S, channel: str = 'imu') -> None:
+                 warn_period_s: float = WARN_PERIOD_S, channel: str = 'imu',
+                 watch: WatchSettings | None = None) -> None:
         unit = as_unit(calibration)
         if channel not in CHANNELS:
             msg = f'channel: expected one of {", ".join(CHANNELS)}, got {channel!r}'
@@ -465,17 +501,25 @@ class OnlineCompensator:
         self._signal_arrival_s: dict[str, float] = {}
         self.signal_messages: dict[str, int] = {}
         self.signal_rejected: dict[str, int] = {}
-        self._stamps = _StampRule()
-        self._own_stamps = False
-        self._sensor_stamps: tuple[_StampRule, _StampRule] | None = None
-        self._sensor_correct: tuple[Callable[..., tuple[float, float, float]], ...] = ()
-        self._sensor_signals: tuple[tuple[str, ...], ...] = ()
+        self._streams: tuple[_Stream, ...] = (_Stream('', slice(None), _StampRule()),)
+        """The streams of every message: the message's, or (apart) the sensors' in the order of the values."""
+        self._apart = False
+        """Whether each sensor is a stream of its own (from the first message that marked one absent on)."""
+        self._carried_streams: dict[tuple[bool, bool], tuple[_Stream, ...]] = {}
+        """Apart: the streams a message carries, by its two marks (accelerometer, gyroscope)."""
         self._temperature: float | None = None
         self._temp_arrival_s = -math.inf
         self._temp_outside = False
         self._stale_reported = False
         self._previous: dict[str, int] = {}
         self._config: Configuration | None = None
+        self.watch_settings = watch if watch is not None and watch.enabled and channel != MAG_CHANNEL else None
+        self.watch: CalibrationWatch | None = None
+        """The calibration watch in force (:mod:`tak_thermo_ros.core.link.watch`), or ``None``."""
+        self.watch_off = 'off (watch: false)' if self.watch_settings is None else ''
+        """Why there is no watch, or ``''``."""
+        self._watch_finder: RestFinder | None = None
+        self._adjustment: tuple[tuple[float, ...], tuple[float, ...]] | None = None
         self.install(self.prepare(calibration=unit, out_of_range=out_of_range,
                                   stale_temperature=stale_temperature, temp_timeout_s=temp_timeout_s))
 
@@ -608,11 +652,9 @@ class OnlineCompensator:
         """Put a prepared configuration in force; the next message uses it. Cannot fail."""
         previous, self._config = self._config, configuration
         self._drop_stale = configuration.stale is StaleTemperature.DROP
-        self._correct = configuration.corrector.correct_sample
         self._signals = configuration.corrector.signals
-        if self._sensors_apart:  # each sensor's own correction, for messages that carry one
-            self._sensor_correct = tuple(c.correct_sample for c in configuration.corrector.correctors)
-            self._sensor_signals = tuple(c.signals for c in configuration.corrector.correctors)
+        self._channels = configuration.corrector.channels
+        self._install_streams()
         for name in self._signals:
             self.signal_messages.setdefault(name, 0)
             self.signal_rejected.setdefault(name, 0)
@@ -623,6 +665,36 @@ class OnlineCompensator:
             self._temp_outside = not self._low <= self._temperature <= self._high
         if previous is not None and configuration.unit is not previous.unit:
             self.calibration_updates += 1
+        if previous is None or configuration.unit is not previous.unit:
+            self._start_watch(configuration.unit)
+
+    def set_watch(self, settings: WatchSettings | None) -> None:
+        """New watch settings (learning switched on or off at run time): a new watch of the calibration in force."""
+        self.watch_settings = settings if settings is not None and settings.enabled else None
+        self.watch_off = 'off (watch: false)' if self.watch_settings is None else ''
+        self._start_watch(self._config.unit)
+
+    def _start_watch(self, unit: UnitCalibration) -> None:
+        """A watch of the calibration in force (a new one with a new calibration: its rests start afresh)."""
+        self._stop_watch()
+        settings = self.watch_settings
+        if settings is None or self._apart:
+            return
+        try:
+            self.watch = settings.watch(unit)
+        except WatchUnavailable as err:
+            self.watch_off = f'off: {err}'
+            return
+        self.watch_off = ''
+        self._watch_finder = self.watch.finder
+        self._adjustment = self.watch.adjustment
+        self.watch.on_adjustment = self._take_adjustment
+
+    def _stop_watch(self) -> None:
+        self.watch = self._watch_finder = self._adjustment = None
+
+    def _take_adjustment(self, adjustment: tuple[tuple[float, ...], tuple[float, ...]] | None) -> None:
+        self._adjustment = adjustment
 
     def set_policies(self, *, out_of_range: OutOfRange | str | None = None,
                      stale_temperature: StaleTemperature | str | None = None,
@@ -735,6 +807,10 @@ class OnlineCompensator:
                        accel_mark: float = 0.0, gyro_mark: float = 0.0) -> tuple[float, ...] | OneSensor | str:
         """Correct one input message, or tell why it is dropped.
 
+        One pipeline over the streams the message carries (:class:`_Stream`: the message's, or
+        each sensor's once they came apart): per stream the stamp rule and the values' check; the
+        message's temperature; per stream its recorded signals; per stream the correction.
+
         :param sec: header stamp, whole seconds (``builtin_interfaces/Time.sec``).
         :param nanosec: header stamp, nanoseconds part.
         :param values: the message's values, :attr:`channels` plain floats (counts x y z; or
@@ -748,27 +824,34 @@ class OnlineCompensator:
             published with one sensor, or the drop reason (a ``str`` of
             :data:`ONLINE_DROP_REASONS`, :data:`SIGNAL_DROP_REASONS` or :data:`IMU_DROP_REASONS`).
         """
-        if accel_mark == NOT_PROVIDED or gyro_mark == NOT_PROVIDED or self._own_stamps:
-            return self._process_sensors(sec, nanosec, values, now_s, accel_mark != NOT_PROVIDED,
-                                         gyro_mark != NOT_PROVIDED)
-        self.received += 1
-        stamp_ns = sec * NANOSECONDS + nanosec
-        stamps = self._stamps
-        last = stamps.last_ns
-        if last is not None and 0 < stamp_ns - last <= STAMP_JUMP_NS:
-            # _StampRule.problem's usual case inline (a step forward within 10 s): the per-message cost
-            stamps.step_ns, stamps.before_ns = stamp_ns - last, last
-            stamps.last_ns = stamps.kept_ns = stamp_ns
+        if accel_mark == NOT_PROVIDED or gyro_mark == NOT_PROVIDED or self._apart:
+            streams = self._carried(accel_mark != NOT_PROVIDED, gyro_mark != NOT_PROVIDED)
+            if not streams:
+                self.dropped[NO_SENSOR] += 1
+                return NO_SENSOR
         else:
-            reason = stamps.problem(stamp_ns)
-            if reason is not None:
-                self.dropped[reason] += 1
-                self._report_stamp_order(reason, stamp_ns, last, stamps, now_s)
-                return reason
-        problem = self._problem(*values)
-        if problem is not None:
-            self.dropped[problem] += 1
-            return problem
+            self.received += 1
+            streams = self._streams
+        stamp_ns = sec * NANOSECONDS + nanosec
+        live = 0
+        for stream in streams:
+            stamps = stream.stamps
+            last = stamps.last_ns
+            if last is not None and 0 < stamp_ns - last <= STAMP_JUMP_NS:
+                # _StampRule.problem's usual case inline (a step forward within 10 s): the per-message cost
+                stamps.step_ns, stamps.before_ns = stamp_ns - last, last
+                stamps.last_ns = stamps.kept_ns = stamp_ns
+            else:
+                reason = stamps.problem(stamp_ns)
+                if reason is not None:
+                    self._report_stamp_order(reason, stamp_ns, last, stamps, now_s, stream.sensor)
+                    stream.reason = reason
+                    continue
+            stream.reason = reason = self._problem(*values[stream.span])
+            if reason is None:
+                live += 1
+        if not live:
+            return self._drop(streams)
         temperature = self._temperature
         if temperature is None or now_s - self._temp_arrival_s > self._timeout_s or not self._needs_temperature:
             temperature = self._temperature_now(now_s)  # none yet, stale, or not read
@@ -776,120 +859,119 @@ class OnlineCompensator:
                 return temperature
         aux = None
         if self._signals:
-            signal_problem = self._signal_problem(now_s)
-            if signal_problem is not None:
-                self.dropped[signal_problem] += 1
-                return signal_problem
+            for stream in streams:
+                if stream.reason is None and stream.signals:
+                    stream.reason = reason = self._signal_problem(now_s, stream.signals)
+                    if reason is not None:
+                        live -= 1
+            if not live:
+                return self._drop(streams)
             aux = self._signal_values
         if self._temp_outside:
             self._count_out_of_range(now_s)
-        try:
-            # The stamp in seconds exactly as the offline path computes it (seconds_from_ns).
-            if aux is None:
-                result = self._correct(values, temperature, stamp_s=seconds(sec, nanosec))
-            else:
-                result = self._correct(values, temperature, stamp_s=seconds(sec, nanosec), aux=aux)
-        except Exception as err:  # a user effect may raise anything: the message is dropped, never the node
-            return self._drop_failed(CORRECTION_FAILED, f'{type(err).__name__}: {err}', now_s)
-        for value in result:
-            if not -math.inf < value < math.inf:
-                return self._drop_failed(NON_FINITE_OUTPUT, f'output {result}', now_s)
+        # The stamp in seconds exactly as the offline path computes it (seconds_from_ns).
+        stamp_s = seconds(sec, nanosec)
+        output = failures = None
+        for stream in streams:
+            if stream.reason is not None:
+                continue
+            try:
+                result = stream.correct(values[stream.span], temperature, stamp_s=stamp_s, aux=aux)
+            except Exception as err:  # a user effect may raise anything: the sample is left out, never the node
+                stream.reason = CORRECTION_FAILED
+                failures = [*(failures or ()), (stream, f'{type(err).__name__}: {err}')]
+                continue
+            for value in result:
+                if not -math.inf < value < math.inf:
+                    stream.reason = NON_FINITE_OUTPUT
+                    failures = [*(failures or ()), (stream, f'output {result}')]
+                    break
+            else:  # both sensors of a message, apart: in the order of the values
+                output = result if output is None else output + result
+        if output is None:
+            reason = self._drop(streams)
+            self._report_failures(failures, now_s)
+            return reason
+        if failures:
+            self._report_failures(failures, now_s)
         self.published += 1
-        return result
+        if len(output) == self._channels:  # every value of the message
+            finder = self._watch_finder
+            if finder is not None:  # the calibration watch: RestFinder.take inline (the per-message cost)
+                if not finder.start_ns <= stamp_ns < finder.end_ns:
+                    finder.next_window(stamp_ns, temperature)
+                finder.append(output)
+                adjustment = self._adjustment
+                if adjustment is not None:  # the run's turn-on offset, or what the watch learned
+                    output = adjust(output, temperature, adjustment, self.watch.reference)  # type: ignore
+            return output
+        for stream in streams:  # one sensor's values: a carried sensor left out, or the only one carried
+            if stream.reason is None:
+                survivor = stream.sensor
+            else:
+                key = f'{stream.sensor}.{stream.reason}'
+                self.sensor_dropped[key] = self.sensor_dropped.get(key, 0) + 1
+        return OneSensor(survivor, output)
 
-    def _process_sensors(self, sec: int, nanosec: int, values: tuple[float, ...], now_s: float,
-                         accel: bool, gyro: bool) -> tuple[float, ...] | OneSensor | str:
-        """:meth:`process_values` once the sensors come apart: each on its own stamps (the module's rule).
+    def _carried(self, accel: bool, gyro: bool) -> tuple[_Stream, ...]:
+        """The streams of a driver message carrying the sensors its marks say (each sensor's own, apart).
 
-        :param accel: whether the message carries an accelerometer sample; ``gyro`` likewise.
+        The first message that marks a sensor absent sets each sensor apart; counts the message.
         """
         if not self._sensors_apart:
             msg = f'{self._message_word} messages carry no sensor marks (a driver Imu only)'
             raise ValueError(msg)
         self.received += 1
-        carried = (accel, gyro)
-        if not self._own_stamps:
-            self._start_own_stamps(carried)
+        if not self._apart:
+            self._start_own_stamps((accel, gyro))
         if not (accel and gyro):
             self.one_sensor_messages += 1
-            if not (accel or gyro):
-                self.dropped[NO_SENSOR] += 1
-                return NO_SENSOR
-        stamp_ns = sec * NANOSECONDS + nanosec
-        left_out: list[str | None] = [None, None]  # per sensor, why its sample is left out
-        for index, rule in enumerate(self._sensor_stamps):
-            if carried[index]:
-                last = rule.last_ns
-                reason = rule.problem(stamp_ns)
-                if reason is not None:
-                    self._report_stamp_order(reason, stamp_ns, last, rule, now_s, SENSORS[index])
-                else:
-                    reason = self._problem(*values[3 * index:3 * index + 3])
-                left_out[index] = reason
-        live = [index for index in (0, 1) if carried[index] and left_out[index] is None]
-        if not live:
-            return self._drop_sensors(carried, left_out)
-        temperature = self._temperature_now(now_s)
-        if temperature.__class__ is str:
-            return temperature
-        aux = None
-        if self._signals:
-            for index in tuple(live):
-                names = self._sensor_signals[index]
-                problem = self._signal_problem(now_s, names) if names else None
-                if problem is not None:
-                    left_out[index] = problem
-                    live.remove(index)
-            if not live:
-                return self._drop_sensors(carried, left_out)
-            aux = self._signal_values
-        if self._temp_outside:
-            self._count_out_of_range(now_s)
-        stamp_s = seconds(sec, nanosec)
-        corrected: list[tuple[float, float, float] | None] = [None, None]
-        for index in live:
-            x, y, z = values[3 * index:3 * index + 3]
-            try:
-                result = self._sensor_correct[index](x, y, z, temperature, stamp_s=stamp_s, aux=aux)
-            except Exception as err:  # a user effect may raise anything: the sample is left out, never the node
-                left_out[index] = self._report_failed(CORRECTION_FAILED, f'{type(err).__name__}: {err}', now_s,
-                                                      SENSORS[index])
-                continue
-            if not all(-math.inf < value < math.inf for value in result):
-                left_out[index] = self._report_failed(NON_FINITE_OUTPUT, f'output {result}', now_s, SENSORS[index])
-                continue
-            corrected[index] = result
-        accel_out, gyro_out = corrected
-        if accel_out is None and gyro_out is None:
-            return self._drop_sensors(carried, left_out)
-        self.published += 1
-        for index in (0, 1):
-            if carried[index] and corrected[index] is None:
-                key = f'{SENSORS[index]}.{left_out[index]}'
-                self.sensor_dropped[key] = self.sensor_dropped.get(key, 0) + 1
-        if accel_out is None:
-            return OneSensor('gyro', gyro_out)
-        if gyro_out is None:
-            return OneSensor('accel', accel_out)
-        return accel_out + gyro_out
+        return self._carried_streams[accel, gyro]
+
+    def _install_streams(self) -> None:
+        """Each stream's correction and recorded signals from the configuration in force."""
+        corrector = self._config.corrector
+        if self._apart:
+            for stream, sensor_corrector in zip(self._streams, corrector.correctors):
+                stream.correct = sensor_corrector.correct_values
+                stream.signals = sensor_corrector.signals
+        else:
+            stream, = self._streams
+            stream.correct = corrector.correct_sample
+            stream.signals = corrector.signals
 
     def _start_own_stamps(self, carried: tuple[bool, bool]) -> None:
         """The first message that marks a sensor absent: from it on each sensor is a stream of its own."""
-        self._own_stamps = True
+        self._apart = True
+        if self.watch is not None:
+            self._stop_watch()
+            self.watch_off = (f'off from {self._message_word} message {self.received} on: the sensors come at their '
+                              f'own stamps (the watch takes messages that carry both)')
         self.own_stamps_since = self.received
-        # Every message so far carried both sensors: each sensor's stamps were the messages'.
-        self._sensor_stamps = (self._stamps.copy(), self._stamps.copy())
+        # Every message so far carried both sensors: each sensor's stamps were the message's.
+        stamps = self._streams[0].stamps
+        accel, gyro = (_Stream(sensor, slice(3 * index, 3 * index + 3), stamps.copy())
+                       for index, sensor in enumerate(SENSORS))
+        self._streams = (accel, gyro)
+        self._carried_streams = {(True, True): (accel, gyro), (True, False): (accel,), (False, True): (gyro,),
+                                 (False, False): ()}
+        self._install_streams()
         absent = ' and the '.join(SENSOR_NAMES[sensor] for sensor, there in zip(SENSORS, carried) if not there)
         self._notice(Level.OK, 'own_stamps',
                      f'{self._message_word} message {self.received} marks the {absent} absent (covariance[0] = -1): '
                      f'from it on each sensor is corrected on its own samples and stamps, an absent one '
                      f'published marked')
 
-    def _drop_sensors(self, carried: tuple[bool, bool], left_out: list[str | None]) -> str:
-        """Drop a message none of whose sensors survived, for the first one's reason."""
-        reason = left_out[0] if carried[0] else left_out[1]
+    def _drop(self, streams: tuple[_Stream, ...]) -> str:
+        """Drop a message none of whose streams survived, for the first one's reason."""
+        reason = streams[0].reason
         self.dropped[reason] += 1
         return reason
+
+    def _report_failures(self, failures: list[tuple[_Stream, str]], now_s: float) -> None:
+        """The log lines of the streams whose correction failed (once the message is counted)."""
+        for stream, detail in failures:
+            self._report_failed(stream.reason, detail, now_s, stream.sensor)
 
     def message_lost(self, stream: str, count: int, now_s: float) -> None:
         """Count ``count`` messages of input ``stream`` that the middleware reports lost in transport."""
@@ -947,10 +1029,6 @@ class OnlineCompensator:
                      f'{what} header stamp {relation} {previous}: dropped ({counts[DUPLICATE_STAMP]} duplicate, '
                      f'{counts[TIME_BACKWARDS]} backwards, {counts[STAMP_JUMP]} jumped ahead so far'
                      f'{self._since(held)})')
-
-    def _drop_failed(self, reason: str, detail: str, now_s: float) -> str:
-        self.dropped[reason] += 1
-        return self._report_failed(reason, detail, now_s)
 
     def _report_failed(self, reason: str, detail: str, now_s: float, sensor: str = '') -> str:
         """The throttled log line of a message (or, ``sensor``, one sensor's sample) whose correction failed."""
@@ -1033,6 +1111,31 @@ class OnlineCompensator:
                 self._report_waiting()
         elif self.is_stale(now_s):
             self._report_stale(now_s, 0)
+        self.judge_watch()
+
+    def judge_watch(self, *, finish: bool = False) -> None:
+        """Judge the rests the watch found since the last call, outside the message path (the node's timer).
+
+        :param finish: the stream ended (shutdown, end of a record): a rest in progress ends first.
+        """
+        watch = self.watch
+        if watch is None:
+            return
+        if finish:
+            watch.finish()
+        elif watch.pending:
+            watch.judge()
+        for line in watch.notices:
+            self._notice(Level.WARN if line.startswith('calibration stale') else Level.OK, 'calibration_watch', line)
+        watch.notices.clear()
+
+    def watch_status(self) -> Status:
+        """The calibration watch's diagnostics: WARN with "calibration stale: ..." once a test fired, else OK."""
+        watch = self.watch
+        if watch is None:
+            return Status(Level.OK, f'calibration watch {self.watch_off}', (('calibration_watch', self.watch_off),))
+        level = Level.WARN if watch.stale else Level.OK
+        return Status(level, watch.verdict(), (('calibration_watch', 'on'), *watch.values()))
 
     def _sensor_values(self) -> list[tuple[str, str]]:
         """The status values of a driver's messages that carry one sensor (:meth:`status`)."""

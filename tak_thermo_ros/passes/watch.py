@@ -1,0 +1,88 @@
+"""The calibration watch over a recorded run: the node's own code on the record's messages, the node's verdict.
+
+``tak_calib validate REC --params P`` replays the record as ``tak_calib play`` publishes it to
+the node (block by block, in stamp order, the temperature before the Imu at equal stamps)
+through :class:`~tak_thermo_ros.core.link.online.OnlineCompensator` with the watch on: the
+same corrections, the same rests, the same tests, hence the node's verdict. The record is read
+once, in bounded memory (the watch keeps a window of samples and a bounded list of rests).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from tak_thermo_ros.core.link.correction import OutOfRange
+from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
+from tak_thermo_ros.core.link.online import OnlineCompensator, StaleTemperature
+from tak_thermo_ros.core.link.watch import CalibrationWatch, WatchSettings, watch_unavailable
+from tak_thermo_ros.core.records.record import NANOSECONDS, DriverRecord
+from tak_thermo_ros.passes.run import StreamOptions
+
+
+@dataclass(frozen=True)
+class Watched:
+    """What the watch said of a record.
+
+    :param watch: the watch at the end (its verdict, findings, figures), or ``None`` when it was off.
+    :param off: why it was off, else ``''``.
+    :param messages: Imu messages replayed; ``published`` those the node would have published.
+    """
+
+    watch: CalibrationWatch | None
+    off: str
+    messages: int
+    published: int
+
+    def lines(self) -> list[str]:
+        """What ``validate`` prints: ``calibration watch (the node's, on this record): ...``."""
+        if self.watch is None:
+            return [f'calibration watch: {self.off}']
+        return [f'calibration watch over {self.messages} Imu messages (the node\'s code):', *self.watch.lines()]
+
+
+def watch_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions, *, settings: WatchSettings,
+              out_of_range: OutOfRange = OutOfRange.CLAMP) -> Watched:
+    """The node's watch over a driver record (the node's temperature timeout: none; stale temperatures held)."""
+    from tak_thermo_ros.formats.bag import imu_messages
+    from tak_thermo_ros.formats.records import record_blocks, record_streams
+    reason = watch_unavailable(unit)
+    if reason:
+        return Watched(None, f'off: {reason}', 0, 0)
+    path = Path(path)
+    streams = record_streams(path, topics=options.topics)
+    if streams.kind is not InputKind.IMU:
+        return Watched(None, 'off: the watch takes a driver\'s Imu', 0, 0)
+    core = OnlineCompensator(unit, out_of_range=out_of_range, stale_temperature=StaleTemperature.HOLD,
+                             temp_timeout_s=1e9, temp_topic=options.topics.temperature, watch=settings)
+    first: int | None = None
+    for block in record_blocks(path, topics=options.topics, kind=streams.kind, references=False,
+                               progress=options.progress):
+        assert isinstance(block, DriverRecord)
+        messages = imu_messages(block)
+        events = sorted([(int(s), 0, i) for i, s in enumerate(block.temp_stamp_ns)]
+                        + [(int(s), 1, i) for i, s in enumerate(messages.stamp_ns)]
+                        + [(int(s), 2 + k, i) for k, (_, (stamps, _)) in enumerate(sorted(block.aux.items()))
+                           for i, s in enumerate(stamps)])
+        names = sorted(block.aux)
+        values = np.hstack([block.accel[messages.accel_row] if len(block.accel) else np.zeros((0, 3)),
+                            block.gyro[messages.gyro_row] if len(block.gyro) else np.zeros((0, 3))]).tolist()
+        accel_mark = np.where(messages.accel_row >= 0, 0.0, -1.0).tolist()
+        gyro_mark = np.where(messages.gyro_row >= 0, 0.0, -1.0).tolist()
+        for stamp, stream, row in events:
+            first = stamp if first is None else first
+            now = (stamp - first) * 1e-9
+            if stream == 0:
+                core.process_temperature(float(block.temperature[row]), now)
+            elif stream == 1:
+                core.process_values(*divmod(stamp, NANOSECONDS), tuple(values[row]), now, accel_mark[row],
+                                    gyro_mark[row])
+            else:
+                name = names[stream - 2]
+                core.process_signal(name, float(block.aux[name][1][row]), now)
+            if core.watch is not None and core.watch.pending:
+                core.judge_watch()
+    core.judge_watch(finish=True)
+    return Watched(core.watch, core.watch_off, core.received, core.published)
