@@ -17,11 +17,23 @@ FLIGHT_LOG_SUFFIXES = {'.ulg': 'ulog', '.bin': 'dataflash'}
 """An output named so is a flight log (a powered board's record, ``powered:`` in the scenario), not a bag."""
 
 
-def output_kind(args: argparse.Namespace) -> str:
-    """A bag directory, or a file for a flight log (by the output's suffix)."""
+def output_kind(args: argparse.Namespace) -> str | None:
+    """A bag directory, or a file for a flight log (by the output's suffix).
+
+    ``None`` for a scenario with an ``everyday:`` section: a directory of bags, checked by
+    :func:`_everyday` itself (each record's bag under the overwrite rule).
+    """
     from pathlib import Path
     from tak_thermo_ros.formats.files import FILE
-    return FILE if Path(args.out_bag).suffix.lower() in FLIGHT_LOG_SUFFIXES else BAG
+    if Path(args.out_bag).suffix.lower() in FLIGHT_LOG_SUFFIXES:
+        return FILE
+    return None if _everyday_scenario(args) is not None else BAG
+
+
+def _everyday_scenario(args: argparse.Namespace):
+    """The scenario file's ``(Scenario, Everyday)`` when it has an ``everyday:`` section, else ``None``."""
+    from tak_thermo_ros.formats.scenario import load_everyday
+    return load_everyday(args.scenario) if args.scenario else None
 
 
 OUTPUTS = (('out_bag', output_kind, 'OUT_BAG'),)
@@ -30,11 +42,12 @@ OUTPUTS = (('out_bag', output_kind, 'OUT_BAG'),)
 
 def add_parser(commands) -> argparse.ArgumentParser:
     """Add the command to ``tak_calib``'s subcommands."""
-    parser = commands.add_parser('simulate', help='simulate a thermal-chamber run into a bag, or a powered board '
-                                                  'into a flight log (OUT.ulg, OUT.bin)')
+    parser = commands.add_parser('simulate', help='simulate a thermal-chamber run into a bag, a powered board '
+                                                  'into a flight log (OUT.ulg, OUT.bin), or a unit\'s everyday records')
     parser.add_argument('out_bag', metavar='OUT_BAG',
                         help='a bag directory; or OUT.ulg (a PX4 ULog) / OUT.bin (an ArduPilot DataFlash log): a '
-                             "powered board (the scenario's powered: section)")
+                             "powered board (the scenario's powered: section); a directory of bags, one per record, "
+                             "for a scenario with an everyday: section (docs/everyday.md)")
     parser.add_argument('--scenario', metavar='FILE.yaml',
                         help='scenario overrides, every key optional (README: The simulator)')
     parser.add_argument('--seed', type=options.seed, help='random seed, 0 .. 2^63 - 1 (overrides the scenario)')
@@ -49,6 +62,9 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
     if Path(args.out_bag).suffix.lower() in FLIGHT_LOG_SUFFIXES:
         return _flight_log(args, FLIGHT_LOG_SUFFIXES[Path(args.out_bag).suffix.lower()])
+    everyday = _everyday_scenario(args)
+    if everyday is not None:
+        return _everyday(args, *everyday)
     from tak_thermo_ros.formats.bag import write_driver_record, write_record
     scenario = load_scenario(args.scenario) if args.scenario else Scenario()
     if args.seed is not None:
@@ -112,4 +128,55 @@ def _flight_log(args: argparse.Namespace, kind: str) -> int:
     print(f'wrote {args.out_bag}: {what}, instance {args.instance}, {run.duration_s / 60.0:.0f} min')
     print(f'temperature {record.temperature.min():.1f}..{record.temperature.max():.1f} C, the sensing elements '
           f'{run.element_lag_s:g} s behind the thermometer')
+    return 0
+
+
+def _everyday(args: argparse.Namespace, scenario, habits) -> int:
+    """A unit's everyday records (:mod:`tak_thermo_ros.core.simulation.everyday`): one bag per record in a directory.
+
+    The directory may exist when it holds only bags (``--force`` replaces them all); each record
+    is written atomically as ``recNN``.
+    """
+    import shutil
+    from pathlib import Path
+    from tak_thermo_ros.core.simulation.everyday import simulate_everyday
+    from tak_thermo_ros.errors import OutputError
+    from tak_thermo_ros.formats.bag import write_driver_record
+    from tak_thermo_ros.formats.files import check_output
+    from tak_thermo_ros.units import numbers, reader_unit
+    if args.seed is not None:
+        scenario = replace(scenario, seed=args.seed)
+    out = Path(args.out_bag)
+    if out.exists() or out.is_symlink():
+        if out.is_symlink() or not out.is_dir():
+            msg = f'{out} (OUT_BAG): exists and is not a directory; the records are written into a directory'
+            raise OutputError(msg)
+        entries = sorted(out.iterdir())
+        for entry in entries:  # only bags this tool wrote may be replaced
+            check_output(entry, BAG, force=True, option='OUT_BAG')
+        if entries and not args.force:
+            msg = f'{out} (OUT_BAG): exists and holds {len(entries)} bags; --force replaces them'
+            raise OutputError(msg)
+        for entry in entries:
+            shutil.rmtree(entry)
+    else:
+        check_output(out, BAG, option='OUT_BAG')
+        out.mkdir()
+    low, high, rests, minutes = np.inf, -np.inf, [], []
+    for simulated in simulate_everyday(scenario, habits):
+        record = simulated.record
+        write_driver_record(out / f'rec{simulated.index:02d}', record, topics=common.topics(args),
+                            storage=args.storage)
+        low, high = min(low, float(record.temperature.min())), max(high, float(record.temperature.max()))
+        rests.append(len(simulated.up))
+        minutes.append(simulated.duration_s / 60.0)
+    print(f'wrote {out}: {habits.records} records ({args.storage} bags rec00..rec{habits.records - 1:02d}) over '
+          f'{habits.days:g} days, {min(minutes):.0f}..{max(minutes):.0f} min each at {scenario.sample_rate_hz:g} Hz')
+    print(f'  temperature {low:.1f}..{high:.1f} C over the month; {min(rests)}..{max(rests)} rests per record, '
+          f'within {habits.tilt_deg:g} deg of level' + (f' ({100 * habits.face_share:.0f} % on another face)'
+                                                        if habits.face_share else ''))
+    accel, gyro = (reader_unit(unit) for unit in ('m/s^2', 'rad/s'))
+    print(f'  turn-on offset per power-up (true repeatability x y z): '
+          f'{numbers(habits.turn_on("accel") * accel[1], 3)} {accel[0]}, '
+          f'{numbers(habits.turn_on("gyro") * gyro[1], 3)} {gyro[0]}')
     return 0

@@ -69,8 +69,11 @@ def _check_outputs(args: argparse.Namespace) -> None:
     for name, kind, option in OUTPUTS.get(args.command, ()):
         path = getattr(args, name, None)
         if path is not None:
-            # a command whose output is a bag or a file by its name (simulate) says so per call
-            check_output(path, kind(args) if callable(kind) else kind, force=args.force, option=option)
+            # a command whose output is a bag or a file by its name (simulate) says so per call;
+            # None: the command checks that output itself (simulate's directory of everyday records)
+            kind = kind(args) if callable(kind) else kind
+            if kind is not None:
+                check_output(path, kind, force=args.force, option=option)
 
 
 def _report(message: str, err: BaseException, debug: bool) -> None:

@@ -64,3 +64,22 @@ def load_powered(path: str | Path | None):
     except ScenarioError as err:
         msg = f'{path}: powered.{err}'
         raise ScenarioError(msg) from None
+
+
+def load_everyday(path: str | Path | None):
+    """A scenario YAML with an ``everyday:`` section as ``(Scenario, Everyday)``, or ``None`` without one.
+
+    The other keys override :data:`~tak_thermo_ros.core.simulation.everyday.EVERYDAY_SCENARIO`
+    (:func:`~tak_thermo_ros.core.simulation.everyday.everyday_scenario`).
+    """
+    from tak_thermo_ros.core.simulation.everyday import everyday_scenario
+    if path is None:
+        return None
+    raw = read_yaml(path, 'scenario file', ScenarioError) or {}
+    if not isinstance(raw, dict) or 'everyday' not in raw:
+        return None
+    try:
+        return everyday_scenario(raw)
+    except ScenarioError as err:
+        msg = f'{path}: {err}'
+        raise ScenarioError(msg) from None
