@@ -45,6 +45,9 @@ class HandheldRecord:
     :param skipped_turns: reason -> turns not used (``gap``, ``long``).
     :param stride: every how many still samples one was kept.
     :param dropped: reason -> samples left out by the alignment.
+    :param interval_record: ``(k,)`` for a pool of records (:func:`pooled`), the record each still
+        interval comes from (``0 .. records - 1``); ``None``: one record.
+    :param record_names: a pool's records, in that numbering.
     """
 
     intervals: StillIntervals
@@ -56,6 +59,27 @@ class HandheldRecord:
     skipped_turns: dict[str, int] = field(default_factory=dict)
     stride: int = 1
     dropped: dict[str, int] = field(default_factory=dict)
+    interval_record: np.ndarray | None = None
+    record_names: tuple[str, ...] = ()
+
+    @property
+    def records(self) -> int:
+        """The number of power-ups the samples come from (1 unless a pool)."""
+        return 1 if self.interval_record is None else max(len(self.record_names), 1)
+
+    @property
+    def still_record(self) -> np.ndarray:
+        """``(n,)`` the record of each still sample (zeros for one record)."""
+        if self.interval_record is None:
+            return np.zeros(len(self.still_interval), dtype=np.int64)
+        return self.interval_record[self.still_interval]
+
+    @property
+    def turn_record(self) -> np.ndarray:
+        """``(m,)`` the record of each turn sample (zeros for one record)."""
+        if self.interval_record is None or not len(self.turn_index):
+            return np.zeros(len(self.turn_index), dtype=np.int64)
+        return self.interval_record[self.turns[self.turn_index, 0]]
 
     def interval_counts(self) -> np.ndarray:
         """``(k,)`` kept still samples per interval."""
@@ -293,3 +317,71 @@ def merged_samples(record: HandheldRecord) -> tuple[AlignedSamples, np.ndarray, 
                                  for name in names})
     count = len(record.still)
     return series, position[:count], position[count:]
+
+
+def pooled(records: list[HandheldRecord], names: list[str]) -> HandheldRecord:
+    """Several records' still and turn samples as one record, each interval knowing its record.
+
+    The records' intervals are numbered on (record 0's first); their noise is the pool's (the
+    samples' mean square over the records); a turn stays within its record.
+    """
+    offsets = np.cumsum([0] + [len(r.intervals) for r in records])
+    parts = [r.intervals for r in records]
+    counts = np.array([max(p.count, 1) for p in parts], dtype=float)
+    noise = np.sqrt(np.average(np.vstack([p.noise[:6] ** 2 for p in parts]), axis=0, weights=counts))
+    firsts = [p.first_ns for p in parts if p.first_ns is not None]
+    lasts = [p.last_ns for p in parts if p.last_ns is not None]
+    intervals = StillIntervals(
+        start_ns=np.concatenate([p.start_ns for p in parts]), end_ns=np.concatenate([p.end_ns for p in parts]),
+        samples=np.concatenate([p.samples for p in parts]),
+        mean=np.vstack([p.mean[:, :6].reshape(-1, 6) if p.mean.shape[1] >= 6 else
+                        np.hstack([p.mean, np.zeros((len(p.mean), 6 - p.mean.shape[1]))]) for p in parts]),
+        noise=noise, window_samples=min(p.window_samples for p in parts),
+        period_s=float(np.median([p.period_s for p in parts])), windows=sum(p.windows for p in parts),
+        still_windows=sum(p.still_windows for p in parts), gaps=np.vstack([p.gaps for p in parts]),
+        first_ns=min(firsts) if firsts else None, last_ns=max(lasts) if lasts else None,
+        count=sum(p.count for p in parts))
+    turn_offsets = np.cumsum([0] + [len(r.turns) for r in records])
+    dropped: dict[str, int] = {}
+    skipped: dict[str, int] = {}
+    for record in records:
+        add_counts(dropped, record.dropped)
+        add_counts(skipped, record.skipped_turns)
+    # a pool fits no recorded signal (each record may hold others): the samples without them
+    still = concatenate([replace(r.still, aux={}) for r in records]) if records else _empty()
+    turn = concatenate([replace(r.turn, aux={}) for r in records]) if records else _empty()
+    return HandheldRecord(
+        intervals=intervals, still=replace(still, dropped=dict(dropped)),
+        still_interval=np.concatenate([r.still_interval + o for r, o in zip(records, offsets)]).astype(np.int64),
+        turn=turn,
+        turn_index=np.concatenate([r.turn_index + o for r, o in zip(records, turn_offsets)]).astype(np.int64),
+        turns=np.vstack([r.turns + o for r, o in zip(records, offsets)]).astype(np.int64).reshape(-1, 2),
+        skipped_turns=skipped, stride=max(r.stride for r in records), dropped=dropped,
+        interval_record=np.concatenate([np.full(len(r.intervals), i, dtype=np.int64) for i, r in enumerate(records)]),
+        record_names=tuple(names))
+
+
+def records_subset(record: HandheldRecord, keep: np.ndarray) -> HandheldRecord:
+    """A pool with only the records where ``keep`` ``(records,)`` (their numbers and names kept in order)."""
+    keep = np.asarray(keep, dtype=bool)
+    if record.interval_record is None:
+        return record
+    intervals = keep[record.interval_record]
+    number = np.cumsum(intervals) - 1
+    renumber = np.cumsum(keep) - 1
+    still_rows = intervals[record.still_interval]
+    turn_keep = intervals[record.turns[:, 0]] if len(record.turns) else np.zeros(0, dtype=bool)
+    turn_number = np.cumsum(turn_keep) - 1
+    turn_rows = turn_keep[record.turn_index] if len(record.turn_index) else np.zeros(0, dtype=bool)
+    parts = record.intervals
+    kept = StillIntervals(start_ns=parts.start_ns[intervals], end_ns=parts.end_ns[intervals],
+                          samples=parts.samples[intervals], mean=parts.mean[intervals], noise=parts.noise,
+                          window_samples=parts.window_samples, period_s=parts.period_s, windows=parts.windows,
+                          still_windows=parts.still_windows, gaps=parts.gaps, first_ns=parts.first_ns,
+                          last_ns=parts.last_ns, count=parts.count)
+    return replace(record, intervals=kept, still=_rows(record.still, still_rows),
+                   still_interval=number[record.still_interval[still_rows]],
+                   turn=_rows(record.turn, turn_rows), turn_index=turn_number[record.turn_index[turn_rows]],
+                   turns=number[record.turns[turn_keep]].reshape(-1, 2),
+                   interval_record=renumber[record.interval_record[intervals]],
+                   record_names=tuple(name for name, k in zip(record.record_names, keep) if k))
