@@ -362,7 +362,9 @@ def _fit_pool(args: argparse.Namespace, settings) -> int:
         print(order_line(sensor, choice))
     for line in handheld.lines:
         print(line)
-    for sensor in ('accel', 'gyro'):
+    if pool.record.records < 2:
+        print('turn-on repeatability: not estimated, one record (it takes two power-ups or more); none written')
+    for sensor in handheld.turn_on:
         print(turn_on_line(sensor, handheld.turn_on[sensor]))
     for sensor in ('accel', 'gyro'):
         result = results[sensor]

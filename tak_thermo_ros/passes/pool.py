@@ -42,9 +42,21 @@ from tak_thermo_ros.passes.run import SURVEY_REPLAY_SAMPLES, StreamOptions, stre
 from tak_thermo_ros.units import numbers, reader_unit
 
 POOL_SAMPLES = 2_000_000
-"""A pool keeps at most about this many rest samples (and as many turn samples), shared among its records."""
+"""A pool keeps at most about this many rest samples, shared among its records ..."""
+POOL_TURN_SAMPLES = 200_000
+"""... and this many samples of its motions short enough to be integrated (the gyroscope's scale and
+misalignment; every n-th motion beyond) ..."""
 MIN_RECORD_SAMPLES = 20_000
-"""... but at least this many of each record."""
+"""... but at least this many rest samples of each record (and a tenth as many of its motions)."""
+
+
+def record_budgets(records: int, samples: int = POOL_SAMPLES) -> tuple[int, int]:
+    """Each record's share of the pool's rest and motion samples."""
+    count = max(records, 1)
+    return (max(MIN_RECORD_SAMPLES, samples // count),
+            max(MIN_RECORD_SAMPLES // 10, POOL_TURN_SAMPLES * samples // POOL_SAMPLES // count))
+
+
 RECORD_SUFFIXES = ('.ulg', '.bin')
 """A file in a directory of records is a record when it is named so (a bag is a directory with metadata.yaml)."""
 TREND_C_PER_MIN = 0.05
@@ -174,8 +186,9 @@ def _stripped(block: DriverRecord) -> DriverRecord:
                    mag_stamp_ns=np.zeros(0, dtype=np.int64), mag=np.zeros((0, 3)))
 
 
-def read_record(path: Path, options: StreamOptions, *, budget: int) -> tuple[PoolEntry, HandheldRecord | None]:
-    """One record of a pool: its rests and turns (at most about ``budget`` samples of each), and what it holds."""
+def read_record(path: Path, options: StreamOptions, *, budget: int,
+                turn_budget: int | None = None) -> tuple[PoolEntry, HandheldRecord | None]:
+    """One record of a pool: its rests and turns (about ``budget`` and ``turn_budget`` samples at most), and more."""
     from tak_thermo_ros.formats.records import record_blocks, record_lines, record_source, record_streams
     name = path.name
     try:
@@ -213,7 +226,7 @@ def read_record(path: Path, options: StreamOptions, *, budget: int) -> tuple[Poo
         reason = (f'no rest (never still {MIN_STILL_S:g} s or more; still {100.0 * still.still_fraction:.0f} % of '
                   f'the time): contributes nothing')
         return PoolEntry(path, name, source=source, lines=lines, reason=reason, held_gyro=held_gyro), None
-    collector = HandheldCollector(still, budget=budget)
+    collector = HandheldCollector(still, budget=budget, turn_budget=turn_budget)
     aligner = BlockAligner(use_reference=False)
     rate_max = 0.0
     for block, _ in (kept if keep else blocks()):
@@ -293,12 +306,12 @@ def open_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions, *
     :raises PoolError: a path that is no record, no record that contributes a rest.
     """
     records, lines = record_paths(paths)
-    budget = max(MIN_RECORD_SAMPLES, samples // max(len(records), 1))
+    budget, turn_budget = record_budgets(len(records), samples)
     entries: list[PoolEntry] = []
     read: list[HandheldRecord | None] = []
     names = Counter(path.name for path in records)
     for path in records:
-        entry, record = read_record(path, options, budget=budget)
+        entry, record = read_record(path, options, budget=budget, turn_budget=turn_budget)
         if names[path.name] > 1:  # the same name in two directories: the path tells them apart
             entry = replace(entry, name=str(path))
         entries.append(entry)
@@ -425,3 +438,134 @@ def left_out_line(left) -> str:
     return (f'{left.name}: left out: another unit? its {SENSOR_NAMES[left.sensor]} {"xyz"[left.axis]} turn-on offset '
             f'{numbers(left.offset * factor, 3)} {small} lies {left.sigmas:.0f} spreads from the pool\'s '
             f'(more than {OUTLIER_SIGMAS:g})')
+
+
+@dataclass(frozen=True)
+class PoolCheck:
+    """``validate`` of a pool: every rest's errors before (nominal) and after the calibration, by record.
+
+    :param rest_record: ``(k,)`` each rest's record (in the pool's numbering).
+    :param weights: ``(k,)`` each rest's kept samples.
+    :param own: ``(r, 3)`` each record's mean rate error at rest after the calibration (its turn-on offset).
+    :param shape: ``(k, 3)`` the rests' rate errors after, each record's own mean taken off.
+    """
+
+    opened: OpenedPool
+    before: object
+    after: object
+    rest_record: np.ndarray
+    weights: np.ndarray
+    own: np.ndarray
+    shape: np.ndarray
+
+    @property
+    def shape_rms(self) -> np.ndarray:
+        """``(3,)`` RMS of the rests' rate errors with each record's own offset taken off."""
+        return np.sqrt(np.mean(self.shape ** 2, axis=0)) if len(self.shape) else np.zeros(3)
+
+
+def validate_records(paths: Sequence[str | os.PathLike[str]], unit, options: StreamOptions, *, gravity: float,
+                     latitude: float | None, out_of_range) -> PoolCheck:
+    """The rests of a pool's records before and after ``unit`` (each record read once, as for ``fit``)."""
+    from tak_thermo_ros.core.link.handheld_check import check_handheld
+    from tak_thermo_ros.core.records.handheld import numbered_rests
+    from tak_thermo_ros.passes.handheld import nominal_unit
+    opened = open_pool(paths, options)
+    record = opened.record
+    assert record is not None
+    before = check_handheld(record, nominal_unit(unit), gravity=gravity, latitude=latitude, out_of_range=out_of_range)
+    after = check_handheld(record, unit, gravity=gravity, latitude=latitude, out_of_range=out_of_range)
+    interval, count, _, _ = numbered_rests(record)
+    weights = np.bincount(interval, minlength=count).astype(float)
+    rest_record = np.zeros(count, dtype=np.int64)
+    rest_record[interval] = record.still_record
+    own = np.zeros((record.records, 3))
+    for index in range(record.records):
+        rows = rest_record == index
+        if rows.any():
+            own[index] = np.average(after.rate_error[rows], axis=0, weights=weights[rows])
+    return PoolCheck(opened, before, after, rest_record, weights, own, after.rate_error - own[rest_record])
+
+
+def bounded_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions, *, gravity: float,
+                 latitude: float | None, max_samples: int, unit):
+    """``diagnose`` of a pool: the rests' samples with their references, each record's own offset taken off.
+
+    The references are a hand-held record's (gravity along each rest's corrected up direction, zero
+    rate); each record's turn-on offset (its samples' mean residual after ``unit``, per axis) is
+    taken off, so that what remains is the link's shape; ``groups`` give each sample's record
+    (the folds hold whole records out).
+
+    :returns: the :class:`~tak_thermo_ros.passes.diagnose.BoundedRun` and the pool as read.
+    """
+    from tak_thermo_ros.core.fit.model import residual_counts
+    from tak_thermo_ros.passes.diagnose import BoundedRun
+    from tak_thermo_ros.passes.handheld import rest_samples
+    opened = open_pool(paths, options, samples=max_samples)
+    record = opened.record
+    assert record is not None
+    samples, check = rest_samples(record, unit, gravity=gravity, latitude=latitude)
+    groups = record.still_record
+    shift = _monotonic_shift(record.still.stamp_ns, groups, record.records)
+    for sensor, aligned in samples.items():
+        residual = residual_counts(unit.sensor(sensor), aligned)
+        own = np.zeros((record.records, 3))
+        for index in range(record.records):
+            rows = groups == index
+            if rows.any():
+                own[index] = residual[rows].mean(axis=0)
+        samples[sensor] = replace(aligned, counts=aligned.counts - own[groups],
+                                  stamp_ns=aligned.stamp_ns + shift[groups])
+    usable = {sensor: len(aligned) for sensor, aligned in samples.items()}
+    run = BoundedRun(input_kind=InputKind.IMU, samples=samples, usable=usable, stride=record.stride,
+                     reference_lines=(), survey=None, handheld=check,
+                     groups={sensor: groups for sensor in samples})
+    return run, opened
+
+
+RECORD_GAP_NS = 3_600_000_000_000
+"""Records whose stamps overlap (flight logs count from boot) are set one after the other, this far apart."""
+
+
+def _monotonic_shift(stamp_ns: np.ndarray, groups: np.ndarray, records: int) -> np.ndarray:
+    """``(records,)`` ns to add to each record's stamps so that the pool's samples run forward in time.
+
+    Records in order whose stamps already follow one another (a bag's clock) keep them.
+    """
+    shift = np.zeros(records, dtype=np.int64)
+    end = None
+    for index in range(records):
+        rows = stamp_ns[groups == index]
+        if not len(rows):
+            continue
+        if end is not None and rows.min() + shift[index] <= end:
+            shift[index] = end + RECORD_GAP_NS - rows.min()
+        end = int(rows.max() + shift[index])
+    return shift
+
+
+def bag_directory(path: str | os.PathLike[str], *, force: bool, option: str) -> Path:
+    """A directory to write one bag per record into: made, or one that holds only bags (``force`` replaces them).
+
+    :raises OutputError: ``path`` is no directory, holds something else than bags, or holds bags without ``force``.
+    """
+    import shutil
+    from tak_thermo_ros.errors import OutputError
+    from tak_thermo_ros.formats.files import BAG, check_output
+    out = Path(path)
+    if out.exists() or out.is_symlink():
+        if out.is_symlink() or not out.is_dir():
+            msg = f'{out} ({option}): exists and is not a directory; the records are written into a directory'
+            raise OutputError(msg)
+        entries = sorted(out.iterdir())
+        for entry in entries:  # only bags this tool wrote may be replaced
+            check_output(entry, BAG, force=True, option=option)
+        if entries and not force:
+            msg = f'{out} ({option}): exists and holds {len(entries)} bags; --force replaces them'
+            raise OutputError(msg)
+        for entry in entries:
+            shutil.rmtree(entry)
+    else:
+        check_output(out, BAG, option=option)
+        out.mkdir()
+    return out

@@ -1248,7 +1248,7 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
 
 # ----- a pool of records: the turn-on offsets as random effects ---------------------------------------
 
-VARIANCE_ROUNDS = 4
+VARIANCE_ROUNDS = 3
 """The variances and the link are refitted in turn at most this many times."""
 VARIANCE_SETTLED = 0.05
 """... until no variance moves by more than this fraction."""

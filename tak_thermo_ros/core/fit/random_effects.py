@@ -37,6 +37,8 @@ OUTLIER_SIGMAS = 6.0
 GROUP_SIGMAS = 10.0
 GRID_POINTS = 19
 GRID_SWEEPS = 2
+SEARCH_CYCLES = 6
+SEARCH_SETTLED = 0.01
 """The variances are first searched on a grid of this many points per parameter (over nine decades), this many times."""
 """Two groups of records whose offsets lie this many spreads apart are two units."""
 
@@ -86,7 +88,7 @@ def fit_variances(criterion: Callable[[np.ndarray, np.ndarray], float], start_tu
         rests' extra variance at 0: an axis whose offset the records do not tell has no variance to tell either).
     :param white: per axis the white noise of one sample (sets the search's bounds).
     """
-    from scipy.optimize import minimize
+    from scipy.optimize import minimize_scalar
     determined = np.asarray(determined, dtype=bool)
     turn_axes = np.flatnonzero(determined)
     white = np.maximum(np.asarray(white, dtype=float), 1e-12)
@@ -109,7 +111,8 @@ def fit_variances(criterion: Callable[[np.ndarray, np.ndarray], float], start_tu
     bounds = ([(math.log(w * 1e-5), math.log(w * 1e4)) for w in white[turn_axes]]
               + [(math.log(w * 1e-5), math.log(w * 10.0)) for w in white[turn_axes]])
     # The criterion is flat where a variance is negligible (a plateau a gradient step can stop on):
-    # each parameter first on a grid, the others held, twice over; then the gradient's polish.
+    # each parameter first on a grid over its whole range, the others held, then by a bounded
+    # one-dimensional search around it, in turn until nothing moves (the axes barely couple).
     start = np.clip(start, [b[0] for b in bounds], [b[1] for b in bounds])
     for _ in range(GRID_SWEEPS):
         for index, (low, high) in enumerate(bounds):
@@ -120,10 +123,23 @@ def fit_variances(criterion: Callable[[np.ndarray, np.ndarray], float], start_tu
                 trial[index] = point
                 values.append(objective(trial))
             start[index] = grid[int(np.argmin(values))]
-    found = minimize(objective, start, method='L-BFGS-B', bounds=bounds, options={'maxiter': 200})
-    if not found.fun <= objective(start):
-        found.x = start
-    best = np.clip(found.x, [b[0] for b in bounds], [b[1] for b in bounds])
+    for _ in range(SEARCH_CYCLES):
+        moved = 0.0
+        for index, (low, high) in enumerate(bounds):
+            def along(value: float, index: int = index) -> float:
+                trial = start.copy()
+                trial[index] = value
+                return objective(trial)
+
+            step = (high - low) / (GRID_POINTS - 1)
+            found = minimize_scalar(along, bounds=(max(low, start[index] - step), min(high, start[index] + step)),
+                                    method='bounded', options={'xatol': 1e-3})
+            if found.fun < along(start[index]):
+                moved = max(moved, abs(found.x - start[index]))
+                start[index] = found.x
+        if moved < SEARCH_SETTLED:
+            break
+    best = start
     turn_on, rest = unpack(best)
     error = np.full(3, np.nan)
     if len(turn_axes):

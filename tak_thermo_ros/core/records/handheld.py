@@ -150,11 +150,12 @@ class HandheldCollector:
     :param intervals: the still intervals (a first pass over the record).
     :param budget: keep at most about this many still samples (every ``stride``-th), and as many
         turn samples (every n-th turn).
+    :param turn_budget: keep at most about this many turn samples instead (``None``: ``budget``).
     """
 
-    def __init__(self, intervals: StillIntervals, *, budget: int) -> None:
+    def __init__(self, intervals: StillIntervals, *, budget: int, turn_budget: int | None = None) -> None:
         self.intervals = intervals
-        self.turns, self.skipped = planned_turns(intervals, budget=budget)
+        self.turns, self.skipped = planned_turns(intervals, budget=budget if turn_budget is None else turn_budget)
         self.stride = still_stride(intervals, budget)
         self._turn_start = intervals.end_ns[self.turns[:, 0]] if len(self.turns) else np.zeros(0, dtype=np.int64)
         self._turn_end = intervals.start_ns[self.turns[:, 1]] if len(self.turns) else np.zeros(0, dtype=np.int64)
