@@ -275,6 +275,30 @@ def rest_temperatures(record: HandheldRecord) -> tuple[np.ndarray, np.ndarray]:
     return means, trends
 
 
+RESTLESS_RATIO = 3.0
+"""A record whose quietest windows' noise is this many times the pool's never rested (its "rests" moved)."""
+
+
+def _restless(entries: list[PoolEntry], read: list[HandheldRecord | None]) -> list[PoolEntry]:
+    """Records that never rested: the still detector takes a record's own quietest windows for its noise.
+
+    A record that moved all the time has no quiet window, and its "rests" are motion: its noise
+    beside the pool's (the median of the records') tells it.
+    """
+    noises = {i: record.intervals.noise[:6] for i, record in enumerate(read) if record is not None
+              and not entries[i].reason and len(record.intervals.noise) >= 6}
+    if len(noises) < 2:
+        return entries
+    pool = np.median(np.vstack(list(noises.values())), axis=0)
+    out = list(entries)
+    for index, noise in noises.items():
+        ratio = float(np.max(noise / np.maximum(pool, 1e-300)))
+        if ratio > RESTLESS_RATIO:
+            out[index] = replace(out[index], reason=f'no rest: its quietest windows move {ratio:.0f}x the pool\'s '
+                                                     f'noise (it never rested): contributes nothing')
+    return out
+
+
 def _device_check(entries: list[PoolEntry]) -> tuple[list[PoolEntry], list[str]]:
     """Flight logs whose sensors' device IDs are not the pool's: left out; two devices in equal numbers: refused."""
     keys = {i: (int(e.source.get('accel_device_id', 0)), int(e.source.get('gyro_device_id', 0)))  # type: ignore
@@ -317,6 +341,7 @@ def open_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions, *
         entries.append(entry)
         read.append(record)
     entries, device_lines = _device_check(entries)
+    entries = _restless(entries, read)
     used = tuple(i for i, (entry, record) in enumerate(zip(entries, read)) if record is not None and not entry.reason)
     if not used:
         msg = f'no record of the {len(records)} given holds a rest with a temperature: nothing to fit'
@@ -433,11 +458,10 @@ def turn_on_line(sensor: str, fitted) -> str:
 
 def left_out_line(left) -> str:
     """One statement: a record left out of the pool, and why."""
-    from tak_thermo_ros.core.fit.random_effects import OUTLIER_SIGMAS
     small, factor = _reader(left.sensor)
     return (f'{left.name}: left out: another unit? its {SENSOR_NAMES[left.sensor]} {"xyz"[left.axis]} turn-on offset '
-            f'{numbers(left.offset * factor, 3)} {small} lies {left.sigmas:.0f} spreads from the pool\'s '
-            f'(more than {OUTLIER_SIGMAS:g})')
+            f'{numbers(left.offset * factor, 3)} {small} lies {left.sigmas:.0f} times the other records\' spread '
+            f'from their mean')
 
 
 @dataclass(frozen=True)

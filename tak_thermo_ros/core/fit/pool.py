@@ -229,6 +229,23 @@ class PoolFit:
     left_out: tuple[LeftOut, ...] = ()
 
 
+def _own_precision(record: HandheldRecord, sensor: str, rest: np.ndarray) -> np.ndarray:
+    """``(r, 3)`` how well each record's own rests tell its offset: ``1 / sqrt(sum 1 / (s^2 / n + t^2))``.
+
+    Not the offsets' errors from the fit, which carry the pool's spread (inflated by the very record
+    that is another unit's).
+    """
+    interval, count, _, _ = numbered_rests(record)
+    samples = np.bincount(interval, minlength=count).astype(float)
+    rest_record = np.zeros(count, dtype=np.int64)
+    rest_record[interval] = record.still_record
+    noise = record.intervals.noise[3:6] if sensor == 'gyro' else record.intervals.noise[:3]
+    extra = np.where(np.isfinite(rest), rest, 0.0)
+    information = np.zeros((record.records, 3))
+    np.add.at(information, rest_record, 1.0 / (noise[None, :] ** 2 / samples[:, None] + extra[None, :] ** 2))
+    return 1.0 / np.sqrt(np.maximum(information, 1e-300))
+
+
 def _another_unit(record: HandheldRecord, fitted: HandheldFit) -> list[LeftOut]:
     """Records whose turn-on offset is far beyond the pool's spread; two groups of offsets refuse the pool.
 
@@ -242,7 +259,7 @@ def _another_unit(record: HandheldRecord, fitted: HandheldFit) -> list[LeftOut]:
             continue
         determined = turn_on.variances.determined
         offsets = np.where(determined[None, :], turn_on.offsets, np.nan)
-        screening = screen_offsets(offsets, np.where(np.isfinite(turn_on.errors), turn_on.errors, 0.0))
+        screening = screen_offsets(offsets, _own_precision(record, sensor, turn_on.variances.rest))
         if screening.groups:
             axis = screening.axis
             groups = tuple(tuple(record.record_names[i] for i in group) for group in screening.groups)

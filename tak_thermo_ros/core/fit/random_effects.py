@@ -32,15 +32,19 @@ from tak_thermo_ros.core.fit.design import Column
 
 TURN_ON = 'the turn-on offset'
 """The label of a record's turn-on offset column (:class:`~tak_thermo_ros.core.fit.design.Column`)."""
-OUTLIER_SIGMAS = 6.0
-"""A record's turn-on offset this many robust spreads from the pool's median is another unit's."""
-GROUP_SIGMAS = 10.0
+OUTLIER_ALPHA = 1e-3
+"""A record's turn-on offset is another unit's when the others' spread leaves it that far out this seldom."""
+GROUP_SIGMAS = 12.0
+"""Two groups of records whose offsets lie this many spreads apart are two units (one in a thousand six-record
+pools of one unit falls apart by 10.7)."""
+MIN_GROUP = 3
+"""A group of records needs this many (its own spread)."""
 GRID_POINTS = 19
 GRID_SWEEPS = 2
+"""The variances are first searched on a grid of this many points per parameter (over nine decades), this many times,"""
 SEARCH_CYCLES = 6
 SEARCH_SETTLED = 0.01
-"""The variances are first searched on a grid of this many points per parameter (over nine decades), this many times."""
-"""Two groups of records whose offsets lie this many spreads apart are two units."""
+"""... then by one-dimensional searches in turn, at most this many cycles, until none moves by this much (log)."""
 
 
 def turn_on_columns(records: int) -> tuple[Column, ...]:
@@ -187,10 +191,10 @@ def _curvature(objective: Callable[[np.ndarray], float], at: np.ndarray, count: 
 class Screening:
     """Which records' turn-on offsets belong to the pool's unit.
 
-    :param outliers: the records far beyond the pool's spread (their numbers), with the axis and
-        how many spreads away.
+    :param outliers: ``(record, axis, distance)`` of each record far beyond the other records' spread
+        (the distance in units of that spread).
     :param groups: two groups of records (their numbers) when the offsets fall apart in two; else empty.
-    :param gap_sigmas: how many spreads apart the two groups lie.
+    :param gap_sigmas: how many spreads apart the two groups lie; ``axis`` on which.
     """
 
     outliers: tuple[tuple[int, int, float], ...]
@@ -199,45 +203,48 @@ class Screening:
     axis: int = 0
 
 
-def screen_offsets(offsets: np.ndarray, errors: np.ndarray) -> Screening:
-    """Records whose turn-on offset ``(r, 3)`` is not the pool's unit's (``errors`` ``(r, 3)``: their standard errors).
+def screen_offsets(offsets: np.ndarray, precision: np.ndarray) -> Screening:
+    """Records whose turn-on offset ``(r, 3)`` is not the pool's unit's.
 
-    A record whose offset lies more than :data:`OUTLIER_SIGMAS` robust spreads (1.4826 median
-    absolute deviations, never below the offsets' own errors) from the median on any axis is an
-    outlier; offsets that fall in two groups (a gap between sorted offsets of more than
-    :data:`GROUP_SIGMAS` times the spread within the groups, two records or more in each) are two units.
+    ``precision`` ``(r, 3)``: how well each record's own rests tell its offset (a floor under every
+    spread). Two groups: sorted, the offsets split at their largest gap with at least
+    :data:`MIN_GROUP` records on each side, the gap more than :data:`GROUP_SIGMAS` times the pooled
+    standard deviation within the groups. An outlier: a record whose offset lies further from the
+    others' mean, in units of their standard deviation (times ``sqrt(1 + 1/(r-1))``), than a
+    Student t with ``r - 2`` degrees of freedom would once in ``1 / OUTLIER_ALPHA`` pools (with the
+    ``r`` records tried); four records or more.
     """
+    from scipy.stats import t as student
     offsets = np.asarray(offsets, dtype=float)
-    errors = np.asarray(errors, dtype=float)
+    precision = np.asarray(precision, dtype=float)
     count = len(offsets)
-    if count < 3:
-        return Screening(())
     for axis in range(offsets.shape[1]):
         values = offsets[:, axis]
-        if not np.all(np.isfinite(values)):
+        if not np.all(np.isfinite(values)) or count < 2 * MIN_GROUP:
             continue
         order = np.argsort(values)
         gaps = np.diff(values[order])
-        split = int(np.argmax(gaps)) + 1
+        inner = gaps[MIN_GROUP - 1:count - MIN_GROUP]
+        split = int(np.argmax(inner)) + MIN_GROUP
         low, high = order[:split], order[split:]
-        if min(len(low), len(high)) >= 2:
-            within = np.concatenate([values[low] - np.median(values[low]), values[high] - np.median(values[high])])
-            spread = max(1.4826 * float(np.median(np.abs(within))), float(np.median(errors[:, axis])), 1e-300)
-            if gaps[split - 1] > GROUP_SIGMAS * spread:
-                return Screening((), (tuple(int(i) for i in sorted(low)), tuple(int(i) for i in sorted(high))),
-                                 float(gaps[split - 1] / spread), axis)
-    outliers = []
+        within = math.sqrt((np.sum((values[low] - values[low].mean()) ** 2)
+                            + np.sum((values[high] - values[high].mean()) ** 2)) / (count - 2))
+        spread = max(within, float(np.median(precision[:, axis])), 1e-300)
+        if gaps[split - 1] > GROUP_SIGMAS * spread:
+            return Screening((), (tuple(int(i) for i in sorted(low)), tuple(int(i) for i in sorted(high))),
+                             float(gaps[split - 1] / spread), axis)
+    outliers: dict[int, tuple[int, int, float]] = {}
+    if count < 4:
+        return Screening(())
+    limit = float(student.isf(OUTLIER_ALPHA / (2.0 * count), count - 2))
     for axis in range(offsets.shape[1]):
         values = offsets[:, axis]
         if not np.all(np.isfinite(values)):
             continue
-        centre = float(np.median(values))
-        spread = max(1.4826 * float(np.median(np.abs(values - centre))), 1e-300)
-        distance = np.abs(values - centre) / np.maximum(spread, errors[:, axis])
-        for record in np.flatnonzero(distance > OUTLIER_SIGMAS):
-            outliers.append((int(record), axis, float(distance[record])))
-    best: dict[int, tuple[int, int, float]] = {}
-    for record, axis, sigmas in outliers:
-        if record not in best or sigmas > best[record][2]:
-            best[record] = (record, axis, sigmas)
-    return Screening(tuple(sorted(best.values())))
+        for record in range(count):
+            others = np.delete(values, record)
+            spread = max(float(others.std(ddof=1)), float(np.median(precision[:, axis])), 1e-300)
+            distance = abs(values[record] - others.mean()) / (spread * math.sqrt(1.0 + 1.0 / len(others)))
+            if distance > limit and distance > outliers.get(record, (0, 0, 0.0))[2]:
+                outliers[record] = (record, axis, float(distance))
+    return Screening(tuple(sorted(outliers.values())))
