@@ -1,4 +1,4 @@
-"""The everyday-records check: a simulated month of one unit pooled, judged on held-out records of the same unit.
+"""The everyday-records check: a simulated month of one unit pooled, judged on held-out records of the unit.
 
 Per seed: a month of everyday records (:mod:`tak_thermo_ros.core.simulation.everyday`) of which
 the first ``records`` are pooled and fitted (:func:`tak_thermo_ros.core.fit.pool.fit_pool`, in
@@ -15,7 +15,9 @@ are the judge. Beside the pool's calibration:
 
 The gyroscope's bias shape at the held-out records' rests: each rest's mean corrected rate, each
 record's own mean taken off (its turn-on offset), RMS over the rests; ``|f|`` at the rests:
-``|mean corrected f| - g``, RMS (nothing taken off). The repeatability's coverage: whether the
+``|mean corrected f| - g``, RMS (nothing taken off). Judged at the rests within the pool's
+calibrated temperatures (a held-out day hotter than the whole month is beyond any everyday
+calibration, which clamps there); over every rest beside, with how many lay outside. The repeatability's coverage: whether the
 reported spread lies within two of its standard errors of the true one, per gyroscope axis.
 """
 
@@ -109,8 +111,12 @@ def android_line(record) -> tuple[np.ndarray, np.ndarray]:
     return solution[0], solution[1]
 
 
-def judged_rests(simulated, correct_accel, correct_gyro) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A held-out record's rests: mean corrected rate ``(k, 3)``, ``|f| - g`` ``(k,)``, samples ``(k,)``."""
+def judged_rests(simulated, correct_accel, correct_gyro, within: tuple[float, float] | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A held-out record's rests: mean corrected rate ``(k, 3)``, ``|f| - g`` ``(k,)``, samples ``(k,)``.
+
+    :param within: only the rests whose mean temperature lies within this range (``None``: all).
+    """
     record = simulated.record
     temperature = np.interp(record.stamp_ns.astype(float), record.temp_stamp_ns.astype(float), record.temperature)
     gyro = correct_gyro(record.gyro, temperature)
@@ -120,6 +126,8 @@ def judged_rests(simulated, correct_accel, correct_gyro) -> tuple[np.ndarray, np
     for rest in range(len(simulated.up)):
         rows = np.flatnonzero(simulated.rest == rest)[margin:-margin or None]
         if len(rows) < 2:
+            continue
+        if within is not None and not within[0] <= temperature[rows].mean() <= within[1]:
             continue
         rates.append(gyro[rows].mean(axis=0))
         if accel is not None:
@@ -132,7 +140,8 @@ def shape_rms(per_record: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
     """``(3,)`` RMS over the rests of each rest's mean minus its record's (samples-weighted) mean."""
     residuals = []
     for means, counts in per_record:
-        residuals.append(means - np.average(means, axis=0, weights=counts))
+        if len(means):
+            residuals.append(means - np.average(means, axis=0, weights=counts))
     return np.sqrt(np.mean(np.vstack(residuals) ** 2, axis=0))
 
 
@@ -155,22 +164,34 @@ def check_seed(seed: int, *, records: int = 16, held_out: int = 4, minutes: floa
     slope, intercept = android_line(record)
     units = {'pool': ours, 'chamber': chamber(scenario, habits, seed, chamber_rate_hz),
              'truth': everyday_truth(scenario, habits)}
+    # Judged where the pool has been (a record hotter than any of the month's is beyond every everyday
+    # calibration: clamped); the figures over every rest are kept beside.
+    span = (ours.gyro.temp_code_min, ours.gyro.temp_code_max)
     gyro: dict[str, list] = {name: [] for name in (*units, 'android')}
+    gyro_all: dict[str, list] = {name: [] for name in (*units, 'android')}
     gravity: dict[str, list] = {name: [] for name in units}
+    outside = total = 0
+    android = lambda g, t: g - (slope[None, :] * t[:, None] + intercept)  # noqa: E731
     for index in range(records, records + held_out):
         simulated = simulate_everyday_record(scenario, habits, index)
-        for name, unit in units.items():
-            rates, magnitude, counts = judged_rests(simulated, _corrector(unit, 'accel'), _corrector(unit, 'gyro'))
-            gyro[name].append((rates, counts))
-            gravity[name].append(magnitude)
-        rates, _, counts = judged_rests(simulated, None, lambda g, t: g - (slope[None, :] * t[:, None] + intercept))
-        gyro['android'].append((rates, counts))
+        for name, unit in (*units.items(), ('android', None)):
+            accel = None if unit is None else _corrector(unit, 'accel')
+            correct = android if unit is None else _corrector(unit, 'gyro')
+            for within, into in ((span, gyro), (None, gyro_all)):
+                rates, magnitude, counts = judged_rests(simulated, accel, correct, within)
+                into[name].append((rates, counts))
+                if within is not None and unit is not None:
+                    gravity[name].append(magnitude)
+        total += len(simulated.up)
+        outside += len(simulated.up) - len(gyro['pool'][-1][0])
     variances = fitted.fit.turn_on['gyro'].variances
     true_spread = habits.turn_on('gyro')
     covered = np.abs(variances.turn_on - true_spread) <= 2.0 * variances.turn_on_error
     return {
         'seed': seed,
         'gyro_shape_rms': {name: shape_rms(values).tolist() for name, values in gyro.items()},
+        'gyro_shape_rms_all_rests': {name: shape_rms(values).tolist() for name, values in gyro_all.items()},
+        'rests_outside_pool_range': outside, 'rests': total,
         'gravity_rms': {name: float(np.sqrt(np.mean(np.concatenate(values) ** 2))) for name, values in gravity.items()},
         'repeatability': variances.turn_on.tolist(), 'repeatability_error': variances.turn_on_error.tolist(),
         'true_repeatability': true_spread.tolist(),

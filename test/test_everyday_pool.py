@@ -131,7 +131,7 @@ def test_another_unit_in_the_pool_is_left_out_two_units_are_refused(month, capsy
 
 
 def test_flight_logs_of_another_device_are_left_out(capsys, tmp_path):
-    """ULogs pooled with bags; a ULog whose gyroscope's device_id differs is left out, named; 2 + 2 refused."""
+    """Flight logs pooled with bags; a ULog whose gyroscope's device_id differs is left out, named; 2 + 2 refused."""
     raw = {**MONTH, 'everyday': {'records': 5, 'record_minutes': 8.0}}
     write_month(tmp_path / 'logs', raw, range(3), ulog_ids={'accel': 11, 'gyro': 12})
     write_month(tmp_path / 'logs', raw, [3], ulog_ids={'accel': 11, 'gyro': 99}, prefix='stranger')
@@ -147,8 +147,10 @@ def test_flight_logs_of_another_device_are_left_out(capsys, tmp_path):
 
 
 def test_records_without_rests_one_record_and_no_span_are_said(capsys, tmp_path):
-    """A record that never rests adds nothing (said); none with a rest and a temperature: refused; one record: no
-    repeatability; no temperature span: said."""
+    """A record that never rests adds nothing; none with a rest: refused; one record, no span: said.
+
+    One record: no turn-on repeatability; no temperature span: the offsets at one temperature.
+    """
     restless = {**MONTH, 'everyday': {'records': 2, 'record_minutes': 4.0, 'rest_s': [0.5, 1.0]}}
     write_month(tmp_path / 'pool', MONTH, range(3))
     write_month(tmp_path / 'pool', restless, [0], prefix='moving')
