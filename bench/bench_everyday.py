@@ -40,7 +40,6 @@ def summary(rows: list[dict]) -> dict[str, object]:
     def rms(name: str, key: str = 'gyro_shape_rms') -> float:
         return float(np.sqrt(np.mean([np.mean(np.square(row[key][name])) for row in rows])))
 
-
     shape = {name: rms(name) * DEG * 3600.0 for name in ('pool', 'chamber', 'android', 'truth')}
     gravity = {name: float(np.sqrt(np.mean([row['gravity_rms'][name] ** 2 for row in rows]))) / 9.80665 * 1e3
                for name in ('pool', 'chamber', 'truth')}
@@ -48,7 +47,8 @@ def summary(rows: list[dict]) -> dict[str, object]:
                  float(np.sqrt(np.mean(np.square(row['gyro_shape_rms']['chamber'])))),
                  float(np.sqrt(np.mean(np.square(row['gyro_shape_rms']['truth']))))) for row in rows]
     covered = np.array([row['covered'] for row in rows], dtype=bool)
-    every = {name: rms(name, 'gyro_shape_rms_all_rests') * DEG * 3600.0 for name in ('pool', 'chamber', 'android', 'truth')}
+    every = {name: rms(name, 'gyro_shape_rms_all_rests') * DEG * 3600.0
+             for name in ('pool', 'chamber', 'android', 'truth')}
     return {
         'gyro_shape_all_rests_deg_per_h': every,
         'rests_outside_pool_range': int(sum(row['rests_outside_pool_range'] for row in rows)),

@@ -17,8 +17,9 @@ The gyroscope's bias shape at the held-out records' rests: each rest's mean corr
 record's own mean taken off (its turn-on offset), RMS over the rests; ``|f|`` at the rests:
 ``|mean corrected f| - g``, RMS (nothing taken off). Judged at the rests within the pool's
 calibrated temperatures (a held-out day hotter than the whole month is beyond any everyday
-calibration, which clamps there); over every rest beside, with how many lay outside. The repeatability's coverage: whether the
-reported spread lies within two of its standard errors of the true one, per gyroscope axis.
+calibration, which clamps there); over every rest beside, with how many lay outside. The
+repeatability's coverage: whether the reported spread lies within two of its standard errors of
+the true one, per gyroscope axis.
 """
 
 from __future__ import annotations

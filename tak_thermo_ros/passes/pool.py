@@ -294,7 +294,8 @@ def _restless(entries: list[PoolEntry], read: list[HandheldRecord | None]) -> li
     for index, noise in noises.items():
         ratio = float(np.max(noise / np.maximum(pool, 1e-300)))
         if ratio > RESTLESS_RATIO:
-            reason = f'no rest: its quietest windows move {ratio:.0f}x the pool\'s noise (it never rested): contributes nothing'
+            reason = (f'no rest: its quietest windows move {ratio:.0f}x the pool\'s noise (it never rested): '
+                      f'contributes nothing')
             out[index] = replace(out[index], reason=reason)
     return out
 
