@@ -1176,7 +1176,7 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
     accel_sigma = problem.sigma
 
     up_noise = float(np.sqrt(np.mean(accel_sigma ** 2))) / (settings.gravity * np.sqrt(np.maximum(kept, 1)))
-    if not settings.turns:
+    if not settings.turns or level:  # one orientation: see the gyroscope's holds below
         used = np.zeros(len(turn_interval), dtype=bool)
     turns_record = _with_turns(record, turn_interval, used)
     gyro_terms = _Terms(frame, bias_order, scale_order, records=pool)
@@ -1189,6 +1189,11 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
         gyro_problem.rests.turn_on_sigma = given['gyro'][0]
         gyro_problem.rests.rest_variance = np.asarray(given['gyro'][1]) ** 2
     gyro_orders = order_holds(gyro_terms.layout(), axis_orders.get('gyro'))
+    if level:
+        # Its frame is the accelerometer's, whose tilts take up the other axes' offsets: its misalignment
+        # is not told, nor its scale by motions closed on those tilts (the motions are not integrated).
+        gyro_orders.update({j: (1.0 if kind == 'scale' else 0.0) for j, kind in enumerate(gyro_problem.layout.kinds)
+                            if kind in ('coupling', 'scale', 'scale_T')})
     gyro, turns, turn_scale = _fit_gyro(gyro_problem, gyro_orders)
     if pool > 1 and 'gyro' not in given:
         gyro, turns, turn_scale, turn_on['gyro'] = _pooled_gyro(gyro_problem, gyro, turns, turn_scale, gyro_orders)
@@ -1212,6 +1217,9 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
     chosen = order_holds(accel_layout, axis_orders.get('accel'))  # the orders' holds are said by the pool
     accel_held = held_lines('accel', accel, accel_layout, gauge=GAUGE, source=source, said=[*level, *chosen])
     gyro_held = held_lines('gyro', gyro, gyro_problem.layout, source=source, said=list(gyro_orders))
+    if level:
+        gyro_held.insert(0, 'gyroscope: scales and misalignment held, the motions not integrated: its frame is the '
+                            'accelerometer\'s, which one orientation does not fix')
     lines += [gauge_line, *accel_held, *gyro_held]
     accel_cal = _calibration(accel, accel_layout, accel_terms, tuple(notes + [gauge_line] + accel_held))
     gyro_cal = _calibration(gyro, gyro_problem.layout, gyro_terms, tuple(notes + gyro_held))
