@@ -198,3 +198,21 @@ def test_a_month_against_the_chamber_and_androids_line_short():
                for name in ('pool', 'chamber', 'truth')}
     assert gravity['pool'] <= 1.2 * gravity['chamber'] or gravity['pool'] <= 2.0 * gravity['truth']
     assert sum(sum(row['covered']) for row in rows) >= 4
+
+
+def test_fit_fleet_takes_a_directory_of_records_per_unit(month, capsys, tmp_path):
+    """``fit-fleet UNIT_A/ UNIT_B/``: each unit's records pooled on the workers; each file as ``fit DIR`` writes it."""
+    root, _ = month
+    other = {**MONTH, 'seed': 5, 'everyday': {'records': 3, 'record_minutes': 6.0},
+             'gyro_unit': {'x': {'offset': 0.0121}}}
+    write_month(tmp_path / 'unitB', other, range(3))
+    out = tmp_path / 'fleet'
+    status = cli.main(['fit-fleet', str(root / 'pool'), str(tmp_path / 'unitB'), '-o', str(out), '--workers', '1'])
+    assert status == 0, capsys.readouterr()
+    rows = {row['unit']: row for row in json.loads((out / 'fleet.json').read_text())['units']}
+    assert {row['status'] for row in rows.values()} == {'ok'}
+    assert load_unit(out / 'units' / 'unitB' / 'params.yaml').gyro.turn_on.records == 3
+    (tmp_path / 'alone').mkdir()
+    alone = tmp_path / 'alone' / 'params.yaml'
+    assert run_cli(capsys, 'fit', str(tmp_path / 'unitB'), '-o', str(alone))[0] == 0
+    assert (out / 'units' / 'unitB' / 'params.yaml').read_text() == alone.read_text()

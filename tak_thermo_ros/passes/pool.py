@@ -108,6 +108,8 @@ def record_paths(paths: Sequence[str | os.PathLike[str]]) -> tuple[list[Path], l
 
 def is_pool(paths: Sequence[str | os.PathLike[str]]) -> bool:
     """Whether the records given make a pool: several, or a directory that is not a bag."""
+    if isinstance(paths, (str, os.PathLike)):
+        paths = [paths]
     return len(paths) > 1 or (Path(paths[0]).is_dir() and not is_bag(Path(paths[0])))
 
 

@@ -1220,8 +1220,9 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
     if level:
         gyro_held.insert(0, 'gyroscope: scales and misalignment held, the motions not integrated: its frame is the '
                             'accelerometer\'s, which one orientation does not fix')
-    lines += [gauge_line, *accel_held, *gyro_held]
-    accel_cal = _calibration(accel, accel_layout, accel_terms, tuple(notes + [gauge_line] + accel_held))
+    said_gauge = [] if level else [gauge_line]  # one orientation holds every coupling: no gauge to say
+    lines += [*said_gauge, *accel_held, *gyro_held]
+    accel_cal = _calibration(accel, accel_layout, accel_terms, tuple(notes + said_gauge + accel_held))
     gyro_cal = _calibration(gyro, gyro_problem.layout, gyro_terms, tuple(notes + gyro_held))
     for sensor, solved, layout in (('accel', accel, accel_layout), ('gyro', gyro, gyro_problem.layout)):
         if pool > 1 and sensor not in turn_on:  # the variances were given
