@@ -92,7 +92,8 @@ def _apply_pool(args: argparse.Namespace, unit) -> int:
     from tak_thermo_ros.passes.pool import bag_directory, record_paths
     records, lines = record_paths(args.bag)
     for path in records:
-        common.check_kind(args, unit, input_kind(path, topics=common.topics(args)))
+        common.check_kind(argparse.Namespace(**{**vars(args), 'bag': str(path)}), unit,
+                          input_kind(path, topics=common.topics(args)))
     names = [Path(path).stem if Path(path).suffix.lower() in ('.ulg', '.bin') else Path(path).name for path in records]
     if len(set(names)) < len(names):
         msg = f'{args.output} (-o): two records are named alike ({", ".join(sorted(names))}): rename one'
