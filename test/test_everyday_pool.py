@@ -216,3 +216,22 @@ def test_fit_fleet_takes_a_directory_of_records_per_unit(month, capsys, tmp_path
     alone = tmp_path / 'alone' / 'params.yaml'
     assert run_cli(capsys, 'fit', str(tmp_path / 'unitB'), '-o', str(alone))[0] == 0
     assert (out / 'units' / 'unitB' / 'params.yaml').read_text() == alone.read_text()
+
+
+def test_a_pool_fits_a_gyroscope_lag_through_its_motions(capsys, tmp_path):
+    """``fit DIR --gyro-effects thermal_lag``: the lag's slopes from six everyday records, its state through the motions.
+
+    Hidden: 300 s, 0.4 and -0.4 mrad/s per C on x and z. The effect follows the temperature
+    recorded between the rests (the pool's temperature track), each record's offset apart.
+    """
+    lagged = {**MONTH, 'seed': 9, 'everyday': {'records': 6, 'record_minutes': 12.0},
+              'gyro_effects': {'thermal_lag': {'tau_s': 300.0, 'slope_x': 0.0004, 'slope_z': -0.0004}}}
+    write_month(tmp_path / 'pool', lagged, range(6))
+    status, lines = run_cli(capsys, 'fit', str(tmp_path / 'pool'), '-o', str(tmp_path / 'p.yaml'),
+                            '--gyro-effects', 'thermal_lag')
+    assert status == 0, lines
+    effect = load_unit(tmp_path / 'p.yaml').gyro.effects[0]
+    assert effect.name == 'thermal_lag'
+    assert effect['slope_x'] == pytest.approx(0.0004, rel=0.15) and effect['slope_z'] == pytest.approx(-0.0004, rel=0.15)
+    assert abs(effect['slope_y']) < 0.1 * 0.0004
+    assert 150.0 < effect['tau_s'] < 450.0

@@ -236,8 +236,10 @@ def read_record(path: Path, options: StreamOptions, *, budget: int,
     collector.add(aligner.finish())
     record = collector.record()
     stamps = np.concatenate(temperature_stamps)
-    finite = np.isfinite(np.concatenate(temperatures))
-    course = temperature_course(stamps[finite] * 1e-9, np.concatenate(temperatures)[finite])
+    celsius = np.concatenate(temperatures)
+    finite = np.isfinite(celsius)
+    course = temperature_course(stamps[finite] * 1e-9, celsius[finite])
+    record = replace(record, temperature_track=track(stamps[finite], celsius[finite]))
     if held_gyro:  # a held gyroscope integrates to nothing: its rests only
         record = replace(record, turn=record.turn.__class__(
             stamp_ns=np.zeros(0, dtype=np.int64), counts=np.zeros((0, 6)), temp_code=np.zeros(0), reference=None,
@@ -256,6 +258,21 @@ def read_record(path: Path, options: StreamOptions, *, budget: int,
                       rest_temperatures=temperatures, rest_trends=trends,
                       temperature_rate_max=course.rate_max, rate_max=rate_max)
     return entry, record
+
+
+TRACK_S = 1.0
+"""A pool's temperature track keeps one temperature per this many seconds (an effect's time constant is minutes)."""
+
+
+def track(stamp_ns: np.ndarray, celsius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A record's temperature between its rests, one point per :data:`TRACK_S` (in stamp order)."""
+    order = np.argsort(stamp_ns, kind='stable')
+    stamp_ns, celsius = stamp_ns[order], celsius[order]
+    if not len(stamp_ns):
+        return stamp_ns, celsius
+    slot = (stamp_ns - stamp_ns[0]) // int(TRACK_S * 1e9)
+    first = np.flatnonzero(np.diff(slot, prepend=-1) != 0)
+    return stamp_ns[first], celsius[first]
 
 
 def rest_temperatures(record: HandheldRecord) -> tuple[np.ndarray, np.ndarray]:

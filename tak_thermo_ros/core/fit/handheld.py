@@ -1125,10 +1125,6 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
         raise FitError(msg)
     interval, count, turn_interval, used = numbered_rests(record)
     pool = record.records
-    if pool > 1 and any(effects.values()):
-        msg = ('effects on a pool of records are not fitted (fit the records\' link, then diagnose names what is '
-               'missing)')
-        raise FitError(msg)
     still_record = record.still_record
     rest_record = np.zeros(count, dtype=np.int64)
     rest_record[interval] = still_record
@@ -1140,15 +1136,33 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
     up = means / np.linalg.norm(means, axis=1, keepdims=True)
 
     accel_terms = _Terms(frame, bias_order, scale_order, records=pool)
-    gauge = {accel_terms.layout().index(f'cross_axis.{name}'): 0.0 for name in GAUGE}
     level_line, level = one_orientation(up, kept, accel_terms.layout())
     if level_line:
         lines.append(level_line)
         notes.append(level_line)
-        gauge.update(level)
     axis_orders = settings.axis_orders or {}
-    if 'accel' in axis_orders:
-        gauge.update(order_holds(accel_terms.layout(), axis_orders['accel']))
+
+    def accel_holds(layout: _Layout) -> dict[int, float]:
+        """The gauge, one orientation's holds and the chosen orders' on a layout of the accelerometer."""
+        held = {layout.index(f'cross_axis.{name}'): 0.0 for name in GAUGE}
+        if level_line:
+            held.update(one_orientation(up, kept, layout)[1])
+        held.update(order_holds(layout, axis_orders.get('accel')))
+        return held
+
+    def gyro_holds(layout: _Layout) -> dict[int, float]:
+        """The chosen orders' holds on a layout of the gyroscope; one orientation holds its scales and couplings.
+
+        Its frame is the accelerometer's, whose tilts take up the other axes' offsets: its misalignment
+        is not told, nor its scale by motions closed on those tilts (the motions are not integrated).
+        """
+        held = order_holds(layout, axis_orders.get('gyro'))
+        if level_line:
+            held.update({j: (1.0 if kind == 'scale' else 0.0) for j, kind in enumerate(layout.kinds)
+                         if kind in ('coupling', 'scale', 'scale_T')})
+        return held
+
+    gauge = accel_holds(accel_terms.layout())
     problem = _AccelProblem(accel_counts, temperature, interval, accel_terms, [], settings.gravity, noise[:3],
                             still_record)
     problem.turn_on_sigma = np.full(3, BOUNDS['offset', 'accel'])  # weak, until the pool's own spread is known
@@ -1162,16 +1176,23 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
     shapes: dict[str, FitResult] = {}
     if effects['accel']:
         reference = settings.gravity * up[interval]
-        shaped = _shapes(sensor_samples(record.still, 'accel', reference), effects['accel'], accel, problem.layout,
-                         accel_terms, frame)
+        samples = sensor_samples(record.still, 'accel', reference)
+        if 'accel' in turn_on:  # a pool: each record's own offset off, the shapes searched on the rest
+            samples = replace(samples, counts=samples.counts - turn_on['accel'].offsets[still_record])
+        shaped = _shapes(samples, effects['accel'], accel, problem.layout, accel_terms, frame)
         shapes['accel'] = shaped
         offsets = tuple(effect for effect in shaped.calibration.effects if not isinstance(effect, CrossAxis))
-        accel_terms = _Terms(frame, bias_order, scale_order, offsets)
+        accel_terms = _Terms(frame, bias_order, scale_order, offsets, records=pool)
         still_bases, _ = _union_bases(accel_terms.effects, frame, record)
-        gauge = {accel_terms.layout().index(f'cross_axis.{name}'): 0.0 for name in GAUGE}
+        gauge = accel_holds(accel_terms.layout())
+        variances = problem.turn_on_sigma, problem.rest_variance
         problem = _AccelProblem(accel_counts, temperature, interval, accel_terms, still_bases, settings.gravity,
-                                problem.sigma)
+                                problem.sigma, still_record)
+        problem.turn_on_sigma, problem.rest_variance = variances
         accel, up = _fit_accel(problem, up, gauge)
+        if pool > 1 and 'accel' not in given:
+            accel, up, turn_on['accel'] = _pooled_accel(problem, up, gauge, accel)
+    level = one_orientation(up, kept, problem.layout)[1] if level_line else {}
     accel_layout = problem.layout
     accel_sigma = problem.sigma
 
@@ -1188,26 +1209,29 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
     if 'gyro' in given:
         gyro_problem.rests.turn_on_sigma = given['gyro'][0]
         gyro_problem.rests.rest_variance = np.asarray(given['gyro'][1]) ** 2
-    gyro_orders = order_holds(gyro_terms.layout(), axis_orders.get('gyro'))
-    if level:
-        # Its frame is the accelerometer's, whose tilts take up the other axes' offsets: its misalignment
-        # is not told, nor its scale by motions closed on those tilts (the motions are not integrated).
-        gyro_orders.update({j: (1.0 if kind == 'scale' else 0.0) for j, kind in enumerate(gyro_problem.layout.kinds)
-                            if kind in ('coupling', 'scale', 'scale_T')})
+    gyro_orders = gyro_holds(gyro_problem.layout)
     gyro, turns, turn_scale = _fit_gyro(gyro_problem, gyro_orders)
     if pool > 1 and 'gyro' not in given:
         gyro, turns, turn_scale, turn_on['gyro'] = _pooled_gyro(gyro_problem, gyro, turns, turn_scale, gyro_orders)
     if effects['gyro']:
         # The Earth rate (1e-4 rad/s at most) taken off at nominal scale: the scale's error (1e-3) leaves 1e-7.
         at_rest = record.still.counts[:, 3:6] - gyro_problem.reference
+        if 'gyro' in turn_on:  # a pool: each record's own offset off, the shapes searched on the rest
+            at_rest = at_rest - turn_on['gyro'].offsets[still_record]
         samples = replace(sensor_samples(record.still, 'gyro', np.zeros((len(interval), 3))), counts=at_rest)
         shaped = _shapes(samples, effects['gyro'], gyro, gyro_problem.layout, gyro_terms, frame)
         shapes['gyro'] = shaped
-        gyro_terms = _Terms(frame, bias_order, scale_order, tuple(shaped.calibration.effects))
+        gyro_terms = _Terms(frame, bias_order, scale_order, tuple(shaped.calibration.effects), records=pool)
         still_bases, turn_bases = _union_bases(gyro_terms.effects, frame, turns_record)
+        variances = gyro_problem.rests.turn_on_sigma, gyro_problem.rests.rest_variance
         gyro_problem = _GyroProblem(turns_record, interval, gyro_terms, still_bases, turn_bases, up, noise[3:6],
-                                    up_noise, settings.latitude)
-        gyro, turns, turn_scale = _fit_gyro(gyro_problem, {})
+                                    up_noise, settings.latitude, records=(still_record, turn_record))
+        gyro_problem.rests.turn_on_sigma, gyro_problem.rests.rest_variance = variances
+        gyro_orders = gyro_holds(gyro_problem.layout)
+        gyro, turns, turn_scale = _fit_gyro(gyro_problem, gyro_orders)
+        if pool > 1 and 'gyro' not in given:
+            gyro, turns, turn_scale, turn_on['gyro'] = _pooled_gyro(gyro_problem, gyro, turns, turn_scale,
+                                                                    gyro_orders)
     through_frame = gyro_problem.frame_covariance(turns, gyro, accel, problem.sensitivity(accel.theta, up))
     gyro = replace(gyro, covariance=gyro.covariance + through_frame)
     closure = replace(turns.closure, seconds=turns_record.turn_seconds())

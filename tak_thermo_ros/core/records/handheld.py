@@ -48,6 +48,8 @@ class HandheldRecord:
     :param interval_record: ``(k,)`` for a pool of records (:func:`pooled`), the record each still
         interval comes from (``0 .. records - 1``); ``None``: one record.
     :param record_names: a pool's records, in that numbering.
+    :param temperature_track: ``(stamp_ns (t,), celsius (t,))`` the temperature between the kept samples
+        too (a pool's long motions: an effect with memory follows the temperature through them), or ``None``.
     """
 
     intervals: StillIntervals
@@ -61,6 +63,7 @@ class HandheldRecord:
     dropped: dict[str, int] = field(default_factory=dict)
     interval_record: np.ndarray | None = None
     record_names: tuple[str, ...] = ()
+    temperature_track: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def records(self) -> int:
@@ -298,8 +301,21 @@ def earth_reference(up: np.ndarray, interval: np.ndarray, latitude: float | None
 def merged_samples(record: HandheldRecord) -> tuple[AlignedSamples, np.ndarray, np.ndarray]:
     """The still and turn samples as one series in time order (a turn's end samples once).
 
+    With a ``temperature_track``, its points join the series as samples of their own (zero
+    counts), so that what follows the temperature over time sees it between the kept samples.
+
     :returns: the series, and where each still sample and each turn sample lies in it.
     """
+    if record.temperature_track is not None and len(record.temperature_track[0]):
+        track_stamps, track_celsius = record.temperature_track
+        track = AlignedSamples(stamp_ns=np.asarray(track_stamps, dtype=np.int64),
+                               counts=np.zeros((len(track_stamps), record.still.counts.shape[1])),
+                               temp_code=np.asarray(track_celsius, dtype=float), reference=None, dropped={},
+                               rows=np.zeros(len(track_stamps), dtype=np.int64))
+        with_track = replace(record, temperature_track=None,
+                             turn=concatenate([replace(record.turn, aux={}), track]) if len(record.turn) else track)
+        series, still_rows, turn_rows = merged_samples(with_track)
+        return series, still_rows, turn_rows[:len(record.turn)]
     stamps = np.concatenate([record.still.stamp_ns, record.turn.stamp_ns])
     order = np.argsort(stamps, kind='stable')
     _, first, inverse = np.unique(stamps[order], return_index=True, return_inverse=True)
@@ -320,12 +336,50 @@ def merged_samples(record: HandheldRecord) -> tuple[AlignedSamples, np.ndarray, 
     return series, position[:count], position[count:]
 
 
+POOL_GAP_NS = 3_600_000_000_000
+"""Records whose stamps overlap (a flight log counts from boot) are set one after the other, this far apart."""
+
+
+def _shifted(record: HandheldRecord, shift: int) -> HandheldRecord:
+    """The record with every stamp ``shift`` ns later."""
+    if not shift:
+        return record
+    intervals = replace(record.intervals, start_ns=record.intervals.start_ns + shift,
+                        end_ns=record.intervals.end_ns + shift, gaps=record.intervals.gaps + shift,
+                        first_ns=None if record.intervals.first_ns is None else record.intervals.first_ns + shift,
+                        last_ns=None if record.intervals.last_ns is None else record.intervals.last_ns + shift)
+    track = record.temperature_track
+    return replace(record, intervals=intervals, still=replace(record.still, stamp_ns=record.still.stamp_ns + shift),
+                   turn=replace(record.turn, stamp_ns=record.turn.stamp_ns + shift),
+                   temperature_track=None if track is None else (track[0] + shift, track[1]))
+
+
+def sequential(records: list[HandheldRecord]) -> list[HandheldRecord]:
+    """The records in time one after the other: one that starts before the previous ends is moved after it.
+
+    Records on a clock (a bag's) keep their stamps; what has memory over time (an effect's state)
+    then never runs across two power-ups as if they overlapped.
+    """
+    out, end = [], None
+    for record in records:
+        stamps = np.concatenate([record.still.stamp_ns, record.turn.stamp_ns])
+        if not len(stamps):
+            out.append(record)
+            continue
+        shift = 0 if end is None or stamps.min() > end else int(end + POOL_GAP_NS - stamps.min())
+        out.append(_shifted(record, shift))
+        end = int(stamps.max()) + shift
+    return out
+
+
 def pooled(records: list[HandheldRecord], names: list[str]) -> HandheldRecord:
     """Several records' still and turn samples as one record, each interval knowing its record.
 
     The records' intervals are numbered on (record 0's first); their noise is the pool's (the
-    samples' mean square over the records); a turn stays within its record.
+    samples' mean square over the records); a turn stays within its record; records whose stamps
+    overlap are set one after the other (:func:`sequential`).
     """
+    records = sequential(records)
     offsets = np.cumsum([0] + [len(r.intervals) for r in records])
     parts = [r.intervals for r in records]
     counts = np.array([max(p.count, 1) for p in parts], dtype=float)
@@ -359,7 +413,10 @@ def pooled(records: list[HandheldRecord], names: list[str]) -> HandheldRecord:
         turns=np.vstack([r.turns + o for r, o in zip(records, offsets)]).astype(np.int64).reshape(-1, 2),
         skipped_turns=skipped, stride=max(r.stride for r in records), dropped=dropped,
         interval_record=np.concatenate([np.full(len(r.intervals), i, dtype=np.int64) for i, r in enumerate(records)]),
-        record_names=tuple(names))
+        record_names=tuple(names),
+        temperature_track=None if any(r.temperature_track is None for r in records) else (
+            np.concatenate([r.temperature_track[0] for r in records]),  # type: ignore[index]
+            np.concatenate([r.temperature_track[1] for r in records])))  # type: ignore[index]
 
 
 def records_subset(record: HandheldRecord, keep: np.ndarray) -> HandheldRecord:
