@@ -219,7 +219,7 @@ def test_fit_fleet_takes_a_directory_of_records_per_unit(month, capsys, tmp_path
 
 
 def test_a_pool_fits_a_gyroscope_lag_through_its_motions(capsys, tmp_path):
-    """``fit DIR --gyro-effects thermal_lag``: the lag's slopes from six everyday records, its state through the motions.
+    """``fit DIR --gyro-effects thermal_lag``: the lag's slopes from six everyday records, through the motions.
 
     Hidden: 300 s, 0.4 and -0.4 mrad/s per C on x and z. The effect follows the temperature
     recorded between the rests (the pool's temperature track), each record's offset apart.
@@ -232,6 +232,7 @@ def test_a_pool_fits_a_gyroscope_lag_through_its_motions(capsys, tmp_path):
     assert status == 0, lines
     effect = load_unit(tmp_path / 'p.yaml').gyro.effects[0]
     assert effect.name == 'thermal_lag'
-    assert effect['slope_x'] == pytest.approx(0.0004, rel=0.15) and effect['slope_z'] == pytest.approx(-0.0004, rel=0.15)
+    assert effect['slope_x'] == pytest.approx(0.0004, rel=0.15)
+    assert effect['slope_z'] == pytest.approx(-0.0004, rel=0.15)
     assert abs(effect['slope_y']) < 0.1 * 0.0004
     assert 150.0 < effect['tau_s'] < 450.0
