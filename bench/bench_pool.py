@@ -93,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     write_text_atomic(args.output, json.dumps(result, indent=1) + '\n')
     print(f'fit / rosbags read CPU: {result["fit_cpu_over_rosbags_cpu"]:.2f}; peak memory month / third: '
           f'{result["peak_rss_month_over_third"]:.2f}')
-    return 0
+    return 0 if result['fit_cpu_over_rosbags_cpu'] < 1.0 and result['peak_rss_month_over_third'] < 1.5 else 3
 
 
 if __name__ == '__main__':
