@@ -9,18 +9,29 @@ from tak_thermo_ros.core.link.correction import OutOfRange
 from tak_thermo_ros.core.link.model import InputKind
 from tak_thermo_ros.formats.calibration_file import load_unit
 from tak_thermo_ros.formats.files import BAG
+from tak_thermo_ros.errors import TakError
 
 NAME = 'apply'
-OUTPUTS = (('output', BAG, '-o'),)
+
+
+def output_kind(args: argparse.Namespace) -> str | None:
+    """A bag; ``None`` for a pool of records (a directory of bags, one per record, checked by :func:`_apply_pool`)."""
+    from tak_thermo_ros.passes.pool import is_pool
+    return None if is_pool(args.bag) else BAG
+
+
+OUTPUTS = (('output', output_kind, '-o'),)
 """This command's outputs: ``(argument, kind, option)``, checked before any work is done."""
 
 
 def add_parser(commands) -> argparse.ArgumentParser:
     """Add the command to ``tak_calib``'s subcommands."""
     parser = commands.add_parser('apply', help='correct a bag, writing sensor_msgs/msg/Imu')
-    parser.add_argument('bag', metavar='BAG')
+    parser.add_argument('bag', metavar='BAG', nargs='+',
+                        help='a record; several records, or a directory of them: each corrected into OUT_BAG/NAME')
     parser.add_argument('--params', required=True, metavar='PARAMS.yaml')
-    parser.add_argument('-o', '--output', required=True, metavar='OUT_BAG')
+    parser.add_argument('-o', '--output', required=True, metavar='OUT_BAG',
+                        help='the corrected bag (several records: a directory of corrected bags)')
     parser.add_argument('--storage', choices=['mcap', 'sqlite3'], default='mcap')
     options.add_out_of_range(parser)
     group = parser.add_argument_group("a run's turn-on offset (the node's turn_on and latitude)")
@@ -38,7 +49,11 @@ def run(args: argparse.Namespace) -> int:
     """Correct a bag's counts or driver Imu and write Imu messages (block by block, bounded memory)."""
     from tak_thermo_ros.formats.records import input_kind
     from tak_thermo_ros.passes.apply import TurnOnSettings, apply_bag
+    from tak_thermo_ros.passes.pool import is_pool
     unit = load_unit(args.params)
+    if is_pool(args.bag):
+        return _apply_pool(args, unit)
+    args.bag = args.bag[0]
     topics = common.topics(args)
     kind = input_kind(args.bag, topics=topics)
     common.check_kind(args, unit, kind)
@@ -76,4 +91,34 @@ def run(args: argparse.Namespace) -> int:
         what = 'temperature code' if kind is InputKind.COUNTS else 'temperature'
         print(f'warning: {outside} samples had a {what} outside the calibrated range '
               f'{low:g}..{high:g} ({args.out_of_range})')
+    return 0
+
+
+def _apply_pool(args: argparse.Namespace, unit) -> int:
+    """Each record of a pool corrected into its own bag, ``OUT/NAME``: one line per record."""
+    from pathlib import Path
+    from tak_thermo_ros.formats.records import input_kind
+    from tak_thermo_ros.passes.apply import TurnOnSettings, apply_bag
+    from tak_thermo_ros.passes.pool import bag_directory, record_paths
+    records, lines = record_paths(args.bag)
+    for path in records:
+        common.check_kind(argparse.Namespace(**{**vars(args), 'bag': str(path)}), unit,
+                          input_kind(path, topics=common.topics(args)))
+    names = [Path(path).stem if Path(path).suffix.lower() in ('.ulg', '.bin') else Path(path).name for path in records]
+    if len(set(names)) < len(names):
+        msg = f'{args.output} (-o): two records are named alike ({", ".join(sorted(names))}): rename one'
+        raise TakError(msg)
+    out = bag_directory(args.output, force=args.force, option='-o')
+    for line in lines:
+        print(line)
+    for path, name in zip(records, names):
+        applied = apply_bag(path, unit, out / name, common.stream_options(args), storage=args.storage,
+                            out_of_range=OutOfRange(args.out_of_range),
+                            turn_on=TurnOnSettings(args.latitude) if args.turn_on == 'first-rest' else None)
+        outside = f', {applied.out_of_range} outside the calibrated range' if applied.out_of_range else ''
+        dropped = f', dropped {common.describe_dropped(applied.dropped)}' if applied.dropped else ''
+        print(f'{name}: wrote {applied.written} Imu messages on {applied.topic} to {out / name}{outside}{dropped}')
+        if args.turn_on == 'first-rest':  # each record is a power-up of its own: its own turn-on offset
+            for line in applied.turn_on or ('turn-on offset: no rest found, nothing taken',):
+                print(f'{name}: {line}')
     return 0

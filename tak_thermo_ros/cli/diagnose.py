@@ -24,6 +24,7 @@ from tak_thermo_ros.core.records.record import require_signals
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.passes.diagnose import DIAGNOSE_MAX_SAMPLES
 from tak_thermo_ros.core.diagnose.yardstick import tau_text
+from tak_thermo_ros.errors import TakError
 import numpy as np
 import sys
 
@@ -35,7 +36,9 @@ OUTPUTS = (('json', FILE, '--json'), ('report', REPORT, '--report'))
 def add_parser(commands) -> argparse.ArgumentParser:
     """Add the command to ``tak_calib``'s subcommands."""
     parser = commands.add_parser('diagnose', help='compare a calibration with a run and find the missing effect')
-    parser.add_argument('bag', metavar='BAG')
+    parser.add_argument('bag', metavar='BAG', nargs='+',
+                        help='a record; several records, or a directory of them: a pool of everyday records, whole '
+                             'records held out (docs/everyday.md)')
     parser.add_argument('--params', required=True, metavar='PARAMS.yaml')
     parser.add_argument('--json', metavar='OUT.json', help='write the verdict, RMS, floor and candidates as JSON')
     parser.add_argument('--report', metavar='DIR', help='write PNG figures and report.html into DIR')
@@ -77,10 +80,16 @@ def run(args: argparse.Namespace) -> int:
     from tak_thermo_ros.core.diagnose import diagnose
     from tak_thermo_ros.passes.diagnose import bounded_run
     unit = load_unit(args.params)
-    common.check_kind(args, unit, input_kind(args.bag, topics=common.topics(args)))
-    run = bounded_run(args.bag, common.stream_options(args), settle_time_s=args.settle_time,
-                      gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
-                      max_samples=args.max_samples, unit=unit)
+    from tak_thermo_ros.passes.pool import is_pool
+    pool = is_pool(args.bag)
+    if pool:
+        run = _pool_run(args, unit)
+    else:
+        args.bag = args.bag[0]
+        common.check_kind(args, unit, input_kind(args.bag, topics=common.topics(args)))
+        run = bounded_run(args.bag, common.stream_options(args), settle_time_s=args.settle_time,
+                          gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
+                          max_samples=args.max_samples, unit=unit)
     common.print_survey(run.survey, 'diagnose')
     if run.handheld is not None:
         from tak_thermo_ros.passes.handheld import at_rest
@@ -90,7 +99,8 @@ def run(args: argparse.Namespace) -> int:
             print(f'turns: closure RMS {np.degrees(closure.rms_rad):.3g} deg over {len(closure.angle_rad)} turns, '
                   f'{closure.rms_rad / max(closure.floor_rad, 1e-300):.2f}x what the noise alone leaves '
                   f'({np.degrees(closure.floor_rad):.3g} deg)')
-    _add_magnetometer(args, unit, run)
+    if not pool:
+        _add_magnetometer(args, unit, run)
     progress_shown = not args.no_progress and sys.stderr.isatty()
     verbose = bool(getattr(args, 'verbose', False))
     candidates = expand_candidates(args.candidates) if args.candidates else None
@@ -101,7 +111,8 @@ def run(args: argparse.Namespace) -> int:
     used: dict[str, AlignedSamples] = {}
     if run.stride > 1:
         print(f'diagnosing 1 sample in {run.stride}, spread evenly over the run '
-              f'(at most about {args.max_samples:,} samples, --max-samples; {run.usable["accel"]:,} usable in the bag)')
+              f'(at most about {args.max_samples:,} samples, --max-samples; {max(run.usable.values()):,} usable in the '
+              f'bag)')
     for sensor, samples in run.samples.items():
         tried = (signals_with_values(samples.aux) if candidates is None
                  else [spec for spec in candidates if spec.startswith('aux:')])
@@ -125,8 +136,10 @@ def run(args: argparse.Namespace) -> int:
             from tak_thermo_ros.core.fit import residual_counts
             from tak_thermo_ros.core.noise.residual import model_from_residual
             noise = model_from_residual(residual_counts(unit.sensor(sensor), samples), samples.stamp_ns)
-        result = diagnose(unit.sensor(sensor), samples, candidates=sensor_candidates, folds=args.folds,
-                          progress=progress, noise=noise, unit=shown_unit, unit_scale=scale)
+        groups = run.groups[sensor] if run.groups else None
+        result = diagnose(unit.sensor(sensor), samples, candidates=sensor_candidates,
+                          folds=args.folds if groups is None else min(args.folds, int(groups.max()) + 1),
+                          progress=progress, noise=noise, unit=shown_unit, unit_scale=scale, groups=groups)
         results[sensor] = result
         print(f'{label}diagnosed {len(samples)} samples of {args.bag} against {args.params} '
               f'(model: {result.ladder[0].label})')
@@ -163,12 +176,13 @@ def run(args: argparse.Namespace) -> int:
         walk = _walk_line(result, sensor, run.input_kind)
         if walk:
             print(walk)
-    record = _one_way_lines(unit, used) if run.input_kind is InputKind.IMU else None
+    record = _one_way_lines(unit, used) if run.input_kind is InputKind.IMU and not pool else None
     for line in record.lines if record is not None else ():
         print(line)
     if args.json:
-        document = {**results['accel'].as_dict(), 'samples_diagnosed': len(used['accel']),
-                    'samples_usable': run.usable['accel'], 'subsample_stride': run.stride}
+        first = 'accel' if 'accel' in results else 'gyro'  # a pool in one orientation: the gyroscope only
+        document = {**results[first].as_dict(), 'samples_diagnosed': len(used[first]),
+                    'samples_usable': run.usable[first], 'subsample_stride': run.stride}
         if run.input_kind is InputKind.IMU:
             document['sensors'] = {sensor: {**result.as_dict(), 'unit': common.UNITS[run.input_kind, sensor],
                                             'samples_diagnosed': len(used[sensor]),
@@ -187,6 +201,32 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         _write_report(args, run, results, used)
     return 0
+
+
+def _pool_run(args: argparse.Namespace, unit: UnitCalibration):
+    """A pool of everyday records for ``diagnose``: one line per record; the samples with each record's offset off."""
+    from tak_thermo_ros.passes.pool import bounded_pool, entry_line
+    if unit.input_kind is not InputKind.IMU or unit.gyro is None:
+        msg = f'{args.params}: a pool of records takes a driver calibration (accelerometer and gyroscope)'
+        raise TakError(msg)
+    if getattr(args, 'design_run', None):
+        msg = '--design-run: not with a pool of records (a chamber run is designed from one record)'
+        raise TakError(msg)
+    gravity = getattr(args, 'gravity', STANDARD_GRAVITY)
+    run, opened = bounded_pool(args.bag, common.stream_options(args), gravity=gravity,
+                               latitude=getattr(args, 'latitude', None), max_samples=args.max_samples, unit=unit)
+    for line in opened.lines:
+        print(line)
+    for entry in opened.entries:
+        print(entry_line(entry))
+    records = len(opened.used)
+    print(f'pool: {records} records; each record\'s own turn-on offset taken off; the folds hold whole records out')
+    if not any(axis.scale_observable for axis in unit.accel.axes):
+        # one orientation: the refits would fit scales that its rests cannot tell from the offsets
+        print('accelerometer: not diagnosed: its scales are held (every rest in one orientation)')
+        del run.samples['accel']
+    args.bag = f'the pool of {records} records'
+    return run
 
 
 def _design_run(args: argparse.Namespace, run, results: dict, used: dict[str, AlignedSamples],

@@ -25,8 +25,11 @@ OUTPUTS = (('output', FILE, '-o'),)
 
 def add_parser(commands) -> argparse.ArgumentParser:
     """Add the command to ``tak_calib``'s subcommands."""
-    parser = commands.add_parser('fit', help='fit the correction link to a calibration bag')
-    parser.add_argument('bag', metavar='BAG')
+    parser = commands.add_parser('fit', help='fit the correction link to a calibration bag, or to a pool of '
+                                             'everyday records of one unit')
+    parser.add_argument('bag', metavar='BAG', nargs='+',
+                        help='a record; several records, or a directory of them, are a pool of one unit\'s '
+                             'everyday records (docs/everyday.md)')
     parser.add_argument('-o', '--output', required=True, metavar='PARAMS.yaml')
     parser.add_argument('--bias-order', type=options.polynomial_order, default=3, help='order q of F_s (default 3)')
     parser.add_argument('--scale-order', type=options.polynomial_order, default=2,
@@ -77,6 +80,10 @@ def run(args: argparse.Namespace) -> int:
                            temp_code_ref=args.temp_code_ref, settle_time_s=args.settle_time,
                            gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
                            max_effect_samples=args.effect_samples)
+    from tak_thermo_ros.passes.pool import is_pool
+    if is_pool(args.bag):
+        return _fit_pool(args, settings)
+    args.bag = args.bag[0]
     from tak_thermo_ros.formats.records import record_lines
     for line in record_lines(args.bag, topics=common.topics(args)):
         print(line)
@@ -297,6 +304,9 @@ def _print_handheld_terms(sensor: str, calibration, result) -> None:
         scale_error = errors.get(f'{name}.scale', float('nan'))
         offset_error = errors.get(f'{name}.offset', float('nan'))
         scale = f'{axis.scale:.6g} +- {scale_error:.2g}' if axis.scale_observable else f'{axis.scale:g} (held)'
+        if not np.isfinite(offset_error):  # held: nothing to put a +- on
+            print(f'  {name}: scale {scale}, offset {axis.offset:+.4g} {unit} (held)')
+            continue
         print(f'  {name}: scale {scale}, offset {axis.offset:+.4g} +- {offset_error:.2g} {unit} '
               f'({axis.offset * factor:+.4g} +- {offset_error * factor:.2g} {small})')
     for effect in calibration.effects:
@@ -307,3 +317,66 @@ def _print_handheld_terms(sensor: str, calibration, result) -> None:
                 print(f'  misalignment, mrad: {", ".join(terms[start:start + 3])}')
         else:
             common.print_effects(replace(calibration, effects=(effect,)), result, unit)
+
+
+def _fit_pool(args: argparse.Namespace, settings) -> int:
+    """``fit`` of a pool of one unit's everyday records (:mod:`tak_thermo_ros.passes.pool`): a line per record first."""
+    from tak_thermo_ros.core.fit.pool import order_line
+    from tak_thermo_ros.passes.pool import coverage_lines, entry_line, fit_records, left_out_line, turn_on_line
+    for option, given in (('--iron-run', args.iron_run), ('--mag-effects', args.mag_effects),
+                          ('--noise-from-residual', args.noise_from_residual)):
+        if given:
+            msg = f'{option}: not with a pool of records (fit the pool, then its magnetometer or noise apart)'
+            raise TakError(msg)
+    fitted = fit_records(args.bag, settings, common.stream_options(args))
+    opened, pool = fitted.opened, fitted.fit
+    handheld = pool.fit
+    results = handheld.results
+    unit = UnitCalibration(InputKind.IMU, results['accel'].calibration, results['gyro'].calibration, None,
+                           fitted.source)
+    noise_line = ''
+    if args.noise or args.noise_run:
+        unit, noise_line = _with_noise(args, unit)
+    names = ', '.join(pool.record.record_names)
+    notes = [f'pooled from {pool.record.records} records: {names}',
+             *(order_line(sensor, choice) for sensor, choice in pool.orders.items()),
+             *(left_out_line(left) for left in pool.left_out)]
+    accel, gyro = (replace(unit.sensor(sensor), notes=(*unit.sensor(sensor).notes, *notes))
+                   for sensor in ('accel', 'gyro'))
+    unit = UnitCalibration(unit.input_kind, accel, gyro, None, unit.source)
+    header = (f'tak_thermo_ros calibration fitted from a pool of {pool.record.records} records (everyday records of '
+              f'one unit)\n{len(handheld.results["accel"].calibration.axes)} axes per sensor, a turn-on offset per '
+              f'record\nload with: ros2 run tak_thermo_ros compensator --ros-args --params-file '
+              f'{Path(args.output).name}')
+    save_unit(args.output, unit, header=header)
+    for line in opened.lines:
+        print(line)
+    for entry in opened.entries:
+        for line in entry.lines:
+            print(f'{entry.name}: {line}')
+        print(entry_line(entry))
+    for line in coverage_lines(opened):
+        print(line)
+    for left in pool.left_out:
+        print(left_out_line(left))
+    for sensor, choice in pool.orders.items():
+        print(order_line(sensor, choice))
+    for line in handheld.lines:
+        print(line)
+    if pool.record.records < 2:
+        print('turn-on repeatability: not estimated, one record (it takes two power-ups or more); none written')
+    for sensor in handheld.turn_on:
+        print(turn_on_line(sensor, handheld.turn_on[sensor]))
+    for sensor in ('accel', 'gyro'):
+        result = results[sensor]
+        calibration = unit.sensor(sensor)
+        if sensor == 'accel':
+            print(f'calibrated temperature range {calibration.temp_code_min:.2f}..{calibration.temp_code_max:.2f} C, '
+                  f'reference {calibration.temp_code_ref:.3g} C')
+        unit_name = common.UNITS[InputKind.IMU, sensor]
+        print_axes(common.SENSOR_NAMES[sensor], calibration, [stats.residual_rms for stats in result.axes], unit_name)
+        _print_handheld_terms(sensor, calibration, result)
+    if noise_line:
+        print(f'{noise_line} (written with the calibration: the node\'s Imu covariances come from it)')
+    print(f'wrote {args.output}')
+    return 0

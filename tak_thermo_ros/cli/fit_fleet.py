@@ -31,10 +31,12 @@ def add_parser(commands: Any, fit_parser: argparse.ArgumentParser, command: Comm
                     'Exit status 0 when at least one unit was calibrated (failed units are listed in fleet.json), '
                     '2 when none was.')
     fleet.add_argument('bags', nargs='+', metavar='BAG',
-                       help='one calibration bag per unit (the unit is named after it)')
+                       help='one calibration bag per unit (the unit is named after it), or a directory of its '
+                            'everyday records (a pool, docs/everyday.md)')
     fleet.add_argument('-o', '--output', required=True, metavar='OUT_DIR')
     fleet.add_argument('--validate', nargs='+', metavar='BAG',
-                       help='one validation bag per unit, in the order of the BAGs (|g| error after correction)')
+                       help='one validation bag per unit, in the order of the BAGs (|g| error after correction); '
+                            'a directory of records for a pool')
     where = fleet.add_mutually_exclusive_group()
     where.add_argument('--scheduler', metavar='ADDRESS',
                        help='a running Dask scheduler, e.g. tcp://host:8786 (default: a local cluster)')

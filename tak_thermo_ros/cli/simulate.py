@@ -137,31 +137,13 @@ def _everyday(args: argparse.Namespace, scenario, habits) -> int:
     The directory may exist when it holds only bags (``--force`` replaces them all); each record
     is written atomically as ``recNN``.
     """
-    import shutil
-    from pathlib import Path
     from tak_thermo_ros.core.simulation.everyday import simulate_everyday
-    from tak_thermo_ros.errors import OutputError
     from tak_thermo_ros.formats.bag import write_driver_record
-    from tak_thermo_ros.formats.files import check_output
+    from tak_thermo_ros.passes.pool import bag_directory
     from tak_thermo_ros.units import numbers, reader_unit
     if args.seed is not None:
         scenario = replace(scenario, seed=args.seed)
-    out = Path(args.out_bag)
-    if out.exists() or out.is_symlink():
-        if out.is_symlink() or not out.is_dir():
-            msg = f'{out} (OUT_BAG): exists and is not a directory; the records are written into a directory'
-            raise OutputError(msg)
-        entries = sorted(out.iterdir())
-        for entry in entries:  # only bags this tool wrote may be replaced
-            check_output(entry, BAG, force=True, option='OUT_BAG')
-        if entries and not args.force:
-            msg = f'{out} (OUT_BAG): exists and holds {len(entries)} bags; --force replaces them'
-            raise OutputError(msg)
-        for entry in entries:
-            shutil.rmtree(entry)
-    else:
-        check_output(out, BAG, option='OUT_BAG')
-        out.mkdir()
+    out = bag_directory(args.out_bag, force=args.force, option='OUT_BAG')
     low, high, rests, minutes = np.inf, -np.inf, [], []
     for simulated in simulate_everyday(scenario, habits):
         record = simulated.record

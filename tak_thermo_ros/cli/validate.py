@@ -24,7 +24,9 @@ OUTPUTS = (('json', FILE, '--json'),)
 def add_parser(commands) -> argparse.ArgumentParser:
     """Add the command to ``tak_calib``'s subcommands."""
     parser = commands.add_parser('validate', help='|g| from the three channels before and after correction')
-    parser.add_argument('bag', metavar='BAG')
+    parser.add_argument('bag', metavar='BAG', nargs='+',
+                        help='a record; several records, or a directory of them: a pool of everyday records, each '
+                             'rest judged (docs/everyday.md)')
     parser.add_argument('--params', required=True, metavar='PARAMS.yaml')
     parser.add_argument('--gravity', type=options.gravity, default=None,
                         help=f'local gravity, m/s^2 ({options.GRAVITY_MIN:g}..{options.GRAVITY_MAX:g}; '
@@ -53,6 +55,10 @@ def run(args: argparse.Namespace) -> int:
     from tak_thermo_ros.passes.validate import validate_bag
     from tak_thermo_ros.passes.magnetometer import has_mag
     unit = load_unit(args.params)
+    from tak_thermo_ros.passes.pool import is_pool
+    if is_pool(args.bag):
+        return _validate_pool(args, unit)
+    args.bag = args.bag[0]
     options = common.stream_options(args)
     document = {'bag': str(args.bag), 'params': str(args.params), 'gravity': args.gravity}
     watched = _calibration_watch(args, unit)
@@ -294,3 +300,50 @@ def _validate_handheld(args: argparse.Namespace, run, document: dict) -> None:
                                'closure_rms_rad': after.closure.rms_rad},
                      'floor': {'gravity_rms': after.gravity_floor, 'rate_rms': [float(v) for v in after.rate_floor],
                                'closure_rms_rad': closure.floor_rad}})
+
+
+def _validate_pool(args: argparse.Namespace, unit: UnitCalibration) -> int:
+    """``validate`` of a pool of everyday records: each rest's |g| and rate, each record's turn-on offset apart."""
+    from tak_thermo_ros.passes.pool import entry_line, validate_records
+    if unit.input_kind is not InputKind.IMU or unit.gyro is None:
+        msg = f'{args.params}: a pool of records takes a driver calibration (accelerometer and gyroscope)'
+        raise TakError(msg)
+    check = validate_records(args.bag, unit, common.stream_options(args), gravity=args.gravity,
+                             latitude=getattr(args, 'latitude', None), out_of_range=OutOfRange(args.out_of_range))
+    opened, before, after = check.opened, check.before, check.after
+    for line in opened.lines:
+        print(line)
+    for entry in opened.entries:
+        for line in entry.lines:
+            print(f'{entry.name}: {line}')
+        print(entry_line(entry))
+    g = args.gravity
+    small, factor = common.reader_unit('rad/s')
+    print(f'|g| error of the {len(after.gravity_error)} rests\' mean specific force of {len(opened.used)} records:')
+    for label, value in (('before (nominal scale and offset):', before.gravity_rms),
+                         ('after  (full correction link):', after.gravity_rms),
+                         ('the noise alone:', after.gravity_floor)):
+        print(f'  {label:<35}RMS {value:.3g} m/s^2 ({value / g * 1e3:.3g} mg)')
+    print('gyroscope: the rests\' mean rate, RMS per axis x y z:')
+    rows = (('before (nominal scale and offset):', before.rate_rms), ('after  (full correction link):', after.rate_rms),
+            ('after, each record\'s own offset off:', check.shape_rms), ('the white noise alone:', after.rate_floor))
+    for label, rms in rows:
+        print(f'  {label:<37}{common.numbers(rms, 3)} rad/s ({common.numbers(np.asarray(rms) * factor, 3)} {small})')
+    spread = check.own.std(axis=0, ddof=1) if len(check.own) > 1 else np.zeros(3)
+    said = (f'the file\'s repeatability {common.numbers(np.asarray(unit.gyro.turn_on.repeatability) * factor, 3)}'
+            if unit.gyro.turn_on is not None else 'the file holds no turn-on repeatability')
+    print(f'gyroscope: these records\' turn-on offsets spread {common.numbers(spread * factor, 3)} {small} x y z '
+          f'({said})')
+    if after.out_of_range:
+        print(f'warning: {after.out_of_range} samples outside the calibrated temperature range ({args.out_of_range})')
+    document = {'records': [entry.name for entry in opened.entries], 'params': str(args.params), 'gravity': g,
+                'record': 'pool', 'rests': len(after.gravity_error),
+                'before': {'gravity_rms': before.gravity_rms, 'rate_rms': [float(v) for v in before.rate_rms]},
+                'after': {'gravity_rms': after.gravity_rms, 'rate_rms': [float(v) for v in after.rate_rms],
+                          'rate_shape_rms': [float(v) for v in check.shape_rms]},
+                'floor': {'gravity_rms': after.gravity_floor, 'rate_rms': [float(v) for v in after.rate_floor]},
+                'turn_on_offsets': check.own.tolist()}
+    if args.json:
+        write_text_atomic(args.json, common.json_text(document, args.json))
+        print(f'wrote {args.json}')
+    return 0

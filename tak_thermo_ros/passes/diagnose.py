@@ -6,6 +6,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 
 from tak_thermo_ros.core.records.blocks import BlockAligner, Subsample, stride_for
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
@@ -38,6 +40,8 @@ class BoundedRun:
     reference_lines: tuple[str, ...]
     survey: RecordSurvey | None = None
     handheld: Any = None
+    groups: dict[str, np.ndarray] | None = None
+    """A pool of records: per sensor each sample's record (``diagnose`` holds whole records out)."""
 
 
 def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: float = 0.0,

@@ -11,6 +11,10 @@ log.txt}``, ``fleet.json`` (one row per unit, the batch's robust spread and the 
 ``fleet.html`` (the spread of every coefficient, the flagged units). The statistics live in
 :mod:`tak_thermo_ros.core.diagnose.fleet`, the report in :mod:`tak_thermo_ros.reports.fleet`.
 
+A unit's BAG may be a directory of its everyday records: ``fit``, ``diagnose`` and ``validate``
+take it as a pool (:mod:`tak_thermo_ros.passes.pool`), so a fleet's months run unit by unit on
+the workers, each reading its own records.
+
 The bags and ``OUT_DIR`` must be reachable under the same paths from every worker (a shared
 file system when the scheduler runs elsewhere).
 """

@@ -111,13 +111,24 @@ def null_heldout(samples: AlignedSamples, effects: Sequence[Any], labels: np.nda
     return cross_validate(copy, tuple(effects), labels, settings, folds=folds)
 
 
+def _record_folds(groups: np.ndarray, bins: np.ndarray | None, stride: int, folds: int) -> np.ndarray:
+    """Each cross-validation sample's fold when whole records are held out: its record modulo ``folds``."""
+    if bins is None:
+        return (groups[::stride] % folds).astype(np.int64)
+    kept = np.flatnonzero(bins >= 0)
+    of_bin = np.zeros(int(bins.max()) + 1 if len(kept) else 0, dtype=np.int64)
+    of_bin[bins[kept]] = groups[kept]
+    return of_bin % folds
+
+
 def diagnose(calibration: Calibration, samples: AlignedSamples, *,
              candidates: Sequence[Any] | None = None, folds: int = 5, blocks_per_fold: int = 4,
              max_cv_samples: int = 40_000, max_ladder: int = 3,
              bias_order: int | None = None, scale_order: int | None = None,
              rate_window_s: float | None = None,
              progress: Callable[[str], None] | None = None, per_axis: bool = True,
-             noise: Any | None = None, seed: int = 0, unit: str = 'counts', unit_scale: float = 1.0) -> Diagnosis:
+             noise: Any | None = None, seed: int = 0, unit: str = 'counts', unit_scale: float = 1.0,
+             groups: np.ndarray | None = None) -> Diagnosis:
     """Compare the calibration with a run, find where it fails and which effect it misses.
 
     :param calibration: the model to diagnose (base model, possibly with effects).
@@ -148,6 +159,8 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
     :param seed: seed of the simulated copies of the run.
     :param unit: the residual's unit in the verdict's message, ``unit_scale`` the factor from the
         residual to it (a magnetometer's tesla in uT: ``'uT'``, 1e6).
+    :param groups: ``(k,)`` per sample its record in a pool of records (0, 1, ...): the folds then hold
+        whole records out (record ``r`` in fold ``r % folds``) instead of time blocks; ``None``: time blocks.
     :raises FitError: when the run has no reference or too few samples.
     """
     if samples.reference is None:
@@ -189,7 +202,8 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
             cv_samples = samples
     else:
         cv_samples = decimate(samples, stride)
-    labels = fold_labels(cv_samples.time_s, folds, blocks)
+    labels = fold_labels(cv_samples.time_s, folds, blocks) if groups is None else _record_folds(
+        np.asarray(groups), bins, stride, folds)
     if np.bincount(labels, minlength=folds).min() < 10:
         msg = f'too few samples ({len(cv_samples)}) for {folds}-fold cross-validation in {blocks} blocks'
         raise FitError(msg)

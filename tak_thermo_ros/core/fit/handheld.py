@@ -60,6 +60,13 @@ from tak_thermo_ros.core.fit.design import (
     subset,
 )
 from tak_thermo_ros.core.fit.model import FitResult, calibration_from, finish_fit, fitted_effects, residual_counts
+from tak_thermo_ros.core.fit.random_effects import (
+    TURN_ON,
+    Variances,
+    fit_variances,
+    record_indicators,
+    turn_on_columns,
+)
 from tak_thermo_ros.core.fit.solve import BlockedQR, Solution, solve_factor, triangular_factor
 from tak_thermo_ros.core.link.model import AXES, Calibration
 from tak_thermo_ros.core.records.handheld import (
@@ -104,6 +111,11 @@ class HandheldSettings:
     """The options of a hand-held fit.
 
     :param effects: per sensor, offset effects to fit beyond the paper's link (names, as ``--effects``).
+    :param axis_orders: per sensor the offset polynomial's order per axis x y z, at most ``bias_order``
+        (the terms beyond held at 0; a pool's orders chosen by leaving whole records out); ``None``: ``bias_order``.
+    :param variances: a pool's variances per sensor, ``(turn-on spread (3,), rests' extra (3,))``, taken as
+        given instead of their REML (the folds of the order's choice).
+    :param turns: use the turns (``False``: the rests alone).
     """
 
     bias_order: int = 3
@@ -112,6 +124,9 @@ class HandheldSettings:
     gravity: float = STANDARD_GRAVITY
     latitude: float | None = None
     effects: dict[str, tuple] = field(default_factory=dict)
+    axis_orders: dict[str, tuple[int, int, int]] | None = None
+    variances: dict[str, tuple[np.ndarray, np.ndarray]] | None = None
+    turns: bool = True
 
 
 @dataclass(frozen=True)
@@ -156,6 +171,22 @@ class HandheldFit:
     closure_before: TurnClosure
     plus_minus: tuple[PlateauRow, ...]
     orders: tuple[int, int]
+    turn_on: dict[str, TurnOnFit] = field(default_factory=dict)
+    """A pool's records (several power-ups): per sensor the turn-on offsets and their spread."""
+
+
+@dataclass(frozen=True)
+class TurnOnFit:
+    """A sensor's turn-on offsets over a pool's records (random effects: :mod:`.random_effects`).
+
+    :param variances: per axis the offsets' spread (the repeatability) with its error, and the rests' extra variance.
+    :param offsets: ``(r, 3)`` each record's offset (its best linear unbiased prediction), sensor units.
+    :param errors: ``(r, 3)`` their standard errors.
+    """
+
+    variances: Variances
+    offsets: np.ndarray
+    errors: np.ndarray
 
 
 # ----- the joint parameter vector of one sensor ------------------------------------------------------
@@ -191,6 +222,9 @@ class _Layout:
                     kinds.append('offset' if offset == 0 else 'offset_T')
                     names.append(f'{AXES[axis]}.offset' + (f'_T{offset}' if offset else ''))
                     offset += 1
+                elif label.term == TURN_ON:
+                    kinds.append('turn_on')
+                    names.append(f'{AXES[axis]}.turn_on.{label.parameter}')
                 else:
                     kinds.append('coupling' if label.effect == CrossAxis.name else 'effect')
                     names.append(f'{label.effect}.{label.parameter}')
@@ -206,6 +240,11 @@ class _Layout:
 
     def index(self, name: str) -> int:
         return self.names.index(name)
+
+    def turn_on(self, axis: int) -> list[int]:
+        """The columns of one axis's turn-on offsets (a pool's records), in record order."""
+        start = self.starts[axis]
+        return [start + j for j, label in enumerate(self.columns[axis]) if label.term == TURN_ON]
 
     def initial(self) -> np.ndarray:
         """Scale 1, everything else 0."""
@@ -232,12 +271,21 @@ class _Terms:
     bias_order: int
     scale_order: int
     effects: tuple[Effect, ...] = ()
+    records: int = 1
+    """A pool's records: each adds its turn-on offset's column per axis (a random effect)."""
 
     def designs(self, powers: Sequence[np.ndarray], force: np.ndarray, counts: np.ndarray,
-                bases: Sequence[np.ndarray]) -> list[AxisDesign]:
+                bases: Sequence[np.ndarray], record: np.ndarray | None = None) -> list[AxisDesign]:
         offset_bases = [(effect, basis) for effect, basis in zip(self.effects, bases)]
-        return [axis_design(axis, powers, force, counts, bias_order=self.bias_order, scale_order=self.scale_order,
-                            input_effects=(CrossAxis(),), offset_bases=offset_bases) for axis in range(3)]
+        designs = [axis_design(axis, powers, force, counts, bias_order=self.bias_order, scale_order=self.scale_order,
+                               input_effects=(CrossAxis(),), offset_bases=offset_bases) for axis in range(3)]
+        if self.records < 2:
+            return designs
+        indicators = record_indicators(np.zeros(len(force), dtype=np.int64) if record is None else record,
+                                       self.records)
+        labels = turn_on_columns(self.records)
+        return [AxisDesign(np.hstack([design.matrix, indicators]), design.target, design.columns + labels)
+                for design in designs]
 
     def layout(self) -> _Layout:
         dummy = np.zeros((1, 3))
@@ -378,11 +426,17 @@ def _holds(solved: _Solved, layout: _Layout, sensor: str) -> dict[int, float]:
 
 def _solve_holding(system: _System, held: dict[int, float], layout: _Layout, sensor: str, *,
                    rows: int | None = None, extra_rss: float = 0.0) -> _Solved:
-    """:func:`_solve`, holding undetermined terms until every free one is determined."""
+    """:func:`_solve`, holding undetermined terms until every free one is determined.
+
+    An axis whose offset is held holds its records' turn-on offsets too (the records cannot tell them).
+    """
     held = dict(held)
     while True:
         solved = _solve(system, held, layout.width, rows=rows, extra_rss=extra_rss)
         more = _holds(solved, layout, sensor)
+        for axis, name in enumerate(AXES):
+            if layout.index(f'{name}.offset') in {**held, **more}:
+                more.update({j: 0.0 for j in layout.turn_on(axis) if j not in held})
         if not more:
             return solved
         held.update(more)
@@ -408,12 +462,20 @@ class _Rests:
     for any parameters and input. Its rows go through :meth:`_Terms.designs` like samples; the
     couplings' columns (constant over a rest) take the factor's first column (that of the
     constant power).
+
+    A pool's records (``record``: each sample's) add their turn-on offsets' columns, constant over
+    a rest like the couplings, with a prior row each (:meth:`prior_rows`, the spread
+    ``turn_on_sigma``); each rest's mean row (the first of its factor, along the constant) is
+    weighted by ``1 / sqrt(s^2 + n t^2)`` with ``t^2`` the rests' extra variance ``rest_variance``
+    (:mod:`~tak_thermo_ros.core.fit.random_effects`).
     """
 
     def __init__(self, counts: np.ndarray, temperature: np.ndarray, interval: np.ndarray, terms: _Terms,
-                 bases: Sequence[np.ndarray], noise: np.ndarray) -> None:
+                 bases: Sequence[np.ndarray], noise: np.ndarray, record: np.ndarray | None = None) -> None:
         self.terms = terms
         self.sigma = np.maximum(np.asarray(noise, dtype=float), 1e-12)
+        self.turn_on_sigma = np.full(3, np.inf)
+        self.rest_variance = np.zeros(3)
         self.layout = terms.layout()
         self.count = int(interval.max()) + 1 if len(interval) else 0
         self.orders = max(terms.bias_order, terms.scale_order) + 1
@@ -423,34 +485,68 @@ class _Rests:
         starts = np.flatnonzero(np.diff(interval, prepend=-1) != 0)
         ends = np.append(starts[1:], len(interval))
         factors, owners, remainder = [], [], np.zeros(3)
+        records, sizes, means = [], [], []
+        record = np.zeros(len(interval), dtype=np.int64) if record is None else np.asarray(record, dtype=np.int64)
         for start, end in zip(starts, ends):
             factor = np.linalg.qr(np.column_stack([regressors[start:end], counts[start:end]]), mode='r')
             kept = min(len(factor), inner)
             factors.append(factor[:kept])
             owners.append(np.full(kept, interval[start]))
+            records.append(np.full(kept, record[start]))
+            sizes.append(np.full(kept, end - start))
+            means.append(np.arange(kept) == 0)
             remainder += np.sum(factor[kept:, inner:] ** 2, axis=0)
         compressed = np.vstack(factors) if factors else np.zeros((0, inner + 3))
         self.regressors = compressed[:, :inner]
         self.counts = compressed[:, inner:]
         self.interval = np.concatenate(owners) if owners else np.zeros(0, dtype=np.int64)
+        self.row_record = np.concatenate(records) if records else np.zeros(0, dtype=np.int64)
+        self.row_samples = np.concatenate(sizes) if sizes else np.zeros(0, dtype=np.int64)
+        self.mean_row = np.concatenate(means) if means else np.zeros(0, dtype=bool)
         self.remainder = remainder
         self.samples = len(interval)
+
+    @property
+    def weights(self) -> np.ndarray:
+        """``(m, 3)`` each compressed row's weight per axis: ``1 / s``, a rest's mean row ``1 / sqrt(s^2 + n t^2)``."""
+        extra = np.where(self.mean_row, self.row_samples, 0)[:, None] * self.rest_variance[None, :]
+        return 1.0 / np.sqrt(self.sigma[None, :] ** 2 + extra)
+
+    def log_variance(self) -> float:
+        """``log det V`` of the mean rows over what white noise alone gives (the REML's first term)."""
+        extra = self.row_samples[self.mean_row][:, None] * self.rest_variance[None, :]
+        return float(np.sum(np.log1p(extra / self.sigma[None, :] ** 2)))
+
+    def prior_rows(self, held: dict[int, float] | None = None) -> np.ndarray:
+        """``(k, W + 1)`` one row ``u_r / s_u = 0`` per turn-on column (none for one record, or held)."""
+        held = held or {}
+        rows = []
+        for axis in range(3):
+            for column in self.layout.turn_on(axis):
+                if column in held or not np.isfinite(self.turn_on_sigma[axis]):
+                    continue
+                row = np.zeros(self.layout.width + 1)
+                row[column] = 1.0 / self.turn_on_sigma[axis]
+                rows.append(row)
+        return np.array(rows).reshape(-1, self.layout.width + 1)
 
     @property
     def powers(self) -> list[np.ndarray]:
         """The compressed rows' temperature powers ``u^0 .. u^m``."""
         return [self.regressors[:, j] for j in range(self.orders)]
 
-    def design(self, force: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def design(self, force: np.ndarray, *, weighted: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """The weighted design ``(m, 3, W)`` and target ``(m, 3)`` for the input ``force`` ``(m, 3)`` per row."""
         edges = np.cumsum([self.orders, *self.widths])
         bases = [self.regressors[:, a:b] for a, b in zip(edges[:-1], edges[1:])]
-        designs = self.terms.designs(self.powers, force, self.counts, bases)
+        designs = self.terms.designs(self.powers, force, self.counts, bases, record=self.row_record)
         constant = self.regressors[:, 0]
         for design in designs:
-            coupling = [c for c, label in enumerate(design.columns) if label.effect == CrossAxis.name]
+            coupling = [c for c, label in enumerate(design.columns)
+                        if label.effect == CrossAxis.name or label.term == TURN_ON]
             design.matrix[:, coupling] *= constant[:, None]
-        return _joint(designs, self.layout) / self.sigma[None, :, None], self.counts / self.sigma[None, :]
+        weights = self.weights if weighted else np.ones((len(self.counts), 3))
+        return _joint(designs, self.layout) * weights[:, :, None], self.counts * weights
 
     @property
     def extra_rss(self) -> float:
@@ -458,28 +554,95 @@ class _Rests:
         return float(np.sum(self.remainder / self.sigma ** 2))
 
 
+class _Reml:
+    """``-2 log REML`` of a pool's variances (:mod:`~tak_thermo_ros.core.fit.random_effects`), fast.
+
+    Only the rests' mean rows and the prior rows change with the variances: the other rows'
+    normal matrix is summed once, the mean rows are kept unweighted (and, for the accelerometer,
+    each rest's two direction columns there, eliminated at each evaluation: the one combination
+    of the three axes that the rest's unknown tilt leaves, as the fit's projection does). Each
+    evaluation is then a Cholesky factor of the free terms' normal matrix.
+
+    :param fixed: ``(W + 1, W + 1)`` the normal matrix of ``[X | y]`` of the rows whose weights stay.
+    :param mean: ``(k, 3, W + 1)`` the rests' mean rows, unweighted.
+    :param samples: ``(k,)`` each rest's samples.
+    :param directions: ``(k, 3, 2)`` the accelerometer's direction columns in the mean rows, or ``None``.
+    """
+
+    def __init__(self, rests: _Rests, fixed: np.ndarray, mean: np.ndarray, samples: np.ndarray,
+                 held: dict[int, float], directions: np.ndarray | None = None) -> None:
+        self.rests = rests
+        self.fixed = fixed
+        self.mean = mean
+        self.samples = samples.astype(float)
+        self.directions = directions
+        layout = rests.layout
+        self.determined = _determined(layout, held)
+        self.free = [j for j in range(layout.width) if j not in held]
+        self.values = np.zeros(layout.width + 1)
+        for j, value in held.items():
+            self.values[j] = value
+        self.values[-1] = -1.0  # [X | y] times (theta_held, -1): minus the target the held terms leave
+        self.prior = [(axis, j) for axis in range(3) for j in layout.turn_on(axis) if j not in held]
+        self.records = len(layout.turn_on(0))
+
+    def __call__(self, turn_on: np.ndarray, rest: np.ndarray) -> float:
+        sigma = self.rests.sigma
+        variance = sigma[None, :] ** 2 + self.samples[:, None] * np.asarray(rest, dtype=float)[None, :] ** 2
+        weight = 1.0 / np.sqrt(variance)
+        rows = self.mean * weight[:, :, None]
+        log_v = float(np.sum(np.log(variance / sigma[None, :] ** 2)))
+        if self.directions is None:
+            normal = self.fixed + np.einsum('kai,kaj->ij', rows, rows)
+        else:  # per rest the one combination of the axes that the two direction columns leave
+            weighted = self.directions * weight[:, :, None]
+            across = np.cross(weighted[:, :, 0], weighted[:, :, 1])
+            across /= np.linalg.norm(across, axis=1, keepdims=True)
+            projected = np.einsum('ka,kai->ki', across, rows)
+            normal = self.fixed + projected.T @ projected
+            gram = np.einsum('kai,kaj->kij', weighted, weighted)
+            log_v += float(np.sum(np.log(np.maximum(np.linalg.det(gram), 1e-300))))
+        for axis, j in self.prior:
+            normal[j, j] += 1.0 / turn_on[axis] ** 2
+        free = self.free
+        target = self.values
+        # the held terms into the target: [X_f | y - X_h v], v the held values
+        cross = -(normal[np.ix_(free, range(len(target)))] @ target)
+        total = float(target @ normal @ target)
+        try:
+            factor = np.linalg.cholesky(normal[np.ix_(free, free)])
+        except np.linalg.LinAlgError:
+            return math.inf
+        solved = np.linalg.solve(factor, cross)
+        rss = total - float(solved @ solved)
+        prior = sum(2.0 * self.records * math.log(turn_on[axis]) for axis in np.flatnonzero(self.determined))
+        return log_v + prior + float(2.0 * np.sum(np.log(np.diag(factor)))) + rss
+
+
 class _AccelProblem(_Rests):
     """The accelerometer's rests (:class:`_Rests`): the input is gravity along each rest's unknown up direction."""
 
     def __init__(self, counts: np.ndarray, temperature: np.ndarray, interval: np.ndarray, terms: _Terms,
-                 bases: Sequence[np.ndarray], gravity: float, noise: np.ndarray) -> None:
-        super().__init__(counts, temperature, interval, terms, bases, noise)
+                 bases: Sequence[np.ndarray], gravity: float, noise: np.ndarray,
+                 record: np.ndarray | None = None) -> None:
+        super().__init__(counts, temperature, interval, terms, bases, noise, record)
         self.gravity = gravity
 
-    def rows(self, theta: np.ndarray, up: np.ndarray
+    def rows(self, theta: np.ndarray, up: np.ndarray, *, weighted: bool = True
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The weighted design ``(m, 3, W)``, target ``(m, 3)``, direction columns ``(m, 3, 2)``.
 
         And each row's run (of equal intervals, from 0) and each run's interval.
         """
-        design, target = self.design(self.gravity * up[self.interval])
+        design, target = self.design(self.gravity * up[self.interval], weighted=weighted)
         tangent = tangent_basis(up)[self.interval] * self.gravity  # (m, 3, 2)
         matrix = _matrix(theta, self.layout, self.powers, self.terms.scale_order)
         diagonal = np.einsum('maa->ma', matrix)
         couplings = matrix[0] - np.diag(np.diag(matrix[0])) if len(matrix) else np.zeros((3, 3))
         directions = (diagonal[:, :, None] * tangent
                       + self.regressors[:, 0, None, None] * np.einsum('il,mlb->mib', couplings, tangent))
-        directions = directions / self.sigma[None, :, None]
+        if weighted:
+            directions = directions * self.weights[:, :, None]
         starts, run = _segments(self.interval)
         return design, target, directions, run, self.interval[starts]
 
@@ -487,7 +650,13 @@ class _AccelProblem(_Rests):
         design, target, directions, run, _ = self.rows(theta, up)
         projected = _project(directions, run, design, target)
         return _System.of_rows([np.column_stack([projected[0].reshape(-1, self.layout.width),
-                                                 projected[1].reshape(-1)])], self.layout.width)
+                                                 projected[1].reshape(-1)]), self.prior_rows()], self.layout.width)
+
+    def direction_log_determinant(self, theta: np.ndarray, up: np.ndarray) -> float:
+        """``sum log det`` of the rests' direction columns' normal matrices (REML: the directions are fixed terms)."""
+        _, _, directions, run, _ = self.rows(theta, up)
+        _, _, factor = _orthonormal(directions, run)
+        return float(2.0 * np.sum(np.log(np.maximum(np.abs(factor[:, [0, 1], [0, 1]]), 1e-300))))
 
     def sensitivity(self, theta: np.ndarray, up: np.ndarray) -> np.ndarray:
         """``(k, 2, W)``: how each interval's best up direction (two tangent angles) moves with the terms."""
@@ -599,15 +768,17 @@ class _GyroProblem:
 
     def __init__(self, record: HandheldRecord, interval: np.ndarray, terms: _Terms, still_bases: Sequence[np.ndarray],
                  turn_bases: Sequence[np.ndarray], up: np.ndarray, noise: np.ndarray, up_noise: np.ndarray,
-                 latitude: float | None) -> None:
+                 latitude: float | None, records: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         self.terms = terms
         self.layout = terms.layout()
         self.sigma = np.maximum(np.asarray(noise, dtype=float), 1e-12)
         order = max(terms.bias_order, terms.scale_order)
         still = record.still
-        self.rests = _Rests(still.counts[:, 3:6], still.temp_code, interval, terms, still_bases, noise)
+        still_record, turn_record = records if records is not None else (None, None)
+        self.rests = _Rests(still.counts[:, 3:6], still.temp_code, interval, terms, still_bases, noise, still_record)
         self.reference = earth_reference(up, interval, latitude)
         turn = record.turn
+        self.turn_record = np.zeros(len(turn), dtype=np.int64) if turn_record is None else turn_record
         self.turn_counts = turn.counts[:, 3:6]
         self.turn_powers = terms.frame.powers(np.clip(turn.temp_code, terms.frame.low, terms.frame.high), order)
         self.turn_bases = turn_bases
@@ -622,15 +793,15 @@ class _GyroProblem:
         """The rests' rows (linear: the rate at rest is known), compressed rest by rest."""
         force = earth_reference(self.up, self.rests.interval, self.latitude)
         design, target = self.rests.design(force)
-        return _System.of_rows([np.column_stack([design.reshape(-1, self.layout.width), target.reshape(-1)])],
-                               self.layout.width)
+        return _System.of_rows([np.column_stack([design.reshape(-1, self.layout.width), target.reshape(-1)]),
+                                self.rests.prior_rows()], self.layout.width)
 
     def rates(self, theta: np.ndarray, rows: slice) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], list]:
         """Some turn samples' corrected rates ``(m, 3)``, ``M(T)^-1``, their powers and bases."""
         powers = [p[rows] for p in self.turn_powers]
         bases = [b[rows] for b in self.turn_bases]
         counts = self.turn_counts[rows]
-        designs = self.terms.designs(powers, np.zeros_like(counts), counts, bases)
+        designs = self.terms.designs(powers, np.zeros_like(counts), counts, bases, record=self.turn_record[rows])
         # The force columns are zero here: each axis's design times its terms is its offset.
         offsets = np.column_stack([design.matrix @ self.layout.axis_part(theta, axis)
                                    for axis, design in enumerate(designs)])
@@ -661,7 +832,7 @@ class _GyroProblem:
             jacobians[rows] = jacobian
             if not rows_needed:
                 continue
-            designs = self.terms.designs(powers, rate, self.turn_counts[rows], bases)
+            designs = self.terms.designs(powers, rate, self.turn_counts[rows], bases, record=self.turn_record[rows])
             # d rate / d theta = -M^-1 D, D block-diagonal by axis: each axis's columns take one column of C M^-1.
             carried = -jacobian @ inverse
             starts = np.flatnonzero(np.diff(index, prepend=-1) != 0)
@@ -829,7 +1000,69 @@ def _calibration(solved: _Solved, layout: _Layout, terms: _Terms, notes: tuple[s
     return replace(calibration, axes=axes)  # type: ignore[arg-type]
 
 
-def held_lines(sensor: str, solved: _Solved, layout: _Layout, *, gauge: Sequence[str] = ()) -> list[str]:
+def order_holds(layout: _Layout, orders: Sequence[int] | None) -> dict[int, float]:
+    """The offset polynomial's terms beyond each axis's order, held at 0."""
+    if orders is None:
+        return {}
+    held = {}
+    for axis, order in enumerate(orders):
+        start = layout.starts[axis]
+        for j in range(start, start + len(layout.columns[axis])):
+            name = layout.names[j]
+            if layout.kinds[j] == 'offset_T' and int(name.rsplit('_T', 1)[1]) > order:
+                held[j] = 0.0
+    return held
+
+
+ONE_ORIENTATION_DEG = 15.0
+"""Rests whose up directions all lie within this of their mean are one orientation (near level): |f| tells
+the offset along gravity only."""
+
+
+def one_orientation(up: np.ndarray, kept: np.ndarray, layout: _Layout) -> tuple[str, dict[int, float]]:
+    """When every rest lies in one orientation: the line that says so, and the accelerometer's terms it holds.
+
+    At rest in one orientation ``|f|`` sees the offset along gravity only: the offsets of the other
+    axes (and their temperature terms, and their records' turn-on offsets) are undetermined, and
+    every scale and coupling with them (a coupling into the gravity axis takes up the other axes'
+    offsets over the tilt): said in one line and held (scales at 1, the rest at 0); the gravity
+    axis's offset and its temperature terms carry its scale's drift at 1 g. With up between the
+    axes (no axis within :data:`~tak_thermo_ros.core.records.still.FACE_DEG` of it) every axis's
+    offset is held.
+    """
+    from tak_thermo_ros.core.records.still import FACE_DEG
+    if not len(up):
+        return '', {}
+    mean = np.average(up, axis=0, weights=np.maximum(kept, 1))
+    mean /= np.linalg.norm(mean)
+    spread = float(np.degrees(np.arccos(np.clip(np.min(up @ mean), -1.0, 1.0))))
+    if spread > ONE_ORIENTATION_DEG:
+        return '', {}
+    gravity = int(np.argmax(np.abs(mean)))
+    if abs(mean[gravity]) < math.cos(math.radians(FACE_DEG)):
+        gravity = -1
+    others = [axis for axis in range(3) if axis != gravity]
+    held = {j: (1.0 if kind == 'scale' else 0.0) for j, kind in enumerate(layout.kinds)
+            if kind in ('scale', 'scale_T', 'coupling')}
+    for axis in others:
+        start = layout.starts[axis]
+        for j in range(start, start + len(layout.columns[axis])):
+            if layout.kinds[j] in ('offset', 'offset_T', 'turn_on'):
+                held[j] = 0.0
+    names = ' '.join(AXES[axis] for axis in others)
+    where = f'{spread:.1f} deg of one orientation'
+    if gravity < 0:
+        line = (f'accelerometer: every rest within {where}, up between the axes: |f| tells no axis\'s offset; '
+                f'offsets, scales and misalignment held')
+    else:
+        line = (f'accelerometer: every rest within {where} ({"+-"[int(mean[gravity] < 0)]}{AXES[gravity]} up): '
+                f'the rests determine the gravity axis {AXES[gravity]} only; offsets on {names}, scales and '
+                f'misalignment held')
+    return line, held
+
+
+def held_lines(sensor: str, solved: _Solved, layout: _Layout, *, gauge: Sequence[str] = (),
+               source: str = 'this record', said: Sequence[int] = ()) -> list[str]:
     """One statement per kind of term the record did not determine (the gauge is said apart)."""
     name = SENSOR_NAMES[sensor]
     # :data:`BOUNDS` in the units a reader expects: 1 %, 10 mrad, 5 mg or 0.29 deg/s.
@@ -844,7 +1077,8 @@ def held_lines(sensor: str, solved: _Solved, layout: _Layout, *, gauge: Sequence
              'effect': ('effect terms held at 0:', 'not determined')}
     lines = []
     for kind in ('scale', 'scale_T', 'offset', 'offset_T', 'coupling', 'effect'):
-        held = [j for j in solved.held if layout.kinds[j] == kind and layout.names[j].split('.')[-1] not in gauge]
+        held = [j for j in solved.held if layout.kinds[j] == kind and layout.names[j].split('.')[-1] not in gauge
+                and j not in said]
         if not held:
             continue
         if kind in ('coupling', 'effect'):
@@ -852,7 +1086,7 @@ def held_lines(sensor: str, solved: _Solved, layout: _Layout, *, gauge: Sequence
         else:
             what = ' '.join(sorted({layout.names[j].split('.')[0] for j in held}))
         lead, why = words[kind]
-        lines.append(f'{name}: {lead} {what} ({why} by this record)')
+        lines.append(f'{name}: {lead} {what} ({why} by {source})')
     return lines
 
 
@@ -890,6 +1124,10 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
         msg = 'effects need a temperature span: this record was taken at one temperature'
         raise FitError(msg)
     interval, count, turn_interval, used = numbered_rests(record)
+    pool = record.records
+    still_record = record.still_record
+    rest_record = np.zeros(count, dtype=np.int64)
+    rest_record[interval] = still_record
     noise = record.intervals.noise
     accel_counts = record.still.counts[:, :3]
     means = np.zeros((count, 3))
@@ -897,57 +1135,139 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
     kept = np.bincount(interval, minlength=count)
     up = means / np.linalg.norm(means, axis=1, keepdims=True)
 
-    accel_terms = _Terms(frame, bias_order, scale_order)
-    gauge = {accel_terms.layout().index(f'cross_axis.{name}'): 0.0 for name in GAUGE}
-    problem = _AccelProblem(accel_counts, temperature, interval, accel_terms, [], settings.gravity, noise[:3])
+    accel_terms = _Terms(frame, bias_order, scale_order, records=pool)
+    level_line, level = one_orientation(up, kept, accel_terms.layout())
+    if level_line:
+        lines.append(level_line)
+        notes.append(level_line)
+    axis_orders = settings.axis_orders or {}
+
+    def accel_holds(layout: _Layout) -> dict[int, float]:
+        """The gauge, one orientation's holds and the chosen orders' on a layout of the accelerometer."""
+        held = {layout.index(f'cross_axis.{name}'): 0.0 for name in GAUGE}
+        if level_line:
+            held.update(one_orientation(up, kept, layout)[1])
+        held.update(order_holds(layout, axis_orders.get('accel')))
+        return held
+
+    def gyro_holds(layout: _Layout) -> dict[int, float]:
+        """The chosen orders' holds on a layout of the gyroscope; one orientation holds its scales and couplings.
+
+        Its frame is the accelerometer's, whose tilts take up the other axes' offsets: its misalignment
+        is not told, nor its scale by motions closed on those tilts (the motions are not integrated).
+        """
+        held = order_holds(layout, axis_orders.get('gyro'))
+        if level_line:
+            held.update({j: (1.0 if kind == 'scale' else 0.0) for j, kind in enumerate(layout.kinds)
+                         if kind in ('coupling', 'scale', 'scale_T')})
+        return held
+
+    gauge = accel_holds(accel_terms.layout())
+    problem = _AccelProblem(accel_counts, temperature, interval, accel_terms, [], settings.gravity, noise[:3],
+                            still_record)
+    problem.turn_on_sigma = np.full(3, BOUNDS['offset', 'accel'])  # weak, until the pool's own spread is known
+    given = settings.variances or {}
+    if 'accel' in given:
+        problem.turn_on_sigma, problem.rest_variance = given['accel'][0], np.asarray(given['accel'][1]) ** 2
     accel, up = _fit_accel(problem, up, gauge)
+    turn_on: dict[str, TurnOnFit] = {}
+    if pool > 1 and 'accel' not in given:
+        accel, up, turn_on['accel'] = _pooled_accel(problem, up, gauge, accel)
     shapes: dict[str, FitResult] = {}
     if effects['accel']:
         reference = settings.gravity * up[interval]
-        shaped = _shapes(sensor_samples(record.still, 'accel', reference), effects['accel'], accel, problem.layout,
-                         accel_terms, frame)
+        samples = sensor_samples(record.still, 'accel', reference)
+        if 'accel' in turn_on:  # a pool: each record's own offset off, the shapes searched on the rest
+            samples = replace(samples, counts=samples.counts - turn_on['accel'].offsets[still_record])
+        shaped = _shapes(samples, effects['accel'], accel, problem.layout, accel_terms, frame)
         shapes['accel'] = shaped
         offsets = tuple(effect for effect in shaped.calibration.effects if not isinstance(effect, CrossAxis))
-        accel_terms = _Terms(frame, bias_order, scale_order, offsets)
+        accel_terms = _Terms(frame, bias_order, scale_order, offsets, records=pool)
         still_bases, _ = _union_bases(accel_terms.effects, frame, record)
-        gauge = {accel_terms.layout().index(f'cross_axis.{name}'): 0.0 for name in GAUGE}
+        gauge = accel_holds(accel_terms.layout())
+        variances = problem.turn_on_sigma, problem.rest_variance
         problem = _AccelProblem(accel_counts, temperature, interval, accel_terms, still_bases, settings.gravity,
-                                problem.sigma)
+                                problem.sigma, still_record)
+        problem.turn_on_sigma, problem.rest_variance = variances
         accel, up = _fit_accel(problem, up, gauge)
+        if pool > 1 and 'accel' not in given:
+            accel, up, turn_on['accel'] = _pooled_accel(problem, up, gauge, accel)
+    level = one_orientation(up, kept, problem.layout)[1] if level_line else {}
     accel_layout = problem.layout
     accel_sigma = problem.sigma
 
     up_noise = float(np.sqrt(np.mean(accel_sigma ** 2))) / (settings.gravity * np.sqrt(np.maximum(kept, 1)))
+    if not settings.turns or level:  # one orientation: see the gyroscope's holds below
+        used = np.zeros(len(turn_interval), dtype=bool)
     turns_record = _with_turns(record, turn_interval, used)
-    gyro_terms = _Terms(frame, bias_order, scale_order)
-    gyro_problem = _GyroProblem(turns_record, interval, gyro_terms, [], [], up, noise[3:6], up_noise, settings.latitude)
-    gyro, turns, turn_scale = _fit_gyro(gyro_problem, {})
+    gyro_terms = _Terms(frame, bias_order, scale_order, records=pool)
+    turn_record = (rest_record[turns_record.turns[turns_record.turn_index, 0]] if len(turns_record.turn_index)
+                   else np.zeros(0, dtype=np.int64))
+    gyro_problem = _GyroProblem(turns_record, interval, gyro_terms, [], [], up, noise[3:6], up_noise, settings.latitude,
+                                records=(still_record, turn_record))
+    gyro_problem.rests.turn_on_sigma = np.full(3, BOUNDS['offset', 'gyro'])
+    if 'gyro' in given:
+        gyro_problem.rests.turn_on_sigma = given['gyro'][0]
+        gyro_problem.rests.rest_variance = np.asarray(given['gyro'][1]) ** 2
+    gyro_orders = gyro_holds(gyro_problem.layout)
+    gyro, turns, turn_scale = _fit_gyro(gyro_problem, gyro_orders)
+    if pool > 1 and 'gyro' not in given:
+        gyro, turns, turn_scale, turn_on['gyro'] = _pooled_gyro(gyro_problem, gyro, turns, turn_scale, gyro_orders)
     if effects['gyro']:
         # The Earth rate (1e-4 rad/s at most) taken off at nominal scale: the scale's error (1e-3) leaves 1e-7.
         at_rest = record.still.counts[:, 3:6] - gyro_problem.reference
+        if 'gyro' in turn_on:  # a pool: each record's own offset off, the shapes searched on the rest
+            at_rest = at_rest - turn_on['gyro'].offsets[still_record]
         samples = replace(sensor_samples(record.still, 'gyro', np.zeros((len(interval), 3))), counts=at_rest)
         shaped = _shapes(samples, effects['gyro'], gyro, gyro_problem.layout, gyro_terms, frame)
         shapes['gyro'] = shaped
-        gyro_terms = _Terms(frame, bias_order, scale_order, tuple(shaped.calibration.effects))
+        gyro_terms = _Terms(frame, bias_order, scale_order, tuple(shaped.calibration.effects), records=pool)
         still_bases, turn_bases = _union_bases(gyro_terms.effects, frame, turns_record)
+        variances = gyro_problem.rests.turn_on_sigma, gyro_problem.rests.rest_variance
         gyro_problem = _GyroProblem(turns_record, interval, gyro_terms, still_bases, turn_bases, up, noise[3:6],
-                                    up_noise, settings.latitude)
-        gyro, turns, turn_scale = _fit_gyro(gyro_problem, {})
+                                    up_noise, settings.latitude, records=(still_record, turn_record))
+        gyro_problem.rests.turn_on_sigma, gyro_problem.rests.rest_variance = variances
+        gyro_orders = gyro_holds(gyro_problem.layout)
+        gyro, turns, turn_scale = _fit_gyro(gyro_problem, gyro_orders)
+        if pool > 1 and 'gyro' not in given:
+            gyro, turns, turn_scale, turn_on['gyro'] = _pooled_gyro(gyro_problem, gyro, turns, turn_scale,
+                                                                    gyro_orders)
     through_frame = gyro_problem.frame_covariance(turns, gyro, accel, problem.sensitivity(accel.theta, up))
     gyro = replace(gyro, covariance=gyro.covariance + through_frame)
     closure = replace(turns.closure, seconds=turns_record.turn_seconds())
 
     gauge_line = 'accelerometer: gauge c_xy = c_xz = c_yz = 0: corrected x along its x axis, y in its x-y plane'
-    accel_held = held_lines('accel', accel, accel_layout, gauge=GAUGE)
-    gyro_held = held_lines('gyro', gyro, gyro_problem.layout)
-    lines += [gauge_line, *accel_held, *gyro_held]
-    accel_cal = _calibration(accel, accel_layout, accel_terms, tuple(notes + [gauge_line] + accel_held))
+    source = 'this record' if pool < 2 else 'these records'
+    chosen = order_holds(accel_layout, axis_orders.get('accel'))  # the orders' holds are said by the pool
+    accel_held = held_lines('accel', accel, accel_layout, gauge=GAUGE, source=source, said=[*level, *chosen])
+    gyro_held = held_lines('gyro', gyro, gyro_problem.layout, source=source, said=list(gyro_orders))
+    if level:
+        gyro_held.insert(0, 'gyroscope: scales and misalignment held, the motions not integrated: its frame is the '
+                            'accelerometer\'s, which one orientation does not fix')
+    said_gauge = [] if level else [gauge_line]  # one orientation holds every coupling: no gauge to say
+    lines += [*said_gauge, *accel_held, *gyro_held]
+    accel_cal = _calibration(accel, accel_layout, accel_terms, tuple(notes + said_gauge + accel_held))
     gyro_cal = _calibration(gyro, gyro_problem.layout, gyro_terms, tuple(notes + gyro_held))
+    for sensor, solved, layout in (('accel', accel, accel_layout), ('gyro', gyro, gyro_problem.layout)):
+        if pool > 1 and sensor not in turn_on:  # the variances were given
+            spread, extra = given[sensor]
+            determined = _determined(layout, solved.held)
+            variances = Variances(np.where(determined, spread, np.nan), np.full(3, np.nan), np.asarray(extra),
+                                  determined)
+            turn_on[sensor] = _turn_on_fit(solved, layout, variances, pool)
+    # A pool's residual at the rests: each record's own turn-on offset taken off
+    own = {sensor: (turn_on[sensor].offsets[still_record] if sensor in turn_on else 0.0)
+           for sensor in ('accel', 'gyro')}
+    accel_samples = sensor_samples(record.still, 'accel', settings.gravity * up[interval])
+    gyro_samples = sensor_samples(record.still, 'gyro', gyro_problem.reference)
+    if pool > 1:
+        accel_samples = replace(accel_samples, counts=accel_samples.counts - own['accel'])
+        gyro_samples = replace(gyro_samples, counts=gyro_samples.counts - own['gyro'])
+        accel_cal, gyro_cal = (_with_turn_on(calibration, turn_on[sensor], pool)
+                               for sensor, calibration in (('accel', accel_cal), ('gyro', gyro_cal)))
     results = {
-        'accel': _result(accel_cal, accel, accel_layout,
-                         sensor_samples(record.still, 'accel', settings.gravity * up[interval]), record, shapes),
-        'gyro': _result(gyro_cal, gyro, gyro_problem.layout,
-                        sensor_samples(record.still, 'gyro', gyro_problem.reference), record, shapes),
+        'accel': _result(accel_cal, accel, accel_layout, accel_samples, record, shapes),
+        'gyro': _result(gyro_cal, gyro, gyro_problem.layout, gyro_samples, record, shapes),
     }
     before = replace(gyro_problem.turn_rows(gyro_problem.layout.initial(), rows_needed=False).closure,
                      seconds=closure.seconds)
@@ -956,7 +1276,118 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
                      f'their weight is lowered by that much')
     table = plateau_table(record.still, interval, up, accel_cal, settings.gravity)
     return HandheldFit(results=results, lines=tuple(lines), up=up, closure=closure, closure_before=before,
-                       plus_minus=table, orders=(bias_order, scale_order))
+                       plus_minus=table, orders=(bias_order, scale_order), turn_on=turn_on)
+
+
+# ----- a pool of records: the turn-on offsets as random effects ---------------------------------------
+
+VARIANCE_ROUNDS = 3
+"""The variances and the link are refitted in turn at most this many times."""
+VARIANCE_SETTLED = 0.05
+"""... until no variance moves by more than this fraction."""
+
+
+def _turn_on_fit(solved: _Solved, layout: _Layout, variances: Variances, records: int) -> TurnOnFit:
+    """Each record's offset and its error from a solve, beside the spread."""
+    offsets = np.zeros((records, 3))
+    errors = np.full((records, 3), np.nan)
+    deviations = dict(zip(solved.free, np.sqrt(np.maximum(np.diag(solved.covariance), 0.0))))
+    for axis in range(3):
+        for record, column in enumerate(layout.turn_on(axis)):
+            offsets[record, axis] = solved.theta[column]
+            errors[record, axis] = deviations.get(column, np.nan)
+    return TurnOnFit(variances, offsets, errors)
+
+
+def _determined(layout: _Layout, held: dict[int, float]) -> np.ndarray:
+    """Per axis whether its turn-on offsets are fitted (not held with the axis's offset)."""
+    return np.array([bool(layout.turn_on(axis)) and not all(j in held for j in layout.turn_on(axis))
+                     for axis in range(3)])
+
+
+def _settled(before: np.ndarray, after: np.ndarray) -> bool:
+    both = np.isfinite(before) & np.isfinite(after)
+    return bool(np.all(np.abs(after[both] - before[both]) <= VARIANCE_SETTLED * np.maximum(np.abs(before[both]),
+                                                                                           1e-300)))
+
+
+def _normal(rows: np.ndarray) -> np.ndarray:
+    """The normal matrix ``R^T R`` of rows ``(n, W + 1)``."""
+    return rows.T @ rows
+
+
+def _rests_reml(rests: _Rests, design: np.ndarray, target: np.ndarray, held: dict[int, float],
+                extra: np.ndarray | None = None, directions: np.ndarray | None = None) -> _Reml:
+    """The REML of a sensor's rests from its unweighted compressed rows (``extra``: rows already weighted)."""
+    width = rests.layout.width
+    rows = np.concatenate([design, target[:, :, None]], axis=2)  # (m, 3, W + 1)
+    within = rows[~rests.mean_row] / rests.sigma[None, :, None]
+    fixed = _normal(within.reshape(-1, width + 1))
+    if extra is not None and len(extra):
+        fixed = fixed + _normal(extra)
+    mean = rows[rests.mean_row]
+    return _Reml(rests, fixed, mean, rests.row_samples[rests.mean_row], held,
+                 None if directions is None else directions[rests.mean_row])
+
+
+def _pooled_accel(problem: _AccelProblem, up: np.ndarray, gauge: dict[int, float],
+                  accel: _Solved) -> tuple[_Solved, np.ndarray, TurnOnFit]:
+    """The accelerometer of a pool: its variances by REML and the link, in turn (each REML at the up directions)."""
+    previous = np.concatenate([problem.turn_on_sigma, np.sqrt(problem.rest_variance)])
+    variances = None
+    for _ in range(VARIANCE_ROUNDS):
+        design, target, directions, _, _ = problem.rows(accel.theta, up, weighted=False)
+        criterion = _rests_reml(problem, design, target, accel.held, directions=directions)
+        start = np.sqrt(problem.rest_variance) + 0.1 * problem.sigma
+        variances = fit_variances(criterion, problem.turn_on_sigma, start, criterion.determined, problem.sigma)
+        problem.turn_on_sigma = np.where(criterion.determined, variances.turn_on, problem.turn_on_sigma)
+        problem.rest_variance = variances.rest ** 2
+        accel, up = _fit_accel(problem, up, gauge)
+        current = np.concatenate([problem.turn_on_sigma, variances.rest])
+        if _settled(previous, current):
+            break
+        previous = current
+    assert variances is not None
+    return accel, up, _turn_on_fit(accel, problem.layout, variances, len(problem.layout.turn_on(0)))
+
+
+def _pooled_gyro(problem: _GyroProblem, gyro: _Solved, turns: _TurnRows, turn_scale: float,
+                 held: dict[int, float]) -> tuple[_Solved, _TurnRows, float, TurnOnFit]:
+    """The gyroscope of a pool: its variances by REML (the turns' rows held) and the link, in turn."""
+    rests = problem.rests
+    previous = np.concatenate([rests.turn_on_sigma, np.sqrt(rests.rest_variance)])
+    variances = None
+    for _ in range(VARIANCE_ROUNDS):
+        force = earth_reference(problem.up, rests.interval, problem.latitude)
+        design, target = rests.design(force, weighted=False)
+        criterion = _rests_reml(rests, design, target, gyro.held, extra=turns.rows)
+        variances = fit_variances(criterion, rests.turn_on_sigma, np.sqrt(rests.rest_variance) + 0.1 * rests.sigma,
+                                  criterion.determined, rests.sigma)
+        rests.turn_on_sigma = np.where(criterion.determined, variances.turn_on, rests.turn_on_sigma)
+        rests.rest_variance = variances.rest ** 2
+        gyro, turns, turn_scale = _fit_gyro(problem, held)
+        current = np.concatenate([rests.turn_on_sigma, variances.rest])
+        if _settled(previous, current):
+            break
+        previous = current
+    assert variances is not None
+    return gyro, turns, turn_scale, _turn_on_fit(gyro, problem.layout, variances, len(problem.layout.turn_on(0)))
+
+
+def _with_turn_on(calibration: Calibration, fitted: TurnOnFit, records: int) -> Calibration:
+    """The calibration with its ``turn_on`` section when every axis's spread is determined, else a note why not."""
+    from tak_thermo_ros.core.link.model import TurnOn
+    variances = fitted.variances
+    if not np.all(variances.determined):
+        held = ' '.join(name for name, ok in zip(AXES, variances.determined) if not ok)
+        note = (f'turn_on not written: the records do not determine the turn-on offset on {held} '
+                f'(its offset is held)')
+        return replace(calibration, notes=(*calibration.notes, note))
+    turn_on = TurnOn(repeatability=tuple(float(v) for v in variances.turn_on),  # type: ignore[arg-type]
+                     repeatability_error=tuple(float(e) if np.isfinite(e) else 0.0  # type: ignore[arg-type]
+                                               for e in variances.turn_on_error),
+                     records=records)
+    return replace(calibration, turn_on=turn_on)
 
 
 def _with_turns(record: HandheldRecord, pairs: np.ndarray, used: np.ndarray) -> HandheldRecord:

@@ -45,6 +45,11 @@ class HandheldRecord:
     :param skipped_turns: reason -> turns not used (``gap``, ``long``).
     :param stride: every how many still samples one was kept.
     :param dropped: reason -> samples left out by the alignment.
+    :param interval_record: ``(k,)`` for a pool of records (:func:`pooled`), the record each still
+        interval comes from (``0 .. records - 1``); ``None``: one record.
+    :param record_names: a pool's records, in that numbering.
+    :param temperature_track: ``(stamp_ns (t,), celsius (t,))`` the temperature between the kept samples
+        too (a pool's long motions: an effect with memory follows the temperature through them), or ``None``.
     """
 
     intervals: StillIntervals
@@ -56,6 +61,28 @@ class HandheldRecord:
     skipped_turns: dict[str, int] = field(default_factory=dict)
     stride: int = 1
     dropped: dict[str, int] = field(default_factory=dict)
+    interval_record: np.ndarray | None = None
+    record_names: tuple[str, ...] = ()
+    temperature_track: tuple[np.ndarray, np.ndarray] | None = None
+
+    @property
+    def records(self) -> int:
+        """The number of power-ups the samples come from (1 unless a pool)."""
+        return 1 if self.interval_record is None else max(len(self.record_names), 1)
+
+    @property
+    def still_record(self) -> np.ndarray:
+        """``(n,)`` the record of each still sample (zeros for one record)."""
+        if self.interval_record is None:
+            return np.zeros(len(self.still_interval), dtype=np.int64)
+        return self.interval_record[self.still_interval]
+
+    @property
+    def turn_record(self) -> np.ndarray:
+        """``(m,)`` the record of each turn sample (zeros for one record)."""
+        if self.interval_record is None or not len(self.turn_index):
+            return np.zeros(len(self.turn_index), dtype=np.int64)
+        return self.interval_record[self.turns[self.turn_index, 0]]
 
     def interval_counts(self) -> np.ndarray:
         """``(k,)`` kept still samples per interval."""
@@ -126,11 +153,12 @@ class HandheldCollector:
     :param intervals: the still intervals (a first pass over the record).
     :param budget: keep at most about this many still samples (every ``stride``-th), and as many
         turn samples (every n-th turn).
+    :param turn_budget: keep at most about this many turn samples instead (``None``: ``budget``).
     """
 
-    def __init__(self, intervals: StillIntervals, *, budget: int) -> None:
+    def __init__(self, intervals: StillIntervals, *, budget: int, turn_budget: int | None = None) -> None:
         self.intervals = intervals
-        self.turns, self.skipped = planned_turns(intervals, budget=budget)
+        self.turns, self.skipped = planned_turns(intervals, budget=budget if turn_budget is None else turn_budget)
         self.stride = still_stride(intervals, budget)
         self._turn_start = intervals.end_ns[self.turns[:, 0]] if len(self.turns) else np.zeros(0, dtype=np.int64)
         self._turn_end = intervals.start_ns[self.turns[:, 1]] if len(self.turns) else np.zeros(0, dtype=np.int64)
@@ -273,8 +301,21 @@ def earth_reference(up: np.ndarray, interval: np.ndarray, latitude: float | None
 def merged_samples(record: HandheldRecord) -> tuple[AlignedSamples, np.ndarray, np.ndarray]:
     """The still and turn samples as one series in time order (a turn's end samples once).
 
+    With a ``temperature_track``, its points join the series as samples of their own (zero
+    counts), so that what follows the temperature over time sees it between the kept samples.
+
     :returns: the series, and where each still sample and each turn sample lies in it.
     """
+    if record.temperature_track is not None and len(record.temperature_track[0]):
+        track_stamps, track_celsius = record.temperature_track
+        track = AlignedSamples(stamp_ns=np.asarray(track_stamps, dtype=np.int64),
+                               counts=np.zeros((len(track_stamps), record.still.counts.shape[1])),
+                               temp_code=np.asarray(track_celsius, dtype=float), reference=None, dropped={},
+                               rows=np.zeros(len(track_stamps), dtype=np.int64))
+        with_track = replace(record, temperature_track=None,
+                             turn=concatenate([replace(record.turn, aux={}), track]) if len(record.turn) else track)
+        series, still_rows, turn_rows = merged_samples(with_track)
+        return series, still_rows, turn_rows[:len(record.turn)]
     stamps = np.concatenate([record.still.stamp_ns, record.turn.stamp_ns])
     order = np.argsort(stamps, kind='stable')
     _, first, inverse = np.unique(stamps[order], return_index=True, return_inverse=True)
@@ -293,3 +334,112 @@ def merged_samples(record: HandheldRecord) -> tuple[AlignedSamples, np.ndarray, 
                                  for name in names})
     count = len(record.still)
     return series, position[:count], position[count:]
+
+
+POOL_GAP_NS = 3_600_000_000_000
+"""Records whose stamps overlap (a flight log counts from boot) are set one after the other, this far apart."""
+
+
+def _shifted(record: HandheldRecord, shift: int) -> HandheldRecord:
+    """The record with every stamp ``shift`` ns later."""
+    if not shift:
+        return record
+    intervals = replace(record.intervals, start_ns=record.intervals.start_ns + shift,
+                        end_ns=record.intervals.end_ns + shift, gaps=record.intervals.gaps + shift,
+                        first_ns=None if record.intervals.first_ns is None else record.intervals.first_ns + shift,
+                        last_ns=None if record.intervals.last_ns is None else record.intervals.last_ns + shift)
+    track = record.temperature_track
+    return replace(record, intervals=intervals, still=replace(record.still, stamp_ns=record.still.stamp_ns + shift),
+                   turn=replace(record.turn, stamp_ns=record.turn.stamp_ns + shift),
+                   temperature_track=None if track is None else (track[0] + shift, track[1]))
+
+
+def sequential(records: list[HandheldRecord]) -> list[HandheldRecord]:
+    """The records in time one after the other: one that starts before the previous ends is moved after it.
+
+    Records on a clock (a bag's) keep their stamps; what has memory over time (an effect's state)
+    then never runs across two power-ups as if they overlapped.
+    """
+    out, end = [], None
+    for record in records:
+        stamps = np.concatenate([record.still.stamp_ns, record.turn.stamp_ns])
+        if not len(stamps):
+            out.append(record)
+            continue
+        shift = 0 if end is None or stamps.min() > end else int(end + POOL_GAP_NS - stamps.min())
+        out.append(_shifted(record, shift))
+        end = int(stamps.max()) + shift
+    return out
+
+
+def pooled(records: list[HandheldRecord], names: list[str]) -> HandheldRecord:
+    """Several records' still and turn samples as one record, each interval knowing its record.
+
+    The records' intervals are numbered on (record 0's first); their noise is the pool's (the
+    samples' mean square over the records); a turn stays within its record; records whose stamps
+    overlap are set one after the other (:func:`sequential`).
+    """
+    records = sequential(records)
+    offsets = np.cumsum([0] + [len(r.intervals) for r in records])
+    parts = [r.intervals for r in records]
+    counts = np.array([max(p.count, 1) for p in parts], dtype=float)
+    noise = np.sqrt(np.average(np.vstack([p.noise[:6] ** 2 for p in parts]), axis=0, weights=counts))
+    firsts = [p.first_ns for p in parts if p.first_ns is not None]
+    lasts = [p.last_ns for p in parts if p.last_ns is not None]
+    intervals = StillIntervals(
+        start_ns=np.concatenate([p.start_ns for p in parts]), end_ns=np.concatenate([p.end_ns for p in parts]),
+        samples=np.concatenate([p.samples for p in parts]),
+        mean=np.vstack([p.mean[:, :6].reshape(-1, 6) if p.mean.shape[1] >= 6 else
+                        np.hstack([p.mean, np.zeros((len(p.mean), 6 - p.mean.shape[1]))]) for p in parts]),
+        noise=noise, window_samples=min(p.window_samples for p in parts),
+        period_s=float(np.median([p.period_s for p in parts])), windows=sum(p.windows for p in parts),
+        still_windows=sum(p.still_windows for p in parts), gaps=np.vstack([p.gaps for p in parts]),
+        first_ns=min(firsts) if firsts else None, last_ns=max(lasts) if lasts else None,
+        count=sum(p.count for p in parts))
+    turn_offsets = np.cumsum([0] + [len(r.turns) for r in records])
+    dropped: dict[str, int] = {}
+    skipped: dict[str, int] = {}
+    for record in records:
+        add_counts(dropped, record.dropped)
+        add_counts(skipped, record.skipped_turns)
+    # a pool fits no recorded signal (each record may hold others): the samples without them
+    still = concatenate([replace(r.still, aux={}) for r in records]) if records else _empty()
+    turn = concatenate([replace(r.turn, aux={}) for r in records]) if records else _empty()
+    return HandheldRecord(
+        intervals=intervals, still=replace(still, dropped=dict(dropped)),
+        still_interval=np.concatenate([r.still_interval + o for r, o in zip(records, offsets)]).astype(np.int64),
+        turn=turn,
+        turn_index=np.concatenate([r.turn_index + o for r, o in zip(records, turn_offsets)]).astype(np.int64),
+        turns=np.vstack([r.turns + o for r, o in zip(records, offsets)]).astype(np.int64).reshape(-1, 2),
+        skipped_turns=skipped, stride=max(r.stride for r in records), dropped=dropped,
+        interval_record=np.concatenate([np.full(len(r.intervals), i, dtype=np.int64) for i, r in enumerate(records)]),
+        record_names=tuple(names),
+        temperature_track=None if any(r.temperature_track is None for r in records) else (
+            np.concatenate([r.temperature_track[0] for r in records]),  # type: ignore[index]
+            np.concatenate([r.temperature_track[1] for r in records])))  # type: ignore[index]
+
+
+def records_subset(record: HandheldRecord, keep: np.ndarray) -> HandheldRecord:
+    """A pool with only the records where ``keep`` ``(records,)`` (their numbers and names kept in order)."""
+    keep = np.asarray(keep, dtype=bool)
+    if record.interval_record is None:
+        return record
+    intervals = keep[record.interval_record]
+    number = np.cumsum(intervals) - 1
+    renumber = np.cumsum(keep) - 1
+    still_rows = intervals[record.still_interval]
+    turn_keep = intervals[record.turns[:, 0]] if len(record.turns) else np.zeros(0, dtype=bool)
+    turn_number = np.cumsum(turn_keep) - 1
+    turn_rows = turn_keep[record.turn_index] if len(record.turn_index) else np.zeros(0, dtype=bool)
+    parts = record.intervals
+    kept = StillIntervals(start_ns=parts.start_ns[intervals], end_ns=parts.end_ns[intervals],
+                          samples=parts.samples[intervals], mean=parts.mean[intervals], noise=parts.noise,
+                          window_samples=parts.window_samples, period_s=parts.period_s, windows=parts.windows,
+                          still_windows=parts.still_windows, gaps=parts.gaps, first_ns=parts.first_ns,
+                          last_ns=parts.last_ns, count=parts.count)
+    return replace(record, intervals=kept, still=_rows(record.still, still_rows),
+                   still_interval=number[record.still_interval[still_rows]],
+                   turn=_rows(record.turn, turn_rows), turn_index=turn_number[record.turn_index[turn_rows]],
+                   turns=number[record.turns[turn_keep]].reshape(-1, 2),
+                   interval_record=renumber[record.interval_record[intervals]],
+                   record_names=tuple(name for name, k in zip(record.record_names, keep) if k))

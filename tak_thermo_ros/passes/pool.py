@@ -1,0 +1,615 @@
+"""``tak_calib``'s pass over a pool of records: the rests of many records of one unit, each read once.
+
+Weeks of ordinary records (bags, CSV-made bags, ULogs, DataFlash logs, mixed; a directory of them
+too) are one more kind of record: each is read once (its blocks kept when it is small enough,
+:data:`~tak_thermo_ros.passes.run.SURVEY_REPLAY_SAMPLES`), its rests found from the record itself
+(:mod:`~tak_thermo_ros.core.records.still`), its rest and turn samples kept within a share of
+the pool's budget (:class:`~tak_thermo_ros.core.records.handheld.HandheldCollector`), and the
+records' samples pooled with a record index (:func:`~tak_thermo_ros.core.records.handheld.pooled`):
+the same aligned samples the hand-held fit takes, through the same fit
+(:func:`~tak_thermo_ros.core.fit.pool.fit_pool`). A flight log whose sensors come at their own
+stamps gives its rests only (the gyroscope held on the accelerometer's stamps: at rest it does not
+move; its motions are not integrated). A firmware's corrections are undone by the readers, as
+for one record.
+
+A record that is not one unit's is never pooled silently: a flight log whose sensors' device IDs
+differ from the pool's is left out (a pool of two devices in equal numbers is refused), and the
+fit leaves out a record whose turn-on offset lies far beyond the pool's spread. A record without
+a rest, or without a temperature, contributes nothing and says so.
+"""
+
+from __future__ import annotations
+
+import os
+from collections import Counter
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Iterator, Sequence
+
+import numpy as np
+
+from tak_thermo_ros.core.fit.handheld import HandheldSettings
+from tak_thermo_ros.core.link.model import InputKind
+from tak_thermo_ros.core.records.blocks import BlockAligner
+from tak_thermo_ros.core.records.extremes import temperature_course
+from tak_thermo_ros.core.records.handheld import HandheldCollector, HandheldRecord, pooled
+from tak_thermo_ros.core.records.record import DriverRecord
+from tak_thermo_ros.core.records.still import MIN_STILL_S
+from tak_thermo_ros.core.records.survey import SurveyCollector
+from tak_thermo_ros.core.values import SENSOR_NAMES
+from tak_thermo_ros.errors import FitError, TakError
+from tak_thermo_ros.passes.run import SURVEY_REPLAY_SAMPLES, StreamOptions, stream_list
+from tak_thermo_ros.units import numbers, reader_unit
+
+POOL_SAMPLES = 2_000_000
+"""A pool keeps at most about this many rest samples, shared among its records ..."""
+POOL_TURN_SAMPLES = 200_000
+"""... and this many samples of its motions short enough to be integrated (the gyroscope's scale and
+misalignment; every n-th motion beyond) ..."""
+MIN_RECORD_SAMPLES = 20_000
+"""... but at least this many rest samples of each record (and a tenth as many of its motions)."""
+
+
+def record_budgets(records: int, samples: int = POOL_SAMPLES) -> tuple[int, int]:
+    """Each record's share of the pool's rest and motion samples."""
+    count = max(records, 1)
+    return (max(MIN_RECORD_SAMPLES, samples // count),
+            max(MIN_RECORD_SAMPLES // 10, POOL_TURN_SAMPLES * samples // POOL_SAMPLES // count))
+
+
+RECORD_SUFFIXES = ('.ulg', '.bin')
+"""A file in a directory of records is a record when it is named so (a bag is a directory with metadata.yaml)."""
+TREND_C_PER_MIN = 0.05
+"""A rest warming (cooling) faster than this is heating (cooling); slower, steady."""
+BIN_C = 1.0
+"""The pool's temperature coverage is counted in bins this wide."""
+
+
+class PoolError(FitError):
+    """A pool that cannot be fitted as one unit's records (in one line)."""
+
+
+def is_bag(path: Path) -> bool:
+    """A rosbag2 directory (its metadata.yaml)."""
+    return path.is_dir() and (path / 'metadata.yaml').is_file()
+
+
+def record_paths(paths: Sequence[str | os.PathLike[str]]) -> tuple[list[Path], list[str]]:
+    """The records named: each path a record, or a directory of records (bags, ``.ulg``, ``.bin``, sorted by name).
+
+    :returns: the records, and one line per directory that holds entries that are no record.
+    :raises PoolError: a path that does not exist, a directory without a record.
+    """
+    records: list[Path] = []
+    lines: list[str] = []
+    for given in paths:
+        path = Path(given)
+        if not path.exists():
+            msg = f'{path}: no such record or directory'
+            raise PoolError(msg)
+        if not path.is_dir() or is_bag(path):
+            records.append(path)
+            continue
+        found, other = [], []
+        for entry in sorted(path.iterdir()):
+            if is_bag(entry) or (entry.is_file() and entry.suffix.lower() in RECORD_SUFFIXES):
+                found.append(entry)
+            else:
+                other.append(entry.name)
+        if not found:
+            msg = f'{path}: no record in it (bags, .ulg or .bin logs)'
+            raise PoolError(msg)
+        if other:
+            shown = ', '.join(other[:3]) + (', ...' if len(other) > 3 else '')
+            lines.append(f'{path}: {len(other)} entries are no record, not read ({shown})')
+        records += found
+    return records, lines
+
+
+def is_pool(paths: Sequence[str | os.PathLike[str]]) -> bool:
+    """Whether the records given make a pool: several, or a directory that is not a bag."""
+    if isinstance(paths, (str, os.PathLike)):
+        paths = [paths]
+    return len(paths) > 1 or (Path(paths[0]).is_dir() and not is_bag(Path(paths[0])))
+
+
+@dataclass(frozen=True)
+class PoolEntry:
+    """One record of a pool, as read.
+
+    :param rests: its rests (still intervals); ``rest_s`` their total time.
+    :param temperature: the lowest and highest temperature at its rests (``None``: none).
+    :param orientations: distinct orientations of its rests.
+    :param heating: rests warming; ``cooling`` rests cooling.
+    :param source: a flight log's format and device IDs (``None``: a bag).
+    :param lines: what the reader did (a firmware's corrections undone, ...).
+    :param reason: why it contributes nothing or was left out (``''``: pooled).
+    :param held_gyro: the gyroscope was held on the accelerometer's stamps (a log of separate stamps).
+    """
+
+    path: Path
+    name: str
+    rests: int = 0
+    rest_s: float = 0.0
+    temperature: tuple[float, float] | None = None
+    orientations: int = 0
+    heating: int = 0
+    cooling: int = 0
+    source: dict[str, object] | None = None
+    lines: tuple[str, ...] = ()
+    reason: str = ''
+    held_gyro: bool = False
+    rest_temperatures: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    rest_trends: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    temperature_rate_max: float = 0.0
+    rate_max: float = 0.0
+
+
+@dataclass(frozen=True)
+class OpenedPool:
+    """A pool read: every record's entry, and the pooled samples of those that contribute.
+
+    :param used: the entries pooled, in the pooled record's numbering.
+    """
+
+    entries: tuple[PoolEntry, ...]
+    record: HandheldRecord | None
+    used: tuple[int, ...]
+    lines: tuple[str, ...] = ()
+
+
+def _shared(blocks: Iterator[DriverRecord]) -> Iterator[tuple[DriverRecord, bool]]:
+    """Each block with both sensors in every message: a gyroscope on its own stamps held on the accelerometer's."""
+    last: np.ndarray | None = None
+    for block in blocks:
+        if block.shared_stamps:
+            yield block, False
+            continue
+        accel_stamps, gyro_stamps = block.sensor_stamps('accel'), block.sensor_stamps('gyro')
+        index = np.searchsorted(gyro_stamps, accel_stamps, side='right') - 1
+        gyro = np.full((len(accel_stamps), 3), np.nan)
+        inside = index >= 0
+        gyro[inside] = block.gyro[index[inside]]
+        if last is not None:
+            gyro[~inside] = last
+        if len(block.gyro):
+            last = block.gyro[-1]
+        keep = np.all(np.isfinite(gyro), axis=1)
+        none = np.zeros((int(keep.sum()), 4))
+        none[:, 3] = 1.0
+        yield DriverRecord(stamp_ns=accel_stamps[keep], accel=block.accel[keep], gyro=gyro[keep], orientation=none,
+                           orientation_covariance=np.zeros((len(none), 9)), temp_stamp_ns=block.temp_stamp_ns,
+                           temperature=block.temperature, frame_id=block.frame_id), True
+
+
+def _stripped(block: DriverRecord) -> DriverRecord:
+    """What the pool's second look needs of a block (not the orientation, not the magnetometer)."""
+    return replace(block, orientation=np.zeros((0, 4)), orientation_covariance=np.zeros((0, 9)),
+                   mag_stamp_ns=np.zeros(0, dtype=np.int64), mag=np.zeros((0, 3)))
+
+
+def read_record(path: Path, options: StreamOptions, *, budget: int,
+                turn_budget: int | None = None) -> tuple[PoolEntry, HandheldRecord | None]:
+    """One record of a pool: its rests and turns (about ``budget`` and ``turn_budget`` samples at most), and more."""
+    from tak_thermo_ros.formats.records import record_blocks, record_lines, record_source, record_streams
+    name = path.name
+    try:
+        streams = record_streams(path, topics=options.topics)
+    except TakError as err:
+        return PoolEntry(path, name, reason=f'not read ({err})'), None
+    if streams.kind is not InputKind.IMU:
+        return PoolEntry(path, name, reason='the paper\'s channel codes: a pool takes a driver\'s records'), None
+    source = record_source(path, topics=options.topics)
+    lines = record_lines(path, topics=options.topics)
+    if not streams.temperature:
+        return PoolEntry(path, name, source=source, lines=lines,
+                         reason=f'no temperature on {options.topics.temperature}: contributes nothing'), None
+    keep = streams.main <= SURVEY_REPLAY_SAMPLES
+
+    def blocks() -> Iterator[tuple[DriverRecord, bool]]:
+        return _shared(record_blocks(path, topics=options.topics, kind=InputKind.IMU,  # type: ignore[arg-type]
+                                     block_samples=options.block_samples, references=False,
+                                     progress=options.progress))
+
+    survey = SurveyCollector('imu')
+    kept: list[tuple[DriverRecord, bool]] = []
+    held_gyro = False
+    temperature_stamps, temperatures = [], []
+    for block, held in blocks():
+        held_gyro = held_gyro or held
+        survey.add(block)
+        temperature_stamps.append(block.temp_stamp_ns)
+        temperatures.append(block.temperature)
+        if keep:
+            kept.append((_stripped(block), held))
+    surveyed = survey.finish(stream_list(streams, options.topics))
+    still = surveyed.still
+    if not len(still):
+        reason = (f'no rest (never still {MIN_STILL_S:g} s or more; still {100.0 * still.still_fraction:.0f} % of '
+                  f'the time): contributes nothing')
+        return PoolEntry(path, name, source=source, lines=lines, reason=reason, held_gyro=held_gyro), None
+    collector = HandheldCollector(still, budget=budget, turn_budget=turn_budget)
+    aligner = BlockAligner(use_reference=False)
+    rate_max = 0.0
+    for block, _ in (kept if keep else blocks()):
+        collector.add(aligner.push(block.six_channels()))
+    collector.add(aligner.finish())
+    record = collector.record()
+    stamps = np.concatenate(temperature_stamps)
+    celsius = np.concatenate(temperatures)
+    finite = np.isfinite(celsius)
+    course = temperature_course(stamps[finite] * 1e-9, celsius[finite])
+    record = replace(record, temperature_track=track(stamps[finite], celsius[finite]))
+    if held_gyro:  # a held gyroscope integrates to nothing: its rests only
+        record = replace(record, turn=record.turn.__class__(
+            stamp_ns=np.zeros(0, dtype=np.int64), counts=np.zeros((0, 6)), temp_code=np.zeros(0), reference=None,
+            dropped={}, rows=np.zeros(0, dtype=np.int64)), turn_index=np.zeros(0, dtype=np.int64),
+            turns=np.zeros((0, 2), dtype=np.int64))
+    if len(record.turn):
+        rate_max = float(np.max(np.linalg.norm(record.turn.counts[:, 3:6], axis=1)))
+    if not len(record.still):
+        reason = 'no rest sample with a temperature: contributes nothing'
+        return PoolEntry(path, name, source=source, lines=lines, reason=reason, held_gyro=held_gyro), None
+    temperatures, trends = rest_temperatures(record)
+    entry = PoolEntry(path, name, rests=len(still), rest_s=float(still.interval_s.sum()),
+                      temperature=(float(record.still.temp_code.min()), float(record.still.temp_code.max())),
+                      orientations=still.orientations(), heating=int(np.sum(trends > TREND_C_PER_MIN)),
+                      cooling=int(np.sum(trends < -TREND_C_PER_MIN)), source=source, lines=lines, held_gyro=held_gyro,
+                      rest_temperatures=temperatures, rest_trends=trends,
+                      temperature_rate_max=course.rate_max, rate_max=rate_max)
+    return entry, record
+
+
+TRACK_S = 1.0
+"""A pool's temperature track keeps one temperature per this many seconds (an effect's time constant is minutes)."""
+
+
+def track(stamp_ns: np.ndarray, celsius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A record's temperature between its rests, one point per :data:`TRACK_S` (in stamp order)."""
+    order = np.argsort(stamp_ns, kind='stable')
+    stamp_ns, celsius = stamp_ns[order], celsius[order]
+    if not len(stamp_ns):
+        return stamp_ns, celsius
+    slot = (stamp_ns - stamp_ns[0]) // int(TRACK_S * 1e9)
+    first = np.flatnonzero(np.diff(slot, prepend=-1) != 0)
+    return stamp_ns[first], celsius[first]
+
+
+def rest_temperatures(record: HandheldRecord) -> tuple[np.ndarray, np.ndarray]:
+    """Each rest's mean temperature and its trend (C per minute, a line through its samples)."""
+    interval = record.still_interval
+    _, number = np.unique(interval, return_inverse=True)
+    count = int(number.max()) + 1 if len(number) else 0
+    stamp = record.still.stamp_s
+    temperature = record.still.temp_code
+    means = np.zeros(count)
+    trends = np.zeros(count)
+    for rest in range(count):
+        rows = number == rest
+        t, c = stamp[rows], temperature[rows]
+        means[rest] = float(c.mean())
+        if len(t) > 2 and np.ptp(t) > 0.0:
+            centred = t - t.mean()
+            trends[rest] = float(centred @ (c - c.mean()) / (centred @ centred)) * 60.0
+    return means, trends
+
+
+RESTLESS_RATIO = 3.0
+"""A record whose quietest windows' noise is this many times the pool's never rested (its "rests" moved)."""
+
+
+def _restless(entries: list[PoolEntry], read: list[HandheldRecord | None]) -> list[PoolEntry]:
+    """Records that never rested: the still detector takes a record's own quietest windows for its noise.
+
+    A record that moved all the time has no quiet window, and its "rests" are motion: its noise
+    beside the pool's (the median of the records') tells it.
+    """
+    noises = {i: record.intervals.noise[:6] for i, record in enumerate(read) if record is not None
+              and not entries[i].reason and len(record.intervals.noise) >= 6}
+    if len(noises) < 2:
+        return entries
+    pool = np.median(np.vstack(list(noises.values())), axis=0)
+    out = list(entries)
+    for index, noise in noises.items():
+        ratio = float(np.max(noise / np.maximum(pool, 1e-300)))
+        if ratio > RESTLESS_RATIO:
+            reason = (f'no rest: its quietest windows move {ratio:.0f}x the pool\'s noise (it never rested): '
+                      f'contributes nothing')
+            out[index] = replace(out[index], reason=reason)
+    return out
+
+
+def _device_check(entries: list[PoolEntry]) -> tuple[list[PoolEntry], list[str]]:
+    """Flight logs whose sensors' device IDs are not the pool's: left out; two devices in equal numbers: refused."""
+    keys = {i: (int(e.source.get('accel_device_id', 0)), int(e.source.get('gyro_device_id', 0)))  # type: ignore
+            for i, e in enumerate(entries) if e.source is not None and not e.reason}
+    keys = {i: key for i, key in keys.items() if any(key)}
+    counts = Counter(keys.values())
+    if len(counts) < 2:
+        return entries, []
+    (first, most), (_, second) = counts.most_common(2)
+    if most == second:
+        devices = '; '.join(f'accel {a} gyro {g}: {n} records' for (a, g), n in counts.most_common())
+        msg = (f'the pool holds records of {len(counts)} devices in equal numbers ({devices}): give the records of '
+               f'one unit')
+        raise PoolError(msg)
+    out = list(entries)
+    for index, key in keys.items():
+        if key != first:
+            sensor, theirs, ours = (('gyroscope', key[1], first[1]) if key[1] != first[1]
+                                    else ('accelerometer', key[0], first[0]))
+            out[index] = replace(out[index], reason=f'left out: another device ({sensor} device_id {theirs}, '
+                                                    f'the pool\'s {ours})')
+    return out, []
+
+
+def open_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions, *,
+              samples: int = POOL_SAMPLES) -> OpenedPool:
+    """Read every record of a pool once (see the module's description).
+
+    :raises PoolError: a path that is no record, no record that contributes a rest.
+    """
+    records, lines = record_paths(paths)
+    budget, turn_budget = record_budgets(len(records), samples)
+    entries: list[PoolEntry] = []
+    read: list[HandheldRecord | None] = []
+    names = Counter(path.name for path in records)
+    for path in records:
+        entry, record = read_record(path, options, budget=budget, turn_budget=turn_budget)
+        if names[path.name] > 1:  # the same name in two directories: the path tells them apart
+            entry = replace(entry, name=str(path))
+        entries.append(entry)
+        read.append(record)
+    entries, device_lines = _device_check(entries)
+    entries = _restless(entries, read)
+    used = tuple(i for i, (entry, record) in enumerate(zip(entries, read)) if record is not None and not entry.reason)
+    if not used:
+        msg = f'no record of the {len(records)} given holds a rest with a temperature: nothing to fit'
+        raise PoolError(msg)
+    record = pooled([read[i] for i in used], [entries[i].name for i in used])  # type: ignore[misc]
+    return OpenedPool(tuple(entries), record, used, tuple(lines + device_lines))
+
+
+def settings_of(fit_settings) -> HandheldSettings:
+    """The hand-held fit's settings of ``tak_calib fit``'s (:class:`~tak_thermo_ros.passes.run.FitSettings`)."""
+    return HandheldSettings(bias_order=fit_settings.bias_order, scale_order=fit_settings.scale_order,
+                            temp_code_ref=fit_settings.temp_code_ref, gravity=fit_settings.gravity,
+                            latitude=fit_settings.latitude,
+                            effects={sensor: tuple(specs) for sensor, specs in fit_settings.effects.items()})
+
+
+def entry_line(entry: PoolEntry) -> str:
+    """One line per record: its rests, their time, temperature span, orientations (or why it adds nothing)."""
+    if entry.reason:
+        return f'{entry.name}: {entry.reason}'
+    low, high = entry.temperature  # type: ignore[misc]
+    held = ', gyroscope held on the accelerometer\'s stamps (rests only)' if entry.held_gyro else ''
+    return (f'{entry.name}: {entry.rests} rests, {entry.rest_s / 60.0:.1f} min at rest, {low:.1f}..{high:.1f} C, '
+            f'{entry.orientations} orientation{"s" if entry.orientations != 1 else ""}{held}')
+
+
+def coverage_lines(opened: OpenedPool) -> list[str]:
+    """What the pool covers: records, rests, the temperature span and its bins, heating and cooling."""
+    used = [opened.entries[i] for i in opened.used]
+    temperatures = np.concatenate([e.rest_temperatures for e in used])
+    trends = np.concatenate([e.rest_trends for e in used])
+    rests = len(temperatures)
+    hours = sum(e.rest_s for e in used) / 3600.0
+    low, high = float(temperatures.min()), float(temperatures.max())
+    bins = np.floor(temperatures / BIN_C)
+    span_bins = int(np.floor(high / BIN_C) - np.floor(low / BIN_C)) + 1
+    lines = [f'pool: {len(used)} of {len(opened.entries)} records, {rests} rests, {hours:.2f} h at rest, '
+             f'{low:.1f}..{high:.1f} C ({len(np.unique(bins))} of {span_bins} {BIN_C:g}-C bins hold a rest)']
+    parts = []
+    for word, mask in (('heating', trends > TREND_C_PER_MIN), ('cooling', trends < -TREND_C_PER_MIN)):
+        if mask.any():
+            parts.append(f'{word} at {int(mask.sum())} rests ({temperatures[mask].min():.1f}..'
+                         f'{temperatures[mask].max():.1f} C)')
+        else:
+            parts.append(f'{word} at no rest')
+    steady = int(np.sum(np.abs(trends) <= TREND_C_PER_MIN))
+    both = _both_ways(temperatures, trends)
+    lines.append(f'pool: {", ".join(parts)}, steady at {steady}; both ways within {both}')
+    return lines
+
+
+def _both_ways(temperatures: np.ndarray, trends: np.ndarray) -> str:
+    """The temperature span where rests were seen both heating and cooling (what tells hysteresis and lag)."""
+    heating, cooling = temperatures[trends > TREND_C_PER_MIN], temperatures[trends < -TREND_C_PER_MIN]
+    if not len(heating) or not len(cooling):
+        return 'no span'
+    low, high = max(heating.min(), cooling.min()), min(heating.max(), cooling.max())
+    return f'{low:.1f}..{high:.1f} C' if high > low else 'no span'
+
+
+@dataclass(frozen=True)
+class FittedPool:
+    """``tak_calib fit`` of a pool: the records as read, the fit, and what goes into the file's ``source``."""
+
+    opened: OpenedPool
+    fit: object
+    source: dict[str, str | int | float]
+
+
+def fit_records(paths: Sequence[str | os.PathLike[str]], settings, options: StreamOptions) -> FittedPool:
+    """Read a pool once and fit it (:func:`~tak_thermo_ros.core.fit.pool.fit_pool`).
+
+    :param settings: ``tak_calib fit``'s :class:`~tak_thermo_ros.passes.run.FitSettings`.
+    :raises PoolError: as :func:`open_pool`; ``FitError`` as the fit.
+    """
+    from tak_thermo_ros.core.fit.pool import TwoUnits, fit_pool
+    opened = open_pool(paths, options)
+    assert opened.record is not None
+    try:
+        fitted = fit_pool(opened.record, settings_of(settings))
+    except TwoUnits as err:
+        small, factor = _reader(err.sensor)
+        sides = [f'{numbers(centre * factor, 3)} {small} ({", ".join(group)})'
+                 for centre, group in zip(err.centres, err.groups)]
+        msg = (f'the pool looks like two units: {SENSOR_NAMES[err.sensor]} {"xyz"[err.axis]} turn-on offsets near '
+               f'{sides[0]} and near {sides[1]}, {err.spreads:.0f} spreads apart: give the records of one unit')
+        raise PoolError(msg) from None
+    used = [opened.entries[i] for i in opened.used]
+    source: dict[str, str | int | float] = {
+        'format': 'pool', 'temperature_rate_max': round(max(e.temperature_rate_max for e in used), 9),
+        'rate_max': round(max(e.rate_max for e in used), 9)}
+    devices = {(e.source or {}).get('accel_device_id'): e for e in used}
+    if len(devices) == 1 and all(e.source is not None for e in used):
+        for key in ('accel_device_id', 'gyro_device_id'):
+            source[key] = int(used[0].source.get(key, 0))  # type: ignore[union-attr]
+    return FittedPool(opened, fitted, source)
+
+
+def _reader(sensor: str) -> tuple[str, float]:
+    """The unit a person reads a sensor's small values in (mg, deg/h) and its factor."""
+    return reader_unit({'accel': 'm/s^2', 'gyro': 'rad/s'}[sensor])  # type: ignore[return-value]
+
+
+def turn_on_line(sensor: str, fitted) -> str:
+    """One statement: a sensor's turn-on repeatability per axis with its error (or which axes the records miss)."""
+    small, factor = _reader(sensor)
+    variances = fitted.variances
+    values = ' '.join('-' if not ok else f'{numbers(v * factor, 3)}+-{numbers(e * factor, 2)}'
+                      for v, e, ok in zip(variances.turn_on, variances.turn_on_error, variances.determined))
+    held = [name for name, ok in zip('xyz', variances.determined) if not ok]
+    tail = f' ({" ".join(held)}: not determined, its offset held)' if held else ''
+    return f'{SENSOR_NAMES[sensor]}: turn-on repeatability x y z {values} {small}{tail}'
+
+
+def left_out_line(left) -> str:
+    """One statement: a record left out of the pool, and why."""
+    small, factor = _reader(left.sensor)
+    return (f'{left.name}: left out: another unit? its {SENSOR_NAMES[left.sensor]} {"xyz"[left.axis]} turn-on offset '
+            f'{numbers(left.offset * factor, 3)} {small} lies {left.sigmas:.0f} times the other records\' spread '
+            f'from their mean')
+
+
+@dataclass(frozen=True)
+class PoolCheck:
+    """``validate`` of a pool: every rest's errors before (nominal) and after the calibration, by record.
+
+    :param rest_record: ``(k,)`` each rest's record (in the pool's numbering).
+    :param weights: ``(k,)`` each rest's kept samples.
+    :param own: ``(r, 3)`` each record's mean rate error at rest after the calibration (its turn-on offset).
+    :param shape: ``(k, 3)`` the rests' rate errors after, each record's own mean taken off.
+    """
+
+    opened: OpenedPool
+    before: object
+    after: object
+    rest_record: np.ndarray
+    weights: np.ndarray
+    own: np.ndarray
+    shape: np.ndarray
+
+    @property
+    def shape_rms(self) -> np.ndarray:
+        """``(3,)`` RMS of the rests' rate errors with each record's own offset taken off."""
+        return np.sqrt(np.mean(self.shape ** 2, axis=0)) if len(self.shape) else np.zeros(3)
+
+
+def validate_records(paths: Sequence[str | os.PathLike[str]], unit, options: StreamOptions, *, gravity: float,
+                     latitude: float | None, out_of_range) -> PoolCheck:
+    """The rests of a pool's records before and after ``unit`` (each record read once, as for ``fit``)."""
+    from tak_thermo_ros.core.link.handheld_check import check_handheld
+    from tak_thermo_ros.core.records.handheld import numbered_rests
+    from tak_thermo_ros.passes.handheld import nominal_unit
+    opened = open_pool(paths, options)
+    record = opened.record
+    assert record is not None
+    before = check_handheld(record, nominal_unit(unit), gravity=gravity, latitude=latitude, out_of_range=out_of_range)
+    after = check_handheld(record, unit, gravity=gravity, latitude=latitude, out_of_range=out_of_range)
+    interval, count, _, _ = numbered_rests(record)
+    weights = np.bincount(interval, minlength=count).astype(float)
+    rest_record = np.zeros(count, dtype=np.int64)
+    rest_record[interval] = record.still_record
+    own = np.zeros((record.records, 3))
+    for index in range(record.records):
+        rows = rest_record == index
+        if rows.any():
+            own[index] = np.average(after.rate_error[rows], axis=0, weights=weights[rows])
+    return PoolCheck(opened, before, after, rest_record, weights, own, after.rate_error - own[rest_record])
+
+
+def bounded_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions, *, gravity: float,
+                 latitude: float | None, max_samples: int, unit):
+    """``diagnose`` of a pool: the rests' samples with their references, each record's own offset taken off.
+
+    The references are a hand-held record's (gravity along each rest's corrected up direction, zero
+    rate); each record's turn-on offset (its samples' mean residual after ``unit``, per axis) is
+    taken off, so that what remains is the link's shape; ``groups`` give each sample's record
+    (the folds hold whole records out).
+
+    :returns: the :class:`~tak_thermo_ros.passes.diagnose.BoundedRun` and the pool as read.
+    """
+    from tak_thermo_ros.core.fit.model import residual_counts
+    from tak_thermo_ros.passes.diagnose import BoundedRun
+    from tak_thermo_ros.passes.handheld import rest_samples
+    opened = open_pool(paths, options, samples=max_samples)
+    record = opened.record
+    assert record is not None
+    samples, check = rest_samples(record, unit, gravity=gravity, latitude=latitude)
+    groups = record.still_record
+    shift = _monotonic_shift(record.still.stamp_ns, groups, record.records)
+    for sensor, aligned in samples.items():
+        residual = residual_counts(unit.sensor(sensor), aligned)
+        own = np.zeros((record.records, 3))
+        for index in range(record.records):
+            rows = groups == index
+            if rows.any():
+                own[index] = residual[rows].mean(axis=0)
+        samples[sensor] = replace(aligned, counts=aligned.counts - own[groups],
+                                  stamp_ns=aligned.stamp_ns + shift[groups])
+    usable = {sensor: len(aligned) for sensor, aligned in samples.items()}
+    run = BoundedRun(input_kind=InputKind.IMU, samples=samples, usable=usable, stride=record.stride,
+                     reference_lines=(), survey=None, handheld=check,
+                     groups={sensor: groups for sensor in samples})
+    return run, opened
+
+
+RECORD_GAP_NS = 3_600_000_000_000
+"""Records whose stamps overlap (flight logs count from boot) are set one after the other, this far apart."""
+
+
+def _monotonic_shift(stamp_ns: np.ndarray, groups: np.ndarray, records: int) -> np.ndarray:
+    """``(records,)`` ns to add to each record's stamps so that the pool's samples run forward in time.
+
+    Records in order whose stamps already follow one another (a bag's clock) keep them.
+    """
+    shift = np.zeros(records, dtype=np.int64)
+    end = None
+    for index in range(records):
+        rows = stamp_ns[groups == index]
+        if not len(rows):
+            continue
+        if end is not None and rows.min() + shift[index] <= end:
+            shift[index] = end + RECORD_GAP_NS - rows.min()
+        end = int(rows.max() + shift[index])
+    return shift
+
+
+def bag_directory(path: str | os.PathLike[str], *, force: bool, option: str) -> Path:
+    """A directory to write one bag per record into: made, or one that holds only bags (``force`` replaces them).
+
+    :raises OutputError: ``path`` is no directory, holds something else than bags, or holds bags without ``force``.
+    """
+    import shutil
+    from tak_thermo_ros.errors import OutputError
+    from tak_thermo_ros.formats.files import BAG, check_output
+    out = Path(path)
+    if out.exists() or out.is_symlink():
+        if out.is_symlink() or not out.is_dir():
+            msg = f'{out} ({option}): exists and is not a directory; the records are written into a directory'
+            raise OutputError(msg)
+        entries = sorted(out.iterdir())
+        for entry in entries:  # only bags this tool wrote may be replaced
+            check_output(entry, BAG, force=True, option=option)
+        if entries and not force:
+            msg = f'{out} ({option}): exists and holds {len(entries)} bags; --force replaces them'
+            raise OutputError(msg)
+        for entry in entries:
+            shutil.rmtree(entry)
+    else:
+        check_output(out, BAG, option=option)
+        out.mkdir()
+    return out
