@@ -96,7 +96,8 @@ def run(args: argparse.Namespace) -> int:
     unit = UnitCalibration(fitted.input_kind, results['accel'].calibration,
                            results['gyro'].calibration if 'gyro' in results else None,
                            magnetometer.calibration if magnetometer is not None else None,
-                           _source(args, fitted))
+                           _source(args, fitted),
+                           fitted_from=(fitted.record_print,) if fitted.record_print is not None else ())
     noise_line = ''
     if args.noise or args.noise_run or args.noise_from_residual:
         unit, noise_line = _with_noise(args, unit)
@@ -187,7 +188,7 @@ def _with_noise(args: argparse.Namespace, unit: UnitCalibration) -> tuple[UnitCa
                          gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None))
     accel = replace(unit.accel, noise=found.models['accel'])
     gyro = replace(unit.gyro, noise=found.models['gyro']) if unit.gyro is not None else None
-    return UnitCalibration(unit.input_kind, accel, gyro, unit.mag, unit.source), found.line
+    return replace(unit, accel=accel, gyro=gyro), found.line
 
 
 def _nominal(args: argparse.Namespace, nominal: tuple[float, float, float] | None

@@ -67,6 +67,13 @@ def run(args: argparse.Namespace) -> int:
         print('accelerometer and gyroscope: not validated (the board moved, no reference)')
         run = None
     if run is not None:
+        from pathlib import Path
+        from tak_thermo_ros.core.records.provenance import in_sample_lines
+        found = getattr(run, 'in_sample', None)
+        for line in in_sample_lines(found, record=Path(args.bag).name, params=Path(args.params).name,
+                                    command='validate'):
+            print(line)
+        document['in_sample'] = found.as_dict() if found is not None else None
         common.print_survey(run.survey, 'validate')
         if hasattr(run, 'gravity'):
             _validate_imu(args, unit, run, document)
