@@ -16,8 +16,9 @@ CANDIDATE_STEPS = 1
 """The fit places the step at the residual's most sudden level change (the largest against the
 record's own spread), not where least squares alone would put it: a step placed anywhere splits the
 slow structure of a residual instead (a temperature reversal under a lag)."""
-NEAR_SAMPLES = 3
-"""... trying each moment within this many samples of each."""
+NEAR_SAMPLES = 1
+"""... trying each moment within this many samples of it (least squares alone, given more room, moves a
+step towards the slow structure on either side)."""
 
 
 class Step(Effect):

@@ -245,9 +245,10 @@ def recognise(fitted_from: Sequence[RecordPrint], seen: RecordPrint | None,
         if any(reference.get(index) != own.get(index) for index in inner):
             continue
         inside = seen.first_stamp_ns >= stored.first_stamp_ns and seen.last_stamp_ns <= stored.last_stamp_ns
+        shorter = (seen.first_stamp_ns, seen.last_stamp_ns) != (stored.first_stamp_ns, stored.last_stamp_ns)
         if inner:
             kind = IN_SAMPLE_PART if inside else IN_SAMPLE_OVERLAP
-        elif inside:
+        elif inside and shorter and seen.last_stamp_ns - seen.first_stamp_ns < 2 * stored.segment_ns:
             kind = IN_SAMPLE_SPAN
         else:
             continue
