@@ -242,6 +242,6 @@ def test_noise_floor_rejects_glitches_in_a_drivers_si_units():
 def test_a_reason_every_failed_fold_gives_is_said_once():
     """``not tried`` lines name the folds and say a shared reason once, different reasons each."""
     from tak_thermo_ros.core.diagnose.crossval import _joined_failures
-    reason = 'axis x: the data cannot separate cross_axis (c_xz) from the other model terms'
+    reason = 'axis x: this run does not excite cross_axis (c_xz) (no fit)'
     assert _joined_failures([f'fold {k}: {reason}' for k in (1, 2, 3)]) == f'folds 1, 2, 3: {reason}'
     assert _joined_failures(['fold 2: a', 'fold 4: b']) == 'fold 2: a; fold 4: b'

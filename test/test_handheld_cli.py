@@ -99,6 +99,10 @@ def test_validate_and_apply_a_second_hand_held_record(bags, tmp_path, capsys):
                             '--report', str(report))
     assert status == 0, lines
     assert lines[0].startswith('diagnose: the residual at the rests') and lines[5].startswith('turns: closure RMS ')
+    # The gyroscope's misalignment is in the file but no rest shows it: said beside the model diagnosed (issue 31).
+    said = ' '.join(line.strip() for line in lines)
+    assert 'gyroscope: diagnosed' in said and '(model: base; cross_axis in the file, not diagnosed: no rate at rest)' \
+        in said
     # The report of a hand-held record: one page with each sensor's verdict and figures, in the sensor's units.
     page = (report / 'report.html').read_text()
     assert page.count('verdict') >= 2 and 'accel/report.html' in page and 'gyro/report.html' in page

@@ -86,9 +86,12 @@ def run(args: argparse.Namespace) -> int:
                                 command='diagnose'):
         print(line)
     common.print_survey(run.survey, 'diagnose')
+    set_aside: dict[str, tuple[str, ...]] = {}
     if run.handheld is not None:
         from tak_thermo_ros.passes.handheld import at_rest
-        unit = replace(unit, gyro=at_rest(unit.gyro))
+        rest = at_rest(unit.gyro)
+        set_aside['gyro'] = tuple(e.name for e in unit.gyro.effects if e not in rest.effects)
+        unit = replace(unit, gyro=rest)
         closure = run.handheld.closure
         if len(closure.angle_rad):
             print(f'turns: closure RMS {np.degrees(closure.rms_rad):.3g} deg over {len(closure.angle_rad)} turns, '
@@ -134,8 +137,10 @@ def run(args: argparse.Namespace) -> int:
                           temperature_unit='' if run.input_kind is InputKind.COUNTS else 'C',
                           start_s=run.first_stamp_ns * 1e-9 if run.first_stamp_ns is not None else None)
         results[sensor] = result
+        aside = set_aside.get(sensor)
+        held = (f'; {", ".join(aside)} in the file, not diagnosed: no rate at rest' if aside else '')
         print(f'{label}diagnosed {len(samples)} samples of {args.bag} against {args.params} '
-              f'(model: {result.ladder[0].label})')
+              f'(model: {result.ladder[0].label}{held})')
         if samples.dropped:
             print(f'  left out: {common.describe_dropped(samples.dropped)}')
         common.print_ignored(samples, args, run.input_kind)

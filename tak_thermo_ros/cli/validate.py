@@ -143,7 +143,7 @@ def _validate_magnetometer(args: argparse.Namespace, unit: UnitCalibration) -> d
     result = validate_mag(args.bag, unit.mag, options, out_of_range=OutOfRange(args.out_of_range))
     rotation = result.reference == 'rotation'
     if rotation:
-        print(f'magnetometer: a rotation record, {result.samples} samples: |B| about its mean')
+        print(f'magnetometer: a rotation record, {result.samples} samples: the spread of |B| about its mean')
         print('magnetometer: its direction is not checked (that takes a reference field)')
     else:
         against = ('about the run\'s mean field (static run)' if result.reference == 'static'
@@ -151,7 +151,7 @@ def _validate_magnetometer(args: argparse.Namespace, unit: UnitCalibration) -> d
         print(f'magnetometer field error over {result.samples} samples, {against}:')
     for label, values in (('before', result.before), ('after ', result.after)):
         if rotation:
-            print(f'  {label} correction: |B| {values[3] * 1e6:.4g} uT')
+            print(f'  {label} correction: spread of |B|, RMS about its mean {values[3] * 1e6:.4g} uT')
         else:
             print(f'  {label} correction: RMS per axis x y z '
                   f'{common.numbers(np.asarray(values[:3]) * 1e6)} uT, |B| {values[3] * 1e6:.4g} uT')

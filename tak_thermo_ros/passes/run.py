@@ -235,10 +235,11 @@ def open_calibration_run(path: Path, options: StreamOptions, streams, *, gravity
     :param decide: refuse a surveyed record that determines no link (:func:`decided`); ``False``: the
         caller refuses what it cannot take in its own words (``noise``).
     """
-    from tak_thermo_ros.formats.records import record_streams
+    from tak_thermo_ros.formats.records import record_stream_list, record_streams
     if require_reference and streams.kind is InputKind.COUNTS:
         streams = record_streams(path, topics=options.topics, require_reference=True)
-    listed = stream_list(streams, options.topics)
+    listed = (record_stream_list(path, topics=options.topics) if streams.kind is InputKind.IMU else None) or \
+        stream_list(streams, options.topics)
     static = None
     survey = None
     replay = None

@@ -82,8 +82,7 @@ class _Projection:
             diagonal = np.abs(np.diag(r))
             if diagonal.size and diagonal.min() < RANK_TOLERANCE * diagonal.max():
                 culprit = names[i][int(np.argmin(diagonal))]
-                msg = (f'axis {AXIS_NAMES[i]}: the data cannot separate {culprit} from the other model terms '
-                       f'(the inputs and temperatures of this run do not excite it)')
+                msg = f'axis {AXIS_NAMES[i]}: this run does not excite {culprit} (no fit)'
                 raise FitError(msg)
             perpendicular = target - q @ (q.T @ target)
             self.bases.append((q, perpendicular, float(perpendicular @ perpendicular)))
