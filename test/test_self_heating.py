@@ -58,8 +58,8 @@ def story(root: Path, seed: int, slope: float) -> dict:
 @pytest.mark.parametrize('seed', [0, 1])
 def test_with_a_self_heating_static_run_a_small_lag_is_named_and_wander_is_none(seed, tmp_path):
     lag = story(tmp_path / 'lag', seed, LAG_SLOPE)
-    assert {s: v['noise']['source'] for s, v in lag['sensors'].items()} == {'accel': 'static_run',
-                                                                             'gyro': 'static_run'}
+    sources = {s: v['noise']['source'] for s, v in lag['sensors'].items()}
+    assert sources == {'accel': 'static_run', 'gyro': 'static_run'}
     assert lag['sensors']['gyro']['verdict'] == 'thermal_lag'
     assert lag['sensors']['accel']['verdict'] == 'none'
     for axis in ('x', 'z'):  # per sample the lag hides in the white noise

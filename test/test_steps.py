@@ -21,7 +21,7 @@ from tak_thermo_ros.core.effects import LIBRARY, seconds_from_ns
 from tak_thermo_ros.core.fit import fit_model, residual_counts
 from tak_thermo_ros.core.records.record import align
 from tak_thermo_ros.core.records.steps import STEP_SIGMAS, _line_ends, change_at, despiked, find_steps
-from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
 from tak_thermo_ros.core.simulation.noise import bias_wander
 
 REAL = Path(__file__).resolve().parents[1] / 'data' / 'tofupilot-imu-thermal' / 'imu_raw_data.csv'
@@ -130,7 +130,7 @@ def real_driver(tmp_path_factory):
 
 
 def test_the_step_at_17_min_of_the_real_cycle_is_named_on_both_sensors(real_driver, capsys):
-    """diagnose names the step at 17.03 min (-10.4 C): gyro x up, accel z down, in one line, not a slow drift."""
+    """Diagnose names the step at 17.03 min (-10.4 C): gyro x up, accel z down, in one line, not a slow drift."""
     capsys.readouterr()
     assert cli.main(['diagnose', str(real_driver / 'real_driver'), '--params', str(real_driver / 'base.yaml'),
                      '--candidates', 'step', '--no-progress', '--json', str(real_driver / 'steps.json')]) == 0
@@ -148,7 +148,7 @@ def test_the_step_at_17_min_of_the_real_cycle_is_named_on_both_sensors(real_driv
 
 
 def test_the_step_effect_on_the_real_cycle_is_placed_at_17_min(real_driver):
-    """fit --effects step --gyro-effects step: both sensors' step at the sample of 17.03 min."""
+    """Fit --effects step --gyro-effects step: both sensors' step at the sample of 17.03 min."""
     from tak_thermo_ros.formats.calibration_file import load_unit
     params = real_driver / 'step.yaml'
     assert cli.main(['fit', str(real_driver / 'real_driver'), '-o', str(params), '--effects', 'step',

@@ -43,7 +43,8 @@ CV_BLOCKS = 20
 CV_FOLDS = 5
 RANK_TOLERANCE = 1e-9
 SCAN_POINTS = 200
-"""A scanned shape parameter (:meth:`~tak_thermo_ros.core.effects.base.Effect.search_values`): this many values first."""
+"""A scanned shape parameter (:meth:`~tak_thermo_ros.core.effects.base.Effect.search_values`): this many
+values first, then each one around the best."""
 SHAPE_STEP = 0.01
 """Step (in the searched coordinate: ln of the parameter on a log scale) of the numerical shape derivative."""
 

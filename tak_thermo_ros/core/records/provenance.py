@@ -259,7 +259,7 @@ def recognise(fitted_from: Sequence[RecordPrint], seen: RecordPrint | None,
 
 IN_SAMPLE_MEANS = {
     'validate': 'so "after" is the fit\'s own residual: it does not show the error on a record never fitted',
-    'diagnose': 'the residual RMS is the fit\'s own; the held-out blocks too are of the record it was fitted on',
+    'diagnose': 'its residual RMS is the fit\'s own and its held-out blocks are of it: no word on a new record',
 }
 """What an in-sample figure does and does not show, per command (the second line)."""
 

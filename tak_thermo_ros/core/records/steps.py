@@ -94,7 +94,10 @@ def despiked(residual: np.ndarray) -> np.ndarray:
 
 
 def _line_ends(values: np.ndarray, scale: int) -> tuple[np.ndarray, np.ndarray]:
-    """Moments ``p`` (between samples ``p-1`` and ``p``) and ``D_w(p)`` ``(m, c)``: after-line minus before-line at ``p``."""
+    """Moments ``p`` (between samples ``p-1`` and ``p``) and ``D_w(p)`` ``(m, c)``.
+
+    ``D_w(p)``: the line through the ``w`` samples after ``p`` minus the line through the ``w`` before, both at ``p``.
+    """
     count = len(values)
     positions = np.arange(scale, count - scale + 1)
     index = np.arange(count, dtype=float)
@@ -198,7 +201,8 @@ def _sudden(position: int, level: _Scale, scales: list[_Scale]) -> LevelChange |
     if finer:
         half = finer[-1]
         # Refined: the moment within the finer scale's reach where its change is largest on that channel.
-        rows = [position + shift for shift in range(-half.scale, half.scale + 1) if half.at(position + shift) is not None]
+        rows = [position + shift for shift in range(-half.scale, half.scale + 1)
+                if half.at(position + shift) is not None]
         if rows:
             sign = float(np.sign(change[channel]))
             best = max(rows, key=lambda p: sign * float(half.at(p)[channel]))
