@@ -38,7 +38,7 @@ def add_parser(commands) -> argparse.ArgumentParser:
                              'input only; default: the bag metadata written by simulate / import-csv')
     parser.add_argument('--effects', metavar='NAME[,NAME...]',
                         help='effects to fit beyond the paper\'s model: thermal_lag, hysteresis, scale_nonlinearity, '
-                             'cross_axis, warmup, temperature_shape, the per-axis forms thermal_lag_per_axis, '
+                             'cross_axis, warmup, temperature_shape, step, the per-axis forms thermal_lag_per_axis, '
                              'hysteresis_per_axis, warmup_per_axis, a recorded signal aux:TOPIC[:FIELD] '
                              '(e.g. aux:/power/battery_state), or module:Class (see docs/effects.md)')
     parser.add_argument('--gyro-effects', metavar='NAME[,NAME...]',

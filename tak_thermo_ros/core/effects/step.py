@@ -75,9 +75,9 @@ class Step(Effect):
 
     @classmethod
     def structures(cls, time_s: np.ndarray, temp_code: np.ndarray) -> Sequence[Effect] | None:
-        """One structure: the origin at the first stamp the fit sees."""
-        if len(time_s) < 2 * MIN_SIDE_SAMPLES:
-            return []
+        """One structure: the origin at the first stamp the fit sees (too few samples: said by the search)."""
+        if not len(time_s):
+            return None
         return [cls.from_values({'origin_s': float(np.min(time_s))}, complete=False)]
 
     @classmethod

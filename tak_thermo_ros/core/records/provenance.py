@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass, field
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -80,7 +80,7 @@ class _Level:
 
     def __init__(self, shift: int) -> None:
         self.length = 1 << shift
-        self.hashers: dict[int, dict[str, hashlib._Hash]] = {}
+        self.hashers: dict[int, dict[str, Any]] = {}
 
     def add(self, sensor: str, stamp_ns: np.ndarray, rows: np.ndarray, *, limit: tuple[int, int] | None) -> None:
         index = np.floor_divide(stamp_ns, self.length)
@@ -116,7 +116,7 @@ class PrintCollector:
 
     sensors: tuple[str, ...]
     against: Sequence[RecordPrint] = ()
-    _whole: dict[str, hashlib._Hash] = field(default_factory=dict)
+    _whole: dict[str, Any] = field(default_factory=dict)
     _counts: dict[str, int] = field(default_factory=dict)
     _first: int | None = None
     _last: int | None = None
