@@ -130,7 +130,10 @@ def bench_speed(workdir: Path, hours: float, rate_hz: float) -> dict[str, object
 
 def hidden_effect(name: str, seed: int, temp_codes: tuple[float, float],
                   stamps: tuple[float, float] = (0.0, 1.0)) -> dict[str, float]:
-    """True parameters of a hidden effect, drawn per seed (sizes and signs vary); ``stamps``: the run's first and last."""
+    """True parameters of a hidden effect, drawn per seed (sizes and signs vary).
+
+    ``stamps``: the run's first and last (a step's moment).
+    """
     rng = np.random.default_rng(1000 + seed)
 
     def signed(low: float, high: float) -> float:

@@ -156,6 +156,9 @@ def test_every_command_says_first_what_a_static_record_holds(tmp_path, capsys):
     for command, argv in commands.items():
         status, lines = run_cli(capsys, *argv)
         assert status == 0, (command, lines)
+        if command in ('validate', 'diagnose'):  # the record the file was fitted from: said first (issue 31)
+            assert lines[0].startswith('in-sample: static is the record p.yaml was fitted from'), lines[0]
+            lines = lines[2:]
         assert lines[0].startswith(f'{command}: ') and ('static' in lines[0] or 'at rest' in lines[0]
                                                         or command == 'apply'), lines[0]
         assert lines[1].startswith('record: /imu/data_raw ') and lines[2].startswith('record: temperature 10')

@@ -1004,7 +1004,7 @@ PLATEAU_C = 1.0
 """Successive still intervals on a plateau stay within this temperature of its first (the +/- table)."""
 PLATEAU_RATE = 0.25 / 60.0
 """A still interval is on a plateau when the temperature moves less than this (C per second, a
-quarter of a degree per minute) between the intervals before and after it."""
+quarter of a degree per minute) from it to the interval before it or to the one after it."""
 
 
 def plateau_groups(temperature: np.ndarray, stamp_s: np.ndarray, interval: np.ndarray) -> list[np.ndarray]:
@@ -1020,8 +1020,9 @@ def plateau_groups(temperature: np.ndarray, stamp_s: np.ndarray, interval: np.nd
     order = np.argsort(start, kind='stable')
     times, temps = start[order], np.asarray(temperature, dtype=float)[order]
     if count > 1:
-        before, after = np.r_[0, np.arange(count - 1)], np.r_[np.arange(1, count), count - 1]
-        rate = np.abs(temps[after] - temps[before]) / np.maximum(times[after] - times[before], 1e-9)
+        # The slower of the two sides: a plateau's first and last rests have one steady side.
+        step = np.abs(np.diff(temps)) / np.maximum(np.diff(times), 1e-9)
+        rate = np.minimum(np.r_[step[:1], step], np.r_[step, step[-1:]])
     else:
         rate = np.zeros(count)
     groups: list[list[int]] = []

@@ -38,7 +38,8 @@ _SAMPLE = np.dtype([('stamp', '<i8'), ('value', '<f8', (3,))])
 class RecordPrint:
     """Enough of one record to recognise it again.
 
-    :param name: the record's file name (for messages; not compared).
+    :param name: the record's file name (for messages; not compared: the same record renamed, or in
+        another storage, has the same print).
     :param first_stamp_ns: the earliest sample stamp of any sensor; ``last_stamp_ns`` the latest.
     :param samples: ``(sensor, count)`` of each sensor's samples in the record.
     :param digest: SHA-256 (first :data:`DIGEST_HEX` hex digits) of every sensor's samples.
@@ -48,7 +49,7 @@ class RecordPrint:
         :data:`NO_SEGMENT` when no sample falls in it.
     """
 
-    name: str
+    name: str = field(compare=False)
     first_stamp_ns: int
     last_stamp_ns: int
     samples: tuple[tuple[str, int], ...]
