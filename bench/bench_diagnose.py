@@ -128,8 +128,12 @@ def bench_speed(workdir: Path, hours: float, rate_hz: float) -> dict[str, object
 
 # ------------------------------------------------------------------------------- matrix
 
-def hidden_effect(name: str, seed: int, temp_codes: tuple[float, float]) -> dict[str, float]:
-    """True parameters of a hidden effect, drawn per seed (sizes and signs vary)."""
+def hidden_effect(name: str, seed: int, temp_codes: tuple[float, float],
+                  stamps: tuple[float, float] = (0.0, 1.0)) -> dict[str, float]:
+    """True parameters of a hidden effect, drawn per seed (sizes and signs vary).
+
+    ``stamps``: the run's first and last (a step's moment).
+    """
     rng = np.random.default_rng(1000 + seed)
 
     def signed(low: float, high: float) -> float:
@@ -149,6 +153,9 @@ def hidden_effect(name: str, seed: int, temp_codes: tuple[float, float]) -> dict
         low, high = temp_codes
         return {'knot_1': round(float(rng.uniform(low + 0.3 * (high - low), low + 0.7 * (high - low)))),
                 **{f'slope_{a}_1': signed(0.04, 0.08) for a in 'xyz'}}
+    if name == 'step':
+        return {'origin_s': stamps[0], 'at_s': float(rng.uniform(0.2, 0.8)) * (stamps[1] - stamps[0]),
+                **{f'amplitude_{a}': signed(3.0, 6.0) for a in 'xyz'}}
     raise ValueError(name)
 
 
@@ -172,7 +179,9 @@ def matrix_case(hidden: str, profile: str, seed: int, rate_hz: float, *, own_noi
     if hidden == 'supply':
         scenario = replace(scenario, supply_voltage_drift=3.0)
     elif hidden != 'none':
-        scenario = replace(scenario, effects={hidden: hidden_effect(hidden, seed, codes)})  # type: ignore[arg-type]
+        stamps = seconds_from_ns(simulate(scenario).record.counts_stamp_ns[[0, -1]]) if hidden == 'step' else (0, 1)
+        scenario = replace(scenario, effects={hidden: hidden_effect(hidden, seed, codes,  # type: ignore[arg-type]
+                                                                    (float(stamps[0]), float(stamps[1])))})
     floor = np.array([math.sqrt(a.noise_counts ** 2 + 1.0 / 12.0) for a in scenario.unit])
     samples = align(simulate(scenario).record)
     start = time.perf_counter()

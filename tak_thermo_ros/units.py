@@ -12,6 +12,7 @@ prints ``0.001 0.001 0.001`` for a gyroscope's residual). The one place for thes
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 
@@ -44,6 +45,21 @@ def significant(value: float, digits: int = 4, *, sign: bool = False) -> str:
     if math.isfinite(value) and 10.0 ** digits <= abs(value) < 1e15:
         return f'{value:{plus}.0f}'
     return f'{value:{plus}.{digits}g}'
+
+
+def with_error(value: float, error: float | None, digits: int = 4) -> str:
+    """A value and its standard error to the same decimal place: the error's second significant figure.
+
+    ``-1188 +- 3.6``, ``0.01035 +- 8.4e-05`` becomes ``0.010350 +- 0.000084``; without an error (or
+    a non-finite one, or an error beyond the value) the value alone to ``digits`` figures.
+    """
+    if error is None or not math.isfinite(error) or error <= 0.0 or not math.isfinite(value):
+        text = significant(value, digits)
+        return text if error is None else f'{text} +- {error:.2g}'
+    place = 1 - math.floor(math.log10(error))  # decimals of the error's second significant figure
+    if place < 0 or place > 12 or error > abs(value) > 0.0 and place > 6:
+        return f'{significant(value, digits)} +- {error:.2g}'
+    return f'{value + 0.0:.{place}f} +- {error:.{place}f}'
 
 
 def numbers(values, digits: int = 4, *, sign: bool = False) -> str:
@@ -83,3 +99,10 @@ def readable(value: float, unit: str, digits: int = DIGITS) -> str:
     """``'362 deg/h'``: a value of ``unit`` in the reader's unit, to ``digits`` significant figures."""
     shown, factor = readable_unit(unit)
     return f'{significant(float(value) * factor, digits)} {shown}'
+
+
+def in_driver_words(text: str) -> str:
+    """A text written for the paper's codes, said of a driver's temperature in degrees C."""
+    text = re.sub(r'\btemperature codes\b', 'temperatures', text)
+    text = re.sub(r'\btemperature code\b', 'temperature', text)
+    return re.sub(r'\b(\w+)_codes\b', r'\1_codes (in C here)', text)

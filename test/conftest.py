@@ -28,6 +28,7 @@ EXAMPLES = {
     'temperature_shape': {'knot_1': 8000.0, 'knot_2': 8400.0, 'slope_x_1': 0.01, 'slope_y_2': -0.02},
     'cross_axis': {'c_xy': 0.3, 'c_zx': -0.5, 'c_yz': 0.2},
     'scale_nonlinearity': {'k2_x': 0.05, 'k2_y': -0.03, 'k2_z': 0.02},
+    'step': {'origin_s': 1.7e9, 'at_s': 1500.25, 'amplitude_x': 6.0, 'amplitude_z': -4.0},
 }
 """Each library effect with example parameters (the library and block-correction tests)."""
 

@@ -94,8 +94,12 @@ def _code_range(scenario: Scenario) -> tuple[float, float]:
                  for t in (min(temps), max(temps)))  # type: ignore[return-value]
 
 
-def hidden_effect(name: str, seed: int, codes: tuple[float, float]) -> dict[str, float]:
-    """True parameters of a hidden effect, drawn per seed: sizes and signs vary, not tuned to one."""
+def hidden_effect(name: str, seed: int, codes: tuple[float, float],
+                  stamps: tuple[float, float] = (0.0, 1.0)) -> dict[str, float]:
+    """True parameters of a hidden effect, drawn per seed: sizes and signs vary, not tuned to one.
+
+    ``stamps``: the run's first and last stamps, s (a step's moment).
+    """
     rng = np.random.default_rng(1000 + seed)
 
     def signed(low: float, high: float) -> float:
@@ -114,6 +118,8 @@ def hidden_effect(name: str, seed: int, codes: tuple[float, float]) -> dict[str,
             'knot_1': round(float(rng.uniform(codes[0] + 0.3 * (codes[1] - codes[0]),
                                               codes[0] + 0.7 * (codes[1] - codes[0])))),
             **{f'slope_{a}_1': signed(0.04, 0.08) for a in 'xyz'}},
+        'step': lambda: {'origin_s': stamps[0], 'at_s': float(rng.uniform(0.2, 0.8)) * (stamps[1] - stamps[0]),
+                         **{f'amplitude_{a}': signed(3.0, 6.0) for a in 'xyz'}},
     }
     return draws[name]()
 
@@ -127,7 +133,9 @@ CASES = [(name, profile, seed) for index, name in enumerate(LIBRARY)
 def test_diagnose_names_the_hidden_effect_and_adding_it_brings_the_floor(effect, profile, seed):
     """The verdict names the hidden effect; the refit reaches 1.1x the floor; |g| of a second run falls."""
     scenario = _scenario(profile, seed)
-    scenario = replace(scenario, effects={effect: hidden_effect(effect, seed, _code_range(scenario))})
+    stamps = seconds_from_ns(simulate(scenario).record.counts_stamp_ns[[0, -1]]) if effect == 'step' else (0.0, 1.0)
+    scenario = replace(scenario, effects={effect: hidden_effect(effect, seed, _code_range(scenario),
+                                                                (float(stamps[0]), float(stamps[1])))})
     samples = align(simulate(scenario).record)
     base = fit_model(samples)
     result = diagnose(base.calibration, samples)
@@ -234,6 +242,6 @@ def test_noise_floor_rejects_glitches_in_a_drivers_si_units():
 def test_a_reason_every_failed_fold_gives_is_said_once():
     """``not tried`` lines name the folds and say a shared reason once, different reasons each."""
     from tak_thermo_ros.core.diagnose.crossval import _joined_failures
-    reason = 'axis x: the data cannot separate cross_axis (c_xz) from the other model terms'
+    reason = 'axis x: this run does not excite cross_axis (c_xz) (no fit)'
     assert _joined_failures([f'fold {k}: {reason}' for k in (1, 2, 3)]) == f'folds 1, 2, 3: {reason}'
     assert _joined_failures(['fold 2: a', 'fold 4: b']) == 'fold 2: a; fold 4: b'

@@ -17,7 +17,7 @@ import pytest
 from tak_thermo_ros.formats.bag import write_driver_record
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.formats.calibration_file import load_unit
-from tak_thermo_ros.core.effects import LIBRARY
+from tak_thermo_ros.core.effects import LIBRARY, seconds_from_ns
 from tak_thermo_ros.core.fit import fit_model
 from tak_thermo_ros.core.records.record import align
 from tak_thermo_ros.core.simulation.imu import RATE_TABLE_POSITIONS, RATE_TABLE_RATES, Scenario, simulate
@@ -37,6 +37,7 @@ GYRO_EFFECTS = {
     'temperature_shape': {'slope_x_1': 8e-4, 'slope_y_1': -6e-4},
     'cross_axis': {'c_xy': 3e-3, 'c_zx': -4e-3, 'c_yz': 2e-3},
     'scale_nonlinearity': {'k2_x': 3e-3, 'k2_y': -2e-3, 'k2_z': 2.5e-3},
+    'step': {'at_s': 2500.5, 'amplitude_x': 2e-3, 'amplitude_y': -1.5e-3},
 }
 """Hidden gyroscope effects, in the driver's units: rad/s, rad/s per degree C, (rad/s)/(rad/s), 1/(rad/s)."""
 
@@ -48,6 +49,8 @@ def test_every_library_effect_is_covered():
 
 def _hidden(name: str) -> dict[str, float]:
     values = dict(GYRO_EFFECTS[name])
+    if name == 'step':  # counted from the first sample, as the fit counts it
+        values['origin_s'] = float(seconds_from_ns(simulate(RUN).driver.stamp_ns[:1])[0])
     if name == 'temperature_shape':
         # one knot where the fit puts a single knot: the middle of the run's temperature range
         temperature = simulate(RUN).driver.temperature

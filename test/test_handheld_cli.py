@@ -99,6 +99,10 @@ def test_validate_and_apply_a_second_hand_held_record(bags, tmp_path, capsys):
                             '--report', str(report))
     assert status == 0, lines
     assert lines[0].startswith('diagnose: the residual at the rests') and lines[5].startswith('turns: closure RMS ')
+    # The gyroscope's misalignment is in the file but no rest shows it: said beside the model diagnosed (issue 31).
+    said = ' '.join(line.strip() for line in lines)
+    assert 'gyroscope: diagnosed' in said and '(model: base; cross_axis in the file, not diagnosed: no rate at rest)' \
+        in said
     # The report of a hand-held record: one page with each sensor's verdict and figures, in the sensor's units.
     page = (report / 'report.html').read_text()
     assert page.count('verdict') >= 2 and 'accel/report.html' in page and 'gyro/report.html' in page
@@ -152,6 +156,9 @@ def test_every_command_says_first_what_a_static_record_holds(tmp_path, capsys):
     for command, argv in commands.items():
         status, lines = run_cli(capsys, *argv)
         assert status == 0, (command, lines)
+        if command in ('validate', 'diagnose'):  # the record the file was fitted from: said first (issue 31)
+            assert lines[0].startswith('in-sample: static is the record p.yaml was fitted from'), lines[0]
+            lines = lines[2:]
         assert lines[0].startswith(f'{command}: ') and ('static' in lines[0] or 'at rest' in lines[0]
                                                         or command == 'apply'), lines[0]
         assert lines[1].startswith('record: /imu/data_raw ') and lines[2].startswith('record: temperature 10')

@@ -284,3 +284,13 @@ def test_a_rotation_record_outside_the_calibrated_range_is_said(bags, tmp_path, 
     assert main(['fit', str(bags / 'cal'), '-o', str(tmp_path / 'p.yaml'), '--iron-run', str(tmp_path / 'hot'),
                  '--no-progress']) == 0
     assert 'warning: magnetometer: 600 samples of' in capsys.readouterr().out
+
+
+def test_validate_of_a_rotation_record_says_its_figure_is_the_spread_of_the_field_strength(bags, capsys):
+    """|B| of a record that turns is compared with its own mean: the line says it is that spread (issue 31)."""
+    capsys.readouterr()
+    assert main(['validate', str(bags / 'iron'), '--params', str(bags / 'p.yaml'), '--no-progress']) == 0
+    out = capsys.readouterr().out
+    assert 'before correction: spread of |B|, RMS about its mean ' in out
+    assert 'after  correction: spread of |B|, RMS about its mean ' in out
+    assert 'correction: |B| ' not in out

@@ -175,8 +175,10 @@ SHORT_RUN = Scenario(sample_rate_hz=10.0, plateaus_celsius=(10.0, 30.0), plateau
 
 HIDDEN_EFFECTS = {'thermal_lag': {'tau_s': 30.0, 'slope_x': 0.05, 'slope_z': -0.04},
                   'warmup': {'tau_s': 40.0, 'amplitude_x': 20.0, 'amplitude_y': -15.0},
-                  'cross_axis': {'c_xy': 2.0, 'c_zx': -1.5}}
-"""Effects with memory (lag, warm-up) and an input effect, for the node's online state."""
+                  'cross_axis': {'c_xy': 2.0, 'c_zx': -1.5},
+                  'step': {'origin_s': SHORT_RUN.start_time_s, 'at_s': 150.05, 'amplitude_x': 12.0,
+                           'amplitude_z': -9.0}}
+"""Effects with memory (lag, warm-up), an input effect and a step at a stamp, for the node's online state."""
 
 
 @pytest.mark.parametrize('effects', [{}, HIDDEN_EFFECTS], ids=['base', 'with_effects'])

@@ -22,7 +22,8 @@ from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.records.record import REFERENCE_LIMIT, TEMPERATURE_RANGE, AlignedSamples
 from tak_thermo_ros.core.values import SENSOR_NAMES, STANDARD_GRAVITY  # noqa: F401  (re-exported)
 from tak_thermo_ros.errors import TakError
-from tak_thermo_ros.units import DEG, amount, display_unit, in_si, numbers, reader_unit, significant  # noqa: F401
+from tak_thermo_ros.units import (  # noqa: F401
+    DEG, amount, display_unit, in_driver_words, in_si, numbers, reader_unit, significant, with_error)
 
 UNITS = {(InputKind.COUNTS, 'accel'): 'counts', (InputKind.IMU, 'accel'): 'm/s^2', (InputKind.IMU, 'gyro'): 'rad/s',
          (InputKind.IMU, 'mag'): 'T'}
@@ -249,20 +250,17 @@ def print_effects(calibration, result, unit_name: str) -> None:
             in_sensor_unit = unit_name != 'counts' and 'counts' in (p.unit or '')
             scale = factor if in_sensor_unit else 1.0
             error = errors.get(f'{effect.name}.{p.name}')
-            text = f'{p.value * scale:.4g}' + (f' +- {error * scale:.2g}' if error is not None else '')
+            text = with_error(p.value * scale, error * scale if error is not None else None)
             text += f' {unit}' if unit else ''
             if in_sensor_unit and reader is not None:
                 rest = unit[len(shown_unit):] if unit.startswith(shown_unit) else ''
-                spread = f' +- {error * scale * reader[1]:.2g}' if error is not None else ''
-                text += f' ({p.value * scale * reader[1]:.3g}{spread} {reader[0]}{rest})'
-            print(f'  effect {effect.name}: {p.name} {text}')
-
-
-def in_driver_words(text: str) -> str:
-    """A diagnosis written for the paper's codes, said of a driver's temperature in degrees C."""
-    text = re.sub(r'\btemperature codes\b', 'temperatures', text)
-    text = re.sub(r'\btemperature code\b', 'temperature', text)
-    return re.sub(r'\b(\w+)_codes\b', r'\1_codes (in C here)', text)
+                value = p.value * scale * reader[1]
+                shown = (with_error(value, error * scale * reader[1], 3) if error is not None
+                         else significant(value, 3))
+                text += f' ({shown} {reader[0]}{rest})'
+            # A driver's temperature is in degrees C: a parameter the library names in codes is named by it.
+            name = p.name.removesuffix('_codes') if unit_name != 'counts' and p.name.endswith('_codes') else p.name
+            print(f'  effect {effect.name}: {name} {text}')
 
 
 NOISE_UNITS = {
@@ -302,7 +300,14 @@ def noise_axis_lines(sensor: str, model, axis: int, unit: str, fit=None) -> list
         lines.append(f'random walk {_noise_amount(walk, "walk", unit)}')
     else:
         lines.append(f'random walk at most {_noise_amount(bound, "walk", unit)}: none shown')
-    lines.append(f'bias instability B {_noise_amount(model.bias_instability[axis], "rate", unit)} (IEEE 952)')
+    instability = model.bias_instability[axis]
+    line = fit.slope_lines.values.get('bias_instability') if fit is not None and fit.slope_lines else None
+    if instability == 0.0 and line is not None and line[axis] > 0.0:
+        # The fit dropped it: the record does not show it beside the white noise and the walk. It is
+        # not 0: what the record allows is at most IEEE 952's flat line under the measured curve.
+        lines.append(f'bias instability B at most {_noise_amount(line[axis], "rate", unit)}: none shown')
+    else:
+        lines.append(f'bias instability B {_noise_amount(instability, "rate", unit)} (IEEE 952)')
     tau = model.bias_instability_tau[axis]
     if math.isfinite(tau):
         lines.append(f'floor {_noise_amount(model.floor()[axis], "rate", unit)} at {tau:.3g} s '

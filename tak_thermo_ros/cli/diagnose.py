@@ -90,10 +90,17 @@ def run(args: argparse.Namespace) -> int:
         run = bounded_run(args.bag, common.stream_options(args), settle_time_s=args.settle_time,
                           gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
                           max_samples=args.max_samples, unit=unit)
+        from tak_thermo_ros.core.records.provenance import in_sample_lines
+        for line in in_sample_lines(run.in_sample, record=Path(args.bag).name, params=Path(args.params).name,
+                                    command='diagnose'):
+            print(line)
     common.print_survey(run.survey, 'diagnose')
+    set_aside: dict[str, tuple[str, ...]] = {}
     if run.handheld is not None:
         from tak_thermo_ros.passes.handheld import at_rest
-        unit = replace(unit, gyro=at_rest(unit.gyro))
+        rest = at_rest(unit.gyro)
+        set_aside['gyro'] = tuple(e.name for e in unit.gyro.effects if e not in rest.effects)
+        unit = replace(unit, gyro=rest)
         closure = run.handheld.closure
         if len(closure.angle_rad):
             print(f'turns: closure RMS {np.degrees(closure.rms_rad):.3g} deg over {len(closure.angle_rad)} turns, '
@@ -139,10 +146,14 @@ def run(args: argparse.Namespace) -> int:
         groups = run.groups[sensor] if run.groups else None
         result = diagnose(unit.sensor(sensor), samples, candidates=sensor_candidates,
                           folds=args.folds if groups is None else min(args.folds, int(groups.max()) + 1),
-                          progress=progress, noise=noise, unit=shown_unit, unit_scale=scale, groups=groups)
+                          progress=progress, noise=noise, unit=shown_unit, unit_scale=scale, groups=groups,
+                          temperature_unit='' if run.input_kind is InputKind.COUNTS else 'C',
+                          start_s=run.first_stamp_ns * 1e-9 if run.first_stamp_ns is not None else None)
         results[sensor] = result
+        aside = set_aside.get(sensor)
+        held = (f'; {", ".join(aside)} in the file, not diagnosed: no rate at rest' if aside else '')
         print(f'{label}diagnosed {len(samples)} samples of {args.bag} against {args.params} '
-              f'(model: {result.ladder[0].label})')
+              f'(model: {result.ladder[0].label}{held})')
         if samples.dropped:
             print(f'  left out: {common.describe_dropped(samples.dropped)}')
         common.print_ignored(samples, args, run.input_kind)
@@ -176,13 +187,17 @@ def run(args: argparse.Namespace) -> int:
         walk = _walk_line(result, sensor, run.input_kind)
         if walk:
             print(walk)
+    if not pool:  # a pool's records each have their own clock: a step's moment is said per record
+        for line in step_lines(results, used, run.input_kind, run.first_stamp_ns):
+            print(line)
     record = _one_way_lines(unit, used) if run.input_kind is InputKind.IMU and not pool else None
     for line in record.lines if record is not None else ():
         print(line)
     if args.json:
         first = 'accel' if 'accel' in results else 'gyro'  # a pool in one orientation: the gyroscope only
         document = {**results[first].as_dict(), 'samples_diagnosed': len(used[first]),
-                    'samples_usable': run.usable[first], 'subsample_stride': run.stride}
+                    'samples_usable': run.usable[first], 'subsample_stride': run.stride,
+                    'in_sample': run.in_sample.as_dict() if run.in_sample is not None else None}
         if run.input_kind is InputKind.IMU:
             document['sensors'] = {sensor: {**result.as_dict(), 'unit': common.UNITS[run.input_kind, sensor],
                                             'samples_diagnosed': len(used[sensor]),
@@ -287,6 +302,62 @@ def _write_report(args: argparse.Namespace, run, results: dict, used: dict[str, 
             written = (f'{Path(args.report) / index.name} ({" and ".join(common.SENSOR_NAMES[s] for s in pages)}, '
                        f'{sum(len(files.figures) for files, _ in pages.values())} figures)')
     print(f'wrote {written}')
+
+
+def step_lines(results: dict, used: dict[str, AlignedSamples], kind: InputKind,
+               first_stamp_ns: int | None = None) -> list[str]:
+    """One line per step of the record, every sensor's channels that change at its moment, in each one's units.
+
+    A step one sensor's scan found is looked for in the other sensors at the nearest sample (a test
+    at one moment: :data:`~tak_thermo_ros.core.records.steps.NAME_SIGMAS`). Moments in minutes
+    from the record's first stamp ``first_stamp_ns`` (default: the first sample diagnosed).
+    """
+    from tak_thermo_ros.core.records.steps import change_at
+    sensors = [sensor for sensor in results if sensor != 'mag' and results[sensor].steps]
+    if not sensors:
+        return []
+    start = first_stamp_ns if first_stamp_ns is not None else min(
+        int(used[sensor].stamp_ns[0]) for sensor in results if sensor != 'mag')
+    events: list[tuple[int, str, object]] = []
+    for sensor in sensors:
+        stamps = used[sensor].stamp_ns
+        for step in results[sensor].steps:
+            events.append(((int(stamps[step.index - 1]) + int(stamps[step.index])) // 2, sensor, step))
+    events.sort(key=lambda event: (-float(np.abs(event[2].z).max())))
+    lines, said = [], []
+    for moment, sensor, step in events:
+        period = max(float(np.median(np.diff(used[s].stamp_ns))) for s in results if s != 'mag')
+        if any(abs(moment - other) <= 2.0 * period for other in said):
+            continue
+        said.append(moment)
+        parts = []
+        temperature = ''
+        for other in (s for s in ('gyro', 'accel') if s in results):
+            samples = used[other]
+            index = int(np.searchsorted(samples.stamp_ns, moment))
+            if other == sensor:
+                change = step
+            elif 1 <= index < len(samples):
+                change = change_at(results[other].residual, index, breaks=results[other].views.breaks,
+                                   scale=step.scale)
+            else:
+                change = None
+            if change is None:
+                continue
+            if not temperature and 0 < index < len(samples):
+                code = float(samples.temp_code[index])
+                temperature = f'{code:.1f} C' if kind is InputKind.IMU else f'temperature code {code:.0f}'
+            unit = common.UNITS[kind, other]
+            reader = common.reader_unit(unit)
+            for c in change.named:
+                value = float(change.amplitude[c])
+                text = f'{common.significant(value, 3, sign=True)} {unit}'
+                if reader is not None:
+                    text += f' ({common.significant(value * reader[1], 3, sign=True)} {reader[0]})'
+                name = f'{other} ' if kind is InputKind.IMU else ''
+                parts.append(f'{name}{AXES[c]} {text}')
+        lines.append(f'step: at {(moment - start) * 1e-9 / 60.0:.2f} min ({temperature}): {", ".join(parts)}')
+    return lines
 
 
 def _walk_line(result, sensor: str, kind: InputKind) -> str:

@@ -59,4 +59,23 @@ def run(args: argparse.Namespace) -> int:
     for line in parameters.lines:
         print(line)
     print(f'wrote {len(parameters.values)} parameters to {args.output}')
+    if args.format == 'px4':
+        for line in px4_loading_lines(parameters, instance):
+            print(line)
     return 0
+
+
+def px4_loading_lines(parameters, instance: int) -> list[str]:
+    """How PX4 takes the file: loaded in QGroundControl, a reboot, then its own calibrations redone.
+
+    After a thermal calibration PX4's standard accelerometer and gyroscope calibrations write the
+    constant offset into ``TC_*_X0`` (the thermal parameters then hold every calibration); the
+    polynomial's drift terms stay as exported.
+    """
+    low = max(cubic.low for cubic in parameters.cubics.values())
+    high = min(cubic.high for cubic in parameters.cubics.values())
+    return ['PX4: load it in QGroundControl (Parameters, Tools, Load from file), then reboot the board',
+            f'PX4: then redo the accelerometer and gyroscope calibrations, the board at {low:.1f}..{high:.1f} C',
+            f'PX4: they write the constant offset into TC_A{instance}_X0_* and TC_G{instance}_X0_* (X0 '
+            f'holds it here)',
+            'PX4: the drift with temperature, X1..X3, stays as exported']

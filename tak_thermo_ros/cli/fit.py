@@ -42,7 +42,7 @@ def add_parser(commands) -> argparse.ArgumentParser:
                              'input only; default: the bag metadata written by simulate / import-csv')
     parser.add_argument('--effects', type=options.effect_specs, metavar='NAME[,NAME...]',
                         help='effects to fit beyond the paper\'s model: thermal_lag, hysteresis, scale_nonlinearity, '
-                             'cross_axis, warmup, temperature_shape, the per-axis forms thermal_lag_per_axis, '
+                             'cross_axis, warmup, temperature_shape, step, the per-axis forms thermal_lag_per_axis, '
                              'hysteresis_per_axis, warmup_per_axis, a recorded signal aux:TOPIC[:FIELD] '
                              '(e.g. aux:/power/battery_state), or module:Class (see docs/effects.md)')
     parser.add_argument('--gyro-effects', type=options.effect_specs, metavar='NAME[,NAME...]',
@@ -104,7 +104,8 @@ def run(args: argparse.Namespace) -> int:
     unit = UnitCalibration(fitted.input_kind, results['accel'].calibration,
                            results['gyro'].calibration if 'gyro' in results else None,
                            magnetometer.calibration if magnetometer is not None else None,
-                           _source(args, fitted))
+                           _source(args, fitted),
+                           fitted_from=(fitted.record_print,) if fitted.record_print is not None else ())
     noise_line = ''
     if args.noise or args.noise_run or args.noise_from_residual:
         unit, noise_line = _with_noise(args, unit)
@@ -195,7 +196,7 @@ def _with_noise(args: argparse.Namespace, unit: UnitCalibration) -> tuple[UnitCa
                          gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None))
     accel = replace(unit.accel, noise=found.models['accel'])
     gyro = replace(unit.gyro, noise=found.models['gyro']) if unit.gyro is not None else None
-    return UnitCalibration(unit.input_kind, accel, gyro, unit.mag, unit.source), found.line
+    return replace(unit, accel=accel, gyro=gyro), found.line
 
 
 def _nominal(args: argparse.Namespace, nominal: tuple[float, float, float] | None

@@ -78,6 +78,13 @@ def run(args: argparse.Namespace) -> int:
             print('accelerometer and gyroscope: no reference (the board moved); the calibration watch judges them')
         run = None
     if run is not None:
+        from pathlib import Path
+        from tak_thermo_ros.core.records.provenance import in_sample_lines
+        found = getattr(run, 'in_sample', None)
+        for line in in_sample_lines(found, record=Path(args.bag).name, params=Path(args.params).name,
+                                    command='validate'):
+            print(line)
+        document['in_sample'] = found.as_dict() if found is not None else None
         common.print_survey(run.survey, 'validate')
         if hasattr(run, 'gravity'):
             _validate_imu(args, unit, run, document)
@@ -182,7 +189,7 @@ def _validate_magnetometer(args: argparse.Namespace, unit: UnitCalibration) -> d
     result = validate_mag(args.bag, unit.mag, options, out_of_range=OutOfRange(args.out_of_range))
     rotation = result.reference == 'rotation'
     if rotation:
-        print(f'magnetometer: a rotation record, {result.samples} samples: |B| about its mean')
+        print(f'magnetometer: a rotation record, {result.samples} samples: the spread of |B| about its mean')
         print('magnetometer: its direction is not checked (that takes a reference field)')
     else:
         against = ('about the run\'s mean field (static run)' if result.reference == 'static'
@@ -190,7 +197,7 @@ def _validate_magnetometer(args: argparse.Namespace, unit: UnitCalibration) -> d
         print(f'magnetometer field error over {result.samples} samples, {against}:')
     for label, values in (('before', result.before), ('after ', result.after)):
         if rotation:
-            print(f'  {label} correction: |B| {values[3] * 1e6:.4g} uT')
+            print(f'  {label} correction: spread of |B|, RMS about its mean {values[3] * 1e6:.4g} uT')
         else:
             print(f'  {label} correction: RMS per axis x y z '
                   f'{common.numbers(np.asarray(values[:3]) * 1e6)} uT, |B| {values[3] * 1e6:.4g} uT')

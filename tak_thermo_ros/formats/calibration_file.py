@@ -42,6 +42,24 @@ effect also stores where its class lives::
 
 A calibration without effects has no ``effects`` key.
 
+What the link was fitted from (``fitted_from``, beside ``version``): one entry per record in
+each list (ROS 2 parameters hold lists of numbers or strings, not lists of mappings)::
+
+          fitted_from:
+            record: [real_driver]                  # the file name, for messages
+            first_stamp_ns: [1700000000000000000]  # the earliest and latest sample stamps
+            last_stamp_ns: [1700004244900000000]
+            accel_samples: [8400]                  # per sensor (gyro_samples: driver input)
+            gyro_samples: [8400]
+            digest: [3f1c...]                      # SHA-256 of every sample (stamps and values)
+            segment_ns: [68719476736]              # equal time segments of the record ...
+            segment_first: [24738]
+            segments: ['9a0b1c2d,...']             # ... and each one's digest ('-': no sample)
+
+``validate`` and ``diagnose`` of that record, or of a part of it, say in their first line that
+it is in-sample (:mod:`~tak_thermo_ros.core.records.provenance`). A file without ``fitted_from``
+(written before it existed, or by hand) makes no claim either way.
+
 :func:`calibration_from_mapping` is the single validator: the command-line tools call it on
 the YAML, the node on its ``calibration.*`` parameters.
 """
@@ -79,6 +97,7 @@ from tak_thermo_ros.core.link.model import (
     check_plausible,
     check_scale_positive,
 )
+from tak_thermo_ros.core.records.provenance import RecordPrint
 from tak_thermo_ros.core.noise.model import NoiseModel, noise_model_from_mapping
 from tak_thermo_ros.core.values import finite_number
 from tak_thermo_ros.errors import CalibrationError, FitError, NoiseError
@@ -460,10 +479,13 @@ def unit_from_mapping(raw: Any, *, key: str = 'calibration') -> UnitCalibration:
     if not isinstance(raw, Mapping):
         msg = f'{key}: expected a mapping'
         raise CalibrationError(msg)
+    fitted_from = _fitted_from_mapping(raw[FITTED_FROM], f'{key}.{FITTED_FROM}') if FITTED_FROM in raw else ()
     if _version(raw, key) == CALIBRATION_VERSION:
         return UnitCalibration(InputKind.COUNTS, _link_from_mapping(raw, key, InputKind.COUNTS,
-                                                                    extra_keys=('version',), sensor='counts'))
-    unknown = sorted(str(name) for name in set(raw) - {'version', 'input', 'source', *SENSORS, MAG_SENSOR})
+                                                                    extra_keys=('version', FITTED_FROM),
+                                                                    sensor='counts'), fitted_from=fitted_from)
+    unknown = sorted(str(name) for name in set(raw) - {'version', 'input', 'source', FITTED_FROM, *SENSORS,
+                                                       MAG_SENSOR})
     if unknown:
         msg = f'{key}.{unknown[0]}: unknown key'
         raise CalibrationError(msg)
@@ -479,7 +501,75 @@ def unit_from_mapping(raw: Any, *, key: str = 'calibration') -> UnitCalibration:
                    for sensor in SENSORS)
     mag = _mag_from_mapping(raw[MAG_SENSOR], f'{key}.{MAG_SENSOR}') if MAG_SENSOR in raw else None
     source = _source_from_mapping(raw['source'], f'{key}.source') if 'source' in raw else None
-    return UnitCalibration(InputKind.IMU, accel, gyro, mag, source)
+    return UnitCalibration(InputKind.IMU, accel, gyro, mag, source, fitted_from)
+
+
+FITTED_FROM = 'fitted_from'
+FITTED_FROM_LISTS = {'record': str, 'first_stamp_ns': int, 'last_stamp_ns': int, 'digest': str, 'segment_ns': int,
+                     'segment_first': int, 'segments': str}
+"""The lists of ``fitted_from`` besides the samples per sensor (``accel_samples``, ``gyro_samples``)."""
+
+
+def _fitted_from_mapping(raw: Any, key: str) -> tuple[RecordPrint, ...]:
+    """The optional ``fitted_from`` section: one entry per record in each list (:class:`RecordPrint`)."""
+    sample_keys = [f'{sensor}_samples' for sensor in SENSORS]
+    if not isinstance(raw, Mapping):
+        msg = f'{key}: expected a mapping of lists ({", ".join(FITTED_FROM_LISTS)}, accel_samples)'
+        raise CalibrationError(msg)
+    unknown = sorted(str(name) for name in set(raw) - set(FITTED_FROM_LISTS) - set(sample_keys))
+    if unknown:
+        msg = f'{key}.{unknown[0]}: unknown key'
+        raise CalibrationError(msg)
+    lists: dict[str, list] = {}
+    for name in [*FITTED_FROM_LISTS, *sample_keys]:
+        if name not in raw:
+            if name in FITTED_FROM_LISTS or name == 'accel_samples':
+                msg = f'{key}.{name}: missing'
+                raise CalibrationError(msg)
+            continue
+        values = raw[name]
+        if not isinstance(values, (list, tuple)) or not values:
+            msg = f'{key}.{name}: expected a list with one entry per record'
+            raise CalibrationError(msg)
+        kind = FITTED_FROM_LISTS.get(name, int)
+        for i, value in enumerate(values):
+            if kind is str and not isinstance(value, str) or kind is int and (
+                    isinstance(value, bool) or not isinstance(value, int)):
+                msg = f'{key}.{name}[{i}]: expected {"a string" if kind is str else "a whole number"}, got {value!r}'
+                raise CalibrationError(msg)
+        lists[name] = list(values)
+    count = len(lists['record'])
+    for name, values in lists.items():
+        if len(values) != count:
+            msg = f'{key}.{name}: {len(values)} entries, {count} records in {key}.record'
+            raise CalibrationError(msg)
+    prints = []
+    for i in range(count):
+        if lists['segment_ns'][i] <= 0 or lists['first_stamp_ns'][i] > lists['last_stamp_ns'][i]:
+            msg = f'{key}: entry {i}: segment_ns must be > 0 and first_stamp_ns <= last_stamp_ns'
+            raise CalibrationError(msg)
+        samples = tuple((sensor, int(lists[f'{sensor}_samples'][i])) for sensor in SENSORS
+                        if f'{sensor}_samples' in lists)
+        prints.append(RecordPrint(name=lists['record'][i], first_stamp_ns=lists['first_stamp_ns'][i],
+                                  last_stamp_ns=lists['last_stamp_ns'][i], samples=samples,
+                                  digest=lists['digest'][i], segment_ns=lists['segment_ns'][i],
+                                  segment_first=lists['segment_first'][i],
+                                  segments=tuple(lists['segments'][i].split(','))))
+    return tuple(prints)
+
+
+def _fitted_from_to_mapping(prints: tuple[RecordPrint, ...]) -> dict[str, list]:
+    """The ``fitted_from`` section: its lists, one entry per record."""
+    mapping: dict[str, list] = {
+        'record': [p.name for p in prints], 'first_stamp_ns': [int(p.first_stamp_ns) for p in prints],
+        'last_stamp_ns': [int(p.last_stamp_ns) for p in prints]}
+    for sensor in SENSORS:
+        if all(sensor in dict(p.samples) for p in prints):
+            mapping[f'{sensor}_samples'] = [int(dict(p.samples)[sensor]) for p in prints]
+    mapping.update({'digest': [p.digest for p in prints], 'segment_ns': [int(p.segment_ns) for p in prints],
+                    'segment_first': [int(p.segment_first) for p in prints],
+                    'segments': [','.join(p.segments) for p in prints]})
+    return mapping
 
 
 def _source_from_mapping(raw: Any, key: str) -> dict[str, str | int | float]:
@@ -557,7 +647,8 @@ def _numbers(value: Any, key: str, count: int) -> tuple[float, ...]:
 def unit_to_mapping(unit: UnitCalibration) -> dict[str, Any]:
     """The ``calibration`` mapping of a :class:`UnitCalibration` (plain floats, lists)."""
     if unit.input_kind is InputKind.COUNTS:
-        return {'version': CALIBRATION_VERSION, **_link_to_mapping(unit.accel, InputKind.COUNTS)}
+        counts = {'version': CALIBRATION_VERSION, **_link_to_mapping(unit.accel, InputKind.COUNTS)}
+        return {**counts, FITTED_FROM: _fitted_from_to_mapping(unit.fitted_from)} if unit.fitted_from else counts
     mapping: dict[str, Any] = {'version': UNIT_CALIBRATION_VERSION, 'input': unit.input_kind.value}
     for sensor, calibration in unit.sensors:
         mapping[sensor] = _link_to_mapping(calibration, unit.input_kind)
@@ -567,6 +658,8 @@ def unit_to_mapping(unit: UnitCalibration) -> dict[str, Any]:
                                'soft_iron': [float(v) for v in unit.mag.soft_iron]}
     if unit.source:
         mapping['source'] = dict(unit.source)
+    if unit.fitted_from:
+        mapping[FITTED_FROM] = _fitted_from_to_mapping(unit.fitted_from)
     return mapping
 
 

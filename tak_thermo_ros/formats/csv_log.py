@@ -552,8 +552,8 @@ def _stamp_ns(text: str, factor: int, place: tuple[str, int, int], column: str) 
         else:
             stamp = int((value * factor).to_integral_value())
     if not 0 <= stamp <= MAX_STAMP_NS:
-        msg = (f'{_where(place)}, column {column!r}: {text!r} {"is before 1970" if stamp < 0 else "is after 2038"} '
-               f'and does not fit a bag stamp (builtin_interfaces/Time: 0 .. 2**31-1 s; wrong --time-unit?)')
+        msg = (f'{_where(place)}, column {column!r}: {text} {"is before 1970" if stamp < 0 else "is after 2038"} '
+               f'(--time-unit?)')
         raise LogError(msg)
     return stamp
 
@@ -608,9 +608,8 @@ def _check_code_range(counts: np.ndarray, acceleration: np.ndarray, options: Csv
     row, axis = (int(v) for v in np.argwhere(outside)[0])
     needed = float(np.max(np.abs(acceleration))) / (COUNTS_MAX - 1.0)
     msg = (f'{source}: row {row + 1} (line {line_numbers[row]}), column {options.acc_columns[axis]!r}: '
-           f'{acceleration[row, axis]:g} m/s^2 is {counts[row, axis]:.0f} counts at a resolution of '
-           f'{options.acc_resolution:g} m/s^2 per count: at or beyond the 16-bit range, it would saturate; '
-           f'use an acceleration resolution of at least {needed:.3g} m/s^2 per count')
+           f'{acceleration[row, axis]:g} m/s^2 is {counts[row, axis]:.0f} counts at that resolution: it would '
+           f'saturate; give --acc-resolution {needed:.3g} or more')
     raise LogError(msg)
 
 

@@ -71,6 +71,23 @@ class FlightLog:
         """Samples of ``sensor`` in the log."""
         return len(self.stamps.get(sensor, ()))
 
+    def stream_list(self) -> tuple[tuple[str, str, int], ...]:
+        """``(role, topic, samples)`` of each sensor's own stream and the temperature (a survey's first lines).
+
+        Each sensor counted on its own (a ULog's ``sensor_accel`` and ``sensor_gyro`` at their own
+        rates), not the messages a driver record would carry them in.
+        """
+        message = (self.temperature_source or 'IMU.T').split('.')[0]  # DataFlash: IMU, or TCLR
+        names = ({'accel': 'sensor_accel', 'gyro': 'sensor_gyro', 'mag': 'sensor_mag'} if self.format == 'ulog'
+                 else {'accel': message, 'gyro': message, 'mag': 'MAG'} if self.shared_stamps
+                 else {'accel': f'{message} accelerometer', 'gyro': f'{message} gyroscope', 'mag': 'MAG'})
+        sensors = [('main', 'accel'), *([] if self.shared_stamps else [('gyro', 'gyro')])]
+        listed = [(role, names[sensor], self.count(sensor)) for role, sensor in sensors]
+        listed.append(('temperature', self.temperature_source or 'temperature', len(self.temp_stamp_ns)))
+        if self.count('mag'):
+            listed.append(('mag', names['mag'], self.count('mag')))
+        return tuple(listed)
+
     def blocks(self, block_samples: int) -> Iterator[DriverRecord]:
         """The log as :class:`DriverRecord` blocks of ``block_samples`` accelerometer samples.
 

@@ -116,7 +116,10 @@ def kalibr_from_mapping(raw: Any, where: str = 'imu.yaml') -> tuple[dict[str, No
         known.add(f'{KALIBR_SENSORS[sensor]}_noise_source')
     unknown = sorted(str(k) for k in raw if k not in known)
     if unknown:
-        msg = f'{where}: {unknown[0]}: unknown key (Kalibr keys: {", ".join(sorted(known))})'
+        if str(unknown[0]).endswith('compensator'):
+            msg = f'{where}: a calibration file, not a noise model (give it with --params)'
+        else:
+            msg = f'{where}: {unknown[0]}: unknown key (not a Kalibr key: docs/noise.md lists them)'
         raise NoiseError(msg)
     if 'update_rate' not in raw:
         msg = f'{where}: update_rate: missing (Hz; the rate the noise densities were measured at)'

@@ -83,6 +83,12 @@ def record_blocks(path: str | os.PathLike[str], *, topics, kind: InputKind, **op
     yield from iter_blocks(path, topics=topics, kind=kind, **options)
 
 
+def record_stream_list(path: str | os.PathLike[str], *, topics) -> tuple[tuple[str, str, int], ...] | None:
+    """A flight log's streams, each sensor on its own (:meth:`FlightLog.stream_list`); ``None`` for a bag."""
+    log = flight_log(path, topics=topics)
+    return None if log is None else log.stream_list()
+
+
 def record_source(path: str | os.PathLike[str], *, topics) -> dict[str, object] | None:
     """What a calibration file records of a flight log (format, instance, device IDs), ``None`` for a bag."""
     log = flight_log(path, topics=topics)

@@ -12,6 +12,7 @@ import numpy as np
 from tak_thermo_ros.core.records.blocks import BlockAligner, Subsample, stride_for
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.records.record import AlignedSamples
+from tak_thermo_ros.core.records.provenance import PrintCollector, Recognition
 from tak_thermo_ros.core.records.survey import RecordSurvey
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import TakError
@@ -42,6 +43,10 @@ class BoundedRun:
     handheld: Any = None
     groups: dict[str, np.ndarray] | None = None
     """A pool of records: per sensor each sample's record (``diagnose`` holds whole records out)."""
+    in_sample: Recognition | None = None
+    """Whether the record is (part of) one the calibration was fitted from (``None``: not, or no claim)."""
+    first_stamp_ns: int | None = None
+    """The record's first sample stamp (before any sample is left out), ns."""
 
 
 def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: float = 0.0,
@@ -80,8 +85,10 @@ def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: floa
         subsamples[sensor] = Subsample(stride, expected=opened.main // stride + 1)
         passes.append(SensorPass(sensor, BlockAligner(use_reference=True, reference_expected=True,
                                                       settle_time_s=settle_time_s), [subsamples[sensor]]))
-    lines = run_passes(path, options, opened, passes)
+    prints = PrintCollector(sensors_of(opened.kind), against=unit.fitted_from if unit is not None else ())
+    lines = run_passes(path, options, opened, passes, prints=prints)
     return BoundedRun(input_kind=opened.kind,
                       samples={p.sensor: subsamples[p.sensor].samples(p.aligner.dropped) for p in passes},
                       usable={p.sensor: p.aligner.kept for p in passes}, stride=stride,
-                      reference_lines=tuple(lines), survey=opened.finished_survey())
+                      reference_lines=tuple(lines), survey=opened.finished_survey(),
+                      in_sample=prints.recognition(path.name), first_stamp_ns=prints.first_stamp_ns)

@@ -11,6 +11,7 @@ import numpy as np
 
 from tak_thermo_ros.core.records.blocks import BlockAligner, Subsample, add_counts, stride_for
 from tak_thermo_ros.core.records.extremes import RunExtremes
+from tak_thermo_ros.core.records.provenance import PrintCollector
 from tak_thermo_ros.core.fit import FitResult, fit_model
 from tak_thermo_ros.core.fit.model import AxisFit
 from tak_thermo_ros.core.link.model import InputKind, held_link
@@ -99,8 +100,9 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
             subsamples[sensor] = Subsample(stride, expected=opened.main // stride + 1)
             consumers.append(subsamples[sensor])
         passes.append(SensorPass(sensor, aligner(), [feeding(requirements[sensor], consumers)]))
+    prints = PrintCollector(sensors)
     try:
-        lines = run_passes(path, options, opened, passes)
+        lines = run_passes(path, options, opened, passes, prints=prints)
     except NotStatic as err:
         raise ImuLinkUndetermined(str(err), MOVED) from None
     results: dict[str, FitResult] = {}
@@ -148,7 +150,7 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
                        ignored_references={p.sensor: dict(p.aligner.ignored_references) for p in passes},
                        temperature_rate_max=extremes['accel'].temperature_rate_max,
                        rate_max=extremes['gyro'].reference_max if 'gyro' in extremes else 0.0,
-                       survey=opened.finished_survey())
+                       survey=opened.finished_survey(), record_print=prints.finish(path.name))
 
 
 def fit_imu(path: str | Path, settings: FitSettings, options: StreamOptions,

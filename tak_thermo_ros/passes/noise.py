@@ -24,6 +24,7 @@ from tak_thermo_ros.core.link.correction import OutOfRange
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.link.stream_correction import BlockCorrector
 from tak_thermo_ros.core.noise.allan import AllanAccumulator, AllanVariance
+from tak_thermo_ros.core.noise.constancy import TemperatureTrend, compensated_static, temperature_trend
 from tak_thermo_ros.core.noise.fit import NoiseFit, fit_noise
 from tak_thermo_ros.core.noise.model import NoiseModel
 from tak_thermo_ros.core.records.record import AlignedSamples
@@ -35,11 +36,16 @@ GAP_FACTOR = 1.5
 """A step between two samples' stamps longer than this many sampling intervals is a gap."""
 CONSTANT_TEMPERATURE_C = 2.0
 """A driver run whose temperature spans at most this many degrees C is a run at constant
-temperature (``source='static_run'``: a chamber holds its setpoint to about +-0.5 C; self-heating
-after power-on moves a board a degree or two); a wider span makes the model ``residual``."""
+temperature (``source='static_run'``: a chamber holds its setpoint to about +-0.5 C), compensated
+or not. A wider span is a static run only when a calibration compensates it and what the
+compensation leaves is noise (:mod:`tak_thermo_ros.core.noise.constancy`: a powered unit that
+warms itself by a few degrees); else the model is ``residual``."""
 CONSTANT_TEMPERATURE_FRACTION = 0.05
 """The same for a counts run, whose codes have no unit: at most this share of the calibrated
 temperature-code range (1.5 C of a 5..35 C chamber calibration)."""
+TREND_CHUNKS = 4096
+"""A compensated run's residual is kept as the means of about this many equal chunks (bounded memory)
+for the trend test (:mod:`tak_thermo_ros.core.noise.constancy`)."""
 PER_OCTAVE = 2
 """Averaging times per doubling of ``tak_calib noise``'s Allan deviation."""
 
@@ -59,6 +65,9 @@ class _SensorNoise:
     dropped: dict[str, int] = field(default_factory=dict)
     outside: int = 0
     temperature: tuple[float, float] | None = None
+    chunk: int = 1
+    _chunks: list[np.ndarray] = field(default_factory=list)
+    _leftover: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         from tak_thermo_ros.passes.run import Required
@@ -95,7 +104,32 @@ class _SensorNoise:
                                                                              max(high, self.temperature[1]))
         if self.accumulator is None:
             self.accumulator = AllanAccumulator(1.0, 3, per_octave=self.per_octave)
-        self.accumulator.add(measured - samples.reference)
+        residual = measured - samples.reference
+        self.accumulator.add(residual)
+        if self.corrector is not None:
+            self._keep_means(samples.stamp_s, samples.temp_code, residual)
+
+    def _keep_means(self, stamp_s: np.ndarray, temperature: np.ndarray, residual: np.ndarray) -> None:
+        """Means of every ``chunk`` samples (time, temperature, residual): the trend test's input, bounded."""
+        rows = np.column_stack([stamp_s, temperature, residual])
+        if self._leftover is not None:
+            rows = np.concatenate([self._leftover, rows])
+        whole = len(rows) // self.chunk * self.chunk
+        if whole:
+            self._chunks.append(rows[:whole].reshape(-1, self.chunk, rows.shape[1]).mean(axis=1))
+        self._leftover = rows[whole:] if whole < len(rows) else None
+
+    def trend(self) -> TemperatureTrend | None:
+        """What the compensation leaves of a drift with temperature (``None`` without a calibration)."""
+        if self.corrector is None:
+            return None
+        parts = list(self._chunks)
+        if self._leftover is not None and len(self._leftover):
+            parts.append(self._leftover.mean(axis=0, keepdims=True))
+        if not parts:
+            return None
+        means = np.concatenate(parts)
+        return temperature_trend(means[:, 0], means[:, 1], means[:, 2:])
 
     def allan(self) -> AllanVariance | None:
         """The Allan variance with averaging times in seconds (the rate from the stamps' median step)."""
@@ -132,16 +166,19 @@ class SensorNoise:
     fit: NoiseFit | None = None
     temperature: tuple[float, float] | None = (0.0, 0.0)
     temperature_unit: str = 'C'
+    why: str = ''
+    """Why a compensated run whose temperature moved is a static run, or is not (a few words)."""
 
     @property
     def span_words(self) -> str:
-        """`` (19.98..20.02 C)``: the temperature span behind the source, to print beside it."""
+        """`` (19.98..20.02 C)``: the temperature span behind the source, to print beside it (and why)."""
         if self.temperature is None:
             return ' (no temperature recorded: taken as constant)'
         low, high = self.temperature
+        why = f'; {self.why}' if self.why else ''
         if self.temperature_unit == 'C':
-            return f' ({low:.2f}..{high:.2f} C)'
-        return f' (temperature code {low:.0f}..{high:.0f})'
+            return f' ({low:.2f}..{high:.2f} C{why})'
+        return f' (temperature code {low:.0f}..{high:.0f}{why})'
 
 
 @dataclass(frozen=True)
@@ -209,7 +246,9 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
                f'static record')
         raise NoiseError(msg)
     sensors = sensors_of(opened.kind)
-    noises = {sensor: _SensorNoise(unit.sensor(sensor) if unit is not None else None, out_of_range, per_octave)
+    chunk = max(1, opened.main // TREND_CHUNKS)
+    noises = {sensor: _SensorNoise(unit.sensor(sensor) if unit is not None else None, out_of_range, per_octave,
+                                   chunk=chunk)
               for sensor in sensors}
     passes = [SensorPass(sensor, BlockAligner(use_reference=True, reference_expected=True,
                                               settle_time_s=settle_time_s, temperature_expected=holding),
@@ -218,7 +257,10 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
     lines = run_passes(path, options, opened, passes)
     spans = [noises[sensor].temperature for sensor in sensors if noises[sensor].temperature is not None]
     temperature = (min(low for low, _ in spans), max(high for _, high in spans)) if spans else None
-    source = source or run_source(temperature, kind, unit)
+    why = ''
+    if source is None:
+        trends = [trend for trend in (noises[sensor].trend() for sensor in sensors) if trend is not None]
+        source, why = run_source_why(temperature, kind, unit, trends)
     found = {}
     for sensor_pass in passes:
         stream = noises[sensor_pass.sensor]
@@ -237,26 +279,46 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
         found[sensor_pass.sensor] = SensorNoise(model=fit.model, allan=allan, gaps=stream.gaps,
                                                 missing=stream.missing, dropped=dropped, out_of_range=stream.outside,
                                                 fit=fit, temperature=temperature,
-                                                temperature_unit='codes' if kind is InputKind.COUNTS else 'C')
+                                                temperature_unit='codes' if kind is InputKind.COUNTS else 'C',
+                                                why=why)
     topic = options.topics.counts if opened.kind is InputKind.COUNTS else options.topics.raw_imu
     return NoiseRun(input_kind=opened.kind, sensors=found, compensated=unit is not None,
                     reference_lines=tuple(lines), topic=topic, survey=opened.finished_survey())
 
 
-def run_source(temperature: tuple[float, float] | None, kind: InputKind, unit: UnitCalibration | None) -> str:
-    """``static_run`` for a run at constant temperature, else ``residual`` (:func:`noise_bag`'s ``source``).
+def run_source(temperature: tuple[float, float] | None, kind: InputKind, unit: UnitCalibration | None,
+               trends: list[TemperatureTrend] | None = None) -> str:
+    """``static_run`` or ``residual`` (:func:`noise_bag`'s ``source``; :func:`run_source_why`)."""
+    return run_source_why(temperature, kind, unit, trends or [])[0]
 
-    A run that records no temperature is taken as one at constant temperature (said beside the source).
+
+def run_source_why(temperature: tuple[float, float] | None, kind: InputKind, unit: UnitCalibration | None,
+                   trends: list[TemperatureTrend]) -> tuple[str, str]:
+    """``static_run`` for a static run, else ``residual``; and why, when the temperature moved.
+
+    A run that records no temperature is taken as one at constant temperature (said beside the
+    source), as is one whose temperature stays within :data:`CONSTANT_TEMPERATURE_C` (a counts
+    run: :data:`CONSTANT_TEMPERATURE_FRACTION` of the calibrated range). A run whose temperature
+    moves more is a static run when a calibration compensates it and what the compensation leaves
+    says so (:func:`~tak_thermo_ros.core.noise.constancy.compensated_static`: no trend with
+    temperature left, not a sweep, inside the calibrated range); without a calibration it is not.
     """
     if temperature is None:
-        return 'static_run'
+        return 'static_run', ''
     span = temperature[1] - temperature[0]
     if kind is InputKind.COUNTS and unit is not None:
         calibrated = unit.accel.temp_code_max - unit.accel.temp_code_min
         constant = span <= CONSTANT_TEMPERATURE_FRACTION * calibrated
     else:
         constant = span <= CONSTANT_TEMPERATURE_C
-    return 'static_run' if constant else 'residual'
+    if constant:
+        return 'static_run', ''
+    if unit is None or not trends:
+        return 'residual', 'not compensated (no --params)' if unit is None else ''
+    calibrations = [calibration for _, calibration in unit.sensors]
+    calibrated = (max(c.temp_code_min for c in calibrations), min(c.temp_code_max for c in calibrations))
+    static, why = compensated_static(temperature, calibrated, trends)
+    return ('static_run' if static else 'residual'), why
 
 
 @dataclass(frozen=True)

@@ -26,6 +26,7 @@ from tak_thermo_ros.core.records.blocks import BlockAligner, add_counts
 from tak_thermo_ros.core.fit import FitResult
 from tak_thermo_ros.core.link.model import InputKind
 from tak_thermo_ros.core.records.record import AlignedSamples, ChannelRecord, DriverRecord, require_signals
+from tak_thermo_ros.core.records.provenance import PrintCollector, RecordPrint
 from tak_thermo_ros.core.records.survey import Plan, RecordSurvey, SurveyCollector
 from tak_thermo_ros.core.records.static_run import (
     StaticReference,
@@ -234,10 +235,11 @@ def open_calibration_run(path: Path, options: StreamOptions, streams, *, gravity
     :param decide: refuse a surveyed record that determines no link (:func:`decided`); ``False``: the
         caller refuses what it cannot take in its own words (``noise``).
     """
-    from tak_thermo_ros.formats.records import record_streams
+    from tak_thermo_ros.formats.records import record_stream_list, record_streams
     if require_reference and streams.kind is InputKind.COUNTS:
         streams = record_streams(path, topics=options.topics, require_reference=True)
-    listed = stream_list(streams, options.topics)
+    listed = (record_stream_list(path, topics=options.topics) if streams.kind is InputKind.IMU else None) or \
+        stream_list(streams, options.topics)
     static = None
     survey = None
     replay = None
@@ -293,8 +295,13 @@ def survey_record(path: Path, options: StreamOptions, kind: InputKind, listed: t
     return collector.finish(listed), tuple(kept) if kept is not None else None
 
 
-def run_passes(path: Path, options: StreamOptions, opened: OpenedRun, passes: Sequence[SensorPass]) -> list[str]:
-    """Read the bag once (or replay the survey's blocks), feeding each sensor's pass; the reference lines."""
+def run_passes(path: Path, options: StreamOptions, opened: OpenedRun, passes: Sequence[SensorPass], *,
+               prints: PrintCollector | None = None) -> list[str]:
+    """Read the bag once (or replay the survey's blocks), feeding each sensor's pass; the reference lines.
+
+    :param prints: also gathers the record's print (what a calibration keeps of the record it was
+        fitted from, :mod:`~tak_thermo_ros.core.records.provenance`) from every block as read.
+    """
     from tak_thermo_ros.formats.records import record_blocks
     if opened.static is not None:
         opened.static.rewind()
@@ -303,6 +310,8 @@ def run_passes(path: Path, options: StreamOptions, opened: OpenedRun, passes: Se
     for block in blocks:
         if opened.collector is not None:
             opened.collector.add(block)
+        if prints is not None:
+            prints.add(_sensor_records(block, opened.kind))
         if opened.static is not None:
             block = opened.static.check_block(block)
         records = _sensor_records(block, opened.kind)
@@ -360,6 +369,8 @@ class StreamedFit:
     rate_max: float = 0.0
     """The largest rate reference of a driver run, rad/s (0 for a static run without latitude)."""
     held: tuple[str, ...] = ()
+    record_print: RecordPrint | None = None
+    """What the calibration keeps of the record (:class:`~tak_thermo_ros.core.records.provenance.RecordPrint`)."""
 
 
 class ImuLinkUndetermined(FitError):

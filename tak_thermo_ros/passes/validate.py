@@ -11,6 +11,7 @@ from tak_thermo_ros.core.records.blocks import BlockAligner
 from tak_thermo_ros.core.link.correction import Corrector, OutOfRange
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.records.record import AlignedSamples
+from tak_thermo_ros.core.records.provenance import PrintCollector, Recognition
 from tak_thermo_ros.core.records.survey import RecordSurvey
 from tak_thermo_ros.core.link.stream_correction import GravityCheck, RateCheck
 from tak_thermo_ros.passes.run import (
@@ -19,6 +20,7 @@ from tak_thermo_ros.passes.run import (
     StreamOptions,
     open_calibration_run,
     run_passes,
+    sensors_of,
     temperature_expected,
 )
 
@@ -38,6 +40,8 @@ class Validated:
     accel_ignored_temp_codes: dict[str, int] = field(default_factory=dict)
     accel_ignored_references: dict[str, int] = field(default_factory=dict)
     survey: RecordSurvey | None = None
+    in_sample: Recognition | None = None
+    """Whether the record is (part of) one the calibration was fitted from (``None``: not, or no claim)."""
 
 
 def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions, *, gravity: float,
@@ -87,9 +91,10 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
                                aux=samples.aux)
             gyro_pass.consumers.append(add_rate)
         passes.append(gyro_pass)
-    lines = run_passes(path, options, opened, passes)
+    prints = PrintCollector(sensors_of(kind), against=unit.fitted_from)
+    lines = run_passes(path, options, opened, passes, prints=prints)
     return Validated(input_kind=kind, gravity=gravity_check, rate=rate_check, reference_lines=tuple(lines),
                      accel_dropped=accel_required.dropped,
                      accel_ignored_temp_codes=dict(accel_pass.aligner.ignored_temp_codes),
                      accel_ignored_references=dict(accel_pass.aligner.ignored_references),
-                     survey=opened.finished_survey())
+                     survey=opened.finished_survey(), in_sample=prints.recognition(path.name))

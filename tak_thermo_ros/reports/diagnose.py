@@ -8,9 +8,15 @@ Figures (matplotlib, Agg backend, written into the report directory):
   and cooling (blue) apart: thermal lag and hysteresis draw loops here.
 - ``residual_rate.png``: the residual against ``dN_t/dt``: a thermal lag draws a slope.
 - ``residual_inputs.png``: the residual of each axis against each axis' input: its own
-  (scale nonlinearity draws a parabola) and the others (cross-axis coupling draws a line).
+  (scale nonlinearity draws a parabola) and the others (cross-axis coupling draws a line); not
+  drawn for a record with one input per axis (a line says why).
 - ``residual_plateaus.png``: the mean residual on each temperature plateau, by the direction
-  it was reached from: hysteresis keeps the two apart, lag does not.
+  it was reached from: hysteresis keeps the two apart, lag does not; not drawn for fewer than two
+  plateaus (a line says why).
+
+A driver's record (its temperature in degrees C) is said in degrees throughout: labels, captions
+and the verdict (:func:`~tak_thermo_ros.units.in_driver_words`); its |g| *before* is the values
+as recorded, as ``validate`` prints it.
 - ``ladder.png``: held-out RMS over the noise floor of the model ladder and of every candidate.
 - ``gravity.png``: ``|g| - g`` before and after correction, as in the paper's Figs. 4-5.
 
@@ -48,7 +54,7 @@ from tak_thermo_ros.core.link.model import AXES  # noqa: E402
 from tak_thermo_ros.core.records.record import AlignedSamples  # noqa: E402
 from tak_thermo_ros.core.simulation.imu import STANDARD_GRAVITY  # noqa: E402
 from tak_thermo_ros.core.link.validate import validate_gravity  # noqa: E402
-from tak_thermo_ros.units import readable, readable_unit, significant  # noqa: E402
+from tak_thermo_ros.units import in_driver_words, readable, readable_unit, significant  # noqa: E402
 
 HEATING = '#d62728'
 COOLING = '#1f77b4'
@@ -422,16 +428,19 @@ def _allan_table(diagnosis: Diagnosis) -> str:
     return ('<table><tr><th>model</th><th>x</th><th>y</th><th>z</th></tr>' + ''.join(rows) + '</table>')
 
 
-def gravity_series(diagnosis: Diagnosis, samples: AlignedSamples,
-                   gravity: float) -> list[tuple[str, np.ndarray]]:
-    """``|g| - g`` in m/s^2 (:func:`validate_gravity`).
+def gravity_series(diagnosis: Diagnosis, samples: AlignedSamples, gravity: float, *,
+                   as_recorded: bool = False) -> list[tuple[str, np.ndarray]]:
+    """``|g| - g`` in m/s^2 (:func:`validate_gravity`, as ``validate`` computes it).
 
-    Nominal scale and offset only, the current model, and the model with the ladder's effects.
+    *Before* (a driver's values as recorded with ``as_recorded``, else the codes through the
+    file's nominal scale and offset: ``validate``'s before), the current model, and the model
+    with the ladder's effects.
     """
     stamps = samples.stamp_s
     current = validate_gravity(diagnosis.calibration, samples.counts, samples.temp_code, gravity=gravity,
-                               stamp_s=stamps, aux=samples.aux)
-    series = [('nominal scale and offset only', current.magnitude_before - gravity),
+                               stamp_s=stamps, aux=samples.aux, raw_before=as_recorded)
+    before = 'as recorded (no correction)' if as_recorded else 'nominal scale and offset only'
+    series = [(before, current.magnitude_before - gravity),
               (diagnosis.ladder[0].label, current.magnitude_after - gravity)]
     if diagnosis.calibration_after is not None:
         after = validate_gravity(diagnosis.calibration_after, samples.counts, samples.temp_code, gravity=gravity,
@@ -603,12 +612,13 @@ def _gravity_table(series: list[tuple[str, np.ndarray]], gravity: float) -> str:
 
 
 def _relabel(fig: Figure, unit: str) -> Figure:
-    """A driver sensor's figure: residuals in ``unit``, the temperature in degrees C."""
+    """A driver sensor's figure: residuals in ``unit``, the temperature in degrees C (no word of codes)."""
     for text in fig.findobj(matplotlib.text.Text):
         label = text.get_text()
-        changed = (label.replace('(counts)', f'({unit})').replace('temperature code $N_t$', 'temperature (C)')
-                   .replace('$dN_t/dt$ (codes per minute)', '$dT/dt$ (C per minute)')
-                   .replace('Residual N - model', 'Residual y - model'))
+        changed = in_driver_words(
+            label.replace('(counts)', f'({unit})').replace('temperature code $N_t$', 'temperature (C)')
+            .replace('$dN_t/dt$ (codes per minute)', '$dT/dt$ (C per minute)')
+            .replace('Residual N - model', 'Residual y - model'))
         if changed != label:
             text.set_text(changed)
     return fig
@@ -628,24 +638,44 @@ def write_report(diagnosis: Diagnosis, samples: AlignedSamples, directory: str |
     """
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    series = gravity_series(diagnosis, samples, gravity) if sensor == 'accel' else []
+    driver = unit != 'counts'
+    words = in_driver_words if driver else (lambda text: text)
+    series = gravity_series(diagnosis, samples, gravity, as_recorded=driver) if sensor == 'accel' else []
+    after = diagnosis.residual_after is not None
+    steady = bool(np.any(diagnosis.views.direction == 0))
     figures = [
         ('residual_time.png', figure_residual_time(diagnosis),
          'The residual against time. Grey band: &plusmn; the noise floor; red: stretches where the residual '
-         'rises clearly above it; black: binned mean of the current model, green: with the suspected effect.'),
+         'rises clearly above it; black: binned mean of the current model'
+         + (', green: with the suspected effect.' if after else '.')),
         ('residual_temperature.png', figure_residual_temperature(diagnosis),
-         'Against the temperature code, heating (red) and cooling (blue) apart, grey dots on plateaus. '
+         'Against the temperature code, heating (red) and cooling (blue) apart'
+         + (', grey dots on plateaus' if steady else '') + '. '
          'A loop that closes on plateaus is a thermal lag; one that stays open is hysteresis; '
          'a common bend is a temperature shape the polynomial cannot follow.'),
         ('residual_rate.png', figure_residual_rate(diagnosis),
          'Against the rate of the temperature code. A straight slope through zero: the drifting part '
          'lags the temperature sensor.'),
-        ('residual_plateaus.png', figure_residual_plateaus(diagnosis),
-         'Mean residual over the settled half of each plateau, by the direction it was reached from. '
-         'Hysteresis keeps heating and cooling apart even there; a lag has settled.'),
-        ('residual_inputs.png', figure_residual_inputs(diagnosis),
-         'Against the inputs. A curve on the diagonal: scale nonlinearity; a slope off the diagonal: '
-         'cross-axis coupling.'),
+    ]
+    # A panel of one point shows nothing: said in a line instead of drawn.
+    skipped = []
+    if len(diagnosis.views.plateaus) >= 2:
+        figures.append(('residual_plateaus.png', figure_residual_plateaus(diagnosis),
+                        'Mean residual over the settled half of each plateau, by the direction it was reached '
+                        'from. Hysteresis keeps heating and cooling apart even there; a lag has settled.'))
+    else:
+        skipped.append(f'{len(diagnosis.views.plateaus) or "No"} temperature plateau'
+                       f'{"" if len(diagnosis.views.plateaus) == 1 else "s"} in this run: the residual per plateau, '
+                       f'reached by heating against by cooling, takes two or more.')
+    levels = max(len(np.unique(np.round(diagnosis.views.specific_force[:, j], 6))) for j in range(3))
+    if levels >= 2:
+        figures.append(('residual_inputs.png', figure_residual_inputs(diagnosis),
+                        'Against the inputs. A curve on the diagonal: scale nonlinearity; a slope off the '
+                        'diagonal: cross-axis coupling.'))
+    else:
+        skipped.append('One input per axis in this run (one orientation): the residual against the inputs '
+                       '(scale nonlinearity, cross-axis coupling) takes several.')
+    figures += [
         ('ladder.png', figure_ladder(diagnosis),
          'Left: the model ladder, held-out RMS over the noise floor as each effect is added. '
          'Right: every candidate effect added to the current model, scored on held-out time blocks.'),
@@ -658,8 +688,10 @@ def write_report(diagnosis: Diagnosis, samples: AlignedSamples, directory: str |
                         'bound that noise explains (chi-square on the equivalent degrees of freedom).'))
     if sensor == 'accel':
         figures.append(('gravity.png', figure_gravity(diagnosis, series, gravity),
-                        '|g| from the three channels minus local gravity: with nominal scale and offset only, '
-                        'with the current model, and with the suspected effect added.'))
+                        f'|g| from the three channels minus local gravity: {series[0][0]} (as validate\'s '
+                        f'before), with the current model'
+                        + (', and with the suspected effect added.' if diagnosis.calibration_after is not None
+                           else '.')))
     paths = []
     blocks = {}
     for name, fig, caption in figures:
@@ -668,7 +700,8 @@ def write_report(diagnosis: Diagnosis, samples: AlignedSamples, directory: str |
         paths.append(path)
         encoded = base64.b64encode(data).decode('ascii')
         blocks[name] = (f'<figure><img alt="{name}" src="data:image/png;base64,{encoded}">'
-                        f'<figcaption>{caption}</figcaption></figure>')
+                        f'<figcaption>{words(caption)}</figcaption></figure>')
+    notes = ''.join(f'<p class="small">{html.escape(words(text))}</p>' for text in skipped)
     kind = ('v-none' if diagnosis.verdict == VERDICT_NONE else
             'v-unexplained' if diagnosis.verdict == VERDICT_UNEXPLAINED else 'v-effect')
     headline = {VERDICT_NONE: 'Verdict: none (the residual is at the noise floor)',
@@ -700,23 +733,24 @@ def write_report(diagnosis: Diagnosis, samples: AlignedSamples, directory: str |
 <div class="sub">{len(diagnosis.views.time_s)} samples, {duration:.2f} h;
 model: {html.escape(diagnosis.ladder[0].label)};
 written {stamp} by tak_calib diagnose</div>
-<div class="verdict {kind}"><b>{html.escape(headline)}</b>{html.escape(diagnosis.message)}</div>
+<div class="verdict {kind}"><b>{html.escape(headline)}</b>{html.escape(words(diagnosis.message))}</div>
 <div class="card"><b>Residual against the noise floor</b> ({html.escape(readable_unit(unit)[0])}; the floor is estimated
 from successive differences of the residual and includes the code rounding)
 {_axes_table(diagnosis, unit)}</div>
-{_effect_card(diagnosis)}
+{words(_effect_card(diagnosis))}
 <h2>Where the model fails</h2>
 {blocks['residual_time.png']}
 {blocks['residual_temperature.png']}
 {blocks['residual_rate.png']}
-{blocks['residual_plateaus.png']}
-{blocks['residual_inputs.png']}
+{blocks.get('residual_plateaus.png', '')}
+{blocks.get('residual_inputs.png', '')}
+{notes}
 <h2>Which effect explains it</h2>
 {blocks['ladder.png']}
 <div class="card"><b>Model ladder</b>: held-out RMS per axis, {html.escape(readable_unit(unit)[0])} (over the floor)
 <table><tr><th>model</th><th>x</th><th>y</th><th>z</th></tr>{ladder_rows}</table>
 <b>Candidates</b>, best first
-{_candidates_table(diagnosis, unit)}
+{words(_candidates_table(diagnosis, unit))}
 <p class="small">Blocked cross-validation: {diagnosis.blocks} contiguous time blocks dealt round-robin into
 {diagnosis.folds} folds; each model is fitted without one fold and scored on it (stateful effects run over the
 whole series), {stride_text}. An effect joins the ladder when it removes at least half of the

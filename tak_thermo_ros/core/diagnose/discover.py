@@ -58,6 +58,8 @@ from tak_thermo_ros.core.diagnose.yardstick import (
 )
 from tak_thermo_ros.core.effects import LIBRARY, PER_AXIS, PER_AXIS_SUFFIX, Effect, PerAxisEffect, resolve_effect
 from tak_thermo_ros.core.effects.aux_signal import recorded_candidates
+from tak_thermo_ros.core.effects.step import Step
+from tak_thermo_ros.core.records.steps import find_steps
 from tak_thermo_ros.core.fit import fit_model, residual_counts
 from tak_thermo_ros.core.link.model import AXES, Calibration
 from tak_thermo_ros.core.noise.residual import RESIDUAL_LONGEST_TAU_S
@@ -128,7 +130,8 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
              rate_window_s: float | None = None,
              progress: Callable[[str], None] | None = None, per_axis: bool = True,
              noise: Any | None = None, seed: int = 0, unit: str = 'counts', unit_scale: float = 1.0,
-             groups: np.ndarray | None = None) -> Diagnosis:
+             groups: np.ndarray | None = None, temperature_unit: str = '', start_s: float | None = None
+             ) -> Diagnosis:
     """Compare the calibration with a run, find where it fails and which effect it misses.
 
     :param calibration: the model to diagnose (base model, possibly with effects).
@@ -161,7 +164,16 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
         residual to it (a magnetometer's tesla in uT: ``'uT'``, 1e6).
     :param groups: ``(k,)`` per sample its record in a pool of records (0, 1, ...): the folds then hold
         whole records out (record ``r`` in fold ``r % folds``) instead of time blocks; ``None``: time blocks.
+    :param temperature_unit: the temperature's unit in messages (``'C'``); ``''``: codes.
+    :param start_s: the record's first stamp, seconds: a step's moment is counted from it (default:
+        the first sample's, which differs when samples at the start were left out).
     :raises FitError: when the run has no reference or too few samples.
+
+    Before the ladder, the residual of the calibration as given is scanned for steps (sudden
+    level changes, :func:`~tak_thermo_ros.core.records.steps.find_steps`): a step found is
+    named with its moment and temperature before any word on a slow drift, and the library's
+    ``step`` effect joins the candidates (only then: without a step it would split a slow
+    wander into two levels).
     """
     if samples.reference is None:
         msg = 'diagnose needs the reference stream (the true specific force) in the run'
@@ -222,8 +234,11 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
             raise FitError(msg) from err
         floor = np.maximum(yardstick.floor, 1e-12)
 
-    # By default every library effect and every recorded auxiliary signal (aux:TOPIC) in the run.
-    specs = list(candidates) if candidates is not None else [*LIBRARY, *recorded_candidates(samples.aux)]
+    steps = find_steps(residual, breaks=views.breaks)
+    # By default every library effect and every recorded auxiliary signal (aux:TOPIC) in the run;
+    # the step only where the scan found one.
+    specs = list(candidates) if candidates is not None else [
+        *(name for name in LIBRARY if name != Step.name or steps), *recorded_candidates(samples.aux)]
     pool = [resolve_effect(type(spec) if isinstance(spec, Effect) else spec) for spec in specs]
     related = set(present_names) | {_effect_name(_shared_form(spec)) for spec in present if _shared_form(spec)}
     pool = [cls for cls in pool if cls.name not in related]
@@ -523,6 +538,11 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
     if pruned and verdict not in (VERDICT_NONE, VERDICT_UNEXPLAINED):
         statements.append(Statement(f'Not needed once the others are in: {", ".join(pruned)} (held-out blocks do '
                                     f'not notice its removal).'))
+    if steps:
+        origin = float(samples.stamp_s[0]) if start_s is None else float(start_s)
+        statements = step_statements(statements, steps, views, final_residual, unit=unit, scale=unit_scale,
+                                     temperature_unit=temperature_unit, named=Step.name in parameters_names(added),
+                                     offset_s=float(samples.stamp_s[0]) - origin)
     return Diagnosis(verdict=verdict, message=message_text(statements), axes=axes,  # type: ignore[arg-type]
                      statements=tuple(statements),
                      candidates=tuple(candidates_out), skipped=skipped, ladder=tuple(ladder), drivers=drivers,
@@ -534,7 +554,60 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
                      unresolved=unresolved, pruned=tuple(pruned),
                      per_axis_forms=tuple(candidate for _, candidate in per_axis_tried),
                      noise=noise, allan=allan, averaging_time_s=float(averaging_s) if judged else 0.0,
-                     yardstick_replicates=yardstick.replicates if yardstick is not None else 0)
+                     yardstick_replicates=yardstick.replicates if yardstick is not None else 0,
+                     steps=steps, steps_offset_s=float(samples.stamp_s[0]) - (
+                         float(samples.stamp_s[0]) if start_s is None else float(start_s)))
+
+
+def parameters_names(specs: Sequence[Any]) -> set[str]:
+    """The names of effect specs."""
+    return {_effect_name(spec) for spec in specs}
+
+
+DRIFT_OPENINGS = ('It is a slow drift in time', 'It is a drift in time')
+"""How the statement that calls what remains a drift in time begins (:mod:`.verdict`)."""
+
+
+def step_statements(statements: Sequence[Statement], steps: Sequence[Any], views: Any, residual: np.ndarray, *,
+                    unit: str, scale: float, temperature_unit: str, named: bool,
+                    offset_s: float = 0.0) -> list[Statement]:
+    """The verdict's statements with each step named before any word on a slow drift.
+
+    A drift statement stays only when the residual, its steps' levels taken out, still follows
+    time first (then it speaks of what is left besides the steps). ``offset_s``: the first sample's
+    time after the record's start (the moments are said from the record's start).
+    """
+    from tak_thermo_ros.core.diagnose.views import residual_drivers
+    texts = []
+    levelled = np.array(residual, dtype=float, copy=True)
+    for step in steps:
+        if not named:
+            levelled[step.index:] -= step.amplitude
+        moment = float(views.time_s[step.index] + views.time_s[step.index - 1]) / 2.0 + offset_s
+        code = float(views.temp_code[step.index])
+        where = f'{code:.1f} C' if temperature_unit == 'C' else (
+            f'{code:.4g} {temperature_unit}' if temperature_unit else f'temperature code {code:.0f}')
+        changes = ', '.join(f'{AXES[c]} {float(step.amplitude[c]) * scale:+.3g} {unit} ({abs(float(step.z[c])):.0f} '
+                            f'sigmas)' for c in step.named)
+        texts.append(f'a step at {moment / 60.0:.2f} min ({where}): {changes}')
+    fix = '' if named else ' (fit --effects step fits the largest)'
+    said = [Statement(f'The residual steps: {"; ".join(texts)}. A sudden change of level that holds, against the '
+                      f'record\'s own level changes at that time scale: not a slow drift{fix}.')]
+    still_drifts = residual_drivers(levelled, views)[0].name in ('time', 'time at fixed temperature')
+    out: list[Statement] = []
+    placed = False
+    for statement in statements:
+        if statement.text.startswith(DRIFT_OPENINGS) and not placed:
+            out += said
+            placed = True
+            if still_drifts:
+                out.append(Statement('Besides the steps: ' + statement.text[0].lower() + statement.text[1:],
+                                     statement.detail))
+            continue
+        out.append(statement)
+    if not placed:
+        out[1:1] = said
+    return out
 
 
 def wander_explains(check: AllanCheck) -> bool:

@@ -209,6 +209,9 @@ class Diagnosis:
     :param averaging_time_s: the averaging bins of the cross-validation, judged against a noise
         model from a file or a static run; 0 otherwise (per sample).
     :param yardstick_replicates: simulated copies of the run under the noise model.
+    :param steps: the sudden level changes of the residual as given
+        (:class:`~tak_thermo_ros.core.records.steps.LevelChange`), largest first;
+        ``steps_offset_s`` the first sample's time after the record's start (their moments count from it).
     :param statements: ``message`` one sentence at a time
         (:class:`~tak_thermo_ros.core.diagnose.verdict.Statement`: its text, and whether it is a
         detail that only ``--verbose`` prints).
@@ -240,6 +243,8 @@ class Diagnosis:
     averaging_time_s: float = 0.0
     yardstick_replicates: int = 0
     statements: tuple[Any, ...] = ()
+    steps: tuple[Any, ...] = ()
+    steps_offset_s: float = 0.0
 
     @property
     def noise_floor(self) -> np.ndarray:
@@ -275,7 +280,17 @@ class Diagnosis:
             'averaging_time_s': self.averaging_time_s,
             **({'noise': noise_document(self.noise)} if self.noise is not None else {}),
             'allan': [{'model': label, **check.as_dict()} for label, check in self.allan],
+            'steps': [self.step_document(step) for step in self.steps],
         }
+
+    def step_document(self, step: Any) -> dict[str, Any]:
+        """A step in ``--json``: its moment (seconds since the record's start), temperature, per axis its change."""
+        views = self.views
+        return {'time_s': float(views.time_s[step.index] + views.time_s[step.index - 1]) / 2.0 + self.steps_offset_s,
+                'sample': int(step.index), 'temperature': float(views.temp_code[step.index]),
+                'scale_samples': int(step.scale), 'axes': [AXES[c] for c in step.named],
+                'change': dict(zip(AXES, (float(v) for v in step.amplitude))),
+                'sigma': dict(zip(AXES, (float(v) for v in step.sigma)))}
 
 
 def noise_document(noise: Any) -> dict[str, Any]:

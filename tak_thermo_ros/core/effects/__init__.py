@@ -25,6 +25,7 @@ from tak_thermo_ros.core.effects.cross_axis import CrossAxis
 from tak_thermo_ros.core.effects.hysteresis import Hysteresis
 from tak_thermo_ros.core.effects.per_axis import PER_AXIS_SUFFIX, PerAxisEffect, per_axis_form
 from tak_thermo_ros.core.effects.scale_nonlinearity import ScaleNonlinearity
+from tak_thermo_ros.core.effects.step import Step
 from tak_thermo_ros.core.effects.temperature_shape import TemperatureShape
 from tak_thermo_ros.core.effects.thermal_lag import ThermalLag
 from tak_thermo_ros.core.effects.warmup import Warmup
@@ -32,7 +33,7 @@ from tak_thermo_ros.core.records.record import seconds, seconds_from_ns
 from tak_thermo_ros.errors import FitError
 
 LIBRARY: dict[str, type[Effect]] = {
-    cls.name: cls for cls in (ThermalLag, Hysteresis, ScaleNonlinearity, CrossAxis, Warmup, TemperatureShape)
+    cls.name: cls for cls in (ThermalLag, Hysteresis, ScaleNonlinearity, CrossAxis, Warmup, TemperatureShape, Step)
 }
 """The library effects by name."""
 
@@ -56,6 +57,7 @@ __all__ = [
     'Parameter',
     'ParameterSpec',
     'ScaleNonlinearity',
+    'Step',
     'TemperatureShape',
     'ThermalLag',
     'Warmup',

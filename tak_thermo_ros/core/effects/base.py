@@ -347,6 +347,17 @@ class Effect:
             space[spec.name] = (spec.min, spec.max, spec.min > 0.0)
         return space
 
+    def search_values(self, time_s: np.ndarray, temp_code: np.ndarray,
+                      residual: np.ndarray) -> dict[str, np.ndarray]:
+        """Shape parameters the fit scans over given values instead of searching a range: name -> values.
+
+        For a parameter whose objective is not smooth (the moment of a step: only the samples on
+        each side count), the fit scans every ``n / 200``-th value, then each one around the
+        best. ``residual`` ``(k, 3)``: the training samples' residual of the model without this
+        effect (what the effect is to explain). Default: none.
+        """
+        return {}
+
     @classmethod
     def structures(cls, time_s: np.ndarray, temp_code: np.ndarray) -> Sequence[Effect] | None:
         """Candidate structures chosen among by blocked cross-validation, or ``None``.

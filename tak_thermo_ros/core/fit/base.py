@@ -86,8 +86,7 @@ def solve_run(run: FitRun, *, input_effects: Sequence[Effect] = (),
         if not with_effects:
             check_separated(solution, name, run.bias_order, run.scale_order, held=held is not None)
         elif not solution.full_rank():
-            msg = (f'axis {name}: the data cannot separate {solution.first_dependent(design.terms)} '
-                   f'from the other model terms (the inputs and temperatures of this run do not excite it)')
+            msg = f'axis {name}: this run does not excite {solution.first_dependent(design.terms)} (no fit)'
             raise FitError(msg)
         solutions.append(solution if with_effects else solution.without_design())
         columns.append(design.columns)

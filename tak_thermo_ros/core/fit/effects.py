@@ -42,6 +42,9 @@ GRID_POINTS = 9
 CV_BLOCKS = 20
 CV_FOLDS = 5
 RANK_TOLERANCE = 1e-9
+SCAN_POINTS = 200
+"""A scanned shape parameter (:meth:`~tak_thermo_ros.core.effects.base.Effect.search_values`): this many
+values first, then each one around the best."""
 SHAPE_STEP = 0.01
 """Step (in the searched coordinate: ln of the parameter on a log scale) of the numerical shape derivative."""
 
@@ -80,8 +83,7 @@ class _Projection:
             diagonal = np.abs(np.diag(r))
             if diagonal.size and diagonal.min() < RANK_TOLERANCE * diagonal.max():
                 culprit = names[i][int(np.argmin(diagonal))]
-                msg = (f'axis {AXIS_NAMES[i]}: the data cannot separate {culprit} from the other model terms '
-                       f'(the inputs and temperatures of this run do not excite it)')
+                msg = f'axis {AXIS_NAMES[i]}: this run does not excite {culprit} (no fit)'
                 raise FitError(msg)
             perpendicular = target - q @ (q.T @ target)
             self.bases.append((q, perpendicular, float(perpendicular @ perpendicular)))
@@ -357,8 +359,13 @@ class _EffectFit:
             self._choose_structure(entry)
             if not entry.searched:
                 return
+        scanned = call_effect(entry.effect, 'search_values', entry.effect.search_values, self.run.train.stamp_s,
+                              entry.inputs[self.mask], self._residual_without(entry))
         for name, low_value, high_value, log in entry.searched:
-            self._search_parameter(entry, name, low_value, high_value, log)
+            if name in scanned:
+                self._scan_parameter(entry, name, np.asarray(scanned[name], dtype=float))
+            else:
+                self._search_parameter(entry, name, low_value, high_value, log)
         entry.basis = self._basis_of(entry, entry.effect, exact=True)
         entry.done = True
 
@@ -406,6 +413,42 @@ class _EffectFit:
         if result.fun < best_value:
             best_s = float(result.x)
         entry.effect = entry.effect.replace(**{name: to_value(best_s)})
+
+    def _residual_without(self, entry: _Offset) -> np.ndarray:
+        """``(k, 3)`` the training samples' residual of the model with every other done effect, without ``entry``."""
+        columns, _ = self._extra_and_norms(skip=entry)
+        out = np.empty((int(self.mask.sum()), 3))
+        for i, (q, perpendicular, _) in enumerate(self.projection.bases):
+            extra = columns[i]
+            if extra.shape[1] == 0:
+                out[:, i] = perpendicular
+                continue
+            remaining = extra - q @ (q.T @ extra)
+            coefficients = np.linalg.lstsq(remaining, perpendicular, rcond=1e-12)[0]
+            out[:, i] = perpendicular - remaining @ coefficients
+        return out
+
+    def _scan_parameter(self, entry: _Offset, name: str, values: np.ndarray) -> None:
+        """One shape parameter over given values: every ``n / SCAN_POINTS``-th, then each one around the best."""
+        if not len(values):
+            msg = f'effect {entry.effect.name}: too few samples to place {name}'
+            raise FitError(msg)
+
+        def objective(index: int) -> float:
+            return self._profiled(entry, entry.effect.replace(**{name: float(values[index])}))
+
+        stride = max(1, math.ceil(len(values) / SCAN_POINTS))
+        coarse = list(range(0, len(values), stride))
+        scores = {index: objective(index) for index in coarse}
+        best = min(scores, key=scores.__getitem__)
+        for index in range(max(best - stride + 1, 0), min(best + stride, len(values))):
+            if index not in scores:
+                scores[index] = objective(index)
+        best = min(scores, key=scores.__getitem__)
+        if scores[best] >= INVALID:
+            msg = f'effect {entry.effect.name}: no {name} keeps its amplitudes within their bounds on these samples'
+            raise FitError(msg)
+        entry.effect = entry.effect.replace(**{name: float(values[best])})
 
     # ----- the result ------------------------------------------------------------------------
 

@@ -1432,7 +1432,44 @@ def _result(calibration: Calibration, solved: _Solved, layout: _Layout, samples:
 
 
 PLATEAU_C = 1.0
-"""Still intervals within this temperature of each other belong to one plateau (the +/- table)."""
+"""Successive still intervals on a plateau stay within this temperature of its first (the +/- table)."""
+PLATEAU_RATE = 0.25 / 60.0
+"""A still interval is on a plateau when the temperature moves less than this (C per second, a
+quarter of a degree per minute) from it to the interval before it or to the one after it."""
+
+
+def plateau_groups(temperature: np.ndarray, stamp_s: np.ndarray, interval: np.ndarray) -> list[np.ndarray]:
+    """The still intervals of each plateau: successive in time, the temperature holding (:data:`PLATEAU_RATE`).
+
+    Not by temperature alone: sorted by temperature, the rests of the ramps between the chamber's
+    plateaus fill the gaps between them (a rest every few tenths of a degree at 1 C/min) and chain
+    every plateau into one; the rests of a ramp belong to none.
+    """
+    count = len(temperature)
+    start = np.full(count, np.inf)
+    np.minimum.at(start, interval, np.asarray(stamp_s, dtype=float))
+    order = np.argsort(start, kind='stable')
+    times, temps = start[order], np.asarray(temperature, dtype=float)[order]
+    if count > 1:
+        # The slower of the two sides: a plateau's first and last rests have one steady side.
+        step = np.abs(np.diff(temps)) / np.maximum(np.diff(times), 1e-9)
+        rate = np.minimum(np.r_[step[:1], step], np.r_[step, step[-1:]])
+    else:
+        rate = np.zeros(count)
+    groups: list[list[int]] = []
+    open_group = False
+    for position, index in enumerate(order):
+        if rate[position] > PLATEAU_RATE:
+            open_group = False
+            continue
+        if open_group and abs(temps[position] - temperature[groups[-1][0]]) <= PLATEAU_C:
+            groups[-1].append(int(index))
+        else:
+            groups.append([int(index)])
+            open_group = True
+    return [np.array(group) for group in groups]
+
+
 FACE_TILT_DEG = 10.0
 """A still interval rests on a face (the +/- table) when its up direction lies within this of an axis."""
 
@@ -1449,8 +1486,7 @@ def plateau_table(still: AlignedSamples, interval: np.ndarray, up: np.ndarray, c
     np.add.at(means, interval, still.counts[:, :3])
     means /= kept[:, None]
     temperature = np.bincount(interval, weights=still.temp_code, minlength=count) / kept
-    order = np.argsort(temperature)
-    groups = np.split(order, np.flatnonzero(np.diff(temperature[order]) > PLATEAU_C) + 1)
+    groups = plateau_groups(temperature, still.stamp_s, interval)
     cosine = math.cos(math.radians(FACE_TILT_DEG))
     rows: list[PlateauRow] = []
     for group in groups:

@@ -299,8 +299,7 @@ class StreamingEffectFit:
             solution = factor.solution()
             if not solution.full_rank():
                 offender = solution.first_dependent([column.term for column in self.columns[i]])
-                msg = (f'axis {AXES[i]}: the data cannot separate {offender} from the other model terms '
-                       f'(the inputs and temperatures of this run do not excite it)')
+                msg = f'axis {AXES[i]}: this run does not excite {offender} (no fit)'
                 raise FitError(msg)
             betas.append(solution.coefficients)
             sums.append(solution.rss)

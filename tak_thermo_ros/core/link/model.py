@@ -28,6 +28,7 @@ import numpy as np
 
 from tak_thermo_ros.core.effects.base import Effect
 from tak_thermo_ros.core.noise.model import NoiseModel
+from tak_thermo_ros.core.records.provenance import RecordPrint
 from tak_thermo_ros.errors import CalibrationError
 
 AXES: tuple[str, str, str] = ('x', 'y', 'z')
@@ -340,6 +341,9 @@ class UnitCalibration:
         :attr:`sensors`: its messages come on their own topic, with their own stamps.
     :param source: what the record it was fitted from was (driver input only; the file's
         ``source`` section, :data:`SOURCE_KEYS`): the correction does not use it, an export does.
+    :param fitted_from: one print per record the link was fitted from (the file's ``fitted_from``,
+        :class:`~tak_thermo_ros.core.records.provenance.RecordPrint`): ``validate`` and ``diagnose``
+        of such a record say that it is in-sample; empty in a file written before it existed.
     """
 
     input_kind: InputKind
@@ -347,6 +351,7 @@ class UnitCalibration:
     gyro: Calibration | None = None
     mag: MagnetometerCalibration | None = None
     source: dict[str, str | int | float] | None = None
+    fitted_from: tuple[RecordPrint, ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, 'input_kind', InputKind(self.input_kind))
