@@ -22,6 +22,7 @@ from tak_thermo_ros.core.records.extremes import TemperatureCourse, temperature_
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.core.records.record import require_signals
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
+from tak_thermo_ros.errors import FitError
 from tak_thermo_ros.passes.diagnose import DIAGNOSE_MAX_SAMPLES
 from tak_thermo_ros.core.diagnose.yardstick import tau_text
 import numpy as np
@@ -125,8 +126,15 @@ def run(args: argparse.Namespace) -> int:
             from tak_thermo_ros.core.fit import residual_counts
             from tak_thermo_ros.core.noise.residual import model_from_residual
             noise = model_from_residual(residual_counts(unit.sensor(sensor), samples), samples.stamp_ns)
-        result = diagnose(unit.sensor(sensor), samples, candidates=sensor_candidates, folds=args.folds,
-                          progress=progress, noise=noise, unit=shown_unit, unit_scale=scale)
+        try:
+            result = diagnose(unit.sensor(sensor), samples, candidates=sensor_candidates, folds=args.folds,
+                              progress=progress, noise=noise, unit=shown_unit, unit_scale=scale)
+        except FitError as err:  # one sensor's shortage (a short magnetometer): said, the others diagnosed
+            if sensor == 'accel':
+                raise
+            print(f'{common.SENSOR_NAMES[sensor]}: not diagnosed: {err}')
+            del used[sensor]
+            continue
         results[sensor] = result
         print(f'{label}diagnosed {len(samples)} samples of {args.bag} against {args.params} '
               f'(model: {result.ladder[0].label})')

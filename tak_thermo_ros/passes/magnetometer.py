@@ -30,7 +30,7 @@ from typing import Sequence
 
 import numpy as np
 
-from tak_thermo_ros.core.fit import FitResult, fit_model
+from tak_thermo_ros.core.fit import FitResult, ShortRecord, fit_model
 from tak_thermo_ros.core.fit.stream import StreamingFit
 from tak_thermo_ros.core.link.correction import Corrector, OutOfRange
 from tak_thermo_ros.core.link.model import IDENTITY_3X3, InputKind, MagnetometerCalibration
@@ -220,6 +220,22 @@ class MagFit:
     iron: EllipsoidFit | None
     lines: tuple[str, ...]
     max_turn_deg: float = 0.0
+    held: bool = False
+
+
+HELD_MAG_NOTE = 'held at nominal (offset 0, scale 1, no iron): {reason}'
+"""The note of a magnetometer the record is too short for, while its other sensors are fitted."""
+
+
+def held_mag_fit(reason: str) -> MagFit:
+    """The magnetometer held at nominal, said in its note and one line: one sensor's shortage (``fit``)."""
+    from tak_thermo_ros.core.link.model import held_link
+    note = HELD_MAG_NOTE.format(reason=reason)
+    link = held_link(notes=(note,))
+    thermal = FitResult(calibration=link, axes=(AxisFit(0.0, 0, 0.0),) * 3, samples=0,  # type: ignore[arg-type]
+                        dropped={})
+    return MagFit(calibration=MagnetometerCalibration(link, (0.0, 0.0, 0.0), IDENTITY_3X3),  # type: ignore[arg-type]
+                  thermal=thermal, iron=None, lines=(f'magnetometer: {note}',), held=True)
 
 
 def fit_mag_bag(path: str | Path, options, *, bias_order: int = 3, scale_order: int = 2,
@@ -265,7 +281,7 @@ def fit_mag_bag(path: str | Path, options, *, bias_order: int = 3, scale_order: 
             thermal = fit_model(subsample.samples(aligner.dropped), effects=list(effects), bias_order=bias_order,
                                 scale_order=scale_order, temp_code_ref=temp_code_ref, nominal_scale=(1.0, 1.0, 1.0))
     except FitError as err:
-        raise FitError(f'magnetometer: {err}') from None
+        raise (ShortRecord if isinstance(err, ShortRecord) else FitError)(f'magnetometer: {err}') from None
     lines = [f'magnetometer: reference field {topics.reference_field} as recorded' if not static else
              f'magnetometer: static run, reference the mean field x y z {_microtesla(mean)} uT']
     if static:
