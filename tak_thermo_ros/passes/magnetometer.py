@@ -70,17 +70,25 @@ def _mag_blocks(path: Path, options, *, references: bool):
     checked = False
     for block in record_blocks(path, topics=options.topics, kind=InputKind.IMU, block_samples=options.block_samples,
                                references=references, progress=options.progress):
-        record = block.channel('mag')
-        with np.errstate(invalid='ignore'):
-            corrupt = np.any(np.abs(record.counts) >= CORRUPT_FIELD_T, axis=1)
-        if corrupt.any():
-            record = replace(record, counts=np.where(corrupt[:, None], np.nan, record.counts))
+        record = corrupt_as_nan(block.channel('mag'))
         if not checked:
             finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
             if len(finite):
                 check_tesla(finite, f'{path}: {options.topics.mag}')
                 checked = True
         yield record
+
+
+def corrupt_as_nan(record):
+    """The magnetometer's record with each sample of a component at :data:`CORRUPT_FIELD_T` or more made NaN.
+
+    (A corrupt message, not a field: the alignment leaves it out and counts it as a NaN, in every pass.)
+    """
+    with np.errstate(invalid='ignore'):
+        corrupt = np.any(np.abs(record.counts) >= CORRUPT_FIELD_T, axis=1)
+    if not corrupt.any():
+        return record
+    return replace(record, counts=np.where(corrupt[:, None], np.nan, record.counts))
 
 
 @dataclass(frozen=True)
@@ -415,6 +423,7 @@ class MagApplier:
 
     def push(self, writer, record, output) -> None:
         """Align and correct one block's magnetometer record into ``writer``."""
+        record = corrupt_as_nan(record)
         if not self.checked and len(record.counts):
             finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
             if len(finite):
