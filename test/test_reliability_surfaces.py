@@ -403,6 +403,21 @@ def test_a_duplicated_csv_column_is_refused_naming_it(tmp_path):
     assert "column 'ax' appears 2 times in the header (columns 2, 5)" in line
 
 
+def test_apply_leaves_a_corrupt_magnetic_field_out_and_counts_it_without_a_warning(tmp_path):
+    """A field of 1e300 T in a hand-turned record: apply drops and counts it (it overflowed in numpy's norm)."""
+    from tak_thermo_ros.core.simulation.magnetometer import MagnetometerTruth, rotation_record
+    record = rotation_record(MagnetometerTruth(), samples=400, seed=91, temperature_celsius=15.0,
+                             warm_to_celsius=30.0)
+    write_driver_record(tmp_path / 'cal', record)
+    succeeded(['fit', str(tmp_path / 'cal'), '-o', str(tmp_path / 'p.yaml'), '--no-progress'])
+    mag = record.mag.copy()
+    mag[0] = 1e300
+    write_driver_record(tmp_path / 'bag', replace(record, mag=mag))
+    out = succeeded(['apply', str(tmp_path / 'bag'), '--params', str(tmp_path / 'p.yaml'), '-o',
+                     str(tmp_path / 'out'), '--no-progress'])
+    assert 'wrote 399 MagneticField messages' in out and 'dropped MagneticField messages: 1 non finite' in out
+
+
 def _accel_cells(row: int) -> str:
     """A CSV row's ax, ay, az: about 1 g, none of them constant."""
     return f'{0.01 * (row % 3)},{0.02 + 0.01 * (row % 2)},{9.81 + 0.001 * (row % 5)}'
