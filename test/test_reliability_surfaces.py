@@ -311,6 +311,26 @@ def test_a_calibration_yaml_nested_too_deeply_or_with_a_5000_digit_integer_is_on
     assert line.endswith(f'{path}: not a calibration file ({words})'), line
 
 
+def test_a_ulog_that_sends_pyulog_round_in_circles_is_one_line(short_warm_up, tmp_path, monkeypatch):
+    """The pyulog 1.2 parser seeks back for ever over some damaged files (found by the fuzz): one line, no hang."""
+    import pyulog
+
+    class Circling:
+        """pyulog as it behaves on such a file: reads, seeks back, reads again (bounded here)."""
+
+        def __init__(self, stream, topics):
+            for _ in range(1_000_000):
+                stream.read(3000)
+                stream.seek(0)
+            raise AssertionError('pyulog was never stopped')
+
+    write_ulog(tmp_path / 'log.ulg', driver_topics(short_warm_up, device_ids=IDS))
+    monkeypatch.setattr(pyulog, 'ULog', Circling)
+    line = refused(['fit', str(tmp_path / 'log.ulg'), '-o', str(tmp_path / 'p.yaml'), '--no-progress'],
+                   tmp_path / 'p.yaml')
+    assert line.endswith('log.ulg: not a readable ULog (pyulog went round in circles over damaged data)')
+
+
 # ----- 6. nothing lost silently -------------------------------------------------------------------
 
 def test_non_finite_flight_log_temperatures_are_ignored_and_counted_as_a_bags_are(short_warm_up, tmp_path):

@@ -15,6 +15,8 @@ Written (:func:`write_ulog`): a driver record as those topics plus ``sensor_baro
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import struct
 from pathlib import Path
@@ -117,21 +119,67 @@ def read_ulog(path: str | os.PathLike[str], instance: int = 0) -> FlightLog:
     return cached(_read, path, instance)
 
 
+class _Endless(Exception):
+    """pyulog read the file over and over (:class:`_BoundedReader`)."""
+
+
+class _BoundedReader:
+    """The file as pyulog reads it, stopped when it has read the file :data:`READS_PER_BYTE` times over.
+
+    pyulog 1.2 resyncs on damaged data by seeking back to one byte past a message's start; a
+    message whose size runs past the end then sends it back before its start, forever. Every
+    byte it reads is counted here, so that such a file ends in one line, not a hang.
+    """
+
+    def __init__(self, stream, size: int) -> None:
+        self._stream = stream
+        self._budget = READS_PER_BYTE * (size + 1024)
+
+    def read(self, count: int = -1) -> bytes:
+        """Read, as the file does, and count it."""
+        data = self._stream.read(count)
+        self._budget -= len(data) + 1
+        if self._budget < 0:
+            raise _Endless
+        return data
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        """Seek, as the file does."""
+        return self._stream.seek(offset, whence)
+
+    def tell(self) -> int:
+        """Where the file is."""
+        return self._stream.tell()
+
+    def close(self) -> None:
+        """Nothing: the file is closed by its owner."""
+
+
+READS_PER_BYTE = 8
+"""How many times over pyulog may read a file (once, plus its resyncs over damaged bytes)."""
+
+
 def _read(path: Path, instance: int) -> FlightLog:
     pyulog = _pyulog()
+    cut = _cut_at(path)
+    if cut is not None:
+        msg = f'{path}: the ULog is truncated or corrupt (its last message, at byte {cut}, is cut short); nothing read'
+        raise FlightLogError(msg)
+    printed = io.StringIO()  # pyulog prints its warnings: said below in our words, not on the user's terminal
     try:
-        with path.open('rb') as stream:  # ours to close, also when pyulog gives up on a damaged file
-            ulog = pyulog.ULog(stream, list(TOPICS.values()))
+        with path.open('rb') as stream, contextlib.redirect_stdout(printed):  # ours to close, whatever pyulog does
+            ulog = pyulog.ULog(_BoundedReader(stream, path.stat().st_size), list(TOPICS.values()))
+    except _Endless:
+        msg = f'{path}: not a readable ULog (pyulog went round in circles over damaged data)'
+        raise FlightLogError(msg) from None
     except Exception as err:  # pyulog raises many kinds on a damaged file
         detail = str(err).splitlines()[0] if str(err) else type(err).__name__
         msg = f'{path}: not a readable ULog ({detail})'
         raise FlightLogError(msg) from None
-    cut = _cut_at(path)
-    if ulog.file_corruption or cut is not None:
-        where = (f' (its last message, at byte {cut}, is cut short)' if cut is not None
-                 else ' (pyulog found damaged data)')
-        msg = f'{path}: the ULog is truncated or corrupt{where}; nothing read from it'
+    if ulog.file_corruption:
+        msg = f'{path}: the ULog is truncated or corrupt (pyulog found damaged data); nothing read from it'
         raise FlightLogError(msg)
+    said = [line.strip() for line in printed.getvalue().splitlines() if line.strip()]
     found: dict[tuple[str, int], list] = {}
     for dataset in ulog.data_list:
         found.setdefault((dataset.name, dataset.multi_id), []).append(dataset)
@@ -175,6 +223,7 @@ def _read(path: Path, instance: int) -> FlightLog:
              f'{path.name}: each sensor on its own stamps; the temperature is {chosen[0]}']
     lines += [f'{path.name}: {TOPICS[sensor]} in {count} subscriptions, joined in the order of their first stamps'
               for sensor, count in subscriptions.items() if count > 1]
+    lines += [f'{path.name}: pyulog: {line}' for line in said[:1]]
     return FlightLog(path=path, format='ulog', instance=instance, stamps=stamps, values=values,
                      temp_stamp_ns=temp_stamps, temperature=temperature, device_ids=device_ids, lines=tuple(lines),
                      temperature_source=chosen[0])
