@@ -46,9 +46,12 @@ ros2cli:
 lint: $(STAMP)
 	$(BIN)/python -m pytest -q test/test_flake8.py test/test_pep257.py
 
-# The property tests with a 25x example budget and fresh random examples (minutes, not seconds).
+# The property tests with a 25x example budget and fresh random examples (minutes, not seconds):
+# bags and CSVs (test_properties_cli.py), 1,000 mutated flight logs and calibration files
+# (test_properties_logs.py); the statistics give each command's exits.
 fuzz: $(STAMP)
-	TAK_HYPOTHESIS_PROFILE=long $(BIN)/python -m pytest -q test/test_properties_cli.py
+	TAK_HYPOTHESIS_PROFILE=long $(BIN)/python -m pytest -q --hypothesis-show-statistics \
+		test/test_properties_cli.py test/test_properties_logs.py
 
 bench: $(STAMP)
 	$(BIN)/python bench/run_all.py

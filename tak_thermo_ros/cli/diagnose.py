@@ -22,9 +22,9 @@ from tak_thermo_ros.core.records.extremes import TemperatureCourse, temperature_
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.core.records.record import require_signals
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
+from tak_thermo_ros.errors import FitError, TakError
 from tak_thermo_ros.passes.diagnose import DIAGNOSE_MAX_SAMPLES
 from tak_thermo_ros.core.diagnose.yardstick import tau_text
-from tak_thermo_ros.errors import TakError
 import numpy as np
 import sys
 
@@ -144,11 +144,18 @@ def run(args: argparse.Namespace) -> int:
             from tak_thermo_ros.core.noise.residual import model_from_residual
             noise = model_from_residual(residual_counts(unit.sensor(sensor), samples), samples.stamp_ns)
         groups = run.groups[sensor] if run.groups else None
-        result = diagnose(unit.sensor(sensor), samples, candidates=sensor_candidates,
-                          folds=args.folds if groups is None else min(args.folds, int(groups.max()) + 1),
-                          progress=progress, noise=noise, unit=shown_unit, unit_scale=scale, groups=groups,
-                          temperature_unit='' if run.input_kind is InputKind.COUNTS else 'C',
-                          start_s=run.first_stamp_ns * 1e-9 if run.first_stamp_ns is not None else None)
+        try:
+            result = diagnose(unit.sensor(sensor), samples, candidates=sensor_candidates,
+                              folds=args.folds if groups is None else min(args.folds, int(groups.max()) + 1),
+                              progress=progress, noise=noise, unit=shown_unit, unit_scale=scale, groups=groups,
+                              temperature_unit='' if run.input_kind is InputKind.COUNTS else 'C',
+                              start_s=run.first_stamp_ns * 1e-9 if run.first_stamp_ns is not None else None)
+        except FitError as err:  # one sensor's shortage (a short magnetometer): said, the others diagnosed
+            if sensor == 'accel':
+                raise
+            print(f'{common.SENSOR_NAMES[sensor]}: not diagnosed: {err}')
+            del used[sensor]
+            continue
         results[sensor] = result
         aside = set_aside.get(sensor)
         held = (f'; {", ".join(aside)} in the file, not diagnosed: no rate at rest' if aside else '')

@@ -14,6 +14,9 @@ NAME = 'export'
 OUTPUTS = (('output', FILE, '-o'),)
 """This command's outputs: ``(argument, kind, option)``, checked before any work is done."""
 FORMATS = {'px4': 'PX4 TC_* parameters (QGroundControl .params)', 'ardupilot': 'ArduPilot INS_TCALn_* parameters'}
+SLOTS = {'px4': ('PX4', 'TC_A0..3 and TC_G0..3', 4), 'ardupilot': ('ArduPilot', 'INS_TCAL1..3', 3)}
+"""Per format the firmware, its sets of temperature parameters and how many (instances 0..n-1): the one bound
+of ``--instance`` and of the calibration's ``source.instance``."""
 
 
 def add_parser(commands) -> argparse.ArgumentParser:
@@ -24,7 +27,8 @@ def add_parser(commands) -> argparse.ArgumentParser:
                         help='px4: TC_A/TC_G parameters with the device IDs (QGroundControl .params); '
                              'ardupilot: INS_TCALn_* (NAME VALUE)')
     parser.add_argument('-o', '--output', required=True, metavar='FILE', help='FILE.params (px4) or FILE.parm')
-    parser.add_argument('--instance', type=options.int_within(0, 3), metavar='N',
+    parser.add_argument('--instance', type=options.int_within(0, max(n for _, _, n in SLOTS.values()) - 1),
+                        metavar='N',
                         help="the firmware's sensor slot: TC_An/TC_Gn (PX4, 0..3), INS_TCAL<N+1> (ArduPilot, 0..2); "
                              "default: the flight log's instance the calibration was fitted from, else 0")
     parser.add_argument('--force', action='store_true', help='replace an existing output file')
@@ -43,10 +47,18 @@ def run(args: argparse.Namespace) -> int:
         msg = (f'{args.params} is a calibration of the paper\'s channel codes: PX4 and ArduPilot take a driver\'s '
                f'm/s^2 and rad/s (fit a driver bag or a flight log)')
         raise TakError(msg)
+    if not any(unit.sensor(sensor).needs_temperature for sensor in ('accel', 'gyro')):
+        msg = (f'{args.params}: neither the accelerometer nor the gyroscope has temperature terms '
+               f'({unit.accel.notes[0] if unit.accel.notes else "thermal: " + unit.accel.thermal}): nothing to export')
+        raise TakError(msg)
     source = unit.source or {}
     instance = args.instance if args.instance is not None else int(source.get('instance', 0))
-    if args.format == 'ardupilot' and instance > 2:
-        msg = f'--instance {instance}: ArduPilot has INS_TCAL1..3 (instances 0..2)'
+    firmware, sets, slots = SLOTS[args.format]
+    if not 0 <= instance < slots:
+        given = (f'--instance {instance}' if args.instance is not None
+                 else f'{args.params}: source.instance {instance} (the flight log\'s sensor instance)')
+        hint = '' if args.instance is not None else '; choose the slot with --instance N'
+        msg = f'{given}: {firmware} has {sets} (instances 0..{slots - 1}){hint}'
         raise TakError(msg)
     header = (f'tak_thermo_ros: {FORMATS[args.format]} from {args.params} '
               f'(fitted from {source.get("format", "a record")}, instance {source.get("instance", "-")})')

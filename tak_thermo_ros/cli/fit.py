@@ -92,15 +92,18 @@ def run(args: argparse.Namespace) -> int:
     options = common.stream_options(args)
     fitted = fit_imu(args.bag, settings, options, nominal_for=lambda kind, bag_nominal: _nominal(args, bag_nominal),
                      hold_undetermined=has_mag(args.bag, options.topics))
-    if fitted.held:
-        for option, given in (('--effects', bool(effects['accel'])), ('--gyro-effects', bool(effects['gyro'])),
-                              ('--noise-from-residual', args.noise_from_residual)):
-            if given:
-                msg = (f'{option}: the accelerometer and gyroscope of {args.bag} are not fitted '
-                       f'({fitted.results["accel"].calibration.notes[0]})')
-                raise TakError(msg)
+    both_held = set(fitted.held) >= {'accel', 'gyro'}
+    for option, given, sensors in (('--effects', bool(effects['accel']), ('accel',)),
+                                   ('--gyro-effects', bool(effects['gyro']), ('gyro',)),
+                                   ('--noise-from-residual', args.noise_from_residual, ('accel', 'gyro'))):
+        held = [sensor for sensor in sensors if sensor in fitted.held]
+        if given and held:
+            what = 'the accelerometer and gyroscope' if both_held else f'the {common.SENSOR_NAMES[held[0]]}'
+            msg = (f'{option}: {what} of {args.bag} {"are" if both_held else "is"} not fitted '
+                   f'({fitted.results[held[0]].calibration.notes[0]})')
+            raise TakError(msg)
     results = fitted.results
-    magnetometer = _fit_magnetometer(args, fitted.input_kind)
+    magnetometer = _fit_magnetometer(args, fitted.input_kind, imu_fitted=not both_held)
     unit = UnitCalibration(fitted.input_kind, results['accel'].calibration,
                            results['gyro'].calibration if 'gyro' in results else None,
                            magnetometer.calibration if magnetometer is not None else None,
@@ -113,7 +116,8 @@ def run(args: argparse.Namespace) -> int:
                         for sensor, calibration in unit.sensors if calibration.effects)
     handheld = fitted.handheld
     orders = handheld.fit.orders if handheld is not None else (args.bias_order, args.scale_order)
-    fitted_what = (f'{results["accel"].samples} samples' if not fitted.held else
+    fitted_sensor = next((sensor for sensor in fitted.sensors if sensor not in fitted.held), 'accel')
+    fitted_what = (f'{results[fitted_sensor].samples} samples' if not both_held else
                    f'magnetometer only ({magnetometer.thermal.samples} samples; accelerometer and gyroscope held)')
     header = (f'tak_thermo_ros calibration fitted from {args.bag}'
               f'{" (a hand-held record)" if handheld is not None else ""}\n'
@@ -123,11 +127,13 @@ def run(args: argparse.Namespace) -> int:
     save_unit(args.output, unit, header=header)
     kind = fitted.input_kind
     common.print_survey(fitted.survey, 'fit')
-    if fitted.held:
+    if both_held:
         print(f'accelerometer and gyroscope: {results["accel"].calibration.notes[0]}')
     else:
-        print(f'fitted {results["accel"].samples} samples from {args.bag}'
+        print(f'fitted {results[fitted_sensor].samples} samples from {args.bag}'
               f'{" (driver Imu: accelerometer and gyroscope)" if kind is InputKind.IMU else ""}')
+        for sensor in fitted.held:
+            print(f'{common.SENSOR_NAMES[sensor]}: {results[sensor].calibration.notes[0]}')
     for line in fitted.reference_lines:
         print(line)
     if handheld is not None:
@@ -151,7 +157,7 @@ def run(args: argparse.Namespace) -> int:
         if kind is InputKind.COUNTS:
             print(f'calibrated temperature-code range {calibration.temp_code_min:.0f}..'
                   f'{calibration.temp_code_max:.0f}, reference {calibration.temp_code_ref:.0f}')
-        elif sensor == 'accel':
+        elif sensor == fitted_sensor:
             print(f'calibrated temperature range {calibration.temp_code_min:.2f}..{calibration.temp_code_max:.2f} C, '
                   f'reference {calibration.temp_code_ref:.3g} C')
         print_axes(common.SENSOR_NAMES[sensor], calibration, [stats.residual_rms for stats in result.axes], unit_name)
@@ -210,9 +216,14 @@ def _nominal(args: argparse.Namespace, nominal: tuple[float, float, float] | Non
     return nominal
 
 
-def _fit_magnetometer(args: argparse.Namespace, kind: InputKind):
-    """The magnetometer's fit when the driver bag holds one (``--iron-run``: its rotation record)."""
-    from tak_thermo_ros.passes.magnetometer import fit_mag_bag, has_mag
+def _fit_magnetometer(args: argparse.Namespace, kind: InputKind, *, imu_fitted: bool = True):
+    """The magnetometer's fit when the driver bag holds one (``--iron-run``: its rotation record).
+
+    Too few samples of it (one sensor's shortage), while the accelerometer or gyroscope is
+    fitted and no option asks for it: held at nominal and said (:func:`held_mag_fit`).
+    """
+    from tak_thermo_ros.core.fit import ShortRecord
+    from tak_thermo_ros.passes.magnetometer import fit_mag_bag, has_mag, held_mag_fit
     iron_run = getattr(args, 'iron_run', None)
     effects = common.effect_list(getattr(args, 'mag_effects', None))
     options = common.stream_options(args)
@@ -222,9 +233,14 @@ def _fit_magnetometer(args: argparse.Namespace, kind: InputKind):
                 msg = f'{option}: {args.bag} holds no magnetometer on {options.topics.mag} to calibrate'
                 raise TakError(msg)
         return None
-    return fit_mag_bag(args.bag, options, bias_order=args.bias_order, scale_order=args.scale_order,
-                       temp_code_ref=args.temp_code_ref, iron_run=iron_run, effects=effects,
-                       max_effect_samples=args.effect_samples)
+    try:
+        return fit_mag_bag(args.bag, options, bias_order=args.bias_order, scale_order=args.scale_order,
+                           temp_code_ref=args.temp_code_ref, iron_run=iron_run, effects=effects,
+                           max_effect_samples=args.effect_samples)
+    except ShortRecord as err:
+        if not imu_fitted or iron_run is not None or effects:
+            raise
+        return held_mag_fit(str(err).removeprefix('magnetometer: '))
 
 
 def _print_magnetometer(fitted, args: argparse.Namespace) -> None:
@@ -232,6 +248,8 @@ def _print_magnetometer(fitted, args: argparse.Namespace) -> None:
     thermal, link = fitted.thermal, fitted.calibration.thermal
     for line in fitted.lines:
         print(line)
+    if fitted.held:
+        return
     if thermal.dropped:
         print(f'magnetometer: left out: {common.describe_dropped(thermal.dropped)}')
     print(f'magnetometer: {thermal.samples} samples on {common.topics(args).mag}')

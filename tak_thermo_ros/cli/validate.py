@@ -127,11 +127,16 @@ def _validate_imu(args: argparse.Namespace, unit: UnitCalibration, run, document
     document.update({'samples': result.samples, 'out_of_range': result.out_of_range,
                      'before': before.as_dict(), 'after': after.as_dict(),
                      'before_is': 'as_recorded' if run.input_kind is InputKind.IMU else 'nominal'})
-    if unit.gyro is not None and run.rate is not None:
+    if unit.gyro is not None and run.rate is not None and not run.rate.samples:
+        left_out = f' (left out: {common.describe_dropped(run.gyro_dropped)})' if run.gyro_dropped else ''
+        print(f'gyroscope: no usable samples to validate{left_out}')
+    elif unit.gyro is not None and run.rate is not None:
         for line in run.reference_lines:
             if line.startswith('rate reference'):
                 print(line)
         rate = run.rate
+        if run.gyro_dropped:
+            print(f'gyroscope: left out: {common.describe_dropped(run.gyro_dropped)}')
         rate_before, rate_after = rate.before.rate_error(), rate.after.rate_error()
         print(f'gyroscope error over {rate.samples} samples (rate minus reference), per axis x y z:')
         for label, stats in (('before', rate_before), ('after ', rate_after)):

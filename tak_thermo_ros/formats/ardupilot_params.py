@@ -28,9 +28,11 @@ def ardupilot_parameters(unit: UnitCalibration, *, instance: int) -> ParameterSe
     values: dict[str, tuple[float | int, int]] = {f'{prefix}ENABLE': (1, INT32)}
     lines: list[str] = []
     cubics = {sensor: offset_cubic(unit.sensor(sensor), about=TEMP_REFERENCE) for sensor in CODES}
-    # one calibrated range for both sensors, as the firmware has: the narrower of the two
-    low = max(cubic.low for cubic in cubics.values())
-    high = min(cubic.high for cubic in cubics.values())
+    # one calibrated range for both sensors, as the firmware has: the narrower of the two (of those
+    # with temperature terms: a sensor held at nominal has no range)
+    ranged = [cubics[sensor] for sensor in CODES if unit.sensor(sensor).needs_temperature] or list(cubics.values())
+    low = max(cubic.low for cubic in ranged)
+    high = min(cubic.high for cubic in ranged)
     values[f'{prefix}TMIN'] = (low, FLOAT)
     values[f'{prefix}TMAX'] = (high, FLOAT)
     for sensor, code in CODES.items():
@@ -42,8 +44,7 @@ def ardupilot_parameters(unit: UnitCalibration, *, instance: int) -> ParameterSe
         lines.extend(not_carried(unit, sensor, cubic, 'ArduPilot'))
         lines.append(f'{SENSOR_NAMES[sensor]}: no constant in INS_TCAL: the offsets INS_{code}OFFS '
                      f'(at INS_{code}{instance + 1}_CALTEMP) hold it')
-    if (low, high) != (cubics['accel'].low, cubics['accel'].high) or (low, high) != (cubics['gyro'].low,
-                                                                                     cubics['gyro'].high):
+    if any((low, high) != (cubic.low, cubic.high) for cubic in ranged):
         lines.append(f'both sensors clamp to {low:.1f}..{high:.1f} C: ArduPilot has one range per IMU')
     if unit.mag is not None:
         lines.append('magnetometer: not exported (ArduPilot calibrates no compass against temperature)')

@@ -794,6 +794,9 @@ def load_unit(path: str | os.PathLike[str]) -> UnitCalibration:
         where = f' at line {mark.line + 1}' if mark is not None else ''
         msg = f'{path}: not valid YAML{where}'
         raise CalibrationError(msg) from None
+    except (RecursionError, ValueError) as err:  # nested beyond Python's stack; an integer of 4,300+ digits
+        msg = f'{path}: not a calibration file ({_unreadable(err)})'
+        raise CalibrationError(msg) from None
     try:
         parameters = calibration_section(document)
         _check_uniform_lists(parameters['calibration'], 'calibration')
@@ -801,6 +804,18 @@ def load_unit(path: str | os.PathLike[str]) -> UnitCalibration:
     except CalibrationError as err:
         msg = f'{path}: {err}'
         raise CalibrationError(msg) from None
+    except (RecursionError, ValueError) as err:
+        msg = f'{path}: not a calibration file ({_unreadable(err)})'
+        raise CalibrationError(msg) from None
+
+
+def _unreadable(err: Exception) -> str:
+    """Why a YAML document cannot be taken, in a few words (the error's own text runs long)."""
+    if isinstance(err, RecursionError):
+        return 'nested too deeply'
+    if 'digits' in str(err):
+        return 'an integer of more digits than Python converts'
+    return str(err).splitlines()[0] if str(err) else type(err).__name__
 
 
 def load_calibration(path: str | os.PathLike[str]) -> Calibration:

@@ -12,7 +12,10 @@ Units and rounding
   Integer text is converted exactly; decimal text through :class:`decimal.Decimal`, rounded
   to the nearest nanosecond. Stamps must strictly increase and fit the bag's time type
   (``builtin_interfaces/Time``: whole seconds 0 .. 2**31 - 1, i.e. 1970-01-01 .. 2038-01-19);
-  a stamp outside it is an error naming the line and the column.
+  a stamp outside it is an error naming the line and the column, as is a step of a year or more
+  between rows (a clock step, :func:`~tak_thermo_ros.core.records.plausible.clock_step`).
+- Numbers: ASCII decimal text only (:data:`ASCII_NUMBER`); a wanted column named twice in the
+  header is refused.
 - Acceleration: the columns in ``m/s^2`` or ``g`` (``1 g = 9.80665 m/s^2``, the standard
   value, whatever the local gravity) become channel codes
   ``N = round(a / acc_resolution)`` with ``acc_resolution`` in m/s^2 per count (round half to
@@ -20,7 +23,8 @@ Units and rounding
   axis; ``fit`` holds an axis's scale at that value when the axis sees one input only.
   Every code must stay strictly inside the 16-bit range (``-32768 < N < 32767``; the rails
   count as saturated): a value beyond it is an error naming the column and the row.
-- Temperature: the column in degrees Celsius becomes the sensor code
+- Temperature: the column in degrees Celsius (mostly kelvin-like or implausible values are refused,
+  :func:`~tak_thermo_ros.core.records.plausible.temperature_unit_problem`) becomes the sensor code
   ``N_t = round(T / temp_resolution)``, ``temp_resolution`` in degrees per code.
 - A driver's log (gyroscope columns): the values as logged, in SI units; the temperature column
   is optional (a driver that logs none: no temperature topic) and may be constant (a noise run);
@@ -40,6 +44,7 @@ from __future__ import annotations
 
 import csv
 import math
+import re
 from dataclasses import dataclass
 from decimal import Decimal, InvalidOperation
 from pathlib import Path
@@ -56,6 +61,13 @@ from tak_thermo_ros.core.records.record import (
     DriverRecord,
     no_orientation,
 )
+from tak_thermo_ros.core.records.plausible import (
+    MAX_STAMP_NS,
+    clock_step,
+    clock_step_hint,
+    clock_step_words,
+    temperature_unit_problem,
+)
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.core.records.static_run import STATIC_TOLERANCE_DEG, StaticReference, static_reference
 from tak_thermo_ros.errors import LogError
@@ -66,8 +78,9 @@ ACC_UNITS: dict[str, float] = {'m/s^2': 1.0, 'g': STANDARD_GRAVITY}
 """m/s^2 per unit of the acceleration columns."""
 DELIMITERS = ('\t', ',', ';')
 """Delimiters that are sniffed from the header line when none is given."""
-MAX_STAMP_NS = (2 ** 31 - 1) * 1_000_000_000 + 999_999_999
-"""Latest stamp a bag holds: ``builtin_interfaces/Time.sec`` is an int32 (2038-01-19)."""
+ASCII_NUMBER = re.compile(r'[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?')
+"""A number as a log writes it: ASCII decimal digits, an optional point and exponent (no ``1_000``,
+no other scripts' digits, which Python's ``float`` would take)."""
 CHUNK_ROWS = 65_536
 """Rows converted to arrays at a time: the text of a large log is never held as Python objects."""
 GYRO_UNITS = {'rad/s': 1.0, 'deg/s': math.pi / 180.0}
@@ -278,6 +291,10 @@ def _read_table(lines: Iterable[str], time_column: str, columns: tuple[str, ...]
             msg = (f'{source}: no column {name!r} (columns: {", ".join(header)}; '
                    f'{_DELIMITER_NAMES.get(delimiter, repr(delimiter))}-delimited)')
             raise LogError(msg)
+        if header.count(name) > 1:
+            positions = ', '.join(str(i + 1) for i, given in enumerate(header) if given == name)
+            msg = f'{source}: column {name!r} appears {header.count(name)} times in the header (columns {positions})'
+            raise LogError(msg)
         index.append(header.index(name))
 
     time_factor = TIME_UNITS[options.time_unit]
@@ -299,7 +316,7 @@ def _read_table(lines: Iterable[str], time_column: str, columns: tuple[str, ...]
 
     reader = csv.reader(iterator, delimiter=delimiter)
     value_columns = tuple(zip(index[1:], wanted[1:]))
-    for fields in reader:
+    for fields in _rows(reader, source, skipped):
         if not fields or all(not field.strip() for field in fields):
             continue
         rows += 1
@@ -325,7 +342,26 @@ def _read_table(lines: Iterable[str], time_column: str, columns: tuple[str, ...]
     table = np.concatenate(value_parts)
     value_parts.clear()
     _check_increasing(stamp_ns, source, line_numbers, time_column)
+    step = clock_step(stamp_ns)
+    if step is not None:
+        row, size = step
+        msg = (f'{source}: row {row + 1} (line {line_numbers[row]}): time in column {time_column!r} '
+               f'{clock_step_words(size)} from the row before: {clock_step_hint()}')
+        raise LogError(msg)
     return _Table(stamp_ns, table, line_numbers, delimiter, header)
+
+
+def _rows(reader, source: str, skipped: int):
+    """The reader's rows; what the csv module refuses (a field over 131,072 characters, a NUL byte) in one line."""
+    while True:
+        try:
+            fields = next(reader)
+        except StopIteration:
+            return
+        except csv.Error as err:
+            msg = f'{source}: line {reader.line_num + skipped}: not a delimited row ({err})'
+            raise LogError(msg) from None
+        yield fields
 
 
 def _present(values: np.ndarray, names: tuple[str, ...], source: str, line_numbers: np.ndarray) -> np.ndarray:
@@ -378,6 +414,10 @@ def parse_csv_log(lines: Iterable[str], options: CsvImportOptions, *, source: st
     _check_not_constant(table[:, :checked], columns[:checked], source)
     acceleration = table[accel_rows, :3] * ACC_UNITS[options.acc_unit]
     temperature = table[temp_rows, 3].copy() if temp_columns else np.zeros(0)
+    problem = temperature_unit_problem(temperature)
+    if problem is not None:
+        msg = f'{source}: column {options.temp_column!r}: {problem}'
+        raise LogError(msg)
     first = 3 + len(temp_columns)
     gyro = None
     if in_log:
@@ -503,10 +543,13 @@ def _driver_log(streams: _Streams, acceleration: np.ndarray, gyro: tuple[np.ndar
 
 def _check_field(field: np.ndarray, options: CsvImportOptions, source: str) -> None:
     """The magnetometer columns, in tesla, give a plausible field (else the unit is wrong), in one line."""
+    columns = ' '.join(options.mag_columns or ())
+    if not len(field):
+        msg = f'{source}: columns {columns} are empty in every row: no magnetometer sample (leave out --mag-columns)'
+        raise LogError(msg)
     median = float(np.median(np.linalg.norm(field, axis=1)))
     low, high = FIELD_RANGE_T
     if not low <= median <= high:
-        columns = ' '.join(options.mag_columns or ())
         msg = (f'{source}: columns {columns} in {options.mag_unit} give a median |B| of {median * 1e6:.3g} uT, '
                f'outside {low * 1e6:g}..{high * 1e6:g} uT (the Earth\'s field is 22-67 uT): wrong --mag-unit?')
         raise LogError(msg)
@@ -537,6 +580,9 @@ def _where(place: tuple[str, int, int]) -> str:
 
 def _stamp_ns(text: str, factor: int, place: tuple[str, int, int], column: str) -> int:
     """Nanoseconds of one time field; ``place`` is ``(source, row, line)`` for the message."""
+    if not ASCII_NUMBER.fullmatch(text):
+        msg = f'{_where(place)}, column {column!r}: {text!r} is not a number (ASCII decimal digits)'
+        raise LogError(msg)
     try:
         stamp = int(text) * factor
     except ValueError:
@@ -563,11 +609,11 @@ def _number(text: str, place: tuple[str, int, int], column: str) -> float:
     if not text:
         return math.nan
     try:
-        value = float(text)
+        value = float(text) if ASCII_NUMBER.fullmatch(text) else math.nan
     except ValueError:
         value = math.nan
     if not math.isfinite(value):
-        msg = f'{_where(place)}, column {column!r}: {text!r} is not a finite number'
+        msg = f'{_where(place)}, column {column!r}: {text!r} is not a finite number in ASCII decimal'
         raise LogError(msg)
     return value
 

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from tak_thermo_ros.errors import FlightLogError
+from tak_thermo_ros.core.records.plausible import stamp_ns_from_micros
 from tak_thermo_ros.formats.flight_log import FlightLog, cached, checked_sensor, checked_temperature
 
 HEAD = b'\xa3\x95'
@@ -139,11 +140,12 @@ def index_messages(path: Path, data: bytes) -> tuple[dict[int, MessageType], dic
     return types, {kind: np.asarray(rows, dtype=np.int64) for kind, rows in positions.items()}, skipped
 
 
-def decode(data: np.ndarray, kind: MessageType, positions: np.ndarray) -> np.ndarray:
+def decode(data: np.ndarray, kind: MessageType, positions: np.ndarray, path: Path | str = '') -> np.ndarray:
     """The messages of one type at ``positions`` as a structured array (multipliers not applied)."""
     dtype = kind.dtype()
     if dtype.itemsize != kind.length - 3:
-        msg = f'{kind.name}: its format {kind.format} takes {dtype.itemsize} bytes, its FMT says {kind.length - 3}'
+        msg = (f'{path}: {kind.name}: its format {kind.format} takes {dtype.itemsize} bytes, its FMT says '
+               f'{kind.length - 3}')
         raise FlightLogError(msg)
     body = data[positions[:, None] + np.arange(3, kind.length)]
     return np.ascontiguousarray(body).view(dtype).reshape(len(positions))
@@ -169,11 +171,29 @@ class _Parameters:
     """The log's parameters (``PARM``), each name's values in log order."""
 
     values: dict[str, list[tuple[int, float]]]
+    path: Path = Path('')
 
     def at(self, name: str, default: float) -> float:
-        """The value in force at the start (its first), or ``default``."""
+        """The value in force at the start (its first), or ``default``.
+
+        :raises FlightLogError: it is NaN or infinite (what the firmware applied cannot be undone).
+        """
         entries = self.values.get(name)
-        return entries[0][1] if entries else default
+        if not entries:
+            return default
+        value = entries[0][1]
+        if not math.isfinite(value):
+            msg = f'{self.path}: parameter {name} is {value}, not a finite number'
+            raise FlightLogError(msg)
+        return value
+
+    def whole(self, name: str, default: int, low: int = 0, high: int = 2 ** 32 - 1) -> int:
+        """:meth:`at` of a parameter that is a whole number within ``low..high`` (an enum, a flag, a device ID)."""
+        value = self.at(name, default)
+        if value != round(value) or not low <= value <= high:
+            msg = f'{self.path}: parameter {name} is {value:g}, not a whole number within {low}..{high}'
+            raise FlightLogError(msg)
+        return int(value)
 
     def check_constant(self, path: Path, names: list[str], start_us: int, end_us: int) -> None:
         """Refuse a parameter the reader undoes that changes while the instance is logged."""
@@ -187,16 +207,47 @@ class _Parameters:
                     raise FlightLogError(msg)
 
 
-def _parameters(data: np.ndarray, types: dict[int, MessageType], positions: dict[int, np.ndarray]) -> _Parameters:
+def _parameters(path: Path, data: np.ndarray, types: dict[int, MessageType],
+                positions: dict[int, np.ndarray]) -> _Parameters:
     values: dict[str, list[tuple[int, float]]] = {}
     for kind in types.values():
         if kind.name != 'PARM' or kind.type not in positions:
             continue
-        records = decode(data, kind, positions[kind.type])
-        stamps = records['TimeUS'].astype(np.int64) if 'TimeUS' in kind.columns else np.zeros(len(records), np.int64)
-        for stamp, name, value in zip(stamps.tolist(), records['Name'].tolist(), records['Value'].tolist()):
-            values.setdefault(_text(name), []).append((stamp, float(value)))
-    return _Parameters(values)
+        check_columns(path, kind, text=('Name',), numbers=('Value',),
+                      whole=('TimeUS',) if 'TimeUS' in kind.columns else ())
+        records = decode(data, kind, positions[kind.type], path)
+        stamps = (records['TimeUS'].tolist() if 'TimeUS' in kind.columns else [0] * len(records))
+        for stamp, name, value in zip(stamps, records['Name'].tolist(), column(records, kind, 'Value').tolist()):
+            values.setdefault(_text(name), []).append((int(stamp), float(value)))
+    return _Parameters(values, path)
+
+
+TEXT_CHARACTERS = frozenset('nNZ')
+"""Format characters of text."""
+WHOLE_CHARACTERS = frozenset('bBhHiIqQM')
+"""Format characters of whole numbers (no multiplier)."""
+
+
+def check_columns(path: Path, kind: MessageType, *, text: tuple[str, ...] = (), numbers: tuple[str, ...] = (),
+                  whole: tuple[str, ...] = ()) -> None:
+    """Refuse a message type whose ``FMT`` lacks a column the reader takes, or gives it the wrong kind of value.
+
+    :param text: columns of text; ``numbers``: of numbers (not text, not an array); ``whole``: of
+        whole numbers (``TimeUS``, an instance).
+    :raises FlightLogError: one line naming the type and the column.
+    """
+    for names, allowed, what in ((text, TEXT_CHARACTERS, 'text'),
+                                 (numbers, frozenset(FORMAT_CHARACTERS) - TEXT_CHARACTERS - {'a'}, 'a number'),
+                                 (whole, WHOLE_CHARACTERS, 'a whole number')):
+        for name in names:
+            if name not in kind.columns:
+                msg = (f'{path}: {kind.name} messages have no column {name} (format {kind.format}, columns '
+                       f'{",".join(kind.columns)})')
+                raise FlightLogError(msg)
+            char = kind.format[kind.columns.index(name)]
+            if char not in allowed:
+                msg = f'{path}: {kind.name} column {name} is not {what} (format character {char!r})'
+                raise FlightLogError(msg)
 
 
 def rotation_matrix(orientation: int, path: Path) -> np.ndarray:
@@ -234,14 +285,14 @@ def _device_id_names(instance: int) -> dict[str, str]:
 
 def _device_ids(parameters: _Parameters, instance: int) -> dict[str, int]:
     """Per sensor its device ID at the log's start (0 where the log names none)."""
-    return {sensor: int(parameters.at(name, 0)) for sensor, name in _device_id_names(instance).items()}
+    return {sensor: parameters.whole(name, 0) for sensor, name in _device_id_names(instance).items()}
 
 
 def _read(path: Path, instance: int) -> FlightLog:
     raw = path.read_bytes()
     types, positions, skipped = index_messages(path, raw)
     data = np.frombuffer(raw, dtype=np.uint8)
-    parameters = _parameters(data, types, positions)
+    parameters = _parameters(path, data, types, positions)
     by_name = {kind.name: kind for kind in types.values()}
     lines = [f'{path.name}: ArduPilot DataFlash log, {sum(len(p) for p in positions.values())} messages'
              + (f' ({skipped} bytes between messages skipped)' if skipped else '')]
@@ -249,16 +300,12 @@ def _read(path: Path, instance: int) -> FlightLog:
     if imu is None:
         return _tclr(path, data, by_name, positions, instance, parameters, lines)
     kind, records = imu
-    if 'T' not in kind.columns:
-        msg = (f'{path}: {kind.name} messages have no temperature T (format {kind.format}, columns '
-               f'{",".join(kind.columns)}): an older firmware\'s log cannot give a thermal calibration')
-        raise FlightLogError(msg)
-    stamps_us = records['TimeUS'].astype(np.int64)
+    stamps_us = records['TimeUS']
     accel = np.column_stack([column(records, kind, f'Acc{a}') for a in 'XYZ'])
     gyro = np.column_stack([column(records, kind, f'Gyr{a}') for a in 'XYZ'])
     temperature = column(records, kind, 'T')
     accel, gyro = _undo_firmware(path, parameters, instance, accel, gyro, temperature, stamps_us, lines)
-    stamp_ns = stamps_us * 1000
+    stamp_ns = stamp_ns_from_micros(stamps_us)
     device_ids = _device_ids(parameters, instance)
     parameters.check_constant(path, list(_device_id_names(instance).values()), int(stamps_us.min()),
                               int(stamps_us.max()))
@@ -281,7 +328,8 @@ def _imu_messages(path: Path, data: np.ndarray, by_name: dict[str, MessageType],
     if kind is None or kind.type not in positions:
         return None
     if 'I' in kind.columns:
-        records = decode(data, kind, positions[kind.type])
+        _check_imu_columns(path, kind)
+        records = decode(data, kind, positions[kind.type], path)
         held = sorted(set(records['I'].tolist()))
         if instance not in held:
             listed = ', '.join(map(str, held))
@@ -294,7 +342,18 @@ def _imu_messages(path: Path, data: np.ndarray, by_name: dict[str, MessageType],
         held = [n for n in ('IMU', 'IMU2', 'IMU3') if n in by_name and by_name[n].type in positions]
         msg = f'{path}: no {name} messages (instance {instance}; the log holds {", ".join(held)}; --instance N)'
         raise FlightLogError(msg)
-    return named, decode(data, named, positions[named.type])
+    _check_imu_columns(path, named)
+    return named, decode(data, named, positions[named.type], path)
+
+
+def _check_imu_columns(path: Path, kind: MessageType) -> None:
+    """The columns the reader takes of ``IMU`` messages, each of the right kind (a ``T``: else an older firmware)."""
+    if 'T' not in kind.columns:
+        msg = (f'{path}: {kind.name} messages have no temperature T (format {kind.format}, columns '
+               f'{",".join(kind.columns)}): an older firmware\'s log cannot give a thermal calibration')
+        raise FlightLogError(msg)
+    check_columns(path, kind, whole=('TimeUS', *(('I',) if 'I' in kind.columns else ())),
+                  numbers=(*(f'{sensor}{axis}' for sensor in ('Acc', 'Gyr') for axis in 'XYZ'), 'T'))
 
 
 def _undo_firmware(path: Path, parameters: _Parameters, instance: int, accel: np.ndarray, gyro: np.ndarray,
@@ -310,16 +369,17 @@ def _undo_firmware(path: Path, parameters: _Parameters, instance: int, accel: np
     watched = ['AHRS_ORIENTATION', *accel_offsets, *accel_scales, *gyro_offsets, f'{tcal}ENABLE', f'{tcal}TMIN',
                f'{tcal}TMAX', f'INS_ACC{instance + 1}_CALTEMP', f'INS_GYR{instance + 1}_CALTEMP', *coefficient_names]
     parameters.check_constant(path, watched, int(stamps_us.min()), int(stamps_us.max()))
-    orientation = int(parameters.at('AHRS_ORIENTATION', 0))
+    orientation = parameters.whole('AHRS_ORIENTATION', 0)
     rotation = rotation_matrix(orientation, path)
-    # the firmware logs rotation @ v: undo it (rotation is orthonormal)
-    accel, gyro = accel @ rotation, gyro @ rotation
+    # the firmware logs rotation @ v: undo it (rotation is orthonormal); a sample that is not
+    # finite stays as it is (the passes leave it out and count it)
+    accel, gyro = _rotated(accel, rotation), _rotated(gyro, rotation)
     offsets = np.array([parameters.at(name, 0.0) for name in accel_offsets])
     scales = np.array([parameters.at(name, 1.0) or 1.0 for name in accel_scales])
     accel = accel / scales + offsets
     gyro = gyro + np.array([parameters.at(name, 0.0) for name in gyro_offsets])
     undone = [f'board rotation {orientation}' if orientation else '', 'offsets and scale']
-    if int(parameters.at(f'{tcal}ENABLE', 0)) == 1:
+    if parameters.whole(f'{tcal}ENABLE', 0, high=2 ** 31) == 1:
         tmin, tmax = parameters.at(f'{tcal}TMIN', 0.0), parameters.at(f'{tcal}TMAX', 70.0)
         for sensor, name in (('ACC', 'accel'), ('GYR', 'gyro')):
             coefficients = np.array([[parameters.at(f'{tcal}{sensor}{order}_{axis}', 0.0) / SCALE_FACTOR
@@ -336,6 +396,14 @@ def _undo_firmware(path: Path, parameters: _Parameters, instance: int, accel: np
     return accel, gyro
 
 
+def _rotated(values: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """``values @ rotation`` on the finite rows; the others as they were."""
+    finite = np.all(np.isfinite(values), axis=1)
+    out = values.copy()
+    out[finite] = values[finite] @ rotation
+    return out
+
+
 def _tclr(path: Path, data: np.ndarray, by_name: dict[str, MessageType], positions: dict[int, np.ndarray],
           instance: int, parameters: _Parameters, lines: list[str]) -> FlightLog:
     """A log without IMU messages: the firmware's temperature-learning records ``TCLR`` (raw, sensor frame)."""
@@ -343,7 +411,8 @@ def _tclr(path: Path, data: np.ndarray, by_name: dict[str, MessageType], positio
     if kind is None or kind.type not in positions:
         msg = f'{path}: no IMU and no TCLR messages (the log holds {", ".join(sorted(by_name))})'
         raise FlightLogError(msg)
-    records = decode(data, kind, positions[kind.type])
+    check_columns(path, kind, whole=('TimeUS', 'I', 'SType'), numbers=('Temp', 'X', 'Y', 'Z'))
+    records = decode(data, kind, positions[kind.type], path)
     held = sorted(set(records['I'].tolist()))
     if instance not in held:
         msg = f'{path}: no TCLR instance {instance} (instances in the log: {", ".join(map(str, held))}; --instance N)'
@@ -352,7 +421,7 @@ def _tclr(path: Path, data: np.ndarray, by_name: dict[str, MessageType], positio
     stamps, values, temperatures = {}, {}, []
     for sensor, code in (('accel', 0), ('gyro', 1)):
         rows = records[records['SType'] == code]
-        stamp_ns = rows['TimeUS'].astype(np.int64) * 1000
+        stamp_ns = stamp_ns_from_micros(rows['TimeUS'])
         sample = np.column_stack([column(rows, kind, axis) for axis in 'XYZ'])
         stamps[sensor], values[sensor], _ = checked_sensor(path, sensor, stamp_ns, sample, None,
                                                            f'TCLR instance {instance}')

@@ -313,3 +313,9 @@ def read_yaml(path: str | os.PathLike[str], what: str, error: type[TakError]) ->
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
         msg = f'{path}: cannot read the {what} ({type(err).__name__})'
         raise error(msg) from None
+    except RecursionError:
+        msg = f'{path}: cannot read the {what} (nested too deeply)'
+        raise error(msg) from None
+    except ValueError:  # an integer of more than 4,300 digits
+        msg = f'{path}: cannot read the {what} (a number Python does not convert)'
+        raise error(msg) from None

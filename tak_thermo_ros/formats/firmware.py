@@ -32,6 +32,9 @@ def not_carried(unit: UnitCalibration, sensor: str, cubic: OffsetCubic, firmware
     calibration = unit.sensor(sensor)
     name = SENSOR_NAMES[sensor]
     source = unit.source or {}
+    if not calibration.needs_temperature:
+        why = calibration.notes[0] if calibration.notes else f'thermal: {calibration.thermal}'
+        return [f'{name}: no temperature terms in the calibration ({why}): the parameters hold its constant offset']
     lines = []
     worst = float(np.max(cubic.deviation))
     if worst > 1e-9 * max(1.0, float(np.max(np.abs(cubic.coefficients)))):

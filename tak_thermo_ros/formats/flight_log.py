@@ -8,9 +8,14 @@ hands it to the passes as the same :class:`~tak_thermo_ros.formats.bag.BagStream
 :class:`~tak_thermo_ros.core.records.record.DriverRecord` blocks a driver bag gives, so every
 command reads it through the same passes and the same fit.
 
-Stamps are the log's own (microseconds since boot, as nanoseconds). A log holds no reference:
-the passes take it as a static run (gravity along the mean measured direction, zero rate), as
-for a driver bag recorded without one.
+Stamps are the log's own (microseconds since boot, as nanoseconds), each sensor's in log order:
+the passes apply the stamp rule of a bag to them (a stamp that repeats, goes back or jumps far
+ahead is left out and counted, :func:`~tak_thermo_ros.core.records.record.stamp_kept`), and the
+readers' shared checks (:mod:`~tak_thermo_ros.core.records.plausible`: a stamp a bag cannot
+hold, a clock step, a temperature not in degrees C) refuse the rest in one line. A NaN or
+infinite temperature is kept, and ignored and counted by the passes as a bag's is. A log holds
+no reference: the passes take it as a static run (gravity along the mean measured direction,
+zero rate), as for a driver bag recorded without one.
 """
 
 from __future__ import annotations
@@ -22,6 +27,12 @@ from typing import Iterator
 
 import numpy as np
 
+from tak_thermo_ros.core.records.plausible import (
+    clock_step,
+    clock_step_hint,
+    clock_step_words,
+    temperature_unit_problem,
+)
 from tak_thermo_ros.core.records.record import DriverRecord, no_orientation, sensor_messages
 from tak_thermo_ros.errors import FlightLogError
 
@@ -95,10 +106,10 @@ class FlightLog:
         accelerometer sample (the last block: all that remain), so that a block aligner never
         waits long for a held value.
         """
-        accel_stamps = self.stamps['accel']
+        accel_stamps = _running_max(self.stamps['accel'])  # log order: a stamp that goes back stays in place
         edges = [int(accel_stamps[min(end, len(accel_stamps)) - 1])
                  for end in range(block_samples, len(accel_stamps), block_samples)]
-        cuts = {name: np.searchsorted(stamps, edges, side='right') for name, stamps in
+        cuts = {name: np.searchsorted(_running_max(stamps), edges, side='right') for name, stamps in
                 (('temperature', self.temp_stamp_ns), *((s, self.stamps[s]) for s in FLIGHT_SENSORS))}
         starts = {name: 0 for name in cuts}
         for index in range(len(edges) + 1):
@@ -134,15 +145,25 @@ class FlightLog:
                 **{f'{sensor}_device_id': int(self.device_ids.get(sensor, 0)) for sensor in FLIGHT_SENSORS}}
 
 
+def _running_max(stamps: np.ndarray) -> np.ndarray:
+    return np.maximum.accumulate(stamps) if len(stamps) else stamps
+
+
 def checked_sensor(path: Path, sensor: str, stamps: np.ndarray, values: np.ndarray, device_ids: np.ndarray | None,
                    where: str) -> tuple[np.ndarray, np.ndarray, int]:
-    """A sensor's samples in stamp order, its device ID; refuses an ID that changes mid-log.
+    """A sensor's samples in log order and its device ID; refuses an ID that changes mid-log, a clock step.
 
+    :param stamps: int64 nanoseconds (:func:`~tak_thermo_ros.core.records.plausible.stamp_ns_from_micros`).
     :param where: the topic or message named in an error (``sensor_accel instance 0``).
-    :raises FlightLogError: the device ID changes (another sensor took this instance).
+    :raises FlightLogError: the device ID changes (another sensor took this instance); the stamps
+        the stamp rule keeps step by a year or more (:func:`~tak_thermo_ros.core.records.plausible.clock_step`).
     """
     device_id = 0
     if device_ids is not None and len(device_ids):
+        device_ids = np.asarray(device_ids)
+        if device_ids.dtype.kind not in 'iu' or device_ids.min() < 0 or device_ids.max() >= 2 ** 32:
+            msg = f'{path}: {where}: device_id is not a whole number within 0..2**32-1'
+            raise FlightLogError(msg)
         changed = np.flatnonzero(device_ids != device_ids[0])
         if changed.size:
             row = int(changed[0])
@@ -150,25 +171,37 @@ def checked_sensor(path: Path, sensor: str, stamps: np.ndarray, values: np.ndarr
                    f'{row + 1} of {len(device_ids)} (another sensor on this instance): split the log there')
             raise FlightLogError(msg)
         device_id = int(device_ids[0])
-    order = np.argsort(stamps, kind='stable')
-    return np.asarray(stamps, dtype=np.int64)[order], np.asarray(values, dtype=float).reshape(-1, 3)[order], device_id
+    stamps = np.asarray(stamps, dtype=np.int64)
+    step = clock_step(stamps)
+    if step is not None:
+        row, size = step
+        msg = (f'{path}: {where}: time {clock_step_words(size)} at sample {row + 1} of {len(stamps)}: '
+               f'{clock_step_hint()}')
+        raise FlightLogError(msg)
+    return stamps, np.asarray(values, dtype=float).reshape(-1, 3), device_id
 
 
 def checked_temperature(path: Path, stamps: np.ndarray, temperature: np.ndarray, where: str) -> tuple[np.ndarray,
                                                                                                       np.ndarray]:
-    """The temperature samples that are finite, in stamp order; refuses a log without any.
+    """The temperature samples in stamp order (held by stamp, as a bag's); refuses a log without a usable one.
 
-    :raises FlightLogError: no finite temperature (a sensor that reports none, an old log).
+    NaN and infinite values stay: the passes ignore and count them, as a bag's.
+
+    :raises FlightLogError: no finite temperature (a sensor that reports none, an old log); temperatures
+        not in degrees C (:func:`~tak_thermo_ros.core.records.plausible.temperature_unit_problem`).
     """
     temperature = np.asarray(temperature, dtype=float)
-    finite = np.isfinite(temperature)
-    if not finite.any():
+    if not np.isfinite(temperature).any():
         msg = (f'{path}: {where} holds no temperature (all {len(temperature)} values NaN or missing): a thermal '
                f'calibration needs the sensor\'s thermometer')
         raise FlightLogError(msg)
-    stamps = np.asarray(stamps, dtype=np.int64)[finite]
+    problem = temperature_unit_problem(temperature)
+    if problem is not None:
+        msg = f'{path}: {where}: {problem}'
+        raise FlightLogError(msg)
+    stamps = np.asarray(stamps, dtype=np.int64)
     order = np.argsort(stamps, kind='stable')
-    return stamps[order], temperature[finite][order]
+    return stamps[order], temperature[order]
 
 
 _CACHE: dict[tuple, FlightLog] = {}

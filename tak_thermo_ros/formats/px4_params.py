@@ -61,8 +61,9 @@ def px4_parameters(unit: UnitCalibration, *, instance: int) -> ParameterSet:
                          f'none of it')
         lines.extend(not_carried(unit, sensor, cubic, 'PX4'))
         steepest = float(cubic.steepest.max())
-        lines.append(f'{SENSOR_NAMES[sensor]}: PX4 updates the offset per {UPDATE_STEP_C:g} C change: up to '
-                     f'{size(steepest * UPDATE_STEP_C, sensor)} between updates')
+        if calibration.needs_temperature:
+            lines.append(f'{SENSOR_NAMES[sensor]}: PX4 updates the offset per {UPDATE_STEP_C:g} C change: up to '
+                         f'{size(steepest * UPDATE_STEP_C, sensor)} between updates')
     if unit.mag is not None:
         lines.append('magnetometer: not exported (PX4\'s TC_M is against the magnetometer\'s own thermometer)')
     return ParameterSet(values=values, lines=tuple(lines), cubics=cubics)

@@ -15,6 +15,8 @@ Written (:func:`write_ulog`): a driver record as those topics plus ``sensor_baro
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import struct
 from pathlib import Path
@@ -22,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from tak_thermo_ros.errors import FlightLogError
+from tak_thermo_ros.core.records.plausible import stamp_ns_from_micros
 from tak_thermo_ros.formats.flight_log import FlightLog, cached, checked_sensor, checked_temperature
 
 GAUSS = 1e-4
@@ -62,6 +65,51 @@ def _cut_at(path: Path) -> int | None:
     return position if position < end else None
 
 
+def _joined(path: Path, topic: str, instance: int, datasets: list) -> dict[str, np.ndarray]:
+    """The fields of a topic instance logged in one or more subscriptions, joined in the order of their first stamps.
+
+    (A logger that subscribes to a topic instance again logs it under a new message ID: each
+    part keeps its own order; where the parts overlap, the stamp rule leaves the repeats out.)
+
+    :raises FlightLogError: the parts log different fields.
+    """
+    if len(datasets) == 1:
+        return datasets[0].data
+    fields = set(datasets[0].data)
+    if any(set(d.data) != fields for d in datasets[1:]):
+        msg = f'{path}: {topic} instance {instance} is logged in {len(datasets)} subscriptions with different fields'
+        raise FlightLogError(msg)
+
+    def first_stamp(dataset) -> int:
+        stamps = dataset.data[_stamp_field(path, topic, instance, dataset.data)]
+        return int(stamps[0]) if len(stamps) else 0
+
+    ordered = sorted(datasets, key=first_stamp)
+    return {name: np.concatenate([d.data[name] for d in ordered]) for name in fields}
+
+
+def _stamp_field(path: Path, topic: str, instance: int, data: dict[str, np.ndarray]) -> str:
+    """The field a topic's samples are stamped by: ``timestamp_sample``, else ``timestamp``; refuses one without."""
+    for name in ('timestamp_sample', 'timestamp'):
+        if name in data:
+            if np.asarray(data[name]).dtype.kind not in 'iu':
+                msg = f'{path}: {topic} instance {instance}: its field {name} is not a whole number'
+                raise FlightLogError(msg)
+            return name
+    msg = f'{path}: {topic} instance {instance} has no timestamp field'
+    raise FlightLogError(msg)
+
+
+def _numbers(path: Path, topic: str, instance: int, data: dict[str, np.ndarray], names: tuple[str, ...]) -> np.ndarray:
+    """The fields ``names`` of a topic as float columns; refuses a missing one or one that holds no numbers."""
+    for name in names:
+        if name not in data or np.asarray(data[name]).dtype.kind not in 'iuf':
+            what = 'no field' if name not in data else 'a field that is not a number,'
+            msg = f'{path}: {topic} instance {instance} has {what} {name}'
+            raise FlightLogError(msg)
+    return np.column_stack([np.asarray(data[name], dtype=float) for name in names])
+
+
 def read_ulog(path: str | os.PathLike[str], instance: int = 0) -> FlightLog:
     """Instance ``instance`` of a ULog's IMU topics, read once per process (:func:`~.flight_log.cached`).
 
@@ -71,21 +119,70 @@ def read_ulog(path: str | os.PathLike[str], instance: int = 0) -> FlightLog:
     return cached(_read, path, instance)
 
 
+class _Endless(Exception):
+    """pyulog read the file over and over (:class:`_BoundedReader`)."""
+
+
+class _BoundedReader:
+    """The file as pyulog reads it, stopped when it has read the file :data:`READS_PER_BYTE` times over.
+
+    pyulog 1.2 resyncs on damaged data by seeking back to one byte past a message's start; a
+    message whose size runs past the end then sends it back before its start, forever. Every
+    byte it reads is counted here, so that such a file ends in one line, not a hang.
+    """
+
+    def __init__(self, stream, size: int) -> None:
+        self._stream = stream
+        self._budget = READS_PER_BYTE * (size + 1024)
+
+    def read(self, count: int = -1) -> bytes:
+        """Read, as the file does, and count it."""
+        data = self._stream.read(count)
+        self._budget -= len(data) + 1
+        if self._budget < 0:
+            raise _Endless
+        return data
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        """Seek, as the file does."""
+        return self._stream.seek(offset, whence)
+
+    def tell(self) -> int:
+        """Where the file is."""
+        return self._stream.tell()
+
+    def close(self) -> None:
+        """Nothing: the file is closed by its owner."""
+
+
+READS_PER_BYTE = 8
+"""How many times over pyulog may read a file (once, plus its resyncs over damaged bytes)."""
+
+
 def _read(path: Path, instance: int) -> FlightLog:
     pyulog = _pyulog()
+    cut = _cut_at(path)
+    if cut is not None:
+        msg = f'{path}: the ULog is truncated or corrupt (its last message, at byte {cut}, is cut short); nothing read'
+        raise FlightLogError(msg)
+    printed = io.StringIO()  # pyulog prints its warnings: said below in our words, not on the user's terminal
     try:
-        ulog = pyulog.ULog(str(path), list(TOPICS.values()))
+        with path.open('rb') as stream, contextlib.redirect_stdout(printed):  # ours to close, whatever pyulog does
+            ulog = pyulog.ULog(_BoundedReader(stream, path.stat().st_size), list(TOPICS.values()))
+    except _Endless:
+        msg = f'{path}: not a readable ULog (pyulog went round in circles over damaged data)'
+        raise FlightLogError(msg) from None
     except Exception as err:  # pyulog raises many kinds on a damaged file
         detail = str(err).splitlines()[0] if str(err) else type(err).__name__
         msg = f'{path}: not a readable ULog ({detail})'
         raise FlightLogError(msg) from None
-    cut = _cut_at(path)
-    if ulog.file_corruption or cut is not None:
-        where = (f' (its last message, at byte {cut}, is cut short)' if cut is not None
-                 else ' (pyulog found damaged data)')
-        msg = f'{path}: the ULog is truncated or corrupt{where}; nothing read from it'
+    if ulog.file_corruption:
+        msg = f'{path}: the ULog is truncated or corrupt (pyulog found damaged data); nothing read from it'
         raise FlightLogError(msg)
-    found = {(d.name, d.multi_id): d for d in ulog.data_list}
+    said = [line.strip() for line in printed.getvalue().splitlines() if line.strip()]
+    found: dict[tuple[str, int], list] = {}
+    for dataset in ulog.data_list:
+        found.setdefault((dataset.name, dataset.multi_id), []).append(dataset)
     for sensor in ('accel', 'gyro'):
         if (TOPICS[sensor], instance) not in found:
             held = sorted(multi for name, multi in found if name == TOPICS[sensor])
@@ -98,21 +195,24 @@ def _read(path: Path, instance: int) -> FlightLog:
             raise FlightLogError(msg)
     stamps, values, device_ids = {}, {}, {}
     temperatures = []
+    subscriptions = {}
     for sensor, topic in TOPICS.items():
-        dataset = found.get((topic, instance))
-        if dataset is None:
+        datasets = found.get((topic, instance))
+        if not datasets:
             stamps[sensor], values[sensor], device_ids[sensor] = np.zeros(0, dtype=np.int64), np.zeros((0, 3)), 0
             continue
-        data = dataset.data
-        micros = data['timestamp_sample'] if 'timestamp_sample' in data else data['timestamp']
-        sample = np.column_stack([data[axis] for axis in ('x', 'y', 'z')]).astype(float)
+        data = _joined(path, topic, instance, datasets)
+        subscriptions[sensor] = len(datasets)
+        micros = data[_stamp_field(path, topic, instance, data)]
+        sample = _numbers(path, topic, instance, data, ('x', 'y', 'z'))
         if sensor == 'mag':
             sample = sample * GAUSS
-        stamp_ns = np.asarray(micros, dtype=np.int64) * 1000
+        stamp_ns = stamp_ns_from_micros(micros)
         stamps[sensor], values[sensor], device_ids[sensor] = checked_sensor(
             path, sensor, stamp_ns, sample, data.get('device_id'), f'{topic} instance {instance}')
         if sensor != 'mag' and 'temperature' in data:
-            temperatures.append((f'{topic}.temperature', stamp_ns, np.asarray(data['temperature'], dtype=float)))
+            temperatures.append((f'{topic}.temperature', stamp_ns,
+                                 _numbers(path, topic, instance, data, ('temperature',))[:, 0]))
     chosen = next((t for t in temperatures if np.isfinite(t[2]).any()), None)
     if chosen is None:
         where = f'{TOPICS["accel"]} and {TOPICS["gyro"]} instance {instance}'
@@ -121,6 +221,9 @@ def _read(path: Path, instance: int) -> FlightLog:
     lines = [f'{path.name}: PX4 ULog, instance {instance}: {len(stamps["accel"])} sensor_accel, '
              f'{len(stamps["gyro"])} sensor_gyro, {len(stamps["mag"])} sensor_mag samples',
              f'{path.name}: each sensor on its own stamps; the temperature is {chosen[0]}']
+    lines += [f'{path.name}: {TOPICS[sensor]} in {count} subscriptions, joined in the order of their first stamps'
+              for sensor, count in subscriptions.items() if count > 1]
+    lines += [f'{path.name}: pyulog: {line}' for line in said[:1]]
     return FlightLog(path=path, format='ulog', instance=instance, stamps=stamps, values=values,
                      temp_stamp_ns=temp_stamps, temperature=temperature, device_ids=device_ids, lines=tuple(lines),
                      temperature_source=chosen[0])
@@ -145,11 +248,13 @@ _FIELDS = {
 _NUMPY = {'uint64_t': '<u8', 'uint32_t': '<u4', 'float': '<f4'}
 
 
-def write_ulog(path: str | os.PathLike[str], topics: dict[tuple[str, int], dict[str, np.ndarray]], *,
+def write_ulog(path: str | os.PathLike[str],
+               topics: dict[tuple[str, int], dict[str, np.ndarray] | list[dict[str, np.ndarray]]], *,
                parameters: dict[str, float | int] | None = None, info: dict[str, str] | None = None) -> None:
     """Write topics as a ULog with pyulog's ``ULog.write_ulog`` (atomically).
 
-    :param topics: ``(topic, instance)`` -> field -> ``(k,)`` values, fields as PX4 logs them
+    :param topics: ``(topic, instance)`` -> field -> ``(k,)`` values (a list of those: the instance
+        logged in several subscriptions, as a logger that subscribes again writes it), fields as PX4 logs them
         (:data:`_FIELDS`: ``timestamp`` and ``timestamp_sample`` in microseconds; ``x``, ``y``,
         ``z`` in m/s^2, rad/s or gauss; ``temperature`` C; ``pressure`` hPa).
     :param parameters: initial parameters (an int is an ``int32_t``, a float a ``float``).
@@ -165,7 +270,9 @@ def write_ulog(path: str | os.PathLike[str], topics: dict[tuple[str, int], dict[
         formats[name] = pyulog.ULog.MessageFormat(text.encode(), None)
     ulog._message_formats = formats
     data_list = []
-    for msg_id, ((name, instance), values) in enumerate(sorted(topics.items())):
+    subscriptions = [(key, part) for key, values in sorted(topics.items(), key=lambda item: item[0])
+                     for part in (values if isinstance(values, list) else [values])]
+    for msg_id, ((name, instance), values) in enumerate(subscriptions):
         added = pyulog.ULog._MessageAddLogged(struct.pack('<BH', instance, msg_id) + name.encode(), None, formats)
         dtype = np.dtype([(field, _NUMPY[kind]) for kind, field in _FIELDS[name]])
         count = len(values['timestamp'])
@@ -177,7 +284,7 @@ def write_ulog(path: str | os.PathLike[str], topics: dict[tuple[str, int], dict[
         data_list.append(pyulog.ULog.Data(added))
     ulog._data_list = data_list
     ulog._file_version = 1
-    ulog._start_timestamp = int(min((int(v['timestamp'][0]) for v in topics.values() if len(v['timestamp'])),
+    ulog._start_timestamp = int(min((int(v['timestamp'][0]) for _, v in subscriptions if len(v['timestamp'])),
                                     default=0))
     for key, value in (info or {}).items():
         ulog._msg_info_dict[key] = value

@@ -12,7 +12,7 @@ import numpy as np
 from tak_thermo_ros.core.records.blocks import BlockAligner, Subsample, add_counts, stride_for
 from tak_thermo_ros.core.records.extremes import RunExtremes
 from tak_thermo_ros.core.records.provenance import PrintCollector
-from tak_thermo_ros.core.fit import FitResult, fit_model
+from tak_thermo_ros.core.fit import FitResult, ShortRecord, fit_model
 from tak_thermo_ros.core.fit.model import AxisFit
 from tak_thermo_ros.core.link.model import InputKind, held_link
 from tak_thermo_ros.core.records.static_run import (
@@ -30,6 +30,7 @@ from tak_thermo_ros.passes.run import (
     SensorPass,
     StreamOptions,
     StreamedFit,
+    check_temperature_unit,
     feeding,
     sensor_errors,
     open_calibration_run,
@@ -105,27 +106,40 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
         lines = run_passes(path, options, opened, passes, prints=prints)
     except NotStatic as err:
         raise ImuLinkUndetermined(str(err), MOVED) from None
+    check_temperature_unit(path, options, opened.finished_survey())
     results: dict[str, FitResult] = {}
     usable: dict[str, int] = {}
     second: dict[str, tuple[StreamingEffectFit, FitResult]] = {}
+    short: dict[str, ShortRecord] = {}
     for sensor_pass in passes:
         sensor = sensor_pass.sensor
         dropped = _summed(sensor_pass.aligner.dropped, requirements[sensor].dropped)
         usable[sensor] = sensor_pass.aligner.kept - sum(requirements[sensor].dropped.values())
-        with sensor_errors(kind, sensor):
-            if sensor not in subsamples:
-                results[sensor] = fits[sensor].result(dropped=dropped)
-                continue
-            samples = subsamples[sensor].samples(dropped)
-            if not len(samples):
-                samples = replace(samples, reference=np.zeros((0, 3)))
-            shaped = fit_model(samples, effects=settings.effects[sensor], bias_order=settings.bias_order,
-                               scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
-                               nominal_scale=nominal.get(sensor))
-            if subsamples[sensor].stride == 1:
-                results[sensor] = shaped
-            else:
-                second[sensor] = (StreamingEffectFit(shaped.calibration.effects, fits[sensor]), shaped)
+        try:
+            with sensor_errors(kind, sensor):
+                if sensor not in subsamples:
+                    results[sensor] = fits[sensor].result(dropped=dropped)
+                    continue
+                samples = subsamples[sensor].samples(dropped)
+                if not len(samples):
+                    samples = replace(samples, reference=np.zeros((0, 3)))
+                shaped = fit_model(samples, effects=settings.effects[sensor], bias_order=settings.bias_order,
+                                   scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
+                                   nominal_scale=nominal.get(sensor))
+                if subsamples[sensor].stride == 1:
+                    results[sensor] = shaped
+                else:
+                    second[sensor] = (StreamingEffectFit(shaped.calibration.effects, fits[sensor]), shaped)
+        except ShortRecord as err:  # one sensor's shortage: held below when another sensor is fitted
+            if kind is InputKind.COUNTS:
+                raise
+            short[sensor] = err
+    if short and len(short) == len(sensors):
+        first = short[sensors[0]]
+        reason = str(first).split(': ', 1)[-1]
+        raise ImuLinkUndetermined(f'{path}: {first}', reason, opened.finished_survey())
+    for sensor, err in short.items():
+        results[sensor] = held_result(str(err).split(': ', 1)[-1])
     if second:
         # The shapes are fixed now: a second pass solves every amplitude over the whole run.
         again = {sensor: required(sensor) for sensor in second}
@@ -150,7 +164,8 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
                        ignored_references={p.sensor: dict(p.aligner.ignored_references) for p in passes},
                        temperature_rate_max=extremes['accel'].temperature_rate_max,
                        rate_max=extremes['gyro'].reference_max if 'gyro' in extremes else 0.0,
-                       survey=opened.finished_survey(), record_print=prints.finish(path.name))
+                       survey=opened.finished_survey(), record_print=prints.finish(path.name),
+                       held=tuple(sensor for sensor in sensors if sensor in short))
 
 
 def fit_imu(path: str | Path, settings: FitSettings, options: StreamOptions,
@@ -171,14 +186,16 @@ def fit_imu(path: str | Path, settings: FitSettings, options: StreamOptions,
         if not hold_undetermined:
             raise
         reason, survey = err.reason, err.survey
-    results = {}
-    for sensor in ('accel', 'gyro'):
-        link = held_link(notes=(HELD_IMU_NOTE.format(reason=reason),))
-        results[sensor] = FitResult(calibration=link, axes=(AxisFit(0.0, 0, 0.0),) * 3, samples=0,  # type: ignore
-                                    dropped={})
+    results = {sensor: held_result(reason) for sensor in ('accel', 'gyro')}
     return StreamedFit(input_kind=InputKind.IMU, sensors=('accel', 'gyro'), results=results, usable={},
                        effect_stride={}, reference_lines=(), ignored_temp_codes={'accel': {}, 'gyro': {}},
                        ignored_references={'accel': {}, 'gyro': {}}, held=('accel', 'gyro'), survey=survey)
+
+
+def held_result(reason: str) -> FitResult:
+    """A sensor held at nominal (offset 0, scale 1, no temperature terms), its note saying why."""
+    link = held_link(notes=(HELD_IMU_NOTE.format(reason=reason),))
+    return FitResult(calibration=link, axes=(AxisFit(0.0, 0, 0.0),) * 3, samples=0, dropped={})  # type: ignore
 
 
 def _with_shape_uncertainty(errors: dict[str, float], shaped: FitResult, shape_names: set[str],

@@ -30,7 +30,7 @@ from typing import Sequence
 
 import numpy as np
 
-from tak_thermo_ros.core.fit import FitResult, fit_model
+from tak_thermo_ros.core.fit import FitResult, ShortRecord, fit_model
 from tak_thermo_ros.core.fit.stream import StreamingFit
 from tak_thermo_ros.core.link.correction import Corrector, OutOfRange
 from tak_thermo_ros.core.link.model import IDENTITY_3X3, InputKind, MagnetometerCalibration
@@ -70,17 +70,25 @@ def _mag_blocks(path: Path, options, *, references: bool):
     checked = False
     for block in record_blocks(path, topics=options.topics, kind=InputKind.IMU, block_samples=options.block_samples,
                                references=references, progress=options.progress):
-        record = block.channel('mag')
-        with np.errstate(invalid='ignore'):
-            corrupt = np.any(np.abs(record.counts) >= CORRUPT_FIELD_T, axis=1)
-        if corrupt.any():
-            record = replace(record, counts=np.where(corrupt[:, None], np.nan, record.counts))
+        record = corrupt_as_nan(block.channel('mag'))
         if not checked:
             finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
             if len(finite):
                 check_tesla(finite, f'{path}: {options.topics.mag}')
                 checked = True
         yield record
+
+
+def corrupt_as_nan(record):
+    """The magnetometer's record with each sample of a component at :data:`CORRUPT_FIELD_T` or more made NaN.
+
+    (A corrupt message, not a field: the alignment leaves it out and counts it as a NaN, in every pass.)
+    """
+    with np.errstate(invalid='ignore'):
+        corrupt = np.any(np.abs(record.counts) >= CORRUPT_FIELD_T, axis=1)
+    if not corrupt.any():
+        return record
+    return replace(record, counts=np.where(corrupt[:, None], np.nan, record.counts))
 
 
 @dataclass(frozen=True)
@@ -220,6 +228,22 @@ class MagFit:
     iron: EllipsoidFit | None
     lines: tuple[str, ...]
     max_turn_deg: float = 0.0
+    held: bool = False
+
+
+HELD_MAG_NOTE = 'held at nominal (offset 0, scale 1, no iron): {reason}'
+"""The note of a magnetometer the record is too short for, while its other sensors are fitted."""
+
+
+def held_mag_fit(reason: str) -> MagFit:
+    """The magnetometer held at nominal, said in its note and one line: one sensor's shortage (``fit``)."""
+    from tak_thermo_ros.core.link.model import held_link
+    note = HELD_MAG_NOTE.format(reason=reason)
+    link = held_link(notes=(note,))
+    thermal = FitResult(calibration=link, axes=(AxisFit(0.0, 0, 0.0),) * 3, samples=0,  # type: ignore[arg-type]
+                        dropped={})
+    return MagFit(calibration=MagnetometerCalibration(link, (0.0, 0.0, 0.0), IDENTITY_3X3),  # type: ignore[arg-type]
+                  thermal=thermal, iron=None, lines=(f'magnetometer: {note}',), held=True)
 
 
 def fit_mag_bag(path: str | Path, options, *, bias_order: int = 3, scale_order: int = 2,
@@ -265,7 +289,7 @@ def fit_mag_bag(path: str | Path, options, *, bias_order: int = 3, scale_order: 
             thermal = fit_model(subsample.samples(aligner.dropped), effects=list(effects), bias_order=bias_order,
                                 scale_order=scale_order, temp_code_ref=temp_code_ref, nominal_scale=(1.0, 1.0, 1.0))
     except FitError as err:
-        raise FitError(f'magnetometer: {err}') from None
+        raise (ShortRecord if isinstance(err, ShortRecord) else FitError)(f'magnetometer: {err}') from None
     lines = [f'magnetometer: reference field {topics.reference_field} as recorded' if not static else
              f'magnetometer: static run, reference the mean field x y z {_microtesla(mean)} uT']
     if static:
@@ -399,6 +423,7 @@ class MagApplier:
 
     def push(self, writer, record, output) -> None:
         """Align and correct one block's magnetometer record into ``writer``."""
+        record = corrupt_as_nan(record)
         if not self.checked and len(record.counts):
             finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
             if len(finite):

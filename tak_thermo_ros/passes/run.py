@@ -248,6 +248,7 @@ def open_calibration_run(path: Path, options: StreamOptions, streams, *, gravity
             # Without references the record itself says what it is (static, hand-held): one pass first.
             survey, replay = survey_record(path, options, streams.kind, listed,
                                            keep=streams.main <= SURVEY_REPLAY_SAMPLES)
+            check_temperature_unit(path, options, survey)
             if decide:
                 decided(path, survey)
         if survey is None or survey.plan is Plan.STATIC:
@@ -259,6 +260,16 @@ def open_calibration_run(path: Path, options: StreamOptions, streams, *, gravity
                                    or survey.plan is Plan.STATIC and not streams.rate_reference):
         replay = None  # the kept blocks hold no reference topics: a recorded rate reference is read again
     return OpenedRun(streams.kind, streams.main, static, survey, collector, listed, replay)
+
+
+def check_temperature_unit(path: Path, options: StreamOptions, survey: RecordSurvey) -> None:
+    """Refuse a driver record whose temperatures are not degrees Celsius (the readers' one rule, :mod:`.plausible`).
+
+    :raises TakError: one line naming the record and the temperature topic.
+    """
+    if survey.temperature_problem is not None:
+        msg = f'{path}: {options.topics.temperature}: {survey.temperature_problem}'
+        raise TakError(msg)
 
 
 def stream_list(streams, topics) -> tuple[tuple[str, str, int], ...]:
@@ -427,14 +438,15 @@ def feeding(required: Required, consumers: Sequence[Callable[[AlignedSamples], N
 
 @contextmanager
 def sensor_errors(kind: InputKind, sensor: str) -> Iterator[None]:
-    """A fit error names the sensor on driver bags."""
+    """A fit error names the sensor on driver bags (a :class:`~tak_thermo_ros.core.fit.ShortRecord` stays one)."""
+    from tak_thermo_ros.core.fit import ShortRecord
     try:
         yield
     except FitError as err:
         if kind is InputKind.COUNTS:
             raise
         msg = f'{SENSOR_NAMES[sensor]}: {err}'
-        raise FitError(msg) from None
+        raise (ShortRecord if isinstance(err, ShortRecord) else FitError)(msg) from None
 
 
 class Required:

@@ -37,6 +37,9 @@ class Validated:
     rate: RateCheck | None
     reference_lines: tuple[str, ...]
     accel_dropped: dict[str, int] = field(default_factory=dict)
+    """The accelerometer's samples left out, by reason (the stamp and value rules, a recorded signal missing);
+    ``gyro_dropped`` the gyroscope's."""
+    gyro_dropped: dict[str, int] = field(default_factory=dict)
     accel_ignored_temp_codes: dict[str, int] = field(default_factory=dict)
     accel_ignored_references: dict[str, int] = field(default_factory=dict)
     survey: RecordSurvey | None = None
@@ -95,6 +98,7 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
     lines = run_passes(path, options, opened, passes, prints=prints)
     return Validated(input_kind=kind, gravity=gravity_check, rate=rate_check, reference_lines=tuple(lines),
                      accel_dropped=accel_required.dropped,
+                     gyro_dropped=gyro_required.dropped if calibration_run and rate_check is not None else {},
                      accel_ignored_temp_codes=dict(accel_pass.aligner.ignored_temp_codes),
                      accel_ignored_references=dict(accel_pass.aligner.ignored_references),
                      survey=opened.finished_survey(), in_sample=prints.recognition(path.name))

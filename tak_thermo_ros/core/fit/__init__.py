@@ -17,7 +17,7 @@ import numpy as np
 
 from tak_thermo_ros.core.effects.base import Effect
 from tak_thermo_ros.core.fit.base import fit_calibration
-from tak_thermo_ros.core.fit.design import INPUT_RESOLUTION, MIN_SAMPLES_PER_PARAMETER, single_input_axes
+from tak_thermo_ros.core.fit.design import INPUT_RESOLUTION, MIN_SAMPLES_PER_PARAMETER, ShortRecord, single_input_axes
 from tak_thermo_ros.core.fit.effects import fit_with_effects
 from tak_thermo_ros.core.fit.model import (
     AxisFit,
@@ -29,7 +29,7 @@ from tak_thermo_ros.core.fit.model import (
 )
 from tak_thermo_ros.core.records.record import AlignedSamples
 
-__all__ = ['INPUT_RESOLUTION', 'MIN_SAMPLES_PER_PARAMETER', 'AxisFit', 'FitResult', 'finish_fit',
+__all__ = ['INPUT_RESOLUTION', 'MIN_SAMPLES_PER_PARAMETER', 'AxisFit', 'FitResult', 'ShortRecord', 'finish_fit',
            'finish_fit_from_sums', 'fit_calibration', 'fit_model', 'fit_with_effects', 'held_scale_note',
            'residual_counts', 'single_input_axes']
 

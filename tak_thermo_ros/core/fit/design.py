@@ -41,14 +41,25 @@ def check_orders(bias_order: int, scale_order: int) -> None:
         raise FitError(msg)
 
 
+class ShortRecord(FitError):
+    """A record with too few usable samples, or too little temperature spread, for a sensor's fit.
+
+    One sensor's shortage: ``fit`` holds that sensor at nominal and says so where another
+    sensor of the record can be fitted (``passes/fit.py``, ``cli/fit.py``).
+    """
+
+
 def check_observable(samples: AlignedSamples, bias_order: int, scale_order: int) -> None:
-    """Enough samples, a reference, and a temperature spread for the orders (else a :class:`FitError`)."""
+    """Enough samples, a reference, and a temperature spread for the orders (else a :class:`FitError`).
+
+    :raises ShortRecord: too few samples, or too few distinct temperatures.
+    """
     parameters = bias_order + scale_order + 2
     needed = MIN_SAMPLES_PER_PARAMETER * parameters
     if len(samples) < needed:
-        msg = (f'too few samples: {len(samples)} usable counts samples, need at least {needed} '
+        msg = (f'too few samples: {len(samples)} usable samples, need at least {needed} '
                f'for bias order {bias_order} and scale order {scale_order}')
-        raise FitError(msg)
+        raise ShortRecord(msg)
     if samples.reference is None:
         msg = 'no reference stream: a fit needs the true specific force'
         raise FitError(msg)
@@ -57,7 +68,7 @@ def check_observable(samples: AlignedSamples, bias_order: int, scale_order: int)
         low, high = float(samples.temp_code.min()), float(samples.temp_code.max())
         msg = (f'no temperature spread: the temperature code spans only {low:g}..{high:g} '
                f'({distinct_codes} distinct codes), need at least {max(bias_order, scale_order) + 1}')
-        raise FitError(msg)
+        raise ShortRecord(msg)
 
 
 def single_input_axes(samples: AlignedSamples) -> tuple[bool, bool, bool]:

@@ -34,6 +34,7 @@ from tak_thermo_ros.core.fit.design import (
     MIN_SAMPLES_PER_PARAMETER,
     Column,
     Frame,
+    ShortRecord,
     axis_design,
     check_orders,
     held_scale,
@@ -158,16 +159,16 @@ class StreamingFit:
         q, p = self.bias_order, self.scale_order
         needed = MIN_SAMPLES_PER_PARAMETER * (q + p + 2)
         if self.count < needed:
-            msg = (f'too few samples: {self.count} usable counts samples, need at least {needed} '
+            msg = (f'too few samples: {self.count} usable samples, need at least {needed} '
                    f'for bias order {q} and scale order {p}')
-            raise FitError(msg)
+            raise ShortRecord(msg)
         if not self.has_reference:
             msg = 'no reference stream: a fit needs the true specific force'
             raise FitError(msg)
         if len(self._codes) < max(q, p) + 1:
             msg = (f'no temperature spread: the temperature code spans only {self.low:g}..{self.high:g} '
                    f'({len(self._codes)} distinct codes), need at least {max(q, p) + 1}')
-            raise FitError(msg)
+            raise ShortRecord(msg)
 
     def single_input_axes(self) -> tuple[bool, bool, bool]:
         """Per axis, whether the reference held one value only (as :func:`single_input_axes`)."""

@@ -52,8 +52,17 @@ def static_offset(calibration: Calibration, temperature: np.ndarray) -> np.ndarr
 
 
 def offset_cubic(calibration: Calibration, about: float) -> OffsetCubic:
-    """The calibration's static offset curve as a cubic about ``about`` over its calibrated range."""
+    """The calibration's static offset curve as a cubic about ``about`` over its calibrated range.
+
+    A link without a range (no temperature terms: a sensor held at nominal, a record at one
+    temperature) is its constant offset: no slope, nothing departs.
+    """
     low, high = float(calibration.temp_code_min), float(calibration.temp_code_max)
+    if not high > low:
+        coefficients = np.zeros((4, 3))
+        coefficients[0] = static_offset(calibration, np.array([low]))[0]
+        return OffsetCubic(coefficients=coefficients, about=float(about), low=low, high=high, deviation=np.zeros(3),
+                           steepest=np.zeros(3))
     grid = np.linspace(low, high, GRID_POINTS)
     curve = static_offset(calibration, grid)
     t = grid - about

@@ -12,6 +12,9 @@ RATE_WINDOW_S = 60.0
 """The temperature's rate of change is taken over this long (a thermometer's quantum and noise average out)."""
 KEEP_EVERY_S = 5.0
 """One held temperature is kept per this many seconds (memory stays small over any run)."""
+GAP_S = 2.0 * RATE_WINDOW_S
+"""Samples further apart than this start a new stretch of the grid (:func:`temperature_course`): the grid
+holds at most ``GAP_S / KEEP_EVERY_S`` points per sample, whatever time the run spans."""
 ONE_WAY_FRACTION = 0.1
 """A run whose temperature came back by less than this fraction of its swing moved one way only."""
 
@@ -39,19 +42,35 @@ class TemperatureCourse:
 
 
 def temperature_course(stamp_s: np.ndarray, temperature: np.ndarray) -> TemperatureCourse:
-    """The course of a run's temperature from its (time-ordered) samples."""
+    """The course of a run's temperature from its (time-ordered) samples.
+
+    The temperature is held on a grid of one point per :data:`KEEP_EVERY_S` (linear between
+    samples) within each stretch of the run whose samples are at most :data:`GAP_S` apart, so
+    that the grid is bounded by the samples, not by the time they span (a stamp that jumps by
+    years costs nothing). Across a longer gap the temperature is taken as linear: its slope is
+    a candidate for the fastest change, and its change counts as one move up or down.
+    """
     stamps = np.asarray(stamp_s, dtype=float)
     values = np.asarray(temperature, dtype=float)
     if len(stamps) < 2 or stamps[-1] - stamps[0] < RATE_WINDOW_S:
         low = float(values.min()) if len(values) else 0.0
         high = float(values.max()) if len(values) else 0.0
         return TemperatureCourse(low, high, 0.0, 0.0, 0.0)
-    grid = np.arange(stamps[0], stamps[-1] + 1e-9, KEEP_EVERY_S)
-    held = np.interp(grid, stamps, values)
     step = int(round(RATE_WINDOW_S / KEEP_EVERY_S))
-    moves = held[step::step] - held[:-step:step]
-    rate = np.abs(held[step:] - held[:-step]) / RATE_WINDOW_S
-    return TemperatureCourse(low=float(values.min()), high=float(values.max()), rate_max=float(rate.max()),
+    cuts = np.flatnonzero(np.diff(stamps) > GAP_S) + 1
+    rate_max = 0.0
+    chain: list[np.ndarray] = []  # the held temperature once a minute, stretch after stretch
+    for start, end in zip(np.r_[0, cuts], np.r_[cuts, len(stamps)]):
+        times, held_at = stamps[start:end], values[start:end]
+        grid = np.arange(times[0], times[-1] + 1e-9, KEEP_EVERY_S)
+        held = np.interp(grid, times, held_at)
+        if len(held) > step:
+            rate_max = max(rate_max, float(np.abs(held[step:] - held[:-step]).max()) / RATE_WINDOW_S)
+        chain.append(held[::step])
+    for before, after in zip(cuts - 1, cuts):
+        rate_max = max(rate_max, abs(values[after] - values[before]) / (stamps[after] - stamps[before]))
+    moves = np.diff(np.concatenate(chain))
+    return TemperatureCourse(low=float(values.min()), high=float(values.max()), rate_max=rate_max,
                              rise=float(moves[moves > 0].sum()), fall=float(-moves[moves < 0].sum()))
 
 

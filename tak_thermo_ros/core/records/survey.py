@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tak_thermo_ros.core.records.plausible import temperature_counts, temperature_counts_problem
 from tak_thermo_ros.core.records.record import REFERENCE_LIMIT, TEMPERATURE_RANGE, ChannelRecord, DriverRecord
 from tak_thermo_ros.core.records.still import ORIENTATION_DEG, StillDetector, StillIntervals, distinct_directions
 
@@ -75,6 +76,8 @@ class RecordSurvey:
     mean: np.ndarray
     samples: int
     shared_stamps: bool = True
+    temperature_problem: str | None = None
+    """Why a driver's temperatures are not degrees Celsius (:mod:`~.plausible`), or ``None``."""
 
     @property
     def has_reference(self) -> bool:
@@ -120,6 +123,7 @@ class SurveyCollector:
         self.mags = 0
         self.total = np.zeros(3)
         self.finite = 0
+        self.unit_counts = [0, 0, 0, math.inf, -math.inf]  # plausible.temperature_counts, summed
 
     def add(self, block: ChannelRecord | DriverRecord) -> None:
         """One block as the record's reader gives it."""
@@ -148,6 +152,11 @@ class SurveyCollector:
             self.low = min(self.low, float(plausible.min()))
             self.high = max(self.high, float(plausible.max()))
         self.temperatures += len(temperature)
+        if self.kind == 'imu' and len(temperature):
+            finite, implausible, kelvin, least, most = temperature_counts(temperature)
+            counts = self.unit_counts
+            self.unit_counts = [counts[0] + finite, counts[1] + implausible, counts[2] + kelvin,
+                                min(counts[3], least), max(counts[4], most)]
         if len(reference):
             self.reference_count += len(reference)
             plausible_rows = np.all(np.isfinite(reference) & (np.abs(reference) < REFERENCE_LIMIT), axis=1)
@@ -170,4 +179,4 @@ class SurveyCollector:
             temperature=(self.low, self.high) if self.low <= self.high else None, still=still,
             reference_directions=(len(self.references[0]) if self.references else 0) if self.reference_count else None,
             mean=self.total / self.finite if self.finite else np.zeros(3), samples=self.finite,
-            shared_stamps=self.shared_stamps)
+            shared_stamps=self.shared_stamps, temperature_problem=temperature_counts_problem(*self.unit_counts))
