@@ -150,8 +150,10 @@ class PrintCollector:
             for shift in list(self._levels):
                 level = self._levels[shift]
                 seen = set(level.hashers) | set(np.unique(np.floor_divide(stamps, level.length)).tolist())
-                if len(seen) > MAX_SEGMENTS:
-                    del self._levels[shift]  # too fine for this record: its segments would be too many
+                if len(seen) > MAX_SEGMENTS or max(seen) - min(seen) >= MAX_SEGMENTS:
+                    # too fine for this record: its segments (every one from the first to the last, empty
+                    # ones too) would be too many; a record that spans years keeps its whole digest only
+                    del self._levels[shift]
                     continue
                 level.add(sensor, stamps, rows, limit=None)
             for level, limit in self._grids:
