@@ -101,7 +101,7 @@ def null_heldout(samples: AlignedSamples, effects: Sequence[Any], labels: np.nda
     """
     result = fit_model(samples, effects=tuple(effects), bias_order=settings.bias_order,
                        scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
-                       nominal_scale=settings.nominal_scale)
+                       nominal_scale=settings.nominal_scale, errors=False)
     low, high = float(samples.temp_code.min()), float(samples.temp_code.max())
     corrector = Corrector(_with_range(result.calibration, low, high))
     predicted = corrector.predict_counts(samples.reference, samples.temp_code, stamp_s=samples.stamp_s,
@@ -565,7 +565,7 @@ def _rung_allan(samples: AlignedSamples, cv_samples: AlignedSamples, ladder: Seq
             try:
                 fitted = fit_model(cv_samples, effects=specs, bias_order=settings.bias_order,
                                    scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
-                                   nominal_scale=settings.nominal_scale)
+                                   nominal_scale=settings.nominal_scale, errors=False)
             except TakError:
                 continue
             low, high = float(samples.temp_code.min()), float(samples.temp_code.max())

@@ -199,7 +199,7 @@ class _CrossValidation:
 def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_order: int = 3,
                      scale_order: int = 2, temp_code_ref: float | None = None,
                      nominal_scale: tuple[float, float, float] | None = None,
-                     train_mask: np.ndarray | None = None) -> FitResult:
+                     train_mask: np.ndarray | None = None, errors: bool = True) -> FitResult:
     """The implementation of :func:`tak_thermo_ros.core.fit.fit_model`.
 
     The steps: the run set up (:meth:`FitRun.prepare`: the training rows, checks, frame); each
@@ -216,7 +216,7 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
         return fit_run(run)
     fit = _EffectFit(run, chosen)
     fit.search_shapes()
-    return fit.result()
+    return fit.result(errors=errors)
 
 
 _Chosen = tuple[Effect | None, type[Effect], bool]
@@ -411,19 +411,20 @@ class _EffectFit:
 
     # ----- the result ------------------------------------------------------------------------
 
-    def result(self) -> FitResult:
+    def result(self, *, errors: bool = True) -> FitResult:
         """The pipeline with every shape fixed.
 
-        The final least squares over the training rows, the calibration and its errors.
+        The final least squares over the training rows, the calibration and (``errors``) its errors.
         """
         offsets = self.offsets
         solved = solve_run(self.run, input_effects=self.input_effects,
                            offset_bases=[(entry.effect, entry.basis[self.mask]) for entry in offsets])
         by_name = {entry.effect.name: entry.effect for entry in offsets}
         by_name.update((effect.name, effect) for effect in self.input_effects)
-        errors, basis = _standard_errors(self.run, offsets, solved.solutions, solved.columns, self.targets)
+        found, basis = (_standard_errors(self.run, offsets, solved.solutions, solved.columns, self.targets)
+                        if errors else ({}, None))
         return model_run(self.run, solved, effects=[by_name[cls.name] for _, cls, _ in self.chosen],
-                         shape_parameters=[self._shape_count(i) for i in range(3)], parameter_errors=errors,
+                         shape_parameters=[self._shape_count(i) for i in range(3)], parameter_errors=found,
                          error_basis=basis)
 
     def _shape_count(self, axis: int) -> int:

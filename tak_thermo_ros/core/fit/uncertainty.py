@@ -54,6 +54,8 @@ MIN_BATCHES = 8
 """The Allan variance is measured at averaging times up to an eighth of the run (eight independent means)."""
 MARKOV_PER_DECADE = 2
 """Gauss-Markov correlation times per decade in the residual's noise model."""
+REWEIGHTINGS = 2
+"""The noise model is fitted again this many times, weighted by its own prediction."""
 MARKOV_LONGEST = 0.25
 """The longest Gauss-Markov correlation time is this share of the longest averaging time measured: a
 rise over the last two octaves is read as a random walk, which goes on rising beyond them."""
@@ -238,12 +240,18 @@ def residual_noise(residual: np.ndarray, period: float, basis: np.ndarray) -> Re
     white = float(np.sum(columns[:, 0] * measured * freedom) / np.sum(columns[:, 0] ** 2 * freedom))
     if _white_enough(measured, white * columns[:, 0], freedom):
         return ResidualNoise.white_only(white, period)._replace_longest(float(taus[-1]))
-    weights = np.sqrt(freedom) / np.maximum(measured, 1e-300)
-    design = columns * weights[:, None]
-    norms = np.linalg.norm(design, axis=0)
-    norms[norms == 0.0] = 1.0
-    solution, _ = nnls(design / norms, measured * weights)
-    solution = solution / norms
+    # Weighted by each averaging time's degrees of freedom over the variance expected there: the
+    # measurement at first, then (twice) the model's own prediction, so that an estimate that came
+    # out low by chance (few degrees of freedom: a skewed chi-square) does not pull the model down.
+    expected = measured
+    for _ in range(REWEIGHTINGS + 1):
+        weights = np.sqrt(freedom) / np.maximum(expected, 1e-300)
+        design = columns * weights[:, None]
+        norms = np.linalg.norm(design, axis=0)
+        norms[norms == 0.0] = 1.0
+        solution, _ = nnls(design / norms, measured * weights)
+        solution = solution / norms
+        expected = np.maximum(columns @ solution, 1e-3 * measured)
     fitted = columns * solution[None, :]
     total = np.maximum(fitted.sum(axis=1), 1e-300)
     shares = (fitted / total[:, None]).max(axis=0)
