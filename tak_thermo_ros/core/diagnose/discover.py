@@ -23,6 +23,7 @@ from tak_thermo_ros.core.diagnose.crossval import (
     summed_block_t,
     unresolved_shapes,
 )
+from tak_thermo_ros.core.diagnose.heldout import excursion_statements, held_out_like as _held_out_like, judge_ladder
 from tak_thermo_ros.core.diagnose.values import AxisSummary, Candidate, Diagnosis, ModelScore
 from tak_thermo_ros.core.diagnose.verdict import (
     MIN_STEP_FRACTION,
@@ -117,7 +118,8 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
              bias_order: int | None = None, scale_order: int | None = None,
              rate_window_s: float | None = None,
              progress: Callable[[str], None] | None = None, per_axis: bool = True,
-             noise: Any | None = None, seed: int = 0, unit: str = 'counts', unit_scale: float = 1.0) -> Diagnosis:
+             noise: Any | None = None, seed: int = 0, unit: str = 'counts', unit_scale: float = 1.0,
+             excursions: bool = True, held_out: AlignedSamples | None = None) -> Diagnosis:
     """Compare the calibration with a run, find where it fails and which effect it misses.
 
     :param calibration: the model to diagnose (base model, possibly with effects).
@@ -148,6 +150,10 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
     :param seed: seed of the simulated copies of the run.
     :param unit: the residual's unit in the verdict's message, ``unit_scale`` the factor from the
         residual to it (a magnetometer's tesla in uT: ``'uT'``, 1e6).
+    :param excursions: judge the ladder on whole thermal excursions held out of the fit
+        (:mod:`~tak_thermo_ros.core.diagnose.heldout`): a rung that does not hold there ends it.
+    :param held_out: a second record of the same unit (aligned, with its reference) to judge the
+        ladder on instead of the diagnosed record's own excursions.
     :raises FitError: when the run has no reference or too few samples.
     """
     if samples.reference is None:
@@ -428,11 +434,29 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
         return min(options)
 
     changed_specs = sorted((spec for spec in model_specs if spec not in present), key=merit)
-    ladder = [_rung(base_score)]
-    rung_specs = present
+    rung_models: list[tuple[str, tuple[Any, ...]]] = [('', present)]
     for spec in changed_specs:
         shared = _shared_form(spec)
-        rung_specs = _replaced(rung_specs, shared, spec) if shared in rung_specs else (*rung_specs, spec)
+        specs_below = rung_models[-1][1]
+        rung_models.append((_effect_name(spec), _replaced(specs_below, shared, spec) if shared in specs_below
+                            else (*specs_below, spec)))
+    # The rungs are judged on whole thermal excursions the fit never saw (or a second record's):
+    # the first that does not hold there ends the ladder.
+    excursion_verdict = None
+    if excursions:
+        if len(rung_models) > 1:
+            say('the ladder on held-out excursions')
+        excursion_verdict = judge_ladder(cv_samples, rung_models, settings, floor,
+                                         held_out=_held_out_like(held_out, cv_samples, bins is not None,
+                                                                 averaging_s, max_cv_samples),
+                                         temperature_unit='' if unit == 'counts' else ' C')
+        if excursion_verdict.can_judge and excursion_verdict.kept < len(changed_specs):
+            changed_specs = changed_specs[:excursion_verdict.kept]
+            rung_models = rung_models[:excursion_verdict.kept + 1]
+            model_specs = rung_models[-1][1]
+            current = score(model_specs, base_score)
+    ladder = [_rung(base_score)]
+    for _, rung_specs in rung_models[1:]:
         rung_score = score(rung_specs, base_score)
         if rung_score.ok:
             ladder.append(_rung(rung_score))
@@ -506,6 +530,8 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
                                   significant_axes(current), explained_total, unresolved,
                                   allan=final_allan, judged=judged, averaging_s=averaging_s if judged else 0.0,
                                   wander=wander, unit=unit, scale=unit_scale)
+    if excursion_verdict is not None:
+        statements = excursion_statements(statements, excursion_verdict, '' if unit == 'counts' else ' C')
     if pruned and verdict not in (VERDICT_NONE, VERDICT_UNEXPLAINED):
         statements.append(Statement(f'Not needed once the others are in: {", ".join(pruned)} (held-out blocks do '
                                     f'not notice its removal).'))
@@ -520,7 +546,8 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
                      unresolved=unresolved, pruned=tuple(pruned),
                      per_axis_forms=tuple(candidate for _, candidate in per_axis_tried),
                      noise=noise, allan=allan, averaging_time_s=float(averaging_s) if judged else 0.0,
-                     yardstick_replicates=yardstick.replicates if yardstick is not None else 0)
+                     yardstick_replicates=yardstick.replicates if yardstick is not None else 0,
+                     excursions=excursion_verdict)
 
 
 def wander_explains(check: AllanCheck) -> bool:

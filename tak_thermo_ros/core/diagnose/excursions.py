@@ -12,16 +12,17 @@ another day's heating and cooling; here it is judged so:
    :data:`MIN_PLATEAU_FRACTION` of the record (with a driver's temperature in degrees C, a tenth of
    a range of 92 C is 9.2 C).
    (a plateau: the temperature within an eighth of that span for that long).
-2. **Held out whole** (:func:`judge_ladder`): each model of the ladder is fitted without one
-   excursion (at most :data:`MAX_FOLDS` folds, excursions dealt round-robin) and its residual
-   taken on it, where the model interpolates: the held-out samples whose temperature, and every
+2. **Held out whole** (:func:`~.heldout.judge_ladder`): each model of the ladder is fitted
+   without one excursion (at most :data:`MAX_FOLDS` folds, excursions dealt round-robin) and its
+   residual taken on it, when the fitted excursions hold one of its kind (a heating is judged by
+   a model that saw a heating), and where the model interpolates: the held-out samples whose temperature, and every
    effect's signal, lie within what the fitted excursions saw.
 3. **Beyond their noise**: per excursion and axis the held-out gain of the mean square, in units
    of the floor squared, with its standard error from :data:`BATCHES` consecutive batches of the
    excursion (the residual's own correlation within it). An effect is recommended when the gain
-   summed over the excursions and axes exceeds :data:`GAIN_SIGMAS` standard errors and no
-   excursion gets worse on any axis by more than :func:`worse_sigmas` (Bonferroni over the
-   excursions and axes, :data:`WORSE_ALPHA`); the verdict says on how many of how many
+   summed over the excursions and axes exceeds :data:`GAIN_SIGMAS` standard errors and no axis
+   gets worse over the excursions by more than :func:`~.heldout.worse_sigmas` of its standard
+   errors (Bonferroni over the axes, :data:`WORSE_ALPHA`) and :data:`WORSE_MIN`; the verdict says on how many of how many
    excursions it was better. A record of one excursion cannot judge this; nor can a model that
    no fold can fit, or one whose signal no held-out excursion shows within the fitted range.
 4. **A second record** (``diagnose --held-out REC2``): each model fitted on the whole diagnosed
@@ -57,7 +58,11 @@ BATCHES = 8
 GAIN_SIGMAS = 2.33
 """The held-out gain summed over the excursions must exceed this many standard errors (1 % one-sided)."""
 WORSE_ALPHA = 0.01
-"""The chance, over every excursion and axis of a record, that a model which changes nothing is called worse."""
+"""The chance, over the three axes, that a model which changes nothing is called worse."""
+WORSE_MIN = 0.1
+"""... and by at least this much of the floor squared in its held-out mean square (RMS about 5 % up at
+the floor): an axis an effect does not act on pays a little for its fitted amplitude there, which is
+no reason to refuse it."""
 HEATING, COOLING, PLATEAU = 'heating', 'cooling', 'plateau'
 
 

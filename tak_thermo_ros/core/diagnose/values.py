@@ -212,6 +212,8 @@ class Diagnosis:
     :param statements: ``message`` one sentence at a time
         (:class:`~tak_thermo_ros.core.diagnose.verdict.Statement`: its text, and whether it is a
         detail that only ``--verbose`` prints).
+    :param excursions: the ladder judged on held-out thermal excursions
+        (:class:`~tak_thermo_ros.core.diagnose.heldout.ExcursionVerdict`), ``None`` when not judged.
     """
 
     verdict: str
@@ -240,6 +242,7 @@ class Diagnosis:
     averaging_time_s: float = 0.0
     yardstick_replicates: int = 0
     statements: tuple[Any, ...] = ()
+    excursions: Any = None
 
     @property
     def noise_floor(self) -> np.ndarray:
@@ -275,6 +278,7 @@ class Diagnosis:
             'averaging_time_s': self.averaging_time_s,
             **({'noise': noise_document(self.noise)} if self.noise is not None else {}),
             'allan': [{'model': label, **check.as_dict()} for label, check in self.allan],
+            **({'held_out_excursions': self.excursions.as_dict()} if self.excursions is not None else {}),
         }
 
 
