@@ -22,6 +22,7 @@ from tak_thermo_ros.core.records.extremes import TemperatureCourse, temperature_
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.core.records.record import require_signals
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
+from tak_thermo_ros.errors import TakError
 from tak_thermo_ros.passes.diagnose import DIAGNOSE_MAX_SAMPLES
 from tak_thermo_ros.core.diagnose.yardstick import tau_text
 import numpy as np
@@ -66,6 +67,9 @@ def add_parser(commands) -> argparse.ArgumentParser:
                              'verdict is judged against it at every averaging time (docs/discovery.md)')
     parser.add_argument('--noise-run', metavar='BAG',
                         help='a static run at constant temperature: its Allan variance gives the noise model')
+    parser.add_argument('--held-out', metavar='BAG2',
+                        help='a second record of the same unit: each model of the ladder is fitted on BAG and '
+                             'judged on the thermal excursions of BAG2 (instead of BAG\'s own, held out one by one)')
     options.add_topic_options(parser)
     parser.set_defaults(handler=run)
     return parser
@@ -97,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
     for line in run.reference_lines:
         print(line)
     noise_models = common.given_noise_models(args, unit, run.input_kind, tuple(run.samples))
+    held_out = _held_out_samples(args, unit, run)
     results = {}
     used: dict[str, AlignedSamples] = {}
     if run.stride > 1:
@@ -125,8 +130,11 @@ def run(args: argparse.Namespace) -> int:
             from tak_thermo_ros.core.fit import residual_counts
             from tak_thermo_ros.core.noise.residual import model_from_residual
             noise = model_from_residual(residual_counts(unit.sensor(sensor), samples), samples.stamp_ns)
+        second = held_out.get(sensor)
+        if second is not None:
+            second = require_signals(second, [*Corrector(unit.sensor(sensor)).signals, *tried])
         result = diagnose(unit.sensor(sensor), samples, candidates=sensor_candidates, folds=args.folds,
-                          progress=progress, noise=noise, unit=shown_unit, unit_scale=scale)
+                          progress=progress, noise=noise, unit=shown_unit, unit_scale=scale, held_out=second)
         results[sensor] = result
         print(f'{label}diagnosed {len(samples)} samples of {args.bag} against {args.params} '
               f'(model: {result.ladder[0].label})')
@@ -187,6 +195,28 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         _write_report(args, run, results, used)
     return 0
+
+
+def _held_out_samples(args: argparse.Namespace, unit: UnitCalibration, run) -> dict[str, AlignedSamples]:
+    """``--held-out BAG2``: the second record's samples per sensor (the diagnosed record's kind), said in one line."""
+    path = getattr(args, 'held_out', None)
+    if path is None:
+        return {}
+    from tak_thermo_ros.formats.records import input_kind
+    from tak_thermo_ros.passes.diagnose import bounded_run
+    kind = input_kind(path, topics=common.topics(args))
+    if kind is not run.input_kind:
+        msg = f'--held-out: {path} holds {kind.value} data, {args.bag} {run.input_kind.value}: not the same kind of record'
+        raise TakError(msg)
+    second = bounded_run(path, common.stream_options(args), settle_time_s=args.settle_time,
+                         gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
+                         max_samples=args.max_samples, unit=unit)
+    if second.handheld is not None or run.handheld is not None:
+        msg = f'--held-out: {path if second.handheld is not None else args.bag} is a hand-held record (no thermal excursions)'
+        raise TakError(msg)
+    print(f'held out: {path}, {len(second.samples["accel"]):,} samples: each model is fitted on {args.bag} '
+          f'and judged on its excursions')
+    return dict(second.samples)
 
 
 def _design_run(args: argparse.Namespace, run, results: dict, used: dict[str, AlignedSamples],

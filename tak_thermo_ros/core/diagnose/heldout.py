@@ -81,13 +81,18 @@ class RungJudgement:
 
         ``unit``: the temperature's, after its numbers (``' C'``; a counts record's codes: none).
         """
-        axes = [axis for axis in AXES if any(worse_axis == axis for _, worse_axis in self.worse)]
-        worse = '; '.join(f'{axis} ({", ".join(what + unit for what, worse_axis in self.worse if worse_axis == axis)})'
-                          for axis in axes)
+        groups: dict[tuple[str, ...], list[str]] = {}
+        for axis in AXES:
+            places = tuple(what + unit for what, worse_axis in self.worse if worse_axis == axis)
+            if places:
+                groups.setdefault(places, []).append(axis)
+        worse = '; '.join(f'{", ".join(axes)} ({", ".join(places)})' for places, axes in groups.items())
+        if not self.judged:
+            return (f'{self.effect} cannot be judged on {where}: none of their samples lies within what its fit '
+                    f'saw (the temperatures and its signals).')
         verb = 'holds' if self.kept else 'does not hold'
-        gain = f'gain {self.sigmas:.1f} sigmas' if self.judged else 'no excursion judged'
-        return (f'{self.effect} {verb} on {where}: better on {self.better} of {self.judged}, {gain}'
-                f'{"; worse on " + worse if worse else ""}.')
+        return (f'{self.effect} {verb} on {where}: better on {self.better} of {self.judged}, gain '
+                f'{self.sigmas:.1f} sigmas{"; worse on " + worse if worse else ""}.')
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
@@ -156,8 +161,8 @@ def _mean_and_error(values: np.ndarray) -> tuple[float, float]:
 
 
 def compare(before: HeldOut, after: HeldOut, labels: np.ndarray, found: Sequence[Excursion], floor: np.ndarray,
-            effect: str) -> RungJudgement:
-    """Rung ``after`` against rung ``before`` on the samples both judge."""
+            effect: str, *, least: int = 2) -> RungJudgement:
+    """Rung ``after`` against rung ``before`` on the samples both judge (at least ``least`` excursions)."""
     both = before.judged & after.judged
     floor2 = np.maximum(np.asarray(floor, dtype=float), 1e-300) ** 2
     gain = (before.residual ** 2 - after.residual ** 2) / floor2
@@ -194,7 +199,7 @@ def compare(before: HeldOut, after: HeldOut, labels: np.ndarray, found: Sequence
         if both.any() else np.full(3, np.nan)
     rms_after = np.sqrt(np.nanmean(np.where(both[:, None], after.residual, np.nan) ** 2, axis=0)) \
         if both.any() else np.full(3, np.nan)
-    kept = judged >= 2 and sigmas >= GAIN_SIGMAS and not worse
+    kept = judged >= least and sigmas >= GAIN_SIGMAS and not worse
     return RungJudgement(effect=effect, better=int(better), judged=judged, sigmas=float(sigmas), worse=tuple(worse),
                          rms_before=tuple(float(v) for v in rms_before),  # type: ignore[arg-type]
                          rms_after=tuple(float(v) for v in rms_after), kept=bool(kept))  # type: ignore[arg-type]
@@ -304,11 +309,21 @@ def judge_ladder(samples: AlignedSamples, rungs: Sequence[tuple[str, tuple[Any, 
         return ExcursionVerdict(found, False, (), reason=(
             f'one thermal excursion ({found[0].describe(temperature_unit) if found else "none"}): whole '
             f'excursions cannot be held out; judge on a second record (--held-out) or validate on one'))
-    if len(rungs) < 2:
-        return ExcursionVerdict(found, held_out is not None, ())
     labels = excursion_labels(len(target), found)
     fold_count = min(len(found), MAX_FOLDS)
     folds = labels % fold_count
+    if held_out is None:
+        kinds = [excursion.kind for excursion in found]
+        judgeable = [index for index, kind in enumerate(kinds)
+                     if any(other == kind and other_index % fold_count != index % fold_count
+                            for other_index, other in enumerate(kinds))]
+        if len(judgeable) < 2:
+            listed = ', '.join(excursion.describe(temperature_unit) for excursion in found[:4])
+            return ExcursionVerdict(found, False, (), reason=(
+                f'no two excursions of a kind ({listed}): none can be held out and judged by a fit that saw '
+                f'its kind; judge on a second record (--held-out) or validate on one'))
+    if len(rungs) < 2:
+        return ExcursionVerdict(found, held_out is not None, ())
 
     def residual_of(specs: tuple[Any, ...]) -> HeldOut:
         if held_out is not None:
@@ -319,7 +334,7 @@ def judge_ladder(samples: AlignedSamples, rungs: Sequence[tuple[str, tuple[Any, 
     below = residual_of(rungs[0][1])
     for effect, specs in rungs[1:]:
         above = residual_of(specs)
-        rung = compare(below, above, labels, found, floor, effect)
+        rung = compare(below, above, labels, found, floor, effect, least=1 if held_out is not None else 2)
         judged.append(rung)
         if not rung.kept:
             break
