@@ -24,6 +24,7 @@ from tak_thermo_ros.core.diagnose.crossval import (
     unresolved_shapes,
 )
 from tak_thermo_ros.core.diagnose.heldout import excursion_statements, held_out_like as _held_out_like, judge_ladder
+from tak_thermo_ros.core.diagnose.heldout import sensor_noise
 from tak_thermo_ros.core.diagnose.values import AxisSummary, Candidate, Diagnosis, ModelScore
 from tak_thermo_ros.core.diagnose.verdict import (
     MIN_STEP_FRACTION,
@@ -446,10 +447,12 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
     if excursions:
         if len(rung_models) > 1:
             say('the ladder on held-out excursions')
-        excursion_verdict = judge_ladder(cv_samples, rung_models, settings, floor,
-                                         held_out=_held_out_like(held_out, cv_samples, bins is not None,
-                                                                 averaging_s, max_cv_samples),
-                                         temperature_unit='' if unit == 'counts' else ' C')
+        judged_on = _held_out_like(held_out, cv_samples, bins is not None, averaging_s, max_cv_samples)
+        excursion_verdict = judge_ladder(cv_samples, rung_models, settings, floor, held_out=judged_on,
+                                         temperature_unit='' if unit == 'counts' else ' C',
+                                         noise=sensor_noise(noise, white_floor, period, sample_period(
+                                             judged_on if judged_on is not None else cv_samples),
+                                             float(samples.time_s[-1]) if len(samples) else 1.0))
         if excursion_verdict.can_judge and excursion_verdict.kept < len(changed_specs):
             changed_specs = changed_specs[:excursion_verdict.kept]
             rung_models = rung_models[:excursion_verdict.kept + 1]

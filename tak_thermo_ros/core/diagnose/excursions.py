@@ -17,12 +17,14 @@ another day's heating and cooling; here it is judged so:
    residual taken on it, when the fitted excursions hold one of its kind (a heating is judged by
    a model that saw a heating), and where the model interpolates: the held-out samples whose temperature, and every
    effect's signal, lie within what the fitted excursions saw.
-3. **Beyond their noise**: per excursion and axis the held-out gain of the mean square, in units
-   of the floor squared, with its standard error from :data:`BATCHES` consecutive batches of the
-   excursion (the residual's own correlation within it). An effect is recommended when the gain
-   summed over the excursions and axes exceeds :data:`GAIN_SIGMAS` standard errors and no axis
-   gets worse over the excursions by more than :func:`~.heldout.worse_sigmas` of its standard
-   errors (Bonferroni over the axes, :data:`WORSE_ALPHA`) and :data:`WORSE_MIN`; the verdict says on how many of how many
+3. **Beyond their noise**: sample by sample the held-out gain of the squared residual, in units of
+   the floor squared, summed over the axes; its mean over the judged samples has its standard
+   error from the gain's own correlation (the noise model of
+   :func:`~tak_thermo_ros.core.fit.uncertainty.mean_error`: a gain that wanders with the
+   residual's bias is known to far less than white noise would say). An effect is recommended
+   when that mean exceeds :data:`GAIN_SIGMAS` standard errors and no axis gets worse by more
+   than :func:`~.heldout.worse_sigmas` of its standard errors (Bonferroni over the axes,
+   :data:`WORSE_ALPHA`) and :data:`WORSE_MIN`; the verdict says on how many of how many
    excursions it was better. A record of one excursion cannot judge this; nor can a model that
    no fold can fit, or one whose signal no held-out excursion shows within the fitted range.
 4. **A second record** (``diagnose --held-out REC2``): each model fitted on the whole diagnosed
@@ -53,8 +55,8 @@ RATE_WINDOW_FRACTION = 0.02
 RATE_WINDOW_S = 300.0
 MAX_FOLDS = 8
 """At most this many fits per model: with more excursions, they are dealt round-robin into this many folds."""
-BATCHES = 8
-"""An excursion's gain has its standard error from this many consecutive batches of it."""
+MIN_JUDGED = 16
+"""An excursion is judged on at least this many samples."""
 GAIN_SIGMAS = 2.33
 """The held-out gain summed over the excursions must exceed this many standard errors (1 % one-sided)."""
 WORSE_ALPHA = 0.01

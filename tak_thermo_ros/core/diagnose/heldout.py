@@ -20,9 +20,9 @@ from scipy.stats import norm
 
 from tak_thermo_ros.core.diagnose.crossval import _effect_name, _with_range
 from tak_thermo_ros.core.diagnose.excursions import (
-    BATCHES,
     GAIN_SIGMAS,
     MAX_FOLDS,
+    MIN_JUDGED,
     WORSE_ALPHA,
     WORSE_MIN,
     Excursion,
@@ -31,6 +31,7 @@ from tak_thermo_ros.core.diagnose.excursions import (
 )
 from tak_thermo_ros.core.effects.base import INPUT, checked_basis, effect_input
 from tak_thermo_ros.core.fit import fit_model, residual_counts
+from tak_thermo_ros.core.fit.uncertainty import ResidualNoise, noise_product, weighted_sum_error
 from tak_thermo_ros.core.link.model import AXES
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import TakError
@@ -148,53 +149,54 @@ def worse_sigmas(records: int = 1) -> float:
     return float(norm.isf(WORSE_ALPHA / max(3 * records, 1)))
 
 
-def _mean_and_error(values: np.ndarray) -> tuple[float, float]:
-    """The mean of a time series and its standard error from :data:`BATCHES` consecutive batches."""
-    count = len(values)
-    if count == 0:
-        return 0.0, math.inf
-    batches = min(BATCHES, count)
-    means = np.array([part.mean() for part in np.array_split(values, batches)])
-    if batches < 2:
-        return float(values.mean()), math.inf
-    return float(values.mean()), float(means.std(ddof=1) / math.sqrt(batches))
-
-
 def compare(before: HeldOut, after: HeldOut, labels: np.ndarray, found: Sequence[Excursion], floor: np.ndarray,
-            effect: str, *, least: int = 2) -> RungJudgement:
-    """Rung ``after`` against rung ``before`` on the samples both judge (at least ``least`` excursions)."""
+            effect: str, *, least: int = 2, noise: Sequence[ResidualNoise] | None = None) -> RungJudgement:
+    """Rung ``after`` against rung ``before`` on the samples both judge (at least ``least`` excursions).
+
+    :param noise: per axis the sensor's noise at the samples' period (:func:`sensor_noise`); ``None``:
+        the noise model of the rung's own held-out residual (all its structure counted as noise).
+    """
     both = before.judged & after.judged
     floor2 = np.maximum(np.asarray(floor, dtype=float), 1e-300) ** 2
     gain = (before.residual ** 2 - after.residual ** 2) / floor2
-    total, variance, better, judged = 0.0, 0.0, 0, 0
-    axis_total, axis_variance = np.zeros(3), np.zeros(3)
+    better, judged = 0, 0
     worse_where: list[list[str]] = [[], [], []]
     for index, excursion in enumerate(found):
         inside = both & (labels == index)
-        count = int(np.count_nonzero(inside))
-        if count < 2 * BATCHES:
+        if np.count_nonzero(inside) < MIN_JUDGED:
             continue
         judged += 1
-        summed, error = _mean_and_error(gain[inside].sum(axis=1))
-        total += count * summed
-        variance += (count * error) ** 2
-        better += summed > 0.0
+        part = gain[inside]
+        better += float(part.sum()) > 0.0
         for axis in range(3):
-            mean, error = _mean_and_error(gain[inside, axis])
-            axis_total[axis] += count * mean
-            axis_variance[axis] += (count * error) ** 2
-            if mean < 0.0:
+            if part[:, axis].mean() < 0.0:
                 worse_where[axis].append(excursion.describe())
-    # An axis is worse when its gain summed over the excursions lies below zero beyond its noise
-    # (Bonferroni over the axes) and by more than WORSE_MIN of the floor squared per sample.
-    limit = worse_sigmas(1)
-    samples = max(int(np.count_nonzero(both)), 1)
+    # The gain over every judged sample, in time order. With d = b - a the change the rung makes
+    # to the prediction, a^2 - b^2 = 2 b d + d^2: its mean is uncertain by what the sensor's noise
+    # in the rung's held-out residual b makes of 2 sum(b d) / n, with the noise's correlation (the
+    # d^2 part is what the rung changes, not noise).
+    scored = both & np.isin(labels, [index for index in range(len(found))
+                                     if np.count_nonzero(both & (labels == index)) >= MIN_JUDGED])
+    count = int(np.count_nonzero(scored))
     worse: list[tuple[str, str]] = []
-    for axis in range(3):
-        spread = math.sqrt(axis_variance[axis])
-        if axis_total[axis] < -max(limit * spread, WORSE_MIN * samples):
-            worse += [(where, AXES[axis]) for where in worse_where[axis]]
-    sigmas = total / math.sqrt(variance) if variance > 0.0 else (math.inf if total > 0.0 else 0.0)
+    sigmas = 0.0
+    if count:
+        series = gain[scored]
+        change = (after.residual[scored] - before.residual[scored])
+        if noise is not None:
+            errors = np.array([2.0 * math.sqrt(max(float(noise_product(change[:, [axis]] / count, noise[axis])[0, 0]),
+                                                   0.0)) for axis in range(3)]) / floor2
+        else:
+            errors = np.array([2.0 * weighted_sum_error(after.residual[scored, axis], change[:, axis] / count)
+                               for axis in range(3)]) / floor2
+        total = float(series.sum(axis=1).mean())
+        spread = float(np.sqrt(np.sum(errors ** 2)))
+        sigmas = total / spread if spread > 0.0 else (math.inf if total > 0.0 else 0.0)
+        # An axis is worse when its gain lies below zero beyond its noise (Bonferroni over the axes)
+        # and by more than WORSE_MIN of the floor squared.
+        for axis in range(3):
+            if float(series[:, axis].mean()) < -max(worse_sigmas() * errors[axis], WORSE_MIN):
+                worse += [(where, AXES[axis]) for where in worse_where[axis]]
     rms_before = np.sqrt(np.nanmean(np.where(both[:, None], before.residual, np.nan) ** 2, axis=0)) \
         if both.any() else np.full(3, np.nan)
     rms_after = np.sqrt(np.nanmean(np.where(both[:, None], after.residual, np.nan) ** 2, axis=0)) \
@@ -293,15 +295,51 @@ def _signals_beside(calibration: Any, samples: AlignedSamples, second: AlignedSa
     return inside
 
 
+def sensor_noise(noise: Any, white_floor: np.ndarray, raw_period: float, period: float,
+                 duration: float) -> list[ResidualNoise]:
+    """Per axis the sensor's noise model as the held-out residual at ``period`` carries it.
+
+    White noise at the measured floor (per sample at ``raw_period``, averaged to ``period``), the
+    model's bias instability as the simulator draws it (Gauss-Markov processes around its time,
+    at most a tenth of the record), its random walk and Gauss-Markov processes; without a model,
+    white noise at the floor (as the rest of the verdict takes it then).
+    """
+    from tak_thermo_ros.core.simulation.noise import bias_instability_poles, bias_instability_variance
+    if noise is None:
+        return [ResidualNoise.white_only(float(white_floor[axis]) ** 2 * raw_period / max(period, raw_period), period)
+                for axis in range(3)]
+
+    def triple(name: str) -> np.ndarray:
+        values = np.asarray(getattr(noise, name, 0.0), dtype=float).reshape(-1)
+        return np.broadcast_to(values, (3,)) if values.size in (1, 3) else values[:3]
+    found = []
+    longest = max(duration / 10.0, 2.0 * period)
+    for axis in range(3):
+        markov = []
+        bias, tau = float(triple('bias_instability')[axis]), float(triple('bias_instability_tau')[axis])
+        if bias > 0.0:
+            centre = min(max(tau, 2.0 * period), longest) if math.isfinite(tau) else longest
+            variance = bias_instability_variance(bias, centre)
+            markov += [(variance, float(time)) for time in bias_instability_poles(centre)]
+        for sigma, time in zip(getattr(noise, 'gauss_markov', ()), getattr(noise, 'gauss_markov_time', ())):
+            if float(sigma[axis]) > 0.0:
+                markov.append((float(sigma[axis]) ** 2, float(time[axis])))
+        white = float(white_floor[axis]) ** 2 * raw_period / max(period, raw_period)
+        walk = float(triple('random_walk')[axis]) ** 2 * period
+        found.append(ResidualNoise(white=white, markov=tuple(markov), walk=walk, period=period, longest_s=duration))
+    return found
+
+
 def judge_ladder(samples: AlignedSamples, rungs: Sequence[tuple[str, tuple[Any, ...]]], settings: Any,
                  floor: np.ndarray, *, held_out: AlignedSamples | None = None,
-                 temperature_unit: str = '') -> ExcursionVerdict:
+                 temperature_unit: str = '', noise: Sequence[ResidualNoise] | None = None) -> ExcursionVerdict:
     """Keep the ladder's rungs that hold on held-out excursions (see the module docstring).
 
     :param rungs: ``(effect added, the model's specs)`` per rung, the current model first (effect '').
     :param floor: ``(3,)`` the axes' noise floor the gains are measured in.
     :param held_out: a second record to judge on instead of the diagnosed record's own excursions.
     :param temperature_unit: after a temperature in a message (``' C'``; codes: ``''``).
+    :param noise: per axis the sensor's noise (:func:`sensor_noise`) the gains are judged against.
     """
     target = held_out if held_out is not None else samples
     found = excursions(target.time_s, target.temp_code)
@@ -334,7 +372,8 @@ def judge_ladder(samples: AlignedSamples, rungs: Sequence[tuple[str, tuple[Any, 
     below = residual_of(rungs[0][1])
     for effect, specs in rungs[1:]:
         above = residual_of(specs)
-        rung = compare(below, above, labels, found, floor, effect, least=1 if held_out is not None else 2)
+        rung = compare(below, above, labels, found, floor, effect, least=1 if held_out is not None else 2,
+                       noise=noise)
         judged.append(rung)
         if not rung.kept:
             break

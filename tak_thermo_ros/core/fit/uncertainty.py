@@ -348,3 +348,21 @@ class Sandwich:
     def basis(self) -> ErrorBasis:
         """What the errors assume."""
         return ErrorBasis.of(self.noises)
+
+
+def weighted_sum_error(residual: np.ndarray, weights: np.ndarray, period: float = 1.0) -> float:
+    """The standard error of ``sum_t w_t e_t`` for a residual ``e`` with its own correlation (its noise model).
+
+    ``sqrt(w^T S w)`` with ``S`` the covariance of the residual's noise model
+    (:func:`residual_noise`, its mean the only term fitted), not ``s |w|`` as for white noise.
+    """
+    residual = np.asarray(residual, dtype=float)
+    count = len(residual)
+    if count < 2:
+        return math.inf
+    size = max(1, math.ceil(count / MAX_SERIES))
+    means = binned(residual - residual.mean(), size)
+    weighted = binned(np.asarray(weights, dtype=float), size) * size
+    bins = len(means)
+    noise = residual_noise(means, period * size, np.full((bins, 1), 1.0 / math.sqrt(bins)))
+    return math.sqrt(max(float(noise_product(weighted[:, None], noise)[0, 0]), 0.0))
