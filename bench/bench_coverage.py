@@ -1,4 +1,4 @@
-"""Benchmark: do the fit's 2-sigma intervals cover the truth under coloured noise? (issue 31)
+"""Benchmark (issue 31): do the fit's 2-sigma intervals cover the truth under coloured noise?
 
 The runs of ``test/test_coverage.py`` over many seeds: a one-orientation chamber run of a
 gyroscope that wanders like a consumer MEMS part (white noise, bias instability i.e. flicker, a
@@ -53,7 +53,8 @@ def scores(name: str, truth: dict[str, float], seeds: int, rate: float) -> tuple
             if not white:
                 bases.append(result.error_basis.text())
             effect = result.calibration.effects[0]
-            row.append([(effect[key] - value) / result.parameter_errors[f'{name}.{key}'] for key, value in truth.items()])
+            row.append([(effect[key] - value) / result.parameter_errors[f'{name}.{key}']
+                        for key, value in truth.items()])
         found.append(row)
     return np.array(found), bases
 

@@ -206,13 +206,15 @@ def _held_out_samples(args: argparse.Namespace, unit: UnitCalibration, run) -> d
     from tak_thermo_ros.passes.diagnose import bounded_run
     kind = input_kind(path, topics=common.topics(args))
     if kind is not run.input_kind:
-        msg = f'--held-out: {path} holds {kind.value} data, {args.bag} {run.input_kind.value}: not the same kind of record'
+        msg = (f'--held-out: {path} holds {kind.value} data, {args.bag} {run.input_kind.value}: '
+               f'not the same kind of record')
         raise TakError(msg)
     second = bounded_run(path, common.stream_options(args), settle_time_s=args.settle_time,
                          gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
                          max_samples=args.max_samples, unit=unit)
     if second.handheld is not None or run.handheld is not None:
-        msg = f'--held-out: {path if second.handheld is not None else args.bag} is a hand-held record (no thermal excursions)'
+        which = path if second.handheld is not None else args.bag
+        msg = f'--held-out: {which} is a hand-held record (no thermal excursions)'
         raise TakError(msg)
     print(f'held out: {path}, {len(second.samples["accel"]):,} samples: each model is fitted on {args.bag} '
           f'and judged on its excursions')

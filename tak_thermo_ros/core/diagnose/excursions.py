@@ -33,17 +33,10 @@ another day's heating and cooling; here it is judged so:
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, replace
-from typing import Any, Sequence
+from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
-
-from tak_thermo_ros.core.effects.base import INPUT, checked_basis, effect_input
-from tak_thermo_ros.core.fit import fit_model, residual_counts
-from tak_thermo_ros.core.link.model import AXES, Calibration
-from tak_thermo_ros.core.records.record import AlignedSamples
-from tak_thermo_ros.errors import TakError
 
 MIN_SPAN_FRACTION = 0.1
 """An excursion moves the temperature by at least this share of the record's range (a turn counts once

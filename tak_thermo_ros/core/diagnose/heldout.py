@@ -239,7 +239,8 @@ def heldout_residual(samples: AlignedSamples, specs: Sequence[Any], settings: An
     for fold in range(fold_count):
         train = folds != fold
         seen = {excursion.kind for index, excursion in enumerate(found) if fold_of[index] != fold}
-        judgeable = [index for index, excursion in enumerate(found) if fold_of[index] == fold and excursion.kind in seen]
+        judgeable = [index for index, excursion in enumerate(found)
+                     if fold_of[index] == fold and excursion.kind in seen]
         if not judgeable:
             continue
         held = np.isin(labels, judgeable)
