@@ -1,4 +1,4 @@
-"""Benchmark (issue 31): do the fit's 2-sigma intervals cover the truth under coloured noise?
+"""Benchmark (issue 31): whether the fit's 2-sigma intervals cover the truth under coloured noise.
 
 The runs of ``test/test_coverage.py`` over many seeds: a one-orientation chamber run of a
 gyroscope that wanders like a consumer MEMS part (white noise, bias instability i.e. flicker, a
