@@ -6,7 +6,9 @@ excursion (or fold of excursions) and its residual taken on that excursion, wher
 interpolates; with a second record (``held_out``), each model is fitted on the whole diagnosed
 record and its residual taken on the second record's excursions. A rung is kept when its gain
 over the rung below, summed over the excursions and axes, stands beyond its noise and no
-axis gets worse over them beyond its noise; the first rung that fails ends the ladder.
+axis gets worse over them beyond its noise; the first rung that fails ends the ladder. A rung that
+too few excursions can judge (none lies within what its fits saw) stands on the interleaved blocks
+alone, and says so.
 """
 
 from __future__ import annotations
@@ -65,7 +67,9 @@ class RungJudgement:
     :param worse: ``(excursion description, axis)``: on an axis whose gain over the excursions is
         below zero beyond its noise, the excursions where it fell.
     :param rms_before: ``(3,)`` held-out RMS of the rung below on the judged samples; ``rms_after`` of this rung.
-    :param kept: whether the rung holds.
+    :param kept: whether the rung holds (or could not be judged: too few excursions lie within what
+        its fits saw; then the interleaved blocks decide alone, and the line says so).
+    :param decided: whether enough excursions were judged to decide.
     """
 
     effect: str
@@ -76,6 +80,7 @@ class RungJudgement:
     rms_before: tuple[float, float, float]
     rms_after: tuple[float, float, float]
     kept: bool
+    decided: bool = True
 
     def line(self, where: str, unit: str = '') -> str:
         """``'thermal_lag holds on held-out excursions: better on 2 of 2, gain 7.4 sigmas'`` (one sentence).
@@ -88,9 +93,9 @@ class RungJudgement:
             if places:
                 groups.setdefault(places, []).append(axis)
         worse = '; '.join(f'{", ".join(axes)} ({", ".join(places)})' for places, axes in groups.items())
-        if not self.judged:
-            return (f'{self.effect} cannot be judged on {where}: none of their samples lies within what its fit '
-                    f'saw (the temperatures and its signals).')
+        if not self.decided:
+            return (f'{self.effect} cannot be judged on {where}: too few of them ({self.judged}) lie within what '
+                    f'its fits saw (the temperatures and its signals); named on interleaved time blocks only.')
         verb = 'holds' if self.kept else 'does not hold'
         return (f'{self.effect} {verb} on {where}: better on {self.better} of {self.judged}, gain '
                 f'{self.sigmas:.1f} sigmas{"; worse on " + worse if worse else ""}.')
@@ -100,7 +105,7 @@ class RungJudgement:
         return {'effect': self.effect, 'better': self.better, 'judged': self.judged, 'gain_sigmas': self.sigmas,
                 'worse': [{'excursion': what, 'axis': axis} for what, axis in self.worse],
                 'rms_before': dict(zip(AXES, self.rms_before)), 'rms_after': dict(zip(AXES, self.rms_after)),
-                'kept': self.kept}
+                'kept': self.kept, 'decided': self.decided}
 
 
 @dataclass(frozen=True)
@@ -201,10 +206,12 @@ def compare(before: HeldOut, after: HeldOut, labels: np.ndarray, found: Sequence
         if both.any() else np.full(3, np.nan)
     rms_after = np.sqrt(np.nanmean(np.where(both[:, None], after.residual, np.nan) ** 2, axis=0)) \
         if both.any() else np.full(3, np.nan)
-    kept = judged >= least and sigmas >= GAIN_SIGMAS and not worse
+    decided = judged >= least
+    kept = not decided or sigmas >= GAIN_SIGMAS and not worse
     return RungJudgement(effect=effect, better=int(better), judged=judged, sigmas=float(sigmas), worse=tuple(worse),
                          rms_before=tuple(float(v) for v in rms_before),  # type: ignore[arg-type]
-                         rms_after=tuple(float(v) for v in rms_after), kept=bool(kept))  # type: ignore[arg-type]
+                         rms_after=tuple(float(v) for v in rms_after), kept=bool(kept),  # type: ignore[arg-type]
+                         decided=decided)
 
 
 def _signals_seen(calibration: Any, samples: AlignedSamples, train: np.ndarray) -> np.ndarray:
