@@ -15,8 +15,9 @@ another day's heating and cooling; here it is judged so:
 2. **Held out whole** (:func:`~.heldout.judge_ladder`): each model of the ladder is fitted
    without one excursion (at most :data:`MAX_FOLDS` folds, excursions dealt round-robin) and its
    residual taken on it, when the fitted excursions hold one of its kind (a heating is judged by
-   a model that saw a heating), and where the model interpolates: the held-out samples whose temperature, and every
-   effect's signal, lie within what the fitted excursions saw.
+   a model that saw a heating), and where the model interpolates: the held-out samples whose
+   temperature lies within :data:`GAP_FRACTION` of the range of one the fitted excursions saw (not
+   merely between their extremes), and every effect's signal within what they saw.
 3. **Beyond their noise**: sample by sample the held-out gain of the squared residual, in units of
    the floor squared, summed over the axes; its mean over the judged samples has its standard
    error from the gain's own correlation (the noise model of
@@ -46,6 +47,8 @@ MIN_PLATEAU_FRACTION = 0.05
 RATE_WINDOW_FRACTION = 0.02
 """The temperature's rate is taken over this share of the record (at most :data:`RATE_WINDOW_S`)."""
 RATE_WINDOW_S = 300.0
+GAP_FRACTION = 0.02
+"""A held-out sample is judged where its temperature lies within this share of the range of one the fit saw."""
 MAX_FOLDS = 8
 """At most this many fits per model: with more excursions, they are dealt round-robin into this many folds."""
 MIN_JUDGED = 16

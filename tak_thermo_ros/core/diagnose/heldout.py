@@ -23,6 +23,7 @@ from scipy.stats import norm
 from tak_thermo_ros.core.diagnose.crossval import _effect_name, _with_range
 from tak_thermo_ros.core.diagnose.excursions import (
     GAIN_SIGMAS,
+    GAP_FRACTION,
     MAX_FOLDS,
     MIN_JUDGED,
     WORSE_ALPHA,
@@ -214,6 +215,22 @@ def compare(before: HeldOut, after: HeldOut, labels: np.ndarray, found: Sequence
                          decided=decided)
 
 
+def covered(temperature: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """Where a temperature lies among those a fit saw: within :data:`GAP_FRACTION` of their range from one of them.
+
+    Not merely between their extremes: a held-out ramp across a gap between two plateaus the fit saw
+    is an extrapolation for a curve with knots in the gap.
+    """
+    known = np.unique(np.asarray(seen, dtype=float))
+    if not len(known):
+        return np.zeros(len(temperature), dtype=bool)
+    gap = GAP_FRACTION * max(float(known[-1] - known[0]), 1e-12)
+    values = np.asarray(temperature, dtype=float)
+    at = np.clip(np.searchsorted(known, values), 1, max(len(known) - 1, 1))
+    nearest = np.minimum(np.abs(values - known[at - 1]), np.abs(values - known[np.minimum(at, len(known) - 1)]))
+    return (values >= known[0]) & (values <= known[-1]) & (nearest <= gap)
+
+
 def _signals_seen(calibration: Any, samples: AlignedSamples, train: np.ndarray) -> np.ndarray:
     """``(k,)`` where every offset effect's signal lies within what the training samples saw."""
     inside = np.ones(len(samples), dtype=bool)
@@ -259,8 +276,7 @@ def heldout_residual(samples: AlignedSamples, specs: Sequence[Any], settings: An
             residual = residual_counts(calibration, samples)
         except TakError:
             continue
-        codes = samples.temp_code
-        within = (codes >= codes[train].min()) & (codes <= codes[train].max())
+        within = covered(samples.temp_code, samples.temp_code[train])
         judged = held & within & _signals_seen(result.calibration, samples, train) & np.all(np.isfinite(residual), 1)
         out[judged] = residual[judged]
     return HeldOut(label=' + '.join(('base', *(_effect_name(s) for s in specs))), residual=out)
@@ -278,7 +294,7 @@ def second_record_residual(samples: AlignedSamples, second: AlignedSamples, spec
         residual = residual_counts(_with_range(result.calibration, low, high), second)
     except TakError:
         return HeldOut(label='', residual=out)
-    within = (second.temp_code >= samples.temp_code.min()) & (second.temp_code <= samples.temp_code.max())
+    within = covered(second.temp_code, samples.temp_code)
     seen = _signals_beside(result.calibration, samples, second)
     judged = within & seen & np.all(np.isfinite(residual), axis=1)
     out[judged] = residual[judged]
