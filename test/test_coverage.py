@@ -124,3 +124,29 @@ def test_a_white_residual_keeps_the_white_errors():
     assert result.error_basis.white and result.error_basis.text() == '1 sigma, residual white'
     for key, value in white.parameter_errors.items():
         assert result.parameter_errors[key] == pytest.approx(value, rel=0.1), key
+
+
+def test_a_long_runs_amplitudes_keep_the_correlated_part_of_their_errors(tmp_path):
+    """Shapes searched on 1 sample in 2, amplitudes on every sample: the errors stay those of the whole run.
+
+    Refitted on twice the samples, a white error falls by sqrt(2); the part the wander makes does
+    not fall (the same wander, sampled more densely), and the streamed errors keep it.
+    """
+    from tak_thermo_ros.formats.bag import Topics, write_driver_record
+    from tak_thermo_ros.passes.fit import fit_bag
+    from tak_thermo_ros.passes.run import FitSettings, StreamOptions
+    run = simulate(coverage_run(5, rate_hz=1.0))
+    write_driver_record(tmp_path / 'cal', run.driver)
+    samples = align(run.driver.channel('gyro'))
+    whole = fit_model(samples, effects=('thermal_lag',), nominal_scale=(1.0, 1.0, 1.0))
+    streamed = fit_bag(tmp_path / 'cal', FitSettings(effects={'gyro': ['thermal_lag']},
+                                                     max_effect_samples=len(samples) // 2),
+                       StreamOptions(topics=Topics(), progress=False, block_samples=500))
+    assert streamed.effect_stride['gyro'] >= 2
+    result = streamed.results['gyro']
+    assert result.error_basis is not None and not result.error_basis.white
+    for name in ('slope_x', 'slope_z'):
+        key = f'thermal_lag.{name}'
+        ratio = result.parameter_errors[key] / whole.parameter_errors[key]
+        # white-noise scaling of the subsample's errors (the rule before issue 31) would give about 0.8
+        assert 0.9 < ratio < 1.6, (key, ratio)
