@@ -251,7 +251,7 @@ def print_effects(calibration, result, unit_name: str) -> None:
     reader = reader_unit(unit_name)
     basis = getattr(result, 'error_basis', None)
     if calibration.effects and errors:
-        print(f'  effects, +- {basis.text() if basis is not None else "1 sigma, residual white"}:')
+        print(f'  effects, +- {basis.text() if basis is not None else "1 sigma, residual taken as white"}:')
     for effect in calibration.effects:
         for p in effect.parameters:
             unit = effect_unit(p.unit, unit_name) if p.unit else ''
