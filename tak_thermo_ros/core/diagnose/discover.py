@@ -452,7 +452,8 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
                                          temperature_unit='' if unit == 'counts' else ' C',
                                          noise=sensor_noise(noise, white_floor, period, sample_period(
                                              judged_on if judged_on is not None else cv_samples),
-                                             float(samples.time_s[-1]) if len(samples) else 1.0))
+                                             float(samples.time_s[-1]) if len(samples) else 1.0,
+                                             averaged=bins is not None))
         if excursion_verdict.can_judge and excursion_verdict.kept < len(changed_specs):
             changed_specs = changed_specs[:excursion_verdict.kept]
             rung_models = rung_models[:excursion_verdict.kept + 1]

@@ -320,18 +320,19 @@ def _signals_beside(calibration: Any, samples: AlignedSamples, second: AlignedSa
 
 
 def sensor_noise(noise: Any, white_floor: np.ndarray, raw_period: float, period: float,
-                 duration: float) -> list[ResidualNoise]:
+                 duration: float, *, averaged: bool = False) -> list[ResidualNoise]:
     """Per axis the sensor's noise model as the held-out residual at ``period`` carries it.
 
-    White noise at the measured floor (per sample at ``raw_period``, averaged to ``period``), the
+    White noise at the measured floor (per sample at ``raw_period``; ``averaged``: the samples are
+    means over ``period``, else every so many samples kept as they are), the
     model's bias instability as the simulator draws it (Gauss-Markov processes around its time,
     at most a tenth of the record), its random walk and Gauss-Markov processes; without a model,
     white noise at the floor (as the rest of the verdict takes it then).
     """
     from tak_thermo_ros.core.simulation.noise import bias_instability_poles, bias_instability_variance
+    shrink = raw_period / max(period, raw_period) if averaged else 1.0
     if noise is None:
-        return [ResidualNoise.white_only(float(white_floor[axis]) ** 2 * raw_period / max(period, raw_period), period)
-                for axis in range(3)]
+        return [ResidualNoise.white_only(float(white_floor[axis]) ** 2 * shrink, period) for axis in range(3)]
 
     def triple(name: str) -> np.ndarray:
         values = np.asarray(getattr(noise, name, 0.0), dtype=float).reshape(-1)
@@ -348,7 +349,7 @@ def sensor_noise(noise: Any, white_floor: np.ndarray, raw_period: float, period:
         for sigma, time in zip(getattr(noise, 'gauss_markov', ()), getattr(noise, 'gauss_markov_time', ())):
             if float(sigma[axis]) > 0.0:
                 markov.append((float(sigma[axis]) ** 2, float(time[axis])))
-        white = float(white_floor[axis]) ** 2 * raw_period / max(period, raw_period)
+        white = float(white_floor[axis]) ** 2 * shrink
         walk = float(triple('random_walk')[axis]) ** 2 * period
         found.append(ResidualNoise(white=white, markov=tuple(markov), walk=walk, period=period, longest_s=duration))
     return found
