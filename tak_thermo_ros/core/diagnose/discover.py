@@ -448,12 +448,15 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
         if len(rung_models) > 1:
             say('the ladder on held-out excursions')
         judged_on = _held_out_like(held_out, cv_samples, bins is not None, averaging_s, max_cv_samples)
+        whitened = whiten is not None and judged_on is None
         excursion_verdict = judge_ladder(cv_samples, rung_models, settings, floor, held_out=judged_on,
                                          temperature_unit='' if unit == 'counts' else ' C',
-                                         noise=sensor_noise(noise, white_floor, period, sample_period(
-                                             judged_on if judged_on is not None else cv_samples),
-                                             float(samples.time_s[-1]) if len(samples) else 1.0,
-                                             averaged=bins is not None))
+                                         noise=sensor_noise(None if whitened else noise, white_floor, period,
+                                                            sample_period(judged_on if judged_on is not None
+                                                                          else cv_samples),
+                                                            float(samples.time_s[-1]) if len(samples) else 1.0,
+                                                            averaged=bins is not None),
+                                         whiten=whiten if whitened else None)
         if excursion_verdict.can_judge and excursion_verdict.kept < len(changed_specs):
             changed_specs = changed_specs[:excursion_verdict.kept]
             rung_models = rung_models[:excursion_verdict.kept + 1]

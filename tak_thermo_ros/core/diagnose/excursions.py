@@ -26,8 +26,9 @@ another day's heating and cooling; here it is judged so:
    when that mean exceeds :data:`GAIN_SIGMAS` standard errors and no axis gets worse by more
    than :func:`~.heldout.worse_sigmas` of its standard errors (Bonferroni over the axes,
    :data:`WORSE_ALPHA`) and :data:`WORSE_MIN`; the verdict says on how many of how many
-   excursions it was better. A record of one excursion cannot judge this; nor can a model that
-   no fold can fit, or one whose signal no held-out excursion shows within the fitted range.
+   excursions it was better. A record of one excursion, or whose excursions hold no two of a
+   kind, cannot judge this, and says so; a rung whose fits see too few of the held-out
+   excursions (its signal outside what they saw) stands on the interleaved blocks alone.
 4. **A second record** (``diagnose --held-out REC2``): each model fitted on the whole diagnosed
    record, judged on the second record's excursions the same way.
 """
@@ -57,10 +58,11 @@ GAIN_SIGMAS = 2.33
 """The held-out gain summed over the excursions must exceed this many standard errors (1 % one-sided)."""
 WORSE_ALPHA = 0.01
 """The chance, over the three axes, that a model which changes nothing is called worse."""
-WORSE_MIN = 0.1
-"""... and by at least this much of the floor squared in its held-out mean square (RMS about 5 % up at
-the floor): an axis an effect does not act on pays a little for its fitted amplitude there, which is
-no reason to refuse it."""
+WORSE_MIN = 0.25
+"""... and by more than a quarter of the floor's variance in its held-out mean square (at the floor:
+RMS 12 % up): an axis an effect does not act on pays a little for the amplitude its fit gives it
+there (a slope fitted to bias wander), which is said ("slightly worse"), but is no reason to refuse
+an effect that the other axes need."""
 HEATING, COOLING, PLATEAU = 'heating', 'cooling', 'plateau'
 
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from scipy.stats import norm
@@ -71,6 +71,8 @@ class RungJudgement:
     :param kept: whether the rung holds (or could not be judged: too few excursions lie within what
         its fits saw; then the interleaved blocks decide alone, and the line says so).
     :param decided: whether enough excursions were judged to decide.
+    :param slightly_worse: axes worse beyond their noise but by less than the floor's variance
+        (:data:`~tak_thermo_ros.core.diagnose.excursions.WORSE_MIN`): said, not refused.
     """
 
     effect: str
@@ -82,6 +84,7 @@ class RungJudgement:
     rms_after: tuple[float, float, float]
     kept: bool
     decided: bool = True
+    slightly_worse: tuple[str, ...] = ()
 
     def line(self, where: str, unit: str = '') -> str:
         """``'thermal_lag holds on held-out excursions: better on 2 of 2, gain 7.4 sigmas'`` (one sentence).
@@ -98,15 +101,16 @@ class RungJudgement:
             return (f'{self.effect} cannot be judged on {where}: too few of them ({self.judged}) lie within what '
                     f'its fits saw (the temperatures and its signals); named on interleaved time blocks only.')
         verb = 'holds' if self.kept else 'does not hold'
+        slightly = f'; slightly worse on {", ".join(self.slightly_worse)}' if self.slightly_worse and not worse else ''
         return (f'{self.effect} {verb} on {where}: better on {self.better} of {self.judged}, gain '
-                f'{self.sigmas:.1f} sigmas{"; worse on " + worse if worse else ""}.')
+                f'{self.sigmas:.1f} sigmas{"; worse on " + worse if worse else slightly}.')
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
         return {'effect': self.effect, 'better': self.better, 'judged': self.judged, 'gain_sigmas': self.sigmas,
                 'worse': [{'excursion': what, 'axis': axis} for what, axis in self.worse],
                 'rms_before': dict(zip(AXES, self.rms_before)), 'rms_after': dict(zip(AXES, self.rms_after)),
-                'kept': self.kept, 'decided': self.decided}
+                'kept': self.kept, 'decided': self.decided, 'slightly_worse': list(self.slightly_worse)}
 
 
 @dataclass(frozen=True)
@@ -185,6 +189,7 @@ def compare(before: HeldOut, after: HeldOut, labels: np.ndarray, found: Sequence
                                      if np.count_nonzero(both & (labels == index)) >= MIN_JUDGED])
     count = int(np.count_nonzero(scored))
     worse: list[tuple[str, str]] = []
+    slightly: list[str] = []
     sigmas = 0.0
     if count:
         series = gain[scored]
@@ -201,8 +206,11 @@ def compare(before: HeldOut, after: HeldOut, labels: np.ndarray, found: Sequence
         # An axis is worse when its gain lies below zero beyond its noise (Bonferroni over the axes)
         # and by more than WORSE_MIN of the floor squared.
         for axis in range(3):
-            if float(series[:, axis].mean()) < -max(worse_sigmas() * errors[axis], WORSE_MIN):
+            mean = float(series[:, axis].mean())
+            if mean < -max(worse_sigmas() * errors[axis], WORSE_MIN):
                 worse += [(where, AXES[axis]) for where in worse_where[axis]]
+            elif mean < -worse_sigmas() * errors[axis]:
+                slightly.append(AXES[axis])
     rms_before = np.sqrt(np.nanmean(np.where(both[:, None], before.residual, np.nan) ** 2, axis=0)) \
         if both.any() else np.full(3, np.nan)
     rms_after = np.sqrt(np.nanmean(np.where(both[:, None], after.residual, np.nan) ** 2, axis=0)) \
@@ -212,7 +220,7 @@ def compare(before: HeldOut, after: HeldOut, labels: np.ndarray, found: Sequence
     return RungJudgement(effect=effect, better=int(better), judged=judged, sigmas=float(sigmas), worse=tuple(worse),
                          rms_before=tuple(float(v) for v in rms_before),  # type: ignore[arg-type]
                          rms_after=tuple(float(v) for v in rms_after), kept=bool(kept),  # type: ignore[arg-type]
-                         decided=decided)
+                         decided=decided, slightly_worse=tuple(slightly))
 
 
 def covered(temperature: np.ndarray, seen: np.ndarray) -> np.ndarray:
@@ -357,7 +365,8 @@ def sensor_noise(noise: Any, white_floor: np.ndarray, raw_period: float, period:
 
 def judge_ladder(samples: AlignedSamples, rungs: Sequence[tuple[str, tuple[Any, ...]]], settings: Any,
                  floor: np.ndarray, *, held_out: AlignedSamples | None = None,
-                 temperature_unit: str = '', noise: Sequence[ResidualNoise] | None = None) -> ExcursionVerdict:
+                 temperature_unit: str = '', noise: Sequence[ResidualNoise] | None = None,
+                 whiten: Callable[[np.ndarray], np.ndarray] | None = None) -> ExcursionVerdict:
     """Keep the ladder's rungs that hold on held-out excursions (see the module docstring).
 
     :param rungs: ``(effect added, the model's specs)`` per rung, the current model first (effect '').
@@ -365,6 +374,11 @@ def judge_ladder(samples: AlignedSamples, rungs: Sequence[tuple[str, tuple[Any, 
     :param held_out: a second record to judge on instead of the diagnosed record's own excursions.
     :param temperature_unit: after a temperature in a message (``' C'``; codes: ``''``).
     :param noise: per axis the sensor's noise (:func:`sensor_noise`) the gains are judged against.
+    :param whiten: the noise model's whitening filter over ``samples`` (judged against a noise model
+        from a file or a static run, as the cross-validation is): the held-out residuals are
+        whitened before they are compared, so that what the model's bias wander explains (a slow
+        amplitude fitted to wander on an axis without the effect) is not counted; ``noise`` is
+        then the whitened residual's white level.
     """
     target = held_out if held_out is not None else samples
     found = excursions(target.time_s, target.temp_code)
@@ -391,7 +405,12 @@ def judge_ladder(samples: AlignedSamples, rungs: Sequence[tuple[str, tuple[Any, 
     def residual_of(specs: tuple[Any, ...]) -> HeldOut:
         if held_out is not None:
             return second_record_residual(samples, held_out, specs, settings)
-        return heldout_residual(samples, specs, settings, folds, fold_count, found, labels)
+        found_residual = heldout_residual(samples, specs, settings, folds, fold_count, found, labels)
+        if whiten is None:
+            return found_residual
+        judged = found_residual.judged
+        whitened = whiten(np.where(judged[:, None], found_residual.residual, 0.0))
+        return HeldOut(found_residual.label, np.where(judged[:, None], whitened, np.nan))
 
     judged: list[RungJudgement] = []
     below = residual_of(rungs[0][1])
