@@ -64,7 +64,7 @@ def parts(root: Path) -> dict[str, dict]:
 
 
 def loop(samples, unit: str) -> tuple[list[str], list[dict]]:
-    """The user's loop with every library effect a candidate: what it names, and each verdict with its excursion lines."""
+    """The user's loop, every library effect a candidate: what it names, each verdict and its excursion lines."""
     effects: list[str] = []
     steps = []
     for _ in range(4):
@@ -89,7 +89,7 @@ def rms_on(fitted_on, judged_on, effects) -> list[float]:
 
 
 def agreement(whole, last, effects) -> dict[str, dict]:
-    """Per parameter: its value and error fitted on each, and how many combined sigmas apart, now and with white errors."""
+    """Per parameter: value and error fitted on each, combined sigmas apart, now and with white errors."""
     out = {}
     for label, context in (('reported', contextlib.nullcontext), ('white', white_errors)):
         with context():
