@@ -94,3 +94,14 @@ def test_the_sensor_noise_model_weighs_a_wandering_gain():
     against_white = _judge(noise + signal, noise, white)
     against_walk = _judge(noise + signal, noise, walking)
     assert 0.0 < against_walk.sigmas < 0.5 * against_white.sigmas
+
+
+def test_the_json_of_a_judgement_is_strict():
+    """No NaN or infinity in ``diagnose --json``'s ``held_out_excursions`` (a rung judged on no sample)."""
+    import json
+    from tak_thermo_ros.core.diagnose.heldout import ExcursionVerdict
+    nothing = np.full((len(TIME), 3), np.nan)
+    rung = _judge(nothing, nothing)
+    verdict = ExcursionVerdict(excursions(TIME, COURSE), False, (rung,))
+    text = json.dumps(verdict.as_dict(), allow_nan=False)
+    assert '"judged": 0' in text and '"decided": false' in text

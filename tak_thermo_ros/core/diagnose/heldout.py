@@ -107,9 +107,12 @@ class RungJudgement:
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
-        return {'effect': self.effect, 'better': self.better, 'judged': self.judged, 'gain_sigmas': self.sigmas,
+        def finite(value: float) -> float | None:
+            return float(value) if math.isfinite(value) else None
+        return {'effect': self.effect, 'better': self.better, 'judged': self.judged, 'gain_sigmas': finite(self.sigmas),
                 'worse': [{'excursion': what, 'axis': axis} for what, axis in self.worse],
-                'rms_before': dict(zip(AXES, self.rms_before)), 'rms_after': dict(zip(AXES, self.rms_after)),
+                'rms_before': {axis: finite(v) for axis, v in zip(AXES, self.rms_before)},
+                'rms_after': {axis: finite(v) for axis, v in zip(AXES, self.rms_after)},
                 'kept': self.kept, 'decided': self.decided, 'slightly_worse': list(self.slightly_worse)}
 
 
