@@ -238,12 +238,17 @@ def effect_unit(unit: str, sensor_unit: str) -> str:
 def print_effects(calibration, result, unit_name: str) -> None:
     """One line per fitted effect parameter: its value with its standard error and unit.
 
+    A line before them says what the errors assume (:class:`~tak_thermo_ros.core.fit.uncertainty.ErrorBasis`).
+
     A parameter in the sensor's unit (an amplitude, a slope per degree) is printed as the sensor
     is: a magnetometer's in uT, with mg or deg/h beside m/s^2 or rad/s.
     """
     errors = result.parameter_errors
     shown_unit, factor = display_unit(unit_name)
     reader = reader_unit(unit_name)
+    basis = getattr(result, 'error_basis', None)
+    if calibration.effects and errors:
+        print(f'  effects, +- {basis.text() if basis is not None else "1 sigma, residual taken as white"}:')
     for effect in calibration.effects:
         for p in effect.parameters:
             unit = effect_unit(p.unit, unit_name) if p.unit else ''

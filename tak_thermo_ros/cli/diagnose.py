@@ -69,6 +69,9 @@ def add_parser(commands) -> argparse.ArgumentParser:
                              'verdict is judged against it at every averaging time (docs/discovery.md)')
     parser.add_argument('--noise-run', metavar='BAG',
                         help='a static run at constant temperature: its Allan variance gives the noise model')
+    parser.add_argument('--held-out', metavar='BAG2',
+                        help='a second record of the same unit: each model of the ladder is fitted on BAG and '
+                             'judged on the thermal excursions of BAG2 (instead of BAG\'s own, held out one by one)')
     options.add_topic_options(parser)
     parser.set_defaults(handler=run)
     return parser
@@ -114,6 +117,7 @@ def run(args: argparse.Namespace) -> int:
     for line in run.reference_lines:
         print(line)
     noise_models = common.given_noise_models(args, unit, run.input_kind, tuple(run.samples))
+    held_out = _held_out_samples(args, unit, run)
     results = {}
     used: dict[str, AlignedSamples] = {}
     if run.stride > 1:
@@ -144,12 +148,16 @@ def run(args: argparse.Namespace) -> int:
             from tak_thermo_ros.core.noise.residual import model_from_residual
             noise = model_from_residual(residual_counts(unit.sensor(sensor), samples), samples.stamp_ns)
         groups = run.groups[sensor] if run.groups else None
+        second = held_out.get(sensor)
+        if second is not None:
+            second = require_signals(second, [*Corrector(unit.sensor(sensor)).signals, *tried])
         try:
             result = diagnose(unit.sensor(sensor), samples, candidates=sensor_candidates,
                               folds=args.folds if groups is None else min(args.folds, int(groups.max()) + 1),
                               progress=progress, noise=noise, unit=shown_unit, unit_scale=scale, groups=groups,
                               temperature_unit='' if run.input_kind is InputKind.COUNTS else 'C',
-                              start_s=run.first_stamp_ns * 1e-9 if run.first_stamp_ns is not None else None)
+                              start_s=run.first_stamp_ns * 1e-9 if run.first_stamp_ns is not None else None,
+                              held_out=second)
         except FitError as err:  # one sensor's shortage (a short magnetometer): said, the others diagnosed
             if sensor == 'accel':
                 raise
@@ -234,6 +242,9 @@ def _pool_run(args: argparse.Namespace, unit: UnitCalibration):
     if getattr(args, 'design_run', None):
         msg = '--design-run: not with a pool of records (a chamber run is designed from one record)'
         raise TakError(msg)
+    if getattr(args, 'held_out', None):
+        msg = '--held-out: not with a pool of records (its folds already hold whole records out)'
+        raise TakError(msg)
     gravity = getattr(args, 'gravity', STANDARD_GRAVITY)
     run, opened = bounded_pool(args.bag, common.stream_options(args), gravity=gravity,
                                latitude=getattr(args, 'latitude', None), max_samples=args.max_samples, unit=unit)
@@ -249,6 +260,30 @@ def _pool_run(args: argparse.Namespace, unit: UnitCalibration):
         del run.samples['accel']
     args.bag = f'the pool of {records} records'
     return run
+
+
+def _held_out_samples(args: argparse.Namespace, unit: UnitCalibration, run) -> dict[str, AlignedSamples]:
+    """``--held-out BAG2``: the second record's samples per sensor (the diagnosed record's kind), said in one line."""
+    path = getattr(args, 'held_out', None)
+    if path is None:
+        return {}
+    from tak_thermo_ros.formats.records import input_kind
+    from tak_thermo_ros.passes.diagnose import bounded_run
+    kind = input_kind(path, topics=common.topics(args))
+    if kind is not run.input_kind:
+        msg = (f'--held-out: {path} holds {kind.value} data, {args.bag} {run.input_kind.value}: '
+               f'not the same kind of record')
+        raise TakError(msg)
+    second = bounded_run(path, common.stream_options(args), settle_time_s=args.settle_time,
+                         gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
+                         max_samples=args.max_samples, unit=unit)
+    if second.handheld is not None or run.handheld is not None:
+        which = path if second.handheld is not None else args.bag
+        msg = f'--held-out: {which} is a hand-held record (no thermal excursions)'
+        raise TakError(msg)
+    print(f'held out: {path}, {len(second.samples["accel"]):,} samples: each model is fitted on {args.bag} '
+          f'and judged on its excursions')
+    return dict(second.samples)
 
 
 def _design_run(args: argparse.Namespace, run, results: dict, used: dict[str, AlignedSamples],

@@ -318,7 +318,7 @@ def _print_handheld_terms(sensor: str, calibration, result) -> None:
     errors = result.parameter_errors
     unit = common.UNITS[InputKind.IMU, sensor]
     small, factor = common.reader_unit(unit)
-    print(f'  at {calibration.temp_code_ref:g} C, +- one standard error:')
+    print(f'  at {calibration.temp_code_ref:g} C, +- 1 sigma (the noise within each rest taken as white):')
     for name, axis in zip(AXES, calibration.axes):
         scale_error = errors.get(f'{name}.scale', float('nan'))
         offset_error = errors.get(f'{name}.offset', float('nan'))

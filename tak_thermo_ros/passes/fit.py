@@ -156,7 +156,7 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
                     parameters=[axis.parameters for axis in shaped.axes],
                     shape_errors={k: v for k, v in shaped.parameter_errors.items() if k in shape_names})
             results[sensor] = replace(result, parameter_errors=_with_shape_uncertainty(
-                result.parameter_errors, shaped, shape_names, result.samples))
+                result.parameter_errors, shaped, shape_names, result.samples), error_basis=shaped.error_basis)
     return StreamedFit(input_kind=kind, sensors=sensors, results=results, usable=usable,
                        effect_stride={sensor: subsample.stride for sensor, subsample in subsamples.items()},
                        reference_lines=tuple(lines),
@@ -200,16 +200,23 @@ def held_result(reason: str) -> FitResult:
 
 def _with_shape_uncertainty(errors: dict[str, float], shaped: FitResult, shape_names: set[str],
                             samples: int) -> dict[str, float]:
-    """The amplitudes' standard errors with the shapes' uncertainty in them.
+    """The amplitudes' standard errors with the shapes' uncertainty and the residual's correlation in them.
 
-    The second pass solves the amplitudes with the shapes held, so its errors leave out how
-    far the shapes are known; the subsample's joint errors hold it. Scaled to the whole run
-    (white noise: errors fall as one over the square root of the samples), the larger of the two
-    is reported.
+    The second pass solves the amplitudes with the shapes held and takes the residual as white,
+    so its errors leave out how far the shapes are known and what the residual's correlation
+    adds; the subsample's joint errors hold both. Their white part scales to the whole run as one
+    over the square root of the samples (the larger of that and the second pass's is kept); the
+    part the correlated noise makes does not fall with denser sampling and is added as it is.
     """
     scale = math.sqrt(shaped.samples / max(samples, 1))
-    joint = {key: max(value, shaped.parameter_errors[key] * scale) if key in shaped.parameter_errors else value
-             for key, value in errors.items() if key not in shape_names}
+    correlated = shaped.error_basis.correlated_errors if shaped.error_basis is not None else {}
+    joint = {}
+    for key, value in errors.items():
+        if key in shape_names or key not in shaped.parameter_errors:
+            continue
+        slow = correlated.get(key, 0.0)
+        white = math.sqrt(max(shaped.parameter_errors[key] ** 2 - slow ** 2, 0.0)) * scale
+        joint[key] = math.sqrt(max(value, white) ** 2 + slow ** 2)
     return {**errors, **joint}
 
 

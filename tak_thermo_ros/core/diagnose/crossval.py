@@ -137,7 +137,7 @@ def cross_validate(samples: AlignedSamples, effects: Sequence[Any], labels: np.n
         try:
             result = fit_model(samples, effects=tuple(effects), bias_order=settings.bias_order,
                                scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
-                               nominal_scale=settings.nominal_scale, train_mask=~held_out)
+                               nominal_scale=settings.nominal_scale, train_mask=~held_out, errors=False)
             residual = residual_counts(_with_range(result.calibration, low, high), samples)
             part = residual[held_out]
             if not np.all(np.isfinite(part)):

@@ -23,6 +23,8 @@ from tak_thermo_ros.core.diagnose.crossval import (
     summed_block_t,
     unresolved_shapes,
 )
+from tak_thermo_ros.core.diagnose.heldout import excursion_statements, held_out_like as _held_out_like, judge_ladder
+from tak_thermo_ros.core.diagnose.heldout import sensor_noise
 from tak_thermo_ros.core.diagnose.values import AxisSummary, Candidate, Diagnosis, ModelScore
 from tak_thermo_ros.core.diagnose.verdict import (
     MIN_STEP_FRACTION,
@@ -103,7 +105,7 @@ def null_heldout(samples: AlignedSamples, effects: Sequence[Any], labels: np.nda
     """
     result = fit_model(samples, effects=tuple(effects), bias_order=settings.bias_order,
                        scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
-                       nominal_scale=settings.nominal_scale)
+                       nominal_scale=settings.nominal_scale, errors=False)
     low, high = float(samples.temp_code.min()), float(samples.temp_code.max())
     corrector = Corrector(_with_range(result.calibration, low, high))
     predicted = corrector.predict_counts(samples.reference, samples.temp_code, stamp_s=samples.stamp_s,
@@ -130,8 +132,8 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
              rate_window_s: float | None = None,
              progress: Callable[[str], None] | None = None, per_axis: bool = True,
              noise: Any | None = None, seed: int = 0, unit: str = 'counts', unit_scale: float = 1.0,
-             groups: np.ndarray | None = None, temperature_unit: str = '', start_s: float | None = None
-             ) -> Diagnosis:
+             groups: np.ndarray | None = None, temperature_unit: str = '', start_s: float | None = None,
+             excursions: bool = True, held_out: AlignedSamples | None = None) -> Diagnosis:
     """Compare the calibration with a run, find where it fails and which effect it misses.
 
     :param calibration: the model to diagnose (base model, possibly with effects).
@@ -167,6 +169,11 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
     :param temperature_unit: the temperature's unit in messages (``'C'``); ``''``: codes.
     :param start_s: the record's first stamp, seconds: a step's moment is counted from it (default:
         the first sample's, which differs when samples at the start were left out).
+    :param excursions: judge the ladder on whole thermal excursions held out of the fit (not for a pool:
+        its folds already hold whole records out)
+        (:mod:`~tak_thermo_ros.core.diagnose.heldout`): a rung that does not hold there ends it.
+    :param held_out: a second record of the same unit (aligned, with its reference) to judge the
+        ladder on instead of the diagnosed record's own excursions.
     :raises FitError: when the run has no reference or too few samples.
 
     Before the ladder, the residual of the calibration as given is scanned for steps (sudden
@@ -457,11 +464,35 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
         return min(options)
 
     changed_specs = sorted((spec for spec in model_specs if spec not in present), key=merit)
-    ladder = [_rung(base_score)]
-    rung_specs = present
+    rung_models: list[tuple[str, tuple[Any, ...]]] = [('', present)]
     for spec in changed_specs:
         shared = _shared_form(spec)
-        rung_specs = _replaced(rung_specs, shared, spec) if shared in rung_specs else (*rung_specs, spec)
+        specs_below = rung_models[-1][1]
+        rung_models.append((_effect_name(spec), _replaced(specs_below, shared, spec) if shared in specs_below
+                            else (*specs_below, spec)))
+    # The rungs are judged on whole thermal excursions the fit never saw (or a second record's):
+    # the first that does not hold there ends the ladder.
+    excursion_verdict = None
+    if excursions and groups is None:
+        if len(rung_models) > 1:
+            say('the ladder on held-out excursions')
+        judged_on = _held_out_like(held_out, cv_samples, bins is not None, averaging_s, max_cv_samples)
+        whitened = whiten is not None and judged_on is None
+        excursion_verdict = judge_ladder(cv_samples, rung_models, settings, floor, held_out=judged_on,
+                                         temperature_unit='' if unit == 'counts' else ' C',
+                                         noise=sensor_noise(None if whitened else noise, white_floor, period,
+                                                            sample_period(judged_on if judged_on is not None
+                                                                          else cv_samples),
+                                                            float(samples.time_s[-1]) if len(samples) else 1.0,
+                                                            averaged=bins is not None),
+                                         whiten=whiten if whitened else None)
+        if excursion_verdict.can_judge and excursion_verdict.kept < len(changed_specs):
+            changed_specs = changed_specs[:excursion_verdict.kept]
+            rung_models = rung_models[:excursion_verdict.kept + 1]
+            model_specs = rung_models[-1][1]
+            current = score(model_specs, base_score)
+    ladder = [_rung(base_score)]
+    for _, rung_specs in rung_models[1:]:
         rung_score = score(rung_specs, base_score)
         if rung_score.ok:
             ladder.append(_rung(rung_score))
@@ -535,6 +566,8 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
                                   significant_axes(current), explained_total, unresolved,
                                   allan=final_allan, judged=judged, averaging_s=averaging_s if judged else 0.0,
                                   wander=wander, unit=unit, scale=unit_scale)
+    if excursion_verdict is not None:
+        statements = excursion_statements(statements, excursion_verdict, '' if unit == 'counts' else ' C')
     if pruned and verdict not in (VERDICT_NONE, VERDICT_UNEXPLAINED):
         statements.append(Statement(f'Not needed once the others are in: {", ".join(pruned)} (held-out blocks do '
                                     f'not notice its removal).'))
@@ -556,7 +589,8 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
                      noise=noise, allan=allan, averaging_time_s=float(averaging_s) if judged else 0.0,
                      yardstick_replicates=yardstick.replicates if yardstick is not None else 0,
                      steps=steps, steps_offset_s=float(samples.stamp_s[0]) - (
-                         float(samples.stamp_s[0]) if start_s is None else float(start_s)))
+                         float(samples.stamp_s[0]) if start_s is None else float(start_s)),
+                     excursions=excursion_verdict)
 
 
 def parameters_names(specs: Sequence[Any]) -> set[str]:
@@ -652,7 +686,7 @@ def _rung_allan(samples: AlignedSamples, cv_samples: AlignedSamples, ladder: Seq
             try:
                 fitted = fit_model(cv_samples, effects=specs, bias_order=settings.bias_order,
                                    scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
-                                   nominal_scale=settings.nominal_scale)
+                                   nominal_scale=settings.nominal_scale, errors=False)
             except TakError:
                 continue
             low, high = float(samples.temp_code.min()), float(samples.temp_code.max())

@@ -215,6 +215,8 @@ class Diagnosis:
     :param statements: ``message`` one sentence at a time
         (:class:`~tak_thermo_ros.core.diagnose.verdict.Statement`: its text, and whether it is a
         detail that only ``--verbose`` prints).
+    :param excursions: the ladder judged on held-out thermal excursions
+        (:class:`~tak_thermo_ros.core.diagnose.heldout.ExcursionVerdict`), ``None`` when not judged.
     """
 
     verdict: str
@@ -245,6 +247,7 @@ class Diagnosis:
     statements: tuple[Any, ...] = ()
     steps: tuple[Any, ...] = ()
     steps_offset_s: float = 0.0
+    excursions: Any = None
 
     @property
     def noise_floor(self) -> np.ndarray:
@@ -281,6 +284,7 @@ class Diagnosis:
             **({'noise': noise_document(self.noise)} if self.noise is not None else {}),
             'allan': [{'model': label, **check.as_dict()} for label, check in self.allan],
             'steps': [self.step_document(step) for step in self.steps],
+            **({'held_out_excursions': self.excursions.as_dict()} if self.excursions is not None else {}),
         }
 
     def step_document(self, step: Any) -> dict[str, Any]:

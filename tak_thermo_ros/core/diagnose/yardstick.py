@@ -280,7 +280,7 @@ def null_under_noise(samples: AlignedSamples, labels: np.ndarray, cv_samples: Al
     from tak_thermo_ros.core.link.correction import Corrector
     result = fit_model(cv_samples, effects=tuple(effects), bias_order=settings.bias_order,
                        scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
-                       nominal_scale=settings.nominal_scale)
+                       nominal_scale=settings.nominal_scale, errors=False)
     low, high = float(cv_samples.temp_code.min()), float(cv_samples.temp_code.max())
     predicted = Corrector(_with_range(result.calibration, low, high)).predict_counts(
         cv_samples.reference, cv_samples.temp_code, stamp_s=cv_samples.stamp_s, aux=cv_samples.aux)

@@ -37,7 +37,7 @@ __all__ = ['INPUT_RESOLUTION', 'MIN_SAMPLES_PER_PARAMETER', 'AxisFit', 'FitResul
 def fit_model(samples: AlignedSamples, *, effects: Sequence[str | type[Effect] | Effect] = (),
               bias_order: int = 3, scale_order: int = 2, temp_code_ref: float | None = None,
               nominal_scale: tuple[float, float, float] | None = None,
-              train_mask: np.ndarray | None = None) -> FitResult:
+              train_mask: np.ndarray | None = None, errors: bool = True) -> FitResult:
     """Fit the paper's model plus effects (``tak_thermo_ros.core.effects``).
 
     Amplitudes (linear) are solved by least squares together with the base model; shape
@@ -49,7 +49,10 @@ def fit_model(samples: AlignedSamples, *, effects: Sequence[str | type[Effect] |
     :param effects: library names, ``'module:Class'`` specs, classes or instances.
     :param train_mask: ``(k,)`` booleans: the least squares uses only these samples; effects
         with memory still run over the whole series in time order (blocked cross-validation).
+    :param errors: compute the effects' standard errors (``False``: a cross-validation's fits,
+        which use none of them, skip their cost).
     :raises FitError: when the data cannot determine the model or an effect (naming it).
     """
     return fit_with_effects(samples, effects=effects, bias_order=bias_order, scale_order=scale_order,
-                            temp_code_ref=temp_code_ref, nominal_scale=nominal_scale, train_mask=train_mask)
+                            temp_code_ref=temp_code_ref, nominal_scale=nominal_scale, train_mask=train_mask,
+                            errors=errors)

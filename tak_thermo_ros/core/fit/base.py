@@ -28,6 +28,7 @@ from tak_thermo_ros.core.fit.model import (
     residual_counts,
 )
 from tak_thermo_ros.core.fit.solve import Solution, least_squares
+from tak_thermo_ros.core.fit.uncertainty import ErrorBasis
 from tak_thermo_ros.core.link.model import AXES
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import FitError
@@ -96,7 +97,7 @@ def solve_run(run: FitRun, *, input_effects: Sequence[Effect] = (),
 
 def model_run(run: FitRun, solved: Solved, *, effects: Sequence[Effect] = (),
               shape_parameters: Sequence[int] = (0, 0, 0),
-              parameter_errors: dict[str, float] | None = None) -> FitResult:
+              parameter_errors: dict[str, float] | None = None, error_basis: ErrorBasis | None = None) -> FitResult:
     """The calibration of the solved axes, its residual through the correction path, its statistics.
 
     :param effects: the effects in the calibration's order, shapes as solved (amplitudes are read
@@ -112,7 +113,8 @@ def model_run(run: FitRun, solved: Solved, *, effects: Sequence[Effect] = (),
     residual = (residual_counts(calibration, run.samples)[run.mask] if fitted
                 else residual_counts(calibration, run.train))
     parameters = [solution.width + shapes for solution, shapes in zip(solved.solutions, shape_parameters)]
-    return finish_fit(calibration, residual, parameters, dropped=run.samples.dropped, parameter_errors=parameter_errors)
+    return finish_fit(calibration, residual, parameters, dropped=run.samples.dropped, parameter_errors=parameter_errors,
+                      error_basis=error_basis)
 
 
 def check_separated(solution: Solution, name: str, bias_order: int, scale_order: int, *, held: bool) -> None:

@@ -16,13 +16,14 @@ model (:mod:`~tak_thermo_ros.core.fit.model`). Only the shapes need a search. So
 4. with several searched effects, step 2-3 is repeated once with all the others in place;
 5. the final least squares (the pipeline with every shape fixed) gives every amplitude;
    standard errors come from the Fisher information of amplitudes and shape parameters
-   together (shape derivatives numerically).
+   together (shape derivatives numerically) and the residual's own correlation: a sandwich
+   with the scores' long-run covariance (:mod:`~tak_thermo_ros.core.fit.uncertainty`).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
@@ -34,6 +35,7 @@ from tak_thermo_ros.core.fit.base import fit_run, model_run, solve_run
 from tak_thermo_ros.core.fit.design import Column, FitRun
 from tak_thermo_ros.core.fit.model import FitResult, amplitude_errors
 from tak_thermo_ros.core.fit.solve import Solution, unit_norms
+from tak_thermo_ros.core.fit.uncertainty import ErrorBasis, Sandwich
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import CalibrationError, FitError
 
@@ -199,7 +201,7 @@ class _CrossValidation:
 def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_order: int = 3,
                      scale_order: int = 2, temp_code_ref: float | None = None,
                      nominal_scale: tuple[float, float, float] | None = None,
-                     train_mask: np.ndarray | None = None) -> FitResult:
+                     train_mask: np.ndarray | None = None, errors: bool = True) -> FitResult:
     """The implementation of :func:`tak_thermo_ros.core.fit.fit_model`.
 
     The steps: the run set up (:meth:`FitRun.prepare`: the training rows, checks, frame); each
@@ -216,7 +218,7 @@ def fit_with_effects(samples: AlignedSamples, *, effects: Sequence = (), bias_or
         return fit_run(run)
     fit = _EffectFit(run, chosen)
     fit.search_shapes()
-    return fit.result()
+    return fit.result(errors=errors)
 
 
 _Chosen = tuple[Effect | None, type[Effect], bool]
@@ -452,19 +454,21 @@ class _EffectFit:
 
     # ----- the result ------------------------------------------------------------------------
 
-    def result(self) -> FitResult:
+    def result(self, *, errors: bool = True) -> FitResult:
         """The pipeline with every shape fixed.
 
-        The final least squares over the training rows, the calibration and its errors.
+        The final least squares over the training rows, the calibration and (``errors``) its errors.
         """
         offsets = self.offsets
         solved = solve_run(self.run, input_effects=self.input_effects,
                            offset_bases=[(entry.effect, entry.basis[self.mask]) for entry in offsets])
         by_name = {entry.effect.name: entry.effect for entry in offsets}
         by_name.update((effect.name, effect) for effect in self.input_effects)
-        errors = _standard_errors(self.run, offsets, solved.solutions, solved.columns)
+        found, basis = (_standard_errors(self.run, offsets, solved.solutions, solved.columns, self.targets)
+                        if errors else ({}, None))
         return model_run(self.run, solved, effects=[by_name[cls.name] for _, cls, _ in self.chosen],
-                         shape_parameters=[self._shape_count(i) for i in range(3)], parameter_errors=errors)
+                         shape_parameters=[self._shape_count(i) for i in range(3)], parameter_errors=found,
+                         error_basis=basis)
 
     def _shape_count(self, axis: int) -> int:
         """Searched shape parameters that axis ``axis`` depends on (a per-axis form: its own only)."""
@@ -488,10 +492,16 @@ def _searched(cls: type[Effect], effect: Effect, time_s: np.ndarray,
 
 
 def _standard_errors(run: FitRun, offsets: list[_Offset], solutions: Sequence[Solution],
-                     columns: Sequence[tuple[Column, ...]]) -> dict[str, float]:
-    """Standard errors from the Fisher information of amplitudes and shape parameters together.
+                     columns: Sequence[tuple[Column, ...]], targets: Sequence[np.ndarray]
+                     ) -> tuple[dict[str, float], ErrorBasis]:
+    """Standard errors of amplitudes and shape parameters together, from the residual's own correlation.
 
-    :param solutions: per axis the final solve; ``columns``: per axis its column labels.
+    The sandwich of :mod:`~tak_thermo_ros.core.fit.uncertainty`: the Fisher information of every
+    axis's amplitudes and the shared shape parameters (shape derivatives numerically), and the
+    covariance of each axis's noise from the model of its residual.
+
+    :param solutions: per axis the final solve; ``columns``: per axis its column labels;
+        ``targets``: per axis the target over the training rows.
     """
     mask = run.mask
     count = int(mask.sum())
@@ -501,7 +511,6 @@ def _standard_errors(run: FitRun, offsets: list[_Offset], solutions: Sequence[So
             shape_parameters.append((index, name, log, entry.effect[name]))
     blocks = [solution.width for solution in solutions]
     size = sum(blocks) + len(shape_parameters)
-    fisher = np.zeros((size, size))
     # Derivatives of every axis's model with respect to each searched shape coordinate.
     derivatives = np.zeros((3, count, len(shape_parameters)))
     for column, (index, name, log, value) in enumerate(shape_parameters):
@@ -519,23 +528,26 @@ def _standard_errors(run: FitRun, offsets: list[_Offset], solutions: Sequence[So
     # matrix's conditioning then does not depend on the sensor's unit (tesla or counts).
     shape_norms = np.sqrt(np.sum(derivatives ** 2, axis=(0, 1)))
     shape_norms = np.where(shape_norms > 0.0, shape_norms, 1.0)
+    stamps = run.train.stamp_s
+    sandwich = Sandwich(size, float(np.median(np.diff(stamps))) if len(stamps) > 1 else 1.0)
     offset = 0
-    for i, solution in enumerate(solutions):
+    for i, (solution, target) in enumerate(zip(solutions, targets)):
         dof = max(count - solution.width - len(shape_parameters), 1)
-        variance = solution.rss / dof
         jacobian = np.column_stack([solution.scaled, derivatives[i] / shape_norms])
-        information = jacobian.T @ jacobian / variance
+        residual = target - solution.scaled @ (solution.coefficients * solution.norms)
         rows = list(range(offset, offset + solution.width)) + list(range(sum(blocks), size))
-        fisher[np.ix_(rows, rows)] += information
+        sandwich.add(jacobian, residual, solution.rss / dof, rows)
         offset += solution.width
-    covariance = np.linalg.pinv(fisher, rcond=1e-14, hermitian=True)
-    deviation = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
-    errors: dict[str, float] = {}
-    offset = 0
-    for solution, labels in zip(solutions, columns):
-        errors.update(amplitude_errors(labels, deviation[offset:offset + solution.width] / solution.norms))
-        offset += solution.width
-    for column, (index, name, log, value) in enumerate(shape_parameters):
-        sigma = float(deviation[sum(blocks) + column] / shape_norms[column])
-        errors[f'{offsets[index].effect.name}.{name}'] = value * sigma if log else sigma
-    return errors
+    found = []
+    for covariance in (sandwich.covariance(), sandwich.covariance(correlated_only=True)):
+        deviation = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+        errors: dict[str, float] = {}
+        offset = 0
+        for solution, labels in zip(solutions, columns):
+            errors.update(amplitude_errors(labels, deviation[offset:offset + solution.width] / solution.norms))
+            offset += solution.width
+        for column, (index, name, log, value) in enumerate(shape_parameters):
+            sigma = float(deviation[sum(blocks) + column] / shape_norms[column])
+            errors[f'{offsets[index].effect.name}.{name}'] = value * sigma if log else sigma
+        found.append(errors)
+    return found[0], replace(sandwich.basis(), correlated_errors=found[1])

@@ -16,6 +16,7 @@ import numpy as np
 
 from tak_thermo_ros.core.effects.base import Effect
 from tak_thermo_ros.core.fit.design import Column, Frame
+from tak_thermo_ros.core.fit.uncertainty import ErrorBasis
 from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.core.link.model import AXES, AxisModel, Calibration
 from tak_thermo_ros.core.link.model import check_scale_positive
@@ -47,6 +48,8 @@ class FitResult:
     :param dropped: reason -> counts samples left out before the fit.
     :param parameter_errors: standard errors of the effects' fitted parameters,
         ``'<effect>.<parameter>'`` -> value in the parameter's unit (:func:`fit_model`).
+    :param error_basis: what those errors assume (one sigma; how the residual is correlated,
+        :mod:`~tak_thermo_ros.core.fit.uncertainty`), ``None`` without errors.
     """
 
     calibration: Calibration
@@ -54,6 +57,7 @@ class FitResult:
     samples: int
     dropped: dict[str, int]
     parameter_errors: dict[str, float] = field(default_factory=dict)
+    error_basis: ErrorBasis | None = None
 
 
 def residual_counts(calibration: Calibration, samples: AlignedSamples) -> np.ndarray:
@@ -163,7 +167,8 @@ def calibration_from(frame: Frame, coefficients: Sequence[np.ndarray], *, bias_o
 
 
 def finish_fit(calibration: Calibration, residual: np.ndarray, parameters: Sequence[int], *,
-               dropped: dict[str, int], parameter_errors: dict[str, float] | None = None) -> FitResult:
+               dropped: dict[str, int], parameter_errors: dict[str, float] | None = None,
+               error_basis: ErrorBasis | None = None) -> FitResult:
     """Per-axis residual RMS and BIC, the RMS recorded in the calibration, ``F_c > 0`` checked.
 
     :param residual: ``(k, 3)`` residual in counts over the samples the fit used.
@@ -171,12 +176,13 @@ def finish_fit(calibration: Calibration, residual: np.ndarray, parameters: Seque
     """
     sums = [float(np.sum(residual[:, i] ** 2)) for i in range(len(calibration.axes))]
     return finish_fit_from_sums(calibration, sums, len(residual), parameters, dropped=dropped,
-                                parameter_errors=parameter_errors)
+                                parameter_errors=parameter_errors, error_basis=error_basis)
 
 
 def finish_fit_from_sums(calibration: Calibration, residual_sums: Sequence[float], count: int,
                          parameters: Sequence[int], *, dropped: dict[str, int],
-                         parameter_errors: dict[str, float] | None = None) -> FitResult:
+                         parameter_errors: dict[str, float] | None = None,
+                         error_basis: ErrorBasis | None = None) -> FitResult:
     """:func:`finish_fit` from the residual sum of squares per axis over ``count`` samples."""
     stats = []
     final_axes = []
@@ -192,4 +198,5 @@ def finish_fit_from_sums(calibration: Calibration, residual_sums: Sequence[float
     except CalibrationError as err:
         raise FitError(str(err)) from None
     return FitResult(calibration=calibration, axes=tuple(stats),  # type: ignore[arg-type]
-                     samples=count, dropped=dict(dropped), parameter_errors=dict(parameter_errors or {}))
+                     samples=count, dropped=dict(dropped), parameter_errors=dict(parameter_errors or {}),
+                     error_basis=error_basis)
