@@ -50,14 +50,17 @@ def significant(value: float, digits: int = 4, *, sign: bool = False) -> str:
 def with_error(value: float, error: float | None, digits: int = 4) -> str:
     """A value and its standard error to the same decimal place: the error's second significant figure.
 
-    ``-1188 +- 3.6``, ``0.01035 +- 8.4e-05`` becomes ``0.010350 +- 0.000084``; without an error (or
+    ``-1188 +- 3.6``, ``0.01035 +- 8.4e-05`` becomes ``0.010350 +- 0.000084``, ``217.7 +- 110`` becomes
+    ``220 +- 110``; without an error (or
     a non-finite one, or an error beyond the value) the value alone to ``digits`` figures.
     """
     if error is None or not math.isfinite(error) or error <= 0.0 or not math.isfinite(value):
         text = significant(value, digits)
         return text if error is None else f'{text} +- {error:.2g}'
     place = 1 - math.floor(math.log10(error))  # decimals of the error's second significant figure
-    if place < 0 or place > 12 or error > abs(value) > 0.0 and place > 6:
+    if place < 0 and error < 1e15 and abs(value) < 1e15:  # 217.7 +- 110 is 220 +- 110
+        return f'{round(value, place) + 0.0:.0f} +- {round(error, place):.0f}'
+    if place > 12 or error > abs(value) > 0.0 and place > 6:
         return f'{significant(value, digits)} +- {error:.2g}'
     return f'{value + 0.0:.{place}f} +- {error:.{place}f}'
 

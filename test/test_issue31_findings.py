@@ -117,6 +117,8 @@ def test_an_effect_parameter_is_named_by_the_input_and_value_and_error_share_the
     assert with_error(-1188.43, 3.61) == '-1188.4 +- 3.6'
     assert with_error(0.01035, 8.4e-05) == '0.010350 +- 0.000084'
     assert with_error(217.7158, 3.3) == '217.7 +- 3.3'
+    assert with_error(217.7158, 110.4) == '220 +- 110'
+    assert with_error(-1234.5, 2e3) == '-1200 +- 2000'
 
 
 def test_the_errors_of_the_walk_through_fit_in_one_line_of_100_characters(driver, tmp_path, capsys, monkeypatch):
