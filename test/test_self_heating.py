@@ -8,7 +8,9 @@ held with a run at constant temperature, and were lost when every run whose temp
 more than 2 C was labelled ``residual``). Uncompensated, or compensated by a link that leaves a
 trend with temperature, the same run is no static run; nor is a sweep across the calibrated range.
 
-Two seeds each here; ``bench/bench_self_heating.py`` runs 20.
+Two seeds each here; ``bench/bench_self_heating.py`` runs 20. Since the ladder is judged on whole
+excursions (issue 31, item 2), a seed whose y (no lag there) pays for the slope its fit gives y's
+wander has the lag refused with ``worse on y``: that refusal is checked for what it must say.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from test_noise_verdicts import wandering_run  # noqa: E402
 from tak_thermo_ros import cli  # noqa: E402
+from tak_thermo_ros.core.diagnose.excursions import GAIN_SIGMAS  # noqa: E402
 from tak_thermo_ros.core.noise.constancy import TREND_T, temperature_trend  # noqa: E402
 from tak_thermo_ros.core.simulation.imu import simulate  # noqa: E402
 from tak_thermo_ros.formats.bag import Topics, write_driver_record  # noqa: E402
@@ -60,7 +63,15 @@ def test_with_a_self_heating_static_run_a_small_lag_is_named_and_wander_is_none(
     lag = story(tmp_path / 'lag', seed, LAG_SLOPE)
     sources = {s: v['noise']['source'] for s, v in lag['sensors'].items()}
     assert sources == {'accel': 'static_run', 'gyro': 'static_run'}
-    assert lag['sensors']['gyro']['verdict'] == 'thermal_lag'
+    gyro = lag['sensors']['gyro']
+    if gyro['verdict'] != 'thermal_lag':
+        # The lag acts on x and z. Held out whole, an excursion can find y worse by the slope its
+        # fit gave y's bias wander: the gate then refuses the lag, and says so. It must not call
+        # x or z worse, and the lag's gain must still stand beyond its noise.
+        rung = gyro['held_out_excursions']['rungs'][0]
+        assert rung['effect'] == 'thermal_lag' and not rung['kept'], rung
+        assert {worse['axis'] for worse in rung['worse']} == {'y'}, rung
+        assert rung['gain_sigmas'] > GAIN_SIGMAS and rung['better'] == rung['judged'], rung
     assert lag['sensors']['accel']['verdict'] == 'none'
     for axis in ('x', 'z'):  # per sample the lag hides in the white noise
         summary = lag['sensors']['gyro']['axes'][axis]
