@@ -366,9 +366,9 @@ def step_lines(results: dict, used: dict[str, AlignedSamples], kind: InputKind,
         for step in results[sensor].steps:
             events.append(((int(stamps[step.index - 1]) + int(stamps[step.index])) // 2, sensor, step))
     events.sort(key=lambda event: (-float(np.abs(event[2].z).max())))
+    period = max(float(np.median(np.diff(used[s].stamp_ns))) for s in results if s != 'mag')
     lines, said = [], []
     for moment, sensor, step in events:
-        period = max(float(np.median(np.diff(used[s].stamp_ns))) for s in results if s != 'mag')
         if any(abs(moment - other) <= 2.0 * period for other in said):
             continue
         said.append(moment)

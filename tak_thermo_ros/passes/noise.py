@@ -286,12 +286,6 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
                     reference_lines=tuple(lines), topic=topic, survey=opened.finished_survey())
 
 
-def run_source(temperature: tuple[float, float] | None, kind: InputKind, unit: UnitCalibration | None,
-               trends: list[TemperatureTrend] | None = None) -> str:
-    """``static_run`` or ``residual`` (:func:`noise_bag`'s ``source``; :func:`run_source_why`)."""
-    return run_source_why(temperature, kind, unit, trends or [])[0]
-
-
 def run_source_why(temperature: tuple[float, float] | None, kind: InputKind, unit: UnitCalibration | None,
                    trends: list[TemperatureTrend]) -> tuple[str, str]:
     """``static_run`` for a static run, else ``residual``; and why, when the temperature moved.

@@ -13,12 +13,12 @@ Figures (matplotlib, Agg backend, written into the report directory):
 - ``residual_plateaus.png``: the mean residual on each temperature plateau, by the direction
   it was reached from: hysteresis keeps the two apart, lag does not; not drawn for fewer than two
   plateaus (a line says why).
+- ``ladder.png``: held-out RMS over the noise floor of the model ladder and of every candidate.
+- ``gravity.png``: ``|g| - g`` before and after correction, as in the paper's Figs. 4-5.
 
 A driver's record (its temperature in degrees C) is said in degrees throughout: labels, captions
 and the verdict (:func:`~tak_thermo_ros.units.in_driver_words`); its |g| *before* is the values
 as recorded, as ``validate`` prints it.
-- ``ladder.png``: held-out RMS over the noise floor of the model ladder and of every candidate.
-- ``gravity.png``: ``|g| - g`` before and after correction, as in the paper's Figs. 4-5.
 
 ``report.html`` embeds every figure as base64 PNG: one file to open or mail, no external
 resource. This module may import the core, never rosbags or rclpy.

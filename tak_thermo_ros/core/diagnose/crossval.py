@@ -11,7 +11,7 @@ import numpy as np
 from tak_thermo_ros.core.diagnose.values import ModelScore
 from tak_thermo_ros.core.effects import Effect
 from tak_thermo_ros.core.effects.base import call_effect
-from tak_thermo_ros.core.fit import fit_model, residual_counts
+from tak_thermo_ros.core.fit import FitResult, fit_model, residual_counts
 from tak_thermo_ros.core.link.model import Calibration
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import FitError, TakError
@@ -39,6 +39,14 @@ def _settings_of(calibration: Calibration, bias_order: int | None, scale_order: 
     return _FitSettings(bias_order=int(bias_order), scale_order=int(scale_order),
                         temp_code_ref=float(calibration.temp_code_ref),
                         nominal_scale=nominal)  # type: ignore[arg-type]
+
+
+def _fit(samples: AlignedSamples, effects: Sequence[Any], settings: _FitSettings,
+         train_mask: np.ndarray | None = None) -> FitResult:
+    """``fit_model`` with ``effects`` and ``settings``, on the ``train_mask`` samples (default: all), no errors."""
+    return fit_model(samples, effects=tuple(effects), bias_order=settings.bias_order,
+                     scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
+                     nominal_scale=settings.nominal_scale, train_mask=train_mask, errors=False)
 
 
 def decimate(samples: AlignedSamples, stride: int) -> AlignedSamples:
@@ -135,9 +143,7 @@ def cross_validate(samples: AlignedSamples, effects: Sequence[Any], labels: np.n
         held_out = labels == fold
         fold_samples[fold] = np.count_nonzero(held_out)
         try:
-            result = fit_model(samples, effects=tuple(effects), bias_order=settings.bias_order,
-                               scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
-                               nominal_scale=settings.nominal_scale, train_mask=~held_out, errors=False)
+            result = _fit(samples, effects, settings, train_mask=~held_out)
             residual = residual_counts(_with_range(result.calibration, low, high), samples)
             part = residual[held_out]
             if not np.all(np.isfinite(part)):

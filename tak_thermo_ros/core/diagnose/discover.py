@@ -25,7 +25,7 @@ from tak_thermo_ros.core.diagnose.crossval import (
 )
 from tak_thermo_ros.core.diagnose.heldout import excursion_statements, held_out_like as _held_out_like, judge_ladder
 from tak_thermo_ros.core.diagnose.heldout import sensor_noise
-from tak_thermo_ros.core.diagnose.values import AxisSummary, Candidate, Diagnosis, ModelScore
+from tak_thermo_ros.core.diagnose.values import AxisSummary, Candidate, Diagnosis, ModelScore, step_time_s
 from tak_thermo_ros.core.diagnose.verdict import (
     MIN_STEP_FRACTION,
     MIN_TOTAL_FRACTION,
@@ -571,11 +571,12 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
     if pruned and verdict not in (VERDICT_NONE, VERDICT_UNEXPLAINED):
         statements.append(Statement(f'Not needed once the others are in: {", ".join(pruned)} (held-out blocks do '
                                     f'not notice its removal).'))
+    # The first sample's time after the record's start (the steps' moments count from the record's start).
+    offset_s = float(samples.stamp_s[0]) - (float(samples.stamp_s[0]) if start_s is None else float(start_s))
     if steps:
-        origin = float(samples.stamp_s[0]) if start_s is None else float(start_s)
         statements = step_statements(statements, steps, views, final_residual, unit=unit, scale=unit_scale,
                                      temperature_unit=temperature_unit, named=Step.name in parameters_names(added),
-                                     offset_s=float(samples.stamp_s[0]) - origin)
+                                     offset_s=offset_s)
     return Diagnosis(verdict=verdict, message=message_text(statements), axes=axes,  # type: ignore[arg-type]
                      statements=tuple(statements),
                      candidates=tuple(candidates_out), skipped=skipped, ladder=tuple(ladder), drivers=drivers,
@@ -588,8 +589,7 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
                      per_axis_forms=tuple(candidate for _, candidate in per_axis_tried),
                      noise=noise, allan=allan, averaging_time_s=float(averaging_s) if judged else 0.0,
                      yardstick_replicates=yardstick.replicates if yardstick is not None else 0,
-                     steps=steps, steps_offset_s=float(samples.stamp_s[0]) - (
-                         float(samples.stamp_s[0]) if start_s is None else float(start_s)),
+                     steps=steps, steps_offset_s=offset_s,
                      excursions=excursion_verdict)
 
 
@@ -617,7 +617,7 @@ def step_statements(statements: Sequence[Statement], steps: Sequence[Any], views
     for step in steps:
         if not named:
             levelled[step.index:] -= step.amplitude
-        moment = float(views.time_s[step.index] + views.time_s[step.index - 1]) / 2.0 + offset_s
+        moment = step_time_s(views, step, offset_s)
         code = float(views.temp_code[step.index])
         where = f'{code:.1f} C' if temperature_unit == 'C' else (
             f'{code:.4g} {temperature_unit}' if temperature_unit else f'temperature code {code:.0f}')

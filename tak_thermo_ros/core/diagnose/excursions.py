@@ -40,6 +40,8 @@ from typing import Sequence
 
 import numpy as np
 
+from tak_thermo_ros.core.diagnose.views import RATE_WINDOW_S, _runs
+
 MIN_SPAN_FRACTION = 0.1
 """An excursion moves the temperature by at least this share of the record's range (a turn counts once
 the temperature has come back by as much)."""
@@ -47,7 +49,6 @@ MIN_PLATEAU_FRACTION = 0.05
 """A plateau holds the temperature within that span for at least this share of the record."""
 RATE_WINDOW_FRACTION = 0.02
 """The temperature's rate is taken over this share of the record (at most :data:`RATE_WINDOW_S`)."""
-RATE_WINDOW_S = 300.0
 GAP_FRACTION = 0.02
 """A held-out sample is judged where its temperature lies within this share of the range of one the fit saw."""
 MAX_FOLDS = 8
@@ -163,13 +164,6 @@ def _turns(smooth: np.ndarray, span: float) -> list[int]:
             turns.append(extreme)
             direction, extreme = -direction, index
     return turns
-
-
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """``(start, stop)`` of the runs of True."""
-    padded = np.concatenate(([False], mask, [False]))
-    edges = np.flatnonzero(np.diff(padded.astype(np.int8)))
-    return list(zip(edges[0::2].tolist(), edges[1::2].tolist()))
 
 
 def _excursion(values: np.ndarray, start: int, stop: int, kind: str) -> Excursion:

@@ -20,7 +20,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from scipy.stats import norm
 
-from tak_thermo_ros.core.diagnose.crossval import _effect_name, _with_range
+from tak_thermo_ros.core.diagnose.crossval import _effect_name, _fit, _with_range
 from tak_thermo_ros.core.diagnose.excursions import (
     GAIN_SIGMAS,
     GAP_FRACTION,
@@ -33,7 +33,7 @@ from tak_thermo_ros.core.diagnose.excursions import (
     excursions,
 )
 from tak_thermo_ros.core.effects.base import INPUT, checked_basis, effect_input
-from tak_thermo_ros.core.fit import fit_model, residual_counts
+from tak_thermo_ros.core.fit import residual_counts
 from tak_thermo_ros.core.fit.uncertainty import ResidualNoise, noise_product, weighted_sum_error
 from tak_thermo_ros.core.link.model import AXES
 from tak_thermo_ros.core.records.record import AlignedSamples
@@ -138,7 +138,10 @@ class ExcursionVerdict:
 
     @property
     def kept(self) -> int:
-        """How many rungs hold (all of them when nothing could be judged)."""
+        """How many of the rungs judged hold (a rung too few excursions could decide counts as holding).
+
+        0 when no rung is listed: nothing could be judged (see :attr:`can_judge`) or the ladder has no rung.
+        """
         return sum(1 for rung in self.rungs if rung.kept)
 
     @property
@@ -242,20 +245,30 @@ def covered(temperature: np.ndarray, seen: np.ndarray) -> np.ndarray:
     return (values >= known[0]) & (values <= known[-1]) & (nearest <= gap)
 
 
-def _signals_seen(calibration: Any, samples: AlignedSamples, train: np.ndarray) -> np.ndarray:
-    """``(k,)`` where every offset effect's signal lies within what the training samples saw."""
-    inside = np.ones(len(samples), dtype=bool)
-    codes = np.clip(samples.temp_code, calibration.temp_code_min, calibration.temp_code_max)
+def _signals_within(calibration: Any, judged: AlignedSamples, fitted: AlignedSamples | None = None,
+                    train: np.ndarray | None = None) -> np.ndarray:
+    """``(k,)`` where every offset effect's signal on ``judged`` lies within what the fit saw.
+
+    The fit saw ``fitted`` (default: ``judged`` itself), its ``train`` samples (default: all of them).
+    """
+    fitted = judged if fitted is None else fitted
+
+    def signal(effect: Any, run: AlignedSamples) -> np.ndarray:
+        codes = np.clip(run.temp_code, calibration.temp_code_min, calibration.temp_code_max)
+        return checked_basis(effect, run.stamp_s, effect_input(effect, codes, run.aux))
+    inside = np.ones(len(judged), dtype=bool)
     for effect in calibration.effects:
         if effect.kind == INPUT:
             continue
         try:
-            basis = checked_basis(effect, samples.stamp_s, effect_input(effect, codes, samples.aux))
+            basis = signal(effect, judged)
+            seen = basis if fitted is judged else signal(effect, fitted)
         except TakError:
-            return np.zeros(len(samples), dtype=bool)
-        seen = basis[train]
+            return np.zeros(len(judged), dtype=bool)
+        if train is not None:
+            seen = seen[train]
         if not len(seen):
-            return np.zeros(len(samples), dtype=bool)
+            return np.zeros(len(judged), dtype=bool)
         slack = 1e-9 * np.maximum(np.abs(seen).max(axis=0), 1e-300)
         inside &= np.all((basis >= seen.min(axis=0) - slack) & (basis <= seen.max(axis=0) + slack), axis=1)
     return inside
@@ -280,15 +293,14 @@ def heldout_residual(samples: AlignedSamples, specs: Sequence[Any], settings: An
             continue
         held = np.isin(labels, judgeable)
         try:
-            result = fit_model(samples, effects=tuple(specs), bias_order=settings.bias_order,
-                               scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
-                               nominal_scale=settings.nominal_scale, train_mask=train, errors=False)
+            result = _fit(samples, specs, settings, train_mask=train)
             calibration = _with_range(result.calibration, low, high)
             residual = residual_counts(calibration, samples)
         except TakError:
             continue
         within = covered(samples.temp_code, samples.temp_code[train])
-        judged = held & within & _signals_seen(result.calibration, samples, train) & np.all(np.isfinite(residual), 1)
+        seen_signals = _signals_within(result.calibration, samples, train=train)
+        judged = held & within & seen_signals & np.all(np.isfinite(residual), 1)
         out[judged] = residual[judged]
     return HeldOut(label=' + '.join(('base', *(_effect_name(s) for s in specs))), residual=out)
 
@@ -298,36 +310,16 @@ def second_record_residual(samples: AlignedSamples, second: AlignedSamples, spec
     """The model ``specs`` fitted on all of ``samples``, its residual on ``second`` where it interpolates."""
     out = np.full((len(second), 3), np.nan)
     try:
-        result = fit_model(samples, effects=tuple(specs), bias_order=settings.bias_order,
-                           scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
-                           nominal_scale=settings.nominal_scale, errors=False)
+        result = _fit(samples, specs, settings)
         low, high = float(second.temp_code.min()), float(second.temp_code.max())
         residual = residual_counts(_with_range(result.calibration, low, high), second)
     except TakError:
         return HeldOut(label='', residual=out)
     within = covered(second.temp_code, samples.temp_code)
-    seen = _signals_beside(result.calibration, samples, second)
+    seen = _signals_within(result.calibration, second, samples)
     judged = within & seen & np.all(np.isfinite(residual), axis=1)
     out[judged] = residual[judged]
     return HeldOut(label=' + '.join(('base', *(_effect_name(s) for s in specs))), residual=out)
-
-
-def _signals_beside(calibration: Any, samples: AlignedSamples, second: AlignedSamples) -> np.ndarray:
-    """Where the second record's offset-effect signals lie within what the fitted record's span."""
-    inside = np.ones(len(second), dtype=bool)
-    for effect in calibration.effects:
-        if effect.kind == INPUT:
-            continue
-        try:
-            bases = [checked_basis(effect, run.stamp_s, effect_input(
-                effect, np.clip(run.temp_code, calibration.temp_code_min, calibration.temp_code_max), run.aux))
-                for run in (samples, second)]
-        except TakError:
-            return np.zeros(len(second), dtype=bool)
-        seen, basis = bases
-        slack = 1e-9 * np.maximum(np.abs(seen).max(axis=0), 1e-300)
-        inside &= np.all((basis >= seen.min(axis=0) - slack) & (basis <= seen.max(axis=0) + slack), axis=1)
-    return inside
 
 
 def sensor_noise(noise: Any, white_floor: np.ndarray, raw_period: float, period: float,

@@ -290,11 +290,16 @@ class Diagnosis:
     def step_document(self, step: Any) -> dict[str, Any]:
         """A step in ``--json``: its moment (seconds since the record's start), temperature, per axis its change."""
         views = self.views
-        return {'time_s': float(views.time_s[step.index] + views.time_s[step.index - 1]) / 2.0 + self.steps_offset_s,
-                'sample': int(step.index), 'temperature': float(views.temp_code[step.index]),
+        return {'time_s': step_time_s(views, step, self.steps_offset_s), 'sample': int(step.index),
+                'temperature': float(views.temp_code[step.index]),
                 'scale_samples': int(step.scale), 'axes': [AXES[c] for c in step.named],
                 'change': dict(zip(AXES, (float(v) for v in step.amplitude))),
                 'sigma': dict(zip(AXES, (float(v) for v in step.sigma)))}
+
+
+def step_time_s(views: Views, step: Any, offset_s: float = 0.0) -> float:
+    """A step's moment: midway between the samples either side of it, ``offset_s`` after the views' time."""
+    return float(views.time_s[step.index] + views.time_s[step.index - 1]) / 2.0 + offset_s
 
 
 def noise_document(noise: Any) -> dict[str, Any]:

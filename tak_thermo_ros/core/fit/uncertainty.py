@@ -44,11 +44,14 @@ the reported 2-sigma intervals of the lag's parameters must cover the truth 90-9
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import nnls
 from scipy.signal import lfilter
+
+from tak_thermo_ros.core.noise.allan import allan_variance
+from tak_thermo_ros.core.simulation.noise import gauss_markov_allan_variance
 
 MIN_BATCHES = 8
 """The Allan variance is measured at averaging times up to an eighth of the run (eight independent means)."""
@@ -94,10 +97,6 @@ class ResidualNoise:
     def white_only(cls, variance: float, period: float) -> ResidualNoise:
         """White noise of ``variance`` per sample."""
         return cls(white=float(variance), markov=(), walk=0.0, period=period, longest_s=period)
-
-    def _replace_longest(self, longest_s: float) -> ResidualNoise:
-        return ResidualNoise(white=self.white, markov=self.markov, walk=self.walk, period=self.period,
-                             longest_s=longest_s, shown=self.shown, walk_shown=self.walk_shown)
 
 
 @dataclass(frozen=True)
@@ -187,12 +186,6 @@ def _walk_apply(values: np.ndarray) -> np.ndarray:
     return np.cumsum(np.cumsum(values[::-1], axis=0)[::-1], axis=0)
 
 
-def _markov_avar(taus: np.ndarray, time: float) -> np.ndarray:
-    """The Allan variance of a unit-variance Gauss-Markov process of correlation time ``time``."""
-    ratio = time / taus
-    return 2.0 * ratio * (1.0 - ratio / 2.0 * (3.0 - 4.0 * np.exp(-1.0 / ratio) + np.exp(-2.0 / ratio)))
-
-
 # ------------------------------------------------------------------------------ the model
 
 def residual_noise(residual: np.ndarray, period: float, basis: np.ndarray) -> ResidualNoise:
@@ -210,19 +203,18 @@ def residual_noise(residual: np.ndarray, period: float, basis: np.ndarray) -> Re
         return ResidualNoise.white_only(variance * count / max(count - basis.shape[1], 1), period)
     spans = 2 ** np.arange(int(math.log2(longest)) + 1)
     taus = spans * period
-    measured = np.empty(len(spans))
+    allan = allan_variance(residual, 1.0 / period, clusters=spans)
+    measured = allan.avar[:, 0]
     freedom = np.empty(len(spans))
-    for row, span in enumerate(spans):
-        differences = _differences(residual, int(span))
-        measured[row] = 0.5 * float(np.mean(differences ** 2))
-        freedom[row] = max(1.5 * len(differences) / span, 1.0) if span > 1 else float(len(differences))
+    for row, (span, differences) in enumerate(zip(spans, allan.counts)):
+        freedom[row] = max(1.5 * differences / span, 1.0) if span > 1 else float(differences)
     top = float(taus[-1]) * MARKOV_LONGEST
     times = np.logspace(0.0, math.log10(max(top / period, 1.0)),
                         max(int(MARKOV_PER_DECADE * math.log10(max(top / period, 1.0))) + 1, 1)) * period
     # Per process: how it is applied (S Q) and its Allan variance before the fit absorbs any of it.
     processes = [('white', basis, 1.0 / spans)]
-    processes += [('markov', _markov_apply(basis, math.exp(-period / time)), _markov_avar(taus, time))
-                  for time in times]
+    processes += [('markov', _markov_apply(basis, math.exp(-period / time)),
+                   gauss_markov_allan_variance(taus, 1.0, time)) for time in times]
     processes.append(('walk', _walk_apply(basis), spans / 3.0))
     squared = [(basis.T @ applied) for _, applied, _ in processes]  # Q^T S Q
     columns = np.empty((len(spans), len(processes)))
@@ -239,7 +231,7 @@ def residual_noise(residual: np.ndarray, period: float, basis: np.ndarray) -> Re
     freedom = np.maximum(freedom * columns[:, 0] * spans, 1.0)
     white = float(np.sum(columns[:, 0] * measured * freedom) / np.sum(columns[:, 0] ** 2 * freedom))
     if _white_enough(measured, white * columns[:, 0], freedom):
-        return ResidualNoise.white_only(white, period)._replace_longest(float(taus[-1]))
+        return replace(ResidualNoise.white_only(white, period), longest_s=float(taus[-1]))
     # Weighted by each averaging time's degrees of freedom over the variance expected there: the
     # measurement at first, then (twice) the model's own prediction, so that an estimate that came
     # out low by chance (few degrees of freedom: a skewed chi-square) does not pull the model down.
