@@ -77,7 +77,7 @@ import numpy as np
 import yaml
 
 from tak_thermo_ros.formats.files import write_text_atomic  # noqa: F401 (re-exported: one writer of text files)
-from tak_thermo_ros.formats.files import check_finite
+from tak_thermo_ros.formats.files import check_finite, unreadable
 from tak_thermo_ros.core.link.model import (
     AXES,
     CALIBRATION_VERSION,
@@ -768,7 +768,7 @@ def load_unit(path: str | os.PathLike[str]) -> UnitCalibration:
     """
     path = Path(path)
     try:
-        document = parse_parameters_yaml(path.read_text(encoding='utf-8'))
+        text = path.read_text(encoding='utf-8')
     except FileNotFoundError:
         msg = f'{path}: no such calibration file'
         raise CalibrationError(msg) from None
@@ -778,33 +778,21 @@ def load_unit(path: str | os.PathLike[str]) -> UnitCalibration:
     except (OSError, UnicodeDecodeError) as err:
         msg = f'{path}: cannot read calibration file ({getattr(err, "strerror", None) or err})'
         raise CalibrationError(msg) from None
+    try:
+        parameters = calibration_section(parse_parameters_yaml(text))
+        _check_uniform_lists(parameters['calibration'], 'calibration')
+        return unit_from_mapping(parameters['calibration'])
     except yaml.YAMLError as err:
         mark = getattr(err, 'problem_mark', None)
         where = f' at line {mark.line + 1}' if mark is not None else ''
         msg = f'{path}: not valid YAML{where}'
         raise CalibrationError(msg) from None
-    except (RecursionError, ValueError) as err:  # nested beyond Python's stack; an integer of 4,300+ digits
-        msg = f'{path}: not a calibration file ({_unreadable(err)})'
-        raise CalibrationError(msg) from None
-    try:
-        parameters = calibration_section(document)
-        _check_uniform_lists(parameters['calibration'], 'calibration')
-        return unit_from_mapping(parameters['calibration'])
     except CalibrationError as err:
         msg = f'{path}: {err}'
         raise CalibrationError(msg) from None
-    except (RecursionError, ValueError) as err:
-        msg = f'{path}: not a calibration file ({_unreadable(err)})'
+    except (RecursionError, ValueError) as err:  # nested beyond Python's stack; an integer of 4,300+ digits
+        msg = f'{path}: not a calibration file ({unreadable(err)})'
         raise CalibrationError(msg) from None
-
-
-def _unreadable(err: Exception) -> str:
-    """Why a YAML document cannot be taken, in a few words (the error's own text runs long)."""
-    if isinstance(err, RecursionError):
-        return 'nested too deeply'
-    if 'digits' in str(err):
-        return 'an integer of more digits than Python converts'
-    return str(err).splitlines()[0] if str(err) else type(err).__name__
 
 
 def load_calibration(path: str | os.PathLike[str]) -> Calibration:
