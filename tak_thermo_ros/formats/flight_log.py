@@ -28,9 +28,8 @@ from typing import Iterator
 import numpy as np
 
 from tak_thermo_ros.core.records.plausible import (
-    clock_step,
-    clock_step_hint,
     clock_step_words,
+    refuse_clock_step,
     temperature_unit_problem,
 )
 from tak_thermo_ros.core.records.record import DriverRecord, no_orientation, sensor_messages
@@ -172,12 +171,8 @@ def checked_sensor(path: Path, sensor: str, stamps: np.ndarray, values: np.ndarr
             raise FlightLogError(msg)
         device_id = int(device_ids[0])
     stamps = np.asarray(stamps, dtype=np.int64)
-    step = clock_step(stamps)
-    if step is not None:
-        row, size = step
-        msg = (f'{path}: {where}: time {clock_step_words(size)} at sample {row + 1} of {len(stamps)}: '
-               f'{clock_step_hint()}')
-        raise FlightLogError(msg)
+    refuse_clock_step(stamps, FlightLogError, lambda row, step_ns: (
+        f'{path}: {where}: time {clock_step_words(step_ns, f"at sample {row + 1} of {len(stamps)}")}'))
     return stamps, np.asarray(values, dtype=float).reshape(-1, 3), device_id
 
 
