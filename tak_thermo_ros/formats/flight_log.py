@@ -105,10 +105,10 @@ class FlightLog:
         accelerometer sample (the last block: all that remain), so that a block aligner never
         waits long for a held value.
         """
-        accel_stamps = _running_max(self.stamps['accel'])  # log order: a stamp that goes back stays in place
+        accel_stamps = np.maximum.accumulate(self.stamps['accel'])  # log order: a stamp that goes back stays in place
         edges = [int(accel_stamps[min(end, len(accel_stamps)) - 1])
                  for end in range(block_samples, len(accel_stamps), block_samples)]
-        cuts = {name: np.searchsorted(_running_max(stamps), edges, side='right') for name, stamps in
+        cuts = {name: np.searchsorted(np.maximum.accumulate(stamps), edges, side='right') for name, stamps in
                 (('temperature', self.temp_stamp_ns), *((s, self.stamps[s]) for s in FLIGHT_SENSORS))}
         starts = {name: 0 for name in cuts}
         for index in range(len(edges) + 1):
@@ -142,10 +142,6 @@ class FlightLog:
         """What the calibration file records of the log: format, instance, device IDs."""
         return {'format': self.format, 'instance': self.instance,
                 **{f'{sensor}_device_id': int(self.device_ids.get(sensor, 0)) for sensor in FLIGHT_SENSORS}}
-
-
-def _running_max(stamps: np.ndarray) -> np.ndarray:
-    return np.maximum.accumulate(stamps) if len(stamps) else stamps
 
 
 def checked_sensor(path: Path, sensor: str, stamps: np.ndarray, values: np.ndarray, device_ids: np.ndarray | None,

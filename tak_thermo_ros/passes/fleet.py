@@ -165,7 +165,7 @@ def run_unit(task: UnitTask, command: Command) -> UnitOutcome:
         # a failed step must not leave last run's file; only a regular file goes (check_outputs
         # refused anything else before the batch started)
         path = directory / name
-        if os.path.lexists(path) and not path.is_symlink() and path.is_file():
+        if path.is_file() and not path.is_symlink():
             path.unlink()
     params, diagnose_json, validation_json = (str(directory / name)
                                               for name in (PARAMS_FILE, DIAGNOSE_FILE, VALIDATION_FILE))
