@@ -8,7 +8,13 @@ from __future__ import annotations
 
 
 class TakError(Exception):
-    """Base of every error raised on purpose by tak_thermo_ros."""
+    """Base of every error raised on purpose by tak_thermo_ros.
+
+    ``reason``: the message without the prefix that names where it arose, when an error is
+    raised again with one (:func:`tak_thermo_ros.passes.run.prefixed`); else ``None``.
+    """
+
+    reason: str | None = None
 
 
 class CalibrationError(TakError):

@@ -167,12 +167,6 @@ def require_finite(values, what: str) -> None:
         raise TakError(msg)
 
 
-def json_text(document: object, path: str) -> str:
-    """A JSON document's text; a non-finite number is refused (:func:`tak_thermo_ros.formats.files.json_text`)."""
-    from tak_thermo_ros.formats.files import json_text as checked
-    return checked(document, path)
-
-
 def effect_list(text: str | None) -> list[str]:
     """``--effects a,b`` as a list of specs."""
     return [spec.strip() for spec in (text or '').split(',') if spec.strip()]

@@ -17,7 +17,7 @@ from tak_thermo_ros.formats.files import FILE
 from tak_thermo_ros.formats.files import REPORT
 from tak_thermo_ros.formats.files import atomic_directory
 from tak_thermo_ros.formats.files import check_output
-from tak_thermo_ros.formats.files import write_text_atomic
+from tak_thermo_ros.formats.files import write_json
 from tak_thermo_ros.core.records.extremes import TemperatureCourse, temperature_course
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.core.records.record import require_signals
@@ -224,7 +224,7 @@ def run(args: argparse.Namespace) -> int:
             closure = run.handheld.closure
             document['handheld'] = {'turns': len(closure.angle_rad), 'closure_rms_rad': closure.rms_rad,
                                     'closure_floor_rad': closure.floor_rad}
-        write_text_atomic(args.json, common.json_text(document, args.json))
+        write_json(args.json, document)
         print(f'wrote {args.json}')
     if getattr(args, 'design_run', None):
         _design_run(args, run, results, used, progress_shown)

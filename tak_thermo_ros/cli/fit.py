@@ -240,7 +240,7 @@ def _fit_magnetometer(args: argparse.Namespace, kind: InputKind, *, imu_fitted: 
     except ShortRecord as err:
         if not imu_fitted or iron_run is not None or effects:
             raise
-        return held_mag_fit(str(err).removeprefix('magnetometer: '))
+        return held_mag_fit(err.reason or str(err))
 
 
 def _print_magnetometer(fitted, args: argparse.Namespace) -> None:

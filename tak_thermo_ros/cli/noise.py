@@ -10,7 +10,7 @@ from tak_thermo_ros.core.diagnose.yardstick import tau_text
 from tak_thermo_ros.core.link.correction import OutOfRange
 from tak_thermo_ros.formats.calibration_file import load_unit
 from tak_thermo_ros.formats.files import FILE
-from tak_thermo_ros.formats.files import write_text_atomic
+from tak_thermo_ros.formats.files import write_json
 
 NAME = 'noise'
 OUTPUTS = (('output', FILE, '-o'), ('json', FILE, '--json'))
@@ -83,6 +83,6 @@ def run(args: argparse.Namespace) -> int:
         write_kalibr(args.output, run.models, rostopic=run.topic, header=header, force=args.force)
         print(f'wrote {args.output}')
     if args.json:
-        write_text_atomic(args.json, common.json_text(document, args.json))
+        write_json(args.json, document)
         print(f'wrote {args.json}')
     return 0

@@ -10,7 +10,7 @@ from tak_thermo_ros.core.link.model import InputKind
 from tak_thermo_ros.core.link.model import UnitCalibration
 from tak_thermo_ros.formats.calibration_file import load_unit
 from tak_thermo_ros.formats.files import FILE
-from tak_thermo_ros.formats.files import write_text_atomic
+from tak_thermo_ros.formats.files import write_json
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import TakError
 import numpy as np
@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
     if unit.mag is not None and (run is None or run.input_kind is InputKind.IMU):
         document.update(_validate_magnetometer(args, unit))
     if args.json:
-        write_text_atomic(args.json, common.json_text(document, args.json))
+        write_json(args.json, document)
         print(f'wrote {args.json}')
     return 0
 
@@ -356,6 +356,6 @@ def _validate_pool(args: argparse.Namespace, unit: UnitCalibration) -> int:
                 'floor': {'gravity_rms': after.gravity_floor, 'rate_rms': [float(v) for v in after.rate_floor]},
                 'turn_on_offsets': check.own.tolist()}
     if args.json:
-        write_text_atomic(args.json, common.json_text(document, args.json))
+        write_json(args.json, document)
         print(f'wrote {args.json}')
     return 0

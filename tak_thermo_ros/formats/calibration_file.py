@@ -71,13 +71,13 @@ import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import yaml
 
 from tak_thermo_ros.formats.files import write_text_atomic  # noqa: F401 (re-exported: one writer of text files)
-from tak_thermo_ros.formats.files import check_finite
+from tak_thermo_ros.formats.files import check_finite, unreadable
 from tak_thermo_ros.core.link.model import (
     AXES,
     CALIBRATION_VERSION,
@@ -127,18 +127,29 @@ def _coefficients(value: Any, key: str) -> tuple[float, ...]:
     return tuple(finite_number(item, f'{key}[{i}]') for i, item in enumerate(value))
 
 
+def _check_keys(raw: Mapping, key: str, required: Sequence[str], optional: Sequence[str] = (), *,
+                unknown_why: Mapping[str, str] | None = None) -> None:
+    """Every ``required`` key in ``raw`` and no key beyond ``required`` and ``optional``.
+
+    :param unknown_why: words after ``unknown key`` for some keys (why they do not belong here).
+    :raises CalibrationError: ``KEY.NAME: missing`` (the first in ``required``'s order), else
+        ``KEY.NAME: unknown key`` (the first by name).
+    """
+    for name in required:
+        if name not in raw:
+            msg = f'{key}.{name}: missing'
+            raise CalibrationError(msg)
+    unknown = sorted(str(name) for name in set(raw) - set(required) - set(optional))
+    if unknown:
+        msg = f'{key}.{unknown[0]}: unknown key{(unknown_why or {}).get(unknown[0], "")}'
+        raise CalibrationError(msg)
+
+
 def _axis_from_mapping(raw: Any, key: str) -> AxisModel:
     if not isinstance(raw, Mapping):
         msg = f'{key}: expected a mapping with keys {", ".join(AXIS_KEYS)}'
         raise CalibrationError(msg)
-    for name in AXIS_KEYS:
-        if name not in raw:
-            msg = f'{key}.{name}: missing'
-            raise CalibrationError(msg)
-    unknown = sorted(str(name) for name in set(raw) - set(AXIS_KEYS) - set(OPTIONAL_AXIS_KEYS))
-    if unknown:
-        msg = f'{key}.{unknown[0]}: unknown key'
-        raise CalibrationError(msg)
+    _check_keys(raw, key, AXIS_KEYS, OPTIONAL_AXIS_KEYS)
     scale = finite_number(raw['scale'], f'{key}.scale')
     if scale <= 0.0:
         msg = f'{key}.scale: must be > 0, got {scale}'
@@ -327,16 +338,8 @@ def _link_from_mapping(raw: Any, key: str, input_kind: InputKind, *, extra_keys:
         raise CalibrationError(msg)
     # A link without any temperature (thermal: none) has no temperatures to state.
     needed = AXES if thermal == THERMAL_NONE else (*range_keys, *AXES)
-    for name in needed:
-        if name not in raw:
-            msg = f'{key}.{name}: missing'
-            raise CalibrationError(msg)
-    allowed = {*needed, 'thermal', 'notes', 'effects', 'noise', 'turn_on', *extra_keys}
-    unknown = sorted(str(name) for name in set(raw) - allowed)
-    if unknown:
-        why = ' (thermal: none holds no temperatures)' if unknown[0] in range_keys else ''
-        msg = f'{key}.{unknown[0]}: unknown key{why}'
-        raise CalibrationError(msg)
+    _check_keys(raw, key, needed, ('thermal', 'notes', 'effects', 'noise', 'turn_on', *extra_keys),
+                unknown_why=dict.fromkeys(range_keys, ' (thermal: none holds no temperatures)'))
     ref, low, high = ((finite_number(raw[name], f'{key}.{name}') for name in range_keys)
                       if thermal != THERMAL_NONE else (0.0, 0.0, 0.0))
     if low >= high and thermal == THERMAL_FITTED or low > high:
@@ -404,15 +407,7 @@ def _turn_on_from_mapping(raw: Any, key: str) -> TurnOn:
     if not isinstance(raw, Mapping):
         msg = f'{key}: expected a mapping'
         raise CalibrationError(msg)
-    fields_ = ('repeatability', 'repeatability_error', 'records')
-    for name in fields_:
-        if name not in raw:
-            msg = f'{key}.{name}: missing'
-            raise CalibrationError(msg)
-    unknown = sorted(str(name) for name in set(raw) - set(fields_))
-    if unknown:
-        msg = f'{key}.{unknown[0]}: unknown key'
-        raise CalibrationError(msg)
+    _check_keys(raw, key, ('repeatability', 'repeatability_error', 'records'))
     spread = _numbers(raw['repeatability'], f'{key}.repeatability', 3)
     error = _numbers(raw['repeatability_error'], f'{key}.repeatability_error', 3)
     records = raw['records']
@@ -516,16 +511,10 @@ def _fitted_from_mapping(raw: Any, key: str) -> tuple[RecordPrint, ...]:
     if not isinstance(raw, Mapping):
         msg = f'{key}: expected a mapping of lists ({", ".join(FITTED_FROM_LISTS)}, accel_samples)'
         raise CalibrationError(msg)
-    unknown = sorted(str(name) for name in set(raw) - set(FITTED_FROM_LISTS) - set(sample_keys))
-    if unknown:
-        msg = f'{key}.{unknown[0]}: unknown key'
-        raise CalibrationError(msg)
+    _check_keys(raw, key, (*FITTED_FROM_LISTS, 'accel_samples'), sample_keys)
     lists: dict[str, list] = {}
     for name in [*FITTED_FROM_LISTS, *sample_keys]:
         if name not in raw:
-            if name in FITTED_FROM_LISTS or name == 'accel_samples':
-                msg = f'{key}.{name}: missing'
-                raise CalibrationError(msg)
             continue
         values = raw[name]
         if not isinstance(values, (list, tuple)) or not values:
@@ -647,17 +636,17 @@ def _numbers(value: Any, key: str, count: int) -> tuple[float, ...]:
 def unit_to_mapping(unit: UnitCalibration) -> dict[str, Any]:
     """The ``calibration`` mapping of a :class:`UnitCalibration` (plain floats, lists)."""
     if unit.input_kind is InputKind.COUNTS:
-        counts = {'version': CALIBRATION_VERSION, **_link_to_mapping(unit.accel, InputKind.COUNTS)}
-        return {**counts, FITTED_FROM: _fitted_from_to_mapping(unit.fitted_from)} if unit.fitted_from else counts
-    mapping: dict[str, Any] = {'version': UNIT_CALIBRATION_VERSION, 'input': unit.input_kind.value}
-    for sensor, calibration in unit.sensors:
-        mapping[sensor] = _link_to_mapping(calibration, unit.input_kind)
-    if unit.mag is not None:
-        mapping[MAG_SENSOR] = {**_link_to_mapping(unit.mag.thermal, unit.input_kind),
-                               'hard_iron': [float(v) for v in unit.mag.hard_iron],
-                               'soft_iron': [float(v) for v in unit.mag.soft_iron]}
-    if unit.source:
-        mapping['source'] = dict(unit.source)
+        mapping: dict[str, Any] = {'version': CALIBRATION_VERSION, **_link_to_mapping(unit.accel, InputKind.COUNTS)}
+    else:
+        mapping = {'version': UNIT_CALIBRATION_VERSION, 'input': unit.input_kind.value}
+        for sensor, calibration in unit.sensors:
+            mapping[sensor] = _link_to_mapping(calibration, unit.input_kind)
+        if unit.mag is not None:
+            mapping[MAG_SENSOR] = {**_link_to_mapping(unit.mag.thermal, unit.input_kind),
+                                   'hard_iron': [float(v) for v in unit.mag.hard_iron],
+                                   'soft_iron': [float(v) for v in unit.mag.soft_iron]}
+        if unit.source:
+            mapping['source'] = dict(unit.source)
     if unit.fitted_from:
         mapping[FITTED_FROM] = _fitted_from_to_mapping(unit.fitted_from)
     return mapping
@@ -779,7 +768,7 @@ def load_unit(path: str | os.PathLike[str]) -> UnitCalibration:
     """
     path = Path(path)
     try:
-        document = parse_parameters_yaml(path.read_text(encoding='utf-8'))
+        text = path.read_text(encoding='utf-8')
     except FileNotFoundError:
         msg = f'{path}: no such calibration file'
         raise CalibrationError(msg) from None
@@ -789,33 +778,21 @@ def load_unit(path: str | os.PathLike[str]) -> UnitCalibration:
     except (OSError, UnicodeDecodeError) as err:
         msg = f'{path}: cannot read calibration file ({getattr(err, "strerror", None) or err})'
         raise CalibrationError(msg) from None
+    try:
+        parameters = calibration_section(parse_parameters_yaml(text))
+        _check_uniform_lists(parameters['calibration'], 'calibration')
+        return unit_from_mapping(parameters['calibration'])
     except yaml.YAMLError as err:
         mark = getattr(err, 'problem_mark', None)
         where = f' at line {mark.line + 1}' if mark is not None else ''
         msg = f'{path}: not valid YAML{where}'
         raise CalibrationError(msg) from None
-    except (RecursionError, ValueError) as err:  # nested beyond Python's stack; an integer of 4,300+ digits
-        msg = f'{path}: not a calibration file ({_unreadable(err)})'
-        raise CalibrationError(msg) from None
-    try:
-        parameters = calibration_section(document)
-        _check_uniform_lists(parameters['calibration'], 'calibration')
-        return unit_from_mapping(parameters['calibration'])
     except CalibrationError as err:
         msg = f'{path}: {err}'
         raise CalibrationError(msg) from None
-    except (RecursionError, ValueError) as err:
-        msg = f'{path}: not a calibration file ({_unreadable(err)})'
+    except (RecursionError, ValueError) as err:  # nested beyond Python's stack; an integer of 4,300+ digits
+        msg = f'{path}: not a calibration file ({unreadable(err)})'
         raise CalibrationError(msg) from None
-
-
-def _unreadable(err: Exception) -> str:
-    """Why a YAML document cannot be taken, in a few words (the error's own text runs long)."""
-    if isinstance(err, RecursionError):
-        return 'nested too deeply'
-    if 'digits' in str(err):
-        return 'an integer of more digits than Python converts'
-    return str(err).splitlines()[0] if str(err) else type(err).__name__
 
 
 def load_calibration(path: str | os.PathLike[str]) -> Calibration:

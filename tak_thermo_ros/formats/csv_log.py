@@ -63,9 +63,8 @@ from tak_thermo_ros.core.records.record import (
 )
 from tak_thermo_ros.core.records.plausible import (
     MAX_STAMP_NS,
-    clock_step,
-    clock_step_hint,
     clock_step_words,
+    refuse_clock_step,
     temperature_unit_problem,
 )
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
@@ -342,12 +341,9 @@ def _read_table(lines: Iterable[str], time_column: str, columns: tuple[str, ...]
     table = np.concatenate(value_parts)
     value_parts.clear()
     _check_increasing(stamp_ns, source, line_numbers, time_column)
-    step = clock_step(stamp_ns)
-    if step is not None:
-        row, size = step
-        msg = (f'{source}: row {row + 1} (line {line_numbers[row]}): time in column {time_column!r} '
-               f'{clock_step_words(size)} from the row before: {clock_step_hint()}')
-        raise LogError(msg)
+    refuse_clock_step(stamp_ns, LogError, lambda row, step_ns: (
+        f'{source}: row {row + 1} (line {line_numbers[row]}): time in column {time_column!r} '
+        f'{clock_step_words(step_ns, "from the row before")}'))
     return _Table(stamp_ns, table, line_numbers, delimiter, header)
 
 

@@ -140,7 +140,7 @@ def index_messages(path: Path, data: bytes) -> tuple[dict[int, MessageType], dic
     return types, {kind: np.asarray(rows, dtype=np.int64) for kind, rows in positions.items()}, skipped
 
 
-def decode(data: np.ndarray, kind: MessageType, positions: np.ndarray, path: Path | str = '') -> np.ndarray:
+def decode(data: np.ndarray, kind: MessageType, positions: np.ndarray, path: Path) -> np.ndarray:
     """The messages of one type at ``positions`` as a structured array (multipliers not applied)."""
     dtype = kind.dtype()
     if dtype.itemsize != kind.length - 3:
@@ -171,7 +171,7 @@ class _Parameters:
     """The log's parameters (``PARM``), each name's values in log order."""
 
     values: dict[str, list[tuple[int, float]]]
-    path: Path = Path('')
+    path: Path
 
     def at(self, name: str, default: float) -> float:
         """The value in force at the start (its first), or ``default``.
@@ -195,15 +195,15 @@ class _Parameters:
             raise FlightLogError(msg)
         return int(value)
 
-    def check_constant(self, path: Path, names: list[str], start_us: int, end_us: int) -> None:
+    def check_constant(self, names: list[str], start_us: int, end_us: int) -> None:
         """Refuse a parameter the reader undoes that changes while the instance is logged."""
         for name in names:
             entries = self.values.get(name, [])
             for (_, first), (stamp, value) in zip(entries, entries[1:]):
                 if value != first and start_us < stamp <= end_us:
-                    msg = (f'{path}: parameter {name} changes from {first:g} to {value:g} at {stamp * 1e-6:.1f} s, '
-                           f'while the IMU is logged: what the firmware applied differs before and after (split '
-                           f'the log there)')
+                    msg = (f'{self.path}: parameter {name} changes from {first:g} to {value:g} at '
+                           f'{stamp * 1e-6:.1f} s, while the IMU is logged: what the firmware applied differs before '
+                           f'and after (split the log there)')
                     raise FlightLogError(msg)
 
 
@@ -307,8 +307,7 @@ def _read(path: Path, instance: int) -> FlightLog:
     accel, gyro = _undo_firmware(path, parameters, instance, accel, gyro, temperature, stamps_us, lines)
     stamp_ns = stamp_ns_from_micros(stamps_us)
     device_ids = _device_ids(parameters, instance)
-    parameters.check_constant(path, list(_device_id_names(instance).values()), int(stamps_us.min()),
-                              int(stamps_us.max()))
+    parameters.check_constant(list(_device_id_names(instance).values()), int(stamps_us.min()), int(stamps_us.max()))
     where = f'{kind.name} instance {instance}'
     accel_stamps, accel, _ = checked_sensor(path, 'accel', stamp_ns, accel, None, where)
     gyro_stamps, gyro, _ = checked_sensor(path, 'gyro', stamp_ns, gyro, None, where)
@@ -368,7 +367,7 @@ def _undo_firmware(path: Path, parameters: _Parameters, instance: int, accel: np
                          for axis in 'XYZ']
     watched = ['AHRS_ORIENTATION', *accel_offsets, *accel_scales, *gyro_offsets, f'{tcal}ENABLE', f'{tcal}TMIN',
                f'{tcal}TMAX', f'INS_ACC{instance + 1}_CALTEMP', f'INS_GYR{instance + 1}_CALTEMP', *coefficient_names]
-    parameters.check_constant(path, watched, int(stamps_us.min()), int(stamps_us.max()))
+    parameters.check_constant(watched, int(stamps_us.min()), int(stamps_us.max()))
     orientation = parameters.whole('AHRS_ORIENTATION', 0)
     rotation = rotation_matrix(orientation, path)
     # the firmware logs rotation @ v: undo it (rotation is orthonormal); a sample that is not

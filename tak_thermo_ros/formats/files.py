@@ -313,9 +313,15 @@ def read_yaml(path: str | os.PathLike[str], what: str, error: type[TakError]) ->
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
         msg = f'{path}: cannot read the {what} ({type(err).__name__})'
         raise error(msg) from None
-    except RecursionError:
-        msg = f'{path}: cannot read the {what} (nested too deeply)'
+    except (RecursionError, ValueError) as err:  # nested beyond Python's stack; an integer of 4,300+ digits
+        msg = f'{path}: cannot read the {what} ({unreadable(err)})'
         raise error(msg) from None
-    except ValueError:  # an integer of more than 4,300 digits
-        msg = f'{path}: cannot read the {what} (a number Python does not convert)'
-        raise error(msg) from None
+
+
+def unreadable(err: RecursionError | ValueError) -> str:
+    """Why a YAML document cannot be taken, in a few words (the error's own text runs long)."""
+    if isinstance(err, RecursionError):
+        return 'nested too deeply'
+    if 'digits' in str(err):
+        return 'an integer of more digits than Python converts'
+    return str(err).splitlines()[0] if str(err) else type(err).__name__

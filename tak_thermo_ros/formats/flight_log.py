@@ -28,9 +28,8 @@ from typing import Iterator
 import numpy as np
 
 from tak_thermo_ros.core.records.plausible import (
-    clock_step,
-    clock_step_hint,
     clock_step_words,
+    refuse_clock_step,
     temperature_unit_problem,
 )
 from tak_thermo_ros.core.records.record import DriverRecord, no_orientation, sensor_messages
@@ -106,10 +105,10 @@ class FlightLog:
         accelerometer sample (the last block: all that remain), so that a block aligner never
         waits long for a held value.
         """
-        accel_stamps = _running_max(self.stamps['accel'])  # log order: a stamp that goes back stays in place
+        accel_stamps = np.maximum.accumulate(self.stamps['accel'])  # log order: a stamp that goes back stays in place
         edges = [int(accel_stamps[min(end, len(accel_stamps)) - 1])
                  for end in range(block_samples, len(accel_stamps), block_samples)]
-        cuts = {name: np.searchsorted(_running_max(stamps), edges, side='right') for name, stamps in
+        cuts = {name: np.searchsorted(np.maximum.accumulate(stamps), edges, side='right') for name, stamps in
                 (('temperature', self.temp_stamp_ns), *((s, self.stamps[s]) for s in FLIGHT_SENSORS))}
         starts = {name: 0 for name in cuts}
         for index in range(len(edges) + 1):
@@ -145,10 +144,6 @@ class FlightLog:
                 **{f'{sensor}_device_id': int(self.device_ids.get(sensor, 0)) for sensor in FLIGHT_SENSORS}}
 
 
-def _running_max(stamps: np.ndarray) -> np.ndarray:
-    return np.maximum.accumulate(stamps) if len(stamps) else stamps
-
-
 def checked_sensor(path: Path, sensor: str, stamps: np.ndarray, values: np.ndarray, device_ids: np.ndarray | None,
                    where: str) -> tuple[np.ndarray, np.ndarray, int]:
     """A sensor's samples in log order and its device ID; refuses an ID that changes mid-log, a clock step.
@@ -172,12 +167,8 @@ def checked_sensor(path: Path, sensor: str, stamps: np.ndarray, values: np.ndarr
             raise FlightLogError(msg)
         device_id = int(device_ids[0])
     stamps = np.asarray(stamps, dtype=np.int64)
-    step = clock_step(stamps)
-    if step is not None:
-        row, size = step
-        msg = (f'{path}: {where}: time {clock_step_words(size)} at sample {row + 1} of {len(stamps)}: '
-               f'{clock_step_hint()}')
-        raise FlightLogError(msg)
+    refuse_clock_step(stamps, FlightLogError, lambda row, step_ns: (
+        f'{path}: {where}: time {clock_step_words(step_ns, f"at sample {row + 1} of {len(stamps)}")}'))
     return stamps, np.asarray(values, dtype=float).reshape(-1, 3), device_id
 
 

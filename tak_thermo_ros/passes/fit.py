@@ -13,8 +13,7 @@ from tak_thermo_ros.core.records.blocks import BlockAligner, Subsample, add_coun
 from tak_thermo_ros.core.records.extremes import RunExtremes
 from tak_thermo_ros.core.records.provenance import PrintCollector
 from tak_thermo_ros.core.fit import FitResult, ShortRecord, fit_model
-from tak_thermo_ros.core.fit.model import AxisFit
-from tak_thermo_ros.core.link.model import InputKind, held_link
+from tak_thermo_ros.core.link.model import InputKind
 from tak_thermo_ros.core.records.static_run import (
     NotStatic,
 )
@@ -32,6 +31,7 @@ from tak_thermo_ros.passes.run import (
     StreamedFit,
     check_temperature_unit,
     feeding,
+    held_result,
     sensor_errors,
     open_calibration_run,
     run_passes,
@@ -106,7 +106,8 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
         lines = run_passes(path, options, opened, passes, prints=prints)
     except NotStatic as err:
         raise ImuLinkUndetermined(str(err), MOVED) from None
-    check_temperature_unit(path, options, opened.finished_survey())
+    survey = opened.finished_survey()
+    check_temperature_unit(path, options, survey)
     results: dict[str, FitResult] = {}
     usable: dict[str, int] = {}
     second: dict[str, tuple[StreamingEffectFit, FitResult]] = {}
@@ -136,10 +137,9 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
             short[sensor] = err
     if short and len(short) == len(sensors):
         first = short[sensors[0]]
-        reason = str(first).split(': ', 1)[-1]
-        raise ImuLinkUndetermined(f'{path}: {first}', reason, opened.finished_survey())
+        raise ImuLinkUndetermined(f'{path}: {first}', first.reason, survey)
     for sensor, err in short.items():
-        results[sensor] = held_result(str(err).split(': ', 1)[-1])
+        results[sensor] = held_result(HELD_IMU_NOTE.format(reason=err.reason))
     if second:
         # The shapes are fixed now: a second pass solves every amplitude over the whole run.
         again = {sensor: required(sensor) for sensor in second}
@@ -164,7 +164,7 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
                        ignored_references={p.sensor: dict(p.aligner.ignored_references) for p in passes},
                        temperature_rate_max=extremes['accel'].temperature_rate_max,
                        rate_max=extremes['gyro'].reference_max if 'gyro' in extremes else 0.0,
-                       survey=opened.finished_survey(), record_print=prints.finish(path.name),
+                       survey=survey, record_print=prints.finish(path.name),
                        held=tuple(sensor for sensor in sensors if sensor in short))
 
 
@@ -186,16 +186,10 @@ def fit_imu(path: str | Path, settings: FitSettings, options: StreamOptions,
         if not hold_undetermined:
             raise
         reason, survey = err.reason, err.survey
-    results = {sensor: held_result(reason) for sensor in ('accel', 'gyro')}
+    results = {sensor: held_result(HELD_IMU_NOTE.format(reason=reason)) for sensor in ('accel', 'gyro')}
     return StreamedFit(input_kind=InputKind.IMU, sensors=('accel', 'gyro'), results=results, usable={},
                        effect_stride={}, reference_lines=(), ignored_temp_codes={'accel': {}, 'gyro': {}},
                        ignored_references={'accel': {}, 'gyro': {}}, held=('accel', 'gyro'), survey=survey)
-
-
-def held_result(reason: str) -> FitResult:
-    """A sensor held at nominal (offset 0, scale 1, no temperature terms), its note saying why."""
-    link = held_link(notes=(HELD_IMU_NOTE.format(reason=reason),))
-    return FitResult(calibration=link, axes=(AxisFit(0.0, 0, 0.0),) * 3, samples=0, dropped={})  # type: ignore
 
 
 def _with_shape_uncertainty(errors: dict[str, float], shaped: FitResult, shape_names: set[str],

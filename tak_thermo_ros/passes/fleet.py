@@ -41,7 +41,7 @@ from pathlib import Path
 from typing import Any, Callable, Sequence, TextIO
 
 from tak_thermo_ros.formats.calibration_file import calibration_section, write_text_atomic
-from tak_thermo_ros.formats.files import FILE, check_output, file_kind, json_text
+from tak_thermo_ros.formats.files import FILE, check_output, file_kind, write_json
 from tak_thermo_ros.core.diagnose.fleet import (
     MIN_UNITS_FOR_SPREAD,
     batch_spreads,
@@ -165,7 +165,7 @@ def run_unit(task: UnitTask, command: Command) -> UnitOutcome:
         # a failed step must not leave last run's file; only a regular file goes (check_outputs
         # refused anything else before the batch started)
         path = directory / name
-        if os.path.lexists(path) and not path.is_symlink() and path.is_file():
+        if path.is_file() and not path.is_symlink():
             path.unlink()
     params, diagnose_json, validation_json = (str(directory / name)
                                               for name in (PARAMS_FILE, DIAGNOSE_FILE, VALIDATION_FILE))
@@ -458,7 +458,7 @@ def cmd_fit_fleet(args: argparse.Namespace, fit_actions: Sequence[argparse.Actio
     options = {key: value for key, value in vars(args).items() if key not in ('handler', 'command', 'bags', 'validate')}
     document = fleet_document(outcomes, flag_sigma=args.flag_sigma, options=options)
     document['wall_seconds'] = round(time.perf_counter() - start, 3)
-    write_text_atomic(fleet_json, json_text(document, fleet_json))
+    write_json(fleet_json, document)
     html_path = write_fleet_report(document, out_dir / FLEET_HTML)
     for row in document['units']:
         if row['status'] != STATUS_OK:

@@ -30,7 +30,7 @@ from typing import Sequence
 
 import numpy as np
 
-from tak_thermo_ros.core.fit import FitResult, ShortRecord, fit_model
+from tak_thermo_ros.core.fit import FitResult, fit_model
 from tak_thermo_ros.core.fit.stream import StreamingFit
 from tak_thermo_ros.core.link.correction import Corrector, OutOfRange
 from tak_thermo_ros.core.link.model import IDENTITY_3X3, InputKind, MagnetometerCalibration
@@ -40,6 +40,7 @@ from tak_thermo_ros.core.fit.model import AxisFit
 from tak_thermo_ros.core.records.blocks import BlockAligner, Subsample, stride_for
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import BagError, FitError, TakError
+from tak_thermo_ros.passes.run import held_result, prefixed
 
 MAX_STATIC_TURN_DEG = 10.0
 """Largest angle between a sample of a static run's field and its mean (the unit moved)."""
@@ -237,13 +238,10 @@ HELD_MAG_NOTE = 'held at nominal (offset 0, scale 1, no iron): {reason}'
 
 def held_mag_fit(reason: str) -> MagFit:
     """The magnetometer held at nominal, said in its note and one line: one sensor's shortage (``fit``)."""
-    from tak_thermo_ros.core.link.model import held_link
     note = HELD_MAG_NOTE.format(reason=reason)
-    link = held_link(notes=(note,))
-    thermal = FitResult(calibration=link, axes=(AxisFit(0.0, 0, 0.0),) * 3, samples=0,  # type: ignore[arg-type]
-                        dropped={})
-    return MagFit(calibration=MagnetometerCalibration(link, (0.0, 0.0, 0.0), IDENTITY_3X3),  # type: ignore[arg-type]
-                  thermal=thermal, iron=None, lines=(f'magnetometer: {note}',), held=True)
+    thermal = held_result(note)
+    calibration = MagnetometerCalibration(thermal.calibration, (0.0, 0.0, 0.0), IDENTITY_3X3)  # type: ignore[arg-type]
+    return MagFit(calibration=calibration, thermal=thermal, iron=None, lines=(f'magnetometer: {note}',), held=True)
 
 
 def fit_mag_bag(path: str | Path, options, *, bias_order: int = 3, scale_order: int = 2,
@@ -289,7 +287,7 @@ def fit_mag_bag(path: str | Path, options, *, bias_order: int = 3, scale_order: 
             thermal = fit_model(subsample.samples(aligner.dropped), effects=list(effects), bias_order=bias_order,
                                 scale_order=scale_order, temp_code_ref=temp_code_ref, nominal_scale=(1.0, 1.0, 1.0))
     except FitError as err:
-        raise (ShortRecord if isinstance(err, ShortRecord) else FitError)(f'magnetometer: {err}') from None
+        raise prefixed(err, 'magnetometer') from None
     lines = [f'magnetometer: reference field {topics.reference_field} as recorded' if not static else
              f'magnetometer: static run, reference the mean field x y z {_microtesla(mean)} uT']
     if static:

@@ -23,8 +23,9 @@ from typing import TYPE_CHECKING, Any, Callable, Iterator, Sequence
 import numpy as np
 
 from tak_thermo_ros.core.records.blocks import BlockAligner, add_counts
-from tak_thermo_ros.core.fit import FitResult
-from tak_thermo_ros.core.link.model import InputKind
+from tak_thermo_ros.core.fit import FitResult, ShortRecord
+from tak_thermo_ros.core.fit.model import AxisFit
+from tak_thermo_ros.core.link.model import InputKind, held_link
 from tak_thermo_ros.core.records.record import AlignedSamples, ChannelRecord, DriverRecord, require_signals
 from tak_thermo_ros.core.records.provenance import PrintCollector, RecordPrint
 from tak_thermo_ros.core.records.survey import Plan, RecordSurvey, SurveyCollector
@@ -402,6 +403,12 @@ HELD_IMU_NOTE = 'held at nominal (offset 0, scale 1): {reason}'
 """The note of a sensor held at nominal by :func:`fit_imu`, in the file and in one line of ``fit``."""
 
 
+def held_result(note: str) -> FitResult:
+    """A sensor held at nominal (offset 0, scale 1, no temperature terms), ``note`` saying why."""
+    link = held_link(notes=(note,))
+    return FitResult(calibration=link, axes=(AxisFit(0.0, 0, 0.0),) * 3, samples=0, dropped={})  # type: ignore
+
+
 def decided(path: Path, survey: RecordSurvey) -> Plan:
     """The plan of a record without reference topics (:func:`~tak_thermo_ros.core.records.survey.fit_plan`).
 
@@ -438,15 +445,24 @@ def feeding(required: Required, consumers: Sequence[Callable[[AlignedSamples], N
 
 @contextmanager
 def sensor_errors(kind: InputKind, sensor: str) -> Iterator[None]:
-    """A fit error names the sensor on driver bags (a :class:`~tak_thermo_ros.core.fit.ShortRecord` stays one)."""
-    from tak_thermo_ros.core.fit import ShortRecord
+    """A fit error names the sensor on driver bags (:func:`prefixed`)."""
     try:
         yield
     except FitError as err:
         if kind is InputKind.COUNTS:
             raise
-        msg = f'{SENSOR_NAMES[sensor]}: {err}'
-        raise (ShortRecord if isinstance(err, ShortRecord) else FitError)(msg) from None
+        raise prefixed(err, SENSOR_NAMES[sensor]) from None
+
+
+def prefixed(err: FitError, prefix: str) -> FitError:
+    """``err`` again, its message after ``prefix: `` and its own text kept as ``reason``.
+
+    A :class:`~tak_thermo_ros.core.fit.ShortRecord` stays one (one sensor's shortage, held
+    at nominal with ``reason`` in its note), any other fit error becomes a :class:`FitError`.
+    """
+    again = (ShortRecord if isinstance(err, ShortRecord) else FitError)(f'{prefix}: {err}')
+    again.reason = str(err)
+    return again
 
 
 class Required:

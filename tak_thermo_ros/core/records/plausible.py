@@ -5,13 +5,13 @@ DataFlash log, a driver bag), each refusing in its own words, naming the file:
 
 - **Stamps a bag can hold**: :func:`stamp_ns_from_micros` turns a flight log's microseconds
   into nanoseconds without overflow; a stamp beyond what a bag holds (2038-01-19, or a
-  corrupt ``TimeUS`` with a high bit set) becomes :data:`FAR_STAMP_NS`, far ahead of the
+  corrupt ``TimeUS`` with a high bit set) becomes :data:`MAX_STAMP_NS`, far ahead of the
   run, which the stamp rule (:func:`~tak_thermo_ros.core.records.record.stamp_kept`) drops
   and counts as a ``stamp_jump``, as it does any message stamped far in the future.
 - **No clock step** (:func:`clock_step`): among the stamps the stamp rule keeps, a step of
   :data:`CLOCK_STEP_S` (a year) or more, either way, is no pause but two clocks (a driver
   stamping from boot, then from the epoch after a time sync: some 54 years), or a corrupt
-  first stamp; the record is refused, naming where the step is. (What a record spans never
+  first stamp; the record is refused, naming where the step is (:func:`refuse_clock_step`). (What a record spans never
   sets the memory a pass takes: :mod:`~tak_thermo_ros.core.records.extremes` holds its grid to
   the samples.)
 - **Degrees Celsius** (:func:`temperature_unit_problem`): a driver's temperature (not a
@@ -24,25 +24,27 @@ DataFlash log, a driver bag), each refusing in its own words, naming the file:
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
 from tak_thermo_ros.core.records.record import NANOSECONDS, TEMPERATURE_RANGE, stamp_problems
 
 MAX_STAMP_NS = (2 ** 31 - 1) * NANOSECONDS + 999_999_999
-"""Latest stamp a bag holds: ``builtin_interfaces/Time.sec`` is an int32 (2038-01-19)."""
-FAR_STAMP_NS = MAX_STAMP_NS
-"""The stamp given to a sample stamped beyond :data:`MAX_STAMP_NS` (or before 0): far ahead of any run."""
+"""Latest stamp a bag holds (``Time.sec`` is an int32: 2038-01-19); a sample stamped beyond it or before 0 gets it."""
 CLOCK_STEP_S = 365.25 * 86400.0
-"""A step between kept stamps of a year or more (either way) is a clock step, not a pause."""
+"""A year: a step between kept stamps of a year or more (either way) is a clock step, not a pause."""
+CLOCK_STEP_HINT = ('two clocks (stamped from boot, then from the epoch?) or a corrupt stamp: keep one side, or split '
+                   'the record there')
+"""What a user does about a :func:`clock_step`."""
 KELVIN_BAND = (223.15, 423.15)
 """Temperatures read as degrees Celsius that are an IMU's working range (-50..150 C) in kelvin."""
 MOSTLY = 0.5
 """A share of the finite temperatures above which the record's unit is taken as wrong."""
-SECONDS_PER_YEAR = 365.25 * 86400.0
 
 
 def stamp_ns_from_micros(micros: np.ndarray) -> np.ndarray:
-    """Int64 nanoseconds of a flight log's microsecond stamps, those a bag cannot hold set to :data:`FAR_STAMP_NS`.
+    """Int64 nanoseconds of a flight log's microsecond stamps, those a bag cannot hold set to :data:`MAX_STAMP_NS`.
 
     Any integer type (``uint64`` included) without overflow.
     """
@@ -53,7 +55,7 @@ def stamp_ns_from_micros(micros: np.ndarray) -> np.ndarray:
     else:
         outside = (micros > limit) | (micros < 0)
     safe = np.where(outside, 0, micros).astype(np.int64)
-    return np.where(outside, FAR_STAMP_NS, safe * 1000)
+    return np.where(outside, MAX_STAMP_NS, safe * 1000)
 
 
 def clock_step(stamp_ns: np.ndarray) -> tuple[int, int] | None:
@@ -74,16 +76,24 @@ def clock_step(stamp_ns: np.ndarray) -> tuple[int, int] | None:
     return int(kept[large[0] + 1]), int(steps[large[0]])
 
 
-def clock_step_words(step_ns: int) -> str:
-    """``'jumps ahead by 53.9 years'`` / ``'goes back by 20.1 years'`` (a :func:`clock_step`)."""
-    years = abs(step_ns) / NANOSECONDS / SECONDS_PER_YEAR
-    return f'{"jumps ahead" if step_ns > 0 else "goes back"} by {years:.3g} years'
+def clock_step_words(step_ns: int, where: str) -> str:
+    """``'jumps ahead by 53.9 years WHERE: HINT'`` / ``'goes back by 20.1 years WHERE: HINT'`` (a :func:`clock_step`).
+
+    :param where: where the step is (``'at sample 2 of 200'``); ``HINT`` is :data:`CLOCK_STEP_HINT`.
+    """
+    years = abs(step_ns) / NANOSECONDS / CLOCK_STEP_S
+    return f'{"jumps ahead" if step_ns > 0 else "goes back"} by {years:.3g} years {where}: {CLOCK_STEP_HINT}'
 
 
-def clock_step_hint() -> str:
-    """What a user does about a :func:`clock_step`."""
-    return ('two clocks (stamped from boot, then from the epoch?) or a corrupt stamp: keep one side, or split the '
-            'record there')
+def refuse_clock_step(stamp_ns: np.ndarray, error: type[Exception], message: Callable[[int, int], str]) -> None:
+    """Refuse stamps with a :func:`clock_step`: ``error(message(row, step_ns))``, the reader's words.
+
+    :param message: the one-line refusal naming the file and where the step is (its end:
+        :func:`clock_step_words`), from the row after the step and the step.
+    """
+    step = clock_step(stamp_ns)
+    if step is not None:
+        raise error(message(*step))
 
 
 def temperature_unit_problem(temperature: np.ndarray) -> str | None:
