@@ -138,3 +138,21 @@ def test_the_node_refuses_what_the_watch_cannot_do(tmp_path, ros_env):
     result = run_to_exit(node_command('-p', f'calibration_file:={bare}', '-p', 'learn:=true', '-p',
                                       f'learned_file:={bare}'), ros_env)
     assert result.returncode == 2 and 'is the calibration file itself' in result.stderr
+
+
+def test_learn_set_true_with_a_corrupt_learned_file_is_refused_and_the_node_runs_on(tmp_path, ros_env):
+    """``learn`` set true at run time reads learned_file in its check: a corrupt one refuses the change, saying why."""
+    params, learned = tmp_path / 'unit.yaml', tmp_path / 'learned.yaml'
+    save_unit(params, UNIT)
+    with NodeProcess(node_command('-p', f'calibration_file:={params}', '-p', f'learned_file:={learned}'), ros_env,
+                     tmp_path / 'node.log') as node, Harness(int(ros_env['ROS_DOMAIN_ID']), driver=True) as ros:
+        ros.wait_matched()
+        learned.write_text('compensator: [not, a, learned, file\n')
+        results = ros.set_parameters({'learn': True})
+        assert not results[0].successful and str(learned) in results[0].reason
+        assert node.process.poll() is None
+        learned.unlink()
+        results = ros.set_parameters({'learn': True})
+        assert results[0].successful, results[0].reason
+        wait_until(lambda: f'learning into {learned} (from 0 earlier runs)' in node.log(), 10.0, what='learning')
+        assert node.stop() == 0

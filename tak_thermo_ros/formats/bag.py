@@ -650,6 +650,16 @@ def imu_messages(record: DriverRecord) -> ImuRows:
     return ImuRows(paired.stamp_ns, rows_at(record.stamp_ns, paired.stamp_ns), paired.accel_row, paired.gyro_row)
 
 
+def play_order(temperature_ns: Any, input_ns: Any, *others: Any) -> list[tuple[int, int, int]]:
+    """``(stamp, stream, row)`` of every message in the order ``tak_calib play`` publishes them to the node.
+
+    Stream 0 is the temperature, 1 the input (Imu or counts), ``2 + k`` the ``k``-th of ``others``:
+    in stamp order, at equal stamps the temperature first, then the input, then the others.
+    """
+    streams = (temperature_ns, input_ns, *others)
+    return sorted((int(s), stream, row) for stream, stamps in enumerate(streams) for row, s in enumerate(stamps))
+
+
 def _aux_writers(writer: Writer, aux_streams: list, aux_types: dict[str, str] | None, frame_id: str) -> list:
     """Per auxiliary signal ``aux:TOPIC`` a function ``(stamp, row) -> None`` writing one message of it."""
     from tak_thermo_ros.core.effects.aux_signal import split_signal_name

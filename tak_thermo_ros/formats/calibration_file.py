@@ -766,10 +766,24 @@ def load_unit(path: str | os.PathLike[str]) -> UnitCalibration:
 
     :raises CalibrationError: one line naming the file and the wrong key.
     """
+    loaded = load_unit_parameters(path)
+    assert loaded is not None
+    return loaded[0]
+
+
+def load_unit_parameters(path: str | os.PathLike[str], *,
+                         missing_ok: bool = False) -> tuple[UnitCalibration, Mapping[str, Any]] | None:
+    """:func:`load_unit`, and the parameters beside ``calibration`` (the learned file's ``learned``).
+
+    :param missing_ok: ``None`` when the file does not exist (else an error).
+    :raises CalibrationError: one line naming the file and the wrong key.
+    """
     path = Path(path)
     try:
         text = path.read_text(encoding='utf-8')
     except FileNotFoundError:
+        if missing_ok:
+            return None
         msg = f'{path}: no such calibration file'
         raise CalibrationError(msg) from None
     except IsADirectoryError:
@@ -781,7 +795,7 @@ def load_unit(path: str | os.PathLike[str]) -> UnitCalibration:
     try:
         parameters = calibration_section(parse_parameters_yaml(text))
         _check_uniform_lists(parameters['calibration'], 'calibration')
-        return unit_from_mapping(parameters['calibration'])
+        return unit_from_mapping(parameters['calibration']), parameters
     except yaml.YAMLError as err:
         mark = getattr(err, 'problem_mark', None)
         where = f' at line {mark.line + 1}' if mark is not None else ''
@@ -825,12 +839,14 @@ def calibration_yaml(calibration: Calibration, *, extra_parameters: Mapping[str,
                      header=header)
 
 
-def save_unit(path: str | os.PathLike[str], unit: UnitCalibration, *, header: str = '') -> None:
+def save_unit(path: str | os.PathLike[str], unit: UnitCalibration, *, header: str = '',
+              extra_parameters: Mapping[str, Any] | None = None) -> None:
     """Validate (by a round trip through the one parser) and write the calibration file atomically.
 
+    :param extra_parameters: parameters beside ``calibration`` (the learned file's ``learned``).
     :raises OutputError: a number in it is not finite (:func:`~tak_thermo_ros.formats.files.check_finite`).
     """
-    text = unit_yaml(unit, header=header)
+    text = unit_yaml(unit, extra_parameters=extra_parameters, header=header)
     document = parse_parameters_yaml(text)
     check_finite(document, path)
     unit_from_mapping(calibration_section(document)['calibration'])

@@ -12,39 +12,23 @@ that the next run goes on from them and never applies them to another calibratio
 from __future__ import annotations
 
 import os
-from pathlib import Path
-
-import yaml
 
 from tak_thermo_ros.core.link.model import UnitCalibration
 from tak_thermo_ros.core.link.watch import LearnedState, learned_unit
-from tak_thermo_ros.errors import CalibrationError, TakError
-from tak_thermo_ros.formats.calibration_file import (
-    calibration_section,
-    parse_parameters_yaml,
-    unit_from_mapping,
-    unit_yaml,
-)
-from tak_thermo_ros.formats.files import write_text_atomic
+from tak_thermo_ros.errors import TakError
+from tak_thermo_ros.formats.calibration_file import load_unit_parameters, save_unit
 
 LEARNED_KEY = 'learned'
 """The parameter beside ``calibration`` that holds the learning's state."""
 
 
-def learned_text(original: UnitCalibration, state: LearnedState, *, source: str = '') -> str:
-    """The learned file's text (validated by a round trip through the calibration parser)."""
+def save_learned(path: str | os.PathLike[str], original: UnitCalibration, state: LearnedState, *,
+                 source: str = '') -> None:
+    """Write the learned file atomically (validated by a round trip through the calibration parser)."""
     header = (f'What the compensator\'s calibration watch learned at the rests of {state.runs} runs ({state.rests} '
               f'rests)\non top of {source or "the original calibration"} (never overwritten). A calibration '
               f'file: tak_calib validate / diagnose / export read it.')
-    text = unit_yaml(learned_unit(original, state), extra_parameters={LEARNED_KEY: state.to_mapping()}, header=header)
-    unit_from_mapping(calibration_section(parse_parameters_yaml(text))['calibration'])
-    return text
-
-
-def save_learned(path: str | os.PathLike[str], original: UnitCalibration, state: LearnedState, *,
-                 source: str = '') -> None:
-    """Write the learned file atomically (a temporary file beside it, then a rename)."""
-    write_text_atomic(path, learned_text(original, state, source=source))
+    save_unit(path, learned_unit(original, state), header=header, extra_parameters={LEARNED_KEY: state.to_mapping()})
 
 
 def load_learned(path: str | os.PathLike[str]) -> LearnedState | None:
@@ -52,20 +36,10 @@ def load_learned(path: str | os.PathLike[str]) -> LearnedState | None:
 
     :raises TakError: one line naming the file, when it exists but is no learned file.
     """
-    path = Path(path)
-    try:
-        text = path.read_text(encoding='utf-8')
-    except FileNotFoundError:
+    loaded = load_unit_parameters(path, missing_ok=True)
+    if loaded is None:
         return None
-    except (OSError, UnicodeDecodeError) as err:
-        msg = f'{path}: cannot read the learned file ({getattr(err, "strerror", None) or err})'
-        raise TakError(msg) from None
-    try:
-        parameters = calibration_section(parse_parameters_yaml(text))
-        unit_from_mapping(parameters['calibration'])
-    except (yaml.YAMLError, CalibrationError) as err:
-        msg = f'{path}: not a learned file ({str(err).splitlines()[0] if str(err) else type(err).__name__})'
-        raise TakError(msg) from None
+    parameters = loaded[1]
     if LEARNED_KEY not in parameters:
         msg = f'{path}: a calibration file without a {LEARNED_KEY} section: not a learned file (give another path)'
         raise TakError(msg)

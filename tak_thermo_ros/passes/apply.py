@@ -63,11 +63,9 @@ class TurnOnSettings:
 
         :raises TakError: the calibration cannot give it (no noise model, no turn-on repeatability).
         """
-        from tak_thermo_ros.core.link.watch import CalibrationWatch, watch_unavailable
-        reason = watch_unavailable(unit)
-        if not reason and (unit.gyro is None or unit.gyro.turn_on is None):
-            reason = ("the calibration holds no gyro turn_on section (the turn-on repeatability, fitted from "
-                      "several records: tak_calib fit REC REC ...)")
+        from tak_thermo_ros.core.link.watch import CalibrationWatch, turn_on_unavailable, watch_unavailable
+        missing = turn_on_unavailable(unit)
+        reason = watch_unavailable(unit) or (f'the calibration holds no {missing}' if missing else '')
         if reason:
             msg = f'--turn-on first-rest: {reason}'
             raise TakError(msg)

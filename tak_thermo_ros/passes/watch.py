@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tak_thermo_ros.core.link.correction import OutOfRange
+from tak_thermo_ros.core.link.correction import NOT_PROVIDED, OutOfRange
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.link.online import OnlineCompensator, StaleTemperature
 from tak_thermo_ros.core.link.watch import CalibrationWatch, WatchSettings, watch_unavailable
@@ -46,7 +46,7 @@ class Watched:
 def watch_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions, *, settings: WatchSettings,
               out_of_range: OutOfRange = OutOfRange.CLAMP) -> Watched:
     """The node's watch over a driver record (the node's temperature timeout: none; stale temperatures held)."""
-    from tak_thermo_ros.formats.bag import imu_messages
+    from tak_thermo_ros.formats.bag import imu_messages, play_order
     from tak_thermo_ros.formats.records import record_blocks, record_streams
     reason = watch_unavailable(unit)
     if reason:
@@ -62,15 +62,12 @@ def watch_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions, *
                                progress=options.progress):
         assert isinstance(block, DriverRecord)
         messages = imu_messages(block)
-        events = sorted([(int(s), 0, i) for i, s in enumerate(block.temp_stamp_ns)]
-                        + [(int(s), 1, i) for i, s in enumerate(messages.stamp_ns)]
-                        + [(int(s), 2 + k, i) for k, (_, (stamps, _)) in enumerate(sorted(block.aux.items()))
-                           for i, s in enumerate(stamps)])
         names = sorted(block.aux)
+        events = play_order(block.temp_stamp_ns, messages.stamp_ns, *(block.aux[name][0] for name in names))
         values = np.hstack([block.accel[messages.accel_row] if len(block.accel) else np.zeros((0, 3)),
                             block.gyro[messages.gyro_row] if len(block.gyro) else np.zeros((0, 3))]).tolist()
-        accel_mark = np.where(messages.accel_row >= 0, 0.0, -1.0).tolist()
-        gyro_mark = np.where(messages.gyro_row >= 0, 0.0, -1.0).tolist()
+        accel_mark = np.where(messages.accel_row >= 0, 0.0, NOT_PROVIDED).tolist()
+        gyro_mark = np.where(messages.gyro_row >= 0, 0.0, NOT_PROVIDED).tolist()
         for stamp, stream, row in events:
             first = stamp if first is None else first
             now = (stamp - first) * 1e-9

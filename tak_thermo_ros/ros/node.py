@@ -68,7 +68,7 @@ from tak_thermo_ros.core.link.correction import NOT_PROVIDED_COVARIANCE, OutOfRa
 from tak_thermo_ros.core.effects.aux_signal import AUX_FIELDS, signal_field, split_signal_name
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.link.online import SENSORS, Level, OneSensor, OnlineCompensator, StaleTemperature
-from tak_thermo_ros.core.link.watch import LearnedState, WatchSettings, calibration_digest
+from tak_thermo_ros.core.link.watch import LearnedState, WatchSettings, turn_on_unavailable
 from tak_thermo_ros.formats.learned_file import LEARNED_KEY, load_learned, save_learned
 from tak_thermo_ros.errors import CalibrationError, TakError
 from tak_thermo_ros.ros.signals import SignalGuard
@@ -159,6 +159,20 @@ def _depth(value: Any) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
         msg = f'qos_depth: expected an integer >= 1, got {value!r}'
         raise ValueError(msg)
+    return value
+
+
+def _flag(value: Any, name: str) -> bool:
+    if not isinstance(value, bool):
+        msg = f'{name}: expected true or false, got {value!r}'
+        raise ValueError(msg)
+    return value
+
+
+def _path_value(value: Any, name: str, error: type[Exception] = ValueError) -> str:
+    if not isinstance(value, str):
+        msg = f'{name}: expected a path, got {value!r}'
+        raise error(msg)
     return value
 
 
@@ -268,6 +282,8 @@ class CompensatorNode(Node):
         self._diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self._on_diagnostics_timer)
         self._pending: Any = None
         self._mag_pending: Any = None
+        self._learn_pending: tuple[LearnedState | None] | None = None
+        """A ``learn`` change validated, to put in force: ``(state,)``, the learned file's state or ``None`` (false)."""
         self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         low, high = self._core.calibrated_range
@@ -292,19 +308,10 @@ class CompensatorNode(Node):
         elif isinstance(latitude, bool) or not isinstance(latitude, (int, float)) or not -90.0 <= latitude <= 90.0:
             msg = f'latitude: expected degrees within -90..90 or empty, got {latitude!r}'
             raise ValueError(msg)
-        enabled = self._value('watch')
-        if not isinstance(enabled, bool):
-            msg = f'watch: expected true or false, got {enabled!r}'
-            raise ValueError(msg)
+        enabled = _flag(self._value('watch'), 'watch')
         turn_on = _choice(self._value('turn_on'), 'turn_on', TURN_ON_CHOICES) == 'first_rest'
-        learn = self._value('learn')
-        if not isinstance(learn, bool):
-            msg = f'learn: expected true or false, got {learn!r}'
-            raise ValueError(msg)
-        path = self._value('learned_file')
-        if not isinstance(path, str):
-            msg = f'learned_file: expected a path, got {path!r}'
-            raise ValueError(msg)
+        learn = _flag(self._value('learn'), 'learn')
+        path = _path_value(self._value('learned_file'), 'learned_file')
         if path and source and os.path.exists(source) and os.path.exists(path) and os.path.samefile(path, source):
             msg = f'learned_file: {path} is the calibration file itself (the original is never overwritten)'
             raise CalibrationError(msg)
@@ -314,16 +321,10 @@ class CompensatorNode(Node):
         if (turn_on or learn) and not enabled:
             msg = 'turn_on and learn need the watch (watch: true)'
             raise ValueError(msg)
-        state = None
-        if learn:
-            state = load_learned(path) or LearnedState()
-            if state.original and state.original != calibration_digest(unit):
-                self.get_logger().warning(f'{path} was learned on another calibration: learning starts afresh '
-                                          f'(the file is replaced at the first write)')
-                state = LearnedState()
-        if turn_on and unit.gyro is not None and unit.gyro.turn_on is None:
-            msg = ('turn_on: first_rest needs the calibration\'s gyro turn_on section (the turn-on repeatability, '
-                   'fitted from several records: tak_calib fit REC REC ...)')
+        state = (load_learned(path) or LearnedState()) if learn else None
+        missing = turn_on_unavailable(unit) if turn_on else ''
+        if missing:
+            msg = f"turn_on: first_rest needs the calibration's {missing}"
             raise CalibrationError(msg)
         self._learned_path = path if learn else ''
         return WatchSettings(enabled=enabled, latitude=latitude, turn_on=turn_on, learn=state)
@@ -343,13 +344,13 @@ class CompensatorNode(Node):
             words.append(f'learning into {self._learned_path} (from {learner.start.runs} earlier runs)')
         return '; '.join(words)
 
-    def save_learned(self, *, force: bool = False) -> None:
-        """Write what the watch learned to ``learned_file`` (atomically), when it changed (``force``: always)."""
+    def save_learned(self) -> None:
+        """Write what the watch learned to ``learned_file`` (atomically), when it changed."""
         watch = self._core.watch
         if not self._learned_path or watch is None or watch.learner is None:
             return
         learner = watch.learner
-        if not (learner.changed or force):
+        if not learner.changed:
             return
         try:
             save_learned(self._learned_path, self._original, learner.state(), source=self._source)
@@ -363,18 +364,15 @@ class CompensatorNode(Node):
         learner.changed = False
         self._learned_written_s = time.monotonic()
 
-    def _set_learning(self, learn: bool) -> None:
-        """``learn`` set at run time: a new watch, with or without learning.
+    def _set_learning(self, state: LearnedState | None) -> None:
+        """``learn`` set at run time: a new watch, learning from ``state`` (read by :meth:`_check_parameters`) or not.
 
-        False returns to the calibration file at once (what was learned is written first); true
-        starts learning from the learned file (the new watch's rests start afresh).
+        ``None`` (false) returns to the calibration file at once (what was learned is written first); a
+        state starts learning from it (the new watch's rests start afresh).
         """
         self.save_learned()
         settings = self._core.watch_settings
-        state = None
-        if learn:
-            state = load_learned(self._value('learned_file')) or LearnedState()
-        self._learned_path = self._value('learned_file') if learn else ''
+        self._learned_path = self._value('learned_file') if state is not None else ''
         self._core.set_watch(replace(settings, learn=state))
         self.get_logger().info(self._watch_words())
 
@@ -413,11 +411,8 @@ class CompensatorNode(Node):
 
     def _load_calibration(self) -> tuple[UnitCalibration, str]:
         """The calibration from ``calibration_file`` or ``calibration.*``, declared as parameters."""
-        path = self._value('calibration_file')
+        path = _path_value(self._value('calibration_file'), 'calibration_file', CalibrationError)
         flat = self._calibration_values()
-        if not isinstance(path, str):
-            msg = f'calibration_file: expected a path, got {path!r}'
-            raise CalibrationError(msg)
         if path:
             if flat:
                 msg = (f'calibration_file ({path}) and calibration.* parameters ({next(iter(flat))}, ...) '
@@ -681,16 +676,14 @@ class CompensatorNode(Node):
                 elif parameter.name.startswith(CALIBRATION_PREFIX + '.'):
                     calibration_changed = True
                 elif parameter.name == 'learn':
-                    if not isinstance(value, bool):
-                        msg = f'learn: expected true or false, got {value!r}'
-                        raise ValueError(msg)
-                    if value and not self._value('learned_file'):
+                    path = self._value('learned_file')
+                    if _flag(value, 'learn') and not path:
                         msg = 'learn: true needs learned_file:=PATH, given at start-up'
                         raise ValueError(msg)
                     if self._core.watch is None:
                         msg = f'learn: the calibration watch is {self._core.watch_off}'
                         raise ValueError(msg)
-                    changes_learn = value
+                    changes_learn = ((load_learned(path) or LearnedState()) if value else None,)
             if calibration_changed:
                 flat = self._calibration_values()
                 for parameter in parameters:
@@ -718,9 +711,9 @@ class CompensatorNode(Node):
         """Put the validated change in force: runs in the executor, between two messages."""
         prepared, self._pending = self._pending, None
         mag_prepared, self._mag_pending = self._mag_pending, None
-        learn, self._learn_pending = getattr(self, '_learn_pending', None), None
+        learn, self._learn_pending = self._learn_pending, None
         if learn is not None:
-            self._set_learning(learn)
+            self._set_learning(*learn)
         if prepared is None:
             return
         self._core.install(prepared)

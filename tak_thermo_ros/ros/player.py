@@ -40,7 +40,7 @@ from tak_thermo_ros.core.link.correction import NOT_PROVIDED, NOT_PROVIDED_COVAR
 from tak_thermo_ros.core.link.model import InputKind
 from tak_thermo_ros.core.records.record import NANOSECONDS
 from tak_thermo_ros.errors import TakError
-from tak_thermo_ros.formats.bag import ImuRows, imu_messages
+from tak_thermo_ros.formats.bag import ImuRows, imu_messages, play_order
 
 AHEAD = 50
 """At most this many messages sent and not yet answered."""
@@ -194,9 +194,7 @@ def _play_block(player: _Player, block, kind: InputKind, sent: dict[str, int], a
     input_stamps = messages.stamp_ns if driver else block.counts_stamp_ns
     temperatures = block.temperature if driver else block.temp_code
     mag_stamps = block.mag_stamp_ns if driver else np.zeros(0, dtype=np.int64)
-    events = sorted([(int(s), 0, i) for i, s in enumerate(block.temp_stamp_ns)]
-                    + [(int(s), 1, i) for i, s in enumerate(input_stamps)]
-                    + [(int(s), 2, i) for i, s in enumerate(mag_stamps)])
+    events = play_order(block.temp_stamp_ns, input_stamps, mag_stamps)
     played = player.played
 
     def caught_up(ahead: int) -> None:

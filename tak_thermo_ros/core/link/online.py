@@ -103,7 +103,14 @@ from tak_thermo_ros.core.link.correction import (
     imu_covariances,
 )
 from tak_thermo_ros.core.link.model import Calibration, InputKind, UnitCalibration
-from tak_thermo_ros.core.link.watch import CalibrationWatch, RestFinder, WatchSettings, WatchUnavailable, adjust
+from tak_thermo_ros.core.link.watch import (
+    ANOTHER_CALIBRATION,
+    CalibrationWatch,
+    RestFinder,
+    WatchSettings,
+    WatchUnavailable,
+    adjustment_at,
+)
 from tak_thermo_ros.core.records.record import (
     DROP_REASONS,
     NANOSECONDS,
@@ -520,6 +527,8 @@ class OnlineCompensator:
         """Why there is no watch, or ``''``."""
         self._watch_finder: RestFinder | None = None
         self._adjustment: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+        self._adjusted_at: tuple[float, tuple[float, ...]] | None = None
+        """``(T, a + b (T - T_ref))`` of the adjustment in force at the last temperature it was taken at."""
         self.install(self.prepare(calibration=unit, out_of_range=out_of_range,
                                   stale_temperature=stale_temperature, temp_timeout_s=temp_timeout_s))
 
@@ -687,14 +696,15 @@ class OnlineCompensator:
             return
         self.watch_off = ''
         self._watch_finder = self.watch.finder
-        self._adjustment = self.watch.adjustment
+        self._take_adjustment(self.watch.adjustment)
         self.watch.on_adjustment = self._take_adjustment
 
     def _stop_watch(self) -> None:
-        self.watch = self._watch_finder = self._adjustment = None
+        self.watch = self._watch_finder = self._adjustment = self._adjusted_at = None
 
     def _take_adjustment(self, adjustment: tuple[tuple[float, ...], tuple[float, ...]] | None) -> None:
         self._adjustment = adjustment
+        self._adjusted_at = None
 
     def set_policies(self, *, out_of_range: OutOfRange | str | None = None,
                      stale_temperature: StaleTemperature | str | None = None,
@@ -902,8 +912,12 @@ class OnlineCompensator:
                     finder.next_window(stamp_ns, temperature)
                 finder.append(output)
                 adjustment = self._adjustment
-                if adjustment is not None:  # the run's turn-on offset, or what the watch learned
-                    output = adjust(output, temperature, adjustment, self.watch.reference)  # type: ignore
+                if adjustment is not None:  # the run's turn-on offset, or what the watch learned: adjust()
+                    at = self._adjusted_at
+                    if at is None or at[0] != temperature:  # recomputed when the temperature changes only
+                        at = self._adjusted_at = (temperature, adjustment_at(temperature, adjustment,
+                                                                             self.watch.reference))  # type: ignore
+                    output = tuple(v - c for v, c in zip(output, at[1]))
             return output
         for stream in streams:  # one sensor's values: a carried sensor left out, or the only one carried
             if stream.reason is None:
@@ -1126,7 +1140,8 @@ class OnlineCompensator:
         elif watch.pending:
             watch.judge()
         for line in watch.notices:
-            self._notice(Level.WARN if line.startswith('calibration stale') else Level.OK, 'calibration_watch', line)
+            warn = line.startswith(('calibration stale', ANOTHER_CALIBRATION))
+            self._notice(Level.WARN if warn else Level.OK, 'calibration_watch', line)
         watch.notices.clear()
 
     def watch_status(self) -> Status:

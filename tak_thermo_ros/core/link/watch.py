@@ -72,7 +72,7 @@ from tak_thermo_ros.core.records.still import (
     RECENT_WINDOWS,
     WINDOW_S,
 )
-from tak_thermo_ros.core.values import EARTH_RATE, STANDARD_GRAVITY, normal_gravity
+from tak_thermo_ros.core.values import EARTH_RATE, STANDARD_GRAVITY, finite_number, normal_gravity
 from tak_thermo_ros.errors import TakError
 
 REST_MAX_S = 60.0
@@ -106,6 +106,8 @@ SLOPE_PRIOR_SHARE = 0.5
 """The prior of a slope correction: its standard deviation is this share of the curve's largest slope."""
 CHANNELS = ('gyro x', 'gyro y', 'gyro z', 'accel')
 """What the watch judges: each gyroscope axis, and the accelerometer's ``|f|``."""
+ANOTHER_CALIBRATION = 'learned on another calibration'
+"""How the watch's notice of a learned state it left (another calibration's) begins."""
 DEG_PER_H = 180.0 / math.pi * 3600.0
 """deg/h per rad/s."""
 MG = 1e3 / STANDARD_GRAVITY
@@ -401,14 +403,21 @@ class ChannelNoise:
         """The variance of a rest mean's own noise (white, quantisation): independent from rest to rest."""
         return self.white ** 2 / duration_s + 3.0 * self.quantization ** 2 / duration_s ** 2
 
+    def slow(self, duration_s: float) -> float:
+        """The variance of the bias's wander in a rest mean of this length (without its own noise).
+
+        A flicker term's flat Allan variance, a random walk's ``K^2 T / 3``, each Gauss-Markov
+        process's variance.
+        """
+        return ((FLICKER_FLOOR * self.flicker) ** 2 + self.walk ** 2 * duration_s / 3.0
+                + sum(s * s for s, _ in self.markov))
+
     def level(self, duration_s: float) -> float:
         """The variance of a rest mean about the run's level: its own noise and the bias's wander at its length.
 
-        A flicker term's flat Allan variance, a random walk's ``K^2 T / 3``, each Gauss-Markov
-        process's variance: the floor of such a mean.
+        The floor of such a mean: :meth:`independent` and :meth:`slow`.
         """
-        return (self.independent(duration_s) + (FLICKER_FLOOR * self.flicker) ** 2
-                + self.walk ** 2 * duration_s / 3.0 + sum(s * s for s, _ in self.markov))
+        return self.independent(duration_s) + self.slow(duration_s)
 
     def wander(self, separation_s: float, gap_s: float, first_s: float, second_s: float) -> float:
         """The variance of the bias's wander between two rest means (see the module), without their own noise."""
@@ -458,7 +467,6 @@ class ChannelState:
 
     residual: float = math.nan
     z: float = 0.0
-    sigma: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -481,7 +489,6 @@ class WatchSettings:
 
     :param enabled: whether the watch runs (``-p watch:=false``: no rest is looked for).
     :param latitude: degrees, or ``None``.
-    :param gravity: m/s^2, or ``None`` (from the latitude, else standard gravity).
     :param turn_on: take each run's turn-on offset at its first rest (``-p turn_on:=first_rest``).
     :param learn: what earlier runs learned (opt-in learning; a fresh :class:`LearnedState` to
         start), or ``None``: no learning.
@@ -489,40 +496,43 @@ class WatchSettings:
 
     enabled: bool = True
     latitude: float | None = None
-    gravity: float | None = None
     turn_on: bool = False
     learn: LearnedState | None = None
 
     def watch(self, unit: UnitCalibration) -> CalibrationWatch:
         """The watch of a calibration under these settings.
 
+        A learned state of another calibration (:func:`calibration_digest`) is left: learning starts
+        afresh, said in the watch's :attr:`~CalibrationWatch.notices`.
+
         :raises WatchUnavailable: the calibration gives it nothing to judge against.
         """
         learner = None
+        another = False
         if self.learn is not None:
             start = self.learn
-            if start.original and start.original != calibration_digest(unit):  # learned on another curve
-                start = LearnedState()
-            learner = Learner(unit, start)
-        return CalibrationWatch(unit, latitude=self.latitude, gravity=self.gravity, turn_on=self.turn_on,
-                                learner=learner)
+            another = bool(start.original) and start.original != calibration_digest(unit)
+            learner = Learner(unit, LearnedState() if another else start)
+        watch = CalibrationWatch(unit, latitude=self.latitude, turn_on=self.turn_on, learner=learner)
+        if another:
+            watch.notices.append(f'{ANOTHER_CALIBRATION}: learning starts afresh (the learned file is replaced at '
+                                 f'the first write)')
+        return watch
 
 
 class CalibrationWatch:
     """Judge a calibration at the rests of a run (see the module's description).
 
     :param unit: the calibration in force (a driver's: accelerometer and gyroscope, each with a noise model).
-    :param latitude: degrees, or ``None`` (unknown: the Earth rate and gravity count as noise).
-    :param gravity: local gravity, m/s^2, or ``None`` (from the latitude, else standard gravity).
+    :param latitude: degrees, or ``None`` (unknown: the Earth rate and gravity count as noise; gravity from the
+        latitude, else standard gravity).
     :param turn_on: take the run's turn-on offset at its first rest and subtract it (``turn_on: first_rest``).
     :param learner: a :class:`Learner` (opt-in learning), or ``None``.
-    :param false_alarms_per_hour: the false-alarm rate per hour of rests the tests are held to.
     :raises WatchUnavailable: when the calibration holds no gyroscope or a sensor has no noise model.
     """
 
-    def __init__(self, unit: UnitCalibration, *, latitude: float | None = None, gravity: float | None = None,
-                 turn_on: bool = False, learner: Learner | None = None,
-                 false_alarms_per_hour: float = FALSE_ALARMS_PER_HOUR) -> None:
+    def __init__(self, unit: UnitCalibration, *, latitude: float | None = None, turn_on: bool = False,
+                 learner: Learner | None = None) -> None:
         reason = watch_unavailable(unit)
         if reason:
             raise WatchUnavailable(reason)
@@ -530,15 +540,14 @@ class CalibrationWatch:
         self.accel_noise: NoiseModel = unit.accel.noise  # type: ignore[assignment]
         self.gyro_noise: NoiseModel = unit.gyro.noise  # type: ignore[union-attr,assignment]
         self.latitude = latitude
-        known = gravity is not None or latitude is not None
-        self.gravity = float(gravity if gravity is not None else
-                             normal_gravity(latitude) if latitude is not None else STANDARD_GRAVITY)
-        self.gravity_sd = (0.0 if gravity is not None else GRAVITY_HEIGHT_SD if latitude is not None
-                           else math.hypot(GRAVITY_LATITUDE_SD, GRAVITY_HEIGHT_SD))
+        known = latitude is not None
+        self.gravity = float(normal_gravity(latitude) if known else STANDARD_GRAVITY)
+        self.gravity_sd = GRAVITY_HEIGHT_SD if known else math.hypot(GRAVITY_LATITUDE_SD, GRAVITY_HEIGHT_SD)
         self.gravity_known = known
         self.turn_on_enabled = turn_on
         self.learner = learner
-        self.false_alarms_per_hour = false_alarms_per_hour
+        self.false_alarms_per_hour = FALSE_ALARMS_PER_HOUR
+        """The false-alarm rate per hour of rests the tests are held to."""
         self.finder = RestFinder(self.accel_noise, self.gyro_noise, self._on_rest)
         self.take = self.finder.take
         """The per-message entry: ``take(stamp_ns, values, temperature)`` (:meth:`RestFinder.take`)."""
@@ -669,19 +678,20 @@ class CalibrationWatch:
     def level_variance(self, judged: JudgedRest, channel: int) -> float:
         """The variance of one rest's residual about the run's level: the floor of such a mean, Earth or gravity too."""
         up = judged.up
-        noise = self.channel_noise(up)[channel]
-        variance = noise.level(judged.rest.duration_s)
+        variance = judged.noises[channel].level(judged.rest.duration_s)
         if channel < 3:
             variance += self.heading_variance(up)[channel]
-            if self.latitude is None:  # the vertical part too: sin(latitude) anywhere in -1..1
-                variance += (EARTH_RATE * up[channel]) ** 2 / 3.0
-        else:
-            variance += self.gravity_sd ** 2
-        return variance
+        return variance + self._reference_variance(up, channel)
 
-    def floor(self, judged: JudgedRest, channel: int) -> float:
-        """The noise floor of the rest's mean on a channel: its own noise and the bias's wander at its length."""
-        return math.sqrt(self.channel_noise(judged.up)[channel].level(judged.rest.duration_s))
+    def _reference_variance(self, up: np.ndarray, channel: int) -> float:
+        """The variance of what a residual is counted from and is constant over a run.
+
+        A gyroscope channel without a latitude: the Earth rate's vertical part (``sin(latitude)``
+        anywhere in -1..1); ``|f|``: gravity's uncertainty.
+        """
+        if channel < 3:
+            return (EARTH_RATE * up[channel]) ** 2 / 3.0 if self.latitude is None else 0.0
+        return self.gravity_sd ** 2
 
     # -- the tests -------------------------------------------------------------------------------
 
@@ -748,7 +758,7 @@ class CalibrationWatch:
                                   rests[m].rest.index, 0.25 / steps) for m in range(1, count)]
         else:
             if count == 1:
-                state.z, state.sigma = 0.0, math.nan
+                state.z = 0.0
                 return
             y = np.array([rest.residual[channel] - first.residual[channel] for rest in rests[1:]])  # type: ignore
             covariance = independent[0] + wander[1:, 1:] + np.diag(independent[1:])
@@ -759,16 +769,17 @@ class CalibrationWatch:
                 alternatives.append((temperatures[1:] - temperatures[0], 'slope', 0, 0.5))
             alternatives += [(np.array([1.0 if i >= m else 0.0 for i in range(1, count)]), 'offset',
                               rests[m].rest.index, step_share) for m in range(1, count)]
-        state.sigma = math.sqrt(covariance[-1, -1])
         share = self.false_alarms_per_hour * judged.rest.duration_s / 3600.0 / len(CHANNELS)
-        solve = _solver(covariance)
-        weighted_y = solve(y)
+        regressors = np.column_stack([x for x, _, _, _ in alternatives])
+        solved = _solver(covariance)(np.column_stack([y, regressors]))  # C^-1 y and C^-1 x of each, at once
+        weighted_y = solved[:, 0]
+        informations = np.einsum('ij,ij->j', regressors, solved[:, 1:]).tolist()
+        projections = (weighted_y @ regressors).tolist()
         best: tuple[float, float, float, str, int] | None = None  # (|z| / threshold, z, size, kind, since)
-        for x, kind, since, part in alternatives:
-            information = float(x @ solve(x))
+        for (_, kind, since, part), information, projection in zip(alternatives, informations, projections):
             if not information > 0.0:
                 continue
-            size = float(x @ weighted_y) / information
+            size = projection / information
             z = size * math.sqrt(information)
             ratio = abs(z) / two_sided_threshold(share * part)
             if best is None or ratio > best[0]:
@@ -790,17 +801,7 @@ class CalibrationWatch:
 
         The first rest's wander, the Earth rate's vertical part without a latitude, gravity's uncertainty.
         """
-        up = first.up
-        noise = first.noises[channel]
-        duration = first.rest.duration_s
-        variance = (FLICKER_FLOOR * noise.flicker) ** 2 + noise.walk ** 2 * duration / 3.0 + sum(
-            s * s for s, _ in noise.markov)
-        if channel < 3:
-            if self.latitude is None:
-                variance += (EARTH_RATE * up[channel]) ** 2 / 3.0
-        else:
-            variance += self.gravity_sd ** 2
-        return variance
+        return first.noises[channel].slow(first.rest.duration_s) + self._reference_variance(first.up, channel)
 
     def _wander_covariance(self, rests: list[JudgedRest], channel: int) -> np.ndarray:
         """``(k, k)`` the covariance of the bias's wander at the rests, counted from the first (zero there).
@@ -958,8 +959,19 @@ def watch_unavailable(unit: UnitCalibration) -> str:
     return ''
 
 
+def turn_on_unavailable(unit: UnitCalibration) -> str:
+    """What a driver calibration lacks to take the run's turn-on offset at its first rest, or ``''``.
+
+    ``gyro turn_on section (...)``, for the caller's sentence; no gyroscope is :func:`watch_unavailable`'s to say.
+    """
+    if unit.gyro is not None and unit.gyro.turn_on is None:
+        return ('gyro turn_on section (the turn-on repeatability, fitted from several records: '
+                'tak_calib fit REC REC ...)')
+    return ''
+
+
 def _solver(covariance: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
-    """``x -> C^-1 x`` by Cholesky (a covariance made of approximations: its eigenvalues kept positive)."""
+    """``X -> C^-1 X`` of ``(k, m)`` columns by Cholesky (a covariance of approximations: eigenvalues kept > 0)."""
     count = len(covariance)
     scale = float(np.max(np.diag(covariance))) or 1.0
     try:
@@ -967,7 +979,7 @@ def _solver(covariance: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
     except np.linalg.LinAlgError:
         values, vectors = np.linalg.eigh(covariance)
         values = np.maximum(values, scale * 1e-9)
-        return lambda x: vectors @ ((vectors.T @ x) / values)
+        return lambda x: vectors @ ((vectors.T @ x) / values[:, None])
 
     def solve(x: np.ndarray) -> np.ndarray:
         return np.linalg.solve(factor.T, np.linalg.solve(factor, x))
@@ -1021,24 +1033,20 @@ class LearnedState:
         values: dict[str, Any] = {}
         for name in ('offset', 'offset_variance', 'slope', 'slope_variance'):
             triple = raw.get(name)
-            if (not isinstance(triple, (list, tuple)) or len(triple) != 3
-                    or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-                               for v in triple)
-                    or (name.endswith('variance') and any(v < 0 for v in triple))):
-                msg = f'{where}.{name}: expected three finite numbers{" >= 0" if name.endswith("variance") else ""}'
+            bound = ' >= 0' if name.endswith('variance') else ''
+            numbers = (tuple(finite_number(v, f'{where}.{name}[{i}]') for i, v in enumerate(triple))
+                       if isinstance(triple, (list, tuple)) and len(triple) == 3 else None)
+            if numbers is None or (bound and min(numbers) < 0.0):
+                msg = f'{where}.{name}: expected three finite numbers{bound}'
                 raise TakError(msg)
-            values[name] = tuple(float(v) for v in triple)
+            values[name] = numbers
         for name in ('runs', 'rests', 'rejected'):
             count = raw.get(name, 0)
             if isinstance(count, bool) or not isinstance(count, int) or count < 0:
                 msg = f'{where}.{name}: expected a whole number >= 0'
                 raise TakError(msg)
             values[name] = count
-        reference = raw.get('reference', 0.0)
-        if isinstance(reference, bool) or not isinstance(reference, (int, float)) or not math.isfinite(reference):
-            msg = f'{where}.reference: expected a finite number'
-            raise TakError(msg)
-        values['reference'] = float(reference)
+        values['reference'] = finite_number(raw.get('reference', 0.0), f'{where}.reference')
         values['original'] = str(raw.get('original', ''))
         return cls(**values)
 
@@ -1247,9 +1255,15 @@ class Learner:
 def adjust(values: tuple[float, ...], temperature: float, adjustment: tuple[tuple[float, ...], tuple[float, ...]],
            reference: float) -> tuple[float, ...]:
     """A message's six values less ``a + b (T - T_ref)``: the node's path (``apply``: :func:`adjust_array`)."""
+    return tuple(v - c for v, c in zip(values, adjustment_at(temperature, adjustment, reference)))
+
+
+def adjustment_at(temperature: float, adjustment: tuple[tuple[float, ...], tuple[float, ...]],
+                  reference: float) -> tuple[float, ...]:
+    """``a + b (T - T_ref)`` per value: what :func:`adjust` subtracts at a temperature (the node keeps it per T)."""
     offset, slope = adjustment
     dt = temperature - reference
-    return tuple(v - (a + b * dt) for v, a, b in zip(values, offset, slope))
+    return tuple(a + b * dt for a, b in zip(offset, slope))
 
 
 def adjust_array(values: np.ndarray, temperature: np.ndarray, adjustment: tuple[tuple[float, ...], tuple[float, ...]],
