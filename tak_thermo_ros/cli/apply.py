@@ -99,12 +99,12 @@ def _apply_pool(args: argparse.Namespace, unit) -> int:
     from pathlib import Path
     from tak_thermo_ros.formats.records import input_kind
     from tak_thermo_ros.passes.apply import TurnOnSettings, apply_bag
-    from tak_thermo_ros.passes.pool import bag_directory, record_paths
+    from tak_thermo_ros.passes.pool import RECORD_SUFFIXES, bag_directory, record_paths
     records, lines = record_paths(args.bag)
     for path in records:
         common.check_kind(argparse.Namespace(**{**vars(args), 'bag': str(path)}), unit,
                           input_kind(path, topics=common.topics(args)))
-    names = [Path(path).stem if Path(path).suffix.lower() in ('.ulg', '.bin') else Path(path).name for path in records]
+    names = [Path(path).stem if Path(path).suffix.lower() in RECORD_SUFFIXES else Path(path).name for path in records]
     if len(set(names)) < len(names):
         msg = f'{args.output} (-o): two records are named alike ({", ".join(sorted(names))}): rename one'
         raise TakError(msg)

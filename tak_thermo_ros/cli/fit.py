@@ -341,7 +341,7 @@ def _print_handheld_terms(sensor: str, calibration, result) -> None:
 def _fit_pool(args: argparse.Namespace, settings) -> int:
     """``fit`` of a pool of one unit's everyday records (:mod:`tak_thermo_ros.passes.pool`): a line per record first."""
     from tak_thermo_ros.core.fit.pool import order_line
-    from tak_thermo_ros.passes.pool import coverage_lines, entry_line, fit_records, left_out_line, turn_on_line
+    from tak_thermo_ros.passes.pool import coverage_lines, fit_records, left_out_line, opened_lines, turn_on_line
     for option, given in (('--iron-run', args.iron_run), ('--mag-effects', args.mag_effects),
                           ('--noise-from-residual', args.noise_from_residual)):
         if given:
@@ -351,8 +351,8 @@ def _fit_pool(args: argparse.Namespace, settings) -> int:
     opened, pool = fitted.opened, fitted.fit
     handheld = pool.fit
     results = handheld.results
-    unit = UnitCalibration(InputKind.IMU, results['accel'].calibration, results['gyro'].calibration, None,
-                           fitted.source)
+    unit = UnitCalibration(InputKind.IMU, accel=results['accel'].calibration, gyro=results['gyro'].calibration,
+                           source=fitted.source)
     noise_line = ''
     if args.noise or args.noise_run:
         unit, noise_line = _with_noise(args, unit)
@@ -362,18 +362,14 @@ def _fit_pool(args: argparse.Namespace, settings) -> int:
              *(left_out_line(left) for left in pool.left_out)]
     accel, gyro = (replace(unit.sensor(sensor), notes=(*unit.sensor(sensor).notes, *notes))
                    for sensor in ('accel', 'gyro'))
-    unit = UnitCalibration(unit.input_kind, accel, gyro, None, unit.source)
+    unit = replace(unit, accel=accel, gyro=gyro)
     header = (f'tak_thermo_ros calibration fitted from a pool of {pool.record.records} records (everyday records of '
               f'one unit)\n{len(handheld.results["accel"].calibration.axes)} axes per sensor, a turn-on offset per '
               f'record\nload with: ros2 run tak_thermo_ros compensator --ros-args --params-file '
               f'{Path(args.output).name}')
     save_unit(args.output, unit, header=header)
-    for line in opened.lines:
+    for line in opened_lines(opened):
         print(line)
-    for entry in opened.entries:
-        for line in entry.lines:
-            print(f'{entry.name}: {line}')
-        print(entry_line(entry))
     for line in coverage_lines(opened):
         print(line)
     for left in pool.left_out:

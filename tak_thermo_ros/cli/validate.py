@@ -316,19 +316,13 @@ def _validate_handheld(args: argparse.Namespace, run, document: dict) -> None:
 
 def _validate_pool(args: argparse.Namespace, unit: UnitCalibration) -> int:
     """``validate`` of a pool of everyday records: each rest's |g| and rate, each record's turn-on offset apart."""
-    from tak_thermo_ros.passes.pool import entry_line, validate_records
-    if unit.input_kind is not InputKind.IMU or unit.gyro is None:
-        msg = f'{args.params}: a pool of records takes a driver calibration (accelerometer and gyroscope)'
-        raise TakError(msg)
+    from tak_thermo_ros.passes.pool import check_driver_unit, opened_lines, validate_records
+    check_driver_unit(unit, args.params)
     check = validate_records(args.bag, unit, common.stream_options(args), gravity=args.gravity,
                              latitude=getattr(args, 'latitude', None), out_of_range=OutOfRange(args.out_of_range))
     opened, before, after = check.opened, check.before, check.after
-    for line in opened.lines:
+    for line in opened_lines(opened):
         print(line)
-    for entry in opened.entries:
-        for line in entry.lines:
-            print(f'{entry.name}: {line}')
-        print(entry_line(entry))
     g = args.gravity
     small, factor = common.reader_unit('rad/s')
     print(f'|g| error of the {len(after.gravity_error)} rests\' mean specific force of {len(opened.used)} records:')

@@ -44,13 +44,15 @@ class HandheldBag:
 
 
 def handheld_record(path: str | Path, options: StreamOptions, survey: RecordSurvey, *,
-                    budget: int = HANDHELD_MAX_STILL_SAMPLES, replay=None) -> tuple[HandheldRecord, dict[str, int]]:
+                    budget: int = HANDHELD_MAX_STILL_SAMPLES, turn_budget: int | None = None,
+                    replay=None) -> tuple[HandheldRecord, dict[str, int]]:
     """The still and turn samples of a record, and the temperature messages ignored by reason.
 
+    :param budget: about this many still samples at most; ``turn_budget`` turn samples (``None``: ``budget``).
     :param replay: the survey's blocks (then the record is not read again), or ``None`` (one pass).
     """
     from tak_thermo_ros.formats.records import record_blocks
-    collector = HandheldCollector(survey.still, budget=budget)
+    collector = HandheldCollector(survey.still, budget=budget, turn_budget=turn_budget)
     aligner = BlockAligner(use_reference=False)
     blocks = replay if replay is not None else record_blocks(
         path, topics=options.topics, kind=InputKind.IMU, block_samples=options.block_samples, references=False,
@@ -61,15 +63,19 @@ def handheld_record(path: str | Path, options: StreamOptions, survey: RecordSurv
     return collector.record(), dict(aligner.ignored_temp_codes)
 
 
+def handheld_settings(settings: FitSettings) -> HandheldSettings:
+    """The hand-held fit's settings of ``tak_calib fit``'s."""
+    return HandheldSettings(bias_order=settings.bias_order, scale_order=settings.scale_order,
+                            temp_code_ref=settings.temp_code_ref, gravity=settings.gravity,
+                            latitude=settings.latitude,
+                            effects={sensor: tuple(specs) for sensor, specs in settings.effects.items()})
+
+
 def fit_handheld_bag(path: str | Path, settings: FitSettings, options: StreamOptions, survey: RecordSurvey, *,
                      replay=None) -> StreamedFit:
     """``tak_calib fit`` of a hand-held record: both sensors from its still intervals and turns."""
     record, ignored = handheld_record(path, options, survey, replay=replay)
-    handheld = HandheldSettings(bias_order=settings.bias_order, scale_order=settings.scale_order,
-                                temp_code_ref=settings.temp_code_ref, gravity=settings.gravity,
-                                latitude=settings.latitude,
-                                effects={sensor: tuple(specs) for sensor, specs in settings.effects.items()})
-    fitted = fit_handheld(record, handheld)
+    fitted = fit_handheld(record, handheld_settings(settings))
     sensors = ('accel', 'gyro')
     return StreamedFit(input_kind=InputKind.IMU, sensors=sensors, results=fitted.results,
                        usable={sensor: len(record.still) for sensor in sensors}, effect_stride={},

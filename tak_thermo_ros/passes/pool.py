@@ -28,16 +28,16 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
-from tak_thermo_ros.core.fit.handheld import HandheldSettings
+from tak_thermo_ros.core.fit.pool import record_means
 from tak_thermo_ros.core.link.model import InputKind
-from tak_thermo_ros.core.records.blocks import BlockAligner
 from tak_thermo_ros.core.records.extremes import temperature_course
-from tak_thermo_ros.core.records.handheld import HandheldCollector, HandheldRecord, pooled
-from tak_thermo_ros.core.records.record import DriverRecord
+from tak_thermo_ros.core.records.handheld import HandheldRecord, empty_samples, pooled, rest_records
+from tak_thermo_ros.core.records.record import DriverRecord, hold_last_index, no_orientation
 from tak_thermo_ros.core.records.still import MIN_STILL_S
 from tak_thermo_ros.core.records.survey import SurveyCollector
 from tak_thermo_ros.core.values import SENSOR_NAMES
 from tak_thermo_ros.errors import FitError, TakError
+from tak_thermo_ros.passes.handheld import handheld_record, handheld_settings
 from tak_thermo_ros.passes.run import SURVEY_REPLAY_SAMPLES, StreamOptions, stream_list
 from tak_thermo_ros.units import numbers, reader_unit
 
@@ -166,7 +166,7 @@ def _shared(blocks: Iterator[DriverRecord]) -> Iterator[tuple[DriverRecord, bool
             yield block, False
             continue
         accel_stamps, gyro_stamps = block.sensor_stamps('accel'), block.sensor_stamps('gyro')
-        index = np.searchsorted(gyro_stamps, accel_stamps, side='right') - 1
+        index = hold_last_index(gyro_stamps, accel_stamps)
         gyro = np.full((len(accel_stamps), 3), np.nan)
         inside = index >= 0
         gyro[inside] = block.gyro[index[inside]]
@@ -175,11 +175,11 @@ def _shared(blocks: Iterator[DriverRecord]) -> Iterator[tuple[DriverRecord, bool
         if len(block.gyro):
             last = block.gyro[-1]
         keep = np.all(np.isfinite(gyro), axis=1)
-        none = np.zeros((int(keep.sum()), 4))
-        none[:, 3] = 1.0
-        yield DriverRecord(stamp_ns=accel_stamps[keep], accel=block.accel[keep], gyro=gyro[keep], orientation=none,
-                           orientation_covariance=np.zeros((len(none), 9)), temp_stamp_ns=block.temp_stamp_ns,
-                           temperature=block.temperature, frame_id=block.frame_id), True
+        orientation, covariance = no_orientation(int(keep.sum()))
+        yield DriverRecord(stamp_ns=accel_stamps[keep], accel=block.accel[keep], gyro=gyro[keep],
+                           orientation=orientation, orientation_covariance=covariance,
+                           temp_stamp_ns=block.temp_stamp_ns, temperature=block.temperature,
+                           frame_id=block.frame_id), True
 
 
 def _stripped(block: DriverRecord) -> DriverRecord:
@@ -228,23 +228,17 @@ def read_record(path: Path, options: StreamOptions, *, budget: int,
         reason = (f'no rest (never still {MIN_STILL_S:g} s or more; still {100.0 * still.still_fraction:.0f} % of '
                   f'the time): contributes nothing')
         return PoolEntry(path, name, source=source, lines=lines, reason=reason, held_gyro=held_gyro), None
-    collector = HandheldCollector(still, budget=budget, turn_budget=turn_budget)
-    aligner = BlockAligner(use_reference=False)
+    record, _ = handheld_record(path, options, surveyed, budget=budget, turn_budget=turn_budget,
+                                replay=(block for block, _ in (kept if keep else blocks())))
     rate_max = 0.0
-    for block, _ in (kept if keep else blocks()):
-        collector.add(aligner.push(block.six_channels()))
-    collector.add(aligner.finish())
-    record = collector.record()
     stamps = np.concatenate(temperature_stamps)
     celsius = np.concatenate(temperatures)
     finite = np.isfinite(celsius)
     course = temperature_course(stamps[finite] * 1e-9, celsius[finite])
     record = replace(record, temperature_track=track(stamps[finite], celsius[finite]))
     if held_gyro:  # a held gyroscope integrates to nothing: its rests only
-        record = replace(record, turn=record.turn.__class__(
-            stamp_ns=np.zeros(0, dtype=np.int64), counts=np.zeros((0, 6)), temp_code=np.zeros(0), reference=None,
-            dropped={}, rows=np.zeros(0, dtype=np.int64)), turn_index=np.zeros(0, dtype=np.int64),
-            turns=np.zeros((0, 2), dtype=np.int64))
+        record = replace(record, turn=empty_samples(), turn_index=np.zeros(0, dtype=np.int64),
+                         turns=np.zeros((0, 2), dtype=np.int64))
     if len(record.turn):
         rate_max = float(np.max(np.linalg.norm(record.turn.counts[:, 3:6], axis=1)))
     if not len(record.still):
@@ -319,14 +313,14 @@ def _restless(entries: list[PoolEntry], read: list[HandheldRecord | None]) -> li
     return out
 
 
-def _device_check(entries: list[PoolEntry]) -> tuple[list[PoolEntry], list[str]]:
+def _device_check(entries: list[PoolEntry]) -> list[PoolEntry]:
     """Flight logs whose sensors' device IDs are not the pool's: left out; two devices in equal numbers: refused."""
     keys = {i: (int(e.source.get('accel_device_id', 0)), int(e.source.get('gyro_device_id', 0)))  # type: ignore
             for i, e in enumerate(entries) if e.source is not None and not e.reason}
     keys = {i: key for i, key in keys.items() if any(key)}
     counts = Counter(keys.values())
     if len(counts) < 2:
-        return entries, []
+        return entries
     (first, most), (_, second) = counts.most_common(2)
     if most == second:
         devices = '; '.join(f'accel {a} gyro {g}: {n} records' for (a, g), n in counts.most_common())
@@ -340,7 +334,7 @@ def _device_check(entries: list[PoolEntry]) -> tuple[list[PoolEntry], list[str]]
                                     else ('accelerometer', key[0], first[0]))
             out[index] = replace(out[index], reason=f'left out: another device ({sensor} device_id {theirs}, '
                                                     f'the pool\'s {ours})')
-    return out, []
+    return out
 
 
 def open_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions, *,
@@ -360,22 +354,14 @@ def open_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions, *
             entry = replace(entry, name=str(path))
         entries.append(entry)
         read.append(record)
-    entries, device_lines = _device_check(entries)
+    entries = _device_check(entries)
     entries = _restless(entries, read)
     used = tuple(i for i, (entry, record) in enumerate(zip(entries, read)) if record is not None and not entry.reason)
     if not used:
         msg = f'no record of the {len(records)} given holds a rest with a temperature: nothing to fit'
         raise PoolError(msg)
     record = pooled([read[i] for i in used], [entries[i].name for i in used])  # type: ignore[misc]
-    return OpenedPool(tuple(entries), record, used, tuple(lines + device_lines))
-
-
-def settings_of(fit_settings) -> HandheldSettings:
-    """The hand-held fit's settings of ``tak_calib fit``'s (:class:`~tak_thermo_ros.passes.run.FitSettings`)."""
-    return HandheldSettings(bias_order=fit_settings.bias_order, scale_order=fit_settings.scale_order,
-                            temp_code_ref=fit_settings.temp_code_ref, gravity=fit_settings.gravity,
-                            latitude=fit_settings.latitude,
-                            effects={sensor: tuple(specs) for sensor, specs in fit_settings.effects.items()})
+    return OpenedPool(tuple(entries), record, used, tuple(lines))
 
 
 def entry_line(entry: PoolEntry) -> str:
@@ -386,6 +372,25 @@ def entry_line(entry: PoolEntry) -> str:
     held = ', gyroscope held on the accelerometer\'s stamps (rests only)' if entry.held_gyro else ''
     return (f'{entry.name}: {entry.rests} rests, {entry.rest_s / 60.0:.1f} min at rest, {low:.1f}..{high:.1f} C, '
             f'{entry.orientations} orientation{"s" if entry.orientations != 1 else ""}{held}')
+
+
+def opened_lines(opened: OpenedPool) -> list[str]:
+    """What reading the pool said: its own lines, then per record what its reader did and :func:`entry_line`."""
+    lines = list(opened.lines)
+    for entry in opened.entries:
+        lines += [f'{entry.name}: {line}' for line in entry.lines]
+        lines.append(entry_line(entry))
+    return lines
+
+
+def check_driver_unit(unit, params: str) -> None:
+    """A pool is checked against a driver calibration only (accelerometer and gyroscope).
+
+    :raises TakError: ``unit`` (read from ``params``) is not one.
+    """
+    if unit.input_kind is not InputKind.IMU or unit.gyro is None:
+        msg = f'{params}: a pool of records takes a driver calibration (accelerometer and gyroscope)'
+        raise TakError(msg)
 
 
 def coverage_lines(opened: OpenedPool) -> list[str]:
@@ -441,7 +446,7 @@ def fit_records(paths: Sequence[str | os.PathLike[str]], settings, options: Stre
     opened = open_pool(paths, options)
     assert opened.record is not None
     try:
-        fitted = fit_pool(opened.record, settings_of(settings))
+        fitted = fit_pool(opened.record, handheld_settings(settings))
     except TwoUnits as err:
         small, factor = _reader(err.sensor)
         sides = [f'{numbers(centre * factor, 3)} {small} ({", ".join(group)})'
@@ -488,8 +493,6 @@ def left_out_line(left) -> str:
 class PoolCheck:
     """``validate`` of a pool: every rest's errors before (nominal) and after the calibration, by record.
 
-    :param rest_record: ``(k,)`` each rest's record (in the pool's numbering).
-    :param weights: ``(k,)`` each rest's kept samples.
     :param own: ``(r, 3)`` each record's mean rate error at rest after the calibration (its turn-on offset).
     :param shape: ``(k, 3)`` the rests' rate errors after, each record's own mean taken off.
     """
@@ -497,8 +500,6 @@ class PoolCheck:
     opened: OpenedPool
     before: object
     after: object
-    rest_record: np.ndarray
-    weights: np.ndarray
     own: np.ndarray
     shape: np.ndarray
 
@@ -521,14 +522,9 @@ def validate_records(paths: Sequence[str | os.PathLike[str]], unit, options: Str
     after = check_handheld(record, unit, gravity=gravity, latitude=latitude, out_of_range=out_of_range)
     interval, count, _, _ = numbered_rests(record)
     weights = np.bincount(interval, minlength=count).astype(float)
-    rest_record = np.zeros(count, dtype=np.int64)
-    rest_record[interval] = record.still_record
-    own = np.zeros((record.records, 3))
-    for index in range(record.records):
-        rows = rest_record == index
-        if rows.any():
-            own[index] = np.average(after.rate_error[rows], axis=0, weights=weights[rows])
-    return PoolCheck(opened, before, after, rest_record, weights, own, after.rate_error - own[rest_record])
+    rest_record = rest_records(record)
+    own = record_means(after.rate_error, rest_record, record.records, weights)
+    return PoolCheck(opened, before, after, own, after.rate_error - own[rest_record])
 
 
 def bounded_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions, *, gravity: float,
@@ -550,42 +546,14 @@ def bounded_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions
     assert record is not None
     samples, check = rest_samples(record, unit, gravity=gravity, latitude=latitude)
     groups = record.still_record
-    shift = _monotonic_shift(record.still.stamp_ns, groups, record.records)
     for sensor, aligned in samples.items():
-        residual = residual_counts(unit.sensor(sensor), aligned)
-        own = np.zeros((record.records, 3))
-        for index in range(record.records):
-            rows = groups == index
-            if rows.any():
-                own[index] = residual[rows].mean(axis=0)
-        samples[sensor] = replace(aligned, counts=aligned.counts - own[groups],
-                                  stamp_ns=aligned.stamp_ns + shift[groups])
+        own = record_means(residual_counts(unit.sensor(sensor), aligned), groups, record.records)
+        samples[sensor] = replace(aligned, counts=aligned.counts - own[groups])
     usable = {sensor: len(aligned) for sensor, aligned in samples.items()}
     run = BoundedRun(input_kind=InputKind.IMU, samples=samples, usable=usable, stride=record.stride,
                      reference_lines=(), survey=None, handheld=check,
                      groups={sensor: groups for sensor in samples})
     return run, opened
-
-
-RECORD_GAP_NS = 3_600_000_000_000
-"""Records whose stamps overlap (flight logs count from boot) are set one after the other, this far apart."""
-
-
-def _monotonic_shift(stamp_ns: np.ndarray, groups: np.ndarray, records: int) -> np.ndarray:
-    """``(records,)`` ns to add to each record's stamps so that the pool's samples run forward in time.
-
-    Records in order whose stamps already follow one another (a bag's clock) keep them.
-    """
-    shift = np.zeros(records, dtype=np.int64)
-    end = None
-    for index in range(records):
-        rows = stamp_ns[groups == index]
-        if not len(rows):
-            continue
-        if end is not None and rows.min() + shift[index] <= end:
-            shift[index] = end + RECORD_GAP_NS - rows.min()
-        end = int(rows.max() + shift[index])
-    return shift
 
 
 def bag_directory(path: str | os.PathLike[str], *, force: bool, option: str) -> Path:

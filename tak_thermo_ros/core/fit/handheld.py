@@ -76,6 +76,7 @@ from tak_thermo_ros.core.records.handheld import (
     earth_reference,
     merged_samples,
     numbered_rests,
+    rest_records,
     sensor_samples,
 )
 from tak_thermo_ros.core.records.record import AlignedSamples
@@ -512,18 +513,12 @@ class _Rests:
         extra = np.where(self.mean_row, self.row_samples, 0)[:, None] * self.rest_variance[None, :]
         return 1.0 / np.sqrt(self.sigma[None, :] ** 2 + extra)
 
-    def log_variance(self) -> float:
-        """``log det V`` of the mean rows over what white noise alone gives (the REML's first term)."""
-        extra = self.row_samples[self.mean_row][:, None] * self.rest_variance[None, :]
-        return float(np.sum(np.log1p(extra / self.sigma[None, :] ** 2)))
-
-    def prior_rows(self, held: dict[int, float] | None = None) -> np.ndarray:
+    def prior_rows(self) -> np.ndarray:
         """``(k, W + 1)`` one row ``u_r / s_u = 0`` per turn-on column (none for one record, or held)."""
-        held = held or {}
         rows = []
         for axis in range(3):
             for column in self.layout.turn_on(axis):
-                if column in held or not np.isfinite(self.turn_on_sigma[axis]):
+                if not np.isfinite(self.turn_on_sigma[axis]):
                     continue
                 row = np.zeros(self.layout.width + 1)
                 row[column] = 1.0 / self.turn_on_sigma[axis]
@@ -651,12 +646,6 @@ class _AccelProblem(_Rests):
         projected = _project(directions, run, design, target)
         return _System.of_rows([np.column_stack([projected[0].reshape(-1, self.layout.width),
                                                  projected[1].reshape(-1)]), self.prior_rows()], self.layout.width)
-
-    def direction_log_determinant(self, theta: np.ndarray, up: np.ndarray) -> float:
-        """``sum log det`` of the rests' direction columns' normal matrices (REML: the directions are fixed terms)."""
-        _, _, directions, run, _ = self.rows(theta, up)
-        _, _, factor = _orthonormal(directions, run)
-        return float(2.0 * np.sum(np.log(np.maximum(np.abs(factor[:, [0, 1], [0, 1]]), 1e-300))))
 
     def sensitivity(self, theta: np.ndarray, up: np.ndarray) -> np.ndarray:
         """``(k, 2, W)``: how each interval's best up direction (two tangent angles) moves with the terms."""
@@ -1126,8 +1115,7 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
     interval, count, turn_interval, used = numbered_rests(record)
     pool = record.records
     still_record = record.still_record
-    rest_record = np.zeros(count, dtype=np.int64)
-    rest_record[interval] = still_record
+    rest_record = rest_records(record)
     noise = record.intervals.noise
     accel_counts = record.still.counts[:, :3]
     means = np.zeros((count, 3))

@@ -27,7 +27,7 @@ from tak_thermo_ros.core.fit.handheld import HandheldFit, HandheldSettings, fit_
 from tak_thermo_ros.core.link.correction import OutOfRange
 from tak_thermo_ros.core.link.handheld_check import check_handheld
 from tak_thermo_ros.core.link.model import AXES, InputKind, UnitCalibration
-from tak_thermo_ros.core.records.handheld import HandheldRecord, numbered_rests, records_subset
+from tak_thermo_ros.core.records.handheld import HandheldRecord, numbered_rests, records_subset, rest_records
 from tak_thermo_ros.core.values import SENSOR_NAMES
 from tak_thermo_ros.errors import FitError
 
@@ -60,6 +60,34 @@ def _unit(fit: HandheldFit) -> UnitCalibration:
     return UnitCalibration(InputKind.IMU, fit.results['accel'].calibration, fit.results['gyro'].calibration)
 
 
+def record_means(values: np.ndarray, group: np.ndarray, count: int, weights: np.ndarray | None = None) -> np.ndarray:
+    """``(count, ...)`` each record's mean of ``values`` ``(n, ...)``, rows ``group`` ``(n,)`` (zeros: no row).
+
+    :param weights: ``(n,)`` each row's weight (``None``: equal).
+    """
+    out = np.zeros((count, *values.shape[1:]))
+    for index in range(count):
+        rows = group == index
+        if rows.any():
+            out[index] = np.average(values[rows], axis=0, weights=None if weights is None else weights[rows])
+    return out
+
+
+def _rests(record: HandheldRecord) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each rest's record, its kept samples and its mean temperature, ``(k,)`` each."""
+    interval, count, _, _ = numbered_rests(record)
+    samples = np.bincount(interval, minlength=count).astype(float)
+    temperature = np.bincount(interval, weights=record.still.temp_code, minlength=count) / np.maximum(samples, 1.0)
+    return rest_records(record), samples, temperature
+
+
+def _within(temperature: np.ndarray, within: tuple[float, float] | None) -> np.ndarray:
+    """Which rests' mean temperatures lie within the range (``None``: all)."""
+    if within is None:
+        return np.ones(len(temperature), dtype=bool)
+    return (temperature >= within[0]) & (temperature <= within[1])
+
+
 def shape_residuals(record: HandheldRecord, unit: UnitCalibration, *, gravity: float, latitude: float | None,
                     out_of_range: OutOfRange = OutOfRange.CLAMP,
                     within: tuple[float, float] | None = None) -> dict[str, np.ndarray]:
@@ -72,21 +100,14 @@ def shape_residuals(record: HandheldRecord, unit: UnitCalibration, *, gravity: f
         of its rests.
     """
     check = check_handheld(record, unit, gravity=gravity, latitude=latitude, out_of_range=out_of_range)
-    interval, count, _, _ = numbered_rests(record)
-    samples = np.bincount(interval, minlength=count).astype(float)
-    temperature = np.bincount(interval, weights=record.still.temp_code, minlength=count) / np.maximum(samples, 1.0)
-    rest_record = np.zeros(count, dtype=np.int64)
-    rest_record[interval] = record.still_record
-    keep = np.ones(count, dtype=bool) if within is None else (temperature >= within[0]) & (temperature <= within[1])
+    rest_record, samples, temperature = _rests(record)
+    keep = _within(temperature, within)
     rest_record, samples, temperature = rest_record[keep], samples[keep], temperature[keep]
     check = replace(check, rate_error=check.rate_error[keep], gravity_error=check.gravity_error[keep])
     out = {'record': rest_record, 'samples': samples, 'temperature': temperature}
     for sensor, errors in (('gyro', check.rate_error), ('accel', check.gravity_error[:, None])):
-        own = np.zeros_like(errors)
-        for r in np.unique(rest_record):
-            rows = rest_record == r
-            own[rows] = np.average(errors[rows], axis=0, weights=samples[rows])
-        out[sensor] = errors - own
+        own = record_means(errors, rest_record, record.records, samples)
+        out[sensor] = errors - own[rest_record]
     return out
 
 
@@ -97,7 +118,7 @@ def _variance(sensor: str, residuals: dict[str, np.ndarray], fit: HandheldFit, n
     rest = turn_on.variances.rest if turn_on is not None else np.zeros(3)
     if sensor == 'gyro':
         return noise[3:6][None, :] ** 2 / samples + rest[None, :] ** 2
-    # |f| is about the gravity axis's error: the largest of the axes' variances stands for it
+    # |f| is about the gravity axis's error: the smallest of the axes' variances stands for it
     per_axis = noise[:3][None, :] ** 2 / samples + np.where(np.isfinite(rest), rest, 0.0)[None, :] ** 2
     return per_axis.min(axis=1, keepdims=True)
 
@@ -121,6 +142,9 @@ def choose_orders(record: HandheldRecord, settings: HandheldSettings, full: Hand
         train, test = records_subset(record, fold_of != fold), records_subset(record, fold_of == fold)
         if not len(test.still) or not len(train.still):
             continue
+        # extrapolation is not the order's to judge: the rests within the training's temperatures
+        span = (float(train.still.temp_code.min()), float(train.still.temp_code.max()))
+        judged += int(np.count_nonzero(_within(_rests(test)[2], span)))
         for index, order in enumerate(candidates):
             trial = replace(settings, bias_order=top, axis_orders={'accel': (order,) * 3, 'gyro': (order,) * 3},
                             variances=given, turns=False)
@@ -130,14 +154,11 @@ def choose_orders(record: HandheldRecord, settings: HandheldSettings, full: Hand
                 scores['accel'][index] += np.inf
                 scores['gyro'][index] += np.inf
                 continue
-            # extrapolation is not the order's to judge: the rests within the training's temperatures
-            span = (float(train.still.temp_code.min()), float(train.still.temp_code.max()))
             residuals = shape_residuals(test, _unit(fitted), gravity=settings.gravity, latitude=settings.latitude,
                                         within=span)
             for sensor in ('accel', 'gyro'):
                 variance = _variance(sensor, residuals, full, noise)
                 scores[sensor][index] += np.sum(residuals[sensor] ** 2 / variance, axis=0)
-        judged += len(residuals['record'])
     choices = {}
     for sensor in ('accel', 'gyro'):
         table = scores[sensor]
@@ -235,10 +256,7 @@ def _own_precision(record: HandheldRecord, sensor: str, rest: np.ndarray) -> np.
     Not the offsets' errors from the fit, which carry the pool's spread (inflated by the very record
     that is another unit's).
     """
-    interval, count, _, _ = numbered_rests(record)
-    samples = np.bincount(interval, minlength=count).astype(float)
-    rest_record = np.zeros(count, dtype=np.int64)
-    rest_record[interval] = record.still_record
+    rest_record, samples, _ = _rests(record)
     noise = record.intervals.noise[3:6] if sensor == 'gyro' else record.intervals.noise[:3]
     extra = np.where(np.isfinite(rest), rest, 0.0)
     information = np.zeros((record.records, 3))

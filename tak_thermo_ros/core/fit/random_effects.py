@@ -61,12 +61,6 @@ def record_indicators(record: np.ndarray, records: int) -> np.ndarray:
     return out
 
 
-def log_determinant(factor: np.ndarray) -> float:
-    """``log det(R^T R)`` of an upper-triangular factor (its diagonal)."""
-    diagonal = np.abs(np.diag(factor))
-    return float(2.0 * np.sum(np.log(np.maximum(diagonal, 1e-300))))
-
-
 @dataclass(frozen=True)
 class Variances:
     """A sensor's variance components, per axis x y z (sensor units).

@@ -77,13 +77,6 @@ class HandheldRecord:
             return np.zeros(len(self.still_interval), dtype=np.int64)
         return self.interval_record[self.still_interval]
 
-    @property
-    def turn_record(self) -> np.ndarray:
-        """``(m,)`` the record of each turn sample (zeros for one record)."""
-        if self.interval_record is None or not len(self.turn_index):
-            return np.zeros(len(self.turn_index), dtype=np.int64)
-        return self.interval_record[self.turns[self.turn_index, 0]]
-
     def interval_counts(self) -> np.ndarray:
         """``(k,)`` kept still samples per interval."""
         return np.bincount(self.still_interval, minlength=len(self.intervals))
@@ -106,6 +99,14 @@ def numbered_rests(record: HandheldRecord) -> tuple[np.ndarray, int, np.ndarray,
     mapping[kept] = np.arange(len(kept))
     pairs = mapping[record.turns] if len(record.turns) else np.zeros((0, 2), dtype=np.int64)
     return number, len(kept), pairs, np.all(pairs >= 0, axis=1)
+
+
+def rest_records(record: HandheldRecord) -> np.ndarray:
+    """``(k,)`` the record of each rest in :func:`numbered_rests`'s numbering (zeros for one record)."""
+    kept = np.unique(record.still_interval)
+    if record.interval_record is None:
+        return np.zeros(len(kept), dtype=np.int64)
+    return record.interval_record[kept]
 
 
 def sensor_samples(samples: AlignedSamples, sensor: str, reference: np.ndarray | None = None) -> AlignedSamples:
@@ -191,9 +192,9 @@ class HandheldCollector:
 
     def record(self) -> HandheldRecord:
         """Everything added, the intervals without a kept sample left out."""
-        still = concatenate(self._still) if self._still else _empty()
+        still = concatenate(self._still) if self._still else empty_samples()
         index = np.concatenate(self._still_index) if self._still_index else np.zeros(0, dtype=np.int64)
-        turn = concatenate(self._turn) if self._turn else _empty()
+        turn = concatenate(self._turn) if self._turn else empty_samples()
         turn_index = np.concatenate(self._turn_index) if self._turn_index else np.zeros(0, dtype=np.int64)
         return HandheldRecord(intervals=self.intervals, still=replace(still, dropped=dict(self.dropped)),
                               still_interval=index, turn=turn, turn_index=turn_index, turns=self.turns,
@@ -207,7 +208,8 @@ def _rows(samples: AlignedSamples, mask: np.ndarray) -> AlignedSamples:
                           aux={name: values[mask] for name, values in samples.aux.items()})
 
 
-def _empty() -> AlignedSamples:
+def empty_samples() -> AlignedSamples:
+    """No six-channel sample (a record's still or turn samples when it kept none)."""
     return AlignedSamples(stamp_ns=np.zeros(0, dtype=np.int64), counts=np.zeros((0, 6)), temp_code=np.zeros(0),
                           reference=None, dropped={}, rows=np.zeros(0, dtype=np.int64))
 
@@ -403,8 +405,8 @@ def pooled(records: list[HandheldRecord], names: list[str]) -> HandheldRecord:
         add_counts(dropped, record.dropped)
         add_counts(skipped, record.skipped_turns)
     # a pool fits no recorded signal (each record may hold others): the samples without them
-    still = concatenate([replace(r.still, aux={}) for r in records]) if records else _empty()
-    turn = concatenate([replace(r.turn, aux={}) for r in records]) if records else _empty()
+    still = concatenate([replace(r.still, aux={}) for r in records]) if records else empty_samples()
+    turn = concatenate([replace(r.turn, aux={}) for r in records]) if records else empty_samples()
     return HandheldRecord(
         intervals=intervals, still=replace(still, dropped=dict(dropped)),
         still_interval=np.concatenate([r.still_interval + o for r, o in zip(records, offsets)]).astype(np.int64),
