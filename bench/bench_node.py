@@ -1020,9 +1020,9 @@ def callback_against_baseline(params: Path, baseline: Path, rounds: int = CALLBA
             'ratio_median': statistics.median(ratios), 'ratios': ratios}
 
 
-def marks_only(baseline: Path, rounds: int = CALLBACK_ROUNDS) -> int:
-    """The callback's cost against the baseline's (``--marks``); merged into ``node.json`` as ``one_sensor_marks``."""
-    with tempfile.TemporaryDirectory(prefix='bench_node_marks_') as tmp:
+def _callback_run(baseline: Path, rounds: int, key: str) -> dict:
+    """The callback's cost against the baseline's, merged into ``node.json`` under ``key``."""
+    with tempfile.TemporaryDirectory(prefix=f'bench_node_{key}_') as tmp:
         params = Path(tmp) / 'driver_params.yaml'
         driver_params(params)
         load = os.getloadavg()[0]
@@ -1031,8 +1031,14 @@ def marks_only(baseline: Path, rounds: int = CALLBACK_ROUNDS) -> int:
     result.update(baseline=str(baseline), wall_s=time.time() - started, load_average_1min_before=load,
                   load_average_1min_after=os.getloadavg()[0])
     document = json.loads(RESULTS.read_text(encoding='utf-8')) if RESULTS.exists() else {}
-    document['one_sensor_marks'] = result
+    document[key] = result
     RESULTS.write_text(json.dumps(document, indent=2) + '\n', encoding='utf-8')
+    return result
+
+
+def marks_only(baseline: Path, rounds: int = CALLBACK_ROUNDS) -> int:
+    """The callback's cost against the baseline's (``--marks``); merged into ``node.json`` as ``one_sensor_marks``."""
+    result = _callback_run(baseline, rounds, 'one_sensor_marks')
     print(f'two-sensor Imu callback: {result["this_two_sensor_us_median"]:.2f} us (best '
           f'{result["this_two_sensor_us_best"]:.2f}) against {result["baseline_two_sensor_us_median"]:.2f} us '
           f'(best {result["baseline_two_sensor_us_best"]:.2f}) before, medians of {rounds} rounds; '
@@ -1232,17 +1238,7 @@ def watch_only(*, quick: bool) -> int:
 
 def pipeline_only(baseline: Path, rounds: int = CALLBACK_ROUNDS) -> int:
     """``--pipeline --baseline DIR``: the Imu callback of this version against another's (one pipeline, issue 35)."""
-    with tempfile.TemporaryDirectory(prefix='bench_node_pipeline_') as tmp:
-        params = Path(tmp) / 'driver_params.yaml'
-        driver_params(params)
-        load = os.getloadavg()[0]
-        started = time.time()
-        result = callback_against_baseline(params, baseline, rounds)
-    result.update(baseline=str(baseline), wall_s=time.time() - started, load_average_1min_before=load,
-                  load_average_1min_after=os.getloadavg()[0])
-    document = json.loads(RESULTS.read_text(encoding='utf-8')) if RESULTS.exists() else {}
-    document['one_pipeline'] = result
-    RESULTS.write_text(json.dumps(document, indent=2) + '\n', encoding='utf-8')
+    result = _callback_run(baseline, rounds, 'one_pipeline')
     print(f'two-sensor Imu callback: {result["this_two_sensor_us_median"]:.2f} us against '
           f'{result["baseline_two_sensor_us_median"]:.2f} us before (medians of {rounds} rounds); ratio '
           f'{result["ratio_median"]:.3f}; one-sensor: {result["this_one_sensor_us_median"]:.2f} us')

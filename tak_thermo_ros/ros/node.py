@@ -42,7 +42,7 @@ import signal
 import sys
 import time
 from dataclasses import replace
-from typing import Any, Sequence
+from typing import Any, Iterable, Sequence
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -97,6 +97,13 @@ _DIAGNOSTIC_LEVELS = {Level.OK: DiagnosticStatus.OK, Level.WARN: DiagnosticStatu
 _WITH_MESSAGE_INFO = inspect.Signature([inspect.Parameter(name, inspect.Parameter.POSITIONAL_ONLY)
                                         for name in ('message', 'info')])
 """A callback of this signature is handed the MessageInfo by rclpy (``Subscription.callback``)."""
+
+
+def _diagnostic(level: Level, name: str, message: str, hardware_id: str,
+                values: Iterable[tuple[str, str]]) -> DiagnosticStatus:
+    """One ``DiagnosticStatus`` of the node's ``/diagnostics`` array."""
+    return DiagnosticStatus(level=_DIAGNOSTIC_LEVELS[level], name=name, message=message, hardware_id=hardware_id,
+                            values=[KeyValue(key=key, value=value) for key, value in values])
 
 
 def _tunables() -> dict[str, tuple[Any, str, bool]]:
@@ -596,30 +603,20 @@ class CompensatorNode(Node):
         diagnostics = DiagnosticArray()
         diagnostics.header.stamp = self.get_clock().now().to_msg()
         watch = self._core.watch_status()
-        diagnostics.status = [DiagnosticStatus(
-            level=_DIAGNOSTIC_LEVELS[status.level],
-            name=f'{self._status_prefix}: temperature compensation',
-            message=status.message,
-            hardware_id=self._hardware_id or self._imu.header.frame_id,
-            values=[KeyValue(key=key, value=value) for key, value in (*status.values, watch.values[0])])]
+        imu_frame = self._hardware_id or self._imu.header.frame_id
+        diagnostics.status = [_diagnostic(status.level, f'{self._status_prefix}: temperature compensation',
+                                          status.message, imu_frame, (*status.values, watch.values[0]))]
         if self._core.watch is not None:  # a status of its own while it runs (off: the value above says why)
-            diagnostics.status.append(DiagnosticStatus(
-                level=_DIAGNOSTIC_LEVELS[watch.level],
-                name=f'{self._status_prefix}: calibration watch',
-                message=watch.message,
-                hardware_id=self._hardware_id or self._imu.header.frame_id,
-                values=[KeyValue(key=key, value=value) for key, value in watch.values]))
+            diagnostics.status.append(_diagnostic(watch.level, f'{self._status_prefix}: calibration watch',
+                                                  watch.message, imu_frame, watch.values))
         if self._learned_path and now - self._learned_written_s >= LEARNED_WRITE_PERIOD_S:
             self.save_learned()  # outside the message path: the diagnostics timer
         if self._mag_core is not None:
             self._mag_core.tick(now)
             mag_status = self._mag_core.status(now, imu_subscribers=self._mag_publisher.get_subscription_count())
-            diagnostics.status.append(DiagnosticStatus(
-                level=_DIAGNOSTIC_LEVELS[mag_status.level],
-                name=f'{self._status_prefix}: magnetometer compensation',
-                message=mag_status.message,
-                hardware_id=self._hardware_id or self._mag.header.frame_id,
-                values=[KeyValue(key=key, value=value) for key, value in mag_status.values]))
+            diagnostics.status.append(_diagnostic(
+                mag_status.level, f'{self._status_prefix}: magnetometer compensation', mag_status.message,
+                self._hardware_id or self._mag.header.frame_id, mag_status.values))
         try:
             self._diagnostics_publisher.publish(diagnostics)
         except Exception:
