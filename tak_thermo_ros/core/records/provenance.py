@@ -149,8 +149,10 @@ class PrintCollector:
             self._last = high if self._last is None else max(self._last, high)
             for shift in list(self._levels):
                 level = self._levels[shift]
-                seen = set(level.hashers) | set(np.unique(np.floor_divide(stamps, level.length)).tolist())
-                if len(seen) > MAX_SEGMENTS or max(seen) - min(seen) >= MAX_SEGMENTS:
+                first, last = low // level.length, high // level.length
+                if level.hashers:
+                    first, last = min(first, min(level.hashers)), max(last, max(level.hashers))
+                if last - first >= MAX_SEGMENTS:
                     # too fine for this record: its segments (every one from the first to the last, empty
                     # ones too) would be too many; a record that spans years keeps its whole digest only
                     del self._levels[shift]
