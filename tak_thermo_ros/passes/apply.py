@@ -17,7 +17,7 @@ from tak_thermo_ros.core.records.record import AlignedSamples, DriverRecord
 from tak_thermo_ros.core.records.survey import RecordSurvey, SurveyCollector
 from tak_thermo_ros.core.link.stream_correction import BlockCorrector, BlockUnitCorrector
 from tak_thermo_ros.errors import TakError
-from tak_thermo_ros.passes.run import Required, StreamOptions, stream_list, temperature_expected
+from tak_thermo_ros.passes.run import Required, StreamOptions, record_streams_listed, temperature_expected
 
 if TYPE_CHECKING:
     pass
@@ -308,7 +308,7 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
                    ignored_references=dict(aligner.ignored_references),
                    mag_written=writer.written_mag, mag_topic=topics.compensated_mag if magnetometer else '',
                    mag_dropped=dict(magnetometer.aligner.dropped) if magnetometer else {},
-                   survey=survey.finish(stream_list(streams, topics)))
+                   survey=survey.finish(record_streams_listed(path, streams, topics)))
 
 
 def _apply_own_stamps(unit: UnitCalibration, output: str | Path, options: StreamOptions, first: DriverRecord,

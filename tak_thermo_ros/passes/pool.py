@@ -38,7 +38,7 @@ from tak_thermo_ros.core.records.survey import SurveyCollector
 from tak_thermo_ros.core.values import SENSOR_NAMES
 from tak_thermo_ros.errors import FitError, TakError
 from tak_thermo_ros.passes.handheld import handheld_record, handheld_settings
-from tak_thermo_ros.passes.run import SURVEY_REPLAY_SAMPLES, StreamOptions, stream_list
+from tak_thermo_ros.passes.run import SURVEY_REPLAY_SAMPLES, StreamOptions, record_streams_listed
 from tak_thermo_ros.units import numbers, reader_unit
 
 POOL_SAMPLES = 2_000_000
@@ -222,7 +222,7 @@ def read_record(path: Path, options: StreamOptions, *, budget: int,
         temperatures.append(block.temperature)
         if keep:
             kept.append((_stripped(block), held))
-    surveyed = survey.finish(stream_list(streams, options.topics))
+    surveyed = survey.finish(record_streams_listed(path, streams, options.topics))
     still = surveyed.still
     if not len(still):
         reason = (f'no rest (never still {MIN_STILL_S:g} s or more; still {100.0 * still.still_fraction:.0f} % of '

@@ -236,11 +236,10 @@ def open_calibration_run(path: Path, options: StreamOptions, streams, *, gravity
     :param decide: refuse a surveyed record that determines no link (:func:`decided`); ``False``: the
         caller refuses what it cannot take in its own words (``noise``).
     """
-    from tak_thermo_ros.formats.records import record_stream_list, record_streams
+    from tak_thermo_ros.formats.records import record_streams
     if require_reference and streams.kind is InputKind.COUNTS:
         streams = record_streams(path, topics=options.topics, require_reference=True)
-    listed = (record_stream_list(path, topics=options.topics) if streams.kind is InputKind.IMU else None) or \
-        stream_list(streams, options.topics)
+    listed = record_streams_listed(path, streams, options.topics)
     static = None
     survey = None
     replay = None
@@ -271,6 +270,17 @@ def check_temperature_unit(path: Path, options: StreamOptions, survey: RecordSur
     if survey.temperature_problem is not None:
         msg = f'{path}: {options.topics.temperature}: {survey.temperature_problem}'
         raise TakError(msg)
+
+
+def record_streams_listed(path: Path, streams, topics) -> tuple[tuple[str, str, int], ...]:
+    """``(role, topic, messages)`` of a record's streams as every command's survey lists them.
+
+    A flight log lists each sensor on its own (:meth:`~tak_thermo_ros.formats.flight_log.FlightLog.stream_list`);
+    a bag its topics (:func:`stream_list`).
+    """
+    from tak_thermo_ros.formats.records import record_stream_list
+    listed = record_stream_list(path, topics=topics) if streams.kind is InputKind.IMU else None
+    return listed or stream_list(streams, topics)
 
 
 def stream_list(streams, topics) -> tuple[tuple[str, str, int], ...]:
