@@ -4,8 +4,9 @@ Per seed the story of ``test/test_self_heating.py``: the rate-table run of a wan
 (with the small gyroscope lag, and without it), fitted; an hour's static run of the same unit
 warming by itself from 20 to 26 C; ``diagnose --noise-run`` of the fitted run against it:
 
-- **the lag named**: the share of seeds whose gyroscope verdict is ``thermal_lag`` (the noise run
-  labelled ``static_run``);
+- **the lag named**: the share of seeds whose gyroscope verdict is ``thermal_lag``, or its form held
+  at zero on y, ``thermal_lag[xz]`` (the unit's lag is on x and z; the noise run labelled
+  ``static_run``); how many of them are the held form, and whether any holds an axis with the lag;
 - **wander alone**: the share of seeds whose verdicts are ``none`` on both sensors, and how many
   are ``unexplained``.
 
@@ -47,14 +48,19 @@ def main() -> None:
                    'wander': {s: v['verdict'] for s, v in wander['sensors'].items()}}
             rows.append(row)
             print(f'seed {seed}: noise run {row["sources"]}, lag {row["lag"]}, wander {row["wander"]}', flush=True)
-    named = sum(row['lag']['gyro'] == 'thermal_lag' for row in rows)
+    named = sum(row['lag']['gyro'] in ('thermal_lag', 'thermal_lag[xz]') for row in rows)
+    held = sum(row['lag']['gyro'] == 'thermal_lag[xz]' for row in rows)
+    wrong_hold = sum(row['lag']['gyro'].startswith('thermal_lag[') and row['lag']['gyro'] != 'thermal_lag[xz]'
+                     for row in rows)
     quiet = sum(set(row['wander'].values()) == {'none'} for row in rows)
     unexplained = sum('unexplained' in row['wander'].values() for row in rows)
     static = sum(row['sources'] == ['static_run'] for row in rows)
     document = {'machine': machine(), 'seconds': time.perf_counter() - start, 'seeds': args.seeds,
-                'noise_run_static': static, 'lag_named': named, 'wander_none': quiet,
+                'noise_run_static': static, 'lag_named': named, 'lag_named_held_on_y': held,
+                'lag_held_on_an_axis_with_the_lag': wrong_hold, 'wander_none': quiet,
                 'wander_unexplained': unexplained, 'rows': rows}
-    print(f'noise run static_run {static}/{args.seeds}; lag named {named}/{args.seeds}; wander none '
+    print(f'noise run static_run {static}/{args.seeds}; lag named {named}/{args.seeds} ({held} as thermal_lag[xz], '
+          f'{wrong_hold} held on an axis with the lag); wander none '
           f'{quiet}/{args.seeds}, unexplained {unexplained}/{args.seeds}')
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / 'self_heating.json').write_text(json.dumps(document, indent=2) + '\n')

@@ -44,7 +44,8 @@ def add_parser(commands) -> argparse.ArgumentParser:
                         help='effects to fit beyond the paper\'s model: thermal_lag, hysteresis, scale_nonlinearity, '
                              'cross_axis, warmup, temperature_shape, step, the per-axis forms thermal_lag_per_axis, '
                              'hysteresis_per_axis, warmup_per_axis, a recorded signal aux:TOPIC[:FIELD] '
-                             '(e.g. aux:/power/battery_state), or module:Class (see docs/effects.md)')
+                             '(e.g. aux:/power/battery_state), or module:Class; NAME[AXES] fits an offset effect '
+                             'on those axes only, e.g. thermal_lag[xz] (see docs/effects.md)')
     parser.add_argument('--gyro-effects', type=options.effect_specs, metavar='NAME[,NAME...]',
                         help='effects to fit on the gyroscope (driver bags), the same names as --effects')
     parser.add_argument('--effect-samples', type=options.sample_budget, default=EFFECT_FIT_MAX_SAMPLES, metavar='N',

@@ -40,6 +40,11 @@ effect also stores where its class lives::
             thermal_lag: {tau_s: 1790.0, slope_x: 0.0012, slope_y: -0.0004, slope_z: 0.031}
             my_effect: {class: 'mymodule:MyEffect', amplitude_x: 1.2, ...}
 
+An effect fitted on some axes only (``thermal_lag[xz]``, :mod:`~tak_thermo_ros.core.effects.held`)
+keeps its entry and adds the string ``axes``; its amplitudes on the other axes are 0::
+
+            thermal_lag: {axes: xz, tau_s: 1790.0, slope_x: 0.0012, slope_y: 0.0, slope_z: 0.031}
+
 A calibration without effects has no ``effects`` key.
 
 What the link was fitted from (``fitted_from``, beside ``version``): one entry per record in
@@ -185,8 +190,9 @@ def effects_from_mapping(raw: Any, *, key: str = 'calibration.effects') -> tuple
     :raises CalibrationError: naming the first wrong key (unknown effect, class that cannot be
         imported, missing, non-finite or out-of-bounds parameter).
     """
-    from tak_thermo_ros.core.effects import aux_effect_class, resolve_effect
+    from tak_thermo_ros.core.effects import aux_effect_class, held_form, resolve_effect
     from tak_thermo_ros.core.effects.aux_signal import signal_name
+    from tak_thermo_ros.core.effects.held import parse_axes
     if not isinstance(raw, Mapping) or not raw:
         msg = f'{key}: expected a mapping of effect names to their parameters'
         raise CalibrationError(msg)
@@ -212,7 +218,15 @@ def effects_from_mapping(raw: Any, *, key: str = 'calibration.effects') -> tuple
         if cls.name != name:
             msg = f'{entry_key}.class: {spec} is the effect {cls.name!r}, not {name!r}'
             raise CalibrationError(msg)
-        values = {param: value for param, value in entry.items() if param != 'class'}
+        if 'axes' in entry:
+            # Fitted on some axes only (core.effects.held): the others' amplitudes are 0.
+            try:
+                cls = held_form(cls, parse_axes(entry['axes'], f'{entry_key}.axes')
+                                if isinstance(entry['axes'], str) else ())
+            except FitError as err:
+                msg = f'{err}' if isinstance(entry['axes'], str) else f'{entry_key}.axes: expected a string (e.g. xz)'
+                raise CalibrationError(msg) from None
+        values = {param: value for param, value in entry.items() if param not in ('class', 'axes')}
         effects.append(cls.from_values(values, key=entry_key, complete=True))
     return tuple(effects)
 
@@ -239,8 +253,9 @@ def effects_to_mapping(effects: Any) -> dict[str, Any]:
     An auxiliary-signal effect (name ``aux:TOPIC[:FIELD]``, which a ROS 2 parameter name cannot
     hold) is stored as ``aux_1``, ``aux_2``, ... with the strings ``topic`` (and ``field``).
     """
-    from tak_thermo_ros.core.effects import effect_spec, is_aux_effect
+    from tak_thermo_ros.core.effects import effect_spec, held_of, is_aux_effect
     from tak_thermo_ros.core.effects.aux_signal import split_signal_name
+    from tak_thermo_ros.core.effects.held import axes_text
     mapping: dict[str, Any] = {}
     aux_count = 0
     for effect in effects:
@@ -255,10 +270,13 @@ def effects_to_mapping(effects: Any) -> dict[str, Any]:
             mapping[f'aux_{aux_count}'] = entry
             continue
         spec = effect_spec(type(effect))
-        if spec != effect.name:
+        key = held_of(type(effect)).name
+        if spec != key:
             entry['class'] = spec
+        if effect.fitted_axes != (0, 1, 2):
+            entry['axes'] = axes_text(effect.fitted_axes)
         entry.update({name: float(value) for name, value in effect.values.items()})
-        mapping[effect.name] = entry
+        mapping[key] = entry
     return mapping
 
 

@@ -598,6 +598,8 @@ def _effect_card(diagnosis: Diagnosis) -> str:
     if params:
         parts.append(f'<p><b>Fitted on this run.</b> {params}</p>')
     effects = ','.join(diagnosis.ladder[-1].effects)  # a per-axis form in place of its shared form included
+    if '[' in effects:  # a held form, thermal_lag[xz]: quoted for the shell
+        effects = f"'{effects}'"
     parts.append(f'<p class="small">Refit with it: <code>tak_calib fit BAG -o PARAMS.yaml --effects '
                  f'{html.escape(effects)}</code></p></div>')
     return ''.join(parts)

@@ -58,7 +58,15 @@ from tak_thermo_ros.core.diagnose.yardstick import (
     null_under_noise,
     whitener,
 )
-from tak_thermo_ros.core.effects import LIBRARY, PER_AXIS, PER_AXIS_SUFFIX, Effect, PerAxisEffect, resolve_effect
+from tak_thermo_ros.core.effects import (
+    LIBRARY,
+    PER_AXIS,
+    PER_AXIS_SUFFIX,
+    Effect,
+    PerAxisEffect,
+    held_of,
+    resolve_effect,
+)
 from tak_thermo_ros.core.effects.aux_signal import recorded_candidates
 from tak_thermo_ros.core.effects.step import Step
 from tak_thermo_ros.core.records.steps import find_steps
@@ -248,6 +256,7 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
         *(name for name in LIBRARY if name != Step.name or steps), *recorded_candidates(samples.aux)]
     pool = [resolve_effect(type(spec) if isinstance(spec, Effect) else spec) for spec in specs]
     related = set(present_names) | {_effect_name(_shared_form(spec)) for spec in present if _shared_form(spec)}
+    related |= {held_of(spec).name for spec in present if isinstance(spec, type)}  # thermal_lag for thermal_lag[xz]
     pool = [cls for cls in pool if cls.name not in related]
     pool_names = {cls.name for cls in pool}
 
@@ -392,6 +401,7 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
     first_step: _Step | None = None
     skipped: dict[str, str] = {}
     per_axis_tried: list[tuple[int, Candidate]] = []
+    held_tried: list[tuple[int, Candidate]] = []  # held forms judged in place of a refused rung's effect
     model_specs: tuple[Any, ...] = present
     current = base_score
     changes = 0
@@ -486,11 +496,25 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
                                                             float(samples.time_s[-1]) if len(samples) else 1.0,
                                                             averaged=bins is not None),
                                          whiten=whiten if whitened else None)
-        if excursion_verdict.can_judge and excursion_verdict.kept < len(changed_specs):
-            changed_specs = changed_specs[:excursion_verdict.kept]
-            rung_models = rung_models[:excursion_verdict.kept + 1]
+        if excursion_verdict.can_judge and excursion_verdict.models != tuple(rung_models[1:]):
+            # The rungs that hold, a narrowed one's held form in place of its effect.
+            rung_models = [rung_models[0], *excursion_verdict.models]
+            changed_specs = [next(spec for spec in specs if not any(spec is other for other in below))
+                             for (_, below), (_, specs) in zip(rung_models, rung_models[1:])]
             model_specs = rung_models[-1][1]
             current = score(model_specs, base_score)
+            narrowed_rungs = [rung for rung in excursion_verdict.rungs if rung.narrowed_to]
+            for rung in narrowed_rungs:
+                held_spec = next((spec for spec in changed_specs if _effect_name(spec) == rung.narrowed_to), None)
+                if held_spec is not None:
+                    specs_of = next(specs for name, specs in rung_models if name == rung.narrowed_to)
+                    index = changed_specs.index(held_spec)
+                    below_score = score(rung_models[index][1], base_score)
+                    held_score = score(specs_of, below_score)
+                    if held_score.ok:
+                        held_tried.append((index, candidate_of(
+                            rung.narrowed_to, held_spec, below_score, held_score,
+                            f'In place of {rung.effect} (held at zero where its fit cannot tell it from zero): ')))
     ladder = [_rung(base_score)]
     for _, rung_specs in rung_models[1:]:
         rung_score = score(rung_specs, base_score)
@@ -547,9 +571,10 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
         final_allan = allan[0][1]  # no effect is named: the calibration as given is what remains
 
     ranked = [item[0] for item in first_step.ranked] if first_step is not None else []
-    for _, candidate in per_axis_tried:
-        # A per-axis form tried in place of a shared form that joined the ladder is listed with
-        # the candidates when it is the verdict; all of them are in ``per_axis_forms``.
+    for _, candidate in (*per_axis_tried, *held_tried):
+        # A per-axis form tried in place of a shared form that joined the ladder (or a held form in
+        # place of an effect refused on held-out excursions) is listed with the candidates when it is
+        # the verdict; the per-axis ones are all in ``per_axis_forms``.
         if candidate.effect not in {r.effect for r in ranked} and candidate.effect == verdict:
             ranked.append(candidate)
     candidates_out = []

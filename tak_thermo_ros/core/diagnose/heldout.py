@@ -14,7 +14,7 @@ alone, and says so.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -73,6 +73,11 @@ class RungJudgement:
     :param decided: whether enough excursions were judged to decide.
     :param slightly_worse: axes worse beyond their noise but by less than the floor's variance
         (:data:`~tak_thermo_ros.core.diagnose.excursions.WORSE_MIN`): said, not refused.
+    :param narrowed_to: a rung refused for the axes it made worse where its fit cannot tell its
+        amplitudes from zero: the held form judged in its place (``thermal_lag[xz]``,
+        :func:`narrowed`); ``''`` otherwise.
+    :param second_look: the rung is a held form, chosen after its effect was judged on these
+        excursions: it holds only where it is better on most of them besides.
     """
 
     effect: str
@@ -85,6 +90,8 @@ class RungJudgement:
     kept: bool
     decided: bool = True
     slightly_worse: tuple[str, ...] = ()
+    narrowed_to: str = ''
+    second_look: bool = False
 
     def line(self, where: str, unit: str = '') -> str:
         """``'thermal_lag holds on held-out excursions: better on 2 of 2, gain 7.4 sigmas'`` (one sentence).
@@ -102,8 +109,16 @@ class RungJudgement:
                     f'its fits saw (the temperatures and its signals); named on interleaved time blocks only.')
         verb = 'holds' if self.kept else 'does not hold'
         slightly = f'; slightly worse on {", ".join(self.slightly_worse)}' if self.slightly_worse and not worse else ''
-        return (f'{self.effect} {verb} on {where}: better on {self.better} of {self.judged}, gain '
+        said = (f'{self.effect} {verb} on {where}: better on {self.better} of {self.judged}, gain '
                 f'{self.sigmas:.1f} sigmas{"; worse on " + worse if worse else slightly}.')
+        if self.narrowed_to:
+            held = sorted({axis for _, axis in self.worse})
+            said += (f' On {", ".join(held)} its fit cannot tell its amplitude from zero: held at zero there, '
+                     f'judged as {self.narrowed_to}.')
+        if self.second_look and not self.kept and 2 * self.better <= self.judged and not worse:
+            said = said[:-1] + ('; a held form, chosen after its effect was judged on these excursions, must be '
+                                'better on most of them.')
+        return said
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
@@ -113,7 +128,8 @@ class RungJudgement:
                 'worse': [{'excursion': what, 'axis': axis} for what, axis in self.worse],
                 'rms_before': {axis: finite(v) for axis, v in zip(AXES, self.rms_before)},
                 'rms_after': {axis: finite(v) for axis, v in zip(AXES, self.rms_after)},
-                'kept': self.kept, 'decided': self.decided, 'slightly_worse': list(self.slightly_worse)}
+                'kept': self.kept, 'decided': self.decided, 'slightly_worse': list(self.slightly_worse),
+                'narrowed_to': self.narrowed_to, 'second_look': self.second_look}
 
 
 @dataclass(frozen=True)
@@ -122,14 +138,23 @@ class ExcursionVerdict:
 
     :param excursions: the excursions judged on (of the diagnosed record, or of the second one).
     :param second_record: whether they are a second record's.
-    :param rungs: per rung the judgement, in the ladder's order, up to the first that failed.
+    :param rungs: per rung the judgement, in the ladder's order, up to the first that failed (a rung
+        narrowed to its held form: its refusal, then the held form's judgement).
     :param reason: why nothing could be judged ('' when it could).
+    :param models: per ladder rung judged, ``(effect added, the model's specs)`` as judged (a
+        narrowed rung's held form in place of the effect, there and above).
     """
 
     excursions: tuple[Excursion, ...]
     second_record: bool
     rungs: tuple[RungJudgement, ...]
     reason: str = ''
+    models: tuple[tuple[str, tuple[Any, ...]], ...] = ()
+
+    @property
+    def ladder_rungs(self) -> tuple[RungJudgement, ...]:
+        """The judgements of the ladder's rungs (without the refusals a held form replaced)."""
+        return tuple(rung for rung in self.rungs if not rung.narrowed_to)
 
     @property
     def can_judge(self) -> bool:
@@ -154,6 +179,7 @@ class ExcursionVerdict:
         return {'excursions': [{'kind': e.kind, 'first': e.first, 'last': e.last, 'samples': e.stop - e.start}
                                for e in self.excursions],
                 'second_record': self.second_record, 'reason': self.reason,
+                'models': [name for name, _ in self.models],
                 'rungs': [rung.as_dict() for rung in self.rungs]}
 
 
@@ -210,8 +236,10 @@ def compare(before: HeldOut, after: HeldOut, labels: np.ndarray, found: Sequence
         spread = float(np.sqrt(np.sum(errors ** 2)))
         sigmas = total / spread if spread > 0.0 else (math.inf if total > 0.0 else 0.0)
         # An axis is worse when its gain lies below zero beyond its noise (Bonferroni over the axes)
-        # and by more than WORSE_MIN of the floor squared.
-        for axis in range(3):
+        # and by more than WORSE_MIN of the floor squared; an axis the rung leaves as it was (an
+        # effect held at zero there) only by rounding is neither.
+        moved = np.max(np.abs(change), axis=0) > 1e-9 * np.max(np.abs(before.residual[scored]), axis=0)
+        for axis in np.flatnonzero(moved):
             mean = float(series[:, axis].mean())
             if mean < -max(worse_sigmas() * errors[axis], WORSE_MIN):
                 worse += [(where, AXES[axis]) for where in worse_where[axis]]
@@ -358,10 +386,70 @@ def sensor_noise(noise: Any, white_floor: np.ndarray, raw_period: float, period:
     return found
 
 
+NARROW_LEVEL = 0.05
+"""A worse axis is held at zero when its fitted amplitudes lie within their noise of zero: their
+chi-square (with the sandwich errors) below its ``1 - NARROW_LEVEL`` quantile."""
+
+
+NARROW_JUDGED = 3
+"""A held form is a second look at the excursions its effect was refused on: only a rung judged on at
+least this many, better on most of them and with its gain beyond its noise, is narrowed."""
+
+
+def narrowed(samples: AlignedSamples, settings: Any, below: tuple[Any, ...], specs: tuple[Any, ...],
+             rung: RungJudgement) -> tuple[Any, type] | None:
+    """The effect a refused rung adds, and its form held at zero on the axes it made worse; or ``None``.
+
+    A unit's effect may sit on two axes and not the third. Fitted on all three, the third's
+    amplitude takes whatever slow wander of that channel looks most like the effect's signal, and a
+    held-out excursion finds that axis worse while the others gain. When on every worse axis the
+    fit on all samples cannot tell the amplitudes from zero (:data:`NARROW_LEVEL`, the sandwich
+    errors), the effect is judged again held at zero there (:mod:`~tak_thermo_ros.core.effects.held`).
+    Where the fit finds an amplitude the held-out excursions refuse, the effect is not what it
+    seems there, and nothing is narrowed. The held form is chosen after the excursions were seen,
+    so the rung must have left something to judge it on (:data:`NARROW_JUDGED`), and the held form
+    must be better on most of them besides holding (``second_look``).
+    """
+    from scipy.stats import chi2
+
+    from tak_thermo_ros.core.effects import held_form, resolve_effect
+    from tak_thermo_ros.core.fit import fit_model
+    from tak_thermo_ros.errors import FitError
+    worse = sorted({AXES.index(axis) for _, axis in rung.worse})
+    added = [spec for spec in specs if not any(spec is other for other in below)]
+    if not worse or len(worse) == 3 or len(added) != 1 or len(specs) != len(below) + 1:
+        return None
+    if rung.judged < NARROW_JUDGED or 2 * rung.better <= rung.judged or rung.sigmas < GAIN_SIGMAS:
+        return None
+    try:
+        cls = resolve_effect(added[0])
+        kept = [axis for axis in cls.fitted_axes if axis not in worse]
+        form = held_form(cls, kept) if kept else None
+        if form is None or form is cls:
+            return None
+        result = fit_model(samples, effects=specs, bias_order=settings.bias_order, scale_order=settings.scale_order,
+                           temp_code_ref=settings.temp_code_ref, nominal_scale=settings.nominal_scale)
+    except (FitError, TakError):
+        return None
+    effect = next((e for e in result.calibration.effects if e.name == cls.name), None)
+    if effect is None:
+        return None
+    errors = result.parameter_errors
+    for axis in worse:
+        names = effect.amplitude_names()[axis]
+        sigmas = [errors.get(f'{cls.name}.{name}') for name in names]
+        if not names or any(sigma is None or not sigma > 0.0 for sigma in sigmas):
+            return None
+        statistic = sum((effect[name] / sigma) ** 2 for name, sigma in zip(names, sigmas))
+        if statistic > chi2.isf(NARROW_LEVEL, len(names)):
+            return None
+    return added[0], form
+
+
 def judge_ladder(samples: AlignedSamples, rungs: Sequence[tuple[str, tuple[Any, ...]]], settings: Any,
                  floor: np.ndarray, *, held_out: AlignedSamples | None = None,
                  temperature_unit: str = '', noise: Sequence[ResidualNoise] | None = None,
-                 whiten: Callable[[np.ndarray], np.ndarray] | None = None) -> ExcursionVerdict:
+                 whiten: Callable[[np.ndarray], np.ndarray] | None = None, narrow: bool = True) -> ExcursionVerdict:
     """Keep the ladder's rungs that hold on held-out excursions (see the module docstring).
 
     :param rungs: ``(effect added, the model's specs)`` per rung, the current model first (effect '').
@@ -374,6 +462,8 @@ def judge_ladder(samples: AlignedSamples, rungs: Sequence[tuple[str, tuple[Any, 
         whitened before they are compared, so that what the model's bias wander explains (a slow
         amplitude fitted to wander on an axis without the effect) is not counted; ``noise`` is
         then the whitened residual's white level.
+    :param narrow: a rung refused only for axes where its fit cannot tell the effect from zero is
+        judged again held at zero there (:func:`narrowed`); its held form then takes the rung.
     """
     target = held_out if held_out is not None else samples
     found = excursions(target.time_s, target.temp_code)
@@ -400,24 +490,47 @@ def judge_ladder(samples: AlignedSamples, rungs: Sequence[tuple[str, tuple[Any, 
     def residual_of(specs: tuple[Any, ...]) -> HeldOut:
         if held_out is not None:
             return second_record_residual(samples, held_out, specs, settings)
-        found_residual = heldout_residual(samples, specs, settings, folds, fold_count, found, labels)
-        if whiten is None:
-            return found_residual
-        judged = found_residual.judged
-        whitened = whiten(np.where(judged[:, None], found_residual.residual, 0.0))
-        return HeldOut(found_residual.label, np.where(judged[:, None], whitened, np.nan))
+        return heldout_residual(samples, specs, settings, folds, fold_count, found, labels)
 
+    def judge(below: HeldOut, above: HeldOut, effect: str) -> RungJudgement:
+        if whiten is not None and held_out is None:
+            # Both rungs whitened over the samples both judge: an axis a rung leaves as it was
+            # keeps the same whitened residual.
+            both = below.judged & above.judged
+
+            def whitened(rung: HeldOut) -> HeldOut:
+                filtered = whiten(np.where(both[:, None], rung.residual, 0.0))
+                return HeldOut(rung.label, np.where(both[:, None], filtered, np.nan))
+            below, above = whitened(below), whitened(above)
+        return compare(below, above, labels, found, floor, effect, least=least, noise=noise)
+
+    least = 1 if held_out is not None else 2
     judged: list[RungJudgement] = []
-    below = residual_of(rungs[0][1])
+    models: list[tuple[str, tuple[Any, ...]]] = []
+    specs_below = rungs[0][1]
+    below = residual_of(specs_below)
+    swaps: list[tuple[Any, Any]] = []
     for effect, specs in rungs[1:]:
+        for old, new in swaps:
+            specs = tuple(new if spec is old else spec for spec in specs)
         above = residual_of(specs)
-        rung = compare(below, above, labels, found, floor, effect, least=1 if held_out is not None else 2,
-                       noise=noise)
+        rung = judge(below, above, effect)
+        swap = narrowed(samples, settings, specs_below, specs, rung) if (
+            narrow and not rung.kept and rung.worse) else None
+        if swap is not None:
+            judged.append(replace(rung, narrowed_to=swap[1].name))
+            swaps.append(swap)
+            effect, specs = swap[1].name, tuple(swap[1] if spec is swap[0] else spec for spec in specs)
+            above = residual_of(specs)
+            rung = replace(judge(below, above, effect), second_look=True)
+            if rung.kept and rung.decided and 2 * rung.better <= rung.judged:
+                rung = replace(rung, kept=False)
         judged.append(rung)
         if not rung.kept:
             break
-        below = above
-    return ExcursionVerdict(found, held_out is not None, tuple(judged))
+        models.append((effect, specs))
+        below, specs_below = above, specs
+    return ExcursionVerdict(found, held_out is not None, tuple(judged), models=tuple(models))
 
 
 def held_out_like(held_out: AlignedSamples | None, cv_samples: AlignedSamples, binned: bool, averaging_s: float,
@@ -444,9 +557,11 @@ def excursion_statements(statements: list, verdict: ExcursionVerdict, temperatur
     if not verdict.can_judge:
         return [*statements[:1], Statement(f'Judged on interleaved time blocks only: {verdict.reason}.'),
                 *statements[1:]]
-    lines = [Statement(rung.line(verdict.where, temperature_unit) + ('' if rung.kept else ' It is not recommended.'))
+    lines = [Statement(rung.line(verdict.where, temperature_unit)
+                       + ('' if rung.kept or rung.narrowed_to else ' It is not recommended.'))
              for rung in verdict.rungs]
-    rejected_first = bool(verdict.rungs) and not verdict.rungs[0].kept
+    ladder = verdict.ladder_rungs
+    rejected_first = bool(ladder) and not ladder[0].kept
     out = []
     for statement in statements:
         text = statement.text

@@ -4,7 +4,9 @@
 user-defined effect as ``'module:Class'`` (see ``docs/effects.md``). ``PER_AXIS`` maps the
 per-axis forms of the effects whose shape parameters can differ between axes
 (``thermal_lag_per_axis``, ``hysteresis_per_axis``, ``warmup_per_axis``; see
-:mod:`~tak_thermo_ros.core.effects.per_axis`); they resolve by name like the library.
+:mod:`~tak_thermo_ros.core.effects.per_axis`); they resolve by name like the library. A name
+with axes in brackets, ``thermal_lag[xz]``, is the effect fitted on those axes only
+(:mod:`~tak_thermo_ros.core.effects.held`).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from tak_thermo_ros.core.effects.base import (
 )
 from tak_thermo_ros.core.effects.aux_signal import AUX_PREFIX, AuxSignal, aux_effect_class, is_aux_effect
 from tak_thermo_ros.core.effects.cross_axis import CrossAxis
+from tak_thermo_ros.core.effects.held import held_form, held_of, split_held
 from tak_thermo_ros.core.effects.hysteresis import Hysteresis
 from tak_thermo_ros.core.effects.per_axis import PER_AXIS_SUFFIX, PerAxisEffect, per_axis_form
 from tak_thermo_ros.core.effects.scale_nonlinearity import ScaleNonlinearity
@@ -63,6 +66,8 @@ __all__ = [
     'Warmup',
     'aux_effect_class',
     'effect_spec',
+    'held_form',
+    'held_of',
     'is_aux_effect',
     'resolve_effect',
     'seconds',
@@ -101,10 +106,15 @@ def resolve_effect(spec: str | type[Effect]) -> type[Effect]:
         offset-kind subclass of :class:`Effect` with a name of its own.
     """
     if isinstance(spec, type):
+        if getattr(spec, 'held_base', None) is not None:
+            return held_form(resolve_effect(spec.held_base), spec.fitted_axes)
         cls = spec
         spec = f'{cls.__module__}:{cls.__qualname__}'
     else:
         spec = str(spec).strip()
+        name, axes = split_held(spec)
+        if axes is not None:
+            return held_form(resolve_effect(name), axes)
         if spec in LIBRARY:
             return LIBRARY[spec]
         if spec in PER_AXIS:
@@ -146,8 +156,10 @@ def resolve_effect(spec: str | type[Effect]) -> type[Effect]:
 def effect_spec(cls: type[Effect]) -> str:
     """What the calibration file stores to find the class again.
 
-    The library name, the signal name ``aux:...``, or 'module:Class'.
+    The library name, the signal name ``aux:...``, or 'module:Class'; for a held form, its
+    effect's (the file adds ``axes``).
     """
+    cls = held_of(cls)
     if LIBRARY.get(cls.name) is cls or PER_AXIS.get(cls.name) is cls or is_aux_effect(cls):
         return cls.name
     return f'{cls.__module__}:{cls.__qualname__}'

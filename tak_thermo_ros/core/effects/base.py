@@ -111,6 +111,11 @@ class Effect:
     needs_signal: ClassVar[str | None] = None
     shape: ClassVar[tuple[ParameterSpec, ...]] = ()
     amplitude: ClassVar[ParameterSpec] = ParameterSpec('amplitude', 0.0, unit='counts')
+    fitted_axes: ClassVar[tuple[int, ...]] = (0, 1, 2)
+    """The axes whose amplitudes the fit adjusts; on the others they are held at zero
+    (:mod:`~tak_thermo_ros.core.effects.held`: ``thermal_lag[xz]``)."""
+    held_base: ClassVar[type[Effect] | None] = None
+    """For a held form, the effect it holds axes of."""
 
     def __init__(self, **values: float) -> None:
         self._values = self._checked(values, key=f'effects.{self.name}', complete=False)
@@ -182,7 +187,19 @@ class Effect:
                 raise CalibrationError(msg)
             checked[name] = number
         cls.check_structure(checked, key=key)
+        for name in cls.held_names_for(cls.structure_from_values(checked)):
+            if checked[name] != 0.0:
+                axes = ''.join(AXIS_NAMES[axis] for axis in cls.fitted_axes)
+                msg = (f'{key}.{name}: {checked[name]:g}, but the effect is fitted on {", ".join(axes)} only: '
+                       f'an amplitude on a held axis is 0')
+                raise CalibrationError(msg)
         return checked
+
+    @classmethod
+    def held_names_for(cls, structure: Mapping[str, Any]) -> tuple[str, ...]:
+        """The amplitudes held at zero: those of the axes outside :attr:`fitted_axes`."""
+        return tuple(f'{cls.amplitude.name}_{axis}{suffix}' for index, axis in enumerate(AXIS_NAMES)
+                     if index not in cls.fitted_axes for suffix in cls.basis_suffixes_for(structure))
 
     @classmethod
     def check_structure(cls, values: Mapping[str, float], *, key: str) -> None:
@@ -223,15 +240,24 @@ class Effect:
         """Names of the shape parameters."""
         return tuple(spec.name for spec in self.specs_for(self.structure)[0])
 
-    def amplitude_names(self) -> tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]:
-        """Amplitude names per axis x, y, z, one per basis signal in basis order."""
+    def all_amplitude_names(self) -> tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]:
+        """Amplitude names per axis x, y, z, one per basis signal in basis order (held ones too)."""
         suffixes = self.basis_suffixes()
         prefix = self.amplitude.name
         return tuple(tuple(f'{prefix}_{axis}{suffix}' for suffix in suffixes)
                      for axis in AXIS_NAMES)  # type: ignore[return-value]
 
-    def axis_columns(self) -> tuple[tuple[int, ...], tuple[int, ...], tuple[int, ...]]:
-        """Per axis, the basis signals its amplitudes (:meth:`amplitude_names`) multiply.
+    def amplitude_names(self) -> tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]:
+        """The amplitudes the fit adjusts, per axis (none on an axis held at zero)."""
+        return tuple(names if axis in self.fitted_axes else ()
+                     for axis, names in enumerate(self.all_amplitude_names()))  # type: ignore[return-value]
+
+    def held_names(self) -> tuple[str, ...]:
+        """The amplitudes held at zero (:attr:`fitted_axes`)."""
+        return self.held_names_for(self.structure)
+
+    def axis_signals(self) -> tuple[tuple[int, ...], tuple[int, ...], tuple[int, ...]]:
+        """Per axis, the basis signals its amplitudes (:meth:`all_amplitude_names`) multiply.
 
         Default: every signal on every axis. A per-axis form (``core.effects.per_axis``) uses
         signal ``i`` on axis ``i`` only.
@@ -239,10 +265,15 @@ class Effect:
         every = tuple(range(len(self.basis_suffixes())))
         return (every, every, every)
 
+    def axis_columns(self) -> tuple[tuple[int, ...], tuple[int, ...], tuple[int, ...]]:
+        """Per axis, the basis signals the fit gives an amplitude (:meth:`amplitude_names`): none on a held axis."""
+        return tuple(signals if axis in self.fitted_axes else ()
+                     for axis, signals in enumerate(self.axis_signals()))  # type: ignore[return-value]
+
     def amplitudes(self) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
-        """Amplitude values per axis, in basis order."""
+        """Amplitude values per axis, in basis order (zeros on a held axis)."""
         return tuple(tuple(self._values[name] for name in names)
-                     for names in self.amplitude_names())  # type: ignore[return-value]
+                     for names in self.all_amplitude_names())  # type: ignore[return-value]
 
     def replace(self, **values: float) -> Effect:
         """A copy with some values changed (checked like the constructor)."""

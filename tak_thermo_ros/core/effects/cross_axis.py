@@ -44,7 +44,7 @@ class CrossAxis(Effect):
         return (), tuple(ParameterSpec(f'c_{AXIS_NAMES[i]}{AXIS_NAMES[j]}', 0.0, template.min, template.max,
                                        template.unit, template.doc) for i, j in PAIRS)
 
-    def amplitude_names(self) -> tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]:
+    def all_amplitude_names(self) -> tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]:
         """Per channel, the names of its two couplings."""
         return tuple(tuple(f'c_{AXIS_NAMES[i]}{AXIS_NAMES[j]}' for j in range(3) if j != i)
                      for i in range(3))  # type: ignore[return-value]

@@ -8,7 +8,7 @@ and the same amplitudes ``slope_x``, ``slope_y``, ``slope_z`` as the shared form
 follows the basis signal of the shared effect evaluated with its own shape parameters.
 
 Implementation: the per-axis effect has one basis signal per axis (suffixes ``_x``, ``_y``,
-``_z``, each the shared class's signal with that axis's shape); :meth:`PerAxisEffect.axis_columns`
+``_z``, each the shared class's signal with that axis's shape); :meth:`PerAxisEffect.axis_signals`
 tells the fit that axis ``i`` uses signal ``i`` only, and :meth:`PerAxisEffect.amplitudes`
 returns the amplitudes padded with zeros to the three signals, so the correction link, the
 forward model and the simulator apply it unchanged (an added ``0 * signal`` changes no float).
@@ -60,11 +60,11 @@ class PerAxisEffect(Effect):
         """The shared class with axis ``axis``'s shape parameters (amplitudes zero)."""
         return self._axis_effects[axis]
 
-    def axis_columns(self) -> tuple[tuple[int, ...], tuple[int, ...], tuple[int, ...]]:
+    def axis_signals(self) -> tuple[tuple[int, ...], tuple[int, ...], tuple[int, ...]]:
         """Axis ``i`` uses basis signal ``i`` only."""
         return ((0,), (1,), (2,))
 
-    def amplitude_names(self) -> tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]:
+    def all_amplitude_names(self) -> tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]:
         """One amplitude per axis, for its own basis signal."""
         prefix = self.amplitude.name
         return tuple((f'{prefix}_{axis}',) for axis in AXIS_NAMES)  # type: ignore[return-value]

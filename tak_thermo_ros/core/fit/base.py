@@ -82,14 +82,16 @@ def solve_run(run: FitRun, *, input_effects: Sequence[Effect] = (),
         held = run.held_scale(i)
         design = run.design(i, held, input_effects, offset_bases)
         with_effects = any(column.effect for column in design.columns)
-        # The effects' errors need the raw columns; the paper's model alone may have millions of rows.
-        solution = least_squares(*design.system(), in_place=not with_effects)
+        # The effects' errors need the raw columns (an axis where every effect is held too: it shares
+        # their shape parameters); the paper's model alone may have millions of rows.
+        keep = bool(offset_bases or input_effects)
+        solution = least_squares(*design.system(), in_place=not keep)
         if not with_effects:
             check_separated(solution, name, run.bias_order, run.scale_order, held=held is not None)
         elif not solution.full_rank():
             msg = f'axis {name}: this run does not excite {solution.first_dependent(design.terms)} (no fit)'
             raise FitError(msg)
-        solutions.append(solution if with_effects else solution.without_design())
+        solutions.append(solution if keep else solution.without_design())
         columns.append(design.columns)
         held_scales.append(held)
     return Solved(tuple(solutions), tuple(columns), tuple(held_scales))

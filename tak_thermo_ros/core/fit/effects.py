@@ -29,7 +29,7 @@ from typing import Sequence
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from tak_thermo_ros.core.effects import resolve_effect
+from tak_thermo_ros.core.effects import held_of, resolve_effect
 from tak_thermo_ros.core.effects.base import AXIS_NAMES, INPUT, Effect, call_effect
 from tak_thermo_ros.core.fit.base import fit_run, model_run, solve_run
 from tak_thermo_ros.core.fit.design import Column, FitRun
@@ -237,6 +237,11 @@ def _resolve_specs(effects: Sequence) -> list[_Chosen]:
             effect, fixed = _template(cls), False
         if cls.name in names_seen:
             msg = f'effect {cls.name}: given twice'
+            raise FitError(msg)
+        base = held_of(cls).name
+        twin = next((name for name in names_seen if name != cls.name and name.split('[')[0] == base), None)
+        if twin is not None:
+            msg = f'effect {cls.name}: give either {twin} or {cls.name}, not both (the same effect on other axes)'
             raise FitError(msg)
         shared = getattr(cls, 'shared', None)
         related = [name for name in names_seen
@@ -475,7 +480,7 @@ class _EffectFit:
         count = 0
         for entry in self.offsets:
             own = [name for name, *_ in entry.searched]
-            if len(set(entry.effect.axis_columns())) > 1:
+            if getattr(entry.effect, 'shared', None) is not None:  # a per-axis form
                 own = [name for name in own if name.endswith(f'_{AXIS_NAMES[axis]}')]
             count += len(own) + (1 if entry.mode == 'structure' else 0)
         return count

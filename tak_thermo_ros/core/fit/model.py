@@ -137,7 +137,8 @@ def fitted_effects(effects: Sequence[Effect], columns: Sequence[Sequence[Column]
 
     :param columns: per axis the design's column labels; ``coefficients``: per axis the solution.
     """
-    values = {effect.name: {name: effect[name] for name in effect.shape_names()} for effect in effects}
+    values = {effect.name: {**{name: effect[name] for name in effect.shape_names()},
+                            **{name: 0.0 for name in effect.held_names()}} for effect in effects}
     for labels, beta in zip(columns, coefficients):
         for label, value in zip(labels, beta):
             if label.effect:
