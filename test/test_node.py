@@ -181,7 +181,11 @@ HIDDEN_EFFECTS = {'thermal_lag': {'tau_s': 30.0, 'slope_x': 0.05, 'slope_z': -0.
 """Effects with memory (lag, warm-up), an input effect and a step at a stamp, for the node's online state."""
 
 
-@pytest.mark.parametrize('effects', [{}, HIDDEN_EFFECTS], ids=['base', 'with_effects'])
+HELD_EFFECT = {'thermal_lag[xz]': {'tau_s': 30.0, 'slope_x': 0.05, 'slope_z': -0.04}}
+"""A lag fitted on x and z only (``core/effects/held.py``): the file's ``axes`` string parameter read by the node."""
+
+
+@pytest.mark.parametrize('effects', [{}, HIDDEN_EFFECTS, HELD_EFFECT], ids=['base', 'with_effects', 'held_axes'])
 def test_node_output_equals_tak_calib_apply(tmp_path, ros_env, effects):
     """A bag played into the node gives apply's Imu for every message, float64-equal, effects included."""
     bag, params, corrected = tmp_path / 'run.mcap', tmp_path / 'tak_params.yaml', tmp_path / 'imu.mcap'

@@ -41,12 +41,15 @@ def _settings_of(calibration: Calibration, bias_order: int | None, scale_order: 
                         nominal_scale=nominal)  # type: ignore[arg-type]
 
 
-def _fit(samples: AlignedSamples, effects: Sequence[Any], settings: _FitSettings,
-         train_mask: np.ndarray | None = None) -> FitResult:
-    """``fit_model`` with ``effects`` and ``settings``, on the ``train_mask`` samples (default: all), no errors."""
+def fit_with(samples: AlignedSamples, effects: Sequence[Any], settings: _FitSettings, *,
+             train_mask: np.ndarray | None = None, errors: bool = False) -> FitResult:
+    """``fit_model`` with ``effects`` and ``settings``, on the ``train_mask`` samples (default: all).
+
+    :param errors: compute the standard errors (the refits that only predict do without).
+    """
     return fit_model(samples, effects=tuple(effects), bias_order=settings.bias_order,
                      scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
-                     nominal_scale=settings.nominal_scale, train_mask=train_mask, errors=False)
+                     nominal_scale=settings.nominal_scale, train_mask=train_mask, errors=errors)
 
 
 def decimate(samples: AlignedSamples, stride: int) -> AlignedSamples:
@@ -143,7 +146,7 @@ def cross_validate(samples: AlignedSamples, effects: Sequence[Any], labels: np.n
         held_out = labels == fold
         fold_samples[fold] = np.count_nonzero(held_out)
         try:
-            result = _fit(samples, effects, settings, train_mask=~held_out)
+            result = fit_with(samples, effects, settings, train_mask=~held_out)
             residual = residual_counts(_with_range(result.calibration, low, high), samples)
             part = residual[held_out]
             if not np.all(np.isfinite(part)):

@@ -38,12 +38,12 @@ import numpy as np
 import yaml
 
 from tak_thermo_ros.core.link.correction import Corrector
-from tak_thermo_ros.core.diagnose.crossval import _effect_specs, _settings_of, _with_range, decimate
+from tak_thermo_ros.core.diagnose.crossval import _effect_specs, _settings_of, _with_range, decimate, fit_with
 from tak_thermo_ros.core.diagnose.values import Diagnosis
 from tak_thermo_ros.core.diagnose.verdict import VERDICT_NONE
 from tak_thermo_ros.core.values import SENSOR_NAMES
 from tak_thermo_ros.core.effects import AUX_PREFIX, resolve_effect
-from tak_thermo_ros.core.fit import fit_model, residual_counts
+from tak_thermo_ros.core.fit import residual_counts
 from tak_thermo_ros.core.link.model import AXES, Calibration
 from tak_thermo_ros.core.records.record import AlignedSamples, align
 from tak_thermo_ros.core.simulation.imu import (
@@ -200,9 +200,7 @@ def _fit_candidates(diagnosis: Diagnosis, samples: AlignedSamples, names: Sequen
             effects = (*effects, cls)
         models[name] = effects
         say(f'fit base + {name} on the diagnosed run')
-        fitted[name] = fit_model(fit_on, effects=effects, bias_order=settings.bias_order,
-                                 scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
-                                 nominal_scale=settings.nominal_scale).calibration
+        fitted[name] = fit_with(fit_on, effects, settings, errors=True).calibration
     return _CandidateFits(names=(names[0], names[1]), models=models, fitted=fitted, settings=settings)
 
 
@@ -215,9 +213,7 @@ def _weakest_direction(fits: _CandidateFits, simulated: AlignedSamples, floor: n
         counts = _predicted(fits.fitted[truth_name], simulated)
         copy = replace(simulated, counts=counts)
         try:
-            mimic = fit_model(copy, effects=fits.models[model_name], bias_order=settings.bias_order,
-                              scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
-                              nominal_scale=settings.nominal_scale).calibration
+            mimic = fit_with(copy, fits.models[model_name], settings, errors=True).calibration
             residual = residual_counts(_with_range(mimic, float(simulated.temp_code.min()),
                                                    float(simulated.temp_code.max())), copy)
         except TakError:

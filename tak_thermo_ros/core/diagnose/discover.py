@@ -18,6 +18,7 @@ from tak_thermo_ros.core.diagnose.crossval import (
     block_index,
     cross_validate,
     decimate,
+    fit_with,
     fold_labels,
     paired_block_t,
     summed_block_t,
@@ -70,7 +71,7 @@ from tak_thermo_ros.core.effects import (
 from tak_thermo_ros.core.effects.aux_signal import recorded_candidates
 from tak_thermo_ros.core.effects.step import Step
 from tak_thermo_ros.core.records.steps import find_steps
-from tak_thermo_ros.core.fit import fit_model, residual_counts
+from tak_thermo_ros.core.fit import residual_counts
 from tak_thermo_ros.core.link.model import AXES, Calibration
 from tak_thermo_ros.core.noise.residual import RESIDUAL_LONGEST_TAU_S
 from tak_thermo_ros.core.records.record import AlignedSamples
@@ -111,9 +112,7 @@ def null_heldout(samples: AlignedSamples, effects: Sequence[Any], labels: np.nda
     parameters estimated from the other folds (larger where held-out blocks extrapolate, e.g.
     a warm-up at the start of the run). The verdict measures the excess against it.
     """
-    result = fit_model(samples, effects=tuple(effects), bias_order=settings.bias_order,
-                       scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
-                       nominal_scale=settings.nominal_scale, errors=False)
+    result = fit_with(samples, effects, settings)
     low, high = float(samples.temp_code.min()), float(samples.temp_code.max())
     corrector = Corrector(_with_range(result.calibration, low, high))
     predicted = corrector.predict_counts(samples.reference, samples.temp_code, stamp_s=samples.stamp_s,
@@ -483,13 +482,14 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
     # The rungs are judged on whole thermal excursions the fit never saw (or a second record's):
     # the first that does not hold there ends the ladder.
     excursion_verdict = None
+    after_temperature = '' if unit == 'counts' else ' C'  # after a temperature in the excursions' lines
     if excursions and groups is None:
         if len(rung_models) > 1:
             say('the ladder on held-out excursions')
         judged_on = _held_out_like(held_out, cv_samples, bins is not None, averaging_s, max_cv_samples)
         whitened = whiten is not None and judged_on is None
         excursion_verdict = judge_ladder(cv_samples, rung_models, settings, floor, held_out=judged_on,
-                                         temperature_unit='' if unit == 'counts' else ' C',
+                                         temperature_unit=after_temperature,
                                          noise=sensor_noise(None if whitened else noise, white_floor, period,
                                                             sample_period(judged_on if judged_on is not None
                                                                           else cv_samples),
@@ -535,9 +535,7 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
     if added:
         say('refit with ' + ', '.join(_effect_name(e) for e in added))
         try:
-            result = fit_model(cv_samples, effects=model_specs, bias_order=settings.bias_order,
-                               scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
-                               nominal_scale=settings.nominal_scale)
+            result = fit_with(cv_samples, model_specs, settings, errors=True)
         except TakError as err:
             skipped['refit'] = f'the ladder\'s model could not be refitted on all samples: {err}'
         else:
@@ -592,7 +590,7 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
                                   allan=final_allan, judged=judged, averaging_s=averaging_s if judged else 0.0,
                                   wander=wander, unit=unit, scale=unit_scale)
     if excursion_verdict is not None:
-        statements = excursion_statements(statements, excursion_verdict, '' if unit == 'counts' else ' C')
+        statements = excursion_statements(statements, excursion_verdict, after_temperature)
     if pruned and verdict not in (VERDICT_NONE, VERDICT_UNEXPLAINED):
         statements.append(Statement(f'Not needed once the others are in: {", ".join(pruned)} (held-out blocks do '
                                     f'not notice its removal).'))
@@ -709,9 +707,7 @@ def _rung_allan(samples: AlignedSamples, cv_samples: AlignedSamples, ladder: Seq
             names = set(step.effects)
             specs = tuple(spec for spec in (*present, *added) if _effect_name(spec) in names)
             try:
-                fitted = fit_model(cv_samples, effects=specs, bias_order=settings.bias_order,
-                                   scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
-                                   nominal_scale=settings.nominal_scale, errors=False)
+                fitted = fit_with(cv_samples, specs, settings)
             except TakError:
                 continue
             low, high = float(samples.temp_code.min()), float(samples.temp_code.max())

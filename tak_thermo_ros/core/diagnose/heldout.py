@@ -20,7 +20,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from scipy.stats import norm
 
-from tak_thermo_ros.core.diagnose.crossval import _effect_name, _fit, _with_range
+from tak_thermo_ros.core.diagnose.crossval import _effect_name, _with_range, fit_with
 from tak_thermo_ros.core.diagnose.excursions import (
     GAIN_SIGMAS,
     GAP_FRACTION,
@@ -321,7 +321,7 @@ def heldout_residual(samples: AlignedSamples, specs: Sequence[Any], settings: An
             continue
         held = np.isin(labels, judgeable)
         try:
-            result = _fit(samples, specs, settings, train_mask=train)
+            result = fit_with(samples, specs, settings, train_mask=train)
             calibration = _with_range(result.calibration, low, high)
             residual = residual_counts(calibration, samples)
         except TakError:
@@ -338,7 +338,7 @@ def second_record_residual(samples: AlignedSamples, second: AlignedSamples, spec
     """The model ``specs`` fitted on all of ``samples``, its residual on ``second`` where it interpolates."""
     out = np.full((len(second), 3), np.nan)
     try:
-        result = _fit(samples, specs, settings)
+        result = fit_with(samples, specs, settings)
         low, high = float(second.temp_code.min()), float(second.temp_code.max())
         residual = residual_counts(_with_range(result.calibration, low, high), second)
     except TakError:
@@ -413,7 +413,6 @@ def narrowed(samples: AlignedSamples, settings: Any, below: tuple[Any, ...], spe
     from scipy.stats import chi2
 
     from tak_thermo_ros.core.effects import held_form, resolve_effect
-    from tak_thermo_ros.core.fit import fit_model
     from tak_thermo_ros.errors import FitError
     worse = sorted({AXES.index(axis) for _, axis in rung.worse})
     added = [spec for spec in specs if not any(spec is other for other in below)]
@@ -427,8 +426,7 @@ def narrowed(samples: AlignedSamples, settings: Any, below: tuple[Any, ...], spe
         form = held_form(cls, kept) if kept else None
         if form is None or form is cls:
             return None
-        result = fit_model(samples, effects=specs, bias_order=settings.bias_order, scale_order=settings.scale_order,
-                           temp_code_ref=settings.temp_code_ref, nominal_scale=settings.nominal_scale)
+        result = fit_with(samples, specs, settings, errors=True)
     except (FitError, TakError):
         return None
     effect = next((e for e in result.calibration.effects if e.name == cls.name), None)

@@ -275,12 +275,9 @@ def null_under_noise(samples: AlignedSamples, labels: np.ndarray, cv_samples: Al
     """
     from dataclasses import replace as copy_with
 
-    from tak_thermo_ros.core.diagnose.crossval import _with_range, cross_validate
-    from tak_thermo_ros.core.fit import fit_model
+    from tak_thermo_ros.core.diagnose.crossval import _with_range, cross_validate, fit_with
     from tak_thermo_ros.core.link.correction import Corrector
-    result = fit_model(cv_samples, effects=tuple(effects), bias_order=settings.bias_order,
-                       scale_order=settings.scale_order, temp_code_ref=settings.temp_code_ref,
-                       nominal_scale=settings.nominal_scale, errors=False)
+    result = fit_with(cv_samples, effects, settings)
     low, high = float(cv_samples.temp_code.min()), float(cv_samples.temp_code.max())
     predicted = Corrector(_with_range(result.calibration, low, high)).predict_counts(
         cv_samples.reference, cv_samples.temp_code, stamp_s=cv_samples.stamp_s, aux=cv_samples.aux)
