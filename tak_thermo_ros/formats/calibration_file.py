@@ -497,11 +497,7 @@ def unit_from_mapping(raw: Any, *, key: str = 'calibration') -> UnitCalibration:
         return UnitCalibration(InputKind.COUNTS, _link_from_mapping(raw, key, InputKind.COUNTS,
                                                                     extra_keys=('version', FITTED_FROM),
                                                                     sensor='counts'), fitted_from=fitted_from)
-    unknown = sorted(str(name) for name in set(raw) - {'version', 'input', 'source', FITTED_FROM, *SENSORS,
-                                                       MAG_SENSOR})
-    if unknown:
-        msg = f'{key}.{unknown[0]}: unknown key'
-        raise CalibrationError(msg)
+    _check_keys(raw, key, (), ('version', 'input', 'source', FITTED_FROM, *SENSORS, MAG_SENSOR))
     if raw.get('input') != InputKind.IMU.value:
         msg = (f'{key}.input: expected {InputKind.IMU.value!r} with version {UNIT_CALIBRATION_VERSION}, '
                f'got {raw.get("input")!r}')

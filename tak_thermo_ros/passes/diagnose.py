@@ -85,7 +85,8 @@ def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: floa
         subsamples[sensor] = Subsample(stride, expected=opened.main // stride + 1)
         passes.append(SensorPass(sensor, BlockAligner(use_reference=True, reference_expected=True,
                                                       settle_time_s=settle_time_s), [subsamples[sensor]]))
-    prints = PrintCollector(sensors_of(opened.kind), against=unit.fitted_from if unit is not None else ())
+    prints = PrintCollector(sensors_of(opened.kind), against=unit.fitted_from if unit is not None else (),
+                            own_segments=False)
     lines = run_passes(path, options, opened, passes, prints=prints)
     return BoundedRun(input_kind=opened.kind,
                       samples={p.sensor: subsamples[p.sensor].samples(p.aligner.dropped) for p in passes},

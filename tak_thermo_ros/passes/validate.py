@@ -94,7 +94,7 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
                                aux=samples.aux)
             gyro_pass.consumers.append(add_rate)
         passes.append(gyro_pass)
-    prints = PrintCollector(sensors_of(kind), against=unit.fitted_from)
+    prints = PrintCollector(sensors_of(kind), against=unit.fitted_from, own_segments=False)
     lines = run_passes(path, options, opened, passes, prints=prints)
     return Validated(input_kind=kind, gravity=gravity_check, rate=rate_check, reference_lines=tuple(lines),
                      accel_dropped=accel_required.dropped,

@@ -400,7 +400,7 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
     first_step: _Step | None = None
     skipped: dict[str, str] = {}
     per_axis_tried: list[tuple[int, Candidate]] = []
-    held_tried: list[tuple[int, Candidate]] = []  # held forms judged in place of a refused rung's effect
+    held_tried: list[Candidate] = []  # held forms judged in place of a refused rung's effect
     model_specs: tuple[Any, ...] = present
     current = base_score
     changes = 0
@@ -503,18 +503,16 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
                              for (_, below), (_, specs) in zip(rung_models, rung_models[1:])]
             model_specs = rung_models[-1][1]
             current = score(model_specs, base_score)
-            narrowed_rungs = [rung for rung in excursion_verdict.rungs if rung.narrowed_to]
-            for rung in narrowed_rungs:
-                held_spec = next((spec for spec in changed_specs if _effect_name(spec) == rung.narrowed_to), None)
-                if held_spec is not None:
-                    specs_of = next(specs for name, specs in rung_models if name == rung.narrowed_to)
-                    index = changed_specs.index(held_spec)
-                    below_score = score(rung_models[index][1], base_score)
-                    held_score = score(specs_of, below_score)
-                    if held_score.ok:
-                        held_tried.append((index, candidate_of(
-                            rung.narrowed_to, held_spec, below_score, held_score,
-                            f'In place of {rung.effect} (held at zero where its fit cannot tell it from zero): ')))
+            narrowed = {rung.narrowed_to for rung in excursion_verdict.rungs if rung.narrowed_to}
+            for spec, (_, below), (name, specs) in zip(changed_specs, rung_models, rung_models[1:]):
+                if name not in narrowed:
+                    continue
+                below_score = score(below, base_score)
+                held_score = score(specs, below_score)
+                if held_score.ok:
+                    held_tried.append(candidate_of(name, spec, below_score, held_score,
+                                                   f'In place of {held_of(spec).name} (held at zero where its fit '
+                                                   f'cannot tell it from zero): '))
     ladder = [_rung(base_score)]
     for _, rung_specs in rung_models[1:]:
         rung_score = score(rung_specs, base_score)
@@ -569,7 +567,7 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
         final_allan = allan[0][1]  # no effect is named: the calibration as given is what remains
 
     ranked = [item[0] for item in first_step.ranked] if first_step is not None else []
-    for _, candidate in (*per_axis_tried, *held_tried):
+    for candidate in (*(candidate for _, candidate in per_axis_tried), *held_tried):
         # A per-axis form tried in place of a shared form that joined the ladder (or a held form in
         # place of an effect refused on held-out excursions) is listed with the candidates when it is
         # the verdict; the per-axis ones are all in ``per_axis_forms``.

@@ -18,7 +18,7 @@ from dataclasses import dataclass, replace
 from typing import Any, Callable, Sequence
 
 import numpy as np
-from scipy.stats import norm
+from scipy.stats import chi2, norm
 
 from tak_thermo_ros.core.diagnose.crossval import _effect_name, _with_range, fit_with
 from tak_thermo_ros.core.diagnose.excursions import (
@@ -32,6 +32,7 @@ from tak_thermo_ros.core.diagnose.excursions import (
     excursion_labels,
     excursions,
 )
+from tak_thermo_ros.core.effects import held_form, resolve_effect
 from tak_thermo_ros.core.effects.base import INPUT, checked_basis, effect_input
 from tak_thermo_ros.core.fit import residual_counts
 from tak_thermo_ros.core.fit.uncertainty import ResidualNoise, noise_product, weighted_sum_error
@@ -410,10 +411,6 @@ def narrowed(samples: AlignedSamples, settings: Any, below: tuple[Any, ...], spe
     so the rung must have left something to judge it on (:data:`NARROW_JUDGED`), and the held form
     must be better on most of them besides holding (``second_look``).
     """
-    from scipy.stats import chi2
-
-    from tak_thermo_ros.core.effects import held_form, resolve_effect
-    from tak_thermo_ros.errors import FitError
     worse = sorted({AXES.index(axis) for _, axis in rung.worse})
     added = [spec for spec in specs if not any(spec is other for other in below)]
     if not worse or len(worse) == 3 or len(added) != 1 or len(specs) != len(below) + 1:
@@ -422,12 +419,9 @@ def narrowed(samples: AlignedSamples, settings: Any, below: tuple[Any, ...], spe
         return None
     try:
         cls = resolve_effect(added[0])
-        kept = [axis for axis in cls.fitted_axes if axis not in worse]
-        form = held_form(cls, kept) if kept else None
-        if form is None or form is cls:
-            return None
+        form = held_form(cls, [axis for axis in cls.fitted_axes if axis not in worse])
         result = fit_with(samples, specs, settings, errors=True)
-    except (FitError, TakError):
+    except TakError:  # no held form of this kind of effect, or the fit fails
         return None
     effect = next((e for e in result.calibration.effects if e.name == cls.name), None)
     if effect is None:

@@ -56,7 +56,7 @@ def split_held(spec: str) -> tuple[str, tuple[int, ...] | None]:
 
 def held_of(cls: type[Effect]) -> type[Effect]:
     """The effect a held form holds axes of (the class itself when it is no held form)."""
-    return getattr(cls, 'held_base', None) or cls
+    return cls.held_base or cls
 
 
 def held_form(cls: type[Effect], axes: Sequence[int]) -> type[Effect]:

@@ -18,7 +18,7 @@ from typing import Sequence
 import numpy as np
 
 from tak_thermo_ros.core.effects.base import Effect
-from tak_thermo_ros.core.fit.design import Column, FitRun
+from tak_thermo_ros.core.fit.design import Column, FitRun, not_excited
 from tak_thermo_ros.core.fit.model import (
     FitResult,
     calibration_from,
@@ -89,8 +89,7 @@ def solve_run(run: FitRun, *, input_effects: Sequence[Effect] = (),
         if not with_effects:
             check_separated(solution, name, run.bias_order, run.scale_order, held=held is not None)
         elif not solution.full_rank():
-            msg = f'axis {name}: this run does not excite {solution.first_dependent(design.terms)} (no fit)'
-            raise FitError(msg)
+            raise not_excited(i, solution.first_dependent(design.terms))
         solutions.append(solution if keep else solution.without_design())
         columns.append(design.columns)
         held_scales.append(held)

@@ -54,21 +54,32 @@ def check_observable(samples: AlignedSamples, bias_order: int, scale_order: int)
 
     :raises ShortRecord: too few samples, or too few distinct temperatures.
     """
-    parameters = bias_order + scale_order + 2
-    needed = MIN_SAMPLES_PER_PARAMETER * parameters
-    if len(samples) < needed:
-        msg = (f'too few samples: {len(samples)} usable samples, need at least {needed} '
+    codes = samples.temp_code
+    check_counts(len(samples), samples.reference is not None, np.unique(codes).size,
+                 (float(codes.min()), float(codes.max())) if len(codes) else (0.0, 0.0), bias_order, scale_order)
+
+
+def check_counts(count: int, has_reference: bool, distinct_codes: int, code_range: tuple[float, float],
+                 bias_order: int, scale_order: int) -> None:
+    """:func:`check_observable` on what a pass counted (the in-memory and the streaming fit alike)."""
+    needed = MIN_SAMPLES_PER_PARAMETER * (bias_order + scale_order + 2)
+    if count < needed:
+        msg = (f'too few samples: {count} usable samples, need at least {needed} '
                f'for bias order {bias_order} and scale order {scale_order}')
         raise ShortRecord(msg)
-    if samples.reference is None:
+    if not has_reference:
         msg = 'no reference stream: a fit needs the true specific force'
         raise FitError(msg)
-    distinct_codes = np.unique(samples.temp_code).size
     if distinct_codes < max(bias_order, scale_order) + 1:
-        low, high = float(samples.temp_code.min()), float(samples.temp_code.max())
+        low, high = code_range
         msg = (f'no temperature spread: the temperature code spans only {low:g}..{high:g} '
                f'({distinct_codes} distinct codes), need at least {max(bias_order, scale_order) + 1}')
         raise ShortRecord(msg)
+
+
+def not_excited(axis: int, term: str) -> FitError:
+    """The error of a column the run cannot separate from the others on one axis."""
+    return FitError(f'axis {"xyz"[axis]}: this run does not excite {term} (no fit)')
 
 
 def single_input_axes(samples: AlignedSamples) -> tuple[bool, bool, bool]:

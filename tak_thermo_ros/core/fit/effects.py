@@ -32,7 +32,7 @@ from scipy.optimize import minimize_scalar
 from tak_thermo_ros.core.effects import held_of, resolve_effect
 from tak_thermo_ros.core.effects.base import AXIS_NAMES, INPUT, Effect, call_effect
 from tak_thermo_ros.core.fit.base import fit_run, model_run, solve_run
-from tak_thermo_ros.core.fit.design import Column, FitRun
+from tak_thermo_ros.core.fit.design import Column, FitRun, not_excited
 from tak_thermo_ros.core.fit.model import FitResult, amplitude_errors
 from tak_thermo_ros.core.fit.solve import Solution, unit_norms
 from tak_thermo_ros.core.fit.uncertainty import ErrorBasis, Sandwich
@@ -84,9 +84,7 @@ class _Projection:
             q, r = np.linalg.qr(design / unit_norms(design))
             diagonal = np.abs(np.diag(r))
             if diagonal.size and diagonal.min() < RANK_TOLERANCE * diagonal.max():
-                culprit = names[i][int(np.argmin(diagonal))]
-                msg = f'axis {AXIS_NAMES[i]}: this run does not excite {culprit} (no fit)'
-                raise FitError(msg)
+                raise not_excited(i, names[i][int(np.argmin(diagonal))])
             perpendicular = target - q @ (q.T @ target)
             self.bases.append((q, perpendicular, float(perpendicular @ perpendicular)))
 
@@ -229,6 +227,7 @@ def _resolve_specs(effects: Sequence) -> list[_Chosen]:
     """The effects to fit, each once, never with its per-axis form."""
     chosen: list[_Chosen] = []
     names_seen: set[str] = set()
+    given_as: dict[str, str] = {}  # each effect's name as given (thermal_lag[xz] for thermal_lag)
     for spec in effects:
         if isinstance(spec, Effect):
             cls, effect, fixed = resolve_effect(type(spec)), spec, True
@@ -238,9 +237,8 @@ def _resolve_specs(effects: Sequence) -> list[_Chosen]:
         if cls.name in names_seen:
             msg = f'effect {cls.name}: given twice'
             raise FitError(msg)
-        base = held_of(cls).name
-        twin = next((name for name in names_seen if name != cls.name and name.split('[')[0] == base), None)
-        if twin is not None:
+        twin = given_as.setdefault(held_of(cls).name, cls.name)
+        if twin != cls.name:
             msg = f'effect {cls.name}: give either {twin} or {cls.name}, not both (the same effect on other axes)'
             raise FitError(msg)
         shared = getattr(cls, 'shared', None)

@@ -31,13 +31,13 @@ from tak_thermo_ros.core.effects.base import INPUT, Effect, basis_from, effect_i
 from tak_thermo_ros.core.fit.base import check_separated
 from tak_thermo_ros.core.fit.design import (
     INPUT_RESOLUTION,
-    MIN_SAMPLES_PER_PARAMETER,
     Column,
     Frame,
-    ShortRecord,
     axis_design,
+    check_counts,
     check_orders,
     held_scale,
+    not_excited,
 )
 from tak_thermo_ros.core.fit.model import (
     FitResult,
@@ -50,7 +50,6 @@ from tak_thermo_ros.core.fit.model import (
 from tak_thermo_ros.core.fit.solve import BlockedQR, Solution, solve_factor
 from tak_thermo_ros.core.link.model import AXES
 from tak_thermo_ros.core.records.record import AlignedSamples
-from tak_thermo_ros.errors import FitError
 
 HEADROOM = 2.0
 """The provisional scale is rebuilt when a temperature code lies this many scales from the reference."""
@@ -156,19 +155,8 @@ class StreamingFit:
 
     def check_observable(self) -> None:
         """The tests of :func:`fit_calibration` before it fits, with the same messages."""
-        q, p = self.bias_order, self.scale_order
-        needed = MIN_SAMPLES_PER_PARAMETER * (q + p + 2)
-        if self.count < needed:
-            msg = (f'too few samples: {self.count} usable samples, need at least {needed} '
-                   f'for bias order {q} and scale order {p}')
-            raise ShortRecord(msg)
-        if not self.has_reference:
-            msg = 'no reference stream: a fit needs the true specific force'
-            raise FitError(msg)
-        if len(self._codes) < max(q, p) + 1:
-            msg = (f'no temperature spread: the temperature code spans only {self.low:g}..{self.high:g} '
-                   f'({len(self._codes)} distinct codes), need at least {max(q, p) + 1}')
-            raise ShortRecord(msg)
+        check_counts(self.count, self.has_reference, len(self._codes), (self.low, self.high), self.bias_order,
+                     self.scale_order)
 
     def single_input_axes(self) -> tuple[bool, bool, bool]:
         """Per axis, whether the reference held one value only (as :func:`single_input_axes`)."""
@@ -299,9 +287,7 @@ class StreamingEffectFit:
             assert factor is not None
             solution = factor.solution()
             if not solution.full_rank():
-                offender = solution.first_dependent([column.term for column in self.columns[i]])
-                msg = f'axis {AXES[i]}: this run does not excite {offender} (no fit)'
-                raise FitError(msg)
+                raise not_excited(i, solution.first_dependent([column.term for column in self.columns[i]]))
             betas.append(solution.coefficients)
             sums.append(solution.rss)
             widths.append(solution.width)

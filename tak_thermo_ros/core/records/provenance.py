@@ -113,10 +113,13 @@ class PrintCollector:
     :param sensors: the sensors hashed, in this order (``('accel',)`` or ``('accel', 'gyro')``).
     :param against: prints of records a calibration was fitted from: the segments of this record
         are also hashed on each one's grid (:func:`recognise`).
+    :param own_segments: hash this record's own time segments for its print (a fit writes them);
+        ``False`` to recognise it only (its whole digest and the grids of ``against``).
     """
 
     sensors: tuple[str, ...]
     against: Sequence[RecordPrint] = ()
+    own_segments: bool = True
     _whole: dict[str, Any] = field(default_factory=dict)
     _counts: dict[str, int] = field(default_factory=dict)
     _first: int | None = None
@@ -127,7 +130,7 @@ class PrintCollector:
     def __post_init__(self) -> None:
         self._whole = {sensor: hashlib.sha256() for sensor in self.sensors}
         self._counts = {sensor: 0 for sensor in self.sensors}
-        self._levels = {shift: _Level(shift) for shift in SEGMENT_LEVELS}
+        self._levels = {shift: _Level(shift) for shift in SEGMENT_LEVELS} if self.own_segments else {}
         for stored in self.against:
             level = _Level(max(int(stored.segment_ns), 1).bit_length() - 1)
             self._grids.append((level, (stored.segment_first, stored.segment_first + len(stored.segments))))
@@ -235,7 +238,7 @@ def recognise(fitted_from: Sequence[RecordPrint], seen: RecordPrint | None,
     """
     if seen is None:
         return None
-    for stored, own in zip(fitted_from, segments):
+    for stored in fitted_from:
         if seen.digest == stored.digest:
             return Recognition(IN_SAMPLE_WHOLE, stored, seen.duration_s, seen.duration_s, 0.0, len(stored.segments))
     for stored, own in zip(fitted_from, segments):
