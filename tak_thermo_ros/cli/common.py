@@ -18,7 +18,7 @@ from typing import Iterator
 
 import numpy as np
 
-from tak_thermo_ros.core.link.model import AXES, InputKind, UnitCalibration
+from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.records.record import REFERENCE_LIMIT, TEMPERATURE_RANGE, AlignedSamples
 from tak_thermo_ros.core.values import SENSOR_NAMES, STANDARD_GRAVITY  # noqa: F401  (re-exported)
 from tak_thermo_ros.errors import TakError
@@ -247,8 +247,7 @@ def print_effects(calibration, result, unit_name: str) -> None:
         held = effect.held_names()
         for p in effect.parameters:
             if p.name in held:
-                fitted = ', '.join(AXES[axis] for axis in effect.fitted_axes)
-                print(f'  effect {effect.name}: {p.name} held at 0 (fitted on {fitted} only)')
+                print(f'  effect {effect.name}: {p.name} held at 0 (fitted on {effect.fitted_axes_text()} only)')
                 continue
             unit = effect_unit(p.unit, unit_name) if p.unit else ''
             in_sensor_unit = unit_name != 'counts' and 'counts' in (p.unit or '')

@@ -350,7 +350,7 @@ def step_lines(results: dict, used: dict[str, AlignedSamples], kind: InputKind,
     at one moment: :data:`~tak_thermo_ros.core.records.steps.NAME_SIGMAS`). Moments in minutes
     from the record's first stamp ``first_stamp_ns`` (default: the first sample diagnosed).
     """
-    from tak_thermo_ros.core.records.steps import change_at
+    from tak_thermo_ros.core.records.steps import change_at, step_scales
     sensors = [sensor for sensor in results if sensor != 'mag' and results[sensor].steps]
     if not sensors:
         return []
@@ -364,6 +364,7 @@ def step_lines(results: dict, used: dict[str, AlignedSamples], kind: InputKind,
     events.sort(key=lambda event: (-float(np.abs(event[2].z).max())))
     period = max(float(np.median(np.diff(used[s].stamp_ns))) for s in results if s != 'mag')
     lines, said = [], []
+    scales: dict[str, list] = {}  # per sensor its residual's level changes, scanned once
     for moment, sensor, step in events:
         if any(abs(moment - other) <= 2.0 * period for other in said):
             continue
@@ -376,8 +377,9 @@ def step_lines(results: dict, used: dict[str, AlignedSamples], kind: InputKind,
             if other == sensor:
                 change = step
             elif 1 <= index < len(samples):
-                change = change_at(results[other].residual, index, breaks=results[other].views.breaks,
-                                   scale=step.scale)
+                if other not in scales:
+                    scales[other] = step_scales(results[other].residual, breaks=results[other].views.breaks)
+                change = change_at(results[other].residual, index, scale=step.scale, scales=scales[other])
             else:
                 change = None
             if change is None:

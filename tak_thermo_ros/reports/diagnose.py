@@ -50,6 +50,7 @@ from tak_thermo_ros.core.diagnose import (  # noqa: E402
     Diagnosis,
     binned_means,
 )
+from tak_thermo_ros.core.fit.design import single_input_axes  # noqa: E402
 from tak_thermo_ros.core.link.model import AXES  # noqa: E402
 from tak_thermo_ros.core.records.record import AlignedSamples  # noqa: E402
 from tak_thermo_ros.core.simulation.imu import STANDARD_GRAVITY  # noqa: E402
@@ -669,8 +670,7 @@ def write_report(diagnosis: Diagnosis, samples: AlignedSamples, directory: str |
         skipped.append(f'{len(diagnosis.views.plateaus) or "No"} temperature plateau'
                        f'{"" if len(diagnosis.views.plateaus) == 1 else "s"} in this run: the residual per plateau, '
                        f'reached by heating against by cooling, takes two or more.')
-    levels = max(len(np.unique(np.round(diagnosis.views.specific_force[:, j], 6))) for j in range(3))
-    if levels >= 2:
+    if not all(single_input_axes(samples)):
         figures.append(('residual_inputs.png', figure_residual_inputs(diagnosis),
                         'Against the inputs. A curve on the diagonal: scale nonlinearity; a slope off the '
                         'diagonal: cross-axis coupling.'))

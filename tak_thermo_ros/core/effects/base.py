@@ -189,11 +189,15 @@ class Effect:
         cls.check_structure(checked, key=key)
         for name in cls.held_names_for(cls.structure_from_values(checked)):
             if checked[name] != 0.0:
-                axes = ''.join(AXIS_NAMES[axis] for axis in cls.fitted_axes)
-                msg = (f'{key}.{name}: {checked[name]:g}, but the effect is fitted on {", ".join(axes)} only: '
+                msg = (f'{key}.{name}: {checked[name]:g}, but the effect is fitted on {cls.fitted_axes_text()} only: '
                        f'an amplitude on a held axis is 0')
                 raise CalibrationError(msg)
         return checked
+
+    @classmethod
+    def fitted_axes_text(cls) -> str:
+        """``'x, z'``: the axes whose amplitudes the fit adjusts."""
+        return ', '.join(AXIS_NAMES[axis] for axis in cls.fitted_axes)
 
     @classmethod
     def held_names_for(cls, structure: Mapping[str, Any]) -> tuple[str, ...]:

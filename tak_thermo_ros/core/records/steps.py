@@ -215,16 +215,22 @@ def _sudden(position: int, level: _Scale, scales: list[_Scale]) -> LevelChange |
                        sigma=np.array(level.sigma))
 
 
+def step_scales(residual: np.ndarray, *, breaks: np.ndarray | None = None) -> list[_Scale]:
+    """The level changes of ``residual`` ``(k, c)`` on every scale, for :func:`change_at` at several moments."""
+    residual = np.asarray(residual, dtype=float)
+    return _scales(residual[:, None] if residual.ndim == 1 else residual, breaks)
+
+
 def change_at(residual: np.ndarray, index: int, *, breaks: np.ndarray | None = None,
-              scale: int | None = None) -> LevelChange | None:
+              scale: int | None = None, scales: list[_Scale] | None = None) -> LevelChange | None:
     """The level change of ``residual`` ``(k, c)`` at sample ``index`` (another sensor at a step's moment).
 
     :param scale: the scale to measure it on (default: the largest that fits); ``None`` when none fits there.
+    :param scales: :func:`step_scales` of ``residual`` (computed here when not given).
     """
-    residual = np.asarray(residual, dtype=float)
-    if residual.ndim == 1:
-        residual = residual[:, None]
-    fitting = [level for level in _scales(residual, breaks) if level.at(index) is not None
+    if scales is None:
+        scales = step_scales(residual, breaks=breaks)
+    fitting = [level for level in scales if level.at(index) is not None
                and (scale is None or level.scale <= scale)]
     if not fitting:
         return None
