@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -16,10 +16,14 @@ from tak_thermo_ros.core.records.provenance import PrintCollector, Recognition
 from tak_thermo_ros.core.records.survey import RecordSurvey
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import TakError
-from tak_thermo_ros.passes.run import SensorPass, StreamOptions, open_calibration_run, run_passes, sensors_of
-
-if TYPE_CHECKING:
-    pass
+from tak_thermo_ros.passes.run import (
+    SensorPass,
+    StreamOptions,
+    check_temperature_unit,
+    open_calibration_run,
+    run_passes,
+    sensors_of,
+)
 
 
 DIAGNOSE_MAX_SAMPLES = 1_000_000
@@ -88,8 +92,10 @@ def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: floa
     prints = PrintCollector(sensors_of(opened.kind), against=unit.fitted_from if unit is not None else (),
                             own_segments=False)
     lines = run_passes(path, options, opened, passes, prints=prints)
+    survey = opened.finished_survey()
+    check_temperature_unit(path, options, survey)
     return BoundedRun(input_kind=opened.kind,
                       samples={p.sensor: subsamples[p.sensor].samples(p.aligner.dropped) for p in passes},
                       usable={p.sensor: p.aligner.kept for p in passes}, stride=stride,
-                      reference_lines=tuple(lines), survey=opened.finished_survey(),
+                      reference_lines=tuple(lines), survey=survey,
                       in_sample=prints.recognition(path.name), first_stamp_ns=prints.first_stamp_ns)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import Callable
 
 import numpy as np
 
@@ -37,9 +37,6 @@ from tak_thermo_ros.passes.run import (
     run_passes,
     sensors_of,
 )
-
-if TYPE_CHECKING:
-    pass
 
 
 def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import Any, Callable
 
 
 from tak_thermo_ros.core.records.blocks import BlockAligner
@@ -18,14 +18,12 @@ from tak_thermo_ros.passes.run import (
     Required,
     SensorPass,
     StreamOptions,
+    check_temperature_unit,
     open_calibration_run,
     run_passes,
     sensors_of,
     temperature_expected,
 )
-
-if TYPE_CHECKING:
-    pass
 
 
 @dataclass(frozen=True)
@@ -96,9 +94,11 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
         passes.append(gyro_pass)
     prints = PrintCollector(sensors_of(kind), against=unit.fitted_from, own_segments=False)
     lines = run_passes(path, options, opened, passes, prints=prints)
+    survey = opened.finished_survey()
+    check_temperature_unit(path, options, survey)
     return Validated(input_kind=kind, gravity=gravity_check, rate=rate_check, reference_lines=tuple(lines),
                      accel_dropped=accel_required.dropped,
                      gyro_dropped=gyro_required.dropped if calibration_run and rate_check is not None else {},
                      accel_ignored_temp_codes=dict(accel_pass.aligner.ignored_temp_codes),
                      accel_ignored_references=dict(accel_pass.aligner.ignored_references),
-                     survey=opened.finished_survey(), in_sample=prints.recognition(path.name))
+                     survey=survey, in_sample=prints.recognition(path.name))
