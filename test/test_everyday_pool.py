@@ -178,6 +178,21 @@ def test_records_without_rests_one_record_and_no_span_are_said(capsys, tmp_path)
     assert any(line.startswith('temperature span') and 'their temperature terms held at 0' in line for line in lines)
 
 
+def test_a_record_whose_temperatures_are_in_kelvin_is_said_in_one_line_and_not_pooled(capsys, tmp_path):
+    """A bag of a pool whose temperatures are in kelvin contributes nothing: its line says so, as for one record."""
+    raw = {**MONTH, 'everyday': {'records': 3, 'record_minutes': 6.0}}
+    simulated = write_month(tmp_path / 'pool', raw, range(3))
+    shutil.rmtree(tmp_path / 'pool' / 'rec02')
+    record = simulated[2].record
+    write_driver_record(tmp_path / 'pool' / 'rec02', replace(record, temperature=record.temperature + 273.15))
+    status, lines = run_cli(capsys, 'fit', str(tmp_path / 'pool'), '-o', str(tmp_path / 'p.yaml'))
+    assert status == 0, lines
+    said = [line for line in lines if line.startswith('rec02: ')]
+    assert len(said) == 1 and said[0].startswith('rec02: /imu/temperature: '), lines
+    assert 'in kelvin, not degrees Celsius: convert them' in said[0] and said[0].endswith('contributes nothing')
+    assert any(line.startswith('pool: 2 of 3 records') for line in lines), lines
+
+
 def test_a_month_against_the_chamber_and_androids_line_short():
     """Two seeds of a small month (8 records pooled, 3 held out): the pool's bias shape near the floor and the chamber.
 

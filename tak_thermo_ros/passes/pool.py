@@ -28,17 +28,17 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
-from tak_thermo_ros.core.fit.pool import record_means
+from tak_thermo_ros.core.fit.pool import own_offsets, record_means
 from tak_thermo_ros.core.link.model import InputKind
 from tak_thermo_ros.core.records.extremes import temperature_course
-from tak_thermo_ros.core.records.handheld import HandheldRecord, empty_samples, pooled, rest_records
+from tak_thermo_ros.core.records.handheld import HandheldRecord, empty_samples, pooled
 from tak_thermo_ros.core.records.record import DriverRecord, hold_last_index, no_orientation
 from tak_thermo_ros.core.records.still import MIN_STILL_S
 from tak_thermo_ros.core.records.survey import SurveyCollector
 from tak_thermo_ros.core.values import SENSOR_NAMES
 from tak_thermo_ros.errors import FitError, TakError
 from tak_thermo_ros.passes.handheld import handheld_record, handheld_settings
-from tak_thermo_ros.passes.run import SURVEY_REPLAY_SAMPLES, StreamOptions, record_streams_listed
+from tak_thermo_ros.passes.run import SURVEY_REPLAY_SAMPLES, StreamOptions, record_streams_listed, stripped_block
 from tak_thermo_ros.units import numbers, reader_unit
 
 POOL_SAMPLES = 2_000_000
@@ -120,7 +120,6 @@ class PoolEntry:
     :param rests: its rests (still intervals); ``rest_s`` their total time.
     :param temperature: the lowest and highest temperature at its rests (``None``: none).
     :param orientations: distinct orientations of its rests.
-    :param heating: rests warming; ``cooling`` rests cooling.
     :param source: a flight log's format and device IDs (``None``: a bag).
     :param lines: what the reader did (a firmware's corrections undone, ...).
     :param reason: why it contributes nothing or was left out (``''``: pooled).
@@ -133,8 +132,6 @@ class PoolEntry:
     rest_s: float = 0.0
     temperature: tuple[float, float] | None = None
     orientations: int = 0
-    heating: int = 0
-    cooling: int = 0
     source: dict[str, object] | None = None
     lines: tuple[str, ...] = ()
     reason: str = ''
@@ -182,12 +179,6 @@ def _shared(blocks: Iterator[DriverRecord]) -> Iterator[tuple[DriverRecord, bool
                            frame_id=block.frame_id), True
 
 
-def _stripped(block: DriverRecord) -> DriverRecord:
-    """What the pool's second look needs of a block (not the orientation, not the magnetometer)."""
-    return replace(block, orientation=np.zeros((0, 4)), orientation_covariance=np.zeros((0, 9)),
-                   mag_stamp_ns=np.zeros(0, dtype=np.int64), mag=np.zeros((0, 3)))
-
-
 def read_record(path: Path, options: StreamOptions, *, budget: int,
                 turn_budget: int | None = None) -> tuple[PoolEntry, HandheldRecord | None]:
     """One record of a pool: its rests and turns (about ``budget`` and ``turn_budget`` samples at most), and more."""
@@ -221,8 +212,11 @@ def read_record(path: Path, options: StreamOptions, *, budget: int,
         temperature_stamps.append(block.temp_stamp_ns)
         temperatures.append(block.temperature)
         if keep:
-            kept.append((_stripped(block), held))
+            kept.append((stripped_block(block), held))
     surveyed = survey.finish(record_streams_listed(path, streams, options.topics))
+    if surveyed.temperature_problem is not None:  # the one rule of a record's temperatures (check_temperature_unit)
+        reason = f'{options.topics.temperature}: {surveyed.temperature_problem}: contributes nothing'
+        return PoolEntry(path, name, source=source, lines=lines, reason=reason, held_gyro=held_gyro), None
     still = surveyed.still
     if not len(still):
         reason = (f'no rest (never still {MIN_STILL_S:g} s or more; still {100.0 * still.still_fraction:.0f} % of '
@@ -247,8 +241,7 @@ def read_record(path: Path, options: StreamOptions, *, budget: int,
     temperatures, trends = rest_temperatures(record)
     entry = PoolEntry(path, name, rests=len(still), rest_s=float(still.interval_s.sum()),
                       temperature=(float(record.still.temp_code.min()), float(record.still.temp_code.max())),
-                      orientations=still.orientations(), heating=int(np.sum(trends > TREND_C_PER_MIN)),
-                      cooling=int(np.sum(trends < -TREND_C_PER_MIN)), source=source, lines=lines, held_gyro=held_gyro,
+                      orientations=still.orientations(), source=source, lines=lines, held_gyro=held_gyro,
                       rest_temperatures=temperatures, rest_trends=trends,
                       temperature_rate_max=course.rate_max, rate_max=rate_max)
     return entry, record
@@ -271,21 +264,24 @@ def track(stamp_ns: np.ndarray, celsius: np.ndarray) -> tuple[np.ndarray, np.nda
 
 def rest_temperatures(record: HandheldRecord) -> tuple[np.ndarray, np.ndarray]:
     """Each rest's mean temperature and its trend (C per minute, a line through its samples)."""
-    interval = record.still_interval
-    _, number = np.unique(interval, return_inverse=True)
+    _, number = np.unique(record.still_interval, return_inverse=True)
     count = int(number.max()) + 1 if len(number) else 0
     stamp = record.still.stamp_s
     temperature = record.still.temp_code
-    means = np.zeros(count)
-    trends = np.zeros(count)
-    for rest in range(count):
-        rows = number == rest
-        t, c = stamp[rows], temperature[rows]
-        means[rest] = float(c.mean())
-        if len(t) > 2 and np.ptp(t) > 0.0:
-            centred = t - t.mean()
-            trends[rest] = float(centred @ (c - c.mean()) / (centred @ centred)) * 60.0
-    return means, trends
+    samples = np.bincount(number, minlength=count)
+
+    def mean(values: np.ndarray) -> np.ndarray:
+        return np.bincount(number, weights=values, minlength=count) / np.maximum(samples, 1)
+
+    means = mean(temperature)
+    centred = stamp - mean(stamp)[number]
+    low, high = np.full(count, np.inf), np.full(count, -np.inf)
+    np.minimum.at(low, number, stamp)
+    np.maximum.at(high, number, stamp)
+    sloped = (samples > 2) & (high > low)
+    spread = np.where(sloped, np.bincount(number, weights=centred * centred, minlength=count), 1.0)
+    trends = np.bincount(number, weights=centred * (temperature - means[number]), minlength=count) / spread * 60.0
+    return means, np.where(sloped, trends, 0.0)
 
 
 RESTLESS_RATIO = 3.0
@@ -513,18 +509,14 @@ def validate_records(paths: Sequence[str | os.PathLike[str]], unit, options: Str
                      latitude: float | None, out_of_range) -> PoolCheck:
     """The rests of a pool's records before and after ``unit`` (each record read once, as for ``fit``)."""
     from tak_thermo_ros.core.link.handheld_check import check_handheld
-    from tak_thermo_ros.core.records.handheld import numbered_rests
     from tak_thermo_ros.passes.handheld import nominal_unit
     opened = open_pool(paths, options)
     record = opened.record
     assert record is not None
     before = check_handheld(record, nominal_unit(unit), gravity=gravity, latitude=latitude, out_of_range=out_of_range)
     after = check_handheld(record, unit, gravity=gravity, latitude=latitude, out_of_range=out_of_range)
-    interval, count, _, _ = numbered_rests(record)
-    weights = np.bincount(interval, minlength=count).astype(float)
-    rest_record = rest_records(record)
-    own = record_means(after.rate_error, rest_record, record.records, weights)
-    return PoolCheck(opened, before, after, own, after.rate_error - own[rest_record])
+    own, shape = own_offsets(record, after.rate_error)
+    return PoolCheck(opened, before, after, own, shape)
 
 
 def bounded_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions, *, gravity: float,

@@ -312,9 +312,18 @@ def survey_record(path: Path, options: StreamOptions, kind: InputKind, listed: t
                                references=False, progress=options.progress):
         collector.add(block)
         if kept is not None:
-            kept.append(replace(block, orientation=np.zeros((0, 4)), orientation_covariance=np.zeros((0, 9)),
-                                mag_stamp_ns=np.zeros(0, dtype=np.int64), mag=np.zeros((0, 3))))
+            kept.append(stripped_block(block))
     return collector.finish(listed), tuple(kept) if kept is not None else None
+
+
+def stripped_block(block: DriverRecord) -> DriverRecord:
+    """What a later pass over a driver record needs of a block kept from its first pass.
+
+    Its stamps, the two sensors, the temperature and recorded signals: not the orientation the
+    driver passes through, not the magnetometer.
+    """
+    return replace(block, orientation=np.zeros((0, 4)), orientation_covariance=np.zeros((0, 9)),
+                   mag_stamp_ns=np.zeros(0, dtype=np.int64), mag=np.zeros((0, 3)))
 
 
 def run_passes(path: Path, options: StreamOptions, opened: OpenedRun, passes: Sequence[SensorPass], *,

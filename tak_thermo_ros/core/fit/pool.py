@@ -23,7 +23,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from tak_thermo_ros.core.fit.handheld import HandheldFit, HandheldSettings, fit_handheld, orders_for_span
+from tak_thermo_ros.core.fit.handheld import HandheldFit, HandheldSettings, fit_handheld
+from tak_thermo_ros.core.fit.random_effects import screen_offsets
 from tak_thermo_ros.core.link.correction import OutOfRange
 from tak_thermo_ros.core.link.handheld_check import check_handheld
 from tak_thermo_ros.core.link.model import AXES, InputKind, UnitCalibration
@@ -37,6 +38,8 @@ MIN_RECORDS_FOR_ORDERS = 3
 """Fewer records than this: the orders are the span's (no fold to judge them on)."""
 ORDER_TOLERANCE = 2.0
 """A lower order is kept when its held-out chi-square exceeds the best's by at most this."""
+MIN_RECORDS_FOR_SCREENING = 3
+"""Fewer records than this: no record is screened as another unit's (no spread to judge it by)."""
 
 
 @dataclass(frozen=True)
@@ -106,9 +109,24 @@ def shape_residuals(record: HandheldRecord, unit: UnitCalibration, *, gravity: f
     check = replace(check, rate_error=check.rate_error[keep], gravity_error=check.gravity_error[keep])
     out = {'record': rest_record, 'samples': samples, 'temperature': temperature}
     for sensor, errors in (('gyro', check.rate_error), ('accel', check.gravity_error[:, None])):
-        own = record_means(errors, rest_record, record.records, samples)
-        out[sensor] = errors - own[rest_record]
+        out[sensor] = own_offsets(record, errors, keep)[1]
     return out
+
+
+def own_offsets(record: HandheldRecord, errors: np.ndarray,
+                keep: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Each record's own mean of the errors at its rests (its turn-on offset), and the errors with it taken off.
+
+    :param errors: ``(k, ...)`` an error at each rest of ``record`` (each rest kept by ``keep``).
+    :param keep: ``(rests,)`` which of the record's rests ``errors`` holds (``None``: all).
+    :returns: ``(records, ...)`` each record's samples-weighted mean of its rests' errors, and
+        ``(k, ...)`` the errors less their record's mean.
+    """
+    rest_record, samples, _ = _rests(record)
+    if keep is not None:
+        rest_record, samples = rest_record[keep], samples[keep]
+    own = record_means(errors, rest_record, record.records, samples)
+    return own, errors - own[rest_record]
 
 
 def _variance(sensor: str, residuals: dict[str, np.ndarray], fit: HandheldFit, noise: np.ndarray) -> np.ndarray:
@@ -124,10 +142,11 @@ def _variance(sensor: str, residuals: dict[str, np.ndarray], fit: HandheldFit, n
 
 
 def choose_orders(record: HandheldRecord, settings: HandheldSettings, full: HandheldFit) -> dict[str, OrderChoice]:
-    """Each sensor's offset orders by leaving whole records out (see the module's description)."""
-    temperature = record.still.temp_code
-    top, _ = orders_for_span(float(np.ptp(temperature)) if len(temperature) else 0.0, settings.bias_order,
-                             settings.scale_order)
+    """Each sensor's offset orders by leaving whole records out (see the module's description).
+
+    :param full: the pool's fit at ``settings``; its bias order (the span's) is the highest order tried.
+    """
+    top = full.orders[0]
     if record.records < MIN_RECORDS_FOR_ORDERS or top <= 1:
         return {}
     candidates = tuple(range(1, top + 1))
@@ -184,27 +203,36 @@ def order_line(sensor: str, choice: OrderChoice) -> str:
 def fit_pool(record: HandheldRecord, settings: HandheldSettings = HandheldSettings()) -> PoolFit:
     """Fit a pool of records of one unit (see the module's description).
 
+    The records left out as another unit's are left out once: the pool without them is fitted
+    again and not screened again.
+
     :raises FitError: the pool's turn-on offsets fall in two groups (two units), or as :func:`fit_handheld`.
     """
-    left_out: list[LeftOut] = []
-    while True:
-        full = fit_handheld(record, settings)
-        orders = choose_orders(record, settings, full)
-        fitted = full
-        if orders:
-            axis_orders = {sensor: choice.orders for sensor, choice in orders.items()}
-            fitted = fit_handheld(record, replace(settings, axis_orders=axis_orders))
-        if record.records < 3 or left_out:
-            return PoolFit(fitted, record, orders, tuple(left_out))
-        outliers = _another_unit(record, fitted)
-        if not outliers:
-            return PoolFit(fitted, record, orders, tuple(left_out))
-        keep = np.array([name not in {o.name for o in outliers} for name in record.record_names])
-        left_out += outliers
-        if keep.sum() < 2:
-            msg = f'the pool holds no two records of one unit ({len(outliers)} of {record.records} far apart)'
-            raise FitError(msg)
-        record = records_subset(record, keep)
+    fitted, orders = _fit_orders(record, settings)
+    if record.records < MIN_RECORDS_FOR_SCREENING:
+        return PoolFit(fitted, record, orders)
+    outliers = _another_unit(record, fitted)
+    if not outliers:
+        return PoolFit(fitted, record, orders)
+    keep = np.array([name not in {o.name for o in outliers} for name in record.record_names])
+    if keep.sum() < 2:
+        msg = f'the pool holds no two records of one unit ({len(outliers)} of {record.records} far apart)'
+        raise FitError(msg)
+    record = records_subset(record, keep)
+    fitted, orders = _fit_orders(record, settings)
+    return PoolFit(fitted, record, orders, tuple(outliers))
+
+
+def _fit_orders(record: HandheldRecord, settings: HandheldSettings) -> tuple[HandheldFit, dict[str, OrderChoice]]:
+    """The pool's fit at the orders chosen by leaving whole records out (:func:`choose_orders`), and the choice."""
+    full = fit_handheld(record, settings)
+    orders = choose_orders(record, settings, full)
+    top = full.orders[0]
+    if not orders or (settings.axis_orders is None
+                      and all(order == top for choice in orders.values() for order in choice.orders)):
+        return full, orders  # every order the span's: nothing held beyond the fit already made
+    axis_orders = {sensor: choice.orders for sensor, choice in orders.items()}
+    return fit_handheld(record, replace(settings, axis_orders=axis_orders)), orders
 
 
 @dataclass(frozen=True)
@@ -269,7 +297,6 @@ def _another_unit(record: HandheldRecord, fitted: HandheldFit) -> list[LeftOut]:
 
     :raises TwoUnits: the offsets fall in two groups.
     """
-    from tak_thermo_ros.core.fit.random_effects import screen_offsets
     found: dict[int, LeftOut] = {}
     for sensor in ('gyro', 'accel'):
         turn_on = fitted.turn_on.get(sensor)

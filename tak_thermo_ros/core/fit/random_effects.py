@@ -13,9 +13,10 @@ walk add about the same to every rest's mean whatever its length (``t^2``), whic
 long rest's weight ends. Each rest's mean row (the first row of its compressed samples, the one
 along the constant) is weighted by ``1 / sqrt(s^2 + n t^2)`` (in the units of one sample).
 
-``s_u`` and ``t`` per axis are the restricted maximum likelihood (REML) of the pool
-(:func:`restricted_likelihood`): ``log|V| + log|G| + log|C| + r' V^-1 r`` of the whitened system,
-minimised over their logarithms (:func:`fit_variances`); the standard error of ``s_u`` comes from
+``s_u`` and ``t`` per axis are the restricted maximum likelihood (REML) of the pool (the
+criterion is ``_Reml.__call__`` in :mod:`~tak_thermo_ros.core.fit.handheld`):
+``log|V| + log|G| + log|C| + r' V^-1 r`` of the whitened system, minimised over their
+logarithms (:func:`fit_variances`); the standard error of ``s_u`` comes from
 the criterion's curvature (the observed information). With few records it is wide: the spread
 of 10 offsets is known to about 25 %.
 """

@@ -51,7 +51,7 @@ from tak_thermo_ros.core.simulation.imu import (
     exact_output,
     first_order_lag,
 )
-from tak_thermo_ros.core.simulation.motion import FACE_UP, _minimum_jerk, _pose
+from tak_thermo_ros.core.simulation.motion import FACE_UP, _minimum_jerk, _posed
 from tak_thermo_ros.errors import ScenarioError
 
 DAY_S = 86400.0
@@ -301,9 +301,7 @@ def _rest_poses(habits: Everyday, count: int, rng: np.random.Generator) -> np.nd
     tilt = math.radians(habits.tilt_deg) * np.sqrt(rng.uniform(size=count))
     axis = np.cross(up, rng.standard_normal((count, 3)))
     axis /= np.linalg.norm(axis, axis=1, keepdims=True)
-    up = np.einsum('kab,kb->ka', exp_map(tilt[:, None] * axis), up)
-    headings = rng.uniform(0.0, 2.0 * math.pi, count)
-    return np.array([_pose(direction, heading) for direction, heading in zip(up, headings)])
+    return _posed(np.einsum('kab,kb->ka', exp_map(tilt[:, None] * axis), up), rng)
 
 
 def _fade(time_s: np.ndarray, length: float) -> np.ndarray:

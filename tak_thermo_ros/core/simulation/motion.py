@@ -174,7 +174,12 @@ def rest_poses(motion: HandheldMotion, count: int, rng: np.random.Generator) -> 
         up = np.einsum('kab,kb->ka', exp_map(tilt[:, None] * axis / np.linalg.norm(axis, axis=1, keepdims=True)), up)
     else:
         up = rng.standard_normal((count, 3))
-    headings = rng.uniform(0.0, 2.0 * math.pi, count)
+    return _posed(up, rng)
+
+
+def _posed(up: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """``(k, 3, 3)`` the poses whose up directions are ``up`` ``(k, 3)``, each at a heading drawn uniform."""
+    headings = rng.uniform(0.0, 2.0 * math.pi, len(up))
     return np.array([_pose(direction, heading) for direction, heading in zip(up, headings)])
 
 
