@@ -156,3 +156,31 @@ def test_learn_set_true_with_a_corrupt_learned_file_is_refused_and_the_node_runs
         assert results[0].successful, results[0].reason
         wait_until(lambda: f'learning into {learned} (from 0 earlier runs)' in node.log(), 10.0, what='learning')
         assert node.stop() == 0
+
+
+def test_a_calibration_change_while_learning_writes_the_learned_file_first(tmp_path, ros_env):
+    """A ``calibration.*`` change while learning writes the learned file first; later learning holds the new one.
+
+    The file written at the change holds the calibration the rests were learned against; what the
+    new watch learns is written with the new calibration.
+    """
+    record = everyday_runs(3, ('healthy',), habits=SHORT)['healthy'].record
+    params, learned = tmp_path / 'unit.yaml', tmp_path / 'learned.yaml'
+    save_unit(params, UNIT)
+    rms = UNIT.accel.axes[0].residual_rms
+    with NodeProcess(node_command('-p', f'calibration_file:={params}', '-p', 'qos:=reliable', '-p',
+                                  f'latitude:={LATITUDE}', '-p', 'learn:=true', '-p', f'learned_file:={learned}'),
+                     ros_env, tmp_path / 'node.log') as node, \
+            Harness(int(ros_env['ROS_DOMAIN_ID']), driver=True) as ros:
+        ros.wait_matched()
+        play(ros, record)
+        results = ros.set_parameters({'calibration.accel.x.residual_rms': 2.0 * rms})
+        assert results[0].successful, results[0].reason
+        wait_until(lambda: learned.exists() and load_learned(learned).rests >= 2, 10.0, what='the learned file')
+        assert load_unit(learned).accel.axes[0].residual_rms == rms
+        later = int(record.stamp_ns[-1] - record.stamp_ns[0]) + 1_000_000_000
+        ros.imu.clear()
+        play(ros, replace(record, stamp_ns=record.stamp_ns + later, temp_stamp_ns=record.temp_stamp_ns + later))
+        assert node.stop() == 0
+    assert load_unit(learned).accel.axes[0].residual_rms == 2.0 * rms
+    assert load_learned(learned).rests >= 2

@@ -58,7 +58,7 @@ class TurnOnSettings:
 
     latitude: float | None = None
 
-    def watch(self, unit: UnitCalibration, path: Path):
+    def watch(self, unit: UnitCalibration):
         """The watch that finds the first rest and takes the offset.
 
         :raises TakError: the calibration cannot give it (no noise model, no turn-on repeatability).
@@ -237,13 +237,13 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
                                   temperature_expected=temperature_expected(
                                       path, streams, options, needed=unit.mag.thermal.needs_temperature,
                                       what="the calibration's magnetometer"))
-    watch = turn_on.watch(unit, path) if turn_on is not None else None
+    watch = turn_on.watch(unit) if turn_on is not None else None
     apart = isinstance(first, DriverRecord) and not first.shared_stamps
     if watch is not None and (kind is not InputKind.IMU or apart):
         msg = (f'{path}: --turn-on first-rest takes a driver\'s Imu whose messages carry both sensors (as the node '
                f'does); this record\'s sensors come at their own stamps')
         raise TakError(msg)
-    if isinstance(first, DriverRecord) and not first.shared_stamps:
+    if apart:
         return _apply_own_stamps(unit, output, options, first, blocks, magnetometer, storage=storage,
                                  out_of_range=out_of_range, force=force, holding=expected)
     blocks = itertools.chain([] if first is None else [first], blocks)

@@ -183,6 +183,15 @@ def _path_value(value: Any, name: str, error: type[Exception] = ValueError) -> s
     return value
 
 
+def _learning_start(learn: bool, path: str) -> LearnedState | None:
+    """What learning starts from: the learned file's state (a fresh one without the file), or ``None`` (false)."""
+    return (load_learned(path) or LearnedState()) if learn else None
+
+
+_UNCHANGED: Any = object()
+"""A ``learn`` change not pending (:attr:`CompensatorNode._learn_pending`)."""
+
+
 class CompensatorNode(Node):
     """The ``compensator`` node.
 
@@ -229,7 +238,7 @@ class CompensatorNode(Node):
                                                        [p.value for p in StaleTemperature])),
             temp_timeout_s=_timeout(self._value('temp_timeout')),
             temp_topic=self._temp_subscription.topic_name)
-        self._original, self._source = unit, source
+        self._source = source
         self._core = OnlineCompensator(unit, watch=self._watch_settings(unit, source), **policies)
         self._learned_written_s = time.monotonic()
         # The magnetometer: a second core on its own topic, the same temperature and rules.
@@ -289,8 +298,9 @@ class CompensatorNode(Node):
         self._diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self._on_diagnostics_timer)
         self._pending: Any = None
         self._mag_pending: Any = None
-        self._learn_pending: tuple[LearnedState | None] | None = None
-        """A ``learn`` change validated, to put in force: ``(state,)``, the learned file's state or ``None`` (false)."""
+        self._learn_pending: LearnedState | None = _UNCHANGED
+        """A ``learn`` change validated, to put in force: the learned file's state, ``None`` (false), or
+        :data:`_UNCHANGED`."""
         self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         low, high = self._core.calibrated_range
@@ -328,12 +338,13 @@ class CompensatorNode(Node):
         if (turn_on or learn) and not enabled:
             msg = 'turn_on and learn need the watch (watch: true)'
             raise ValueError(msg)
-        state = (load_learned(path) or LearnedState()) if learn else None
+        state = _learning_start(learn, path)
         missing = turn_on_unavailable(unit) if turn_on else ''
         if missing:
             msg = f"turn_on: first_rest needs the calibration's {missing}"
             raise CalibrationError(msg)
-        self._learned_path = path if learn else ''
+        self._learned_path = path
+        """``learned_file`` (read only): where learning, when on, writes."""
         return WatchSettings(enabled=enabled, latitude=latitude, turn_on=turn_on, learn=state)
 
     def _watch_words(self) -> str:
@@ -360,7 +371,7 @@ class CompensatorNode(Node):
         if not learner.changed:
             return
         try:
-            save_learned(self._learned_path, self._original, learner.state(), source=self._source)
+            save_learned(self._learned_path, learner.unit, learner.state(), source=self._source)
         except (OSError, TakError) as err:
             line = f'learned_file: cannot write {self._learned_path} ({err})'
             try:
@@ -379,7 +390,6 @@ class CompensatorNode(Node):
         """
         self.save_learned()
         settings = self._core.watch_settings
-        self._learned_path = self._value('learned_file') if state is not None else ''
         self._core.set_watch(replace(settings, learn=state))
         self.get_logger().info(self._watch_words())
 
@@ -655,8 +665,8 @@ class CompensatorNode(Node):
         putting the change in force cannot fail. Any error refuses the change with its reason.
         """
         self._pending = None
-        self._learn_pending = None
-        changes_learn = None
+        self._learn_pending = _UNCHANGED
+        changes_learn = _UNCHANGED
         try:
             changes: dict[str, Any] = {}
             calibration_changed = False
@@ -673,14 +683,16 @@ class CompensatorNode(Node):
                 elif parameter.name.startswith(CALIBRATION_PREFIX + '.'):
                     calibration_changed = True
                 elif parameter.name == 'learn':
-                    path = self._value('learned_file')
+                    path = self._learned_path
                     if _flag(value, 'learn') and not path:
                         msg = 'learn: true needs learned_file:=PATH, given at start-up'
                         raise ValueError(msg)
                     if self._core.watch is None:
                         msg = f'learn: the calibration watch is {self._core.watch_off}'
                         raise ValueError(msg)
-                    changes_learn = ((load_learned(path) or LearnedState()) if value else None,)
+                    if value == (self._core.watch.learner is not None):
+                        continue  # as it is: learning goes on (or stays off) untouched
+                    changes_learn = _learning_start(value, path)
             if calibration_changed:
                 flat = self._calibration_values()
                 for parameter in parameters:
@@ -708,11 +720,13 @@ class CompensatorNode(Node):
         """Put the validated change in force: runs in the executor, between two messages."""
         prepared, self._pending = self._pending, None
         mag_prepared, self._mag_pending = self._mag_pending, None
-        learn, self._learn_pending = self._learn_pending, None
-        if learn is not None:
-            self._set_learning(*learn)
+        learn, self._learn_pending = self._learn_pending, _UNCHANGED
+        if learn is not _UNCHANGED:
+            self._set_learning(learn)
         if prepared is None:
             return
+        if prepared.unit is not self._core.unit:  # a new calibration: a new watch, what was learned written first
+            self.save_learned()
         self._core.install(prepared)
         self._set_covariances()
         if mag_prepared is not None:

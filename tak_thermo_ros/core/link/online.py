@@ -93,6 +93,7 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass
+from operator import sub
 from typing import Callable, NamedTuple
 
 from tak_thermo_ros.core.link.correction import (
@@ -262,9 +263,9 @@ class _StampRule:
         """Why the next message, stamped ``stamp_ns``, is dropped, or ``None``; the state moves on."""
         last, before = self.last_ns, self.before_ns
         self.before_ns, self.last_ns = last, stamp_ns
-        step = None if last is None else stamp_ns - last
-        # going_on_step, its usual case (a step forward within 10 s) inline
-        if last is not None and not 0 < step <= STAMP_JUMP_NS:
+        step = None
+        # the usual case (a step forward within 10 s) never comes here: the caller takes it inline
+        if last is not None:
             step = going_on_step(stamp_ns, StampHistory(last, self.kept_ns, self.step_ns, before))
             if step is None:
                 reason = stamp_problem(stamp_ns - last)
@@ -520,11 +521,13 @@ class OnlineCompensator:
         self._stale_reported = False
         self._previous: dict[str, int] = {}
         self._config: Configuration | None = None
-        self.watch_settings = watch if watch is not None and watch.enabled and channel != MAG_CHANNEL else None
         self.watch: CalibrationWatch | None = None
         """The calibration watch in force (:mod:`tak_thermo_ros.core.link.watch`), or ``None``."""
-        self.watch_off = 'off (watch: false)' if self.watch_settings is None else ''
+        self.watch_settings: WatchSettings | None = None
+        """The watch's settings, ``None`` while it is off (:meth:`_use_settings`)."""
+        self.watch_off = ''
         """Why there is no watch, or ``''``."""
+        self._use_settings(watch)
         self._watch_finder: RestFinder | None = None
         self._adjustment: tuple[tuple[float, ...], tuple[float, ...]] | None = None
         self._adjusted_at: tuple[float, tuple[float, ...]] | None = None
@@ -679,9 +682,14 @@ class OnlineCompensator:
 
     def set_watch(self, settings: WatchSettings | None) -> None:
         """New watch settings (learning switched on or off at run time): a new watch of the calibration in force."""
-        self.watch_settings = settings if settings is not None and settings.enabled else None
-        self.watch_off = 'off (watch: false)' if self.watch_settings is None else ''
+        self._use_settings(settings)
         self._start_watch(self._config.unit)
+
+    def _use_settings(self, settings: WatchSettings | None) -> None:
+        """Keep the watch's settings: ``None`` when it is off (not enabled, or the magnetometer's channel)."""
+        enabled = settings is not None and settings.enabled and self.channel != MAG_CHANNEL
+        self.watch_settings = settings if enabled else None
+        self.watch_off = '' if enabled else 'off (watch: false)'
 
     def _start_watch(self, unit: UnitCalibration) -> None:
         """A watch of the calibration in force (a new one with a new calibration: its rests start afresh)."""
@@ -917,7 +925,7 @@ class OnlineCompensator:
                     if at is None or at[0] != temperature:  # recomputed when the temperature changes only
                         at = self._adjusted_at = (temperature, adjustment_at(temperature, adjustment,
                                                                              self.watch.reference))  # type: ignore
-                    output = tuple(v - c for v, c in zip(output, at[1]))
+                    output = tuple(map(sub, output, at[1]))
             return output
         for stream in streams:  # one sensor's values: a carried sensor left out, or the only one carried
             if stream.reason is None:

@@ -55,6 +55,7 @@ Imports numpy only (the node loads it).
 from __future__ import annotations
 
 import math
+import operator
 from itertools import chain
 from dataclasses import dataclass, field, replace
 from statistics import NormalDist
@@ -236,8 +237,6 @@ class RestFinder:
         self.windows = 0
         """Windows closed so far."""
         self.still_windows = 0
-        self.last_ns = 0
-        """The start of the latest window (the stream's clock, for the time since the last rest)."""
 
     def take(self, stamp_ns: int, values: Sequence[float], temperature: float) -> None:
         """One corrected message: six values (accelerometer x y z, gyroscope x y z) at its stamp."""
@@ -289,7 +288,6 @@ class RestFinder:
         self.start_ns = self._origin_ns + slot * self.window_ns
         self.end_ns = self.start_ns + self.window_ns
         self._window_temperature = temperature
-        self.last_ns = self.start_ns
 
     def _close_window(self) -> None:
         """The window in progress: still or not, and what that does to the rest in progress."""
@@ -914,7 +912,7 @@ class CalibrationWatch:
                   ('windows', str(self.finder.windows)), ('still_windows', str(self.finder.still_windows))]
         last = self.judged[-1] if self.judged else self.first
         if last is not None:
-            values.append(('since_last_rest_s', f'{max(0, self.finder.last_ns - last.rest.end_ns) * 1e-9:.1f}'))
+            values.append(('since_last_rest_s', f'{max(0, self.finder.start_ns - last.rest.end_ns) * 1e-9:.1f}'))
             values.append(('last_rest_temperature', f'{last.rest.temperature:.4g}'))
         for channel, name in enumerate(CHANNELS):
             state = self.channels[name]
@@ -1154,7 +1152,7 @@ class Learner:
         offset = [0.0] * 6
         slope = [0.0] * 6
         for axis, axis_filter in enumerate(self._filters):
-            o, s = (axis_filter.state if axis_filter.last is not None else (0.0, 0.0))
+            o, s = axis_filter.state  # zero until the filter takes its first rest
             total_slope = self.start.slope[axis] + s
             # a + b (T - T_ref) with the slope counted from the gyroscope's reference temperature
             offset[3 + axis] = float(self.start.offset[axis] + o)
@@ -1255,7 +1253,7 @@ class Learner:
 def adjust(values: tuple[float, ...], temperature: float, adjustment: tuple[tuple[float, ...], tuple[float, ...]],
            reference: float) -> tuple[float, ...]:
     """A message's six values less ``a + b (T - T_ref)``: the node's path (``apply``: :func:`adjust_array`)."""
-    return tuple(v - c for v, c in zip(values, adjustment_at(temperature, adjustment, reference)))
+    return tuple(map(operator.sub, values, adjustment_at(temperature, adjustment, reference)))
 
 
 def adjustment_at(temperature: float, adjustment: tuple[tuple[float, ...], tuple[float, ...]],
