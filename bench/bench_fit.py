@@ -48,12 +48,14 @@ typestore = get_typestore(Stores.ROS2_JAZZY)
 deserialize = typestore.deserialize_cdr
 start = time.perf_counter()
 messages = 0
-with Reader(sys.argv[1]) as reader:
-    for connection, _, raw in reader.messages(connections=reader.connections):
-        deserialize(raw, connection.msgtype)
-        messages += 1
+for path in sys.argv[1:]:
+    with Reader(path) as reader:
+        for connection, _, raw in reader.messages(connections=reader.connections):
+            deserialize(raw, connection.msgtype)
+            messages += 1
 print(json.dumps({'seconds': time.perf_counter() - start, 'messages': messages}))
 """
+"""rosbags alone over the bags given as arguments (one, or a month's): ``{"seconds", "messages"}`` as JSON."""
 
 
 def bench_scenario(hours: float, rate_hz: float) -> Scenario:

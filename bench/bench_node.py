@@ -289,6 +289,12 @@ class Driver:
         rclpy.try_shutdown(context=self.context)
 
 
+def node_env(home: Path, domain: int) -> dict[str, str]:
+    """The environment of a node (or driver) process in ROS domain ``domain``, its ROS home ``home``."""
+    return {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', 'ROS_DOMAIN_ID': str(domain),
+            'ROS_HOME': str(home), 'ROS_LOG_DIR': str(home / 'log'), 'RCUTILS_COLORIZED_OUTPUT': '0'}
+
+
 def start(kind: str, params: Path, env: dict[str, str], log: Path) -> subprocess.Popen:
     """The node under test in its own process (and session)."""
     if kind == 'relay':
@@ -372,9 +378,7 @@ def measure(params: Path, workdir: Path, *, throughput_count: int, latency_count
     subjects = []
     try:
         for index, kind in enumerate(('relay', 'compensator')):
-            env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
-                   'ROS_DOMAIN_ID': str(bench_domain(index)), 'ROS_HOME': str(home),
-                   'ROS_LOG_DIR': str(home / 'log'), 'RCUTILS_COLORIZED_OUTPUT': '0'}
+            env = node_env(home, bench_domain(index))
             subjects.append(Subject(kind, params, env, workdir))
         for subject in subjects:
             subject.warm_up()
@@ -552,6 +556,16 @@ class ImuDriver:
         rclpy.try_shutdown(context=self.context)
 
 
+def paced_row(driver: ImuDriver, pid: int, rate: float, count: int) -> dict:
+    """``count`` Imu sent at ``rate`` Hz to the node process ``pid``: what it received and the CPU it took."""
+    cpu_before = cpu_s(pid)
+    received, achieved = driver.paced(rate, count)
+    cpu = cpu_s(pid) - cpu_before
+    return {'rate_hz': rate, 'sent': count, 'achieved_send_rate_hz': achieved, 'received': received,
+            'lost': count - received, 'cpu_us_per_message': cpu / max(received, 1) * 1e6,
+            'cpu_fraction': cpu / (count / achieved)}
+
+
 def measure_driver_input(params: Path, workdir: Path, *, rates: tuple[float, ...], seconds: float,
                          baseline: Path | None = None) -> dict:
     """Relay and compensator (and the baseline's compensator) on each executor, open loop at each rate.
@@ -567,9 +581,7 @@ def measure_driver_input(params: Path, workdir: Path, *, rates: tuple[float, ...
         processes, drivers, rows = {}, {}, {kind: [] for kind in kinds}
         try:
             for subject_index, kind in enumerate(kinds):
-                env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
-                       'ROS_DOMAIN_ID': str(bench_domain(2 + 3 * executor_index + subject_index)),
-                       'ROS_HOME': str(home), 'ROS_LOG_DIR': str(home / 'log'), 'RCUTILS_COLORIZED_OUTPUT': '0'}
+                env = node_env(home, bench_domain(2 + 3 * executor_index + subject_index))
                 node_arguments = ['--ros-args', '--params-file', str(params), '-p', 'qos:=reliable',
                                   '-p', f'qos_depth:={DEPTH}', '-p', f'executor:={executor}']
                 if kind == 'relay':
@@ -586,16 +598,11 @@ def measure_driver_input(params: Path, workdir: Path, *, rates: tuple[float, ...
             for rate in rates:
                 count = int(rate * seconds)
                 for kind in kinds:
-                    cpu_before = cpu_s(processes[kind].pid)
-                    received, achieved = drivers[kind].paced(rate, count)
-                    cpu = cpu_s(processes[kind].pid) - cpu_before
-                    rows[kind].append({'rate_hz': rate, 'sent': count, 'achieved_send_rate_hz': achieved,
-                                       'received': received, 'lost': count - received,
-                                       'cpu_us_per_message': cpu / max(received, 1) * 1e6,
-                                       'cpu_fraction': cpu / (count / achieved)})
-                    print(f'  driver input, {executor:15s} {kind:11s} {rate:6.0f} Hz (sent at {achieved:6.0f}): '
-                          f'{count - received:5d} of {count} lost, {rows[kind][-1]["cpu_us_per_message"]:6.0f} us '
-                          f'CPU per message', flush=True)
+                    row = paced_row(drivers[kind], processes[kind].pid, rate, count)
+                    rows[kind].append(row)
+                    print(f'  driver input, {executor:15s} {kind:11s} {rate:6.0f} Hz '
+                          f'(sent at {row["achieved_send_rate_hz"]:6.0f}): {row["lost"]:5d} of {count} lost, '
+                          f'{row["cpu_us_per_message"]:6.0f} us CPU per message', flush=True)
         finally:
             codes = {}
             for kind in kinds:
@@ -749,9 +756,7 @@ def measure_transport_loss(params: Path, workdir: Path, *, count: int = TRANSPOR
     home.mkdir(exist_ok=True)
     for index, (executor, qos) in enumerate((('events', 'reliable'), ('events', 'sensor_data'),
                                              ('single_threaded', 'reliable'), ('single_threaded', 'sensor_data'))):
-        env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
-               'ROS_DOMAIN_ID': str(bench_domain(8 + index)),
-               'ROS_HOME': str(home), 'ROS_LOG_DIR': str(home / 'log'), 'RCUTILS_COLORIZED_OUTPUT': '0'}
+        env = node_env(home, bench_domain(8 + index))
         command = [sys.executable, '-m', 'tak_thermo_ros.ros.node', '--ros-args', '--params-file', str(params),
                    '-p', f'qos:={qos}', '-p', f'qos_depth:={DEPTH}', '-p', f'executor:={executor}']
         log = workdir / f'loss_{executor}_{qos}.log'
@@ -1166,9 +1171,7 @@ def measure_watch_cpu(params: Path, workdir: Path, *, rates: tuple[float, ...], 
     rows: dict[str, list] = {kind: [] for kind in kinds}
     try:
         for index, (kind, value) in enumerate(kinds.items()):
-            env = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
-                   'ROS_DOMAIN_ID': str(bench_domain(20 + index)), 'ROS_HOME': str(home),
-                   'ROS_LOG_DIR': str(home / 'log'), 'RCUTILS_COLORIZED_OUTPUT': '0'}
+            env = node_env(home, bench_domain(20 + index))
             command = [sys.executable, '-m', 'tak_thermo_ros.ros.node', '--ros-args', '--params-file', str(params),
                        '-p', 'qos:=reliable', '-p', f'qos_depth:={DEPTH}', '-p', f'watch:={value}']
             processes[kind] = subprocess.Popen(command, env=env, stdout=open(workdir / f'{kind}.log', 'wb'),
@@ -1180,14 +1183,10 @@ def measure_watch_cpu(params: Path, workdir: Path, *, rates: tuple[float, ...], 
             for rate in rates:
                 count = int(rate * seconds)
                 for kind in kinds:
-                    cpu_before = cpu_s(processes[kind].pid)
-                    received, achieved = drivers[kind].paced(rate, count)
-                    cpu = cpu_s(processes[kind].pid) - cpu_before
-                    rows[kind].append({'rate_hz': rate, 'sent': count, 'received': received,
-                                       'lost': count - received, 'achieved_send_rate_hz': achieved,
-                                       'cpu_us_per_message': cpu / max(received, 1) * 1e6})
-                    print(f'  watch CPU, {kind:9s} {rate:6.0f} Hz: {count - received:5d} of {count} lost, '
-                          f'{rows[kind][-1]["cpu_us_per_message"]:6.1f} us CPU per message', flush=True)
+                    row = paced_row(drivers[kind], processes[kind].pid, rate, count)
+                    rows[kind].append(row)
+                    print(f'  watch CPU, {kind:9s} {rate:6.0f} Hz: {row["lost"]:5d} of {count} lost, '
+                          f'{row["cpu_us_per_message"]:6.1f} us CPU per message', flush=True)
     finally:
         for kind in kinds:
             if kind in drivers:

@@ -24,27 +24,11 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fit import run_child  # noqa: E402
+from bench_fit import BASELINE_SCRIPT, run_child  # noqa: E402
 from benchlib import machine, tak_calib_command  # noqa: E402
 from tak_thermo_ros.formats.calibration_file import write_text_atomic  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / 'results'
-
-BASELINE_SCRIPT = """
-import json, sys, time
-from rosbags.rosbag2 import Reader
-from rosbags.typesys import Stores, get_typestore
-typestore = get_typestore(Stores.ROS2_JAZZY)
-deserialize = typestore.deserialize_cdr
-start = time.perf_counter()
-messages = 0
-for path in sys.argv[1:]:
-    with Reader(path) as reader:
-        for connection, _, raw in reader.messages(connections=reader.connections):
-            deserialize(raw, connection.msgtype)
-            messages += 1
-print(json.dumps({'seconds': time.perf_counter() - start, 'messages': messages}))
-"""
 
 
 def build(directory: Path, records: int, minutes: float, rate: float) -> None:

@@ -27,9 +27,9 @@ from benchlib import machine
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))
 
-from test_steps import WANDERS, coloured  # noqa: E402
+from test_steps import WANDERS, coloured, with_step  # noqa: E402
 
-from tak_thermo_ros.core.records.steps import _line_ends, find_steps  # noqa: E402
+from tak_thermo_ros.core.records.steps import find_steps  # noqa: E402
 
 COUNT = 8400
 RESULTS = Path(__file__).resolve().parent / 'results'
@@ -44,11 +44,8 @@ def case(name: str, seeds: int) -> dict[str, object]:
         steps = find_steps(noise, threshold=0.0, max_steps=1)
         largest = max(largest, float(np.abs(steps[0].z).max()) if steps else 0.0)
         false_steps += bool(find_steps(noise))
-        index = int(np.random.default_rng(seed).integers(COUNT // 5, 4 * COUNT // 5))
-        change = _line_ends(noise, 8)[1]
-        spread = 1.4826 * np.median(np.abs(change - np.median(change, axis=0)), axis=0)
-        size = 12.0 * spread * np.array([1.0, 0.0, -1.0])
-        stepped = find_steps(noise + size * (np.arange(COUNT) >= index)[:, None])
+        with_noise, index, size = with_step(noise, seed)
+        stepped = find_steps(with_noise)
         hit = [s for s in stepped if abs(s.index - index) <= 2]
         found += bool(hit and set(hit[0].named) == {0, 2}
                       and np.all(np.abs(hit[0].amplitude - size) < 4.0 * hit[0].sigma))

@@ -37,31 +37,15 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))
 
-from everyday_watch import HABITS, LATITUDE, SCENARIO, earth_rates, everyday_runs, held_temperature  # noqa: E402
+from everyday_watch import HABITS, LATITUDE, SCENARIO, everyday_runs, learning_ratios  # noqa: E402
 from everyday_watch import rest_ends_ns, watch_run, watch_unit  # noqa: E402
 
-from tak_thermo_ros.core.link.watch import FALSE_ALARMS_PER_HOUR, ChannelNoise, LearnedState  # noqa: E402
+from tak_thermo_ros.core.link.watch import FALSE_ALARMS_PER_HOUR, LearnedState  # noqa: E402
 from tak_thermo_ros.core.link.watch import WatchSettings  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / 'results' / 'watch.json'
 TARGET_MISSED = 3
 NANOSECONDS = 1_000_000_000
-
-
-def learning_ratios(simulated, output: np.ndarray, unit, rate_hz: float, habits) -> np.ndarray:
-    """``(r, 3)`` from the 5th true rest on: the published rate's mean less the true Earth rate, over its floor."""
-    rows_kept, _ = held_temperature(simulated)
-    earth = earth_rates(simulated, habits)
-    rest = simulated.rest[rows_kept]
-    out = []
-    for index in range(4, int(rest.max()) + 1):
-        rows = np.flatnonzero(rest == index)[10:-10]
-        if len(rows) < 40:
-            continue
-        duration = len(rows) / rate_hz
-        floor = np.array([math.sqrt(ChannelNoise.axis(unit.gyro.noise, axis).level(duration)) for axis in range(3)])
-        out.append((output[rows, 3:].mean(axis=0) - earth[index]) / floor)
-    return np.array(out).reshape(-1, 3)
 
 
 def main() -> int:

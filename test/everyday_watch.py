@@ -20,7 +20,9 @@ import numpy as np
 
 from tak_thermo_ros.core.link.correction import UnitCorrector
 from tak_thermo_ros.core.link.model import TurnOn, UnitCalibration
-from tak_thermo_ros.core.link.watch import DEG_PER_H, CalibrationWatch, WatchSettings, adjust
+from tak_thermo_ros.core.link.online import OnlineCompensator
+from tak_thermo_ros.core.link.watch import DEG_PER_H, CalibrationWatch, ChannelNoise, WatchSettings, adjust
+from tak_thermo_ros.core.records.record import NANOSECONDS, DriverRecord
 from tak_thermo_ros.core.simulation.everyday import (
     EverydayRecord,
     _rest_poses,
@@ -30,6 +32,7 @@ from tak_thermo_ros.core.simulation.everyday import (
     simulate_everyday_record,
 )
 from tak_thermo_ros.core.values import EARTH_RATE
+from tak_thermo_ros.formats.bag import play_order
 
 LATITUDE = 45.0
 """Where the simulated unit lives (the node's and validate's ``latitude``)."""
@@ -87,11 +90,6 @@ def everyday_runs(index: int, faults: tuple[str, ...] = FAULTS, scenario=SCENARI
     return runs
 
 
-def everyday_run(index: int, fault: str = 'healthy') -> EverydayRecord:
-    """One record of :func:`everyday_runs`."""
-    return everyday_runs(index, (fault,))[fault]
-
-
 def held_temperature(simulated: EverydayRecord) -> tuple[np.ndarray, np.ndarray]:
     """The Imu rows from the first temperature on and the temperature each is corrected with (the last before it)."""
     record = simulated.record
@@ -143,3 +141,44 @@ def rest_ends_ns(simulated: EverydayRecord) -> np.ndarray:
     """``(r,)`` the stamp of each true rest's last sample."""
     return np.array([simulated.record.stamp_ns[np.flatnonzero(simulated.rest == rest)[-1]]
                      for rest in range(int(simulated.rest.max()) + 1)])
+
+
+def learning_ratios(simulated: EverydayRecord, output: np.ndarray, unit: UnitCalibration, rate_hz: float,
+                    habits=HABITS) -> np.ndarray:
+    """``(r, 3)`` from the 5th true rest on: the published rate's mean less the true Earth rate, over its floor.
+
+    ``output`` is what the node publishes from the first temperature on (:func:`watch_run`'s);
+    a rest's edges (the motion's fading vibration) are left out, a rest of fewer than 40 samples
+    then skipped.
+    """
+    rows_kept, _ = held_temperature(simulated)
+    earth = earth_rates(simulated, habits)
+    rest = simulated.rest[rows_kept]
+    out = []
+    for index in range(4, int(rest.max()) + 1):
+        rows = np.flatnonzero(rest == index)[10:-10]
+        if len(rows) < 40:
+            continue
+        duration = len(rows) / rate_hz
+        floor = np.array([math.sqrt(ChannelNoise.axis(unit.gyro.noise, axis).level(duration)) for axis in range(3)])
+        out.append((output[rows, 3:].mean(axis=0) - earth[index]) / floor)
+    return np.array(out).reshape(-1, 3)
+
+
+def core_published(core: OnlineCompensator, record: DriverRecord, *, judge: bool = False) -> np.ndarray:
+    """``(k, 6)`` what the node's core publishes from the record, played in ``tak_calib play``'s order.
+
+    Every message's receive time is 0 (``core`` built with a long ``temp_timeout_s``); with
+    ``judge`` the watch judges after every message.
+    """
+    published = []
+    for stamp, stream, row in play_order(record.temp_stamp_ns, record.stamp_ns):
+        if stream == 0:
+            core.process_temperature(float(record.temperature[row]), 0.0)
+        else:
+            result = core.process_values(*divmod(stamp, NANOSECONDS), (*record.accel[row], *record.gyro[row]), 0.0)
+            if isinstance(result, tuple):
+                published.append(result)
+        if judge:
+            core.judge_watch()
+    return np.array(published)

@@ -30,6 +30,8 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, Temperature
 
+from tak_thermo_ros.formats.bag import play_order
+
 NANOSECONDS = 1_000_000_000
 RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
 _PR_SET_PDEATHSIG = 1
@@ -309,11 +311,11 @@ class Harness:
         response = future.result()
         return [response.result] if atomically else list(response.results)
 
-    def latest_status(self) -> Any | None:
-        """The last diagnostics status of the compensator received, or ``None``."""
+    def latest_status(self, name: str = 'temperature compensation') -> Any | None:
+        """The last diagnostics status of the compensator received whose name holds ``name``, or ``None``."""
         for array_message in reversed(self.diagnostics):
             for status in array_message.status:
-                if 'temperature compensation' in status.name:
+                if name in status.name:
                     return status
         return None
 
@@ -328,6 +330,21 @@ class Harness:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
+
+
+def play_driver(ros: Harness, driver: Any) -> None:
+    """Publish a driver run in stamp order (temperature before Imu at equal stamps), losing nothing."""
+    sent = 0
+    for stamp, stream, row in play_order(driver.temp_stamp_ns, driver.stamp_ns):
+        if stream == 0:
+            ros.wait(lambda: len(ros.imu) >= sent, 20.0, f'the node to catch up ({len(ros.imu)} of {sent})')
+            ros.send_temperature(stamp, driver.temperature[row])
+        else:
+            ros.wait(lambda: len(ros.imu) >= sent - 50, 20.0, f'the node to catch up ({len(ros.imu)} of {sent})')
+            ros.send_imu(stamp, (*driver.accel[row], *driver.gyro[row]), frame_id=driver.frame_id,
+                         orientation=driver.orientation[row], orientation_covariance=driver.orientation_covariance[row])
+            sent += 1
+    ros.wait(lambda: len(ros.imu) >= sent, 20.0, 'the last Imu')
 
 
 def status_values(status: Any) -> dict[str, str]:

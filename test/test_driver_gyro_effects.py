@@ -17,7 +17,7 @@ import pytest
 from tak_thermo_ros.formats.bag import write_driver_record
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.formats.calibration_file import load_unit
-from tak_thermo_ros.core.effects import LIBRARY, seconds_from_ns
+from tak_thermo_ros.core.effects import LIBRARY
 from tak_thermo_ros.core.fit import fit_model
 from tak_thermo_ros.core.records.record import align
 from tak_thermo_ros.core.simulation.imu import RATE_TABLE_POSITIONS, RATE_TABLE_RATES, Scenario, simulate
@@ -50,7 +50,7 @@ def test_every_library_effect_is_covered():
 def _hidden(name: str) -> dict[str, float]:
     values = dict(GYRO_EFFECTS[name])
     if name == 'step':  # counted from the first sample, as the fit counts it
-        values['origin_s'] = float(seconds_from_ns(simulate(RUN).driver.stamp_ns[:1])[0])
+        values['origin_s'] = RUN.start_time_s
     if name == 'temperature_shape':
         # one knot where the fit puts a single knot: the middle of the run's temperature range
         temperature = simulate(RUN).driver.temperature

@@ -112,7 +112,6 @@ def test_the_fit_holds_y_at_zero_and_recovers_x_and_z(lag_run):
 
 
 def test_the_file_keeps_the_axes_and_the_node_path_reads_them(lag_run, tmp_path):
-    from tak_thermo_ros.core.link.model import UnitCalibration  # noqa: F401  (the file's unit)
     from tak_thermo_ros.formats.calibration_file import save_calibration
     calibration = fit_model(lag_run, effects=['thermal_lag[xz]']).calibration
     path = tmp_path / 'held.yaml'

@@ -120,11 +120,11 @@ def test_a_month_meets_its_temperatures_heating_and_cooling(month):
     assert (truth.gyro.temp_code_min, truth.gyro.temp_code_max) == pytest.approx((low, high))
 
 
-def test_coloured_noise_comes_from_the_scenarios_units():
+def test_coloured_noise_comes_from_the_scenarios_units(month):
     """The records carry the units' bias instability and random walk: slow wander beside the white noise."""
     quiet_units = {name: tuple(replace(axis, bias_instability=0.0, random_walk=0.0) for axis in getattr(SCENARIO, name))
                    for name in ('accel_unit', 'gyro_unit')}
-    coloured = simulate_everyday_record(SCENARIO, HABITS, 1)
+    coloured = month[1]
     white = simulate_everyday_record(replace(SCENARIO, **quiet_units), HABITS, 1)
     wander = coloured.record.gyro - white.record.gyro
     assert np.all(np.std(wander, axis=0) > 5e-6)  # rad/s: the bias instability of 2e-5 and the walk

@@ -48,11 +48,21 @@ def driver(tmp_path_factory):
     return root
 
 
-def test_the_report_of_a_driver_record_speaks_of_degrees_draws_what_it_promises_and_no_panel_of_one_point(driver):
-    """No 'temperature code' on the page, no green promised without a green curve, no one-point panels."""
+@pytest.fixture(scope='module')
+def diagnosed(driver):
+    """The fitted file, the record's accelerometer samples and their diagnosis (warm-up the candidate).
+
+    Shared: neither the report nor the |g| series changes the diagnosis or the samples.
+    """
     unit = load_unit(driver / 'base.yaml')
     samples = bounded_run(driver / 'run', OPTIONS, unit=unit).samples['accel']
-    result = diagnose(unit.accel, samples, candidates=['warmup'])
+    return unit, samples, diagnose(unit.accel, samples, candidates=['warmup'])
+
+
+def test_the_report_of_a_driver_record_speaks_of_degrees_draws_what_it_promises_and_no_panel_of_one_point(
+        driver, diagnosed):
+    """No 'temperature code' on the page, no green promised without a green curve, no one-point panels."""
+    _, samples, result = diagnosed
     assert result.residual_after is None  # nothing named: no second curve
     files = write_report(result, samples, driver / 'report', sensor='accel', unit='m/s^2')
     page = (driver / 'report' / 'report.html').read_text()
@@ -63,11 +73,9 @@ def test_the_report_of_a_driver_record_speaks_of_degrees_draws_what_it_promises_
     assert 'One input per axis in this run (one orientation)' in page and 'temperature plateau' in page
 
 
-def test_the_reports_g_before_is_validates_before(driver):
+def test_the_reports_g_before_is_validates_before(driver, diagnosed):
     """The same record and file: the report's |g| before and validate's are one computation (the values as recorded)."""
-    unit = load_unit(driver / 'base.yaml')
-    samples = bounded_run(driver / 'run', OPTIONS, unit=unit).samples['accel']
-    result = diagnose(unit.accel, samples, candidates=['warmup'])
+    unit, samples, result = diagnosed
     series = gravity_series(result, samples, 9.80665, as_recorded=True)
     report_before = float(np.sqrt(np.mean(series[0][1] ** 2)))
     validated = validate_bag(driver / 'run', unit, OPTIONS, gravity=9.80665)

@@ -16,6 +16,7 @@ from node_helpers import (
     Harness,
     NodeProcess,
     node_command,
+    play_driver,
     run_to_exit,
     stamp_of,
     status_values,
@@ -320,23 +321,6 @@ def driver_params(path: Path, unit=DRIVER_UNIT, **parameters) -> Path:
     """A params file with a driver calibration and the node's parameters."""
     write_text_atomic(path, unit_yaml(unit, extra_parameters=parameters))
     return path
-
-
-def play_driver(ros: Harness, driver) -> None:
-    """Publish a driver run in stamp order (temperature before Imu at equal stamps), losing nothing."""
-    events = sorted([(int(s), 0, i) for i, s in enumerate(driver.temp_stamp_ns)]
-                    + [(int(s), 2, i) for i, s in enumerate(driver.stamp_ns)])
-    sent = 0
-    for stamp, stream, row in events:
-        if stream == 0:
-            ros.wait(lambda: len(ros.imu) >= sent, 20.0, f'the node to catch up ({len(ros.imu)} of {sent})')
-            ros.send_temperature(stamp, driver.temperature[row])
-        else:
-            ros.wait(lambda: len(ros.imu) >= sent - 50, 20.0, f'the node to catch up ({len(ros.imu)} of {sent})')
-            ros.send_imu(stamp, (*driver.accel[row], *driver.gyro[row]), frame_id=driver.frame_id,
-                         orientation=driver.orientation[row], orientation_covariance=driver.orientation_covariance[row])
-            sent += 1
-    ros.wait(lambda: len(ros.imu) >= sent, 20.0, 'the last Imu')
 
 
 def node_and_apply(bag: Path, params: Path, driver, ros_env: dict[str, str], tmp_path: Path):

@@ -12,7 +12,7 @@ from dataclasses import replace
 import numpy as np
 
 from everyday_watch import HABITS, LATITUDE, everyday_runs, watch_unit
-from node_helpers import Harness, NodeProcess, node_command, run_to_exit, wait_until
+from node_helpers import Harness, NodeProcess, node_command, play_driver, run_to_exit, status_values, wait_until
 from tak_thermo_ros import cli
 from tak_thermo_ros.formats.bag import read_imu_messages, write_driver_record
 from tak_thermo_ros.formats.calibration_file import load_unit, save_unit
@@ -21,31 +21,8 @@ from tak_thermo_ros.formats.learned_file import load_learned
 UNIT = watch_unit()
 SHORT = replace(HABITS, record_minutes=4.0)
 """Four minutes of everyday use at 10 Hz (about 2,500 Imu messages, 3 to 6 rests)."""
-
-
-def play(ros: Harness, record) -> None:
-    """Publish a driver record in stamp order (temperature before Imu at equal stamps), losing nothing."""
-    events = sorted([(int(s), 0, i) for i, s in enumerate(record.temp_stamp_ns)]
-                    + [(int(s), 2, i) for i, s in enumerate(record.stamp_ns)])
-    sent = 0
-    for stamp, stream, row in events:
-        if stream == 0:
-            ros.wait(lambda: len(ros.imu) >= sent, 20.0, f'the node to catch up ({len(ros.imu)} of {sent})')
-            ros.send_temperature(stamp, record.temperature[row])
-        else:
-            ros.wait(lambda: len(ros.imu) >= sent - 50, 20.0, f'the node to catch up ({len(ros.imu)} of {sent})')
-            ros.send_imu(stamp, (*record.accel[row], *record.gyro[row]), frame_id=record.frame_id)
-            sent += 1
-    ros.wait(lambda: len(ros.imu) >= sent, 20.0, 'the last Imu')
-
-
-def watch_status(ros: Harness):
-    """The node's latest calibration-watch status, or ``None``."""
-    for array in reversed(ros.diagnostics):
-        for status in array.status:
-            if status.name.endswith('calibration watch'):
-                return status
-    return None
+WATCH = 'calibration watch'
+"""The name of the calibration watch's diagnostics status (``<node>: calibration watch``)."""
 
 
 def validate_verdict(bag, params, capsys) -> str:
@@ -77,12 +54,12 @@ def test_the_node_says_stale_as_validate_does_and_takes_the_turn_on_as_apply(tmp
                                   f'latitude:={LATITUDE}', '-p', 'turn_on:=first_rest'), ros_env,
                      tmp_path / 'node.log') as node, Harness(int(ros_env['ROS_DOMAIN_ID']), driver=True) as ros:
         ros.wait_matched()
-        play(ros, record)
-        ros.wait(lambda: watch_status(ros) is not None and watch_status(ros).level == b'\x01', 10.0,
+        play_driver(ros, record)
+        ros.wait(lambda: ros.latest_status(WATCH) is not None and ros.latest_status(WATCH).level == b'\x01', 10.0,
                  'a stale verdict')
-        status = watch_status(ros)
+        status = ros.latest_status(WATCH)
         assert status.message == verdict and 'calibration' in status.message and 'stale' in status.message
-        values = {pair.key: pair.value for pair in status.values}
+        values = status_values(status)
         assert float(values['gyro_x.bias_deg_h']) > 500.0 and int(values['rests']) >= 1
         assert 'turn-on offset not taken' in values['turn_on'] and 'gyro x' in values['turn_on']
         assert node.stop() == 0
@@ -110,7 +87,7 @@ def test_learning_is_written_read_by_validate_and_by_the_next_start(tmp_path, ro
     with NodeProcess(node_command(*arguments), ros_env, tmp_path / 'first.log') as node, \
             Harness(int(ros_env['ROS_DOMAIN_ID']), driver=True) as ros:
         ros.wait_matched()
-        play(ros, record)
+        play_driver(ros, record)
         assert node.stop() == 0
     assert f'calibration watch at shutdown: {verdict}' in node.log()
     state = load_learned(learned)

@@ -249,6 +249,19 @@ COMMAND = st.sampled_from(['fit', 'fit', 'fit', 'apply', 'validate'])
 INSTANCE = st.sampled_from([0, 0, 0, 0, 1])
 
 
+def _check_command(kind: str, log: Path, command: str, params: Path, directory: Path, instance: int) -> None:
+    """Run ``command`` on the log (``kind``: its format, for the event): one line, or its outputs written.
+
+    After ``fit``, every sample is counted (:func:`check_nothing_lost`).
+    """
+    argv, outputs = _command(command, log, params, directory / 'out', instance)
+    code, stdout, stderr = _run(argv)
+    event(f'{kind} {command}: exit {code}')
+    check_written(code, stdout, stderr, directory, outputs)
+    if command == 'fit':
+        check_nothing_lost(code, stdout)
+
+
 @settings(max_examples=examples(20))
 @given(changes=ulog_changes(), damage=BYTE_DAMAGE, command=COMMAND, instance=INSTANCE)
 def test_commands_on_mutated_ulogs_keep_the_invariant_and_lose_nothing_uncounted(
@@ -260,12 +273,7 @@ def test_commands_on_mutated_ulogs_keep_the_invariant_and_lose_nothing_uncounted
         log = directory / 'log.ulg'
         write_ulog(log, _changed_topics(topics, changes))
         _damaged(log, damage)
-        argv, outputs = _command(command, log, params, directory / 'out', instance)
-        code, stdout, stderr = _run(argv)
-        event(f'ulog {command}: exit {code}')
-        check_written(code, stdout, stderr, directory, outputs)
-        if command == 'fit':
-            check_nothing_lost(code, stdout)
+        _check_command('ulog', log, command, params, directory, instance)
 
 
 @settings(max_examples=examples(20))
@@ -280,12 +288,7 @@ def test_commands_on_mutated_dataflash_logs_keep_the_invariant_and_lose_nothing_
         log = directory / 'log.bin'
         write_dataflash(log, {'IMU': (fmt, columns, _changed_imu(values, imu_changes))}, parameters=parameters)
         _damaged(log, damage)
-        argv, outputs = _command(command, log, params, directory / 'out', instance)
-        code, stdout, stderr = _run(argv)
-        event(f'bin {command}: exit {code}')
-        check_written(code, stdout, stderr, directory, outputs)
-        if command == 'fit':
-            check_nothing_lost(code, stdout)
+        _check_command('bin', log, command, params, directory, instance)
 
 
 YAML_JUNK = st.sampled_from(['.nan', '.inf', '-.inf', '1e400', '-1e308', '9' * 5000, '[' * 3000 + ']' * 3000,

@@ -18,23 +18,20 @@ named either way, and a held form holds y only, where the unit has no lag.
 from __future__ import annotations
 
 import json
-import sys
 from dataclasses import replace
 from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from test_noise_verdicts import wandering_run  # noqa: E402
-from tak_thermo_ros import cli  # noqa: E402
-from tak_thermo_ros.core.diagnose.excursions import GAIN_SIGMAS  # noqa: E402
-from tak_thermo_ros.core.noise.constancy import TREND_T, temperature_trend  # noqa: E402
-from tak_thermo_ros.core.simulation.imu import simulate  # noqa: E402
-from tak_thermo_ros.formats.bag import Topics, write_driver_record  # noqa: E402
-from tak_thermo_ros.formats.calibration_file import load_unit  # noqa: E402
-from tak_thermo_ros.passes.noise import noise_bag  # noqa: E402
-from tak_thermo_ros.passes.run import StreamOptions  # noqa: E402
+from test_noise_verdicts import wandering_run
+from tak_thermo_ros import cli
+from tak_thermo_ros.core.diagnose.excursions import GAIN_SIGMAS
+from tak_thermo_ros.core.noise.constancy import TREND_T, temperature_trend
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.formats.bag import Topics, write_driver_record
+from tak_thermo_ros.formats.calibration_file import load_unit
+from tak_thermo_ros.passes.noise import noise_bag
+from tak_thermo_ros.passes.run import StreamOptions
 
 OPTIONS = StreamOptions(topics=Topics(), progress=False)
 LAG_SLOPE = 3e-5

@@ -17,7 +17,7 @@ import pytest
 
 from conftest import EXAMPLES, SHORT
 from tak_thermo_ros import cli
-from tak_thermo_ros.core.effects import LIBRARY, seconds_from_ns
+from tak_thermo_ros.core.effects import LIBRARY
 from tak_thermo_ros.core.fit import fit_model, residual_counts
 from tak_thermo_ros.core.records.record import align
 from tak_thermo_ros.core.records.steps import STEP_SIGMAS, _line_ends, change_at, despiked, find_steps
@@ -43,6 +43,20 @@ def coloured(seed: int, count: int, instability: float, walk: float) -> np.ndarr
                                                          (walk,) * 3)
 
 
+def with_step(noise: np.ndarray, seed: int) -> tuple[np.ndarray, int, np.ndarray]:
+    """``(stepped, index, size)``: the noise with a step on x and z from sample ``index`` on, seeded.
+
+    ``index`` drawn in the middle three fifths; ``size`` 12 times the spread of the noise's own level
+    changes over 8 samples on each side (the scan's shortest scale), +x and -z, y unchanged.
+    """
+    count = len(noise)
+    index = int(np.random.default_rng(seed).integers(count // 5, 4 * count // 5))
+    change = _line_ends(noise, 8)[1]
+    spread = 1.4826 * np.median(np.abs(change - np.median(change, axis=0)), axis=0)
+    size = 12.0 * spread * np.array([1.0, 0.0, -1.0])
+    return noise + size * (np.arange(count) >= index)[:, None], index, size
+
+
 @pytest.mark.parametrize('case', list(WANDERS))
 def test_no_step_is_found_in_coloured_noise_over_seeds(case):
     """12 seeds x 3 channels of 4000 samples per case: no step (bench/bench_steps.py: 500 seeds per case)."""
@@ -60,12 +74,8 @@ def test_a_step_in_coloured_noise_is_found_where_and_as_large_as_it_is(case):
     """
     instability, walk = WANDERS[case]
     for seed in range(3):
-        noise = coloured(100 + seed, 4000, instability, walk)
-        index = int(np.random.default_rng(seed).integers(800, 3200))
-        change = _line_ends(noise, 8)[1]
-        spread = 1.4826 * np.median(np.abs(change - np.median(change, axis=0)), axis=0)
-        size = 12.0 * spread * np.array([1.0, 0.0, -1.0])
-        steps = find_steps(noise + size * (np.arange(4000) >= index)[:, None])
+        stepped, index, size = with_step(coloured(100 + seed, 4000, instability, walk), seed)
+        steps = find_steps(stepped)
         assert len(steps) >= 1
         step = steps[0]
         assert abs(step.index - index) <= 2
@@ -93,7 +103,7 @@ def test_a_warm_up_a_lag_and_a_spike_are_not_steps():
 def test_the_step_effect_recovers_the_moment_and_the_sizes():
     """A hidden step in a chamber run: the fitted moment between the same two samples, sizes within 4 errors."""
     scenario = replace(SHORT, sample_rate_hz=0.5, plateaus_celsius=(10.0, 30.0), plateau_hours=0.5)
-    first = float(seconds_from_ns(simulate(scenario).record.counts_stamp_ns[:1])[0])
+    first = scenario.start_time_s  # the first sample's stamp
     truth = {'origin_s': first, 'at_s': 2345.6, 'amplitude_x': 5.0, 'amplitude_y': 0.0, 'amplitude_z': -4.0}
     samples = align(simulate(replace(scenario, effects={'step': truth})).record)
     result = fit_model(samples, effects=['step'])

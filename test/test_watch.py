@@ -16,9 +16,10 @@ from everyday_watch import (
     OFFSET_MOVED,
     SCENARIO,
     SLOPE_GROWTH,
+    core_published,
     corrected_run,
-    earth_rates,
     everyday_runs,
+    learning_ratios,
     rest_ends_ns,
     watch_run,
     watch_unit,
@@ -29,7 +30,6 @@ from tak_thermo_ros.core.link.online import OnlineCompensator
 from tak_thermo_ros.core.link.watch import (
     DEG_PER_H,
     REST_MAX_S,
-    ChannelNoise,
     LearnedState,
     RestFinder,
     WatchSettings,
@@ -98,26 +98,8 @@ def over_seeds():
         for fault in learned:
             simulated = runs[fault]
             watch, _, output = watch_run(simulated, UNIT, WatchSettings(latitude=LATITUDE, learn=LearnedState()))
-            learned[fault].append(rest_errors(simulated, output))
+            learned[fault].append(learning_ratios(simulated, output, UNIT, SCENARIO.sample_rate_hz))
     return results, learned
-
-
-def rest_errors(simulated, output: np.ndarray) -> np.ndarray:
-    """``(r, 3)`` per true rest from the 5th on: the published rate's mean less the true Earth rate, over its floor."""
-    from everyday_watch import held_temperature
-    rows_kept, _ = held_temperature(simulated)
-    earth = earth_rates(simulated)
-    rest = simulated.rest[rows_kept]
-    out = []
-    for index in range(4, int(rest.max()) + 1):
-        rows = np.flatnonzero(rest == index)[10:-10]  # its edges: the motion's fading vibration
-        if len(rows) < 40:
-            continue
-        error = output[rows, 3:].mean(axis=0) - earth[index]
-        duration = len(rows) / SCENARIO.sample_rate_hz
-        floor = np.array([math.sqrt(ChannelNoise.axis(UNIT.gyro.noise, axis).level(duration)) for axis in range(3)])
-        out.append(error / floor)
-    return np.array(out).reshape(-1, 3)
 
 
 def test_a_healthy_unit_is_never_said_stale(over_seeds):
@@ -257,17 +239,7 @@ def test_apply_takes_the_turn_on_offset_as_the_node_does(moved_bag, tmp_path, ca
     applied = read_imu_messages(out, topic='/imu/data_compensated')
     core = OnlineCompensator(UNIT, temp_timeout_s=1e9, watch=WatchSettings(latitude=LATITUDE, turn_on=True))
     record = simulated.record
-    events = sorted([(int(s), 0, i) for i, s in enumerate(record.temp_stamp_ns)]
-                    + [(int(s), 1, i) for i, s in enumerate(record.stamp_ns)])
-    published = []
-    for stamp, stream, row in events:
-        if stream == 0:
-            core.process_temperature(float(record.temperature[row]), 0.0)
-        else:
-            result = core.process_values(*divmod(stamp, NANOSECONDS), (*record.accel[row], *record.gyro[row]), 0.0)
-            if isinstance(result, tuple):
-                published.append(result)
-    published = np.array(published)
+    published = core_published(core, record)
     assert core.watch.adjustment is not None and core.watch.turn_on_offset[3] == 0.0  # x refused, y z taken
     assert np.array_equal(applied.linear_acceleration, published[:, :3])
     assert np.array_equal(applied.angular_velocity, published[:, 3:])
@@ -305,17 +277,7 @@ def test_with_learning_off_the_watch_leaves_the_output_as_apply_writes_it(moved_
     """Watch on (the node's default), no turn-on, no learning: the published values are apply's, float for float."""
     _, _, simulated = moved_bag
     core = OnlineCompensator(UNIT, temp_timeout_s=1e9, watch=WatchSettings(latitude=LATITUDE))
-    record = simulated.record
-    events = sorted([(int(s), 0, i) for i, s in enumerate(record.temp_stamp_ns)]
-                    + [(int(s), 1, i) for i, s in enumerate(record.stamp_ns)])
-    published = []
-    for stamp, stream, row in events:
-        if stream == 0:
-            core.process_temperature(float(record.temperature[row]), 0.0)
-        else:
-            published.append(core.process_values(*divmod(stamp, NANOSECONDS),
-                                                 (*record.accel[row], *record.gyro[row]), 0.0))
-        core.judge_watch()
+    published = core_published(core, simulated.record, judge=True)
     stamps, expected, _ = corrected_run(simulated, UNIT)
     assert core.watch.stale and core.watch.rests_judged >= 3
-    assert np.array_equal(np.array([p for p in published if isinstance(p, tuple)]), expected)
+    assert np.array_equal(published, expected)
