@@ -150,14 +150,14 @@ def test_a_calibration_change_while_learning_writes_the_learned_file_first(tmp_p
                      ros_env, tmp_path / 'node.log') as node, \
             Harness(int(ros_env['ROS_DOMAIN_ID']), driver=True) as ros:
         ros.wait_matched()
-        play(ros, record)
+        play_driver(ros, record)
         results = ros.set_parameters({'calibration.accel.x.residual_rms': 2.0 * rms})
         assert results[0].successful, results[0].reason
         wait_until(lambda: learned.exists() and load_learned(learned).rests >= 2, 10.0, what='the learned file')
         assert load_unit(learned).accel.axes[0].residual_rms == rms
         later = int(record.stamp_ns[-1] - record.stamp_ns[0]) + 1_000_000_000
         ros.imu.clear()
-        play(ros, replace(record, stamp_ns=record.stamp_ns + later, temp_stamp_ns=record.temp_stamp_ns + later))
+        play_driver(ros, replace(record, stamp_ns=record.stamp_ns + later, temp_stamp_ns=record.temp_stamp_ns + later))
         assert node.stop() == 0
     assert load_unit(learned).accel.axes[0].residual_rms == 2.0 * rms
     assert load_learned(learned).rests >= 2

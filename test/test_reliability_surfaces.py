@@ -493,15 +493,17 @@ def test_flight_log_bag_and_csv_temperatures_not_in_celsius_are_refused_with_a_h
     assert "log.csv: column 'temp': " in line and words in line
 
 
-def test_a_reference_record_in_kelvin_is_refused_by_validate_and_diagnose_too(tmp_path):
-    """The same rule where the record holds references (a table run): not only fit refuses it."""
+def test_a_reference_record_in_kelvin_is_refused_by_validate_diagnose_and_apply_too(tmp_path):
+    """The same rule where the record holds references (a table run): not only fit refuses it (apply writes nothing)."""
     from tak_thermo_ros.core.simulation.imu import Scenario, simulate
     run = simulate(Scenario(sample_rate_hz=2.0, plateaus_celsius=(10.0, 30.0), plateau_hours=0.05,
                             ramp_celsius_per_minute=5.0, board_lag_s=5.0, dwell_s=5.0, output='imu')).driver
     write_driver_record(tmp_path / 'good', run)
     succeeded(['fit', str(tmp_path / 'good'), '-o', str(tmp_path / 'p.yaml'), '--no-progress'])
     write_driver_record(tmp_path / 'bag', replace(run, temperature=run.temperature + 273.15))
-    for command in ('validate', 'diagnose'):
-        line = refused([command, str(tmp_path / 'bag'), '--params', str(tmp_path / 'p.yaml'), '--no-progress'])
+    for command in ('validate', 'diagnose', 'apply'):
+        output = ['-o', str(tmp_path / 'out')] if command == 'apply' else []
+        line = refused([command, str(tmp_path / 'bag'), '--params', str(tmp_path / 'p.yaml'), *output,
+                        '--no-progress'], tmp_path / 'out')
         assert f'{tmp_path / "bag"}: /imu/temperature: ' in line, (command, line)
         assert 'in kelvin, not degrees Celsius: convert them' in line, (command, line)

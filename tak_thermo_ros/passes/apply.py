@@ -6,7 +6,7 @@ import itertools
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Iterator
+from typing import Iterator
 
 import numpy as np
 
@@ -17,10 +17,13 @@ from tak_thermo_ros.core.records.record import AlignedSamples, DriverRecord
 from tak_thermo_ros.core.records.survey import RecordSurvey, SurveyCollector
 from tak_thermo_ros.core.link.stream_correction import BlockCorrector, BlockUnitCorrector
 from tak_thermo_ros.errors import TakError
-from tak_thermo_ros.passes.run import Required, StreamOptions, record_streams_listed, temperature_expected
-
-if TYPE_CHECKING:
-    pass
+from tak_thermo_ros.passes.run import (
+    Required,
+    StreamOptions,
+    check_temperature_unit,
+    record_streams_listed,
+    temperature_expected,
+)
 
 
 @dataclass(frozen=True)
@@ -299,6 +302,8 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
         write(aligner.finish())
         if magnetometer is not None:
             magnetometer.finish(writer, frame_id, output)
+        finished = survey.finish(record_streams_listed(path, streams, topics))
+        check_temperature_unit(path, options, finished)  # before the bag is kept: nothing written
         written = writer.written
     if watch is not None:
         watch.finish()
@@ -308,7 +313,7 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
                    ignored_references=dict(aligner.ignored_references),
                    mag_written=writer.written_mag, mag_topic=topics.compensated_mag if magnetometer else '',
                    mag_dropped=dict(magnetometer.aligner.dropped) if magnetometer else {},
-                   survey=survey.finish(record_streams_listed(path, streams, topics)))
+                   survey=finished)
 
 
 def _apply_own_stamps(unit: UnitCalibration, output: str | Path, options: StreamOptions, first: DriverRecord,

@@ -388,15 +388,22 @@ class CompensatorNode(Node):
         ``None`` (false) returns to the calibration file at once (what was learned is written first); a
         state starts learning from it (the new watch's rests start afresh).
         """
-        self.save_learned()
+        self._end_watch()
         settings = self._core.watch_settings
         self._core.set_watch(replace(settings, learn=state))
         self.get_logger().info(self._watch_words())
 
-    def finish(self) -> None:
-        """At shutdown: the rest in progress judged, the verdict said once more, what was learned written."""
+    def _end_watch(self) -> None:
+        """End the watch's stream (shutdown, or a new watch replaces it): judge every rest, and write what it learned.
+
+        The rest in progress is judged too, and the timer may not have judged the latest ones yet.
+        """
         self._core.judge_watch(finish=True)
         self.save_learned()
+
+    def finish(self) -> None:
+        """At shutdown: the rest in progress judged, the verdict said once more, what was learned written."""
+        self._end_watch()
         if self._core.watch is not None:
             line = f'calibration watch at shutdown: {self._core.watch.verdict()}'
             try:
@@ -726,7 +733,7 @@ class CompensatorNode(Node):
         if prepared is None:
             return
         if prepared.unit is not self._core.unit:  # a new calibration: a new watch, what was learned written first
-            self.save_learned()
+            self._end_watch()
         self._core.install(prepared)
         self._set_covariances()
         if mag_prepared is not None:
