@@ -102,6 +102,7 @@ from tak_thermo_ros.core.link.model import (
     check_plausible,
     check_scale_positive,
 )
+from tak_thermo_ros.core.link.uncertainty import LinkUncertainty
 from tak_thermo_ros.core.records.provenance import RecordPrint
 from tak_thermo_ros.core.noise.model import NoiseModel, noise_model_from_mapping
 from tak_thermo_ros.core.values import finite_number
@@ -356,7 +357,7 @@ def _link_from_mapping(raw: Any, key: str, input_kind: InputKind, *, extra_keys:
         raise CalibrationError(msg)
     # A link without any temperature (thermal: none) has no temperatures to state.
     needed = AXES if thermal == THERMAL_NONE else (*range_keys, *AXES)
-    _check_keys(raw, key, needed, ('thermal', 'notes', 'effects', 'noise', 'turn_on', *extra_keys),
+    _check_keys(raw, key, needed, ('thermal', 'notes', 'effects', 'noise', 'turn_on', 'uncertainty', *extra_keys),
                 unknown_why=dict.fromkeys(range_keys, ' (thermal: none holds no temperatures)'))
     ref, low, high = ((finite_number(raw[name], f'{key}.{name}') for name in range_keys)
                       if thermal != THERMAL_NONE else (0.0, 0.0, 0.0))
@@ -372,11 +373,12 @@ def _link_from_mapping(raw: Any, key: str, input_kind: InputKind, *, extra_keys:
     effects = effects_from_mapping(raw['effects'], key=f'{key}.effects') if 'effects' in raw else ()
     noise = _noise_from_mapping(raw['noise'], f'{key}.noise') if 'noise' in raw else None
     turn_on = _turn_on_from_mapping(raw['turn_on'], f'{key}.turn_on') if 'turn_on' in raw else None
+    uncertainty = _uncertainty_from_mapping(raw['uncertainty'], f'{key}.uncertainty') if 'uncertainty' in raw else None
     try:
         calibration = Calibration(temp_code_ref=ref, temp_code_min=low, temp_code_max=high,
                                   axes=axes, version=CALIBRATION_VERSION,  # type: ignore[arg-type]
                                   notes=tuple(notes), effects=effects, noise=noise, thermal=thermal,
-                                  turn_on=turn_on)
+                                  turn_on=turn_on, uncertainty=uncertainty)
     except CalibrationError as err:
         raise CalibrationError(f'{key}.{str(err).removeprefix("calibration.")}') from None
     _check_limits(calibration, limits, key)
@@ -417,7 +419,37 @@ def _link_to_mapping(calibration: Calibration, input_kind: InputKind) -> dict[st
         mapping['turn_on'] = {'repeatability': [float(v) for v in calibration.turn_on.repeatability],
                               'repeatability_error': [float(v) for v in calibration.turn_on.repeatability_error],
                               'records': int(calibration.turn_on.records)}
+    if calibration.uncertainty is not None:
+        mapping['uncertainty'] = calibration.uncertainty.to_mapping()
     return mapping
+
+
+def _strings(value: Any, key: str) -> tuple[str, ...]:
+    if isinstance(value, str) or not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
+        msg = f'{key}: expected a list of strings'
+        raise CalibrationError(msg)
+    return tuple(value)
+
+
+def _uncertainty_from_mapping(raw: Any, key: str) -> LinkUncertainty:
+    """A sensor's ``uncertainty`` section (:meth:`LinkUncertainty.to_mapping`)."""
+    if not isinstance(raw, Mapping):
+        msg = f'{key}: expected a mapping'
+        raise CalibrationError(msg)
+    _check_keys(raw, key, ('terms', 'temperature_scale', 'covariance'),
+                ('held', 'held_from', 'source', 'prior', 'records_share'))
+    terms = _strings(raw['terms'], f'{key}.terms')
+    count = len(terms)
+    upper = _numbers(raw['covariance'], f'{key}.covariance', count * (count + 1) // 2)
+    scale = finite_number(raw['temperature_scale'], f'{key}.temperature_scale')
+    held = _strings(raw.get('held', []), f'{key}.held')
+    held_from = _strings(raw.get('held_from', []), f'{key}.held_from')
+    share = _numbers(raw['records_share'], f'{key}.records_share', count) if 'records_share' in raw else ()
+    source, prior = (str(raw.get(name, default)) for name, default in (('source', 'records'), ('prior', '')))
+    try:
+        return LinkUncertainty(terms, upper, scale, held, held_from, source, prior, share)
+    except CalibrationError as err:
+        raise CalibrationError(f'{key}.{str(err).removeprefix("uncertainty.")}') from None
 
 
 def _turn_on_from_mapping(raw: Any, key: str) -> TurnOn:

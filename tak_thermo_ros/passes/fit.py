@@ -117,6 +117,12 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
             with sensor_errors(kind, sensor):
                 if sensor not in subsamples:
                     results[sensor] = fits[sensor].result(dropped=dropped)
+                    if kind is InputKind.IMU:  # the link's own uncertainty, for the calibration watch
+                        taken = (sensor == 'accel' and opened.static is not None
+                                 and not opened.static.recorded_reference)  # the board's tilt took them
+                        uncertainty = fits[sensor].uncertainty(sensor, settings.held_spreads, direction_taken=taken)
+                        results[sensor] = replace(results[sensor], calibration=replace(
+                            results[sensor].calibration, uncertainty=uncertainty))
                     continue
                 samples = subsamples[sensor].samples(dropped)
                 if not len(samples):

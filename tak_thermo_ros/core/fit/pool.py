@@ -99,15 +99,15 @@ def shape_residuals(record: HandheldRecord, unit: UnitCalibration, *, gravity: f
     :param within: only the rests whose mean temperature lies within this range (``None``: all).
     :returns: ``gyro``: ``(k, 3)`` the rate error at each rest; ``accel``: ``(k, 1)`` the ``|f|`` error;
         ``record``: ``(k,)`` each rest's record; ``samples``: ``(k,)`` its kept samples;
-        ``temperature``: ``(k,)`` its mean temperature. Each record's mean is the samples-weighted mean
-        of its rests.
+        ``temperature``: ``(k,)`` its mean temperature; ``up``: ``(k, 3)`` its corrected up direction.
+        Each record's mean is the samples-weighted mean of its rests.
     """
     check = check_handheld(record, unit, gravity=gravity, latitude=latitude, out_of_range=out_of_range)
     rest_record, samples, temperature = _rests(record)
     keep = _within(temperature, within)
     rest_record, samples, temperature = rest_record[keep], samples[keep], temperature[keep]
     check = replace(check, rate_error=check.rate_error[keep], gravity_error=check.gravity_error[keep])
-    out = {'record': rest_record, 'samples': samples, 'temperature': temperature}
+    out = {'record': rest_record, 'samples': samples, 'temperature': temperature, 'up': check.up[keep]}
     for sensor, errors in (('gyro', check.rate_error), ('accel', check.gravity_error[:, None])):
         out[sensor] = own_offsets(record, errors, keep)[1]
     return out
@@ -136,9 +136,9 @@ def _variance(sensor: str, residuals: dict[str, np.ndarray], fit: HandheldFit, n
     rest = turn_on.variances.rest if turn_on is not None else np.zeros(3)
     if sensor == 'gyro':
         return noise[3:6][None, :] ** 2 / samples + rest[None, :] ** 2
-    # |f| is about the gravity axis's error: the smallest of the axes' variances stands for it
+    # |f| is the axes' errors along the up direction: their variances weighted by u^2
     per_axis = noise[:3][None, :] ** 2 / samples + np.where(np.isfinite(rest), rest, 0.0)[None, :] ** 2
-    return per_axis.min(axis=1, keepdims=True)
+    return np.sum(per_axis * residuals['up'] ** 2, axis=1, keepdims=True)
 
 
 def choose_orders(record: HandheldRecord, settings: HandheldSettings, full: HandheldFit) -> dict[str, OrderChoice]:

@@ -27,6 +27,7 @@ from typing import Sequence
 import numpy as np
 
 from tak_thermo_ros.core.effects.base import Effect
+from tak_thermo_ros.core.link.uncertainty import LinkUncertainty
 from tak_thermo_ros.core.noise.model import NoiseModel
 from tak_thermo_ros.core.records.provenance import RecordPrint
 from tak_thermo_ros.errors import CalibrationError
@@ -210,6 +211,8 @@ class Calibration:
         ``offset_span`` 0 and flat shapes, and the correction never reads a temperature).
     :param turn_on: the turn-on offset's repeatability over power-ups (:class:`TurnOn`), or ``None``
         when the calibration was fitted from one power-up.
+    :param uncertainty: the covariance of the link's own errors, held terms included
+        (:class:`~tak_thermo_ros.core.link.uncertainty.LinkUncertainty`), or ``None`` (not stated).
     """
 
     temp_code_ref: float
@@ -222,6 +225,7 @@ class Calibration:
     noise: NoiseModel | None = None
     thermal: str = THERMAL_FITTED
     turn_on: TurnOn | None = None
+    uncertainty: LinkUncertainty | None = None
 
     def __post_init__(self) -> None:
         if len(self.axes) != 3:

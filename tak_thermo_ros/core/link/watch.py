@@ -105,6 +105,9 @@ OFFSET_BOUND_SIGMAS = 6.0
 (or, without one, to the offset curve's own span over the calibrated range)."""
 SLOPE_PRIOR_SHARE = 0.5
 """The prior of a slope correction: its standard deviation is this share of the curve's largest slope."""
+UNDETERMINED_RATIO = 3.0
+"""A rest's ``|f|`` is not judged when the calibration's own uncertainty there (against the run's first
+rest: a tilt its file never determined) exceeds this many times the rest's noise; it is said instead."""
 CHANNELS = ('gyro x', 'gyro y', 'gyro z', 'accel')
 """What the watch judges: each gyroscope axis, and the accelerometer's ``|f|``."""
 ANOTHER_CALIBRATION = 'learned on another calibration'
@@ -479,6 +482,9 @@ class JudgedRest:
     up: np.ndarray
     noises: tuple[ChannelNoise, ...]
     """Each channel's noise terms at the rest's up direction."""
+    calibration: tuple[np.ndarray, ...] = ()
+    """Per channel how its residual moves with the errors of the calibration's terms (a row over the
+    sensor's :class:`~tak_thermo_ros.core.link.uncertainty.LinkUncertainty` terms; empty: none stated)."""
 
 
 @dataclass(frozen=True)
@@ -572,6 +578,8 @@ class CalibrationWatch:
         """The temperature the adjustment's slope is counted from."""
         self._pairs: dict[tuple[int, int, int], float] = {}
         self._turn_on_sd = tuple(unit.sensor(sensor).turn_on for sensor in ('accel', 'gyro'))
+        self.undetermined: list[tuple[int, float, float]] = []
+        """Rests whose ``|f|`` the calibration leaves undetermined: ``(rest, its uncertainty, its noise)`` (SI)."""
         if learner is not None:
             self._set_adjustment(learner.adjustment())
         self._block_adjustment = self.adjustment
@@ -650,7 +658,41 @@ class CalibrationWatch:
         noises = tuple(self.channel_noise(up))
         independent = np.array([noise.independent(rest.duration_s) for noise in noises])
         independent[:3] += self.heading_variance(up)
-        return JudgedRest(rest, np.array([*gyro, accel]), independent, up, noises)
+        return JudgedRest(rest, np.array([*gyro, accel]), independent, up, noises, self._calibration_rows(rest, up))
+
+    def _calibration_rows(self, rest: Rest, up: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Per channel its residual's row over the file's terms (:meth:`LinkUncertainty.rows`); empty: none stated.
+
+        The gyroscope's channels at the rest's rate, ``|f|`` as the accelerometer's axes along the up direction.
+        """
+        rows: list[np.ndarray] = []
+        mean = np.asarray(rest.mean)
+        for sensor, inputs in (('gyro', mean[3:]), ('accel', mean[:3])):
+            calibration = self.unit.sensor(sensor)
+            uncertainty = calibration.uncertainty
+            if uncertainty is None:
+                rows += [np.zeros(0)] * (3 if sensor == 'gyro' else 1)
+                continue
+            temperature = min(max(rest.temperature, calibration.temp_code_min), calibration.temp_code_max)
+            scales = np.array([axis.scale for axis in calibration.axes])
+            per_axis = uncertainty.rows(temperature, inputs, calibration.temp_code_ref, scales)
+            rows += list(per_axis) if sensor == 'gyro' else [up @ per_axis]
+        return tuple(rows)
+
+    def calibration_covariance(self, rests: Sequence[JudgedRest], channel: int,
+                               first: JudgedRest | None = None) -> np.ndarray:
+        """``(k, k)`` the covariance of the calibration's own error in the rests' residuals on a channel.
+
+        Common to every rest (the same file's errors at each rest's orientation and temperature);
+        with ``first``: of their differences from it. Zero when the file states no uncertainty.
+        """
+        if not rests or not len(rests[0].calibration) or not len(rests[0].calibration[channel]):
+            return np.zeros((len(rests), len(rests)))
+        rows = np.array([rest.calibration[channel] for rest in rests])
+        if first is not None:
+            rows = rows - first.calibration[channel][None, :]
+        sensor = self.unit.sensor('gyro' if channel < 3 else 'accel')
+        return rows @ sensor.uncertainty.covariance @ rows.T  # type: ignore[union-attr]
 
     def wander_variance(self, first: JudgedRest, second: JudgedRest, channel: int) -> float:
         """The variance of the bias's wander between two rests' means on a channel (without their own noise).
@@ -709,6 +751,7 @@ class CalibrationWatch:
         if self.first is None:
             self.first = judged
         else:
+            self._accel_determined(judged)
             self.judged.append(judged)
             if len(self.judged) > MAX_RESTS_JUDGED - 1:
                 gone = self.judged.pop(0).rest.index
@@ -719,6 +762,19 @@ class CalibrationWatch:
             adjustment = self.learner.update(self, judged)
             if adjustment is not None:
                 self._set_adjustment(adjustment)
+
+    def _accel_determined(self, judged: JudgedRest) -> None:
+        """Whether the file determines ``|f|`` here against rest 1 (:data:`UNDETERMINED_RATIO`); said once."""
+        uncertainty = float(math.sqrt(max(self.calibration_covariance([judged], 3, self.first)[0, 0], 0.0)))
+        noise = math.sqrt(self.level_variance(judged, 3) - self._reference_variance(judged.up, 3))
+        if uncertainty <= UNDETERMINED_RATIO * noise:
+            return
+        self.undetermined.append((judged.rest.index, uncertainty, noise))
+        if len(self.undetermined) == 1:
+            tilt = math.degrees(math.acos(min(1.0, float(abs(judged.up @ self.first.up)))))  # type: ignore[union-attr]
+            self.notices.append(f'|f| not judged at rest {judged.rest.index} ({tilt:.0f} deg from rest 1): the '
+                                f'calibration leaves it undetermined there (+-{uncertainty * MG:.2g} mg, its noise '
+                                f'{noise * MG:.2g} mg); such rests are said, not judged')
 
     def _test(self, channel: int, judged: JudgedRest) -> None:
         """One channel at a rest: the alternatives tested on the run's residuals by generalised least squares.
@@ -736,6 +792,11 @@ class CalibrationWatch:
         rests = [first, *self.judged]  # type: ignore[list-item]
         state = self.channels[name]
         state.residual = float(judged.residual[channel])
+        if channel == 3 and self.undetermined:
+            left = {index for index, _, _ in self.undetermined}
+            if judged.rest.index in left:
+                return
+            rests = [rest for rest in rests if rest.rest.index not in left]
         repeatability = self._turn_on_repeatability(channel, first.up)  # type: ignore[union-attr]
         count = len(rests)
         wander = self._wander_covariance(rests, channel)
@@ -745,7 +806,7 @@ class CalibrationWatch:
         if repeatability is not None:
             constant = repeatability ** 2 + self._constant_variance(first, channel)  # type: ignore[arg-type]
             y = np.array([rest.residual[channel] for rest in rests])
-            covariance = constant + wander + np.diag(independent)
+            covariance = constant + wander + np.diag(independent) + self.calibration_covariance(rests, channel)
             steps = count - 1
             if count == 1:
                 alternatives.append((np.ones(1), 'offset', 1, 1.0))
@@ -759,7 +820,8 @@ class CalibrationWatch:
                 state.z = 0.0
                 return
             y = np.array([rest.residual[channel] - first.residual[channel] for rest in rests[1:]])  # type: ignore
-            covariance = independent[0] + wander[1:, 1:] + np.diag(independent[1:])
+            covariance = (independent[0] + wander[1:, 1:] + np.diag(independent[1:])
+                          + self.calibration_covariance(rests[1:], channel, first))
             steps = count - 1
             spread = float(np.ptp(temperatures)) >= SLOPE_SPAN_C
             step_share = 0.5 / steps if spread else 1.0 / steps
@@ -850,7 +912,8 @@ class CalibrationWatch:
             if gyro_sd is None:
                 break
             residual = float(judged.residual[channel])
-            sigma = math.sqrt(self.level_variance(judged, channel) + gyro_sd.repeatability[channel] ** 2)
+            sigma = math.sqrt(self.level_variance(judged, channel) + gyro_sd.repeatability[channel] ** 2
+                              + self.calibration_covariance([judged], channel)[0, 0])
             if abs(residual) <= TURN_ON_SIGMAS * sigma:
                 offset[3 + channel] = residual
                 gyro_taken.append(f'{"xyz"[channel]} {residual * DEG_PER_H:+.3g}')
@@ -864,7 +927,8 @@ class CalibrationWatch:
             axis = int(np.argmax(np.abs(up)))
             if abs(up[axis]) >= VERTICAL_AXIS_COSINE:
                 size = self._vertical(float(judged.residual[3]), up)
-                sigma = math.sqrt(self.level_variance(judged, 3) / up[axis] ** 2 + accel_sd.repeatability[axis] ** 2)
+                sigma = math.sqrt((self.level_variance(judged, 3) + self.calibration_covariance([judged], 3)[0, 0])
+                                  / up[axis] ** 2 + accel_sd.repeatability[axis] ** 2)
                 text = f'accel {"xyz"[axis]} {size * MG:+.3g} mg'
                 if abs(size) <= TURN_ON_SIGMAS * sigma:
                     offset[axis] = size
