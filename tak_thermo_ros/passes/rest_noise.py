@@ -64,12 +64,14 @@ def streamed_noise(windows: StretchWindows, calibration: Calibration) -> RestNoi
                       one=rows[:, 10:13].sum(axis=0) / scales ** 2, one_terms=len(rows) * (windows.window - 1),
                       window=0.5 * np.sum(np.diff(residual, axis=0)[same] ** 2, axis=0),
                       window_terms=int(np.count_nonzero(same)))
-    # Means of at most STRETCH_S within each stretch.
-    per = max(1, int(STRETCH_S // window_s))
+    # Each stretch cut into equal means of about STRETCH_S (the watch's formulas want neighbours alike).
     first = np.flatnonzero(np.concatenate([[True], ~same]))
-    position = np.arange(len(rows)) - np.repeat(first, np.diff(np.concatenate([first, [len(rows)]])))
-    chunk = np.cumsum(np.concatenate([[True], ~same | (position[1:] % per == 0)])) - 1
-    count = int(chunk[-1]) + 1
+    lengths = np.diff(np.concatenate([first, [len(rows)]]))
+    pieces = np.maximum(1, np.round(lengths * window_s / STRETCH_S)).astype(np.int64)
+    position = np.arange(len(rows)) - np.repeat(first, lengths)
+    piece = position * np.repeat(pieces, lengths) // np.repeat(lengths, lengths)
+    chunk = np.repeat(np.cumsum(pieces) - pieces, lengths) + piece
+    count = int(pieces.sum())
     size = np.bincount(chunk, minlength=count).astype(float)
 
     def mean(values: np.ndarray) -> np.ndarray:

@@ -49,6 +49,9 @@ noise within them, the wander between them: :mod:`tak_thermo_ros.core.noise.rest
 OPTIONAL_TERMS = ('filter_time_constant', 'filter_share', 'random_walk_bound', 'bias_instability_bound',
                   'white_noise_density_error', 'bias_instability_error', 'random_walk_error')
 """The triples a model writes only when one of their values is not 0."""
+UPPER_SIGMAS = 1.6448536
+"""A wander term's one-sided 95 % upper limit is its value plus this many standard errors (its bound
+where the record did not show it): what the calibration watch counts (never understating the wander)."""
 TERMS = ('quantization', 'white_noise_density', 'bias_instability', 'random_walk', 'rate_ramp')
 """The five IEEE 952 terms, in the order of the Allan variance's slope (-2 to +2)."""
 FLOOR_GRID = 4000
@@ -234,13 +237,17 @@ class NoiseModel:
 
     @property
     def bias_instability_upper(self) -> Triple:
-        """Per axis the bias instability, or where the record showed none its bound: what a test must not understate."""
-        return _larger(self.bias_instability, self.bias_instability_bound)
+        """Per axis the bias instability at its one-sided 95 % upper limit: what a test must not understate.
+
+        The value plus :data:`UPPER_SIGMAS` of its standard error, or where the record showed none its
+        bound; the value itself where neither is stated (a data sheet's, a static run's fit).
+        """
+        return _upper(self.bias_instability, self.bias_instability_error, self.bias_instability_bound)
 
     @property
     def random_walk_upper(self) -> Triple:
-        """Per axis the random walk, or where the record showed none its bound (as :attr:`bias_instability_upper`)."""
-        return _larger(self.random_walk, self.random_walk_bound)
+        """Per axis the random walk at its one-sided 95 % upper limit (as :attr:`bias_instability_upper`)."""
+        return _upper(self.random_walk, self.random_walk_error, self.random_walk_bound)
 
     def coefficients(self) -> np.ndarray:
         """``(3, 5)``: per axis the squares of the five IEEE 952 terms, in the order of :data:`TERMS`."""
@@ -343,8 +350,9 @@ class NoiseModel:
                 for key, value in self.to_mapping().items()}
 
 
-def _larger(first: Triple, second: Triple) -> Triple:
-    return (max(first[0], second[0]), max(first[1], second[1]), max(first[2], second[2]))
+def _upper(value: Triple, error: Triple, bound: Triple) -> Triple:
+    out = [max(v + UPPER_SIGMAS * e, b) for v, e, b in zip(value, error, bound)]
+    return (out[0], out[1], out[2])
 
 
 def noise_model_from_mapping(raw: Any, where: str) -> NoiseModel:

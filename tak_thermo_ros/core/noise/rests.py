@@ -61,8 +61,12 @@ GRID_DECADES = 6.0
 SIGNIFICANT_RATIO = 3.0
 """The Allan variance at one sample differs from the white noise's by this many of its standard errors:
 quantisation (above) or a driver's filter (below)."""
-MAX_MEANS_PER_RECORD = 160
+MAX_MEANS_PER_RECORD = 96
 """A record's stretches are merged into at most this many means (a long static run, a day of plateaus)."""
+SEGMENT_S = 3600.0
+"""A record longer than this is judged in pieces this long, each with its own level: the wander is estimated
+over the separations a run's rests span (the watch judges a run's first rest and its latest 31), not over a
+day, where a bias instability's 1/f band has long ended in a real part."""
 MAX_WINDOWS = 1 << 17
 """A run's windows (:class:`StretchWindows`) are made longer than half a second beyond this many."""
 
@@ -100,10 +104,12 @@ class White:
     filter_time_constant: float = 0.0
 
 
-def white_noise(sums: ShortSums, wander: np.ndarray | None = None) -> list[White]:
+def white_noise(sums: ShortSums, wander: np.ndarray | None = None, wander_error: np.ndarray | None = None
+                ) -> list[White]:
     """Each channel's white noise from the Allan variance at one window, and what one sample adds or lacks.
 
-    :param wander: ``(c,)`` the Allan variance the wander contributes at one window (taken off), or ``None``.
+    :param wander: ``(c,)`` the Allan variance the wander contributes at one window (taken off), or ``None``;
+        ``wander_error`` its standard error (it adds to the density's).
     """
     tau0, window = sums.period_s, sums.window_s
     out = []
@@ -111,12 +117,15 @@ def white_noise(sums: ShortSums, wander: np.ndarray | None = None) -> list[White
         if sums.window_terms < 1 or sums.one_terms < 1:
             out.append(White(0.0, 0.0))
             continue
-        at_window = float(sums.window[channel]) / sums.window_terms
-        if wander is not None:
-            at_window = max(at_window - float(wander[channel]), 0.5 * at_window)
-        at_one = float(sums.one[channel]) / sums.one_terms
+        measured = float(sums.window[channel]) / sums.window_terms
         # Adjacent differences of successive means share a mean: about 1.5 terms per degree of freedom.
-        relative = math.sqrt(2.0 / max(sums.window_terms / 1.5, 1.0))
+        spread = measured * math.sqrt(2.0 / max(sums.window_terms / 1.5, 1.0))
+        at_window = measured
+        if wander is not None:
+            at_window = max(measured - float(wander[channel]), 0.5 * measured)
+            spread = math.hypot(spread, float(wander_error[channel]) if wander_error is not None else 0.0)
+        relative = spread / at_window if at_window > 0.0 else 0.0
+        at_one = float(sums.one[channel]) / sums.one_terms
         density2 = at_window * window
         quantization = filter_constant = 0.0
         excess = at_one * tau0 / density2 - 1.0 if density2 > 0.0 else 0.0
@@ -178,6 +187,19 @@ class RestMeans:
     def __len__(self) -> int:
         return len(self.residual)
 
+    def segmented(self, length: float = SEGMENT_S) -> RestMeans:
+        """Each record cut into pieces of at most ``length`` seconds, each a record of its own with its own level."""
+        pieces = np.zeros(len(self), dtype=np.int64)
+        for record in np.unique(self.record):
+            rows = self.record == record
+            pieces[rows] = np.floor((self.start_s[rows] - self.start_s[rows].min()) / length).astype(np.int64)
+        if not np.any(pieces):
+            return self
+        _, segment = np.unique(np.column_stack([self.record, pieces]), axis=0, return_inverse=True)
+        segment = segment.reshape(-1)
+        levels = (segment[:, None] == np.arange(segment.max() + 1)[None, :]).astype(float)
+        return replace(self, record=segment, design=np.hstack([levels, self.design]))
+
     def merged(self, most: int = MAX_MEANS_PER_RECORD) -> RestMeans:
         """At most ``most`` means per record: neighbours merged, weighted by their averaging times."""
         groups = np.zeros(len(self), dtype=np.int64)
@@ -234,8 +256,9 @@ class Wander:
     """One channel's wander between the stretches.
 
     :param flicker: the bias instability ``B`` (units); ``walk``: the random walk ``K`` (units*sqrt(Hz)).
-    :param means: stretch means judged; ``records``: records; ``contrasts``: the degrees of freedom the
-        fixed effects leave (0: nothing to judge the wander on, both terms bounded by the window alone).
+    :param means: stretch means judged (merged: :data:`MAX_MEANS_PER_RECORD` per piece of a record);
+        ``records``: records; ``contrasts``: the degrees of freedom the fixed effects leave (0: nothing
+        to judge the wander on, both terms bounded by the window alone).
     """
 
     flicker: Term
@@ -389,8 +412,8 @@ def fit_wander(means: RestMeans, white: White, *, ceiling: tuple[float, float] |
     :param ceiling: ``(B, K)`` the largest each can be whatever the means say (from the window's Allan
         variance), or ``None``; a bound never exceeds it.
     """
-    means = means.merged()
     records = len(np.unique(means.record)) if len(means) else 0
+    means = means.segmented().merged()
     ceiling = ceiling or (math.inf, math.inf)
     if not len(means):
         return Wander(Term(0.0, 0.0, ceiling[0]), Term(0.0, 0.0, ceiling[1]), 0, 0, 0)
@@ -413,102 +436,90 @@ def fit_wander(means: RestMeans, white: White, *, ceiling: tuple[float, float] |
     flicker_points, walk_points = np.meshgrid(grids[0], grids[1], indexing='ij')
     table = reml.many(flicker_points.ravel() ** 2, walk_points.ravel() ** 2).reshape(flicker_points.shape)
     best = np.unravel_index(int(np.argmin(table)), table.shape)
-    point = _refine(criterion, grids, best)
-    minimum = criterion(*point)
-    terms = []
-    for index in range(2):
-        terms.append(_term(criterion, grids, table, index, point, minimum, reml.scale,
-                           ceiling[index]))
+    search = _Search(criterion, (float(grids[0][best[0]]), float(grids[1][best[1]])), (grids[0][1], grids[1][1]))
+    point, minimum = search.minimum()
+    terms = [_term(search, index, point, minimum, reml.scale, ceiling[index]) for index in range(2)]
     return Wander(terms[0], terms[1], len(means), records, reml.contrasts)
 
 
-def _refine(criterion: Callable[[float, float], float], grids: list[np.ndarray],
-            best: tuple[int, ...]) -> tuple[float, float]:
-    """The minimum near a grid point: each term by a bounded search between its grid neighbours, in turn."""
-    from scipy.optimize import minimize_scalar
-    point = [float(grids[0][best[0]]), float(grids[1][best[1]])]
-    for _ in range(3):
-        for index in range(2):
-            grid = grids[index]
-            at = int(np.searchsorted(grid, point[index]))
-            low = grid[max(at - 1, 0)]
-            high = grid[min(at + 1, len(grid) - 1)]
-            if high <= low:
-                continue
+class _Search:
+    """Minimising ``-2 log L`` over one term with the other held, on a log scale (and at 0).
 
-            def along(value: float, index: int = index) -> float:
-                trial = list(point)
-                trial[index] = value
-                return criterion(*trial)
+    :param start: a first point (the grid's best); ``smallest``: per term the least value searched
+        beside 0 (the grid's first).
+    """
 
-            found = minimize_scalar(along, bounds=(low, high), method='bounded', options={'xatol': 1e-3 * high})
-            if found.fun < along(point[index]):
-                point[index] = float(found.x)
-    return point[0], point[1]
+    def __init__(self, criterion: Callable[[float, float], float], start: tuple[float, float],
+                 smallest: tuple[float, float]) -> None:
+        self.criterion = criterion
+        self.start = start
+        self.smallest = smallest
+
+    def at(self, index: int, value: float, other: float) -> float:
+        """The criterion with term ``index`` at ``value`` and the other at ``other``."""
+        return self.criterion(value, other) if index == 0 else self.criterion(other, value)
+
+    def best_other(self, index: int, value: float, guess: float) -> tuple[float, float]:
+        """``(criterion, the other term)`` at its best with term ``index`` held at ``value``."""
+        from scipy.optimize import minimize_scalar
+        other = 1 - index
+        floor = math.log(self.smallest[other])
+        centre = max(math.log(guess) if guess > 0.0 else floor, floor)
+        best = (self.at(index, value, 0.0), 0.0)
+        for width in (2.5, 6.0):
+            low, high = max(centre - width, floor), centre + width
+            found = minimize_scalar(lambda u: self.at(index, value, math.exp(u)), bounds=(low, high),
+                                    method='bounded', options={'xatol': 0.01})
+            if found.fun < best[0]:
+                best = (float(found.fun), math.exp(float(found.x)))
+            if low + 0.05 < found.x < high - 0.05 or found.x <= floor + 0.05:
+                break
+            centre = float(found.x)
+        return best
+
+    def minimum(self) -> tuple[tuple[float, float], float]:
+        """The point of least ``-2 log L`` from :attr:`start`: each term at its best in turn, three times."""
+        point = list(self.start)
+        value = self.criterion(*point)
+        for _ in range(3):
+            for index in range(2):
+                found, best = self.best_other(1 - index, point[1 - index], point[index])
+                if found < value:
+                    value, point[index] = found, best
+        return (point[0], point[1]), value
+
+    def profile(self, index: int, value: float, guess: float) -> tuple[float, float]:
+        """``(criterion, the other at its best)`` with term ``index`` at ``value``."""
+        return self.best_other(index, value, guess)
 
 
-def _term(criterion: Callable[[float, float], float], grids: list[np.ndarray], table: np.ndarray, index: int,
-          point: tuple[float, float], minimum: float, scale: float, ceiling: float) -> Term:
+def _term(search: _Search, index: int, point: tuple[float, float], minimum: float, scale: float,
+          ceiling: float) -> Term:
     """One term from its profile likelihood: seen (value and error) or bounded."""
-    from scipy.optimize import brentq, minimize_scalar
-    other = 1 - index
-    other_grid = grids[other]
+    from scipy.optimize import brentq
+    estimate, guess = point[index], point[1 - index]
 
-    grid = grids[index]
+    def rise(value: float, delta: float) -> float:
+        return search.profile(index, value, guess)[0] - minimum - delta
 
-    def profile(value: float) -> float:
-        """``-2 log L`` with this term at ``value`` and the other at its best (searched near the grid's best)."""
-        trial = [0.0, 0.0]
-        trial[index] = value
-        row = np.take(table, int(np.argmin(np.abs(np.log1p(grid / grid[1]) - np.log1p(value / grid[1])))),
-                      axis=index)
-        at = int(np.argmin(row))
-        low, high = other_grid[max(at - 1, 0)], other_grid[min(at + 1, len(other_grid) - 1)]
+    def crossing(delta: float, start: float, factor: float, limit: float) -> float:
+        """Where the profile rises by ``delta``, stepping from ``start`` by ``factor`` (up to ``limit``)."""
+        low, high = start, start
+        while rise(high, delta) < 0.0:
+            low, high = high, high * factor
+            if (factor > 1.0 and high >= limit) or (factor < 1.0 and high <= limit):
+                return limit
+        if low == high:
+            return high
+        return float(brentq(rise, min(low, high), max(low, high), args=(delta,), xtol=0.01 * max(low, high)))
 
-        def along(candidate: float) -> float:
-            trial[other] = candidate
-            return criterion(*trial)
-
-        found = minimize_scalar(along, bounds=(low, high), method='bounded', options={'xatol': 1e-2 * high})
-        return min(float(found.fun), along(float(other_grid[at])))
-
-    profile_table = table.min(axis=other)
-    top = grid[-1]
-
-    def crossing(delta: float, upward: bool) -> float:
-        """Where the profile rises by ``delta`` above the minimum, above (or below) the estimate."""
-        estimate = point[index]
-        if upward:
-            beyond = np.flatnonzero((grid > estimate) & (profile_table - minimum >= delta))
-            if not len(beyond):
-                return math.inf
-            high = float(grid[beyond[0]])
-            below = grid[(grid > estimate) & (grid < high)]
-            low = float(below[-1]) if len(below) else estimate
-        else:
-            under = np.flatnonzero((grid < estimate) & (profile_table - minimum >= delta))
-            if not len(under):
-                return 0.0
-            low = float(grid[under[-1]])
-            above = grid[(grid < estimate) & (grid > low)]
-            high = float(above[0]) if len(above) else estimate
-        value_low = profile(low) - minimum - delta
-        value_high = profile(high) - minimum - delta
-        if value_low * value_high > 0.0:
-            return high if upward else low
-        return float(brentq(lambda v: profile(v) - minimum - delta, low, high, xtol=1e-2 * max(high, 1e-300)))
-
-    at_zero = profile(0.0) - minimum
-    ceiling_scaled = ceiling / scale if math.isfinite(ceiling) else math.inf
-    if point[index] > 0.0 and at_zero >= SEEN_DELTA:
-        upper = crossing(INTERVAL_DELTA, True)
-        lower = crossing(INTERVAL_DELTA, False)
-        upper = upper if math.isfinite(upper) else top
-        error = 0.5 * (upper - lower)
-        return Term(point[index] * scale, error * scale, 0.0)
-    bound = crossing(BOUND_DELTA, True)
-    bound = min(bound if math.isfinite(bound) else top, ceiling_scaled)
-    return Term(0.0, 0.0, bound * scale)
+    top = ceiling / scale if math.isfinite(ceiling) else 1e6 * search.smallest[index] / 1e-4
+    if estimate > 0.0 and rise(0.0, SEEN_DELTA) >= 0.0:
+        upper = crossing(INTERVAL_DELTA, estimate, 1.25, max(top, 4.0 * estimate))
+        lower = 0.0 if rise(0.0, INTERVAL_DELTA) < 0.0 else crossing(INTERVAL_DELTA, estimate, 0.8, 0.0)
+        return Term(estimate * scale, 0.5 * (upper - lower) * scale, 0.0)
+    bound = crossing(BOUND_DELTA, max(estimate, search.smallest[index]), 2.0, top)
+    return Term(0.0, 0.0, min(bound, top) * scale)
 
 
 def wander_ceiling(sums: ShortSums, channel: int) -> tuple[float, float]:
@@ -578,10 +589,11 @@ def rest_noise(short: ShortSums, channels: list[RestMeans], *, up: np.ndarray | 
     else:
         wanders = tuple(fit_wander(means, white, ceiling=ceiling)
                         for means, white, ceiling in zip(channels, whites, ceilings))
-    # What the wander adds at one window, taken off the white noise's estimate (its seen terms only).
-    at_window = np.array([(FLICKER_FLOOR * w.flicker.value) ** 2 + w.walk.value ** 2 * short.window_s / 3.0
-                          for w in wanders])
-    whites = white_noise(short, at_window)
+    # What the wander adds at one window, taken off the white noise's estimate: a seen term with its
+    # error, a bounded one as half its bound's share, give or take all of it (uniform).
+    shares = np.array([[_window_share(w.flicker, FLICKER_FLOOR ** 2), _window_share(w.walk, short.window_s / 3.0)]
+                       for w in wanders])
+    whites = white_noise(short, shares[:, :, 0].sum(axis=1), np.hypot(shares[:, 0, 1], shares[:, 1, 1]))
 
     def triple(values) -> tuple[float, float, float]:
         items = [float(v) for v in values]
@@ -603,6 +615,14 @@ def rest_noise(short: ShortSums, channels: list[RestMeans], *, up: np.ndarray | 
         bias_instability_error=triple(w.flicker.error for w in wanders),
         random_walk_error=triple(w.walk.error for w in wanders))
     return RestNoise(model, tuple(whites), wanders, shared=len(channels) == 1)
+
+
+def _window_share(term: Term, unit: float) -> tuple[float, float]:
+    """``(share, its error)`` of a wander term in the Allan variance at one window (``unit``: its share per term^2)."""
+    if term.seen:
+        return unit * term.value ** 2, 2.0 * unit * term.value * term.error
+    whole = unit * term.bound ** 2
+    return 0.5 * whole, whole / math.sqrt(12.0)
 
 
 class StretchWindows:
