@@ -110,9 +110,10 @@ def run(args: argparse.Namespace) -> int:
                            magnetometer.calibration if magnetometer is not None else None,
                            _source(args, fitted),
                            fitted_from=(fitted.record_print,) if fitted.record_print is not None else ())
-    noise_line = ''
     if args.noise or args.noise_run or args.noise_from_residual:
         unit, noise_line = _with_noise(args, unit)
+    else:
+        unit, noise_line = _with_fitted_noise(unit, _fitted_noise(fitted, unit, settings))
     applied = ', '.join(f'{sensor} {", ".join(e.name for e in calibration.effects)}'
                         for sensor, calibration in unit.sensors if calibration.effects)
     handheld = fitted.handheld
@@ -169,13 +170,8 @@ def run(args: argparse.Namespace) -> int:
         if handheld is None:
             for note in calibration.notes:
                 print(f'note: {prefix}{note}')
-        noise = unit.sensor(sensor).noise
-        if noise is not None:
-            print(f'  noise model ({common.SOURCE_WORDS[noise.source]}), per axis x y z:')
-            for line in common.noise_lines(noise, unit_name):
-                print(f'  {line}')
-    if noise_line:
-        print(f'{noise_line} (written with the calibration: the node\'s Imu covariances come from it)')
+        _print_noise(unit.sensor(sensor).noise, unit_name)
+    _print_noise_source(noise_line)
     if magnetometer is not None:
         _print_magnetometer(magnetometer, args)
     print(f'wrote {args.output}')
@@ -204,6 +200,53 @@ def _with_noise(args: argparse.Namespace, unit: UnitCalibration) -> tuple[UnitCa
     accel = replace(unit.accel, noise=found.models['accel'])
     gyro = replace(unit.gyro, noise=found.models['gyro']) if unit.gyro is not None else None
     return replace(unit, accel=accel, gyro=gyro), found.line
+
+
+def _fitted_noise(fitted, unit: UnitCalibration, settings) -> dict:
+    """Each fitted sensor's noise model from the record's own stretches (:mod:`tak_thermo_ros.passes.rest_noise`)."""
+    from tak_thermo_ros.passes.rest_noise import rests_noise, streamed_noise
+    if fitted.handheld is not None:
+        return rests_noise(fitted.handheld.record, unit, gravity=settings.gravity, latitude=settings.latitude)
+    found = {}
+    for sensor, windows in fitted.noise_windows.items():
+        if sensor not in fitted.held:
+            noise = streamed_noise(windows, unit.sensor(sensor))
+            if noise is not None:
+                found[sensor] = noise
+    return found
+
+
+def _with_fitted_noise(unit: UnitCalibration, found: dict) -> tuple[UnitCalibration, str]:
+    """The unit with the noise models its fit found (``fit`` without ``--noise``), and the line that says so."""
+    if not found:
+        return unit, ''
+    sensors = {sensor: replace(unit.sensor(sensor), noise=noise.model) for sensor, noise in found.items()}
+    unit = replace(unit, **sensors)
+    first = next(iter(found.values()))
+    what = ' and '.join(common.SENSOR_NAMES[sensor] for sensor in found)
+    where = (f'{first.means} rests of {first.records} records' if first.records > 1
+             else f'{first.means} stretches' if first.means else 'its stretches')
+    lines = [f'noise model of the {what}: from the fit\'s {where} (white noise within them, the wander '
+             f'between them; --noise or --noise-run give another)']
+    shared = [common.SENSOR_NAMES[sensor] for sensor, noise in found.items() if noise.shared]
+    for name in shared:
+        lines.append(f'{name}: its wander seen along the vertical at the rests (|f|): written on x y z alike')
+    return unit, '\n'.join(lines)
+
+
+def _print_noise(noise, unit_name: str) -> None:
+    """A sensor's noise model, one term per line (``fit`` prints it under the sensor's link)."""
+    if noise is None:
+        return
+    print(f'  noise model ({common.SOURCE_WORDS[noise.source]}), per axis x y z:')
+    for line in common.noise_lines(noise, unit_name):
+        print(f'  {line}')
+
+
+def _print_noise_source(noise_line: str) -> None:
+    """Where the noise models written came from, and what reads them."""
+    if noise_line:
+        print(f'{noise_line}\nwritten with the calibration: the calibration watch and the Imu covariances use it')
 
 
 def _nominal(args: argparse.Namespace, nominal: tuple[float, float, float] | None
@@ -354,9 +397,12 @@ def _fit_pool(args: argparse.Namespace, settings) -> int:
     results = handheld.results
     unit = UnitCalibration(InputKind.IMU, accel=results['accel'].calibration, gyro=results['gyro'].calibration,
                            source=fitted.source)
-    noise_line = ''
     if args.noise or args.noise_run:
         unit, noise_line = _with_noise(args, unit)
+    else:
+        from tak_thermo_ros.passes.rest_noise import rests_noise
+        unit, noise_line = _with_fitted_noise(unit, rests_noise(pool.record, unit, gravity=settings.gravity,
+                                                                latitude=settings.latitude))
     names = ', '.join(pool.record.record_names)
     notes = [f'pooled from {pool.record.records} records: {names}',
              *(order_line(sensor, choice) for sensor, choice in pool.orders.items()),
@@ -392,7 +438,7 @@ def _fit_pool(args: argparse.Namespace, settings) -> int:
         unit_name = common.UNITS[InputKind.IMU, sensor]
         print_axes(common.SENSOR_NAMES[sensor], calibration, [stats.residual_rms for stats in result.axes], unit_name)
         _print_handheld_terms(sensor, calibration, result)
-    if noise_line:
-        print(f'{noise_line} (written with the calibration: the node\'s Imu covariances come from it)')
+        _print_noise(calibration.noise, unit_name)
+    _print_noise_source(noise_line)
     print(f'wrote {args.output}')
     return 0

@@ -405,6 +405,9 @@ class StreamedFit:
     held: tuple[str, ...] = ()
     record_print: RecordPrint | None = None
     """What the calibration keeps of the record (:class:`~tak_thermo_ros.core.records.provenance.RecordPrint`)."""
+    noise_windows: dict[str, Any] = field(default_factory=dict)
+    """Per sensor its windows within the run's stretches (:class:`~tak_thermo_ros.core.noise.rests.StretchWindows`):
+    the noise model the fit writes (:mod:`tak_thermo_ros.passes.rest_noise`)."""
 
 
 class ImuLinkUndetermined(FitError):

@@ -189,8 +189,8 @@ def window_variance(noise: NoiseModel, period_s: float, window_s: float) -> np.n
     """
     white = np.asarray(noise.white_noise_density) ** 2 / period_s
     quantization = 3.0 * np.asarray(noise.quantization) ** 2 / period_s ** 2
-    slow = (FLICKER_FLOOR * np.asarray(noise.bias_instability)) ** 2 + np.asarray(noise.random_walk) ** 2 * \
-        window_s / 3.0
+    slow = (FLICKER_FLOOR * np.asarray(noise.bias_instability_upper)) ** 2 + \
+        np.asarray(noise.random_walk_upper) ** 2 * window_s / 3.0
     for sigma, times in zip(noise.gauss_markov, noise.gauss_markov_time):
         slow = slow + np.asarray(sigma) ** 2 * np.minimum(1.0, window_s / np.asarray(times))
     return white + quantization + slow
@@ -385,9 +385,9 @@ class ChannelNoise:
 
     @classmethod
     def axis(cls, noise: NoiseModel, axis: int) -> ChannelNoise:
-        """One axis of a noise model."""
-        return cls(noise.white_noise_density[axis], noise.quantization[axis], noise.bias_instability[axis],
-                   noise.random_walk[axis], noise.rate_ramp[axis],
+        """One axis of a noise model; a wander term the record did not show counts at its bound (never below)."""
+        return cls(noise.white_noise_density[axis], noise.quantization[axis], noise.bias_instability_upper[axis],
+                   noise.random_walk_upper[axis], noise.rate_ramp[axis],
                    tuple((s[axis], t[axis]) for s, t in zip(noise.gauss_markov, noise.gauss_markov_time)
                          if s[axis] > 0.0))
 
@@ -397,8 +397,8 @@ class ChannelNoise:
         def mix(values: Sequence[float]) -> float:
             return float(math.sqrt(sum(w * v * v for w, v in zip(weights, values))))
         markov = tuple((mix(s), max(t)) for s, t in zip(noise.gauss_markov, noise.gauss_markov_time) if any(s))
-        return cls(mix(noise.white_noise_density), mix(noise.quantization), mix(noise.bias_instability),
-                   mix(noise.random_walk), mix(noise.rate_ramp), markov)
+        return cls(mix(noise.white_noise_density), mix(noise.quantization), mix(noise.bias_instability_upper),
+                   mix(noise.random_walk_upper), mix(noise.rate_ramp), markov)
 
     def independent(self, duration_s: float) -> float:
         """The variance of a rest mean's own noise (white, quantisation): independent from rest to rest."""
