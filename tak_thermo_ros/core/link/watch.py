@@ -744,6 +744,18 @@ class CalibrationWatch:
             return None
         return float(math.sqrt(sum(u * u * r * r for u, r in zip(up, accel.repeatability))))
 
+    def _turn_on_covariance(self, rests: list[JudgedRest], channel: int) -> np.ndarray:
+        """``(k, k)`` the run's turn-on offset in the rests' residuals: one constant per gyroscope axis.
+
+        ``|f|`` takes the accelerometer's turn-on offset ``t`` along each rest's up direction
+        (``u_i . t``: it changes with the tilt), ``u_i' diag(R^2) u_j``.
+        """
+        accel, gyro = self._turn_on_sd
+        if channel < 3:
+            return np.full((len(rests), len(rests)), gyro.repeatability[channel] ** 2)  # type: ignore[union-attr]
+        ups = np.array([rest.up for rest in rests])
+        return (ups * np.square(accel.repeatability)) @ ups.T  # type: ignore[union-attr]
+
     def _judge(self, rest: Rest) -> None:
         judged = self.residual(rest)
         self.rests_judged += 1
@@ -804,7 +816,7 @@ class CalibrationWatch:
         temperatures = np.array([rest.rest.temperature for rest in rests])
         alternatives: list[tuple[np.ndarray, str, int, float]] = []  # (regressor, kind, since, share)
         if repeatability is not None:
-            constant = repeatability ** 2 + self._constant_variance(first, channel)  # type: ignore[arg-type]
+            constant = self._turn_on_covariance(rests, channel) + self._constant_variance(first, channel)  # type: ignore
             y = np.array([rest.residual[channel] for rest in rests])
             covariance = constant + wander + np.diag(independent) + self.calibration_covariance(rests, channel)
             steps = count - 1
@@ -831,7 +843,8 @@ class CalibrationWatch:
                               rests[m].rest.index, step_share) for m in range(1, count)]
         share = self.false_alarms_per_hour * judged.rest.duration_s / 3600.0 / len(CHANNELS)
         regressors = np.column_stack([x for x, _, _, _ in alternatives])
-        solved = _solver(covariance)(np.column_stack([y, regressors]))  # C^-1 y and C^-1 x of each, at once
+        floor = float(np.min(independent[1:] if repeatability is None else independent))
+        solved = _solver(covariance, floor)(np.column_stack([y, regressors]))  # C^-1 y and C^-1 x of each
         weighted_y = solved[:, 0]
         informations = np.einsum('ij,ij->j', regressors, solved[:, 1:]).tolist()
         projections = (weighted_y @ regressors).tolist()
@@ -1032,20 +1045,17 @@ def turn_on_unavailable(unit: UnitCalibration) -> str:
     return ''
 
 
-def _solver(covariance: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
-    """``X -> C^-1 X`` of ``(k, m)`` columns by Cholesky (a covariance of approximations: eigenvalues kept > 0)."""
-    count = len(covariance)
-    scale = float(np.max(np.diag(covariance))) or 1.0
-    try:
-        factor = np.linalg.cholesky(covariance + np.eye(count) * scale * 1e-12)
-    except np.linalg.LinAlgError:
-        values, vectors = np.linalg.eigh(covariance)
-        values = np.maximum(values, scale * 1e-9)
-        return lambda x: vectors @ ((vectors.T @ x) / values[:, None])
+def _solver(covariance: np.ndarray, floor: float) -> Callable[[np.ndarray], np.ndarray]:
+    """``X -> C^-1 X`` of ``(k, m)`` columns, ``C``'s eigenvalues kept at ``floor`` at least.
 
-    def solve(x: np.ndarray) -> np.ndarray:
-        return np.linalg.solve(factor.T, np.linalg.solve(factor, x))
-    return solve
+    ``C`` is a sum of approximations (the wander's pairwise variances need not make a positive
+    definite matrix; the calibration's part cancels large terms): a direction it puts below the
+    residuals' own noise (``floor``: the smallest of their independent variances, which every
+    direction of the true covariance holds) would be trusted beyond any measurement.
+    """
+    values, vectors = np.linalg.eigh(covariance)
+    values = np.maximum(values, max(floor, 1e-300))
+    return lambda x: vectors @ ((vectors.T @ x) / values[:, None])
 
 
 # -- learning ----------------------------------------------------------------------------------
