@@ -390,10 +390,10 @@ class CompensatorNode(Node):
         watch = core.watch
         learner = watch.learner
         words = [f'calibration watch on: false alarms at most {watch.false_alarms_per_hour:g} per hour of rests',
+                 f'first rest {watch.first_rest_words().split(";")[0]}',
                  f'latitude {watch.latitude:g}' if watch.latitude is not None else 'latitude unknown']
         if watch.turn_on_enabled:
             words.append('turn-on offset taken at the first rest')
-        words.append(f'first rest {watch.first_rest_words().split(";")[0]}')
         if learner is not None:
             words.append(f'learning into {self._learned_path} (from {learner.start.runs} earlier runs)')
         return '; '.join(words)

@@ -471,8 +471,10 @@ class Finding:
 
     def judged(self) -> str:
         """``gyro x offset +812 deg/h: 12.3 sigma at rest 1 (1 sigma 66 deg/h: turn-on offset beyond ...)``."""
-        one = (f'{self.sigma * MG:.3g} mg' if self.channel == 'accel' else f'{self.sigma * DEG_PER_H:.3g} deg/h') + \
-            (' per C' if self.kind == 'slope' and self.channel == 'accel' else '/C' if self.kind == 'slope' else '')
+        if self.channel == 'accel':
+            one = f'{self.sigma * MG:.3g} mg' + (' per C' if self.kind == 'slope' else '')
+        else:
+            one = f'{self.sigma * DEG_PER_H:.3g} deg/h' + ('/C' if self.kind == 'slope' else '')
         return f'{self.text()}: {abs(self.z):.1f} sigma at rest {self.rest} (1 sigma {one}; {self.why})'
 
     def text(self) -> str:

@@ -359,7 +359,6 @@ class _Reml:
         """:meth:`__call__` at many points at once ``(g,)`` (batched; a point that is no covariance: 1e300)."""
         out = np.empty(len(flicker2))
         step = max(1, int(4e6 // max(self.flicker.size, 1)))
-        transposed = np.swapaxes(self.data, 1, 2)
         for start in range(0, len(flicker2), step):
             b = np.asarray(flicker2[start:start + step], dtype=float)[:, None, None, None]
             k = np.asarray(walk2[start:start + step], dtype=float)[:, None, None, None]
@@ -373,7 +372,6 @@ class _Reml:
             whitened = np.linalg.solve(factor, np.broadcast_to(self.data, factor.shape[:2] + self.data.shape[1:]))
             gram = (np.swapaxes(whitened, 2, 3) @ whitened).sum(axis=1)
             out[start:start + step] = logdet + _restricted(gram)
-        del transposed
         return out
 
     def _one(self, flicker2: float, walk2: float) -> float:
@@ -494,10 +492,6 @@ class _Search:
                     value, point[index] = found, best
         return (point[0], point[1]), value
 
-    def profile(self, index: int, value: float, guess: float) -> tuple[float, float]:
-        """``(criterion, the other at its best)`` with term ``index`` at ``value``."""
-        return self.best_other(index, value, guess)
-
 
 def _term(search: _Search, index: int, point: tuple[float, float], minimum: float, scale: float,
           ceiling: float) -> Term:
@@ -506,7 +500,7 @@ def _term(search: _Search, index: int, point: tuple[float, float], minimum: floa
     estimate, guess = point[index], point[1 - index]
 
     def rise(value: float, delta: float) -> float:
-        return search.profile(index, value, guess)[0] - minimum - delta
+        return search.best_other(index, value, guess)[0] - minimum - delta
 
     def crossing(delta: float, start: float, factor: float, limit: float) -> float:
         """Where the profile rises by ``delta``, stepping from ``start`` by ``factor`` (up to ``limit``)."""
