@@ -224,8 +224,7 @@ def _with_fitted_noise(unit: UnitCalibration, found: dict) -> tuple[UnitCalibrat
     unit = replace(unit, **sensors)
     first = next(iter(found.values()))
     what = ' and '.join(common.SENSOR_NAMES[sensor] for sensor in found)
-    where = (f'{first.means} rests of {first.records} records' if first.records > 1
-             else f'{first.means} stretches' if first.means else 'its stretches')
+    where = f'{first.means} {first.kind}' + (f' of {first.records} records' if first.records > 1 else '')
     lines = [f'noise model of the {what}: from the fit\'s {where} (white noise within them, the wander '
              f'between them; --noise or --noise-run give another)']
     shared = [common.SENSOR_NAMES[sensor] for sensor, noise in found.items() if noise.shared]

@@ -23,8 +23,9 @@ A sensor may carry its noise model (``noise``: ``white_noise_density``, ``bias_i
 ``bias_instability_tau``, ``random_walk``, ``quantization``, ``rate_ramp``, three floats each,
 SI units of the corrected output; ``update_rate`` Hz; ``source``; when fitted, the driver's
 filter ``filter_time_constant`` and ``filter_share``, the Gauss-Markov processes
-``gauss_markov`` and ``gauss_markov_time`` as three floats per process, and
-``random_walk_bound``); the Imu covariance then comes from it
+``gauss_markov`` and ``gauss_markov_time`` as three floats per process,
+``random_walk_bound`` and ``bias_instability_bound``, and a fit's standard errors
+``*_error``; every ``tak_calib fit`` writes one); the Imu covariance then comes from it
 (:func:`~tak_thermo_ros.core.link.correction.acceleration_variance`).
 
 The node key is :data:`NODE_KEY` (``/**/compensator``): rcl gives the parameters to a node named

@@ -136,7 +136,7 @@ def rests_noise(record, unit: UnitCalibration, *, gravity: float, latitude: floa
                                   white=white, record=records, design=design,
                                   extra=extra[:, axis] if extra.ndim == 2 else extra)
                         for axis in range(3)]
-            out[sensor] = rest_noise(short, channels)
+            out[sensor] = rest_noise(short, channels, kind='rests')
             continue
         up = check.up
         scale_powers = temperature_columns(temperature, calibration.temp_code_ref, scale_order)
@@ -144,5 +144,5 @@ def rests_noise(record, unit: UnitCalibration, *, gravity: float, latitude: floa
                             *(scale_powers * up[:, [j]] ** 2 for j in range(3))])
         means = RestMeans(residual=check.gravity_error, start_s=start_s, end_s=end_s, duration_s=duration,
                           white=white, record=records, design=design, extra=np.zeros(count))
-        out[sensor] = rest_noise(short, [means], up=up)
+        out[sensor] = rest_noise(short, [means], up=up, kind='rests')
     return out

@@ -112,10 +112,21 @@ CHANNELS = ('gyro x', 'gyro y', 'gyro z', 'accel')
 """What the watch judges: each gyroscope axis, and the accelerometer's ``|f|``."""
 ANOTHER_CALIBRATION = 'learned on another calibration'
 """How the watch's notice of a learned state it left (another calibration's) begins."""
+MIN_SPREAD_RUNS = 5
+"""The node takes the spread of its earlier runs' turn-on offsets for a repeatability from this many runs on
+(as a fit takes a pool's: fewer power-ups leave the spread undetermined)."""
 DEG_PER_H = 180.0 / math.pi * 3600.0
 """deg/h per rad/s."""
 MG = 1e3 / STANDARD_GRAVITY
 """mg per m/s^2."""
+
+
+@dataclass(frozen=True)
+class Repeatability:
+    """A turn-on repeatability the calibration file lacks, per axis (SI), and where it came from (a few words)."""
+
+    repeatability: tuple[float, float, float]
+    source: str
 
 
 class WatchUnavailable(TakError):
@@ -444,6 +455,7 @@ class Finding:
     :param rest: the rest at which the test fired.
     :param axis: the axis it is named on (``x``, ``y``, ``z``).
     :param turn_on: whether it is the first rest's turn-on offset.
+    :param why: what the test judged it against, in words (the log line's).
     """
 
     channel: str
@@ -453,6 +465,20 @@ class Finding:
     rest: int
     axis: str
     turn_on: bool = False
+    why: str = ''
+
+    @property
+    def sigma(self) -> float:
+        """The standard deviation the change was judged against (its size over its z), SI."""
+        return abs(self.size / self.z) if self.z else math.inf
+
+    def judged(self) -> str:
+        """``gyro x offset +812 deg/h: 12.3 sigma at rest 1 (1 sigma 66 deg/h: turn-on offset beyond ...)``."""
+        if self.channel == 'accel':
+            one = f'{self.sigma * MG:.3g} mg' + (' per C' if self.kind == 'slope' else '')
+        else:
+            one = f'{self.sigma * DEG_PER_H:.3g} deg/h' + ('/C' if self.kind == 'slope' else '')
+        return f'{self.text()}: {abs(self.z):.1f} sigma at rest {self.rest} (1 sigma {one}; {self.why})'
 
     def text(self) -> str:
         """``gyro x offset +812 deg/h``, ``gyro y slope +2.1 deg/h/C``, ``accel z 3.2 mg``."""
@@ -496,12 +522,30 @@ class WatchSettings:
     :param turn_on: take each run's turn-on offset at its first rest (``-p turn_on:=first_rest``).
     :param learn: what earlier runs learned (opt-in learning; a fresh :class:`LearnedState` to
         start), or ``None``: no learning.
+    :param turn_on_repeatability: ``(accel, gyro)``: a turn-on repeatability per axis (SI; a data
+        sheet's bias repeatability) for a sensor whose file holds none, or ``None``.
     """
 
     enabled: bool = True
     latitude: float | None = None
     turn_on: bool = False
     learn: LearnedState | None = None
+    turn_on_repeatability: tuple[tuple[float, float, float] | None, tuple[float, float, float] | None] = (None, None)
+
+    def repeatabilities(self) -> tuple[Repeatability | None, Repeatability | None]:
+        """``(accel, gyro)`` what stands in for a file's missing turn-on repeatability: the parameter, else
+        the spread of the turn-on offsets learning has seen over :data:`MIN_SPREAD_RUNS` runs or more."""
+        learned = self.learn.turn_on_spread() if self.learn is not None else None
+        out = []
+        for sensor, given in zip(('accel', 'gyro'), self.turn_on_repeatability):
+            if given is not None:
+                out.append(Repeatability(tuple(float(v) for v in given), f'{sensor}_turn_on_repeatability'))
+            elif sensor == 'gyro' and learned is not None:
+                out.append(Repeatability(learned, f'the spread of {self.learn.turn_on_runs} earlier runs\' '
+                                                  f'turn-on offsets (learned_file)'))
+            else:
+                out.append(None)
+        return out[0], out[1]
 
     def watch(self, unit: UnitCalibration) -> CalibrationWatch:
         """The watch of a calibration under these settings.
@@ -517,7 +561,8 @@ class WatchSettings:
             start = self.learn
             another = bool(start.original) and start.original != calibration_digest(unit)
             learner = Learner(unit, LearnedState() if another else start)
-        watch = CalibrationWatch(unit, latitude=self.latitude, turn_on=self.turn_on, learner=learner)
+        watch = CalibrationWatch(unit, latitude=self.latitude, turn_on=self.turn_on, learner=learner,
+                                 repeatabilities=self.repeatabilities())
         if another:
             watch.notices.append(f'{ANOTHER_CALIBRATION}: learning starts afresh (the learned file is replaced at '
                                  f'the first write)')
@@ -532,11 +577,14 @@ class CalibrationWatch:
         latitude, else standard gravity).
     :param turn_on: take the run's turn-on offset at its first rest and subtract it (``turn_on: first_rest``).
     :param learner: a :class:`Learner` (opt-in learning), or ``None``.
+    :param repeatabilities: ``(accel, gyro)`` a turn-on repeatability for a sensor whose file holds none
+        (:meth:`WatchSettings.repeatabilities`), or ``None``s: its first rest is then unjudged.
     :raises WatchUnavailable: when the calibration holds no gyroscope or a sensor has no noise model.
     """
 
     def __init__(self, unit: UnitCalibration, *, latitude: float | None = None, turn_on: bool = False,
-                 learner: Learner | None = None) -> None:
+                 learner: Learner | None = None,
+                 repeatabilities: tuple[Repeatability | None, Repeatability | None] = (None, None)) -> None:
         reason = watch_unavailable(unit)
         if reason:
             raise WatchUnavailable(reason)
@@ -578,6 +626,12 @@ class CalibrationWatch:
         """The temperature the adjustment's slope is counted from."""
         self._pairs: dict[tuple[int, int, int], float] = {}
         self._turn_on_sd = tuple(unit.sensor(sensor).turn_on for sensor in ('accel', 'gyro'))
+        self.repeatability_source = tuple('the calibration file' if known is not None else
+                                          (given.source if given is not None else '')
+                                          for known, given in zip(self._turn_on_sd, repeatabilities))
+        """Per sensor where the turn-on repeatability the first rest is judged against comes from (``''``: none)."""
+        self._turn_on_sd = tuple(known if known is not None else given
+                                 for known, given in zip(self._turn_on_sd, repeatabilities))
         self.undetermined: list[tuple[int, float, float]] = []
         """Rests whose ``|f|`` the calibration leaves undetermined: ``(rest, its uncertainty, its noise)`` (SI)."""
         if learner is not None:
@@ -762,6 +816,9 @@ class CalibrationWatch:
         self.rest_hours += rest.duration_s / 3600.0
         if self.first is None:
             self.first = judged
+            unjudged = self.first_rest_unjudged()
+            if unjudged:
+                self.notices.append(f'calibration watch: rest 1 {unjudged}')
         else:
             self._accel_determined(judged)
             self.judged.append(judged)
@@ -816,7 +873,8 @@ class CalibrationWatch:
         temperatures = np.array([rest.rest.temperature for rest in rests])
         alternatives: list[tuple[np.ndarray, str, int, float]] = []  # (regressor, kind, since, share)
         if repeatability is not None:
-            constant = self._turn_on_covariance(rests, channel) + self._constant_variance(first, channel)  # type: ignore
+            constant = (self._turn_on_covariance(rests, channel)
+                        + self._constant_variance(first, channel))  # type: ignore[arg-type]
             y = np.array([rest.residual[channel] for rest in rests])
             covariance = constant + wander + np.diag(independent) + self.calibration_covariance(rests, channel)
             steps = count - 1
@@ -867,7 +925,7 @@ class CalibrationWatch:
                      if turn_on else f'since rest {since}' if kind == 'offset' else 'against temperature')
             size = size if channel < 3 else self._vertical(size, judged.up)
             self._found(Finding(name, kind, size, z, judged.rest.index, self._axis(channel, judged.up),
-                                turn_on=turn_on), f'{abs(z):.1f} sigma, {where}')
+                                turn_on=turn_on, why=where), f'{abs(z):.1f} sigma, {where}')
 
     def _constant_variance(self, first: JudgedRest, channel: int) -> float:
         """What is constant over a run besides the turn-on offset.
@@ -967,6 +1025,42 @@ class CalibrationWatch:
 
     # -- what it says ----------------------------------------------------------------------------
 
+    def first_rest_unjudged(self) -> str:
+        """Why a run's first rest is not judged (no turn-on repeatability for the gyroscope), or ``''``."""
+        if self._turn_on_sd[1] is not None:
+            return ''
+        return ('unjudged: the calibration holds no gyro turn-on repeatability; later rests are judged against '
+                'the first (give gyro_turn_on_repeatability, or learn over 5 runs)')
+
+    def first_rest_words(self) -> str:
+        """What the first rest is judged against (the status's ``first_rest``)."""
+        unjudged = self.first_rest_unjudged()
+        if unjudged:
+            return unjudged
+        gyro = self._turn_on_sd[1].repeatability  # type: ignore[union-attr]
+        return (f'judged against the gyro turn-on repeatability {" ".join(f"{v * DEG_PER_H:.3g}" for v in gyro)} '
+                f'deg/h x y z (from {self.repeatability_source[1]})')
+
+    def what_to_do(self) -> str:
+        """One line: refit, or what learning has done about what the watch found (``''``: nothing found)."""
+        if not self.findings:
+            return ''
+        refit = 'refit from the records the unit made since (tak_calib fit REC... -o NEW.yaml)'
+        learner = self.learner
+        if learner is None:
+            return f'{refit}, or learn it (learn: true); docs/watch.md'
+        words = []
+        for finding in self.findings.values():
+            if finding.channel == 'accel':
+                words.append(f'accel (not learned): {refit}')
+                continue
+            axis = 'xyz'.index(finding.channel[-1])
+            since = learner.accepted_since[axis]
+            words.append(f'learning takes {finding.channel}: its rests follow the learned curve from rest {since} on'
+                         if since is not None else
+                         f'learning is taking {finding.channel} ({learner.rejected} rests left out so far)')
+        return '; '.join(words)
+
     @property
     def stale(self) -> bool:
         """Whether a test fired in this run."""
@@ -999,7 +1093,17 @@ class CalibrationWatch:
             else:
                 values.append(('accel.norm_error_mg', f'{state.residual * MG:.4g}'))
             values.append((f'{key}.sigma', f'{state.z:.3g}'))
-        if self.turn_on_enabled:
+        values.append(('first_rest', self.first_rest_words()))
+        for finding in self.findings.values():
+            values.append((f'stale.{finding.channel.replace(" ", "_")}', finding.judged()))
+        if self.findings:
+            values.append(('stale.what_to_do', self.what_to_do()))
+        if self.learner is not None:  # learning takes the turn-on offset itself, whatever turn_on says
+            offset = self.learner.adjustment()[0][3:]
+            values.append(('turn_on', 'taken by learning: gyro x y z '
+                                      f'{" ".join(f"{v * DEG_PER_H:+.4g}" for v in offset)} deg/h in force'
+                           if self.learner.rests else 'learning takes it at the first rest'))
+        elif self.turn_on_enabled:
             values.append(('turn_on', '; '.join(self.turn_on_lines) or 'waiting for the first rest'))
         if self.learner is not None:
             values += self.learner.values()
@@ -1009,7 +1113,12 @@ class CalibrationWatch:
         """What ``tak_calib validate`` prints: the verdict, what moved, the figures at the last rest (short lines)."""
         out = [self.verdict()]
         for finding in self.findings.values():
-            out.append(f'  {finding.text()}: {abs(finding.z):.1f} sigma at rest {finding.rest}')
+            out.append(f'  {finding.judged()}')
+        if self.findings:
+            out.append(f'  what to do: {self.what_to_do()}')
+        unjudged = self.first_rest_unjudged()
+        if unjudged and self.rests_judged:
+            out.append(f'  rest 1 {unjudged}')
         last = self.judged[-1] if self.judged else self.first
         if last is not None:
             bias = ' '.join(f'{self.channels[n].residual * DEG_PER_H:+.3g}' for n in CHANNELS[:3])
@@ -1075,6 +1184,8 @@ class LearnedState:
     :param reference: the temperature the slope is counted from (the gyroscope's ``temp_code_ref``).
     :param runs: runs that contributed; ``rests`` rests used, ``rejected`` rests left out as outliers.
     :param original: a digest of the calibration the corrections apply to (:func:`calibration_digest`).
+    :param turn_on_runs: runs whose first rest gave a turn-on offset; ``turn_on_sum`` and ``turn_on_squares``
+        per axis the sum of those offsets and of their squares (rad/s; the spread of :meth:`turn_on_spread`).
     """
 
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -1086,12 +1197,30 @@ class LearnedState:
     rests: int = 0
     rejected: int = 0
     original: str = ''
+    turn_on_runs: int = 0
+    turn_on_sum: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    turn_on_squares: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def turn_on_spread(self) -> tuple[float, float, float] | None:
+        """Per axis the standard deviation of the runs' turn-on offsets (rad/s), from :data:`MIN_SPREAD_RUNS` runs on.
+
+        Each run's first rest against the curve in force at its start: its turn-on offset, and what
+        the rest's noise and the curve's error at that temperature add (a spread on the safe side).
+        """
+        count = self.turn_on_runs
+        if count < MIN_SPREAD_RUNS:
+            return None
+        out = [math.sqrt(max(squares - total * total / count, 0.0) / (count - 1))
+               for total, squares in zip(self.turn_on_sum, self.turn_on_squares)]
+        return out[0], out[1], out[2]
 
     def to_mapping(self) -> dict[str, Any]:
         """Plain numbers and lists (a YAML section)."""
         return {'offset': list(self.offset), 'offset_variance': list(self.offset_variance), 'slope': list(self.slope),
                 'slope_variance': list(self.slope_variance), 'reference': self.reference, 'runs': self.runs,
-                'rests': self.rests, 'rejected': self.rejected, 'original': self.original}
+                'rests': self.rests, 'rejected': self.rejected, 'original': self.original,
+                'turn_on_runs': self.turn_on_runs, 'turn_on_sum': list(self.turn_on_sum),
+                'turn_on_squares': list(self.turn_on_squares)}
 
     @classmethod
     def from_mapping(cls, raw: Mapping[str, Any], where: str) -> LearnedState:
@@ -1103,16 +1232,18 @@ class LearnedState:
             msg = f'{where}: expected a mapping'
             raise TakError(msg)
         values: dict[str, Any] = {}
-        for name in ('offset', 'offset_variance', 'slope', 'slope_variance'):
+        for name in ('offset', 'offset_variance', 'slope', 'slope_variance', 'turn_on_sum', 'turn_on_squares'):
+            if name.startswith('turn_on') and name not in raw:  # a learned file written before it kept them
+                continue
             triple = raw.get(name)
-            bound = ' >= 0' if name.endswith('variance') else ''
+            bound = ' >= 0' if name.endswith(('variance', 'squares')) else ''
             numbers = (tuple(finite_number(v, f'{where}.{name}[{i}]') for i, v in enumerate(triple))
                        if isinstance(triple, (list, tuple)) and len(triple) == 3 else None)
             if numbers is None or (bound and min(numbers) < 0.0):
                 msg = f'{where}.{name}: expected three finite numbers{bound}'
                 raise TakError(msg)
             values[name] = numbers
-        for name in ('runs', 'rests', 'rejected'):
+        for name in ('runs', 'rests', 'rejected', 'turn_on_runs'):
             count = raw.get(name, 0)
             if isinstance(count, bool) or not isinstance(count, int) or count < 0:
                 msg = f'{where}.{name}: expected a whole number >= 0'
@@ -1185,6 +1316,10 @@ class Learner:
     rejected: int = 0
     changed: bool = False
     _filters: list[_AxisFilter] = field(default_factory=list)
+    accepted_since: list[int | None] = field(default_factory=lambda: [None, None, None])
+    """Per axis the first rest of the latest run of rests it took (``None``: its latest rest was left out)."""
+    first_residual: tuple[float, float, float] | None = None
+    """The run's first rest's gyroscope residual against the start's curve (its turn-on offset, for the spread)."""
 
     def __post_init__(self) -> None:
         gyro: Calibration = self.unit.gyro  # type: ignore[assignment]
@@ -1237,6 +1372,8 @@ class Learner:
         """One rest: each axis's filter steps (the wander since the last rest), takes the rest unless an outlier."""
         x = judged.rest.temperature - self.reference
         used = False
+        if self.first_residual is None:
+            self.first_residual = (float(judged.residual[0]), float(judged.residual[1]), float(judged.residual[2]))
         for axis, axis_filter in enumerate(self._filters):
             residual = float(judged.residual[axis])  # against the start's curve
             if axis_filter.last is not None:
@@ -1250,6 +1387,7 @@ class Learner:
                 axis_filter.outliers += 1
                 if axis_filter.outliers < OUTLIERS_IN_A_ROW:
                     self.rejected += 1
+                    self.accepted_since[axis] = None
                     continue
                 # the offset moved: a new level, the slope kept
                 axis_filter.state[0] = residual - (axis_filter.state[1] * x if self.learn_slope else 0.0)
@@ -1257,9 +1395,12 @@ class Learner:
                                                   axis_filter.covariance[1, 1]])
                 axis_filter.outliers = 0
                 axis_filter.last = judged
+                self.accepted_since[axis] = judged.rest.index
                 used = True
                 continue
             axis_filter.outliers = 0
+            if self.accepted_since[axis] is None:
+                self.accepted_since[axis] = judged.rest.index
             gain = axis_filter.covariance @ h / innovation_variance
             axis_filter.state = axis_filter.state + gain * innovation
             keep = np.eye(2) - np.outer(gain, h)  # Joseph's form: stays a covariance
@@ -1311,9 +1452,15 @@ class Learner:
             slope.append(float(self.start.slope[axis] + s))
             slope_variance.append(float(axis_filter.covariance[1, 1]))
         runs = self.start.runs + (1 if self.rests else 0)
-        return replace(self.start, offset=tuple(offset), offset_variance=tuple(offset_variance),  # type: ignore
+        start = self.start
+        first = self.first_residual
+        turn_on = (start.turn_on_runs, start.turn_on_sum, start.turn_on_squares) if first is None else (
+            start.turn_on_runs + 1, tuple(t + v for t, v in zip(start.turn_on_sum, first)),
+            tuple(t + v * v for t, v in zip(start.turn_on_squares, first)))
+        return replace(start, offset=tuple(offset), offset_variance=tuple(offset_variance),  # type: ignore
                        slope=tuple(slope), slope_variance=tuple(slope_variance), runs=runs,  # type: ignore[arg-type]
-                       rests=self.start.rests + self.rests, rejected=self.start.rejected + self.rejected)
+                       rests=start.rests + self.rests, rejected=start.rejected + self.rejected,
+                       turn_on_runs=turn_on[0], turn_on_sum=turn_on[1], turn_on_squares=turn_on[2])  # type: ignore
 
     def values(self) -> list[tuple[str, str]]:
         """The diagnostics' learning figures."""

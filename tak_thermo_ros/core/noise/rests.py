@@ -136,26 +136,31 @@ def white_noise(sums: ShortSums, wander: np.ndarray | None = None, wander_error:
                 quantization = math.sqrt(q2)
                 density2 = max((at_window - 3.0 * q2 / window ** 2) * window, 0.0)
         elif excess < -SIGNIFICANT_RATIO * relative and at_one > 0.0:
-            filter_constant = _filter_time_constant(at_one / density2, tau0, window)
+            filter_constant = _filter_time_constant(at_one / at_window, tau0, window)
+            if filter_constant > 0.0:  # the filter has not quite faded at one window either
+                density2 = at_window / float(filtered_white_allan_variance(np.array([window]), 1.0 / tau0,
+                                                                           filter_constant)[0])
         density = math.sqrt(density2)
         out.append(White(density, 0.5 * relative * density, quantization, filter_constant))
     return out
 
 
 def _filter_time_constant(ratio: float, tau0: float, window: float) -> float:
-    """The first-order low-pass whose white noise has ``ratio`` of its density's Allan variance at one sample."""
+    """The first-order low-pass whose white noise's Allan variance at one sample is ``ratio`` of that at one window."""
     from scipy.optimize import brentq
     rate = 1.0 / tau0
+    times = np.array([tau0, window])
 
-    def shortfall(constant: float) -> float:
-        return float(filtered_white_allan_variance(np.array([tau0]), rate, constant)[0] * tau0) - ratio
+    def excess(constant: float) -> float:
+        at_one, at_window = filtered_white_allan_variance(times, rate, constant)
+        return float(at_one / at_window) - ratio
 
     low, high = 1e-3 * tau0, window
-    if shortfall(high) > 0.0:
+    if excess(high) > 0.0:
         return high
-    if shortfall(low) < 0.0:
+    if excess(low) < 0.0:
         return 0.0
-    return float(brentq(shortfall, low, high, xtol=1e-6 * tau0))
+    return float(brentq(excess, low, high, xtol=1e-6 * tau0))
 
 
 @dataclass(frozen=True)
@@ -343,7 +348,7 @@ class _Reml:
         # The shared columns' span in the contrasts: an orthonormal basis (collinear columns dropped).
         stacked = data[:, :, 1:].reshape(count * size, shared.shape[1])
         basis = _complement(stacked, count * size, span=True)
-        self.data = np.concatenate([data[:, :, :1], basis.reshape(count, size, -1)], axis=2)
+        self.data = np.concatenate([data[:, :, :1], basis.reshape(count, size, basis.shape[1])], axis=2)
         self.contrasts = sum(contrasts.shape[1] for _, contrasts in blocks) - basis.shape[1]
 
     def __call__(self, flicker2: float, walk2: float) -> float:
@@ -354,7 +359,6 @@ class _Reml:
         """:meth:`__call__` at many points at once ``(g,)`` (batched; a point that is no covariance: 1e300)."""
         out = np.empty(len(flicker2))
         step = max(1, int(4e6 // max(self.flicker.size, 1)))
-        transposed = np.swapaxes(self.data, 1, 2)
         for start in range(0, len(flicker2), step):
             b = np.asarray(flicker2[start:start + step], dtype=float)[:, None, None, None]
             k = np.asarray(walk2[start:start + step], dtype=float)[:, None, None, None]
@@ -368,7 +372,6 @@ class _Reml:
             whitened = np.linalg.solve(factor, np.broadcast_to(self.data, factor.shape[:2] + self.data.shape[1:]))
             gram = (np.swapaxes(whitened, 2, 3) @ whitened).sum(axis=1)
             out[start:start + step] = logdet + _restricted(gram)
-        del transposed
         return out
 
     def _one(self, flicker2: float, walk2: float) -> float:
@@ -397,8 +400,9 @@ def _restricted(gram: np.ndarray) -> np.ndarray:
 
 def _complement(columns: np.ndarray, rows: int, *, span: bool = False) -> np.ndarray:
     """An orthonormal basis ``(rows, r)`` of the complement of ``columns``' span (``span``: of the span itself)."""
-    columns = np.asarray(columns, dtype=float).reshape(rows, -1)
-    if not columns.shape[1]:
+    columns = np.asarray(columns, dtype=float)
+    columns = columns.reshape(rows, -1) if columns.size else np.zeros((rows, 0))
+    if not columns.shape[1] or not rows:
         return np.zeros((rows, 0)) if span else np.eye(rows)
     left, singular, _ = np.linalg.svd(columns, full_matrices=True)
     rank = int(np.sum(singular > 1e-9 * singular.max())) if len(singular) and singular.max() > 0.0 else 0
@@ -488,10 +492,6 @@ class _Search:
                     value, point[index] = found, best
         return (point[0], point[1]), value
 
-    def profile(self, index: int, value: float, guess: float) -> tuple[float, float]:
-        """``(criterion, the other at its best)`` with term ``index`` at ``value``."""
-        return self.best_other(index, value, guess)
-
 
 def _term(search: _Search, index: int, point: tuple[float, float], minimum: float, scale: float,
           ceiling: float) -> Term:
@@ -500,7 +500,7 @@ def _term(search: _Search, index: int, point: tuple[float, float], minimum: floa
     estimate, guess = point[index], point[1 - index]
 
     def rise(value: float, delta: float) -> float:
-        return search.profile(index, value, guess)[0] - minimum - delta
+        return search.best_other(index, value, guess)[0] - minimum - delta
 
     def crossing(delta: float, start: float, factor: float, limit: float) -> float:
         """Where the profile rises by ``delta``, stepping from ``start`` by ``factor`` (up to ``limit``)."""
@@ -552,12 +552,15 @@ class RestNoise:
     :param white: per axis the white noise within the stretches.
     :param wander: per axis the wander between them (one for every axis when ``shared``).
     :param shared: the wander is one projection's (``|f|`` along the vertical at the rests), written on every axis.
+    :param kind: what the stretches were: ``rests`` (still intervals found in the record) or ``stretches``
+        (a table run's plateaus, a static run's length).
     """
 
     model: NoiseModel
     white: tuple[White, ...]
     wander: tuple[Wander, ...]
     shared: bool = False
+    kind: str = 'stretches'
 
     @property
     def means(self) -> int:
@@ -570,13 +573,15 @@ class RestNoise:
         return max(w.records for w in self.wander)
 
 
-def rest_noise(short: ShortSums, channels: list[RestMeans], *, up: np.ndarray | None = None) -> RestNoise:
+def rest_noise(short: ShortSums, channels: list[RestMeans], *, up: np.ndarray | None = None,
+               kind: str = 'stretches') -> RestNoise:
     """A sensor's noise model: the white noise within the stretches, the wander between them (the module's steps).
 
     :param short: the sensor's three axes' sums within the stretches.
     :param channels: per axis its means (three), or one projection's (``|f|``) with ``up``.
     :param up: ``(k, 3)`` with one channel: each mean's up direction (its white noise is
         ``sum_j u_j^2 N_j^2``); the wander found is written on every axis.
+    :param kind: ``rests`` or ``stretches`` (:class:`RestNoise`).
     """
     whites = white_noise(short)
     ceilings = [wander_ceiling(short, axis) for axis in range(3)]
@@ -614,7 +619,7 @@ def rest_noise(short: ShortSums, channels: list[RestMeans], *, up: np.ndarray | 
         white_noise_density_error=triple(w.error for w in whites),
         bias_instability_error=triple(w.flicker.error for w in wanders),
         random_walk_error=triple(w.walk.error for w in wanders))
-    return RestNoise(model, tuple(whites), wanders, shared=len(channels) == 1)
+    return RestNoise(model, tuple(whites), wanders, shared=len(channels) == 1, kind=kind)
 
 
 def _window_share(term: Term, unit: float) -> tuple[float, float]:
