@@ -61,7 +61,10 @@ RESULTS = Path(__file__).resolve().parent / 'results' / 'watch.json'
 TARGET_MISSED = 3
 NANOSECONDS = 1_000_000_000
 LATITUDE = 45.0
-FILES = ('pool', 'chamber')
+CASES = {'pool': ('pool', False), 'chamber': ('chamber', False), 'chamber+repeatability': ('chamber', True)}
+"""What is watched: the file, and whether the node is given a turn-on repeatability the file lacks (the
+parameters ``accel_turn_on_repeatability`` / ``gyro_turn_on_repeatability``: a data sheet's bias
+repeatability; here the simulated unit's true one). A chamber run is one power-up: its file holds none."""
 FAULTS = ('offset', 'slope')
 
 
@@ -87,22 +90,25 @@ def validate_learned(unit, state, simulated, where: Path) -> tuple[int, str]:
 def run_setting(setting: str, seeds: range, *, records: int, held_out: int, minutes: float, rate: float,
                 noise: bool) -> dict:
     """One setting's figures per file over the seeds."""
-    figures = {name: {'healthy_runs': 0, 'healthy_stale': [], 'healthy_rest_hours': 0.0, 'undetermined_rests': 0,
+    figures = {case: {'healthy_runs': 0, 'healthy_stale': [], 'healthy_rest_hours': 0.0, 'undetermined_rests': 0,
                       'rests': 0, 'detection': {fault: {'runs': 0, 'third': 0, 'fourth': 0, 'ever': 0, 'named': {}}
                                                 for fault in FAULTS},
-                      'learning': {fault: [] for fault in FAULTS}} for name in FILES}
+                      'learning': {fault: [] for fault in FAULTS}} for case in CASES}
     validated = {}
     for seed in seeds:
         files = seed_files(setting, seed, records=records, held_out=held_out, minutes=minutes, rate_hz=rate,
                            noise=noise)
         scenario, habits = files.scenario, files.habits
         units = files.units()
+        given = tuple(tuple(float(v) for v in habits.turn_on(sensor)) for sensor in ('accel', 'gyro'))
         for index in range(records, records + held_out):
             runs = everyday_runs(index, ('healthy', *FAULTS), scenario=scenario, habits=habits)
             ends = rest_ends_ns(runs['healthy'])
-            for name, unit in units.items():
+            for name, (file, repeatability) in CASES.items():
+                unit = units[file]
                 row = figures[name]
-                watch, _, _ = watch_run(runs['healthy'], unit, WatchSettings(latitude=LATITUDE))
+                extra = {'turn_on_repeatability': given} if repeatability else {}
+                watch, _, _ = watch_run(runs['healthy'], unit, WatchSettings(latitude=LATITUDE, **extra))
                 row['healthy_runs'] += 1
                 row['healthy_rest_hours'] += watch.rest_hours
                 row['rests'] += watch.rests_judged
@@ -110,7 +116,7 @@ def run_setting(setting: str, seeds: range, *, records: int, held_out: int, minu
                 if watch.stale:
                     row['healthy_stale'].append([seed, index, watch.verdict()])
                 for fault in FAULTS:
-                    watch, fired, _ = watch_run(runs[fault], unit, WatchSettings(latitude=LATITUDE))
+                    watch, fired, _ = watch_run(runs[fault], unit, WatchSettings(latitude=LATITUDE, **extra))
                     found = row['detection'][fault]
                     found['runs'] += 1
                     if fired is not None:
@@ -120,7 +126,7 @@ def run_setting(setting: str, seeds: range, *, records: int, held_out: int, minu
                         for finding in watch.findings.values():
                             key = f'{finding.channel} {finding.kind}'
                             found['named'][key] = found['named'].get(key, 0) + 1
-                    learning = WatchSettings(latitude=LATITUDE, learn=LearnedState())
+                    learning = WatchSettings(latitude=LATITUDE, learn=LearnedState(), **extra)
                     watch, _, output = watch_run(runs[fault], unit, learning)
                     ratios = learning_ratios(runs[fault], output, _floor_unit(unit, scenario), rate, habits)
                     row['learning'][fault].append(ratios.tolist())
@@ -173,7 +179,7 @@ def main(argv: list[str] | None = None) -> int:
     missed = []
     for setting, figures in settings.items():
         for name, row in figures.items():
-            print(f'{setting}, {name} file: healthy said stale in {len(row["healthy_stale"])} of '
+            print(f'{setting}, {name}: healthy said stale in {len(row["healthy_stale"])} of '
                   f'{row["healthy_runs"]} runs, {row["healthy_rest_hours"]:.1f} h of rests: '
                   f'{row["measured_false_alarms_per_hour"]:.3g} per hour (stated at most {FALSE_ALARMS_PER_HOUR:g}); '
                   f'|f| undetermined at {row["undetermined_rests"]} of {row["rests"]} rests')

@@ -4,8 +4,9 @@ Issue 39's benches judge the ordinary path: per seed (``everyday_check.month``: 
 pool was built on, or the second one) the month's first ``records`` records are written as 50 Hz
 driver bags into a directory and ``tak_calib fit DIR -o pool.yaml`` fits them (the command's own
 code, in process: no other option); the same unit's chamber run (a static run z up through six
-plateaus over the month's temperatures, 10 Hz, no reference topics: its own power-up, so its own
-turn-on offset) is written and ``tak_calib fit chamber -o chamber.yaml`` fits it. The records
+plateaus over the month's temperatures at the records' rate, no reference topics: its own
+power-up, so its own turn-on offset) is written and ``tak_calib fit chamber -o chamber.yaml``
+fits it. The records
 after the pool's are the held-out ones (never seen by a fit). The bags are removed once fitted; the
 files and what ``fit`` printed are kept in a cache directory (``TAK_EVERYDAY_FILES``, default
 the system's temporary directory) so that both benches share them.
@@ -36,7 +37,6 @@ from tak_thermo_ros.formats.kalibr import write_kalibr
 
 CACHE = Path(os.environ.get('TAK_EVERYDAY_FILES', Path(tempfile.gettempdir()) / 'tak_everyday_files'))
 CHAMBER_PLATEAUS = 6
-CHAMBER_RATE_HZ = 10.0
 
 
 @dataclass(frozen=True)
@@ -75,7 +75,7 @@ def chamber_run(scenario, habits, seed: int):
         draw = rng.standard_normal(3) * habits.turn_on(sensor)
         units[name] = tuple(replace(axis, offset=axis.offset + d) for axis, d in zip(getattr(scenario, name), draw))
     plateaus = tuple(float(t) for t in np.linspace(low, high, CHAMBER_PLATEAUS))
-    run = replace(scenario, **units, sample_rate_hz=CHAMBER_RATE_HZ, temp_code_every=1, start_celsius=low,
+    run = replace(scenario, **units, temp_code_every=1, start_celsius=low,
                   plateaus_celsius=plateaus, plateau_hours=0.25, ramp_celsius_per_minute=1.0, board_lag_s=300.0,
                   positions=((0.0, 0.0, 1.0),), record_references=False, seed=seed + 200_003)
     return simulate(run).driver

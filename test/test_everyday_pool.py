@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 from tak_thermo_ros import cli
-from tak_thermo_ros.core.simulation.everyday import everyday_scenario, simulate_everyday_record
+from tak_thermo_ros.core.simulation.everyday import everyday_scenario, everyday_truth, simulate_everyday_record
 from tak_thermo_ros.formats.bag import write_driver_record
 from tak_thermo_ros.formats.calibration_file import load_unit
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'bench'))
-from everyday_check import check_seed  # noqa: E402
+from everyday_check import check_seed, offset_errors  # noqa: E402
 
 MONTH = {'sample_rate_hz': 10.0, 'seed': 21, 'everyday': {'records': 7, 'record_minutes': 10.0}}
 """Seven records of about 10 minutes at 10 Hz (6,000 Imu messages each)."""
@@ -68,7 +68,7 @@ def test_fit_a_directory_of_records_one_line_each_then_the_pool(month, capsys, t
         assert 'rests' in line and 'min at rest' in line and 'orientation' in line
     assert any(line.startswith('pool: 5 of 5 records') for line in lines)
     assert any(line.startswith('pool: heating at') for line in lines)
-    assert any('determine the gravity axis z only' in line for line in lines)
+    assert any('the tilts determine the offsets on x y' in line for line in lines)
     assert any(line.startswith('gyroscope: turn-on repeatability x y z') for line in lines)
     unit = load_unit(params)
     turn_on = unit.gyro.turn_on
@@ -77,8 +77,13 @@ def test_fit_a_directory_of_records_one_line_each_then_the_pool(month, capsys, t
     # five power-ups: the spread is known to about a third; within three of its errors of the draws' own
     assert np.all(np.abs(np.array(turn_on.repeatability) - truth) < 3.0 * np.array(turn_on.repeatability_error)
                   + 2e-5)
-    assert unit.accel.turn_on is None  # near level: x and y undetermined
-    assert any('turn_on not written' in note for note in unit.accel.notes)
+    # within 3 deg of level the tilts tell the x and y offsets (b . u in |f|), to about a mg
+    truth = everyday_truth(*everyday_scenario(MONTH)).accel
+    errors = offset_errors(unit.accel)
+    for axis in range(2):
+        true = truth.axes[axis].offset + truth.axes[axis].offset_drift(unit.accel.temp_code_ref - truth.temp_code_ref)
+        assert errors[axis] < 2e-2 and abs(unit.accel.axes[axis].offset - true) < 4.0 * errors[axis]
+    assert 'x.offset' not in unit.accel.uncertainty.held and 'z.scale' in unit.accel.uncertainty.held
     assert unit.source['format'] == 'pool'
 
 

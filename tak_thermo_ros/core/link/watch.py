@@ -630,6 +630,10 @@ class CalibrationWatch:
                                           (given.source if given is not None else '')
                                           for known, given in zip(self._turn_on_sd, repeatabilities))
         """Per sensor where the turn-on repeatability the first rest is judged against comes from (``''``: none)."""
+        self._turn_on_share = tuple(2.0 if known is None and given is not None and given.source.endswith(
+            '_turn_on_repeatability') else 1.0 for known, given in zip(self._turn_on_sd, repeatabilities))
+        """Per sensor the turn-on variance's factor: a file of one power-up (no ``turn_on``) judged with a given
+        repeatability carries that power-up's own turn-on offset in its curve: the run's less the file's, twice."""
         self._turn_on_sd = tuple(known if known is not None else given
                                  for known, given in zip(self._turn_on_sd, repeatabilities))
         self.undetermined: list[tuple[int, float, float]] = []
@@ -793,10 +797,10 @@ class CalibrationWatch:
         """The turn-on repeatability of a channel (``|f|``: projected on the up direction), or ``None``."""
         accel, gyro = self._turn_on_sd
         if channel < 3:
-            return None if gyro is None else gyro.repeatability[channel]
+            return None if gyro is None else gyro.repeatability[channel] * math.sqrt(self._turn_on_share[1])
         if accel is None:
             return None
-        return float(math.sqrt(sum(u * u * r * r for u, r in zip(up, accel.repeatability))))
+        return float(math.sqrt(self._turn_on_share[0] * sum(u * u * r * r for u, r in zip(up, accel.repeatability))))
 
     def _turn_on_covariance(self, rests: list[JudgedRest], channel: int) -> np.ndarray:
         """``(k, k)`` the run's turn-on offset in the rests' residuals: one constant per gyroscope axis.
@@ -806,9 +810,10 @@ class CalibrationWatch:
         """
         accel, gyro = self._turn_on_sd
         if channel < 3:
-            return np.full((len(rests), len(rests)), gyro.repeatability[channel] ** 2)  # type: ignore[union-attr]
+            return np.full((len(rests), len(rests)), self._turn_on_share[1]
+                           * gyro.repeatability[channel] ** 2)  # type: ignore[union-attr]
         ups = np.array([rest.up for rest in rests])
-        return (ups * np.square(accel.repeatability)) @ ups.T  # type: ignore[union-attr]
+        return self._turn_on_share[0] * (ups * np.square(accel.repeatability)) @ ups.T  # type: ignore[union-attr]
 
     def _judge(self, rest: Rest) -> None:
         judged = self.residual(rest)
@@ -983,8 +988,8 @@ class CalibrationWatch:
             if gyro_sd is None:
                 break
             residual = float(judged.residual[channel])
-            sigma = math.sqrt(self.level_variance(judged, channel) + gyro_sd.repeatability[channel] ** 2
-                              + self.calibration_covariance([judged], channel)[0, 0])
+            own = self.level_variance(judged, channel) + self.calibration_covariance([judged], channel)[0, 0]
+            sigma = math.sqrt(own + self._turn_on_share[1] * gyro_sd.repeatability[channel] ** 2)
             if abs(residual) <= TURN_ON_SIGMAS * sigma:
                 offset[3 + channel] = residual
                 gyro_taken.append(f'{"xyz"[channel]} {residual * DEG_PER_H:+.3g}')
@@ -999,7 +1004,7 @@ class CalibrationWatch:
             if abs(up[axis]) >= VERTICAL_AXIS_COSINE:
                 size = self._vertical(float(judged.residual[3]), up)
                 sigma = math.sqrt((self.level_variance(judged, 3) + self.calibration_covariance([judged], 3)[0, 0])
-                                  / up[axis] ** 2 + accel_sd.repeatability[axis] ** 2)
+                                  / up[axis] ** 2 + self._turn_on_share[0] * accel_sd.repeatability[axis] ** 2)
                 text = f'accel {"xyz"[axis]} {size * MG:+.3g} mg'
                 if abs(size) <= TURN_ON_SIGMAS * sigma:
                     offset[axis] = size
