@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 from pathlib import Path
 from tak_thermo_ros.cli import common, options
+from tak_thermo_ros.core.fit.link_uncertainty import HeldSpreads
 from tak_thermo_ros.core.link.model import AXES
 from tak_thermo_ros.core.link.model import InputKind
 from tak_thermo_ros.core.link.model import UnitCalibration
@@ -58,6 +59,12 @@ def add_parser(commands) -> argparse.ArgumentParser:
                              'hard and soft iron by an ellipsoid fit, after the thermal link (default: not fitted)')
     parser.add_argument('--settle-time', type=options.seconds_not_negative, default=0.0, metavar='SECONDS',
                         help='leave out samples this long after each reference change (turntable settling)')
+    parser.add_argument('--held-spread', type=options.held_spread, action='append', default=[], metavar='NAME=VALUE',
+                        help='the spread a held term is written with where the records do not bound it (the file\'s '
+                             'uncertainty, the calibration watch\'s), as a data sheet gives it: accel_offset=20 (mg), '
+                             'accel_scale=0.5 (%%), accel_coupling=10 (mrad), gyro_offset=3600 (deg/h), '
+                             '..._offset_drift, ..._scale_drift (per C); default a consumer MEMS data sheet\'s '
+                             '(docs/calibration_file.md)')
     noise_group = parser.add_argument_group('noise model written with the calibration (the node\'s Imu covariances)')
     noise_group.add_argument('--noise', metavar='IMU.yaml',
                              help='a Kalibr-style imu.yaml (noise densities, random walks)')
@@ -80,7 +87,8 @@ def run(args: argparse.Namespace) -> int:
     settings = FitSettings(effects=effects, bias_order=args.bias_order, scale_order=args.scale_order,
                            temp_code_ref=args.temp_code_ref, settle_time_s=args.settle_time,
                            gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
-                           max_effect_samples=args.effect_samples)
+                           max_effect_samples=args.effect_samples,
+                           held_spreads=HeldSpreads(**dict(args.held_spread)))
     from tak_thermo_ros.passes.pool import is_pool
     if is_pool(args.bag):
         return _fit_pool(args, settings)

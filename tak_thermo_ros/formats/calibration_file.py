@@ -438,7 +438,7 @@ def _uncertainty_from_mapping(raw: Any, key: str) -> LinkUncertainty:
         msg = f'{key}: expected a mapping'
         raise CalibrationError(msg)
     _check_keys(raw, key, ('terms', 'temperature_scale', 'covariance'),
-                ('held', 'held_from', 'source', 'prior', 'records_share'))
+                ('held', 'held_from', 'beyond', 'source', 'prior', 'records_share'))
     terms = _strings(raw['terms'], f'{key}.terms')
     count = len(terms)
     upper = _numbers(raw['covariance'], f'{key}.covariance', count * (count + 1) // 2)
@@ -446,9 +446,10 @@ def _uncertainty_from_mapping(raw: Any, key: str) -> LinkUncertainty:
     held = _strings(raw.get('held', []), f'{key}.held')
     held_from = _strings(raw.get('held_from', []), f'{key}.held_from')
     share = _numbers(raw['records_share'], f'{key}.records_share', count) if 'records_share' in raw else ()
+    beyond = _numbers(raw['beyond'], f'{key}.beyond', 3) if 'beyond' in raw else ()
     source, prior = (str(raw.get(name, default)) for name, default in (('source', 'records'), ('prior', '')))
     try:
-        return LinkUncertainty(terms, upper, scale, held, held_from, source, prior, share)
+        return LinkUncertainty(terms, upper, scale, held, held_from, beyond, source, prior, share)
     except CalibrationError as err:
         raise CalibrationError(f'{key}.{str(err).removeprefix("uncertainty.")}') from None
 

@@ -115,8 +115,9 @@ def link_uncertainty(names: Sequence[str], kinds: Sequence[str], normal: np.ndar
     keep = [order.index(j) for j in carried]
     held_names = tuple(term_name(names[j]) for j in held if j in carried)
     held_from = tuple(source[k] for k, j in enumerate(held) if j in carried)
+    beyond = (getattr(spreads, f'{sensor}_offset_drift'),) * 3
     return LinkUncertainty.of(tuple(term_name(names[j]) for j in carried), covariance[np.ix_(keep, keep)],
-                              temperature_scale, held_names, held_from)
+                              temperature_scale, held_names, held_from, beyond)
 
 
 def block_normal(factors: Sequence[np.ndarray], theta: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

@@ -255,7 +255,7 @@ class StreamingFit:
         matrix[across, across] = spreads.spread(sensor, 'offset', 1.0) ** 2
         held_names = (*found.held, *(found.terms[j] for j in across))
         return LinkUncertainty.of(found.terms, matrix, found.temperature_scale, held_names,
-                                  (*found.held_from, *(['default'] * len(across))))
+                                  (*found.held_from, *(['default'] * len(across))), found.beyond)
 
     def _offset_only(self, factor: BlockedQR, scale: float) -> Solution:
         """The offset polynomial with the scale held: least squares of ``N - K0 f`` on ``u^0 .. u^q``.

@@ -61,6 +61,9 @@ class LinkUncertainty:
     :param temperature_scale: the terms' temperature powers are of ``(T - temp_code_ref) / temperature_scale``.
     :param held: the terms the fit held (their variance is their plausible spread's square).
     :param held_from: per held term, :data:`HELD_FROM`: its spread from the records, or a default.
+    :param beyond: per axis the spread of the offset's slope beyond the calibrated range (sensor units
+        per degree C; the correction holds the curve at its edge there, the unit's goes on): a
+        default (``HeldSpreads``), beside the curve's own slope at the edge; empty: not stated.
     :param source: what the covariance comes from: ``records``, or ``records and prior`` (a fleet's prior).
     :param prior: what that prior was (``''``: none).
     :param records_share: per term the share of its precision from the unit's own records (empty: all).
@@ -71,6 +74,7 @@ class LinkUncertainty:
     temperature_scale: float
     held: tuple[str, ...] = ()
     held_from: tuple[str, ...] = ()
+    beyond: tuple[float, ...] = ()
     source: str = 'records'
     prior: str = ''
     records_share: tuple[float, ...] = ()
@@ -93,6 +97,9 @@ class LinkUncertainty:
             msg = (f'uncertainty.held: expected terms of uncertainty.terms, with held_from one of '
                    f'{", ".join(HELD_FROM)} each')
             raise CalibrationError(msg)
+        if self.beyond and (len(self.beyond) != 3 or not all(math.isfinite(v) and v >= 0.0 for v in self.beyond)):
+            msg = 'uncertainty.beyond: expected three finite numbers >= 0 (x y z)'
+            raise CalibrationError(msg)
         if self.records_share and (len(self.records_share) != count or not all(
                 math.isfinite(v) and 0.0 <= v <= 1.0 for v in self.records_share)):
             msg = f'uncertainty.records_share: expected {count} numbers within 0..1 (one per term)'
@@ -109,12 +116,13 @@ class LinkUncertainty:
 
     @classmethod
     def of(cls, terms: tuple[str, ...], covariance: np.ndarray, temperature_scale: float,
-           held: tuple[str, ...] = (), held_from: tuple[str, ...] = ()) -> LinkUncertainty:
+           held: tuple[str, ...] = (), held_from: tuple[str, ...] = (), beyond: tuple[float, ...] = ()
+           ) -> LinkUncertainty:
         """From a covariance matrix (symmetrised)."""
         matrix = np.asarray(covariance, dtype=float)
         matrix = 0.5 * (matrix + matrix.T)
         return cls(tuple(terms), tuple(matrix[np.triu_indices(len(terms))].tolist()), float(temperature_scale),
-                   tuple(held), tuple(held_from))
+                   tuple(held), tuple(held_from), tuple(float(v) for v in beyond))
 
     @property
     def covariance(self) -> np.ndarray:
@@ -167,6 +175,8 @@ class LinkUncertainty:
         if self.held:
             mapping['held'] = list(self.held)
             mapping['held_from'] = list(self.held_from)
+        if self.beyond:
+            mapping['beyond'] = list(self.beyond)
         if self.source != 'records' or self.prior:
             mapping['source'] = self.source
             mapping['prior'] = self.prior

@@ -636,6 +636,7 @@ class CalibrationWatch:
         repeatability carries that power-up's own turn-on offset in its curve: the run's less the file's, twice."""
         self._turn_on_sd = tuple(known if known is not None else given
                                  for known, given in zip(self._turn_on_sd, repeatabilities))
+        self._covariances: dict[str, np.ndarray] = {}
         self.undetermined: list[tuple[int, float, float]] = []
         """Rests whose ``|f|`` the calibration leaves undetermined: ``(rest, its uncertainty, its noise)`` (SI)."""
         if learner is not None:
@@ -731,11 +732,46 @@ class CalibrationWatch:
             if uncertainty is None:
                 rows += [np.zeros(0)] * (3 if sensor == 'gyro' else 1)
                 continue
-            temperature = min(max(rest.temperature, calibration.temp_code_min), calibration.temp_code_max)
+            low, high = calibration.temp_code_min, calibration.temp_code_max
+            temperature = min(max(rest.temperature, low), high)
             scales = np.array([axis.scale for axis in calibration.axes])
             per_axis = uncertainty.rows(temperature, inputs, calibration.temp_code_ref, scales)
+            # beyond the calibrated range the correction holds the edge's value: off by the slope there times
+            # the distance (columns: each axis's slope beyond the low edge, then beyond the high edge)
+            outside = np.zeros((3, 6))
+            below, above = min(rest.temperature - low, 0.0), max(rest.temperature - high, 0.0)
+            outside[:, :3] = -below * np.eye(3)
+            outside[:, 3:] = -above * np.eye(3)
+            per_axis = np.hstack([per_axis, outside])
             rows += list(per_axis) if sensor == 'gyro' else [up @ per_axis]
         return tuple(rows)
+
+    def _terms_covariance(self, sensor: str) -> np.ndarray:
+        """The covariance of the errors :meth:`_calibration_rows` runs over: the file's terms, then beyond its range.
+
+        Beyond an edge each axis's slope is the curve's own there (what holding the edge's value
+        misses) beside the file's ``beyond`` spread, as an independent error per side.
+        """
+        cached = self._covariances.get(sensor)
+        if cached is not None:
+            return cached
+        calibration = self.unit.sensor(sensor)
+        uncertainty = calibration.uncertainty
+        assert uncertainty is not None
+        beyond = np.asarray(uncertainty.beyond or (0.0, 0.0, 0.0))
+        sides = []
+        for edge in (calibration.temp_code_min, calibration.temp_code_max):
+            n = edge - calibration.temp_code_ref
+            step = max(1e-3 * (calibration.temp_code_max - calibration.temp_code_min), 1e-6)
+            slope = np.array([(axis.offset_drift(n + step) - axis.offset_drift(n - step)) / (2.0 * step) / axis.scale
+                              for axis in calibration.axes])
+            sides.append(slope ** 2 + beyond ** 2 if calibration.needs_temperature else beyond ** 2)
+        count = len(uncertainty.terms)
+        matrix = np.zeros((count + 6, count + 6))
+        matrix[:count, :count] = uncertainty.covariance
+        matrix[count:, count:] = np.diag(np.concatenate(sides))
+        self._covariances[sensor] = matrix
+        return matrix
 
     def calibration_covariance(self, rests: Sequence[JudgedRest], channel: int,
                                first: JudgedRest | None = None) -> np.ndarray:
@@ -749,8 +785,7 @@ class CalibrationWatch:
         rows = np.array([rest.calibration[channel] for rest in rests])
         if first is not None:
             rows = rows - first.calibration[channel][None, :]
-        sensor = self.unit.sensor('gyro' if channel < 3 else 'accel')
-        return rows @ sensor.uncertainty.covariance @ rows.T  # type: ignore[union-attr]
+        return rows @ self._terms_covariance('gyro' if channel < 3 else 'accel') @ rows.T
 
     def wander_variance(self, first: JudgedRest, second: JudgedRest, channel: int) -> float:
         """The variance of the bias's wander between two rests' means on a channel (without their own noise).
