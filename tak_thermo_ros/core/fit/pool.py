@@ -10,8 +10,9 @@ only a pool allows:
   records in :data:`FOLDS` folds; each candidate order is fitted on the other folds (the variances
   of the whole pool's fit held, the rests alone) and judged on the fold's rests, each record's own
   offset taken off (the shape, what a calibration must carry to a record it never saw), as a
-  chi-square against the rests' noise; the lowest order within :data:`ORDER_TOLERANCE` of the
-  best is kept, per gyroscope axis, and one for the accelerometer (its ``|f|`` mixes the axes);
+  chi-square against the rests' noise; the order with the lowest is kept (a lower one only within
+  :data:`ORDER_TOLERANCE` of it), per gyroscope axis, and one for the accelerometer (its ``|f|``
+  mixes the axes);
 - **a pool that is not one unit**: the records' turn-on offsets screened
   (:func:`~tak_thermo_ros.core.fit.random_effects.screen_offsets`): a record far beyond the pool's
   spread is left out and the pool fitted again; offsets in two groups refuse the pool.
@@ -36,8 +37,9 @@ FOLDS = 5
 """The pool's records are held out in this many folds (each record once; fewer with fewer records)."""
 MIN_RECORDS_FOR_ORDERS = 3
 """Fewer records than this: the orders are the span's (no fold to judge them on)."""
-ORDER_TOLERANCE = 2.0
-"""A lower order is kept when its held-out chi-square exceeds the best's by at most this."""
+ORDER_TOLERANCE = 0.0
+"""A lower order is kept when its held-out chi-square exceeds the best's by at most this: none (issue 39: the
+order is not chosen below what the held-out records need; a higher order that misses them scores worse)."""
 MIN_RECORDS_FOR_SCREENING = 3
 """Fewer records than this: no record is screened as another unit's (no spread to judge it by)."""
 
@@ -278,17 +280,20 @@ class PoolFit:
     left_out: tuple[LeftOut, ...] = ()
 
 
-def _own_precision(record: HandheldRecord, sensor: str, rest: np.ndarray) -> np.ndarray:
-    """``(r, 3)`` how well each record's own rests tell its offset: ``1 / sqrt(sum 1 / (s^2 / n + t^2))``.
+def _own_precision(record: HandheldRecord, sensor: str, rest: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """``(r, 3)`` how well each record's own rests tell its offset: ``1 / sqrt(sum w / (s^2 / n + t^2))``.
 
     Not the offsets' errors from the fit, which carry the pool's spread (inflated by the very record
-    that is another unit's).
+    that is another unit's). The gyroscope's rests see each axis whole (``w = 1``); the
+    accelerometer's through ``|f|``, each axis along the rest's up direction (``w = u_a^2``: near
+    level its x and y offsets at a tenth of their size).
     """
     rest_record, samples, _ = _rests(record)
     noise = record.intervals.noise[3:6] if sensor == 'gyro' else record.intervals.noise[:3]
     extra = np.where(np.isfinite(rest), rest, 0.0)
+    seen = np.ones((len(rest_record), 3)) if sensor == 'gyro' else up[:len(rest_record)] ** 2
     information = np.zeros((record.records, 3))
-    np.add.at(information, rest_record, 1.0 / (noise[None, :] ** 2 / samples[:, None] + extra[None, :] ** 2))
+    np.add.at(information, rest_record, seen / (noise[None, :] ** 2 / samples[:, None] + extra[None, :] ** 2))
     return 1.0 / np.sqrt(np.maximum(information, 1e-300))
 
 
@@ -304,7 +309,7 @@ def _another_unit(record: HandheldRecord, fitted: HandheldFit) -> list[LeftOut]:
             continue
         determined = turn_on.variances.determined
         offsets = np.where(determined[None, :], turn_on.offsets, np.nan)
-        screening = screen_offsets(offsets, _own_precision(record, sensor, turn_on.variances.rest))
+        screening = screen_offsets(offsets, _own_precision(record, sensor, turn_on.variances.rest, fitted.up))
         if screening.groups:
             axis = screening.axis
             groups = tuple(tuple(record.record_names[i] for i in group) for group in screening.groups)
