@@ -882,8 +882,8 @@ class CalibrationWatch:
         if len(self.undetermined) == 1:
             tilt = math.degrees(math.acos(min(1.0, float(abs(judged.up @ self.first.up)))))  # type: ignore[union-attr]
             self.notices.append(f'|f| not judged at rest {judged.rest.index} ({tilt:.0f} deg from rest 1): the '
-                                f'calibration leaves it undetermined there (+-{uncertainty * MG:.2g} mg, its noise '
-                                f'{noise * MG:.2g} mg); such rests are said, not judged')
+                                f'calibration leaves it undetermined there (+-{uncertainty * MG:.2g} mg, noise '
+                                f'{noise * MG:.2g} mg)')
 
     def _test(self, channel: int, judged: JudgedRest) -> None:
         """One channel at a rest: the alternatives tested on the run's residuals by generalised least squares.
@@ -1133,6 +1133,7 @@ class CalibrationWatch:
             else:
                 values.append(('accel.norm_error_mg', f'{state.residual * MG:.4g}'))
             values.append((f'{key}.sigma', f'{state.z:.3g}'))
+        values.append(('accel.undetermined_rests', str(len(self.undetermined))))
         values.append(('first_rest', self.first_rest_words()))
         for finding in self.findings.values():
             values.append((f'stale.{finding.channel.replace(" ", "_")}', finding.judged()))
@@ -1159,6 +1160,10 @@ class CalibrationWatch:
         unjudged = self.first_rest_unjudged()
         if unjudged and self.rests_judged:
             out.append(f'  rest 1 {unjudged}')
+        if self.undetermined:
+            _, uncertainty, noise = max(self.undetermined, key=lambda item: item[1] / item[2])
+            out.append(f'  |f| not judged at {len(self.undetermined)} rests: the file leaves it undetermined there '
+                       f'(+-{uncertainty * MG:.2g} mg, noise {noise * MG:.2g} mg)')
         last = self.judged[-1] if self.judged else self.first
         if last is not None:
             bias = ' '.join(f'{self.channels[n].residual * DEG_PER_H:+.3g}' for n in CHANNELS[:3])
