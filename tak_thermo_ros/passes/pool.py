@@ -473,7 +473,7 @@ def turn_on_line(sensor: str, fitted) -> str:
     values = ' '.join('-' if not ok else f'{numbers(v * factor, 3)}+-{numbers(e * factor, 2)}'
                       for v, e, ok in zip(variances.turn_on, variances.turn_on_error, variances.determined))
     held = [name for name, ok in zip('xyz', variances.determined) if not ok]
-    tail = f' ({" ".join(held)}: not determined, its offset held)' if held else ''
+    tail = f' ({" ".join(held)}: not determined by these records)' if held else ''
     return f'{SENSOR_NAMES[sensor]}: turn-on repeatability x y z {values} {small}{tail}'
 
 

@@ -1378,6 +1378,10 @@ def _pooled_accel(problem: _AccelProblem, up: np.ndarray, gauge: dict[int, float
             break
         previous = current
     assert variances is not None
+    # an axis seen through the tilts alone (near level: x and y at a tenth of their size) may leave its
+    # spread within its own error of 0: the records do not tell it (its offsets stay the fit's random effects)
+    told = variances.determined & (variances.turn_on_error < variances.turn_on)
+    variances = replace(variances, turn_on=np.where(told, variances.turn_on, np.nan), determined=told)
     return accel, up, _turn_on_fit(accel, problem.layout, variances, len(problem.layout.turn_on(0)))
 
 
@@ -1410,8 +1414,7 @@ def _with_turn_on(calibration: Calibration, fitted: TurnOnFit, records: int) -> 
     variances = fitted.variances
     if not np.all(variances.determined):
         held = ' '.join(name for name, ok in zip(AXES, variances.determined) if not ok)
-        note = (f'turn_on not written: the records do not determine the turn-on offset on {held} '
-                f'(its offset is held)')
+        note = f'turn_on not written: the records do not determine the turn-on offset\'s spread on {held}'
         return replace(calibration, notes=(*calibration.notes, note))
     turn_on = TurnOn(repeatability=tuple(float(v) for v in variances.turn_on),  # type: ignore[arg-type]
                      repeatability_error=tuple(float(e) if np.isfinite(e) else 0.0  # type: ignore[arg-type]
