@@ -1011,9 +1011,11 @@ def order_holds(layout: _Layout, orders: Sequence[int] | None) -> dict[int, floa
     return held
 
 
-ONE_ORIENTATION_DEG = 15.0
-"""Rests whose up directions all lie within this of their mean are one orientation (near level): |f| tells
-the offsets through the tilts only."""
+ONE_ORIENTATION_DEG = 30.0
+"""Rests whose up directions all lie within this of their mean are one orientation (near level, on ground
+tilted by up to this at any heading): |f| tells the other axes' offsets through the tilts only, and cannot
+tell them from the couplings with the gravity axis (``g c_zx u_x u_z`` against ``b_x u_x``: at 15 deg they
+differ by 3 %: the fit's bounds would keep a coupling that took up a 10 mg offset)."""
 LEVEL_OFFSET_ORDER = 3
 """In one orientation the other axes' offsets keep a slope against temperature at most (their tilts see them
 through ``|f|`` at a tenth of their size)."""
