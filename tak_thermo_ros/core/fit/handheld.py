@@ -1016,9 +1016,6 @@ ONE_ORIENTATION_DEG = 30.0
 tilted by up to this at any heading): |f| tells the other axes' offsets through the tilts only, and cannot
 tell them from the couplings with the gravity axis (``g c_zx u_x u_z`` against ``b_x u_x``: at 15 deg they
 differ by 3 %: the fit's bounds would keep a coupling that took up a 10 mg offset)."""
-LEVEL_OFFSET_ORDER = 3
-"""In one orientation the other axes' offsets keep a slope against temperature at most (their tilts see them
-through ``|f|`` at a tenth of their size)."""
 
 
 def one_orientation(up: np.ndarray, kept: np.ndarray, layout: _Layout) -> tuple[str, dict[int, float]]:
@@ -1026,13 +1023,12 @@ def one_orientation(up: np.ndarray, kept: np.ndarray, layout: _Layout) -> tuple[
 
     At rest near one orientation ``|f| = g + b . u + g u' S u + ...`` (``u`` the up direction,
     ``S`` the scale errors and the couplings): the tilts of the rests tell the other axes'
-    offsets (``b_x u_x``), with their slope against temperature where the span allows, and their
-    scales (``g s_x u_x^2``); what they cannot tell apart is held and said in one line: the
-    gravity axis's scale and its temperature terms (at 1 g they act as its offset, which carries
-    them), the couplings between the gravity axis and the others (``g c_zx u_x u_z`` acts as
-    ``b_x u_x``), the other axes' scales' temperature terms and their offsets' terms beyond
-    :data:`LEVEL_OFFSET_ORDER`. What the rests do not determine beyond that is held by the fit's
-    bounds. With up between the axes (no axis within
+    offsets (``b_x u_x``), with their temperature terms where the span allows, and their scales
+    (``g s_x u_x^2``); what they cannot tell apart is held and said in one line: the gravity
+    axis's scale and its temperature terms (at 1 g they act as its offset, which carries them),
+    the couplings between the gravity axis and the others (``g c_zx u_x u_z`` acts as
+    ``b_x u_x``) and the other axes' scales' temperature terms. What the rests do not determine
+    beyond that is held by the fit's bounds. With up between the axes (no axis within
     :data:`~tak_thermo_ros.core.records.still.FACE_DEG` of it) every offset, scale and coupling is held.
     """
     from tak_thermo_ros.core.records.still import FACE_DEG
@@ -1060,8 +1056,6 @@ def one_orientation(up: np.ndarray, kept: np.ndarray, layout: _Layout) -> tuple[
         elif axis == gravity and kind in ('scale', 'scale_T'):
             held[j] = 1.0 if kind == 'scale' else 0.0
         elif axis != gravity and kind == 'scale_T':
-            held[j] = 0.0
-        elif axis != gravity and kind == 'offset_T' and int(label.rsplit('_T', 1)[1]) > LEVEL_OFFSET_ORDER:
             held[j] = 0.0
     others = ' '.join(axis for axis in AXES if axis != name)
     line = (f'accelerometer: every rest within {where} ({"+-"[int(mean[gravity] < 0)]}{name} up): the tilts '
