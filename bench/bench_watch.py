@@ -88,21 +88,25 @@ def validate_learned(unit, state, simulated, where: Path) -> tuple[int, str]:
 
 
 def run_setting(setting: str, seeds: range, *, records: int, held_out: int, minutes: float, rate: float,
-                noise: bool) -> dict:
-    """One setting's figures per file over the seeds."""
+                noise: bool, healthy: int = 0) -> dict:
+    """One setting's figures per file over the seeds.
+
+    :param healthy: more records of the month, after the held-out ones, watched healthy only (hours of rests).
+    """
     figures = {case: {'healthy_runs': 0, 'healthy_stale': [], 'healthy_rest_hours': 0.0, 'undetermined_rests': 0,
                       'rests': 0, 'detection': {fault: {'runs': 0, 'third': 0, 'fourth': 0, 'ever': 0, 'named': {}}
                                                 for fault in FAULTS},
                       'learning': {fault: [] for fault in FAULTS}} for case in CASES}
     validated = {}
     for seed in seeds:
-        files = seed_files(setting, seed, records=records, held_out=held_out, minutes=minutes, rate_hz=rate,
-                           noise=noise)
+        files = seed_files(setting, seed, records=records, held_out=held_out + healthy, minutes=minutes,
+                           rate_hz=rate, noise=noise)
         scenario, habits = files.scenario, files.habits
         units = files.units()
         given = tuple(tuple(float(v) for v in habits.turn_on(sensor)) for sensor in ('accel', 'gyro'))
-        for index in range(records, records + held_out):
-            runs = everyday_runs(index, ('healthy', *FAULTS), scenario=scenario, habits=habits)
+        for index in range(records, records + held_out + healthy):
+            faults = FAULTS if index < records + held_out else ()
+            runs = everyday_runs(index, ('healthy', *faults), scenario=scenario, habits=habits)
             ends = rest_ends_ns(runs['healthy'])
             for name, (file, repeatability) in CASES.items():
                 unit = units[file]
@@ -115,7 +119,7 @@ def run_setting(setting: str, seeds: range, *, records: int, held_out: int, minu
                 row['undetermined_rests'] += len(watch.undetermined)
                 if watch.stale:
                     row['healthy_stale'].append([seed, index, watch.verdict()])
-                for fault in FAULTS:
+                for fault in faults:
                     watch, fired, _ = watch_run(runs[fault], unit, WatchSettings(latitude=LATITUDE, **extra))
                     found = row['detection'][fault]
                     found['runs'] += 1
@@ -159,7 +163,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--first-seed', type=int, default=1)
     parser.add_argument('--settings', nargs='+', choices=SETTINGS, default=list(SETTINGS))
     parser.add_argument('--records', type=int, default=16)
-    parser.add_argument('--held-out', type=int, default=4)
+    parser.add_argument('--held-out', type=int, default=4, help='held-out records per seed, healthy and faulty')
+    parser.add_argument('--healthy', type=int, default=8, help='more held-out records per seed, healthy only')
     parser.add_argument('--minutes', type=float, default=30.0)
     parser.add_argument('--rate', type=float, default=50.0)
     parser.add_argument('--noise', action='store_true', help='fit with the true noise models as --noise (interim)')
@@ -168,9 +173,10 @@ def main(argv: list[str] | None = None) -> int:
     started, cpu, load = time.time(), time.process_time(), os.getloadavg()[0]
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     settings = {setting: run_setting(setting, seeds, records=args.records, held_out=args.held_out,
-                                     minutes=args.minutes, rate=args.rate, noise=args.noise)
+                                     minutes=args.minutes, rate=args.rate, noise=args.noise, healthy=args.healthy)
                 for setting in args.settings}
     document = {'machine': machine(), 'seeds': args.seeds, 'records': args.records, 'held_out': args.held_out,
+                'healthy_only': args.healthy,
                 'minutes': args.minutes, 'rate_hz': args.rate, 'latitude': LATITUDE, 'noise_given': args.noise,
                 'stated_false_alarms_per_hour': FALSE_ALARMS_PER_HOUR, 'settings': settings,
                 'wall_s': time.time() - started, 'cpu_s': time.process_time() - cpu,
