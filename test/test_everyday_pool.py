@@ -198,22 +198,26 @@ def test_a_record_whose_temperatures_are_in_kelvin_is_said_in_one_line_and_not_p
     assert any(line.startswith('pool: 2 of 3 records') for line in lines), lines
 
 
-def test_a_month_against_the_chamber_and_androids_line_short():
+@pytest.mark.parametrize('setting', ['first', 'second'])
+def test_a_month_against_the_chamber_and_androids_line_short(setting):
     """Two seeds of a small month (8 records pooled, 3 held out): the pool's bias shape near the floor and the chamber.
 
-    The long run (20 seeds of 16 records) is bench/bench_everyday.py. Here: the gyroscope's bias
-    shape at the held-out rests within 1.2x the chamber calibration's and 2x the floor, over the
-    seeds; Android's straight line well above; |f| within 1.2x the chamber's or 2x the floor; the
-    repeatability within 2 of its errors on most axes.
+    The long run (20 seeds of 16 records, both settings) is bench/bench_everyday.py. Here, on the
+    setting the pool was built on and on the second one (a unit drawn apart, tilts up to 15 deg):
+    the gyroscope's bias shape at the held-out rests within 1.2x the chamber calibration's and 2x
+    the floor on every axis, over the seeds; Android's straight line above; |f| within 1.2x
+    the chamber's or 2x the floor; the repeatability within 2 of its errors on most axes.
     """
-    rows = [check_seed(seed, records=8, held_out=3, minutes=12.0, rate_hz=10.0, chamber_rate_hz=5.0)
-            for seed in (1, 2)]
+    rows = [check_seed(seed, records=8, held_out=3, minutes=12.0, rate_hz=10.0, chamber_rate_hz=5.0,
+                       setting=setting) for seed in (1, 2)]
 
-    def shape(name: str) -> float:
-        return float(np.sqrt(np.mean([np.mean(np.square(row['gyro_shape_rms'][name])) for row in rows])))
+    def shape(name: str) -> np.ndarray:
+        return np.sqrt(np.mean([np.square(row['gyro_shape_rms'][name]) for row in rows], axis=0))
 
-    assert shape('pool') <= 1.2 * shape('chamber') and shape('pool') <= 2.0 * shape('truth')
-    assert shape('android') > 1.5 * shape('pool')
+    assert np.all(shape('pool') <= 1.2 * shape('chamber')) and np.all(shape('pool') <= 2.0 * shape('truth'))
+    # Android's line takes each power-up's offset for temperature (1.5x on the first setting's unit; the
+    # second's turn-on spread is smaller beside the 10 Hz noise of these short records: above the pool only)
+    assert np.mean(shape('android')) > (1.5 if setting == 'first' else 1.0) * np.mean(shape('pool'))
     gravity = {name: float(np.sqrt(np.mean([row['gravity_rms'][name] ** 2 for row in rows])))
                for name in ('pool', 'chamber', 'truth')}
     assert gravity['pool'] <= 1.2 * gravity['chamber'] or gravity['pool'] <= 2.0 * gravity['truth']
