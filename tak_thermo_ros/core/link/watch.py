@@ -832,10 +832,10 @@ class CalibrationWatch:
         """The turn-on repeatability of a channel (``|f|``: projected on the up direction), or ``None``."""
         accel, gyro = self._turn_on_sd
         if channel < 3:
-            return None if gyro is None else gyro.repeatability[channel] * math.sqrt(self._turn_on_share[1])
+            return None if gyro is None else gyro.repeatability[channel]
         if accel is None:
             return None
-        return float(math.sqrt(self._turn_on_share[0] * sum(u * u * r * r for u, r in zip(up, accel.repeatability))))
+        return float(math.sqrt(sum(u * u * r * r for u, r in zip(up, accel.repeatability))))
 
     def _turn_on_covariance(self, rests: list[JudgedRest], channel: int) -> np.ndarray:
         """``(k, k)`` the run's turn-on offset in the rests' residuals: one constant per gyroscope axis.
@@ -961,7 +961,8 @@ class CalibrationWatch:
         state.z = z
         if ratio >= 1.0:
             turn_on = kind == 'offset' and since == 1 and repeatability is not None
-            where = ('turn-on offset beyond the repeatability ' + self._reader(channel, repeatability)
+            twice = ', the file\'s power-up\'s too' if self._turn_on_share[int(channel < 3)] > 1.0 else ''
+            where = ('turn-on offset beyond the repeatability ' + self._reader(channel, repeatability) + twice
                      if turn_on else f'since rest {since}' if kind == 'offset' else 'against temperature')
             size = size if channel < 3 else self._vertical(size, judged.up)
             self._found(Finding(name, kind, size, z, judged.rest.index, self._axis(channel, judged.up),
