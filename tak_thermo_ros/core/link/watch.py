@@ -527,8 +527,11 @@ class WatchSettings:
     turn_on_repeatability: tuple[tuple[float, float, float] | None, tuple[float, float, float] | None] = (None, None)
 
     def repeatabilities(self) -> tuple[Repeatability | None, Repeatability | None]:
-        """``(accel, gyro)`` what stands in for a file's missing turn-on repeatability: the parameter, else
-        the spread of the turn-on offsets learning has seen over :data:`MIN_SPREAD_RUNS` runs or more."""
+        """``(accel, gyro)`` what stands in for a file's missing turn-on repeatability.
+
+        The parameter, else the spread of the turn-on offsets learning has seen over
+        :data:`MIN_SPREAD_RUNS` runs or more (the gyroscope's), else ``None``.
+        """
         learned = self.learn.turn_on_spread() if self.learn is not None else None
         out = []
         for sensor, given in zip(('accel', 'gyro'), self.turn_on_repeatability):

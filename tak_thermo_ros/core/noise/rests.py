@@ -59,8 +59,8 @@ GRID_POINTS = 15
 """Values per term on the first search (log-spaced over :data:`GRID_DECADES` decades, and 0)."""
 GRID_DECADES = 6.0
 SIGNIFICANT_RATIO = 3.0
-"""The Allan variance at one sample differs from the white noise's by this many of its standard errors:
-quantisation (above) or a driver's filter (below)."""
+"""The white noise density from one sample differs from one window's by this many standard errors of the
+difference: quantisation (one sample above) or a driver's filter (below); within, the two are pooled."""
 MAX_MEANS_PER_RECORD = 96
 """A record's stretches are merged into at most this many means (a long static run, a day of plateaus)."""
 SEGMENT_S = 3600.0
@@ -106,42 +106,58 @@ class White:
 
 def white_noise(sums: ShortSums, wander: np.ndarray | None = None, wander_error: np.ndarray | None = None
                 ) -> list[White]:
-    """Each channel's white noise from the Allan variance at one window, and what one sample adds or lacks.
+    """Each channel's white noise from the Allan variance at one window and at one sample.
 
     :param wander: ``(c,)`` the Allan variance the wander contributes at one window (taken off), or ``None``;
         ``wander_error`` its standard error (it adds to the density's).
+
+    ``N^2`` is ``tau avar(tau)`` at both times: where the two agree (within :data:`SIGNIFICANT_RATIO`
+    of their standard errors) the white noise is all there is, and the two estimates are pooled
+    (inverse-variance weights: one sample's holds many more terms); where one sample shows more, the
+    difference is quantisation, where it shows less, a driver's filter, and the density is the
+    window's (the long-term one a rest's mean averages). Stretches too short for two windows (a
+    table's 10-s dwells at 1 Hz) give it from one sample alone (no filter or quantisation told apart).
     """
     tau0, window = sums.period_s, sums.window_s
     out = []
     for channel in range(len(sums.window)):
-        if sums.window_terms < 1 or sums.one_terms < 1:
+        if sums.one_terms < 1:
             out.append(White(0.0, 0.0))
             continue
+        at_one = float(sums.one[channel]) / sums.one_terms
+        # Successive differences share a sample (successive windows' a mean): about 1.5 terms per degree of freedom.
+        one_relative = math.sqrt(2.0 / max(sums.one_terms / 1.5, 1.0))
+        if sums.window_terms < 1:
+            density = math.sqrt(at_one * tau0)
+            out.append(White(density, 0.5 * one_relative * density))
+            continue
         measured = float(sums.window[channel]) / sums.window_terms
-        # Adjacent differences of successive means share a mean: about 1.5 terms per degree of freedom.
         spread = measured * math.sqrt(2.0 / max(sums.window_terms / 1.5, 1.0))
         at_window = measured
         if wander is not None:
             at_window = max(measured - float(wander[channel]), 0.5 * measured)
             spread = math.hypot(spread, float(wander_error[channel]) if wander_error is not None else 0.0)
-        relative = spread / at_window if at_window > 0.0 else 0.0
-        at_one = float(sums.one[channel]) / sums.one_terms
-        density2 = at_window * window
+        from_window, from_one = at_window * window, at_one * tau0
+        window_error, one_error = spread * window, one_relative * from_one
         quantization = filter_constant = 0.0
-        excess = at_one * tau0 / density2 - 1.0 if density2 > 0.0 else 0.0
-        if excess > SIGNIFICANT_RATIO * relative:
-            # 3 Q^2 / tau^2 + N^2 / tau at both times: two equations, two unknowns.
+        difference = from_one - from_window
+        if abs(difference) <= SIGNIFICANT_RATIO * math.hypot(window_error, one_error):
+            weights = (1.0 / max(window_error, 1e-300) ** 2, 1.0 / max(one_error, 1e-300) ** 2)
+            density2 = (from_window * weights[0] + from_one * weights[1]) / sum(weights)
+            error2 = 1.0 / math.sqrt(sum(weights))
+        elif difference > 0.0:  # 3 Q^2 / tau^2 + N^2 / tau at both times: two equations, two unknowns
             q2 = (at_one - at_window * window / tau0) / (3.0 / tau0 ** 2 - 3.0 / (window * tau0))
-            if q2 > 0.0:
-                quantization = math.sqrt(q2)
-                density2 = max((at_window - 3.0 * q2 / window ** 2) * window, 0.0)
-        elif excess < -SIGNIFICANT_RATIO * relative and at_one > 0.0:
+            quantization = math.sqrt(q2)
+            density2 = max((at_window - 3.0 * q2 / window ** 2) * window, 0.0)
+            error2 = window_error
+        else:
             filter_constant = _filter_time_constant(at_one / at_window, tau0, window)
+            density2, error2 = from_window, window_error
             if filter_constant > 0.0:  # the filter has not quite faded at one window either
-                density2 = at_window / float(filtered_white_allan_variance(np.array([window]), 1.0 / tau0,
-                                                                           filter_constant)[0])
+                fading = float(filtered_white_allan_variance(np.array([window]), 1.0 / tau0, filter_constant)[0])
+                density2, error2 = at_window / fading, window_error / (fading * window)
         density = math.sqrt(density2)
-        out.append(White(density, 0.5 * relative * density, quantization, filter_constant))
+        out.append(White(density, 0.5 * error2 / density if density > 0.0 else 0.0, quantization, filter_constant))
     return out
 
 
@@ -526,14 +542,16 @@ def wander_ceiling(sums: ShortSums, channel: int) -> tuple[float, float]:
     """``(B, K)`` the largest flicker and walk the Allan variance at one window allows on a channel.
 
     Every term adds to the Allan variance, so a flicker's flat ``(0.664 B)^2`` and a walk's
-    ``K^2 tau / 3`` are at most it (taken at its upper one-sided 95 % limit).
+    ``K^2 tau / 3`` are at most it (taken at its upper one-sided 95 % limit); at one sample where
+    the stretches are shorter than two windows.
     """
-    if sums.window_terms < 1:
+    terms, measured, tau = ((sums.window_terms, float(sums.window[channel]) / max(sums.window_terms, 1),
+                             sums.window_s) if sums.window_terms else
+                            (sums.one_terms, float(sums.one[channel]) / max(sums.one_terms, 1), sums.period_s))
+    if terms < 1:
         return math.inf, math.inf
-    measured = float(sums.window[channel]) / sums.window_terms
-    edf = max(sums.window_terms / 1.5, 1.0)
-    upper = measured * (1.0 + 1.645 * math.sqrt(2.0 / edf))
-    return math.sqrt(upper) / FLICKER_FLOOR, math.sqrt(3.0 * upper / sums.window_s)
+    upper = measured * (1.0 + 1.645 * math.sqrt(2.0 / max(terms / 1.5, 1.0)))
+    return math.sqrt(upper) / FLICKER_FLOOR, math.sqrt(3.0 * upper / tau)
 
 
 def temperature_columns(temperature: np.ndarray, reference: float, order: int) -> np.ndarray:
@@ -574,7 +592,7 @@ class RestNoise:
 
 
 def rest_noise(short: ShortSums, channels: list[RestMeans], *, up: np.ndarray | None = None,
-               kind: str = 'stretches') -> RestNoise:
+               kind: str = 'stretches') -> RestNoise | None:
     """A sensor's noise model: the white noise within the stretches, the wander between them (the module's steps).
 
     :param short: the sensor's three axes' sums within the stretches.
@@ -582,8 +600,11 @@ def rest_noise(short: ShortSums, channels: list[RestMeans], *, up: np.ndarray | 
     :param up: ``(k, 3)`` with one channel: each mean's up direction (its white noise is
         ``sum_j u_j^2 N_j^2``); the wander found is written on every axis.
     :param kind: ``rests`` or ``stretches`` (:class:`RestNoise`).
+    :returns: ``None`` when the stretches hold too few samples for a white noise density.
     """
     whites = white_noise(short)
+    if not all(white.density > 0.0 for white in whites):
+        return None
     ceilings = [wander_ceiling(short, axis) for axis in range(3)]
     if len(channels) == 1:
         means = channels[0]
