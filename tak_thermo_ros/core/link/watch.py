@@ -393,7 +393,7 @@ class ChannelNoise:
 
     @classmethod
     def axis(cls, noise: NoiseModel, axis: int) -> ChannelNoise:
-        """One axis of a noise model; a wander term the record did not show counts at its bound (never below)."""
+        """One axis of a noise model, each wander term at its one-sided 95 % upper limit (never understated)."""
         return cls(noise.white_noise_density[axis], noise.quantization[axis], noise.bias_instability_upper[axis],
                    noise.random_walk_upper[axis], noise.rate_ramp[axis],
                    tuple((s[axis], t[axis]) for s, t in zip(noise.gauss_markov, noise.gauss_markov_time)
