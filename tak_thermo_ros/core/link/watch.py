@@ -865,7 +865,7 @@ class CalibrationWatch:
         """``(k, k)`` the covariance of the bias's wander at the rests, counted from the first (zero there).
 
         ``(D_i1 + D_j1 - D_ij) / 2`` from the wander's pairwise variances ``D`` (a process with
-        stationary increments).
+        stationary increments), its negative part left out (:func:`positive_part`).
         """
         count = len(rests)
         to_first = np.array([0.0, *(self.wander_variance(rests[0], rest, channel) for rest in rests[1:])])
@@ -875,7 +875,7 @@ class CalibrationWatch:
             for k in range(1, i):
                 value = 0.5 * (to_first[i] + to_first[k] - self.wander_variance(rests[i], rests[k], channel))
                 covariance[i, k] = covariance[k, i] = value
-        return covariance
+        return positive_part(covariance)
 
     @staticmethod
     def _axis(channel: int, up: np.ndarray) -> str:
@@ -1077,6 +1077,23 @@ def turn_on_unavailable(unit: UnitCalibration) -> str:
         return ('gyro turn_on section (the turn-on repeatability, fitted from several records: '
                 'tak_calib fit REC REC ...)')
     return ''
+
+
+def positive_part(covariance: np.ndarray) -> np.ndarray:
+    """A symmetric matrix with its negative eigenvalues set to 0: the nearest covariance (Frobenius).
+
+    The flicker term's pairwise variance ``(4 B^2 / pi)(ln 2 + ln(S / T) / 2)`` with ``T`` the two
+    rests' mean length is exact for rests of one length only; a short rest between long ones makes
+    the wander's covariance indefinite, and the larger the flicker against a rest's own noise, the
+    nearer the whole covariance comes to singular: a healthy unit's 3-sigma rest then read 7 sigma.
+    Its positive part is a covariance at every flicker (the random walk's is one already).
+    """
+    if not len(covariance):
+        return covariance
+    values, vectors = np.linalg.eigh(0.5 * (covariance + covariance.T))
+    if values.min() >= 0.0:
+        return covariance
+    return (vectors * np.maximum(values, 0.0)) @ vectors.T
 
 
 def _solver(covariance: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:

@@ -294,9 +294,10 @@ def unit_wander(means: RestMeans) -> tuple[np.ndarray, np.ndarray]:
 
     Within each record, counted from its first stretch (a process with stationary increments:
     ``(D_i0 + D_j0 - D_ij) / 2`` from the variances ``D`` of the pairwise differences the watch
-    uses, :meth:`~tak_thermo_ros.core.link.watch.ChannelNoise.wander`); 0 between records.
+    uses, :meth:`~tak_thermo_ros.core.link.watch.ChannelNoise.wander`, the flicker's negative part left out
+    as the watch leaves it, :func:`~tak_thermo_ros.core.link.watch.positive_part`); 0 between records.
     """
-    from tak_thermo_ros.core.link.watch import ChannelNoise
+    from tak_thermo_ros.core.link.watch import ChannelNoise, positive_part
     flicker_unit = ChannelNoise(0.0, 0.0, 1.0, 0.0, 0.0)
     walk_unit = ChannelNoise(0.0, 0.0, 0.0, 1.0, 0.0)
     count = len(means)
@@ -316,6 +317,7 @@ def unit_wander(means: RestMeans) -> tuple[np.ndarray, np.ndarray]:
                 pairs[1, i, j] = pairs[1, j, i] = walk_unit.wander(*arguments)
         to_first = pairs[:, :, 0]
         block = 0.5 * (to_first[:, :, None] + to_first[:, None, :] - pairs)
+        block[0] = positive_part(block[0])  # as the watch takes it (the flicker's formula is not one for any lengths)
         covariances[np.ix_([0, 1], rows, rows)] = block
     return covariances[0], covariances[1]
 
