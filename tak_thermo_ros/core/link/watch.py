@@ -428,13 +428,16 @@ class ChannelNoise:
         """
         return self.independent(duration_s) + self.slow(duration_s)
 
-    def wander(self, separation_s: float, gap_s: float, first_s: float, second_s: float) -> float:
-        """The variance of the bias's wander between two rest means (see the module), without their own noise."""
+    def wander(self, separation_s: Any, gap_s: Any, first_s: Any, second_s: Any) -> Any:
+        """The variance of the bias's wander between two rest means (see the module), without their own noise.
+
+        Numbers, or arrays of them element by element (a fit's noise model judges every pair at once).
+        """
         mean_length = 0.5 * (first_s + second_s)
-        growth = 0.5 * math.log(max(separation_s / mean_length, 1.0))
+        growth = 0.5 * np.log(np.maximum(separation_s / mean_length, 1.0))
         flicker = 4.0 * self.flicker ** 2 / math.pi * (math.log(2.0) + growth)
         walk = self.walk ** 2 * (gap_s + (first_s + second_s) / 3.0)
-        markov = sum(2.0 * s * s * -math.expm1(-separation_s / t) for s, t in self.markov)
+        markov = sum(2.0 * s * s * -np.expm1(-separation_s / t) for s, t in self.markov)
         return flicker + walk + markov + (self.ramp * separation_s) ** 2
 
 

@@ -61,7 +61,7 @@ GRID_DECADES = 6.0
 SIGNIFICANT_RATIO = 3.0
 """The white noise density from one sample differs from one window's by this many standard errors of the
 difference: quantisation (one sample above) or a driver's filter (below); within, the two are pooled."""
-MAX_MEANS_PER_RECORD = 96
+MAX_MEANS_PER_RECORD = 64
 """A record's stretches are merged into at most this many means (a long static run, a day of plateaus)."""
 SEGMENT_S = 3600.0
 """A record longer than this is judged in pieces this long, each with its own level: the wander is estimated
@@ -306,15 +306,14 @@ def unit_wander(means: RestMeans) -> tuple[np.ndarray, np.ndarray]:
     for record in np.unique(means.record):
         rows = np.flatnonzero(means.record == record)
         rows = rows[np.argsort(means.start_s[rows], kind='stable')]
+        # Every pair (earlier a, later b), as the watch takes two rests.
+        later, earlier = np.tril_indices(len(rows), -1)
+        a, b = rows[earlier], rows[later]
+        arguments = (np.abs(centre[b] - centre[a]), np.maximum(0.0, means.start_s[b] - means.end_s[a]),
+                     means.duration_s[a], means.duration_s[b])
         pairs = np.zeros((2, len(rows), len(rows)))
-        for i in range(len(rows)):
-            for j in range(i):
-                a, b = rows[j], rows[i]
-                separation = abs(centre[b] - centre[a])
-                gap = max(0.0, means.start_s[b] - means.end_s[a])
-                arguments = (separation, gap, means.duration_s[a], means.duration_s[b])
-                pairs[0, i, j] = pairs[0, j, i] = flicker_unit.wander(*arguments)
-                pairs[1, i, j] = pairs[1, j, i] = walk_unit.wander(*arguments)
+        for term, unit in enumerate((flicker_unit, walk_unit)):
+            pairs[term, later, earlier] = pairs[term, earlier, later] = unit.wander(*arguments)
         to_first = pairs[:, :, 0]
         block = 0.5 * (to_first[:, :, None] + to_first[:, None, :] - pairs)
         block[0] = positive_part(block[0])  # as the watch takes it (the flicker's formula is not one for any lengths)
@@ -488,10 +487,10 @@ class _Search:
         floor = math.log(self.smallest[other])
         centre = max(math.log(guess) if guess > 0.0 else floor, floor)
         best = (self.at(index, value, 0.0), 0.0)
-        for width in (2.5, 6.0):
+        for width in (1.5, 4.0, 8.0):  # the profile's best moves little from the last one: a narrow search first
             low, high = max(centre - width, floor), centre + width
             found = minimize_scalar(lambda u: self.at(index, value, math.exp(u)), bounds=(low, high),
-                                    method='bounded', options={'xatol': 0.01})
+                                    method='bounded', options={'xatol': 0.02})
             if found.fun < best[0]:
                 best = (float(found.fun), math.exp(float(found.x)))
             if low + 0.05 < found.x < high - 0.05 or found.x <= floor + 0.05:
@@ -504,21 +503,29 @@ class _Search:
         point = list(self.start)
         value = self.criterion(*point)
         for _ in range(3):
+            before = value
             for index in range(2):
                 found, best = self.best_other(1 - index, point[1 - index], point[index])
                 if found < value:
                     value, point[index] = found, best
+            if before - value < 1e-3:
+                break
         return (point[0], point[1]), value
 
 
 def _term(search: _Search, index: int, point: tuple[float, float], minimum: float, scale: float,
           ceiling: float) -> Term:
     """One term from its profile likelihood: seen (value and error) or bounded."""
+    from functools import lru_cache
     from scipy.optimize import brentq
     estimate, guess = point[index], point[1 - index]
 
+    @lru_cache(maxsize=None)
+    def profile(value: float) -> float:
+        return search.best_other(index, value, guess)[0]
+
     def rise(value: float, delta: float) -> float:
-        return search.best_other(index, value, guess)[0] - minimum - delta
+        return profile(value) - minimum - delta
 
     def crossing(delta: float, start: float, factor: float, limit: float) -> float:
         """Where the profile rises by ``delta``, stepping from ``start`` by ``factor`` (up to ``limit``)."""
@@ -529,12 +536,12 @@ def _term(search: _Search, index: int, point: tuple[float, float], minimum: floa
                 return limit
         if low == high:
             return high
-        return float(brentq(rise, min(low, high), max(low, high), args=(delta,), xtol=0.01 * max(low, high)))
+        return float(brentq(rise, min(low, high), max(low, high), args=(delta,), xtol=0.02 * max(low, high)))
 
     top = ceiling / scale if math.isfinite(ceiling) else 1e6 * search.smallest[index] / 1e-4
     if estimate > 0.0 and rise(0.0, SEEN_DELTA) >= 0.0:
-        upper = crossing(INTERVAL_DELTA, estimate, 1.25, max(top, 4.0 * estimate))
-        lower = 0.0 if rise(0.0, INTERVAL_DELTA) < 0.0 else crossing(INTERVAL_DELTA, estimate, 0.8, 0.0)
+        upper = crossing(INTERVAL_DELTA, estimate, 1.5, max(top, 4.0 * estimate))
+        lower = 0.0 if rise(0.0, INTERVAL_DELTA) < 0.0 else crossing(INTERVAL_DELTA, estimate, 0.67, 0.0)
         return Term(estimate * scale, 0.5 * (upper - lower) * scale, 0.0)
     bound = crossing(BOUND_DELTA, max(estimate, search.smallest[index]), 2.0, top)
     return Term(0.0, 0.0, min(bound, top) * scale)
