@@ -462,7 +462,7 @@ def _noise_lines_with_errors(model, unit: str, factor: float, shown: str, units)
              f'  bias instability     {terms("bias_instability", "rate", shown)}',
              f'  random walk          {terms("random_walk", "walk", walk_unit(unit))}']
     if any(model.bias_instability_bound) or any(model.random_walk_bound):
-        lines.append('  (<=: not seen between the rests, at most that: the watch counts the bound)')
+        lines.append('  (<=: not seen between the rests, at most that: the watch takes the bound)')
     integrated = units['angle'] if units else f'{shown}*s'
     for name, term_unit in (('quantization', integrated), ('filter_time_constant', 's')):
         values = np.asarray(getattr(model, name)) * (factor if name == 'quantization' else 1.0)

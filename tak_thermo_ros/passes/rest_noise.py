@@ -47,7 +47,7 @@ def _orders(calibration: Calibration) -> tuple[int, int]:
 
 
 def streamed_noise(windows: StretchWindows, calibration: Calibration) -> RestNoise | None:
-    """A sensor's noise model from its windows within a run's stretches (``None``: fewer than two windows)."""
+    """A sensor's noise model from its windows within a run's stretches (``None``: too few samples for one)."""
     rows = windows.rows()
     if len(rows) < 2 or not windows.window:
         return None
@@ -128,21 +128,22 @@ def rests_noise(record, unit: UnitCalibration, *, gravity: float, latitude: floa
         powers = temperature_columns(temperature, calibration.temp_code_ref, offset_order)[:, 1:]
         if sensor == 'gyro':
             design = np.hstack([indicators, powers])
-            extra = np.zeros(count)
+            extra = np.zeros((count, 3))
             if latitude is not None:  # the Earth rate's horizontal part, at each rest's unknown heading
-                horizontal = EARTH_RATE * math.cos(math.radians(latitude))
-                extra = horizontal ** 2 * (1.0 - check.up ** 2) / 2.0
+                extra = (EARTH_RATE * math.cos(math.radians(latitude))) ** 2 * (1.0 - check.up ** 2) / 2.0
             channels = [RestMeans(residual=check.rate_error[:, axis], start_s=start_s, end_s=end_s, duration_s=duration,
-                                  white=white, record=records, design=design,
-                                  extra=extra[:, axis] if extra.ndim == 2 else extra)
+                                  white=white, record=records, design=design, extra=extra[:, axis])
                         for axis in range(3)]
-            out[sensor] = rest_noise(short, channels, kind='rests')
-            continue
-        up = check.up
-        scale_powers = temperature_columns(temperature, calibration.temp_code_ref, scale_order)
-        design = np.hstack([*(indicators * up[:, [j]] for j in range(3)), *(powers * up[:, [j]] for j in range(3)),
-                            *(scale_powers * up[:, [j]] ** 2 for j in range(3))])
-        means = RestMeans(residual=check.gravity_error, start_s=start_s, end_s=end_s, duration_s=duration,
-                          white=white, record=records, design=design, extra=np.zeros(count))
-        out[sensor] = rest_noise(short, [means], up=up, kind='rests')
+            found = rest_noise(short, channels, kind='rests')
+        else:
+            up = check.up
+            scale_powers = temperature_columns(temperature, calibration.temp_code_ref, scale_order)
+            design = np.hstack([*(indicators * up[:, [j]] for j in range(3)),
+                                *(powers * up[:, [j]] for j in range(3)),
+                                *(scale_powers * up[:, [j]] ** 2 for j in range(3))])
+            means = RestMeans(residual=check.gravity_error, start_s=start_s, end_s=end_s, duration_s=duration,
+                              white=white, record=records, design=design, extra=np.zeros(count))
+            found = rest_noise(short, [means], up=up, kind='rests')
+        if found is not None:
+            out[sensor] = found
     return out

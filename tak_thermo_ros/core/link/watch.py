@@ -396,7 +396,7 @@ class ChannelNoise:
 
     @classmethod
     def axis(cls, noise: NoiseModel, axis: int) -> ChannelNoise:
-        """One axis of a noise model; a wander term the record did not show counts at its bound (never below)."""
+        """One axis of a noise model, each wander term at its one-sided 95 % upper limit (never understated)."""
         return cls(noise.white_noise_density[axis], noise.quantization[axis], noise.bias_instability_upper[axis],
                    noise.random_walk_upper[axis], noise.rate_ramp[axis],
                    tuple((s[axis], t[axis]) for s, t in zip(noise.gauss_markov, noise.gauss_markov_time)
@@ -431,13 +431,16 @@ class ChannelNoise:
         """
         return self.independent(duration_s) + self.slow(duration_s)
 
-    def wander(self, separation_s: float, gap_s: float, first_s: float, second_s: float) -> float:
-        """The variance of the bias's wander between two rest means (see the module), without their own noise."""
+    def wander(self, separation_s: Any, gap_s: Any, first_s: Any, second_s: Any) -> Any:
+        """The variance of the bias's wander between two rest means (see the module), without their own noise.
+
+        Numbers, or arrays of them element by element (a fit's noise model judges every pair at once).
+        """
         mean_length = 0.5 * (first_s + second_s)
-        growth = 0.5 * math.log(max(separation_s / mean_length, 1.0))
+        growth = 0.5 * np.log(np.maximum(separation_s / mean_length, 1.0))
         flicker = 4.0 * self.flicker ** 2 / math.pi * (math.log(2.0) + growth)
         walk = self.walk ** 2 * (gap_s + (first_s + second_s) / 3.0)
-        markov = sum(2.0 * s * s * -math.expm1(-separation_s / t) for s, t in self.markov)
+        markov = sum(2.0 * s * s * -np.expm1(-separation_s / t) for s, t in self.markov)
         return flicker + walk + markov + (self.ramp * separation_s) ** 2
 
 
@@ -533,8 +536,11 @@ class WatchSettings:
     turn_on_repeatability: tuple[tuple[float, float, float] | None, tuple[float, float, float] | None] = (None, None)
 
     def repeatabilities(self) -> tuple[Repeatability | None, Repeatability | None]:
-        """``(accel, gyro)`` what stands in for a file's missing turn-on repeatability: the parameter, else
-        the spread of the turn-on offsets learning has seen over :data:`MIN_SPREAD_RUNS` runs or more."""
+        """``(accel, gyro)`` what stands in for a file's missing turn-on repeatability.
+
+        The parameter, else the spread of the turn-on offsets learning has seen over
+        :data:`MIN_SPREAD_RUNS` runs or more (the gyroscope's), else ``None``.
+        """
         learned = self.learn.turn_on_spread() if self.learn is not None else None
         out = []
         for sensor, given in zip(('accel', 'gyro'), self.turn_on_repeatability):
@@ -979,7 +985,7 @@ class CalibrationWatch:
         """``(k, k)`` the covariance of the bias's wander at the rests, counted from the first (zero there).
 
         ``(D_i1 + D_j1 - D_ij) / 2`` from the wander's pairwise variances ``D`` (a process with
-        stationary increments).
+        stationary increments), its negative part left out (:func:`positive_part`).
         """
         count = len(rests)
         to_first = np.array([0.0, *(self.wander_variance(rests[0], rest, channel) for rest in rests[1:])])
@@ -989,7 +995,7 @@ class CalibrationWatch:
             for k in range(1, i):
                 value = 0.5 * (to_first[i] + to_first[k] - self.wander_variance(rests[i], rests[k], channel))
                 covariance[i, k] = covariance[k, i] = value
-        return covariance
+        return positive_part(covariance)
 
     @staticmethod
     def _axis(channel: int, up: np.ndarray) -> str:
@@ -1198,6 +1204,23 @@ def turn_on_unavailable(unit: UnitCalibration) -> str:
         return ('gyro turn_on section (the turn-on repeatability, fitted from several records: '
                 'tak_calib fit REC REC ...)')
     return ''
+
+
+def positive_part(covariance: np.ndarray) -> np.ndarray:
+    """A symmetric matrix with its negative eigenvalues set to 0: the nearest covariance (Frobenius).
+
+    The flicker term's pairwise variance ``(4 B^2 / pi)(ln 2 + ln(S / T) / 2)`` with ``T`` the two
+    rests' mean length is exact for rests of one length only; a short rest between long ones makes
+    the wander's covariance indefinite, and the larger the flicker against a rest's own noise, the
+    nearer the whole covariance comes to singular: a healthy unit's 3-sigma rest then read 7 sigma.
+    Its positive part is a covariance at every flicker (the random walk's is one already).
+    """
+    if not len(covariance):
+        return covariance
+    values, vectors = np.linalg.eigh(0.5 * (covariance + covariance.T))
+    if values.min() >= 0.0:
+        return covariance
+    return (vectors * np.maximum(values, 0.0)) @ vectors.T
 
 
 def _solver(covariance: np.ndarray, floor: float) -> Callable[[np.ndarray], np.ndarray]:

@@ -59,9 +59,9 @@ GRID_POINTS = 15
 """Values per term on the first search (log-spaced over :data:`GRID_DECADES` decades, and 0)."""
 GRID_DECADES = 6.0
 SIGNIFICANT_RATIO = 3.0
-"""The Allan variance at one sample differs from the white noise's by this many of its standard errors:
-quantisation (above) or a driver's filter (below)."""
-MAX_MEANS_PER_RECORD = 96
+"""The white noise density from one sample differs from one window's by this many standard errors of the
+difference: quantisation (one sample above) or a driver's filter (below); within, the two are pooled."""
+MAX_MEANS_PER_RECORD = 64
 """A record's stretches are merged into at most this many means (a long static run, a day of plateaus)."""
 SEGMENT_S = 3600.0
 """A record longer than this is judged in pieces this long, each with its own level: the wander is estimated
@@ -106,42 +106,58 @@ class White:
 
 def white_noise(sums: ShortSums, wander: np.ndarray | None = None, wander_error: np.ndarray | None = None
                 ) -> list[White]:
-    """Each channel's white noise from the Allan variance at one window, and what one sample adds or lacks.
+    """Each channel's white noise from the Allan variance at one window and at one sample.
 
     :param wander: ``(c,)`` the Allan variance the wander contributes at one window (taken off), or ``None``;
         ``wander_error`` its standard error (it adds to the density's).
+
+    ``N^2`` is ``tau avar(tau)`` at both times: where the two agree (within :data:`SIGNIFICANT_RATIO`
+    of their standard errors) the white noise is all there is, and the two estimates are pooled
+    (inverse-variance weights: one sample's holds many more terms); where one sample shows more, the
+    difference is quantisation, where it shows less, a driver's filter, and the density is the
+    window's (the long-term one a rest's mean averages). Stretches too short for two windows (a
+    table's 10-s dwells at 1 Hz) give it from one sample alone (no filter or quantisation told apart).
     """
     tau0, window = sums.period_s, sums.window_s
     out = []
     for channel in range(len(sums.window)):
-        if sums.window_terms < 1 or sums.one_terms < 1:
+        if sums.one_terms < 1:
             out.append(White(0.0, 0.0))
             continue
+        at_one = float(sums.one[channel]) / sums.one_terms
+        # Successive differences share a sample (successive windows' a mean): about 1.5 terms per degree of freedom.
+        one_relative = math.sqrt(2.0 / max(sums.one_terms / 1.5, 1.0))
+        if sums.window_terms < 1:
+            density = math.sqrt(at_one * tau0)
+            out.append(White(density, 0.5 * one_relative * density))
+            continue
         measured = float(sums.window[channel]) / sums.window_terms
-        # Adjacent differences of successive means share a mean: about 1.5 terms per degree of freedom.
         spread = measured * math.sqrt(2.0 / max(sums.window_terms / 1.5, 1.0))
         at_window = measured
         if wander is not None:
             at_window = max(measured - float(wander[channel]), 0.5 * measured)
             spread = math.hypot(spread, float(wander_error[channel]) if wander_error is not None else 0.0)
-        relative = spread / at_window if at_window > 0.0 else 0.0
-        at_one = float(sums.one[channel]) / sums.one_terms
-        density2 = at_window * window
+        from_window, from_one = at_window * window, at_one * tau0
+        window_error, one_error = spread * window, one_relative * from_one
         quantization = filter_constant = 0.0
-        excess = at_one * tau0 / density2 - 1.0 if density2 > 0.0 else 0.0
-        if excess > SIGNIFICANT_RATIO * relative:
-            # 3 Q^2 / tau^2 + N^2 / tau at both times: two equations, two unknowns.
+        difference = from_one - from_window
+        if abs(difference) <= SIGNIFICANT_RATIO * math.hypot(window_error, one_error):
+            weights = (1.0 / max(window_error, 1e-300) ** 2, 1.0 / max(one_error, 1e-300) ** 2)
+            density2 = (from_window * weights[0] + from_one * weights[1]) / sum(weights)
+            error2 = 1.0 / math.sqrt(sum(weights))
+        elif difference > 0.0:  # 3 Q^2 / tau^2 + N^2 / tau at both times: two equations, two unknowns
             q2 = (at_one - at_window * window / tau0) / (3.0 / tau0 ** 2 - 3.0 / (window * tau0))
-            if q2 > 0.0:
-                quantization = math.sqrt(q2)
-                density2 = max((at_window - 3.0 * q2 / window ** 2) * window, 0.0)
-        elif excess < -SIGNIFICANT_RATIO * relative and at_one > 0.0:
+            quantization = math.sqrt(q2)
+            density2 = max((at_window - 3.0 * q2 / window ** 2) * window, 0.0)
+            error2 = window_error
+        else:
             filter_constant = _filter_time_constant(at_one / at_window, tau0, window)
+            density2, error2 = from_window, window_error
             if filter_constant > 0.0:  # the filter has not quite faded at one window either
-                density2 = at_window / float(filtered_white_allan_variance(np.array([window]), 1.0 / tau0,
-                                                                           filter_constant)[0])
+                fading = float(filtered_white_allan_variance(np.array([window]), 1.0 / tau0, filter_constant)[0])
+                density2, error2 = at_window / fading, window_error / (fading * window)
         density = math.sqrt(density2)
-        out.append(White(density, 0.5 * relative * density, quantization, filter_constant))
+        out.append(White(density, 0.5 * error2 / density if density > 0.0 else 0.0, quantization, filter_constant))
     return out
 
 
@@ -278,9 +294,10 @@ def unit_wander(means: RestMeans) -> tuple[np.ndarray, np.ndarray]:
 
     Within each record, counted from its first stretch (a process with stationary increments:
     ``(D_i0 + D_j0 - D_ij) / 2`` from the variances ``D`` of the pairwise differences the watch
-    uses, :meth:`~tak_thermo_ros.core.link.watch.ChannelNoise.wander`); 0 between records.
+    uses, :meth:`~tak_thermo_ros.core.link.watch.ChannelNoise.wander`, the flicker's negative part left out
+    as the watch leaves it, :func:`~tak_thermo_ros.core.link.watch.positive_part`); 0 between records.
     """
-    from tak_thermo_ros.core.link.watch import ChannelNoise
+    from tak_thermo_ros.core.link.watch import ChannelNoise, positive_part
     flicker_unit = ChannelNoise(0.0, 0.0, 1.0, 0.0, 0.0)
     walk_unit = ChannelNoise(0.0, 0.0, 0.0, 1.0, 0.0)
     count = len(means)
@@ -289,17 +306,17 @@ def unit_wander(means: RestMeans) -> tuple[np.ndarray, np.ndarray]:
     for record in np.unique(means.record):
         rows = np.flatnonzero(means.record == record)
         rows = rows[np.argsort(means.start_s[rows], kind='stable')]
+        # Every pair (earlier a, later b), as the watch takes two rests.
+        later, earlier = np.tril_indices(len(rows), -1)
+        a, b = rows[earlier], rows[later]
+        arguments = (np.abs(centre[b] - centre[a]), np.maximum(0.0, means.start_s[b] - means.end_s[a]),
+                     means.duration_s[a], means.duration_s[b])
         pairs = np.zeros((2, len(rows), len(rows)))
-        for i in range(len(rows)):
-            for j in range(i):
-                a, b = rows[j], rows[i]
-                separation = abs(centre[b] - centre[a])
-                gap = max(0.0, means.start_s[b] - means.end_s[a])
-                arguments = (separation, gap, means.duration_s[a], means.duration_s[b])
-                pairs[0, i, j] = pairs[0, j, i] = flicker_unit.wander(*arguments)
-                pairs[1, i, j] = pairs[1, j, i] = walk_unit.wander(*arguments)
+        for term, unit in enumerate((flicker_unit, walk_unit)):
+            pairs[term, later, earlier] = pairs[term, earlier, later] = unit.wander(*arguments)
         to_first = pairs[:, :, 0]
         block = 0.5 * (to_first[:, :, None] + to_first[:, None, :] - pairs)
+        block[0] = positive_part(block[0])  # as the watch takes it (the flicker's formula is not one for any lengths)
         covariances[np.ix_([0, 1], rows, rows)] = block
     return covariances[0], covariances[1]
 
@@ -470,10 +487,10 @@ class _Search:
         floor = math.log(self.smallest[other])
         centre = max(math.log(guess) if guess > 0.0 else floor, floor)
         best = (self.at(index, value, 0.0), 0.0)
-        for width in (2.5, 6.0):
+        for width in (1.5, 4.0, 8.0):  # the profile's best moves little from the last one: a narrow search first
             low, high = max(centre - width, floor), centre + width
             found = minimize_scalar(lambda u: self.at(index, value, math.exp(u)), bounds=(low, high),
-                                    method='bounded', options={'xatol': 0.01})
+                                    method='bounded', options={'xatol': 0.02})
             if found.fun < best[0]:
                 best = (float(found.fun), math.exp(float(found.x)))
             if low + 0.05 < found.x < high - 0.05 or found.x <= floor + 0.05:
@@ -486,21 +503,29 @@ class _Search:
         point = list(self.start)
         value = self.criterion(*point)
         for _ in range(3):
+            before = value
             for index in range(2):
                 found, best = self.best_other(1 - index, point[1 - index], point[index])
                 if found < value:
                     value, point[index] = found, best
+            if before - value < 1e-3:
+                break
         return (point[0], point[1]), value
 
 
 def _term(search: _Search, index: int, point: tuple[float, float], minimum: float, scale: float,
           ceiling: float) -> Term:
     """One term from its profile likelihood: seen (value and error) or bounded."""
+    from functools import lru_cache
     from scipy.optimize import brentq
     estimate, guess = point[index], point[1 - index]
 
+    @lru_cache(maxsize=None)
+    def profile(value: float) -> float:
+        return search.best_other(index, value, guess)[0]
+
     def rise(value: float, delta: float) -> float:
-        return search.best_other(index, value, guess)[0] - minimum - delta
+        return profile(value) - minimum - delta
 
     def crossing(delta: float, start: float, factor: float, limit: float) -> float:
         """Where the profile rises by ``delta``, stepping from ``start`` by ``factor`` (up to ``limit``)."""
@@ -511,12 +536,12 @@ def _term(search: _Search, index: int, point: tuple[float, float], minimum: floa
                 return limit
         if low == high:
             return high
-        return float(brentq(rise, min(low, high), max(low, high), args=(delta,), xtol=0.01 * max(low, high)))
+        return float(brentq(rise, min(low, high), max(low, high), args=(delta,), xtol=0.02 * max(low, high)))
 
     top = ceiling / scale if math.isfinite(ceiling) else 1e6 * search.smallest[index] / 1e-4
     if estimate > 0.0 and rise(0.0, SEEN_DELTA) >= 0.0:
-        upper = crossing(INTERVAL_DELTA, estimate, 1.25, max(top, 4.0 * estimate))
-        lower = 0.0 if rise(0.0, INTERVAL_DELTA) < 0.0 else crossing(INTERVAL_DELTA, estimate, 0.8, 0.0)
+        upper = crossing(INTERVAL_DELTA, estimate, 1.5, max(top, 4.0 * estimate))
+        lower = 0.0 if rise(0.0, INTERVAL_DELTA) < 0.0 else crossing(INTERVAL_DELTA, estimate, 0.67, 0.0)
         return Term(estimate * scale, 0.5 * (upper - lower) * scale, 0.0)
     bound = crossing(BOUND_DELTA, max(estimate, search.smallest[index]), 2.0, top)
     return Term(0.0, 0.0, min(bound, top) * scale)
@@ -526,14 +551,16 @@ def wander_ceiling(sums: ShortSums, channel: int) -> tuple[float, float]:
     """``(B, K)`` the largest flicker and walk the Allan variance at one window allows on a channel.
 
     Every term adds to the Allan variance, so a flicker's flat ``(0.664 B)^2`` and a walk's
-    ``K^2 tau / 3`` are at most it (taken at its upper one-sided 95 % limit).
+    ``K^2 tau / 3`` are at most it (taken at its upper one-sided 95 % limit); at one sample where
+    the stretches are shorter than two windows.
     """
-    if sums.window_terms < 1:
+    terms, measured, tau = ((sums.window_terms, float(sums.window[channel]) / max(sums.window_terms, 1),
+                             sums.window_s) if sums.window_terms else
+                            (sums.one_terms, float(sums.one[channel]) / max(sums.one_terms, 1), sums.period_s))
+    if terms < 1:
         return math.inf, math.inf
-    measured = float(sums.window[channel]) / sums.window_terms
-    edf = max(sums.window_terms / 1.5, 1.0)
-    upper = measured * (1.0 + 1.645 * math.sqrt(2.0 / edf))
-    return math.sqrt(upper) / FLICKER_FLOOR, math.sqrt(3.0 * upper / sums.window_s)
+    upper = measured * (1.0 + 1.645 * math.sqrt(2.0 / max(terms / 1.5, 1.0)))
+    return math.sqrt(upper) / FLICKER_FLOOR, math.sqrt(3.0 * upper / tau)
 
 
 def temperature_columns(temperature: np.ndarray, reference: float, order: int) -> np.ndarray:
@@ -574,7 +601,7 @@ class RestNoise:
 
 
 def rest_noise(short: ShortSums, channels: list[RestMeans], *, up: np.ndarray | None = None,
-               kind: str = 'stretches') -> RestNoise:
+               kind: str = 'stretches') -> RestNoise | None:
     """A sensor's noise model: the white noise within the stretches, the wander between them (the module's steps).
 
     :param short: the sensor's three axes' sums within the stretches.
@@ -582,8 +609,11 @@ def rest_noise(short: ShortSums, channels: list[RestMeans], *, up: np.ndarray | 
     :param up: ``(k, 3)`` with one channel: each mean's up direction (its white noise is
         ``sum_j u_j^2 N_j^2``); the wander found is written on every axis.
     :param kind: ``rests`` or ``stretches`` (:class:`RestNoise`).
+    :returns: ``None`` when the stretches hold too few samples for a white noise density.
     """
     whites = white_noise(short)
+    if not all(white.density > 0.0 for white in whites):
+        return None
     ceilings = [wander_ceiling(short, axis) for axis in range(3)]
     if len(channels) == 1:
         means = channels[0]
