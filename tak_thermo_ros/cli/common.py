@@ -30,7 +30,7 @@ UNITS = {(InputKind.COUNTS, 'accel'): 'counts', (InputKind.IMU, 'accel'): 'm/s^2
 """The unit of a sensor's residuals and offsets, by input kind."""
 
 SOURCE_WORDS = {'file': 'from a file', 'static_run': 'from a run at constant temperature',
-                'residual': 'from a run whose temperature moves', 'fit': "from the fit's own stretches"}
+                'residual': 'from a run whose temperature moves', 'fit': "from the fit's own rests"}
 """What each ``source`` of a noise model says (:data:`~tak_thermo_ros.core.noise.model.SOURCES`)."""
 WIDTH = 100
 """The longest line ``tak_calib`` prints (an error, one line by rule, excepted)."""

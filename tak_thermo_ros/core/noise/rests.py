@@ -7,13 +7,13 @@ yardstick the calibration watch judges a run's rests against (``docs/noise.md``,
 So every fit writes it (``source: fit``):
 
 1. **Within the stretches, the white noise** (:func:`white_noise`): the Allan variance at one
-   window (:data:`~tak_thermo_ros.core.records.still.WINDOW_S`, half a second: between the means of
-   successive windows of a stretch), pooled over every stretch, is ``N^2 / tau`` (the long-term
-   density, which a rest's mean averages; a driver's filter has faded by then); its relative
-   standard error ``sqrt(2 / edf)``. The Allan variance at one sample says what the shortest times
-   add: more than ``N^2 / tau0`` is quantisation (``3 Q^2 / tau^2``), less is the driver's low-pass
-   filter (its time constant solved from the ratio,
-   :func:`~tak_thermo_ros.core.noise.model.filtered_white_allan_variance`).
+   sample and at one window (:data:`~tak_thermo_ros.core.records.still.WINDOW_S`, half a second:
+   between the means of successive windows of a stretch), pooled over every stretch, each
+   ``N^2 / tau`` for white noise (the window's with the wander's share besides), each with its
+   relative standard error ``sqrt(2 / edf)``. Where they agree the density is one sample's; more
+   at one sample is quantisation (``3 Q^2 / tau^2``), less the driver's low-pass filter (its time
+   constant solved from the ratio, :func:`~tak_thermo_ros.core.noise.model.filtered_white_allan_variance`),
+   and the density the window's (the long-term one a rest's mean averages).
 2. **Between the stretches, the wander** (:func:`fit_wander`): the stretches' mean residuals have the
    covariance the watch itself uses (:class:`~tak_thermo_ros.core.link.watch.ChannelNoise`: each
    mean's white noise, and between two means the flicker term's ``(4 B^2 / pi)(ln 2 + ln(S / T) / 2)``
@@ -26,7 +26,7 @@ So every fit writes it (``source: fit``):
 3. **Seen, or bounded** (:class:`Term`): a term is *seen* when the data reject it being 0 by
    :data:`SEEN_DELTA` in ``-2 log L`` (two standard deviations); then its value and its standard
    error (half the profile likelihood's 68 % interval). Otherwise the value is 0 and its *bound*
-   is the profile likelihood's one-sided 95 % upper limit (and never above what the window's
+   is the profile likelihood's one-sided 97.5 % upper limit (and never above what the window's
    Allan variance allows), written as ``bias_instability_bound`` / ``random_walk_bound``: never a 0
    that reads as known. The watch counts a bounded term at its bound
    (:attr:`~tak_thermo_ros.core.noise.model.NoiseModel.bias_instability_upper`), erring on the side
@@ -46,21 +46,28 @@ from typing import Callable
 
 import numpy as np
 
-from tak_thermo_ros.core.noise.model import FLICKER_FLOOR, NoiseModel, filtered_white_allan_variance, floor_tau
+from tak_thermo_ros.core.noise.model import (
+    FLICKER_FLOOR,
+    UPPER_SIGMAS,
+    NoiseModel,
+    filtered_white_allan_variance,
+    floor_tau,
+)
 from tak_thermo_ros.core.records.still import MIN_WINDOW_SAMPLES, WINDOW_S
 
 SEEN_DELTA = 4.0
 """A wander term is seen when setting it to 0 raises ``-2 log L`` by at least this (two standard deviations)."""
-BOUND_DELTA = 2.705543
-"""``-2 log L`` above its minimum at a bound: the one-sided 95 % upper limit (chi-square of 1, 90 % two-sided)."""
+BOUND_DELTA = 3.841459
+"""``-2 log L`` above its minimum at a bound: the one-sided 97.5 % upper limit (chi-square of 1 at 95 %). Not
+95 %: the flicker and the walk trade off over minutes, and a bound that understates is the failure to avoid."""
 INTERVAL_DELTA = 1.0
 """... and at the ends of the 68 % interval that gives a seen term's standard error."""
 GRID_POINTS = 15
 """Values per term on the first search (log-spaced over :data:`GRID_DECADES` decades, and 0)."""
 GRID_DECADES = 6.0
 SIGNIFICANT_RATIO = 3.0
-"""The white noise density from one sample differs from one window's by this many standard errors of the
-difference: quantisation (one sample above) or a driver's filter (below); within, the two are pooled."""
+"""The white noise density from one sample lies this many standard errors of the difference outside what one
+window's allows: quantisation (above) or a driver's filter (below)."""
 MAX_MEANS_PER_RECORD = 64
 """A record's stretches are merged into at most this many means (a long static run, a day of plateaus)."""
 SEGMENT_S = 3600.0
@@ -104,19 +111,20 @@ class White:
     filter_time_constant: float = 0.0
 
 
-def white_noise(sums: ShortSums, wander: np.ndarray | None = None, wander_error: np.ndarray | None = None
-                ) -> list[White]:
-    """Each channel's white noise from the Allan variance at one window and at one sample.
+def white_noise(sums: ShortSums, wander: np.ndarray | None = None) -> list[White]:
+    """Each channel's white noise from the Allan variance at one sample and at one window.
 
-    :param wander: ``(c,)`` the Allan variance the wander contributes at one window (taken off), or ``None``;
-        ``wander_error`` its standard error (it adds to the density's).
+    :param wander: ``(c,)`` the most the wander can add to the Allan variance at one window (its terms at
+        their upper limits), or ``None`` (nothing).
 
-    ``N^2`` is ``tau avar(tau)`` at both times: where the two agree (within :data:`SIGNIFICANT_RATIO`
-    of their standard errors) the white noise is all there is, and the two estimates are pooled
-    (inverse-variance weights: one sample's holds many more terms); where one sample shows more, the
-    difference is quantisation, where it shows less, a driver's filter, and the density is the
-    window's (the long-term one a rest's mean averages). Stretches too short for two windows (a
-    table's 10-s dwells at 1 Hz) give it from one sample alone (no filter or quantisation told apart).
+    ``N^2 = tau avar(tau)`` at both times for white noise, and the window's holds the wander's share
+    besides (0 up to ``wander``). Where one sample's lies within that range (within
+    :data:`SIGNIFICANT_RATIO` standard errors of the difference) the white noise is all there is
+    at the shortest times, and the density is one sample's (many more terms, no wander in it); where
+    it lies above, the difference is quantisation, below, a driver's filter, and the density is the
+    window's less half the wander's share, give or take all of it (the long-term one a rest's mean
+    averages). Stretches too short for two windows (a table's 10-s dwells at 1 Hz) give it from one
+    sample alone (no filter or quantisation told apart).
     """
     tau0, window = sums.period_s, sums.window_s
     out = []
@@ -126,36 +134,32 @@ def white_noise(sums: ShortSums, wander: np.ndarray | None = None, wander_error:
             continue
         at_one = float(sums.one[channel]) / sums.one_terms
         # Successive differences share a sample (successive windows' a mean): about 1.5 terms per degree of freedom.
-        one_relative = math.sqrt(2.0 / max(sums.one_terms / 1.5, 1.0))
+        from_one = at_one * tau0
+        one_error = math.sqrt(2.0 / max(sums.one_terms / 1.5, 1.0)) * from_one
         if sums.window_terms < 1:
-            density = math.sqrt(at_one * tau0)
-            out.append(White(density, 0.5 * one_relative * density))
+            out.append(White(math.sqrt(from_one), 0.5 * one_error / math.sqrt(from_one) if from_one > 0 else 0.0))
             continue
         measured = float(sums.window[channel]) / sums.window_terms
-        spread = measured * math.sqrt(2.0 / max(sums.window_terms / 1.5, 1.0))
-        at_window = measured
-        if wander is not None:
-            at_window = max(measured - float(wander[channel]), 0.5 * measured)
-            spread = math.hypot(spread, float(wander_error[channel]) if wander_error is not None else 0.0)
-        from_window, from_one = at_window * window, at_one * tau0
-        window_error, one_error = spread * window, one_relative * from_one
+        most = float(wander[channel]) * window if wander is not None else 0.0
+        from_window = measured * window
+        window_error = math.sqrt(2.0 / max(sums.window_terms / 1.5, 1.0)) * from_window
+        allowed = SIGNIFICANT_RATIO * math.hypot(window_error, one_error)
         quantization = filter_constant = 0.0
-        difference = from_one - from_window
-        if abs(difference) <= SIGNIFICANT_RATIO * math.hypot(window_error, one_error):
-            weights = (1.0 / max(window_error, 1e-300) ** 2, 1.0 / max(one_error, 1e-300) ** 2)
-            density2 = (from_window * weights[0] + from_one * weights[1]) / sum(weights)
-            error2 = 1.0 / math.sqrt(sum(weights))
-        elif difference > 0.0:  # 3 Q^2 / tau^2 + N^2 / tau at both times: two equations, two unknowns
-            q2 = (at_one - at_window * window / tau0) / (3.0 / tau0 ** 2 - 3.0 / (window * tau0))
+        density2, error2 = from_one, one_error
+        # What the window holds besides the wander: half its share taken off, give or take all of it.
+        long_term = max(from_window - 0.5 * most, 0.5 * from_window)
+        long_error = math.hypot(window_error, most / math.sqrt(12.0))
+        if from_one > from_window + allowed:  # 3 Q^2 / tau^2 + N^2 / tau at both times: two unknowns
+            at_window = long_term / window
+            q2 = max((at_one - at_window * window / tau0) / (3.0 / tau0 ** 2 - 3.0 / (window * tau0)), 0.0)
             quantization = math.sqrt(q2)
-            density2 = max((at_window - 3.0 * q2 / window ** 2) * window, 0.0)
-            error2 = window_error
-        else:
-            filter_constant = _filter_time_constant(at_one / at_window, tau0, window)
-            density2, error2 = from_window, window_error
+            density2, error2 = max((at_window - 3.0 * q2 / window ** 2) * window, 0.5 * long_term), long_error
+        elif from_one < from_window - most - allowed:
+            filter_constant = _filter_time_constant(from_one / tau0 / (long_term / window), tau0, window)
+            density2, error2 = long_term, long_error
             if filter_constant > 0.0:  # the filter has not quite faded at one window either
                 fading = float(filtered_white_allan_variance(np.array([window]), 1.0 / tau0, filter_constant)[0])
-                density2, error2 = at_window / fading, window_error / (fading * window)
+                density2, error2 = long_term / (fading * window), long_error / (fading * window)
         density = math.sqrt(density2)
         out.append(White(density, 0.5 * error2 / density if density > 0.0 else 0.0, quantization, filter_constant))
     return out
@@ -259,7 +263,7 @@ class Term:
     """A wander term as the rests show it.
 
     :param value: the estimate (0 when not seen); ``error`` its standard error (0 when not seen).
-    :param bound: when not seen, the largest value the rests allow (one-sided 95 %); 0 when seen.
+    :param bound: when not seen, the largest value the rests allow (one-sided 97.5 %); 0 when seen.
     """
 
     value: float
@@ -624,11 +628,10 @@ def rest_noise(short: ShortSums, channels: list[RestMeans], *, up: np.ndarray | 
     else:
         wanders = tuple(fit_wander(means, white, ceiling=ceiling)
                         for means, white, ceiling in zip(channels, whites, ceilings))
-    # What the wander adds at one window, taken off the white noise's estimate: a seen term with its
-    # error, a bounded one as half its bound's share, give or take all of it (uniform).
-    shares = np.array([[_window_share(w.flicker, FLICKER_FLOOR ** 2), _window_share(w.walk, short.window_s / 3.0)]
-                       for w in wanders])
-    whites = white_noise(short, shares[:, :, 0].sum(axis=1), np.hypot(shares[:, 0, 1], shares[:, 1, 1]))
+    # The most the wander can add at one window: its terms at their upper limits.
+    uppers = [(max(w.flicker.value + UPPER_SIGMAS * w.flicker.error, w.flicker.bound),
+               max(w.walk.value + UPPER_SIGMAS * w.walk.error, w.walk.bound)) for w in wanders]
+    whites = white_noise(short, np.array([(FLICKER_FLOOR * b) ** 2 + k * k * short.window_s / 3.0 for b, k in uppers]))
 
     def triple(values) -> tuple[float, float, float]:
         items = [float(v) for v in values]
@@ -650,14 +653,6 @@ def rest_noise(short: ShortSums, channels: list[RestMeans], *, up: np.ndarray | 
         bias_instability_error=triple(w.flicker.error for w in wanders),
         random_walk_error=triple(w.walk.error for w in wanders))
     return RestNoise(model, tuple(whites), wanders, shared=len(channels) == 1, kind=kind)
-
-
-def _window_share(term: Term, unit: float) -> tuple[float, float]:
-    """``(share, its error)`` of a wander term in the Allan variance at one window (``unit``: its share per term^2)."""
-    if term.seen:
-        return unit * term.value ** 2, 2.0 * unit * term.value * term.error
-    whole = unit * term.bound ** 2
-    return 0.5 * whole, whole / math.sqrt(12.0)
 
 
 class StretchWindows:
