@@ -246,3 +246,67 @@ def test_the_architecture_diagram_names_every_pass():
     names = set(re.findall(r'[a-z_]+', listed.replace('|', ' ')))
     modules = {path.stem for path in (ROOT / 'tak_thermo_ros' / 'passes').glob('*.py') if path.stem != '__init__'}
     assert modules <= names, f'passes not in the diagram: {sorted(modules - names)}'
+
+
+# ----- every relative link resolves ----------------------------------------------------------------------------
+
+LINK = re.compile(r'!?\[[^\]]*\]\(([^)\s]+)\)')
+
+
+def _anchors(path: Path) -> set[str]:
+    """The anchors GitHub makes of a Markdown file's headings (lower case, punctuation dropped, spaces as -)."""
+    anchors: set[str] = set()
+    fenced = False
+    for line in path.read_text(encoding='utf-8').splitlines():
+        if line.strip().startswith(('```', '~~~')):
+            fenced = not fenced
+        heading = None if fenced else re.match(r'^#{1,6}\s+(.*?)\s*#*\s*$', line)
+        if heading:
+            slug = re.sub(r'[^\w\- ]', '', heading.group(1).lower()).replace(' ', '-')
+            anchor, n = slug, 0
+            while anchor in anchors:
+                n += 1
+                anchor = f'{slug}-{n}'
+            anchors.add(anchor)
+    return anchors
+
+
+def broken_links(path: Path) -> list[str]:
+    """The relative links of a Markdown file (outside code) whose file or heading does not exist."""
+    problems = []
+    fenced = False
+    name = path.relative_to(ROOT) if path.is_relative_to(ROOT) else path
+    for number, line in enumerate(path.read_text(encoding='utf-8').splitlines(), start=1):
+        if line.strip().startswith(('```', '~~~')):
+            fenced = not fenced
+            continue
+        if fenced:
+            continue
+        for target in LINK.findall(re.sub(r'`[^`]*`', '', line)):
+            if re.match(r'^[a-z]+:', target):  # https:, mailto:
+                continue
+            file, _, anchor = target.partition('#')
+            resolved = (path.parent / file).resolve() if file else path
+            if not resolved.exists():
+                problems.append(f'{name}:{number}: {target}: no such file')
+            elif anchor and resolved.suffix == '.md' and anchor not in _anchors(resolved):
+                problems.append(f'{name}:{number}: {target}: no such heading')
+    return problems
+
+
+@pytest.mark.parametrize('path', transcripts.DOCS, ids=[path.name for path in transcripts.DOCS])
+def test_every_relative_link_resolves(path):
+    """Every relative link of README.md and docs/*.md names a file that exists, and a heading it holds."""
+    problems = broken_links(path)
+    assert not problems, '\n'.join(problems)
+
+
+def test_the_link_check_catches_a_missing_file_and_heading(tmp_path):
+    """The check itself: a link to no file, and to a heading the file lacks, are caught; good ones are not."""
+    doc = tmp_path / 'doc.md'
+    (tmp_path / 'other.md').write_text('# Other\n\n## The Earth\'s field: `fit-fleet` (and thermal_lag[xz])\n')
+    doc.write_text('[a](other.md) [b](other.md#the-earths-field-fit-fleet-and-thermal_lagxz) [c](#top)\n\n# Top\n'
+                   '`[not a link](nowhere.md)`\n```\n[in code](nowhere.md)\n```\n', encoding='utf-8')
+    assert broken_links(doc) == []
+    doc.write_text('[a](missing.md) [b](other.md#nothing) [c](#gone)\n', encoding='utf-8')
+    assert len(broken_links(doc)) == 3

@@ -210,7 +210,7 @@ def test_ctrl_c_logs_the_watch_verdict_to_rosout_and_no_rcl_error(tmp_path, ros_
 # -- 2. two compensators on one /diagnostics --------------------------------------------------------
 
 def test_two_compensators_in_two_namespaces_are_told_apart_in_diagnostics(tmp_path, ros_env):
-    """The README's two-IMU set-up, one file: each status names its node and carries its unit's id.
+    """The manual's two-IMU set-up, one file: each status names its node and carries its unit's id.
 
     /imu0/compensator and /imu1/compensator, with their hardware_id, before the first Imu already.
     """

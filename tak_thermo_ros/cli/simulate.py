@@ -49,7 +49,7 @@ def add_parser(commands) -> argparse.ArgumentParser:
                              "powered board (the scenario's powered: section); a directory of bags, one per record, "
                              "for a scenario with an everyday: section (docs/everyday.md)")
     parser.add_argument('--scenario', metavar='FILE.yaml',
-                        help='scenario overrides, every key optional (README: The simulator)')
+                        help='scenario overrides, every key optional (docs/cli.md: The simulator)')
     parser.add_argument('--seed', type=options.seed, help='random seed, 0 .. 2^63 - 1 (overrides the scenario)')
     parser.add_argument('--storage', choices=['mcap', 'sqlite3'], default='mcap')
     options.add_topic_options(parser)
