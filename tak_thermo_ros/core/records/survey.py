@@ -38,8 +38,8 @@ from tak_thermo_ros.core.records.still import ORIENTATION_DEG, StillDetector, St
 
 MOVING_FRACTION = 0.5
 """A record without a still interval whose windows are still less than this share of the time never rests."""
-STATIC_STILL_FRACTION = 0.9
-"""A static run is still at least this share of its windows (a chamber's: 99-100 %); rests in one
+STATIC_STILL_FRACTION = 0.8
+"""A static run is still at least this share of its windows (a chamber's: 95-100 %); rests in one
 orientation that take less are an everyday record's (a vehicle's: a third to two thirds)."""
 TURNING_RATE = 1e-3
 """rad/s: a rate reference beyond this turns the unit (the Earth's rate is 7.3e-5)."""
