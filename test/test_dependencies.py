@@ -95,7 +95,7 @@ def test_every_third_party_import_is_declared_in_package_xml_or_optional():
     """The package's (and launch file's) imports are exec_depends; tests' are test_ or exec_depends.
 
     dask, distributed, statsmodels and allantools have no rosdep key: optional, named in
-    tak_thermo_ros.optional (and the README). A recorded signal's message package is imported by
+    tak_thermo_ros.optional (and docs/manual.md). A recorded signal's message package is imported by
     name at run time: those packages are exec_depends too.
     """
     declared = _package_xml()

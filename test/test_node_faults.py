@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from rcl_interfaces.msg import Log
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from node_helpers import (
     NANOSECONDS,
@@ -177,10 +179,38 @@ def test_a_node_its_test_left_running_is_found_and_killed(tmp_path, ros_env):
     assert node.process.returncode == -signal.SIGKILL
 
 
+def test_ctrl_c_logs_the_watch_verdict_to_rosout_and_no_rcl_error(tmp_path, ros_env):
+    """A stop as Ctrl-C gives it, to the node as ``ros2 run`` starts it (issue 43): its last line reaches /rosout.
+
+    With rclpy's own signal handlers the context was gone before the node said its watch's verdict:
+    every stop printed ``Failed to publish log message to rosout: publisher's context is invalid``.
+    """
+    from everyday_watch import watch_unit  # the watch on: the node says its verdict at shutdown
+    params = tmp_path / 'params.yaml'
+    write_text_atomic(params, unit_yaml(watch_unit()))
+    lines: list[str] = []
+    rosout = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    with Harness(int(ros_env['ROS_DOMAIN_ID']), driver=True) as ros:
+        ros.node.create_subscription(Log, '/rosout', lambda m: lines.append(m.msg), rosout)
+        with NodeProcess([str(COMPENSATOR), '--ros-args', '--params-file', str(params)], ros_env,
+                         tmp_path / 'node.log') as node:
+            wait_until(lambda: 'calibration watch on' in node.log(), 30.0, what='the ready lines')
+            ros.wait(lambda: any('calibration watch on' in line for line in lines), 30.0, 'its lines on /rosout')
+            os.killpg(node.process.pid, signal.SIGINT)
+            node.process.wait(timeout=20.0)
+            ros.wait(lambda: any('calibration watch at shutdown' in line for line in lines), 10.0,
+                     'the verdict on /rosout')
+            said = node.log()
+    assert node.process.returncode == 0, said
+    assert 'calibration watch at shutdown: calibration holds' in said
+    assert 'Failed to publish' not in said and 'Traceback' not in said, said
+
+
 # -- 2. two compensators on one /diagnostics --------------------------------------------------------
 
 def test_two_compensators_in_two_namespaces_are_told_apart_in_diagnostics(tmp_path, ros_env):
-    """The README's two-IMU set-up, one file: each status names its node and carries its unit's id.
+    """The manual's two-IMU set-up, one file: each status names its node and carries its unit's id.
 
     /imu0/compensator and /imu1/compensator, with their hardware_id, before the first Imu already.
     """

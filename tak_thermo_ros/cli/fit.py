@@ -82,17 +82,24 @@ def run(args: argparse.Namespace) -> int:
                            gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
                            max_effect_samples=args.effect_samples)
     from tak_thermo_ros.passes.pool import is_pool
+    from tak_thermo_ros.passes.run import EverydayRecord
     if is_pool(args.bag):
+        return _fit_pool(args, settings)
+    # A record that determines the magnetometer alone (turned by hand, or without a temperature)
+    # holds the accelerometer and gyroscope at nominal, said in one line; else it is refused.
+    # An everyday record (rests in one orientation, motion between) is a pool of one.
+    options = common.stream_options(args)
+    try:
+        fitted = fit_imu(args.bag[0], settings, options,
+                         nominal_for=lambda kind, bag_nominal: _nominal(args, bag_nominal),
+                         hold_undetermined=has_mag(args.bag[0], options.topics))
+    except EverydayRecord:
+        print(f'{Path(args.bag[0]).name}: {EverydayRecord.WORDS}')
         return _fit_pool(args, settings)
     args.bag = args.bag[0]
     from tak_thermo_ros.formats.records import record_lines
     for line in record_lines(args.bag, topics=common.topics(args)):
         print(line)
-    # A record that determines the magnetometer alone (turned by hand, or without a temperature)
-    # holds the accelerometer and gyroscope at nominal, said in one line; else it is refused.
-    options = common.stream_options(args)
-    fitted = fit_imu(args.bag, settings, options, nominal_for=lambda kind, bag_nominal: _nominal(args, bag_nominal),
-                     hold_undetermined=has_mag(args.bag, options.topics))
     both_held = set(fitted.held) >= {'accel', 'gyro'}
     for option, given, sensors in (('--effects', bool(effects['accel']), ('accel',)),
                                    ('--gyro-effects', bool(effects['gyro']), ('gyro',)),
@@ -353,7 +360,7 @@ def _fit_pool(args: argparse.Namespace, settings) -> int:
     handheld = pool.fit
     results = handheld.results
     unit = UnitCalibration(InputKind.IMU, accel=results['accel'].calibration, gyro=results['gyro'].calibration,
-                           source=fitted.source)
+                           source=fitted.source, fitted_from=fitted.fitted_from)
     noise_line = ''
     if args.noise or args.noise_run:
         unit, noise_line = _with_noise(args, unit)
@@ -371,10 +378,10 @@ def _fit_pool(args: argparse.Namespace, settings) -> int:
     save_unit(args.output, unit, header=header)
     for line in opened_lines(opened):
         print(line)
-    for line in coverage_lines(opened):
-        print(line)
     for left in pool.left_out:
         print(left_out_line(left))
+    for line in coverage_lines(opened, left_out=[left.name for left in pool.left_out]):
+        print(line)
     for sensor, choice in pool.orders.items():
         print(order_line(sensor, choice))
     for line in handheld.lines:

@@ -32,6 +32,7 @@ from tak_thermo_ros.core.fit.pool import own_offsets, record_means
 from tak_thermo_ros.core.link.model import InputKind
 from tak_thermo_ros.core.records.extremes import temperature_course
 from tak_thermo_ros.core.records.handheld import HandheldRecord, empty_samples, pooled
+from tak_thermo_ros.core.records.provenance import PrintCollector, Recognition, RecordPrint
 from tak_thermo_ros.core.records.record import DriverRecord, hold_last_index, no_orientation
 from tak_thermo_ros.core.records.still import MIN_STILL_S
 from tak_thermo_ros.core.records.survey import SurveyCollector
@@ -140,6 +141,10 @@ class PoolEntry:
     rest_trends: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     temperature_rate_max: float = 0.0
     rate_max: float = 0.0
+    record_print: RecordPrint | None = None
+    """What a calibration fitted from the pool keeps of the record (``fitted_from``)."""
+    in_sample: Recognition | None = None
+    """Whether the record is (part of) one a calibration was fitted from (:func:`read_record`'s ``against``)."""
 
 
 @dataclass(frozen=True)
@@ -179,9 +184,14 @@ def _shared(blocks: Iterator[DriverRecord]) -> Iterator[tuple[DriverRecord, bool
                            frame_id=block.frame_id), True
 
 
-def read_record(path: Path, options: StreamOptions, *, budget: int,
-                turn_budget: int | None = None) -> tuple[PoolEntry, HandheldRecord | None]:
-    """One record of a pool: its rests and turns (about ``budget`` and ``turn_budget`` samples at most), and more."""
+def read_record(path: Path, options: StreamOptions, *, budget: int, turn_budget: int | None = None,
+                against: Sequence[RecordPrint] | None = None) -> tuple[PoolEntry, HandheldRecord | None]:
+    """One record of a pool: its rests and turns (about ``budget`` and ``turn_budget`` samples at most), and more.
+
+    :param against: the prints of the records a calibration was fitted from: the entry says whether
+        this record is (part of) one of them; ``None``: for a calibration fitted from it (the entry's
+        print is its whole digest either way).
+    """
     from tak_thermo_ros.formats.records import record_blocks, record_lines, record_source, record_streams
     name = path.name
     try:
@@ -197,16 +207,28 @@ def read_record(path: Path, options: StreamOptions, *, budget: int,
                          reason=f'no temperature on {options.topics.temperature}: contributes nothing'), None
     keep = streams.main <= SURVEY_REPLAY_SAMPLES
 
+    def raw_blocks() -> Iterator[DriverRecord]:
+        return record_blocks(path, topics=options.topics, kind=InputKind.IMU,  # type: ignore[return-value]
+                             block_samples=options.block_samples, references=False, progress=options.progress)
+
     def blocks() -> Iterator[tuple[DriverRecord, bool]]:
-        return _shared(record_blocks(path, topics=options.topics, kind=InputKind.IMU,  # type: ignore[arg-type]
-                                     block_samples=options.block_samples, references=False,
-                                     progress=options.progress))
+        return _shared(raw_blocks())
+
+    # The record's whole digest, as one record's, and its segments on the grids of ``against``; not its
+    # own time segments at every length (1.3 s of CPU per 30 min at 200 Hz: about what the rest of a
+    # pool's fit costs per record), so a pool's records are recognised whole.
+    prints = PrintCollector(('accel', 'gyro'), against=against or (), own_segments=False)
+
+    def printed() -> Iterator[DriverRecord]:
+        for block in raw_blocks():
+            prints.add({sensor: block.channel(sensor) for sensor in ('accel', 'gyro')})
+            yield block
 
     survey = SurveyCollector('imu')
     kept: list[tuple[DriverRecord, bool]] = []
     held_gyro = False
     temperature_stamps, temperatures = [], []
-    for block, held in blocks():
+    for block, held in _shared(printed()):
         held_gyro = held_gyro or held
         survey.add(block)
         temperature_stamps.append(block.temp_stamp_ns)
@@ -214,6 +236,7 @@ def read_record(path: Path, options: StreamOptions, *, budget: int,
         if keep:
             kept.append((stripped_block(block), held))
     surveyed = survey.finish(record_streams_listed(path, streams, options.topics))
+    known = {'record_print': prints.finish(name), 'in_sample': prints.recognition(name) if against else None}
     if surveyed.temperature_problem is not None:  # the one rule of a record's temperatures (check_temperature_unit)
         reason = f'{options.topics.temperature}: {surveyed.temperature_problem}: contributes nothing'
         return PoolEntry(path, name, source=source, lines=lines, reason=reason, held_gyro=held_gyro), None
@@ -243,7 +266,7 @@ def read_record(path: Path, options: StreamOptions, *, budget: int,
                       temperature=(float(record.still.temp_code.min()), float(record.still.temp_code.max())),
                       orientations=still.orientations(), source=source, lines=lines, held_gyro=held_gyro,
                       rest_temperatures=temperatures, rest_trends=trends,
-                      temperature_rate_max=course.rate_max, rate_max=rate_max)
+                      temperature_rate_max=course.rate_max, rate_max=rate_max, **known)
     return entry, record
 
 
@@ -334,9 +357,10 @@ def _device_check(entries: list[PoolEntry]) -> list[PoolEntry]:
 
 
 def open_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions, *,
-              samples: int = POOL_SAMPLES) -> OpenedPool:
+              samples: int = POOL_SAMPLES, against: Sequence[RecordPrint] | None = None) -> OpenedPool:
     """Read every record of a pool once (see the module's description).
 
+    :param against: as :func:`read_record`'s (a calibration's ``fitted_from``; ``None``: for a fit).
     :raises PoolError: a path that is no record, no record that contributes a rest.
     """
     records, lines = record_paths(paths)
@@ -345,7 +369,7 @@ def open_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions, *
     read: list[HandheldRecord | None] = []
     names = Counter(path.name for path in records)
     for path in records:
-        entry, record = read_record(path, options, budget=budget, turn_budget=turn_budget)
+        entry, record = read_record(path, options, budget=budget, turn_budget=turn_budget, against=against)
         if names[path.name] > 1:  # the same name in two directories: the path tells them apart
             entry = replace(entry, name=str(path))
         entries.append(entry)
@@ -389,9 +413,12 @@ def check_driver_unit(unit, params: str) -> None:
         raise TakError(msg)
 
 
-def coverage_lines(opened: OpenedPool) -> list[str]:
-    """What the pool covers: records, rests, the temperature span and its bins, heating and cooling."""
-    used = [opened.entries[i] for i in opened.used]
+def coverage_lines(opened: OpenedPool, left_out: Sequence[str] = ()) -> list[str]:
+    """What the pool covers: records, rests, the temperature span and its bins, heating and cooling.
+
+    :param left_out: the names of records the fit left out after reading (counted as not pooled).
+    """
+    used = [opened.entries[i] for i in opened.used if opened.entries[i].name not in left_out]
     temperatures = np.concatenate([e.rest_temperatures for e in used])
     trends = np.concatenate([e.rest_trends for e in used])
     rests = len(temperatures)
@@ -430,6 +457,8 @@ class FittedPool:
     opened: OpenedPool
     fit: object
     source: dict[str, str | int | float]
+    fitted_from: tuple[RecordPrint, ...] = ()
+    """The prints of the records fitted (the pooled ones the fit did not leave out): the file's ``fitted_from``."""
 
 
 def fit_records(paths: Sequence[str | os.PathLike[str]], settings, options: StreamOptions) -> FittedPool:
@@ -458,7 +487,9 @@ def fit_records(paths: Sequence[str | os.PathLike[str]], settings, options: Stre
     if len(devices) == 1 and all(e.source is not None for e in used):
         for key in ('accel_device_id', 'gyro_device_id'):
             source[key] = int(used[0].source.get(key, 0))  # type: ignore[union-attr]
-    return FittedPool(opened, fitted, source)
+    left = {left.name for left in fitted.left_out}
+    prints = tuple(e.record_print for e in used if e.name not in left and e.record_print is not None)
+    return FittedPool(opened, fitted, source, prints)
 
 
 def _reader(sensor: str) -> tuple[str, float]:
@@ -510,13 +541,39 @@ def validate_records(paths: Sequence[str | os.PathLike[str]], unit, options: Str
     """The rests of a pool's records before and after ``unit`` (each record read once, as for ``fit``)."""
     from tak_thermo_ros.core.link.handheld_check import check_handheld
     from tak_thermo_ros.passes.handheld import nominal_unit
-    opened = open_pool(paths, options)
+    opened = open_pool(paths, options, against=unit.fitted_from)
     record = opened.record
     assert record is not None
     before = check_handheld(record, nominal_unit(unit), gravity=gravity, latitude=latitude, out_of_range=out_of_range)
     after = check_handheld(record, unit, gravity=gravity, latitude=latitude, out_of_range=out_of_range)
     own, shape = own_offsets(record, after.rate_error)
     return PoolCheck(opened, before, after, own, shape)
+
+
+def outside_lines(check: PoolCheck, unit, policy) -> list[str]:
+    """Per record whose rests reach beyond the calibrated temperature range: how many, how far, what was done.
+
+    Said before the figures: a record beyond the range carries what the clamp (or the extrapolation)
+    leaves in its rests' errors, which its turn-on offset would otherwise be blamed for.
+    """
+    from tak_thermo_ros.core.records.handheld import rest_records
+    record = check.opened.record
+    ranges = [(c.temp_code_min, c.temp_code_max) for _, c in unit.sensors if c.needs_temperature]
+    if record is None or not ranges or not len(check.after.rest_outside):
+        return []
+    low, high = max(r[0] for r in ranges), min(r[1] for r in ranges)
+    owner = rest_records(record)
+    entries = {entry.name: entry for entry in check.opened.entries}
+    done = 'clamped' if policy.value == 'clamp' else 'extrapolated'
+    lines = []
+    for index, name in enumerate(record.record_names):
+        mine = owner == index
+        outside = int(np.count_nonzero(check.after.rest_outside[mine] > 0.0))
+        if outside:
+            rests = entries[name].temperature or (low, high)
+            lines.append(f'{name}: {outside} of its {int(mine.sum())} rests beyond the calibrated {low:.1f}..'
+                         f'{high:.1f} C (its rests {rests[0]:.1f}..{rests[1]:.1f} C): {done}')
+    return lines
 
 
 def bounded_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions, *, gravity: float,
@@ -526,7 +583,7 @@ def bounded_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions
     The references are a hand-held record's (gravity along each rest's corrected up direction, zero
     rate); each record's turn-on offset (its samples' mean residual after ``unit``, per axis) is
     taken off, so that what remains is the link's shape; ``groups`` give each sample's record
-    (the folds hold whole records out).
+    (the folds hold whole records out; a pool of one record holds out time blocks).
 
     :returns: the :class:`~tak_thermo_ros.passes.diagnose.BoundedRun` and the pool as read.
     """
@@ -544,7 +601,7 @@ def bounded_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions
     usable = {sensor: len(aligned) for sensor, aligned in samples.items()}
     run = BoundedRun(input_kind=InputKind.IMU, samples=samples, usable=usable, stride=record.stride,
                      reference_lines=(), survey=None, handheld=check,
-                     groups={sensor: groups for sensor in samples})
+                     groups={sensor: groups for sensor in samples} if record.records > 1 else None)
     return run, opened
 
 

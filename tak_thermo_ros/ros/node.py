@@ -54,6 +54,7 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import Imu, MagneticField, Temperature
 
 from tak_thermo_ros.formats.calibration_file import (
@@ -758,19 +759,19 @@ def make_executor(kind: str, context: Any) -> Executor:
     return SingleThreadedExecutor(context=context)
 
 
-def spin(node: Node, executor: Executor) -> bool:
-    """Spin until the context shuts down (SIGINT or SIGTERM: rclpy's signal handlers).
+def spin(node: Node, executor: Executor, signals: SignalGuard | None = None) -> bool:
+    """Spin until a stop signal (``signals``: SIGINT or SIGTERM) or until the context shuts down.
 
     ``spin_once`` in a loop, not ``spin()``: the EventsExecutor's ``spin()`` stopped by a
     shutdown from another thread kept running at 100 % CPU in a trial; this loop notices the
-    shutdown within :data:`SPIN_PERIOD_S`.
+    signal or the shutdown within :data:`SPIN_PERIOD_S`.
 
     :returns: whether the executor failed on the shutdown itself (it raised once the context was
         gone, e.g. while registering the node's entities): see :func:`main`.
     """
     executor.add_node(node)
     context = node.context
-    while context.ok():
+    while context.ok() and (signals is None or signals.received is None):
         try:
             executor.spin_once(timeout_sec=SPIN_PERIOD_S)
         except ExternalShutdownException:
@@ -787,8 +788,11 @@ def main(args: Sequence[str] | None = None, *, signals: SignalGuard | None = Non
 
     A SIGINT or SIGTERM at any moment ends it with status 0 (``signals``, installed here when
     the caller has not: :mod:`tak_thermo_ros.ros.main`). One that comes while it starts stops
-    the imports or ``rclpy.init``, or shuts the context down under the node being built, whose
-    next rcl call then fails: that failure is the stop, said in one line, no traceback.
+    the imports or ``rclpy.init``, or the node once built, said in one line, no traceback.
+    rclpy installs no signal handler of its own: the guard's stops the spin, so the node ends
+    (the watch's verdict logged, what it learned written) while its context still holds, and its
+    last lines reach /rosout (rclpy's handlers shut the context down first, and every line logged
+    at shutdown printed "Failed to publish log message to rosout").
     """
     signals = signals if signals is not None else SignalGuard().install()
     node = executor = None
@@ -797,7 +801,7 @@ def main(args: Sequence[str] | None = None, *, signals: SignalGuard | None = Non
         if signals.received:  # arrived while the caller imported this module
             raise KeyboardInterrupt
         try:
-            rclpy.init(args=args)
+            rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
         except Exception as err:  # rcl refuses bad --ros-args or an unreadable params file
             if signals.received:
                 raise KeyboardInterrupt from None
@@ -805,7 +809,7 @@ def main(args: Sequence[str] | None = None, *, signals: SignalGuard | None = Non
             print(f'[FATAL] [{NODE_NAME}]: cannot start: {detail[0] if detail else type(err).__name__}',
                   file=sys.stderr)
             return EXIT_ERROR
-        signals.disarm()  # rclpy's handlers shut the context down from now on
+        signals.disarm()  # from now on a signal is remembered: the spin below stops on it
         try:
             node = CompensatorNode()
         except (TakError, ValueError) as err:
@@ -813,9 +817,11 @@ def main(args: Sequence[str] | None = None, *, signals: SignalGuard | None = Non
                 raise KeyboardInterrupt from None
             rclpy.logging.get_logger(NODE_NAME).fatal(f'cannot start: {err}')
             return EXIT_ERROR
+        if signals.received:  # while the node was built
+            raise KeyboardInterrupt
         executor = make_executor(node.executor_kind, node.context)
         running = True
-        failed_on_shutdown = spin(node, executor)
+        failed_on_shutdown = spin(node, executor, signals)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception:

@@ -278,15 +278,19 @@ class UnitCorrector:
         return accel + self._gyro.correct_sample(values[3], values[4], values[5], temperature, stamp_s=stamp_s,
                                                  aux=aux)
 
-    def out_of_range_count(self, temperature: np.ndarray) -> int:
-        """How many temperatures lie outside the calibrated range of any sensor."""
+    def out_of_range(self, temperature: np.ndarray) -> np.ndarray:
+        """``(k,)`` whether each temperature lies outside the calibrated range of any sensor."""
         temperature = np.asarray(temperature, dtype=float)
         outside = np.zeros(len(temperature), dtype=bool)
         for _, calibration in self.unit.sensors:
             if not calibration.needs_temperature:
                 continue
             outside |= (temperature < calibration.temp_code_min) | (temperature > calibration.temp_code_max)
-        return int(np.count_nonzero(outside))
+        return outside
+
+    def out_of_range_count(self, temperature: np.ndarray) -> int:
+        """How many temperatures lie outside the calibrated range of any sensor."""
+        return int(np.count_nonzero(self.out_of_range(temperature)))
 
 
 def acceleration_variance(calibration: Calibration) -> tuple[float, float, float]:
