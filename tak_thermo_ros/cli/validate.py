@@ -316,13 +316,12 @@ def _validate_handheld(args: argparse.Namespace, run, document: dict) -> None:
 
 def _validate_pool(args: argparse.Namespace, unit: UnitCalibration) -> int:
     """``validate`` of a pool of everyday records: each rest's |g| and rate, each record's turn-on offset apart."""
-    from tak_thermo_ros.passes.pool import check_driver_unit, opened_lines, validate_records
+    from tak_thermo_ros.passes.pool import check_driver_unit, validate_records
     check_driver_unit(unit, args.params)
     check = validate_records(args.bag, unit, common.stream_options(args), gravity=args.gravity,
-                             latitude=getattr(args, 'latitude', None), out_of_range=OutOfRange(args.out_of_range))
+                             latitude=getattr(args, 'latitude', None), out_of_range=OutOfRange(args.out_of_range),
+                             say=print)
     opened, before, after = check.opened, check.before, check.after
-    for line in opened_lines(opened):
-        print(line)
     g = args.gravity
     small, factor = common.reader_unit('rad/s')
     print(f'|g| error of the {len(after.gravity_error)} rests\' mean specific force of {len(opened.used)} records:')
@@ -336,7 +335,9 @@ def _validate_pool(args: argparse.Namespace, unit: UnitCalibration) -> int:
     for label, rms in rows:
         print(f'  {label:<37}{common.numbers(rms, 3)} rad/s ({common.numbers(np.asarray(rms) * factor, 3)} {small})')
     spread = check.own.std(axis=0, ddof=1) if len(check.own) > 1 else np.zeros(3)
-    said = (f'the file\'s repeatability {common.numbers(np.asarray(unit.gyro.turn_on.repeatability) * factor, 3)}'
+    known = unit.gyro.known_turn_on
+    said = (f'the file\'s repeatability {common.numbers(np.asarray(known.repeatability) * factor, 3)}'
+            if known is not None else f'the file\'s repeatability: {unit.gyro.turn_on.why_not()}'
             if unit.gyro.turn_on is not None else 'the file holds no turn-on repeatability')
     print(f'gyroscope: these records\' turn-on offsets spread {common.numbers(spread * factor, 3)} {small} x y z '
           f'({said})')

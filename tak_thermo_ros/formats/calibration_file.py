@@ -97,6 +97,7 @@ from tak_thermo_ros.core.link.model import (
     THERMAL_STATES,
     InputKind,
     MagnetometerCalibration,
+    NOT_DETERMINED,
     TurnOn,
     UnitCalibration,
     check_plausible,
@@ -414,20 +415,32 @@ def _link_to_mapping(calibration: Calibration, input_kind: InputKind) -> dict[st
     if calibration.noise is not None:
         mapping['noise'] = noise_to_mapping(calibration.noise)
     if calibration.turn_on is not None:
-        mapping['turn_on'] = {'repeatability': [float(v) for v in calibration.turn_on.repeatability],
-                              'repeatability_error': [float(v) for v in calibration.turn_on.repeatability_error],
-                              'records': int(calibration.turn_on.records)}
+        turn_on = calibration.turn_on
+        if turn_on.repeatability is None or turn_on.repeatability_error is None:
+            mapping['turn_on'] = {'repeatability': NOT_DETERMINED, 'records': int(turn_on.records)}
+        else:
+            mapping['turn_on'] = {'repeatability': [float(v) for v in turn_on.repeatability],
+                                  'repeatability_error': [float(v) for v in turn_on.repeatability_error],
+                                  'records': int(turn_on.records)}
     return mapping
 
 
 def _turn_on_from_mapping(raw: Any, key: str) -> TurnOn:
-    """A sensor's ``turn_on`` section: ``repeatability`` and ``repeatability_error`` (x, y, z), ``records``."""
+    """A sensor's ``turn_on`` section: ``repeatability`` and ``repeatability_error`` (x, y, z), ``records``.
+
+    ``repeatability: not determined`` (and no error): fewer records than
+    :data:`~tak_thermo_ros.core.link.model.MIN_TURN_ON_RECORDS` behind it.
+    """
     if not isinstance(raw, Mapping):
         msg = f'{key}: expected a mapping'
         raise CalibrationError(msg)
-    _check_keys(raw, key, ('repeatability', 'repeatability_error', 'records'))
-    spread = _numbers(raw['repeatability'], f'{key}.repeatability', 3)
-    error = _numbers(raw['repeatability_error'], f'{key}.repeatability_error', 3)
+    if raw.get('repeatability') == NOT_DETERMINED:
+        _check_keys(raw, key, ('repeatability', 'records'))
+        spread = error = None
+    else:
+        _check_keys(raw, key, ('repeatability', 'repeatability_error', 'records'))
+        spread = _numbers(raw['repeatability'], f'{key}.repeatability', 3)
+        error = _numbers(raw['repeatability_error'], f'{key}.repeatability_error', 3)
     records = raw['records']
     if isinstance(records, bool) or not isinstance(records, int):
         msg = f'{key}.records: expected a whole number, got {records!r}'

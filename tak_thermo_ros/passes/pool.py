@@ -24,7 +24,7 @@ import os
 from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Iterator, Sequence
+from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -104,6 +104,47 @@ def record_paths(paths: Sequence[str | os.PathLike[str]]) -> tuple[list[Path], l
             lines.append(f'{path}: {len(other)} entries are no record, not read ({shown})')
         records += found
     return records, lines
+
+
+def _spelled(paths: Sequence[str | os.PathLike[str]], records: Sequence[Path]) -> list[str]:
+    """Each record as the user spelled it (``./month/rec00/``); a directory's records by their paths."""
+    given: dict[Path, list[str]] = {}
+    for path in paths:
+        given.setdefault(Path(path), []).append(os.fspath(path))
+    return [given[path].pop(0) if given.get(path) else str(path) for path in records]
+
+
+def same_how(path: str | os.PathLike[str], earlier: str | os.PathLike[str], content: str) -> str:
+    """How a second copy is the first: ``through a link``, ``the same path``, else ``content`` (a copy)."""
+    if os.path.realpath(path) != os.path.realpath(earlier):
+        return content or 'the same content'
+    return 'through a link' if os.path.realpath(path) != os.path.abspath(path) else 'the same path'
+
+
+def distinct_records(records: Sequence[Path], topics, spelled: Sequence[str] | None = None
+                     ) -> tuple[list[int], list[str]]:
+    """The records that are not a second copy of an earlier one, by content (:func:`record_identity`).
+
+    A record given twice (another spelling of its path, a link, a copy, a bag's ``.mcap`` beside its
+    folder, one flight as ``.ulg`` and ``.bin``) is one power-up: counted once, the second named.
+
+    :returns: the indices of the records kept, and one line per second copy.
+    """
+    from tak_thermo_ros.formats.records import record_identity
+    names = list(spelled) if spelled is not None else [str(path) for path in records]
+    first: dict[object, int] = {}
+    kept, lines = [], []
+    for index, path in enumerate(records):
+        identity = record_identity(path, topics=topics)
+        key = identity if identity is not None else ('path', os.path.realpath(path))
+        if key in first:
+            earlier = first[key]
+            how = same_how(path, records[earlier], f'the same {identity.messages} messages' if identity else '')
+            lines.append(f'{names[index]}: the same record as {names[earlier]} ({how}): counted once')
+            continue
+        first[key] = index
+        kept.append(index)
+    return kept, lines
 
 
 def is_pool(paths: Sequence[str | os.PathLike[str]]) -> bool:
@@ -334,12 +375,20 @@ def _device_check(entries: list[PoolEntry]) -> list[PoolEntry]:
 
 
 def open_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions, *,
-              samples: int = POOL_SAMPLES) -> OpenedPool:
+              samples: int = POOL_SAMPLES, say: Callable[[str], None] | None = None) -> OpenedPool:
     """Read every record of a pool once (see the module's description).
 
+    A second copy of a record is counted once (:func:`distinct_records`).
+
+    :param say: called with each line as soon as it is known: the directories' and the second copies' lines
+        (:attr:`OpenedPool.lines`), each record's once it is read, a record's changed by the checks after.
     :raises PoolError: a path that is no record, no record that contributes a rest.
     """
     records, lines = record_paths(paths)
+    kept, same = distinct_records(records, options.topics, _spelled(paths, records))
+    records, lines = [records[i] for i in kept], lines + same
+    for line in lines if say is not None else ():
+        say(line)
     budget, turn_budget = record_budgets(len(records), samples)
     entries: list[PoolEntry] = []
     read: list[HandheldRecord | None] = []
@@ -350,8 +399,13 @@ def open_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions, *
             entry = replace(entry, name=str(path))
         entries.append(entry)
         read.append(record)
-    entries = _device_check(entries)
-    entries = _restless(entries, read)
+        for line in _record_lines(entry) if say is not None else ():
+            say(line)
+    checked = _restless(_device_check(entries), read)
+    for before, after in zip(entries, checked) if say is not None else ():
+        if after.reason != before.reason:
+            say(entry_line(after))
+    entries = checked
     used = tuple(i for i, (entry, record) in enumerate(zip(entries, read)) if record is not None and not entry.reason)
     if not used:
         msg = f'no record of the {len(records)} given holds a rest with a temperature: nothing to fit'
@@ -370,13 +424,9 @@ def entry_line(entry: PoolEntry) -> str:
             f'{entry.orientations} orientation{"s" if entry.orientations != 1 else ""}{held}')
 
 
-def opened_lines(opened: OpenedPool) -> list[str]:
-    """What reading the pool said: its own lines, then per record what its reader did and :func:`entry_line`."""
-    lines = list(opened.lines)
-    for entry in opened.entries:
-        lines += [f'{entry.name}: {line}' for line in entry.lines]
-        lines.append(entry_line(entry))
-    return lines
+def _record_lines(entry: PoolEntry) -> list[str]:
+    """What its reader did, then :func:`entry_line`."""
+    return [*(f'{entry.name}: {line}' for line in entry.lines), entry_line(entry)]
 
 
 def check_driver_unit(unit, params: str) -> None:
@@ -432,14 +482,16 @@ class FittedPool:
     source: dict[str, str | int | float]
 
 
-def fit_records(paths: Sequence[str | os.PathLike[str]], settings, options: StreamOptions) -> FittedPool:
+def fit_records(paths: Sequence[str | os.PathLike[str]], settings, options: StreamOptions, *,
+                say: Callable[[str], None] | None = None) -> FittedPool:
     """Read a pool once and fit it (:func:`~tak_thermo_ros.core.fit.pool.fit_pool`).
 
     :param settings: ``tak_calib fit``'s :class:`~tak_thermo_ros.passes.run.FitSettings`.
+    :param say: each line of reading the pool as soon as it is known (:func:`open_pool`).
     :raises PoolError: as :func:`open_pool`; ``FitError`` as the fit.
     """
     from tak_thermo_ros.core.fit.pool import TwoUnits, fit_pool
-    opened = open_pool(paths, options)
+    opened = open_pool(paths, options, say=say)
     assert opened.record is not None
     try:
         fitted = fit_pool(opened.record, handheld_settings(settings))
@@ -466,13 +518,20 @@ def _reader(sensor: str) -> tuple[str, float]:
     return reader_unit({'accel': 'm/s^2', 'gyro': 'rad/s'}[sensor])  # type: ignore[return-value]
 
 
-def turn_on_line(sensor: str, fitted) -> str:
-    """One statement: a sensor's turn-on repeatability per axis with its error (or which axes the records miss)."""
-    small, factor = _reader(sensor)
+def turn_on_line(sensor: str, fitted, records: int) -> str:
+    """One statement: a sensor's turn-on repeatability per axis with its error (or which axes the records miss).
+
+    From fewer records than :data:`~tak_thermo_ros.core.link.model.MIN_TURN_ON_RECORDS`: not determined, and why.
+    """
+    from tak_thermo_ros.core.link.model import MIN_TURN_ON_RECORDS, TurnOn
     variances = fitted.variances
+    held = [name for name, ok in zip('xyz', variances.determined) if not ok]
+    if records < MIN_TURN_ON_RECORDS:
+        written = f'not written ({" ".join(held)}: its offset held)' if held else 'written so'
+        return f'{SENSOR_NAMES[sensor]}: turn-on repeatability {TurnOn(None, None, records).why_not()}; {written}'
+    small, factor = _reader(sensor)
     values = ' '.join('-' if not ok else f'{numbers(v * factor, 3)}+-{numbers(e * factor, 2)}'
                       for v, e, ok in zip(variances.turn_on, variances.turn_on_error, variances.determined))
-    held = [name for name, ok in zip('xyz', variances.determined) if not ok]
     tail = f' ({" ".join(held)}: not determined, its offset held)' if held else ''
     return f'{SENSOR_NAMES[sensor]}: turn-on repeatability x y z {values} {small}{tail}'
 
@@ -506,11 +565,11 @@ class PoolCheck:
 
 
 def validate_records(paths: Sequence[str | os.PathLike[str]], unit, options: StreamOptions, *, gravity: float,
-                     latitude: float | None, out_of_range) -> PoolCheck:
+                     latitude: float | None, out_of_range, say: Callable[[str], None] | None = None) -> PoolCheck:
     """The rests of a pool's records before and after ``unit`` (each record read once, as for ``fit``)."""
     from tak_thermo_ros.core.link.handheld_check import check_handheld
     from tak_thermo_ros.passes.handheld import nominal_unit
-    opened = open_pool(paths, options)
+    opened = open_pool(paths, options, say=say)
     record = opened.record
     assert record is not None
     before = check_handheld(record, nominal_unit(unit), gravity=gravity, latitude=latitude, out_of_range=out_of_range)
@@ -520,7 +579,7 @@ def validate_records(paths: Sequence[str | os.PathLike[str]], unit, options: Str
 
 
 def bounded_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions, *, gravity: float,
-                 latitude: float | None, max_samples: int, unit):
+                 latitude: float | None, max_samples: int, unit, say: Callable[[str], None] | None = None):
     """``diagnose`` of a pool: the rests' samples with their references, each record's own offset taken off.
 
     The references are a hand-held record's (gravity along each rest's corrected up direction, zero
@@ -533,7 +592,7 @@ def bounded_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions
     from tak_thermo_ros.core.fit.model import residual_counts
     from tak_thermo_ros.passes.diagnose import BoundedRun
     from tak_thermo_ros.passes.handheld import rest_samples
-    opened = open_pool(paths, options, samples=max_samples)
+    opened = open_pool(paths, options, samples=max_samples, say=say)
     record = opened.record
     assert record is not None
     samples, check = rest_samples(record, unit, gravity=gravity, latitude=latitude)

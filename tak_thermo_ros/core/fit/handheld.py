@@ -1363,14 +1363,22 @@ def _pooled_gyro(problem: _GyroProblem, gyro: _Solved, turns: _TurnRows, turn_sc
 
 
 def _with_turn_on(calibration: Calibration, fitted: TurnOnFit, records: int) -> Calibration:
-    """The calibration with its ``turn_on`` section when every axis's spread is determined, else a note why not."""
-    from tak_thermo_ros.core.link.model import TurnOn
+    """The calibration with its ``turn_on`` section when every axis's spread is determined, else a note why not.
+
+    From fewer than :data:`~tak_thermo_ros.core.link.model.MIN_TURN_ON_RECORDS` records the section says
+    ``not determined`` (and a note why).
+    """
+    from tak_thermo_ros.core.link.model import MIN_TURN_ON_RECORDS, TurnOn
     variances = fitted.variances
     if not np.all(variances.determined):
         held = ' '.join(name for name, ok in zip(AXES, variances.determined) if not ok)
         note = (f'turn_on not written: the records do not determine the turn-on offset on {held} '
                 f'(its offset is held)')
         return replace(calibration, notes=(*calibration.notes, note))
+    if records < MIN_TURN_ON_RECORDS:  # a spread of so few values is known to orders of magnitude: not written
+        turn_on = TurnOn(repeatability=None, repeatability_error=None, records=records)
+        note = f'turn_on {turn_on.why_not()}'
+        return replace(calibration, turn_on=turn_on, notes=(*calibration.notes, note))
     turn_on = TurnOn(repeatability=tuple(float(v) for v in variances.turn_on),  # type: ignore[arg-type]
                      repeatability_error=tuple(float(e) if np.isfinite(e) else 0.0  # type: ignore[arg-type]
                                                for e in variances.turn_on_error),

@@ -89,7 +89,8 @@ SLOPE_SPAN_C = 1.0
 """The slope alternative is tested once the rests span at least this many degrees C."""
 TURN_ON_SIGMAS = 5.0
 """A run's turn-on offset is taken (``turn_on: first_rest``) within this many standard deviations
-of the repeatability (and the rest's own noise); beyond, it is no turn-on offset but a changed curve."""
+of the repeatability (and the rest's own noise); beyond, it is not taken, and the line says by how much
+(what moved it, the watch's tests tell: the offset alone cannot)."""
 OUTLIER_SIGMAS = 4.0
 """Learning leaves out a rest whose innovation lies beyond this many standard deviations."""
 OUTLIERS_IN_A_ROW = 3
@@ -571,7 +572,7 @@ class CalibrationWatch:
         self.reference = learner.reference if learner is not None else float(unit.gyro.temp_code_ref)  # type: ignore
         """The temperature the adjustment's slope is counted from."""
         self._pairs: dict[tuple[int, int, int], float] = {}
-        self._turn_on_sd = tuple(unit.sensor(sensor).turn_on for sensor in ('accel', 'gyro'))
+        self._turn_on_sd = tuple(unit.sensor(sensor).known_turn_on for sensor in ('accel', 'gyro'))
         if learner is not None:
             self._set_adjustment(learner.adjustment())
         self._block_adjustment = self.adjustment
@@ -856,7 +857,7 @@ class CalibrationWatch:
                 gyro_taken.append(f'{"xyz"[channel]} {residual * DEG_PER_H:+.3g}')
             else:
                 refused.append(f'gyro {"xyz"[channel]} {residual * DEG_PER_H:+.4g} deg/h ({abs(residual) / sigma:.1f} '
-                               f'sigma)')
+                               f'sigma; repeatability {gyro_sd.repeatability[channel] * DEG_PER_H:.3g})')
         if gyro_taken:
             taken.append(f'gyro {" ".join(gyro_taken)} deg/h')
         if accel_sd is not None and self.gravity_known:
@@ -870,13 +871,14 @@ class CalibrationWatch:
                     offset[axis] = size
                     taken.append(text)
                 else:
-                    refused.append(f'{text} ({abs(size) / sigma:.1f} sigma)')
+                    refused.append(f'{text} ({abs(size) / sigma:.1f} sigma; repeatability '
+                                   f'{accel_sd.repeatability[axis] * MG:.3g})')
         self.turn_on_offset = offset
         if taken:
             self.turn_on_lines.append(f'turn-on offset taken at rest 1: {"; ".join(taken)}')
         if refused:
-            self.turn_on_lines.append(f'turn-on offset not taken, beyond {TURN_ON_SIGMAS:g} sigma of the repeatability '
-                                      f'(a changed curve): {"; ".join(refused)}')
+            self.turn_on_lines.append(f'turn-on offset not taken at rest 1, beyond {TURN_ON_SIGMAS:g} sigma of the '
+                                      f'file\'s repeatability and the rest\'s noise: {"; ".join(refused)}')
         self.notices.extend(self.turn_on_lines)
         self._set_adjustment((tuple(float(v) for v in offset), (0.0,) * 6))
 
@@ -965,6 +967,8 @@ def turn_on_unavailable(unit: UnitCalibration) -> str:
     if unit.gyro is not None and unit.gyro.turn_on is None:
         return ('gyro turn_on section (the turn-on repeatability, fitted from several records: '
                 'tak_calib fit REC REC ...)')
+    if unit.gyro is not None and unit.gyro.known_turn_on is None:
+        return f'gyro turn-on repeatability ({unit.gyro.turn_on.why_not()})'  # type: ignore[union-attr]
     return ''
 
 
@@ -1118,7 +1122,7 @@ class Learner:
         if not self.start.original:
             self.start = replace(self.start, reference=reference, original=calibration_digest(self.unit))
         self.reference = self.start.reference
-        turn_on = gyro.turn_on
+        turn_on = gyro.known_turn_on
         self.repeatability = np.array(turn_on.repeatability) if turn_on is not None else None
         low, high = gyro.temp_code_min, gyro.temp_code_max
         grid = np.linspace(low - gyro.temp_code_ref, high - gyro.temp_code_ref, 201)
