@@ -133,15 +133,17 @@ class _Head:
     counts: object
 
 
-def record_identity(path: str | os.PathLike[str], *, topics) -> RecordIdentity | None:
+def record_identity(path: str | os.PathLike[str], *, topics, streams=None) -> RecordIdentity | None:
     """A record's :class:`RecordIdentity` from its stream counts and its first block; ``None``: it cannot be read.
 
     Reads :data:`IDENTITY_SAMPLES` messages, not the record (a record that cannot be read says why when read).
+
+    :param streams: its :func:`record_streams`, when known.
     """
     from tak_thermo_ros.core.records.provenance import PrintCollector
     from tak_thermo_ros.errors import TakError
     try:
-        streams = record_streams(path, topics=topics)
+        streams = streams if streams is not None else record_streams(path, topics=topics)
         blocks = record_blocks(path, topics=topics, kind=streams.kind, block_samples=IDENTITY_SAMPLES,
                                references=False, progress=False)
         try:

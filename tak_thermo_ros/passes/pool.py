@@ -122,20 +122,32 @@ def same_how(path: str | os.PathLike[str], earlier: str | os.PathLike[str], cont
 
 
 def distinct_records(records: Sequence[Path], topics, spelled: Sequence[str] | None = None
-                     ) -> tuple[list[int], list[str]]:
+                     ) -> tuple[list[int], list[str], list]:
     """The records that are not a second copy of an earlier one, by content (:func:`record_identity`).
 
     A record given twice (another spelling of its path, a link, a copy, a bag's ``.mcap`` beside its
     folder, one flight as ``.ulg`` and ``.bin``) is one power-up: counted once, the second named.
 
-    :returns: the indices of the records kept, and one line per second copy.
+    Only records of the same message count are read for their identity (the others cannot be the same).
+
+    :returns: the indices of the records kept, one line per second copy, and each record's
+        :func:`~tak_thermo_ros.formats.records.record_streams` (``None``: unreadable, said when it is read).
     """
-    from tak_thermo_ros.formats.records import record_identity
+    from tak_thermo_ros.formats.records import record_identity, record_streams
     names = list(spelled) if spelled is not None else [str(path) for path in records]
+    counted = []
+    for path in records:
+        try:
+            streams = record_streams(path, topics=topics)
+        except TakError:  # unreadable: said when it is read
+            streams = None
+        counted.append(streams)
+    counts = Counter((s.kind, s.main) for s in counted if s is not None)
     first: dict[object, int] = {}
     kept, lines = [], []
-    for index, path in enumerate(records):
-        identity = record_identity(path, topics=topics)
+    for index, (path, streams) in enumerate(zip(records, counted)):
+        alone = streams is None or counts[streams.kind, streams.main] == 1
+        identity = None if alone else record_identity(path, topics=topics, streams=streams)
         key = identity if identity is not None else ('path', os.path.realpath(path))
         if key in first:
             earlier = first[key]
@@ -144,7 +156,7 @@ def distinct_records(records: Sequence[Path], topics, spelled: Sequence[str] | N
             continue
         first[key] = index
         kept.append(index)
-    return kept, lines
+    return kept, lines, counted
 
 
 def is_pool(paths: Sequence[str | os.PathLike[str]]) -> bool:
@@ -220,13 +232,16 @@ def _shared(blocks: Iterator[DriverRecord]) -> Iterator[tuple[DriverRecord, bool
                            frame_id=block.frame_id), True
 
 
-def read_record(path: Path, options: StreamOptions, *, budget: int,
-                turn_budget: int | None = None) -> tuple[PoolEntry, HandheldRecord | None]:
-    """One record of a pool: its rests and turns (about ``budget`` and ``turn_budget`` samples at most), and more."""
+def read_record(path: Path, options: StreamOptions, *, budget: int, turn_budget: int | None = None,
+                streams=None) -> tuple[PoolEntry, HandheldRecord | None]:
+    """One record of a pool: its rests and turns (about ``budget`` and ``turn_budget`` samples at most), and more.
+
+    :param streams: its :func:`~tak_thermo_ros.formats.records.record_streams`, when known.
+    """
     from tak_thermo_ros.formats.records import record_blocks, record_lines, record_source, record_streams
     name = path.name
     try:
-        streams = record_streams(path, topics=options.topics)
+        streams = streams if streams is not None else record_streams(path, topics=options.topics)
     except TakError as err:
         return PoolEntry(path, name, reason=f'not read ({err})'), None
     if streams.kind is not InputKind.IMU:
@@ -385,16 +400,16 @@ def open_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions, *
     :raises PoolError: a path that is no record, no record that contributes a rest.
     """
     records, lines = record_paths(paths)
-    kept, same = distinct_records(records, options.topics, _spelled(paths, records))
-    records, lines = [records[i] for i in kept], lines + same
+    kept, same, streams = distinct_records(records, options.topics, _spelled(paths, records))
+    records, streams, lines = [records[i] for i in kept], [streams[i] for i in kept], lines + same
     for line in lines if say is not None else ():
         say(line)
     budget, turn_budget = record_budgets(len(records), samples)
     entries: list[PoolEntry] = []
     read: list[HandheldRecord | None] = []
     names = Counter(path.name for path in records)
-    for path in records:
-        entry, record = read_record(path, options, budget=budget, turn_budget=turn_budget)
+    for path, known in zip(records, streams):
+        entry, record = read_record(path, options, budget=budget, turn_budget=turn_budget, streams=known)
         if names[path.name] > 1:  # the same name in two directories: the path tells them apart
             entry = replace(entry, name=str(path))
         entries.append(entry)
