@@ -82,7 +82,7 @@ import numpy as np
 import yaml
 
 from tak_thermo_ros.formats.files import write_text_atomic  # noqa: F401 (re-exported: one writer of text files)
-from tak_thermo_ros.formats.files import check_finite, unreadable
+from tak_thermo_ros.formats.files import check_finite, read_regular_bytes, unreadable
 from tak_thermo_ros.core.link.model import (
     AXES,
     CALIBRATION_VERSION,
@@ -106,7 +106,7 @@ from tak_thermo_ros.core.link.model import (
 from tak_thermo_ros.core.records.provenance import RecordPrint
 from tak_thermo_ros.core.noise.model import NoiseModel, noise_model_from_mapping
 from tak_thermo_ros.core.values import finite_number
-from tak_thermo_ros.errors import CalibrationError, FitError, NoiseError
+from tak_thermo_ros.errors import CalibrationError, FitError, NoiseError, TakError
 
 NODE_NAME = 'compensator'
 NODE_KEY = f'/**/{NODE_NAME}'
@@ -807,14 +807,11 @@ def load_unit_parameters(path: str | os.PathLike[str], *,
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding='utf-8')
+        text = read_regular_bytes(path, 'calibration file', CalibrationError).decode('utf-8')
     except FileNotFoundError:
         if missing_ok:
             return None
         msg = f'{path}: no such calibration file'
-        raise CalibrationError(msg) from None
-    except IsADirectoryError:
-        msg = f'{path}: is a directory, not a calibration file'
         raise CalibrationError(msg) from None
     except (OSError, UnicodeDecodeError) as err:
         msg = f'{path}: cannot read calibration file ({getattr(err, "strerror", None) or err})'
@@ -822,7 +819,7 @@ def load_unit_parameters(path: str | os.PathLike[str], *,
     try:
         parameters = calibration_section(parse_parameters_yaml(text))
         _check_uniform_lists(parameters['calibration'], 'calibration')
-        return unit_from_mapping(parameters['calibration']), parameters
+        unit = unit_from_mapping(parameters['calibration'])
     except yaml.YAMLError as err:
         mark = getattr(err, 'problem_mark', None)
         where = f' at line {mark.line + 1}' if mark is not None else ''
@@ -834,6 +831,13 @@ def load_unit_parameters(path: str | os.PathLike[str], *,
     except (RecursionError, ValueError) as err:  # nested beyond Python's stack; an integer of 4,300+ digits
         msg = f'{path}: not a calibration file ({unreadable(err)})'
         raise CalibrationError(msg) from None
+    from tak_thermo_ros.formats.learned_file import LEARNED_KEY, learned_section
+    if LEARNED_KEY in parameters:  # a learned file: its corrections judged as the node applies them
+        try:
+            learned_section(unit, parameters[LEARNED_KEY], str(path))
+        except TakError as err:
+            raise CalibrationError(str(err)) from None
+    return unit, parameters
 
 
 def load_calibration(path: str | os.PathLike[str]) -> Calibration:

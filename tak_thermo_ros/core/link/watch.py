@@ -104,6 +104,8 @@ VERTICAL_AXIS_COSINE = math.cos(math.radians(30.0))
 OFFSET_BOUND_SIGMAS = 6.0
 """Learning bounds a gyroscope axis's offset correction to this many turn-on repeatabilities
 (or, without one, to the offset curve's own span over the calibrated range)."""
+VARIANCE_BOUNDS = 1000.0
+"""A learned correction's variance read back is at most the square of this many bounds (a spread, not a value)."""
 SLOPE_PRIOR_SHARE = 0.5
 """The prior of a slope correction: its standard deviation is this share of the curve's largest slope."""
 CHANNELS = ('gyro x', 'gyro y', 'gyro z', 'accel')
@@ -1140,12 +1142,45 @@ class Learner:
             self.offset_bound = np.maximum(self.offset_bound, OFFSET_BOUND_SIGMAS * self.repeatability)
         self.offset_prior = self.offset_bound / 2.0
         """The prior of the persistent offset correction before any run: the curve may have moved by this much."""
+        self._check_start(gyro)
         self._filters = []
         for axis in range(3):
             persistent = self.start.offset_variance[axis] if self.start.runs else self.offset_prior[axis] ** 2
             offset_variance = (self.repeatability[axis] ** 2 if self.repeatability is not None else 0.0) + persistent
             slope_variance = (self.start.slope_variance[axis] if self.start.runs else self.slope_prior[axis] ** 2)
             self._filters.append(_AxisFilter(np.zeros(2), np.diag([offset_variance, slope_variance])))
+
+    @property
+    def total_offset_bound(self) -> np.ndarray:
+        """``(3,)`` the largest offset correction learning keeps (rad/s): the curve's, and a run's own turn-on."""
+        return self.offset_bound + (TURN_ON_SIGMAS * self.repeatability if self.repeatability is not None else 0.0)
+
+    def _check_start(self, gyro: Calibration) -> None:
+        """What earlier runs learned, within the bounds learning keeps on this calibration (as read, as learned).
+
+        :raises TakError: one line naming the value and the bound (a hand-edited or foreign learned file).
+        """
+        start = self.start
+        low, high = gyro.temp_code_min, gyro.temp_code_max
+        if not low - 1e-9 <= start.reference <= high + 1e-9:
+            msg = (f'learned.reference: {start.reference:.6g} C lies outside the calibration\'s range '
+                   f'{low:.4g}..{high:.4g} C: not applied')
+            raise TakError(msg)
+        bounds = (('offset', 'deg/h', self.total_offset_bound), ('slope', 'deg/h/C', self.slope_bound))
+        for name, unit, bound in bounds:
+            values, variances = getattr(start, name), getattr(start, f'{name}_variance')
+            for axis in range(3):
+                # the learning clips at the bound itself: a value read back is within it (float for float)
+                limit = float(bound[axis]) * (1.0 + 1e-9)
+                if abs(values[axis]) > limit:
+                    msg = (f'learned.{name}[{axis}]: {values[axis] * DEG_PER_H:+.4g} {unit} lies beyond the bound '
+                           f'learning keeps on this calibration, +-{bound[axis] * DEG_PER_H:.4g} {unit}: not applied')
+                    raise TakError(msg)
+                if variances[axis] > (VARIANCE_BOUNDS * limit) ** 2:  # no filter's spread grows so: not a value
+                    msg = (f'learned.{name}_variance[{axis}]: a spread of {math.sqrt(variances[axis]) * DEG_PER_H:.4g} '
+                           f'{unit} lies beyond {VARIANCE_BOUNDS:g} times the bound learning keeps on this '
+                           f'calibration ({bound[axis] * DEG_PER_H:.4g} {unit}): not applied')
+                    raise TakError(msg)
 
     def start_curve(self, temperature: float) -> np.ndarray:
         """``(3,)`` the learned correction in force at the run's start, at a temperature."""
@@ -1196,8 +1231,7 @@ class Learner:
             covariance = keep @ axis_filter.covariance @ keep.T + np.outer(gain, gain) * noise
             axis_filter.covariance = 0.5 * (covariance + covariance.T)
             total_offset = self.start.offset[axis] + axis_filter.state[0]
-            bound = self.offset_bound[axis] + (TURN_ON_SIGMAS * self.repeatability[axis]
-                                               if self.repeatability is not None else 0.0)
+            bound = self.total_offset_bound[axis]
             axis_filter.state[0] = float(np.clip(total_offset, -bound, bound)) - self.start.offset[axis]
             total_slope = self.start.slope[axis] + axis_filter.state[1]
             axis_filter.state[1] = float(np.clip(total_slope, -self.slope_bound[axis], self.slope_bound[axis])) \
