@@ -114,6 +114,7 @@ class RecordIdentity:
 
     :param kind: the paper's channel codes or a driver's Imu.
     :param messages: messages on its main stream (the counts or Imu topic; a flight log's accelerometer).
+    :param end_ns: when its last message was logged (a bag's log time; a flight log's last stamp).
     :param first_stamp_ns: its first sample's stamp.
     :param digest: SHA-256 (32 hex digits) of its first :data:`IDENTITY_SAMPLES` samples of each sensor as
         read (stamps and values: :class:`~tak_thermo_ros.core.records.provenance.PrintCollector`).
@@ -121,6 +122,7 @@ class RecordIdentity:
 
     kind: str
     messages: int
+    end_ns: int
     first_stamp_ns: int
     digest: str
 
@@ -134,7 +136,7 @@ class _Head:
 
 
 def record_identity(path: str | os.PathLike[str], *, topics, streams=None) -> RecordIdentity | None:
-    """A record's :class:`RecordIdentity` from its stream counts and its first block; ``None``: it cannot be read.
+    """A record's :class:`RecordIdentity` from its streams and its first block; ``None``: it cannot be read.
 
     Reads :data:`IDENTITY_SAMPLES` messages, not the record (a record that cannot be read says why when read).
 
@@ -163,5 +165,5 @@ def record_identity(path: str | os.PathLike[str], *, topics, streams=None) -> Re
     head = collector.finish(str(path))
     if head is None:
         return None
-    return RecordIdentity(kind=streams.kind.value, messages=int(streams.main), first_stamp_ns=head.first_stamp_ns,
-                          digest=head.digest)
+    return RecordIdentity(kind=streams.kind.value, messages=int(streams.main), end_ns=int(streams.end_ns),
+                          first_stamp_ns=head.first_stamp_ns, digest=head.digest)

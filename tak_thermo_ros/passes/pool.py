@@ -128,7 +128,8 @@ def distinct_records(records: Sequence[Path], topics, spelled: Sequence[str] | N
     A record given twice (another spelling of its path, a link, a copy, a bag's ``.mcap`` beside its
     folder, one flight as ``.ulg`` and ``.bin``) is one power-up: counted once, the second named.
 
-    Only records of the same message count are read for their identity (the others cannot be the same).
+    Only records of the same message count and last log time are read for their identity (the others
+    cannot be the same).
 
     :returns: the indices of the records kept, one line per second copy, and each record's
         :func:`~tak_thermo_ros.formats.records.record_streams` (``None``: unreadable, said when it is read).
@@ -142,11 +143,11 @@ def distinct_records(records: Sequence[Path], topics, spelled: Sequence[str] | N
         except TakError:  # unreadable: said when it is read
             streams = None
         counted.append(streams)
-    counts = Counter((s.kind, s.main) for s in counted if s is not None)
+    counts = Counter((s.kind, s.main, s.end_ns) for s in counted if s is not None)
     first: dict[object, int] = {}
     kept, lines = [], []
     for index, (path, streams) in enumerate(zip(records, counted)):
-        alone = streams is None or counts[streams.kind, streams.main] == 1
+        alone = streams is None or counts[streams.kind, streams.main, streams.end_ns] == 1
         identity = None if alone else record_identity(path, topics=topics, streams=streams)
         key = identity if identity is not None else ('path', os.path.realpath(path))
         if key in first:
@@ -177,6 +178,7 @@ class PoolEntry:
     :param lines: what the reader did (a firmware's corrections undone, ...).
     :param reason: why it contributes nothing or was left out (``''``: pooled).
     :param held_gyro: the gyroscope was held on the accelerometer's stamps (a log of separate stamps).
+    :param stamps_back: how often its stamps go back in log order, and by how much at most (seconds).
     """
 
     path: Path
@@ -193,6 +195,7 @@ class PoolEntry:
     rest_trends: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     temperature_rate_max: float = 0.0
     rate_max: float = 0.0
+    stamps_back: tuple[int, float] = (0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -262,8 +265,10 @@ def read_record(path: Path, options: StreamOptions, *, budget: int, turn_budget:
     kept: list[tuple[DriverRecord, bool]] = []
     held_gyro = False
     temperature_stamps, temperatures = [], []
+    back = _StampsBack()
     for block, held in blocks():
         held_gyro = held_gyro or held
+        back.add(block.stamp_ns)
         survey.add(block)
         temperature_stamps.append(block.temp_stamp_ns)
         temperatures.append(block.temperature)
@@ -299,8 +304,28 @@ def read_record(path: Path, options: StreamOptions, *, budget: int, turn_budget:
                       temperature=(float(record.still.temp_code.min()), float(record.still.temp_code.max())),
                       orientations=still.orientations(), source=source, lines=lines, held_gyro=held_gyro,
                       rest_temperatures=temperatures, rest_trends=trends,
-                      temperature_rate_max=course.rate_max, rate_max=rate_max)
+                      temperature_rate_max=course.rate_max, rate_max=rate_max,
+                      stamps_back=(back.count, back.most_s))
     return entry, record
+
+
+class _StampsBack:
+    """How often a record's stamps go back in log order (a clock reset, a log spliced), and by how much."""
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.most_s = 0.0
+        self._last: int | None = None
+
+    def add(self, stamps: np.ndarray) -> None:
+        if not len(stamps):
+            return
+        steps = np.diff(stamps) if self._last is None else np.diff(stamps, prepend=self._last)
+        back = steps[steps < 0]
+        if len(back):
+            self.count += len(back)
+            self.most_s = max(self.most_s, float(-back.min()) * 1e-9)
+        self._last = int(stamps[-1])
 
 
 TRACK_S = 1.0
@@ -435,8 +460,11 @@ def entry_line(entry: PoolEntry) -> str:
         return f'{entry.name}: {entry.reason}'
     low, high = entry.temperature  # type: ignore[misc]
     held = ', gyroscope held on the accelerometer\'s stamps (rests only)' if entry.held_gyro else ''
+    count, most = entry.stamps_back
+    times = 'once' if count == 1 else f'{count} times'
+    back = f'; its stamps go back {times} (by up to {most:.3g} s): no rest spans a jump' if count else ''
     return (f'{entry.name}: {entry.rests} rests, {entry.rest_s / 60.0:.1f} min at rest, {low:.1f}..{high:.1f} C, '
-            f'{entry.orientations} orientation{"s" if entry.orientations != 1 else ""}{held}')
+            f'{entry.orientations} orientation{"s" if entry.orientations != 1 else ""}{held}{back}')
 
 
 def _record_lines(entry: PoolEntry) -> list[str]:

@@ -278,7 +278,9 @@ class RestFinder:
         period = int(np.median(np.diff(measured)))
         self.period_ns = period
         self.window_ns = max(int(WINDOW_S * 1e9), MIN_WINDOW_SAMPLES * period)
-        self._min_samples = max(MIN_WINDOW_SAMPLES, int(0.5 * self.window_ns / period))
+        # a window that lost a sample or two (a non-finite message dropped) is still judged: at a low rate
+        # it holds MIN_WINDOW_SAMPLES, and one missing would end every rest it falls in (2 % of them: most)
+        self._min_samples = max(MIN_WINDOW_SAMPLES * 3 // 4, int(0.5 * self.window_ns / period))
         window_s = self.window_ns * 1e-9
         self._sigma2 = np.concatenate([window_variance(noise, period * 1e-9, window_s) for noise in self._noise])
         self._sigma = np.maximum(np.sqrt(self._sigma2), 1e-300)
