@@ -225,10 +225,16 @@ def test_fit_fleet_takes_a_directory_of_records_per_unit(month, capsys, tmp_path
              'gyro_unit': {'x': {'offset': 0.0121}}}
     write_month(tmp_path / 'unitB', other, range(3))
     out = tmp_path / 'fleet'
-    status = cli.main(['fit-fleet', str(root / 'pool'), str(tmp_path / 'unitB'), '-o', str(out), '--workers', '1'])
-    assert status == 0, capsys.readouterr()
+    (tmp_path / 'unitlink').symlink_to(tmp_path / 'unitB')  # a unit given twice: named, counted once (issue 44)
+    status = cli.main(['fit-fleet', str(root / 'pool'), str(tmp_path / 'unitB'), str(tmp_path / 'unitlink'), '-o',
+                       str(out), '--workers', '1'])
+    said = capsys.readouterr()
+    assert status == 0, said
+    from tak_thermo_ros.cli.common import unwrap
+    assert (f'{tmp_path / "unitlink"}: the same unit as {tmp_path / "unitB"} (through a link): counted once'
+            in unwrap(said.out)), said.out
     rows = {row['unit']: row for row in json.loads((out / 'fleet.json').read_text())['units']}
-    assert {row['status'] for row in rows.values()} == {'ok'}
+    assert len(rows) == 2 and {row['status'] for row in rows.values()} == {'ok'}
     assert load_unit(out / 'units' / 'unitB' / 'params.yaml').gyro.turn_on.records == 3
     (tmp_path / 'alone').mkdir()
     alone = tmp_path / 'alone' / 'params.yaml'
