@@ -351,6 +351,7 @@ def test_the_node_refuses_a_fifo_or_an_unbounded_learned_file_at_start(five, tmp
     os.mkfifo(fifo)
     bad = _learned(tmp_path / 'bad.yaml', load_unit(five), offset=[1.0e300, 0.0, 0.0])
     cases = ((['--params-file', str(fifo)], f'--params-file {fifo}: is a FIFO (named pipe): only a regular file'),
+             (['-p', f'calibration_file:={fifo}'], f'{fifo}: is a FIFO (named pipe), not a calibration file'),
              (['--params-file', str(five), '-p', 'learn:=true', '-p', f'learned_file:={fifo}'],
               f'{fifo}: is a FIFO (named pipe), not a calibration file'),
              (['--params-file', str(five), '-p', 'learn:=true', '-p', f'learned_file:={bad}'],
