@@ -424,10 +424,11 @@ def open_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions, *
         (:attr:`OpenedPool.lines`), each record's once it is read, a record's changed by the checks after.
     :raises PoolError: a path that is no record, no record that contributes a rest.
     """
+    say = say or (lambda line: None)
     records, lines = record_paths(paths)
     kept, same, streams = distinct_records(records, options.topics, _spelled(paths, records))
     records, streams, lines = [records[i] for i in kept], [streams[i] for i in kept], lines + same
-    for line in lines if say is not None else ():
+    for line in lines:
         say(line)
     budget, turn_budget = record_budgets(len(records), samples)
     entries: list[PoolEntry] = []
@@ -439,10 +440,10 @@ def open_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions, *
             entry = replace(entry, name=str(path))
         entries.append(entry)
         read.append(record)
-        for line in _record_lines(entry) if say is not None else ():
+        for line in _record_lines(entry):
             say(line)
     checked = _restless(_device_check(entries), read)
-    for before, after in zip(entries, checked) if say is not None else ():
+    for before, after in zip(entries, checked):
         if after.reason != before.reason:
             say(entry_line(after))
     entries = checked

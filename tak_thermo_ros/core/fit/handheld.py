@@ -402,15 +402,10 @@ def _solve(system: _System, held: dict[int, float], width: int, *, rows: int | N
     theta[free] = solution.coefficients
     dof = max((system.count if rows is None else rows) - len(free), 1)
     variance = (solution.rss + extra_rss) / dof
-    singular = solution.singular
-    _, _, vt = np.linalg.svd(solution.scaled)
-    keep = singular > NULL_RELATIVE * singular[0] if len(singular) else np.zeros(0, dtype=bool)
-    inverse = (vt[keep].T / singular[keep] ** 2) @ vt[keep]
-    covariance = variance * inverse / np.outer(solution.norms, solution.norms)
-    null_leverage = np.sum(vt[~keep] ** 2, axis=0)
+    inverse, null_leverage = _inverses(solution)
+    covariance = variance * inverse
     covariance[np.diag_indices_from(covariance)] = np.where(null_leverage > NULL_LEVERAGE, np.inf,
                                                             np.diag(covariance))
-    inverse = inverse / np.outer(solution.norms, solution.norms)
     return _Solved(theta, free, covariance, dict(held), solution, dof, inverse)
 
 
@@ -574,15 +569,6 @@ class _Rests:
         self.shared_terms = replace(terms, records=1)
         """The terms without the records' columns: a pool's shared columns, in the layout's order."""
         self.shared_layout = self.shared_terms.layout()
-
-    def system_of(self, rows: np.ndarray, record: np.ndarray) -> _System | RecordSystem:
-        """The triangular factor of weighted rows ``(n, W + 1)`` and the prior rows (``record``: each row's record).
-
-        A pool's is a :class:`RecordSystem` (its records' turn-on columns apart: linear in the records).
-        """
-        if self.columns is None:
-            return _System.of_rows([rows, self.prior_rows()], self.layout.width)
-        return self.pool_system(*self.columns.split(rows, record), record)
 
     def pool_system(self, shared: np.ndarray, slots: np.ndarray, record: np.ndarray) -> RecordSystem:
         """A pool's :class:`RecordSystem` of rows given apart (``[X_s | y]``, the turn-on slots) and the prior rows."""
@@ -922,8 +908,8 @@ class _GyroProblem:
         force = earth_reference(self.up, self.rests.interval, self.latitude)
         if self.rests.columns is None:
             design, target = self.rests.design(force)
-            return self.rests.system_of(np.column_stack([design.reshape(-1, self.layout.width), target.reshape(-1)]),
-                                        np.repeat(self.rests.row_record, 3))
+            return _System.of_rows([np.column_stack([design.reshape(-1, self.layout.width), target.reshape(-1)]),
+                                    self.rests.prior_rows()], self.layout.width)
         shared, slots, target = self.rests.split_design(force)
         rows = np.concatenate([shared, target[:, :, None]], axis=2).reshape(-1, shared.shape[2] + 1)
         return self.rests.pool_system(rows, slots.reshape(-1, 3), np.repeat(self.rests.row_record, 3))

@@ -1169,19 +1169,19 @@ class Learner:
                    f'{low:.4g}..{high:.4g} C: not applied')
             raise TakError(msg)
         bounds = (('offset', 'deg/h', self.total_offset_bound), ('slope', 'deg/h/C', self.slope_bound))
-        for name, unit, bound in bounds:
+        for name, units, bound in bounds:
             values, variances = getattr(start, name), getattr(start, f'{name}_variance')
             for axis in range(3):
                 # the learning clips at the bound itself: a value read back is within it (float for float)
                 limit = float(bound[axis]) * (1.0 + 1e-9)
                 if abs(values[axis]) > limit:
-                    msg = (f'learned.{name}[{axis}]: {values[axis] * DEG_PER_H:+.4g} {unit} lies beyond the bound '
-                           f'learning keeps on this calibration, +-{bound[axis] * DEG_PER_H:.4g} {unit}: not applied')
+                    msg = (f'learned.{name}[{axis}]: {values[axis] * DEG_PER_H:+.4g} {units} lies beyond the bound '
+                           f'learning keeps on this calibration, +-{bound[axis] * DEG_PER_H:.4g} {units}: not applied')
                     raise TakError(msg)
                 if variances[axis] > (VARIANCE_BOUNDS * limit) ** 2:  # no filter's spread grows so: not a value
                     msg = (f'learned.{name}_variance[{axis}]: a spread of {math.sqrt(variances[axis]) * DEG_PER_H:.4g} '
-                           f'{unit} lies beyond {VARIANCE_BOUNDS:g} times the bound learning keeps on this '
-                           f'calibration ({bound[axis] * DEG_PER_H:.4g} {unit}): not applied')
+                           f'{units} lies beyond {VARIANCE_BOUNDS:g} times the bound learning keeps on this '
+                           f'calibration ({bound[axis] * DEG_PER_H:.4g} {units}): not applied')
                     raise TakError(msg)
 
     def start_curve(self, temperature: float) -> np.ndarray:
