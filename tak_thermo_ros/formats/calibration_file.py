@@ -788,6 +788,10 @@ def calibration_section(document: Any) -> Mapping[str, Any]:
     raise CalibrationError(msg)
 
 
+LEARNED_KEY = 'learned'
+"""The parameter beside ``calibration`` that holds the learning's state (a learned file)."""
+
+
 def load_unit(path: str | os.PathLike[str]) -> UnitCalibration:
     """Read and validate a calibration parameters YAML of either version.
 
@@ -831,10 +835,11 @@ def load_unit_parameters(path: str | os.PathLike[str], *,
     except (RecursionError, ValueError) as err:  # nested beyond Python's stack; an integer of 4,300+ digits
         msg = f'{path}: not a calibration file ({unreadable(err)})'
         raise CalibrationError(msg) from None
-    from tak_thermo_ros.formats.learned_file import LEARNED_KEY, learned_section
     if LEARNED_KEY in parameters:  # a learned file: its corrections judged as the node applies them
+        from tak_thermo_ros.core.link.watch import LearnedState, check_learned
         try:
-            learned_section(unit, parameters[LEARNED_KEY], str(path))
+            check_learned(unit, LearnedState.from_mapping(parameters[LEARNED_KEY], f'{path}: {LEARNED_KEY}'),
+                          str(path))
         except TakError as err:
             raise CalibrationError(str(err)) from None
     return unit, parameters

@@ -12,15 +12,11 @@ that the next run goes on from them and never applies them to another calibratio
 from __future__ import annotations
 
 import os
-from dataclasses import replace
 
-from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
-from tak_thermo_ros.core.link.watch import LearnedState, Learner, calibration_digest, learned_unit
+from tak_thermo_ros.core.link.model import UnitCalibration
+from tak_thermo_ros.core.link.watch import LearnedState, calibration_digest, check_learned, learned_unit
 from tak_thermo_ros.errors import TakError
-from tak_thermo_ros.formats.calibration_file import load_unit_parameters, save_unit
-
-LEARNED_KEY = 'learned'
-"""The parameter beside ``calibration`` that holds the learning's state."""
+from tak_thermo_ros.formats.calibration_file import LEARNED_KEY, load_unit_parameters, save_unit  # noqa: F401
 
 
 def save_learned(path: str | os.PathLike[str], original: UnitCalibration, state: LearnedState, *,
@@ -36,7 +32,8 @@ def load_learned(path: str | os.PathLike[str], unit: UnitCalibration | None = No
     """The learning's state in a learned file, or ``None`` when the file does not exist.
 
     :param unit: the calibration the node applies it on: its corrections are judged against the bounds
-        learning keeps on it (:func:`check_learned`), unless they were learned on another calibration
+        learning keeps on it (:func:`~tak_thermo_ros.core.link.watch.check_learned`), unless they were
+        learned on another calibration
         (then they are not applied: learning starts afresh).
     :raises TakError: one line naming the file, when it exists but is no learned file, or its corrections
         lie beyond the bounds.
@@ -52,28 +49,4 @@ def load_learned(path: str | os.PathLike[str], unit: UnitCalibration | None = No
     applies = unit is not None and (not state.original or state.original == calibration_digest(unit))
     if applies:
         check_learned(unit, state, str(path))  # type: ignore[arg-type]
-    return state
-
-
-def check_learned(unit: UnitCalibration, state: LearnedState, where: str) -> None:
-    """The learned corrections within the bounds learning keeps on ``unit``: bounded where read as where learned.
-
-    Every command reads a learned file's ``learned`` section so (:func:`learned_section`), the node its
-    ``learned_file`` on its calibration (:func:`load_learned`): a correction beyond the bound (a hand-edited
-    file, ``1e300``) is refused in one line naming the bound, never applied.
-
-    :raises TakError: ``WHERE: learned.offset[0]: ... lies beyond the bound ...``.
-    """
-    if unit.input_kind is not InputKind.IMU or unit.gyro is None:
-        return
-    try:
-        Learner(unit, replace(state, original=calibration_digest(unit)))
-    except TakError as err:
-        raise TakError(f'{where}: {err}') from None
-
-
-def learned_section(unit: UnitCalibration, raw: object, where: str) -> LearnedState:
-    """A calibration file's ``learned`` section read and judged on the file's own curve (every command)."""
-    state = LearnedState.from_mapping(raw, f'{where}: {LEARNED_KEY}')  # type: ignore[arg-type]
-    check_learned(unit, state, where)
     return state

@@ -410,8 +410,10 @@ def _solve(system: _System, held: dict[int, float], width: int, *, rows: int | N
 
 
 def _inverses(solution: Solution) -> tuple[np.ndarray, np.ndarray]:
-    """``(X^T X)^-1`` of a solve (raw columns; the directions it does not see left out) and each column's
-    weight in those directions."""
+    """``(X^T X)^-1`` of a solve and each column's weight in the directions it does not see.
+
+    In the raw columns' units; the directions the solve does not see (:data:`NULL_RELATIVE`) left out.
+    """
     singular = solution.singular
     _, _, vt = np.linalg.svd(solution.scaled)
     keep = singular > NULL_RELATIVE * singular[0] if len(singular) else np.zeros(0, dtype=bool)
@@ -616,8 +618,11 @@ class _Rests:
         return _joint(designs, self.layout) * weights[:, :, None], self.counts * weights
 
     def split_design(self, force: np.ndarray, *, weighted: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """A pool's :meth:`design` apart: ``(m, 3, S)`` the shared columns, ``(m, 3, 3)`` the row's record's
-        turn-on columns (one per axis), the target ``(m, 3)``; no column per record (linear in the records)."""
+        """A pool's :meth:`design` apart: no column per record (linear in the records).
+
+        :returns: ``(m, 3, S)`` the shared columns, ``(m, 3, 3)`` the row's record's turn-on columns (one
+            per axis), the target ``(m, 3)``.
+        """
         edges = np.cumsum([self.orders, *self.widths])
         bases = [self.regressors[:, a:b] for a, b in zip(edges[:-1], edges[1:])]
         designs = self.shared_terms.designs(self.powers, force, self.counts, bases)

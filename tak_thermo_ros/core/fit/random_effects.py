@@ -398,7 +398,7 @@ class RecordSystem:
         self.count = 0
 
     def copy(self) -> RecordSystem:
-        """An independent copy (rows added to it leave this one as it is)."""
+        """Return an independent duplicate (rows added to it leave this one as it is)."""
         out = RecordSystem(self.columns)
         out.shared.factor, out.shared.count = self.shared.factor.copy(), self.shared.count
         out.factors, out.count = self.factors.copy(), self.count

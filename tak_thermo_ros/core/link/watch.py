@@ -1066,6 +1066,23 @@ def calibration_digest(unit: UnitCalibration) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+def check_learned(unit: UnitCalibration, state: LearnedState, where: str) -> None:
+    """The learned corrections within the bounds learning keeps on ``unit``: bounded where read as where learned.
+
+    Every command reads a learned file's ``learned`` section so (against the file's own curve), the node its
+    ``learned_file`` on its calibration: a correction beyond the bound (a hand-edited file, ``1e300``) is
+    refused in one line naming the bound (:meth:`Learner._check_start`), never applied.
+
+    :raises TakError: ``WHERE: learned.offset[0]: ... lies beyond the bound ...``.
+    """
+    if unit.input_kind is not InputKind.IMU or unit.gyro is None:
+        return
+    try:
+        Learner(unit, replace(state, original=calibration_digest(unit)))
+    except TakError as err:
+        raise TakError(f'{where}: {err}') from None
+
+
 def learned_unit(unit: UnitCalibration, state: LearnedState) -> UnitCalibration:
     """The calibration with the learned corrections folded into the gyroscope's curve (a file ``tak_calib`` reads).
 
