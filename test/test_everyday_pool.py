@@ -191,8 +191,9 @@ def test_another_unit_in_the_pool_is_left_out_two_units_are_refused(month, capsy
         (halves / f'rec{index:02d}').symlink_to(root / 'pool' / f'rec{index:02d}')
     write_month(halves, other, range(3), prefix='other')
     status, lines = run_cli(capsys, 'fit', str(halves), '-o', str(tmp_path / 'q.yaml'))
-    assert status == 2 and len(lines) == 1 and 'the pool looks like two units' in lines[0], lines
-    assert 'give the records of one unit' in lines[0] and not (tmp_path / 'q.yaml').exists()
+    # each record's line as it is read, then the refusal in one line
+    assert status == 2 and len(lines) == 7 and 'the pool looks like two units' in lines[-1], lines
+    assert 'give the records of one unit' in lines[-1] and not (tmp_path / 'q.yaml').exists()
 
 
 def test_flight_logs_of_another_device_are_left_out(capsys, tmp_path):
@@ -208,7 +209,8 @@ def test_flight_logs_of_another_device_are_left_out(capsys, tmp_path):
     write_month(tmp_path / 'split', raw, range(2), ulog_ids={'accel': 11, 'gyro': 12})
     write_month(tmp_path / 'split', raw, range(2, 4), ulog_ids={'accel': 11, 'gyro': 99}, prefix='b')
     status, lines = run_cli(capsys, 'fit', str(tmp_path / 'split'), '-o', str(tmp_path / 'q.yaml'))
-    assert status == 2 and len(lines) == 1 and 'devices in equal numbers' in lines[0], lines
+    assert status == 2 and 'devices in equal numbers' in lines[-1], lines
+    assert sum(1 for line in lines if line.endswith(' orientation')) == 4  # each record's line as it is read
 
 
 def test_records_without_rests_one_record_and_no_span_are_said(capsys, tmp_path):
@@ -228,8 +230,9 @@ def test_records_without_rests_one_record_and_no_span_are_said(capsys, tmp_path)
         write_driver_record(tmp_path / 'cold' / f'rec{simulated.index:02d}', bare)
         shutil.rmtree(tmp_path / 'cold' / f'x{simulated.index:02d}')
     status, lines = run_cli(capsys, 'fit', str(tmp_path / 'cold'), '-o', str(tmp_path / 'q.yaml'))
-    assert status == 2 and lines == ['tak_calib: error: no record of the 2 given holds a rest with a temperature: '
-                                     'nothing to fit']
+    assert status == 2 and lines[-1] == ('tak_calib: error: no record of the 2 given holds a rest with a temperature: '
+                                         'nothing to fit')
+    assert len(lines) == 3 and all('contributes nothing' in line for line in lines[:2]), lines
     write_month(tmp_path / 'one', MONTH, [0])
     status, lines = run_cli(capsys, 'fit', str(tmp_path / 'one'), '-o', str(tmp_path / 'one.yaml'))
     assert status == 0 and any(line.startswith('turn-on repeatability: not estimated, one record') for line in lines)
@@ -287,10 +290,16 @@ def test_fit_fleet_takes_a_directory_of_records_per_unit(month, capsys, tmp_path
              'gyro_unit': {'x': {'offset': 0.0121}}}
     write_month(tmp_path / 'unitB', other, range(3))
     out = tmp_path / 'fleet'
-    status = cli.main(['fit-fleet', str(root / 'pool'), str(tmp_path / 'unitB'), '-o', str(out), '--workers', '1'])
-    assert status == 0, capsys.readouterr()
+    (tmp_path / 'unitlink').symlink_to(tmp_path / 'unitB')  # a unit given twice: named, counted once (issue 44)
+    status = cli.main(['fit-fleet', str(root / 'pool'), str(tmp_path / 'unitB'), str(tmp_path / 'unitlink'), '-o',
+                       str(out), '--workers', '1'])
+    said = capsys.readouterr()
+    assert status == 0, said
+    from tak_thermo_ros.cli.common import unwrap
+    assert (f'{tmp_path / "unitlink"}: the same unit as {tmp_path / "unitB"} (through a link): counted once'
+            in unwrap(said.out)), said.out
     rows = {row['unit']: row for row in json.loads((out / 'fleet.json').read_text())['units']}
-    assert {row['status'] for row in rows.values()} == {'ok'}
+    assert len(rows) == 2 and {row['status'] for row in rows.values()} == {'ok'}
     assert load_unit(out / 'units' / 'unitB' / 'params.yaml').gyro.turn_on.records == 3
     (tmp_path / 'alone').mkdir()
     alone = tmp_path / 'alone' / 'params.yaml'

@@ -243,7 +243,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _pool_run(args: argparse.Namespace, unit: UnitCalibration):
     """A pool of everyday records for ``diagnose``: one line per record; the samples with each record's offset off."""
-    from tak_thermo_ros.passes.pool import bounded_pool, check_driver_unit, opened_lines
+    from tak_thermo_ros.passes.pool import bounded_pool, check_driver_unit
     check_driver_unit(unit, args.params)
     if getattr(args, 'design_run', None):
         msg = '--design-run: not with a pool of records (a chamber run is designed from one record)'
@@ -253,9 +253,8 @@ def _pool_run(args: argparse.Namespace, unit: UnitCalibration):
         raise TakError(msg)
     gravity = getattr(args, 'gravity', STANDARD_GRAVITY)
     run, opened = bounded_pool(args.bag, common.stream_options(args), gravity=gravity,
-                               latitude=getattr(args, 'latitude', None), max_samples=args.max_samples, unit=unit)
-    for line in opened_lines(opened):
-        print(line)
+                               latitude=getattr(args, 'latitude', None), max_samples=args.max_samples, unit=unit,
+                               say=print)
     records = len(opened.used)
     if records > 1:
         print(f'pool: {records} records; each record\'s own turn-on offset taken off; the folds hold whole records '

@@ -349,13 +349,13 @@ def _print_handheld_terms(sensor: str, calibration, result) -> None:
 def _fit_pool(args: argparse.Namespace, settings) -> int:
     """``fit`` of a pool of one unit's everyday records (:mod:`tak_thermo_ros.passes.pool`): a line per record first."""
     from tak_thermo_ros.core.fit.pool import order_line
-    from tak_thermo_ros.passes.pool import coverage_lines, fit_records, left_out_line, opened_lines, turn_on_line
+    from tak_thermo_ros.passes.pool import coverage_lines, fit_records, left_out_line, turn_on_line
     for option, given in (('--iron-run', args.iron_run), ('--mag-effects', args.mag_effects),
                           ('--noise-from-residual', args.noise_from_residual)):
         if given:
             msg = f'{option}: not with a pool of records (fit the pool, then its magnetometer or noise apart)'
             raise TakError(msg)
-    fitted = fit_records(args.bag, settings, common.stream_options(args))
+    fitted = fit_records(args.bag, settings, common.stream_options(args), say=print)
     opened, pool = fitted.opened, fitted.fit
     handheld = pool.fit
     results = handheld.results
@@ -376,8 +376,6 @@ def _fit_pool(args: argparse.Namespace, settings) -> int:
               f'record\nload with: ros2 run tak_thermo_ros compensator --ros-args --params-file '
               f'{Path(args.output).name}')
     save_unit(args.output, unit, header=header)
-    for line in opened_lines(opened):
-        print(line)
     for left in pool.left_out:
         print(left_out_line(left))
     for line in coverage_lines(opened, left_out=[left.name for left in pool.left_out]):
@@ -389,7 +387,7 @@ def _fit_pool(args: argparse.Namespace, settings) -> int:
     if pool.record.records < 2:
         print('turn-on repeatability: not estimated, one record (it takes two power-ups or more); none written')
     for sensor in handheld.turn_on:
-        print(turn_on_line(sensor, handheld.turn_on[sensor]))
+        print(turn_on_line(sensor, handheld.turn_on[sensor], pool.record.records))
     for sensor in ('accel', 'gyro'):
         result = results[sensor]
         calibration = unit.sensor(sensor)

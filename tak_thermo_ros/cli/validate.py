@@ -325,18 +325,19 @@ def _validate_pool(args: argparse.Namespace, unit: UnitCalibration, paths=None, 
         record, said after the rests.
     """
     from tak_thermo_ros.core.records.provenance import pool_in_sample_lines
-    from tak_thermo_ros.passes.pool import check_driver_unit, opened_lines, outside_lines, validate_records
+    from tak_thermo_ros.passes.pool import check_driver_unit, outside_lines, validate_records
     check_driver_unit(unit, args.params)
     policy = OutOfRange(args.out_of_range)
+    read: list[str] = []  # each record's lines, said after what the reader must know first (in-sample)
     check = validate_records(paths or args.bag, unit, common.stream_options(args), gravity=args.gravity,
-                             latitude=getattr(args, 'latitude', None), out_of_range=policy)
+                             latitude=getattr(args, 'latitude', None), out_of_range=policy, say=read.append)
     opened, before, after = check.opened, check.before, check.after
     pooled = [opened.entries[i] for i in opened.used]
     for line in pool_in_sample_lines([(entry.name, entry.in_sample) for entry in pooled],
                                      params=Path(args.params).name, command='validate',
                                      records=len(unit.fitted_from)):
         print(line)
-    for line in opened_lines(opened):
+    for line in read:
         print(line)
     beyond = outside_lines(check, unit, policy)
     for line in beyond:
@@ -354,7 +355,9 @@ def _validate_pool(args: argparse.Namespace, unit: UnitCalibration, paths=None, 
             ('after, each record\'s own offset off:', check.shape_rms), ('the white noise alone:', after.rate_floor))
     for label, rms in rows:
         print(f'  {label:<37}{common.numbers(rms, 3)} rad/s ({common.numbers(np.asarray(rms) * factor, 3)} {small})')
-    said = (f'the file\'s repeatability {common.numbers(np.asarray(unit.gyro.turn_on.repeatability) * factor, 3)}'
+    known = unit.gyro.known_turn_on
+    said = (f'the file\'s repeatability {common.numbers(np.asarray(known.repeatability) * factor, 3)}'
+            if known is not None else f'the file\'s repeatability: {unit.gyro.turn_on.why_not()}'
             if unit.gyro.turn_on is not None else 'the file holds no turn-on repeatability')
     if len(check.own) > 1:
         spread = check.own.std(axis=0, ddof=1)

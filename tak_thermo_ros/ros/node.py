@@ -70,6 +70,7 @@ from tak_thermo_ros.core.effects.aux_signal import AUX_FIELDS, signal_field, spl
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.link.online import SENSORS, Level, OneSensor, OnlineCompensator, StaleTemperature
 from tak_thermo_ros.core.link.watch import LearnedState, WatchSettings, turn_on_unavailable
+from tak_thermo_ros.formats.files import not_regular
 from tak_thermo_ros.formats.learned_file import LEARNED_KEY, load_learned, save_learned
 from tak_thermo_ros.errors import CalibrationError, TakError
 from tak_thermo_ros.ros.signals import SignalGuard
@@ -184,9 +185,12 @@ def _path_value(value: Any, name: str, error: type[Exception] = ValueError) -> s
     return value
 
 
-def _learning_start(learn: bool, path: str) -> LearnedState | None:
-    """What learning starts from: the learned file's state (a fresh one without the file), or ``None`` (false)."""
-    return (load_learned(path) or LearnedState()) if learn else None
+def _learning_start(learn: bool, path: str, unit: UnitCalibration) -> LearnedState | None:
+    """What learning starts from: the learned file's state (a fresh one without the file), or ``None`` (false).
+
+    Its corrections are judged against the bounds learning keeps on ``unit`` (:func:`load_learned`).
+    """
+    return (load_learned(path, unit) or LearnedState()) if learn else None
 
 
 _UNCHANGED: Any = object()
@@ -339,7 +343,7 @@ class CompensatorNode(Node):
         if (turn_on or learn) and not enabled:
             msg = 'turn_on and learn need the watch (watch: true)'
             raise ValueError(msg)
-        state = _learning_start(learn, path)
+        state = _learning_start(learn, path, unit)
         missing = turn_on_unavailable(unit) if turn_on else ''
         if missing:
             msg = f"turn_on: first_rest needs the calibration's {missing}"
@@ -700,7 +704,7 @@ class CompensatorNode(Node):
                         raise ValueError(msg)
                     if value == (self._core.watch.learner is not None):
                         continue  # as it is: learning goes on (or stays off) untouched
-                    changes_learn = _learning_start(value, path)
+                    changes_learn = _learning_start(value, path, self._core.unit)
             if calibration_changed:
                 flat = self._calibration_values()
                 for parameter in parameters:
@@ -783,6 +787,16 @@ def spin(node: Node, executor: Executor, signals: SignalGuard | None = None) -> 
     return False
 
 
+def _params_file_refused(args: Sequence[str]) -> str:
+    """Why a ``--params-file`` of the command line is not read (a FIFO, socket, device, directory), or ``''``."""
+    words = list(args)
+    for word, value in zip(words, words[1:]):
+        kind = not_regular(value) if word == '--params-file' else ''
+        if kind:
+            return f'--params-file {value}: is {kind}: only a regular file is read'
+    return ''
+
+
 def main(args: Sequence[str] | None = None, *, signals: SignalGuard | None = None) -> int:
     """Entry point of ``compensator`` (Jazzy node skeleton); 2 when it cannot start.
 
@@ -800,6 +814,10 @@ def main(args: Sequence[str] | None = None, *, signals: SignalGuard | None = Non
     try:
         if signals.received:  # arrived while the caller imported this module
             raise KeyboardInterrupt
+        refused = _params_file_refused(sys.argv if args is None else args)
+        if refused:  # rcl would wait on a FIFO's open inside rclpy.init
+            print(f'[FATAL] [{NODE_NAME}]: cannot start: {refused}', file=sys.stderr)
+            return EXIT_ERROR
         try:
             rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
         except Exception as err:  # rcl refuses bad --ros-args or an unreadable params file
