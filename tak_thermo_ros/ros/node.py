@@ -121,7 +121,8 @@ def _tunables() -> dict[str, tuple[Any, str, bool]]:
                                "every publisher) or 'reliable' (retransmits, needs a reliable publisher; "
                                "a driver faster than the node still loses messages at the history depth)",
                 True),
-        'qos_depth': (100, 'history depth of the subscriptions and the Imu publisher', True),
+        'qos_depth': (1000, 'history depth of the subscriptions and the Imu publisher (1000: 250 ms of a 4 kHz '
+                            'stream)', True),
         'executor': ('events', "'events' (rclpy.experimental.EventsExecutor, about half the CPU per "
                                "message) or 'single_threaded' (rclpy's default executor)", True),
         'message_path': ('raw', "'raw': the messages' serialised bytes, read and written at fixed offsets by the "
