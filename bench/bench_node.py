@@ -1572,9 +1572,10 @@ def measure_rates(params: dict[str, Path], workdir: Path, *, rates_khz: tuple[fl
                         if before is not None and after is not None:
                             row['node'] = {key: after[key] - before.get(key, 0) for key in after}
                         rows[subject].append(row)
-                        print(f'  {input_kind:7s} {subject:8s} {khz:3.0f} kHz round {round_index + 1}: '
-                              f'{row["lost"]:6d} of {count} lost, {row["cpu_us_per_message"]:6.1f} us CPU per '
-                              f'message ({row["cpu_us_per_message_sent"]:6.1f} per sent), load '
+                        print(f'  {input_kind:7s} {subject:8s} {khz:3.0f} kHz round {round_index + 1} (sent at '
+                              f'{achieved:5.0f} Hz): {row["lost"]:6d} of {count} lost, '
+                              f'{row["cpu_us_per_message"]:6.1f} us CPU per message '
+                              f'({row["cpu_us_per_message_sent"]:6.1f} per sent), load '
                               f'{row["load_average_1min"]:.1f}', flush=True)
         finally:
             codes = {}

@@ -30,7 +30,11 @@ diagnostics period); the value is held like the temperature (:mod:`tak_thermo_ro
 
 This is a thin wrapper: callbacks turn messages into numbers, hand them to
 :class:`~tak_thermo_ros.core.link.online.OnlineCompensator` (no ROS in it) and turn the result
-back into a message. The only module of the package that imports rclpy.
+back into a message. By default (``message_path: raw``) the messages are their serialised bytes
+(``raw=True`` subscriptions; :class:`~tak_thermo_ros.formats.cdr.FixedReader` reads the numbers at
+fixed offsets, :class:`~tak_thermo_ros.formats.cdr.FixedWriter` writes the output, published as
+bytes): no rclpy message object on the hot path. The only module of the package that imports
+rclpy (with the player).
 """
 
 from __future__ import annotations
@@ -126,7 +130,7 @@ def _tunables() -> dict[str, tuple[Any, str, bool]]:
         'executor': ('events', "'events' (rclpy.experimental.EventsExecutor, about half the CPU per "
                                "message) or 'single_threaded' (rclpy's default executor)", True),
         'message_path': ('raw', "'raw': the messages' serialised bytes, read and written at fixed offsets by the "
-                                "package's CDR codec (no rclpy message objects: about 40 % less CPU per message); "
+                                "package's CDR codec (no rclpy message objects: the least CPU per message); "
                                 "'decoded': rclpy's message objects (for comparison)", True),
         'temp_timeout': (1.0, 'seconds after which the last temperature is stale '
                               '(diagnostics ERROR)', False),
