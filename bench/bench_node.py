@@ -63,8 +63,13 @@ NANOSECONDS = 1_000_000_000
 
 # -- the relay node (run as: bench_node.py relay --ros-args ...) ---------------------------------
 
-def relay_main() -> int:
-    """A bare relay: same subscriptions and publisher as the compensator, no maths."""
+def relay_main(input_kind: str = 'counts', depth: int = DEPTH, best_effort: bool = False) -> int:
+    """A bare relay on the default executor (``rclpy.spin``): the compensator's topics and QoS, no package, no maths.
+
+    Counts: the Vector3Stamped's header and vector copied into an Imu; driver: the Imu republished as it came.
+    Reliable both ways (the closed-loop benchmark), or, ``best_effort``, best-effort input as the node's
+    default; ``depth`` of both.
+    """
     import rclpy
     from geometry_msgs.msg import Vector3Stamped
     from rclpy.executors import ExternalShutdownException
@@ -75,17 +80,25 @@ def relay_main() -> int:
     class Relay(Node):
         def __init__(self) -> None:
             super().__init__('relay')
-            qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DEPTH, reliability=ReliabilityPolicy.RELIABLE)
-            self._temp = self.create_subscription(Temperature, 'tak/temp_code', self._on_temperature, qos)
+            qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE)
+            inputs = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.BEST_EFFORT
+                                ) if best_effort else qos
+            driver = input_kind == 'driver'
+            self._temp = self.create_subscription(Temperature, 'imu/temperature' if driver else 'tak/temp_code',
+                                                  self._on_temperature, inputs)
             self._imu = Imu()
             self._imu.orientation.w = 1.0
             self._imu.orientation_covariance = (-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
             self._imu.angular_velocity_covariance = (-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
             self._imu.linear_acceleration_covariance = (1e-4, 0.0, 0.0, 0.0, 1e-4, 0.0, 0.0, 0.0, 1e-4)
             self._acceleration = self._imu.linear_acceleration
-            self._publisher = self.create_publisher(Imu, 'tak/imu/data_raw', qos)
+            self._publisher = self.create_publisher(Imu, 'imu/data_compensated' if driver else 'tak/imu/data_raw',
+                                                    qos)
             self._publish = self._publisher.publish
-            self._counts = self.create_subscription(Vector3Stamped, 'tak/counts', self._on_counts, qos)
+            if driver:
+                self._input = self.create_subscription(Imu, 'imu/data_raw', self._publish, inputs)
+            else:
+                self._input = self.create_subscription(Vector3Stamped, 'tak/counts', self._on_counts, inputs)
 
         def _on_temperature(self, message: Temperature) -> None:
             pass
@@ -1312,59 +1325,6 @@ RATE_TEMP_EVERY = 100
 RATIO_TARGET = 0.40
 
 
-def bare_relay_main(input_kind: str, depth: int) -> int:
-    """A bare rclpy relay on the default executor (``rclpy.spin``): the node's topics and QoS, no package, no maths.
-
-    Counts: the Vector3Stamped's header and vector copied into an Imu; driver: the Imu republished as it came.
-    ``depth``: the node's default ``qos_depth`` (given by the benchmark, which reads it from the node).
-    """
-    import rclpy
-    from geometry_msgs.msg import Vector3Stamped
-    from rclpy.executors import ExternalShutdownException
-    from rclpy.node import Node
-    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-    from sensor_msgs.msg import Imu, Temperature
-
-    class BareRelay(Node):
-        def __init__(self) -> None:
-            super().__init__('relay')
-            # The node's defaults: best-effort input (REP 2003), reliable output, its depth both.
-            inputs = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.BEST_EFFORT)
-            outputs = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE)
-            driver = input_kind == 'driver'
-            self._temp = self.create_subscription(Temperature, 'imu/temperature' if driver else 'tak/temp_code',
-                                                  self._on_temperature, inputs)
-            self._publisher = self.create_publisher(Imu, 'imu/data_compensated' if driver else 'tak/imu/data_raw',
-                                                    outputs)
-            self._imu = Imu()
-            self._acceleration = self._imu.linear_acceleration
-            if driver:
-                self._input = self.create_subscription(Imu, 'imu/data_raw', self._publisher.publish, inputs)
-            else:
-                self._input = self.create_subscription(Vector3Stamped, 'tak/counts', self._on_counts, inputs)
-
-        def _on_temperature(self, message: Temperature) -> None:
-            pass
-
-        def _on_counts(self, message: Vector3Stamped) -> None:
-            self._imu.header = message.header
-            vector = message.vector
-            acceleration = self._acceleration
-            acceleration.x, acceleration.y, acceleration.z = vector.x, vector.y, vector.z
-            self._publisher.publish(self._imu)
-
-    rclpy.init()
-    node = BareRelay()
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
-
-
 class RateDriver:
     """The driver of one subject: pre-serialised input messages published every tick, the answers counted as bytes.
 
@@ -1427,12 +1387,7 @@ class RateDriver:
                                        {'temperature': temperature, 'variance': 0.0}, {'frame_id': 'imu_link'})
         return inputs, temperatures
 
-    def spin_until(self, condition, timeout: float) -> None:
-        deadline = time.monotonic() + timeout
-        while not condition():
-            if time.monotonic() > deadline:
-                raise RuntimeError('timed out')
-            self.executor.spin_once(timeout_sec=0.01)
+    spin_until = ImuDriver.spin_until
 
     def warm_up(self) -> None:
         """Until the subject answers, then 1 s at 1 kHz, drained."""
@@ -1517,7 +1472,8 @@ def rate_subject_command(subject: str, input_kind: str, params: Path) -> list[st
     if subject == 'relay':
         from tak_thermo_ros.ros.node import _tunables
         depth = _tunables()['qos_depth'][0]  # the node's default, for the relay too
-        return [sys.executable, str(Path(__file__).resolve()), 'bare_relay', input_kind, str(depth), '--ros-args']
+        return [sys.executable, str(Path(__file__).resolve()), 'relay', input_kind, str(depth), 'best_effort',
+                '--ros-args']
     script = Path(sys.executable).parent / 'compensator'
     command = [str(script)] if script.exists() else [sys.executable, '-m', 'tak_thermo_ros.ros.main']
     command += ['--ros-args', '--params-file', str(params)]
@@ -1655,10 +1611,9 @@ def rates_only(*, quick: bool) -> int:
 
 
 if __name__ == '__main__':
-    if len(sys.argv) > 1 and sys.argv[1] == 'relay':
-        sys.exit(relay_main())
+    if len(sys.argv) > 1 and sys.argv[1] == 'relay':  # relay [counts|driver DEPTH best_effort|reliable]
+        given = sys.argv[2:5] if len(sys.argv) > 4 and sys.argv[2] != '--ros-args' else None
+        sys.exit(relay_main(given[0], int(given[1]), given[2] == 'best_effort') if given else relay_main())
     if len(sys.argv) > 2 and sys.argv[1] == 'driver_relay':
         sys.exit(driver_relay_main(sys.argv[2]))
-    if len(sys.argv) > 3 and sys.argv[1] == 'bare_relay':
-        sys.exit(bare_relay_main(sys.argv[2], int(sys.argv[3])))
     sys.exit(main())
