@@ -733,17 +733,19 @@ class FixedWriter:
         plan = self._plans.get(layout)
         if plan is None:
             plan = self._plan(layout)
-        head, pack, pick, constants, copy = plan
+        encapsulation, head, pack, pick, constants, copy = plan
         if copy is None:
-            return raw[:head] + pack(*pick(values + constants))
-        return raw[:head] + pack(*pick(values + constants + (raw[copy[0]:copy[1]],)))
+            return encapsulation + raw[ENCAPSULATION_BYTES:head] + pack(*pick(values + constants))
+        return encapsulation + raw[ENCAPSULATION_BYTES:head] + pack(*pick(values + constants + (raw[copy[0]:copy[1]],)))
 
     def _plan(self, layout: FixedLayout) -> tuple:
-        """What :meth:`write` does for messages of ``layout``: the header's length, one struct over the rest.
+        """What :meth:`write` does for messages of ``layout``: the header's end, one struct over the rest.
 
-        The struct packs the body in byte order, padding zero: the variable fields as numbers, each
-        constant field as its bytes (packed here once), the copied fields as one slice of ``raw``;
-        ``pick`` puts ``values + constants + (copied,)`` in that order.
+        The encapsulation is the writer's own (its options zero: the message needs no padding at its
+        end), the stamp and frame_id the message read's. The struct packs the body in byte order,
+        padding zero: the variable fields as numbers, each constant field as its bytes (packed here
+        once), the copied fields as one slice of ``raw``; ``pick`` puts ``values + constants +
+        (copied,)`` in that order.
         """
         text = b'-' * (layout.frame_id_bytes - 1)  # any text of that length: the offsets follow from its length
         target = _template(self.msgtype, (('frame_id', text),), layout.little_endian)
@@ -783,7 +785,7 @@ class FixedWriter:
             raise AssertionError(msg)
         indices = [index for *_, index in items]
         pick = itemgetter(*indices) if len(indices) > 1 else (lambda every: (every[indices[0]],))
-        plan = head, struct.Struct(code).pack, pick, tuple(constants), copy
+        plan = bytes(target.row[:ENCAPSULATION_BYTES]), head, struct.Struct(code).pack, pick, tuple(constants), copy
         if len(self._plans) >= MAX_LAYOUTS:
             self._plans.clear()
         self._plans[layout] = plan
