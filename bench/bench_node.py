@@ -29,7 +29,12 @@ updates ``driver_input`` in ``node.json``.
 this version against another's in fresh interpreters taking turns: what honouring an absent
 sensor's mark (covariance[0] = -1) costs an ordinary two-sensor message; key ``one_sensor_marks``.
 
-Usage: ``python bench/bench_node.py [--quick] [--driver-only] [--marks --baseline DIR]``; writes
+``--rates`` (issue 42): the node as a user starts it (the raw path), the node on the decoded path and
+a bare rclpy relay on the default executor, side by side, open loop at 1, 2, 4 and 8 kHz for 10 s
+each, counts and driver input, three rounds: messages lost and CPU per message; key ``rates``;
+target: at 4 kHz none lost and at most 0.40x the relay's CPU per message.
+
+Usage: ``python bench/bench_node.py [--quick] [--driver-only] [--rates] [--marks --baseline DIR]``; writes
 ``bench/results/node.json`` (with ``--quick``: ``node_quick.json``, a smoke run, not the figures);
 exits 3 (as every ``bench/bench_*.py``) when a target is missed.
 """
