@@ -90,17 +90,24 @@ def run(args: argparse.Namespace) -> int:
                            max_effect_samples=args.effect_samples,
                            held_spreads=HeldSpreads(**dict(args.held_spread)))
     from tak_thermo_ros.passes.pool import is_pool
+    from tak_thermo_ros.passes.run import EverydayRecord
     if is_pool(args.bag):
+        return _fit_pool(args, settings)
+    # A record that determines the magnetometer alone (turned by hand, or without a temperature)
+    # holds the accelerometer and gyroscope at nominal, said in one line; else it is refused.
+    # An everyday record (rests in one orientation, motion between) is a pool of one.
+    options = common.stream_options(args)
+    try:
+        fitted = fit_imu(args.bag[0], settings, options,
+                         nominal_for=lambda kind, bag_nominal: _nominal(args, bag_nominal),
+                         hold_undetermined=has_mag(args.bag[0], options.topics))
+    except EverydayRecord:
+        print(f'{Path(args.bag[0]).name}: {EverydayRecord.WORDS}')
         return _fit_pool(args, settings)
     args.bag = args.bag[0]
     from tak_thermo_ros.formats.records import record_lines
     for line in record_lines(args.bag, topics=common.topics(args)):
         print(line)
-    # A record that determines the magnetometer alone (turned by hand, or without a temperature)
-    # holds the accelerometer and gyroscope at nominal, said in one line; else it is refused.
-    options = common.stream_options(args)
-    fitted = fit_imu(args.bag, settings, options, nominal_for=lambda kind, bag_nominal: _nominal(args, bag_nominal),
-                     hold_undetermined=has_mag(args.bag, options.topics))
     both_held = set(fitted.held) >= {'accel', 'gyro'}
     for option, given, sensors in (('--effects', bool(effects['accel']), ('accel',)),
                                    ('--gyro-effects', bool(effects['gyro']), ('gyro',)),
@@ -392,18 +399,18 @@ def _print_handheld_terms(sensor: str, calibration, result) -> None:
 def _fit_pool(args: argparse.Namespace, settings) -> int:
     """``fit`` of a pool of one unit's everyday records (:mod:`tak_thermo_ros.passes.pool`): a line per record first."""
     from tak_thermo_ros.core.fit.pool import order_line
-    from tak_thermo_ros.passes.pool import coverage_lines, fit_records, left_out_line, opened_lines, turn_on_line
+    from tak_thermo_ros.passes.pool import coverage_lines, fit_records, left_out_line, turn_on_line
     for option, given in (('--iron-run', args.iron_run), ('--mag-effects', args.mag_effects),
                           ('--noise-from-residual', args.noise_from_residual)):
         if given:
             msg = f'{option}: not with a pool of records (fit the pool, then its magnetometer or noise apart)'
             raise TakError(msg)
-    fitted = fit_records(args.bag, settings, common.stream_options(args))
+    fitted = fit_records(args.bag, settings, common.stream_options(args), say=print)
     opened, pool = fitted.opened, fitted.fit
     handheld = pool.fit
     results = handheld.results
     unit = UnitCalibration(InputKind.IMU, accel=results['accel'].calibration, gyro=results['gyro'].calibration,
-                           source=fitted.source)
+                           source=fitted.source, fitted_from=fitted.fitted_from)
     if args.noise or args.noise_run:
         unit, noise_line = _with_noise(args, unit)
     else:
@@ -422,12 +429,10 @@ def _fit_pool(args: argparse.Namespace, settings) -> int:
               f'record\nload with: ros2 run tak_thermo_ros compensator --ros-args --params-file '
               f'{Path(args.output).name}')
     save_unit(args.output, unit, header=header)
-    for line in opened_lines(opened):
-        print(line)
-    for line in coverage_lines(opened):
-        print(line)
     for left in pool.left_out:
         print(left_out_line(left))
+    for line in coverage_lines(opened, left_out=[left.name for left in pool.left_out]):
+        print(line)
     for sensor, choice in pool.orders.items():
         print(order_line(sensor, choice))
     for line in handheld.lines:
@@ -435,7 +440,7 @@ def _fit_pool(args: argparse.Namespace, settings) -> int:
     if pool.record.records < 2:
         print('turn-on repeatability: not estimated, one record (it takes two power-ups or more); none written')
     for sensor in handheld.turn_on:
-        print(turn_on_line(sensor, handheld.turn_on[sensor]))
+        print(turn_on_line(sensor, handheld.turn_on[sensor], pool.record.records))
     for sensor in ('accel', 'gyro'):
         result = results[sensor]
         calibration = unit.sensor(sensor)

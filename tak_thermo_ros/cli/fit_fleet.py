@@ -9,7 +9,7 @@ import argparse
 import copy
 from typing import Any
 
-from tak_thermo_ros.cli import options
+from tak_thermo_ros.cli import common, options
 from tak_thermo_ros.core.diagnose.fleet import DEFAULT_FLAG_SIGMA
 from tak_thermo_ros.core.link.correction import OutOfRange
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
@@ -64,5 +64,5 @@ def add_parser(commands: Any, fit_parser: argparse.ArgumentParser, command: Comm
                    and not taken.intersection(action.option_strings)]
     for action in fit_actions:
         fit_group._add_action(action)
-    fleet.set_defaults(handler=lambda args: cmd_fit_fleet(args, fit_actions, command))
+    fleet.set_defaults(handler=lambda args: cmd_fit_fleet(args, fit_actions, command, common.topics(args)))
     return fleet

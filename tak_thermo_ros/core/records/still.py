@@ -74,6 +74,8 @@ class StillIntervals:
         squared step between the means of successive windows); ``short_terms``: ``(k, 2)`` how many
         terms each sum holds. From every sample of the interval (not only those a fit keeps): the
         white noise within the rests (:mod:`tak_thermo_ros.core.noise.rests`). ``None``: not gathered.
+    :param moved_deg: the largest angle between a window's mean specific force and the intervals' mean
+        up direction, degrees (0 without an interval): how far the unit turned away from its rests.
     """
 
     start_ns: np.ndarray
@@ -91,6 +93,7 @@ class StillIntervals:
     count: int
     short_allan: np.ndarray | None = None
     short_terms: np.ndarray | None = None
+    moved_deg: float = 0.0
 
     def __len__(self) -> int:
         return len(self.start_ns)
@@ -281,6 +284,12 @@ class StillDetector:
             intervals.append((first[run[0]], last[run[-1]], len(run) * w, mean[run].mean(axis=0), short,
                               (len(run) * (w - 1), len(run) - 1)))
         gaps = np.array(self._gaps, dtype=np.int64).reshape(-1, 2)
+        moved = 0.0
+        if intervals:
+            up = np.mean([i[3][:3] / max(float(np.linalg.norm(i[3][:3])), 1e-300) for i in intervals], axis=0)
+            norms = np.linalg.norm(mean[:, :3], axis=1) * max(float(np.linalg.norm(up)), 1e-300)
+            cosine = np.clip(mean[:, :3] @ up / np.where(norms > 0.0, norms, np.inf), -1.0, 1.0)
+            moved = float(np.degrees(np.arccos(cosine)).max())
         return StillIntervals(
             start_ns=np.array([i[0] for i in intervals], dtype=np.int64),
             end_ns=np.array([i[1] for i in intervals], dtype=np.int64),
@@ -289,7 +298,7 @@ class StillDetector:
             noise=noise, window_samples=w, period_s=self.period_s, windows=len(rows),
             still_windows=int(np.count_nonzero(still)), gaps=gaps, first_ns=self._first, last_ns=self._last,
             count=self.count, short_allan=np.array([i[4] for i in intervals]).reshape(-1, 2, channels),
-            short_terms=np.array([i[5] for i in intervals], dtype=np.int64).reshape(-1, 2))
+            short_terms=np.array([i[5] for i in intervals], dtype=np.int64).reshape(-1, 2), moved_deg=moved)
 
     def _runs(self, still: np.ndarray, after_gap: np.ndarray, mean: np.ndarray, noise: np.ndarray) -> list[np.ndarray]:
         """Runs of consecutive still windows whose means agree (indices of windows)."""
