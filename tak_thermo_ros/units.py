@@ -6,7 +6,9 @@ command line prints a value in the sensor's unit with the reader's beside it
 (:func:`amount`: ``0.001756 rad/s (362 deg/h)``); the report's tables show the reader's unit
 alone (:func:`readable`). Both to significant figures, not a fixed number of decimals (which
 prints ``0.001 0.001 0.001`` for a gyroscope's residual). The one place for these rules:
-:mod:`tak_thermo_ros.cli.common` and :mod:`tak_thermo_ros.reports.diagnose` print through it.
+:mod:`tak_thermo_ros.cli.common`, :mod:`tak_thermo_ros.reports.diagnose` and a result's own
+summary (:mod:`tak_thermo_ros.core.fit.summary`) print through it. A leaf: it imports only
+:mod:`tak_thermo_ros.core.values`, so every room may import it, the maths included.
 """
 
 from __future__ import annotations

@@ -75,8 +75,9 @@ def _own_imports(path: Path) -> set[str]:
 
 
 def test_the_maths_imports_no_format_and_no_command_and_formats_no_command():
-    """core/ imports only core/ and the leaves (errors, optional); formats/ never imports the commands or passes."""
-    leaves = ('tak_thermo_ros.core', 'tak_thermo_ros.errors', 'tak_thermo_ros.optional', 'tak_thermo_ros.progress')
+    """core/ imports only core/ and the leaves (errors, optional, progress, units); formats/ no command or pass."""
+    leaves = ('tak_thermo_ros.core', 'tak_thermo_ros.errors', 'tak_thermo_ros.optional', 'tak_thermo_ros.progress',
+              'tak_thermo_ros.units')
     for path in (PACKAGE / 'core').rglob('*.py'):
         upward = [name for name in _own_imports(path) if not name.startswith(leaves)]
         assert not upward, f'{path.relative_to(PACKAGE)} imports {upward}'

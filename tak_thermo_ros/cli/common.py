@@ -10,7 +10,6 @@ import argparse
 import contextlib
 import io
 import math
-import re
 import sys
 import textwrap
 from dataclasses import dataclass
@@ -213,57 +212,6 @@ def walk_unit(unit: str) -> str:
     """The unit of a random walk (``K``, Allan variance ``K^2 tau / 3``) of a sensor in ``unit``: one spelling each."""
     from tak_thermo_ros.core.values import random_walk_unit
     return random_walk_unit(display_unit(unit)[0])
-
-
-def effect_unit(unit: str, sensor_unit: str) -> str:
-    """An effect parameter's unit for the sensor's input: the library states it for codes.
-
-    With a driver's input, counts are the sensor's unit (m/s^2, rad/s, or uT for a magnetometer's
-    tesla), its input is in the same unit, and the temperature code is the temperature in degrees C.
-    """
-    if sensor_unit == 'counts':
-        return unit
-    sensor_unit = display_unit(sensor_unit)[0]
-    unit = re.sub(r'\bm/s\^2\b', '@', unit)
-    unit = re.sub(r'\bcodes?\b', 'C', unit)
-    return unit.replace('counts', sensor_unit).replace('@', sensor_unit)
-
-
-def print_effects(calibration, result, unit_name: str) -> None:
-    """One line per fitted effect parameter: its value with its standard error and unit.
-
-    A line before them says what the errors assume (:class:`~tak_thermo_ros.core.fit.uncertainty.ErrorBasis`).
-
-    A parameter in the sensor's unit (an amplitude, a slope per degree) is printed as the sensor
-    is: a magnetometer's in uT, with mg or deg/h beside m/s^2 or rad/s.
-    """
-    errors = result.parameter_errors
-    shown_unit, factor = display_unit(unit_name)
-    reader = reader_unit(unit_name)
-    basis = getattr(result, 'error_basis', None)
-    if calibration.effects and errors:
-        print(f'  effects, +- {basis.text() if basis is not None else "1 sigma, residual taken as white"}:')
-    for effect in calibration.effects:
-        held = effect.held_names()
-        for p in effect.parameters:
-            if p.name in held:
-                print(f'  effect {effect.name}: {p.name} held at 0 (fitted on {effect.fitted_axes_text()} only)')
-                continue
-            unit = effect_unit(p.unit, unit_name) if p.unit else ''
-            in_sensor_unit = unit_name != 'counts' and 'counts' in (p.unit or '')
-            scale = factor if in_sensor_unit else 1.0
-            error = errors.get(f'{effect.name}.{p.name}')
-            text = with_error(p.value * scale, error * scale if error is not None else None)
-            text += f' {unit}' if unit else ''
-            if in_sensor_unit and reader is not None:
-                rest = unit[len(shown_unit):] if unit.startswith(shown_unit) else ''
-                value = p.value * scale * reader[1]
-                shown = (with_error(value, error * scale * reader[1], 3) if error is not None
-                         else significant(value, 3))
-                text += f' ({shown} {reader[0]}{rest})'
-            # A driver's temperature is in degrees C: a parameter the library names in codes is named by it.
-            name = p.name.removesuffix('_codes') if unit_name != 'counts' and p.name.endswith('_codes') else p.name
-            print(f'  effect {effect.name}: {name} {text}')
 
 
 NOISE_UNITS = {

@@ -24,7 +24,6 @@ from tak_thermo_ros.core.records.record import require_signals
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import FitError, TakError
 from tak_thermo_ros.passes.diagnose import DIAGNOSE_MAX_SAMPLES
-from tak_thermo_ros.core.diagnose.yardstick import tau_text
 import numpy as np
 import sys
 
@@ -182,31 +181,7 @@ def run(args: argparse.Namespace) -> int:
         common.print_ignored(samples, args, run.input_kind)
         for line in _noise_lines(noise, unit_name, result.averaging_time_s, verbose):
             print(line)
-        _print_axes(result, unit_name)
-        if result.allan:
-            check = result.allan[-1][1]
-            which = ' after the ladder' if len(result.allan) > 1 else ''
-            if len(check.taus):
-                tau, axis, ratio = check.worst()
-                print(f'  residual\'s Allan deviation{which}: at most {ratio:.3g}x the noise model, at tau '
-                      f'{tau_text(tau)} on {AXES[axis]}')
-                print(f'  {"inside" if check.consistent else "BEYOND"} the bound of {check.worst_bound():.3g}x there '
-                      f'(what the noise model\'s own scatter allows)')
-            else:
-                print('  Allan deviation: the run is too short to estimate it')
-        if result.candidates:
-            print(f'candidates, best first: held-out RMS x y z in {shown_unit}, share of the excess removed')
-            for candidate in result.candidates:
-                rms = ' '.join(f'{v * scale:9.4g}' for v in candidate.rms_after)
-                print(f'  {candidate.effect:<20} {rms}  {round(100.0 * candidate.explained):5d}%')
-        for name, reason in result.skipped.items():
-            print(f'  {name:<20} not tried: {reason}')
-        if len(result.ladder) > 1:
-            print(f'model ladder: held-out RMS x y z in {shown_unit}')
-            for step in result.ladder:
-                print(f'  {step.label:<28} {" ".join(f"{v * scale:.4g}" for v in step.heldout_rms)}')
-        print(f'{label}verdict: {result.verdict}')
-        _print_statements(result, run.input_kind, verbose)
+        print(result.summary(unit_name, label=label, verbose=verbose, driver_words=run.input_kind is InputKind.IMU))
         walk = _walk_line(result, sensor, run.input_kind)
         if walk:
             print(walk)
@@ -460,36 +435,6 @@ def _noise_lines(noise, unit: str, averaging_s: float, verbose: bool) -> list[st
     if verbose:
         lines += ['  noise model, per axis x y z:', *(f'  {line}' for line in common.noise_lines(noise, unit))]
     return lines
-
-
-def _print_axes(result, unit: str) -> None:
-    """The residual per axis against the floor, one quantity per line (x y z)."""
-    axes = result.axes
-    ratios = ' '.join(f'{a.heldout_rms / a.noise_floor:.2f}x' for a in axes)
-    print(f'  residual RMS x y z  {common.amount([a.rms for a in axes], unit)}')
-    if result.averaging_time_s:
-        means = f'{result.averaging_time_s:.3g} s means'
-        print(f'  white floor         {common.amount([a.white_floor for a in axes], unit)}')
-        print(f'  RMS of held-out {means}:')
-        print(f'    the noise model   {common.amount([a.noise_floor for a in axes], unit)}')
-        print(f'    measured          {common.amount([a.heldout_rms for a in axes], unit)}')
-        print(f'  held-out / model    {ratios}')
-    else:
-        print(f'  noise floor         {common.amount([a.noise_floor for a in axes], unit)}')
-        print(f'  held-out RMS        {common.amount([a.heldout_rms for a in axes], unit)}')
-        print(f'  held-out / floor    {ratios}')
-
-
-def _print_statements(result, kind: InputKind, verbose: bool) -> None:
-    """The verdict's message, one statement a line (wrapped), the details with ``--verbose`` only."""
-    statements = result.statements
-    texts = ([statement.text for statement in statements if verbose or not statement.detail] if statements
-             else [result.message])
-    for text in texts:
-        print('  ' + (common.in_driver_words(text) if kind is InputKind.IMU else text))
-    hidden = sum(1 for statement in statements if statement.detail) if not verbose else 0
-    if hidden:
-        print(f'  ({hidden} more in --verbose and the JSON: the physics behind it, what to do next)')
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,7 @@ import numpy as np
 from pathlib import Path
 from tak_thermo_ros.cli import common, options
 from tak_thermo_ros.core.fit.link_uncertainty import HeldSpreads
+from tak_thermo_ros.core.fit.summary import axes_lines
 from tak_thermo_ros.core.link.model import AXES
 from tak_thermo_ros.core.link.model import InputKind
 from tak_thermo_ros.core.link.model import UnitCalibration
@@ -177,11 +178,11 @@ def run(args: argparse.Namespace) -> int:
         elif sensor == fitted_sensor:
             print(f'calibrated temperature range {calibration.temp_code_min:.2f}..{calibration.temp_code_max:.2f} C, '
                   f'reference {calibration.temp_code_ref:.3g} C')
-        print_axes(common.SENSOR_NAMES[sensor], calibration, [stats.residual_rms for stats in result.axes], unit_name)
         if handheld is not None:
+            print('\n'.join(axes_lines(common.SENSOR_NAMES[sensor], calibration, result.residual_rms, unit_name)))
             _print_handheld_terms(sensor, calibration, result)
         else:
-            common.print_effects(calibration, result, unit_name)
+            print(result.summary(common.SENSOR_NAMES[sensor], unit_name, calibration=calibration))
         if handheld is None:
             for note in calibration.notes:
                 print(f'note: {prefix}{note}')
@@ -311,8 +312,7 @@ def _print_magnetometer(fitted, args: argparse.Namespace) -> None:
     if thermal.dropped:
         print(f'magnetometer: left out: {common.describe_dropped(thermal.dropped)}')
     print(f'magnetometer: {thermal.samples} samples on {common.topics(args).mag}')
-    print_axes('magnetometer', link, [stats.residual_rms for stats in thermal.axes], 'T')
-    common.print_effects(link, thermal, 'T')
+    print(thermal.summary('magnetometer', 'T', calibration=link))
     iron = fitted.iron
     mag = fitted.calibration
     if iron is not None:
@@ -323,26 +323,6 @@ def _print_magnetometer(fitted, args: argparse.Namespace) -> None:
         print(f'  ellipsoid: {iron.sections} of 20 sections of the sphere covered, spread {iron.spread:.2f}')
     for note in link.notes:
         print(f'note: magnetometer: {note}')
-
-
-def print_axes(sensor: str, calibration, residual_rms, unit: str) -> None:
-    """A sensor's fitted link, one quantity per line, x y z: residual, scale, offset, offset span.
-
-    In the sensor's unit with the one a person reads beside it (mg, deg/h; the magnetometer in uT;
-    codes with mg beside), significant figures.
-    """
-    axes = calibration.axes
-    scales = np.array([axis.scale for axis in axes])
-    held = [name for name, axis in zip(AXES, axes) if not axis.scale_observable]
-    per = ' counts/(m/s^2)' if unit == 'counts' else ''
-    at = (f'at N_t,ref {calibration.temp_code_ref:.0f}' if unit == 'counts'
-          else f'at {calibration.temp_code_ref:.3g} C')
-    print(f'{sensor}, per axis x y z:')
-    print(f'  residual RMS  {common.amount(residual_rms, unit)}{common.in_si(np.asarray(residual_rms) / scales, unit)}')
-    print(f'  scale         {common.numbers(scales, 6)}{per}'
-          + (f' (held on {" ".join(held)}: see the note)' if held else ''))
-    print(f'  offset        {common.amount([axis.offset for axis in axes], unit)} {at}')
-    print(f'  offset span   {common.amount([axis.offset_span for axis in axes], unit)} over the calibrated range')
 
 
 def _print_handheld(handheld) -> None:
@@ -393,7 +373,8 @@ def _print_handheld_terms(sensor: str, calibration, result) -> None:
             for start in range(0, len(terms), 3):
                 print(f'  misalignment, mrad: {", ".join(terms[start:start + 3])}')
         else:
-            common.print_effects(replace(calibration, effects=(effect,)), result, unit)
+            for line in result.effect_lines(unit, calibration=replace(calibration, effects=(effect,))):
+                print(line)
 
 
 def _fit_pool(args: argparse.Namespace, settings) -> int:
@@ -448,7 +429,7 @@ def _fit_pool(args: argparse.Namespace, settings) -> int:
             print(f'calibrated temperature range {calibration.temp_code_min:.2f}..{calibration.temp_code_max:.2f} C, '
                   f'reference {calibration.temp_code_ref:.3g} C')
         unit_name = common.UNITS[InputKind.IMU, sensor]
-        print_axes(common.SENSOR_NAMES[sensor], calibration, [stats.residual_rms for stats in result.axes], unit_name)
+        print('\n'.join(axes_lines(common.SENSOR_NAMES[sensor], calibration, result.residual_rms, unit_name)))
         _print_handheld_terms(sensor, calibration, result)
         _print_noise(calibration.noise, unit_name)
     _print_noise_source(noise_line)

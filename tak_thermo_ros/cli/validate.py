@@ -119,9 +119,7 @@ def _validate_imu(args: argparse.Namespace, unit: UnitCalibration, run, document
                          run.input_kind)
     if run.accel_dropped:
         print(f'left out: {common.describe_dropped(run.accel_dropped)}')
-    print(f'|g| error over {result.samples} samples of {args.bag} (gravity {args.gravity:g} m/s^2):')
-    for label, stats in (('before', before), ('after ', after)):
-        print(f'  {label} correction: RMS {common.amount(stats.rms, "m/s^2")}, max {common.amount(stats.max, "m/s^2")}')
+    print(result.summary(args.bag))
     print(f'  before: {_before_words(run.input_kind, unit, args.params)}')
     if result.out_of_range:
         print(f'warning: {result.out_of_range} samples outside the calibrated temperature range ({args.out_of_range})')
@@ -142,10 +140,7 @@ def _validate_imu(args: argparse.Namespace, unit: UnitCalibration, run, document
         if run.gyro_dropped:
             print(f'gyroscope: left out: {common.describe_dropped(run.gyro_dropped)}')
         rate_before, rate_after = rate.before.rate_error(), rate.after.rate_error()
-        print(f'gyroscope error over {rate.samples} samples (rate minus reference), per axis x y z:')
-        for label, stats in (('before', rate_before), ('after ', rate_after)):
-            print(f'  {label} correction: RMS  {common.amount(stats.rms, "rad/s")}')
-            print(f'  {label} correction: mean {common.amount(stats.mean, "rad/s")}')
+        print(rate.summary())
         print(f'  before: {_before_words(run.input_kind, unit, args.params)}')
         document['gyro'] = {'samples': rate.samples, 'before': rate_before.as_dict(), 'after': rate_after.as_dict()}
         averaged['gyro'] = _averaged_bias(rate, given.get('gyro'), 'gyro', args.gravity)

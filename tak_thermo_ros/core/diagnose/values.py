@@ -259,6 +259,14 @@ class Diagnosis:
         """``(3,)`` the per-sample white floor from successive differences, counts."""
         return np.array([axis.white_floor or axis.noise_floor for axis in self.axes])
 
+    def summary(self, unit: str, *, label: str = '', verbose: bool = False, driver_words: bool = False) -> str:
+        """The diagnosis's report, one statement per line (:func:`~tak_thermo_ros.core.diagnose.summary.summary_lines`).
+
+        :param unit: the unit of the calibration's output (``'counts'``, ``'m/s^2'``, ``'rad/s'``, ``'T'``).
+        """
+        from tak_thermo_ros.core.diagnose.summary import summary_lines
+        return '\n'.join(summary_lines(self, unit, label=label, verbose=verbose, driver_words=driver_words))
+
     def as_dict(self) -> dict[str, Any]:
         """The JSON document of ``tak_calib diagnose --json``."""
         return {

@@ -349,6 +349,19 @@ class AllanCheck:
         index = np.unravel_index(int(np.argmax(self.ratio / self.bound)), self.ratio.shape)
         return float(self.bound[index])
 
+    def summary_lines(self, which: str = '') -> list[str]:
+        """The test in words: the worst ratio to the noise model, where, and whether the bound holds it.
+
+        :param which: after which model (``' after the ladder'``), or ``''``.
+        """
+        if not len(self.taus):
+            return ['  Allan deviation: the run is too short to estimate it']
+        tau, axis, ratio = self.worst()
+        return [f'  residual\'s Allan deviation{which}: at most {ratio:.3g}x the noise model, at tau '
+                f'{tau_text(tau)} on {AXES[axis]}',
+                f'  {"inside" if self.consistent else "BEYOND"} the bound of {self.worst_bound():.3g}x there '
+                f'(what the noise model\'s own scatter allows)']
+
     def walk_to_explain(self, longer_than_s: float = 0.0) -> np.ndarray:
         """``(3,)`` the least rate random walk that would explain the excess, per axis.
 

@@ -16,10 +16,12 @@ import numpy as np
 
 from tak_thermo_ros.core.effects.base import Effect
 from tak_thermo_ros.core.fit.design import Column, Frame
+from tak_thermo_ros.core.fit.summary import axes_lines, effect_lines
 from tak_thermo_ros.core.fit.uncertainty import ErrorBasis
 from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.core.link.model import AXES, AxisModel, Calibration
 from tak_thermo_ros.core.link.model import check_scale_positive
+from tak_thermo_ros.core.link.uncertainty import LinkUncertainty
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import CalibrationError, FitError
 
@@ -50,6 +52,10 @@ class FitResult:
         ``'<effect>.<parameter>'`` -> value in the parameter's unit (:func:`fit_model`).
     :param error_basis: what those errors assume (one sigma; how the residual is correlated,
         :mod:`~tak_thermo_ros.core.fit.uncertainty`), ``None`` without errors.
+
+    It reports itself (:meth:`summary`: what ``tak_calib fit`` prints of a sensor); its link's
+    terms with their errors' covariance are :attr:`covariance`, its effects' parameters with their
+    errors :meth:`parameters`.
     """
 
     calibration: Calibration
@@ -58,6 +64,40 @@ class FitResult:
     dropped: dict[str, int]
     parameter_errors: dict[str, float] = field(default_factory=dict)
     error_basis: ErrorBasis | None = None
+
+    @property
+    def residual_rms(self) -> tuple[float, float, float]:
+        """The RMS of the residual per axis x, y, z, in the link's input unit (counts, or the sensor's)."""
+        return tuple(axis.residual_rms for axis in self.axes)
+
+    @property
+    def covariance(self) -> LinkUncertainty | None:
+        """The link's terms (``x.offset``, ``x.scale_T1``, ``c_yx``, ...) with their errors' covariance, held ones too.
+
+        ``None`` where the fit states none (:class:`~tak_thermo_ros.core.link.uncertainty.LinkUncertainty`).
+        """
+        return self.calibration.uncertainty
+
+    def parameters(self) -> dict[str, tuple[float, float | None]]:
+        """Each effect parameter ``'<effect>.<parameter>'`` -> ``(value, standard error or None)``, held ones at 0."""
+        return {f'{effect.name}.{p.name}': (p.value, self.parameter_errors.get(f'{effect.name}.{p.name}'))
+                for effect in self.calibration.effects for p in effect.parameters}
+
+    def effect_lines(self, unit: str, *, calibration: Calibration | None = None) -> list[str]:
+        """The effects' lines of :meth:`summary` (those of ``calibration``'s effects, if given)."""
+        return effect_lines(self.calibration if calibration is None else calibration, self.parameter_errors,
+                            self.error_basis, unit)
+
+    def summary(self, sensor: str, unit: str, *, calibration: Calibration | None = None) -> str:
+        """The fit's report, one statement per line: the link per axis, then the effects (:mod:`.summary`).
+
+        :param sensor: the sensor's name as printed (``'accelerometer'``).
+        :param unit: the unit of the link's output (``'counts'``, ``'m/s^2'``, ``'rad/s'``, ``'T'``).
+        :param calibration: the link as written, where it differs from the one fitted (notes or iron added).
+        """
+        link = self.calibration if calibration is None else calibration
+        return '\n'.join([*axes_lines(sensor, link, self.residual_rms, unit),
+                          *self.effect_lines(unit, calibration=link)])
 
 
 def residual_counts(calibration: Calibration, samples: AlignedSamples) -> np.ndarray:

@@ -20,6 +20,7 @@ from tak_thermo_ros.core.effects.base import basis_from, effect_input
 from tak_thermo_ros.core.link.effect_link import EffectLink
 from tak_thermo_ros.core.link.model import Calibration, UnitCalibration
 from tak_thermo_ros.core.link.validate import GravityError, RateError
+from tak_thermo_ros.units import amount
 
 
 class _CarriedEffectLink(EffectLink):
@@ -185,6 +186,17 @@ class GravityCheck:
         self.out_of_range += self.corrector.out_of_range_count(temp_code)
         self.samples += len(counts)
 
+    def summary(self, record: str) -> str:
+        """The |g| error before and after the correction, one statement per line (``record``: its name).
+
+        In m/s^2 with mg beside (:func:`~tak_thermo_ros.units.amount`); ``tak_calib validate`` prints it.
+        """
+        lines = [f'|g| error over {self.samples} samples of {record} (gravity {self.gravity:g} m/s^2):']
+        for label, sums in (('before', self.before), ('after ', self.after)):
+            stats = sums.gravity_error()
+            lines.append(f'  {label} correction: RMS {amount(stats.rms, "m/s^2")}, max {amount(stats.max, "m/s^2")}')
+        return '\n'.join(lines)
+
 
 class RateCheck:
     """:func:`~tak_thermo_ros.core.link.validate.validate_rate` accumulated over blocks.
@@ -211,3 +223,15 @@ class RateCheck:
         self.noise.add(np.asarray(stamp_s, dtype=float), after - reference)
         self.out_of_range += self.corrector.out_of_range_count(temperature)
         self.samples += len(rate)
+
+    def summary(self) -> str:
+        """The rate error before and after the correction, RMS and mean per axis x y z, one statement per line.
+
+        In rad/s with deg/h beside (:func:`~tak_thermo_ros.units.amount`); ``tak_calib validate`` prints it.
+        """
+        lines = [f'gyroscope error over {self.samples} samples (rate minus reference), per axis x y z:']
+        for label, sums in (('before', self.before), ('after ', self.after)):
+            stats = sums.rate_error()
+            lines += [f'  {label} correction: RMS  {amount(stats.rms, "rad/s")}',
+                      f'  {label} correction: mean {amount(stats.mean, "rad/s")}']
+        return '\n'.join(lines)
