@@ -49,7 +49,7 @@ def test_a_fit_summary_states_the_link_per_axis_in_the_sensors_units(lagging):
 
 
 def test_a_fit_summary_gives_each_effect_parameter_with_its_error(lagging):
-    """One line per effect parameter, value +- error as :meth:`FitResult.parameters` holds them; none without effects."""
+    """One line per effect parameter, value +- error as :meth:`FitResult.parameters` has them; none without effects."""
     _, fitted, plain = lagging
     parameters = fitted.parameters()
     assert set(parameters) == {f'thermal_lag.{name}' for name in ('tau_s', 'slope_x', 'slope_y', 'slope_z')}
