@@ -107,9 +107,18 @@ def record(out: Path) -> None:
     (out / 'outputs.json').write_text(json.dumps(results, indent=1))
 
 
+def _statements(outputs: list[dict]) -> list[dict]:
+    """The outputs with their printed text as statements (wrapped lines joined).
+
+    Two checkouts' paths differ in length, so a line that names the repository wraps at another word in each.
+    """
+    from tak_thermo_ros.cli.common import unwrap
+    return [{**one, **{key: '\n'.join(unwrap(one[key])) for key in ('stdout', 'stderr')}} for one in outputs]
+
+
 def compare(first: Path, second: Path) -> int:
-    """Say which commands printed or wrote something else; 0 when none did."""
-    a, b = (json.loads(path.read_text()) for path in (first, second))
+    """Say which commands printed or wrote something else (statement by statement); 0 when none did."""
+    a, b = (_statements(json.loads(path.read_text())) for path in (first, second))
     differ = 0
     for one, other in zip(a, b):
         for key in ('status', 'stdout', 'stderr'):
