@@ -1158,7 +1158,7 @@ def watch_callback_cost(params: Path, count: int = 5_000, rounds: int = WATCH_RO
 def judge_cost(watch, rests: int = 32) -> float:
     """Milliseconds to judge one rest once ``rests`` are held (the most a judgement looks at), in the timer."""
     from dataclasses import replace as copy
-    from tak_thermo_ros.core.link.watch import Rest
+    from tak_thermo_ros.core.link.rests import Rest
     start = 1_700_000_000 * NANOSECONDS
     template = Rest(index=1, start_ns=start, end_ns=start + 60 * NANOSECONDS, samples=60_000, duration_s=60.0,
                     mean=(0.0, 0.0, 9.81, 0.0, 0.0, 0.0), temperature=21.0, closed_ns=start + 61 * NANOSECONDS)

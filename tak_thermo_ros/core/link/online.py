@@ -104,14 +104,9 @@ from tak_thermo_ros.core.link.correction import (
     imu_covariances,
 )
 from tak_thermo_ros.core.link.model import Calibration, InputKind, UnitCalibration
-from tak_thermo_ros.core.link.watch import (
-    ANOTHER_CALIBRATION,
-    CalibrationWatch,
-    RestFinder,
-    WatchSettings,
-    WatchUnavailable,
-    adjustment_at,
-)
+from tak_thermo_ros.core.link.learning import adjustment_at
+from tak_thermo_ros.core.link.rests import RestFinder
+from tak_thermo_ros.core.link.watch import ANOTHER_CALIBRATION, CalibrationWatch, WatchSettings, WatchUnavailable
 from tak_thermo_ros.core.records.record import (
     DROP_REASONS,
     NANOSECONDS,
