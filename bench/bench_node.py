@@ -971,7 +971,7 @@ def node_callback_cost(params: Path, count: int = 5_000, repeats: int = 30) -> d
     share is the same for every version), and the callback called directly with a two-sensor Imu
     whose stamp goes on by 1 us: the best of ``repeats`` short runs of ``count`` (on a shared
     machine the best of many short runs is the one least disturbed). Where the version
-    honours the marks of an absent sensor (``core.link.online.OneSensor``), also the callback on
+    honours the marks of an absent sensor (``core.link.online_rules.OneSensor``), also the callback on
     messages that carry one sensor each, alternately the accelerometer and the gyroscope.
     """
     import rclpy
@@ -979,10 +979,14 @@ def node_callback_cost(params: Path, count: int = 5_000, repeats: int = 30) -> d
 
     from tak_thermo_ros.ros.node import CompensatorNode
     try:
-        from tak_thermo_ros.core.link.online import OneSensor  # noqa: F401 - this version's one-sensor path
+        from tak_thermo_ros.core.link.online_rules import OneSensor  # noqa: F401 - this version's one-sensor path
         marks = True
     except ImportError:
-        marks = False
+        try:  # a baseline from before the input rules had a module of their own
+            from tak_thermo_ros.core.link.online import OneSensor  # noqa: F401, F811
+            marks = True
+        except ImportError:
+            marks = False
     context = rclpy.context.Context()
     rclpy.init(args=['--ros-args', '--params-file', str(params), '-p', 'temp_timeout:=1000.0'], context=context,
                domain_id=bench_domain(7))
