@@ -971,7 +971,7 @@ def node_callback_cost(params: Path, count: int = 5_000, repeats: int = 30) -> d
     share is the same for every version), and the callback called directly with a two-sensor Imu
     whose stamp goes on by 1 us: the best of ``repeats`` short runs of ``count`` (on a shared
     machine the best of many short runs is the one least disturbed). Where the version
-    honours the marks of an absent sensor (``core.link.online.OneSensor``), also the callback on
+    honours the marks of an absent sensor (``core.link.online_rules.OneSensor``), also the callback on
     messages that carry one sensor each, alternately the accelerometer and the gyroscope.
     """
     import rclpy
@@ -979,10 +979,14 @@ def node_callback_cost(params: Path, count: int = 5_000, repeats: int = 30) -> d
 
     from tak_thermo_ros.ros.node import CompensatorNode
     try:
-        from tak_thermo_ros.core.link.online import OneSensor  # noqa: F401 - this version's one-sensor path
+        from tak_thermo_ros.core.link.online_rules import OneSensor  # noqa: F401 - this version's one-sensor path
         marks = True
     except ImportError:
-        marks = False
+        try:  # a baseline from before the input rules had a module of their own
+            from tak_thermo_ros.core.link.online import OneSensor  # noqa: F401, F811
+            marks = True
+        except ImportError:
+            marks = False
     context = rclpy.context.Context()
     rclpy.init(args=['--ros-args', '--params-file', str(params), '-p', 'temp_timeout:=1000.0'], context=context,
                domain_id=bench_domain(7))
@@ -1158,7 +1162,7 @@ def watch_callback_cost(params: Path, count: int = 5_000, rounds: int = WATCH_RO
 def judge_cost(watch, rests: int = 32) -> float:
     """Milliseconds to judge one rest once ``rests`` are held (the most a judgement looks at), in the timer."""
     from dataclasses import replace as copy
-    from tak_thermo_ros.core.link.watch import Rest
+    from tak_thermo_ros.core.link.rests import Rest
     start = 1_700_000_000 * NANOSECONDS
     template = Rest(index=1, start_ns=start, end_ns=start + 60 * NANOSECONDS, samples=60_000, duration_s=60.0,
                     mean=(0.0, 0.0, 9.81, 0.0, 0.0, 0.0), temperature=21.0, closed_ns=start + 61 * NANOSECONDS)

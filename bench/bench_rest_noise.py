@@ -53,7 +53,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))
 from benchlib import machine, tak_calib_command  # noqa: E402
 from everyday_watch import everyday_runs, rest_ends_ns, watch_run, watch_unit  # noqa: E402
-from tak_thermo_ros.core.link.watch import FALSE_ALARMS_PER_HOUR, ChannelNoise  # noqa: E402
+from tak_thermo_ros.core.link.rest_noise import ChannelNoise  # noqa: E402
+from tak_thermo_ros.core.link.watch import FALSE_ALARMS_PER_HOUR  # noqa: E402
 from tak_thermo_ros.core.simulation.everyday import everyday_scenario, everyday_truth  # noqa: E402
 from tak_thermo_ros.formats.calibration_file import load_unit  # noqa: E402
 from tak_thermo_ros.formats.files import write_text_atomic  # noqa: E402

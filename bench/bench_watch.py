@@ -52,8 +52,9 @@ from everyday_files import seed_files  # noqa: E402
 from everyday_watch import everyday_runs, learning_ratios, rest_ends_ns, watch_run  # noqa: E402
 
 from tak_thermo_ros import cli  # noqa: E402
-from tak_thermo_ros.core.link.watch import FALSE_ALARMS_PER_HOUR, LearnedState, WatchSettings  # noqa: E402
-from tak_thermo_ros.core.link.watch import learned_unit  # noqa: E402
+from tak_thermo_ros.core.link.learning import LearnedState  # noqa: E402
+from tak_thermo_ros.core.link.watch import FALSE_ALARMS_PER_HOUR, WatchSettings  # noqa: E402
+from tak_thermo_ros.core.link.learning import learned_unit  # noqa: E402
 from tak_thermo_ros.formats.bag import write_driver_record  # noqa: E402
 from tak_thermo_ros.formats.calibration_file import save_unit, write_text_atomic  # noqa: E402
 

@@ -21,7 +21,10 @@ import numpy as np
 from tak_thermo_ros.core.link.correction import UnitCorrector
 from tak_thermo_ros.core.link.model import TurnOn, UnitCalibration
 from tak_thermo_ros.core.link.online import OnlineCompensator
-from tak_thermo_ros.core.link.watch import DEG_PER_H, CalibrationWatch, ChannelNoise, WatchSettings, adjust
+from tak_thermo_ros.core.link.learning import adjust
+from tak_thermo_ros.core.link.rest_noise import ChannelNoise
+from tak_thermo_ros.core.link.watch import CalibrationWatch, WatchSettings
+from tak_thermo_ros.core.values import DEG_PER_H
 from tak_thermo_ros.core.records.record import NANOSECONDS, DriverRecord
 from tak_thermo_ros.core.simulation.everyday import (
     EverydayRecord,

@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from tak_thermo_ros.core.link.correction import NOT_PROVIDED
-from tak_thermo_ros.core.link.online import OneSensor, OnlineCompensator
+from tak_thermo_ros.core.link.online import OnlineCompensator
+from tak_thermo_ros.core.link.online_rules import OneSensor
 from tak_thermo_ros.core.records.record import NANOSECONDS, DriverRecord
 from tak_thermo_ros.core.simulation.imu import Scenario
 from tak_thermo_ros.core.simulation.powered import PoweredRun, simulate_powered

@@ -21,7 +21,8 @@ from tak_thermo_ros.formats.calibration_file import (
 )
 from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.core.effects import aux_effect_class, resolve_effect
-from tak_thermo_ros.core.link.online import STALE_SIGNAL, WAITING_FOR_SIGNAL, OnlineCompensator, StaleTemperature
+from tak_thermo_ros.core.link.online import OnlineCompensator
+from tak_thermo_ros.core.link.online_rules import STALE_SIGNAL, WAITING_FOR_SIGNAL, StaleTemperature
 from tak_thermo_ros.core.records.record import align, require_signals
 from tak_thermo_ros.core.simulation.imu import (
     SUPPLY_AXIS_WEIGHTS,

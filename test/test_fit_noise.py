@@ -19,7 +19,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tak_thermo_ros.cli import main
-from tak_thermo_ros.core.link.watch import ChannelNoise
+from tak_thermo_ros.core.link.rest_noise import ChannelNoise
 from tak_thermo_ros.core.noise.model import UPPER_SIGMAS, NoiseModel, noise_model_from_mapping
 from tak_thermo_ros.core.noise.rests import RestMeans, ShortSums, StretchWindows, White, fit_wander, white_noise
 from tak_thermo_ros.core.simulation.everyday import everyday_scenario, simulate_everyday_record

@@ -29,7 +29,8 @@ from tak_thermo_ros.cli.common import unwrap
 from tak_thermo_ros.core.fit.handheld import _solve, _System
 from tak_thermo_ros.core.fit.random_effects import RecordColumns, RecordStatistics, RecordSystem, absorbed
 from tak_thermo_ros.core.link.model import MIN_TURN_ON_RECORDS, TurnOn, spread_interval
-from tak_thermo_ros.core.link.watch import LearnedState, Learner, WatchSettings, calibration_digest
+from tak_thermo_ros.core.link.learning import LearnedState, Learner, calibration_digest
+from tak_thermo_ros.core.link.watch import WatchSettings
 from tak_thermo_ros.core.simulation.everyday import everyday_scenario, simulate_everyday_record
 from tak_thermo_ros.errors import TakError
 from tak_thermo_ros.formats.bag import Topics, write_driver_record

@@ -33,7 +33,7 @@ from tak_thermo_ros.formats.calibration_file import (
 )
 from tak_thermo_ros.core.link.model import InputKind
 from tak_thermo_ros.core.link.correction import Corrector, OutOfRange, UnitCorrector
-from tak_thermo_ros.core.link.online import ONLINE_DROP_REASONS
+from tak_thermo_ros.core.link.online_rules import ONLINE_DROP_REASONS
 from tak_thermo_ros.core.records.record import align
 from tak_thermo_ros.core.simulation.imu import Scenario, simulate
 from tak_thermo_ros.core.simulation.motion import HandheldMotion

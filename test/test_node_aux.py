@@ -30,7 +30,7 @@ from tak_thermo_ros.formats.bag import (
     write_record,
 )
 from tak_thermo_ros.formats.calibration_file import unit_yaml, write_text_atomic
-from tak_thermo_ros.core.link.online import as_unit
+from tak_thermo_ros.core.link.online_rules import as_unit
 from tak_thermo_ros.core.effects import aux_effect_class
 from tak_thermo_ros.core.simulation.imu import Scenario, simulate
 

@@ -19,7 +19,8 @@ from conftest import examples
 from node_helpers import RELIABLE, Harness, NodeProcess, header_stamp, node_command, stamp_of, status_values
 from tak_thermo_ros import cli
 from tak_thermo_ros.formats.bag import MAGNETIC_FIELD, iter_topic_arrays, write_driver_record
-from tak_thermo_ros.core.link.online import ONLINE_DROP_REASONS, OnlineCompensator
+from tak_thermo_ros.core.link.online import OnlineCompensator
+from tak_thermo_ros.core.link.online_rules import ONLINE_DROP_REASONS
 from tak_thermo_ros.core.magnetometer.channel import MagCorrector
 from tak_thermo_ros.formats.calibration_file import load_unit
 from tak_thermo_ros.core.simulation.imu import Scenario, simulate

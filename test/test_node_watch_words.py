@@ -14,7 +14,9 @@ import numpy as np
 from everyday_watch import HABITS, LATITUDE, everyday_runs, watch_unit
 from node_helpers import Harness, NodeProcess, node_command, play_driver, run_to_exit, status_values
 from tak_thermo_ros import cli
-from tak_thermo_ros.core.link.watch import DEG_PER_H, MIN_SPREAD_RUNS, LearnedState, WatchSettings
+from tak_thermo_ros.core.link.learning import MIN_SPREAD_RUNS, LearnedState
+from tak_thermo_ros.core.link.watch import WatchSettings
+from tak_thermo_ros.core.values import DEG_PER_H
 from tak_thermo_ros.formats.bag import write_driver_record
 from tak_thermo_ros.formats.calibration_file import save_unit
 

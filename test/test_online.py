@@ -16,12 +16,9 @@ from tak_thermo_ros.core.link.correction import (
     acceleration_variance,
     imu_covariances,
 )
-from tak_thermo_ros.core.link.online import (
-    ONLINE_DROP_REASONS,
-    Level,
-    OnlineCompensator,
-    StaleTemperature,
-)
+from tak_thermo_ros.core.link.online import OnlineCompensator
+from tak_thermo_ros.core.link.online_reports import Level
+from tak_thermo_ros.core.link.online_rules import ONLINE_DROP_REASONS, StaleTemperature
 from tak_thermo_ros.core.records.record import (
     STAMP_DROP_REASONS,
     TEMP_CODE_LIMIT,
@@ -599,7 +596,12 @@ from own_stamps import absent_marks, core_output, own_stamps_record, own_stamps_
 
 from tak_thermo_ros.core.effects import Effect, ParameterSpec, aux_effect_class  # noqa: E402
 from tak_thermo_ros.core.link.correction import NOT_PROVIDED  # noqa: E402
-from tak_thermo_ros.core.link.online import IMU_DROP_REASONS, SENSORS, SIGNAL_DROP_REASONS, OneSensor  # noqa: E402
+from tak_thermo_ros.core.link.online_rules import (  # noqa: E402
+    IMU_DROP_REASONS,
+    SENSORS,
+    SIGNAL_DROP_REASONS,
+    OneSensor,
+)
 from tak_thermo_ros.core.records.record import sensor_messages, temp_code_problem  # noqa: E402
 
 APART = own_stamps_unit()

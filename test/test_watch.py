@@ -28,17 +28,10 @@ from tak_thermo_ros import cli
 from tak_thermo_ros.cli.common import unwrap
 from tak_thermo_ros.core.link.correction import UnitCorrector
 from tak_thermo_ros.core.link.online import OnlineCompensator
-from tak_thermo_ros.core.link.watch import (
-    DEG_PER_H,
-    REST_MAX_S,
-    LearnedState,
-    RestFinder,
-    WatchSettings,
-    WatchUnavailable,
-    adjust,
-    calibration_digest,
-    chi2_quantile_ratio,
-)
+from tak_thermo_ros.core.link.learning import LearnedState, adjust, calibration_digest
+from tak_thermo_ros.core.link.rests import REST_MAX_S, RestFinder, chi2_quantile_ratio
+from tak_thermo_ros.core.link.watch import WatchSettings, WatchUnavailable
+from tak_thermo_ros.core.values import DEG_PER_H
 from tak_thermo_ros.core.records.record import NANOSECONDS
 from tak_thermo_ros.formats.bag import read_imu_messages, write_driver_record
 from tak_thermo_ros.formats.calibration_file import load_unit, save_unit

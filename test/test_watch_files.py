@@ -18,7 +18,8 @@ import pytest
 
 from everyday_watch import LATITUDE, everyday_runs, watch_run
 from tak_thermo_ros import cli
-from tak_thermo_ros.core.link.watch import DEG_PER_H, FALSE_ALARMS_PER_HOUR, WatchSettings
+from tak_thermo_ros.core.link.watch import FALSE_ALARMS_PER_HOUR, WatchSettings
+from tak_thermo_ros.core.values import DEG_PER_H
 from tak_thermo_ros.core.simulation.everyday import everyday_truth, second_everyday, simulate_everyday_record
 from tak_thermo_ros.formats.bag import write_driver_record
 from tak_thermo_ros.formats.calibration_file import load_unit

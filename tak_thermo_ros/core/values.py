@@ -14,6 +14,10 @@ SENSOR_NAMES = {'accel': 'accelerometer', 'gyro': 'gyroscope', 'mag': 'magnetome
 """Each sensor's name as a person reads it."""
 EARTH_RATE = 7.2921159e-5
 """The Earth's rotation rate, rad/s (WGS 84)."""
+DEG_PER_H = 180.0 / math.pi * 3600.0
+"""deg/h per rad/s."""
+MG = 1e3 / STANDARD_GRAVITY
+"""mg per m/s^2."""
 
 
 def normal_gravity(latitude_deg: float) -> float:

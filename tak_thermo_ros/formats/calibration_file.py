@@ -870,7 +870,7 @@ def load_unit_parameters(path: str | os.PathLike[str], *,
         msg = f'{path}: not a calibration file ({unreadable(err)})'
         raise CalibrationError(msg) from None
     if LEARNED_KEY in parameters:  # a learned file: its corrections judged as the node applies them
-        from tak_thermo_ros.core.link.watch import LearnedState, check_learned
+        from tak_thermo_ros.core.link.learning import LearnedState, check_learned
         try:
             check_learned(unit, LearnedState.from_mapping(parameters[LEARNED_KEY], f'{path}: {LEARNED_KEY}'),
                           str(path))

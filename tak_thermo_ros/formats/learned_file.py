@@ -4,7 +4,7 @@
 message path: periodically and at shutdown) and read it at its next start. It is a calibration
 file (``tak_calib validate``, ``diagnose`` and ``export`` take it as ``--params``): the original
 calibration with the learned gyroscope corrections folded into its curve
-(:func:`~tak_thermo_ros.core.link.watch.learned_unit`), plus a ``learned`` parameter beside
+(:func:`~tak_thermo_ros.core.link.learning.learned_unit`), plus a ``learned`` parameter beside
 ``calibration`` holding the corrections, their variances and a digest of the original curve, so
 that the next run goes on from them and never applies them to another calibration.
 """
@@ -14,7 +14,7 @@ from __future__ import annotations
 import os
 
 from tak_thermo_ros.core.link.model import UnitCalibration
-from tak_thermo_ros.core.link.watch import LearnedState, calibration_digest, check_learned, learned_unit
+from tak_thermo_ros.core.link.learning import LearnedState, calibration_digest, check_learned, learned_unit
 from tak_thermo_ros.errors import TakError
 from tak_thermo_ros.formats.calibration_file import LEARNED_KEY, load_unit_parameters, save_unit  # noqa: F401
 
@@ -32,7 +32,7 @@ def load_learned(path: str | os.PathLike[str], unit: UnitCalibration | None = No
     """The learning's state in a learned file, or ``None`` when the file does not exist.
 
     :param unit: the calibration the node applies it on: its corrections are judged against the bounds
-        learning keeps on it (:func:`~tak_thermo_ros.core.link.watch.check_learned`), unless they were
+        learning keeps on it (:func:`~tak_thermo_ros.core.link.learning.check_learned`), unless they were
         learned on another calibration
         (then they are not applied: learning starts afresh).
     :raises TakError: one line naming the file, when it exists but is no learned file, or its corrections

@@ -74,15 +74,12 @@ from tak_thermo_ros.formats.calibration_file import (
 from tak_thermo_ros.core.link.correction import NOT_PROVIDED_COVARIANCE, OutOfRange
 from tak_thermo_ros.core.effects.aux_signal import AUX_FIELDS, signal_field, split_signal_name
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
-from tak_thermo_ros.core.link.online import SENSORS, Level, OneSensor, OnlineCompensator, StaleTemperature
-from tak_thermo_ros.core.link.watch import (
-    DEG_PER_H,
-    MG,
-    LearnedState,
-    WatchSettings,
-    turn_on_unavailable,
-    watch_unavailable,
-)
+from tak_thermo_ros.core.link.online import OnlineCompensator
+from tak_thermo_ros.core.link.online_reports import Level
+from tak_thermo_ros.core.link.online_rules import SENSORS, OneSensor, StaleTemperature
+from tak_thermo_ros.core.link.learning import LearnedState
+from tak_thermo_ros.core.link.watch import WatchSettings, turn_on_unavailable, watch_unavailable
+from tak_thermo_ros.core.values import DEG_PER_H, MG
 from tak_thermo_ros.formats.files import not_regular
 from tak_thermo_ros.formats.learned_file import LEARNED_KEY, load_learned, save_learned
 from tak_thermo_ros.errors import CalibrationError, CdrError, TakError

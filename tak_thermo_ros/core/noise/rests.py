@@ -15,7 +15,7 @@ So every fit writes it (``source: fit``):
    constant solved from the ratio, :func:`~tak_thermo_ros.core.noise.model.filtered_white_allan_variance`),
    and the density the window's (the long-term one a rest's mean averages).
 2. **Between the stretches, the wander** (:func:`fit_wander`): the stretches' mean residuals have the
-   covariance the watch itself uses (:class:`~tak_thermo_ros.core.link.watch.ChannelNoise`: each
+   covariance the watch itself uses (:class:`~tak_thermo_ros.core.link.rest_noise.ChannelNoise`: each
    mean's white noise, and between two means the flicker term's ``(4 B^2 / pi)(ln 2 + ln(S / T) / 2)``
    and the random walk's ``K^2 (gap + T1 / 3 + T2 / 3)``), and ``B`` and ``K`` are their restricted
    maximum likelihood (REML): the likelihood of the contrasts that no fixed effect reaches. The
@@ -298,10 +298,10 @@ def unit_wander(means: RestMeans) -> tuple[np.ndarray, np.ndarray]:
 
     Within each record, counted from its first stretch (a process with stationary increments:
     ``(D_i0 + D_j0 - D_ij) / 2`` from the variances ``D`` of the pairwise differences the watch
-    uses, :meth:`~tak_thermo_ros.core.link.watch.ChannelNoise.wander`, the flicker's negative part left out
-    as the watch leaves it, :func:`~tak_thermo_ros.core.link.watch.positive_part`); 0 between records.
+    uses, :meth:`~tak_thermo_ros.core.link.rest_noise.ChannelNoise.wander`, the flicker's negative part left out
+    as the watch leaves it, :func:`~tak_thermo_ros.core.link.rest_noise.positive_part`); 0 between records.
     """
-    from tak_thermo_ros.core.link.watch import ChannelNoise, positive_part
+    from tak_thermo_ros.core.link.rest_noise import ChannelNoise, positive_part
     flicker_unit = ChannelNoise(0.0, 0.0, 1.0, 0.0, 0.0)
     walk_unit = ChannelNoise(0.0, 0.0, 0.0, 1.0, 0.0)
     count = len(means)
