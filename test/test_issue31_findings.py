@@ -15,7 +15,8 @@ import pytest
 
 from tak_thermo_ros import cli
 from tak_thermo_ros.core.diagnose import diagnose
-from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.formats.bag import Topics, write_driver_record
 from tak_thermo_ros.formats.calibration_file import load_unit
 from tak_thermo_ros.formats.scenario import load_scenario

@@ -30,7 +30,7 @@ from tak_thermo_ros.core.records.record import (
     seconds_from_ns,
     stamp_problems,
 )
-from tak_thermo_ros.core.simulation.imu import Scenario
+from tak_thermo_ros.core.simulation.scenario import Scenario
 
 CALIBRATION = Scenario().truth()  # temperature-code range 7600..8800
 SEC = 1_700_000_000

@@ -53,7 +53,7 @@ from tak_thermo_ros.core.diagnose import (  # noqa: E402
 from tak_thermo_ros.core.fit.design import single_input_axes  # noqa: E402
 from tak_thermo_ros.core.link.model import AXES  # noqa: E402
 from tak_thermo_ros.core.records.record import AlignedSamples  # noqa: E402
-from tak_thermo_ros.core.simulation.imu import STANDARD_GRAVITY  # noqa: E402
+from tak_thermo_ros.core.values import STANDARD_GRAVITY  # noqa: E402
 from tak_thermo_ros.core.link.validate import validate_gravity  # noqa: E402
 from tak_thermo_ros.units import in_driver_words, readable, readable_unit, significant  # noqa: E402
 
