@@ -23,7 +23,8 @@ from tak_thermo_ros.formats.scenario import load_scenario
 from tak_thermo_ros.passes.diagnose import bounded_run
 from tak_thermo_ros.passes.run import StreamOptions
 from tak_thermo_ros.passes.validate import validate_bag
-from tak_thermo_ros.reports.diagnose import gravity_series, write_report
+from tak_thermo_ros.reports.diagnose import write_report
+from tak_thermo_ros.reports.diagnose_figures import gravity_series
 from tak_thermo_ros.units import with_error
 
 DOCS = Path(__file__).resolve().parents[1] / 'docs'
