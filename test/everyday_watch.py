@@ -22,7 +22,8 @@ from tak_thermo_ros.core.link.correction import UnitCorrector
 from tak_thermo_ros.core.link.model import TurnOn, UnitCalibration
 from tak_thermo_ros.core.link.online import OnlineCompensator
 from tak_thermo_ros.core.link.watch import DEG_PER_H, CalibrationWatch, ChannelNoise, WatchSettings, adjust
-from tak_thermo_ros.core.records.record import NANOSECONDS, DriverRecord
+from tak_thermo_ros.core.records.record import DriverRecord
+from tak_thermo_ros.core.records.stamps import NANOSECONDS
 from tak_thermo_ros.core.simulation.everyday import (
     EverydayRecord,
     _rest_poses,

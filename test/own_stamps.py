@@ -13,7 +13,8 @@ import numpy as np
 
 from tak_thermo_ros.core.link.correction import NOT_PROVIDED
 from tak_thermo_ros.core.link.online import OneSensor, OnlineCompensator
-from tak_thermo_ros.core.records.record import NANOSECONDS, DriverRecord
+from tak_thermo_ros.core.records.record import DriverRecord
+from tak_thermo_ros.core.records.stamps import NANOSECONDS
 from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.core.simulation.powered import PoweredRun, simulate_powered
 from tak_thermo_ros.formats.bag import ImuMessages, read_driver_record, read_imu_messages

@@ -22,14 +22,8 @@ from tak_thermo_ros.core.link.online import (
     OnlineCompensator,
     StaleTemperature,
 )
-from tak_thermo_ros.core.records.record import (
-    STAMP_DROP_REASONS,
-    TEMP_CODE_LIMIT,
-    TEMPERATURE_RANGE,
-    counts_problems,
-    seconds_from_ns,
-    stamp_problems,
-)
+from tak_thermo_ros.core.records.drops import TEMP_CODE_LIMIT, TEMPERATURE_RANGE, counts_problems
+from tak_thermo_ros.core.records.stamps import STAMP_DROP_REASONS, seconds_from_ns, stamp_problems
 from tak_thermo_ros.core.simulation.scenario import Scenario
 
 CALIBRATION = Scenario().truth()  # temperature-code range 7600..8800
@@ -600,7 +594,8 @@ from own_stamps import absent_marks, core_output, own_stamps_record, own_stamps_
 from tak_thermo_ros.core.effects import Effect, ParameterSpec, aux_effect_class  # noqa: E402
 from tak_thermo_ros.core.link.correction import NOT_PROVIDED  # noqa: E402
 from tak_thermo_ros.core.link.online import IMU_DROP_REASONS, SENSORS, SIGNAL_DROP_REASONS, OneSensor  # noqa: E402
-from tak_thermo_ros.core.records.record import sensor_messages, temp_code_problem  # noqa: E402
+from tak_thermo_ros.core.records.drops import temp_code_problem  # noqa: E402
+from tak_thermo_ros.core.records.record import sensor_messages  # noqa: E402
 
 APART = own_stamps_unit()
 """The driver unit with an effect with memory on each sensor (accelerometer hysteresis, gyroscope lag)."""

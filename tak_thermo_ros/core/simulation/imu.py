@@ -24,16 +24,9 @@ import numpy as np
 
 from tak_thermo_ros.core.link.model import Calibration, UnitCalibration
 from tak_thermo_ros.core.simulation.noise import bias_wander, filtered_white
-from tak_thermo_ros.core.records.record import (
-    COUNTS_MAX,
-    COUNTS_MIN,
-    ChannelRecord,
-    DriverRecord,
-    hold_last_index,
-    no_orientation,
-    ns_from_seconds,
-    seconds_from_ns,
-)
+from tak_thermo_ros.core.records.drops import COUNTS_MAX, COUNTS_MIN
+from tak_thermo_ros.core.records.record import ChannelRecord, DriverRecord, hold_last_index, no_orientation
+from tak_thermo_ros.core.records.stamps import ns_from_seconds, seconds_from_ns
 from tak_thermo_ros.core.simulation.motion import Trajectory, hand_trajectory
 from tak_thermo_ros.core.simulation.magnetometer import rotation_record, table_field
 from tak_thermo_ros.core.simulation.scenario import Scenario

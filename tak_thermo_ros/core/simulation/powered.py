@@ -24,7 +24,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tak_thermo_ros.core.link.model import Calibration, InputKind, UnitCalibration
-from tak_thermo_ros.core.records.record import DriverRecord, no_orientation, ns_from_seconds
+from tak_thermo_ros.core.records.record import DriverRecord, no_orientation
+from tak_thermo_ros.core.records.stamps import ns_from_seconds
 from tak_thermo_ros.core.simulation.imu import first_order_lag
 from tak_thermo_ros.core.simulation.truth import AxisTruth, exact_output
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
