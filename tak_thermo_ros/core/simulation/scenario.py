@@ -16,7 +16,7 @@ reads the file); :func:`tak_thermo_ros.core.simulation.imu.simulate` runs it.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Mapping
 
 from tak_thermo_ros.core.effects import resolve_effect
@@ -26,6 +26,7 @@ from tak_thermo_ros.core.link.model import AXES, Calibration, InputKind, UnitCal
 from tak_thermo_ros.core.noise.model import NoiseModel, floor_tau, model_floor_tau
 from tak_thermo_ros.core.simulation.motion import HandheldMotion, motion_from_mapping
 from tak_thermo_ros.core.simulation.magnetometer import MagnetometerTruth, truth_from_mapping
+from tak_thermo_ros.core.simulation.mapping import fields_from_mapping, flag, integer, number, numbers, string
 from tak_thermo_ros.core.simulation.truth import (
     DEFAULT_DRIVER_ACCEL,
     DEFAULT_DRIVER_GYRO,
@@ -333,20 +334,8 @@ def _effects_from_mapping(raw: Any) -> dict[str, dict[str, float]]:
         if not isinstance(values, Mapping):
             msg = f'effects.{name}: expected a mapping of parameter names to numbers'
             raise ScenarioError(msg)
-        for parameter, value in values.items():
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                msg = f'effects.{name}.{parameter}: expected a finite number'
-                raise ScenarioError(msg)
-        effects[str(name)] = {str(k): float(v) for k, v in values.items()}
+        effects[str(name)] = {str(k): number(v, f'effects.{name}.{k}', finite=True) for k, v in values.items()}
     return effects
-
-
-def _tuple_of_floats(value: Any, key: str) -> tuple[float, ...]:
-    if not isinstance(value, (list, tuple)) or not all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
-        msg = f'{key}: expected a list of numbers'
-        raise ScenarioError(msg)
-    return tuple(float(v) for v in value)
 
 
 def scenario_from_mapping(raw: Mapping[str, Any], *, base: Scenario | None = None) -> Scenario:
@@ -355,56 +344,39 @@ def scenario_from_mapping(raw: Mapping[str, Any], *, base: Scenario | None = Non
     :raises ScenarioError: naming an unknown or ill-typed key.
     """
     base = base or Scenario()
-    if not isinstance(raw, Mapping):
-        msg = 'scenario: expected a mapping of keys to values'
-        raise ScenarioError(msg)
-    known = {f.name: f for f in fields(Scenario)}
-    changes: dict[str, Any] = {}
-    for key, value in raw.items():
-        if key not in known:
-            msg = f'{key}: unknown scenario key (known: {", ".join(known)})'
-            raise ScenarioError(msg)
+
+    def read(key: str, value: Any) -> Any:
         current = getattr(base, key)
         if key in ('unit', 'accel_unit', 'gyro_unit'):
-            changes[key] = _unit_from_mapping(value, getattr(base, key))
-        elif key in ('effects', 'gyro_effects'):
-            changes[key] = _effects_from_mapping(value)
-        elif key == 'magnetometer':
-            changes[key] = None if value is None else truth_from_mapping(value)
-        elif key == 'handheld':
-            changes[key] = None if value is None else motion_from_mapping(value)
-        elif key == 'positions':
+            return _unit_from_mapping(value, getattr(base, key))
+        if key in ('effects', 'gyro_effects'):
+            return _effects_from_mapping(value)
+        if key == 'magnetometer':
+            return None if value is None else truth_from_mapping(value)
+        if key == 'handheld':
+            return None if value is None else motion_from_mapping(value)
+        if key == 'positions':
             if not isinstance(value, list) or not all(isinstance(p, list) and len(p) == 3 for p in value):
                 msg = 'positions: expected a list of [x, y, z] unit vectors'
                 raise ScenarioError(msg)
-            vectors = tuple(_tuple_of_floats(p, 'positions') for p in value)
+            vectors = tuple(numbers(p, 'positions') for p in value)
             for p in vectors:
                 if not math.isclose(math.hypot(*p), 1.0, rel_tol=1e-6):
                     msg = f'positions: {list(p)} is not a unit vector'
                     raise ScenarioError(msg)
-            changes[key] = vectors
-        elif isinstance(current, tuple):
-            changes[key] = _tuple_of_floats(value, key)
-        elif isinstance(current, str):
-            if not isinstance(value, str):
-                msg = f'{key}: expected a string'
-                raise ScenarioError(msg)
-            changes[key] = value
-        elif isinstance(current, bool):
-            if not isinstance(value, bool):
-                msg = f'{key}: expected true or false'
-                raise ScenarioError(msg)
-            changes[key] = value
-        elif isinstance(current, int):
-            if isinstance(value, bool) or not isinstance(value, int):
-                msg = f'{key}: expected an integer'
-                raise ScenarioError(msg)
-            changes[key] = value
-        else:
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                msg = f'{key}: expected a finite number'
-                raise ScenarioError(msg)
-            changes[key] = float(value)
+            return vectors
+        if isinstance(current, tuple):
+            return numbers(value, key)
+        if isinstance(current, str):
+            return string(value, key)
+        if isinstance(current, bool):
+            return flag(value, key)
+        if isinstance(current, int):
+            return integer(value, key)
+        return number(value, key, finite=True)
+
+    changes = fields_from_mapping(raw, Scenario, '', read, noun='scenario key',
+                                  not_a_mapping='scenario: expected a mapping of keys to values')
     return replace(base, **changes)
 
 
@@ -413,25 +385,17 @@ def _unit_from_mapping(raw: Any, base: tuple[AxisTruth, ...]) -> tuple[AxisTruth
         msg = 'unit: expected a mapping with axes x, y, z'
         raise ScenarioError(msg)
     axes = list(base)
-    known = {f.name for f in fields(AxisTruth)}
     for name, values in raw.items():
         if name not in AXES:
             msg = f'unit.{name}: unknown axis (x, y or z)'
             raise ScenarioError(msg)
-        if not isinstance(values, Mapping):
-            msg = f'unit.{name}: expected a mapping'
-            raise ScenarioError(msg)
-        changes: dict[str, Any] = {}
-        for key, value in values.items():
-            if key not in known:
-                msg = f'unit.{name}.{key}: unknown key (known: {", ".join(sorted(known))})'
-                raise ScenarioError(msg)
+
+        def read(key: str, value: Any) -> float | tuple[float, ...]:
             if key in ('offset_coeffs', 'scale_coeffs', 'gauss_markov', 'gauss_markov_time'):
-                changes[key] = _tuple_of_floats(value, f'unit.{name}.{key}')
-            elif isinstance(value, bool) or not isinstance(value, (int, float)):
-                msg = f'unit.{name}.{key}: expected a number'
-                raise ScenarioError(msg)
-            else:
-                changes[key] = float(value)
+                return numbers(value, f'unit.{name}.{key}')
+            return number(value, f'unit.{name}.{key}')
+
+        changes = fields_from_mapping(values, AxisTruth, f'unit.{name}.', read,
+                                      not_a_mapping=f'unit.{name}: expected a mapping', sort_known=True)
         axes[AXES.index(name)] = replace(axes[AXES.index(name)], **changes)
     return tuple(axes)
