@@ -132,7 +132,7 @@ class AlignedSamples:
     :param reference: ``(k, 3)`` held reference, or ``None`` without a reference stream.
     :param dropped: reason -> number of counts samples left out.
     :param rows: ``(k,)`` index of each kept sample in the record's stream, or ``None``.
-    :param ignored_temp_codes: reason of :data:`TEMP_CODE_PROBLEMS` -> number of temperature
+    :param ignored_temp_codes: reason of :data:`~.drops.TEMP_CODE_PROBLEMS` -> number of temperature
         codes that were ignored (not held), reasons with none left out.
     :param ignored_references: the same for reference messages (:func:`reference_problems`).
     :param aux: recorded signal name -> ``(k,)`` its value held at each kept sample's stamp
@@ -174,11 +174,11 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
     """Hold temperature code and reference on the counts stamps and keep usable samples.
 
     Counts samples are left out, and counted by reason, in this order: the header stamp does
-    not go on from the previous message's or the last kept one's (:func:`stamp_kept`:
+    not go on from the previous message's or the last kept one's (:func:`~.stamps.stamp_kept`:
     ``duplicate_stamp``, ``time_backwards``, ``stamp_jump``); for the reasons of
     :func:`counts_problems`: a code is NaN or infinite (``non_finite``), not a whole number
     (``non_integer``), or at a 16-bit rail (``saturated``, unless ``drop_saturated`` is false),
-    a driver's value of magnitude :data:`VALUE_LIMIT` or more (``non_physical``); no
+    a driver's value of magnitude :data:`~.drops.VALUE_LIMIT` or more (``non_physical``); no
     temperature code has arrived yet
     (``before_first_temp_code``); no reference yet (``before_first_reference``); within
     ``settle_time_s`` after a reference change (``settling``).
