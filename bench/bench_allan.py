@@ -98,7 +98,8 @@ def end_to_end(hours: float, rate: float, workdir: Path) -> int:
     from bench_fit import BASELINE_SCRIPT, run_child
     from benchlib import tak_calib_command
     from tak_thermo_ros.formats.bag import write_driver_record
-    from tak_thermo_ros.core.simulation.imu import scenario_from_mapping, simulate
+    from tak_thermo_ros.core.simulation.imu import simulate
+    from tak_thermo_ros.core.simulation.scenario import scenario_from_mapping
     axis = {'noise_counts': WHITE * math.sqrt(rate), 'bias_instability': BIAS, 'bias_instability_tau': BIAS_TAU,
             'random_walk': WALK}
     scenario = scenario_from_mapping({'output': 'imu', 'sample_rate_hz': rate, 'plateaus_celsius': [20.0],

@@ -26,7 +26,8 @@ from pathlib import Path
 
 from benchlib import machine
 from tak_thermo_ros.core.magnetometer.budget import monte_carlo, sweep, table_text
-from tak_thermo_ros.core.magnetometer.carrier import POISSON_NAMES, CarrierModel, Gauge, design_condition
+from tak_thermo_ros.core.magnetometer.carrier import POISSON_NAMES, CarrierModel, Gauge
+from tak_thermo_ros.core.magnetometer.carrier_fit import design_condition
 from tak_thermo_ros.formats.files import write_text_atomic
 from tak_thermo_ros.core.simulation.carrier import CarrierScenario, stage_design
 

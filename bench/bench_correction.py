@@ -28,7 +28,7 @@ import numpy as np
 
 from tak_thermo_ros.formats.calibration_file import write_text_atomic
 from tak_thermo_ros.core.link.correction import Corrector
-from tak_thermo_ros.core.simulation.imu import Scenario
+from tak_thermo_ros.core.simulation.scenario import Scenario
 
 RESULTS = Path(__file__).resolve().parent / 'results'
 TARGET_MISSED = 3

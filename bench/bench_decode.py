@@ -178,7 +178,8 @@ def bench_decode(totals: list[int], repeat: int) -> list[dict[str, object]]:
 
 def bench_record(messages: int, storages: list[str], repeat: int, workdir: Path) -> list[dict[str, object]]:
     from tak_thermo_ros.formats.bag import write_record
-    from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+    from tak_thermo_ros.core.simulation.imu import simulate
+    from tak_thermo_ros.core.simulation.scenario import Scenario
     base = Scenario(sample_rate_hz=RATE_HZ, plateaus_celsius=(10.0, 30.0), ramp_celsius_per_minute=20.0)
     ramps_s = base.duration_s() - len(base.plateaus_celsius) * base.plateau_hours * 3600.0
     plateau_hours = max(messages / RATE_HZ - ramps_s, 60.0) / 3600.0 / len(base.plateaus_celsius)

@@ -8,7 +8,7 @@ an in-process breakdown (read, diagnose, report). The run hides a thermal lag so
 whole ladder and report are exercised.
 
 Verdict matrix (``--matrix``): for every library effect, over several seeds and the three
-temperature profiles of ``tak_thermo_ros.core.simulation.imu.PROFILES``, with effect parameters
+temperature profiles of ``tak_thermo_ros.core.simulation.scenario.PROFILES``, with effect parameters
 drawn per seed: simulate a run with the effect, fit the base model, diagnose; the verdict
 must name the effect; refit with it: the residual RMS must lie within 1.1x the simulated
 noise floor, and the |g| error of a second run of the same unit (another seed) must fall.
@@ -50,7 +50,8 @@ from tak_thermo_ros.core.effects import LIBRARY, resolve_effect, seconds_from_ns
 from tak_thermo_ros.core.fit import fit_model, residual_counts
 from tak_thermo_ros.core.records.record import align
 from tak_thermo_ros.core.noise.residual import model_from_residual
-from tak_thermo_ros.core.simulation.imu import PROFILES, Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import PROFILES, Scenario
 from tak_thermo_ros.core.link.validate import validate_gravity
 
 RESULTS = Path(__file__).resolve().parent / 'results'

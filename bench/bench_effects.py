@@ -15,7 +15,8 @@ from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.core.effects import LIBRARY, seconds_from_ns
 from tak_thermo_ros.core.fit import fit_calibration, fit_model, residual_counts
 from tak_thermo_ros.core.records.record import align
-from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
 
 EXAMPLES = {
     'thermal_lag': {'tau_s': 1800.0, 'slope_z': 0.03},

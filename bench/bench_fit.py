@@ -32,7 +32,7 @@ from pathlib import Path
 
 from benchlib import machine, stretched, tak_calib_command
 from tak_thermo_ros.formats.calibration_file import write_text_atomic
-from tak_thermo_ros.core.simulation.imu import Scenario
+from tak_thermo_ros.core.simulation.scenario import Scenario
 
 RESULTS = Path(__file__).resolve().parent / 'results'
 TARGET_MISSED = 3

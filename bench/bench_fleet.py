@@ -30,7 +30,8 @@ import numpy as np
 
 from benchlib import machine, stretched, tak_calib_command
 from tak_thermo_ros.formats.calibration_file import write_text_atomic
-from tak_thermo_ros.core.simulation.imu import DEFAULT_UNIT, Scenario
+from tak_thermo_ros.core.simulation.scenario import Scenario
+from tak_thermo_ros.core.simulation.truth import DEFAULT_UNIT
 
 RESULTS = Path(__file__).resolve().parent / 'results'
 WORKER_COUNTS = (1, 2)

@@ -39,7 +39,7 @@ write_bag(sys.argv[2], float(sys.argv[3]))
 
 def scenario(hours: float):
     """The hand-held record of ``hours`` (see the module's description)."""
-    from tak_thermo_ros.core.simulation.imu import Scenario
+    from tak_thermo_ros.core.simulation.scenario import Scenario
     from tak_thermo_ros.core.simulation.motion import HandheldMotion
     rests = int(hours * 3600.0 / 10.0)
     return Scenario(output='imu', sample_rate_hz=RATE_HZ, temp_code_every=50, start_celsius=5.0, seed=1,

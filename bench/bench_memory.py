@@ -69,7 +69,7 @@ def write_bag(path: str | os.PathLike[str], hours: float, *, seed: int = 1) -> N
     """Generate and write a counts-contract bag of ``hours`` at 1 kHz, chunk by chunk."""
     from rosbags.rosbag2 import StoragePlugin, Writer  # the bench only: the package reads bags via bagio
     from tak_thermo_ros.formats.bag import NOMINAL_SCALE_KEY, TEMPERATURE, TYPESTORE, VECTOR3_STAMPED, Topics
-    from tak_thermo_ros.core.simulation.imu import Scenario
+    from tak_thermo_ros.core.simulation.scenario import Scenario
     truth = Scenario().truth()
     noise = Scenario().unit[0].noise_counts
     rng = np.random.default_rng(seed)

@@ -699,7 +699,7 @@ def main() -> int:
     rounds = 2 if args.quick else 10
 
     from tak_thermo_ros.formats.calibration_file import save_calibration
-    from tak_thermo_ros.core.simulation.imu import Scenario
+    from tak_thermo_ros.core.simulation.scenario import Scenario
 
     with tempfile.TemporaryDirectory(prefix='bench_node_') as tmp:
         workdir = Path(tmp)
@@ -1089,7 +1089,7 @@ def watch_params(path: Path) -> None:
     """The simulator's driver unit with its noise models: a calibration the watch runs on."""
     from dataclasses import replace
     from tak_thermo_ros.formats.calibration_file import save_unit
-    from tak_thermo_ros.core.simulation.imu import Scenario
+    from tak_thermo_ros.core.simulation.scenario import Scenario
     scenario = Scenario(output='imu')
     unit = scenario.driver_truth()
     save_unit(path, replace(unit, accel=replace(unit.accel, noise=scenario.noise_truth('accel')),
@@ -1275,7 +1275,7 @@ def pipeline_only(baseline: Path, rounds: int = CALLBACK_ROUNDS) -> int:
 def driver_params(path: Path) -> None:
     """The simulator's default driver unit as a version-2 calibration file."""
     from tak_thermo_ros.formats.calibration_file import save_unit
-    from tak_thermo_ros.core.simulation.imu import Scenario
+    from tak_thermo_ros.core.simulation.scenario import Scenario
     save_unit(path, Scenario(output='imu').driver_truth())
 
 
@@ -1581,7 +1581,7 @@ def rates_only(*, quick: bool) -> int:
         workdir = Path(tmp)
         params = {'counts': workdir / 'counts.yaml', 'driver': workdir / 'driver.yaml'}
         from tak_thermo_ros.formats.calibration_file import save_calibration
-        from tak_thermo_ros.core.simulation.imu import Scenario
+        from tak_thermo_ros.core.simulation.scenario import Scenario
         save_calibration(params['counts'], Scenario().truth())
         watch_params(params['driver'])  # with its noise models: the watch runs, as it does from `tak_calib fit`
         load = os.getloadavg()

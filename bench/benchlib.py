@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from tak_thermo_ros.core.simulation.imu import Scenario
+    from tak_thermo_ros.core.simulation.scenario import Scenario
 
 
 def tak_calib_command() -> list[str]:

@@ -43,7 +43,8 @@ from tak_thermo_ros.core.simulation.everyday import (
     second_everyday,
     simulate_everyday_record,
 )
-from tak_thermo_ros.core.simulation.imu import RATE_TABLE_POSITIONS, RATE_TABLE_RATES, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.truth import RATE_TABLE_POSITIONS, RATE_TABLE_RATES
 
 ANDROID_BIN_C = 0.75
 ANDROID_MIN_REST_S = 5.0

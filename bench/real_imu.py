@@ -41,7 +41,7 @@ from tak_thermo_ros.core.diagnose import diagnose  # noqa: E402
 from tak_thermo_ros.core.effects import seconds_from_ns  # noqa: E402
 from tak_thermo_ros.core.fit import fit_calibration, fit_model, residual_counts  # noqa: E402
 from tak_thermo_ros.core.records.record import align  # noqa: E402
-from tak_thermo_ros.core.simulation.imu import STANDARD_GRAVITY  # noqa: E402
+from tak_thermo_ros.core.values import STANDARD_GRAVITY  # noqa: E402
 from tak_thermo_ros.core.link.validate import validate_gravity  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -8,7 +8,8 @@ import numpy as np
 from rosbags.rosbag2 import Writer
 
 from tak_thermo_ros.formats.bag import TEMPERATURE, TYPESTORE, VECTOR3_STAMPED, Topics
-from tak_thermo_ros.core.records.record import NANOSECONDS, ChannelRecord
+from tak_thermo_ros.core.records.record import ChannelRecord
+from tak_thermo_ros.core.records.stamps import NANOSECONDS
 
 _types = TYPESTORE.types
 

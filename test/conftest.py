@@ -16,7 +16,8 @@ import pytest  # noqa: E402
 import node_helpers  # noqa: E402
 from node_helpers import domain_id, ros_environment  # noqa: E402
 from tak_thermo_ros.core.records.record import align  # noqa: E402
-from tak_thermo_ros.core.simulation.imu import Scenario, simulate  # noqa: E402
+from tak_thermo_ros.core.simulation.imu import simulate  # noqa: E402
+from tak_thermo_ros.core.simulation.scenario import Scenario  # noqa: E402
 
 SHORT = Scenario(plateau_hours=0.5, ramp_celsius_per_minute=1.0, board_lag_s=300.0, dwell_s=30.0)
 """The paper's five plateaus, shortened: about 3 h of 1 Hz samples."""

@@ -25,7 +25,8 @@ from tak_thermo_ros.core.link.learning import adjust
 from tak_thermo_ros.core.link.rest_noise import ChannelNoise
 from tak_thermo_ros.core.link.watch import CalibrationWatch, WatchSettings
 from tak_thermo_ros.core.values import DEG_PER_H
-from tak_thermo_ros.core.records.record import NANOSECONDS, DriverRecord
+from tak_thermo_ros.core.records.record import DriverRecord
+from tak_thermo_ros.core.records.stamps import NANOSECONDS
 from tak_thermo_ros.core.simulation.everyday import (
     EverydayRecord,
     _rest_poses,

@@ -374,7 +374,8 @@ def fitted_driver_params(directory: Path, name: str) -> Path:
     """The params file ``directory/name`` that ``tak_calib fit`` wrote from a short simulated driver bag."""
     from tak_thermo_ros import cli
     from tak_thermo_ros.formats.bag import write_driver_record
-    from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+    from tak_thermo_ros.core.simulation.imu import simulate
+    from tak_thermo_ros.core.simulation.scenario import Scenario
     run = simulate(Scenario(output='imu', sample_rate_hz=10.0, plateaus_celsius=(10.0, 30.0), plateau_hours=0.005,
                             ramp_celsius_per_minute=10.0, board_lag_s=5.0, dwell_s=1.0))
     write_driver_record(directory / 'driver.mcap', run.driver)

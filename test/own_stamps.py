@@ -14,8 +14,9 @@ import numpy as np
 from tak_thermo_ros.core.link.correction import NOT_PROVIDED
 from tak_thermo_ros.core.link.online import OnlineCompensator
 from tak_thermo_ros.core.link.online_rules import OneSensor
-from tak_thermo_ros.core.records.record import NANOSECONDS, DriverRecord
-from tak_thermo_ros.core.simulation.imu import Scenario
+from tak_thermo_ros.core.records.record import DriverRecord
+from tak_thermo_ros.core.records.stamps import NANOSECONDS
+from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.core.simulation.powered import PoweredRun, simulate_powered
 from tak_thermo_ros.formats.bag import ImuMessages, read_driver_record, read_imu_messages
 

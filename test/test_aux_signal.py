@@ -28,10 +28,10 @@ from tak_thermo_ros.core.simulation.imu import (
     SUPPLY_AXIS_WEIGHTS,
     SUPPLY_NOMINAL_VOLTS,
     SUPPLY_VOLTS_RMS,
-    Scenario,
     first_order_lag,
     simulate,
 )
+from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.core.link.validate import validate_gravity
 from tak_thermo_ros.errors import CalibrationError, FitError
 
@@ -300,7 +300,7 @@ def test_online_core_waits_for_holds_and_drops_a_stale_signal_like_the_temperatu
 
 def test_scenario_refuses_a_supply_topic_or_type_it_cannot_write():
     """record_supply must be an absolute topic without ':'; record_supply_type one of the two types."""
-    from tak_thermo_ros.core.simulation.imu import scenario_from_mapping
+    from tak_thermo_ros.core.simulation.scenario import scenario_from_mapping
     from tak_thermo_ros.errors import ScenarioError
     with pytest.raises(ScenarioError, match='record_supply'):
         scenario_from_mapping({'record_supply': 'power'})

@@ -18,7 +18,7 @@ from tak_thermo_ros.formats.calibration_file import (
     save_calibration,
     write_text_atomic,
 )
-from tak_thermo_ros.core.simulation.imu import Scenario
+from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.errors import CalibrationError
 
 

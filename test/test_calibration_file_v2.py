@@ -34,7 +34,7 @@ from tak_thermo_ros.formats.calibration_file import (
 )
 from tak_thermo_ros.core.effects import LIBRARY
 from tak_thermo_ros.core.link.model import SENSOR_RANGE, AxisModel, Calibration, InputKind, TurnOn, UnitCalibration
-from tak_thermo_ros.core.simulation.imu import Scenario
+from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.errors import CalibrationError
 
 V1_FILE = '''\

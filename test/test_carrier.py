@@ -19,9 +19,9 @@ from tak_thermo_ros.core.magnetometer.carrier import (
     Gauge,
     InstrumentErrors,
     axis_rotation,
-    fit_carrier,
     predict,
 )
+from tak_thermo_ros.core.magnetometer.carrier_fit import fit_carrier
 from tak_thermo_ros.core.simulation.carrier import (
     CSV_COLUMNS,
     CarrierScenario,

@@ -479,7 +479,9 @@ def test_read_record_names_a_corrupt_message(tmp_path, tiny_record):
 def test_driver_bag_block_decoder_equals_rosbags(tmp_path, storage):
     """A driver bag (Imu, temperature, both references) reads the same through both decoders."""
     from tak_thermo_ros.formats.bag import read_driver_record, write_driver_record
-    from tak_thermo_ros.core.simulation.imu import RATE_TABLE_POSITIONS, RATE_TABLE_RATES, Scenario, simulate
+    from tak_thermo_ros.core.simulation.imu import simulate
+    from tak_thermo_ros.core.simulation.scenario import Scenario
+    from tak_thermo_ros.core.simulation.truth import RATE_TABLE_POSITIONS, RATE_TABLE_RATES
     scenario = Scenario(output='imu', plateaus_celsius=(10.0, 30.0), plateau_hours=0.05, ramp_celsius_per_minute=4.0,
                         dwell_s=20.0, positions=RATE_TABLE_POSITIONS, table_rates=RATE_TABLE_RATES, seed=5)
     driver = simulate(scenario).driver

@@ -9,7 +9,7 @@ import pytest
 
 from tak_thermo_ros.core.link.correction import Corrector, OutOfRange, acceleration_variance
 from tak_thermo_ros.core.link.model import AxisModel, Calibration, horner_no_constant
-from tak_thermo_ros.core.simulation.imu import Scenario
+from tak_thermo_ros.core.simulation.scenario import Scenario
 
 
 @pytest.fixture

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from tak_thermo_ros.core.link.correction import BLOCK_SAMPLES, Corrector, OutOfRange
-from tak_thermo_ros.core.simulation.imu import Scenario
+from tak_thermo_ros.core.simulation.scenario import Scenario
 
 
 def _inputs(count: int):

@@ -28,7 +28,9 @@ from scipy.stats import binom
 from tak_thermo_ros.core.fit import fit_model
 from tak_thermo_ros.core.fit import uncertainty
 from tak_thermo_ros.core.records.record import align
-from tak_thermo_ros.core.simulation.imu import DEFAULT_DRIVER_GYRO, Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
+from tak_thermo_ros.core.simulation.truth import DEFAULT_DRIVER_GYRO
 
 LAG = {'tau_s': 300.0, 'slope_x': 1.5e-4, 'slope_y': 0.0, 'slope_z': -1.5e-4}
 """The hidden gyroscope lag (rad/s per degree C)."""

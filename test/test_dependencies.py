@@ -156,7 +156,8 @@ def test_a_missing_optional_library_is_one_line_naming_the_pip_package(monkeypat
 def test_fit_fleet_without_dask_exits_2_in_one_line(tmp_path):
     """`tak_calib fit-fleet` where dask[distributed] is missing: one line, exit 2, no traceback."""
     from tak_thermo_ros.formats.bag import write_record
-    from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+    from tak_thermo_ros.core.simulation.imu import simulate
+    from tak_thermo_ros.core.simulation.scenario import Scenario
     bag = tmp_path / 'unit1'
     write_record(bag, simulate(Scenario(plateaus_celsius=(10.0, 30.0), plateau_hours=0.02, dwell_s=5.0,
                                         ramp_celsius_per_minute=5.0, board_lag_s=10.0)).record)

@@ -25,13 +25,9 @@ from tak_thermo_ros.core.diagnose.design import driver_table
 from tak_thermo_ros.core.fit import fit_model
 from tak_thermo_ros.core.link.model import InputKind
 from tak_thermo_ros.core.records.record import align
-from tak_thermo_ros.core.simulation.imu import (
-    RATE_TABLE_POSITIONS,
-    RATE_TABLE_RATES,
-    Scenario,
-    chamber_profile,
-    simulate,
-)
+from tak_thermo_ros.core.simulation.imu import chamber_profile, simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
+from tak_thermo_ros.core.simulation.truth import RATE_TABLE_POSITIONS, RATE_TABLE_RATES
 from tak_thermo_ros.formats.scenario import load_scenario
 
 GYRO_LAG = {'tau_s': 900.0, 'slope_x': 4.0e-4, 'slope_y': 0.0, 'slope_z': -5.0e-4}

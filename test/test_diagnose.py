@@ -14,7 +14,8 @@ from tak_thermo_ros.core.diagnose import build_views, diagnose, explained_fracti
 from tak_thermo_ros.core.effects import LIBRARY, seconds_from_ns
 from tak_thermo_ros.core.fit import fit_model, residual_counts
 from tak_thermo_ros.core.records.record import align
-from tak_thermo_ros.core.simulation.imu import PROFILES, Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import PROFILES, Scenario
 from tak_thermo_ros.core.link.validate import validate_gravity
 
 

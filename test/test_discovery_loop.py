@@ -27,7 +27,8 @@ from tak_thermo_ros.core.diagnose.verdict import per_axis_t_threshold
 from tak_thermo_ros.core.effects import PER_AXIS, resolve_effect
 from tak_thermo_ros.core.fit import fit_model, residual_counts
 from tak_thermo_ros.core.records.record import AlignedSamples, align
-from tak_thermo_ros.core.simulation.imu import PROFILES, Scenario, chamber_profile, simulate
+from tak_thermo_ros.core.simulation.imu import chamber_profile, simulate
+from tak_thermo_ros.core.simulation.scenario import PROFILES, Scenario
 from tak_thermo_ros.formats.files import write_texts
 from tak_thermo_ros.formats.scenario import load_scenario
 from tak_thermo_ros.core.link.validate import validate_gravity

@@ -14,7 +14,9 @@ from tak_thermo_ros.cli import main
 from tak_thermo_ros.formats.calibration_file import load_unit, save_calibration
 from tak_thermo_ros.core.link.correction import UnitCorrector, acceleration_variance
 from tak_thermo_ros.core.records.record import DriverRecord, align
-from tak_thermo_ros.core.simulation.imu import RATE_TABLE_POSITIONS, RATE_TABLE_RATES, Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
+from tak_thermo_ros.core.simulation.truth import RATE_TABLE_POSITIONS, RATE_TABLE_RATES
 
 RUN = Scenario(output='imu', plateaus_celsius=(5.0, 35.0), plateau_hours=0.25, ramp_celsius_per_minute=1.0,
                board_lag_s=300.0, dwell_s=30.0, positions=RATE_TABLE_POSITIONS, table_rates=RATE_TABLE_RATES,

@@ -20,7 +20,9 @@ import pytest
 
 from tak_thermo_ros.formats.bag import read_imu_messages, write_driver_record
 from tak_thermo_ros.cli import main
-from tak_thermo_ros.core.simulation.imu import RATE_TABLE_POSITIONS, RATE_TABLE_RATES, Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
+from tak_thermo_ros.core.simulation.truth import RATE_TABLE_POSITIONS, RATE_TABLE_RATES
 
 SIGMAS = 4.0
 LAG = {'tau_s': 300.0, 'slope_x': 4.0e-4, 'slope_y': 0.0, 'slope_z': -5.0e-4}

@@ -19,7 +19,9 @@ from tak_thermo_ros.cli.common import unwrap
 from tak_thermo_ros.formats.calibration_file import load_unit
 from tak_thermo_ros.core.link.model import Calibration, InputKind
 from tak_thermo_ros.core.records.record import align
-from tak_thermo_ros.core.simulation.imu import RATE_TABLE_POSITIONS, RATE_TABLE_RATES, Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
+from tak_thermo_ros.core.simulation.truth import RATE_TABLE_POSITIONS, RATE_TABLE_RATES
 from tak_thermo_ros.core.values import EARTH_RATE, STANDARD_GRAVITY, normal_gravity
 
 SIGMAS = 5.0

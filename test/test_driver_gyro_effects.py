@@ -20,7 +20,9 @@ from tak_thermo_ros.formats.calibration_file import load_unit
 from tak_thermo_ros.core.effects import LIBRARY
 from tak_thermo_ros.core.fit import fit_model
 from tak_thermo_ros.core.records.record import align
-from tak_thermo_ros.core.simulation.imu import RATE_TABLE_POSITIONS, RATE_TABLE_RATES, Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
+from tak_thermo_ros.core.simulation.truth import RATE_TABLE_POSITIONS, RATE_TABLE_RATES
 
 SIGMAS = 5.0
 RUN = Scenario(output='imu', plateaus_celsius=(5.0, 35.0, 5.0, 35.0), ramp_celsius_per_minute=2.0,

@@ -15,7 +15,8 @@ from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.core.effects import LIBRARY, seconds_from_ns
 from tak_thermo_ros.core.fit import fit_calibration, fit_model, residual_counts
 from tak_thermo_ros.core.records.record import align
-from tak_thermo_ros.core.simulation.imu import PROFILES, Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import PROFILES, Scenario
 from tak_thermo_ros.errors import FitError
 
 # Temperature codes on every sample: the hidden effects see the true code, the fit the recorded

@@ -18,7 +18,8 @@ from tak_thermo_ros.core.effects.held import axes_text, parse_axes
 from tak_thermo_ros.core.fit import fit_calibration, fit_model, residual_counts
 from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.core.records.record import align
-from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.errors import CalibrationError, FitError
 from tak_thermo_ros.formats.calibration_file import (
     effects_from_mapping,

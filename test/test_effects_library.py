@@ -21,7 +21,8 @@ from tak_thermo_ros.formats.calibration_file import (
 from tak_thermo_ros.core.link.correction import Corrector, OutOfRange, forward_counts
 from tak_thermo_ros.core.effects import LIBRARY, Effect, resolve_effect, seconds, seconds_from_ns
 from tak_thermo_ros.core.link.model import Calibration
-from tak_thermo_ros.core.simulation.imu import Scenario, scenario_from_mapping, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario, scenario_from_mapping
 from tak_thermo_ros.errors import CalibrationError, FitError, ScenarioError
 
 

@@ -21,7 +21,9 @@ from hypothesis import strategies as st
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.core.link.rest_noise import ChannelNoise
 from tak_thermo_ros.core.noise.model import UPPER_SIGMAS, NoiseModel, noise_model_from_mapping
-from tak_thermo_ros.core.noise.rests import RestMeans, ShortSums, StretchWindows, White, fit_wander, white_noise
+from tak_thermo_ros.core.noise.rests import StretchWindows
+from tak_thermo_ros.core.noise.wander import RestMeans, fit_wander
+from tak_thermo_ros.core.noise.white import ShortSums, White, white_noise
 from tak_thermo_ros.core.simulation.everyday import everyday_scenario, simulate_everyday_record
 from tak_thermo_ros.core.simulation.noise import bias_wander, filtered_white
 from tak_thermo_ros.formats.bag import write_driver_record

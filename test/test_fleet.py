@@ -36,7 +36,8 @@ from tak_thermo_ros.core.diagnose.fleet import (
     majority_verdict,
     robust_spread,
 )
-from tak_thermo_ros.core.simulation.imu import DEFAULT_UNIT, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.truth import DEFAULT_UNIT
 from tak_thermo_ros.passes.fleet import unit_names
 
 BIN = Path(sys.executable).parent

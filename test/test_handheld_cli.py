@@ -17,7 +17,8 @@ from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.records.handheld import collect
 from tak_thermo_ros.core.records.record import align
 from tak_thermo_ros.core.records.still import find_still
-from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.core.simulation.motion import HandheldMotion
 from tak_thermo_ros.formats.bag import read_imu_messages, write_driver_record
 from tak_thermo_ros.formats.calibration_file import load_unit

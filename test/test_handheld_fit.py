@@ -21,7 +21,8 @@ from tak_thermo_ros.core.records.handheld import collect
 from tak_thermo_ros.core.records.record import align
 from tak_thermo_ros.core.records.still import find_still
 from tak_thermo_ros.core.rotation import integrate_segments, log_map
-from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.core.simulation.motion import HandheldMotion
 from tak_thermo_ros.errors import FitError
 
@@ -265,7 +266,7 @@ def test_no_still_interval_is_refused_in_one_line():
 
 def test_the_earth_rate_where_the_gyroscope_sees_it():
     """A tactical-grade gyroscope sees the Earth turn: --latitude takes its vertical component at every rest."""
-    from tak_thermo_ros.core.simulation.imu import DEFAULT_DRIVER_GYRO
+    from tak_thermo_ros.core.simulation.truth import DEFAULT_DRIVER_GYRO
     gyro = tuple(replace(axis, noise_counts=2e-5) for axis in DEFAULT_DRIVER_GYRO)
     scenario = replace(WARMING, seed=9, gyro_unit=gyro, effects={}, gyro_effects={},
                        handheld=replace(WARMING.handheld, latitude_deg=50.0, orientations=60))

@@ -15,14 +15,16 @@ import pytest
 
 from tak_thermo_ros import cli
 from tak_thermo_ros.core.diagnose import diagnose
-from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.formats.bag import Topics, write_driver_record
 from tak_thermo_ros.formats.calibration_file import load_unit
 from tak_thermo_ros.formats.scenario import load_scenario
 from tak_thermo_ros.passes.diagnose import bounded_run
 from tak_thermo_ros.passes.run import StreamOptions
 from tak_thermo_ros.passes.validate import validate_bag
-from tak_thermo_ros.reports.diagnose import gravity_series, write_report
+from tak_thermo_ros.reports.diagnose import write_report
+from tak_thermo_ros.reports.diagnose_figures import gravity_series
 from tak_thermo_ros.units import with_error
 
 DOCS = Path(__file__).resolve().parents[1] / 'docs'

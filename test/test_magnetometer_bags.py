@@ -21,7 +21,8 @@ from tak_thermo_ros.core.link.correction import OutOfRange
 from tak_thermo_ros.core.magnetometer.channel import MagCorrector
 from tak_thermo_ros.formats.calibration_file import load_unit
 from tak_thermo_ros.core.records.record import hold_last_index
-from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.core.simulation.magnetometer import MagnetometerTruth, rotation_record
 
 TRUTH = MagnetometerTruth()

@@ -15,7 +15,8 @@ from tak_thermo_ros.core.link.model import InputKind, MagnetometerCalibration, U
 from tak_thermo_ros.core.magnetometer.channel import MagCorrector, check_tesla, magnetic_covariance
 from tak_thermo_ros.core.magnetometer.iron import fit_ellipsoid
 from tak_thermo_ros.formats.calibration_file import load_unit, save_unit, unit_from_mapping, unit_to_mapping
-from tak_thermo_ros.core.simulation.imu import Scenario, scenario_from_mapping, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario, scenario_from_mapping
 from tak_thermo_ros.core.simulation.magnetometer import MagnetometerTruth, rotation_record
 from tak_thermo_ros.errors import CalibrationError, FitError, ScenarioError, TakError
 

@@ -35,7 +35,8 @@ from tak_thermo_ros.core.link.model import InputKind
 from tak_thermo_ros.core.link.correction import Corrector, OutOfRange, UnitCorrector
 from tak_thermo_ros.core.link.online_rules import ONLINE_DROP_REASONS
 from tak_thermo_ros.core.records.record import align
-from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.core.simulation.motion import HandheldMotion
 
 REPO = Path(__file__).resolve().parent.parent

@@ -32,7 +32,8 @@ from tak_thermo_ros.formats.bag import (
 from tak_thermo_ros.formats.calibration_file import unit_yaml, write_text_atomic
 from tak_thermo_ros.core.link.online_rules import as_unit
 from tak_thermo_ros.core.effects import aux_effect_class
-from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
 
 SUPPLY = 'aux:/power/battery_state'
 SHORT_RUN = Scenario(sample_rate_hz=10.0, plateaus_celsius=(10.0, 30.0), plateau_hours=0.01,

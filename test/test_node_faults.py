@@ -34,8 +34,8 @@ from node_helpers import (
     wait_until,
 )
 from tak_thermo_ros.core.link.correction import UnitCorrector
-from tak_thermo_ros.core.records.record import stamp_problems
-from tak_thermo_ros.core.simulation.imu import Scenario
+from tak_thermo_ros.core.records.stamps import stamp_problems
+from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.formats.calibration_file import unit_to_mapping, unit_yaml, write_text_atomic
 
 START_NS = 1_700_000_000 * NANOSECONDS

@@ -23,7 +23,8 @@ from tak_thermo_ros.core.link.online import OnlineCompensator
 from tak_thermo_ros.core.link.online_rules import ONLINE_DROP_REASONS
 from tak_thermo_ros.core.magnetometer.channel import MagCorrector
 from tak_thermo_ros.formats.calibration_file import load_unit
-from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.core.simulation.magnetometer import MagnetometerTruth, rotation_record
 from tak_thermo_ros.errors import CalibrationError
 

@@ -15,7 +15,7 @@ import numpy as np
 from everyday_watch import HABITS, LATITUDE, everyday_runs, watch_unit
 from node_helpers import NANOSECONDS, Harness, NodeProcess, node_command, status_values
 from tak_thermo_ros.core.link.correction import Corrector
-from tak_thermo_ros.core.simulation.imu import Scenario
+from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.formats.bag import play_order
 from tak_thermo_ros.formats.calibration_file import calibration_yaml, save_unit, write_text_atomic
 from tak_thermo_ros.formats.cdr import encode_messages

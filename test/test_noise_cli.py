@@ -19,7 +19,8 @@ from tak_thermo_ros.core.link.correction import acceleration_variance
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.formats.kalibr import read_kalibr
 from tak_thermo_ros.formats.calibration_file import load_unit, save_unit
-from tak_thermo_ros.core.simulation.imu import Scenario, scenario_from_mapping, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario, scenario_from_mapping
 from tak_thermo_ros.passes.noise import noise_bag, noise_models
 from tak_thermo_ros.passes.run import StreamOptions
 

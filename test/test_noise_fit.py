@@ -28,15 +28,9 @@ from tak_thermo_ros.core.noise.allan import (
 )
 from tak_thermo_ros.core.noise.fit import BAND_CONFIDENCE, fit_noise
 from tak_thermo_ros.core.noise.model import NoiseModel
-from tak_thermo_ros.core.simulation.imu import (
-    AxisTruth,
-    Scenario,
-    quantized,
-    scenario_from_mapping,
-    sensor_wander,
-    simulate,
-    white_noise,
-)
+from tak_thermo_ros.core.simulation.imu import quantized, sensor_wander, simulate, white_noise
+from tak_thermo_ros.core.simulation.scenario import Scenario, scenario_from_mapping
+from tak_thermo_ros.core.simulation.truth import AxisTruth
 from tak_thermo_ros.errors import NoiseError
 from tak_thermo_ros.formats.bag import write_driver_record
 from tak_thermo_ros.formats.kalibr import kalibr_text

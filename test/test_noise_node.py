@@ -10,7 +10,8 @@ from test_node import DRIVER_RUN, driver_params, node_and_apply
 from tak_thermo_ros.formats.bag import write_driver_record
 from tak_thermo_ros.core.noise.model import NoiseModel
 from tak_thermo_ros.formats.calibration_file import load_unit
-from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
 
 UNIT = Scenario(output='imu').driver_truth()
 ACCEL_NOISE = NoiseModel(white_noise_density=(2e-3, 1e-3, 3e-3), bias_instability=(1e-4, 1e-4, 2e-4),

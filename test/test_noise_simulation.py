@@ -11,7 +11,8 @@ import pytest
 from tak_thermo_ros.core.noise.allan import allan_variance
 from tak_thermo_ros.core.noise.fit import fit_noise_model
 from tak_thermo_ros.core.noise.model import FLICKER_FLOOR
-from tak_thermo_ros.core.simulation.imu import scenario_from_mapping, sensor_wander, simulate
+from tak_thermo_ros.core.simulation.imu import sensor_wander, simulate
+from tak_thermo_ros.core.simulation.scenario import scenario_from_mapping
 from tak_thermo_ros.core.simulation.noise import (
     bias_instability_poles,
     bias_instability_variance,

@@ -33,13 +33,13 @@ from tak_thermo_ros.core.link.validate import AveragedError
 from tak_thermo_ros.formats.kalibr import write_kalibr
 from tak_thermo_ros.core.noise.residual import RESIDUAL_LONGEST_TAU_S, model_from_residual
 from tak_thermo_ros.core.records.record import align
-from tak_thermo_ros.core.simulation.imu import (
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
+from tak_thermo_ros.core.simulation.truth import (
     DEFAULT_DRIVER_ACCEL,
     DEFAULT_DRIVER_GYRO,
     RATE_TABLE_POSITIONS,
     RATE_TABLE_RATES,
-    Scenario,
-    simulate,
 )
 
 GYRO = (1.2e-4, 1.5e-5, 1e-6)

@@ -19,15 +19,9 @@ from tak_thermo_ros.core.link.correction import (
 from tak_thermo_ros.core.link.online import OnlineCompensator
 from tak_thermo_ros.core.link.online_reports import Level
 from tak_thermo_ros.core.link.online_rules import ONLINE_DROP_REASONS, StaleTemperature
-from tak_thermo_ros.core.records.record import (
-    STAMP_DROP_REASONS,
-    TEMP_CODE_LIMIT,
-    TEMPERATURE_RANGE,
-    counts_problems,
-    seconds_from_ns,
-    stamp_problems,
-)
-from tak_thermo_ros.core.simulation.imu import Scenario
+from tak_thermo_ros.core.records.drops import TEMP_CODE_LIMIT, TEMPERATURE_RANGE, counts_problems
+from tak_thermo_ros.core.records.stamps import STAMP_DROP_REASONS, seconds_from_ns, stamp_problems
+from tak_thermo_ros.core.simulation.scenario import Scenario
 
 CALIBRATION = Scenario().truth()  # temperature-code range 7600..8800
 SEC = 1_700_000_000
@@ -602,7 +596,8 @@ from tak_thermo_ros.core.link.online_rules import (  # noqa: E402
     SIGNAL_DROP_REASONS,
     OneSensor,
 )
-from tak_thermo_ros.core.records.record import sensor_messages, temp_code_problem  # noqa: E402
+from tak_thermo_ros.core.records.drops import temp_code_problem  # noqa: E402
+from tak_thermo_ros.core.records.record import sensor_messages  # noqa: E402
 
 APART = own_stamps_unit()
 """The driver unit with an effect with memory on each sensor (accelerometer hysteresis, gyroscope lag)."""

@@ -11,7 +11,8 @@ from dataclasses import replace
 import pytest
 
 from tak_thermo_ros import cli
-from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.formats.bag import read_imu_messages, write_driver_record
 from tak_thermo_ros.formats.calibration_file import unit_yaml, write_text_atomic
 from node_helpers import NodeProcess, node_command

@@ -26,7 +26,8 @@ from tak_thermo_ros.core.records.provenance import (
     recognise,
 )
 from tak_thermo_ros.core.records.record import ChannelRecord
-from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import CalibrationError
 from tak_thermo_ros.formats.bag import write_driver_record, write_record

@@ -20,7 +20,8 @@ from tak_thermo_ros.core.link.correction import OutOfRange
 from tak_thermo_ros.core.link.model import THERMAL_FITTED, THERMAL_HELD, THERMAL_NONE
 from tak_thermo_ros.core.link.online import OnlineCompensator
 from tak_thermo_ros.core.magnetometer.channel import MagCorrector
-from tak_thermo_ros.core.simulation.imu import scenario_from_mapping, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import scenario_from_mapping
 from tak_thermo_ros.core.simulation.magnetometer import MagnetometerTruth, rotation_record, rotation_truth
 from tak_thermo_ros.formats.bag import MAGNETIC_FIELD, bag_streams, iter_topic_arrays, write_driver_record
 from tak_thermo_ros.formats.calibration_file import load_unit, unit_from_mapping, unit_to_mapping

@@ -31,7 +31,8 @@ from tak_thermo_ros.formats.calibration_file import save_calibration
 from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.formats.csv_log import MAX_STAMP_NS, CsvImportOptions, parse_csv_log
 from tak_thermo_ros.formats.files import write_text_atomic
-from tak_thermo_ros.core.records.record import TEMP_CODE_LIMIT, ChannelRecord, align
+from tak_thermo_ros.core.records.drops import TEMP_CODE_LIMIT
+from tak_thermo_ros.core.records.record import ChannelRecord, align
 from tak_thermo_ros.core.simulation.imu import simulate
 from tak_thermo_ros.errors import BagError, LogError, OutputError
 

@@ -495,7 +495,8 @@ def test_flight_log_bag_and_csv_temperatures_not_in_celsius_are_refused_with_a_h
 
 def test_a_reference_record_in_kelvin_is_refused_by_validate_diagnose_and_apply_too(tmp_path):
     """The same rule where the record holds references (a table run): not only fit refuses it (apply writes nothing)."""
-    from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+    from tak_thermo_ros.core.simulation.imu import simulate
+    from tak_thermo_ros.core.simulation.scenario import Scenario
     run = simulate(Scenario(sample_rate_hz=2.0, plateaus_celsius=(10.0, 30.0), plateau_hours=0.05,
                             ramp_celsius_per_minute=5.0, board_lag_s=5.0, dwell_s=5.0, output='imu')).driver
     write_driver_record(tmp_path / 'good', run)

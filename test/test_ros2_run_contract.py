@@ -113,7 +113,8 @@ def test_ros2_run_with_a_driver_calibration(installed, tmp_path, monkeypatch):
     """
     from tak_thermo_ros import cli
     from tak_thermo_ros.formats.bag import read_imu_messages, write_driver_record
-    from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+    from tak_thermo_ros.core.simulation.imu import simulate
+    from tak_thermo_ros.core.simulation.scenario import Scenario
     _, prefix = installed
     run = simulate(Scenario(output='imu', sample_rate_hz=10.0, plateaus_celsius=(10.0, 30.0), plateau_hours=0.005,
                             ramp_celsius_per_minute=10.0, board_lag_s=5.0, dwell_s=1.0))

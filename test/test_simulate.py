@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from conftest import SHORT
-from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.formats.scenario import load_scenario
 from tak_thermo_ros.errors import ScenarioError
 

@@ -15,7 +15,8 @@ from tak_thermo_ros.formats.calibration_file import load_calibration, save_calib
 from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.core.fit import fit_calibration
 from tak_thermo_ros.core.records.record import align
-from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.errors import FitError
 
 STATIC = Scenario(positions=((0.0, 0.0, 1.0),), start_celsius=20.0, plateaus_celsius=(-10.0, 50.0),

@@ -11,7 +11,7 @@ from conftest import EXAMPLES
 from tak_thermo_ros.core.link.correction import Corrector, OutOfRange, UnitCorrector
 from tak_thermo_ros.core.effects import LIBRARY
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
-from tak_thermo_ros.core.simulation.imu import Scenario
+from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.core.link.stream_correction import BlockCorrector, BlockUnitCorrector, GravityCheck, RateCheck
 from tak_thermo_ros.core.link.validate import validate_gravity, validate_rate
 

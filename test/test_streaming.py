@@ -26,7 +26,8 @@ from tak_thermo_ros.core.effects import ThermalLag, Warmup
 from tak_thermo_ros.core.fit import fit_calibration, fit_model
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.records.record import align
-from tak_thermo_ros.core.simulation.imu import Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.passes.apply import apply_bag
 from tak_thermo_ros.passes.diagnose import bounded_run
 from tak_thermo_ros.passes.fit import fit_bag

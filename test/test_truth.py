@@ -29,7 +29,9 @@ from tak_thermo_ros.cli.common import WIDTH, wrap
 from tak_thermo_ros.core.diagnose.values import AxisSummary, Candidate, Driver, LadderStep
 from tak_thermo_ros.core.diagnose.verdict import VERDICT_NONE, VERDICT_UNEXPLAINED, _verdict_message, message_text
 from tak_thermo_ros.core.diagnose.yardstick import AllanCheck
-from tak_thermo_ros.core.simulation.imu import RATE_TABLE_POSITIONS, RATE_TABLE_RATES, Scenario, simulate
+from tak_thermo_ros.core.simulation.imu import simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
+from tak_thermo_ros.core.simulation.truth import RATE_TABLE_POSITIONS, RATE_TABLE_RATES
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.formats.bag import write_driver_record, write_record
 from tak_thermo_ros.formats.calibration_file import save_unit

@@ -32,7 +32,7 @@ from tak_thermo_ros.core.link.learning import LearnedState, adjust, calibration_
 from tak_thermo_ros.core.link.rests import REST_MAX_S, RestFinder, chi2_quantile_ratio
 from tak_thermo_ros.core.link.watch import WatchSettings, WatchUnavailable
 from tak_thermo_ros.core.values import DEG_PER_H
-from tak_thermo_ros.core.records.record import NANOSECONDS
+from tak_thermo_ros.core.records.stamps import NANOSECONDS
 from tak_thermo_ros.formats.bag import read_imu_messages, write_driver_record
 from tak_thermo_ros.formats.calibration_file import load_unit, save_unit
 from tak_thermo_ros.formats.learned_file import load_learned, save_learned

@@ -65,7 +65,7 @@ def cmd_carrier_simulate(args: argparse.Namespace) -> int:
 
 def cmd_carrier_fit(args: argparse.Namespace) -> int:
     """Fit Poisson's model to a CSV record; one line per parameter."""
-    from tak_thermo_ros.core.magnetometer.carrier import fit_carrier
+    from tak_thermo_ros.core.magnetometer.carrier_fit import fit_carrier
     from tak_thermo_ros.formats.files import write_json
     from tak_thermo_ros.core.simulation.carrier import read_record_csv
     model = _model(args)

@@ -18,7 +18,8 @@ from typing import Iterator
 import numpy as np
 
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
-from tak_thermo_ros.core.records.record import REFERENCE_LIMIT, TEMPERATURE_RANGE, AlignedSamples
+from tak_thermo_ros.core.records.drops import REFERENCE_LIMIT, TEMPERATURE_RANGE
+from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.core.values import SENSOR_NAMES, STANDARD_GRAVITY  # noqa: F401  (re-exported)
 from tak_thermo_ros.errors import TakError
 from tak_thermo_ros.units import (  # noqa: F401

@@ -11,9 +11,9 @@ follows from the physics or from what the code downstream can represent:
 - local gravity lies within :data:`GRAVITY_MIN` .. :data:`GRAVITY_MAX` m/s^2 (every place on the
   Earth's surface, from high mountains at the equator, about 9.76, to the poles, about 9.83,
   with a margin);
-- a temperature code lies strictly within +-:data:`~tak_thermo_ros.core.records.record.TEMP_CODE_LIMIT`
+- a temperature code lies strictly within +-:data:`~tak_thermo_ros.core.records.drops.TEMP_CODE_LIMIT`
   (beyond any 24-bit sensor code), a reference component within
-  +-:data:`~tak_thermo_ros.core.records.record.REFERENCE_LIMIT` m/s^2;
+  +-:data:`~tak_thermo_ros.core.records.drops.REFERENCE_LIMIT` m/s^2;
 - times (``--settle-time``) are finite and not negative; resolutions are positive; a nominal
   scale lies within 0 .. :data:`MAX_NOMINAL_SCALE` counts per m/s^2;
 - polynomial orders lie within 0 .. :data:`MAX_ORDER`; cross-validation needs 2 folds or more;
@@ -31,7 +31,7 @@ import argparse
 import math
 from typing import Any, Callable
 
-from tak_thermo_ros.core.records.record import REFERENCE_LIMIT, TEMP_CODE_LIMIT
+from tak_thermo_ros.core.records.drops import REFERENCE_LIMIT, TEMP_CODE_LIMIT
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 
 GRAVITY_MIN = 9.7

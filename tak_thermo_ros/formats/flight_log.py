@@ -10,7 +10,7 @@ command reads it through the same passes and the same fit.
 
 Stamps are the log's own (microseconds since boot, as nanoseconds), each sensor's in log order:
 the passes apply the stamp rule of a bag to them (a stamp that repeats, goes back or jumps far
-ahead is left out and counted, :func:`~tak_thermo_ros.core.records.record.stamp_kept`), and the
+ahead is left out and counted, :func:`~tak_thermo_ros.core.records.stamps.stamp_kept`), and the
 readers' shared checks (:mod:`~tak_thermo_ros.core.records.plausible`: a stamp a bag cannot
 hold, a clock step, a temperature not in degrees C) refuse the rest in one line. A NaN or
 infinite temperature is kept, and ignored and counted by the passes as a bag's is. A log holds

@@ -30,8 +30,9 @@ import numpy as np
 
 from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.core.link.model import Calibration, UnitCalibration
-from tak_thermo_ros.core.noise.rests import RestMeans, RestNoise, ShortSums, StretchWindows, rest_noise, \
-    temperature_columns
+from tak_thermo_ros.core.noise.rests import RestNoise, StretchWindows, rest_noise
+from tak_thermo_ros.core.noise.wander import RestMeans, temperature_columns
+from tak_thermo_ros.core.noise.white import ShortSums
 from tak_thermo_ros.core.values import EARTH_RATE
 
 STRETCH_S = 60.0

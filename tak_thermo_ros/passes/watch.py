@@ -19,7 +19,8 @@ from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.link.online import OnlineCompensator
 from tak_thermo_ros.core.link.online_rules import StaleTemperature
 from tak_thermo_ros.core.link.watch import CalibrationWatch, WatchSettings, watch_unavailable
-from tak_thermo_ros.core.records.record import NANOSECONDS, DriverRecord
+from tak_thermo_ros.core.records.record import DriverRecord
+from tak_thermo_ros.core.records.stamps import NANOSECONDS
 from tak_thermo_ros.passes.run import StreamOptions
 
 

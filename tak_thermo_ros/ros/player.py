@@ -38,7 +38,7 @@ from sensor_msgs.msg import Imu, MagneticField, Temperature
 
 from tak_thermo_ros.core.link.correction import NOT_PROVIDED, NOT_PROVIDED_COVARIANCE
 from tak_thermo_ros.core.link.model import InputKind
-from tak_thermo_ros.core.records.record import NANOSECONDS
+from tak_thermo_ros.core.records.stamps import NANOSECONDS
 from tak_thermo_ros.errors import TakError
 from tak_thermo_ros.formats.bag import ImuRows, imu_messages, play_order
 

@@ -62,7 +62,8 @@ from tak_thermo_ros.core.diagnose.design import (
     design_run,
     recorded_signal_note,
 )
-from tak_thermo_ros.core.diagnose.discover import diagnose, null_heldout
+from tak_thermo_ros.core.diagnose.crossval import null_heldout
+from tak_thermo_ros.core.diagnose.discover import diagnose
 from tak_thermo_ros.core.diagnose.values import (
     AxisSummary,
     Candidate,

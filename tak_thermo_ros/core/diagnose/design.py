@@ -46,14 +46,9 @@ from tak_thermo_ros.core.effects import AUX_PREFIX, resolve_effect
 from tak_thermo_ros.core.fit import residual_counts
 from tak_thermo_ros.core.link.model import AXES, Calibration
 from tak_thermo_ros.core.records.record import AlignedSamples, align
-from tak_thermo_ros.core.simulation.imu import (
-    DEFAULT_POSITIONS,
-    RATE_TABLE_POSITIONS,
-    RATE_TABLE_RATES,
-    Scenario,
-    chamber_profile,
-    simulate,
-)
+from tak_thermo_ros.core.simulation.imu import chamber_profile, simulate
+from tak_thermo_ros.core.simulation.scenario import Scenario
+from tak_thermo_ros.core.simulation.truth import DEFAULT_POSITIONS, RATE_TABLE_POSITIONS, RATE_TABLE_RATES
 from tak_thermo_ros.errors import FitError, TakError
 
 DESIGN_RATE_HZ = 0.1

@@ -8,11 +8,11 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.core.diagnose.crossval import (
     _effect_name,
     _effect_parameters,
     _effect_specs,
+    _record_folds,
     _settings_of,
     _with_range,
     block_index,
@@ -20,13 +20,14 @@ from tak_thermo_ros.core.diagnose.crossval import (
     decimate,
     fit_with,
     fold_labels,
+    null_heldout,
     paired_block_t,
     summed_block_t,
     unresolved_shapes,
 )
 from tak_thermo_ros.core.diagnose.heldout import excursion_statements, held_out_like as _held_out_like, judge_ladder
 from tak_thermo_ros.core.diagnose.heldout import sensor_noise
-from tak_thermo_ros.core.diagnose.values import AxisSummary, Candidate, Diagnosis, ModelScore, step_time_s
+from tak_thermo_ros.core.diagnose.values import AxisSummary, Candidate, Diagnosis, ModelScore
 from tak_thermo_ros.core.diagnose.verdict import (
     MIN_STEP_FRACTION,
     MIN_TOTAL_FRACTION,
@@ -45,6 +46,7 @@ from tak_thermo_ros.core.diagnose.verdict import (
     gain_t_threshold,
     per_axis_t_threshold,
     rms_text,
+    step_statements,
 )
 from tak_thermo_ros.core.diagnose.views import EFFECT_VIEWS, build_views, noise_floor, residual_drivers
 from tak_thermo_ros.core.diagnose.yardstick import (
@@ -52,11 +54,13 @@ from tak_thermo_ros.core.diagnose.yardstick import (
     NULL_REPLICATES,
     AllanCheck,
     NullYardstick,
-    allan_check,
+    _rung_allan,
     averaging_time,
     bin_labels,
     bin_samples,
     null_under_noise,
+    sample_period,
+    wander_explains,
     whitener,
 )
 from tak_thermo_ros.core.effects import (
@@ -73,7 +77,6 @@ from tak_thermo_ros.core.effects.step import Step
 from tak_thermo_ros.core.records.steps import find_steps
 from tak_thermo_ros.core.fit import residual_counts
 from tak_thermo_ros.core.link.model import AXES, Calibration
-from tak_thermo_ros.core.noise.residual import RESIDUAL_LONGEST_TAU_S
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import FitError, TakError
 
@@ -100,36 +103,6 @@ def _per_axis_of(spec: Any) -> Any | None:
 
 def _replaced(model: tuple[Any, ...], old: Any, new: Any) -> tuple[Any, ...]:
     return tuple(new if spec is old else spec for spec in model)
-
-
-def null_heldout(samples: AlignedSamples, effects: Sequence[Any], labels: np.ndarray, settings: Any,
-                 floor: np.ndarray, *, folds: int, seed: int = 0) -> ModelScore:
-    """Cross-validation of the same model on a simulated copy of the run where that model is true.
-
-    The copy keeps the stamps, temperature codes and reference of ``samples``; its counts are
-    the model fitted on all of ``samples`` plus white noise at ``floor``. Its held-out RMS is
-    what a model without missing structure shows on this run: the floor, plus the error of
-    parameters estimated from the other folds (larger where held-out blocks extrapolate, e.g.
-    a warm-up at the start of the run). The verdict measures the excess against it.
-    """
-    result = fit_with(samples, effects, settings)
-    low, high = float(samples.temp_code.min()), float(samples.temp_code.max())
-    corrector = Corrector(_with_range(result.calibration, low, high))
-    predicted = corrector.predict_counts(samples.reference, samples.temp_code, stamp_s=samples.stamp_s,
-                                         aux=samples.aux)
-    noise = np.random.default_rng(seed).standard_normal(predicted.shape) * floor
-    copy = replace(samples, counts=predicted + noise)
-    return cross_validate(copy, tuple(effects), labels, settings, folds=folds)
-
-
-def _record_folds(groups: np.ndarray, bins: np.ndarray | None, stride: int, folds: int) -> np.ndarray:
-    """Each cross-validation sample's fold when whole records are held out: its record modulo ``folds``."""
-    if bins is None:
-        return (groups[::stride] % folds).astype(np.int64)
-    kept = np.flatnonzero(bins >= 0)
-    of_bin = np.zeros(int(bins.max()) + 1 if len(kept) else 0, dtype=np.int64)
-    of_bin[bins[kept]] = groups[kept]
-    return of_bin % folds
 
 
 def diagnose(calibration: Calibration, samples: AlignedSamples, *,
@@ -617,98 +590,3 @@ def diagnose(calibration: Calibration, samples: AlignedSamples, *,
 def parameters_names(specs: Sequence[Any]) -> set[str]:
     """The names of effect specs."""
     return {_effect_name(spec) for spec in specs}
-
-
-DRIFT_OPENINGS = ('It is a slow drift in time', 'It is a drift in time')
-"""How the statement that calls what remains a drift in time begins (:mod:`.verdict`)."""
-
-
-def step_statements(statements: Sequence[Statement], steps: Sequence[Any], views: Any, residual: np.ndarray, *,
-                    unit: str, scale: float, temperature_unit: str, named: bool,
-                    offset_s: float = 0.0) -> list[Statement]:
-    """The verdict's statements with each step named before any word on a slow drift.
-
-    A drift statement stays only when the residual, its steps' levels taken out, still follows
-    time first (then it speaks of what is left besides the steps). ``offset_s``: the first sample's
-    time after the record's start (the moments are said from the record's start).
-    """
-    from tak_thermo_ros.core.diagnose.views import residual_drivers
-    texts = []
-    levelled = np.array(residual, dtype=float, copy=True)
-    for step in steps:
-        if not named:
-            levelled[step.index:] -= step.amplitude
-        moment = step_time_s(views, step, offset_s)
-        code = float(views.temp_code[step.index])
-        where = f'{code:.1f} C' if temperature_unit == 'C' else (
-            f'{code:.4g} {temperature_unit}' if temperature_unit else f'temperature code {code:.0f}')
-        changes = ', '.join(f'{AXES[c]} {float(step.amplitude[c]) * scale:+.3g} {unit} ({abs(float(step.z[c])):.0f} '
-                            f'sigmas)' for c in step.named)
-        texts.append(f'a step at {moment / 60.0:.2f} min ({where}): {changes}')
-    fix = '' if named else ' (fit --effects step fits the largest)'
-    said = [Statement(f'The residual steps: {"; ".join(texts)}. A sudden change of level that holds, against the '
-                      f'record\'s own level changes at that time scale: not a slow drift{fix}.')]
-    still_drifts = residual_drivers(levelled, views)[0].name in ('time', 'time at fixed temperature')
-    out: list[Statement] = []
-    placed = False
-    for statement in statements:
-        if statement.text.startswith(DRIFT_OPENINGS) and not placed:
-            out += said
-            placed = True
-            if still_drifts:
-                out.append(Statement('Besides the steps: ' + statement.text[0].lower() + statement.text[1:],
-                                     statement.detail))
-            continue
-        out.append(statement)
-    if not placed:
-        out[1:1] = said
-    return out
-
-
-def wander_explains(check: AllanCheck) -> bool:
-    """Whether a residual is consistent with a noise model fitted to its own short averaging times.
-
-    The model (``source='residual'``, :func:`~tak_thermo_ros.core.noise.residual.model_from_residual`)
-    comes from averaging times up to :data:`~tak_thermo_ros.core.noise.residual.RESIDUAL_LONGEST_TAU_S`,
-    where it agrees with the residual by construction; the test is at the longer ones, where a
-    thermal effect or a drift would rise above its flat bias-instability floor. So the residual
-    must be inside the bounds at every averaging time, and those must reach at least twice that
-    length.
-    """
-    if check.source != 'residual' or not len(check.taus):
-        return False
-    return check.consistent and float(check.taus.max()) >= 2.0 * RESIDUAL_LONGEST_TAU_S
-
-
-def sample_period(samples: AlignedSamples) -> float:
-    """The median step between samples, s (1 s for fewer than two samples)."""
-    if len(samples) < 2:
-        return 1.0
-    return max(float(np.median(np.diff(samples.stamp_ns))) * 1e-9, 1e-9)
-
-
-def _rung_allan(samples: AlignedSamples, cv_samples: AlignedSamples, ladder: Sequence[Any],
-                model_specs: tuple[Any, ...], present: tuple[Any, ...], residual: np.ndarray,
-                residual_after: np.ndarray | None, settings: Any, noise: Any, white_floor: np.ndarray,
-                period: float) -> tuple[tuple[str, AllanCheck], ...]:
-    """The Allan test of the residual on every rung of the ladder.
-
-    The calibration as given, then the model refitted with each effect added (the last rung: the
-    ladder's refit).
-    """
-    checks = [(ladder[0].label, allan_check(residual, period, noise, white_floor))]
-    added = [spec for spec in model_specs if spec not in present]
-    for index, step in enumerate(ladder[1:], start=1):
-        if index == len(ladder) - 1 and residual_after is not None:
-            rung_residual = residual_after
-        else:
-            names = set(step.effects)
-            specs = tuple(spec for spec in (*present, *added) if _effect_name(spec) in names)
-            try:
-                fitted = fit_with(cv_samples, specs, settings)
-            except TakError:
-                continue
-            low, high = float(samples.temp_code.min()), float(samples.temp_code.max())
-            rung_residual = residual_counts(_with_range(fitted.calibration, low, high), samples)
-        checks.append((step.label, allan_check(rung_residual, period, noise, white_floor)))
-    return tuple(checks)

@@ -9,7 +9,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from tak_thermo_ros.core.diagnose.values import AxisSummary, Candidate, Driver, LadderStep, ModelScore
+from tak_thermo_ros.core.diagnose.values import AxisSummary, Candidate, Driver, LadderStep, ModelScore, step_time_s
 from tak_thermo_ros.core.diagnose.yardstick import tau_text
 from tak_thermo_ros.core.noise.residual import RESIDUAL_LONGEST_TAU_S
 from tak_thermo_ros.core.link.model import AXES
@@ -76,7 +76,7 @@ def _noise_sigma(floor_differences: int, heldout_samples: float) -> float:
 def _paired_sigma(floor_differences: int, heldout_samples: float) -> float:
     """Standard error of ``heldout_mse / floor^2`` less that of a simulated copy of the run.
 
-    The copy has white noise at the floor (:func:`~tak_thermo_ros.core.diagnose.discover.null_heldout`):
+    The copy has white noise at the floor (:func:`~tak_thermo_ros.core.diagnose.crossval.null_heldout`):
     both held-out means carry their own noise (``2 / n`` each), the floor estimate its own (``3 / m``).
     """
     return math.sqrt(4.0 / max(heldout_samples, 1.0) + 3.0 / max(floor_differences, 1))
@@ -320,3 +320,49 @@ def _verdict_message(verdict: str, axes: Sequence[AxisSummary], ladder: Sequence
         if own:
             found += _walk_statements(allan, unit, scale)
     return found
+
+
+DRIFT_OPENINGS = ('It is a slow drift in time', 'It is a drift in time')
+"""How the statement that calls what remains a drift in time begins (:mod:`.verdict`)."""
+
+
+def step_statements(statements: Sequence[Statement], steps: Sequence[Any], views: Any, residual: np.ndarray, *,
+                    unit: str, scale: float, temperature_unit: str, named: bool,
+                    offset_s: float = 0.0) -> list[Statement]:
+    """The verdict's statements with each step named before any word on a slow drift.
+
+    A drift statement stays only when the residual, its steps' levels taken out, still follows
+    time first (then it speaks of what is left besides the steps). ``offset_s``: the first sample's
+    time after the record's start (the moments are said from the record's start).
+    """
+    from tak_thermo_ros.core.diagnose.views import residual_drivers
+    texts = []
+    levelled = np.array(residual, dtype=float, copy=True)
+    for step in steps:
+        if not named:
+            levelled[step.index:] -= step.amplitude
+        moment = step_time_s(views, step, offset_s)
+        code = float(views.temp_code[step.index])
+        where = f'{code:.1f} C' if temperature_unit == 'C' else (
+            f'{code:.4g} {temperature_unit}' if temperature_unit else f'temperature code {code:.0f}')
+        changes = ', '.join(f'{AXES[c]} {float(step.amplitude[c]) * scale:+.3g} {unit} ({abs(float(step.z[c])):.0f} '
+                            f'sigmas)' for c in step.named)
+        texts.append(f'a step at {moment / 60.0:.2f} min ({where}): {changes}')
+    fix = '' if named else ' (fit --effects step fits the largest)'
+    said = [Statement(f'The residual steps: {"; ".join(texts)}. A sudden change of level that holds, against the '
+                      f'record\'s own level changes at that time scale: not a slow drift{fix}.')]
+    still_drifts = residual_drivers(levelled, views)[0].name in ('time', 'time at fixed temperature')
+    out: list[Statement] = []
+    placed = False
+    for statement in statements:
+        if statement.text.startswith(DRIFT_OPENINGS) and not placed:
+            out += said
+            placed = True
+            if still_drifts:
+                out.append(Statement('Besides the steps: ' + statement.text[0].lower() + statement.text[1:],
+                                     statement.detail))
+            continue
+        out.append(statement)
+    if not placed:
+        out[1:1] = said
+    return out

@@ -34,7 +34,9 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from tak_thermo_ros.core.link.model import AXES
+from tak_thermo_ros.core.noise.residual import RESIDUAL_LONGEST_TAU_S
 from tak_thermo_ros.core.records.record import AlignedSamples
+from tak_thermo_ros.errors import TakError
 
 NULL_REPLICATES = 8
 """Simulated copies of the run under the noise model whose held-out score is the yardstick."""
@@ -439,3 +441,54 @@ def allan_check(residual: np.ndarray, sample_period_s: float, noise: Any, white_
     slack = 1.0 if noise.source == 'residual' else tolerance
     return AllanCheck(taus=taus, residual_adev=np.sqrt(allan.avar), model_adev=np.sqrt(model), bound=bound * slack,
                       source=str(noise.source))
+
+
+def wander_explains(check: AllanCheck) -> bool:
+    """Whether a residual is consistent with a noise model fitted to its own short averaging times.
+
+    The model (``source='residual'``, :func:`~tak_thermo_ros.core.noise.residual.model_from_residual`)
+    comes from averaging times up to :data:`~tak_thermo_ros.core.noise.residual.RESIDUAL_LONGEST_TAU_S`,
+    where it agrees with the residual by construction; the test is at the longer ones, where a
+    thermal effect or a drift would rise above its flat bias-instability floor. So the residual
+    must be inside the bounds at every averaging time, and those must reach at least twice that
+    length.
+    """
+    if check.source != 'residual' or not len(check.taus):
+        return False
+    return check.consistent and float(check.taus.max()) >= 2.0 * RESIDUAL_LONGEST_TAU_S
+
+
+def sample_period(samples: AlignedSamples) -> float:
+    """The median step between samples, s (1 s for fewer than two samples)."""
+    if len(samples) < 2:
+        return 1.0
+    return max(float(np.median(np.diff(samples.stamp_ns))) * 1e-9, 1e-9)
+
+
+def _rung_allan(samples: AlignedSamples, cv_samples: AlignedSamples, ladder: Sequence[Any],
+                model_specs: tuple[Any, ...], present: tuple[Any, ...], residual: np.ndarray,
+                residual_after: np.ndarray | None, settings: Any, noise: Any, white_floor: np.ndarray,
+                period: float) -> tuple[tuple[str, AllanCheck], ...]:
+    """The Allan test of the residual on every rung of the ladder.
+
+    The calibration as given, then the model refitted with each effect added (the last rung: the
+    ladder's refit).
+    """
+    from tak_thermo_ros.core.diagnose.crossval import _effect_name, _with_range, fit_with
+    from tak_thermo_ros.core.fit import residual_counts
+    checks = [(ladder[0].label, allan_check(residual, period, noise, white_floor))]
+    added = [spec for spec in model_specs if spec not in present]
+    for index, step in enumerate(ladder[1:], start=1):
+        if index == len(ladder) - 1 and residual_after is not None:
+            rung_residual = residual_after
+        else:
+            names = set(step.effects)
+            specs = tuple(spec for spec in (*present, *added) if _effect_name(spec) in names)
+            try:
+                fitted = fit_with(cv_samples, specs, settings)
+            except TakError:
+                continue
+            low, high = float(samples.temp_code.min()), float(samples.temp_code.max())
+            rung_residual = residual_counts(_with_range(fitted.calibration, low, high), samples)
+        checks.append((step.label, allan_check(rung_residual, period, noise, white_floor)))
+    return tuple(checks)

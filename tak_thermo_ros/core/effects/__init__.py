@@ -32,7 +32,7 @@ from tak_thermo_ros.core.effects.step import Step
 from tak_thermo_ros.core.effects.temperature_shape import TemperatureShape
 from tak_thermo_ros.core.effects.thermal_lag import ThermalLag
 from tak_thermo_ros.core.effects.warmup import Warmup
-from tak_thermo_ros.core.records.record import seconds, seconds_from_ns
+from tak_thermo_ros.core.records.stamps import seconds, seconds_from_ns
 from tak_thermo_ros.errors import FitError
 
 LIBRARY: dict[str, type[Effect]] = {

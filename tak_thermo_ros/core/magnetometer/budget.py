@@ -1,7 +1,7 @@
 """The carrier method's error budget: a Monte Carlo over the instrument errors, beside the seed's table.
 
 Each run simulates the seed's stages (:mod:`tak_thermo_ros.core.simulation.carrier`) with a new
-seed, fits them (:func:`~tak_thermo_ros.core.magnetometer.carrier.fit_carrier`) and takes three
+seed, fits them (:func:`~tak_thermo_ros.core.magnetometer.carrier_fit.fit_carrier`) and takes three
 relative errors (the seed's rows):
 
 - Earth field: ``|b_hat - b| / |b|`` (the vector error over the magnitude, so that a small
@@ -25,15 +25,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from tak_thermo_ros.core.magnetometer.carrier import (
-    AXIS_NAMES,
-    NAV_NAMES,
-    CarrierFit,
-    CarrierModel,
-    CarrierTruth,
-    InstrumentErrors,
-    fit_carrier,
-)
+from tak_thermo_ros.core.magnetometer.carrier import AXIS_NAMES, NAV_NAMES, CarrierModel, CarrierTruth, InstrumentErrors
+from tak_thermo_ros.core.magnetometer.carrier_fit import CarrierFit, fit_carrier
 from tak_thermo_ros.core.simulation.carrier import CarrierScenario, simulate_carrier
 
 QUANTITIES = ('earth', 'poisson', 'hard_iron')

@@ -25,15 +25,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from tak_thermo_ros.core.records.record import (
-    AlignedSamples,
-    ChannelRecord,
-    StampHistory,
-    align,
-    hold_last_index,
-    reference_problems,
-    temp_code_problems,
-)
+from tak_thermo_ros.core.records.drops import reference_problems, temp_code_problems
+from tak_thermo_ros.core.records.record import AlignedSamples, ChannelRecord, align, hold_last_index
+from tak_thermo_ros.core.records.stamps import StampHistory
 from tak_thermo_ros.errors import TakError
 
 NEVER = np.iinfo(np.int64).max
@@ -58,7 +52,7 @@ class AlignState:
     :param last_stamp_ns: the largest stamp among the aligned main samples, or ``None``.
     :param temp_seen_ns: the largest temperature stamp read, or ``None``.
     :param reference_seen_ns: the largest reference stamp read, or ``None``.
-    :param stamp_history: what the stamp rule (:func:`~tak_thermo_ros.core.records.record.stamp_kept`)
+    :param stamp_history: what the stamp rule (:func:`~tak_thermo_ros.core.records.stamps.stamp_kept`)
         knows of the main samples aligned so far (the last one's stamp and step, the last kept
         one's stamp), across block edges, or ``None``.
     :param aux: carried recorded signals, name -> ``(stamp_ns, values)`` (finite values only).

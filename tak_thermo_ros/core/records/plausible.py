@@ -6,7 +6,7 @@ DataFlash log, a driver bag), each refusing in its own words, naming the file:
 - **Stamps a bag can hold**: :func:`stamp_ns_from_micros` turns a flight log's microseconds
   into nanoseconds without overflow; a stamp beyond what a bag holds (2038-01-19, or a
   corrupt ``TimeUS`` with a high bit set) becomes :data:`MAX_STAMP_NS`, far ahead of the
-  run, which the stamp rule (:func:`~tak_thermo_ros.core.records.record.stamp_kept`) drops
+  run, which the stamp rule (:func:`~tak_thermo_ros.core.records.stamps.stamp_kept`) drops
   and counts as a ``stamp_jump``, as it does any message stamped far in the future.
 - **No clock step** (:func:`clock_step`): among the stamps the stamp rule keeps, a step of
   :data:`CLOCK_STEP_S` (a year) or more, either way, is no pause but two clocks (a driver
@@ -16,7 +16,7 @@ DataFlash log, a driver bag), each refusing in its own words, naming the file:
   the samples.)
 - **Degrees Celsius** (:func:`temperature_unit_problem`): a driver's temperature (not a
   code) whose finite values are mostly implausible (outside
-  :data:`~tak_thermo_ros.core.records.record.TEMPERATURE_RANGE`: centi-degrees, a raw code), or
+  :data:`~tak_thermo_ros.core.records.drops.TEMPERATURE_RANGE`: centi-degrees, a raw code), or
   mostly within :data:`KELVIN_BAND` (an IMU's working range, -50..150 C, read in kelvin), is
   refused with a hint; a few implausible values among good ones are ignored and counted, as
   before.
@@ -28,7 +28,8 @@ from typing import Callable
 
 import numpy as np
 
-from tak_thermo_ros.core.records.record import NANOSECONDS, TEMPERATURE_RANGE, stamp_problems
+from tak_thermo_ros.core.records.drops import TEMPERATURE_RANGE
+from tak_thermo_ros.core.records.stamps import NANOSECONDS, stamp_problems
 
 MAX_STAMP_NS = (2 ** 31 - 1) * NANOSECONDS + 999_999_999
 """Latest stamp a bag holds (``Time.sec`` is an int32: 2038-01-19); a sample stamped beyond it or before 0 gets it."""

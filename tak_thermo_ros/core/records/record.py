@@ -2,59 +2,42 @@
 
 Temperature codes may come at a lower rate than counts, and the reference is published at
 least whenever it changes: both are *held* (the last value at or before the counts stamp).
-Alignment uses header stamps, not bag receive times.
+Alignment uses header stamps, not bag receive times. What a sample may hold and why it is
+dropped is :mod:`.drops`; the stamp rule, and nanoseconds against seconds, :mod:`.stamps`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from math import isfinite
 from typing import Sequence
 
 import numpy as np
 
+from tak_thermo_ros.core.records.drops import counts_problems, reference_problems, temp_code_problems
+from tak_thermo_ros.core.records.stamps import NANOSECONDS, StampHistory, seconds_from_ns, stamp_problems
 from tak_thermo_ros.errors import CalibrationError
 
-COUNTS_MIN = -32768.0
-COUNTS_MAX = 32767.0
-NANOSECONDS = 1_000_000_000
-TEMP_CODE_LIMIT = 1e7
-"""Largest magnitude of a plausible temperature-sensor code (beyond any 24-bit code, 2**23).
-
-A code at or beyond it is a corrupted message, not a temperature: it is ignored like a
-non-finite one (the last good code stays held).
-"""
-TEMPERATURE_RANGE = {'counts': (-TEMP_CODE_LIMIT, TEMP_CODE_LIMIT), 'imu': (-273.15, 1000.0)}
-"""Plausible temperature inputs by input kind: codes, or degrees Celsius (from absolute zero to
-a soldering iron). A value outside is ignored as ``implausible``; the calibration file refuses
-a calibrated range outside it."""
-REFERENCE_LIMIT = 2000.0
-"""Largest plausible reference component, m/s^2 (about 200 g, beyond any turntable or centrifuge).
-
-A reference message with a component at or beyond it, or NaN or infinite, is corrupt: it is
-ignored (the previous good reference stays held).
-"""
-
-
-def seconds_from_ns(stamp_ns: np.ndarray) -> np.ndarray:
-    """Float seconds ``sec + nanosec * 1e-9`` of int64 nanosecond stamps, ``(k,)``.
-
-    The same floats as :func:`seconds` gives per message, so that model terms with memory see
-    identical stamps offline and in the node.
-    """
-    stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
-    sec = stamp_ns // NANOSECONDS
-    return sec.astype(float) + (stamp_ns - sec * NANOSECONDS).astype(float) * 1e-9
-
-
-def seconds(sec: int, nanosec: int) -> float:
-    """Float seconds of one ``builtin_interfaces/Time`` (``sec``, ``nanosec``)."""
-    return float(sec) + float(nanosec) * 1e-9
-
-
-def ns_from_seconds(time_s: np.ndarray) -> np.ndarray:
-    """Int64 nanosecond stamps ``(k,)`` of float seconds, rounded to the nanosecond."""
-    return np.round(np.asarray(time_s, dtype=float) * NANOSECONDS).astype(np.int64)
+# issue 41: core/link/online.py (split on issue41-a), formats/csv_log.py (issue41-b) and
+# core/simulation/everyday.py (issue 40) still import these names from here; when their imports
+# name drops.py and stamps.py, these lines go.
+from tak_thermo_ros.core.records.drops import (  # noqa: F401
+    COUNTS_MAX,
+    COUNTS_MIN,
+    DROP_REASONS,
+    TEMP_CODE_LIMIT,
+    TEMPERATURE_RANGE,
+    counts_problem,
+    temp_code_problem,
+    values_problem,
+)
+from tak_thermo_ros.core.records.stamps import (  # noqa: F401
+    STAMP_JUMP_NS,
+    STAMP_JUMP_S,
+    going_on_step,
+    ns_from_seconds,
+    seconds,
+    stamp_problem,
+)
 
 
 def no_orientation(count: int) -> tuple[np.ndarray, np.ndarray]:
@@ -106,122 +89,6 @@ class ChannelRecord:
         return len(self.reference_stamp_ns) > 0
 
 
-DROP_REASONS = ('non_finite', 'non_integer', 'saturated', 'non_physical')
-"""Why a sample is never corrected, in the order the checks run (counts: the first three; a
-driver's values: ``non_finite`` and ``non_physical``)."""
-VALUE_LIMIT = 1.0e4
-"""Magnitude from which a driver's value (m/s^2, rad/s, tesla) is non-physical: 1000 g, or
-95,000 rpm, beyond the full scale of any IMU (the calibration file's limit on offsets). Such a
-message is dropped (``non_physical``), never corrected: a corrupt field, not a measurement."""
-
-
-def counts_problem(x: float, y: float, z: float) -> str | None:
-    """Why one counts sample cannot be corrected, or ``None``; the node's per-message check.
-
-    Same rules, same order as the vectorised :func:`counts_problems`.
-    """
-    if not (isfinite(x) and isfinite(y) and isfinite(z)):
-        return 'non_finite'
-    for value in (x, y, z):
-        if value != round(value):
-            return 'non_integer'
-    for value in (x, y, z):
-        if value <= COUNTS_MIN or value >= COUNTS_MAX:
-            return 'saturated'
-    return None
-
-
-def values_problem(*values: float, _low: float = -VALUE_LIMIT, _high: float = VALUE_LIMIT) -> str | None:
-    """Why one driver sample (any number of channels) cannot be corrected, or ``None``.
-
-    Driver values are already in SI units: a NaN or an infinity (``non_finite``) or a magnitude
-    of :data:`VALUE_LIMIT` or more (``non_physical``) is refused, as by :func:`counts_problems`
-    with ``whole_codes=False``. (``_low`` and ``_high`` are the limit as local names: the node
-    asks this of every message.)
-    """
-    for value in values:
-        if not _low < value < _high:  # also false for NaN
-            for other in values:
-                if not isfinite(other):
-                    return 'non_finite'
-            return 'non_physical'
-    return None
-
-
-def counts_problems(counts: np.ndarray, *, whole_codes: bool = True) -> dict[str, np.ndarray]:
-    """Masks ``(k,)`` per reason of :data:`DROP_REASONS`, each excluding earlier reasons.
-
-    :param counts: ``(k, c)`` values, one row per sample.
-    :param whole_codes: the paper's codes (whole numbers inside the 16-bit range); ``False``
-        for a driver's values, where ``non_finite`` and ``non_physical`` apply.
-    """
-    finite = np.all(np.isfinite(counts), axis=1)
-    safe = np.where(np.isfinite(counts), counts, 0.0)
-    nothing = np.zeros(len(counts), dtype=bool)
-    if not whole_codes:
-        large = np.any(np.abs(safe) >= VALUE_LIMIT, axis=1)
-        return {'non_finite': ~finite, 'non_integer': nothing, 'saturated': nothing.copy(),
-                'non_physical': finite & large}
-    integer = np.all(safe == np.round(safe), axis=1)
-    rail = np.any((safe <= COUNTS_MIN) | (safe >= COUNTS_MAX), axis=1)
-    return {'non_finite': ~finite,
-            'non_integer': finite & ~integer,
-            'saturated': finite & integer & rail,
-            'non_physical': nothing}
-
-
-STAMP_DROP_REASONS = ('duplicate_stamp', 'time_backwards', 'stamp_jump')
-"""Why a sample is left out for its header stamp, checked before :data:`DROP_REASONS`."""
-STAMP_JUMP_S = 10.0
-"""A forward step of the header stamp from one message to the next that is taken as the stream
-going on, whatever the stream: up to 10 s (a step beyond both this and :data:`STAMP_JUMP_STEPS`
-steps of the stream is a ``stamp_jump``: a message stamped in the future, or the first after a
-pause or a clock step, which the next message then confirms)."""
-STAMP_JUMP_NS = int(STAMP_JUMP_S * NANOSECONDS)
-STAMP_JUMP_STEPS = 100
-"""A forward step also goes on when it is at most this many steps of the stream (the last kept
-message's advance over the kept one before it): a stream with a message every 30 s goes on 30 s
-at a time."""
-_STEP_CAP_NS = np.iinfo(np.int64).max // STAMP_JUMP_STEPS
-"""Steps beyond this make a limit beyond any step (stamps are within +-2**31 s): capped, for int64."""
-TEMP_CODE_PROBLEMS = ('non_finite', 'implausible')
-"""Why a temperature code is ignored (not held)."""
-
-
-def temp_code_problem(temp_code: float, input_kind: str = 'counts') -> str | None:
-    """Why one temperature input is ignored, or ``None``.
-
-    NaN or infinite (``non_finite``), or outside :data:`TEMPERATURE_RANGE` of the input kind (``implausible``).
-    """
-    if not isfinite(temp_code):
-        return 'non_finite'
-    low, high = TEMPERATURE_RANGE[input_kind]
-    if not low < temp_code < high:
-        return 'implausible'
-    return None
-
-
-def temp_code_problems(temp_code: np.ndarray, input_kind: str = 'counts') -> dict[str, np.ndarray]:
-    """Masks ``(m,)`` per reason of :data:`TEMP_CODE_PROBLEMS`; same rules as :func:`temp_code_problem`."""
-    temp_code = np.asarray(temp_code, dtype=float)
-    finite = np.isfinite(temp_code)
-    low, high = TEMPERATURE_RANGE[input_kind]
-    safe = np.where(finite, temp_code, 0.0)
-    return {'non_finite': ~finite, 'implausible': finite & ~((safe > low) & (safe < high))}
-
-
-def reference_problems(reference: np.ndarray) -> dict[str, np.ndarray]:
-    """Masks ``(r,)`` per reason a reference message is ignored.
-
-    ``non_finite`` (a component NaN or infinite) or ``implausible`` (a component of magnitude :data:`REFERENCE_LIMIT`
-    or more).
-    """
-    reference = np.asarray(reference, dtype=float).reshape(-1, 3)
-    finite = np.all(np.isfinite(reference), axis=1)
-    large = np.any(np.abs(np.where(np.isfinite(reference), reference, 0.0)) >= REFERENCE_LIMIT, axis=1)
-    return {'non_finite': ~finite, 'implausible': finite & large}
-
-
 def _usable_hold_index(source_stamp_ns: np.ndarray, problems: dict[str, np.ndarray], target_stamp_ns: np.ndarray,
                        ignored: dict[str, int]) -> np.ndarray:
     """:func:`hold_last_index` over the source rows without a problem; counts the others in ``ignored``."""
@@ -235,146 +102,6 @@ def _usable_hold_index(source_stamp_ns: np.ndarray, problems: dict[str, np.ndarr
         return np.full(len(target_stamp_ns), -1)
     held = hold_last_index(source_stamp_ns[rows], target_stamp_ns)
     return np.where(held >= 0, rows[np.maximum(held, 0)], -1)
-
-
-def stamp_problem(step_ns: int) -> str:
-    """The reason a message whose stamp is ``step_ns`` after the previous message's is dropped.
-
-    Only asked of a message :func:`stamp_kept` refuses: ``duplicate_stamp`` (equal),
-    ``time_backwards`` (earlier) or ``stamp_jump`` (later by more than :func:`step_limit`).
-    """
-    if step_ns == 0:
-        return 'duplicate_stamp'
-    return 'time_backwards' if step_ns < 0 else 'stamp_jump'
-
-
-def step_limit(stream_step_ns: int | None) -> int | None:
-    """The largest forward step that goes on, in a stream stepping ``stream_step_ns``.
-
-    :data:`STAMP_JUMP_S`, or :data:`STAMP_JUMP_STEPS` steps of the stream when more; ``None`` (no
-    limit) while the stream's step is unknown (one message kept so far).
-    """
-    if stream_step_ns is None:
-        return None
-    return max(STAMP_JUMP_NS, STAMP_JUMP_STEPS * min(stream_step_ns, _STEP_CAP_NS))
-
-
-@dataclass(frozen=True)
-class StampHistory:
-    """What the stamp rule knows of the messages before: for a run read in blocks, and the node.
-
-    :param previous_ns: the previous message's stamp (whatever became of it).
-    :param kept_ns: the stamp of the last message kept, or ``None``.
-    :param stream_step_ns: the stream's step: the step by which the last kept message went on
-        (:func:`going_on_step`, > 0), or ``None`` while unknown (one message kept so far).
-    :param before_ns: the stamp of the message before the previous one (whatever became of it),
-        or ``None``.
-    """
-
-    previous_ns: int
-    kept_ns: int | None = None
-    stream_step_ns: int | None = None
-    before_ns: int | None = None
-
-    def after(self, stamp_ns: int, kept: bool) -> StampHistory:
-        """The history once a message stamped ``stamp_ns`` is kept, or dropped."""
-        if not kept:
-            return StampHistory(stamp_ns, self.kept_ns, self.stream_step_ns, self.previous_ns)
-        return StampHistory(stamp_ns, stamp_ns, going_on_step(stamp_ns, self), self.previous_ns)
-
-
-def going_on_step(stamp_ns: int, history: StampHistory | None) -> int | None:
-    """The step by which a message stamped ``stamp_ns`` goes on, or ``None`` when it does not (dropped).
-
-    From the previous message's stamp (whatever became of that one) when it goes on from it, else,
-    when the previous one was dropped, from the one before it (whatever became of that one), else
-    from the last kept message's: later by
-    more than 0 and at most :func:`step_limit` of the stream's step (any forward step while that
-    is unknown: one message kept so far). The step is then the stream's step: a lone message
-    stamped far ahead is dropped and sets nothing, and the message after it goes on from the one
-    before it.
-
-    :param history: what is known of the messages before, ``None`` for the first message (kept,
-        with no step).
-    """
-    if history is None:
-        return None
-    limit = step_limit(history.stream_step_ns)
-    # the message before the previous one counts when the previous one was dropped (not the last kept)
-    before = history.before_ns if history.previous_ns != history.kept_ns else None
-    for start in (history.previous_ns, before, history.kept_ns):
-        if start is not None:
-            step = stamp_ns - start
-            if 0 < step and (limit is None or step <= limit):
-                return step
-    return None
-
-
-def stamp_kept(stamp_ns: int, history: StampHistory | None) -> bool:
-    """The stamp rule, one message at a time (the node's, and :func:`stamp_problems`' own).
-
-    A message is kept when its header stamp is later than the previous message's (whatever
-    became of that one), or than the last kept message's, by at most :func:`step_limit` (10 s,
-    or 100 steps of the stream; the stream's step is the step by which the last kept message
-    went on, :func:`going_on_step`). So a stream 1, 2, 3, 10, 4, 5 s drops the 4 (the 10 was
-    kept); a stream 1, 2, 3, 3603, 4, 5 s drops the 3603 alone (stamped an hour ahead), and the
-    4 goes on from the 3, wherever the outlier comes (the second or third message after a pause
-    too); after a real jump (1, 2, 3, 3603, 3604, ...: a pause or a clock step) the first message
-    after it is dropped and the next one, going on from it, is kept; a stream of a message every
-    30 s goes on. The first step of a stream is not judged (its step is not known yet): an
-    outlier as the second message ever is kept, and the good message after it dropped.
-
-    :param history: what is known of the messages before, ``None`` for the first message.
-    """
-    return history is None or going_on_step(stamp_ns, history) is not None
-
-
-def stamp_problems(stamp_ns: np.ndarray, *, history: StampHistory | None = None
-                   ) -> tuple[dict[str, np.ndarray], StampHistory | None]:
-    """Masks ``(k,)`` per reason of :data:`STAMP_DROP_REASONS`, in bag (arrival) order; the history after.
-
-    :func:`stamp_kept` on every message, vectorised: a stretch where each message steps forward
-    by at most the limit its predecessor's step sets is kept whole; the messages around the others
-    are taken one by one. The reason is :func:`stamp_problem`'s. The node applies the same rule
-    per message.
-
-    :param history: the messages before the first one (a run read in blocks), or ``None``.
-    """
-    stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
-    count = len(stamp_ns)
-    if not count:
-        return {reason: np.zeros(0, dtype=bool) for reason in STAMP_DROP_REASONS}, history
-    step = np.zeros(count, dtype=np.int64)
-    step[1:] = stamp_ns[1:] - stamp_ns[:-1]
-    if history is not None:
-        step[0] = stamp_ns[0] - history.previous_ns
-    # Where message i-1 went on from i-2 (both kept), the stream steps step[i-1]: i goes on when
-    # 0 < step[i] <= step_limit(step[i-1]) (no limit after a step that was not forward).
-    stream_step = np.zeros(count, dtype=np.int64)
-    stream_step[1:] = step[:-1]
-    limit = np.maximum(STAMP_JUMP_NS, STAMP_JUMP_STEPS * np.clip(stream_step, 0, _STEP_CAP_NS))
-    goes_on = (step > 0) & ((stream_step <= 0) | (step <= limit))
-    stops = np.flatnonzero(~goes_on)
-    kept = np.zeros(count, dtype=bool)
-    state = history
-    index = 0
-    while index < count:
-        if (index > 0 and goes_on[index] and state.kept_ns == int(stamp_ns[index - 1])
-                and state.stream_step_ns == (int(step[index - 1]) if step[index - 1] > 0 else None)):
-            position = int(np.searchsorted(stops, index))
-            stop = int(stops[position]) if position < len(stops) else count
-            kept[index:stop] = True
-            last = int(stamp_ns[stop - 1])
-            state = StampHistory(last, last, int(step[stop - 1]), int(stamp_ns[stop - 2]))
-            index = stop
-            continue
-        stamp = int(stamp_ns[index])
-        kept[index] = stamp_kept(stamp, state)
-        state = state.after(stamp, bool(kept[index])) if state is not None else StampHistory(stamp, stamp)
-        index += 1
-    dropped = ~kept
-    return ({'duplicate_stamp': dropped & (step == 0), 'time_backwards': dropped & (step < 0),
-             'stamp_jump': dropped & (step > 0)}, state)
 
 
 def hold_last_index(source_stamp_ns: np.ndarray, target_stamp_ns: np.ndarray) -> np.ndarray:
@@ -405,7 +132,7 @@ class AlignedSamples:
     :param reference: ``(k, 3)`` held reference, or ``None`` without a reference stream.
     :param dropped: reason -> number of counts samples left out.
     :param rows: ``(k,)`` index of each kept sample in the record's stream, or ``None``.
-    :param ignored_temp_codes: reason of :data:`TEMP_CODE_PROBLEMS` -> number of temperature
+    :param ignored_temp_codes: reason of :data:`~.drops.TEMP_CODE_PROBLEMS` -> number of temperature
         codes that were ignored (not held), reasons with none left out.
     :param ignored_references: the same for reference messages (:func:`reference_problems`).
     :param aux: recorded signal name -> ``(k,)`` its value held at each kept sample's stamp
@@ -447,11 +174,11 @@ def align(record: ChannelRecord, *, use_reference: bool = True, settle_time_s: f
     """Hold temperature code and reference on the counts stamps and keep usable samples.
 
     Counts samples are left out, and counted by reason, in this order: the header stamp does
-    not go on from the previous message's or the last kept one's (:func:`stamp_kept`:
+    not go on from the previous message's or the last kept one's (:func:`~.stamps.stamp_kept`:
     ``duplicate_stamp``, ``time_backwards``, ``stamp_jump``); for the reasons of
     :func:`counts_problems`: a code is NaN or infinite (``non_finite``), not a whole number
     (``non_integer``), or at a 16-bit rail (``saturated``, unless ``drop_saturated`` is false),
-    a driver's value of magnitude :data:`VALUE_LIMIT` or more (``non_physical``); no
+    a driver's value of magnitude :data:`~.drops.VALUE_LIMIT` or more (``non_physical``); no
     temperature code has arrived yet
     (``before_first_temp_code``); no reference yet (``before_first_reference``); within
     ``settle_time_s`` after a reference change (``settling``).

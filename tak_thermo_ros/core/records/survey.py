@@ -32,7 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from tak_thermo_ros.core.records.plausible import temperature_counts, temperature_counts_problem
-from tak_thermo_ros.core.records.record import REFERENCE_LIMIT, TEMPERATURE_RANGE, ChannelRecord, DriverRecord
+from tak_thermo_ros.core.records.drops import REFERENCE_LIMIT, TEMPERATURE_RANGE
+from tak_thermo_ros.core.records.record import ChannelRecord, DriverRecord
 from tak_thermo_ros.core.records.static_run import STATIC_TOLERANCE_DEG
 from tak_thermo_ros.core.records.still import ORIENTATION_DEG, StillDetector, StillIntervals, distinct_directions
 

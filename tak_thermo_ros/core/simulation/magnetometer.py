@@ -28,7 +28,8 @@ import numpy as np
 from tak_thermo_ros.core.effects import resolve_effect
 from tak_thermo_ros.core.link.correction import forward_counts
 from tak_thermo_ros.core.link.model import AxisModel, Calibration, MagnetometerCalibration
-from tak_thermo_ros.core.records.record import DriverRecord, no_orientation, ns_from_seconds
+from tak_thermo_ros.core.records.record import DriverRecord, no_orientation
+from tak_thermo_ros.core.records.stamps import ns_from_seconds
 from tak_thermo_ros.core.rotation import quaternion_matrix, quaternion_product
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import CalibrationError, FitError, ScenarioError

@@ -20,11 +20,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
 from tak_thermo_ros.core.rotation import exp_map, log_map, rotation_between
+from tak_thermo_ros.core.simulation.mapping import fields_from_mapping, integer, number, numbers, string
 from tak_thermo_ros.core.values import EARTH_RATE
 from tak_thermo_ros.errors import ScenarioError
 
@@ -92,37 +93,22 @@ def motion_from_mapping(raw: Any) -> HandheldMotion:
 
     :raises ScenarioError: naming the key.
     """
-    if not isinstance(raw, Mapping):
-        known = ', '.join(f.name for f in fields(HandheldMotion))
-        msg = f'handheld: expected a mapping (every key optional: {known})'
-        raise ScenarioError(msg)
-    known = {f.name: f for f in fields(HandheldMotion)}
-    values: dict[str, Any] = {}
-    for key, value in raw.items():
-        if key not in known:
-            msg = f'handheld.{key}: unknown key (known: {", ".join(known)})'
-            raise ScenarioError(msg)
+    def read(key: str, value: Any) -> Any:
         default = getattr(HandheldMotion(), key)
+        where = f'handheld.{key}'
         if isinstance(default, str):
-            if not isinstance(value, str):
-                msg = f'handheld.{key}: expected a string'
-                raise ScenarioError(msg)
-        elif key == 'lever_arm_m':
-            if not isinstance(value, (list, tuple)) or not all(
-                    isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
-                msg = f'handheld.{key}: expected a list of three numbers'
-                raise ScenarioError(msg)
-            value = tuple(float(v) for v in value)
-        elif key == 'orientations':
-            if isinstance(value, bool) or not isinstance(value, int):
-                msg = f'handheld.{key}: expected an integer'
-                raise ScenarioError(msg)
-        elif value is not None or key != 'latitude_deg':
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                msg = f'handheld.{key}: expected a number'
-                raise ScenarioError(msg)
-            value = float(value)
-        values[key] = value
+            return string(value, where)
+        if key == 'lever_arm_m':
+            return numbers(value, where, what='a list of three numbers')
+        if key == 'orientations':
+            return integer(value, where)
+        if value is None and key == 'latitude_deg':
+            return None
+        return number(value, where)
+
+    known = ', '.join(f.name for f in fields(HandheldMotion))
+    values = fields_from_mapping(raw, HandheldMotion, 'handheld.', read,
+                                 not_a_mapping=f'handheld: expected a mapping (every key optional: {known})')
     return HandheldMotion(**values)
 
 

@@ -19,13 +19,17 @@ the true static links (:class:`~tak_thermo_ros.core.link.model.UnitCalibration`,
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
+from typing import Any
 
 import numpy as np
 
 from tak_thermo_ros.core.link.model import Calibration, InputKind, UnitCalibration
-from tak_thermo_ros.core.records.record import DriverRecord, no_orientation, ns_from_seconds
-from tak_thermo_ros.core.simulation.imu import AxisTruth, exact_output, first_order_lag
+from tak_thermo_ros.core.records.record import DriverRecord, no_orientation
+from tak_thermo_ros.core.records.stamps import ns_from_seconds
+from tak_thermo_ros.core.simulation.imu import first_order_lag
+from tak_thermo_ros.core.simulation.mapping import fields_from_mapping
+from tak_thermo_ros.core.simulation.truth import AxisTruth, exact_output
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import ScenarioError
 
@@ -111,6 +115,39 @@ class PoweredRun:
                                axes=axes)  # type: ignore[arg-type]
 
         return UnitCalibration(InputKind.IMU, link(self.accel_unit), link(self.gyro_unit))
+
+
+def powered_from_mapping(raw: Any) -> PoweredRun:
+    """A :class:`PoweredRun` from a scenario's ``powered`` mapping (``ambient_knots`` a list of ``[t, celsius]``).
+
+    Every key optional; ``accel_unit`` and ``gyro_unit`` are not set from a mapping.
+
+    :raises ScenarioError: naming the key (``powered.KEY: ...``).
+    """
+    def read(key: str, value: Any) -> Any:
+        try:
+            if key == 'ambient_knots':
+                return tuple((float(t), float(c)) for t, c in value)
+            if key == 'up':
+                return tuple(float(v) for v in value)
+            if key == 'frame_id':
+                return str(value)
+            if key == 'seed':
+                return int(value)
+            return float(value)
+        except (TypeError, ValueError):
+            msg = f'powered.{key}: {value!r} is not what it takes'
+            raise ScenarioError(msg) from None
+
+    names = ', '.join(f.name for f in fields(PoweredRun))
+    values = fields_from_mapping(raw, PoweredRun, 'powered.', read, sort_known=True,
+                                 exclude=('accel_unit', 'gyro_unit'),
+                                 not_a_mapping=f'powered: expected a mapping of {names}')
+    try:
+        return PoweredRun(**values)
+    except ScenarioError as err:
+        msg = f'powered.{err}'
+        raise ScenarioError(msg) from None
 
 
 @dataclass(frozen=True)
