@@ -24,7 +24,7 @@ import yaml
 from bag_writer import write_with_header_stamps
 from conftest import CREEP_MODULE, SHORT
 from node_helpers import start_process
-from tak_thermo_ros.formats import bag as bagio
+from tak_thermo_ros.formats.bag import writer as bag_writer
 from tak_thermo_ros.formats.bag import read_imu, read_record, write_record
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.formats.calibration_file import save_calibration
@@ -225,7 +225,7 @@ def test_a_full_disk_during_a_bag_write_is_one_line_and_leaves_nothing(tmp_path,
     (simulated: the writer raises what a full disk raises) gives one line naming the user's bag, exit 2, and no
     temporary directory.
     """
-    real_write = bagio.Writer.write
+    real_write = bag_writer.Writer.write
     written = []
 
     def failing_write(self, connection, timestamp, data):
@@ -234,7 +234,7 @@ def test_a_full_disk_during_a_bag_write_is_one_line_and_leaves_nothing(tmp_path,
             raise failure
         return real_write(self, connection, timestamp, data)
 
-    monkeypatch.setattr(bagio.Writer, 'write', failing_write)
+    monkeypatch.setattr(bag_writer.Writer, 'write', failing_write)
     scenario = tmp_path / 'tiny.yaml'
     scenario.write_text(yaml.safe_dump({'plateau_hours': 0.05, 'ramp_celsius_per_minute': 5.0}))
     out = tmp_path / 'bag'

@@ -1,7 +1,7 @@
 """Files in and out, one module per format; the maths (:mod:`tak_thermo_ros.core`) reads none.
 
-- :mod:`~tak_thermo_ros.formats.bag`: rosbag2 (mcap, sqlite3) through rosbags, in blocks; the only
-  module that imports rosbags;
+- :mod:`~tak_thermo_ros.formats.bag`: rosbag2 (mcap, sqlite3) through rosbags, whole or in blocks;
+  the only package that imports rosbags;
 - :mod:`~tak_thermo_ros.formats.cdr`: the block decoder and encoder of CDR messages (numpy only);
 - :mod:`~tak_thermo_ros.formats.csv_log`: delimited logs;
 - :mod:`~tak_thermo_ros.formats.ulog`, :mod:`~tak_thermo_ros.formats.dataflash`: PX4 ULogs and ArduPilot
