@@ -1371,7 +1371,7 @@ class RateDriver:
         """``count`` input messages stamped a period apart, and a temperature for every RATE_TEMP_EVERY of them."""
         import numpy as np
 
-        from tak_thermo_ros.formats.cdr import encode_messages
+        from tak_thermo_ros.formats.cdr.encoder import encode_messages
         stamps = self.stamp_ns + period_ns * np.arange(1, count + 1, dtype=np.int64)
         self.stamp_ns = int(stamps[-1])
         k = np.arange(count)

@@ -18,14 +18,8 @@ from conftest import SHORT
 from tak_thermo_ros.formats import bag as bagio
 from tak_thermo_ros.formats.bag import reader as bag_reader
 from tak_thermo_ros.formats.bag import TYPESTORE, iter_topic_arrays, read_record, write_record
-from tak_thermo_ros.formats.cdr import (
-    MAX_LAYOUT_ROUNDS,
-    SCHEMAS,
-    MessageArrays,
-    concatenate,
-    decode_message,
-    decode_messages,
-)
+from tak_thermo_ros.formats.cdr.decoder import MAX_LAYOUT_ROUNDS, MessageArrays, concatenate, decode_messages
+from tak_thermo_ros.formats.cdr.schema import SCHEMAS, decode_message
 from tak_thermo_ros.core.simulation.imu import simulate
 from tak_thermo_ros.errors import BagError, CdrError
 

@@ -16,7 +16,8 @@ from conftest import SHORT
 from tak_thermo_ros.formats import bag as bagio
 from tak_thermo_ros.formats.bag import writer as bag_writer
 from tak_thermo_ros.formats.bag import TYPESTORE, read_imu_messages, write_driver_record, write_record
-from tak_thermo_ros.formats.cdr import decode_messages, encode_imus, encode_messages
+from tak_thermo_ros.formats.cdr.decoder import decode_messages
+from tak_thermo_ros.formats.cdr.encoder import encode_imus, encode_messages
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.formats.calibration_file import save_calibration, save_unit
 from tak_thermo_ros.core.simulation.imu import simulate

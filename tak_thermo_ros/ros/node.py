@@ -31,8 +31,8 @@ diagnostics period); the value is held like the temperature (:mod:`tak_thermo_ro
 This is a thin wrapper: callbacks turn messages into numbers, hand them to
 :class:`~tak_thermo_ros.core.link.online.OnlineCompensator` (no ROS in it) and turn the result
 back into a message. By default (``message_path: raw``) the messages are their serialised bytes
-(``raw=True`` subscriptions; :class:`~tak_thermo_ros.formats.cdr.FixedReader` reads the numbers at
-fixed offsets, :class:`~tak_thermo_ros.formats.cdr.FixedWriter` writes the output, published as
+(``raw=True`` subscriptions; :class:`~tak_thermo_ros.formats.cdr.fixed.FixedReader` reads the numbers at
+fixed offsets, :class:`~tak_thermo_ros.formats.cdr.fixed.FixedWriter` writes the output, published as
 bytes): no rclpy message object on the hot path. The only module of the package that imports
 rclpy (with the player).
 """
@@ -62,7 +62,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import Imu, MagneticField, Temperature
 
-from tak_thermo_ros.formats.cdr import FixedReader, FixedWriter, frame_id
+from tak_thermo_ros.formats.cdr.fixed import FixedReader, FixedWriter, frame_id
 from tak_thermo_ros.formats.calibration_file import (
     NODE_NAME,
     flatten_parameters,
@@ -304,7 +304,7 @@ class CompensatorNode(Node):
         for sensor in SENSORS if driver else ():
             imu = Imu()
             self._imu_only[sensor] = imu, imu.linear_acceleration if sensor == 'accel' else imu.angular_velocity
-        # The raw path: the package's CDR codec at fixed offsets (formats.cdr), one reader per input.
+        # The raw path: the package's CDR codec at fixed offsets (formats.cdr.fixed), one reader per input.
         self._temperature_reader = FixedReader('sensor_msgs/msg/Temperature', ('temperature',))
         self._input_reader = (
             FixedReader(IMU_TYPE, ('stamp_sec', 'stamp_nanosec', 'linear_acceleration', 'angular_velocity',

@@ -37,12 +37,11 @@ from tak_thermo_ros.formats.bag.decoding import (
     driver_sensors,
 )
 from tak_thermo_ros.formats.bag.reader import DECODERS, _nominal_scale, _TopicReader, bag_input_kind
-from tak_thermo_ros.formats.cdr import MessageArrays
+from tak_thermo_ros.formats.cdr.decoder import MessageArrays
 from tak_thermo_ros.core.link.model import InputKind
 from tak_thermo_ros.core.records.record import ChannelRecord, DriverRecord
 from tak_thermo_ros.errors import BagError
 from tak_thermo_ros.progress import Progress
-
 
 STREAM_BLOCK_SAMPLES = 65536
 """Main-stream messages per block of :func:`iter_blocks`."""
@@ -151,7 +150,7 @@ def iter_blocks(path: str | os.PathLike[str], *, topics: Topics = Topics(), kind
     of a block are collected per topic and decoded together.
 
     :param references: also read the reference topics (``False``: ``apply``).
-    :param decoder: one of :data:`DECODERS`: ``block`` (:func:`tak_thermo_ros.formats.cdr.decode_messages`)
+    :param decoder: one of :data:`DECODERS`: ``block`` (:func:`tak_thermo_ros.formats.cdr.decoder.decode_messages`)
         or ``rosbags`` (``decode_*``, one ``deserialize_cdr`` per message, the reference); both
         give the same blocks.
     :raises BagError: as the whole-bag readers (missing topic, wrong type, changing frame_id,

@@ -21,7 +21,6 @@ from rosbags.typesys import Stores, get_typestore
 
 from tak_thermo_ros.core.effects import aux_signal
 
-
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 VECTOR3_STAMPED = 'geometry_msgs/msg/Vector3Stamped'
 TEMPERATURE = 'sensor_msgs/msg/Temperature'
@@ -29,8 +28,6 @@ IMU = 'sensor_msgs/msg/Imu'
 MAGNETIC_FIELD = 'sensor_msgs/msg/MagneticField'
 NOMINAL_SCALE_KEY = 'tak_thermo_ros.nominal_scale'
 """Bag metadata ``custom_data`` key: nominal K0 per axis as ``'x,y,z'`` (counts per m/s^2)."""
-
-
 AUX_FIELDS = aux_signal.AUX_FIELDS
 
 

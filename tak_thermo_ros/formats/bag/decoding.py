@@ -1,7 +1,7 @@
 """Serialised messages into arrays, shared by the whole-file reader and the block stream.
 
 The reference decoders (``decode_*``: one rosbags ``deserialize_cdr`` per message), the block
-decoder's columns (:func:`tak_thermo_ros.formats.cdr.decode_messages` arrays in the same shape),
+decoder's columns (:func:`tak_thermo_ros.formats.cdr.decoder.decode_messages` arrays in the same shape),
 a driver record's sensors from the Imu messages' marks, the one-frame-per-run check, and the
 auxiliary signals of one topic.
 """
@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from tak_thermo_ros.formats.bag.contract import AUX_FIELDS, IMU, MAGNETIC_FIELD, TEMPERATURE, TYPESTORE, VECTOR3_STAMPED
-from tak_thermo_ros.formats.cdr import MessageArrays, decode_messages
+from tak_thermo_ros.formats.cdr.decoder import MessageArrays, decode_messages
 from tak_thermo_ros.core.link.correction import NOT_PROVIDED
 from tak_thermo_ros.core.records.record import NANOSECONDS
 from tak_thermo_ros.errors import BagError, CdrError

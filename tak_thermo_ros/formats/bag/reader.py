@@ -37,18 +37,15 @@ from tak_thermo_ros.formats.bag.decoding import (
     decode_vector3_stamped,
     driver_sensors,
 )
-from tak_thermo_ros.formats.cdr import MessageArrays, decode_messages
+from tak_thermo_ros.formats.cdr.decoder import MessageArrays, decode_messages
 from tak_thermo_ros.core.link.model import InputKind
 from tak_thermo_ros.core.records.record import ChannelRecord, DriverRecord
 from tak_thermo_ros.errors import BagError, CdrError
 from tak_thermo_ros.progress import Progress
 
-
 DECODERS = ('block', 'rosbags')
-"""``block``: raw messages decoded chunk by chunk into arrays (:mod:`tak_thermo_ros.formats.cdr`);
+"""``block``: raw messages decoded chunk by chunk into arrays (:mod:`tak_thermo_ros.formats.cdr.decoder`);
 ``rosbags``: one ``deserialize_cdr`` call per message (the reference)."""
-
-
 CHUNK_MESSAGES = 65536
 """Raw messages the block decoder reads and decodes at once."""
 
@@ -114,9 +111,9 @@ def iter_topic_arrays(source: str | os.PathLike[str] | Reader, topic: str, msgty
     """Decode one topic of a bag chunk by chunk into arrays (rosbags reads the storage only).
 
     :param source: a bag directory, or a :class:`rosbags.rosbag2.Reader` that is open.
-    :param msgtype: the topic's expected type, one of :data:`tak_thermo_ros.formats.cdr.SCHEMAS`.
+    :param msgtype: the topic's expected type, one of :data:`tak_thermo_ros.formats.cdr.schema.SCHEMAS`.
     :param chunk: raw messages decoded at once (default :data:`CHUNK_MESSAGES`).
-    :returns: one :class:`~tak_thermo_ros.formats.cdr.MessageArrays` per chunk, in bag order.
+    :returns: one :class:`~tak_thermo_ros.formats.cdr.decoder.MessageArrays` per chunk, in bag order.
     :raises BagError: missing bag or topic, wrong type, malformed message
         (:class:`~tak_thermo_ros.errors.CdrError`), unreadable file.
     """
@@ -234,7 +231,7 @@ def read_aux_signals(reader: Reader, path: Path, *,
     Each topic of a type in :data:`AUX_FIELDS` (except the topics in ``exclude``, e.g. the
     temperature in use) gives ``aux:TOPIC`` (its obvious number) and ``aux:TOPIC:FIELD`` for its
     other numeric fields. Stamps are the header stamps, or the bag time for a type without a
-    header (``std_msgs``). Decoded by the block decoder (:mod:`tak_thermo_ros.formats.cdr`).
+    header (``std_msgs``). Decoded by the block decoder (:mod:`tak_thermo_ros.formats.cdr.decoder`).
     """
     by_topic: dict[str, list] = {}
     for connection in reader.connections:

@@ -27,24 +27,19 @@ from tak_thermo_ros.formats.bag.contract import (
     VECTOR3_STAMPED,
     Topics,
 )
-from tak_thermo_ros.formats.cdr import encode_imus, encode_messages
+from tak_thermo_ros.formats.cdr.encoder import encode_imus, encode_messages
 from tak_thermo_ros.core.link.correction import NOT_PROVIDED_COVARIANCE, imu_covariances
 from tak_thermo_ros.formats.files import BAG, check_output, install_directory, staging_directory
 from tak_thermo_ros.core.records.record import NANOSECONDS, ChannelRecord, DriverRecord, rows_at, sensor_messages
 from tak_thermo_ros.errors import BagError, OutputError
 
-
 STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
-
-
 ENCODERS = ('block', 'rosbags')
-"""``block``: a block of Imu messages serialised at once into arrays (:func:`tak_thermo_ros.formats.cdr.encode_imus`);
-``rosbags``: one message object and one ``serialize_cdr`` call per message (the reference). Both
-give the same bytes."""
+"""``block``: a block of Imu messages serialised at once into arrays
+(:func:`tak_thermo_ros.formats.cdr.encoder.encode_imus`); ``rosbags``: one message object and one
+``serialize_cdr`` call per message (the reference). Both give the same bytes."""
 IMU_ENCODER = 'block'
 """The encoder :func:`write_imu` and :class:`ImuBagWriter` use unless told otherwise."""
-
-
 STORAGE_ERRORS: tuple[type[Exception], ...] = (OSError, sqlite3.Error, WriterError)
 """What a bag write raises when the storage fails (a full disk, no permission)."""
 
@@ -58,8 +53,6 @@ _Imu = TYPESTORE.types[IMU]
 _MagneticField = TYPESTORE.types[MAGNETIC_FIELD]
 BATTERY_STATE = 'sensor_msgs/msg/BatteryState'
 FLOAT64 = 'std_msgs/msg/Float64'
-
-
 AUX_TYPES = {'battery_state': BATTERY_STATE, 'float64': FLOAT64}
 """Message types a simulated auxiliary signal can be written as (scenario ``record_supply_type``)."""
 
