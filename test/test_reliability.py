@@ -29,7 +29,9 @@ from tak_thermo_ros.formats.bag import read_imu, read_record, write_record
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.formats.calibration_file import save_calibration
 from tak_thermo_ros.core.link.correction import Corrector
-from tak_thermo_ros.formats.csv_log import MAX_STAMP_NS, CsvImportOptions, parse_csv_log
+from tak_thermo_ros.core.records.plausible import MAX_STAMP_NS
+from tak_thermo_ros.formats.csv_log.options import CsvImportOptions
+from tak_thermo_ros.formats.csv_log.reader import parse_csv_log
 from tak_thermo_ros.formats.files import write_text_atomic
 from tak_thermo_ros.core.records.record import TEMP_CODE_LIMIT, ChannelRecord, align
 from tak_thermo_ros.core.simulation.imu import simulate
@@ -527,10 +529,10 @@ def test_a_temperature_code_beyond_any_sensor_code_names_row_and_column():
 
 def test_csv_rows_are_converted_in_chunks(monkeypatch):
     """Chunk boundaries change nothing: the same arrays with chunks of 3 rows as with one chunk."""
-    from tak_thermo_ros.formats import csv_log
+    from tak_thermo_ros.formats.csv_log import table
     lines = _csv([str(i) for i in range(10)])
     whole = parse_csv_log(lines, CSV_OPTIONS)
-    monkeypatch.setattr(csv_log, 'CHUNK_ROWS', 3)
+    monkeypatch.setattr(table, 'CHUNK_ROWS', 3)
     chunked = parse_csv_log(lines, CSV_OPTIONS)
     assert np.array_equal(whole.record.counts, chunked.record.counts)
     assert np.array_equal(whole.record.counts_stamp_ns, chunked.record.counts_stamp_ns)

@@ -4,7 +4,7 @@
   the only package that imports rosbags;
 - :mod:`~tak_thermo_ros.formats.cdr`: CDR messages read and written with numpy (the block decoder
   and encoder, the node's fixed-offset codec);
-- :mod:`~tak_thermo_ros.formats.csv_log`: delimited logs;
+- :mod:`~tak_thermo_ros.formats.csv_log`: delimited logs (options, the text into columns, a record);
 - :mod:`~tak_thermo_ros.formats.ulog`, :mod:`~tak_thermo_ros.formats.dataflash`: PX4 ULogs and ArduPilot
   DataFlash logs (one :class:`~tak_thermo_ros.formats.flight_log.FlightLog`);
 - :mod:`~tak_thermo_ros.formats.px4_params`, :mod:`~tak_thermo_ros.formats.ardupilot_params`: the
