@@ -47,7 +47,7 @@ START_NS = 1_700_000_000_000_000_000
 def _template(msgtype: str) -> tuple[bytes, int, int]:
     """One serialised message, the byte offset of its main field and that field's width in float64s."""
     from tak_thermo_ros.formats.bag import TYPESTORE
-    from tak_thermo_ros.formats.cdr import decode_message
+    from tak_thermo_ros.formats.cdr.schema import decode_message
     types = TYPESTORE.types
     header = types['std_msgs/msg/Header'](stamp=types['builtin_interfaces/msg/Time'](sec=0, nanosec=0),
                                           frame_id='imu_link')
@@ -90,7 +90,7 @@ def _chunks(msgtype: str, total: int, seed: int = 1):
 def worker_decode(msgtype: str, total: int, decoder: str) -> dict[str, object]:
     """Decode ``total`` messages with one decoder; timing excludes the generation of raw bytes."""
     from tak_thermo_ros.formats.bag import TYPESTORE
-    from tak_thermo_ros.formats.cdr import decode_messages
+    from tak_thermo_ros.formats.cdr.decoder import decode_messages
     deserialize = TYPESTORE.deserialize_cdr
     field = MAIN_FIELD[msgtype]
     width = 1 if field == 'temperature' else 3

@@ -135,7 +135,7 @@ def driver_relay_main(executor_kind: str) -> int:
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Imu, Temperature
 
-    from tak_thermo_ros.ros.node import make_executor, spin
+    from tak_thermo_ros.ros.main import make_executor, spin
 
     class DriverRelay(Node):
         def __init__(self) -> None:
@@ -318,7 +318,7 @@ def start(kind: str, params: Path, env: dict[str, str], log: Path) -> subprocess
     if kind == 'relay':
         command = [sys.executable, str(Path(__file__).resolve()), 'relay', '--ros-args']
     else:
-        command = [sys.executable, '-m', 'tak_thermo_ros.ros.node', '--ros-args', '--params-file', str(params),
+        command = [sys.executable, '-m', 'tak_thermo_ros.ros.main', '--ros-args', '--params-file', str(params),
                    '-p', 'qos:=reliable', '-p', f'qos_depth:={DEPTH}',
                    '-p', 'executor:=single_threaded']  # the relay's rclpy.spin: the same executor
     return subprocess.Popen(command, env=env, stdout=open(log, 'wb'), stderr=subprocess.STDOUT,
@@ -605,7 +605,7 @@ def measure_driver_input(params: Path, workdir: Path, *, rates: tuple[float, ...
                 if kind == 'relay':
                     command = [sys.executable, str(Path(__file__).resolve()), 'driver_relay', executor, '--ros-args']
                 elif kind == 'compensator':
-                    command = [sys.executable, '-m', 'tak_thermo_ros.ros.node', *node_arguments]
+                    command = [sys.executable, '-m', 'tak_thermo_ros.ros.main', *node_arguments]
                 else:
                     command = [*baseline_node_command(baseline), *node_arguments]
                 log = workdir / f'driver_{executor}_{kind}.log'
@@ -648,12 +648,12 @@ def measure_driver_input(params: Path, workdir: Path, *, rates: tuple[float, ...
     return results
 
 
-BASELINE_MAIN = 'import sys; sys.path.insert(0, {!r}); from tak_thermo_ros.ros.node import main; sys.exit(main())'
+BASELINE_MAIN = 'import sys; sys.path.insert(0, {!r}); from tak_thermo_ros.ros.main import main; sys.exit(main())'
 """The compensator of another version of the package (``--baseline DIR``: a tree holding ``tak_thermo_ros/``)."""
 
 
 def baseline_node_command(baseline: Path) -> list[str]:
-    """The command line running the node of the package under ``baseline`` (its ``node.main``)."""
+    """The command line running the node of the package under ``baseline`` (its ``ros.main.main``)."""
     return [sys.executable, '-c', BASELINE_MAIN.format(str(baseline.resolve()))]
 
 
@@ -780,7 +780,7 @@ def measure_transport_loss(params: Path, workdir: Path, *, count: int = TRANSPOR
     for index, (executor, qos) in enumerate((('events', 'reliable'), ('events', 'sensor_data'),
                                              ('single_threaded', 'reliable'), ('single_threaded', 'sensor_data'))):
         env = node_env(home, bench_domain(8 + index))
-        command = [sys.executable, '-m', 'tak_thermo_ros.ros.node', '--ros-args', '--params-file', str(params),
+        command = [sys.executable, '-m', 'tak_thermo_ros.ros.main', '--ros-args', '--params-file', str(params),
                    '-p', f'qos:={qos}', '-p', f'qos_depth:={DEPTH}', '-p', f'executor:={executor}']
         log = workdir / f'loss_{executor}_{qos}.log'
         process = subprocess.Popen(command, env=env, stdout=open(log, 'wb'), stderr=subprocess.STDOUT,
@@ -1199,7 +1199,7 @@ def measure_watch_cpu(params: Path, workdir: Path, *, rates: tuple[float, ...], 
     try:
         for index, (kind, value) in enumerate(kinds.items()):
             env = node_env(home, bench_domain(20 + index))
-            command = [sys.executable, '-m', 'tak_thermo_ros.ros.node', '--ros-args', '--params-file', str(params),
+            command = [sys.executable, '-m', 'tak_thermo_ros.ros.main', '--ros-args', '--params-file', str(params),
                        '-p', 'qos:=reliable', '-p', f'qos_depth:={DEPTH}', '-p', f'watch:={value}']
             processes[kind] = subprocess.Popen(command, env=env, stdout=open(workdir / f'{kind}.log', 'wb'),
                                                stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
@@ -1375,7 +1375,7 @@ class RateDriver:
         """``count`` input messages stamped a period apart, and a temperature for every RATE_TEMP_EVERY of them."""
         import numpy as np
 
-        from tak_thermo_ros.formats.cdr import encode_messages
+        from tak_thermo_ros.formats.cdr.encoder import encode_messages
         stamps = self.stamp_ns + period_ns * np.arange(1, count + 1, dtype=np.int64)
         self.stamp_ns = int(stamps[-1])
         k = np.arange(count)
@@ -1479,7 +1479,7 @@ def rate_subject_command(subject: str, input_kind: str, params: Path) -> list[st
     raw``); the decoded node adds ``-p message_path:=decoded`` alone.
     """
     if subject == 'relay':
-        from tak_thermo_ros.ros.node import _tunables
+        from tak_thermo_ros.ros.parameters import _tunables
         depth = _tunables()['qos_depth'][0]  # the node's default, for the relay too
         return [sys.executable, str(Path(__file__).resolve()), 'relay', input_kind, str(depth), 'best_effort',
                 '--ros-args']

@@ -179,7 +179,7 @@ def main() -> int:
                         help="also start another version's node (DIR holds its tak_thermo_ros/), in the same rounds")
     args = parser.parse_args()
     script = Path(sys.executable).parent / 'compensator'
-    node_command = ([str(script)] if script.exists() else [sys.executable, '-m', 'tak_thermo_ros.ros.node'])
+    node_command = ([str(script)] if script.exists() else [sys.executable, '-m', 'tak_thermo_ros.ros.main'])
     node_command += ['--ros-args', '--params-file', str(CONFIG)]
     relay_command = [sys.executable, '-c', RELAY]
 

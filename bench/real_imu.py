@@ -36,7 +36,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from tak_thermo_ros.formats.calibration_file import write_text_atomic  # noqa: E402
-from tak_thermo_ros.formats.csv_log import CsvImportOptions, read_csv_log  # noqa: E402
+from tak_thermo_ros.formats.csv_log.options import CsvImportOptions  # noqa: E402
+from tak_thermo_ros.formats.csv_log.reader import read_csv_log  # noqa: E402
 from tak_thermo_ros.core.diagnose import diagnose  # noqa: E402
 from tak_thermo_ros.core.effects import seconds_from_ns  # noqa: E402
 from tak_thermo_ros.core.fit import fit_calibration, fit_model, residual_counts  # noqa: E402

@@ -6,7 +6,7 @@ Layers
     The maths: model, correction link, fit, simulator, validation. Imports neither
     rclpy nor rosbags.
 ``tak_thermo_ros.formats``
-    Files in and out; ``formats.bag`` is the only module that reads or writes rosbags.
+    Files in and out; ``formats.bag`` is the only package that reads or writes rosbags.
 ``tak_thermo_ros.passes``
     The passes over a record, one module per command (fit, apply, validate, diagnose,
     hand-held, magnetometer, noise, fleet).

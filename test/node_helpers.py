@@ -106,8 +106,8 @@ def ros_environment(tmp_path: Path, domain: int) -> dict[str, str]:
 
 
 def node_command(*ros_args: str) -> list[str]:
-    """Command line running the node module with this interpreter."""
-    return [sys.executable, '-m', 'tak_thermo_ros.ros.node', '--ros-args', *ros_args]
+    """Command line running the node (its entry point, ``ros.main``) with this interpreter."""
+    return [sys.executable, '-m', 'tak_thermo_ros.ros.main', '--ros-args', *ros_args]
 
 
 class NodeProcess:

@@ -16,15 +16,10 @@ from rosbags.serde import SerdeError
 
 from conftest import SHORT
 from tak_thermo_ros.formats import bag as bagio
+from tak_thermo_ros.formats.bag import reader as bag_reader
 from tak_thermo_ros.formats.bag import TYPESTORE, iter_topic_arrays, read_record, write_record
-from tak_thermo_ros.formats.cdr import (
-    MAX_LAYOUT_ROUNDS,
-    SCHEMAS,
-    MessageArrays,
-    concatenate,
-    decode_message,
-    decode_messages,
-)
+from tak_thermo_ros.formats.cdr.decoder import MAX_LAYOUT_ROUNDS, MessageArrays, concatenate, decode_messages
+from tak_thermo_ros.formats.cdr.schema import SCHEMAS, decode_message
 from tak_thermo_ros.core.simulation.imu import simulate
 from tak_thermo_ros.errors import BagError, CdrError
 
@@ -435,7 +430,7 @@ def tiny_record():
 def test_read_record_decoders_agree(tmp_path, tiny_record, storage, monkeypatch):
     """read_record gives the same arrays with the block decoder (small chunks) and with rosbags."""
     write_record(tmp_path / 'run', tiny_record, storage=storage)
-    monkeypatch.setattr(bagio, 'CHUNK_MESSAGES', 37)
+    monkeypatch.setattr(bag_reader, 'CHUNK_MESSAGES', 37)
     block = read_record(tmp_path / 'run', progress=False, decoder='block')
     reference = read_record(tmp_path / 'run', progress=False, decoder='rosbags')
     for name in ('counts_stamp_ns', 'counts', 'temp_stamp_ns', 'temp_code', 'reference_stamp_ns', 'reference'):
@@ -452,7 +447,7 @@ def test_read_record_refuses_a_frame_change_with_its_message_number(tmp_path, ch
               for row, frame in enumerate(frames)]
     _write_bag(tmp_path / 'run', 'mcap', {'/tak/counts': (VECTOR3_STAMPED, counts),
                                           '/tak/temp_code': (TEMPERATURE, _stream(TEMPERATURE, 5, ['t']))})
-    monkeypatch.setattr(bagio, 'CHUNK_MESSAGES', 37)
+    monkeypatch.setattr(bag_reader, 'CHUNK_MESSAGES', 37)
     expected = (f"frame_id on /tak/counts changes from 'imu' to 'imu_b' at message {changed_at}; "
                 'one frame per run is supported')
     for decoder in bagio.DECODERS:

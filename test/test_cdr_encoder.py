@@ -14,8 +14,10 @@ from rosbags.rosbag2 import Reader
 
 from conftest import SHORT
 from tak_thermo_ros.formats import bag as bagio
+from tak_thermo_ros.formats.bag import writer as bag_writer
 from tak_thermo_ros.formats.bag import TYPESTORE, read_imu_messages, write_driver_record, write_record
-from tak_thermo_ros.formats.cdr import decode_messages, encode_imus, encode_messages
+from tak_thermo_ros.formats.cdr.decoder import decode_messages
+from tak_thermo_ros.formats.cdr.encoder import encode_imus, encode_messages
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.formats.calibration_file import save_calibration, save_unit
 from tak_thermo_ros.core.simulation.imu import simulate
@@ -187,7 +189,7 @@ def test_apply_writes_the_same_messages_with_either_encoder(tmp_path, monkeypatc
         save_unit(tmp_path / 'p.yaml', run.unit_truth)
         topic = bagio.Topics.compensated_imu
     _apply(tmp_path, 'bag', 'p.yaml', 'block')
-    monkeypatch.setattr(bagio, 'IMU_ENCODER', 'rosbags')
+    monkeypatch.setattr(bag_writer, 'IMU_ENCODER', 'rosbags')
     _apply(tmp_path, 'bag', 'p.yaml', 'rosbags')
     got = read_imu_messages(tmp_path / 'block', topic=topic)
     want = read_imu_messages(tmp_path / 'rosbags', topic=topic)

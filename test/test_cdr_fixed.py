@@ -16,7 +16,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from tak_thermo_ros.errors import CdrError
-from tak_thermo_ros.formats.cdr import SCHEMAS, FixedReader, FixedWriter, decode_message, encode_messages, frame_id
+from tak_thermo_ros.formats.cdr.encoder import encode_messages
+from tak_thermo_ros.formats.cdr.fixed import FixedReader, FixedWriter, frame_id
+from tak_thermo_ros.formats.cdr.schema import SCHEMAS, decode_message
 
 IMU = 'sensor_msgs/msg/Imu'
 VECTOR3_STAMPED = 'geometry_msgs/msg/Vector3Stamped'

@@ -11,7 +11,8 @@ import pytest
 
 from tak_thermo_ros.formats.bag import read_record
 from tak_thermo_ros.cli import main
-from tak_thermo_ros.formats.csv_log import CsvImportOptions, parse_csv_log, read_csv_log
+from tak_thermo_ros.formats.csv_log.options import CsvImportOptions
+from tak_thermo_ros.formats.csv_log.reader import parse_csv_log, read_csv_log
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import LogError
 

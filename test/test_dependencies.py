@@ -43,7 +43,7 @@ def test_the_node_imports_no_offline_library():
 
     Beyond what rclpy and the message packages load themselves, the node adds numpy, yaml and
     its own modules, of which none is a fit, diagnosis, bag, simulation or report module. The CDR
-    codec (formats/cdr.py, numpy and struct only) is the node's raw path: it may come, rosbags not.
+    codec (formats/cdr/, numpy and struct only) is the node's raw path: it may come, rosbags not.
     """
     node = _loaded_after('import tak_thermo_ros.ros.node')
     ros = _loaded_after('import ' + ', '.join(ROS_MESSAGES))

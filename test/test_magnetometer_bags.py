@@ -192,7 +192,8 @@ def test_a_reference_field_fits_the_scale_drift_and_a_static_run_that_turned_is_
 
 def test_the_block_decoder_and_encoder_handle_magnetic_field_as_rosbags_does(tmp_path):
     from tak_thermo_ros.formats.bag import TYPESTORE, iter_blocks
-    from tak_thermo_ros.formats.cdr import decode_messages, encode_messages
+    from tak_thermo_ros.formats.cdr.decoder import decode_messages
+    from tak_thermo_ros.formats.cdr.encoder import encode_messages
     from tak_thermo_ros.core.link.model import InputKind
     driver = simulate(replace(CHAMBER, plateau_hours=0.02)).driver
     write_driver_record(tmp_path / 'bag', driver)

@@ -289,7 +289,7 @@ def test_launch_file_and_example_configs(tmp_path):
     The example configs are valid calibrations (counts and driver) with the node's defaults.
     """
     import py_compile
-    from tak_thermo_ros.ros.node import _tunables
+    from tak_thermo_ros.ros.parameters import _tunables
     launch_file = REPO / 'launch' / 'compensator.launch.py'
     py_compile.compile(str(launch_file), cfile=str(tmp_path / 'launch.pyc'), doraise=True)
     tree = ast.parse(launch_file.read_text(encoding='utf-8'))

@@ -18,7 +18,7 @@ from tak_thermo_ros.core.link.correction import Corrector
 from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.formats.bag import play_order
 from tak_thermo_ros.formats.calibration_file import calibration_yaml, save_unit, write_text_atomic
-from tak_thermo_ros.formats.cdr import encode_messages
+from tak_thermo_ros.formats.cdr.encoder import encode_messages
 
 WATCH = 'calibration watch'
 COUNTERS = ('received', 'published', 'dropped', 'sequence_gap', 'temperature_messages', 'temperature_rejected',

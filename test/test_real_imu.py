@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tak_thermo_ros.formats.csv_log import CsvImportOptions, read_csv_log
+from tak_thermo_ros.formats.csv_log.options import CsvImportOptions
+from tak_thermo_ros.formats.csv_log.reader import read_csv_log
 from tak_thermo_ros.core.diagnose import diagnose
 from tak_thermo_ros.core.fit import fit_calibration, fit_model, residual_counts
 from tak_thermo_ros.core.records.record import align

@@ -24,12 +24,14 @@ import yaml
 from bag_writer import write_with_header_stamps
 from conftest import CREEP_MODULE, SHORT
 from node_helpers import start_process
-from tak_thermo_ros.formats import bag as bagio
+from tak_thermo_ros.formats.bag import writer as bag_writer
 from tak_thermo_ros.formats.bag import read_imu, read_record, write_record
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.formats.calibration_file import save_calibration
 from tak_thermo_ros.core.link.correction import Corrector
-from tak_thermo_ros.formats.csv_log import MAX_STAMP_NS, CsvImportOptions, parse_csv_log
+from tak_thermo_ros.core.records.plausible import MAX_STAMP_NS
+from tak_thermo_ros.formats.csv_log.options import CsvImportOptions
+from tak_thermo_ros.formats.csv_log.reader import parse_csv_log
 from tak_thermo_ros.formats.files import write_text_atomic
 from tak_thermo_ros.core.records.drops import TEMP_CODE_LIMIT
 from tak_thermo_ros.core.records.record import ChannelRecord, align
@@ -226,7 +228,7 @@ def test_a_full_disk_during_a_bag_write_is_one_line_and_leaves_nothing(tmp_path,
     (simulated: the writer raises what a full disk raises) gives one line naming the user's bag, exit 2, and no
     temporary directory.
     """
-    real_write = bagio.Writer.write
+    real_write = bag_writer.Writer.write
     written = []
 
     def failing_write(self, connection, timestamp, data):
@@ -235,7 +237,7 @@ def test_a_full_disk_during_a_bag_write_is_one_line_and_leaves_nothing(tmp_path,
             raise failure
         return real_write(self, connection, timestamp, data)
 
-    monkeypatch.setattr(bagio.Writer, 'write', failing_write)
+    monkeypatch.setattr(bag_writer.Writer, 'write', failing_write)
     scenario = tmp_path / 'tiny.yaml'
     scenario.write_text(yaml.safe_dump({'plateau_hours': 0.05, 'ramp_celsius_per_minute': 5.0}))
     out = tmp_path / 'bag'
@@ -528,10 +530,10 @@ def test_a_temperature_code_beyond_any_sensor_code_names_row_and_column():
 
 def test_csv_rows_are_converted_in_chunks(monkeypatch):
     """Chunk boundaries change nothing: the same arrays with chunks of 3 rows as with one chunk."""
-    from tak_thermo_ros.formats import csv_log
+    from tak_thermo_ros.formats.csv_log import table
     lines = _csv([str(i) for i in range(10)])
     whole = parse_csv_log(lines, CSV_OPTIONS)
-    monkeypatch.setattr(csv_log, 'CHUNK_ROWS', 3)
+    monkeypatch.setattr(table, 'CHUNK_ROWS', 3)
     chunked = parse_csv_log(lines, CSV_OPTIONS)
     assert np.array_equal(whole.record.counts, chunked.record.counts)
     assert np.array_equal(whole.record.counts_stamp_ns, chunked.record.counts_stamp_ns)

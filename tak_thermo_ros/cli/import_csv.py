@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from tak_thermo_ros.cli import common, options
-from tak_thermo_ros.formats.csv_log import MAG_UNITS
+from tak_thermo_ros.formats.csv_log.options import MAG_UNITS
 from tak_thermo_ros.formats.files import BAG
 from tak_thermo_ros.core.records.static_run import STATIC_TOLERANCE_DEG
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
@@ -70,7 +70,8 @@ def add_parser(commands) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     """Convert a delimited log of a static thermal run into a bag (counts, or a driver bag with a gyroscope)."""
     from tak_thermo_ros.formats.bag import write_driver_record, write_record
-    from tak_thermo_ros.formats.csv_log import CsvImportOptions, delimiter_from_option, read_csv_log
+    from tak_thermo_ros.formats.csv_log.options import CsvImportOptions, delimiter_from_option
+    from tak_thermo_ros.formats.csv_log.reader import read_csv_log
     options = CsvImportOptions(
         acc_columns=tuple(args.acc_columns), temp_column=args.temp_column, time_column=args.time_column,
         time_unit=args.time_unit, acc_unit=args.acc_unit, acc_resolution=args.acc_resolution,

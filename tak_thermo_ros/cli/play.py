@@ -67,7 +67,8 @@ def run(args: argparse.Namespace) -> int:
 def _applied(path: str, topics) -> dict[str, np.ndarray]:
     """The corrected Imu (and field) that ``apply`` wrote, as arrays."""
     from tak_thermo_ros.core.link.correction import NOT_PROVIDED
-    from tak_thermo_ros.formats.bag import BagError, read_imu_messages
+    from tak_thermo_ros.errors import BagError
+    from tak_thermo_ros.formats.bag import read_imu_messages
     for topic in (topics.compensated_imu, topics.imu):
         try:
             messages = read_imu_messages(path, topic=topic)

@@ -1,9 +1,10 @@
 """Files in and out, one module per format; the maths (:mod:`tak_thermo_ros.core`) reads none.
 
-- :mod:`~tak_thermo_ros.formats.bag`: rosbag2 (mcap, sqlite3) through rosbags, in blocks; the only
-  module that imports rosbags;
-- :mod:`~tak_thermo_ros.formats.cdr`: the block decoder and encoder of CDR messages (numpy only);
-- :mod:`~tak_thermo_ros.formats.csv_log`: delimited logs;
+- :mod:`~tak_thermo_ros.formats.bag`: rosbag2 (mcap, sqlite3) through rosbags, whole or in blocks;
+  the only package that imports rosbags;
+- :mod:`~tak_thermo_ros.formats.cdr`: CDR messages read and written with numpy (the block decoder
+  and encoder, the node's fixed-offset codec);
+- :mod:`~tak_thermo_ros.formats.csv_log`: delimited logs (options, the text into columns, a record);
 - :mod:`~tak_thermo_ros.formats.ulog`, :mod:`~tak_thermo_ros.formats.dataflash`: PX4 ULogs and ArduPilot
   DataFlash logs (one :class:`~tak_thermo_ros.formats.flight_log.FlightLog`);
 - :mod:`~tak_thermo_ros.formats.px4_params`, :mod:`~tak_thermo_ros.formats.ardupilot_params`: the

@@ -31,38 +31,37 @@ diagnostics period); the value is held like the temperature (:mod:`tak_thermo_ro
 This is a thin wrapper: callbacks turn messages into numbers, hand them to
 :class:`~tak_thermo_ros.core.link.online.OnlineCompensator` (no ROS in it) and turn the result
 back into a message. By default (``message_path: raw``) the messages are their serialised bytes
-(``raw=True`` subscriptions; :class:`~tak_thermo_ros.formats.cdr.FixedReader` reads the numbers at
-fixed offsets, :class:`~tak_thermo_ros.formats.cdr.FixedWriter` writes the output, published as
-bytes): no rclpy message object on the hot path. The only module of the package that imports
-rclpy (with the player).
+(``raw=True`` subscriptions; :class:`~tak_thermo_ros.formats.cdr.fixed.FixedReader` reads the numbers at
+fixed offsets, :class:`~tak_thermo_ros.formats.cdr.fixed.FixedWriter` writes the output, published as
+bytes): no rclpy message object on the hot path. The node's own parameters and the checks of
+their values are in :mod:`~tak_thermo_ros.ros.parameters`; its executor and ``main`` (what
+``ros2 run`` starts) in :mod:`~tak_thermo_ros.ros.main`. With those and the player, the only
+modules of the package that import rclpy.
+
+Over 600 lines because :class:`CompensatorNode` is one class (about 660 lines: start-up, message
+callbacks, diagnostics, run-time parameter updates) whose parts share the node's state; split
+into mixins, each file would use attributes set in another.
 """
 
 from __future__ import annotations
 
-import array
 import inspect
-import math
 import os
-import signal
 import sys
 import time
 from dataclasses import replace
-from typing import Any, Iterable, Sequence
+from typing import Any, Iterable
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Vector3Stamped
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.event_handler import PublisherEventCallbacks, QoSMessageLostInfo, SubscriptionEventCallbacks
-from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
-from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import Imu, MagneticField, Temperature
 
-from tak_thermo_ros.formats.cdr import FixedReader, FixedWriter, frame_id
+from tak_thermo_ros.formats.cdr.fixed import FixedReader, FixedWriter, frame_id
 from tak_thermo_ros.formats.calibration_file import (
     NODE_NAME,
     flatten_parameters,
@@ -80,10 +79,22 @@ from tak_thermo_ros.core.link.online_rules import SENSORS, OneSensor, StaleTempe
 from tak_thermo_ros.core.link.learning import LearnedState
 from tak_thermo_ros.core.link.watch import WatchSettings, turn_on_unavailable, watch_unavailable
 from tak_thermo_ros.core.values import DEG_PER_H, MG
-from tak_thermo_ros.formats.files import not_regular
 from tak_thermo_ros.formats.learned_file import LEARNED_KEY, load_learned, save_learned
 from tak_thermo_ros.errors import CalibrationError, CdrError, TakError
-from tak_thermo_ros.ros.signals import SignalGuard
+from tak_thermo_ros.ros.parameters import (
+    EXECUTOR_CHOICES,
+    MESSAGE_PATHS,
+    QOS_CHOICES,
+    TURN_ON_CHOICES,
+    _choice,
+    _depth,
+    _flag,
+    _path_value,
+    _plain,
+    _repeatability,
+    _timeout,
+    _tunables,
+)
 
 COUNTS_TOPIC = 'tak/counts'
 TEMP_TOPIC = 'tak/temp_code'
@@ -95,16 +106,9 @@ MAG_TOPIC = 'imu/mag'
 COMPENSATED_MAG_TOPIC = 'imu/mag_compensated'
 DIAGNOSTICS_TOPIC = '/diagnostics'
 DIAGNOSTICS_PERIOD_S = 1.0
-EXIT_ERROR = 2
-QOS_CHOICES = ('sensor_data', 'reliable')
-EXECUTOR_CHOICES = ('events', 'single_threaded')
-MESSAGE_PATHS = ('raw', 'decoded')
-"""``message_path``: the serialised bytes read and written by the package's CDR codec, or rclpy's messages."""
 IMU_TYPE = 'sensor_msgs/msg/Imu'
 MAG_TYPE = 'sensor_msgs/msg/MagneticField'
 ZEROS = (0.0, 0.0, 0.0)
-SPIN_PERIOD_S = 0.1
-"""Longest wait of one ``spin_once``: how soon the loop notices a shutdown (SIGINT, SIGTERM)."""
 CALIBRATION_PREFIX = 'calibration'
 SIGNAL_DISCOVERY_S = 5.0
 """At start-up, how long the node waits for the publisher of a recorded signal it needs."""
@@ -121,105 +125,6 @@ def _diagnostic(level: Level, name: str, message: str, hardware_id: str,
     """One ``DiagnosticStatus`` of the node's ``/diagnostics`` array."""
     return DiagnosticStatus(level=_DIAGNOSTIC_LEVELS[level], name=name, message=message, hardware_id=hardware_id,
                             values=[KeyValue(key=key, value=value) for key, value in values])
-
-
-def _tunables() -> dict[str, tuple[Any, str, bool]]:
-    """Name -> (default, description, read only) of the node's own parameters."""
-    return {
-        'calibration_file': ('', 'calibration parameters YAML to load instead of calibration.* '
-                                 '(the file tak_calib fit writes); empty: use calibration.*', True),
-        'qos': ('sensor_data', "input QoS: 'sensor_data' (best effort, REP 2003 consumer; matches "
-                               "every publisher) or 'reliable' (retransmits, needs a reliable publisher; "
-                               "a driver faster than the node still loses messages at the history depth)",
-                True),
-        'qos_depth': (1000, 'history depth of the subscriptions and the Imu publisher (1000: 250 ms of a 4 kHz '
-                            'stream)', True),
-        'executor': ('events', "'events' (rclpy.experimental.EventsExecutor, about half the CPU per "
-                               "message) or 'single_threaded' (rclpy's default executor)", True),
-        'message_path': ('raw', "'raw': the messages' serialised bytes, read and written at fixed offsets by the "
-                                "package's CDR codec (no rclpy message objects: the least CPU per message); "
-                                "'decoded': rclpy's message objects (for comparison)", True),
-        'temp_timeout': (1.0, 'seconds after which the last temperature is stale '
-                              '(diagnostics ERROR)', False),
-        'stale_temperature': ('hold', "input while the temperature is stale: 'hold' the last "
-                                      "temperature or 'drop' the messages", False),
-        'out_of_range': ('clamp', "temperatures outside the calibrated range: 'clamp' to the "
-                                  "edge or 'extrapolate' (always counted and logged)", False),
-        'hardware_id': ('', "the unit's identifier (e.g. its serial number) in /diagnostics; empty: "
-                            "the input's frame_id", True),
-        'watch': (True, 'the calibration watch: rests found online, the calibration judged at each against the '
-                        "file's noise model (/diagnostics '...: calibration watch'); needs the file's noise "
-                        'sections', True),
-        'latitude': ('', "degrees: the Earth rate's vertical part and gravity the watch expects at rest; "
-                         "empty: unknown (counted as noise)", True),
-        'turn_on': ('none', "'first_rest': take each run's turn-on offset at its first rest (judged against "
-                            "the file's turn_on repeatability) and subtract it from then on, as tak_calib apply "
-                            "--turn-on first-rest does; 'none': not", True),
-        'learn': (False, 'learn the gyroscope curve at the rests (offset and slope per axis, bounded) and apply '
-                         'it, writing learned_file; false returns to the calibration file at once', False),
-        'learned_file': ('', 'where learning writes what it learned (a calibration file tak_calib reads), '
-                             'read at the next start; never the calibration file itself', True),
-        'gyro_turn_on_repeatability': ('', "deg/h (one value or x y z): the gyroscope's turn-on repeatability "
-                                           "(a data sheet's bias repeatability) when the file holds none; empty: "
-                                           "the first rest is unjudged, until learning has seen 5 runs", True),
-        'accel_turn_on_repeatability': ('', "mg (one value or x y z): the accelerometer's, likewise", True),
-    }
-
-
-def _plain(value: Any) -> Any:
-    """A parameter value as the calibration validator expects it (lists, not arrays)."""
-    if isinstance(value, (array.array, tuple)) or hasattr(value, 'tolist'):
-        return list(value)
-    return value
-
-
-def _choice(value: Any, name: str, choices: Sequence[str]) -> str:
-    if value not in choices:
-        msg = f'{name}: expected one of {", ".join(repr(c) for c in choices)}, got {value!r}'
-        raise ValueError(msg)
-    return value
-
-
-def _timeout(value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 < value < float('inf'):
-        msg = f'temp_timeout: expected a number of seconds > 0, got {value!r}'
-        raise ValueError(msg)
-    return float(value)
-
-
-def _depth(value: Any) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        msg = f'qos_depth: expected an integer >= 1, got {value!r}'
-        raise ValueError(msg)
-    return value
-
-
-def _flag(value: Any, name: str) -> bool:
-    if not isinstance(value, bool):
-        msg = f'{name}: expected true or false, got {value!r}'
-        raise ValueError(msg)
-    return value
-
-
-def _path_value(value: Any, name: str, error: type[Exception] = ValueError) -> str:
-    if not isinstance(value, str):
-        msg = f'{name}: expected a path, got {value!r}'
-        raise error(msg)
-    return value
-
-
-def _repeatability(value: Any, name: str, factor: float) -> tuple[float, float, float] | None:
-    """A ``*_turn_on_repeatability`` parameter (one value or x y z, in ``1 / factor`` of SI) in SI, or ``None``."""
-    if value == '' or value is None:
-        return None
-    items = list(value) if isinstance(value, (list, tuple)) or hasattr(value, 'tolist') else [value]
-    if len(items) == 1:
-        items = items * 3
-    if len(items) != 3 or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
-                              or v <= 0.0 for v in items):
-        msg = f'{name}: expected one positive number or three (x y z), or empty; got {value!r}'
-        raise ValueError(msg)
-    return (items[0] / factor, items[1] / factor, items[2] / factor)
 
 
 def _learning_start(learn: bool, path: str, unit: UnitCalibration) -> LearnedState | None:
@@ -301,7 +206,7 @@ class CompensatorNode(Node):
         for sensor in SENSORS if driver else ():
             imu = Imu()
             self._imu_only[sensor] = imu, imu.linear_acceleration if sensor == 'accel' else imu.angular_velocity
-        # The raw path: the package's CDR codec at fixed offsets (formats.cdr), one reader per input.
+        # The raw path: the package's CDR codec at fixed offsets (formats.cdr.fixed), one reader per input.
         self._temperature_reader = FixedReader('sensor_msgs/msg/Temperature', ('temperature',))
         self._input_reader = (
             FixedReader(IMU_TYPE, ('stamp_sec', 'stamp_nanosec', 'linear_acceleration', 'angular_velocity',
@@ -901,122 +806,3 @@ class CompensatorNode(Node):
 
 LEARNED_WRITE_PERIOD_S = 60.0
 """How often, at most, learning writes ``learned_file`` (and at shutdown), from the diagnostics timer."""
-TURN_ON_CHOICES = ('none', 'first_rest')
-
-
-def make_executor(kind: str, context: Any) -> Executor:
-    """The executor named by the ``executor`` parameter."""
-    if kind == 'events':
-        return EventsExecutor(context=context)
-    return SingleThreadedExecutor(context=context)
-
-
-def spin(node: Node, executor: Executor, signals: SignalGuard | None = None) -> bool:
-    """Spin until a stop signal (``signals``: SIGINT or SIGTERM) or until the context shuts down.
-
-    ``spin_once`` in a loop, not ``spin()``: the EventsExecutor's ``spin()`` stopped by a
-    shutdown from another thread kept running at 100 % CPU in a trial; this loop notices the
-    signal or the shutdown within :data:`SPIN_PERIOD_S`.
-
-    :returns: whether the executor failed on the shutdown itself (it raised once the context was
-        gone, e.g. while registering the node's entities): see :func:`main`.
-    """
-    executor.add_node(node)
-    context = node.context
-    while context.ok() and (signals is None or signals.received is None):
-        try:
-            executor.spin_once(timeout_sec=SPIN_PERIOD_S)
-        except ExternalShutdownException:
-            break
-        except Exception:
-            if context.ok():
-                raise
-            return True  # the executor noticed the shutdown first, in its own words
-    return False
-
-
-def _params_file_refused(args: Sequence[str]) -> str:
-    """Why a ``--params-file`` of the command line is not read (a FIFO, socket, device, directory), or ``''``."""
-    words = list(args)
-    for word, value in zip(words, words[1:]):
-        kind = not_regular(value) if word == '--params-file' else ''
-        if kind:
-            return f'--params-file {value}: is {kind}: only a regular file is read'
-    return ''
-
-
-def main(args: Sequence[str] | None = None, *, signals: SignalGuard | None = None) -> int:
-    """Entry point of ``compensator`` (Jazzy node skeleton); 2 when it cannot start.
-
-    A SIGINT or SIGTERM at any moment ends it with status 0 (``signals``, installed here when
-    the caller has not: :mod:`tak_thermo_ros.ros.main`). One that comes while it starts stops
-    the imports or ``rclpy.init``, or the node once built, said in one line, no traceback.
-    rclpy installs no signal handler of its own: the guard's stops the spin, so the node ends
-    (the watch's verdict logged, what it learned written) while its context still holds, and its
-    last lines reach /rosout (rclpy's handlers shut the context down first, and every line logged
-    at shutdown printed "Failed to publish log message to rosout").
-    """
-    signals = signals if signals is not None else SignalGuard().install()
-    node = executor = None
-    running = failed_on_shutdown = False
-    try:
-        if signals.received:  # arrived while the caller imported this module
-            raise KeyboardInterrupt
-        refused = _params_file_refused(sys.argv if args is None else args)
-        if refused:  # rcl would wait on a FIFO's open inside rclpy.init
-            print(f'[FATAL] [{NODE_NAME}]: cannot start: {refused}', file=sys.stderr)
-            return EXIT_ERROR
-        try:
-            rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-        except Exception as err:  # rcl refuses bad --ros-args or an unreadable params file
-            if signals.received:
-                raise KeyboardInterrupt from None
-            detail = str(err).strip().splitlines()
-            print(f'[FATAL] [{NODE_NAME}]: cannot start: {detail[0] if detail else type(err).__name__}',
-                  file=sys.stderr)
-            return EXIT_ERROR
-        signals.disarm()  # from now on a signal is remembered: the spin below stops on it
-        try:
-            node = CompensatorNode()
-        except (TakError, ValueError) as err:
-            if signals.received or not rclpy.ok():
-                raise KeyboardInterrupt from None
-            rclpy.logging.get_logger(NODE_NAME).fatal(f'cannot start: {err}')
-            return EXIT_ERROR
-        if signals.received:  # while the node was built
-            raise KeyboardInterrupt
-        executor = make_executor(node.executor_kind, node.context)
-        running = True
-        failed_on_shutdown = spin(node, executor, signals)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        if signals.received is None and rclpy.ok():
-            raise
-        # a signal shut the context down under rclpy (RCLError: context is invalid)
-    finally:
-        # Ctrl-C under `ros2 launch` reaches the node twice (the terminal's process group, then
-        # launch forwarding it): a second signal must not break the teardown with a traceback.
-        signals.disarm()
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        if executor is not None:
-            executor.shutdown()
-        if node is not None:
-            node.finish()
-            node.destroy_node()
-        rclpy.try_shutdown()
-        if not running and signals.received:
-            signals.say_stopped(NODE_NAME)
-        if failed_on_shutdown and node is not None and node.executor_kind == 'events':
-            # rclpy's EventsExecutor that raised while registering the node's entities (a signal
-            # shut the context down in the middle) can keep a callback it never recorded, and its
-            # C++ destructor then aborts the process ("Destroying callback manager with callbacks
-            # remaining"). Everything is torn down above; end here, before that destructor runs.
-            sys.stdout.flush()
-            sys.stderr.flush()
-            os._exit(0)
-    return 0
-
-
-if __name__ == '__main__':
-    sys.exit(main())

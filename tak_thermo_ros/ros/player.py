@@ -1,8 +1,9 @@
 """``tak_calib play``: a recorded bag published into a running ``compensator``, its answers taken back.
 
-The one module besides :mod:`tak_thermo_ros.ros.node` that imports rclpy (the node never imports
-this one, so its import path stays free of the bag reader). The bag is read block by block
-through :mod:`tak_thermo_ros.formats.records`, as every command reads it, and each block's
+The one module besides the node's (:mod:`tak_thermo_ros.ros.node`, :mod:`tak_thermo_ros.ros.main`)
+that imports rclpy (the node never imports this one, so its import path stays free of the bag
+reader). The bag is read block by block through :mod:`tak_thermo_ros.formats.records`, as every
+command reads it, and each block's
 messages are published in stamp order, a temperature before the Imu of the same stamp, paced
 by the node's answers: before a temperature every message sent so far has been answered (so
 the node corrects each message with the temperature in force when it was recorded), and at

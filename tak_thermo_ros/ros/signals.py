@@ -1,6 +1,6 @@
 """Stop signals while the node starts: :class:`SignalGuard` (the standard library only).
 
-``tak_thermo_ros.ros.main`` installs it before any heavy import; :func:`tak_thermo_ros.ros.node.main`
+``tak_thermo_ros.ros.main`` installs it before any heavy import; :func:`tak_thermo_ros.ros.main.main`
 disarms it once rclpy is initialised, stops on it, and says a stop during start-up in one line.
 """
 
