@@ -80,6 +80,7 @@ def add_parser(commands) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Fit the correction link to a calibration bag (counts, or a driver's Imu: both sensors), block by block."""
+    from tak_thermo_ros.formats.records import open_record
     from tak_thermo_ros.passes.fit import fit_imu
     from tak_thermo_ros.passes.run import FitSettings
     from tak_thermo_ros.passes.magnetometer import has_mag
@@ -96,7 +97,6 @@ def run(args: argparse.Namespace) -> int:
     # A record that determines the magnetometer alone (turned by hand, or without a temperature)
     # holds the accelerometer and gyroscope at nominal, said in one line; else it is refused.
     # An everyday record (rests in one orientation, motion between) is a pool of one.
-    from tak_thermo_ros.formats.records import open_record
     options = common.stream_options(args)
     record = open_record(args.bag[0], topics=options.topics)
     try:
