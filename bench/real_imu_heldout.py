@@ -37,6 +37,7 @@ from tak_thermo_ros.core.noise.residual import model_from_residual  # noqa: E402
 from tak_thermo_ros.core.values import STANDARD_GRAVITY  # noqa: E402
 from tak_thermo_ros.formats.bag import Topics  # noqa: E402
 from tak_thermo_ros.passes.diagnose import bounded_run  # noqa: E402
+from tak_thermo_ros.formats.records import open_record  # noqa: E402
 from tak_thermo_ros.passes.run import StreamOptions  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / 'results'
@@ -59,7 +60,8 @@ def parts(root: Path) -> dict[str, dict]:
         run_tak_calib('import-csv', str(root / f'{name}.csv'), '-o', str(root / name), '--time-unit', 'us',
                       '--acc-columns', 'imu.acc.x', 'imu.acc.y', 'imu.acc.z', '--temp-column', 'imu.temperature',
                       '--gyro-columns', 'imu.gyro.x', 'imu.gyro.y', 'imu.gyro.z')
-        found[name] = bounded_run(root / name, StreamOptions(topics=Topics(), progress=False)).samples
+        found[name] = bounded_run(open_record(root / name, topics=Topics()),
+                                  StreamOptions(topics=Topics(), progress=False)).samples
     return found
 
 

@@ -135,14 +135,15 @@ def test_a_long_runs_amplitudes_keep_the_correlated_part_of_their_errors(tmp_pat
     not fall (the same wander, sampled more densely), and the streamed errors keep it.
     """
     from tak_thermo_ros.formats.bag import Topics, write_driver_record
+    from tak_thermo_ros.formats.records import open_record
     from tak_thermo_ros.passes.fit import fit_bag
     from tak_thermo_ros.passes.run import FitSettings, StreamOptions
     run = simulate(coverage_run(5, rate_hz=1.0))
     write_driver_record(tmp_path / 'cal', run.driver)
     samples = align(run.driver.channel('gyro'))
     whole = fit_model(samples, effects=('thermal_lag',), nominal_scale=(1.0, 1.0, 1.0))
-    streamed = fit_bag(tmp_path / 'cal', FitSettings(effects={'gyro': ['thermal_lag']},
-                                                     max_effect_samples=len(samples) // 2),
+    streamed = fit_bag(open_record(tmp_path / 'cal', topics=Topics()),
+                       FitSettings(effects={'gyro': ['thermal_lag']}, max_effect_samples=len(samples) // 2),
                        StreamOptions(topics=Topics(), progress=False, block_samples=500))
     assert streamed.effect_stride['gyro'] >= 2
     result = streamed.results['gyro']

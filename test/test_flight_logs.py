@@ -338,10 +338,8 @@ def test_the_source_section_survives_the_nodes_parameters(logs):
 
 def test_without_pyulog_a_ulog_is_one_line_naming_it(logs, tmp_path, capsys, monkeypatch):
     """An optional pyulog: a command given a ULog without it stops in one line naming the pip package."""
-    from tak_thermo_ros.formats import flight_log
     root, _, _ = logs
     monkeypatch.setitem(__import__('sys').modules, 'pyulog', None)
-    flight_log._CACHE.clear()
     line = _one_line_error(capsys, ['fit', str(root / 'warm.ulg'), '-o', str(tmp_path / 'p.yaml'), '--no-progress'],
                            tmp_path / 'p.yaml')
     assert line.endswith("needs the optional Python package pyulog: pip install 'pyulog'")
@@ -359,10 +357,8 @@ def test_a_log_name_that_is_no_log_is_one_line(tmp_path, capsys):
 @given(st.integers(1, 4000))
 def test_a_ulog_cut_anywhere_is_read_whole_or_refused_in_one_line(cut):
     """Cutting a ULog at any byte: its samples up to there, or a FlightLogError (never another exception)."""
-    from tak_thermo_ros.formats import flight_log
     path = _SMALL_DIRECTORY / f'cut_{cut}.ulg'
     path.write_bytes(_SMALL_ULOG[:max(len(_SMALL_ULOG) - cut, 0)])
-    flight_log._CACHE.clear()
     try:
         log = read_ulog(path, 0)
     except FlightLogError as err:

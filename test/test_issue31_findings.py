@@ -26,6 +26,7 @@ from tak_thermo_ros.passes.validate import validate_bag
 from tak_thermo_ros.reports.diagnose import write_report
 from tak_thermo_ros.reports.diagnose_figures import gravity_series
 from tak_thermo_ros.units import with_error
+from tak_thermo_ros.formats.records import open_record
 
 DOCS = Path(__file__).resolve().parents[1] / 'docs'
 OPTIONS = StreamOptions(topics=Topics(), progress=False)
@@ -57,7 +58,7 @@ def diagnosed(driver):
     Shared: neither the report nor the |g| series changes the diagnosis or the samples.
     """
     unit = load_unit(driver / 'base.yaml')
-    samples = bounded_run(driver / 'run', OPTIONS, unit=unit).samples['accel']
+    samples = bounded_run(open_record(driver / 'run', topics=OPTIONS.topics), OPTIONS, unit=unit).samples['accel']
     return unit, samples, diagnose(unit.accel, samples, candidates=['warmup'])
 
 
@@ -80,7 +81,7 @@ def test_the_reports_g_before_is_validates_before(driver, diagnosed):
     unit, samples, result = diagnosed
     series = gravity_series(result, samples, 9.80665, as_recorded=True)
     report_before = float(np.sqrt(np.mean(series[0][1] ** 2)))
-    validated = validate_bag(driver / 'run', unit, OPTIONS, gravity=9.80665)
+    validated = validate_bag(open_record(driver / 'run', topics=OPTIONS.topics), unit, OPTIONS, gravity=9.80665)
     assert report_before == pytest.approx(validated.gravity.before.gravity_error().rms, rel=1e-9)
     assert series[0][0] == 'as recorded (no correction)'
 

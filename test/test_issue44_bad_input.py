@@ -424,9 +424,9 @@ def test_each_records_line_is_said_as_it_is_read(month, monkeypatch):
     events = []
     read = pool_pass.read_record
 
-    def reading(path, *args, **kwargs):
-        events.append(f'read {path.name}')
-        return read(path, *args, **kwargs)
+    def reading(record, *args, **kwargs):
+        events.append(f'read {record.path.name}')
+        return read(record, *args, **kwargs)
 
     monkeypatch.setattr(pool_pass, 'read_record', reading)
     pool_pass.open_pool([str(root / 'rec00'), str(root / 'rec01'), str(root / 'rec00')],

@@ -23,6 +23,7 @@ from tak_thermo_ros.core.simulation.imu import simulate
 from tak_thermo_ros.core.simulation.scenario import Scenario, scenario_from_mapping
 from tak_thermo_ros.passes.noise import noise_bag, noise_models
 from tak_thermo_ros.passes.run import StreamOptions
+from tak_thermo_ros.formats.records import open_record
 
 GYRO = {'noise_counts': 2.4e-4, 'bias_instability': 2.4e-5, 'bias_instability_tau': 30.0, 'random_walk': 6e-6}
 ACCEL = {'noise_counts': 2.83e-3, 'bias_instability': 1e-4, 'bias_instability_tau': 30.0, 'random_walk': 4e-5}
@@ -75,7 +76,7 @@ def test_streamed_noise_equals_the_in_memory_fit(static_bag):
     """The pass over the bag in blocks gives the same Allan variance as the whole residual in memory."""
     from tak_thermo_ros.core.noise.allan import allan_variance
     bag, scenario = static_bag
-    run = noise_bag(bag, replace(OPTIONS, block_samples=5000))
+    run = noise_bag(open_record(bag, topics=OPTIONS.topics), replace(OPTIONS, block_samples=5000))
     driver = simulate(scenario).driver
     for sensor, values in (('accel', driver.accel), ('gyro', driver.gyro)):
         streamed = run.sensors[sensor].allan
@@ -101,8 +102,8 @@ def test_noise_of_the_compensated_signal_is_the_sensors_and_fit_writes_it(tmp_pa
     bag, params, truth_params = tmp_path / 'thermal.mcap', tmp_path / 'params.yaml', tmp_path / 'truth.yaml'
     write_driver_record(bag, simulate(scenario).driver)
     save_unit(truth_params, scenario.driver_truth())
-    raw = noise_bag(bag, OPTIONS)
-    compensated = noise_bag(bag, OPTIONS, unit=load_unit(truth_params))
+    raw = noise_bag(open_record(bag, topics=OPTIONS.topics), OPTIONS)
+    compensated = noise_bag(open_record(bag, topics=OPTIONS.topics), OPTIONS, unit=load_unit(truth_params))
     for sensor in ('accel', 'gyro'):
         truth, model = scenario.noise_truth(sensor), compensated.models[sensor]
         assert model.source == 'residual'
@@ -160,13 +161,14 @@ def test_noise_sources_in_their_order_of_preference(static_bag, tmp_path):
     kalibr = tmp_path / 'gyro_only.yaml'
     kalibr.write_text('gyroscope_noise_density: 2.0e-4\ngyroscope_random_walk: 1.0e-5\nupdate_rate: 2.0\n')
     unit = scenario.driver_truth()
-    found = noise_models(unit=unit, options=OPTIONS, noise_file=kalibr, noise_run=bag)
+    found = noise_models(unit=unit, options=OPTIONS, noise_file=kalibr,
+                         noise_run=open_record(bag, topics=OPTIONS.topics))
     assert found.models['gyro'].source == 'file' and found.models['accel'].source == 'static_run'
     assert found.source == 'mixed' and 'from the static run' in found.line
     stored = replace(unit, accel=replace(unit.accel, noise=found.models['accel']),
                      gyro=replace(unit.gyro, noise=found.models['gyro']))
     assert noise_models(unit=stored, options=OPTIONS).models == found.models
-    residual = noise_models(unit=unit, options=OPTIONS, calibration_run=bag)
+    residual = noise_models(unit=unit, options=OPTIONS, calibration_run=open_record(bag, topics=OPTIONS.topics))
     assert {m.source for m in residual.models.values()} == {'residual'}
     with pytest.raises(Exception, match='no noise model of the accel, gyro'):
         noise_models(unit=unit, options=OPTIONS)
@@ -237,12 +239,12 @@ def test_noise_on_a_rate_table_run_is_the_residual_after_the_references(tmp_path
     bag, params = tmp_path / 'table.mcap', tmp_path / 'truth.yaml'
     write_driver_record(bag, simulate(scenario).driver)
     save_unit(params, scenario.driver_truth())
-    run = noise_bag(bag, OPTIONS, unit=load_unit(params))
+    run = noise_bag(open_record(bag, topics=OPTIONS.topics), OPTIONS, unit=load_unit(params))
     for sensor in ('accel', 'gyro'):
         assert run.sensors[sensor].gaps == 0
         truth = scenario.noise_truth(sensor)
         assert np.allclose(run.models[sensor].white_noise_density, truth.white_noise_density, rtol=0.05)
-    settled = noise_bag(bag, OPTIONS, unit=load_unit(params), settle_time_s=2.0)
+    settled = noise_bag(open_record(bag, topics=OPTIONS.topics), OPTIONS, unit=load_unit(params), settle_time_s=2.0)
     changes = int(scenario.duration_s() // scenario.dwell_s)
     accel = settled.sensors['accel']  # its reference (the tilt) changes every 20 s; the rate reference stays 0
     assert abs(accel.gaps - changes) <= 1 and accel.missing >= 15 * accel.gaps

@@ -42,6 +42,7 @@ from tak_thermo_ros.formats.calibration_file import (
 from tak_thermo_ros.formats.bag import Topics
 from tak_thermo_ros.passes.run import StreamOptions
 from tak_thermo_ros.passes.validate import validate_bag
+from tak_thermo_ros.formats.records import open_record
 
 COUNTS_RUN = Scenario(sample_rate_hz=2.0, plateaus_celsius=(10.0, 30.0), plateau_hours=0.05,
                       ramp_celsius_per_minute=5.0, board_lag_s=20.0, dwell_s=20.0)
@@ -93,13 +94,15 @@ def test_a_part_of_the_fitted_record_is_in_sample_and_another_record_is_not(coun
     first = capsys.readouterr().out.splitlines()[0]
     assert first.startswith('in-sample: part.mcap is ') and 'of run.mcap, which run.yaml was fitted from' in first
     unit = load_unit(root / 'run.yaml')
-    found = validate_bag(root / 'part.mcap', unit, OPTIONS, gravity=STANDARD_GRAVITY).in_sample
+    found = validate_bag(open_record(root / 'part.mcap', topics=OPTIONS.topics), unit, OPTIONS,
+                         gravity=STANDARD_GRAVITY).in_sample
     assert found.kind == IN_SAMPLE_PART and found.compared >= 1
     assert found.as_dict()['fitted_from'] == 'run.mcap'
     # Another record of the same unit: the same stamps, other noise.
     assert _run('validate', str(root / 'other.mcap'), '--params', str(root / 'run.yaml')) == 0
     assert 'in-sample' not in capsys.readouterr().out
-    assert validate_bag(root / 'other.mcap', unit, OPTIONS, gravity=STANDARD_GRAVITY).in_sample is None
+    assert validate_bag(open_record(root / 'other.mcap', topics=OPTIONS.topics), unit, OPTIONS,
+                        gravity=STANDARD_GRAVITY).in_sample is None
 
 
 def test_diagnose_of_the_fitted_record_says_so_first(counts_records, capsys):

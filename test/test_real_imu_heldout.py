@@ -34,6 +34,7 @@ from tak_thermo_ros.core.noise.residual import model_from_residual
 from tak_thermo_ros.formats.bag import Topics
 from tak_thermo_ros.passes.diagnose import bounded_run
 from tak_thermo_ros.passes.run import StreamOptions
+from tak_thermo_ros.formats.records import open_record
 
 REAL_LOG = Path(__file__).resolve().parents[1] / 'data' / 'tofupilot-imu-thermal' / 'imu_raw_data.csv'
 FIRST_ROWS = 2697
@@ -60,7 +61,7 @@ def records(tmp_path_factory):
         csv = root / f'{name}.csv'
         csv.write_text(''.join(part), encoding='utf-8')
         _import(csv, root / name)
-        run = bounded_run(root / name, StreamOptions(topics=Topics(), progress=False))
+        run = bounded_run(open_record(root / name, topics=Topics()), StreamOptions(topics=Topics(), progress=False))
         found[name] = (root / name, run.samples)
     return found
 

@@ -32,6 +32,7 @@ from tak_thermo_ros.formats.bag import Topics, write_driver_record
 from tak_thermo_ros.formats.calibration_file import load_unit
 from tak_thermo_ros.passes.noise import noise_bag
 from tak_thermo_ros.passes.run import StreamOptions
+from tak_thermo_ros.formats.records import open_record
 
 OPTIONS = StreamOptions(topics=Topics(), progress=False)
 LAG_SLOPE = 3e-5
@@ -89,19 +90,19 @@ def test_the_same_run_is_no_static_run_uncompensated_or_badly_compensated_and_a_
     write_driver_record(tmp_path / 'sweep', simulate(replace(cal, seed=70)).driver)
     assert cli.main(['fit', str(tmp_path / 'cal'), '-o', str(tmp_path / 'base.yaml'), '--no-progress']) == 0
     unit = load_unit(tmp_path / 'base.yaml')
-    compensated = noise_bag(tmp_path / 'heat', OPTIONS, unit=unit)
+    compensated = noise_bag(open_record(tmp_path / 'heat', topics=OPTIONS.topics), OPTIONS, unit=unit)
     assert {n.model.source for n in compensated.sensors.values()} == {'static_run'}
     assert 'compensated: no trend with temperature left' in compensated.sensors['gyro'].span_words
-    raw = noise_bag(tmp_path / 'heat', OPTIONS)
+    raw = noise_bag(open_record(tmp_path / 'heat', topics=OPTIONS.topics), OPTIONS)
     assert {n.model.source for n in raw.sensors.values()} == {'residual'}
     # A link without its temperature terms leaves the drift: what the compensation leaves decides.
     flat = replace(unit, **{sensor: replace(calibration, axes=tuple(
         replace(axis, offset_shape=(0.0,), scale_shape=(0.0,)) for axis in calibration.axes))
         for sensor, calibration in unit.sensors})
-    bad = noise_bag(tmp_path / 'heat', OPTIONS, unit=flat)
+    bad = noise_bag(open_record(tmp_path / 'heat', topics=OPTIONS.topics), OPTIONS, unit=flat)
     assert {n.model.source for n in bad.sensors.values()} == {'residual'}
     assert 'leaves a trend with temperature' in bad.sensors['gyro'].span_words
-    sweep = noise_bag(tmp_path / 'sweep', OPTIONS, unit=unit)
+    sweep = noise_bag(open_record(tmp_path / 'sweep', topics=OPTIONS.topics), OPTIONS, unit=unit)
     assert {n.model.source for n in sweep.sensors.values()} == {'residual'}
     assert 'a sweep over' in sweep.sensors['gyro'].span_words
 

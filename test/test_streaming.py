@@ -32,6 +32,7 @@ from tak_thermo_ros.passes.apply import apply_bag
 from tak_thermo_ros.passes.diagnose import bounded_run
 from tak_thermo_ros.passes.fit import fit_bag
 from tak_thermo_ros.passes.run import FitSettings, StreamOptions
+from tak_thermo_ros.formats.records import open_record
 
 SMALL = StreamOptions(topics=Topics(), progress=False, block_samples=500)
 DRIVER = replace(SHORT, output='imu', plateau_hours=0.1, seed=8,
@@ -82,7 +83,8 @@ def test_streamed_fit_of_a_bag_equals_the_in_memory_fit(counts_bag):
     path, _ = counts_bag
     record = read_record(path, progress=False)
     expected = fit_calibration(align(record, settle_time_s=20.0), nominal_scale=record.nominal_scale)
-    got = fit_bag(path, FitSettings(effects={}, settle_time_s=20.0), SMALL).results['accel']
+    got = fit_bag(open_record(path, topics=SMALL.topics), FitSettings(effects={}, settle_time_s=20.0),
+                  SMALL).results['accel']
     assert got.samples == expected.samples and got.dropped == expected.dropped
     for a, b in zip(got.calibration.axes, expected.calibration.axes):
         for name in ('scale', 'offset', 'offset_span', 'residual_rms'):
@@ -105,7 +107,7 @@ def test_streamed_apply_writes_what_the_whole_bag_path_writes(driver_bag, tmp_pa
               topic=Topics.compensated_imu, angular_velocity=corrected[:, 3:6],
               angular_variance=acceleration_variance(unit.gyro), orientation=driver.orientation[samples.rows],
               orientation_covariance=driver.orientation_covariance[samples.rows])
-    applied = apply_bag(path, unit, tmp_path / 'streamed', SMALL)
+    applied = apply_bag(open_record(path, topics=SMALL.topics), unit, tmp_path / 'streamed', SMALL)
     assert applied.written == len(samples)
     got = read_imu_messages(tmp_path / 'streamed', topic=Topics.compensated_imu)
     want = read_imu_messages(expected_path, topic=Topics.compensated_imu)
@@ -119,7 +121,7 @@ def test_diagnose_subsample_is_bounded_and_spread(driver_bag):
     """At most about max_samples samples, from the whole run, with the whole run's drop counts."""
     path, _ = driver_bag
     driver = read_driver_record(path, progress=False)
-    bounded = bounded_run(path, SMALL, max_samples=300)
+    bounded = bounded_run(open_record(path, topics=SMALL.topics), SMALL, max_samples=300)
     whole = align(driver.channel('accel'))
     samples = bounded.samples['accel']
     assert bounded.stride == -(-len(driver.stamp_ns) // 300)
@@ -146,8 +148,8 @@ def test_effects_on_a_long_run_shapes_from_a_subsample_amplitudes_from_every_sam
     write_record(path, run.record)
     samples = align(run.record)
     whole = fit_model(samples, effects=['thermal_lag'])
-    streamed = fit_bag(path, FitSettings(effects={'accel': ['thermal_lag']}, max_effect_samples=len(samples) // 4),
-                       SMALL)
+    streamed = fit_bag(open_record(path, topics=SMALL.topics),
+                       FitSettings(effects={'accel': ['thermal_lag']}, max_effect_samples=len(samples) // 4), SMALL)
     result = streamed.results['accel']
     assert streamed.effect_stride['accel'] == 5 and result.samples == len(samples)
     effect = result.calibration.effects[0]
@@ -203,7 +205,7 @@ def test_streamed_apply_holds_a_recorded_signal_across_blocks(tmp_path):
     unit = UnitCalibration(InputKind.COUNTS, fit_model(samples, effects=['aux:/p']).calibration)
     whole = require_signals(align(record, use_reference=False), ['aux:/p'])
     expected = UnitCorrector(unit).correct(whole.counts, whole.temp_code, stamp_s=whole.stamp_s, aux=whole.aux)
-    applied = apply_bag(bag, unit, tmp_path / 'imu', SMALL)
+    applied = apply_bag(open_record(bag, topics=SMALL.topics), unit, tmp_path / 'imu', SMALL)
     assert applied.dropped == whole.dropped and applied.dropped['before_first_aux:/p'] > 0
     assert applied.written == len(whole)
     written = read_imu_messages(tmp_path / 'imu', topic=Topics().imu)
@@ -228,7 +230,8 @@ def test_a_recorded_signal_effect_on_a_long_run_is_fitted_in_two_passes(tmp_path
     write_record(bag, record)
     samples = require_signals(align(record), ['aux:/p'])
     whole = fit_model(samples, effects=['aux:/p'])
-    streamed = fit_bag(bag, FitSettings(effects={'accel': ['aux:/p']}, max_effect_samples=len(samples) // 4), SMALL)
+    streamed = fit_bag(open_record(bag, topics=SMALL.topics),
+                       FitSettings(effects={'accel': ['aux:/p']}, max_effect_samples=len(samples) // 4), SMALL)
     result = streamed.results['accel']
     assert streamed.effect_stride['accel'] > 1
     assert result.samples == len(samples) == streamed.usable['accel']

@@ -39,6 +39,7 @@ from tak_thermo_ros.formats.kalibr import read_kalibr, write_kalibr
 from tak_thermo_ros.passes.noise import noise_bag
 from tak_thermo_ros.passes.run import StreamOptions
 from tak_thermo_ros.formats.bag import Topics
+from tak_thermo_ros.formats.records import open_record
 
 OPTIONS = StreamOptions(topics=Topics(), progress=False)
 
@@ -227,10 +228,9 @@ def test_each_way_a_noise_model_is_made_says_where_it_comes_from(runs, tmp_path,
     from tak_thermo_ros.formats.calibration_file import load_unit
     truth = load_unit(runs / 'truth.yaml')
     for unit in (None, truth):
-        assert set(noise_bag(runs / 'static', OPTIONS, unit=unit).models[s].source for s in ('accel', 'gyro')) \
-            == {'static_run'}
-        assert set(noise_bag(runs / 'thermal', OPTIONS, unit=unit).models[s].source for s in ('accel', 'gyro')) \
-            == {'residual'}
+        for name, source in (('static', 'static_run'), ('thermal', 'residual')):
+            models = noise_bag(open_record(runs / name, topics=OPTIONS.topics), OPTIONS, unit=unit).models
+            assert {models[s].source for s in ('accel', 'gyro')} == {source}
     assert _run('noise', str(runs / 'thermal'), '--params', str(runs / 'truth.yaml'), '-o',
                 str(tmp_path / 'imu.yaml')) == 0
     printed = capsys.readouterr().out

@@ -47,7 +47,7 @@ def add_parser(commands) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Correct a bag's counts or driver Imu and write Imu messages (block by block, bounded memory)."""
-    from tak_thermo_ros.formats.records import input_kind
+    from tak_thermo_ros.formats.records import open_record
     from tak_thermo_ros.passes.apply import TurnOnSettings, apply_bag
     from tak_thermo_ros.passes.pool import is_pool
     unit = load_unit(args.params)
@@ -55,9 +55,10 @@ def run(args: argparse.Namespace) -> int:
         return _apply_pool(args, unit)
     args.bag = args.bag[0]
     topics = common.topics(args)
-    kind = input_kind(args.bag, topics=topics)
+    record = open_record(args.bag, topics=topics)
+    kind = record.kind
     common.check_kind(args, unit, kind)
-    applied = apply_bag(args.bag, unit, args.output, common.stream_options(args), storage=args.storage,
+    applied = apply_bag(record, unit, args.output, common.stream_options(args), storage=args.storage,
                         out_of_range=OutOfRange(args.out_of_range), force=args.force,
                         turn_on=TurnOnSettings(args.latitude) if args.turn_on == 'first-rest' else None)
     common.print_survey(applied.survey, 'apply')
@@ -75,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
                 print(f'dropped {common.SENSOR_NAMES[sensor]} samples: {common.describe_dropped(dropped)}')
     if kind is InputKind.IMU and unit.mag is None:
         from tak_thermo_ros.passes.magnetometer import has_mag
-        if has_mag(args.bag, topics):
+        if has_mag(record):
             print(f'note: {args.params} holds no magnetometer: {topics.mag} is not corrected (nothing written for it)')
     if applied.mag_written or applied.mag_topic:
         print(f'wrote {applied.mag_written} MagneticField messages on {applied.mag_topic}')
@@ -97,13 +98,13 @@ def run(args: argparse.Namespace) -> int:
 def _apply_pool(args: argparse.Namespace, unit) -> int:
     """Each record of a pool corrected into its own bag, ``OUT/NAME``: one line per record."""
     from pathlib import Path
-    from tak_thermo_ros.formats.records import input_kind
+    from tak_thermo_ros.formats.records import open_record
     from tak_thermo_ros.passes.apply import TurnOnSettings, apply_bag
     from tak_thermo_ros.passes.pool import RECORD_SUFFIXES, bag_directory, record_paths
     records, lines = record_paths(args.bag)
-    for path in records:
-        common.check_kind(argparse.Namespace(**{**vars(args), 'bag': str(path)}), unit,
-                          input_kind(path, topics=common.topics(args)))
+    opened = [open_record(path, topics=common.topics(args)) for path in records]
+    for path, record in zip(records, opened):
+        common.check_kind(argparse.Namespace(**{**vars(args), 'bag': str(path)}), unit, record.kind)
     names = [Path(path).stem if Path(path).suffix.lower() in RECORD_SUFFIXES else Path(path).name for path in records]
     if len(set(names)) < len(names):
         msg = f'{args.output} (-o): two records are named alike ({", ".join(sorted(names))}): rename one'
@@ -111,8 +112,8 @@ def _apply_pool(args: argparse.Namespace, unit) -> int:
     out = bag_directory(args.output, force=args.force, option='-o')
     for line in lines:
         print(line)
-    for path, name in zip(records, names):
-        applied = apply_bag(path, unit, out / name, common.stream_options(args), storage=args.storage,
+    for record, name in zip(opened, names):
+        applied = apply_bag(record, unit, out / name, common.stream_options(args), storage=args.storage,
                             out_of_range=OutOfRange(args.out_of_range),
                             turn_on=TurnOnSettings(args.latitude) if args.turn_on == 'first-rest' else None)
         outside = f', {applied.out_of_range} outside the calibrated range' if applied.out_of_range else ''

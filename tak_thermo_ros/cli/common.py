@@ -189,13 +189,16 @@ def given_noise_models(args: argparse.Namespace, unit: UnitCalibration, kind: In
     """
     from tak_thermo_ros.errors import NoiseError
     from tak_thermo_ros.core.noise.residual import in_counts
+    from tak_thermo_ros.formats.records import open_record
     from tak_thermo_ros.passes.noise import noise_models
     if getattr(args, 'noise', None) and getattr(args, 'noise_run', None):
         msg = '--noise and --noise-run: give one noise model source, not both'
         raise TakError(msg)
+    noise_run = getattr(args, 'noise_run', None)
     try:
         found = noise_models(unit=unit, options=stream_options(args), noise_file=getattr(args, 'noise', None),
-                             noise_run=getattr(args, 'noise_run', None), gravity=args.gravity,
+                             noise_run=open_record(noise_run, topics=topics(args)) if noise_run else None,
+                             gravity=args.gravity,
                              latitude=getattr(args, 'latitude', None))
     except NoiseError:
         if getattr(args, 'noise', None) or getattr(args, 'noise_run', None):

@@ -78,7 +78,7 @@ def add_parser(commands) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Compare a calibration with a run: noise floor, residual views, the missing effect, per sensor."""
-    from tak_thermo_ros.formats.records import input_kind
+    from tak_thermo_ros.formats.records import open_record
     from tak_thermo_ros.core.diagnose import diagnose
     from tak_thermo_ros.passes.diagnose import bounded_run
     unit = load_unit(args.params)
@@ -87,14 +87,15 @@ def run(args: argparse.Namespace) -> int:
     if not pool:
         from tak_thermo_ros.passes.run import EverydayRecord
         args.bag = args.bag[0]
-        common.check_kind(args, unit, input_kind(args.bag, topics=common.topics(args)))
+        record = open_record(args.bag, topics=common.topics(args))
+        common.check_kind(args, unit, record.kind)
         try:
-            run = bounded_run(args.bag, common.stream_options(args), settle_time_s=args.settle_time,
+            run = bounded_run(record, common.stream_options(args), settle_time_s=args.settle_time,
                               gravity=getattr(args, 'gravity', STANDARD_GRAVITY),
                               latitude=getattr(args, 'latitude', None), max_samples=args.max_samples, unit=unit)
         except EverydayRecord:  # rests in one orientation, motion between: a pool of one
             print(f'{Path(args.bag).name}: {EverydayRecord.WORDS}')
-            args.bag, pool = [args.bag], True
+            args.bag, pool = [record], True  # the pool of one takes the record opened
     if pool:
         run = _pool_run(args, unit)
     else:
@@ -117,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
             if not any(axis.scale_observable for axis in unit.gyro.axes):  # a pool in one orientation
                 print('turns: not in the verdict, which judges the rests: no turn was fitted (gyro scales held)')
     if not pool:
-        _add_magnetometer(args, unit, run)
+        _add_magnetometer(args, unit, run, record)
     progress_shown = not args.no_progress and sys.stderr.isatty()
     verbose = bool(getattr(args, 'verbose', False))
     candidates = expand_candidates(args.candidates) if args.candidates else None
@@ -249,14 +250,15 @@ def _held_out_samples(args: argparse.Namespace, unit: UnitCalibration, run) -> d
     path = getattr(args, 'held_out', None)
     if path is None:
         return {}
-    from tak_thermo_ros.formats.records import input_kind
+    from tak_thermo_ros.formats.records import open_record
     from tak_thermo_ros.passes.diagnose import bounded_run
-    kind = input_kind(path, topics=common.topics(args))
+    record = open_record(path, topics=common.topics(args))
+    kind = record.kind
     if kind is not run.input_kind:
         msg = (f'--held-out: {path} holds {kind.value} data, {args.bag} {run.input_kind.value}: '
                f'not the same kind of record')
         raise TakError(msg)
-    second = bounded_run(path, common.stream_options(args), settle_time_s=args.settle_time,
+    second = bounded_run(record, common.stream_options(args), settle_time_s=args.settle_time,
                          gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
                          max_samples=args.max_samples, unit=unit)
     if second.handheld is not None or run.handheld is not None:
@@ -400,22 +402,21 @@ def _walk_line(result, sensor: str, kind: InputKind) -> str:
     return f'  that rate random walk in {sheet}: {" ".join(f"{value:.3g}" for value in walk)} (x y z)'
 
 
-def _add_magnetometer(args: argparse.Namespace, unit: UnitCalibration, run) -> None:
+def _add_magnetometer(args: argparse.Namespace, unit: UnitCalibration, run, record) -> None:
     """``diagnose``'s magnetometer (its thermal link) when the calibration and the bag hold one."""
-    from tak_thermo_ros.formats.records import record_streams
     from tak_thermo_ros.passes.magnetometer import bounded_mag_run, has_mag, survey_field
     options = common.stream_options(args)
     if run.input_kind is not InputKind.IMU or unit.mag is None:
         return
-    if not has_mag(args.bag, options.topics):
+    if not has_mag(record):
         print(f'magnetometer: {args.bag} holds no messages on {options.topics.mag}; not diagnosed')
         return
-    field = None if record_streams(args.bag, topics=options.topics).mag_reference else survey_field(args.bag, options)
+    field = None if record.streams.mag_reference else survey_field(record, options)
     if field is not None and field.turned:
         print(f'magnetometer: not diagnosed: {args.bag} is a rotation record (its field turns); the thermal '
               f'diagnosis takes a static run or a reference field')
         return
-    samples, usable, line = bounded_mag_run(args.bag, options, max_samples=args.max_samples, survey=field)
+    samples, usable, line = bounded_mag_run(record, options, max_samples=args.max_samples, survey=field)
     print(line)
     run.samples['mag'] = samples
     run.usable['mag'] = usable

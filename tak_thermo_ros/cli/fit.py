@@ -81,6 +81,7 @@ def add_parser(commands) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Fit the correction link to a calibration bag (counts, or a driver's Imu: both sensors), block by block."""
+    from tak_thermo_ros.formats.records import open_record
     from tak_thermo_ros.passes.fit import fit_imu
     from tak_thermo_ros.passes.run import FitSettings
     from tak_thermo_ros.passes.magnetometer import has_mag
@@ -98,16 +99,16 @@ def run(args: argparse.Namespace) -> int:
     # holds the accelerometer and gyroscope at nominal, said in one line; else it is refused.
     # An everyday record (rests in one orientation, motion between) is a pool of one.
     options = common.stream_options(args)
+    record = open_record(args.bag[0], topics=options.topics)
     try:
-        fitted = fit_imu(args.bag[0], settings, options,
+        fitted = fit_imu(record, settings, options,
                          nominal_for=lambda kind, bag_nominal: _nominal(args, bag_nominal),
-                         hold_undetermined=has_mag(args.bag[0], options.topics))
+                         hold_undetermined=has_mag(record))
     except EverydayRecord:
         print(f'{Path(args.bag[0]).name}: {EverydayRecord.WORDS}')
-        return _fit_pool(args, settings)
+        return _fit_pool(args, settings, [record])
     args.bag = args.bag[0]
-    from tak_thermo_ros.formats.records import record_lines
-    for line in record_lines(args.bag, topics=common.topics(args)):
+    for line in record.lines:
         print(line)
     both_held = set(fitted.held) >= {'accel', 'gyro'}
     for option, given, sensors in (('--effects', bool(effects['accel']), ('accel',)),
@@ -120,14 +121,14 @@ def run(args: argparse.Namespace) -> int:
                    f'({fitted.results[held[0]].calibration.notes[0]})')
             raise TakError(msg)
     results = fitted.results
-    magnetometer = _fit_magnetometer(args, fitted.input_kind, imu_fitted=not both_held)
+    magnetometer = _fit_magnetometer(args, record, fitted.input_kind, imu_fitted=not both_held)
     unit = UnitCalibration(fitted.input_kind, results['accel'].calibration,
                            results['gyro'].calibration if 'gyro' in results else None,
                            magnetometer.calibration if magnetometer is not None else None,
-                           _source(args, fitted),
+                           _source(record, fitted),
                            fitted_from=(fitted.record_print,) if fitted.record_print is not None else ())
     if args.noise or args.noise_run or args.noise_from_residual:
-        unit, noise_line = _with_noise(args, unit)
+        unit, noise_line = _with_noise(args, unit, record)
     else:
         unit, noise_line = _with_fitted_noise(unit, _fitted_noise(fitted, unit, settings))
     applied = ', '.join(f'{sensor} {", ".join(e.name for e in calibration.effects)}'
@@ -194,24 +195,24 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _source(args: argparse.Namespace, fitted) -> dict[str, str | int | float] | None:
+def _source(record, fitted) -> dict[str, str | int | float] | None:
     """The calibration file's ``source``: the record's format, a flight log's instance and device IDs, its extremes."""
     if fitted.input_kind is not InputKind.IMU:
         return None
-    from tak_thermo_ros.formats.records import record_source
-    found = record_source(args.bag, topics=common.topics(args))
+    found = record.source
     source: dict[str, str | int | float] = dict(found or {'format': 'bag'})
     source['temperature_rate_max'] = round(float(fitted.temperature_rate_max), 9)
     source['rate_max'] = round(float(fitted.rate_max), 9)
     return source
 
 
-def _with_noise(args: argparse.Namespace, unit: UnitCalibration) -> tuple[UnitCalibration, str]:
+def _with_noise(args: argparse.Namespace, unit: UnitCalibration, record=None) -> tuple[UnitCalibration, str]:
     """The fitted unit with each sensor's noise model (``fit --noise / --noise-run / --noise-from-residual``)."""
+    from tak_thermo_ros.formats.records import open_record
     from tak_thermo_ros.passes.noise import noise_models
     found = noise_models(unit=unit, options=common.stream_options(args), noise_file=args.noise,
-                         noise_run=args.noise_run,
-                         calibration_run=args.bag if args.noise_from_residual else None, use_stored=False,
+                         noise_run=open_record(args.noise_run, topics=common.topics(args)) if args.noise_run else None,
+                         calibration_run=record if args.noise_from_residual else None, use_stored=False,
                          gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None))
     accel = replace(unit.accel, noise=found.models['accel'])
     gyro = replace(unit.gyro, noise=found.models['gyro']) if unit.gyro is not None else None
@@ -275,26 +276,28 @@ def _nominal(args: argparse.Namespace, nominal: tuple[float, float, float] | Non
     return nominal
 
 
-def _fit_magnetometer(args: argparse.Namespace, kind: InputKind, *, imu_fitted: bool = True):
+def _fit_magnetometer(args: argparse.Namespace, record, kind: InputKind, *, imu_fitted: bool = True):
     """The magnetometer's fit when the driver bag holds one (``--iron-run``: its rotation record).
 
     Too few samples of it (one sensor's shortage), while the accelerometer or gyroscope is
     fitted and no option asks for it: held at nominal and said (:func:`held_mag_fit`).
     """
     from tak_thermo_ros.core.fit import ShortRecord
+    from tak_thermo_ros.formats.records import open_record
     from tak_thermo_ros.passes.magnetometer import fit_mag_bag, has_mag, held_mag_fit
     iron_run = getattr(args, 'iron_run', None)
     effects = common.effect_list(getattr(args, 'mag_effects', None))
     options = common.stream_options(args)
-    if kind is not InputKind.IMU or not has_mag(args.bag, options.topics):
+    if kind is not InputKind.IMU or not has_mag(record):
         for option, given in (('--iron-run', iron_run is not None), ('--mag-effects', bool(effects))):
             if given:
                 msg = f'{option}: {args.bag} holds no magnetometer on {options.topics.mag} to calibrate'
                 raise TakError(msg)
         return None
     try:
-        return fit_mag_bag(args.bag, options, bias_order=args.bias_order, scale_order=args.scale_order,
-                           temp_code_ref=args.temp_code_ref, iron_run=iron_run, effects=effects,
+        return fit_mag_bag(record, options, bias_order=args.bias_order, scale_order=args.scale_order,
+                           temp_code_ref=args.temp_code_ref, effects=effects,
+                           iron_run=open_record(iron_run, topics=options.topics) if iron_run is not None else None,
                            max_effect_samples=args.effect_samples)
     except ShortRecord as err:
         if not imu_fitted or iron_run is not None or effects:
@@ -377,7 +380,7 @@ def _print_handheld_terms(sensor: str, calibration, result) -> None:
                 print(line)
 
 
-def _fit_pool(args: argparse.Namespace, settings) -> int:
+def _fit_pool(args: argparse.Namespace, settings, records=None) -> int:
     """``fit`` of a pool of one unit's everyday records (:mod:`tak_thermo_ros.passes.pool`): a line per record first."""
     from tak_thermo_ros.core.fit.pool import order_line
     from tak_thermo_ros.passes.pool import coverage_lines, fit_records, left_out_line, turn_on_line
@@ -386,7 +389,7 @@ def _fit_pool(args: argparse.Namespace, settings) -> int:
         if given:
             msg = f'{option}: not with a pool of records (fit the pool, then its magnetometer or noise apart)'
             raise TakError(msg)
-    fitted = fit_records(args.bag, settings, common.stream_options(args), say=print)
+    fitted = fit_records(records or args.bag, settings, common.stream_options(args), say=print)
     opened, pool = fitted.opened, fitted.fit
     handheld = pool.fit
     results = handheld.results

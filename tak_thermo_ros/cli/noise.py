@@ -38,11 +38,12 @@ def add_parser(commands) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     """Each sensor's per-axis noise model (Allan deviation, IEEE 952 fit), streamed; a Kalibr-style imu.yaml."""
     from tak_thermo_ros.formats.kalibr import write_kalibr
+    from tak_thermo_ros.formats.records import open_record
     from tak_thermo_ros.passes.noise import noise_bag, noise_document
     unit = load_unit(args.params) if args.params else None
-    run = noise_bag(args.bag, common.stream_options(args), unit=unit, gravity=args.gravity,
-                    latitude=getattr(args, 'latitude', None), out_of_range=OutOfRange(args.out_of_range),
-                    settle_time_s=args.settle_time,
+    run = noise_bag(open_record(args.bag, topics=common.topics(args)), common.stream_options(args), unit=unit,
+                    gravity=args.gravity, latitude=getattr(args, 'latitude', None),
+                    out_of_range=OutOfRange(args.out_of_range), settle_time_s=args.settle_time,
                     expect_kind=(lambda kind: common.check_kind(args, unit, kind)) if unit is not None else None)
     common.print_survey(run.survey, 'noise')
     for line in run.reference_lines:

@@ -42,10 +42,12 @@ def add_parser(commands) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Play the bag into the node; say what was sent, received and whether it equals ``apply``'s output."""
+    from tak_thermo_ros.formats.records import open_record
     from tak_thermo_ros.ros.player import play
     stream_options = common.stream_options(args)
     expected = _applied(args.compare, stream_options.topics) if args.compare else None
-    played = play(args.bag, stream_options, wait_s=args.wait, answer_s=args.answer_timeout)
+    played = play(open_record(args.bag, topics=stream_options.topics), stream_options, wait_s=args.wait,
+                  answer_s=args.answer_timeout)
     types = {'imu': 'Imu', 'counts': 'counts', 'temperature': 'Temperature', 'mag': 'MagneticField'}
     sent = ', '.join(f'{count} {types[name]}' for name, count in played.sent.items())
     print(f'played {args.bag}: {sent} messages in {played.seconds:.0f} s')

@@ -60,22 +60,24 @@ def run(args: argparse.Namespace) -> int:
     from tak_thermo_ros.passes.pool import is_pool
     if is_pool(args.bag):
         return _validate_pool(args, unit)
+    from tak_thermo_ros.formats.records import open_record
     args.bag = args.bag[0]
     options = common.stream_options(args)
+    record = open_record(args.bag, topics=options.topics)
     document = {'bag': str(args.bag), 'params': str(args.params), 'gravity': args.gravity}
-    watched = _calibration_watch(args, unit)
+    watched = _calibration_watch(args, unit, record)
     try:
-        run = validate_bag(args.bag, unit, options, gravity=args.gravity,
+        run = validate_bag(record, unit, options, gravity=args.gravity,
                            latitude=getattr(args, 'latitude', None), out_of_range=OutOfRange(args.out_of_range),
                            expect_kind=lambda kind: common.check_kind(args, unit, kind))
     except EverydayRecord:  # rests in one orientation, motion between: its rests judged as a pool's
         print(f'{Path(args.bag).name}: {EverydayRecord.WORDS}')
-        return _validate_pool(args, unit, [args.bag], watched=watched)
+        return _validate_pool(args, unit, [record], watched=watched)
     except (NotStatic, ImuLinkUndetermined):  # turned, one orientation; or never at rest
         # A record turned by hand has no reference for the accelerometer and gyroscope; its
         # magnetometer is still checked (|B| in every orientation). A record that moves and rests
         # in several poses without turns to fit is judged by the calibration watch.
-        if watched is None and (unit.mag is None or not has_mag(args.bag, options.topics)):
+        if watched is None and (unit.mag is None or not has_mag(record)):
             raise
         if watched is None:
             print('accelerometer and gyroscope: not validated (the board moved, no reference)')
@@ -99,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
             print(line)
         document['calibration_watch'] = _watch_document(watched)
     if unit.mag is not None and (run is None or run.input_kind is InputKind.IMU):
-        document.update(_validate_magnetometer(args, unit))
+        document.update(_validate_magnetometer(args, unit, record))
     if args.json:
         write_json(args.json, document)
         print(f'wrote {args.json}')
@@ -152,7 +154,7 @@ def _validate_imu(args: argparse.Namespace, unit: UnitCalibration, run, document
         (document['gyro'] if sensor == 'gyro' else document)['averaged_bias_error'] = found['document']
 
 
-def _calibration_watch(args: argparse.Namespace, unit: UnitCalibration):
+def _calibration_watch(args: argparse.Namespace, unit: UnitCalibration, record):
     """The node's calibration watch over a driver record.
 
     ``None``: a counts record, or a calibration without the noise models the watch judges
@@ -160,14 +162,13 @@ def _calibration_watch(args: argparse.Namespace, unit: UnitCalibration):
     (the node has none).
     """
     from tak_thermo_ros.core.link.watch import WatchSettings, watch_unavailable
-    from tak_thermo_ros.formats.records import input_kind
     from tak_thermo_ros.passes.watch import watch_bag
     if unit.input_kind is not InputKind.IMU or watch_unavailable(unit):
         return None
     options = common.stream_options(args)
-    if input_kind(args.bag, topics=options.topics) is not InputKind.IMU:
+    if record.kind is not InputKind.IMU:
         return None
-    return watch_bag(args.bag, unit, options, settings=WatchSettings(latitude=getattr(args, 'latitude', None)),
+    return watch_bag(record, unit, options, settings=WatchSettings(latitude=getattr(args, 'latitude', None)),
                      out_of_range=OutOfRange(args.out_of_range))
 
 
@@ -183,14 +184,14 @@ def _watch_document(watched) -> dict:
             'values': dict(watch.values()), 'messages': watched.messages, 'published': watched.published}
 
 
-def _validate_magnetometer(args: argparse.Namespace, unit: UnitCalibration) -> dict:
+def _validate_magnetometer(args: argparse.Namespace, unit: UnitCalibration, record) -> dict:
     """``validate``'s field error before and after, in microtesla; the JSON entry ``mag``."""
     from tak_thermo_ros.passes.magnetometer import has_mag, validate_mag
     options = common.stream_options(args)
-    if not has_mag(args.bag, options.topics):
+    if not has_mag(record):
         print(f'magnetometer: {args.bag} holds no messages on {options.topics.mag}; not validated')
         return {}
-    result = validate_mag(args.bag, unit.mag, options, out_of_range=OutOfRange(args.out_of_range))
+    result = validate_mag(record, unit.mag, options, out_of_range=OutOfRange(args.out_of_range))
     rotation = result.reference == 'rotation'
     if rotation:
         print(f'magnetometer: a rotation record, {result.samples} samples: the spread of |B| about its mean')

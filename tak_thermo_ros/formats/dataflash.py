@@ -33,7 +33,7 @@ import numpy as np
 
 from tak_thermo_ros.errors import FlightLogError
 from tak_thermo_ros.core.records.plausible import stamp_ns_from_micros
-from tak_thermo_ros.formats.flight_log import FlightLog, cached, checked_sensor, checked_temperature
+from tak_thermo_ros.formats.flight_log import FlightLog, checked_sensor, checked_temperature, readable
 
 HEAD = b'\xa3\x95'
 """The two bytes every DataFlash message starts with (then its type)."""
@@ -159,11 +159,11 @@ def column(records: np.ndarray, kind: MessageType, name: str) -> np.ndarray:
 
 
 def read_dataflash(path: str | os.PathLike[str], instance: int = 0) -> FlightLog:
-    """Instance ``instance`` of a DataFlash log's IMU, what the firmware applied undone (read once per process).
+    """Instance ``instance`` of a DataFlash log's IMU, what the firmware applied undone.
 
     :raises FlightLogError: as the module says.
     """
-    return cached(_read, path, instance)
+    return _read(readable(path), instance)
 
 
 @dataclass(frozen=True)

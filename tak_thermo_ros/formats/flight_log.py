@@ -197,19 +197,12 @@ def checked_temperature(path: Path, stamps: np.ndarray, temperature: np.ndarray,
     return stamps[order], temperature[order]
 
 
-_CACHE: dict[tuple, FlightLog] = {}
-
-
-def cached(reader, path: str | os.PathLike[str], instance: int) -> FlightLog:
-    """``reader(path, instance)``, read once per file version in a process (each pass asks again)."""
+def readable(path: str | os.PathLike[str]) -> Path:
+    """``path``, refused in one line when it cannot be read (a reader reads it once, for its record)."""
     path = Path(path)
     try:
-        stat = path.stat()
+        path.stat()
     except OSError as err:
         msg = f'{path}: cannot read ({err.strerror or err})'
         raise FlightLogError(msg) from None
-    key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size, instance, reader.__module__)
-    if key not in _CACHE:
-        _CACHE.clear()  # one log at a time: a pass over another file drops the previous one
-        _CACHE[key] = reader(path, instance)
-    return _CACHE[key]
+    return path

@@ -1,21 +1,28 @@
-"""Every kind of record file read the same way: what it holds, then its messages in blocks.
+"""Every kind of record file read the same way: a :class:`Record`, opened once and handed down.
 
-The commands' passes (:mod:`tak_thermo_ros.passes`, :mod:`tak_thermo_ros.passes.magnetometer`,
-:mod:`tak_thermo_ros.passes.noise`) read a record only through these functions, so that a new
-file format is one reader that gives the same :class:`~tak_thermo_ros.formats.bag.BagStreams`
-and the same blocks (:class:`~tak_thermo_ros.core.records.record.ChannelRecord` or
+A command opens each record it names once (:func:`open_record`, near where it parses its
+arguments) and hands the :class:`Record` to its passes (:mod:`tak_thermo_ros.passes`); a pool
+opens each of its records once. The record works out its format from its first bytes once,
+reads a flight log once and holds it, and reads what it holds (:attr:`Record.streams`) once;
+each pass then reads its messages in blocks (:meth:`Record.blocks`), as rosbags' ``AnyReader``
+gives its connections once and its messages per call. So a new file format is one reader that
+gives the same :class:`~tak_thermo_ros.formats.bag.BagStreams` and the same blocks
+(:class:`~tak_thermo_ros.core.records.record.ChannelRecord` or
 :class:`~tak_thermo_ros.core.records.record.DriverRecord`), and goes through the same fit.
 
 A record is a rosbag2 bag (:mod:`tak_thermo_ros.formats.bag`), a PX4 ULog
 (:mod:`tak_thermo_ros.formats.ulog`) or an ArduPilot DataFlash log
 (:mod:`tak_thermo_ros.formats.dataflash`), told apart by their first bytes; a flight log's
-sensor instance is ``topics.instance`` (``--instance N``).
+sensor instance is ``topics.instance`` (``--instance N``). Nothing is read when it is opened:
+each part is read when first asked for, so that a record that cannot be read says so where the
+command first reads it.
 """
 
 from __future__ import annotations
 
 import os
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Iterator
 
@@ -44,69 +51,148 @@ def flight_log_format(path: str | os.PathLike[str]) -> str | None:
     return None
 
 
-def flight_log(path: str | os.PathLike[str], *, topics):
-    """The record as a :class:`~tak_thermo_ros.formats.flight_log.FlightLog`, or ``None`` when it is a bag."""
-    kind = flight_log_format(path)
-    if kind is None:
-        return None
-    instance = int(getattr(topics, 'instance', 0))
-    if kind == 'ulog':
-        from tak_thermo_ros.formats.ulog import read_ulog
-        return read_ulog(path, instance)
-    from tak_thermo_ros.formats.dataflash import read_dataflash
-    return read_dataflash(path, instance)
+def open_record(path: str | os.PathLike[str], *, topics) -> Record:
+    """The record at ``path``, opened once: the one way into a record (see the module's description).
+
+    :param topics: the record's topic names and a flight log's instance
+        (:class:`~tak_thermo_ros.formats.bag.Topics`).
+    """
+    return Record(path, topics)
 
 
-def input_kind(path: str | os.PathLike[str], *, topics) -> InputKind:
-    """Which contract a record follows: the paper's channel codes, or a driver's Imu (a flight log)."""
-    if flight_log(path, topics=topics) is not None:
-        return InputKind.IMU
-    from tak_thermo_ros.formats.bag import bag_input_kind
-    return bag_input_kind(path, topics=topics)
+class Record:
+    """One record file opened: its format, what it holds and its messages in blocks (:func:`open_record`).
 
+    Each part is read once, when first asked for, and kept: the format (first bytes), a flight
+    log (:class:`~tak_thermo_ros.formats.flight_log.FlightLog`, the whole file), a bag's kind and
+    streams (its index); the messages are read by each pass (:meth:`blocks`).
 
-def record_streams(path: str | os.PathLike[str], *, topics, require_reference: bool = False):
-    """The kind and message count of each stream of a record, without reading its messages."""
-    log = flight_log(path, topics=topics)
-    if log is not None:
-        return log.streams()
-    from tak_thermo_ros.formats.bag import bag_streams
-    return bag_streams(path, topics=topics, require_reference=require_reference)
+    :param path: the file or bag directory (``str()`` of the record, and its ``os.fspath``: as the user spelled
+        it, so that a command's record goes where a path goes, a pool's list of records).
+    :param topics: its topic names and a flight log's instance.
+    """
 
+    def __init__(self, path: str | os.PathLike[str], topics) -> None:
+        self.path = Path(path)
+        self.topics = topics
+        self._spelled = os.fspath(path)
 
-def record_blocks(path: str | os.PathLike[str], *, topics, kind: InputKind, **options
-                  ) -> Iterator[ChannelRecord | DriverRecord]:
-    """A record's messages in log order, one block per ``block_samples`` main-stream messages."""
-    log = flight_log(path, topics=topics)
-    if log is not None:
-        from tak_thermo_ros.formats.bag import STREAM_BLOCK_SAMPLES
-        yield from log.blocks(int(options.get('block_samples', STREAM_BLOCK_SAMPLES)))
-        return
-    from tak_thermo_ros.formats.bag import iter_blocks
-    yield from iter_blocks(path, topics=topics, kind=kind, **options)
+    def __str__(self) -> str:
+        return self._spelled
 
+    def __fspath__(self) -> str:
+        return self._spelled
 
-def record_stream_list(path: str | os.PathLike[str], *, topics) -> tuple[tuple[str, str, int], ...] | None:
-    """A flight log's streams, each sensor on its own (:meth:`FlightLog.stream_list`); ``None`` for a bag."""
-    log = flight_log(path, topics=topics)
-    return None if log is None else log.stream_list()
+    def __repr__(self) -> str:
+        return f'Record({self._spelled!r})'
 
+    @cached_property
+    def format(self) -> str:
+        """``'bag'``, ``'ulog'`` or ``'dataflash'`` (by its first bytes).
 
-def record_source(path: str | os.PathLike[str], *, topics) -> dict[str, object] | None:
-    """What a calibration file records of a flight log (format, instance, device IDs), ``None`` for a bag."""
-    log = flight_log(path, topics=topics)
-    return None if log is None else log.source()
+        :raises FlightLogError: a file named as a flight log (``.ulg``, ``.bin``) that is none.
+        """
+        return flight_log_format(self.path) or 'bag'
 
+    @cached_property
+    def log(self):
+        """The record as a :class:`~tak_thermo_ros.formats.flight_log.FlightLog` (read once), ``None`` for a bag."""
+        if self.format == 'bag':
+            return None
+        instance = int(getattr(self.topics, 'instance', 0))
+        if self.format == 'ulog':
+            from tak_thermo_ros.formats.ulog import read_ulog
+            return read_ulog(self.path, instance)
+        from tak_thermo_ros.formats.dataflash import read_dataflash
+        return read_dataflash(self.path, instance)
 
-def record_lines(path: str | os.PathLike[str], *, topics) -> tuple[str, ...]:
-    """What the reader of a flight log says about it (one statement each); nothing for a bag."""
-    log = flight_log(path, topics=topics)
-    return () if log is None else log.lines
+    @cached_property
+    def kind(self) -> InputKind:
+        """Which contract it follows: the paper's channel codes, or a driver's Imu (a flight log)."""
+        if self.log is not None:
+            return InputKind.IMU
+        from tak_thermo_ros.formats.bag import bag_input_kind
+        return bag_input_kind(self.path, topics=self.topics)
+
+    @cached_property
+    def streams(self):
+        """The kind and message count of each stream (a :class:`~tak_thermo_ros.formats.bag.BagStreams`), unread."""
+        if self.log is not None:
+            return self.log.streams()
+        from tak_thermo_ros.formats.bag import bag_streams
+        return bag_streams(self.path, topics=self.topics, kind=self.kind)
+
+    def require_reference(self) -> None:
+        """Refuse a bag without messages on its reference topic (a counts record's fit), in the bag's words.
+
+        :raises BagError: the topic is missing or empty.
+        """
+        if self.log is None and not self.streams.reference:
+            from tak_thermo_ros.formats.bag import bag_streams
+            bag_streams(self.path, topics=self.topics, kind=self.kind, require_reference=True)  # says why
+
+    def blocks(self, *, kind: InputKind, **options) -> Iterator[ChannelRecord | DriverRecord]:
+        """Its messages in log order, one block per ``block_samples`` main-stream messages (one pass).
+
+        :param options: as :func:`~tak_thermo_ros.formats.bag.iter_blocks`'s (a flight log takes ``block_samples``).
+        """
+        from tak_thermo_ros.formats.bag import STREAM_BLOCK_SAMPLES, iter_blocks
+        if self.log is not None:
+            yield from self.log.blocks(int(options.get('block_samples', STREAM_BLOCK_SAMPLES)))
+            return
+        yield from iter_blocks(self.path, topics=self.topics, kind=kind, streams=self.streams, **options)
+
+    @property
+    def stream_list(self) -> tuple[tuple[str, str, int], ...] | None:
+        """A flight log's streams, each sensor on its own (:meth:`FlightLog.stream_list`); ``None`` for a bag."""
+        return None if self.log is None else self.log.stream_list()
+
+    @property
+    def source(self) -> dict[str, object] | None:
+        """What a calibration file records of a flight log (format, instance, device IDs), ``None`` for a bag."""
+        return None if self.log is None else self.log.source()
+
+    @property
+    def lines(self) -> tuple[str, ...]:
+        """What the reader of a flight log says about it (one statement each); nothing for a bag."""
+        return () if self.log is None else self.log.lines
+
+    @cached_property
+    def identity(self) -> RecordIdentity | None:
+        """Its :class:`RecordIdentity` from its streams and its first block; ``None``: it cannot be read.
+
+        Reads :data:`IDENTITY_SAMPLES` messages, not the record (a record that cannot be read says why when read).
+        """
+        from tak_thermo_ros.core.records.provenance import PrintCollector
+        from tak_thermo_ros.errors import TakError
+        try:
+            streams = self.streams
+            blocks = self.blocks(kind=streams.kind, block_samples=IDENTITY_SAMPLES, references=False,
+                                 progress=False)
+            try:
+                first = next(blocks, None)
+            finally:
+                blocks.close()  # type: ignore[attr-defined]
+        except TakError:
+            return None
+        if first is None:
+            return None
+        sensors = ('accel',) if streams.kind is InputKind.COUNTS else ('accel', 'gyro')
+        channels = {'accel': first} if streams.kind is InputKind.COUNTS else {
+            sensor: first.channel(sensor) for sensor in sensors}  # type: ignore[union-attr]
+        collector = PrintCollector(sensors, own_segments=False)
+        collector.add({sensor: _Head(channel.counts_stamp_ns[:IDENTITY_SAMPLES], channel.counts[:IDENTITY_SAMPLES])
+                       for sensor, channel in channels.items()})
+        head = collector.finish(str(self.path))
+        if head is None:
+            return None
+        return RecordIdentity(kind=streams.kind.value, messages=int(streams.main), end_ns=int(streams.end_ns),
+                              first_stamp_ns=head.first_stamp_ns, digest=head.digest)
 
 
 @dataclass(frozen=True)
 class RecordIdentity:
-    """A record known by its content, not its spelling (:func:`record_identity`).
+    """A record known by its content, not its spelling (:attr:`Record.identity`).
 
     The same messages under another path, through a link, copied, renamed, in another bag storage
     (a bag's ``.mcap`` beside its folder) or another log format (one flight as ``.ulg`` and ``.bin``)
@@ -133,37 +219,3 @@ class _Head:
 
     counts_stamp_ns: object
     counts: object
-
-
-def record_identity(path: str | os.PathLike[str], *, topics, streams=None) -> RecordIdentity | None:
-    """A record's :class:`RecordIdentity` from its streams and its first block; ``None``: it cannot be read.
-
-    Reads :data:`IDENTITY_SAMPLES` messages, not the record (a record that cannot be read says why when read).
-
-    :param streams: its :func:`record_streams`, when known.
-    """
-    from tak_thermo_ros.core.records.provenance import PrintCollector
-    from tak_thermo_ros.errors import TakError
-    try:
-        streams = streams if streams is not None else record_streams(path, topics=topics)
-        blocks = record_blocks(path, topics=topics, kind=streams.kind, block_samples=IDENTITY_SAMPLES,
-                               references=False, progress=False)
-        try:
-            first = next(blocks, None)
-        finally:
-            blocks.close()  # type: ignore[attr-defined]
-    except TakError:
-        return None
-    if first is None:
-        return None
-    sensors = ('accel',) if streams.kind is InputKind.COUNTS else ('accel', 'gyro')
-    channels = {'accel': first} if streams.kind is InputKind.COUNTS else {
-        sensor: first.channel(sensor) for sensor in sensors}  # type: ignore[union-attr]
-    collector = PrintCollector(sensors, own_segments=False)
-    collector.add({sensor: _Head(channel.counts_stamp_ns[:IDENTITY_SAMPLES], channel.counts[:IDENTITY_SAMPLES])
-                   for sensor, channel in channels.items()})
-    head = collector.finish(str(path))
-    if head is None:
-        return None
-    return RecordIdentity(kind=streams.kind.value, messages=int(streams.main), end_ns=int(streams.end_ns),
-                          first_stamp_ns=head.first_stamp_ns, digest=head.digest)

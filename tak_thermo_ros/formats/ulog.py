@@ -25,7 +25,7 @@ import numpy as np
 
 from tak_thermo_ros.errors import FlightLogError
 from tak_thermo_ros.core.records.plausible import stamp_ns_from_micros
-from tak_thermo_ros.formats.flight_log import FlightLog, cached, checked_sensor, checked_temperature
+from tak_thermo_ros.formats.flight_log import FlightLog, checked_sensor, checked_temperature, readable
 
 GAUSS = 1e-4
 """Tesla per gauss (``sensor_mag`` is in gauss)."""
@@ -111,12 +111,12 @@ def _numbers(path: Path, topic: str, instance: int, data: dict[str, np.ndarray],
 
 
 def read_ulog(path: str | os.PathLike[str], instance: int = 0) -> FlightLog:
-    """Instance ``instance`` of a ULog's IMU topics, read once per process (:func:`~.flight_log.cached`).
+    """Instance ``instance`` of a ULog's IMU topics, read once (a :class:`~.records.Record` holds it).
 
     :raises FlightLogError: as the module says.
     :raises DependencyError: pyulog is not installed.
     """
-    return cached(_read, path, instance)
+    return _read(readable(path), instance)
 
 
 class _Endless(Exception):

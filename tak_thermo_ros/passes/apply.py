@@ -6,7 +6,7 @@ import itertools
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
+from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
 
@@ -24,6 +24,9 @@ from tak_thermo_ros.passes.run import (
     record_streams_listed,
     temperature_expected,
 )
+
+if TYPE_CHECKING:
+    from tak_thermo_ros.formats.records import Record
 
 
 @dataclass(frozen=True)
@@ -221,7 +224,7 @@ class _OwnStamps:
         return {sensor: dict(self.required[sensor].dropped) for sensor in self.SENSORS}
 
 
-def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, options: StreamOptions, *,
+def apply_bag(record: Record, unit: UnitCalibration, output: str | Path, options: StreamOptions, *,
               storage: str = 'mcap', out_of_range: OutOfRange = OutOfRange.CLAMP, force: bool = False,
               turn_on: TurnOnSettings | None = None) -> Applied:
     """Correct a bag block by block into an Imu bag that stays open (``tak_calib apply``).
@@ -237,14 +240,11 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
         would not take it from.
     """
     from tak_thermo_ros.formats.bag import ImuBagWriter
-    from tak_thermo_ros.formats.records import record_blocks, record_streams
-    path = Path(path)
-    topics = options.topics
-    streams = record_streams(path, topics=topics)
+    path, topics, streams = record.path, options.topics, record.streams
     kind = streams.kind
     survey = SurveyCollector(kind.value)
     expected = temperature_expected(path, streams, options, needed=unit.needs_temperature, what='the calibration')
-    blocks = record_blocks(path, topics=topics, kind=kind, block_samples=options.block_samples, references=False,
+    blocks = record.blocks(kind=kind, block_samples=options.block_samples, references=False,
                            progress=options.progress)
     first = next(blocks, None)
     magnetometer = None
@@ -306,17 +306,17 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
                            f'record that changes so is not supported (split it)')
                     raise TakError(msg)
                 passing.add(block.orientation, block.orientation_covariance)
-                record = block.six_channels()
+                channels = block.six_channels()
                 if magnetometer is not None:
                     magnetometer.push(writer, block.channel('mag'), output)
             else:
-                record = block
-            frame_id = frame_id or record.frame_id
-            write(aligner.push(record))
+                channels = block
+            frame_id = frame_id or channels.frame_id
+            write(aligner.push(channels))
         write(aligner.finish())
         if magnetometer is not None:
             magnetometer.finish(writer, frame_id, output)
-        finished = survey.finish(record_streams_listed(path, streams, topics))
+        finished = survey.finish(record_streams_listed(record, topics))
         check_temperature_unit(path, options, finished)  # before the bag is kept: nothing written
         written = writer.written
     if watch is not None:

@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -24,6 +23,9 @@ from tak_thermo_ros.passes.run import (
     run_passes,
     sensors_of,
 )
+
+if TYPE_CHECKING:
+    from tak_thermo_ros.formats.records import Record
 
 
 DIAGNOSE_MAX_SAMPLES = 1_000_000
@@ -53,7 +55,7 @@ class BoundedRun:
     """The record's first sample stamp (before any sample is left out), ns."""
 
 
-def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: float = 0.0,
+def bounded_run(record: Record, options: StreamOptions, *, settle_time_s: float = 0.0,
                 gravity: float = STANDARD_GRAVITY,
                 latitude: float | None = None, max_samples: int = DIAGNOSE_MAX_SAMPLES,
                 unit: UnitCalibration | None = None) -> BoundedRun:
@@ -66,22 +68,20 @@ def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: floa
     :raises TakError: a driver record without a temperature (the diagnosis looks at the residual
         against the temperature).
     """
-    from tak_thermo_ros.formats.records import record_streams
-    path = Path(path)
-    streams = record_streams(path, topics=options.topics)
+    path, streams = record.path, record.streams
     if streams.kind is InputKind.IMU and not streams.temperature:
         msg = f'{path}: no temperature on {options.topics.temperature}: diagnose looks at the residual against it'
         raise TakError(msg)
-    opened = open_calibration_run(path, options, streams, gravity=gravity, latitude=latitude, require_reference=True)
+    opened = open_calibration_run(record, options, gravity=gravity, latitude=latitude, require_reference=True)
     if opened.handheld:
         from tak_thermo_ros.passes.handheld import handheld_record, rest_samples
         if unit is None:
             msg = f'{path}: a hand-held record: its references come from a calibration (give one)'
             raise TakError(msg)
-        record, _ = handheld_record(path, options, opened.survey, budget=max_samples, replay=opened.replay)
-        samples, check = rest_samples(record, unit, gravity=gravity, latitude=latitude)
+        held, _ = handheld_record(record, options, opened.survey, budget=max_samples, replay=opened.replay)
+        samples, check = rest_samples(held, unit, gravity=gravity, latitude=latitude)
         usable = {sensor: int(opened.survey.still.samples.sum()) for sensor in samples}
-        return BoundedRun(input_kind=InputKind.IMU, samples=samples, usable=usable, stride=record.stride,
+        return BoundedRun(input_kind=InputKind.IMU, samples=samples, usable=usable, stride=held.stride,
                           reference_lines=(), survey=opened.survey, handheld=check)
     stride = stride_for(opened.main, max_samples)
     passes, subsamples = [], {}
@@ -91,7 +91,7 @@ def bounded_run(path: str | Path, options: StreamOptions, *, settle_time_s: floa
                                                       settle_time_s=settle_time_s), [subsamples[sensor]]))
     prints = PrintCollector(sensors_of(opened.kind), against=unit.fitted_from if unit is not None else (),
                             own_segments=False)
-    lines = run_passes(path, options, opened, passes, prints=prints)
+    lines = run_passes(record, options, opened, passes, prints=prints)
     survey = opened.finished_survey()
     check_temperature_unit(path, options, survey)
     return BoundedRun(input_kind=opened.kind,

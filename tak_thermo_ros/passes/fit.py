@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -39,8 +38,11 @@ from tak_thermo_ros.passes.run import (
     sensors_of,
 )
 
+if TYPE_CHECKING:
+    from tak_thermo_ros.formats.records import Record
 
-def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
+
+def fit_bag(record: Record, settings: FitSettings, options: StreamOptions,
             nominal_for: Callable[[InputKind, tuple[float, float, float] | None], tuple[float, float, float] | None]
             | None = None) -> StreamedFit:
     """The fit of ``tak_calib fit`` in one pass over the bag (a static driver run: after its survey).
@@ -56,20 +58,18 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
     :raises ImuLinkUndetermined: a driver bag that today's paths cannot fit (no reference and the
         board moved; no temperature): see :func:`fit_imu`.
     """
-    from tak_thermo_ros.formats.records import record_streams
-    path = Path(path)
-    streams = record_streams(path, topics=options.topics)
+    path, streams = record.path, record.streams
     if streams.kind is InputKind.IMU and not streams.temperature:
         reason = f'no temperature on {options.topics.temperature}'
         raise ImuLinkUndetermined(f'{path}: {reason}: no thermal link of the accelerometer and gyroscope', reason)
     try:
-        opened = open_calibration_run(path, options, streams, gravity=settings.gravity, latitude=settings.latitude,
+        opened = open_calibration_run(record, options, gravity=settings.gravity, latitude=settings.latitude,
                                       require_reference=True)
     except NotStatic as err:
         raise ImuLinkUndetermined(str(err), MOVED) from None
     if opened.handheld:
         from tak_thermo_ros.passes.handheld import fit_handheld_bag
-        return fit_handheld_bag(path, settings, options, opened.survey, replay=opened.replay)
+        return fit_handheld_bag(record, settings, options, opened.survey, replay=opened.replay)
     kind = opened.kind
     sensors = sensors_of(kind)
     if kind is InputKind.COUNTS and settings.effects.get('gyro'):
@@ -102,7 +102,7 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
         passes.append(SensorPass(sensor, aligner(), [feeding(requirements[sensor], consumers)]))
     prints = PrintCollector(sensors)
     try:
-        lines = run_passes(path, options, opened, passes, prints=prints)
+        lines = run_passes(record, options, opened, passes, prints=prints)
     except NotStatic as err:
         raise ImuLinkUndetermined(str(err), MOVED) from None
     survey = opened.finished_survey()
@@ -150,7 +150,7 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
         again = {sensor: required(sensor) for sensor in second}
         amplitude_passes = [SensorPass(sensor, aligner(), [feeding(again[sensor], [amplitudes.add])])
                             for sensor, (amplitudes, _) in second.items()]
-        run_passes(path, options, OpenedRun(kind, opened.main, opened.static, replay=opened.replay), amplitude_passes)
+        run_passes(record, options, OpenedRun(kind, opened.main, opened.static, replay=opened.replay), amplitude_passes)
         for sensor_pass in amplitude_passes:
             sensor = sensor_pass.sensor
             amplitudes, shaped = second[sensor]
@@ -173,7 +173,7 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
                        held=tuple(sensor for sensor in sensors if sensor in short), noise_windows=windows)
 
 
-def fit_imu(path: str | Path, settings: FitSettings, options: StreamOptions,
+def fit_imu(record: Record, settings: FitSettings, options: StreamOptions,
             nominal_for: Callable[[InputKind, tuple[float, float, float] | None], tuple[float, float, float] | None]
             | None = None, *, hold_undetermined: bool = False) -> StreamedFit:
     """The accelerometer's and gyroscope's link from a record (:func:`fit_bag`), or held at nominal.
@@ -186,7 +186,7 @@ def fit_imu(path: str | Path, settings: FitSettings, options: StreamOptions,
     takes this point's place.
     """
     try:
-        return fit_bag(path, settings, options, nominal_for)
+        return fit_bag(record, settings, options, nominal_for)
     except ImuLinkUndetermined as err:
         if not hold_undetermined:
             raise

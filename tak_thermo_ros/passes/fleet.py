@@ -381,12 +381,12 @@ def distinct_units(bags: Sequence[str], topics) -> tuple[list[int], list[str]]:
     """The BAGs that are not a second copy of an earlier one: the same records by content, however spelled.
 
     A unit's records (its bag, or the records of its directory) by
-    :func:`~tak_thermo_ros.formats.records.record_identity`: the same directory through a link, a
+    :attr:`~tak_thermo_ros.formats.records.Record.identity`: the same directory through a link, a
     copy of it, the same bag spelled otherwise is one unit, counted once, the second named.
 
     :returns: the indices of the BAGs kept, and one line per second copy.
     """
-    from tak_thermo_ros.formats.records import record_identity
+    from tak_thermo_ros.formats.records import open_record
     from tak_thermo_ros.passes.pool import record_paths, same_how
     first: dict[frozenset, int] = {}
     kept, lines = [], []
@@ -395,7 +395,8 @@ def distinct_units(bags: Sequence[str], topics) -> tuple[list[int], list[str]]:
             records = record_paths([bag])[0]
         except TakError:  # no such path, no record in it: the unit's fit says so
             records = [Path(bag)]
-        key = frozenset(record_identity(path, topics=topics) or ('path', os.path.realpath(path)) for path in records)
+        key = frozenset(open_record(path, topics=topics).identity or ('path', os.path.realpath(path))
+                        for path in records)
         if key in first:
             earlier = bags[first[key]]
             how = same_how(bag, earlier, 'the same records')

@@ -14,7 +14,7 @@ the diagnosis work on what was kept (:mod:`tak_thermo_ros.core.fit.handheld`,
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -28,6 +28,9 @@ from tak_thermo_ros.core.records.handheld import HandheldCollector, HandheldReco
 from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.core.records.survey import RecordSurvey
 from tak_thermo_ros.passes.run import FitSettings, StreamedFit, StreamOptions
+
+if TYPE_CHECKING:
+    from tak_thermo_ros.formats.records import Record
 
 HANDHELD_MAX_STILL_SAMPLES = 500_000
 """A hand-held fit keeps at most about this many still samples (every n-th, spread evenly), and as many
@@ -43,7 +46,7 @@ class HandheldBag:
     ignored_temp_codes: dict[str, int] | None = None
 
 
-def handheld_record(path: str | Path, options: StreamOptions, survey: RecordSurvey, *,
+def handheld_record(record: Record, options: StreamOptions, survey: RecordSurvey, *,
                     budget: int = HANDHELD_MAX_STILL_SAMPLES, turn_budget: int | None = None,
                     replay=None) -> tuple[HandheldRecord, dict[str, int]]:
     """The still and turn samples of a record, and the temperature messages ignored by reason.
@@ -51,12 +54,10 @@ def handheld_record(path: str | Path, options: StreamOptions, survey: RecordSurv
     :param budget: about this many still samples at most; ``turn_budget`` turn samples (``None``: ``budget``).
     :param replay: the survey's blocks (then the record is not read again), or ``None`` (one pass).
     """
-    from tak_thermo_ros.formats.records import record_blocks
     collector = HandheldCollector(survey.still, budget=budget, turn_budget=turn_budget)
     aligner = BlockAligner(use_reference=False)
-    blocks = replay if replay is not None else record_blocks(
-        path, topics=options.topics, kind=InputKind.IMU, block_samples=options.block_samples, references=False,
-        progress=options.progress)
+    blocks = replay if replay is not None else record.blocks(
+        kind=InputKind.IMU, block_samples=options.block_samples, references=False, progress=options.progress)
     for block in blocks:
         collector.add(aligner.push(block.six_channels()))  # type: ignore[union-attr]
     collector.add(aligner.finish())
@@ -71,17 +72,17 @@ def handheld_settings(settings: FitSettings) -> HandheldSettings:
                             effects={sensor: tuple(specs) for sensor, specs in settings.effects.items()})
 
 
-def fit_handheld_bag(path: str | Path, settings: FitSettings, options: StreamOptions, survey: RecordSurvey, *,
+def fit_handheld_bag(record: Record, settings: FitSettings, options: StreamOptions, survey: RecordSurvey, *,
                      replay=None) -> StreamedFit:
     """``tak_calib fit`` of a hand-held record: both sensors from its still intervals and turns."""
-    record, ignored = handheld_record(path, options, survey, replay=replay)
-    fitted = fit_handheld(record, handheld_settings(settings))
+    held, ignored = handheld_record(record, options, survey, replay=replay)
+    fitted = fit_handheld(held, handheld_settings(settings))
     sensors = ('accel', 'gyro')
     return StreamedFit(input_kind=InputKind.IMU, sensors=sensors, results=fitted.results,
-                       usable={sensor: len(record.still) for sensor in sensors}, effect_stride={},
+                       usable={sensor: len(held.still) for sensor in sensors}, effect_stride={},
                        reference_lines=(), ignored_temp_codes={sensor: ignored for sensor in sensors},
                        ignored_references={sensor: {} for sensor in sensors}, survey=survey,
-                       handheld=HandheldBag(record, fitted, ignored))
+                       handheld=HandheldBag(held, fitted, ignored))
 
 
 @dataclass(frozen=True)
@@ -101,14 +102,14 @@ def nominal_unit(unit: UnitCalibration) -> UnitCalibration:
     return UnitCalibration(unit.input_kind, unit.accel.nominal(), unit.gyro.nominal() if unit.gyro else None)
 
 
-def validate_handheld_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions, survey: RecordSurvey, *,
+def validate_handheld_bag(record: Record, unit: UnitCalibration, options: StreamOptions, survey: RecordSurvey, *,
                           gravity: float, latitude: float | None, out_of_range: OutOfRange,
                           replay=None) -> HandheldValidated:
     """The rests' |g| and rate errors and the turns' closure, before and after correction."""
-    record, ignored = handheld_record(path, options, survey, replay=replay)
-    before = check_handheld(record, nominal_unit(unit), gravity=gravity, latitude=latitude, out_of_range=out_of_range)
-    after = check_handheld(record, unit, gravity=gravity, latitude=latitude, out_of_range=out_of_range)
-    return HandheldValidated(before, after, record, survey, ignored)
+    held, ignored = handheld_record(record, options, survey, replay=replay)
+    before = check_handheld(held, nominal_unit(unit), gravity=gravity, latitude=latitude, out_of_range=out_of_range)
+    after = check_handheld(held, unit, gravity=gravity, latitude=latitude, out_of_range=out_of_range)
+    return HandheldValidated(before, after, held, survey, ignored)
 
 
 def at_rest(calibration: Calibration) -> Calibration:

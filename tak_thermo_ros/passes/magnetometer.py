@@ -25,8 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
@@ -42,6 +41,9 @@ from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.errors import BagError, FitError, TakError
 from tak_thermo_ros.passes.run import held_result, prefixed
 
+if TYPE_CHECKING:
+    from tak_thermo_ros.formats.records import Record
+
 MAX_STATIC_TURN_DEG = 10.0
 """Largest angle between a sample of a static run's field and its mean (the unit moved)."""
 CORRUPT_FIELD_T = 1e6
@@ -52,14 +54,13 @@ MAX_ROTATION_SAMPLES = 100_000
 NO_IRON_NOTE = 'hard and soft iron not fitted (no --iron-run): hard_iron 0, soft_iron identity'
 
 
-def has_mag(path: str | Path, topics) -> bool:
-    """Whether a driver bag holds magnetometer messages."""
-    from tak_thermo_ros.formats.records import record_streams
-    streams = record_streams(path, topics=topics)
+def has_mag(record: Record) -> bool:
+    """Whether a driver record holds magnetometer messages."""
+    streams = record.streams
     return streams.kind is InputKind.IMU and streams.mag > 0
 
 
-def _mag_blocks(path: Path, options, *, references: bool):
+def _mag_blocks(record: Record, options, *, references: bool):
     """The bag's blocks as the magnetometer's :class:`ChannelRecord` (its stamps, tesla).
 
     The first block with finite values is checked to be in tesla (:func:`check_tesla`): a topic
@@ -67,17 +68,16 @@ def _mag_blocks(path: Path, options, *, references: bool):
     component of :data:`CORRUPT_FIELD_T` or more is a corrupt message, not a field: it is made
     NaN, so that the alignment leaves it out and counts it (``non_finite``) as it does a NaN.
     """
-    from tak_thermo_ros.formats.records import record_blocks
     checked = False
-    for block in record_blocks(path, topics=options.topics, kind=InputKind.IMU, block_samples=options.block_samples,
-                               references=references, progress=options.progress):
-        record = corrupt_as_nan(block.channel('mag'))
+    for block in record.blocks(kind=InputKind.IMU, block_samples=options.block_samples, references=references,
+                               progress=options.progress):
+        mag = corrupt_as_nan(block.channel('mag'))
         if not checked:
-            finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
+            finite = mag.counts[np.all(np.isfinite(mag.counts), axis=1)]
             if len(finite):
-                check_tesla(finite, f'{path}: {options.topics.mag}')
+                check_tesla(finite, f'{record.path}: {options.topics.mag}')
                 checked = True
-        yield record
+        yield mag
 
 
 def corrupt_as_nan(record):
@@ -117,12 +117,12 @@ class FieldSurvey:
         return self.spread > math.sin(math.radians(MAX_STATIC_TURN_DEG)) * self.magnitude
 
 
-def survey_field(path: Path, options) -> FieldSurvey:
+def survey_field(record: Record, options) -> FieldSurvey:
     """The mean field and its spread (one pass, sums only); refuses a topic not in tesla."""
     total, squares, count, energy = np.zeros(3), np.zeros((3, 3)), 0, 0.0
     shift = None
-    for record in _mag_blocks(path, options, references=False):
-        finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
+    for mag in _mag_blocks(record, options, references=False):
+        finite = mag.counts[np.all(np.isfinite(mag.counts), axis=1)]
         if not len(finite):
             continue
         if shift is None:
@@ -133,7 +133,7 @@ def survey_field(path: Path, options) -> FieldSurvey:
         energy += float(np.sum(finite * finite))
         count += len(finite)
     if not count or shift is None:
-        msg = f'{path}: no finite messages on {options.topics.mag}'
+        msg = f'{record.path}: no finite messages on {options.topics.mag}'
         raise BagError(msg)
     mean_centred = total / count
     covariance = squares / count - np.outer(mean_centred, mean_centred)
@@ -151,20 +151,18 @@ class _CalibrationPass:
     aligner: BlockAligner
 
 
-def _calibration_pass(path: Path, options, consumers, survey: FieldSurvey | None = None) -> _CalibrationPass:
+def _calibration_pass(record: Record, options, consumers, survey: FieldSurvey | None = None) -> _CalibrationPass:
     """Align the magnetometer on its reference and hand each block to ``consumers``.
 
     The reference is the recorded field, or a static run's mean field (``survey``'s, or one pass
     more); refuses a static run that turned, one without a temperature and a topic not in tesla.
     """
-    from tak_thermo_ros.formats.records import record_streams
-    topics = options.topics
-    streams = record_streams(path, topics=topics)
+    path, topics, streams = record.path, options.topics, record.streams
     static = streams.mag_reference == 0
     if not streams.temperature:
         msg = f'magnetometer: {path}: no temperature on {topics.temperature}: a static run fits the link against it'
         raise FitError(msg)
-    mean = (survey or survey_field(path, options)).mean if static else None
+    mean = (survey or survey_field(record, options)).mean if static else None
     aligner = BlockAligner(use_reference=True, reference_expected=True)
     max_turn = 0.0
     first = True
@@ -173,17 +171,17 @@ def _calibration_pass(path: Path, options, consumers, survey: FieldSurvey | None
         for consume in consumers:
             consume(aligned)
 
-    for record in _mag_blocks(path, options, references=True):
+    for mag in _mag_blocks(record, options, references=True):
         if static:
-            finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
+            finite = mag.counts[np.all(np.isfinite(mag.counts), axis=1)]
             if len(finite):
                 cosine = (finite @ mean) / (np.linalg.norm(finite, axis=1) * np.linalg.norm(mean))
                 max_turn = max(max_turn, float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))).max()))
             if first:
                 # The static run's reference, held from before the first sample.
-                record = replace(record, reference_stamp_ns=np.zeros(1, dtype=np.int64), reference=mean.reshape(1, 3))
+                mag = replace(mag, reference_stamp_ns=np.zeros(1, dtype=np.int64), reference=mean.reshape(1, 3))
                 first = False
-        hand_on(aligner.push(record))
+        hand_on(aligner.push(mag))
     hand_on(aligner.finish())
     if static and max_turn > MAX_STATIC_TURN_DEG:
         msg = (f'magnetometer: {path}: the field turns by up to {max_turn:.1f} deg from its mean '
@@ -193,7 +191,7 @@ def _calibration_pass(path: Path, options, consumers, survey: FieldSurvey | None
     return _CalibrationPass(static, mean, max_turn, aligner)
 
 
-def bounded_mag_run(path: str | Path, options, *, max_samples: int,
+def bounded_mag_run(record: Record, options, *, max_samples: int,
                     survey: FieldSurvey | None = None) -> tuple[AlignedSamples, int, str]:
     """``diagnose``'s magnetometer samples, the usable count of the whole run and the reference's line.
 
@@ -202,12 +200,10 @@ def bounded_mag_run(path: str | Path, options, *, max_samples: int,
     :param survey: the record's :func:`survey_field`, when the caller took it (else one pass more
         for a static run).
     """
-    from tak_thermo_ros.formats.records import record_streams
-    path = Path(path)
-    count = record_streams(path, topics=options.topics).mag
+    count = record.streams.mag
     stride = stride_for(count, max_samples)
     subsample = Subsample(stride, expected=count // stride + 1)
-    calibration_pass = _calibration_pass(path, options, [subsample], survey)
+    calibration_pass = _calibration_pass(record, options, [subsample], survey)
     line = (f'magnetometer: reference field {options.topics.reference_field} as recorded' if not calibration_pass.static
             else f'magnetometer: static run, reference the mean field x y z {_microtesla(calibration_pass.mean)} uT')
     return subsample.samples(calibration_pass.aligner.dropped), calibration_pass.aligner.kept, line
@@ -244,10 +240,10 @@ def held_mag_fit(reason: str) -> MagFit:
     return MagFit(calibration=calibration, thermal=thermal, iron=None, lines=(f'magnetometer: {note}',), held=True)
 
 
-def fit_mag_bag(path: str | Path, options, *, bias_order: int = 3, scale_order: int = 2,
-                temp_code_ref: float | None = None, iron_run: str | Path | None = None,
+def fit_mag_bag(record: Record, options, *, bias_order: int = 3, scale_order: int = 2,
+                temp_code_ref: float | None = None, iron_run: Record | None = None,
                 effects: Sequence[str] = (), max_effect_samples: int = 1_000_000) -> MagFit:
-    """Fit the magnetometer: its thermal link from ``path``, its iron from ``iron_run``.
+    """Fit the magnetometer: its thermal link from ``record``, its iron from ``iron_run``.
 
     With ``effects`` (library names, as ``--effects``) the link and the effects are fitted by
     :func:`~tak_thermo_ros.core.fit.fit_model` on every n-th sample, at most about
@@ -257,27 +253,25 @@ def fit_mag_bag(path: str | Path, options, *, bias_order: int = 3, scale_order: 
         be determined, a rotation record that fails the ellipsoid's checks).
     :raises TakError: a topic not in tesla.
     """
-    from tak_thermo_ros.formats.records import record_streams
-    path = Path(path)
-    topics = options.topics
-    survey = survey_field(path, options) if record_streams(path, topics=topics).mag_reference == 0 else None
+    path, topics = record.path, options.topics
+    survey = survey_field(record, options) if record.streams.mag_reference == 0 else None
     if survey is not None and survey.turned:
         for given, option in ((iron_run is not None, '--iron-run'), (bool(effects), '--mag-effects')):
             if given:
                 msg = (f'magnetometer: {option}: {path} is itself a rotation record (its field turns), whose iron and '
                        f'thermal drift are fitted from it; {option} goes with a static chamber run')
                 raise FitError(msg)
-        return fit_rotation_bag(path, options, survey, bias_order=bias_order, scale_order=scale_order,
+        return fit_rotation_bag(record, options, survey, bias_order=bias_order, scale_order=scale_order,
                                 temp_code_ref=temp_code_ref)
     fit = StreamingFit(bias_order=bias_order, scale_order=scale_order, temp_code_ref=temp_code_ref,
                        nominal_scale=(1.0, 1.0, 1.0))
     consumers = [fit.add]
     subsample = None
     if effects:
-        count = record_streams(path, topics=topics).mag
+        count = record.streams.mag
         subsample = Subsample(stride_for(count, max_effect_samples), expected=count)
         consumers.append(subsample)
-    calibration_pass = _calibration_pass(path, options, consumers, survey)
+    calibration_pass = _calibration_pass(record, options, consumers, survey)
     static, mean, max_turn, aligner = (calibration_pass.static, calibration_pass.mean, calibration_pass.max_turn_deg,
                                        calibration_pass.aligner)
     try:
@@ -303,7 +297,7 @@ def fit_mag_bag(path: str | Path, options, *, bias_order: int = 3, scale_order: 
         notes.append(NO_IRON_NOTE)
         hard, soft = (0.0, 0.0, 0.0), IDENTITY_3X3
     else:
-        iron, outside = _fit_iron(Path(iron_run), options, link)
+        iron, outside = _fit_iron(iron_run, options, link)
         hard, soft = iron.hard_iron, iron.soft_iron
         lines.append(f'magnetometer: iron from {iron_run} ({iron.samples} samples)')
         if outside:
@@ -315,7 +309,7 @@ def fit_mag_bag(path: str | Path, options, *, bias_order: int = 3, scale_order: 
                   max_turn_deg=max_turn)
 
 
-def fit_rotation_bag(path: Path, options, survey: FieldSurvey, *, bias_order: int = 3, scale_order: int = 2,
+def fit_rotation_bag(record: Record, options, survey: FieldSurvey, *, bias_order: int = 3, scale_order: int = 2,
                      temp_code_ref: float | None = None) -> MagFit:
     """The magnetometer of a rotation record: the iron, and its thermal link where the temperature determines it.
 
@@ -326,20 +320,18 @@ def fit_rotation_bag(path: Path, options, survey: FieldSurvey, *, bias_order: in
     :raises FitError: one line prefixed ``magnetometer:`` (too few orientations, the acceptance checks).
     """
     from tak_thermo_ros.core.magnetometer.rotation import fit_rotation
-    from tak_thermo_ros.formats.records import record_streams
-    topics = options.topics
-    streams = record_streams(path, topics=topics)
+    path, topics, streams = record.path, options.topics, record.streams
     stride = stride_for(streams.mag, MAX_ROTATION_SAMPLES)
     subsample = Subsample(stride, expected=streams.mag // stride + 1)
     aligner = BlockAligner(use_reference=False, temperature_expected=streams.temperature > 0)
     largest_turn = 0.0
     direction = survey.mean / max(float(np.linalg.norm(survey.mean)), 1e-300)
-    for record in _mag_blocks(path, options, references=False):
-        finite = record.counts[np.all(np.isfinite(record.counts), axis=1)]
+    for mag in _mag_blocks(record, options, references=False):
+        finite = mag.counts[np.all(np.isfinite(mag.counts), axis=1)]
         if len(finite):
             cosine = (finite @ direction) / np.maximum(np.linalg.norm(finite, axis=1), 1e-300)
             largest_turn = max(largest_turn, float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))).max()))
-        subsample(aligner.push(record))
+        subsample(aligner.push(mag))
     subsample(aligner.finish())
     samples = subsample.samples(aligner.dropped)
     temperature = samples.temp_code if streams.temperature else None
@@ -373,11 +365,9 @@ def _microtesla(values) -> str:
     return ' '.join(f'{v * 1e6:+.3f}' for v in values)
 
 
-def _fit_iron(path: Path, options, link) -> tuple[EllipsoidFit, int]:
+def _fit_iron(record: Record, options, link) -> tuple[EllipsoidFit, int]:
     """The ellipsoid of a rotation record, corrected by the thermal link first; samples out of its range."""
-    from tak_thermo_ros.formats.records import record_streams
-    topic = options.topics.mag
-    streams = record_streams(path, topics=options.topics)
+    path, topic, streams = record.path, options.topics.mag, record.streams
     if streams.kind is not InputKind.IMU or streams.mag == 0:
         msg = f'{path}: no messages on {topic} (the rotation record for --iron-run)'
         raise BagError(msg)
@@ -392,8 +382,8 @@ def _fit_iron(path: Path, options, link) -> tuple[EllipsoidFit, int]:
             parts.append(corrector.correct(aligned.counts, aligned.temp_code, stamp_s=aligned.stamp_s))
             outside += corrector.out_of_range_count(aligned.temp_code)
 
-    for record in _mag_blocks(path, options, references=False):
-        take(aligner.push(record))
+    for mag in _mag_blocks(record, options, references=False):
+        take(aligner.push(mag))
     take(aligner.finish())
     values = np.concatenate(parts) if parts else np.zeros((0, 3))
     try:
@@ -493,7 +483,7 @@ class MagValidated:
     out_of_range: int = 0
 
 
-def validate_mag(path: str | Path, mag: MagnetometerCalibration, options, *,
+def validate_mag(record: Record, mag: MagnetometerCalibration, options, *,
                  out_of_range: OutOfRange = OutOfRange.CLAMP) -> MagValidated:
     """The field error before and after the correction.
 
@@ -501,12 +491,10 @@ def validate_mag(path: str | Path, mag: MagnetometerCalibration, options, *,
     field per axis and ``|B|``, a rotation record's ``|B|`` alone (its spread: the field strength
     is one in every orientation, the direction needs a reference).
     """
-    from tak_thermo_ros.formats.records import record_streams
     from tak_thermo_ros.passes.run import temperature_expected
-    path = Path(path)
-    streams = record_streams(path, topics=options.topics)
+    path, streams = record.path, record.streams
     with_reference = streams.mag_reference > 0
-    rotation = not with_reference and survey_field(path, options).turned
+    rotation = not with_reference and survey_field(record, options).turned
     corrector = MagCorrector(mag, out_of_range=out_of_range)
     holding = temperature_expected(path, streams, options, needed=mag.thermal.needs_temperature,
                                    what="the calibration's magnetometer")
@@ -529,8 +517,8 @@ def validate_mag(path: str | Path, mag: MagnetometerCalibration, options, *,
                 error, magnitude = values, np.linalg.norm(values, axis=1)
             sums.add(np.column_stack([error, magnitude]))
 
-    for record in _mag_blocks(path, options, references=with_reference):
-        add(aligner.push(record))
+    for channel in _mag_blocks(record, options, references=with_reference):
+        add(aligner.push(channel))
     add(aligner.finish())
     if not before.count:
         msg = f'{path}: no usable magnetometer samples to validate on {options.topics.mag}'

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -31,6 +31,9 @@ from tak_thermo_ros.core.records.record import AlignedSamples
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import NoiseError
 from tak_thermo_ros.passes.run import StreamOptions, sensors_of
+
+if TYPE_CHECKING:
+    from tak_thermo_ros.formats.records import Record
 
 GAP_FACTOR = 1.5
 """A step between two samples' stamps longer than this many sampling intervals is a gap."""
@@ -198,7 +201,7 @@ class NoiseRun:
         return {sensor: noise.model for sensor, noise in self.sensors.items()}
 
 
-def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration | None = None,
+def noise_bag(record: Record, options: StreamOptions, *, unit: UnitCalibration | None = None,
               source: str | None = None, gravity: float = STANDARD_GRAVITY, latitude: float | None = None,
               out_of_range: OutOfRange = OutOfRange.CLAMP, per_octave: int = PER_OCTAVE,
               settle_time_s: float = 0.0, expect_kind: Callable[[InputKind], None] | None = None) -> NoiseRun:
@@ -218,11 +221,9 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
     :param expect_kind: called with the bag's kind before the pass (raises on a mismatch).
     :raises NoiseError: a counts bag without a calibration, a run too short for five averaging times.
     """
-    from tak_thermo_ros.formats.records import record_streams
     from tak_thermo_ros.passes.run import SensorPass, open_calibration_run, run_passes, temperature_expected
     from tak_thermo_ros.core.records.blocks import BlockAligner
-    path = Path(path)
-    streams = record_streams(path, topics=options.topics)
+    path, streams = record.path, record.streams
     kind = streams.kind
     if expect_kind is not None:
         expect_kind(kind)
@@ -238,7 +239,7 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
     # correction with temperature terms needs it.
     holding = (temperature_expected(path, streams, options, needed=unit.needs_temperature, what='the calibration')
                if unit is not None else streams.kind is InputKind.COUNTS or streams.temperature > 0)
-    opened = open_calibration_run(path, options, streams, gravity=gravity, latitude=latitude, require_reference=True,
+    opened = open_calibration_run(record, options, gravity=gravity, latitude=latitude, require_reference=True,
                                   decide=False)
     if opened.survey is not None and opened.static is None:
         orientations = opened.survey.still.orientations()
@@ -255,7 +256,7 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
                                               settle_time_s=settle_time_s, temperature_expected=holding),
                          [noises[sensor]])
               for sensor in sensors]
-    lines = run_passes(path, options, opened, passes)
+    lines = run_passes(record, options, opened, passes)
     spans = [noises[sensor].temperature for sensor in sensors if noises[sensor].temperature is not None]
     temperature = (min(low for low, _ in spans), max(high for _, high in spans)) if spans else None
     why = ''
@@ -326,7 +327,7 @@ class NoiseSource:
 
 
 def noise_models(*, unit: UnitCalibration | None, options: StreamOptions, noise_file: str | Path | None = None,
-                 noise_run: str | Path | None = None, calibration_run: str | Path | None = None,
+                 noise_run: Record | None = None, calibration_run: Record | None = None,
                  use_stored: bool = True, gravity: float = STANDARD_GRAVITY,
                  latitude: float | None = None) -> NoiseSource:
     """The noise models of a unit's sensors, from the first source that is given, in this order.

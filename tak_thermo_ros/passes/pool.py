@@ -24,7 +24,7 @@ import os
 from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable, Iterator, Sequence
+from typing import TYPE_CHECKING, Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -41,6 +41,9 @@ from tak_thermo_ros.errors import FitError, TakError
 from tak_thermo_ros.passes.handheld import handheld_record, handheld_settings
 from tak_thermo_ros.passes.run import SURVEY_REPLAY_SAMPLES, StreamOptions, record_streams_listed, stripped_block
 from tak_thermo_ros.units import numbers, reader_unit
+
+if TYPE_CHECKING:
+    from tak_thermo_ros.formats.records import Record
 
 POOL_SAMPLES = 2_000_000
 """A pool keeps at most about this many rest samples, shared among its records ..."""
@@ -122,9 +125,8 @@ def same_how(path: str | os.PathLike[str], earlier: str | os.PathLike[str], cont
     return 'through a link' if os.path.realpath(path) != os.path.abspath(path) else 'the same path'
 
 
-def distinct_records(records: Sequence[Path], topics, spelled: Sequence[str] | None = None
-                     ) -> tuple[list[int], list[str], list]:
-    """The records that are not a second copy of an earlier one, by content (:func:`record_identity`).
+def distinct_records(records: Sequence[Record], spelled: Sequence[str] | None = None) -> tuple[list[int], list[str]]:
+    """The records that are not a second copy of an earlier one, by content (:attr:`Record.identity`).
 
     A record given twice (another spelling of its path, a link, a copy, a bag's ``.mcap`` beside its
     folder, one flight as ``.ulg`` and ``.bin``) is one power-up: counted once, the second named.
@@ -132,33 +134,33 @@ def distinct_records(records: Sequence[Path], topics, spelled: Sequence[str] | N
     Only records of the same message count and last log time are read for their identity (the others
     cannot be the same).
 
-    :returns: the indices of the records kept, one line per second copy, and each record's
-        :func:`~tak_thermo_ros.formats.records.record_streams` (``None``: unreadable, said when it is read).
+    :returns: the indices of the records kept, and one line per second copy (an unreadable record is said
+        when it is read).
     """
-    from tak_thermo_ros.formats.records import record_identity, record_streams
-    names = list(spelled) if spelled is not None else [str(path) for path in records]
+    names = list(spelled) if spelled is not None else [str(record) for record in records]
     counted = []
-    for path in records:
+    for record in records:
         try:
-            streams = record_streams(path, topics=topics)
+            streams = record.streams
         except TakError:  # unreadable: said when it is read
             streams = None
         counted.append(streams)
     counts = Counter((s.kind, s.main, s.end_ns) for s in counted if s is not None)
     first: dict[object, int] = {}
     kept, lines = [], []
-    for index, (path, streams) in enumerate(zip(records, counted)):
+    for index, (record, streams) in enumerate(zip(records, counted)):
         alone = streams is None or counts[streams.kind, streams.main, streams.end_ns] == 1
-        identity = None if alone else record_identity(path, topics=topics, streams=streams)
-        key = identity if identity is not None else ('path', os.path.realpath(path))
+        identity = None if alone else record.identity
+        key = identity if identity is not None else ('path', os.path.realpath(record.path))
         if key in first:
             earlier = first[key]
-            how = same_how(path, records[earlier], f'the same {identity.messages} messages' if identity else '')
+            how = same_how(record.path, records[earlier].path,
+                           f'the same {identity.messages} messages' if identity else '')
             lines.append(f'{names[index]}: the same record as {names[earlier]} ({how}): counted once')
             continue
         first[key] = index
         kept.append(index)
-    return kept, lines, counted
+    return kept, lines
 
 
 def is_pool(paths: Sequence[str | os.PathLike[str]]) -> bool:
@@ -240,32 +242,30 @@ def _shared(blocks: Iterator[DriverRecord]) -> Iterator[tuple[DriverRecord, bool
                            frame_id=block.frame_id), True
 
 
-def read_record(path: Path, options: StreamOptions, *, budget: int, turn_budget: int | None = None,
-                against: Sequence[RecordPrint] | None = None, streams=None) -> tuple[PoolEntry, HandheldRecord | None]:
+def read_record(opened: Record, options: StreamOptions, *, budget: int, turn_budget: int | None = None,
+                against: Sequence[RecordPrint] | None = None) -> tuple[PoolEntry, HandheldRecord | None]:
     """One record of a pool: its rests and turns (about ``budget`` and ``turn_budget`` samples at most), and more.
 
     :param against: the prints of the records a calibration was fitted from: the entry says whether
         this record is (part of) one of them; ``None``: for a calibration fitted from it (the entry's
         print is its whole digest either way).
-    :param streams: its :func:`~tak_thermo_ros.formats.records.record_streams`, when known.
     """
-    from tak_thermo_ros.formats.records import record_blocks, record_lines, record_source, record_streams
+    path = opened.path
     name = path.name
     try:
-        streams = streams if streams is not None else record_streams(path, topics=options.topics)
+        streams = opened.streams
     except TakError as err:
         return PoolEntry(path, name, reason=f'not read ({err})'), None
     if streams.kind is not InputKind.IMU:
         return PoolEntry(path, name, reason='the paper\'s channel codes: a pool takes a driver\'s records'), None
-    source = record_source(path, topics=options.topics)
-    lines = record_lines(path, topics=options.topics)
+    source, lines = opened.source, opened.lines
     if not streams.temperature:
         return PoolEntry(path, name, source=source, lines=lines,
                          reason=f'no temperature on {options.topics.temperature}: contributes nothing'), None
     keep = streams.main <= SURVEY_REPLAY_SAMPLES
 
     def raw_blocks() -> Iterator[DriverRecord]:
-        return record_blocks(path, topics=options.topics, kind=InputKind.IMU,  # type: ignore[return-value]
+        return opened.blocks(kind=InputKind.IMU,  # type: ignore[return-value]
                              block_samples=options.block_samples, references=False, progress=options.progress)
 
     def blocks() -> Iterator[tuple[DriverRecord, bool]]:
@@ -294,7 +294,7 @@ def read_record(path: Path, options: StreamOptions, *, budget: int, turn_budget:
         temperatures.append(block.temperature)
         if keep:
             kept.append((stripped_block(block), held))
-    surveyed = survey.finish(record_streams_listed(path, streams, options.topics))
+    surveyed = survey.finish(record_streams_listed(opened, options.topics))
     known = {'record_print': prints.finish(name), 'in_sample': prints.recognition(name) if against else None}
     if surveyed.temperature_problem is not None:  # the one rule of a record's temperatures (check_temperature_unit)
         reason = f'{options.topics.temperature}: {surveyed.temperature_problem}: contributes nothing'
@@ -304,7 +304,7 @@ def read_record(path: Path, options: StreamOptions, *, budget: int, turn_budget:
         reason = (f'no rest (never still {MIN_STILL_S:g} s or more; still {100.0 * still.still_fraction:.0f} % of '
                   f'the time): contributes nothing')
         return PoolEntry(path, name, source=source, lines=lines, reason=reason, held_gyro=held_gyro), None
-    record, _ = handheld_record(path, options, surveyed, budget=budget, turn_budget=turn_budget,
+    record, _ = handheld_record(opened, options, surveyed, budget=budget, turn_budget=turn_budget,
                                 replay=(block for block, _ in (kept if keep else blocks())))
     rate_max = 0.0
     stamps = np.concatenate(temperature_stamps)
@@ -442,26 +442,29 @@ def open_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions, *
 
     A second copy of a record is counted once (:func:`distinct_records`).
 
+    :param paths: the records' paths, or a record a command opened (read, not opened again: a pool of one).
     :param against: as :func:`read_record`'s (a calibration's ``fitted_from``; ``None``: for a fit).
     :param say: called with each line as soon as it is known: the directories' and the second copies' lines
         (:attr:`OpenedPool.lines`), each record's once it is read, a record's changed by the checks after.
     :raises PoolError: a path that is no record, no record that contributes a rest.
     """
     say = say or (lambda line: None)
-    records, lines = record_paths(paths)
-    kept, same, streams = distinct_records(records, options.topics, _spelled(paths, records))
-    records, streams, lines = [records[i] for i in kept], [streams[i] for i in kept], lines + same
+    from tak_thermo_ros.formats.records import Record, open_record
+    found, lines = record_paths(paths)
+    given = {record.path: record for record in paths if isinstance(record, Record)}  # opened by the command
+    records = [given.get(path) or open_record(path, topics=options.topics) for path in found]  # each opened once
+    kept, same = distinct_records(records, _spelled(paths, found))
+    records, lines = [records[i] for i in kept], lines + same
     for line in lines:
         say(line)
     budget, turn_budget = record_budgets(len(records), samples)
     entries: list[PoolEntry] = []
     read: list[HandheldRecord | None] = []
-    names = Counter(path.name for path in records)
-    for path, known in zip(records, streams):
-        entry, record = read_record(path, options, budget=budget, turn_budget=turn_budget, against=against,
-                                    streams=known)
-        if names[path.name] > 1:  # the same name in two directories: the path tells them apart
-            entry = replace(entry, name=str(path))
+    names = Counter(opened.path.name for opened in records)
+    for opened in records:
+        entry, record = read_record(opened, options, budget=budget, turn_budget=turn_budget, against=against)
+        if names[opened.path.name] > 1:  # the same name in two directories: the path tells them apart
+            entry = replace(entry, name=str(opened.path))
         entries.append(entry)
         read.append(record)
         for line in _record_lines(entry):

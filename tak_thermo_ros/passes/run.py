@@ -42,6 +42,7 @@ from tak_thermo_ros.errors import FitError, TakError
 
 if TYPE_CHECKING:
     from tak_thermo_ros.formats.bag import Topics
+    from tak_thermo_ros.formats.records import Record
 
 EFFECT_FIT_MAX_SAMPLES = 1_000_000
 """``fit --effects`` searches the effects' shapes on at most about this many samples."""
@@ -72,11 +73,10 @@ class StreamOptions:
 class _StaticRun:
     """A driver bag's missing references, estimated as a static run (the mean: the survey's, or a pass if used)."""
 
-    def __init__(self, path: Path, options: StreamOptions, *, recorded_reference: bool, recorded_rate: bool,
+    def __init__(self, record: Record, options: StreamOptions, *, recorded_reference: bool, recorded_rate: bool,
                  gravity: float, latitude: float | None, survey: RecordSurvey | None = None) -> None:
-        from tak_thermo_ros.formats.records import record_blocks
         topics = options.topics
-        self.path = path
+        path = self.path = record.path
         self.recorded_reference = recorded_reference
         self.recorded_rate = recorded_rate
         self.gravity = gravity
@@ -95,8 +95,8 @@ class _StaticRun:
         else:
             total = np.zeros(3)
             count = 0
-            for block in record_blocks(path, topics=topics, kind=InputKind.IMU, block_samples=options.block_samples,
-                                       references=False, progress=options.progress):
+            for block in record.blocks(kind=InputKind.IMU, block_samples=options.block_samples, references=False,
+                                       progress=options.progress):
                 finite = np.all(np.isfinite(block.accel), axis=1)  # type: ignore[union-attr]
                 total += block.accel[finite].sum(axis=0)  # type: ignore[union-attr]
                 count += int(np.count_nonzero(finite))
@@ -226,34 +226,33 @@ def temperature_expected(path: Path, streams, options: StreamOptions, *, needed:
     return needed and present
 
 
-def open_calibration_run(path: Path, options: StreamOptions, streams, *, gravity: float, latitude: float | None,
+def open_calibration_run(record: Record, options: StreamOptions, *, gravity: float, latitude: float | None,
                          require_reference: bool, decide: bool = True) -> OpenedRun:
-    """Open ``path`` for a calibration-run pass.
+    """Ready ``record`` for a calibration-run pass.
 
     Its input kind, the number of main messages, and for driver bags the static-run reference
     (the specific force and rate at each turntable position, recorded or estimated).
 
-    :param streams: the record's :class:`~tak_thermo_ros.formats.bag.BagStreams`, as the command read them.
     :param decide: refuse a surveyed record that determines no link (:func:`decided`); ``False``: the
         caller refuses what it cannot take in its own words (``noise``).
     """
-    from tak_thermo_ros.formats.records import record_streams
+    path, streams = record.path, record.streams
     if require_reference and streams.kind is InputKind.COUNTS:
-        streams = record_streams(path, topics=options.topics, require_reference=True)
-    listed = record_streams_listed(path, streams, options.topics)
+        record.require_reference()
+    listed = record_streams_listed(record, options.topics)
     static = None
     survey = None
     replay = None
     if streams.kind is InputKind.IMU:
         if not streams.reference:
             # Without references the record itself says what it is (static, hand-held): one pass first.
-            survey, replay = survey_record(path, options, streams.kind, listed,
+            survey, replay = survey_record(record, options, streams.kind, listed,
                                            keep=streams.main <= SURVEY_REPLAY_SAMPLES)
             check_temperature_unit(path, options, survey)
             if decide:
                 decided(path, survey)
         if survey is None or survey.plan is Plan.STATIC:
-            static = _StaticRun(path, options, recorded_reference=streams.reference > 0,
+            static = _StaticRun(record, options, recorded_reference=streams.reference > 0,
                                 recorded_rate=streams.rate_reference > 0, gravity=gravity, latitude=latitude,
                                 survey=survey)
     collector = None if survey is not None else SurveyCollector(streams.kind.value)
@@ -273,14 +272,14 @@ def check_temperature_unit(path: Path, options: StreamOptions, survey: RecordSur
         raise TakError(msg)
 
 
-def record_streams_listed(path: Path, streams, topics) -> tuple[tuple[str, str, int], ...]:
+def record_streams_listed(record: Record, topics) -> tuple[tuple[str, str, int], ...]:
     """``(role, topic, messages)`` of a record's streams as every command's survey lists them.
 
     A flight log lists each sensor on its own (:meth:`~tak_thermo_ros.formats.flight_log.FlightLog.stream_list`);
     a bag its topics (:func:`stream_list`).
     """
-    from tak_thermo_ros.formats.records import record_stream_list
-    listed = record_stream_list(path, topics=topics) if streams.kind is InputKind.IMU else None
+    streams = record.streams
+    listed = record.stream_list if streams.kind is InputKind.IMU else None
     return listed or stream_list(streams, topics)
 
 
@@ -299,18 +298,17 @@ SURVEY_REPLAY_SAMPLES = 2_000_000
 """A record of at most this many main messages keeps its survey's blocks (about 60 bytes a message)."""
 
 
-def survey_record(path: Path, options: StreamOptions, kind: InputKind, listed: tuple[tuple[str, str, int], ...],
+def survey_record(record: Record, options: StreamOptions, kind: InputKind, listed: tuple[tuple[str, str, int], ...],
                   *, keep: bool = False) -> tuple[RecordSurvey, tuple[DriverRecord, ...] | None]:
     """What a record holds, from one pass over its main and temperature streams; its blocks if ``keep``.
 
     The kept blocks hold what a later pass over a driver record needs (stamps, the two sensors, the
     temperature and recorded signals), not the orientation the driver passes through.
     """
-    from tak_thermo_ros.formats.records import record_blocks
     collector = SurveyCollector(kind.value)
     kept: list[DriverRecord] | None = [] if keep and kind is InputKind.IMU else None
-    for block in record_blocks(path, topics=options.topics, kind=kind, block_samples=options.block_samples,
-                               references=False, progress=options.progress):
+    for block in record.blocks(kind=kind, block_samples=options.block_samples, references=False,
+                               progress=options.progress):
         collector.add(block)
         if kept is not None:
             kept.append(stripped_block(block))
@@ -327,18 +325,17 @@ def stripped_block(block: DriverRecord) -> DriverRecord:
                    mag_stamp_ns=np.zeros(0, dtype=np.int64), mag=np.zeros((0, 3)))
 
 
-def run_passes(path: Path, options: StreamOptions, opened: OpenedRun, passes: Sequence[SensorPass], *,
+def run_passes(record: Record, options: StreamOptions, opened: OpenedRun, passes: Sequence[SensorPass], *,
                prints: PrintCollector | None = None) -> list[str]:
     """Read the bag once (or replay the survey's blocks), feeding each sensor's pass; the reference lines.
 
     :param prints: also gathers the record's print (what a calibration keeps of the record it was
         fitted from, :mod:`~tak_thermo_ros.core.records.provenance`) from every block as read.
     """
-    from tak_thermo_ros.formats.records import record_blocks
     if opened.static is not None:
         opened.static.rewind()
-    blocks = opened.replay if opened.replay is not None else record_blocks(
-        path, topics=options.topics, kind=opened.kind, block_samples=options.block_samples, progress=options.progress)
+    blocks = opened.replay if opened.replay is not None else record.blocks(
+        kind=opened.kind, block_samples=options.block_samples, progress=options.progress)
     for block in blocks:
         if opened.collector is not None:
             opened.collector.add(block)

@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 
 from tak_thermo_ros.core.records.blocks import BlockAligner
@@ -24,6 +23,9 @@ from tak_thermo_ros.passes.run import (
     sensors_of,
     temperature_expected,
 )
+
+if TYPE_CHECKING:
+    from tak_thermo_ros.formats.records import Record
 
 
 @dataclass(frozen=True)
@@ -45,7 +47,7 @@ class Validated:
     """Whether the record is (part of) one the calibration was fitted from (``None``: not, or no claim)."""
 
 
-def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions, *, gravity: float,
+def validate_bag(record: Record, unit: UnitCalibration, options: StreamOptions, *, gravity: float,
                  latitude: float | None = None, out_of_range: OutOfRange = OutOfRange.CLAMP,
                  expect_kind: Callable[[InputKind], None] | None = None) -> Validated | Any:
     """``tak_calib validate`` in one pass (after the survey for a static driver run or a hand-held record).
@@ -54,18 +56,16 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
 
     :param expect_kind: called with the bag's kind before the pass (raises on a mismatch).
     """
-    from tak_thermo_ros.formats.records import record_streams
-    path = Path(path)
-    streams = record_streams(path, topics=options.topics)
+    path, streams = record.path, record.streams
     kind = streams.kind
     if expect_kind is not None:
         expect_kind(kind)
     holding = temperature_expected(path, streams, options, needed=unit.needs_temperature, what='the calibration')
     calibration_run = kind is InputKind.IMU
-    opened = open_calibration_run(path, options, streams, gravity=gravity, latitude=latitude, require_reference=False)
+    opened = open_calibration_run(record, options, gravity=gravity, latitude=latitude, require_reference=False)
     if opened.handheld:
         from tak_thermo_ros.passes.handheld import validate_handheld_bag
-        return validate_handheld_bag(path, unit, options, opened.survey, gravity=gravity, latitude=latitude,
+        return validate_handheld_bag(record, unit, options, opened.survey, gravity=gravity, latitude=latitude,
                                      out_of_range=out_of_range, replay=opened.replay)
     # Before correction: a driver's values as recorded; codes through the file's nominal scale and offset.
     gravity_check = GravityCheck(unit.accel, gravity=gravity, out_of_range=out_of_range, raw_before=calibration_run)
@@ -93,7 +93,7 @@ def validate_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions
             gyro_pass.consumers.append(add_rate)
         passes.append(gyro_pass)
     prints = PrintCollector(sensors_of(kind), against=unit.fitted_from, own_segments=False)
-    lines = run_passes(path, options, opened, passes, prints=prints)
+    lines = run_passes(record, options, opened, passes, prints=prints)
     survey = opened.finished_survey()
     check_temperature_unit(path, options, survey)
     return Validated(input_kind=kind, gravity=gravity_check, rate=rate_check, reference_lines=tuple(lines),

@@ -10,7 +10,7 @@ once, in bounded memory (the watch keeps a window of samples and a bounded list 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -22,6 +22,9 @@ from tak_thermo_ros.core.link.watch import CalibrationWatch, WatchSettings, watc
 from tak_thermo_ros.core.records.record import DriverRecord
 from tak_thermo_ros.core.records.stamps import NANOSECONDS
 from tak_thermo_ros.passes.run import StreamOptions
+
+if TYPE_CHECKING:
+    from tak_thermo_ros.formats.records import Record
 
 
 @dataclass(frozen=True)
@@ -45,23 +48,20 @@ class Watched:
         return [f'calibration watch over {self.messages} Imu messages (the node\'s code):', *self.watch.lines()]
 
 
-def watch_bag(path: str | Path, unit: UnitCalibration, options: StreamOptions, *, settings: WatchSettings,
+def watch_bag(record: Record, unit: UnitCalibration, options: StreamOptions, *, settings: WatchSettings,
               out_of_range: OutOfRange = OutOfRange.CLAMP) -> Watched:
     """The node's watch over a driver record (the node's temperature timeout: none; stale temperatures held)."""
     from tak_thermo_ros.formats.bag import imu_messages, play_order
-    from tak_thermo_ros.formats.records import record_blocks, record_streams
     reason = watch_unavailable(unit)
     if reason:
         return Watched(None, f'off: {reason}', 0, 0)
-    path = Path(path)
-    streams = record_streams(path, topics=options.topics)
+    streams = record.streams
     if streams.kind is not InputKind.IMU:
         return Watched(None, 'off: the watch takes a driver\'s Imu', 0, 0)
     core = OnlineCompensator(unit, out_of_range=out_of_range, stale_temperature=StaleTemperature.HOLD,
                              temp_timeout_s=1e9, temp_topic=options.topics.temperature, watch=settings)
     first: int | None = None
-    for block in record_blocks(path, topics=options.topics, kind=streams.kind, references=False,
-                               progress=options.progress):
+    for block in record.blocks(kind=streams.kind, references=False, progress=options.progress):
         assert isinstance(block, DriverRecord)
         messages = imu_messages(block)
         names = sorted(block.aux)

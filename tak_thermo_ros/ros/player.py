@@ -2,8 +2,8 @@
 
 The one module besides the node's (:mod:`tak_thermo_ros.ros.node`, :mod:`tak_thermo_ros.ros.main`)
 that imports rclpy (the node never imports this one, so its import path stays free of the bag
-reader). The bag is read block by block through :mod:`tak_thermo_ros.formats.records`, as every
-command reads it, and each block's
+reader). The bag is read block by block through its :class:`~tak_thermo_ros.formats.records.Record`,
+as every command reads it, and each block's
 messages are published in stamp order, a temperature before the Imu of the same stamp, paced
 by the node's answers: before a temperature every message sent so far has been answered (so
 the node corrects each message with the temperature in force when it was recorded), and at
@@ -25,8 +25,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 import rclpy
@@ -42,6 +41,9 @@ from tak_thermo_ros.core.link.model import InputKind
 from tak_thermo_ros.core.records.stamps import NANOSECONDS
 from tak_thermo_ros.errors import TakError
 from tak_thermo_ros.formats.bag import ImuRows, imu_messages, play_order
+
+if TYPE_CHECKING:
+    from tak_thermo_ros.formats.records import Record
 
 AHEAD = 50
 """At most this many messages sent and not yet answered."""
@@ -149,7 +151,7 @@ class _Player:
         rclpy.try_shutdown(context=self.context)
 
 
-def play(path: str | Path, options, *, wait_s: float = 30.0, answer_s: float = 5.0) -> Played:
+def play(record: Record, options, *, wait_s: float = 30.0, answer_s: float = 5.0) -> Played:
     """Publish a bag's input streams into a running compensator and take its answers back.
 
     :param options: the commands' stream options (the topics; the bag's input kind follows from them).
@@ -157,9 +159,7 @@ def play(path: str | Path, options, *, wait_s: float = 30.0, answer_s: float = 5
     :param answer_s: how long to wait for the node to answer a message before counting it unanswered.
     :raises TakError: no node matched within ``wait_s``.
     """
-    from tak_thermo_ros.formats.records import record_blocks, record_streams
-    path = Path(path)
-    streams = record_streams(path, topics=options.topics)
+    streams = record.streams
     kind = streams.kind
     with_mag = kind is InputKind.IMU and streams.mag > 0
     player = _Player(kind, options.topics, mag=with_mag)
@@ -172,8 +172,7 @@ def play(path: str | Path, options, *, wait_s: float = 30.0, answer_s: float = 5
                    f'is it running, with the same ROS_DOMAIN_ID, for this kind of bag?')
             raise TakError(msg)
         aux: set[str] = set()
-        for block in record_blocks(path, topics=options.topics, kind=kind, references=False,
-                                   progress=options.progress):
+        for block in record.blocks(kind=kind, references=False, progress=options.progress):
             aux.update(block.aux)
             _play_block(player, block, kind, sent, answer_s)
         answered = (lambda: len(played.stamp_ns) >= sent['input'] - played.unanswered

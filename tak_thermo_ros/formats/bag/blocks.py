@@ -90,17 +90,18 @@ def _cannot_read(path: Path, err: Exception) -> BagError:
 
 
 def bag_streams(path: str | os.PathLike[str], *, topics: Topics = Topics(),
-                require_reference: bool = False) -> BagStreams:
+                require_reference: bool = False, kind: InputKind | None = None) -> BagStreams:
     """The kind and message counts of a bag, its topics' types checked, without reading messages.
 
     A driver bag's temperature is optional (a driver that publishes none): its count is then 0,
     and each pass decides whether it needs one.
 
+    :param kind: its :func:`bag_input_kind`, when known.
     :raises BagError: missing bag or topic, wrong type, an empty main, counts temperature-code or
         (when required) reference topic.
     """
     path = Path(path)
-    kind = bag_input_kind(path, topics=topics)
+    kind = kind if kind is not None else bag_input_kind(path, topics=topics)
     try:
         with Reader(path) as reader:
             counts = {}
@@ -139,7 +140,8 @@ def _aux_topics(reader: Reader, path: Path, exclude: tuple[str, ...]) -> dict[st
 
 def iter_blocks(path: str | os.PathLike[str], *, topics: Topics = Topics(), kind: InputKind,
                 block_samples: int = STREAM_BLOCK_SAMPLES, references: bool = True,
-                progress: bool = True, decoder: str = 'block') -> Iterator[ChannelRecord | DriverRecord]:
+                progress: bool = True, decoder: str = 'block',
+                streams: BagStreams | None = None) -> Iterator[ChannelRecord | DriverRecord]:
     """The bag's messages in log order, one block per ``block_samples`` main-stream messages.
 
     Each block holds its main-stream messages and the temperature, reference and auxiliary
@@ -153,6 +155,7 @@ def iter_blocks(path: str | os.PathLike[str], *, topics: Topics = Topics(), kind
     :param decoder: one of :data:`DECODERS`: ``block`` (:func:`tak_thermo_ros.formats.cdr.decoder.decode_messages`)
         or ``rosbags`` (``decode_*``, one ``deserialize_cdr`` per message, the reference); both
         give the same blocks.
+    :param streams: its :func:`bag_streams`, when known (a :class:`~tak_thermo_ros.formats.records.Record`'s).
     :raises BagError: as the whole-bag readers (missing topic, wrong type, changing frame_id,
         truncated or unreadable file).
     """
@@ -160,7 +163,7 @@ def iter_blocks(path: str | os.PathLike[str], *, topics: Topics = Topics(), kind
         msg = f'decoder must be one of {DECODERS}, got {decoder!r}'
         raise ValueError(msg)
     path = Path(path)
-    streams = bag_streams(path, topics=topics)
+    streams = streams if streams is not None else bag_streams(path, topics=topics)
     roles = [(role, topic, msgtype) for role, topic, msgtype in _stream_topics(kind, topics)
              if references or role in ('main', 'temperature', 'mag')]
     temperature_topic = topics.temp_code if kind is InputKind.COUNTS else topics.temperature
