@@ -12,14 +12,8 @@ REASON = 'Over 600 lines because'
 # issue 41: split on other branches
 BEING_SPLIT = [
     'core/fit/handheld.py',
-    'core/link/online.py',
-    'core/link/watch.py',
-    'formats/bag.py',
     'formats/calibration_file.py',
-    'formats/cdr.py',
-    'formats/csv_log.py',
     'passes/pool.py',
-    'ros/node.py',
 ]
 
 
