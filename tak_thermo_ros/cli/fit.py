@@ -65,24 +65,33 @@ def add_parser(commands) -> argparse.ArgumentParser:
                                                                 '(compensated with the fitted calibration)')
     noise_group.add_argument('--noise-from-residual', action='store_true',
                              help='the noise model of this run\'s residual after the fit (one more pass over the bag)')
+    parser.add_argument('--prior', metavar='PRIOR.yaml',
+                        help='a fleet\'s prior (tak_calib fit-fleet --everyday writes it): the records, however few, '
+                             'combined with what units of their kind say (docs/fleet.md); the records are a pool')
     options.add_static_options(parser)
     options.add_topic_options(parser)
     parser.set_defaults(handler=run)
     return parser
 
 
+def fit_settings(args: argparse.Namespace):
+    """``fit``'s :class:`~tak_thermo_ros.passes.run.FitSettings` from its options (fit-fleet's too)."""
+    from tak_thermo_ros.passes.run import FitSettings
+    effects = {'accel': common.effect_list(args.effects), 'gyro': common.effect_list(args.gyro_effects)}
+    return FitSettings(effects=effects, bias_order=args.bias_order, scale_order=args.scale_order,
+                       temp_code_ref=args.temp_code_ref, settle_time_s=args.settle_time,
+                       gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
+                       max_effect_samples=args.effect_samples)
+
+
 def run(args: argparse.Namespace) -> int:
     """Fit the correction link to a calibration bag (counts, or a driver's Imu: both sensors), block by block."""
     from tak_thermo_ros.passes.fit import fit_imu
-    from tak_thermo_ros.passes.run import FitSettings
     from tak_thermo_ros.passes.magnetometer import has_mag
-    effects = {'accel': common.effect_list(args.effects), 'gyro': common.effect_list(args.gyro_effects)}
-    settings = FitSettings(effects=effects, bias_order=args.bias_order, scale_order=args.scale_order,
-                           temp_code_ref=args.temp_code_ref, settle_time_s=args.settle_time,
-                           gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
-                           max_effect_samples=args.effect_samples)
+    settings = fit_settings(args)
+    effects = settings.effects
     from tak_thermo_ros.passes.pool import is_pool
-    if is_pool(args.bag):
+    if is_pool(args.bag) or args.prior:
         return _fit_pool(args, settings)
     args.bag = args.bag[0]
     from tak_thermo_ros.formats.records import record_lines
@@ -339,6 +348,20 @@ def _print_handheld_terms(sensor: str, calibration, result) -> None:
             common.print_effects(replace(calibration, effects=(effect,)), result, unit)
 
 
+def _prior(args: argparse.Namespace):
+    """``--prior``'s fleet prior (``None`` without); orders given beside it must be its own."""
+    if not args.prior:
+        return None
+    from tak_thermo_ros.formats.prior_file import load_prior
+    prior = load_prior(args.prior)
+    for option, given, own in (('--bias-order', args.bias_order, prior.bias_order),
+                               ('--scale-order', args.scale_order, prior.scale_order)):
+        if given != own and given != {'--bias-order': 3, '--scale-order': 2}[option]:
+            msg = f'{option} {given}: not with --prior, whose curves are of order {own} (its fleet\'s)'
+            raise TakError(msg)
+    return prior
+
+
 def _fit_pool(args: argparse.Namespace, settings) -> int:
     """``fit`` of a pool of one unit's everyday records (:mod:`tak_thermo_ros.passes.pool`): a line per record first."""
     from tak_thermo_ros.core.fit.pool import order_line
@@ -348,7 +371,8 @@ def _fit_pool(args: argparse.Namespace, settings) -> int:
         if given:
             msg = f'{option}: not with a pool of records (fit the pool, then its magnetometer or noise apart)'
             raise TakError(msg)
-    fitted = fit_records(args.bag, settings, common.stream_options(args))
+    prior = _prior(args)
+    fitted = fit_records(args.bag, settings, common.stream_options(args), prior=prior)
     opened, pool = fitted.opened, fitted.fit
     handheld = pool.fit
     results = handheld.results
@@ -366,13 +390,16 @@ def _fit_pool(args: argparse.Namespace, settings) -> int:
     unit = replace(unit, accel=accel, gyro=gyro)
     header = (f'tak_thermo_ros calibration fitted from a pool of {pool.record.records} records (everyday records of '
               f'one unit)\n{len(handheld.results["accel"].calibration.axes)} axes per sensor, a turn-on offset per '
-              f'record\nload with: ros2 run tak_thermo_ros compensator --ros-args --params-file '
-              f'{Path(args.output).name}')
+              f'record' + (f'\nwith the prior {prior.label}' if prior is not None else '')
+              + f'\nload with: ros2 run tak_thermo_ros compensator --ros-args --params-file {Path(args.output).name}')
     save_unit(args.output, unit, header=header)
     for line in opened_lines(opened):
         print(line)
     for line in coverage_lines(opened):
         print(line)
+    if prior is not None:
+        for line in (*prior.lines(), *fitted.lines):
+            print(line)
     for left in pool.left_out:
         print(left_out_line(left))
     for sensor, choice in pool.orders.items():

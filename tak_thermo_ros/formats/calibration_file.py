@@ -90,6 +90,7 @@ from tak_thermo_ros.core.link.model import (
     UNIT_CALIBRATION_VERSION,
     AxisModel,
     Calibration,
+    CurveUncertainty,
     MAG_SENSOR,
     SOURCE_KEYS,
     THERMAL_FITTED,
@@ -356,7 +357,7 @@ def _link_from_mapping(raw: Any, key: str, input_kind: InputKind, *, extra_keys:
         raise CalibrationError(msg)
     # A link without any temperature (thermal: none) has no temperatures to state.
     needed = AXES if thermal == THERMAL_NONE else (*range_keys, *AXES)
-    _check_keys(raw, key, needed, ('thermal', 'notes', 'effects', 'noise', 'turn_on', *extra_keys),
+    _check_keys(raw, key, needed, ('thermal', 'notes', 'effects', 'noise', 'turn_on', 'uncertainty', *extra_keys),
                 unknown_why=dict.fromkeys(range_keys, ' (thermal: none holds no temperatures)'))
     ref, low, high = ((finite_number(raw[name], f'{key}.{name}') for name in range_keys)
                       if thermal != THERMAL_NONE else (0.0, 0.0, 0.0))
@@ -372,11 +373,12 @@ def _link_from_mapping(raw: Any, key: str, input_kind: InputKind, *, extra_keys:
     effects = effects_from_mapping(raw['effects'], key=f'{key}.effects') if 'effects' in raw else ()
     noise = _noise_from_mapping(raw['noise'], f'{key}.noise') if 'noise' in raw else None
     turn_on = _turn_on_from_mapping(raw['turn_on'], f'{key}.turn_on') if 'turn_on' in raw else None
+    uncertainty = _uncertainty_from_mapping(raw['uncertainty'], f'{key}.uncertainty') if 'uncertainty' in raw else None
     try:
         calibration = Calibration(temp_code_ref=ref, temp_code_min=low, temp_code_max=high,
                                   axes=axes, version=CALIBRATION_VERSION,  # type: ignore[arg-type]
                                   notes=tuple(notes), effects=effects, noise=noise, thermal=thermal,
-                                  turn_on=turn_on)
+                                  turn_on=turn_on, uncertainty=uncertainty)
     except CalibrationError as err:
         raise CalibrationError(f'{key}.{str(err).removeprefix("calibration.")}') from None
     _check_limits(calibration, limits, key)
@@ -417,7 +419,58 @@ def _link_to_mapping(calibration: Calibration, input_kind: InputKind) -> dict[st
         mapping['turn_on'] = {'repeatability': [float(v) for v in calibration.turn_on.repeatability],
                               'repeatability_error': [float(v) for v in calibration.turn_on.repeatability_error],
                               'records': int(calibration.turn_on.records)}
+    if calibration.uncertainty is not None:
+        mapping['uncertainty'] = uncertainty_to_mapping(calibration.uncertainty)
     return mapping
+
+
+UNCERTAINTY_KEYS = ('source', 'prior', 'records_min', 'records_max',
+                    *(f'offset_covariance_{name}' for name in AXES), *(f'records_share_{name}' for name in AXES))
+
+
+def uncertainty_to_mapping(uncertainty: CurveUncertainty) -> dict[str, Any]:
+    """A sensor's ``uncertainty`` section (an axis without a covariance or a share has no key)."""
+    mapping: dict[str, Any] = {'source': uncertainty.source, 'prior': uncertainty.prior,
+                               'records_min': float(uncertainty.records_min),
+                               'records_max': float(uncertainty.records_max)}
+    for name, values in zip(AXES, uncertainty.offset_covariance):
+        if values:
+            mapping[f'offset_covariance_{name}'] = [float(v) for v in values]
+    for name, values in zip(AXES, uncertainty.records_share):
+        if values:
+            mapping[f'records_share_{name}'] = [float(v) for v in values]
+    return mapping
+
+
+def _uncertainty_from_mapping(raw: Any, key: str) -> CurveUncertainty:
+    """A sensor's ``uncertainty`` section (:class:`~tak_thermo_ros.core.link.model.CurveUncertainty`)."""
+    if not isinstance(raw, Mapping):
+        msg = f'{key}: expected a mapping'
+        raise CalibrationError(msg)
+    _check_keys(raw, key, ('source', 'records_min', 'records_max'), UNCERTAINTY_KEYS)
+    texts = {}
+    for name in ('source', 'prior'):
+        texts[name] = raw.get(name, '')
+        if not isinstance(texts[name], str):
+            msg = f'{key}.{name}: expected a string'
+            raise CalibrationError(msg)
+
+    def numbers(name: str) -> tuple[float, ...]:
+        values = raw.get(name, ())
+        if isinstance(values, (str, bytes)) or not isinstance(values, (list, tuple)):
+            msg = f'{key}.{name}: expected a list of numbers'
+            raise CalibrationError(msg)
+        return tuple(finite_number(v, f'{key}.{name}') for v in values)
+
+    try:
+        return CurveUncertainty(
+            offset_covariance=tuple(numbers(f'offset_covariance_{name}') for name in AXES),  # type: ignore[arg-type]
+            records_min=finite_number(raw['records_min'], f'{key}.records_min'),
+            records_max=finite_number(raw['records_max'], f'{key}.records_max'),
+            source=texts['source'], prior=texts['prior'],
+            records_share=tuple(numbers(f'records_share_{name}') for name in AXES))  # type: ignore[arg-type]
+    except CalibrationError as err:
+        raise CalibrationError(f'{key}.{str(err).removeprefix("uncertainty.")}') from None
 
 
 def _turn_on_from_mapping(raw: Any, key: str) -> TurnOn:

@@ -430,19 +430,29 @@ class FittedPool:
     opened: OpenedPool
     fit: object
     source: dict[str, str | int | float]
+    lines: tuple[str, ...] = ()
+    """With a prior: the unit's group, the turn-on repeatability taken, what came from the records and the prior."""
 
 
-def fit_records(paths: Sequence[str | os.PathLike[str]], settings, options: StreamOptions) -> FittedPool:
+def fit_records(paths: Sequence[str | os.PathLike[str]], settings, options: StreamOptions,
+                prior=None) -> FittedPool:
     """Read a pool once and fit it (:func:`~tak_thermo_ros.core.fit.pool.fit_pool`).
 
     :param settings: ``tak_calib fit``'s :class:`~tak_thermo_ros.passes.run.FitSettings`.
+    :param prior: a fleet's prior (:func:`~tak_thermo_ros.core.fit.prior_fit.fit_with_prior`), or ``None``.
     :raises PoolError: as :func:`open_pool`; ``FitError`` as the fit.
     """
     from tak_thermo_ros.core.fit.pool import TwoUnits, fit_pool
     opened = open_pool(paths, options)
     assert opened.record is not None
+    lines: tuple[str, ...] = ()
     try:
-        fitted = fit_pool(opened.record, handheld_settings(settings))
+        if prior is None:
+            fitted = fit_pool(opened.record, handheld_settings(settings))
+        else:
+            from tak_thermo_ros.core.fit.prior_fit import fit_with_prior
+            from tak_thermo_ros.passes.fleet_prior import with_source_notes
+            fitted, lines = with_source_notes(fit_with_prior(opened.record, handheld_settings(settings), prior))
     except TwoUnits as err:
         small, factor = _reader(err.sensor)
         sides = [f'{numbers(centre * factor, 3)} {small} ({", ".join(group)})'
@@ -458,7 +468,7 @@ def fit_records(paths: Sequence[str | os.PathLike[str]], settings, options: Stre
     if len(devices) == 1 and all(e.source is not None for e in used):
         for key in ('accel_device_id', 'gyro_device_id'):
             source[key] = int(used[0].source.get(key, 0))  # type: ignore[union-attr]
-    return FittedPool(opened, fitted, source)
+    return FittedPool(opened, fitted, source, lines)
 
 
 def _reader(sensor: str) -> tuple[str, float]:
@@ -470,7 +480,8 @@ def turn_on_line(sensor: str, fitted) -> str:
     """One statement: a sensor's turn-on repeatability per axis with its error (or which axes the records miss)."""
     small, factor = _reader(sensor)
     variances = fitted.variances
-    values = ' '.join('-' if not ok else f'{numbers(v * factor, 3)}+-{numbers(e * factor, 2)}'
+    values = ' '.join('-' if not ok else numbers(v * factor, 3) + (f'+-{numbers(e * factor, 2)}' if np.isfinite(e)
+                                                                   else '')
                       for v, e, ok in zip(variances.turn_on, variances.turn_on_error, variances.determined))
     held = [name for name, ok in zip('xyz', variances.determined) if not ok]
     tail = f' ({" ".join(held)}: not determined, its offset held)' if held else ''

@@ -60,6 +60,7 @@ from tak_thermo_ros.core.fit.design import (
     subset,
 )
 from tak_thermo_ros.core.fit.model import FitResult, calibration_from, finish_fit, fitted_effects, residual_counts
+from tak_thermo_ros.core.fit.prior import Basis, CurvePrior, Information
 from tak_thermo_ros.core.fit.random_effects import (
     TURN_ON,
     Variances,
@@ -117,6 +118,8 @@ class HandheldSettings:
     :param variances: a pool's variances per sensor, ``(turn-on spread (3,), rests' extra (3,))``, taken as
         given instead of their REML (the folds of the order's choice).
     :param turns: use the turns (``False``: the rests alone).
+    :param prior: what units of its kind say about the curve (:mod:`~tak_thermo_ros.core.fit.prior`): its rows
+        join the solve, and the fit stands in its basis, at its orders, over its temperatures too.
     """
 
     bias_order: int = 3
@@ -128,6 +131,7 @@ class HandheldSettings:
     axis_orders: dict[str, tuple[int, int, int]] | None = None
     variances: dict[str, tuple[np.ndarray, np.ndarray]] | None = None
     turns: bool = True
+    prior: CurvePrior | None = None
 
 
 @dataclass(frozen=True)
@@ -174,6 +178,9 @@ class HandheldFit:
     orders: tuple[int, int]
     turn_on: dict[str, TurnOnFit] = field(default_factory=dict)
     """A pool's records (several power-ups): per sensor the turn-on offsets and their spread."""
+    information: dict[str, Information] = field(default_factory=dict)
+    """Per sensor what the records say about every term the fit did not hold by construction (a prior's
+    rows left out): :class:`~tak_thermo_ros.core.fit.prior.Information`."""
 
 
 @dataclass(frozen=True)
@@ -478,6 +485,8 @@ class _Rests:
         self.turn_on_sigma = np.full(3, np.inf)
         self.rest_variance = np.zeros(3)
         self.layout = terms.layout()
+        self.curve_rows = np.zeros((0, self.layout.width + 1))
+        """A prior's rows on the curve terms (:meth:`~tak_thermo_ros.core.fit.prior.CurvePrior.rows`)."""
         self.count = int(interval.max()) + 1 if len(interval) else 0
         self.orders = max(terms.bias_order, terms.scale_order) + 1
         self.widths = [basis.shape[1] for basis in bases]
@@ -514,7 +523,7 @@ class _Rests:
         return 1.0 / np.sqrt(self.sigma[None, :] ** 2 + extra)
 
     def prior_rows(self) -> np.ndarray:
-        """``(k, W + 1)`` one row ``u_r / s_u = 0`` per turn-on column (none for one record, or held)."""
+        """``(k, W + 1)`` a row ``u_r / s_u = 0`` per turn-on column (none for one record, or held), a prior's rows."""
         rows = []
         for axis in range(3):
             for column in self.layout.turn_on(axis):
@@ -523,7 +532,7 @@ class _Rests:
                 row = np.zeros(self.layout.width + 1)
                 row[column] = 1.0 / self.turn_on_sigma[axis]
                 rows.append(row)
-        return np.array(rows).reshape(-1, self.layout.width + 1)
+        return np.vstack([np.array(rows).reshape(-1, self.layout.width + 1), self.curve_rows])
 
     @property
     def powers(self) -> list[np.ndarray]:
@@ -1090,10 +1099,13 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
         raise FitError(msg)
     temperature = record.still.temp_code
     low, high = float(temperature.min()), float(temperature.max())
+    prior = settings.prior
     bias_order, scale_order = orders_for_span(high - low, settings.bias_order, settings.scale_order)
+    if prior is not None:  # the prior tells what the span cannot: its orders
+        bias_order, scale_order = prior.bias_order, prior.scale_order
     lines: list[str] = []
     notes: list[str] = []
-    if (bias_order, scale_order) != (settings.bias_order, settings.scale_order):
+    if (bias_order, scale_order) != (settings.bias_order, settings.scale_order) and prior is None:
         if bias_order == 0 and scale_order == 0:
             said = (f'temperature span {high - low:.2g} C ({low:.1f}..{high:.1f} C): offsets, scales and '
                     f'misalignment at {0.5 * (low + high):.1f} C, their temperature terms held at 0 (a fit against '
@@ -1107,7 +1119,8 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
     if high - low < 2.0 * ONE_TEMPERATURE_HALF_RANGE_C:
         middle = 0.5 * (low + high)
         low, high = middle - ONE_TEMPERATURE_HALF_RANGE_C, middle + ONE_TEMPERATURE_HALF_RANGE_C
-    frame = Frame.of_range(low, high, settings.temp_code_ref)
+    frame = Frame.of_range(low, high, settings.temp_code_ref) if prior is None else prior.frame(
+        low, high, settings.temp_code_ref)
     effects = {sensor: _offset_effects(settings.effects.get(sensor, ()), sensor) for sensor in ('accel', 'gyro')}
     if any(effects.values()) and bias_order == 0:
         msg = 'effects need a temperature span: this record was taken at one temperature'
@@ -1154,6 +1167,7 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
     problem = _AccelProblem(accel_counts, temperature, interval, accel_terms, [], settings.gravity, noise[:3],
                             still_record)
     problem.turn_on_sigma = np.full(3, BOUNDS['offset', 'accel'])  # weak, until the pool's own spread is known
+    _set_prior(problem, prior, 'accel')
     given = settings.variances or {}
     if 'accel' in given:
         problem.turn_on_sigma, problem.rest_variance = given['accel'][0], np.asarray(given['accel'][1]) ** 2
@@ -1177,6 +1191,7 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
         problem = _AccelProblem(accel_counts, temperature, interval, accel_terms, still_bases, settings.gravity,
                                 problem.sigma, still_record)
         problem.turn_on_sigma, problem.rest_variance = variances
+        _set_prior(problem, prior, 'accel')
         accel, up = _fit_accel(problem, up, gauge)
         if pool > 1 and 'accel' not in given:
             accel, up, turn_on['accel'] = _pooled_accel(problem, up, gauge, accel)
@@ -1194,6 +1209,7 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
     gyro_problem = _GyroProblem(turns_record, interval, gyro_terms, [], [], up, noise[3:6], up_noise, settings.latitude,
                                 records=(still_record, turn_record))
     gyro_problem.rests.turn_on_sigma = np.full(3, BOUNDS['offset', 'gyro'])
+    _set_prior(gyro_problem.rests, prior, 'gyro')
     if 'gyro' in given:
         gyro_problem.rests.turn_on_sigma = given['gyro'][0]
         gyro_problem.rests.rest_variance = np.asarray(given['gyro'][1]) ** 2
@@ -1215,6 +1231,7 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
         gyro_problem = _GyroProblem(turns_record, interval, gyro_terms, still_bases, turn_bases, up, noise[3:6],
                                     up_noise, settings.latitude, records=(still_record, turn_record))
         gyro_problem.rests.turn_on_sigma, gyro_problem.rests.rest_variance = variances
+        _set_prior(gyro_problem.rests, prior, 'gyro')
         gyro_orders = gyro_holds(gyro_problem.layout)
         gyro, turns, turn_scale = _fit_gyro(gyro_problem, gyro_orders)
         if pool > 1 and 'gyro' not in given:
@@ -1263,8 +1280,37 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
         lines.append(f'gyroscope: the turns close {math.sqrt(turn_scale):.2f}x worse than the noise predicts; '
                      f'their weight is lowered by that much')
     table = plateau_table(record.still, interval, up, accel_cal, settings.gravity)
+    span = (float(temperature.min()), float(temperature.max()))
+    information = {'accel': _information(problem.system(accel.theta, up), problem, gauge, accel, frame, span),
+                   'gyro': _information(gyro_problem.still_system().plus(turns.rows), gyro_problem.rests, gyro_orders,
+                                        gyro, frame, span)}
     return HandheldFit(results=results, lines=tuple(lines), up=up, closure=closure, closure_before=before,
-                       plus_minus=table, orders=(bias_order, scale_order), turn_on=turn_on)
+                       plus_minus=table, orders=(bias_order, scale_order), turn_on=turn_on, information=information)
+
+
+def _set_prior(rests: _Rests, prior: CurvePrior | None, sensor: str) -> None:
+    """A sensor's rests take a prior's rows on their curve terms (none without a prior)."""
+    if prior is not None:
+        rests.curve_rows = prior.rows(sensor, rests.layout.names)
+
+
+def _information(system: _System, rests: _Rests, structural: dict[int, float], solved: _Solved, frame: Frame,
+                 span: tuple[float, float]) -> Information:
+    """What the records say about every term not held by construction: the system's normal matrix, its prior rows out.
+
+    ``structural``: the terms held by construction (the gauge, one orientation, the orders) go in at their values.
+    """
+    layout = rests.layout
+    normal = system.factor.T @ system.factor - rests.curve_rows.T @ rests.curve_rows
+    free = [j for j in range(layout.width) if j not in structural]
+    carry = np.zeros((layout.width + 1, len(free) + 1))  # [theta; -1] = carry [theta_free; -1]
+    carry[free, np.arange(len(free))] = 1.0
+    for j, value in structural.items():
+        carry[j, -1] = -value
+    carry[-1, -1] = 1.0
+    held = tuple(layout.names[j] for j in solved.held if j not in structural)
+    return Information(tuple(layout.names[j] for j in free), carry.T @ normal @ carry, Basis.of_frame(frame),
+                       span[0], span[1], rows=system.count, held=held)
 
 
 # ----- a pool of records: the turn-on offsets as random effects ---------------------------------------
@@ -1313,6 +1359,7 @@ def _rests_reml(rests: _Rests, design: np.ndarray, target: np.ndarray, held: dic
     fixed = _normal(within.reshape(-1, width + 1))
     if extra is not None and len(extra):
         fixed = fixed + _normal(extra)
+    fixed = fixed + _normal(rests.curve_rows)
     mean = rows[rests.mean_row]
     return _Reml(rests, fixed, mean, rests.row_samples[rests.mean_row], held,
                  None if directions is None else directions[rests.mean_row])

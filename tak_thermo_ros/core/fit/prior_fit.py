@@ -1,0 +1,250 @@
+"""A fleet's prior over both sensors, made from its units' pools, and a unit's pool fitted with it.
+
+The fleet (:func:`fleet_from_units`): each unit's pool fitted at the fleet's orders
+(:func:`unit_statistics`: the pool fit with a prior that fixes only the orders, no order choice),
+reduced to its information on its curve terms; per sensor the prior of
+:func:`~tak_thermo_ros.core.fit.fleet_prior.fleet_prior` in one basis (the middle of every unit's
+temperatures, their half-span); the units' turn-on repeatability (its median per axis) beside.
+
+A unit (:func:`fit_with_prior`): its pool through the same fit with the prior's rows
+(:class:`~tak_thermo_ros.core.fit.prior.CurvePrior`), in the prior's basis and orders, over the
+prior's temperatures and its own; where the fleet falls in groups, the group its records put it in
+(a first fit without the prior's rows tells). A pool of fewer than :data:`OWN_TURN_ON_RECORDS` records
+takes the fleet's turn-on repeatability. Each sensor's calibration carries its uncertainty
+(:class:`~tak_thermo_ros.core.link.model.CurveUncertainty`): the posterior's covariance of each axis's
+offset curve (records and prior), and the share of each coefficient's precision the records gave.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field, replace
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from tak_thermo_ros.core.fit.design import Frame
+from tak_thermo_ros.core.fit.fleet_prior import FEW_UNITS, MAX_GROUPS, SensorFleet, fleet_prior
+from tak_thermo_ros.core.fit.handheld import HandheldSettings
+from tak_thermo_ros.core.fit.pool import PoolFit, fit_pool
+from tak_thermo_ros.core.fit.prior import Basis, CurvePrior, Information, SensorPrior, offset_covariance
+from tak_thermo_ros.core.link.model import AXES, CurveUncertainty, TurnOn
+from tak_thermo_ros.core.records.handheld import HandheldRecord
+from tak_thermo_ros.core.values import SENSOR_NAMES
+from tak_thermo_ros.errors import FitError
+
+OWN_TURN_ON_RECORDS = 6
+"""A pool of fewer records takes the fleet's turn-on repeatability (its own REML of a few records is wide)."""
+SENSORS = ('accel', 'gyro')
+
+
+@dataclass(frozen=True)
+class UnitStatistics:
+    """What a unit's pool tells a fleet: per sensor its information on its curve terms, its turn-on spread.
+
+    :param records: the records pooled (after those left out as another unit's).
+    :param turn_on: per sensor ``(repeatability (3,), rests' extra (3,))`` (``nan``: not determined).
+    """
+
+    name: str
+    records: int
+    information: Mapping[str, Information]
+    turn_on: Mapping[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+
+    @property
+    def low(self) -> float:
+        """The lowest temperature of the unit's rests, C."""
+        return min(info.low for info in self.information.values())
+
+    @property
+    def high(self) -> float:
+        """The highest, C."""
+        return max(info.high for info in self.information.values())
+
+
+def unit_statistics(name: str, record: HandheldRecord, settings: HandheldSettings) -> UnitStatistics:
+    """A unit's pool fitted at ``settings``' orders (no order choice), reduced to what a fleet needs."""
+    vague = CurvePrior(None, settings.bias_order, settings.scale_order)
+    fitted = fit_pool(record, replace(settings, prior=vague))
+    turn_on = {sensor: (np.asarray(fit.variances.turn_on, dtype=float), np.asarray(fit.variances.rest, dtype=float))
+               for sensor, fit in fitted.fit.turn_on.items()}
+    return UnitStatistics(name, fitted.record.records,
+                          {sensor: info.curve() for sensor, info in fitted.fit.information.items()}, turn_on)
+
+
+@dataclass(frozen=True)
+class FleetPrior:
+    """A fleet's prior over both sensors.
+
+    :param sensors: per sensor its :class:`~tak_thermo_ros.core.fit.fleet_prior.SensorFleet`.
+    :param turn_on: per sensor the units' median turn-on repeatability and rests' extra variance per axis
+        (``nan``: no unit determined it).
+    :param units: every unit the prior was made from (before any was left out); ``records`` theirs.
+    :param label: what the prior is, for the files and lines (the prior file's name, its units).
+    """
+
+    basis: Basis
+    bias_order: int
+    scale_order: int
+    sensors: Mapping[str, SensorFleet]
+    turn_on: Mapping[str, tuple[np.ndarray, np.ndarray]]
+    units: tuple[str, ...]
+    records: int
+    label: str = ''
+
+    @property
+    def low(self) -> float:
+        """The lowest temperature any unit's records saw, C."""
+        return min(fleet.low for fleet in self.sensors.values())
+
+    @property
+    def high(self) -> float:
+        """The highest, C."""
+        return max(fleet.high for fleet in self.sensors.values())
+
+    @property
+    def grouped(self) -> bool:
+        """Whether a sensor's units fall in groups (a unit's group is chosen from its records)."""
+        return any(len(fleet.groups) > 1 for fleet in self.sensors.values())
+
+    def vague(self) -> CurvePrior:
+        """The prior's basis, orders and temperatures without its rows (a unit's first fit, its group chosen)."""
+        return CurvePrior(self.basis, self.bias_order, self.scale_order, self.low, self.high)
+
+    def curve_prior(self, information: Mapping[str, Information] | None = None) -> tuple[CurvePrior, list[str]]:
+        """What a unit's fit takes (its group from its ``information``, where the fleet falls in groups).
+
+        :returns: the prior and one statement per sensor whose group was chosen.
+        """
+        sensors, lines = {}, []
+        for sensor, fleet in self.sensors.items():
+            info = (information or {}).get(sensor)
+            prior, said = fleet.prior_for(info, label=self.label)
+            sensors[sensor] = prior
+            if said:
+                lines.append(f'{SENSOR_NAMES[sensor]}: the prior\'s {said}')
+        return replace(self.vague(), sensors=sensors), lines
+
+    def lines(self) -> list[str]:
+        """What the prior is made of: units, records, temperatures; a small fleet, the units left out."""
+        kept = {sensor: len(fleet.units) for sensor, fleet in self.sensors.items()}
+        out = [f'prior: {len(self.units)} units, {self.records} records, {self.low:.1f}..{self.high:.1f} C, '
+               f'offset order {self.bias_order}, basis T = {self.basis.ref:g} + {self.basis.n_scale:g} u']
+        for sensor, fleet in self.sensors.items():
+            groups = 'one group' if len(fleet.groups) == 1 else f'{len(fleet.groups)} groups'
+            out.append(f'{SENSOR_NAMES[sensor]}: the prior of {kept[sensor]} units, {groups}, '
+                       f'{len(fleet.names)} curve terms' + (f' (not told by any unit: {" ".join(fleet.untold)})'
+                                                            if fleet.untold else ''))
+            if kept[sensor] < FEW_UNITS:
+                out.append(f'{SENSOR_NAMES[sensor]}: a prior from {kept[sensor]} units (fewer than {FEW_UNITS}): '
+                           f'its spread is known to about +-{100.0 / math.sqrt(2.0 * (kept[sensor] - 1)):.0f} %')
+        return out
+
+
+def fleet_from_units(units: Sequence[UnitStatistics], *, bias_order: int, scale_order: int,
+                     groups: int = MAX_GROUPS, label: str = '') -> FleetPrior:
+    """The fleet's prior from its units (see the module's description).
+
+    :raises FitError: as :func:`~tak_thermo_ros.core.fit.fleet_prior.fleet_prior` (too few units).
+    """
+    if not units:
+        msg = 'a prior needs units: none given'
+        raise FitError(msg)
+    frame = Frame.of_range(min(unit.low for unit in units), max(unit.high for unit in units))
+    basis = Basis.of_frame(frame)
+    records = {unit.name: unit.records for unit in units}
+    sensors = {}
+    for sensor in SENSORS:
+        given = {unit.name: unit.information[sensor] for unit in units if sensor in unit.information}
+        sensors[sensor] = fleet_prior(given, sensor, basis, records=records, groups=groups)
+    turn_on = {}
+    for sensor in SENSORS:
+        found = [unit.turn_on[sensor] for unit in units if sensor in unit.turn_on]
+        if found:
+            with warnings.catch_warnings():  # an axis no unit determined (its offset held): nan, said so
+                warnings.simplefilter('ignore', RuntimeWarning)
+                spread = np.nanmedian(np.array([f[0] for f in found]), axis=0)
+                rest = np.nanmedian(np.array([f[1] for f in found]), axis=0)
+            turn_on[sensor] = (spread, rest)
+    return FleetPrior(basis, bias_order, scale_order, sensors, turn_on, tuple(unit.name for unit in units),
+                      sum(records.values()), label)
+
+
+@dataclass(frozen=True)
+class PriorFit:
+    """A unit's pool fitted with its fleet's prior.
+
+    :param pool: the pool's fit (its calibrations carry their uncertainty, the notes what came from where).
+    :param lines: what a person reads: the group, the turn-on repeatability taken, each axis's +-.
+    :param uncertainty: per sensor the calibration's :class:`~tak_thermo_ros.core.link.model.CurveUncertainty`.
+    """
+
+    pool: PoolFit
+    prior: CurvePrior
+    lines: tuple[str, ...]
+    uncertainty: Mapping[str, CurveUncertainty]
+
+
+def fit_with_prior(record: HandheldRecord, settings: HandheldSettings, fleet: FleetPrior) -> PriorFit:
+    """A unit's pool fitted with the fleet's prior (see the module's description)."""
+    information = None
+    if fleet.grouped:
+        information = fit_pool(record, replace(settings, prior=fleet.vague())).fit.information
+    prior, lines = fleet.curve_prior(information)
+    given = None
+    if record.records < OWN_TURN_ON_RECORDS and fleet.turn_on:
+        given = {sensor: (np.where(np.isfinite(spread), spread, 1.0), np.where(np.isfinite(rest), rest, 0.0))
+                 for sensor, (spread, rest) in fleet.turn_on.items()}
+        lines.append(f'turn-on repeatability: the fleet\'s ({len(fleet.units)} units; this pool holds '
+                     f'{record.records} record{"s" if record.records != 1 else ""})')
+    fitted = fit_pool(record, replace(settings, prior=prior, variances=given))
+    uncertainty = {}
+    for sensor, result in fitted.fit.results.items():
+        sensor_prior = prior.sensors.get(sensor)
+        if sensor_prior is None:
+            continue
+        uncertainty[sensor] = _uncertainty(fitted.fit.information[sensor].curve(), sensor_prior, fleet.bias_order,
+                                           fleet.label)
+    results = {}
+    for sensor, result in fitted.fit.results.items():
+        calibration = result.calibration
+        if sensor in uncertainty:
+            calibration = replace(calibration, uncertainty=uncertainty[sensor])
+        if given is not None and sensor in fleet.turn_on:
+            calibration = _fleet_turn_on(calibration, fleet, sensor)
+        results[sensor] = replace(result, calibration=calibration)
+    pool = replace(fitted, fit=replace(fitted.fit, results=results))
+    return PriorFit(pool, prior, tuple(lines), uncertainty)
+
+
+def _fleet_turn_on(calibration, fleet: FleetPrior, sensor: str):
+    """The calibration with the fleet's turn-on repeatability (where every axis has one), said in a note."""
+    spread = fleet.turn_on[sensor][0]
+    if not np.all(np.isfinite(spread)):
+        return replace(calibration, turn_on=None)
+    turn_on = TurnOn(repeatability=tuple(float(v) for v in spread),  # type: ignore[arg-type]
+                     repeatability_error=(0.0, 0.0, 0.0), records=max(fleet.records, 2))
+    note = f'turn_on: the fleet\'s median repeatability over {len(fleet.units)} units ({fleet.records} records)'
+    return replace(calibration, turn_on=turn_on, notes=(*calibration.notes, note))
+
+
+def _uncertainty(records: Information, prior: SensorPrior, order: int, label: str) -> CurveUncertainty:
+    """The posterior's covariance of each axis's offset curve and the records' share of each coefficient's precision."""
+    posterior_normal = records.aligned(prior.names)[0] + np.linalg.inv(prior.covariance)
+    normal = np.zeros((len(prior.names) + 1,) * 2)
+    normal[:-1, :-1] = posterior_normal
+    posterior = Information(prior.names, normal, records.basis, records.low, records.high)
+    covariances, shares = [], []
+    posterior_covariance = np.linalg.inv(posterior_normal)
+    for axis in AXES:
+        covariance = offset_covariance(posterior, axis, order)
+        covariances.append(tuple(float(v) for v in covariance.ravel()) if covariance is not None else ())
+        index = [i for i, name in enumerate(prior.names) if name.startswith(f'{axis}.offset')]
+        if covariance is None or not index:
+            shares.append(())
+            continue
+        ratio = np.diag(posterior_covariance)[index] / np.diag(prior.covariance)[index]
+        shares.append(tuple(float(v) for v in np.clip(1.0 - ratio, 0.0, 1.0)))
+    return CurveUncertainty(tuple(covariances), records.low, records.high,  # type: ignore[arg-type]
+                            source='records and prior', prior=label, records_share=tuple(shares))  # type: ignore
