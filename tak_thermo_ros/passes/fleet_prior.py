@@ -271,12 +271,12 @@ def unit_line(unit: str, path: str, records: int | None) -> str:
                     for i in range(3) if uncertainty.covariance(i) is not None)
         parts.append(f'{sensor} {significant(worst, 3)} {small}')
     told = f'{records} records' if records is not None else 'its records'
-    shown = os.path.relpath(path) if not os.path.relpath(path).startswith('..') else path
+    shown = Path(path).name  # in OUT_DIR, named once at the end
     if not parts:
-        return f'{unit}: {told}, far from the fleet: its own records alone, {shown}'
+        return f'{unit}: {told}, far from the fleet: fitted from its own records alone -> {shown}'
     uncertainty = calibration.accel.uncertainty or calibration.gyro.uncertainty  # type: ignore[union-attr]
     return (f'{unit}: {told} {uncertainty.records_min:.1f}..{uncertainty.records_max:.1f} C, worst +- '
-            f'{", ".join(parts)}: {shown}')
+            f'{", ".join(parts)} -> {shown}')
 
 
 def run_everyday(args: argparse.Namespace, fit_actions: Sequence[argparse.Action], command) -> int:
@@ -367,7 +367,7 @@ def run_everyday(args: argparse.Namespace, fit_actions: Sequence[argparse.Action
     cpu = sum(found[name].seconds for name in names) + sum(outcome.seconds for outcome in done.values())
     print(f'{ok} of {len(units)} units fitted with the prior in {time.perf_counter() - start:.1f} s '
           f'({cpu / max(len(units), 1):.1f} s CPU per unit in the workers)')
-    print(f'wrote {prior_path}')
+    print(f'wrote {prior_path} and the units\' files beside it')
     if ok == 0:
         msg = f'no unit was fitted (see {out_dir / LOGS})'
         raise OutputError(msg)

@@ -30,6 +30,7 @@ its Bayesian information criterion beats one group's by :data:`GROUP_BIC` and ea
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
@@ -44,6 +45,10 @@ FEW_UNITS = 10
 """A prior from fewer units says so: its spread is known to about ``1 / sqrt(2 (units - 1))`` (a third at 6)."""
 OUTLIER_ALPHA = 1e-3
 """A unit is far outside the fleet when a fleet of its kind would put one so far this seldom."""
+UPPER_RISE = 3.84
+"""A spread's upper bound is where the criterion has risen by this much (the 95 % chi-square of one term)."""
+CANDIDATE_Z = 4.0
+"""A unit whose estimate of a term lies this many robust spreads from the units' median is tested."""
 MAX_GROUPS = 3
 """At most this many groups are tried."""
 MIN_GROUP_UNITS = 5
@@ -52,10 +57,10 @@ GROUP_BIC = 10.0
 """More groups are kept when they lower the BIC by this much (very strong evidence, Kass and Raftery)."""
 SURE_GROUP = 0.95
 """A unit belongs to a group when its records put it there with this probability; else a blend of the groups."""
-EM_ITERATIONS = 400
-EM_SETTLED = 1e-7
+EM_ITERATIONS = 300
+EM_SETTLED = 1e-6
 """Expectation-maximisation stops after this many rounds, or when the log-likelihood moves less than this (relative)."""
-EM_STARTS = 6
+EM_STARTS = 4
 """Starting points of each mixture (the best kept)."""
 SPREAD_RANGE = (1e-4, 1e4)
 """The spread is searched within these multiples of the units' typical error (or of their spread, the larger)."""
@@ -123,15 +128,23 @@ class SensorFleet:
     scale: float = 1.0
 
     @property
+    def inflation(self) -> float:
+        """The spread's variance widened for a prediction from few units (:func:`_t_inflation`)."""
+        return _t_inflation(len(self.units))
+
+    @property
     def mean(self) -> np.ndarray:
         """The fleet's mean ``(P,)`` over its groups, by their weights."""
         return sum(group.weight * group.mean for group in self.groups)
 
     def blend(self, weights: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
-        """The Gaussian nearest the groups' mixture at ``weights``: mean and covariance (spread, means' errors)."""
+        """The Gaussian nearest the groups' mixture at ``weights``: mean and covariance.
+
+        The covariance: the spread (:attr:`inflation` for few units), each group mean's error, the groups' scatter.
+        """
         weights = np.asarray(weights, dtype=float) / float(np.sum(weights))
         mean = sum(w * group.mean for w, group in zip(weights, self.groups))
-        covariance = np.diag(self.spread ** 2)
+        covariance = np.diag(self.inflation * self.spread ** 2)
         for w, group in zip(weights, self.groups):
             offset = group.mean - mean
             covariance = covariance + w * (group.mean_covariance + np.outer(offset, offset))
@@ -170,6 +183,16 @@ class SensorFleet:
                     + ': the groups blended')
         mean, covariance = self.blend(weights)
         return SensorPrior(self.names, mean, covariance, label), said
+
+
+def _t_inflation(units: int) -> float:
+    """``(t_{units - 1} / z)^2`` at 95 %: a Gaussian stand-in for a prediction from a spread estimated from ``units``.
+
+    A new unit's curve about a mean and a spread estimated from ``U`` units is Student-t with ``U - 1``
+    degrees of freedom, not Gaussian: its Gaussian stand-in is this much wider (1.56 at 7 units, 1.02 at 100).
+    """
+    from scipy.stats import norm, t
+    return float((t.ppf(0.975, max(units, 2) - 1) / norm.ppf(0.975)) ** 2)
 
 
 # ----- the units' statistics, scaled ------------------------------------------------------------------
@@ -240,13 +263,13 @@ def _marginal(stats: _Stats, mean: np.ndarray, spread: np.ndarray, phi: float = 
             + float(centred @ centred) + stats.rows * math.log(phi))
 
 
-def reml_criterion(stats: _Stats, spread: np.ndarray, phi: float = 1.0,
-                   weights: np.ndarray | None = None) -> tuple[float, np.ndarray, np.ndarray]:
+def reml_criterion(stats: _Stats, spread: np.ndarray, phi: float = 1.0, *,
+                   restricted: bool = True) -> tuple[float, np.ndarray, np.ndarray]:
     """``-2 log REML`` of the spread (see the module's description), the mean and its covariance.
 
-    :param weights: ``(U,)`` each unit's share (a group's responsibilities); ``None``: 1 each.
+    :param restricted: ``False``: ``-2 log`` the likelihood at the best mean (maximum likelihood's, for the BIC).
     """
-    weight = np.ones(stats.count) if weights is None else np.asarray(weights, dtype=float)
+    weight = np.ones(stats.count)
     hessian, gradient, matrix = _scaled(stats, spread, phi)
     solved_h = np.linalg.solve(matrix, hessian)
     solved_g = np.linalg.solve(matrix, gradient[..., None])[..., 0]
@@ -260,8 +283,9 @@ def reml_criterion(stats: _Stats, spread: np.ndarray, phi: float = 1.0,
     inverse = np.linalg.inv(a)
     centred = inverse @ b
     value = float(weight @ (_logdet(matrix) + stats.constant / phi - np.einsum('up,up->u', gradient, solved_g)
-                            + stats.rows * math.log(phi))
-                  + 2.0 * np.sum(np.log(np.diag(factor))) - 2.0 * np.sum(np.log(spread)) - b @ centred)
+                            + stats.rows * math.log(phi)) - b @ centred)
+    if restricted:
+        value += 2.0 * np.sum(np.log(np.diag(factor))) - 2.0 * np.sum(np.log(spread))
     return value, spread * centred, inverse * np.outer(spread, spread)
 
 
@@ -290,15 +314,19 @@ def _bounds(stats: _Stats) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return low, high, np.clip(np.log(start), low, high)
 
 
-def reml(stats: _Stats, *, scale: bool = False) -> Reml:
-    """The REML of one Gaussian over the units (``scale``: the units' noise scale ``phi`` estimated too)."""
+def reml(stats: _Stats, *, scale: bool = False, restricted: bool = True) -> Reml:
+    """The REML of one Gaussian over the units (``scale``: the units' noise scale ``phi`` estimated too).
+
+    :param restricted: ``False``: the maximum likelihood instead (a mixture's one group, for the BIC).
+    """
     from scipy.optimize import minimize
     low, high, start = _bounds(stats)
     if scale:
         low, high, start = np.append(low, -20.0), np.append(high, 20.0), np.append(start, 0.0)
 
     def objective(p: np.ndarray) -> float:
-        value = reml_criterion(stats, np.exp(p[:len(low) - scale]), math.exp(p[-1]) if scale else 1.0)[0]
+        value = reml_criterion(stats, np.exp(p[:len(low) - scale]), math.exp(p[-1]) if scale else 1.0,
+                               restricted=restricted)[0]
         return value if math.isfinite(value) else 1e300
 
     found = minimize(objective, start, method='L-BFGS-B', bounds=list(zip(low, high)),
@@ -306,7 +334,7 @@ def reml(stats: _Stats, *, scale: bool = False) -> Reml:
     best = found.x
     spread = np.exp(best[:len(low) - scale])
     phi = math.exp(best[-1]) if scale else 1.0
-    value, mean, mean_covariance = reml_criterion(stats, spread, phi)
+    value, mean, mean_covariance = reml_criterion(stats, spread, phi, restricted=restricted)
     error = spread * _log_errors(objective, best, low, high)[:len(spread)]
     return Reml(mean, mean_covariance, spread, error, phi, value)
 
@@ -372,36 +400,81 @@ def distance(stats: _Stats, mean: np.ndarray, covariance: np.ndarray) -> tuple[n
     return q, dof, np.where(np.isfinite(z), z, 0.0)
 
 
+def upper_spread(stats: _Stats, fitted: Reml, rise: float = UPPER_RISE) -> np.ndarray:
+    """Per term the spread's upper bound: where ``-2 log REML`` rises by ``rise`` (the others held), searched upwards."""
+    from scipy.optimize import brentq
+    low, high, _ = _bounds(stats)
+    out = fitted.spread.copy()
+    for k in range(len(out)):
+        def excess(log_spread: float, k: int = k) -> float:
+            trial = fitted.spread.copy()
+            trial[k] = math.exp(log_spread)
+            value = reml_criterion(stats, trial)[0]
+            return (value if math.isfinite(value) else 1e300) - fitted.criterion - rise
+
+        start = math.log(fitted.spread[k])
+        if excess(high[k]) <= 0.0:
+            out[k] = math.exp(high[k])
+        elif high[k] > start:
+            out[k] = math.exp(brentq(excess, start, high[k], xtol=1e-3))
+    return out
+
+
+def _candidates(stats: _Stats) -> list[int]:
+    """Units whose own estimate of some term lies far from the others' median (robust: no masking), farthest first.
+
+    Per term the units' estimates about their median, in units of ``1.4826 MAD`` widened by the unit's own
+    error; beyond :data:`CANDIDATE_Z` a unit is a candidate, to be confirmed by the exact test.
+    """
+    estimates = stats.estimates()
+    own = 1.0 / np.sqrt(np.maximum(np.einsum('upp->up', stats.hessian), 1e-300))
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore', RuntimeWarning)
+        centre = np.nanmedian(estimates, axis=0)
+        spread = 1.4826 * np.nanmedian(np.abs(estimates - centre), axis=0)
+        z = np.abs(estimates - centre) / np.sqrt(spread ** 2 + own ** 2)
+    worst = np.nanmax(np.where(np.isfinite(z), z, np.nan), axis=1)
+    worst = np.where(np.isfinite(worst), worst, 0.0)
+    return [int(u) for u in np.argsort(-worst) if worst[u] > CANDIDATE_Z]
+
+
 def screen(stats: _Stats, names: Sequence[str], unit_names: Sequence[str], sensor: str,
            fitted: Reml) -> tuple[np.ndarray, Reml, list[FarUnit]]:
-    """Units far outside the fleet, left out one at a time (each confirmed against the fleet without it).
+    """Units far outside the fleet, each tested against the fleet without it (left out one at a time).
+
+    The units tested: the robust candidates (:func:`_candidates`: an outlier cannot hide by widening the
+    spread it is judged by), and the one farthest by the fleet's own fit.
 
     :returns: which units are kept, the fleet's REML without the others, the units left out.
     """
     from scipy.stats import chi2
     keep = np.ones(stats.count, dtype=bool)
     left: list[FarUnit] = []
-    while keep.sum() > MIN_UNITS:
-        kept = stats.subset(keep)
-        q, dof, _ = distance(kept, fitted.mean, np.diag(fitted.spread ** 2) + fitted.mean_covariance)
-        probability = chi2.sf(q, np.maximum(dof, 1))
-        worst = int(np.argmin(np.where(dof > 0, probability, 1.0)))
-        limit = OUTLIER_ALPHA / kept.count
-        if not probability[worst] < limit:
+    q, dof, _ = distance(stats, fitted.mean, np.diag(fitted.spread ** 2) + fitted.mean_covariance)
+    probability = np.where(dof > 0, chi2.sf(q, np.maximum(dof, 1)), 1.0)
+    farthest = int(np.argmin(probability))
+    tried = _candidates(stats)
+    if farthest not in tried and probability[farthest] < OUTLIER_ALPHA:
+        tried.append(farthest)
+    for index in tried:
+        if keep.sum() <= MIN_UNITS:
             break
-        index = np.flatnonzero(keep)[worst]
         without = keep.copy()
         without[index] = False
         others = reml(stats.subset(without))
         single = stats.subset(np.arange(stats.count) == index)
-        q1, dof1, z1 = distance(single, others.mean, np.diag(others.spread ** 2) + others.mean_covariance)
+        # against the others' spread at its upper bound: a few units may agree by chance more than their kind
+        upper = upper_spread(stats.subset(without), others)
+        q1, dof1, z1 = distance(single, others.mean, np.diag(upper ** 2) + others.mean_covariance)
         p1 = float(chi2.sf(q1[0], max(int(dof1[0]), 1)))
-        if not p1 < limit:
-            break
+        if not (dof1[0] > 0 and p1 < OUTLIER_ALPHA / stats.count):
+            continue
         term = int(np.argmax(np.abs(z1[0])))
         left.append(FarUnit(unit_names[index], sensor, float(q1[0]), int(dof1[0]), p1, names[term],
                             float(z1[0, term])))
         keep, fitted = without, others
+    if left:
+        fitted = reml(stats.subset(keep))
     return keep, fitted, left
 
 
@@ -519,8 +592,9 @@ def fleet_prior(units: Mapping[str, Information], sensor: str, basis: Basis, *,
     result = [Group(1.0, fitted.mean, fitted.mean_covariance, kept_names)]
     spread, spread_error = fitted.spread, fitted.spread_error
     if groups > 1 and kept.count >= 2 * MIN_GROUP_UNITS:
-        one = mixture(kept, 1, fitted)
-        best, best_bic = None, one.bic(kept.count)
+        one = reml(kept, restricted=False)
+        size = len(names)
+        best, best_bic = None, one.criterion + 2 * size * math.log(kept.count)
         for count in range(2, groups + 1):
             if kept.count < count * MIN_GROUP_UNITS:
                 break

@@ -33,8 +33,10 @@ class Fleet:
 
     :param units: how many units.
     :param gyro: the units' spread of each gyroscope axis's offset polynomial, per power of ``T - T_ref``:
-        rad/s, rad/s/C, rad/s/C^2, rad/s/C^3.
-    :param accel: the accelerometer's, m/s^2 per power of C.
+        rad/s, rad/s/C, rad/s/C^2, rad/s/C^3 (default: 100 deg/h of offset, a fifth of the part's slope,
+        a tenth of its curvature and cubic term: units of one part differ most in their slopes).
+    :param accel: the accelerometer's, m/s^2 per power of C (2 mg of offset; a fifth of the part's slope at
+        1 g, a tenth of its curvature and cubic term).
     :param groups: the units fall in this many groups of slopes (1: one).
     :param group_slope: the groups' slopes lie this many gyroscope slope spreads apart.
     :param other_part: units (numbers from 0) of another part.
@@ -42,8 +44,8 @@ class Fleet:
     """
 
     units: int = 8
-    gyro: tuple[float, float, float, float] = (5.0e-4, 3.0e-5, 6.0e-7, 1.5e-8)
-    accel: tuple[float, float, float, float] = (0.02, 3.0e-4, 4.0e-6, 1.0e-7)
+    gyro: tuple[float, float, float, float] = (5.0e-4, 6.5e-5, 2.0e-7, 3.0e-9)
+    accel: tuple[float, float, float, float] = (0.02, 4.0e-4, 1.8e-6, 2.4e-8)
     groups: int = 1
     group_slope: float = 6.0
     other_part: tuple[int, ...] = ()
