@@ -12,7 +12,8 @@ Cases (``--case``): ``default``, the everyday simulator's habits the feature was
 ``other``, another setting of the habits (shorter rests, longer motions that cool the board, more
 self-heating, a faster board, more tilt: the judge of the claim); ``shapes``, a fleet whose
 curvatures and cubic terms differ three to five times more (what one warm-up cannot pin is then
-larger: the limit of borrowing).
+larger: the limit of borrowing); ``groups`` (not run by default), 16 units in two groups of slopes 8
+spreads apart (the mixture, and the new unit placed in its group by its first hour).
 
 Run: ``nice -n 10 .venv/bin/python bench/bench_fleet_prior.py [--seeds 20] [--case default other shapes]``;
 writes ``bench/results/fleet_prior.json``.
@@ -35,10 +36,12 @@ from tak_thermo_ros.formats.files import write_json  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / 'results'
 CASES = {
-    'default': ('default', Fleet()),
-    'other': ('other', Fleet()),
-    'shapes': ('default', Fleet(gyro=(5.0e-4, 6.5e-5, 6.0e-7, 1.5e-8), accel=(0.02, 4.0e-4, 5.4e-6, 1.2e-7))),
+    'default': ('default', Fleet(), {}),
+    'other': ('other', Fleet(), {}),
+    'shapes': ('default', Fleet(gyro=(5.0e-4, 6.5e-5, 6.0e-7, 1.5e-8), accel=(0.02, 4.0e-4, 5.4e-6, 1.2e-7)), {}),
+    'groups': ('default', Fleet(groups=2, group_slope=8.0), {'units': 16, 'records': 3}),
 }
+"""Per case: the habits' setting, the fleet, what it changes of ``--units`` and ``--records``."""
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -48,17 +51,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--first-seed', type=int, default=1)
     parser.add_argument('--units', type=int, default=8)
     parser.add_argument('--records', type=int, default=5)
-    parser.add_argument('--case', nargs='+', default=list(CASES), choices=list(CASES))
+    parser.add_argument('--minutes', type=float, default=30.0)
+    parser.add_argument('--rate', type=float, default=10.0, help='Hz (the rests\' noise is per rest: the ratios hold)')
+    parser.add_argument('--case', nargs='+', default=['default', 'other', 'shapes'], choices=list(CASES))
     parser.add_argument('--output', type=Path, default=RESULTS / 'fleet_prior.json')
     args = parser.parse_args(argv)
-    document = {'machine': machine(), 'units': args.units, 'records': args.records, 'cases': {}}
+    document = {'machine': machine(), 'units': args.units, 'records': args.records, 'minutes': args.minutes,
+                'rate_hz': args.rate, 'cases': {}}
     for case in args.case:
-        setting, fleet = CASES[case]
+        setting, fleet, sizes = CASES[case]
+        units, records = sizes.get('units', args.units), sizes.get('records', args.records)
         rows = []
         start = time.process_time()
         for seed in range(args.first_seed, args.first_seed + args.seeds):
-            rows.append(check_seed(seed, units=args.units, records=args.records, setting=setting,
-                                   fleet=Fleet(**{**fleet.__dict__, 'units': args.units + 1})))
+            rows.append(check_seed(seed, units=units, records=records, setting=setting, minutes=args.minutes,
+                                   rate_hz=args.rate, fleet=Fleet(**{**fleet.__dict__, 'units': units + 1})))
             print(f'{case} seed {seed}: prior {rows[-1]["figures"]["prior"]["gyro_shape_rms"] * 206264.8:.1f} '
                   f'deg/h, floor {rows[-1]["figures"]["truth"]["gyro_shape_rms"] * 206264.8:.1f} deg/h', flush=True)
         result = summary(rows)

@@ -153,7 +153,8 @@ def check_seed(seed: int, *, units: int = 8, records: int = 5, minutes: float = 
     later = [record for k, ambient in enumerate(later_ambients)
              for record in unit_records(new, habits, ambient=(ambient, ambient), count=1, first=100 + k)]
     own = fit_pool(hour_pool, HandheldSettings()).fit
-    with_prior = fit_with_prior(hour_pool, HandheldSettings(), prior).pool.fit
+    borrowed = fit_with_prior(hour_pool, HandheldSettings(), prior)
+    with_prior = borrowed.pool.fit
     oracle = fit_with_prior(hour_pool, HandheldSettings(), oracle_prior(scenario, fleet, prior)).pool.fit
     calibrations = {
         'hour': UnitCalibration(InputKind.IMU, own.results['accel'].calibration, own.results['gyro'].calibration),
@@ -178,6 +179,8 @@ def check_seed(seed: int, *, units: int = 8, records: int = 5, minutes: float = 
             'fleet_span': (prior.low, prior.high),
             'left_out': [f.name for s in prior.sensors.values() for f in s.left_out],
             'groups': {s: len(f.groups) for s, f in prior.sensors.items()},
+            'new_unit_group': [line for line in borrowed.lines if 'group' in line],
+            'new_unit_slope_shift': 'up' if units % max(fleet.groups, 1) else 'down',
             'loo': leave_one_out(drawn, habits, prior_span=(prior.low, prior.high))}
 
 

@@ -406,7 +406,7 @@ def _fit_pool(args: argparse.Namespace, settings) -> int:
         print(order_line(sensor, choice))
     for line in handheld.lines:
         print(line)
-    if pool.record.records < 2:
+    if pool.record.records < 2 and unit.gyro.turn_on is None:
         print('turn-on repeatability: not estimated, one record (it takes two power-ups or more); none written')
     for sensor in handheld.turn_on:
         print(turn_on_line(sensor, handheld.turn_on[sensor]))

@@ -340,6 +340,10 @@ def _validate_pool(args: argparse.Namespace, unit: UnitCalibration) -> int:
             if unit.gyro.turn_on is not None else 'the file holds no turn-on repeatability')
     print(f'gyroscope: these records\' turn-on offsets spread {common.numbers(spread * factor, 3)} {small} x y z '
           f'({said})')
+    from tak_thermo_ros.passes.fleet_prior import band_lines
+    lines, band = band_lines(check, unit.gyro)
+    for line in lines:
+        print(line)
     if after.out_of_range:
         print(f'warning: {after.out_of_range} samples outside the calibrated temperature range ({args.out_of_range})')
     document = {'records': [entry.name for entry in opened.entries], 'params': str(args.params), 'gravity': g,
@@ -349,6 +353,8 @@ def _validate_pool(args: argparse.Namespace, unit: UnitCalibration) -> int:
                           'rate_shape_rms': [float(v) for v in check.shape_rms]},
                 'floor': {'gravity_rms': after.gravity_floor, 'rate_rms': [float(v) for v in after.rate_floor]},
                 'turn_on_offsets': check.own.tolist()}
+    if band:
+        document['uncertainty'] = band
     if args.json:
         write_json(args.json, document)
         print(f'wrote {args.json}')

@@ -119,6 +119,57 @@ def prior_table(prior) -> list[str]:
     return lines
 
 
+def band_lines(check, calibration) -> tuple[list[str], dict[str, Any]]:
+    """``validate`` of a pool against a calibration with its uncertainty: are the rests' shapes within its +-?
+
+    Per group of rests (within the records' span, beyond it: where the prior told the curve) the
+    gyroscope's bias shape (each record's own offset off), beside what the file's +- and the white noise
+    give for it: the curve's error at each rest less its record's mean (``phi_r' C phi_r - 2 phi_r' C
+    phi_bar + phi_bar' C phi_bar``) and the white noise of the rest's mean less its record's. A shape well
+    beyond it: the +- is too small there (or the unit has changed).
+
+    :returns: the lines, and the same for the JSON document.
+    """
+    uncertainty = calibration.uncertainty
+    if uncertainty is None or not len(check.temperature):
+        return [], {}
+    small, factor = _reader('gyro')
+    low, high = uncertainty.records_min, uncertainty.records_max
+    n = check.temperature - calibration.temp_code_ref
+    samples = np.maximum(1.0 / np.maximum(check.white[:, 0], 1e-300), 1.0)  # weights: the rests' lengths
+    curve = np.zeros((len(n), 3))
+    for axis in range(3):
+        covariance = uncertainty.covariance(axis)
+        if covariance is None:
+            continue
+        powers = n[:, None] ** np.arange(len(covariance))[None, :]
+        mean = np.zeros_like(powers)
+        for record in np.unique(check.record):
+            rows = check.record == record
+            mean[rows] = np.average(powers[rows], axis=0, weights=samples[rows])
+        centred = powers - mean
+        curve[:, axis] = np.einsum('kp,pq,kq->k', centred, covariance, centred)
+    beyond = (check.temperature < low - 0.5) | (check.temperature > high + 0.5)
+    lines, document = [], {}
+    for label, rests in (('within', ~beyond), ('beyond', beyond)):
+        if not rests.any():
+            continue
+        shape = np.sqrt(np.mean(check.shape[rests] ** 2, axis=0))
+        expected = np.sqrt(np.mean(curve[rests] + check.white[rests], axis=0))
+        lines.append(f'gyroscope: {int(rests.sum())} rests {label} the records\' {low:.1f}..{high:.1f} C: shape RMS '
+                     f'{numbers_of(shape * factor)} {small} x y z')
+        lines.append(f'gyroscope:   the file\'s +- and the white noise give {numbers_of(expected * factor)} '
+                     f'(the +- alone {numbers_of(np.sqrt(np.mean(curve[rests], axis=0)) * factor)})')
+        document[label] = {'rests': int(rests.sum()), 'shape_rms': shape.tolist(), 'expected_rms': expected.tolist(),
+                           'curve_rms': np.sqrt(np.mean(curve[rests], axis=0)).tolist()}
+    return lines, document
+
+
+def numbers_of(values) -> str:
+    """Three significant figures each, space-separated."""
+    return ' '.join(significant(float(v), 3) for v in values)
+
+
 def far_lines(prior) -> list[str]:
     """One statement per unit left out of a sensor's prior."""
     return [f'{far.name}: left out of the {SENSOR_NAMES[far.sensor]} prior: far outside the fleet ({far.term} '
@@ -149,13 +200,23 @@ def with_source_notes(fitted) -> tuple[Any, tuple[str, ...]]:
 
 @dataclass(frozen=True)
 class StatisticsOutcome:
-    """What the first map gives back for a unit: its statistics, or the one line why not."""
+    """What the first map gives back for a unit: its statistics, or the one line why not.
+
+    :param seconds: the task's CPU time; ``peak_bytes``: its worker's peak resident memory so far.
+    """
 
     unit: str
     statistics: Any = None
     error: str = ''
     seconds: float = 0.0
     worker: str = ''
+    peak_bytes: int = 0
+
+
+def _peak_bytes() -> int:
+    """This process's peak resident memory (Linux reports KiB)."""
+    import resource
+    return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
 
 
 def unit_statistics_task(unit: str, directory: str, settings, options) -> StatisticsOutcome:
@@ -168,8 +229,10 @@ def unit_statistics_task(unit: str, directory: str, settings, options) -> Statis
         opened = open_pool([directory], options)
         statistics = unit_statistics(unit, opened.record, settings)
     except TakError as error:
-        return StatisticsOutcome(unit, error=str(error), seconds=time.process_time() - start, worker=worker)
-    return StatisticsOutcome(unit, statistics, seconds=time.process_time() - start, worker=worker)
+        return StatisticsOutcome(unit, error=str(error), seconds=time.process_time() - start, worker=worker,
+                                 peak_bytes=_peak_bytes())
+    return StatisticsOutcome(unit, statistics, seconds=time.process_time() - start, worker=worker,
+                             peak_bytes=_peak_bytes())
 
 
 def everyday_units(directory: str | os.PathLike[str]) -> tuple[list[tuple[str, Path]], list[str]]:
@@ -223,6 +286,7 @@ class RefitOutcome:
     params: str = ''
     error: str = ''
     seconds: float = 0.0
+    peak_bytes: int = 0
 
 
 def refit_task(unit: str, argv: list[str], log: str, command) -> RefitOutcome:
@@ -234,8 +298,9 @@ def refit_task(unit: str, argv: list[str], log: str, command) -> RefitOutcome:
     write_text_atomic(log, f'$ tak_calib {" ".join(argv)}\n{stdout}{stderr}exit status {status}\n')
     seconds = time.process_time() - start
     if status != 0:
-        return RefitOutcome(unit, error=f'fit: {_error_line(stderr, status)}', seconds=seconds)
-    return RefitOutcome(unit, params=argv[argv.index('-o') + 1], seconds=seconds)
+        return RefitOutcome(unit, error=f'fit: {_error_line(stderr, status)}', seconds=seconds,
+                            peak_bytes=_peak_bytes())
+    return RefitOutcome(unit, params=argv[argv.index('-o') + 1], seconds=seconds, peak_bytes=_peak_bytes())
 
 
 def _gathered(client, futures: dict, stream, what: str) -> dict[str, Any]:
@@ -365,8 +430,9 @@ def run_everyday(args: argparse.Namespace, fit_actions: Sequence[argparse.Action
     for line in prior_table(prior):
         print(line)
     cpu = sum(found[name].seconds for name in names) + sum(outcome.seconds for outcome in done.values())
+    peak = max(outcome.peak_bytes for outcome in (*found.values(), *done.values()))
     print(f'{ok} of {len(units)} units fitted with the prior in {time.perf_counter() - start:.1f} s '
-          f'({cpu / max(len(units), 1):.1f} s CPU per unit in the workers)')
+          f'({cpu / max(len(units), 1):.1f} s CPU per unit in the workers, at most {peak / 2 ** 20:.0f} MiB a worker)')
     print(f'wrote {prior_path} and the units\' files beside it')
     if ok == 0:
         msg = f'no unit was fitted (see {out_dir / LOGS})'

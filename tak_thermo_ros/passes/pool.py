@@ -502,6 +502,8 @@ class PoolCheck:
 
     :param own: ``(r, 3)`` each record's mean rate error at rest after the calibration (its turn-on offset).
     :param shape: ``(k, 3)`` the rests' rate errors after, each record's own mean taken off.
+    :param temperature: ``(k,)`` each rest's mean temperature; ``record`` its record; ``white`` ``(k, 3)`` the
+        white noise's variance of its mean rate less its record's (what the shape holds of the noise).
     """
 
     opened: OpenedPool
@@ -509,6 +511,9 @@ class PoolCheck:
     after: object
     own: np.ndarray
     shape: np.ndarray
+    temperature: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    record: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    white: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
     @property
     def shape_rms(self) -> np.ndarray:
@@ -527,7 +532,12 @@ def validate_records(paths: Sequence[str | os.PathLike[str]], unit, options: Str
     before = check_handheld(record, nominal_unit(unit), gravity=gravity, latitude=latitude, out_of_range=out_of_range)
     after = check_handheld(record, unit, gravity=gravity, latitude=latitude, out_of_range=out_of_range)
     own, shape = own_offsets(record, after.rate_error)
-    return PoolCheck(opened, before, after, own, shape)
+    from tak_thermo_ros.core.fit.pool import _rests
+    rest_record, samples, temperature = _rests(record)
+    per_record = np.bincount(rest_record, weights=samples, minlength=record.records)
+    # a rest's mean less its record's samples-weighted mean: s^2 / n - s^2 / N of white noise
+    white = record.intervals.noise[3:6][None, :] ** 2 * (1.0 / samples - 1.0 / per_record[rest_record])[:, None]
+    return PoolCheck(opened, before, after, own, shape, temperature, rest_record, white)
 
 
 def bounded_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions, *, gravity: float,

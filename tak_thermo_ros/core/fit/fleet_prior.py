@@ -264,29 +264,38 @@ def _marginal(stats: _Stats, mean: np.ndarray, spread: np.ndarray, phi: float = 
 
 
 def reml_criterion(stats: _Stats, spread: np.ndarray, phi: float = 1.0, *,
-                   restricted: bool = True) -> tuple[float, np.ndarray, np.ndarray]:
-    """``-2 log REML`` of the spread (see the module's description), the mean and its covariance.
+                   restricted: bool = True) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    """``-2 log REML`` of the spread (see the module's description), the mean, its covariance, the gradient.
+
+    The gradient along ``log spread`` (``phi`` held) is the expectation identity of the likelihood:
+    ``2 U - 2 sum_u E[d~_uk^2]``, ``d~_u = (theta_u - mean) / spread`` under the units' posterior (and, for the
+    restricted likelihood, the mean's: ``E d~ = M^-1 (g~ - H~ m~)``, ``Cov d~ = M^-1 + M^-1 H~ A^-1 H~ M^-1``).
 
     :param restricted: ``False``: ``-2 log`` the likelihood at the best mean (maximum likelihood's, for the BIC).
     """
-    weight = np.ones(stats.count)
+    size = len(spread)
     hessian, gradient, matrix = _scaled(stats, spread, phi)
-    solved_h = np.linalg.solve(matrix, hessian)
-    solved_g = np.linalg.solve(matrix, gradient[..., None])[..., 0]
-    a = np.einsum('u,upq->pq', weight, solved_h)
+    inverse_m = np.linalg.inv(matrix)
+    solved_h = inverse_m @ hessian
+    solved_g = np.einsum('upq,uq->up', inverse_m, gradient)
+    a = solved_h.sum(axis=0)
     a = 0.5 * (a + a.T)
-    b = weight @ solved_g
+    b = solved_g.sum(axis=0)
     try:
         factor = np.linalg.cholesky(a)
     except np.linalg.LinAlgError:
-        return math.inf, np.full(len(spread), np.nan), np.full((len(spread),) * 2, np.nan)
+        return math.inf, np.full(size, np.nan), np.full((size, size), np.nan), np.zeros(size)
     inverse = np.linalg.inv(a)
     centred = inverse @ b
-    value = float(weight @ (_logdet(matrix) + stats.constant / phi - np.einsum('up,up->u', gradient, solved_g)
-                            + stats.rows * math.log(phi)) - b @ centred)
+    value = float(np.sum(_logdet(matrix) + stats.constant / phi - np.einsum('up,up->u', gradient, solved_g)
+                         + stats.rows * math.log(phi)) - b @ centred)
+    expected = solved_g - solved_h @ centred  # E d~ per unit
+    variance = np.einsum('upp->up', inverse_m)
     if restricted:
         value += 2.0 * np.sum(np.log(np.diag(factor))) - 2.0 * np.sum(np.log(spread))
-    return value, spread * centred, inverse * np.outer(spread, spread)
+        variance = variance + np.einsum('upq,qr,upr->up', solved_h, inverse, solved_h)
+    slope = 2.0 * stats.count - 2.0 * np.sum(expected ** 2 + variance, axis=0)
+    return value, spread * centred, inverse * np.outer(spread, spread), slope
 
 
 @dataclass(frozen=True)
@@ -314,54 +323,69 @@ def _bounds(stats: _Stats) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return low, high, np.clip(np.log(start), low, high)
 
 
-def reml(stats: _Stats, *, scale: bool = False, restricted: bool = True) -> Reml:
+def reml(stats: _Stats, *, scale: bool = False, restricted: bool = True, start: np.ndarray | None = None) -> Reml:
     """The REML of one Gaussian over the units (``scale``: the units' noise scale ``phi`` estimated too).
 
     :param restricted: ``False``: the maximum likelihood instead (a mixture's one group, for the BIC).
+    :param start: a spread to start from (a nearby fleet's), else the units' excess spread.
     """
     from scipy.optimize import minimize
-    low, high, start = _bounds(stats)
+    low, high, first = _bounds(stats)
+    if start is not None:
+        first = np.clip(np.log(start), low, high)
     if scale:
-        low, high, start = np.append(low, -20.0), np.append(high, 20.0), np.append(start, 0.0)
+        low, high, first = np.append(low, -20.0), np.append(high, 20.0), np.append(first, 0.0)
 
     def objective(p: np.ndarray) -> float:
         value = reml_criterion(stats, np.exp(p[:len(low) - scale]), math.exp(p[-1]) if scale else 1.0,
                                restricted=restricted)[0]
         return value if math.isfinite(value) else 1e300
 
-    found = minimize(objective, start, method='L-BFGS-B', bounds=list(zip(low, high)),
-                     options={'maxiter': 500, 'ftol': 1e-12, 'gtol': 1e-8})
+    def with_slope(p: np.ndarray) -> tuple[float, np.ndarray]:
+        value, _, _, slope = reml_criterion(stats, np.exp(p), restricted=restricted)
+        return (value, slope) if math.isfinite(value) else (1e300, np.zeros(len(p)))
+
+    found = minimize(objective if scale else with_slope, first, jac=not scale, method='L-BFGS-B',
+                     bounds=list(zip(low, high)), options={'maxiter': 500, 'ftol': 1e-12, 'gtol': 1e-7})
     best = found.x
     spread = np.exp(best[:len(low) - scale])
     phi = math.exp(best[-1]) if scale else 1.0
-    value, mean, mean_covariance = reml_criterion(stats, spread, phi, restricted=restricted)
-    error = spread * _log_errors(objective, best, low, high)[:len(spread)]
+    value, mean, mean_covariance, _ = reml_criterion(stats, spread, phi, restricted=restricted)
+    slope = None if scale else (lambda p: with_slope(p)[1])
+    error = spread * _log_errors(objective, best, low, high, slope=slope)[:len(spread)]
     return Reml(mean, mean_covariance, spread, error, phi, value)
 
 
-def _log_errors(objective, at: np.ndarray, low: np.ndarray, high: np.ndarray, step: float = 0.05) -> np.ndarray:
+def _log_errors(objective, at: np.ndarray, low: np.ndarray, high: np.ndarray, step: float = 0.05,
+                slope=None) -> np.ndarray:
     """Standard errors of the parameters (logarithms) from the curvature of ``-2 log L``: ``sqrt(2 (Hess^-1)_kk)``.
 
+    The curvature from differences of ``slope`` (the criterion's gradient) when given, else of the criterion.
     A parameter at a bound (a spread the units do not show) has none (``nan``).
     """
     size = len(at)
     inside = (at > low + step) & (at < high - step)
+    free = np.flatnonzero(inside)
     hessian = np.zeros((size, size))
-    base = objective(at)
 
-    def value(moves: dict[int, float]) -> float:
+    def moved(moves: dict[int, float]) -> np.ndarray:
         point = at.copy()
         for index, delta in moves.items():
             point[index] += delta
-        return objective(point)
+        return point
 
-    free = np.flatnonzero(inside)
-    for i in free:
-        hessian[i, i] = (value({i: step}) - 2.0 * base + value({i: -step})) / step ** 2
-        for j in free[free < i]:
-            cross = (value({i: step, j: step}) - value({i: step, j: -step}) - value({i: -step, j: step})
-                     + value({i: -step, j: -step}))
-            hessian[i, j] = hessian[j, i] = cross / (4 * step ** 2)
+    if slope is not None:
+        for i in free:
+            hessian[:, i] = (slope(moved({i: step})) - slope(moved({i: -step}))) / (2.0 * step)
+        hessian = 0.5 * (hessian + hessian.T)
+    else:
+        base = objective(at)
+        for i in free:
+            hessian[i, i] = (objective(moved({i: step})) - 2.0 * base + objective(moved({i: -step}))) / step ** 2
+            for j in free[free < i]:
+                cross = (objective(moved({i: step, j: step})) - objective(moved({i: step, j: -step}))
+                         - objective(moved({i: -step, j: step})) + objective(moved({i: -step, j: -step})))
+                hessian[i, j] = hessian[j, i] = cross / (4 * step ** 2)
     out = np.full(size, np.nan)
     if len(free):
         try:
@@ -461,7 +485,7 @@ def screen(stats: _Stats, names: Sequence[str], unit_names: Sequence[str], senso
             break
         without = keep.copy()
         without[index] = False
-        others = reml(stats.subset(without))
+        others = reml(stats.subset(without), start=fitted.spread)
         single = stats.subset(np.arange(stats.count) == index)
         # against the others' spread at its upper bound: a few units may agree by chance more than their kind
         upper = upper_spread(stats.subset(without), others)

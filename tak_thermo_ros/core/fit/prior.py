@@ -184,6 +184,30 @@ class Information:
         normal = carry.T @ self.normal @ carry
         return replace(self, normal=0.5 * (normal + normal.T), basis=basis)
 
+    def with_level_spread(self, spread: Mapping[str, float]) -> Information:
+        """The information when one record's level is the curve's plus a turn-on offset of ``spread`` (per axis).
+
+        A record's level tells the curve's offset only to within its power-up's turn-on offset: a nuisance
+        that enters as the axis's ``offset`` term does, with the prior ``N(0, spread^2)``, integrated out.
+        """
+        out = self
+        for axis, sd in spread.items():
+            name = f'{axis}.offset'
+            if name not in out.names or not sd > 0.0:
+                continue
+            index = out.names.index(name)
+            size = len(out.names)
+            normal = np.zeros((size + 2, size + 2))
+            kept = [*range(size), size + 1]
+            normal[np.ix_(kept, kept)] = out.normal
+            row = out.normal[index]  # the level's column is the offset's: its cross terms, its target
+            normal[size, kept] = row
+            normal[kept, size] = row
+            normal[size, size] = out.normal[index, index] + 1.0 / sd ** 2
+            augmented = replace(out, names=(*out.names, f'{axis}.level'), normal=normal)
+            out = augmented.marginal(out.names)
+        return out
+
     def aligned(self, names: Sequence[str]) -> tuple[np.ndarray, np.ndarray, float]:
         """``H`` ``(Q, Q)``, ``g`` ``(Q,)`` and ``c`` over ``names`` (a term it does not hold: no information)."""
         out = np.zeros((len(names) + 1, len(names) + 1))

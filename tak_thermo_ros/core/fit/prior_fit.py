@@ -204,8 +204,12 @@ def fit_with_prior(record: HandheldRecord, settings: HandheldSettings, fleet: Fl
         sensor_prior = prior.sensors.get(sensor)
         if sensor_prior is None:
             continue
-        uncertainty[sensor] = _uncertainty(fitted.fit.information[sensor].curve(), sensor_prior, fleet.bias_order,
-                                           fleet.label)
+        records = fitted.fit.information[sensor].curve()
+        if fitted.record.records < 2 and sensor in fleet.turn_on:  # one power-up: its level holds its turn-on
+            spread = fleet.turn_on[sensor][0]
+            records = records.with_level_spread({axis: float(sd) for axis, sd in zip(AXES, spread)
+                                                 if np.isfinite(sd)})
+        uncertainty[sensor] = _uncertainty(records, sensor_prior, fleet.bias_order, fleet.label)
     results = {}
     for sensor, result in fitted.fit.results.items():
         calibration = result.calibration
