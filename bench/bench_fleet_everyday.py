@@ -23,7 +23,6 @@ Run: ``nice -n 10 .venv/bin/python bench/bench_fleet_everyday.py [--records 30] 
 from __future__ import annotations
 
 import argparse
-import json
 import pickle
 import re
 import shutil
@@ -140,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
     out = work / 'dask_out'
     wall, cpu, rss, text = run_child([*tak_calib_command(), 'fit-fleet', '--everyday', str(fleet_dir), '-o', str(out),
                                       '--workers', '2', '--force'])
-    found = re.search(r'\(([\d.]+) s CPU per unit in the workers, at most (\d+) MiB a worker\)', text)
+    found = re.search(r'workers: ([\d.]+) s CPU per unit, at most (\d+) MiB each', text)
     dask = {'units': args.dask_units, 'wall_s': wall, 'client_cpu_s': cpu, 'client_peak_rss_bytes': rss,
             'worker_cpu_per_unit_s': float(found.group(1)) if found else None,
             'worker_peak_mib': int(found.group(2)) if found else None}

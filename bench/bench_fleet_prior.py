@@ -22,7 +22,6 @@ writes ``bench/results/fleet_prior.json``.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path

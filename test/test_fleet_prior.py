@@ -123,7 +123,7 @@ def test_a_new_unit_lies_within_the_prior_s_band_about_95_percent_of_the_time():
 
 
 def test_a_unit_of_another_part_is_named_and_left_out():
-    """A unit whose slope lies 25 spreads off: named, with its term, and not in the prior's units; its spread unharmed."""
+    """A unit whose slope lies 25 spreads off: named, with its term, not in the prior's units; the spread unharmed."""
     mean, spread = np.array([0.2, 1.0, -0.4]), np.array([0.3, 0.15, 0.08])
     rng = np.random.default_rng(7)
     units, _ = fleet(rng, mean, spread, 12, narrow_share=0.0)
@@ -214,7 +214,7 @@ def test_a_basis_change_keeps_the_curve(coefficients, ref_a, scale_a, ref_b, sca
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 10_000), st.floats(-20.0, 40.0), st.floats(1.0, 30.0))
 def test_information_carries_to_another_basis_and_integrates_nuisance_out(seed, ref, scale):
-    """A unit's estimate in another basis is its estimate carried there; a nuisance term integrated out equals the block.
+    """A unit's estimate in another basis is its estimate carried there; a nuisance integrated out gives the block.
 
     The curve's covariance from :meth:`Information.marginal` is the curve's block of the full inverse
     (the nuisance term integrated out with a flat prior); the same curve values in either basis.

@@ -310,7 +310,7 @@ def test_an_uncertainty_section_round_trips_and_bad_ones_are_one_line(seed, orde
 
 
 def test_the_prior_file_round_trips_and_a_bad_key_is_one_line(fleet, tmp_path):
-    """The prior written and read back: the same fleet; any broken value: CalibrationError naming the key, no traceback."""
+    """The prior written and read back: the same fleet; a broken value: CalibrationError naming the key, one line."""
     _, _, _, prior = fleet
     path = tmp_path / 'prior.yaml'
     save_prior(path, prior, header='a test')

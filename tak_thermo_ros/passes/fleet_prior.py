@@ -431,8 +431,8 @@ def run_everyday(args: argparse.Namespace, fit_actions: Sequence[argparse.Action
         print(line)
     cpu = sum(found[name].seconds for name in names) + sum(outcome.seconds for outcome in done.values())
     peak = max(outcome.peak_bytes for outcome in (*found.values(), *done.values()))
-    print(f'{ok} of {len(units)} units fitted with the prior in {time.perf_counter() - start:.1f} s '
-          f'({cpu / max(len(units), 1):.1f} s CPU per unit in the workers, at most {peak / 2 ** 20:.0f} MiB a worker)')
+    print(f'{ok} of {len(units)} units fitted with the prior in {time.perf_counter() - start:.1f} s')
+    print(f'workers: {cpu / max(len(units), 1):.1f} s CPU per unit, at most {peak / 2 ** 20:.0f} MiB each')
     print(f'wrote {prior_path} and the units\' files beside it')
     if ok == 0:
         msg = f'no unit was fitted (see {out_dir / LOGS})'

@@ -425,7 +425,7 @@ def distance(stats: _Stats, mean: np.ndarray, covariance: np.ndarray) -> tuple[n
 
 
 def upper_spread(stats: _Stats, fitted: Reml, rise: float = UPPER_RISE) -> np.ndarray:
-    """Per term the spread's upper bound: where ``-2 log REML`` rises by ``rise`` (the others held), searched upwards."""
+    """Per term the spread's upper bound: where ``-2 log REML`` rises by ``rise`` (the others held), upwards."""
     from scipy.optimize import brentq
     low, high, _ = _bounds(stats)
     out = fitted.spread.copy()
