@@ -335,3 +335,51 @@ def test_the_prior_file_round_trips_and_a_bad_key_is_one_line(fleet, tmp_path):
         with pytest.raises(CalibrationError, match=words.replace('(', r'\(').replace('.', r'\.')):
             prior_from_mapping(broken, 'p.yaml')
     assert math.isfinite(prior.sensors['gyro'].inflation)
+
+
+def test_a_unit_of_another_part_is_named_left_out_and_said(fleet):
+    """A seventh unit of another part (its slopes 20 spreads off): left out of the gyroscope's prior, named, said."""
+    from tak_thermo_ros.passes.fleet_prior import far_lines
+    scenario, habits, drawn, _ = fleet
+    other = fleet_unit(scenario, replace(FLEET, units=FLEET.units + 1, other_part=(FLEET.units,)), FLEET.units)
+    pool = pool_of([simulate(other, habits, i) for i in range(habits.records)])
+    units = [stats for _, stats in drawn] + [unit_statistics('odd', pool, HandheldSettings())]
+    prior = fleet_from_units(units, bias_order=3, scale_order=2)
+    gyro = prior.sensors['gyro']
+    assert [far.name for far in gyro.left_out] == ['odd'] and 'odd' not in gyro.units
+    assert gyro.left_out[0].term.split('.')[1] == 'offset_T1' and abs(gyro.left_out[0].sigmas) > 5.0
+    line = far_lines(prior)[0]
+    assert line.startswith('odd: far outside the fleet (') and line.endswith('): not in its gyroscope prior')
+    assert len(line) <= 100
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.data())
+def test_any_broken_prior_document_is_one_line(fleet, data):
+    """A prior document with any value replaced by junk: read, or refused with CalibrationError (never another error)."""
+    _, _, _, prior = fleet
+    document = yaml.safe_load(yaml.safe_dump(prior_to_mapping(prior)))
+    paths = []
+
+    def walk(node, path):
+        if isinstance(node, dict):
+            for key, value in node.items():
+                paths.append((*path, key))
+                walk(value, (*path, key))
+        elif isinstance(node, list):
+            for index, value in enumerate(node[:3]):
+                paths.append((*path, index))
+                walk(value, (*path, index))
+
+    walk(document, ())
+    path = data.draw(st.sampled_from(paths))
+    junk = data.draw(st.one_of(st.none(), st.booleans(), st.integers(-5, 5), st.floats(allow_nan=True),
+                               st.text(max_size=5), st.lists(st.floats(-1, 1), max_size=3), st.just({})))
+    target = document
+    for key in path[:-1]:
+        target = target[key]
+    target[path[-1]] = junk
+    try:
+        prior_from_mapping(document, 'p.yaml')
+    except CalibrationError as error:
+        assert '\n' not in str(error) and str(error).startswith('p.yaml: ')

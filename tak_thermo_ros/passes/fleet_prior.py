@@ -172,9 +172,8 @@ def numbers_of(values) -> str:
 
 def far_lines(prior) -> list[str]:
     """One statement per unit left out of a sensor's prior."""
-    return [f'{far.name}: left out of the {SENSOR_NAMES[far.sensor]} prior: far outside the fleet ({far.term} '
-            f'{far.sigmas:+.1f} sigmas; chi-square {far.distance:.0f} on {far.dof} terms, p {far.probability:.1g})'
-            for fleet in prior.sensors.values() for far in fleet.left_out]
+    return [f'{far.name}: far outside the fleet ({far.term} {far.sigmas:+.1f} sigmas): not in its '
+            f'{SENSOR_NAMES[far.sensor]} prior' for fleet in prior.sensors.values() for far in fleet.left_out]
 
 
 # ----- fit --prior -------------------------------------------------------------------------------------
