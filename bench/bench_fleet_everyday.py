@@ -26,7 +26,6 @@ import argparse
 import pickle
 import re
 import shutil
-import subprocess
 import sys
 import time
 from dataclasses import replace
@@ -55,17 +54,10 @@ with open(sys.argv[2], 'wb') as out:
 
 
 def build(directory: Path, records: int, minutes: float, rate: float) -> Path:
-    """One unit's month at full size, written once (``tak_calib simulate`` of a fleet of one)."""
-    unit = directory / 'unit00'
-    if unit.is_dir() and len(list(unit.iterdir())) == records:
-        return unit
-    directory.parent.mkdir(parents=True, exist_ok=True)
-    scenario = directory.parent / f'{directory.name}.yaml'
-    scenario.write_text(f'sample_rate_hz: {rate}\ntemp_code_every: 20\nseed: 1\n'
-                        f'everyday: {{records: {records}, record_minutes: {minutes}}}\nfleet: {{units: 1}}\n')
-    subprocess.run([*tak_calib_command(), 'simulate', str(directory), '--scenario', str(scenario), '--force'],
-                   check=True)
-    return unit
+    """One unit's month at full size, written once (:func:`bench_pool.build`: ``tak_calib simulate``)."""
+    from bench_pool import build as build_month
+    build_month(directory, records, minutes, rate)
+    return directory
 
 
 def copies(statistics, count: int, seed: int = 0) -> list:
@@ -101,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     from tak_thermo_ros.core.fit.prior_fit import fleet_from_units
     from tak_thermo_ros.formats.prior_file import save_prior
     work = args.workdir
-    unit = build(work / f'fleet_{args.records}x{args.minutes:g}min_{args.rate:g}hz', args.records, args.minutes,
+    unit = build(work / f'unit_{args.records}x{args.minutes:g}min_{args.rate:g}hz', args.records, args.minutes,
                  args.rate)
     result: dict = {'machine': machine(), 'records': args.records, 'minutes': args.minutes, 'rate_hz': args.rate}
     wall, cpu, rss, _ = run_child([*tak_calib_command(), 'fit', str(unit), '-o', str(work / 'alone.yaml'),

@@ -383,3 +383,17 @@ def test_any_broken_prior_document_is_one_line(fleet, data):
         prior_from_mapping(document, 'p.yaml')
     except CalibrationError as error:
         assert '\n' not in str(error) and str(error).startswith('p.yaml: ')
+
+
+def test_a_fleet_scenario_s_bad_keys_are_one_line(tmp_path, capsys):
+    """``simulate`` of a scenario with a ``fleet:`` section: a bad key or no ``everyday:``: one line naming it, exit 2."""
+    for text, words in (('fleet: {units: 3}\n', 'fleet: needs an everyday: section'),
+                        ('everyday: {records: 1}\nfleet: {unitz: 3}\n', 'fleet.unitz: unknown key'),
+                        ('everyday: {records: 1}\nfleet: {gyro: [1, 2]}\n', 'fleet.gyro: expected a list of 4 numbers'),
+                        ('everyday: {records: 1}\nfleet: {units: 2, other_part: [5]}\n',
+                         'fleet.other_part: expected unit numbers within 0..units-1')):
+        scenario = tmp_path / 'fleet.yaml'
+        scenario.write_text(text)
+        status, _, errors = run_cli(capsys, 'simulate', str(tmp_path / 'out'), '--scenario', str(scenario))
+        assert status == 2 and words in errors[-1], errors
+        assert not (tmp_path / 'out').exists()

@@ -62,10 +62,10 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
     if Path(args.out_bag).suffix.lower() in FLIGHT_LOG_SUFFIXES:
         return _flight_log(args, FLIGHT_LOG_SUFFIXES[Path(args.out_bag).suffix.lower()])
+    from tak_thermo_ros.formats.scenario import load_fleet
+    fleet = load_fleet(args.scenario)  # a fleet needs an everyday section: said first
     everyday = _everyday_scenario(args)
     if everyday is not None:
-        from tak_thermo_ros.formats.scenario import load_fleet
-        fleet = load_fleet(args.scenario)
         if fleet is not None:
             return _fleet(args, *everyday, fleet)
         return _everyday(args, *everyday)

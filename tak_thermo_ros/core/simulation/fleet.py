@@ -16,12 +16,12 @@ whatever the fleet's size.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields, replace
-from typing import Any, Mapping
+from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
-from tak_thermo_ros.core.simulation.everyday import Everyday, everyday_truth
+from tak_thermo_ros.core.simulation.everyday import Everyday, everyday_truth, section_from_mapping
 from tak_thermo_ros.core.simulation.imu import AxisTruth, Scenario
 from tak_thermo_ros.core.link.model import UnitCalibration
 from tak_thermo_ros.errors import ScenarioError
@@ -78,33 +78,7 @@ def fleet_from_mapping(raw: Any) -> Fleet:
 
     :raises ScenarioError: naming the key.
     """
-    known = {f.name for f in fields(Fleet)}
-    if not isinstance(raw, Mapping):
-        msg = f'fleet: expected a mapping (every key optional: {", ".join(sorted(known))})'
-        raise ScenarioError(msg)
-    values: dict[str, Any] = {}
-    for key, value in raw.items():
-        if key not in known:
-            msg = f'fleet.{key}: unknown key (known: {", ".join(sorted(known))})'
-            raise ScenarioError(msg)
-        default = getattr(Fleet(), key)
-        if isinstance(default, tuple):
-            if not isinstance(value, (list, tuple)) or any(isinstance(v, bool) or not isinstance(v, (int, float))
-                                                           for v in value):
-                msg = f'fleet.{key}: expected a list of numbers'
-                raise ScenarioError(msg)
-            value = tuple(int(v) for v in value) if key == 'other_part' else tuple(float(v) for v in value)
-        elif isinstance(default, int):
-            if isinstance(value, bool) or not isinstance(value, int):
-                msg = f'fleet.{key}: expected a whole number'
-                raise ScenarioError(msg)
-        elif isinstance(value, bool) or not isinstance(value, (int, float)):
-            msg = f'fleet.{key}: expected a number'
-            raise ScenarioError(msg)
-        else:
-            value = float(value)
-        values[key] = value
-    return Fleet(**values)
+    return section_from_mapping(Fleet, raw, 'fleet', whole_lists=('other_part',))
 
 
 def unit_seed(seed: int, index: int) -> int:
