@@ -66,7 +66,7 @@ def source_lines(sensor: str, calibration) -> list[str]:
         return []
     small, factor = _reader(sensor)
     low, high = uncertainty.records_min, uncertainty.records_max
-    axes = [i for i in range(3) if uncertainty.covariance(i) is not None]
+    axes = [i for i in range(3) if uncertainty.offset_variance(i, 0.0) > 0.0]
 
     def sd(index: int, temperatures: np.ndarray) -> float:
         n = np.asarray(temperatures, dtype=float) - calibration.temp_code_ref
@@ -138,17 +138,14 @@ def band_lines(check, calibration) -> tuple[list[str], dict[str, Any]]:
     n = check.temperature - calibration.temp_code_ref
     samples = np.maximum(1.0 / np.maximum(check.white[:, 0], 1e-300), 1.0)  # weights: the rests' lengths
     curve = np.zeros((len(n), 3))
-    for axis in range(3):
-        covariance = uncertainty.covariance(axis)
-        if covariance is None:
-            continue
-        powers = n[:, None] ** np.arange(len(covariance))[None, :]
-        mean = np.zeros_like(powers)
-        for record in np.unique(check.record):
-            rows = check.record == record
-            mean[rows] = np.average(powers[rows], axis=0, weights=samples[rows])
-        centred = powers - mean
-        curve[:, axis] = np.einsum('kp,pq,kq->k', centred, covariance, centred)
+    for record in np.unique(check.record):
+        rows = np.flatnonzero(check.record == record)
+        weights = samples[rows] / samples[rows].sum()
+        for axis in range(3):
+            # the curve's error at a rest less its record's weighted mean: C_rr - 2 (C w)_r + w' C w
+            between = uncertainty.offset_covariance_between(axis, n[rows][:, None], n[rows][None, :])
+            carried = between @ weights
+            curve[rows, axis] = np.diag(between) - 2.0 * carried + weights @ carried
     beyond = (check.temperature < low - 0.5) | (check.temperature > high + 0.5)
     lines, document = [], {}
     for label, rests in (('within', ~beyond), ('beyond', beyond)):
@@ -332,7 +329,7 @@ def unit_line(unit: str, path: str, records: int | None) -> str:
         small, factor = _reader(sensor)
         grid = np.linspace(link.temp_code_min, link.temp_code_max, 9) - link.temp_code_ref
         worst = max(math.sqrt(max(float(np.max(uncertainty.offset_variance(i, grid))), 0.0)) * factor
-                    for i in range(3) if uncertainty.covariance(i) is not None)
+                    for i in range(3) if uncertainty.offset_variance(i, 0.0) > 0.0)
         parts.append(f'{sensor} {significant(worst, 3)} {small}')
     told = f'{records} records' if records is not None else 'its records'
     shown = Path(path).name  # in OUT_DIR, named once at the end
