@@ -20,6 +20,9 @@ from tak_thermo_ros.passes.run import EFFECT_FIT_MAX_SAMPLES
 
 NAME = 'fit'
 OUTPUTS = (('output', FILE, '-o'),)
+BIAS_ORDER = 3
+SCALE_ORDER = 2
+"""The orders of the offset and scale polynomials when none is given."""
 """This command's outputs: ``(argument, kind, option)``, checked before any work is done."""
 
 
@@ -31,9 +34,10 @@ def add_parser(commands) -> argparse.ArgumentParser:
                         help='a record; several records, or a directory of them, are a pool of one unit\'s '
                              'everyday records (docs/everyday.md)')
     parser.add_argument('-o', '--output', required=True, metavar='PARAMS.yaml')
-    parser.add_argument('--bias-order', type=options.polynomial_order, default=3, help='order q of F_s (default 3)')
-    parser.add_argument('--scale-order', type=options.polynomial_order, default=2,
-                        help='order p of F_c (default 2; 0 = no scale drift)')
+    parser.add_argument('--bias-order', type=options.polynomial_order, default=BIAS_ORDER,
+                        help=f'order q of F_s (default {BIAS_ORDER})')
+    parser.add_argument('--scale-order', type=options.polynomial_order, default=SCALE_ORDER,
+                        help=f'order p of F_c (default {SCALE_ORDER}; 0 = no scale drift)')
     parser.add_argument('--temp-code-ref', type=options.temp_code,
                         help='N_t,ref (default: middle of the calibrated range)')
     parser.add_argument('--nominal-scale', type=options.nominal_scale, nargs='+', action=options.OneOrThree,
@@ -356,7 +360,7 @@ def _prior(args: argparse.Namespace):
     prior = load_prior(args.prior)
     for option, given, own in (('--bias-order', args.bias_order, prior.bias_order),
                                ('--scale-order', args.scale_order, prior.scale_order)):
-        if given != own and given != {'--bias-order': 3, '--scale-order': 2}[option]:
+        if given != own and given != {'--bias-order': BIAS_ORDER, '--scale-order': SCALE_ORDER}[option]:
             msg = f'{option} {given}: not with --prior, whose curves are of order {own} (its fleet\'s)'
             raise TakError(msg)
     return prior

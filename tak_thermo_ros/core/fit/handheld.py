@@ -179,8 +179,8 @@ class HandheldFit:
     turn_on: dict[str, TurnOnFit] = field(default_factory=dict)
     """A pool's records (several power-ups): per sensor the turn-on offsets and their spread."""
     information: dict[str, Information] = field(default_factory=dict)
-    """Per sensor what the records say about every term the fit did not hold by construction (a prior's
-    rows left out): :class:`~tak_thermo_ros.core.fit.prior.Information`."""
+    """With a prior (one without rows too: a fleet's first pass), per sensor what the records say about every
+    term the fit did not hold by construction, the prior's rows left out (:mod:`~tak_thermo_ros.core.fit.prior`)."""
 
 
 @dataclass(frozen=True)
@@ -1280,10 +1280,12 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
         lines.append(f'gyroscope: the turns close {math.sqrt(turn_scale):.2f}x worse than the noise predicts; '
                      f'their weight is lowered by that much')
     table = plateau_table(record.still, interval, up, accel_cal, settings.gravity)
-    span = (float(temperature.min()), float(temperature.max()))
-    information = {'accel': _information(problem.system(accel.theta, up), problem, gauge, accel, frame, span),
-                   'gyro': _information(gyro_problem.still_system().plus(turns.rows), gyro_problem.rests, gyro_orders,
-                                        gyro, frame, span)}
+    information = {}
+    if prior is not None:  # what a fleet's prior is made of, or chooses a unit's group by
+        span = (float(temperature.min()), float(temperature.max()))
+        information = {'accel': _information(problem.system(accel.theta, up), problem, gauge, accel, frame, span),
+                       'gyro': _information(gyro_problem.still_system().plus(turns.rows), gyro_problem.rests,
+                                            gyro_orders, gyro, frame, span)}
     return HandheldFit(results=results, lines=tuple(lines), up=up, closure=closure, closure_before=before,
                        plus_minus=table, orders=(bias_order, scale_order), turn_on=turn_on, information=information)
 
