@@ -339,7 +339,7 @@ def test_the_prior_file_round_trips_and_a_bad_key_is_one_line(fleet, tmp_path):
 
 def test_a_unit_of_another_part_is_named_left_out_and_said(fleet):
     """A seventh unit of another part (its slopes 20 spreads off): left out of the gyroscope's prior, named, said."""
-    from tak_thermo_ros.passes.fleet_prior import far_lines
+    from tak_thermo_ros.passes.prior_lines import far_lines
     scenario, habits, drawn, _ = fleet
     other = fleet_unit(scenario, replace(FLEET, units=FLEET.units + 1, other_part=(FLEET.units,)), FLEET.units)
     pool = pool_of([simulate(other, habits, i) for i in range(habits.records)])
@@ -356,7 +356,7 @@ def test_a_unit_of_another_part_is_named_left_out_and_said(fleet):
 @settings(max_examples=60, deadline=None)
 @given(st.data())
 def test_any_broken_prior_document_is_one_line(fleet, data):
-    """A prior document with any value replaced by junk: read, or refused with CalibrationError (never another error)."""
+    """A prior document with any value replaced by junk: read, or refused with CalibrationError (never another)."""
     _, _, _, prior = fleet
     document = yaml.safe_load(yaml.safe_dump(prior_to_mapping(prior)))
     paths = []
@@ -386,7 +386,7 @@ def test_any_broken_prior_document_is_one_line(fleet, data):
 
 
 def test_a_fleet_scenario_s_bad_keys_are_one_line(tmp_path, capsys):
-    """``simulate`` of a scenario with a ``fleet:`` section: a bad key or no ``everyday:``: one line naming it, exit 2."""
+    """``simulate`` of a scenario with a ``fleet:`` section: a bad key or no ``everyday:``: one line naming it."""
     for text, words in (('fleet: {units: 3}\n', 'fleet: needs an everyday: section'),
                         ('everyday: {records: 1}\nfleet: {unitz: 3}\n', 'fleet.unitz: unknown key'),
                         ('everyday: {records: 1}\nfleet: {gyro: [1, 2]}\n', 'fleet.gyro: expected a list of 4 numbers'),

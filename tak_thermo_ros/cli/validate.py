@@ -340,7 +340,7 @@ def _validate_pool(args: argparse.Namespace, unit: UnitCalibration) -> int:
             if unit.gyro.turn_on is not None else 'the file holds no turn-on repeatability')
     print(f'gyroscope: these records\' turn-on offsets spread {common.numbers(spread * factor, 3)} {small} x y z '
           f'({said})')
-    from tak_thermo_ros.passes.fleet_prior import band_lines
+    from tak_thermo_ros.passes.prior_lines import band_lines
     lines, band = band_lines(check, unit.gyro)
     for line in lines:
         print(line)

@@ -451,7 +451,7 @@ def fit_records(paths: Sequence[str | os.PathLike[str]], settings, options: Stre
             fitted = fit_pool(opened.record, handheld_settings(settings))
         else:
             from tak_thermo_ros.core.fit.prior_fit import fit_with_prior
-            from tak_thermo_ros.passes.fleet_prior import with_source_notes
+            from tak_thermo_ros.passes.prior_lines import with_source_notes
             fitted, lines = with_source_notes(fit_with_prior(opened.record, handheld_settings(settings), prior))
     except TwoUnits as err:
         small, factor = _reader(err.sensor)
