@@ -78,10 +78,12 @@ def _run(args: argparse.Namespace, fit_actions, command: Command) -> int:
     """A batch of calibration bags, or with ``--everyday`` a fleet's prior and its units fitted with it."""
     from tak_thermo_ros.errors import TakError
     if args.everyday is not None:
-        from tak_thermo_ros.cli.common import stream_options
+        from tak_thermo_ros.cli.common import topics
         from tak_thermo_ros.cli.fit import fit_settings
         from tak_thermo_ros.passes.fleet_prior import run_everyday
-        return run_everyday(args, fit_actions, command, fit_settings(args), stream_options(args))
+        from tak_thermo_ros.passes.run import StreamOptions
+        return run_everyday(args, fit_actions, command, fit_settings(args),
+                            StreamOptions(topics=topics(args), progress=False))
     if not args.bags:
         msg = 'give one BAG per unit, or --everyday DIR (a folder per unit)'
         raise TakError(msg)

@@ -26,7 +26,7 @@ import re
 import socket
 import sys
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -190,7 +190,6 @@ def run_everyday(args: argparse.Namespace, fit_actions: Sequence[argparse.Action
     check_everyday_outputs(out_dir, names, force=args.force)
     require('distributed', 'fit-fleet')
     settings = handheld_settings(settings)
-    options = replace(options, progress=False)
     fit_words = pass_through(fit_actions, args)
     workers = args.workers or DEFAULT_WORKERS
     where = f'scheduler {args.scheduler}' if args.scheduler else f'a local cluster of {workers} workers'
