@@ -430,9 +430,10 @@ UNCERTAINTY_KEYS = ('source', 'prior', 'records_min', 'records_max',
 
 def uncertainty_to_mapping(uncertainty: CurveUncertainty) -> dict[str, Any]:
     """A sensor's ``uncertainty`` section (an axis without a covariance or a share has no key)."""
-    mapping: dict[str, Any] = {'source': uncertainty.source, 'prior': uncertainty.prior,
-                               'records_min': float(uncertainty.records_min),
+    mapping: dict[str, Any] = {'source': uncertainty.source, 'records_min': float(uncertainty.records_min),
                                'records_max': float(uncertainty.records_max)}
+    if uncertainty.prior:  # no empty string among a node's parameters
+        mapping['prior'] = uncertainty.prior
     for name, values in zip(AXES, uncertainty.offset_covariance):
         if values:
             mapping[f'offset_covariance_{name}'] = [float(v) for v in values]
