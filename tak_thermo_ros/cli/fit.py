@@ -369,7 +369,8 @@ def _prior(args: argparse.Namespace):
 def _fit_pool(args: argparse.Namespace, settings) -> int:
     """``fit`` of a pool of one unit's everyday records (:mod:`tak_thermo_ros.passes.pool`): a line per record first."""
     from tak_thermo_ros.core.fit.pool import order_line
-    from tak_thermo_ros.passes.pool import coverage_lines, fit_records, left_out_line, opened_lines, turn_on_line
+    from tak_thermo_ros.passes.pool import (coverage_lines, fit_records, left_out_line, opened_lines, pool_header,
+                                            pool_unit, turn_on_line)
     for option, given in (('--iron-run', args.iron_run), ('--mag-effects', args.mag_effects),
                           ('--noise-from-residual', args.noise_from_residual)):
         if given:
@@ -380,23 +381,12 @@ def _fit_pool(args: argparse.Namespace, settings) -> int:
     opened, pool = fitted.opened, fitted.fit
     handheld = pool.fit
     results = handheld.results
-    unit = UnitCalibration(InputKind.IMU, accel=results['accel'].calibration, gyro=results['gyro'].calibration,
-                           source=fitted.source)
+    unit = pool_unit(fitted)
     noise_line = ''
     if args.noise or args.noise_run:
         unit, noise_line = _with_noise(args, unit)
-    names = ', '.join(pool.record.record_names)
-    notes = [f'pooled from {pool.record.records} records: {names}',
-             *(order_line(sensor, choice) for sensor, choice in pool.orders.items()),
-             *(left_out_line(left) for left in pool.left_out)]
-    accel, gyro = (replace(unit.sensor(sensor), notes=(*unit.sensor(sensor).notes, *notes))
-                   for sensor in ('accel', 'gyro'))
-    unit = replace(unit, accel=accel, gyro=gyro)
-    header = (f'tak_thermo_ros calibration fitted from a pool of {pool.record.records} records (everyday records of '
-              f'one unit)\n{len(handheld.results["accel"].calibration.axes)} axes per sensor, a turn-on offset per '
-              f'record' + (f'\nwith the prior {prior.label}' if prior is not None else '')
-              + f'\nload with: ros2 run tak_thermo_ros compensator --ros-args --params-file {Path(args.output).name}')
-    save_unit(args.output, unit, header=header)
+    label = prior.label if prior is not None else ''
+    save_unit(args.output, unit, header=pool_header(pool.record.records, args.output, label))
     for line in opened_lines(opened):
         print(line)
     for line in coverage_lines(opened):

@@ -82,8 +82,7 @@ def _run(args: argparse.Namespace, fit_actions, command: Command) -> int:
         from tak_thermo_ros.cli.fit import fit_settings
         from tak_thermo_ros.passes.fleet_prior import run_everyday
         from tak_thermo_ros.passes.run import StreamOptions
-        return run_everyday(args, fit_actions, command, fit_settings(args),
-                            StreamOptions(topics=topics(args), progress=False))
+        return run_everyday(args, fit_settings(args), StreamOptions(topics=topics(args), progress=False))
     if not args.bags:
         msg = 'give one BAG per unit, or --everyday DIR (a folder per unit)'
         raise TakError(msg)

@@ -1,17 +1,20 @@
-"""``tak_calib fit-fleet --everyday DIR`` and ``fit --prior``: a fleet's prior from its units' everyday records.
+"""``tak_calib fit-fleet --everyday DIR``: a fleet's prior from its units' everyday records, then each unit with it.
 
 ``DIR`` holds a folder per unit, each with that unit's everyday records (bags, flight logs, mixed:
 what ``tak_calib fit FOLDER`` takes as a pool, :mod:`~tak_thermo_ros.passes.pool`). On Dask (the
 scheduler ``fit-fleet`` uses, :func:`~tak_thermo_ros.passes.fleet.run_batch`'s):
 
-1. **map**: each unit's folder read once as ``fit`` reads a pool, fitted at the fleet's orders and
-   reduced to its statistics (:func:`~tak_thermo_ros.core.fit.prior_fit.unit_statistics`: its
-   information on its curve terms, a few hundred numbers whatever the records);
+1. **map**, on the workers: each unit's folder read once as ``fit`` reads a pool and fitted at the
+   fleet's orders (the pool fit, its orders not chosen), reduced to its **statistics**
+   (:func:`~tak_thermo_ros.core.fit.prior_fit.statistics_of`: its information on its curve terms, a few
+   hundred numbers whatever the records) beside its calibration as that fit gives it;
 2. **reduce**, on the client: the prior (:func:`~tak_thermo_ros.core.fit.prior_fit.fleet_from_units`),
    written to ``OUT/prior.yaml`` (:mod:`~tak_thermo_ros.formats.prior_file`);
-3. **map**: each unit fitted with the prior by the command line itself, ``tak_calib fit FOLDER
-   --prior OUT/prior.yaml -o OUT/<unit>.yaml`` (byte for byte what a user's command writes; its output
-   in ``OUT/logs/<unit>.txt``). A unit far outside the fleet is fitted from its own records alone.
+3. **map again**, on the client: each unit's statistics solved with the prior's rows
+   (:func:`~tak_thermo_ros.core.fit.prior_fit.unit_with_prior`: the unit's system, as its normal matrix,
+   with the prior's precision added; no record is read twice), written to ``OUT/<unit>.yaml``, what the
+   first map and this step said in ``OUT/logs/<unit>.txt``. A unit far outside the fleet keeps its fit
+   from its own records alone.
 
 A worker lost mid-run loses nothing: every task is a function of its unit's folder alone, and the
 scheduler runs the task of a lost worker again on another (Dask keeps what each task needs; up to
@@ -26,31 +29,34 @@ import re
 import socket
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Sequence
 
-
 from tak_thermo_ros.errors import OutputError, TakError
 from tak_thermo_ros.optional import require
-from tak_thermo_ros.passes.prior_lines import far_lines, prior_table, unit_line
+from tak_thermo_ros.passes.prior_lines import far_lines, prior_table, source_lines, unit_line
 
 PRIOR_FILE = 'prior.yaml'
 LOGS = 'logs'
 
 
-# ----- fit-fleet --everyday ----------------------------------------------------------------------------
+# ----- the first map, in the workers -------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
 class StatisticsOutcome:
-    """What the first map gives back for a unit: its statistics, or the one line why not.
+    """What the first map gives back for a unit: its statistics and calibration, or the one line why not.
 
+    :param unit_calibration: the unit's calibration as its pool fit at the fleet's orders gives it.
+    :param lines: what reading and fitting the pool said (the unit's log).
     :param seconds: the task's CPU time; ``peak_bytes``: its worker's peak resident memory so far.
     """
 
     unit: str
     statistics: Any = None
+    unit_calibration: Any = None
+    lines: tuple[str, ...] = ()
     error: str = ''
     seconds: float = 0.0
     worker: str = ''
@@ -64,19 +70,28 @@ def _peak_bytes() -> int:
 
 
 def unit_statistics_task(unit: str, directory: str, settings, options) -> StatisticsOutcome:
-    """In a worker: a unit's folder read as a pool and reduced to its statistics; never raises for a bad unit."""
-    from tak_thermo_ros.core.fit.prior_fit import unit_statistics
-    from tak_thermo_ros.passes.pool import open_pool
+    """In a worker: a unit's folder read as a pool, fitted at the fleet's orders, reduced; never raises for a bad unit.
+
+    :param settings: ``fit``'s :class:`~tak_thermo_ros.passes.run.FitSettings` (their orders are the fleet's).
+    """
+    from tak_thermo_ros.core.fit.prior import CurvePrior
+    from tak_thermo_ros.core.fit.prior_fit import statistics_of
+    from tak_thermo_ros.passes.pool import coverage_lines, fit_records, opened_lines, pool_unit
     start = time.process_time()
     worker = f'{socket.gethostname()}:{os.getpid()}'
     try:
-        opened = open_pool([directory], options)
-        statistics = unit_statistics(unit, opened.record, settings)
+        fitted = fit_records([directory], settings, options,
+                             prior=CurvePrior(None, settings.bias_order, settings.scale_order))
+        statistics = statistics_of(unit, fitted.fit)
+        lines = (*opened_lines(fitted.opened), *coverage_lines(fitted.opened), *fitted.fit.fit.lines)
     except TakError as error:
         return StatisticsOutcome(unit, error=str(error), seconds=time.process_time() - start, worker=worker,
                                  peak_bytes=_peak_bytes())
-    return StatisticsOutcome(unit, statistics, seconds=time.process_time() - start, worker=worker,
-                             peak_bytes=_peak_bytes())
+    return StatisticsOutcome(unit, statistics, pool_unit(fitted), lines, seconds=time.process_time() - start,
+                             worker=worker, peak_bytes=_peak_bytes())
+
+
+# ----- fit-fleet --everyday, on the client ------------------------------------------------------------
 
 
 def everyday_units(directory: str | os.PathLike[str]) -> tuple[list[tuple[str, Path]], list[str]]:
@@ -122,32 +137,7 @@ def check_everyday_outputs(out_dir: Path, units: Sequence[str], *, force: bool) 
             check_output(path, FILE, force=force, option='-o')
 
 
-@dataclass(frozen=True)
-class RefitOutcome:
-    """What the second map gives back for a unit: its file and log, or the one line why not."""
-
-    unit: str
-    params: str = ''
-    error: str = ''
-    seconds: float = 0.0
-    peak_bytes: int = 0
-
-
-def refit_task(unit: str, argv: list[str], log: str, command) -> RefitOutcome:
-    """In a worker: ``tak_calib ARGV`` (the unit's ``fit``), its output into ``log``; never raises for a bad unit."""
-    from tak_thermo_ros.formats.files import write_text_atomic
-    from tak_thermo_ros.passes.fleet import _error_line, _run_cli
-    start = time.process_time()
-    status, stdout, stderr = _run_cli(command, argv)
-    write_text_atomic(log, f'$ tak_calib {" ".join(argv)}\n{stdout}{stderr}exit status {status}\n')
-    seconds = time.process_time() - start
-    if status != 0:
-        return RefitOutcome(unit, error=f'fit: {_error_line(stderr, status)}', seconds=seconds,
-                            peak_bytes=_peak_bytes())
-    return RefitOutcome(unit, params=argv[argv.index('-o') + 1], seconds=seconds, peak_bytes=_peak_bytes())
-
-
-def _gathered(client, futures: dict, stream, what: str) -> dict[str, Any]:
+def _gathered(futures: dict, stream) -> dict[str, StatisticsOutcome]:
     """Each future's result as it completes (a line per unit on ``stream``); a task that failed: its error."""
     from dask.distributed import as_completed
     out = {}
@@ -156,16 +146,58 @@ def _gathered(client, futures: dict, stream, what: str) -> dict[str, Any]:
         try:
             out[unit] = future.result()
         except Exception as error:  # the task could not run (its workers died too often)
-            kind = StatisticsOutcome if what == 'statistics' else RefitOutcome
-            out[unit] = kind(unit, error=f'dask: {type(error).__name__}: {error}')
+            out[unit] = StatisticsOutcome(unit, error=f'dask: {type(error).__name__}: {error}')
         result = out[unit]
         detail = f': {result.error}' if result.error else ''
-        print(f'[{done}/{len(futures)}] {unit} {what} {result.seconds:.1f} s CPU{detail}', file=stream, flush=True)
+        print(f'[{done}/{len(futures)}] {unit} {result.seconds:.1f} s CPU{detail}', file=stream, flush=True)
     return out
 
 
-def run_everyday(args: argparse.Namespace, fit_actions: Sequence[argparse.Action], command, settings,
-                 options) -> int:
+@dataclass(frozen=True)
+class FleetRun:
+    """What ``fit-fleet --everyday`` did: the prior, and per unit its file's path or why it has none."""
+
+    prior: Any
+    written: dict[str, str] = field(default_factory=dict)
+    failed: dict[str, str] = field(default_factory=dict)
+    records: dict[str, int] = field(default_factory=dict)
+
+
+def _unit_files(out_dir: Path, found: dict[str, StatisticsOutcome], prior, noise: Any = None) -> dict[str, str]:
+    """The second map: each unit with the prior (a far one alone), its file and its log; the files written."""
+    from tak_thermo_ros.core.fit.prior_fit import unit_with_prior
+    from tak_thermo_ros.formats.calibration_file import save_unit
+    from tak_thermo_ros.formats.files import write_text_atomic
+    from tak_thermo_ros.passes.pool import pool_header
+    far = {f.name for fleet in prior.sensors.values() for f in fleet.left_out}
+    written = {}
+    for name, outcome in found.items():
+        if outcome.statistics is None:
+            continue
+        unit, lines = outcome.unit_calibration, list(outcome.lines)
+        if name in far:
+            note = 'far outside its fleet: fitted from its own records alone, at the fleet\'s orders'
+            unit = replace(unit, **{s: replace(c, notes=(*c.notes, note)) for s, c in unit.sensors})
+            lines.append(note)
+        else:
+            borrowed = unit_with_prior(unit, outcome.statistics, prior)
+            unit = borrowed.unit
+            said = [line for sensor, calibration in unit.sensors for line in source_lines(sensor, calibration)]
+            unit = replace(unit, **{s: replace(c, notes=(*c.notes, *source_lines(s, c))) for s, c in unit.sensors})
+            lines += [*borrowed.lines, *said]
+        if noise is not None:  # (noise file, stream options): every unit's noise model from the file
+            from tak_thermo_ros.passes.noise import noise_models
+            models = noise_models(unit=unit, options=noise[1], noise_file=noise[0]).models
+            unit = replace(unit, **{s: replace(c, noise=models[s]) for s, c in unit.sensors if s in models})
+        path = out_dir / f'{name}.yaml'
+        save_unit(path, unit, header=pool_header(outcome.statistics.records, str(path),
+                                                 '' if name in far else prior.label))
+        write_text_atomic(out_dir / LOGS / f'{name}.txt', ''.join(f'{line}\n' for line in lines))
+        written[name] = str(path)
+    return written
+
+
+def run_everyday(args: argparse.Namespace, settings, options) -> int:
     """``fit-fleet --everyday DIR -o OUT`` (see the module's description).
 
     :param settings: ``fit``'s :class:`~tak_thermo_ros.passes.run.FitSettings` of the options given;
@@ -173,24 +205,23 @@ def run_everyday(args: argparse.Namespace, fit_actions: Sequence[argparse.Action
     """
     from tak_thermo_ros.core.fit.prior_fit import fleet_from_units
     from tak_thermo_ros.formats.prior_file import save_prior
-    from tak_thermo_ros.passes.fleet import DEFAULT_WORKERS, _connect, pass_through
-    from tak_thermo_ros.passes.handheld import handheld_settings
-    if args.validate:
-        msg = '--validate: not with --everyday (validate a unit with tak_calib validate FOLDER --params OUT/UNIT.yaml)'
-        raise TakError(msg)
+    from tak_thermo_ros.passes.fleet import DEFAULT_WORKERS, _connect
+    for option, given in (('--validate', args.validate), ('--prior', getattr(args, 'prior', None)),
+                          ('--noise-run', getattr(args, 'noise_run', None)),
+                          ('--noise-from-residual', getattr(args, 'noise_from_residual', False))):
+        if given:
+            msg = (f'{option}: not with --everyday (it makes OUT_DIR/prior.yaml and fits each unit with it; '
+                   f'validate a unit with tak_calib validate FOLDER --params OUT_DIR/UNIT.yaml)')
+            raise TakError(msg)
     if args.bags:
         msg = f'{args.bags[0]}: BAGs and --everyday exclude each other (--everyday DIR holds a folder per unit)'
-        raise TakError(msg)
-    if getattr(args, 'prior', None):
-        msg = '--prior: not with --everyday, which makes the prior (OUT_DIR/prior.yaml) and fits each unit with it'
         raise TakError(msg)
     out_dir = Path(os.path.abspath(args.output))
     units, lines = everyday_units(args.everyday)
     names = [name for name, _ in units]
     check_everyday_outputs(out_dir, names, force=args.force)
+    noise = (args.noise, options) if getattr(args, 'noise', None) else None
     require('distributed', 'fit-fleet')
-    settings = handheld_settings(settings)
-    fit_words = pass_through(fit_actions, args)
     workers = args.workers or DEFAULT_WORKERS
     where = f'scheduler {args.scheduler}' if args.scheduler else f'a local cluster of {workers} workers'
     print(f'fit-fleet --everyday: {len(units)} units on {where}', file=sys.stderr, flush=True)
@@ -201,61 +232,45 @@ def run_everyday(args: argparse.Namespace, fit_actions: Sequence[argparse.Action
     try:
         futures = {client.submit(unit_statistics_task, name, str(path), settings, options, pure=False): name
                    for name, path in units}
-        found = _gathered(client, futures, sys.stderr, 'statistics')
-        statistics = [found[name].statistics for name in names if found[name].statistics is not None]
-        failed = {name: found[name].error for name in names if found[name].statistics is None}
-        try:
-            prior = fleet_from_units(statistics, bias_order=settings.bias_order, scale_order=settings.scale_order,
-                                     groups=args.groups)
-        except TakError as error:
-            detail = '; '.join(f'{name}: {why}' for name, why in list(failed.items())[:2])
-            msg = f'no prior: {error}' + (f' ({len(failed)} units failed: {detail})' if failed else '')
-            raise TakError(msg) from None
-        out_dir.mkdir(parents=True, exist_ok=True)
-        (out_dir / LOGS).mkdir(exist_ok=True)
-        prior_path = out_dir / PRIOR_FILE
-        save_prior(prior_path, prior, header=f'tak_thermo_ros fleet prior from {len(statistics)} units of '
-                                             f'{args.everyday} (tak_calib fit-fleet --everyday)\n'
-                                             f'use with: tak_calib fit RECORDS --prior {PRIOR_FILE} -o PARAMS.yaml')
-        far = {f.name for fleet in prior.sensors.values() for f in fleet.left_out}
-        refits = {}
-        for name, path in units:
-            if name in failed:
-                continue
-            argv = ['fit', str(path), '-o', str(out_dir / f'{name}.yaml'), *fit_words, '--no-progress', '--force']
-            if name not in far:
-                argv += ['--prior', str(prior_path)]
-            refits[client.submit(refit_task, name, argv, str(out_dir / LOGS / f'{name}.txt'), command,
-                                 pure=False)] = name
-        done = _gathered(client, refits, sys.stderr, 'fit')
+        found = _gathered(futures, sys.stderr)
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
+    statistics = [found[name].statistics for name in names if found[name].statistics is not None]
+    failed = {name: found[name].error for name in names if found[name].statistics is None}
+    try:
+        prior = fleet_from_units(statistics, bias_order=settings.bias_order, scale_order=settings.scale_order,
+                                 groups=args.groups)
+    except TakError as error:
+        detail = '; '.join(f'{name}: {why}' for name, why in list(failed.items())[:2])
+        msg = f'no prior: {error}' + (f' ({len(failed)} units failed: {detail})' if failed else '')
+        raise TakError(msg) from None
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / LOGS).mkdir(exist_ok=True)
+    prior_path = out_dir / PRIOR_FILE
+    prior = replace(prior, label=f'{PRIOR_FILE}: {len(prior.units)} units, {prior.records} records')
+    save_prior(prior_path, prior, header=f'tak_thermo_ros fleet prior from {len(statistics)} units of '
+                                         f'{args.everyday} (tak_calib fit-fleet --everyday)\n'
+                                         f'use with: tak_calib fit RECORDS --prior {PRIOR_FILE} -o PARAMS.yaml')
+    written = _unit_files(out_dir, found, prior, noise)
     for line in prior.lines():
         print(line)
     for line in far_lines(prior):
         print(line)
-    records = {unit.name: unit.records for unit in statistics}
-    ok = 0
     for name in names:
         if name in failed:
             print(f'{name}: failed: {failed[name]}')
-            continue
-        outcome = done[name]
-        if outcome.error:
-            print(f'{name}: failed: {outcome.error}')
-            continue
-        ok += 1
-        print(unit_line(name, outcome.params, records.get(name)))
+        else:
+            print(unit_line(name, written[name], found[name].statistics.records))
     for line in prior_table(prior):
         print(line)
-    cpu = sum(found[name].seconds for name in names) + sum(outcome.seconds for outcome in done.values())
-    peak = max(outcome.peak_bytes for outcome in (*found.values(), *done.values()))
-    print(f'{ok} of {len(units)} units fitted with the prior in {time.perf_counter() - start:.1f} s')
+    cpu = sum(outcome.seconds for outcome in found.values())
+    peak = max(outcome.peak_bytes for outcome in found.values())
+    print(f'{len(written)} of {len(units)} units fitted with the prior in {time.perf_counter() - start:.1f} s')
     print(f'workers: {cpu / max(len(units), 1):.1f} s CPU per unit, at most {peak / 2 ** 20:.0f} MiB each')
     print(f'wrote {prior_path} and the units\' files beside it')
-    if ok == 0:
+    if not written:
         msg = f'no unit was fitted (see {out_dir / LOGS})'
         raise OutputError(msg)
     return 0

@@ -29,7 +29,7 @@ from typing import Iterator, Sequence
 import numpy as np
 
 from tak_thermo_ros.core.fit.pool import own_offsets, record_means
-from tak_thermo_ros.core.link.model import InputKind
+from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.records.extremes import temperature_course
 from tak_thermo_ros.core.records.handheld import HandheldRecord, empty_samples, pooled
 from tak_thermo_ros.core.records.record import DriverRecord, hold_last_index, no_orientation
@@ -439,16 +439,21 @@ def fit_records(paths: Sequence[str | os.PathLike[str]], settings, options: Stre
     """Read a pool once and fit it (:func:`~tak_thermo_ros.core.fit.pool.fit_pool`).
 
     :param settings: ``tak_calib fit``'s :class:`~tak_thermo_ros.passes.run.FitSettings`.
-    :param prior: a fleet's prior (:func:`~tak_thermo_ros.core.fit.prior_fit.fit_with_prior`), or ``None``.
+    :param prior: a fleet's prior (:func:`~tak_thermo_ros.core.fit.prior_fit.fit_with_prior`), a
+        :class:`~tak_thermo_ros.core.fit.prior.CurvePrior` that only fixes the orders (a fleet's first pass), or
+        ``None``.
     :raises PoolError: as :func:`open_pool`; ``FitError`` as the fit.
     """
     from tak_thermo_ros.core.fit.pool import TwoUnits, fit_pool
+    from tak_thermo_ros.core.fit.prior import CurvePrior
     opened = open_pool(paths, options)
     assert opened.record is not None
     lines: tuple[str, ...] = ()
     try:
         if prior is None:
             fitted = fit_pool(opened.record, handheld_settings(settings))
+        elif isinstance(prior, CurvePrior):  # the orders only (a fleet's first pass)
+            fitted = fit_pool(opened.record, replace(handheld_settings(settings), prior=prior))
         else:
             from tak_thermo_ros.core.fit.prior_fit import fit_with_prior
             from tak_thermo_ros.passes.prior_lines import with_source_notes
@@ -469,6 +474,27 @@ def fit_records(paths: Sequence[str | os.PathLike[str]], settings, options: Stre
         for key in ('accel_device_id', 'gyro_device_id'):
             source[key] = int(used[0].source.get(key, 0))  # type: ignore[union-attr]
     return FittedPool(opened, fitted, source, lines)
+
+
+def pool_unit(fitted: FittedPool) -> UnitCalibration:
+    """A pool's fit as the calibration file holds it: both sensors, the pool's source, what was pooled in its notes."""
+    from tak_thermo_ros.core.fit.pool import order_line
+    pool = fitted.fit
+    results = pool.fit.results  # type: ignore[attr-defined]
+    names = ', '.join(pool.record.record_names)  # type: ignore[attr-defined]
+    notes = [f'pooled from {pool.record.records} records: {names}',  # type: ignore[attr-defined]
+             *(order_line(sensor, choice) for sensor, choice in pool.orders.items()),  # type: ignore[attr-defined]
+             *(left_out_line(left) for left in pool.left_out)]  # type: ignore[attr-defined]
+    accel, gyro = (replace(results[sensor].calibration, notes=(*results[sensor].calibration.notes, *notes))
+                   for sensor in ('accel', 'gyro'))
+    return UnitCalibration(InputKind.IMU, accel=accel, gyro=gyro, source=fitted.source)
+
+
+def pool_header(records: int, output: str, prior: str = '') -> str:
+    """The header of a pool's calibration file (``prior``: its label, when fitted with one)."""
+    return (f'tak_thermo_ros calibration fitted from a pool of {records} records (everyday records of one unit)\n'
+            f'3 axes per sensor, a turn-on offset per record' + (f'\nwith the prior {prior}' if prior else '')
+            + f'\nload with: ros2 run tak_thermo_ros compensator --ros-args --params-file {Path(output).name}')
 
 
 def _reader(sensor: str) -> tuple[str, float]:

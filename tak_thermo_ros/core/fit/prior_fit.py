@@ -29,7 +29,7 @@ from tak_thermo_ros.core.fit.fleet_prior import FEW_UNITS, MAX_GROUPS, SensorFle
 from tak_thermo_ros.core.fit.handheld import HandheldSettings
 from tak_thermo_ros.core.fit.pool import PoolFit, fit_pool
 from tak_thermo_ros.core.fit.prior import Basis, CurvePrior, Information, SensorPrior, offset_covariance
-from tak_thermo_ros.core.link.model import AXES, CurveUncertainty, TurnOn
+from tak_thermo_ros.core.link.model import AXES, CurveUncertainty, TurnOn, UnitCalibration
 from tak_thermo_ros.core.records.handheld import HandheldRecord
 from tak_thermo_ros.core.values import SENSOR_NAMES
 from tak_thermo_ros.errors import FitError
@@ -66,7 +66,11 @@ class UnitStatistics:
 def unit_statistics(name: str, record: HandheldRecord, settings: HandheldSettings) -> UnitStatistics:
     """A unit's pool fitted at ``settings``' orders (no order choice), reduced to what a fleet needs."""
     vague = CurvePrior(None, settings.bias_order, settings.scale_order)
-    fitted = fit_pool(record, replace(settings, prior=vague))
+    return statistics_of(name, fit_pool(record, replace(settings, prior=vague)))
+
+
+def statistics_of(name: str, fitted: PoolFit) -> UnitStatistics:
+    """What a pool's fit with a prior (one without rows: the orders only) tells a fleet about its unit."""
     turn_on = {sensor: (np.asarray(fit.variances.turn_on, dtype=float), np.asarray(fit.variances.rest, dtype=float))
                for sensor, fit in fitted.fit.turn_on.items()}
     return UnitStatistics(name, fitted.record.records,
@@ -252,3 +256,82 @@ def _uncertainty(records: Information, prior: SensorPrior, order: int, label: st
         shares.append(tuple(float(v) for v in np.clip(1.0 - ratio, 0.0, 1.0)))
     return CurveUncertainty(tuple(covariances), records.low, records.high,  # type: ignore[arg-type]
                             source='records and prior', prior=label, records_share=tuple(shares))  # type: ignore
+
+
+def unit_with_prior(unit: UnitCalibration, statistics: UnitStatistics, fleet: FleetPrior) -> PriorUnit:
+    """A fleet's unit, fitted at the fleet's orders (its ``statistics``' fit), solved again with the prior's rows.
+
+    The unit's records are its statistics (:class:`~tak_thermo_ros.core.fit.prior.Information`: its pool fit's
+    system as a normal matrix, the nuisance terms integrated out); the prior's rows add their precision and
+    pull: the curve terms are ``(H + P)^-1 (g + P mean)``, what :func:`fit_with_prior` solves from the records'
+    rows (one Gauss-Newton step from the unit's own solution, which the unit's many records make exact
+    within its noise). Each axis's curve is rebuilt in the prior's basis over the prior's temperatures and
+    the unit's; its scales held as the unit's fit held them, its effects, residuals and turn-on repeatability
+    its fit's (the fleet's when its pool holds fewer than :data:`OWN_TURN_ON_RECORDS` records).
+    """
+    prior, lines = fleet.curve_prior(statistics.information)
+    sensors, uncertainty = {}, {}
+    for sensor, calibration in unit.sensors:
+        sensor_prior = prior.sensors.get(sensor)
+        records = statistics.information.get(sensor)
+        if sensor_prior is None or records is None:
+            sensors[sensor] = calibration
+            continue
+        records = records.in_basis(fleet.basis)
+        theta = _posterior_mean(records, sensor_prior)
+        calibration = _rebuilt(calibration, theta, fleet, records.low, records.high)
+        uncertainty[sensor] = _uncertainty(records, sensor_prior, fleet.bias_order, fleet.label)
+        calibration = replace(calibration, uncertainty=uncertainty[sensor])
+        if statistics.records < OWN_TURN_ON_RECORDS and sensor in fleet.turn_on:
+            calibration = _fleet_turn_on(calibration, fleet, sensor)
+        sensors[sensor] = calibration
+    return PriorUnit(replace(unit, **sensors), tuple(lines), uncertainty)
+
+
+@dataclass(frozen=True)
+class PriorUnit:
+    """A fleet's unit with the prior: its calibration, the statements on its group, each sensor's uncertainty."""
+
+    unit: UnitCalibration
+    lines: tuple[str, ...]
+    uncertainty: Mapping[str, CurveUncertainty]
+
+
+def _posterior_mean(records: Information, prior: SensorPrior) -> dict[str, float]:
+    """The curve terms ``(H + P)^-1 (g + P mean)`` over the records' terms (a term the fit held keeps its value)."""
+    names = [name for name in records.names if name not in records.held]
+    hessian, gradient, _ = records.aligned(names)
+    precision = np.zeros_like(hessian)
+    pull = np.zeros(len(names))
+    index = [names.index(name) for name in prior.names if name in names]
+    inside = [i for i, name in enumerate(prior.names) if name in names]
+    inverse = np.linalg.inv(prior.covariance)
+    block = inverse[np.ix_(inside, inside)]
+    precision[np.ix_(index, index)] = block
+    pull[index] = block @ prior.mean[inside]
+    solved = np.linalg.lstsq(hessian + precision, gradient + pull, rcond=1e-12)[0]
+    values = dict(zip(names, (float(v) for v in solved)))
+    values.update({name: (1.0 if '.scale' in name and '_T' not in name else 0.0) for name in records.held})
+    return values
+
+
+def _rebuilt(calibration, theta: Mapping[str, float], fleet: FleetPrior, low: float, high: float):
+    """A sensor's calibration with its curves ``theta`` (the prior's basis) over the prior's and its own range."""
+    from tak_thermo_ros.core.fit.model import calibration_from
+    frame = Frame(ref=fleet.basis.ref, low=min(low, fleet.low, calibration.temp_code_min),
+                  high=max(high, fleet.high, calibration.temp_code_max), n_scale=fleet.basis.n_scale)
+    betas, held_scales = [], []
+    for name, axis in zip(AXES, calibration.axes):
+        offset = [theta.get(f'{name}.offset' + (f'_T{k}' if k else ''), 0.0) for k in range(fleet.bias_order + 1)]
+        if axis.scale_observable and f'{name}.scale' in theta:
+            scale = [theta.get(f'{name}.scale' + (f'_T{k}' if k else ''), 0.0) for k in range(fleet.scale_order + 1)]
+            betas.append(np.array([*scale, *offset]))
+            held_scales.append(None)
+        else:
+            betas.append(np.array(offset))
+            held_scales.append(axis.scale)
+    rebuilt = calibration_from(frame, betas, bias_order=fleet.bias_order, scale_order=fleet.scale_order,
+                               held_scales=held_scales, notes=calibration.notes, effects=calibration.effects)
+    axes = tuple(replace(new, residual_rms=old.residual_rms) for new, old in zip(rebuilt.axes, calibration.axes))
+    return replace(calibration, temp_code_ref=rebuilt.temp_code_ref, temp_code_min=rebuilt.temp_code_min,
+                   temp_code_max=rebuilt.temp_code_max, axes=axes)
