@@ -24,6 +24,7 @@ Run: ``nice -n 10 .venv/bin/python bench/bench_fleet_everyday.py [--records 30] 
 from __future__ import annotations
 
 import argparse
+import os
 import pickle
 import re
 import shutil
@@ -88,22 +89,32 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--rate', type=float, default=200.0)
     parser.add_argument('--fleet-units', type=int, default=100)
     parser.add_argument('--dask-units', type=int, default=4)
+    parser.add_argument('--repeat', type=int, default=3, help='fit alone and the first map, alternated, medians')
     parser.add_argument('--output', type=Path, default=RESULTS / 'fleet_everyday.json')
     args = parser.parse_args(argv)
     from tak_thermo_ros.core.fit.prior_fit import fleet_from_units
     from tak_thermo_ros.formats.prior_file import save_prior
+    # one BLAS thread in every child, as tak_calib and the Dask workers run (threads spinning on a loaded
+    # 2-core machine would be counted as CPU time)
+    os.environ['OPENBLAS_NUM_THREADS'] = '1'
     work = args.workdir
     unit = build(work / f'unit_{args.records}x{args.minutes:g}min_{args.rate:g}hz', args.records, args.minutes,
                  args.rate)
     result: dict = {'machine': machine(), 'records': args.records, 'minutes': args.minutes, 'rate_hz': args.rate}
-    wall, cpu, rss, _ = run_child([*tak_calib_command(), 'fit', str(unit), '-o', str(work / 'alone.yaml'),
-                                   '--force', '--no-progress'])
-    result['fit_alone'] = {'cpu_s': cpu, 'wall_s': wall, 'peak_rss_bytes': rss}
-    print(f'fit of one unit ({args.records} records): {cpu:.1f} s CPU, {rss / 2 ** 20:.0f} MiB', flush=True)
     stats_path = work / 'statistics.pickle'
-    wall, cpu, rss, _ = run_child([sys.executable, '-c', STATISTICS_SCRIPT, str(unit), str(stats_path)])
-    result['statistics'] = {'cpu_s': cpu, 'wall_s': wall, 'peak_rss_bytes': rss}
-    print(f'the unit\'s statistics (first map): {cpu:.1f} s CPU, {rss / 2 ** 20:.0f} MiB', flush=True)
+    runs: dict[str, list] = {'fit_alone': [], 'statistics': []}
+    for _ in range(args.repeat):  # alternated: the machine's load moves between them alike
+        for label, command in (('fit_alone', [*tak_calib_command(), 'fit', str(unit), '-o', str(work / 'alone.yaml'),
+                                              '--force', '--no-progress']),
+                               ('statistics', [sys.executable, '-c', STATISTICS_SCRIPT, str(unit), str(stats_path)])):
+            wall, cpu, rss, _ = run_child(command)
+            runs[label].append({'cpu_s': cpu, 'wall_s': wall, 'peak_rss_bytes': rss})
+            print(f'{label}: {cpu:.1f} s CPU, {rss / 2 ** 20:.0f} MiB', flush=True)
+    for label, values in runs.items():
+        result[label] = {'cpu_s': float(np.median([v['cpu_s'] for v in values])),
+                         'peak_rss_bytes': max(v['peak_rss_bytes'] for v in values), 'runs': values}
+    print(f'fit of one unit ({args.records} records): {result["fit_alone"]["cpu_s"]:.1f} s CPU (median of '
+          f'{args.repeat}); the unit\'s statistics (first map): {result["statistics"]["cpu_s"]:.1f} s', flush=True)
     with open(stats_path, 'rb') as source:
         outcome = pickle.load(source)
     statistics = outcome.statistics
