@@ -1,7 +1,7 @@
 """Benchmark: the streamed Allan deviation of 15 h at 1 kHz (54 million samples per axis, 3 axes).
 
 Target (issue 16): bounded memory (peak resident set < 1 GB) and less than 0.3x the time
-rosbags needs to read such a bag. The baseline is the README's measured figure (bench_memory /
+rosbags needs to read such a bag. The baseline is the manual's measured figure (bench_memory /
 bench_fit: rosbags alone deserialises the 59.4 million messages of a 15 h, 1 kHz bag in
 645 s on this machine); it is not measured again here (reading it takes 11 minutes).
 
@@ -39,7 +39,7 @@ from benchlib import machine
 RESULTS = Path(__file__).resolve().parent / 'results'
 BLOCK = 65536
 ROSBAGS_15H_S = 645.0
-"""README (Performance): rosbags' own deserialisation of the 59.4 M messages of 15 h at 1 kHz."""
+"""docs/manual.md (Performance): rosbags' own deserialisation of the 59.4 M messages of 15 h at 1 kHz."""
 MEMORY_TARGET_BYTES = 1024 ** 3
 WHITE = 1.7e-4      # rad/s/sqrt(Hz)
 BIAS = 4.8e-5       # rad/s (10 deg/h)
@@ -148,7 +148,7 @@ def main() -> int:
     baseline = ROSBAGS_15H_S * (args.hours / 15.0) * (args.rate / 1000.0)
     figures.update(hours=args.hours, rate_hz=args.rate, wall_s=time.perf_counter() - started,
                    rosbags_baseline_s=baseline,
-                   baseline_source='README: rosbags deserialises 15 h at 1 kHz in 645 s '
+                   baseline_source='docs/manual.md: rosbags deserialises 15 h at 1 kHz in 645 s '
                                    '(scaled linearly to this length and rate)',
                    ratio_to_rosbags=figures['allan_s'] / baseline, target_ratio=0.3,
                    memory_target_bytes=MEMORY_TARGET_BYTES,

@@ -29,7 +29,12 @@ updates ``driver_input`` in ``node.json``.
 this version against another's in fresh interpreters taking turns: what honouring an absent
 sensor's mark (covariance[0] = -1) costs an ordinary two-sensor message; key ``one_sensor_marks``.
 
-Usage: ``python bench/bench_node.py [--quick] [--driver-only] [--marks --baseline DIR]``; writes
+``--rates`` (issue 42): the node as a user starts it (the raw path), the node on the decoded path and
+a bare rclpy relay on the default executor, side by side, open loop at 1, 2, 4 and 8 kHz for 10 s
+each, counts and driver input, three rounds: messages lost and CPU per message; key ``rates``;
+target: at 4 kHz none lost and at most 0.40x the relay's CPU per message.
+
+Usage: ``python bench/bench_node.py [--quick] [--driver-only] [--rates] [--marks --baseline DIR]``; writes
 ``bench/results/node.json`` (with ``--quick``: ``node_quick.json``, a smoke run, not the figures);
 exits 3 (as every ``bench/bench_*.py``) when a target is missed.
 """
@@ -63,8 +68,13 @@ NANOSECONDS = 1_000_000_000
 
 # -- the relay node (run as: bench_node.py relay --ros-args ...) ---------------------------------
 
-def relay_main() -> int:
-    """A bare relay: same subscriptions and publisher as the compensator, no maths."""
+def relay_main(input_kind: str = 'counts', depth: int = DEPTH, best_effort: bool = False) -> int:
+    """A bare relay on the default executor (``rclpy.spin``): the compensator's topics and QoS, no package, no maths.
+
+    Counts: the Vector3Stamped's header and vector copied into an Imu; driver: the Imu republished as it came.
+    Reliable both ways (the closed-loop benchmark), or, ``best_effort``, best-effort input as the node's
+    default; ``depth`` of both.
+    """
     import rclpy
     from geometry_msgs.msg import Vector3Stamped
     from rclpy.executors import ExternalShutdownException
@@ -75,17 +85,25 @@ def relay_main() -> int:
     class Relay(Node):
         def __init__(self) -> None:
             super().__init__('relay')
-            qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DEPTH, reliability=ReliabilityPolicy.RELIABLE)
-            self._temp = self.create_subscription(Temperature, 'tak/temp_code', self._on_temperature, qos)
+            qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE)
+            inputs = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.BEST_EFFORT
+                                ) if best_effort else qos
+            driver = input_kind == 'driver'
+            self._temp = self.create_subscription(Temperature, 'imu/temperature' if driver else 'tak/temp_code',
+                                                  self._on_temperature, inputs)
             self._imu = Imu()
             self._imu.orientation.w = 1.0
             self._imu.orientation_covariance = (-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
             self._imu.angular_velocity_covariance = (-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
             self._imu.linear_acceleration_covariance = (1e-4, 0.0, 0.0, 0.0, 1e-4, 0.0, 0.0, 0.0, 1e-4)
             self._acceleration = self._imu.linear_acceleration
-            self._publisher = self.create_publisher(Imu, 'tak/imu/data_raw', qos)
+            self._publisher = self.create_publisher(Imu, 'imu/data_compensated' if driver else 'tak/imu/data_raw',
+                                                    qos)
             self._publish = self._publisher.publish
-            self._counts = self.create_subscription(Vector3Stamped, 'tak/counts', self._on_counts, qos)
+            if driver:
+                self._input = self.create_subscription(Imu, 'imu/data_raw', self._publish, inputs)
+            else:
+                self._input = self.create_subscription(Vector3Stamped, 'tak/counts', self._on_counts, inputs)
 
         def _on_temperature(self, message: Temperature) -> None:
             pass
@@ -657,7 +675,12 @@ def main() -> int:
     parser.add_argument('--marks', action='store_true',
                         help="with --baseline: only the real node's Imu callback, this version against the "
                              "baseline's (the cost of honouring an absent sensor's mark); updates node.json")
+    parser.add_argument('--rates', action='store_true',
+                        help='only the relay, the decoded node and the raw node at 1, 2, 4 and 8 kHz, counts and '
+                             'driver input, in one run (issue 42); updates node.json')
     args = parser.parse_args()
+    if args.rates:
+        return rates_only(quick=args.quick)
     if args.watch:
         return watch_only(quick=args.quick)
     if args.pipeline:
@@ -1292,9 +1315,310 @@ def driver_only(*, quick: bool, baseline: Path | None = None) -> int:
     return 0
 
 
+# -- the node at 1, 2, 4 and 8 kHz (issue 42): the relay, the decoded node and the raw node in one run --------------
+
+RATES_KHZ = (1.0, 2.0, 4.0, 8.0)
+RATE_SECONDS = 10.0
+"""Seconds per rate: 40,000 messages at 4 kHz."""
+RATE_ROUNDS = 3
+TICK_S = 0.001
+"""The bench driver publishes every millisecond what is due (4 messages a tick at 4 kHz), as a driver reading its
+sensor's FIFO does."""
+RATE_SUBJECTS = ('relay', 'decoded', 'raw')
+RATE_INPUTS = ('counts', 'driver')
+RATE_TEMP_EVERY = 100
+RATIO_TARGET = 0.40
+
+
+class RateDriver:
+    """The driver of one subject: pre-serialised input messages published every tick, the answers counted as bytes.
+
+    Publishing serialised bytes (``publish(bytes)``) and counting the answers with a raw subscription
+    keeps this process's share of the 2 cores small; stamps go on by the period from run to run.
+    """
+
+    def __init__(self, domain: int, input_kind: str, name: str) -> None:
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from geometry_msgs.msg import Vector3Stamped
+        from rclpy.context import Context
+        from rclpy.experimental import EventsExecutor
+        from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import Imu, Temperature
+        self.driver = input_kind == 'driver'
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.node = rclpy.create_node(name, context=self.context)
+        self.executor = EventsExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DEPTH, reliability=ReliabilityPolicy.RELIABLE)
+        answers = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100 * DEPTH, reliability=ReliabilityPolicy.RELIABLE)
+        self.input_publisher = self.node.create_publisher(Imu if self.driver else Vector3Stamped,
+                                                          'imu/data_raw' if self.driver else 'tak/counts', qos)
+        self.temp_publisher = self.node.create_publisher(Temperature, 'imu/temperature' if self.driver
+                                                         else 'tak/temp_code', qos)
+        self.subscription = self.node.create_subscription(
+            Imu, 'imu/data_compensated' if self.driver else 'tak/imu/data_raw', self._on_answer, answers, raw=True)
+        self.statuses: list = []
+        self.diagnostics = self.node.create_subscription(DiagnosticArray, '/diagnostics', self.statuses.append, 10)
+        self.answered = 0
+        self.stamp_ns = 1_700_000_000 * NANOSECONDS
+
+    def _on_answer(self, raw: bytes) -> None:
+        self.answered += 1
+
+    def messages(self, count: int, period_ns: int) -> tuple[list[bytes], list[bytes]]:
+        """``count`` input messages stamped a period apart, and a temperature for every RATE_TEMP_EVERY of them."""
+        import numpy as np
+
+        from tak_thermo_ros.formats.cdr import encode_messages
+        stamps = self.stamp_ns + period_ns * np.arange(1, count + 1, dtype=np.int64)
+        self.stamp_ns = int(stamps[-1])
+        k = np.arange(count)
+        if self.driver:
+            accel = np.column_stack([0.01 * (k % 100), np.full(count, -0.2), np.full(count, 9.81)])
+            gyro = np.column_stack([0.001 * (k % 50), np.full(count, 0.02), np.full(count, -0.03)])
+            inputs = encode_messages('sensor_msgs/msg/Imu', stamps, {
+                'orientation': np.array([0.0, 0.0, 0.0, 1.0]), 'orientation_covariance': np.zeros(9),
+                'angular_velocity': gyro, 'angular_velocity_covariance': np.zeros(9),
+                'linear_acceleration': accel, 'linear_acceleration_covariance': np.zeros(9)}, {'frame_id': 'imu_link'})
+            temperature = 20.0 + (k[::RATE_TEMP_EVERY] // RATE_TEMP_EVERY) % 10 * 0.5
+        else:
+            counts = np.column_stack([k % 2000 - 1000.0, np.full(count, 500.0), np.full(count, 2500.0)])
+            inputs = encode_messages('geometry_msgs/msg/Vector3Stamped', stamps, {'vector': counts},
+                                     {'frame_id': 'tak_imu'})
+            temperature = 8200.0 + (k[::RATE_TEMP_EVERY] // RATE_TEMP_EVERY) % 200
+        temperatures = encode_messages('sensor_msgs/msg/Temperature', stamps[::RATE_TEMP_EVERY],
+                                       {'temperature': temperature, 'variance': 0.0}, {'frame_id': 'imu_link'})
+        return inputs, temperatures
+
+    spin_until = ImuDriver.spin_until
+
+    def warm_up(self) -> None:
+        """Until the subject answers, then 1 s at 1 kHz, drained."""
+        self.spin_until(lambda: (self.input_publisher.get_subscription_count() >= 1
+                                 and self.temp_publisher.get_subscription_count() >= 1
+                                 and self.subscription.get_publisher_count() >= 1), 30.0)
+        deadline = time.monotonic() + 30.0
+        while self.answered == 0:
+            if time.monotonic() > deadline:
+                raise RuntimeError('the subject never answered')
+            inputs, temperatures = self.messages(1, 1_000_000)
+            self.temp_publisher.publish(temperatures[0])
+            self.executor.spin_once(timeout_sec=0.05)
+            self.input_publisher.publish(inputs[0])
+            end = time.monotonic() + 0.2
+            while self.answered == 0 and time.monotonic() < end:
+                self.executor.spin_once(timeout_sec=0.01)
+        self.paced(1000.0, 1000)
+
+    def paced(self, rate_hz: float, count: int) -> tuple[int, float]:
+        """``count`` messages at ``rate_hz``, what is due published every tick (open loop); (answered, send rate)."""
+        inputs, temperatures = self.messages(count, round(NANOSECONDS / rate_hz))
+        publish, publish_temperature = self.input_publisher.publish, self.temp_publisher.publish
+        spin_once = self.executor.spin_once
+        self.answered = 0
+        started = time.monotonic()
+        sent = 0
+        while sent < count:
+            due = min(count, int((time.monotonic() - started) * rate_hz) + 1)
+            while sent < due:
+                if sent % RATE_TEMP_EVERY == 0:
+                    publish_temperature(temperatures[sent // RATE_TEMP_EVERY])
+                publish(inputs[sent])
+                sent += 1
+            next_tick = started + (int((time.monotonic() - started) / TICK_S) + 1) * TICK_S
+            while True:  # answers until the next tick
+                wait = next_tick - time.monotonic()
+                if wait <= 0:
+                    break
+                spin_once(timeout_sec=wait)
+        achieved = count / (time.monotonic() - started)
+        last, idle_since = self.answered, time.monotonic()
+        while self.answered < count and time.monotonic() - idle_since < 2.0:
+            spin_once(timeout_sec=0.05)
+            if self.answered != last:
+                last, idle_since = self.answered, time.monotonic()
+        return self.answered, achieved
+
+    def settle(self) -> None:
+        """Spin until a compensator's /diagnostics status newer than the last message (the relay has none)."""
+        if not self.statuses:
+            return
+        seen = len(self.statuses)
+        deadline = time.monotonic() + 3.0
+        while len(self.statuses) < seen + 2 and time.monotonic() < deadline:  # the second one is surely after it
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def node_counters(self) -> dict[str, int] | None:
+        """The compensator's own counters from its latest /diagnostics (None for the relay)."""
+        for array_message in reversed(self.statuses):
+            for status in array_message.status:
+                if status.name.endswith('temperature compensation'):
+                    values = {pair.key: pair.value for pair in status.values}
+                    return {key: int(values[key]) for key in ('received', 'published', 'dropped', 'sequence_gap')
+                            if values.get(key, 'unavailable') != 'unavailable'}
+        return None
+
+    def close(self) -> None:
+        import rclpy
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+def rate_subject_command(subject: str, input_kind: str, params: Path) -> list[str]:
+    """How each subject is started: the relay (rclpy.spin), and the compensator as a user starts it.
+
+    The node: its console script (what ``ros2 run`` executes) with the calibration file and no other
+    parameter, so every default holds (best-effort input, depth 1000, the events executor, ``message_path:
+    raw``); the decoded node adds ``-p message_path:=decoded`` alone.
+    """
+    if subject == 'relay':
+        from tak_thermo_ros.ros.node import _tunables
+        depth = _tunables()['qos_depth'][0]  # the node's default, for the relay too
+        return [sys.executable, str(Path(__file__).resolve()), 'relay', input_kind, str(depth), 'best_effort',
+                '--ros-args']
+    script = Path(sys.executable).parent / 'compensator'
+    command = [str(script)] if script.exists() else [sys.executable, '-m', 'tak_thermo_ros.ros.main']
+    command += ['--ros-args', '--params-file', str(params)]
+    return command + (['-p', 'message_path:=decoded'] if subject == 'decoded' else [])
+
+
+def measure_rates(params: dict[str, Path], workdir: Path, *, rates_khz: tuple[float, ...], seconds: float,
+                  rounds: int) -> dict:
+    """Each input, the three subjects side by side (own domains), taking turns at each rate, ``rounds`` times.
+
+    Per subject, rate and round: messages sent, answered and lost (sent - answered), and the subject's
+    CPU (user + system of its process over the run) per message answered and per message sent; the
+    compensators' own counters (received, dropped, sequence gaps) from their /diagnostics. The order
+    of the subjects turns at each rate, so that none always runs first.
+    """
+    home = workdir / 'ros_home'
+    home.mkdir(exist_ok=True)
+    results: dict = {}
+    for input_index, input_kind in enumerate(RATE_INPUTS):
+        processes, drivers = {}, {}
+        rows: dict[str, list] = {subject: [] for subject in RATE_SUBJECTS}
+        try:
+            for index, subject in enumerate(RATE_SUBJECTS):
+                env = node_env(home, bench_domain(30 + 3 * input_index + index))
+                processes[subject] = subprocess.Popen(
+                    rate_subject_command(subject, input_kind, params[input_kind]), env=env,
+                    stdout=open(workdir / f'rates_{input_kind}_{subject}.log', 'wb'), stderr=subprocess.STDOUT,
+                    stdin=subprocess.DEVNULL, start_new_session=True)
+                drivers[subject] = RateDriver(int(env['ROS_DOMAIN_ID']), input_kind, f'bench_rates_{subject}')
+            for subject in RATE_SUBJECTS:
+                drivers[subject].warm_up()
+                drivers[subject].settle()
+            turn = 0
+            for round_index in range(rounds):
+                for khz in rates_khz:
+                    count = int(khz * 1000 * seconds)
+                    order = RATE_SUBJECTS[turn % 3:] + RATE_SUBJECTS[:turn % 3]
+                    turn += 1
+                    for subject in order:
+                        driver, pid = drivers[subject], processes[subject].pid
+                        before = driver.node_counters()
+                        cpu_before = cpu_s(pid)
+                        answered, achieved = driver.paced(khz * 1000.0, count)
+                        cpu = cpu_s(pid) - cpu_before
+                        driver.settle()
+                        after = driver.node_counters()
+                        row = {'round': round_index, 'rate_hz': khz * 1000.0, 'sent': count, 'answered': answered,
+                               'lost': count - answered, 'achieved_send_rate_hz': achieved,
+                               'cpu_s': cpu, 'cpu_us_per_message': cpu / max(answered, 1) * 1e6,
+                               'cpu_us_per_message_sent': cpu / count * 1e6,
+                               'load_average_1min': os.getloadavg()[0]}
+                        if before is not None and after is not None:
+                            row['node'] = {key: after[key] - before.get(key, 0) for key in after}
+                        rows[subject].append(row)
+                        print(f'  {input_kind:7s} {subject:8s} {khz:3.0f} kHz round {round_index + 1} (sent at '
+                              f'{achieved:5.0f} Hz): {row["lost"]:6d} of {count} lost, '
+                              f'{row["cpu_us_per_message"]:6.1f} us CPU per message '
+                              f'({row["cpu_us_per_message_sent"]:6.1f} per sent), load '
+                              f'{row["load_average_1min"]:.1f}', flush=True)
+        finally:
+            codes = {}
+            for subject in RATE_SUBJECTS:
+                if subject in drivers:
+                    drivers[subject].close()
+                if subject in processes:
+                    codes[subject] = stop(processes[subject])
+        results[input_kind] = {'rows': rows, 'exit_codes': codes, 'summary': rate_summary(rows, rates_khz)}
+    return results
+
+
+def rate_summary(rows: dict[str, list], rates_khz: tuple[float, ...]) -> dict:
+    """Per rate: each subject's median CPU per message and its worst loss over the rounds; the ratios to the relay.
+
+    A ratio is the median over the rounds of the ratio within a round (the subjects ran back to back).
+    """
+    summary = {}
+    for khz in rates_khz:
+        at = {subject: [row for row in rows[subject] if row['rate_hz'] == khz * 1000.0] for subject in RATE_SUBJECTS}
+        entry: dict = {}
+        for subject, runs in at.items():
+            entry[subject] = {'cpu_us_per_message': statistics.median(r['cpu_us_per_message'] for r in runs),
+                              'cpu_us_per_message_sent': statistics.median(r['cpu_us_per_message_sent'] for r in runs),
+                              'lost_max': max(r['lost'] for r in runs), 'lost': [r['lost'] for r in runs]}
+        for subject in ('decoded', 'raw'):
+            for key in ('cpu_us_per_message', 'cpu_us_per_message_sent'):
+                entry[subject][f'ratio_to_relay_{key.removeprefix("cpu_us_")}'] = statistics.median(
+                    node[key] / relay[key] for node, relay in zip(at[subject], at['relay']))
+        summary[f'{khz:g} kHz'] = entry
+    return summary
+
+
+def rates_only(*, quick: bool) -> int:
+    """``--rates``: the relay, the decoded node and the raw node at 1, 2, 4 and 8 kHz; ``rates`` in ``node.json``."""
+    import platform
+    with tempfile.TemporaryDirectory(prefix='bench_node_rates_') as tmp:
+        workdir = Path(tmp)
+        params = {'counts': workdir / 'counts.yaml', 'driver': workdir / 'driver.yaml'}
+        from tak_thermo_ros.formats.calibration_file import save_calibration
+        from tak_thermo_ros.core.simulation.imu import Scenario
+        save_calibration(params['counts'], Scenario().truth())
+        watch_params(params['driver'])  # with its noise models: the watch runs, as it does from `tak_calib fit`
+        load = os.getloadavg()
+        started = time.time()
+        rates = measure_rates(params, workdir, rates_khz=RATES_KHZ, seconds=1.0 if quick else RATE_SECONDS,
+                              rounds=1 if quick else RATE_ROUNDS)
+    rates.update(wall_s=time.time() - started, load_average_before=load, load_average_after=os.getloadavg(),
+                 niceness=os.nice(0), seconds_per_rate=1.0 if quick else RATE_SECONDS,
+                 rounds=1 if quick else RATE_ROUNDS, temperature_every=RATE_TEMP_EVERY, tick_s=TICK_S,
+                 machine={'cpus': os.cpu_count(), 'python': platform.python_version()},
+                 target=f'at 4 kHz the raw node (as a user starts it) loses none and costs <= {RATIO_TARGET} x the '
+                        'relay\'s CPU per message')
+    results = RESULTS.with_name('node_quick.json') if quick else RESULTS
+    document = json.loads(results.read_text(encoding='utf-8')) if results.exists() else {}
+    document['rates'] = rates
+    results.parent.mkdir(parents=True, exist_ok=True)
+    results.write_text(json.dumps(document, indent=2) + '\n', encoding='utf-8')
+    missed = []
+    for input_kind in RATE_INPUTS:
+        print(f'{input_kind} input: CPU per message answered (per message sent), median of the rounds; the most '
+              f'lost in a round; the ratio to the relay (median of the rounds\' ratios)')
+        for rate, entry in rates[input_kind]['summary'].items():
+            cells = [f'{subject} {entry[subject]["cpu_us_per_message"]:5.0f} us '
+                     f'({entry[subject]["cpu_us_per_message_sent"]:4.0f}), lost {entry[subject]["lost_max"]:5d}'
+                     for subject in RATE_SUBJECTS]
+            print(f'  {rate:6s}: {"; ".join(cells)}; raw/relay {entry["raw"]["ratio_to_relay_per_message"]:.2f} '
+                  f'({entry["raw"]["ratio_to_relay_per_message_sent"]:.2f})')
+        at_4 = rates[input_kind]['summary']['4 kHz']['raw']
+        if at_4['lost_max'] > 0 or at_4['ratio_to_relay_per_message'] > RATIO_TARGET:
+            missed.append(f'{input_kind} at 4 kHz: lost {at_4["lost"]}, ratio {at_4["ratio_to_relay_per_message"]:.2f}')
+    print(f'load average before {load[0]:.1f}, after {rates["load_average_after"][0]:.1f}; wrote {results}')
+    if missed:
+        print(f'target missed: {"; ".join(missed)}')
+        return TARGET_MISSED
+    return 0
+
+
 if __name__ == '__main__':
-    if len(sys.argv) > 1 and sys.argv[1] == 'relay':
-        sys.exit(relay_main())
+    if len(sys.argv) > 1 and sys.argv[1] == 'relay':  # relay [counts|driver DEPTH best_effort|reliable]
+        given = sys.argv[2:5] if len(sys.argv) > 4 and sys.argv[2] != '--ros-args' else None
+        sys.exit(relay_main(given[0], int(given[1]), given[2] == 'best_effort') if given else relay_main())
     if len(sys.argv) > 2 and sys.argv[1] == 'driver_relay':
         sys.exit(driver_relay_main(sys.argv[2]))
     sys.exit(main())

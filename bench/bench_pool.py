@@ -13,12 +13,19 @@ twenty such records fill already).
 
 Run: ``nice -n 10 .venv/bin/python bench/bench_pool.py [--records 30] [--minutes 30] [--rate 200]
 [--workdir /tmp/tak_bench]``; writes ``bench/results/pool.json``.
+
+``--tiny`` (issue 44): the pool's cost against its number of records. Months of 30, 100 and 300
+tiny records (0.3 min at 10 Hz, one or two rests each: a vehicle that flies several times a day)
+are fitted, each month in its own process (``--repeat`` times, the least CPU kept: a busy machine
+only adds); the target: 300 records in at most 3.5x the CPU of 100 (linear: 3x; the REML and the
+solves were cubic in the records). Writes ``bench/results/pool_tiny.json``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -43,6 +50,39 @@ def build(directory: Path, records: int, minutes: float, rate: float) -> None:
                    check=True)
 
 
+TINY_COUNTS = (30, 100, 300)
+TINY_MINUTES = 0.3
+TINY_RATE = 10.0
+LINEAR_BOUND = 3.5
+"""300 tiny records fit in at most this many times the CPU of 100 (linear: 3)."""
+
+
+def tiny(args: argparse.Namespace) -> int:
+    """Fit months of 30, 100 and 300 tiny records; write ``pool_tiny.json``; 0 when 300 take <= 3.5x 100's CPU."""
+    fits = {}
+    for count in TINY_COUNTS:
+        month = args.workdir / f'pool_tiny_{count}'
+        build(month, count, TINY_MINUTES, TINY_RATE)
+        runs = []
+        for _ in range(args.repeat):
+            wall, cpu, rss, out = run_child([*tak_calib_command(), 'fit', str(month), '-o',
+                                             str(args.workdir / f'pool_tiny_{count}.yaml'), '--force', '--no-progress'])
+            runs.append({'process_wall_s': wall, 'process_cpu_s': cpu, 'peak_rss_bytes': rss,
+                         'load_average_1min': os.getloadavg()[0]})
+        best = min(runs, key=lambda run: run['process_cpu_s'])
+        fits[str(count)] = {**best, 'runs': runs,
+                            'lines': [line for line in out.splitlines() if line.startswith('pool:')]}
+        print(f'tak_calib fit of {count} tiny records: {best["process_cpu_s"]:.1f} s CPU '
+              f'({best["process_wall_s"]:.1f} s wall), {best["peak_rss_bytes"] / 2 ** 20:.0f} MiB peak', flush=True)
+    ratio = fits['300']['process_cpu_s'] / fits['100']['process_cpu_s']
+    wall_ratio = fits['300']['process_wall_s'] / fits['100']['process_wall_s']
+    result = {'machine': machine(), 'minutes': TINY_MINUTES, 'rate_hz': TINY_RATE, 'repeat': args.repeat,
+              'fit': fits, 'cpu_300_over_100': ratio, 'wall_300_over_100': wall_ratio, 'bound': LINEAR_BOUND}
+    write_text_atomic(args.output or RESULTS / 'pool_tiny.json', json.dumps(result, indent=1) + '\n')
+    print(f'300 / 100 records: {ratio:.2f}x CPU, {wall_ratio:.2f}x wall (linear: 3x; bound {LINEAR_BOUND:g}x)')
+    return 0 if ratio <= LINEAR_BOUND else 3
+
+
 def main(argv: list[str] | None = None) -> int:
     """Build (or reuse) the month, time rosbags' read and the fits, write ``pool.json``."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -50,8 +90,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--records', type=int, default=30)
     parser.add_argument('--minutes', type=float, default=30.0)
     parser.add_argument('--rate', type=float, default=200.0)
-    parser.add_argument('--output', type=Path, default=RESULTS / 'pool.json')
+    parser.add_argument('--output', type=Path, default=None)
+    parser.add_argument('--tiny', action='store_true', help='30, 100 and 300 tiny records: the cost per record')
+    parser.add_argument('--repeat', type=int, default=2, help='--tiny: fits per month, the least CPU kept')
     args = parser.parse_args(argv)
+    if args.tiny:
+        return tiny(args)
+    args.output = args.output or RESULTS / 'pool.json'
     month = args.workdir / f'pool_{args.records}x{args.minutes:g}min_{args.rate:g}hz'
     build(month, args.records, args.minutes, args.rate)
     bags = sorted(str(path) for path in month.iterdir())

@@ -1,4 +1,4 @@
-"""Real-data analysis: the tofupilot MEMS IMU thermal cycle (issue 5; written up in the README, "On a real IMU").
+"""Real-data analysis: the tofupilot MEMS IMU thermal cycle (issue 5; written up in docs/manual.md, "On a real IMU").
 
 Imports ``data/tofupilot-imu-thermal/imu_raw_data.csv`` as ``tak_calib import-csv`` does
 (0.001 m/s^2 and 0.01 C per code), leaves out the start-up minute as ``tak_calib fit

@@ -45,7 +45,7 @@ FIRST_ROWS = 2697
 TO_READER = {'accel': 1e3 / STANDARD_GRAVITY, 'gyro': 180.0 / math.pi * 3600.0}
 """m/s^2 -> mg, rad/s -> deg/h."""
 BEFORE = {'accel': ['thermal_lag'], 'gyro': ['hysteresis', 'warmup']}
-"""What the loop named on the whole record before issue 31 (README, "On a real IMU")."""
+"""What the loop named on the whole record before issue 31 (docs/manual.md, "On a real IMU")."""
 NOMINAL = (1.0, 1.0, 1.0)
 
 

@@ -23,8 +23,10 @@ The convention (every doc follows it; ``test/test_docs.py`` checks it, this scri
   script runs every block. A block after a slow one must not need what the slow one made (mark
   it slow as well).
 - Where the commands run: each doc file in a temporary directory of its own, its commands in
-  the order of the file; the repository's top level is there as links (``docs``, ``data``, the
-  ``Makefile``, ...), so a doc names a shipped scenario by its path,
+  the order of the file, as a reader runs the page (so no command may write an output an earlier
+  one of the page wrote, slow blocks included, unless with ``--force``: :func:`overwritten`);
+  the repository's top level is there as links (``docs``, ``data``, the ``Makefile``, ...), so a
+  doc names a shipped scenario by its path,
   ``docs/scenarios/NAME.yaml``, as a user does from the repository's root, and what the
   commands write stays in the temporary directory. ``tak_calib`` and ``compensator`` are the
   virtual environment's.
@@ -393,6 +395,41 @@ def run_doc(path: Path, *, slow: bool, directory: Path, domain: int = 77) -> Ite
         finally:
             for command, ran in session.stop():
                 yield block, command, ran
+
+
+def overwritten(path: Path) -> list[str]:
+    """The ``tak_calib`` commands of a doc that write an output an earlier one wrote, without ``--force``.
+
+    Every block in order, the slow ones too, as a reader runs the page in one directory: the second
+    command stops at ``exists already, not overwriting`` (unless the doc shows it failing). Each
+    command's outputs are the ones the tool itself checks (``tak_thermo_ros.cli.tak_calib.OUTPUTS``;
+    ``-o`` of a command that checks its own), read by the tool's own parser.
+    """
+    from tak_thermo_ros.cli.tak_calib import OUTPUTS, build_parser
+    parser = build_parser()
+    written: dict[str, Command] = {}
+    found = []
+    for block in parse(path):
+        for command in block.commands:
+            words = _in_process(command.text)
+            if words is None or command.exit_status:
+                continue
+            try:
+                with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+                    args = parser.parse_args(words)
+            except SystemExit:  # --help, or a usage the doc shows failing
+                continue
+            names = [name for name, _, _ in OUTPUTS.get(args.command, ())] or ['output']
+            for name in names:
+                value = getattr(args, name, None)
+                if value is None:
+                    continue
+                key = os.path.normpath(str(value))
+                if key in written and not getattr(args, 'force', False):
+                    found.append(f'{_where(block, command)}\n  writes {value} again without --force (line '
+                                 f'{written[key].index + 1} wrote it): a reader stops at "exists already"')
+                written[key] = command
+    return found
 
 
 def _where(block: Block, command: Command) -> str:

@@ -20,7 +20,7 @@ OPTIONAL = {
     'pyulog': 'pyulog',
     'pymavlink': 'pymavlink',
 }
-"""Module -> pip package of each optional library (no rosdep key; listed in the README).
+"""Module -> pip package of each optional library (no rosdep key; listed in docs/manual.md).
 
 ``pyulog`` reads PX4 ULogs; ``pymavlink`` serves the tests and benchmarks only (the reference
 DataFlash reader; the package reads ``.bin`` files itself)."""

@@ -52,7 +52,7 @@ class Creep(Effect):
     def step(self, state, stamp_s, temp_code):
         return state, ((stamp_s - state) / 3600.0,)
 '''
-"""Source of a user-defined effect module (the README's worked example) for the tests to write."""
+"""Source of a user-defined effect module (docs/effects.md's worked example) for the tests to write."""
 
 
 def noise_floor(scenario: Scenario) -> np.ndarray:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -100,3 +102,31 @@ def test_variance_from_residual_rms():
     unknown = AxisModel(scale=200.0, offset=0.0, offset_span=0.0, offset_shape=(0.0,))
     calibration = Calibration(temp_code_ref=0.0, temp_code_min=-1.0, temp_code_max=1.0, axes=(axis, unknown, axis))
     assert acceleration_variance(calibration) == (1e-4, 0.0, 1e-4)
+
+
+@pytest.mark.parametrize('policy', list(OutOfRange))
+def test_the_polynomials_run_once_per_temperature_and_give_the_vectorised_bits(calibration, policy, monkeypatch):
+    """A temperature every 50 samples (as a driver batches them): each axis's polynomials once per temperature.
+
+    The samples in between take the held offsets and gains; the result is still the vectorised
+    path's, bit for bit, and an equal temperature of another sign of zero is evaluated afresh.
+    """
+    from tak_thermo_ros.core.link import correction
+    calls = []
+    evaluate = correction.offset_and_gain
+    monkeypatch.setattr(correction, 'offset_and_gain', lambda *args: calls.append(args[0]) or evaluate(*args))
+    counts, codes = _random_inputs(calibration, 2000)
+    codes = np.repeat(codes[::50], 50)  # 40 temperatures, each held for 50 samples
+    corrector = Corrector(calibration, out_of_range=policy)
+    single = []
+    for start in range(0, len(codes), 50):
+        temperature = float(codes[start])  # one float per temperature message, as the online core holds it
+        single += [corrector.correct_sample(*row, temperature) for row in counts[start:start + 50].tolist()]
+    assert len(calls) == 3 * 40
+    assert np.array_equal(np.array(single), corrector.correct(counts, codes))
+    zero = Corrector(replace(calibration, temp_code_ref=0.0, temp_code_min=-10.0, temp_code_max=10.0))
+    calls.clear()
+    plus, minus = zero.correct_sample(-0.0, 1.0, 2.0, 0.0), zero.correct_sample(-0.0, 1.0, 2.0, -0.0)
+    assert len(calls) == 6
+    bulk = zero.correct(np.array([[-0.0, 1.0, 2.0]] * 2), np.array([0.0, -0.0]))
+    assert np.array_equal(np.array([plus, minus]).view(np.uint64), bulk.view(np.uint64))

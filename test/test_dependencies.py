@@ -42,7 +42,8 @@ def test_the_node_imports_no_offline_library():
     """`import tak_thermo_ros.ros.node` in a fresh interpreter: ROS, numpy, yaml and the correction only.
 
     Beyond what rclpy and the message packages load themselves, the node adds numpy, yaml and
-    its own modules, of which none is a fit, diagnosis, bag, simulation or report module.
+    its own modules, of which none is a fit, diagnosis, bag, simulation or report module. The CDR
+    codec (formats/cdr.py, numpy and struct only) is the node's raw path: it may come, rosbags not.
     """
     node = _loaded_after('import tak_thermo_ros.ros.node')
     ros = _loaded_after('import ' + ', '.join(ROS_MESSAGES))
@@ -50,7 +51,7 @@ def test_the_node_imports_no_offline_library():
     added = set(node['top']) - set(ros['top']) - set(sys.stdlib_module_names)
     assert {name for name in added if not name.startswith('_')} <= {'numpy', 'yaml', 'tak_thermo_ros'}
     offline_modules = ('tak_thermo_ros.core.fit', 'tak_thermo_ros.core.diagnose', 'tak_thermo_ros.core.simulation',
-                       'tak_thermo_ros.formats.bag', 'tak_thermo_ros.formats.cdr', 'tak_thermo_ros.passes',
+                       'tak_thermo_ros.formats.bag', 'tak_thermo_ros.passes',
                        'tak_thermo_ros.cli', 'tak_thermo_ros.reports.diagnose', 'tak_thermo_ros.passes.fleet')
     assert not [m for m in node['own'] if m.startswith(offline_modules)], node['own']
 
@@ -95,7 +96,7 @@ def test_every_third_party_import_is_declared_in_package_xml_or_optional():
     """The package's (and launch file's) imports are exec_depends; tests' are test_ or exec_depends.
 
     dask, distributed, statsmodels and allantools have no rosdep key: optional, named in
-    tak_thermo_ros.optional (and the README). A recorded signal's message package is imported by
+    tak_thermo_ros.optional (and docs/manual.md). A recorded signal's message package is imported by
     name at run time: those packages are exec_depends too.
     """
     declared = _package_xml()

@@ -145,6 +145,12 @@ def test_simulate_writes_one_bag_per_record_under_the_overwrite_rule(tmp_path, c
     expected = simulate_everyday_record(scenario_, habits, 1).record
     read = read_imu_messages(tmp_path / 'month' / 'rec01', topic=Topics().raw_imu)
     assert np.array_equal(read.angular_velocity, expected.gyro)
+    # What the rests' count is (issue 43): the rests as drawn; fit counts those it finds, and a rest can split.
+    drawn = [int(simulate_everyday_record(scenario_, habits, index).rest.max()) + 1 for index in range(2)]
+    from tak_thermo_ros.cli.common import unwrap
+    said = unwrap('\n'.join(lines) + '\n')
+    assert f'{min(drawn)}..{max(drawn)} rests per record as drawn, within 3 deg of level' in said[1]
+    assert said[2] == "  (fit finds each record's rests itself: a rest that one noisy window breaks counts as two)"
     status, lines = run_cli(capsys, 'simulate', str(tmp_path / 'month'), '--scenario', str(scenario))
     assert status == 2 and lines == [f'tak_calib: error: {tmp_path / "month"} (OUT_BAG): exists and holds 2 bags; '
                                      f'--force replaces them']

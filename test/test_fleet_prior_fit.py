@@ -255,16 +255,14 @@ def test_a_worker_lost_mid_run_loses_nothing(fleet_dir):
 
     They equal the statistics computed here in this process (the map is a function of the unit's folder).
     """
-    from dask.distributed import Client, LocalCluster
+    from tak_thermo_ros.passes.fleet import _connect
     from tak_thermo_ros.passes.fleet_prior import unit_statistics_task
     from tak_thermo_ros.formats.bag import Topics
     from tak_thermo_ros.passes.run import FitSettings, StreamOptions
     options = StreamOptions(Topics(), progress=False)
     settings = FitSettings(effects={})
     units = [(f'unit{i:02d}', str(fleet_dir / 'units' / f'unit{i:02d}')) for i in range(4)]
-    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host='127.0.0.1',
-                           dashboard_address=None, env={'OPENBLAS_NUM_THREADS': '1'})
-    client = Client(cluster)
+    client, cluster = _connect(None, 2)  # fit-fleet's own local cluster
     try:
         pids = client.run(os.getpid)
         futures = [client.submit(unit_statistics_task, name, path, settings, options, pure=False)

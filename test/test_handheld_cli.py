@@ -115,7 +115,7 @@ def test_validate_and_apply_a_second_hand_held_record(bags, tmp_path, capsys):
 
 
 def test_bad_hand_held_records_get_one_line(tmp_path, capsys):
-    """Never at rest, one orientation with turns, noise of a moving record, an input effect: exit 2, one line."""
+    """Never at rest, noise of a moving record, an input effect: exit 2, one line; turned away from one pose: a pool."""
     moving = tmp_path / 'moving'
     write_driver_record(moving, simulate(replace(CALIBRATION, handheld=replace(
         CALIBRATION.handheld, still_s=0.5, turn_s=3.0, orientations=20))).driver)
@@ -130,8 +130,10 @@ def test_bad_hand_held_records_get_one_line(tmp_path, capsys):
     pose = run.trajectory.up[0] * 9.80665  # every rest in the first pose, the unit turned away and back between
     accel = np.where(rests[:, None], pose + (driver.accel - run.specific_force), driver.accel)
     write_driver_record(one, replace(driver, accel=accel))
-    status, lines = run_cli(capsys, 'fit', str(one), '-o', str(tmp_path / 'p.yaml'))
-    assert status == 2 and len(lines) == 1 and 'the board moved' in lines[0]
+    status, lines = run_cli(capsys, 'fit', str(one), '-o', str(tmp_path / 'one.yaml'))
+    # rests in one pose, motion between: an everyday record, fitted as a pool of one (issue 43), not refused
+    assert status == 0 and lines[0] == 'one: an everyday record (rests in one orientation, motion between): taken ' \
+                                       'as a pool of one', lines
     cal = tmp_path / 'cal'
     write_driver_record(cal, simulate(CALIBRATION).driver)
     status, lines = run_cli(capsys, 'noise', str(cal))
@@ -208,6 +210,24 @@ def test_a_counts_table_run_says_first_what_it_holds(tmp_path, capsys):
     assert lines[3].startswith('record: temperature code 7') and lines[3].endswith(')')
     assert lines[6] == 'record: the reference holds 10 directions'
     assert lines[7].startswith('fitted ')
+
+
+def test_an_imported_still_board_is_a_static_run_not_a_table_run(tmp_path, capsys):
+    """Issue 43: a CSV of a board lying still, imported (its reference one constant direction), was called a table run.
+
+    ``fit`` said "a table run (reference topics): offset and scale against temperature", then held
+    every scale: one input per axis. A reference in one direction is a static run's, said so.
+    """
+    log = Path(__file__).resolve().parents[1] / 'data' / 'tofupilot-imu-thermal' / 'imu_raw_data.csv'
+    bag, params = tmp_path / 'real', tmp_path / 'base.yaml'
+    assert run_cli(capsys, 'import-csv', str(log), '-o', str(bag), '--time-unit', 'us', '--acc-columns', 'imu.acc.x',
+                   'imu.acc.y', 'imu.acc.z', '--temp-column', 'imu.temperature')[0] == 0
+    status, lines = run_cli(capsys, 'fit', str(bag), '-o', str(params), '--settle-time', '60')
+    assert status == 0, lines
+    assert lines[0] == 'fit: a static run (its reference in one direction, one orientation)', lines
+    assert 'record: the reference holds 1 direction' in lines
+    assert 'fit: offsets against temperature, scales held' in lines
+    assert not any(axis.scale_observable for axis in load_unit(params).accel.axes)
 
 
 def test_the_six_faces_with_a_gap_print_the_papers_table_in_lines_of_100_characters(tmp_path, capsys, monkeypatch):

@@ -842,3 +842,24 @@ def test_generated_streams_of_one_and_two_sensor_messages_follow_the_offline_rul
             assert np.array_equal(np.array([sample[3] for sample in published[s]]), offline)
     values = dict(core.status(now).values)
     assert int(values['received']) == int(values['published']) + int(values['dropped']) == len(messages)
+
+
+def test_malformed_messages_are_counted_where_they_belong_and_said_throttled():
+    """Bytes that are no message (the node's raw path): an input one dropped, a temperature one rejected; one line."""
+    core = make()
+    core.process_temperature(8200.0, now_s=0.0)
+    core.malformed(False, '/tak/counts: malformed geometry_msgs/msg/Vector3Stamped (28 bytes): truncated', 0.1)
+    core.malformed(False, '/tak/counts: malformed ...', 0.2)  # within the warning period: counted, not said
+    core.malformed(True, '/tak/temp_code: malformed sensor_msgs/msg/Temperature (8 bytes): truncated', 0.3)
+    assert core.process_counts(SEC, 0, 1.0, 2.0, 3.0, now_s=0.4).__class__ is tuple
+    assert balanced(core) and core.received == 3 and core.dropped['malformed'] == 2 and core.published == 1
+    assert core.temperature == 8200.0 and core.temperature_rejected == 1 and core.temperature_messages == 2
+    lines = [notice.text for notice in core.take_notices()]
+    assert lines == ['/tak/counts: malformed geometry_msgs/msg/Vector3Stamped (28 bytes): truncated: dropped '
+                     '(1 so far)',
+                     '/tak/temp_code: malformed sensor_msgs/msg/Temperature (8 bytes): truncated: ignored; keeping '
+                     'the last temperature code (1 so far)']
+    core.malformed(False, '/tak/counts: malformed ...', 10.0)
+    assert core.take_notices()[0].text == '/tak/counts: malformed ...: dropped (3 so far; 2 more since the last report)'
+    status = core.status(10.1)
+    assert dict(status.values)['dropped.malformed'] == '3' and 'dropped 3 malformed' in status.message

@@ -17,6 +17,7 @@ from hypothesis import given, strategies as st
 
 from tak_thermo_ros import cli
 from tak_thermo_ros.core.records.provenance import (
+    IN_SAMPLE_OVERLAP,
     IN_SAMPLE_PART,
     IN_SAMPLE_WHOLE,
     PrintCollector,
@@ -208,3 +209,32 @@ def test_a_print_is_recognised_only_by_its_samples():
     inside = recognise((print_,), replace(print_, digest='e' * 32, first_stamp_ns=2, last_stamp_ns=8), [{}])
     assert inside.kind == 'span'
     assert in_sample_lines(inside, record='b', params='p.yaml', command='validate')[0].startswith('may be in-sample')
+
+
+def test_a_record_that_holds_the_fitted_one_and_more_is_in_sample_for_its_share():
+    """Issue 43: ``validate real_driver --params last.yaml`` (the last 48 of its 71 min fitted) said nothing.
+
+    The fitted record's edge segments hold only its own samples, the longer record's more: only the
+    segments both hold whole are compared, and the longer record is in-sample for the fitted share.
+    """
+    rng = np.random.default_rng(4)
+    stamps = np.arange(400, dtype=np.int64) * 10**9 + 123_456_789
+    values = rng.normal(size=(400, 3))
+
+    def collected(rows, against=()):
+        collector = PrintCollector(('accel',), against=against)
+        collector.add({'accel': ChannelRecord(stamps[rows], values[rows], np.zeros(0), np.zeros(0))})
+        return collector
+
+    last = collected(slice(130, 400)).finish('last')
+    whole = collected(slice(0, 400), against=(last,))
+    found = whole.recognition('real_driver')
+    assert found is not None and found.kind == IN_SAMPLE_OVERLAP and found.compared >= 8
+    assert found.overlap_s == pytest.approx(269.0) and found.duration_s == pytest.approx(399.0)
+    assert in_sample_lines(found, record='real_driver', params='last.yaml', command='validate')[0] == (
+        'in-sample: 4.5 of the 6.7 min of real_driver are from last, which last.yaml was fitted from')
+    other = values.copy()
+    other[200] += 1e-9  # one sample of the shared span differs: another record
+    changed = PrintCollector(('accel',), against=(last,))
+    changed.add({'accel': ChannelRecord(stamps, other, np.zeros(0), np.zeros(0))})
+    assert changed.recognition('other') is None

@@ -24,7 +24,7 @@ REAL_LOG = Path(__file__).resolve().parents[1] / 'data' / 'tofupilot-imu-thermal
 OPTIONS = CsvImportOptions(acc_columns=('imu.acc.x', 'imu.acc.y', 'imu.acc.z'), temp_column='imu.temperature',
                            time_unit='us')
 SETTLE_S = 60.0
-"""The start-up minute is left out (``tak_calib fit --settle-time 60``; README, "On a real IMU", says why)."""
+"""The start-up minute is left out (``tak_calib fit --settle-time 60``; docs/manual.md, "On a real IMU", says why)."""
 BLOCKS = 10
 T_975_DOF_9 = 2.262
 """Student's t, two-sided 95 %, 9 degrees of freedom (10 blocks, paired)."""
@@ -99,7 +99,7 @@ def test_diagnosed_effect_lowers_the_heldout_error_beyond_the_block_to_block_spr
 def test_the_loop_on_the_real_log_ends_naming_the_averaging_time_and_the_excess(tmp_path, capsys):
     """Issue 16's done-when on the real log: no noise model exists for this unit.
 
-    After what the first diagnosis names (README, "On a real IMU"), each sensor's verdict is
+    After what the first diagnosis names (docs/manual.md, "On a real IMU"), each sensor's verdict is
     ``none`` or ``unexplained`` naming an averaging time beyond the 30 s its own short-term noise
     model was fitted on, the excess over that model, and the rate random walk that would explain it.
     """

@@ -438,7 +438,7 @@ def noise_lines(model, unit: str) -> list[str]:
 
 PLAN_WORDS = {
     'fit': {'table': 'a table run (reference topics): offset and scale against temperature per axis',
-            'static': 'a static run (no reference topics, one orientation)\noffsets against temperature, scales held',
+            'static': 'a static run ({reference}, one orientation)\noffsets against temperature, scales held',
             'handheld': 'a hand-held record (no reference topics, {orientations} orientations at rest)\n'
                         'offset, scale and misalignment of both sensors {against}',
             'moving': 'the unit never rests and there is no reference: no accelerometer or gyroscope link'},
@@ -500,13 +500,15 @@ def survey_lines(survey, command: str) -> list[str]:
         lines.append(f'record: never at rest for 2 s or more ({100.0 * still.still_fraction:.0f} % of the windows '
                      f'still)')
     if survey.has_reference:
-        lines.append(f'record: the reference holds {survey.reference_directions} directions')
+        directions = survey.reference_directions
+        lines.append(f'record: the reference holds {directions} direction{"s" if directions != 1 else ""}')
     plan = survey.plan.value
     words = PLAN_WORDS.get(command, {}).get(plan)
     if words:
         span = survey.temperature_span
         against = 'against temperature' if span >= SPAN_PER_ORDER_C else 'at one temperature'
-        text = words.format(orientations=still.orientations(), against=against)
+        reference = 'its reference in one direction' if survey.has_reference else 'no reference topics'
+        text = words.format(orientations=still.orientations(), against=against, reference=reference)
         # The first line says which kind of record it is; what the record holds follows, then what is done.
         first, *rest = [f'{command}: {part}' for part in text.split('\n')]
         lines = [first, *lines, *rest]

@@ -85,14 +85,20 @@ def run(args: argparse.Namespace) -> int:
     unit = load_unit(args.params)
     from tak_thermo_ros.passes.pool import is_pool
     pool = is_pool(args.bag)
+    if not pool:
+        from tak_thermo_ros.passes.run import EverydayRecord
+        args.bag = args.bag[0]
+        common.check_kind(args, unit, input_kind(args.bag, topics=common.topics(args)))
+        try:
+            run = bounded_run(args.bag, common.stream_options(args), settle_time_s=args.settle_time,
+                              gravity=getattr(args, 'gravity', STANDARD_GRAVITY),
+                              latitude=getattr(args, 'latitude', None), max_samples=args.max_samples, unit=unit)
+        except EverydayRecord:  # rests in one orientation, motion between: a pool of one
+            print(f'{Path(args.bag).name}: {EverydayRecord.WORDS}')
+            args.bag, pool = [args.bag], True
     if pool:
         run = _pool_run(args, unit)
     else:
-        args.bag = args.bag[0]
-        common.check_kind(args, unit, input_kind(args.bag, topics=common.topics(args)))
-        run = bounded_run(args.bag, common.stream_options(args), settle_time_s=args.settle_time,
-                          gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
-                          max_samples=args.max_samples, unit=unit)
         from tak_thermo_ros.core.records.provenance import in_sample_lines
         for line in in_sample_lines(run.in_sample, record=Path(args.bag).name, params=Path(args.params).name,
                                     command='diagnose'):
@@ -109,6 +115,8 @@ def run(args: argparse.Namespace) -> int:
             print(f'turns: closure RMS {np.degrees(closure.rms_rad):.3g} deg over {len(closure.angle_rad)} turns, '
                   f'{closure.rms_rad / max(closure.floor_rad, 1e-300):.2f}x what the noise alone leaves '
                   f'({np.degrees(closure.floor_rad):.3g} deg)')
+            if not any(axis.scale_observable for axis in unit.gyro.axes):  # a pool in one orientation
+                print('turns: not in the verdict, which judges the rests: no turn was fitted (gyro scales held)')
     if not pool:
         _add_magnetometer(args, unit, run)
     progress_shown = not args.no_progress and sys.stderr.isatty()
@@ -235,7 +243,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _pool_run(args: argparse.Namespace, unit: UnitCalibration):
     """A pool of everyday records for ``diagnose``: one line per record; the samples with each record's offset off."""
-    from tak_thermo_ros.passes.pool import bounded_pool, check_driver_unit, opened_lines
+    from tak_thermo_ros.passes.pool import bounded_pool, check_driver_unit
     check_driver_unit(unit, args.params)
     if getattr(args, 'design_run', None):
         msg = '--design-run: not with a pool of records (a chamber run is designed from one record)'
@@ -245,16 +253,19 @@ def _pool_run(args: argparse.Namespace, unit: UnitCalibration):
         raise TakError(msg)
     gravity = getattr(args, 'gravity', STANDARD_GRAVITY)
     run, opened = bounded_pool(args.bag, common.stream_options(args), gravity=gravity,
-                               latitude=getattr(args, 'latitude', None), max_samples=args.max_samples, unit=unit)
-    for line in opened_lines(opened):
-        print(line)
+                               latitude=getattr(args, 'latitude', None), max_samples=args.max_samples, unit=unit,
+                               say=print)
     records = len(opened.used)
-    print(f'pool: {records} records; each record\'s own turn-on offset taken off; the folds hold whole records out')
+    if records > 1:
+        print(f'pool: {records} records; each record\'s own turn-on offset taken off; the folds hold whole records '
+              f'out')
+    else:
+        print('pool: 1 record; its own turn-on offset taken off; the folds hold time blocks out')
     if not any(axis.scale_observable for axis in unit.accel.axes):
         # one orientation: the refits would fit scales that its rests cannot tell from the offsets
         print('accelerometer: not diagnosed: its scales are held (every rest in one orientation)')
         del run.samples['accel']
-    args.bag = f'the pool of {records} records'
+    args.bag = f'the pool of {records} records' if records > 1 else opened.entries[opened.used[0]].name
     return run
 
 

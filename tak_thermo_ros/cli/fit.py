@@ -95,17 +95,24 @@ def run(args: argparse.Namespace) -> int:
     settings = fit_settings(args)
     effects = settings.effects
     from tak_thermo_ros.passes.pool import is_pool
+    from tak_thermo_ros.passes.run import EverydayRecord
     if is_pool(args.bag) or args.prior:
+        return _fit_pool(args, settings)
+    # A record that determines the magnetometer alone (turned by hand, or without a temperature)
+    # holds the accelerometer and gyroscope at nominal, said in one line; else it is refused.
+    # An everyday record (rests in one orientation, motion between) is a pool of one.
+    options = common.stream_options(args)
+    try:
+        fitted = fit_imu(args.bag[0], settings, options,
+                         nominal_for=lambda kind, bag_nominal: _nominal(args, bag_nominal),
+                         hold_undetermined=has_mag(args.bag[0], options.topics))
+    except EverydayRecord:
+        print(f'{Path(args.bag[0]).name}: {EverydayRecord.WORDS}')
         return _fit_pool(args, settings)
     args.bag = args.bag[0]
     from tak_thermo_ros.formats.records import record_lines
     for line in record_lines(args.bag, topics=common.topics(args)):
         print(line)
-    # A record that determines the magnetometer alone (turned by hand, or without a temperature)
-    # holds the accelerometer and gyroscope at nominal, said in one line; else it is refused.
-    options = common.stream_options(args)
-    fitted = fit_imu(args.bag, settings, options, nominal_for=lambda kind, bag_nominal: _nominal(args, bag_nominal),
-                     hold_undetermined=has_mag(args.bag, options.topics))
     both_held = set(fitted.held) >= {'accel', 'gyro'}
     for option, given, sensors in (('--effects', bool(effects['accel']), ('accel',)),
                                    ('--gyro-effects', bool(effects['gyro']), ('gyro',)),
@@ -369,15 +376,15 @@ def _prior(args: argparse.Namespace):
 def _fit_pool(args: argparse.Namespace, settings) -> int:
     """``fit`` of a pool of one unit's everyday records (:mod:`tak_thermo_ros.passes.pool`): a line per record first."""
     from tak_thermo_ros.core.fit.pool import order_line
-    from tak_thermo_ros.passes.pool import (coverage_lines, fit_records, left_out_line, opened_lines, pool_header,
-                                            pool_unit, turn_on_line)
+    from tak_thermo_ros.passes.pool import (coverage_lines, fit_records, left_out_line, pool_header, pool_unit,
+                                            turn_on_line)
     for option, given in (('--iron-run', args.iron_run), ('--mag-effects', args.mag_effects),
                           ('--noise-from-residual', args.noise_from_residual)):
         if given:
             msg = f'{option}: not with a pool of records (fit the pool, then its magnetometer or noise apart)'
             raise TakError(msg)
     prior = _prior(args)
-    fitted = fit_records(args.bag, settings, common.stream_options(args), prior=prior)
+    fitted = fit_records(args.bag, settings, common.stream_options(args), prior=prior, say=print)
     opened, pool = fitted.opened, fitted.fit
     handheld = pool.fit
     results = handheld.results
@@ -387,15 +394,13 @@ def _fit_pool(args: argparse.Namespace, settings) -> int:
         unit, noise_line = _with_noise(args, unit)
     label = prior.label if prior is not None else ''
     save_unit(args.output, unit, header=pool_header(pool.record.records, args.output, label))
-    for line in opened_lines(opened):
-        print(line)
-    for line in coverage_lines(opened):
+    for left in pool.left_out:
+        print(left_out_line(left))
+    for line in coverage_lines(opened, left_out=[left.name for left in pool.left_out]):
         print(line)
     if prior is not None:
         for line in (*prior.lines(), *fitted.lines):
             print(line)
-    for left in pool.left_out:
-        print(left_out_line(left))
     for sensor, choice in pool.orders.items():
         print(order_line(sensor, choice))
     for line in handheld.lines:
@@ -403,7 +408,8 @@ def _fit_pool(args: argparse.Namespace, settings) -> int:
     if pool.record.records < 2 and unit.gyro.turn_on is None:
         print('turn-on repeatability: not estimated, one record (it takes two power-ups or more); none written')
     for sensor in handheld.turn_on:
-        print(turn_on_line(sensor, handheld.turn_on[sensor]))
+        if prior is None or not prior.gives_turn_on(opened.record.records, sensor):  # else the fleet's, said above
+            print(turn_on_line(sensor, handheld.turn_on[sensor], pool.record.records))
     for sensor in ('accel', 'gyro'):
         result = results[sensor]
         calibration = unit.sensor(sensor)

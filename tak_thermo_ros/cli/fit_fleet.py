@@ -9,7 +9,7 @@ import argparse
 import copy
 from typing import Any
 
-from tak_thermo_ros.cli import options
+from tak_thermo_ros.cli import common, options
 from tak_thermo_ros.core.diagnose.fleet import DEFAULT_FLAG_SIGMA
 from tak_thermo_ros.core.link.correction import OutOfRange
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
@@ -78,12 +78,11 @@ def _run(args: argparse.Namespace, fit_actions, command: Command) -> int:
     """A batch of calibration bags, or with ``--everyday`` a fleet's prior and its units fitted with it."""
     from tak_thermo_ros.errors import TakError
     if args.everyday is not None:
-        from tak_thermo_ros.cli.common import topics
         from tak_thermo_ros.cli.fit import fit_settings
         from tak_thermo_ros.passes.fleet_prior import run_everyday
         from tak_thermo_ros.passes.run import StreamOptions
-        return run_everyday(args, fit_settings(args), StreamOptions(topics=topics(args), progress=False))
+        return run_everyday(args, fit_settings(args), StreamOptions(topics=common.topics(args), progress=False))
     if not args.bags:
         msg = 'give one BAG per unit, or --everyday DIR (a folder per unit)'
         raise TakError(msg)
-    return cmd_fit_fleet(args, fit_actions, command)
+    return cmd_fit_fleet(args, fit_actions, command, common.topics(args))

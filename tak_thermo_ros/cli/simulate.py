@@ -49,7 +49,7 @@ def add_parser(commands) -> argparse.ArgumentParser:
                              "powered board (the scenario's powered: section); a directory of bags, one per record, "
                              "for a scenario with an everyday: section (docs/everyday.md)")
     parser.add_argument('--scenario', metavar='FILE.yaml',
-                        help='scenario overrides, every key optional (README: The simulator)')
+                        help='scenario overrides, every key optional (docs/cli.md: The simulator)')
     parser.add_argument('--seed', type=options.seed, help='random seed, 0 .. 2^63 - 1 (overrides the scenario)')
     parser.add_argument('--storage', choices=['mcap', 'sqlite3'], default='mcap')
     options.add_topic_options(parser)
@@ -164,9 +164,10 @@ def _everyday(args: argparse.Namespace, scenario, habits) -> int:
     low, high, rests, minutes = _write_month(out, scenario, habits, args)
     print(f'wrote {out}: {habits.records} records ({args.storage} bags rec00..rec{habits.records - 1:02d}) over '
           f'{habits.days:g} days, {min(minutes):.0f}..{max(minutes):.0f} min each at {scenario.sample_rate_hz:g} Hz')
-    print(f'  temperature {low:.1f}..{high:.1f} C over the month; {min(rests)}..{max(rests)} rests per record, '
-          f'within {habits.tilt_deg:g} deg of level' + (f' ({100 * habits.face_share:.0f} % on another face)'
-                                                        if habits.face_share else ''))
+    print(f'  temperature {low:.1f}..{high:.1f} C over the month; {min(rests)}..{max(rests)} rests per record as '
+          f'drawn, within {habits.tilt_deg:g} deg of level' + (f' ({100 * habits.face_share:.0f} % on another face)'
+                                                               if habits.face_share else ''))
+    print('  (fit finds each record\'s rests itself: a rest that one noisy window breaks counts as two)')
     accel, gyro = (reader_unit(unit) for unit in ('m/s^2', 'rad/s'))
     print(f'  turn-on offset per power-up (true repeatability x y z): '
           f'{numbers(habits.turn_on("accel") * accel[1], 3)} {accel[0]}, '

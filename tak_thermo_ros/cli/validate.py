@@ -15,6 +15,7 @@ from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import TakError
 import numpy as np
 from dataclasses import replace
+from pathlib import Path
 
 NAME = 'validate'
 OUTPUTS = (('json', FILE, '--json'),)
@@ -23,7 +24,8 @@ OUTPUTS = (('json', FILE, '--json'),)
 
 def add_parser(commands) -> argparse.ArgumentParser:
     """Add the command to ``tak_calib``'s subcommands."""
-    parser = commands.add_parser('validate', help='|g| from the three channels before and after correction')
+    parser = commands.add_parser('validate', help='the error before and after correction on a record the fit did '
+                                                  'not see: |g| and the rate against its references or at its rests')
     parser.add_argument('bag', metavar='BAG', nargs='+',
                         help='a record; several records, or a directory of them: a pool of everyday records, each '
                              'rest judged (docs/everyday.md)')
@@ -51,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     The bag is read block by block (bounded memory); the errors are accumulated as sums.
     """
     from tak_thermo_ros.core.records.static_run import NotStatic
-    from tak_thermo_ros.passes.run import ImuLinkUndetermined
+    from tak_thermo_ros.passes.run import EverydayRecord, ImuLinkUndetermined
     from tak_thermo_ros.passes.validate import validate_bag
     from tak_thermo_ros.passes.magnetometer import has_mag
     unit = load_unit(args.params)
@@ -66,10 +68,13 @@ def run(args: argparse.Namespace) -> int:
         run = validate_bag(args.bag, unit, options, gravity=args.gravity,
                            latitude=getattr(args, 'latitude', None), out_of_range=OutOfRange(args.out_of_range),
                            expect_kind=lambda kind: common.check_kind(args, unit, kind))
+    except EverydayRecord:  # rests in one orientation, motion between: its rests judged as a pool's
+        print(f'{Path(args.bag).name}: {EverydayRecord.WORDS}')
+        return _validate_pool(args, unit, [args.bag], watched=watched)
     except (NotStatic, ImuLinkUndetermined):  # turned, one orientation; or never at rest
         # A record turned by hand has no reference for the accelerometer and gyroscope; its
-        # magnetometer is still checked (|B| in every orientation). An everyday record (rests in
-        # several poses, motion between) is judged by the calibration watch.
+        # magnetometer is still checked (|B| in every orientation). A record that moves and rests
+        # in several poses without turns to fit is judged by the calibration watch.
         if watched is None and (unit.mag is None or not has_mag(args.bag, options.topics)):
             raise
         if watched is None:
@@ -78,7 +83,6 @@ def run(args: argparse.Namespace) -> int:
             print('accelerometer and gyroscope: no reference (the board moved); the calibration watch judges them')
         run = None
     if run is not None:
-        from pathlib import Path
         from tak_thermo_ros.core.records.provenance import in_sample_lines
         found = getattr(run, 'in_sample', None)
         for line in in_sample_lines(found, record=Path(args.bag).name, params=Path(args.params).name,
@@ -314,18 +318,34 @@ def _validate_handheld(args: argparse.Namespace, run, document: dict) -> None:
                                'closure_rms_rad': closure.floor_rad}})
 
 
-def _validate_pool(args: argparse.Namespace, unit: UnitCalibration) -> int:
-    """``validate`` of a pool of everyday records: each rest's |g| and rate, each record's turn-on offset apart."""
-    from tak_thermo_ros.passes.pool import check_driver_unit, opened_lines, validate_records
+def _validate_pool(args: argparse.Namespace, unit: UnitCalibration, paths=None, *, watched=None) -> int:
+    """``validate`` of a pool of everyday records: each rest's |g| and rate, each record's turn-on offset apart.
+
+    :param paths: the records (default: the command's); ``watched``: the calibration watch over one
+        record, said after the rests.
+    """
+    from tak_thermo_ros.core.records.provenance import pool_in_sample_lines
+    from tak_thermo_ros.passes.pool import check_driver_unit, outside_lines, validate_records
     check_driver_unit(unit, args.params)
-    check = validate_records(args.bag, unit, common.stream_options(args), gravity=args.gravity,
-                             latitude=getattr(args, 'latitude', None), out_of_range=OutOfRange(args.out_of_range))
+    policy = OutOfRange(args.out_of_range)
+    read: list[str] = []  # each record's lines, said after what the reader must know first (in-sample)
+    check = validate_records(paths or args.bag, unit, common.stream_options(args), gravity=args.gravity,
+                             latitude=getattr(args, 'latitude', None), out_of_range=policy, say=read.append)
     opened, before, after = check.opened, check.before, check.after
-    for line in opened_lines(opened):
+    pooled = [opened.entries[i] for i in opened.used]
+    for line in pool_in_sample_lines([(entry.name, entry.in_sample) for entry in pooled],
+                                     params=Path(args.params).name, command='validate',
+                                     records=len(unit.fitted_from)):
+        print(line)
+    for line in read:
+        print(line)
+    beyond = outside_lines(check, unit, policy)
+    for line in beyond:
         print(line)
     g = args.gravity
     small, factor = common.reader_unit('rad/s')
-    print(f'|g| error of the {len(after.gravity_error)} rests\' mean specific force of {len(opened.used)} records:')
+    records = f'{len(opened.used)} record{"s" if len(opened.used) != 1 else ""}'
+    print(f'|g| error of the {len(after.gravity_error)} rests\' mean specific force of {records}:')
     for label, value in (('before (nominal scale and offset):', before.gravity_rms),
                          ('after  (full correction link):', after.gravity_rms),
                          ('the noise alone:', after.gravity_floor)):
@@ -335,16 +355,22 @@ def _validate_pool(args: argparse.Namespace, unit: UnitCalibration) -> int:
             ('after, each record\'s own offset off:', check.shape_rms), ('the white noise alone:', after.rate_floor))
     for label, rms in rows:
         print(f'  {label:<37}{common.numbers(rms, 3)} rad/s ({common.numbers(np.asarray(rms) * factor, 3)} {small})')
-    spread = check.own.std(axis=0, ddof=1) if len(check.own) > 1 else np.zeros(3)
-    said = (f'the file\'s repeatability {common.numbers(np.asarray(unit.gyro.turn_on.repeatability) * factor, 3)}'
+    known = unit.gyro.known_turn_on
+    said = (f'the file\'s repeatability {common.numbers(np.asarray(known.repeatability) * factor, 3)}'
+            if known is not None else f'the file\'s repeatability: {unit.gyro.turn_on.why_not()}'
             if unit.gyro.turn_on is not None else 'the file holds no turn-on repeatability')
-    print(f'gyroscope: these records\' turn-on offsets spread {common.numbers(spread * factor, 3)} {small} x y z '
-          f'({said})')
+    if len(check.own) > 1:
+        spread = check.own.std(axis=0, ddof=1)
+        print(f'gyroscope: these records\' turn-on offsets spread {common.numbers(spread * factor, 3)} {small} x y z '
+              f'({said})')
+    else:  # one record: its own offset, not a spread
+        print(f'gyroscope: this record\'s turn-on offset {common.numbers(check.own[0] * factor, 3)} {small} x y z '
+              f'({said})')
     from tak_thermo_ros.passes.prior_lines import band_lines
     lines, band = band_lines(check, unit.gyro)
     for line in lines:
         print(line)
-    if after.out_of_range:
+    if after.out_of_range and not beyond:  # outside in the motions only, none at a rest
         print(f'warning: {after.out_of_range} samples outside the calibrated temperature range ({args.out_of_range})')
     document = {'records': [entry.name for entry in opened.entries], 'params': str(args.params), 'gravity': g,
                 'record': 'pool', 'rests': len(after.gravity_error),
@@ -352,9 +378,14 @@ def _validate_pool(args: argparse.Namespace, unit: UnitCalibration) -> int:
                 'after': {'gravity_rms': after.gravity_rms, 'rate_rms': [float(v) for v in after.rate_rms],
                           'rate_shape_rms': [float(v) for v in check.shape_rms]},
                 'floor': {'gravity_rms': after.gravity_floor, 'rate_rms': [float(v) for v in after.rate_floor]},
-                'turn_on_offsets': check.own.tolist()}
+                'turn_on_offsets': check.own.tolist(), 'out_of_range': after.out_of_range,
+                'in_sample': {entry.name: entry.in_sample.as_dict() for entry in pooled if entry.in_sample}}
     if band:
         document['uncertainty'] = band
+    if watched is not None:
+        for line in watched.lines():
+            print(line)
+        document['calibration_watch'] = _watch_document(watched)
     if args.json:
         write_json(args.json, document)
         print(f'wrote {args.json}')

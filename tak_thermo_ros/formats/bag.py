@@ -781,6 +781,7 @@ class BagStreams:
     :param nominal_scale: the bag metadata's nominal K0 (counts bags), or ``None``.
     :param mag: messages on the magnetometer topic (driver bags; 0 when absent).
     :param mag_reference: messages on the reference field topic (0 when absent).
+    :param end_ns: when its last message was logged (a flight log: its last sample's stamp); 0: unknown.
     """
 
     kind: InputKind
@@ -791,6 +792,7 @@ class BagStreams:
     nominal_scale: tuple[float, float, float] | None
     mag: int = 0
     mag_reference: int = 0
+    end_ns: int = 0
 
 
 def _stream_topics(kind: InputKind, topics: Topics) -> list[tuple[str, str, str]]:
@@ -833,6 +835,7 @@ def bag_streams(path: str | os.PathLike[str], *, topics: Topics = Topics(),
                     raise BagError(msg)
                 counts[role] = stream.count
             nominal_scale = _nominal_scale(reader, path) if kind is InputKind.COUNTS else None
+            end_ns = int(reader.end_time)
     except BagError:
         raise
     except Exception as err:  # rosbags and the storage libraries raise many kinds
@@ -840,7 +843,7 @@ def bag_streams(path: str | os.PathLike[str], *, topics: Topics = Topics(),
     return BagStreams(kind=kind, main=counts['main'], temperature=counts['temperature'],
                       reference=counts['reference'], rate_reference=counts.get('rate_reference', 0),
                       nominal_scale=nominal_scale, mag=counts.get('mag', 0),
-                      mag_reference=counts.get('mag_reference', 0))
+                      mag_reference=counts.get('mag_reference', 0), end_ns=end_ns)
 
 
 def decode_vector3_stamped(raws: list[bytes]) -> tuple[np.ndarray, np.ndarray, list[str]]:

@@ -82,7 +82,7 @@ import numpy as np
 import yaml
 
 from tak_thermo_ros.formats.files import write_text_atomic  # noqa: F401 (re-exported: one writer of text files)
-from tak_thermo_ros.formats.files import check_finite, unreadable
+from tak_thermo_ros.formats.files import check_finite, read_regular_bytes, unreadable
 from tak_thermo_ros.core.link.model import (
     AXES,
     CALIBRATION_VERSION,
@@ -98,6 +98,7 @@ from tak_thermo_ros.core.link.model import (
     THERMAL_STATES,
     InputKind,
     MagnetometerCalibration,
+    NOT_DETERMINED,
     TurnOn,
     UnitCalibration,
     check_plausible,
@@ -106,7 +107,7 @@ from tak_thermo_ros.core.link.model import (
 from tak_thermo_ros.core.records.provenance import RecordPrint
 from tak_thermo_ros.core.noise.model import NoiseModel, noise_model_from_mapping
 from tak_thermo_ros.core.values import finite_number
-from tak_thermo_ros.errors import CalibrationError, FitError, NoiseError
+from tak_thermo_ros.errors import CalibrationError, FitError, NoiseError, TakError
 
 NODE_NAME = 'compensator'
 NODE_KEY = f'/**/{NODE_NAME}'
@@ -416,9 +417,13 @@ def _link_to_mapping(calibration: Calibration, input_kind: InputKind) -> dict[st
     if calibration.noise is not None:
         mapping['noise'] = noise_to_mapping(calibration.noise)
     if calibration.turn_on is not None:
-        mapping['turn_on'] = {'repeatability': [float(v) for v in calibration.turn_on.repeatability],
-                              'repeatability_error': [float(v) for v in calibration.turn_on.repeatability_error],
-                              'records': int(calibration.turn_on.records)}
+        turn_on = calibration.turn_on
+        if turn_on.repeatability is None or turn_on.repeatability_error is None:
+            mapping['turn_on'] = {'repeatability': NOT_DETERMINED, 'records': int(turn_on.records)}
+        else:
+            mapping['turn_on'] = {'repeatability': [float(v) for v in turn_on.repeatability],
+                                  'repeatability_error': [float(v) for v in turn_on.repeatability_error],
+                                  'records': int(turn_on.records)}
     if calibration.uncertainty is not None:
         mapping['uncertainty'] = uncertainty_to_mapping(calibration.uncertainty)
     return mapping
@@ -475,13 +480,21 @@ def _uncertainty_from_mapping(raw: Any, key: str) -> CurveUncertainty:
 
 
 def _turn_on_from_mapping(raw: Any, key: str) -> TurnOn:
-    """A sensor's ``turn_on`` section: ``repeatability`` and ``repeatability_error`` (x, y, z), ``records``."""
+    """A sensor's ``turn_on`` section: ``repeatability`` and ``repeatability_error`` (x, y, z), ``records``.
+
+    ``repeatability: not determined`` (and no error): fewer records than
+    :data:`~tak_thermo_ros.core.link.model.MIN_TURN_ON_RECORDS` behind it.
+    """
     if not isinstance(raw, Mapping):
         msg = f'{key}: expected a mapping'
         raise CalibrationError(msg)
-    _check_keys(raw, key, ('repeatability', 'repeatability_error', 'records'))
-    spread = _numbers(raw['repeatability'], f'{key}.repeatability', 3)
-    error = _numbers(raw['repeatability_error'], f'{key}.repeatability_error', 3)
+    if raw.get('repeatability') == NOT_DETERMINED:
+        _check_keys(raw, key, ('repeatability', 'records'))
+        spread = error = None
+    else:
+        _check_keys(raw, key, ('repeatability', 'repeatability_error', 'records'))
+        spread = _numbers(raw['repeatability'], f'{key}.repeatability', 3)
+        error = _numbers(raw['repeatability_error'], f'{key}.repeatability_error', 3)
     records = raw['records']
     if isinstance(records, bool) or not isinstance(records, int):
         msg = f'{key}.records: expected a whole number, got {records!r}'
@@ -829,6 +842,10 @@ def calibration_section(document: Any) -> Mapping[str, Any]:
     raise CalibrationError(msg)
 
 
+LEARNED_KEY = 'learned'
+"""The parameter beside ``calibration`` that holds the learning's state (a learned file)."""
+
+
 def load_unit(path: str | os.PathLike[str]) -> UnitCalibration:
     """Read and validate a calibration parameters YAML of either version.
 
@@ -848,14 +865,11 @@ def load_unit_parameters(path: str | os.PathLike[str], *,
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding='utf-8')
+        text = read_regular_bytes(path, 'calibration file', CalibrationError).decode('utf-8')
     except FileNotFoundError:
         if missing_ok:
             return None
         msg = f'{path}: no such calibration file'
-        raise CalibrationError(msg) from None
-    except IsADirectoryError:
-        msg = f'{path}: is a directory, not a calibration file'
         raise CalibrationError(msg) from None
     except (OSError, UnicodeDecodeError) as err:
         msg = f'{path}: cannot read calibration file ({getattr(err, "strerror", None) or err})'
@@ -863,7 +877,7 @@ def load_unit_parameters(path: str | os.PathLike[str], *,
     try:
         parameters = calibration_section(parse_parameters_yaml(text))
         _check_uniform_lists(parameters['calibration'], 'calibration')
-        return unit_from_mapping(parameters['calibration']), parameters
+        unit = unit_from_mapping(parameters['calibration'])
     except yaml.YAMLError as err:
         mark = getattr(err, 'problem_mark', None)
         where = f' at line {mark.line + 1}' if mark is not None else ''
@@ -875,6 +889,14 @@ def load_unit_parameters(path: str | os.PathLike[str], *,
     except (RecursionError, ValueError) as err:  # nested beyond Python's stack; an integer of 4,300+ digits
         msg = f'{path}: not a calibration file ({unreadable(err)})'
         raise CalibrationError(msg) from None
+    if LEARNED_KEY in parameters:  # a learned file: its corrections judged as the node applies them
+        from tak_thermo_ros.core.link.watch import LearnedState, check_learned
+        try:
+            check_learned(unit, LearnedState.from_mapping(parameters[LEARNED_KEY], f'{path}: {LEARNED_KEY}'),
+                          str(path))
+        except TakError as err:
+            raise CalibrationError(str(err)) from None
+    return unit, parameters
 
 
 def load_calibration(path: str | os.PathLike[str]) -> Calibration:

@@ -297,6 +297,52 @@ def atomic_directory(path: str | os.PathLike[str]) -> Iterator[Path]:
         shutil.rmtree(staging, ignore_errors=True)
 
 
+def not_regular(path: str | os.PathLike[str]) -> str:
+    """What ``path`` is when it exists and is no regular file (``a FIFO (named pipe)``), else ``''``.
+
+    Follows a symbolic link (a link to a regular file is read as one); never opens the path.
+    """
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return ''
+    return '' if stat.S_ISREG(mode) else file_kind(mode)
+
+
+def read_regular_bytes(path: str | os.PathLike[str], what: str, error: type[TakError]) -> bytes:
+    """The bytes of a regular file; anything else refused in one line, without waiting on it.
+
+    Opened with ``O_NONBLOCK`` and judged by ``fstat`` before any read: a FIFO (which would block the
+    open, or the read, until a writer comes), a socket, a device (``/dev/zero`` never ends) or a
+    directory is refused, naming what it is.
+
+    :param what: the file's name in a message (``'calibration file'``).
+    :raises FileNotFoundError: it does not exist (the caller says so in its words).
+    :raises error: one line naming the file, when it is no regular file or cannot be read.
+    """
+    try:
+        handle = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, 'O_CLOEXEC', 0))
+    except FileNotFoundError:
+        raise
+    except OSError as err:  # a socket (ENXIO), no permission
+        kind = not_regular(path)
+        msg = (f'{path}: is {kind}, not a {what}: only a regular file is read' if kind
+               else f'{path}: cannot read the {what} ({err.strerror})')
+        raise error(msg) from None
+    mode = os.fstat(handle).st_mode
+    if not stat.S_ISREG(mode):
+        os.close(handle)
+        msg = f'{path}: is {file_kind(mode)}, not a {what}: only a regular file is read'
+        raise error(msg)
+    os.set_blocking(handle, True)
+    with os.fdopen(handle, 'rb') as stream:
+        try:
+            return stream.read()
+        except OSError as err:
+            msg = f'{path}: cannot read the {what} ({err.strerror})'
+            raise error(msg) from None
+
+
 def read_yaml(path: str | os.PathLike[str], what: str, error: type[TakError]) -> Any:
     """The YAML document in ``path`` (``None`` for an empty file).
 
@@ -306,7 +352,7 @@ def read_yaml(path: str | os.PathLike[str], what: str, error: type[TakError]) ->
     import yaml
     path = Path(path)
     try:
-        return yaml.safe_load(path.read_text(encoding='utf-8'))
+        return yaml.safe_load(read_regular_bytes(path, what, error).decode('utf-8'))
     except FileNotFoundError:
         msg = f'{path}: no such {what}'
         raise error(msg) from None

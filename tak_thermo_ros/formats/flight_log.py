@@ -135,8 +135,10 @@ class FlightLog:
         """The log's streams as a bag's :class:`~tak_thermo_ros.formats.bag.BagStreams` (no reference)."""
         from tak_thermo_ros.core.link.model import InputKind
         from tak_thermo_ros.formats.bag import BagStreams
+        ends = [int(stamps.max()) for stamps in self.stamps.values() if len(stamps)]
         return BagStreams(kind=InputKind.IMU, main=self.count('accel'), temperature=len(self.temp_stamp_ns),
-                          reference=0, rate_reference=0, nominal_scale=None, mag=self.count('mag'), mag_reference=0)
+                          reference=0, rate_reference=0, nominal_scale=None, mag=self.count('mag'), mag_reference=0,
+                          end_ns=max(ends, default=0))
 
     def source(self) -> dict[str, object]:
         """What the calibration file records of the log: format, instance, device IDs."""

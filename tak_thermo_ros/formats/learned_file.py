@@ -14,12 +14,9 @@ from __future__ import annotations
 import os
 
 from tak_thermo_ros.core.link.model import UnitCalibration
-from tak_thermo_ros.core.link.watch import LearnedState, learned_unit
+from tak_thermo_ros.core.link.watch import LearnedState, calibration_digest, check_learned, learned_unit
 from tak_thermo_ros.errors import TakError
-from tak_thermo_ros.formats.calibration_file import load_unit_parameters, save_unit
-
-LEARNED_KEY = 'learned'
-"""The parameter beside ``calibration`` that holds the learning's state."""
+from tak_thermo_ros.formats.calibration_file import LEARNED_KEY, load_unit_parameters, save_unit  # noqa: F401
 
 
 def save_learned(path: str | os.PathLike[str], original: UnitCalibration, state: LearnedState, *,
@@ -31,10 +28,15 @@ def save_learned(path: str | os.PathLike[str], original: UnitCalibration, state:
     save_unit(path, learned_unit(original, state), header=header, extra_parameters={LEARNED_KEY: state.to_mapping()})
 
 
-def load_learned(path: str | os.PathLike[str]) -> LearnedState | None:
+def load_learned(path: str | os.PathLike[str], unit: UnitCalibration | None = None) -> LearnedState | None:
     """The learning's state in a learned file, or ``None`` when the file does not exist.
 
-    :raises TakError: one line naming the file, when it exists but is no learned file.
+    :param unit: the calibration the node applies it on: its corrections are judged against the bounds
+        learning keeps on it (:func:`~tak_thermo_ros.core.link.watch.check_learned`), unless they were
+        learned on another calibration
+        (then they are not applied: learning starts afresh).
+    :raises TakError: one line naming the file, when it exists but is no learned file, or its corrections
+        lie beyond the bounds.
     """
     loaded = load_unit_parameters(path, missing_ok=True)
     if loaded is None:
@@ -43,4 +45,8 @@ def load_learned(path: str | os.PathLike[str]) -> LearnedState | None:
     if LEARNED_KEY not in parameters:
         msg = f'{path}: a calibration file without a {LEARNED_KEY} section: not a learned file (give another path)'
         raise TakError(msg)
-    return LearnedState.from_mapping(parameters[LEARNED_KEY], f'{path}: {LEARNED_KEY}')
+    state = LearnedState.from_mapping(parameters[LEARNED_KEY], f'{path}: {LEARNED_KEY}')
+    applies = unit is not None and (not state.original or state.original == calibration_digest(unit))
+    if applies:
+        check_learned(unit, state, str(path))  # type: ignore[arg-type]
+    return state

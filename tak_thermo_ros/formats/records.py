@@ -15,6 +15,7 @@ sensor instance is ``topics.instance`` (``--instance N``).
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
@@ -23,6 +24,8 @@ from tak_thermo_ros.core.records.record import ChannelRecord, DriverRecord
 
 LOG_SUFFIXES = ('.ulg', '.bin')
 """A file named so is meant as a flight log: one that is none is refused as such, not taken for a bag."""
+IDENTITY_SAMPLES = 256
+"""A record's identity digests the first this many samples of each of its sensors (stamps and values)."""
 
 
 def flight_log_format(path: str | os.PathLike[str]) -> str | None:
@@ -99,3 +102,68 @@ def record_lines(path: str | os.PathLike[str], *, topics) -> tuple[str, ...]:
     """What the reader of a flight log says about it (one statement each); nothing for a bag."""
     log = flight_log(path, topics=topics)
     return () if log is None else log.lines
+
+
+@dataclass(frozen=True)
+class RecordIdentity:
+    """A record known by its content, not its spelling (:func:`record_identity`).
+
+    The same messages under another path, through a link, copied, renamed, in another bag storage
+    (a bag's ``.mcap`` beside its folder) or another log format (one flight as ``.ulg`` and ``.bin``)
+    have the same identity; a record cut shorter or longer, or another power-up, has another.
+
+    :param kind: the paper's channel codes or a driver's Imu.
+    :param messages: messages on its main stream (the counts or Imu topic; a flight log's accelerometer).
+    :param end_ns: when its last message was logged (a bag's log time; a flight log's last stamp).
+    :param first_stamp_ns: its first sample's stamp.
+    :param digest: SHA-256 (32 hex digits) of its first :data:`IDENTITY_SAMPLES` samples of each sensor as
+        read (stamps and values: :class:`~tak_thermo_ros.core.records.provenance.PrintCollector`).
+    """
+
+    kind: str
+    messages: int
+    end_ns: int
+    first_stamp_ns: int
+    digest: str
+
+
+@dataclass(frozen=True)
+class _Head:
+    """The first samples of one sensor, as :class:`~tak_thermo_ros.core.records.provenance.PrintCollector` reads."""
+
+    counts_stamp_ns: object
+    counts: object
+
+
+def record_identity(path: str | os.PathLike[str], *, topics, streams=None) -> RecordIdentity | None:
+    """A record's :class:`RecordIdentity` from its streams and its first block; ``None``: it cannot be read.
+
+    Reads :data:`IDENTITY_SAMPLES` messages, not the record (a record that cannot be read says why when read).
+
+    :param streams: its :func:`record_streams`, when known.
+    """
+    from tak_thermo_ros.core.records.provenance import PrintCollector
+    from tak_thermo_ros.errors import TakError
+    try:
+        streams = streams if streams is not None else record_streams(path, topics=topics)
+        blocks = record_blocks(path, topics=topics, kind=streams.kind, block_samples=IDENTITY_SAMPLES,
+                               references=False, progress=False)
+        try:
+            first = next(blocks, None)
+        finally:
+            blocks.close()  # type: ignore[attr-defined]
+    except TakError:
+        return None
+    if first is None:
+        return None
+    sensors = ('accel',) if streams.kind is InputKind.COUNTS else ('accel', 'gyro')
+    channels = {'accel': first} if streams.kind is InputKind.COUNTS else {
+        sensor: first.channel(sensor) for sensor in sensors}  # type: ignore[union-attr]
+    collector = PrintCollector(sensors, own_segments=False)
+    collector.add({sensor: _Head(channel.counts_stamp_ns[:IDENTITY_SAMPLES], channel.counts[:IDENTITY_SAMPLES])
+                   for sensor, channel in channels.items()})
+    head = collector.finish(str(path))
+    if head is None:
+        return None
+    return RecordIdentity(kind=streams.kind.value, messages=int(streams.main), end_ns=int(streams.end_ns),
+                          first_stamp_ns=head.first_stamp_ns, digest=head.digest)

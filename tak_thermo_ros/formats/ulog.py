@@ -265,7 +265,7 @@ def write_ulog(path: str | os.PathLike[str],
     pyulog = _pyulog()
     ulog = pyulog.ULog(None)
     formats = {}
-    for name in {topic for topic, _ in topics}:
+    for name in sorted({topic for topic, _ in topics}):  # in one order: the same log writes the same bytes
         text = f'{name}:' + ''.join(f'{kind} {field};' for kind, field in _FIELDS[name])
         formats[name] = pyulog.ULog.MessageFormat(text.encode(), None)
     ulog._message_formats = formats

@@ -75,6 +75,20 @@ class TurnOnSettings:
         return CalibrationWatch(unit, latitude=self.latitude, turn_on=True)
 
 
+def turn_on_said(watch) -> tuple[str, ...]:
+    """What the watch said of the run's turn-on offset; when it found no rest, why, in the file's own terms.
+
+    The survey's rests are the record's own quietest stretches (one record has no other yardstick); the
+    watch's are still within the calibration's noise model: a record that never rested has the former
+    and not the latter (the pool calls it "never rested" so, against its other records).
+    """
+    if watch.turn_on_lines:
+        return tuple(watch.turn_on_lines)
+    finder = watch.finder
+    return (f'turn-on offset: no rest within the calibration\'s noise model ({finder.still_windows} of '
+            f'{finder.windows} windows still), nothing taken',)
+
+
 class _RowsBuffer:
     """Per-message fields that pass through (a driver's orientation), until their rows are aligned."""
 
@@ -308,7 +322,7 @@ def apply_bag(path: str | Path, unit: UnitCalibration, output: str | Path, optio
     if watch is not None:
         watch.finish()
     return Applied(written=written, dropped=required.dropped, out_of_range=outside, topic=topic,
-                   turn_on=tuple(watch.turn_on_lines) if watch is not None else (),
+                   turn_on=turn_on_said(watch) if watch is not None else (),
                    ignored_temp_codes=dict(aligner.ignored_temp_codes),
                    ignored_references=dict(aligner.ignored_references),
                    mag_written=writer.written_mag, mag_topic=topics.compensated_mag if magnetometer else '',

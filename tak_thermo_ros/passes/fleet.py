@@ -271,10 +271,11 @@ def _connect(scheduler: str | None, workers: int) -> tuple[Any, Any]:
         except (OSError, TimeoutError, ValueError) as error:
             msg = f'--scheduler {scheduler}: cannot connect ({type(error).__name__}: {error})'
             raise TakError(msg) from None
-    # One thread per process: the fits are numpy/scipy work that holds the GIL in between.
+    # One thread per process: the fits are numpy/scipy work that holds the GIL in between. No dashboard;
+    # the scheduler's HTTP server (it starts one anyway) on a free port: 8787 may be another cluster's.
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host='127.0.0.1',
-                           dashboard_address=None, silence_logs=logging.ERROR,
-                           env={'OPENBLAS_NUM_THREADS': '1'})
+                           dashboard_address='127.0.0.1:0', scheduler_kwargs={'dashboard': False},
+                           silence_logs=logging.ERROR, env={'OPENBLAS_NUM_THREADS': '1'})
     return Client(cluster), cluster
 
 
@@ -377,13 +378,47 @@ def fleet_document(outcomes: Sequence[UnitOutcome], *, flag_sigma: float,
     }
 
 
-def _tasks(args: argparse.Namespace, fit_actions: Sequence[argparse.Action], units_dir: Path) -> list[UnitTask]:
+def distinct_units(bags: Sequence[str], topics) -> tuple[list[int], list[str]]:
+    """The BAGs that are not a second copy of an earlier one: the same records by content, however spelled.
+
+    A unit's records (its bag, or the records of its directory) by
+    :func:`~tak_thermo_ros.formats.records.record_identity`: the same directory through a link, a
+    copy of it, the same bag spelled otherwise is one unit, counted once, the second named.
+
+    :returns: the indices of the BAGs kept, and one line per second copy.
+    """
+    from tak_thermo_ros.formats.records import record_identity
+    from tak_thermo_ros.passes.pool import record_paths, same_how
+    first: dict[frozenset, int] = {}
+    kept, lines = [], []
+    for index, bag in enumerate(bags):
+        try:
+            records = record_paths([bag])[0]
+        except TakError:  # no such path, no record in it: the unit's fit says so
+            records = [Path(bag)]
+        key = frozenset(record_identity(path, topics=topics) or ('path', os.path.realpath(path)) for path in records)
+        if key in first:
+            earlier = bags[first[key]]
+            how = same_how(bag, earlier, 'the same records')
+            lines.append(f'{bag}: the same unit as {earlier} ({how}): counted once')
+            continue
+        first[key] = index
+        kept.append(index)
+    return kept, lines
+
+
+def _tasks(args: argparse.Namespace, fit_actions: Sequence[argparse.Action], units_dir: Path,
+           topics) -> tuple[list[UnitTask], list[str]]:
+    """One task per distinct unit, and one line per BAG that is a second copy of another (:func:`distinct_units`)."""
     bags = [str(Path(os.path.abspath(bag))) for bag in args.bags]
     validation = [str(Path(os.path.abspath(bag))) for bag in args.validate] if args.validate else [None] * len(bags)
     if len(validation) != len(bags):
         msg = (f'--validate: {len(validation)} validation bags for {len(bags)} calibration bags '
                '(give one per BAG, in the same order)')
         raise TakError(msg)
+    kept, lines = distinct_units(args.bags, topics)
+    given = [args.bags[i] for i in kept]
+    bags, validation = [bags[i] for i in kept], [validation[i] for i in kept]
     topics: list[str] = []
     for dest in TOPIC_OPTIONS:
         if getattr(args, dest, None) is not None:
@@ -397,7 +432,7 @@ def _tasks(args: argparse.Namespace, fit_actions: Sequence[argparse.Action], uni
         fit_options += (f'--gravity={args.gravity}',)
     return [UnitTask(unit=name, bag=bag, validation_bag=check, directory=str(units_dir / name),
                      fit_options=fit_options, diagnose_options=tuple(diagnose), validate_options=tuple(validate))
-            for name, bag, check in zip(unit_names(args.bags), bags, validation)]
+            for name, bag, check in zip(unit_names(given), bags, validation)], lines
 
 
 def _own_directory(path: Path, option: str) -> None:
@@ -438,15 +473,22 @@ def check_outputs(out_dir: Path, units: Sequence[str], *, validating: bool, forc
             check_file(units_dir / unit / name)
 
 
-def cmd_fit_fleet(args: argparse.Namespace, fit_actions: Sequence[argparse.Action], command: Command) -> int:
+def cmd_fit_fleet(args: argparse.Namespace, fit_actions: Sequence[argparse.Action], command: Command,
+                  topics=None) -> int:
     """Calibrate a batch of units on Dask; write per-unit outputs, ``fleet.json`` and ``fleet.html``.
 
-    Every option and every output is checked before the cluster starts (:func:`check_outputs`).
+    Every option and every output is checked before the cluster starts (:func:`check_outputs`); a BAG
+    that is a second copy of another unit is named and counted once (:func:`distinct_units`).
+
+    :param topics: the records' topics (:class:`~tak_thermo_ros.formats.bag.Topics`; default: the usual ones).
     """
+    from tak_thermo_ros.formats.bag import Topics
     from tak_thermo_ros.reports.fleet import write_fleet_report
     out_dir = Path(os.path.abspath(args.output))
     fleet_json = out_dir / FLEET_JSON
-    tasks = _tasks(args, fit_actions, out_dir / 'units')
+    tasks, same = _tasks(args, fit_actions, out_dir / 'units', topics if topics is not None else Topics())
+    for line in same:
+        print(line)
     check_outputs(out_dir, [task.unit for task in tasks], validating=args.validate is not None, force=args.force)
     require('distributed', 'fit-fleet')  # one line naming dask[distributed] when it is missing
     out_dir.mkdir(parents=True, exist_ok=True)

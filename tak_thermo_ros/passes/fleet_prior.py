@@ -76,14 +76,16 @@ def unit_statistics_task(unit: str, directory: str, settings, options) -> Statis
     """
     from tak_thermo_ros.core.fit.prior import CurvePrior
     from tak_thermo_ros.core.fit.prior_fit import statistics_of
-    from tak_thermo_ros.passes.pool import coverage_lines, fit_records, opened_lines, pool_unit
+    from tak_thermo_ros.passes.pool import coverage_lines, fit_records, pool_unit
     start = time.process_time()
     worker = f'{socket.gethostname()}:{os.getpid()}'
+    read: list[str] = []
     try:
         fitted = fit_records([directory], settings, options,
-                             prior=CurvePrior(None, settings.bias_order, settings.scale_order))
+                             prior=CurvePrior(None, settings.bias_order, settings.scale_order), say=read.append)
         statistics = statistics_of(unit, fitted.fit)
-        lines = (*opened_lines(fitted.opened), *coverage_lines(fitted.opened), *fitted.fit.fit.lines)
+        left_out = [left.name for left in fitted.fit.left_out]
+        lines = (*read, *coverage_lines(fitted.opened, left_out=left_out), *fitted.fit.fit.lines)
     except TakError as error:
         return StatisticsOutcome(unit, error=str(error), seconds=time.process_time() - start, worker=worker,
                                  peak_bytes=_peak_bytes())

@@ -241,9 +241,10 @@ def noise_bag(path: str | Path, options: StreamOptions, *, unit: UnitCalibration
     opened = open_calibration_run(path, options, streams, gravity=gravity, latitude=latitude, require_reference=True,
                                   decide=False)
     if opened.survey is not None and opened.static is None:
-        msg = (f'{path}: no reference topics and the unit moves ({opened.survey.still.orientations()} orientations '
-               f'at rest, {100.0 * opened.survey.still.still_fraction:.0f} % of the time): a noise model needs a '
-               f'static record')
+        orientations = opened.survey.still.orientations()
+        msg = (f'{path}: no reference topics and the unit moves ({orientations} orientation'
+               f'{"s" if orientations != 1 else ""} at rest, {100.0 * opened.survey.still.still_fraction:.0f} % of '
+               f'the time): a noise model needs a static record')
         raise NoiseError(msg)
     sensors = sensors_of(opened.kind)
     chunk = max(1, opened.main // TREND_CHUNKS)

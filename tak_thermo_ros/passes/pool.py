@@ -24,7 +24,7 @@ import os
 from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Iterator, Sequence
+from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -32,6 +32,7 @@ from tak_thermo_ros.core.fit.pool import own_offsets, record_means
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.records.extremes import temperature_course
 from tak_thermo_ros.core.records.handheld import HandheldRecord, empty_samples, pooled
+from tak_thermo_ros.core.records.provenance import PrintCollector, Recognition, RecordPrint
 from tak_thermo_ros.core.records.record import DriverRecord, hold_last_index, no_orientation
 from tak_thermo_ros.core.records.still import MIN_STILL_S
 from tak_thermo_ros.core.records.survey import SurveyCollector
@@ -106,6 +107,60 @@ def record_paths(paths: Sequence[str | os.PathLike[str]]) -> tuple[list[Path], l
     return records, lines
 
 
+def _spelled(paths: Sequence[str | os.PathLike[str]], records: Sequence[Path]) -> list[str]:
+    """Each record as the user spelled it (``./month/rec00/``); a directory's records by their paths."""
+    given: dict[Path, list[str]] = {}
+    for path in paths:
+        given.setdefault(Path(path), []).append(os.fspath(path))
+    return [given[path].pop(0) if given.get(path) else str(path) for path in records]
+
+
+def same_how(path: str | os.PathLike[str], earlier: str | os.PathLike[str], content: str) -> str:
+    """How a second copy is the first: ``through a link``, ``the same path``, else ``content`` (a copy)."""
+    if os.path.realpath(path) != os.path.realpath(earlier):
+        return content or 'the same content'
+    return 'through a link' if os.path.realpath(path) != os.path.abspath(path) else 'the same path'
+
+
+def distinct_records(records: Sequence[Path], topics, spelled: Sequence[str] | None = None
+                     ) -> tuple[list[int], list[str], list]:
+    """The records that are not a second copy of an earlier one, by content (:func:`record_identity`).
+
+    A record given twice (another spelling of its path, a link, a copy, a bag's ``.mcap`` beside its
+    folder, one flight as ``.ulg`` and ``.bin``) is one power-up: counted once, the second named.
+
+    Only records of the same message count and last log time are read for their identity (the others
+    cannot be the same).
+
+    :returns: the indices of the records kept, one line per second copy, and each record's
+        :func:`~tak_thermo_ros.formats.records.record_streams` (``None``: unreadable, said when it is read).
+    """
+    from tak_thermo_ros.formats.records import record_identity, record_streams
+    names = list(spelled) if spelled is not None else [str(path) for path in records]
+    counted = []
+    for path in records:
+        try:
+            streams = record_streams(path, topics=topics)
+        except TakError:  # unreadable: said when it is read
+            streams = None
+        counted.append(streams)
+    counts = Counter((s.kind, s.main, s.end_ns) for s in counted if s is not None)
+    first: dict[object, int] = {}
+    kept, lines = [], []
+    for index, (path, streams) in enumerate(zip(records, counted)):
+        alone = streams is None or counts[streams.kind, streams.main, streams.end_ns] == 1
+        identity = None if alone else record_identity(path, topics=topics, streams=streams)
+        key = identity if identity is not None else ('path', os.path.realpath(path))
+        if key in first:
+            earlier = first[key]
+            how = same_how(path, records[earlier], f'the same {identity.messages} messages' if identity else '')
+            lines.append(f'{names[index]}: the same record as {names[earlier]} ({how}): counted once')
+            continue
+        first[key] = index
+        kept.append(index)
+    return kept, lines, counted
+
+
 def is_pool(paths: Sequence[str | os.PathLike[str]]) -> bool:
     """Whether the records given make a pool: several, or a directory that is not a bag."""
     if isinstance(paths, (str, os.PathLike)):
@@ -124,6 +179,7 @@ class PoolEntry:
     :param lines: what the reader did (a firmware's corrections undone, ...).
     :param reason: why it contributes nothing or was left out (``''``: pooled).
     :param held_gyro: the gyroscope was held on the accelerometer's stamps (a log of separate stamps).
+    :param stamps_back: how often its stamps go back in log order, and by how much at most (seconds).
     """
 
     path: Path
@@ -140,6 +196,11 @@ class PoolEntry:
     rest_trends: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     temperature_rate_max: float = 0.0
     rate_max: float = 0.0
+    record_print: RecordPrint | None = None
+    """What a calibration fitted from the pool keeps of the record (``fitted_from``)."""
+    in_sample: Recognition | None = None
+    """Whether the record is (part of) one a calibration was fitted from (:func:`read_record`'s ``against``)."""
+    stamps_back: tuple[int, float] = (0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -179,13 +240,19 @@ def _shared(blocks: Iterator[DriverRecord]) -> Iterator[tuple[DriverRecord, bool
                            frame_id=block.frame_id), True
 
 
-def read_record(path: Path, options: StreamOptions, *, budget: int,
-                turn_budget: int | None = None) -> tuple[PoolEntry, HandheldRecord | None]:
-    """One record of a pool: its rests and turns (about ``budget`` and ``turn_budget`` samples at most), and more."""
+def read_record(path: Path, options: StreamOptions, *, budget: int, turn_budget: int | None = None,
+                against: Sequence[RecordPrint] | None = None, streams=None) -> tuple[PoolEntry, HandheldRecord | None]:
+    """One record of a pool: its rests and turns (about ``budget`` and ``turn_budget`` samples at most), and more.
+
+    :param against: the prints of the records a calibration was fitted from: the entry says whether
+        this record is (part of) one of them; ``None``: for a calibration fitted from it (the entry's
+        print is its whole digest either way).
+    :param streams: its :func:`~tak_thermo_ros.formats.records.record_streams`, when known.
+    """
     from tak_thermo_ros.formats.records import record_blocks, record_lines, record_source, record_streams
     name = path.name
     try:
-        streams = record_streams(path, topics=options.topics)
+        streams = streams if streams is not None else record_streams(path, topics=options.topics)
     except TakError as err:
         return PoolEntry(path, name, reason=f'not read ({err})'), None
     if streams.kind is not InputKind.IMU:
@@ -197,23 +264,38 @@ def read_record(path: Path, options: StreamOptions, *, budget: int,
                          reason=f'no temperature on {options.topics.temperature}: contributes nothing'), None
     keep = streams.main <= SURVEY_REPLAY_SAMPLES
 
+    def raw_blocks() -> Iterator[DriverRecord]:
+        return record_blocks(path, topics=options.topics, kind=InputKind.IMU,  # type: ignore[return-value]
+                             block_samples=options.block_samples, references=False, progress=options.progress)
+
     def blocks() -> Iterator[tuple[DriverRecord, bool]]:
-        return _shared(record_blocks(path, topics=options.topics, kind=InputKind.IMU,  # type: ignore[arg-type]
-                                     block_samples=options.block_samples, references=False,
-                                     progress=options.progress))
+        return _shared(raw_blocks())
+
+    # The record's whole digest, as one record's, and its segments on the grids of ``against``; not its
+    # own time segments at every length (1.3 s of CPU per 30 min at 200 Hz: about what the rest of a
+    # pool's fit costs per record), so a pool's records are recognised whole.
+    prints = PrintCollector(('accel', 'gyro'), against=against or (), own_segments=False)
+
+    def printed() -> Iterator[DriverRecord]:
+        for block in raw_blocks():
+            prints.add({sensor: block.channel(sensor) for sensor in ('accel', 'gyro')})
+            yield block
 
     survey = SurveyCollector('imu')
     kept: list[tuple[DriverRecord, bool]] = []
     held_gyro = False
     temperature_stamps, temperatures = [], []
-    for block, held in blocks():
+    back = _StampsBack()
+    for block, held in _shared(printed()):
         held_gyro = held_gyro or held
+        back.add(block.stamp_ns)
         survey.add(block)
         temperature_stamps.append(block.temp_stamp_ns)
         temperatures.append(block.temperature)
         if keep:
             kept.append((stripped_block(block), held))
     surveyed = survey.finish(record_streams_listed(path, streams, options.topics))
+    known = {'record_print': prints.finish(name), 'in_sample': prints.recognition(name) if against else None}
     if surveyed.temperature_problem is not None:  # the one rule of a record's temperatures (check_temperature_unit)
         reason = f'{options.topics.temperature}: {surveyed.temperature_problem}: contributes nothing'
         return PoolEntry(path, name, source=source, lines=lines, reason=reason, held_gyro=held_gyro), None
@@ -243,8 +325,28 @@ def read_record(path: Path, options: StreamOptions, *, budget: int,
                       temperature=(float(record.still.temp_code.min()), float(record.still.temp_code.max())),
                       orientations=still.orientations(), source=source, lines=lines, held_gyro=held_gyro,
                       rest_temperatures=temperatures, rest_trends=trends,
-                      temperature_rate_max=course.rate_max, rate_max=rate_max)
+                      temperature_rate_max=course.rate_max, rate_max=rate_max,
+                      stamps_back=(back.count, back.most_s), **known)
     return entry, record
+
+
+class _StampsBack:
+    """How often a record's stamps go back in log order (a clock reset, a log spliced), and by how much."""
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.most_s = 0.0
+        self._last: int | None = None
+
+    def add(self, stamps: np.ndarray) -> None:
+        if not len(stamps):
+            return
+        steps = np.diff(stamps) if self._last is None else np.diff(stamps, prepend=self._last)
+        back = steps[steps < 0]
+        if len(back):
+            self.count += len(back)
+            self.most_s = max(self.most_s, float(-back.min()) * 1e-9)
+        self._last = int(stamps[-1])
 
 
 TRACK_S = 1.0
@@ -334,24 +436,41 @@ def _device_check(entries: list[PoolEntry]) -> list[PoolEntry]:
 
 
 def open_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions, *,
-              samples: int = POOL_SAMPLES) -> OpenedPool:
+              samples: int = POOL_SAMPLES, against: Sequence[RecordPrint] | None = None,
+              say: Callable[[str], None] | None = None) -> OpenedPool:
     """Read every record of a pool once (see the module's description).
 
+    A second copy of a record is counted once (:func:`distinct_records`).
+
+    :param against: as :func:`read_record`'s (a calibration's ``fitted_from``; ``None``: for a fit).
+    :param say: called with each line as soon as it is known: the directories' and the second copies' lines
+        (:attr:`OpenedPool.lines`), each record's once it is read, a record's changed by the checks after.
     :raises PoolError: a path that is no record, no record that contributes a rest.
     """
+    say = say or (lambda line: None)
     records, lines = record_paths(paths)
+    kept, same, streams = distinct_records(records, options.topics, _spelled(paths, records))
+    records, streams, lines = [records[i] for i in kept], [streams[i] for i in kept], lines + same
+    for line in lines:
+        say(line)
     budget, turn_budget = record_budgets(len(records), samples)
     entries: list[PoolEntry] = []
     read: list[HandheldRecord | None] = []
     names = Counter(path.name for path in records)
-    for path in records:
-        entry, record = read_record(path, options, budget=budget, turn_budget=turn_budget)
+    for path, known in zip(records, streams):
+        entry, record = read_record(path, options, budget=budget, turn_budget=turn_budget, against=against,
+                                    streams=known)
         if names[path.name] > 1:  # the same name in two directories: the path tells them apart
             entry = replace(entry, name=str(path))
         entries.append(entry)
         read.append(record)
-    entries = _device_check(entries)
-    entries = _restless(entries, read)
+        for line in _record_lines(entry):
+            say(line)
+    checked = _restless(_device_check(entries), read)
+    for before, after in zip(entries, checked):
+        if after.reason != before.reason:
+            say(entry_line(after))
+    entries = checked
     used = tuple(i for i, (entry, record) in enumerate(zip(entries, read)) if record is not None and not entry.reason)
     if not used:
         msg = f'no record of the {len(records)} given holds a rest with a temperature: nothing to fit'
@@ -366,17 +485,16 @@ def entry_line(entry: PoolEntry) -> str:
         return f'{entry.name}: {entry.reason}'
     low, high = entry.temperature  # type: ignore[misc]
     held = ', gyroscope held on the accelerometer\'s stamps (rests only)' if entry.held_gyro else ''
+    count, most = entry.stamps_back
+    times = 'once' if count == 1 else f'{count} times'
+    back = f'; its stamps go back {times} (by up to {most:.3g} s): no rest spans a jump' if count else ''
     return (f'{entry.name}: {entry.rests} rests, {entry.rest_s / 60.0:.1f} min at rest, {low:.1f}..{high:.1f} C, '
-            f'{entry.orientations} orientation{"s" if entry.orientations != 1 else ""}{held}')
+            f'{entry.orientations} orientation{"s" if entry.orientations != 1 else ""}{held}{back}')
 
 
-def opened_lines(opened: OpenedPool) -> list[str]:
-    """What reading the pool said: its own lines, then per record what its reader did and :func:`entry_line`."""
-    lines = list(opened.lines)
-    for entry in opened.entries:
-        lines += [f'{entry.name}: {line}' for line in entry.lines]
-        lines.append(entry_line(entry))
-    return lines
+def _record_lines(entry: PoolEntry) -> list[str]:
+    """What its reader did, then :func:`entry_line`."""
+    return [*(f'{entry.name}: {line}' for line in entry.lines), entry_line(entry)]
 
 
 def check_driver_unit(unit, params: str) -> None:
@@ -389,9 +507,12 @@ def check_driver_unit(unit, params: str) -> None:
         raise TakError(msg)
 
 
-def coverage_lines(opened: OpenedPool) -> list[str]:
-    """What the pool covers: records, rests, the temperature span and its bins, heating and cooling."""
-    used = [opened.entries[i] for i in opened.used]
+def coverage_lines(opened: OpenedPool, left_out: Sequence[str] = ()) -> list[str]:
+    """What the pool covers: records, rests, the temperature span and its bins, heating and cooling.
+
+    :param left_out: the names of records the fit left out after reading (counted as not pooled).
+    """
+    used = [opened.entries[i] for i in opened.used if opened.entries[i].name not in left_out]
     temperatures = np.concatenate([e.rest_temperatures for e in used])
     trends = np.concatenate([e.rest_trends for e in used])
     rests = len(temperatures)
@@ -432,21 +553,24 @@ class FittedPool:
     source: dict[str, str | int | float]
     lines: tuple[str, ...] = ()
     """With a prior: the unit's group, the turn-on repeatability taken, what came from the records and the prior."""
+    fitted_from: tuple[RecordPrint, ...] = ()
+    """The prints of the records fitted (the pooled ones the fit did not leave out): the file's ``fitted_from``."""
 
 
-def fit_records(paths: Sequence[str | os.PathLike[str]], settings, options: StreamOptions,
-                prior=None) -> FittedPool:
+def fit_records(paths: Sequence[str | os.PathLike[str]], settings, options: StreamOptions, prior=None, *,
+                say: Callable[[str], None] | None = None) -> FittedPool:
     """Read a pool once and fit it (:func:`~tak_thermo_ros.core.fit.pool.fit_pool`).
 
     :param settings: ``tak_calib fit``'s :class:`~tak_thermo_ros.passes.run.FitSettings`.
     :param prior: a fleet's prior (:func:`~tak_thermo_ros.core.fit.prior_fit.fit_with_prior`), a
         :class:`~tak_thermo_ros.core.fit.prior.CurvePrior` that only fixes the orders (a fleet's first pass), or
         ``None``.
+    :param say: each line of reading the pool as soon as it is known (:func:`open_pool`).
     :raises PoolError: as :func:`open_pool`; ``FitError`` as the fit.
     """
     from tak_thermo_ros.core.fit.pool import TwoUnits, fit_pool
     from tak_thermo_ros.core.fit.prior import CurvePrior
-    opened = open_pool(paths, options)
+    opened = open_pool(paths, options, say=say)
     assert opened.record is not None
     lines: tuple[str, ...] = ()
     try:
@@ -473,7 +597,9 @@ def fit_records(paths: Sequence[str | os.PathLike[str]], settings, options: Stre
     if len(devices) == 1 and all(e.source is not None for e in used):
         for key in ('accel_device_id', 'gyro_device_id'):
             source[key] = int(used[0].source.get(key, 0))  # type: ignore[union-attr]
-    return FittedPool(opened, fitted, source, lines)
+    left = {left.name for left in fitted.left_out}
+    prints = tuple(e.record_print for e in used if e.name not in left and e.record_print is not None)
+    return FittedPool(opened, fitted, source, lines, prints)
 
 
 def pool_unit(fitted: FittedPool) -> UnitCalibration:
@@ -487,7 +613,8 @@ def pool_unit(fitted: FittedPool) -> UnitCalibration:
              *(left_out_line(left) for left in pool.left_out)]  # type: ignore[attr-defined]
     accel, gyro = (replace(results[sensor].calibration, notes=(*results[sensor].calibration.notes, *notes))
                    for sensor in ('accel', 'gyro'))
-    return UnitCalibration(InputKind.IMU, accel=accel, gyro=gyro, source=fitted.source)
+    return UnitCalibration(InputKind.IMU, accel=accel, gyro=gyro, source=fitted.source,
+                           fitted_from=fitted.fitted_from)
 
 
 def pool_header(records: int, output: str, prior: str = '') -> str:
@@ -502,14 +629,21 @@ def _reader(sensor: str) -> tuple[str, float]:
     return reader_unit({'accel': 'm/s^2', 'gyro': 'rad/s'}[sensor])  # type: ignore[return-value]
 
 
-def turn_on_line(sensor: str, fitted) -> str:
-    """One statement: a sensor's turn-on repeatability per axis with its error (or which axes the records miss)."""
-    small, factor = _reader(sensor)
+def turn_on_line(sensor: str, fitted, records: int) -> str:
+    """One statement: a sensor's turn-on repeatability per axis with its error (or which axes the records miss).
+
+    From fewer records than :data:`~tak_thermo_ros.core.link.model.MIN_TURN_ON_RECORDS`: not determined, and why.
+    """
+    from tak_thermo_ros.core.link.model import MIN_TURN_ON_RECORDS, TurnOn
     variances = fitted.variances
+    held = [name for name, ok in zip('xyz', variances.determined) if not ok]
+    if records < MIN_TURN_ON_RECORDS:
+        written = f'not written ({" ".join(held)}: its offset held)' if held else 'written so'
+        return f'{SENSOR_NAMES[sensor]}: turn-on repeatability {TurnOn(None, None, records).why_not()}; {written}'
+    small, factor = _reader(sensor)
     values = ' '.join('-' if not ok else numbers(v * factor, 3) + (f'+-{numbers(e * factor, 2)}' if np.isfinite(e)
                                                                    else '')
                       for v, e, ok in zip(variances.turn_on, variances.turn_on_error, variances.determined))
-    held = [name for name, ok in zip('xyz', variances.determined) if not ok]
     tail = f' ({" ".join(held)}: not determined, its offset held)' if held else ''
     return f'{SENSOR_NAMES[sensor]}: turn-on repeatability x y z {values} {small}{tail}'
 
@@ -548,11 +682,11 @@ class PoolCheck:
 
 
 def validate_records(paths: Sequence[str | os.PathLike[str]], unit, options: StreamOptions, *, gravity: float,
-                     latitude: float | None, out_of_range) -> PoolCheck:
+                     latitude: float | None, out_of_range, say: Callable[[str], None] | None = None) -> PoolCheck:
     """The rests of a pool's records before and after ``unit`` (each record read once, as for ``fit``)."""
     from tak_thermo_ros.core.link.handheld_check import check_handheld
     from tak_thermo_ros.passes.handheld import nominal_unit
-    opened = open_pool(paths, options)
+    opened = open_pool(paths, options, against=unit.fitted_from, say=say)
     record = opened.record
     assert record is not None
     before = check_handheld(record, nominal_unit(unit), gravity=gravity, latitude=latitude, out_of_range=out_of_range)
@@ -566,21 +700,47 @@ def validate_records(paths: Sequence[str | os.PathLike[str]], unit, options: Str
     return PoolCheck(opened, before, after, own, shape, temperature, rest_record, white)
 
 
+def outside_lines(check: PoolCheck, unit, policy) -> list[str]:
+    """Per record whose rests reach beyond the calibrated temperature range: how many, how far, what was done.
+
+    Said before the figures: a record beyond the range carries what the clamp (or the extrapolation)
+    leaves in its rests' errors, which its turn-on offset would otherwise be blamed for.
+    """
+    from tak_thermo_ros.core.records.handheld import rest_records
+    record = check.opened.record
+    ranges = [(c.temp_code_min, c.temp_code_max) for _, c in unit.sensors if c.needs_temperature]
+    if record is None or not ranges or not len(check.after.rest_outside):
+        return []
+    low, high = max(r[0] for r in ranges), min(r[1] for r in ranges)
+    owner = rest_records(record)
+    entries = {entry.name: entry for entry in check.opened.entries}
+    done = 'clamped' if policy.value == 'clamp' else 'extrapolated'
+    lines = []
+    for index, name in enumerate(record.record_names):
+        mine = owner == index
+        outside = int(np.count_nonzero(check.after.rest_outside[mine] > 0.0))
+        if outside:
+            rests = entries[name].temperature or (low, high)
+            lines.append(f'{name}: {outside} of its {int(mine.sum())} rests beyond the calibrated {low:.1f}..'
+                         f'{high:.1f} C (its rests {rests[0]:.1f}..{rests[1]:.1f} C): {done}')
+    return lines
+
+
 def bounded_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions, *, gravity: float,
-                 latitude: float | None, max_samples: int, unit):
+                 latitude: float | None, max_samples: int, unit, say: Callable[[str], None] | None = None):
     """``diagnose`` of a pool: the rests' samples with their references, each record's own offset taken off.
 
     The references are a hand-held record's (gravity along each rest's corrected up direction, zero
     rate); each record's turn-on offset (its samples' mean residual after ``unit``, per axis) is
     taken off, so that what remains is the link's shape; ``groups`` give each sample's record
-    (the folds hold whole records out).
+    (the folds hold whole records out; a pool of one record holds out time blocks).
 
     :returns: the :class:`~tak_thermo_ros.passes.diagnose.BoundedRun` and the pool as read.
     """
     from tak_thermo_ros.core.fit.model import residual_counts
     from tak_thermo_ros.passes.diagnose import BoundedRun
     from tak_thermo_ros.passes.handheld import rest_samples
-    opened = open_pool(paths, options, samples=max_samples)
+    opened = open_pool(paths, options, samples=max_samples, say=say)
     record = opened.record
     assert record is not None
     samples, check = rest_samples(record, unit, gravity=gravity, latitude=latitude)
@@ -591,7 +751,7 @@ def bounded_pool(paths: Sequence[str | os.PathLike[str]], options: StreamOptions
     usable = {sensor: len(aligned) for sensor, aligned in samples.items()}
     run = BoundedRun(input_kind=InputKind.IMU, samples=samples, usable=usable, stride=record.stride,
                      reference_lines=(), survey=None, handheld=check,
-                     groups={sensor: groups for sensor in samples})
+                     groups={sensor: groups for sensor in samples} if record.records > 1 else None)
     return run, opened
 
 

@@ -93,7 +93,7 @@ def prior_table(prior) -> list[str]:
 
 
 def band_lines(check, calibration) -> tuple[list[str], dict[str, Any]]:
-    """``validate`` of a pool against a calibration with its uncertainty: are the rests' shapes within its +-?
+    """``validate`` of a pool against a calibration with its uncertainty: whether the rests' shapes lie within its +-.
 
     Per group of rests (within the records' span, beyond it: where the prior told the curve) the
     gyroscope's bias shape (each record's own offset off), beside what the file's +- and the white noise

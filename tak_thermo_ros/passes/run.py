@@ -418,6 +418,23 @@ class ImuLinkUndetermined(FitError):
 
 
 MOVED = 'the board moved, no reference'
+
+
+class EverydayRecord(ImuLinkUndetermined):
+    """A record that rests in one orientation and moves between (:attr:`Plan.EVERYDAY`): a pool of one.
+
+    ``fit``, ``validate`` and ``diagnose`` take it as a pool of one record
+    (:mod:`~tak_thermo_ros.passes.pool`), as a directory holding only it; a record that
+    determines its magnetometer holds the accelerometer and gyroscope instead (:func:`fit_imu`).
+    """
+
+    WORDS = 'an everyday record (rests in one orientation, motion between): taken as a pool of one'
+    """What the commands say of such a record, after its name, before the pool's lines."""
+
+    def __init__(self, path: Path, survey: RecordSurvey) -> None:
+        super().__init__(f'{path}: {self.WORDS}', MOVED, survey)
+
+
 HELD_IMU_NOTE = 'held at nominal (offset 0, scale 1): {reason}'
 """The note of a sensor held at nominal by :func:`fit_imu`, in the file and in one line of ``fit``."""
 
@@ -435,10 +452,13 @@ def decided(path: Path, survey: RecordSurvey) -> Plan:
     rests, and a hand-held record whose sensors come at their own stamps (a flight log: the
     turns need both sensors in every message), determine no link of the accelerometer and
     gyroscope (:class:`ImuLinkUndetermined`: :func:`fit_imu` holds them when the record determines
-    its magnetometer, else refuses it in one line).
+    its magnetometer, else refuses it in one line); an everyday record goes to the pool
+    (:class:`EverydayRecord`).
     """
     from tak_thermo_ros.core.records.still import MIN_STILL_S
     plan = survey.plan
+    if plan is Plan.EVERYDAY:
+        raise EverydayRecord(path, survey)
     if plan is Plan.MOVING:
         msg = (f'{path}: no reference topics and no still interval (the unit never rested {MIN_STILL_S:g} s or more, '
                f'still {100.0 * survey.still.still_fraction:.0f} % of the time): nothing to fit; rest 5-10 s in each '

@@ -30,7 +30,11 @@ diagnostics period); the value is held like the temperature (:mod:`tak_thermo_ro
 
 This is a thin wrapper: callbacks turn messages into numbers, hand them to
 :class:`~tak_thermo_ros.core.link.online.OnlineCompensator` (no ROS in it) and turn the result
-back into a message. The only module of the package that imports rclpy.
+back into a message. By default (``message_path: raw``) the messages are their serialised bytes
+(``raw=True`` subscriptions; :class:`~tak_thermo_ros.formats.cdr.FixedReader` reads the numbers at
+fixed offsets, :class:`~tak_thermo_ros.formats.cdr.FixedWriter` writes the output, published as
+bytes): no rclpy message object on the hot path. The only module of the package that imports
+rclpy (with the player).
 """
 
 from __future__ import annotations
@@ -54,8 +58,10 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import Imu, MagneticField, Temperature
 
+from tak_thermo_ros.formats.cdr import FixedReader, FixedWriter, frame_id
 from tak_thermo_ros.formats.calibration_file import (
     NODE_NAME,
     flatten_parameters,
@@ -69,8 +75,9 @@ from tak_thermo_ros.core.effects.aux_signal import AUX_FIELDS, signal_field, spl
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.link.online import SENSORS, Level, OneSensor, OnlineCompensator, StaleTemperature
 from tak_thermo_ros.core.link.watch import LearnedState, WatchSettings, turn_on_unavailable
+from tak_thermo_ros.formats.files import not_regular
 from tak_thermo_ros.formats.learned_file import LEARNED_KEY, load_learned, save_learned
-from tak_thermo_ros.errors import CalibrationError, TakError
+from tak_thermo_ros.errors import CalibrationError, CdrError, TakError
 from tak_thermo_ros.ros.signals import SignalGuard
 
 COUNTS_TOPIC = 'tak/counts'
@@ -86,6 +93,11 @@ DIAGNOSTICS_PERIOD_S = 1.0
 EXIT_ERROR = 2
 QOS_CHOICES = ('sensor_data', 'reliable')
 EXECUTOR_CHOICES = ('events', 'single_threaded')
+MESSAGE_PATHS = ('raw', 'decoded')
+"""``message_path``: the serialised bytes read and written by the package's CDR codec, or rclpy's messages."""
+IMU_TYPE = 'sensor_msgs/msg/Imu'
+MAG_TYPE = 'sensor_msgs/msg/MagneticField'
+ZEROS = (0.0, 0.0, 0.0)
 SPIN_PERIOD_S = 0.1
 """Longest wait of one ``spin_once``: how soon the loop notices a shutdown (SIGINT, SIGTERM)."""
 CALIBRATION_PREFIX = 'calibration'
@@ -115,9 +127,13 @@ def _tunables() -> dict[str, tuple[Any, str, bool]]:
                                "every publisher) or 'reliable' (retransmits, needs a reliable publisher; "
                                "a driver faster than the node still loses messages at the history depth)",
                 True),
-        'qos_depth': (100, 'history depth of the subscriptions and the Imu publisher', True),
+        'qos_depth': (1000, 'history depth of the subscriptions and the Imu publisher (1000: 250 ms of a 4 kHz '
+                            'stream)', True),
         'executor': ('events', "'events' (rclpy.experimental.EventsExecutor, about half the CPU per "
                                "message) or 'single_threaded' (rclpy's default executor)", True),
+        'message_path': ('raw', "'raw': the messages' serialised bytes, read and written at fixed offsets by the "
+                                "package's CDR codec (no rclpy message objects: the least CPU per message); "
+                                "'decoded': rclpy's message objects (for comparison)", True),
         'temp_timeout': (1.0, 'seconds after which the last temperature is stale '
                               '(diagnostics ERROR)', False),
         'stale_temperature': ('hold', "input while the temperature is stale: 'hold' the last "
@@ -183,9 +199,12 @@ def _path_value(value: Any, name: str, error: type[Exception] = ValueError) -> s
     return value
 
 
-def _learning_start(learn: bool, path: str) -> LearnedState | None:
-    """What learning starts from: the learned file's state (a fresh one without the file), or ``None`` (false)."""
-    return (load_learned(path) or LearnedState()) if learn else None
+def _learning_start(learn: bool, path: str, unit: UnitCalibration) -> LearnedState | None:
+    """What learning starts from: the learned file's state (a fresh one without the file), or ``None`` (false).
+
+    Its corrections are judged against the bounds learning keeps on ``unit`` (:func:`load_learned`).
+    """
+    return (load_learned(path, unit) or LearnedState()) if learn else None
 
 
 _UNCHANGED: Any = object()
@@ -215,6 +234,8 @@ class CompensatorNode(Node):
         depth = _depth(self._value('qos_depth'))
         qos_name = _choice(self._value('qos'), 'qos', QOS_CHOICES)
         self.executor_kind = _choice(self._value('executor'), 'executor', EXECUTOR_CHOICES)
+        self.message_path = _choice(self._value('message_path'), 'message_path', MESSAGE_PATHS)
+        raw = self.message_path == 'raw'  # the input, temperature and magnetometer taken and published as bytes
         reliability = (ReliabilityPolicy.BEST_EFFORT if qos_name == 'sensor_data'
                        else ReliabilityPolicy.RELIABLE)
         input_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=reliability)
@@ -229,8 +250,8 @@ class CompensatorNode(Node):
         # The temperature subscription is created first: when a temperature and an input message
         # are ready at once, the executor takes them in creation order, the temperature first.
         self._temp_subscription = self.create_subscription(
-            Temperature, temp_topic, self._on_temperature, input_qos,
-            event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_temperature_lost))
+            Temperature, temp_topic, self._on_raw_temperature if raw else self._on_temperature, input_qos,
+            event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_temperature_lost), raw=raw)
         policies = dict(
             out_of_range=OutOfRange(_choice(self._value('out_of_range'), 'out_of_range',
                                             [p.value for p in OutOfRange])),
@@ -257,6 +278,14 @@ class CompensatorNode(Node):
         for sensor in SENSORS if driver else ():
             imu = Imu()
             self._imu_only[sensor] = imu, imu.linear_acceleration if sensor == 'accel' else imu.angular_velocity
+        # The raw path: the package's CDR codec at fixed offsets (formats.cdr), one reader per input.
+        self._temperature_reader = FixedReader('sensor_msgs/msg/Temperature', ('temperature',))
+        self._input_reader = (
+            FixedReader(IMU_TYPE, ('stamp_sec', 'stamp_nanosec', 'linear_acceleration', 'angular_velocity',
+                                   ('linear_acceleration_covariance', 1), ('angular_velocity_covariance', 1)))
+            if driver else FixedReader('geometry_msgs/msg/Vector3Stamped', ('stamp_sec', 'stamp_nanosec', 'vector')))
+        self._input_source = self._mag_source = b''
+        """The last input (magnetometer) message published on the raw path: its frame_id for /diagnostics."""
         self._set_covariances()
         self._imu_publisher = self.create_publisher(Imu, output_topic, output_qos)
         self._publish_imu = self._imu_publisher.publish
@@ -281,17 +310,20 @@ class CompensatorNode(Node):
         if self._mag_core is not None:
             self._mag = MagneticField()
             self._mag_field = self._mag.magnetic_field
-            self._mag.magnetic_field_covariance = self._mag_core.covariances[2]
             self._mag_publisher = self.create_publisher(MagneticField, COMPENSATED_MAG_TOPIC, output_qos)
             self._publish_mag = self._mag_publisher.publish
             self._process_mag = self._mag_core.process_values
+            self._mag_reader = FixedReader(MAG_TYPE, ('stamp_sec', 'stamp_nanosec', 'magnetic_field'))
+            self._set_mag_covariance()
             self._mag_subscription = self.create_subscription(
-                MagneticField, MAG_TOPIC, self._with_sequence(self._on_mag, self._mag_core, 'mag'), input_qos,
-                event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_mag_lost))
-        on_input = self._with_sequence(self._on_imu if driver else self._on_counts)
+                MagneticField, MAG_TOPIC,
+                self._with_sequence(self._on_raw_mag if raw else self._on_mag, self._mag_core, 'mag'), input_qos,
+                event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_mag_lost), raw=raw)
+        on_input = self._with_sequence((self._on_raw_imu if driver else self._on_raw_counts) if raw
+                                       else (self._on_imu if driver else self._on_counts))
         self._input_subscription = self.create_subscription(
             input_type, input_topic, on_input, input_qos,
-            event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_input_lost))
+            event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_input_lost), raw=raw)
         # Statuses named by the fully qualified node name: two compensators (/imu0, /imu1) differ.
         self._status_prefix = self.get_fully_qualified_name()
         self._hardware_id = str(self._value('hardware_id'))
@@ -309,7 +341,7 @@ class CompensatorNode(Node):
         self.get_logger().info(
             f'correcting {self._input_subscription.topic_name} with {self._temp_subscription.topic_name} '
             f'-> {self._imu_publisher.topic_name}; calibration ({unit.input_kind.value} input) from {source}, '
-            f'{span}; qos {qos_name} (depth {depth}), executor {self.executor_kind}, '
+            f'{span}; qos {qos_name} (depth {depth}), executor {self.executor_kind}, {self.message_path} messages, '
             f'out_of_range {self._core.out_of_range_policy.value}, stale_temperature '
             f'{self._core.stale_policy.value} after {self._core.temp_timeout_s:g} s')
         if self._mag_core is not None:
@@ -338,7 +370,7 @@ class CompensatorNode(Node):
         if (turn_on or learn) and not enabled:
             msg = 'turn_on and learn need the watch (watch: true)'
             raise ValueError(msg)
-        state = _learning_start(learn, path)
+        state = _learning_start(learn, path, unit)
         missing = turn_on_unavailable(unit) if turn_on else ''
         if missing:
             msg = f"turn_on: first_rest needs the calibration's {missing}"
@@ -500,14 +532,48 @@ class CompensatorNode(Node):
         for sensor, (imu, _) in self._imu_only.items():
             imu.angular_velocity_covariance = angular if sensor == 'gyro' else NOT_PROVIDED_COVARIANCE
             imu.linear_acceleration_covariance = linear if sensor == 'accel' else NOT_PROVIDED_COVARIANCE
+        # The raw path's writers: what is constant in the output Imu written once per layout.
+        if self._core.input_kind is InputKind.COUNTS:
+            self._imu_writer = FixedWriter(IMU_TYPE, ('linear_acceleration',), {
+                'orientation': (0.0, 0.0, 0.0, 1.0), 'orientation_covariance': orientation, 'angular_velocity': ZEROS,
+                'angular_velocity_covariance': angular, 'linear_acceleration_covariance': linear})
+            return
+        passed = ('orientation', 'orientation_covariance')  # the driver's, passed through
+        self._imu_writer = FixedWriter(IMU_TYPE, ('linear_acceleration', 'angular_velocity'), {
+            'angular_velocity_covariance': angular, 'linear_acceleration_covariance': linear}, passed)
+        # A message that carries one sensor: the other marked absent (zeros, covariance[0] = -1).
+        self._one_sensor_writers = {
+            'accel': FixedWriter(IMU_TYPE, ('linear_acceleration',), {
+                'angular_velocity': ZEROS, 'angular_velocity_covariance': NOT_PROVIDED_COVARIANCE,
+                'linear_acceleration_covariance': linear}, passed),
+            'gyro': FixedWriter(IMU_TYPE, ('angular_velocity',), {
+                'linear_acceleration': ZEROS, 'linear_acceleration_covariance': NOT_PROVIDED_COVARIANCE,
+                'angular_velocity_covariance': angular}, passed)}
+
+    def _set_mag_covariance(self) -> None:
+        covariance = self._mag_core.covariances[2]
+        self._mag.magnetic_field_covariance = covariance
+        self._mag_writer = FixedWriter(MAG_TYPE, ('magnetic_field',), {'magnetic_field_covariance': covariance})
 
     # -- messages ---------------------------------------------------------------------------
 
     def _on_temperature(self, message: Temperature) -> None:
+        self._take_temperature(message.temperature)
+
+    def _on_raw_temperature(self, raw: bytes) -> None:
+        try:
+            temperature, = self._temperature_reader.read(raw)
+        except CdrError as err:
+            self._core.malformed(True, f'{self._temp_subscription.topic_name}: {err}', time.monotonic())
+            self._log_notices()
+            return
+        self._take_temperature(temperature)
+
+    def _take_temperature(self, temperature: float) -> None:
         now = time.monotonic()
-        self._process_temperature(message.temperature, now)
+        self._process_temperature(temperature, now)
         if self._mag_core is not None:
-            self._mag_core.process_temperature(message.temperature, now)
+            self._mag_core.process_temperature(temperature, now)
             if self._mag_core.notices:
                 self._log_mag_notices()
         if self._core.notices:
@@ -524,6 +590,21 @@ class CompensatorNode(Node):
             out = self._mag_field
             out.x, out.y, out.z = result
             self._publish_mag(mag)
+        if self._mag_core.notices:
+            self._log_mag_notices()
+
+    def _on_raw_mag(self, raw: bytes) -> None:
+        reader = self._mag_reader
+        try:
+            values = reader.read(raw)
+        except CdrError as err:
+            self._mag_core.malformed(False, f'{self._mag_subscription.topic_name}: {err}', time.monotonic())
+            self._log_mag_notices()
+            return
+        result = self._process_mag(values[0], values[1], values[2:], time.monotonic())
+        if result.__class__ is tuple:
+            self._publish_mag(self._mag_writer.write(raw, reader.layout, result))
+            self._mag_source = raw
         if self._mag_core.notices:
             self._log_mag_notices()
 
@@ -569,6 +650,43 @@ class CompensatorNode(Node):
             self._publish_one_sensor(message, result)
         if self._core.notices:
             self._log_notices()
+
+    def _on_raw_counts(self, raw: bytes) -> None:
+        """The counts message's bytes: stamp and codes read, corrected, the Imu written as bytes (the raw path)."""
+        reader = self._input_reader
+        try:
+            values = reader.read(raw)
+        except CdrError as err:
+            self._input_malformed(err)
+            return
+        result = self._process_values(values[0], values[1], values[2:], time.monotonic())
+        if result.__class__ is tuple:
+            self._publish_imu(self._imu_writer.write(raw, reader.layout, result))
+            self._input_source = raw
+        if self._core.notices:
+            self._log_notices()
+
+    def _on_raw_imu(self, raw: bytes) -> None:
+        """The driver Imu's bytes: stamp, both sensors and their marks read, corrected, the Imu written as bytes."""
+        reader = self._input_reader
+        try:  # (sec, nanosec, accel x y z, gyro x y z, accel mark, gyro mark): the marks are covariance[0]
+            values = reader.read(raw)
+        except CdrError as err:
+            self._input_malformed(err)
+            return
+        result = self._process_values(values[0], values[1], values[2:8], time.monotonic(), values[8], values[9])
+        if result.__class__ is tuple:
+            self._publish_imu(self._imu_writer.write(raw, reader.layout, result))
+            self._input_source = raw
+        elif result.__class__ is OneSensor:
+            self._publish_imu(self._one_sensor_writers[result.sensor].write(raw, reader.layout, result.values))
+            self._input_source = raw
+        if self._core.notices:
+            self._log_notices()
+
+    def _input_malformed(self, error: CdrError) -> None:
+        self._core.malformed(False, f'{self._input_subscription.topic_name}: {error}', time.monotonic())
+        self._log_notices()
 
     def _publish_one_sensor(self, message: Imu, result: OneSensor) -> None:
         """Publish a message that carries one sensor, the other marked absent (its template's covariance)."""
@@ -620,7 +738,8 @@ class CompensatorNode(Node):
         diagnostics = DiagnosticArray()
         diagnostics.header.stamp = self.get_clock().now().to_msg()
         watch = self._core.watch_status()
-        imu_frame = self._hardware_id or self._imu.header.frame_id
+        imu_frame = self._hardware_id or (frame_id(self._input_source) if self._input_source
+                                          else self._imu.header.frame_id)
         diagnostics.status = [_diagnostic(status.level, f'{self._status_prefix}: temperature compensation',
                                           status.message, imu_frame, (*status.values, watch.values[0]))]
         if self._core.watch is not None:  # a status of its own while it runs (off: the value above says why)
@@ -633,7 +752,8 @@ class CompensatorNode(Node):
             mag_status = self._mag_core.status(now, imu_subscribers=self._mag_publisher.get_subscription_count())
             diagnostics.status.append(_diagnostic(
                 mag_status.level, f'{self._status_prefix}: magnetometer compensation', mag_status.message,
-                self._hardware_id or self._mag.header.frame_id, mag_status.values))
+                self._hardware_id or (frame_id(self._mag_source) if self._mag_source else self._mag.header.frame_id),
+                mag_status.values))
         try:
             self._diagnostics_publisher.publish(diagnostics)
         except Exception:
@@ -699,7 +819,7 @@ class CompensatorNode(Node):
                         raise ValueError(msg)
                     if value == (self._core.watch.learner is not None):
                         continue  # as it is: learning goes on (or stays off) untouched
-                    changes_learn = _learning_start(value, path)
+                    changes_learn = _learning_start(value, path, self._core.unit)
             if calibration_changed:
                 flat = self._calibration_values()
                 for parameter in parameters:
@@ -738,7 +858,7 @@ class CompensatorNode(Node):
         self._set_covariances()
         if mag_prepared is not None:
             self._mag_core.install(mag_prepared)
-            self._mag.magnetic_field_covariance = self._mag_core.covariances[2]
+            self._set_mag_covariance()
         names = ', '.join(p.name for p in parameters)
         self.get_logger().info(f'parameters updated ({names}): out_of_range {self._core.out_of_range_policy.value}, '
                                f'stale_temperature {self._core.stale_policy.value}, temp_timeout '
@@ -758,19 +878,19 @@ def make_executor(kind: str, context: Any) -> Executor:
     return SingleThreadedExecutor(context=context)
 
 
-def spin(node: Node, executor: Executor) -> bool:
-    """Spin until the context shuts down (SIGINT or SIGTERM: rclpy's signal handlers).
+def spin(node: Node, executor: Executor, signals: SignalGuard | None = None) -> bool:
+    """Spin until a stop signal (``signals``: SIGINT or SIGTERM) or until the context shuts down.
 
     ``spin_once`` in a loop, not ``spin()``: the EventsExecutor's ``spin()`` stopped by a
     shutdown from another thread kept running at 100 % CPU in a trial; this loop notices the
-    shutdown within :data:`SPIN_PERIOD_S`.
+    signal or the shutdown within :data:`SPIN_PERIOD_S`.
 
     :returns: whether the executor failed on the shutdown itself (it raised once the context was
         gone, e.g. while registering the node's entities): see :func:`main`.
     """
     executor.add_node(node)
     context = node.context
-    while context.ok():
+    while context.ok() and (signals is None or signals.received is None):
         try:
             executor.spin_once(timeout_sec=SPIN_PERIOD_S)
         except ExternalShutdownException:
@@ -782,13 +902,26 @@ def spin(node: Node, executor: Executor) -> bool:
     return False
 
 
+def _params_file_refused(args: Sequence[str]) -> str:
+    """Why a ``--params-file`` of the command line is not read (a FIFO, socket, device, directory), or ``''``."""
+    words = list(args)
+    for word, value in zip(words, words[1:]):
+        kind = not_regular(value) if word == '--params-file' else ''
+        if kind:
+            return f'--params-file {value}: is {kind}: only a regular file is read'
+    return ''
+
+
 def main(args: Sequence[str] | None = None, *, signals: SignalGuard | None = None) -> int:
     """Entry point of ``compensator`` (Jazzy node skeleton); 2 when it cannot start.
 
     A SIGINT or SIGTERM at any moment ends it with status 0 (``signals``, installed here when
     the caller has not: :mod:`tak_thermo_ros.ros.main`). One that comes while it starts stops
-    the imports or ``rclpy.init``, or shuts the context down under the node being built, whose
-    next rcl call then fails: that failure is the stop, said in one line, no traceback.
+    the imports or ``rclpy.init``, or the node once built, said in one line, no traceback.
+    rclpy installs no signal handler of its own: the guard's stops the spin, so the node ends
+    (the watch's verdict logged, what it learned written) while its context still holds, and its
+    last lines reach /rosout (rclpy's handlers shut the context down first, and every line logged
+    at shutdown printed "Failed to publish log message to rosout").
     """
     signals = signals if signals is not None else SignalGuard().install()
     node = executor = None
@@ -796,8 +929,12 @@ def main(args: Sequence[str] | None = None, *, signals: SignalGuard | None = Non
     try:
         if signals.received:  # arrived while the caller imported this module
             raise KeyboardInterrupt
+        refused = _params_file_refused(sys.argv if args is None else args)
+        if refused:  # rcl would wait on a FIFO's open inside rclpy.init
+            print(f'[FATAL] [{NODE_NAME}]: cannot start: {refused}', file=sys.stderr)
+            return EXIT_ERROR
         try:
-            rclpy.init(args=args)
+            rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
         except Exception as err:  # rcl refuses bad --ros-args or an unreadable params file
             if signals.received:
                 raise KeyboardInterrupt from None
@@ -805,7 +942,7 @@ def main(args: Sequence[str] | None = None, *, signals: SignalGuard | None = Non
             print(f'[FATAL] [{NODE_NAME}]: cannot start: {detail[0] if detail else type(err).__name__}',
                   file=sys.stderr)
             return EXIT_ERROR
-        signals.disarm()  # rclpy's handlers shut the context down from now on
+        signals.disarm()  # from now on a signal is remembered: the spin below stops on it
         try:
             node = CompensatorNode()
         except (TakError, ValueError) as err:
@@ -813,9 +950,11 @@ def main(args: Sequence[str] | None = None, *, signals: SignalGuard | None = Non
                 raise KeyboardInterrupt from None
             rclpy.logging.get_logger(NODE_NAME).fatal(f'cannot start: {err}')
             return EXIT_ERROR
+        if signals.received:  # while the node was built
+            raise KeyboardInterrupt
         executor = make_executor(node.executor_kind, node.context)
         running = True
-        failed_on_shutdown = spin(node, executor)
+        failed_on_shutdown = spin(node, executor, signals)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception:

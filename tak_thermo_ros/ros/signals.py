@@ -1,7 +1,7 @@
 """Stop signals while the node starts: :class:`SignalGuard` (the standard library only).
 
 ``tak_thermo_ros.ros.main`` installs it before any heavy import; :func:`tak_thermo_ros.ros.node.main`
-disarms it once rclpy is initialised and says the stop in one line.
+disarms it once rclpy is initialised, stops on it, and says a stop during start-up in one line.
 """
 
 from __future__ import annotations
@@ -18,11 +18,10 @@ class SignalGuard:
 
     Installed for both signals before the imports. Until :meth:`disarm` (called once rclpy is
     initialised), the first signal raises :class:`KeyboardInterrupt` in the main thread: the
-    imports or ``rclpy.init`` stop there. From then on rclpy's own handlers, which call this
-    one after theirs, shut the context down, and this one only remembers the signal: raising
-    then could land inside rclpy's C++ (the EventsExecutor calls Python while it adds the
-    node), which aborts the process; rcl calls on the shut-down context fail instead, and the
-    node takes that failure for the stop it is.
+    imports or ``rclpy.init`` stop there. From then on it only remembers the signal (raising
+    then could land inside rclpy's C++: the EventsExecutor calls Python while it adds the
+    node, which aborts the process); the node, built without rclpy's own handlers, stops
+    spinning on :attr:`received` and ends while its context still holds.
     """
 
     def __init__(self) -> None:
@@ -37,7 +36,7 @@ class SignalGuard:
         return self
 
     def disarm(self) -> None:
-        """From now on remember signals without raising (rclpy's handlers stop the node)."""
+        """From now on remember signals without raising (the node's spin stops on them)."""
         self._armed = False
 
     def _on_signal(self, number: int, frame: Any) -> None:

@@ -63,7 +63,11 @@ from tak_thermo_ros.core.fit.model import FitResult, calibration_from, finish_fi
 from tak_thermo_ros.core.fit.prior import Basis, CurvePrior, Information
 from tak_thermo_ros.core.fit.random_effects import (
     TURN_ON,
+    RecordColumns,
+    RecordStatistics,
+    RecordSystem,
     Variances,
+    absorbed,
     fit_variances,
     record_indicators,
     turn_on_columns,
@@ -348,11 +352,16 @@ class _System:
                 accumulated.add(block)
         return cls(accumulated.factor.copy(), accumulated.count)
 
-    def plus(self, rows: np.ndarray) -> _System:
+    def plus(self, rows: np.ndarray, record: np.ndarray | None = None) -> _System:
+        """The system with more rows (``record``: a pool's rows' records, for :class:`RecordSystem` alike)."""
         if not len(rows):
             return self
         return _System(triangular_factor(np.vstack([self.factor, rows]), self.factor.shape[0]),
                        self.count + len(rows))
+
+    def normal(self) -> np.ndarray:
+        """``(W + 1, W + 1)``: the normal matrix ``[X | y]^T [X | y]`` of every row."""
+        return self.factor.T @ self.factor
 
     def reduced(self, held: dict[int, float]) -> tuple[_System, list[int]]:
         """The system with the held columns' values moved into the target and the columns taken out."""
@@ -390,6 +399,8 @@ def _solve(system: _System, held: dict[int, float], width: int, *, rows: int | N
         compressed system gives its samples' rows less the directions eliminated).
     :param extra_rss: residual the compression left out.
     """
+    if isinstance(system, RecordSystem):
+        return _solve_pool(system, held, width, rows=rows, extra_rss=extra_rss)
     reduced, free = system.reduced(held)
     theta = np.zeros(width)
     for j, value in held.items():
@@ -402,15 +413,66 @@ def _solve(system: _System, held: dict[int, float], width: int, *, rows: int | N
     theta[free] = solution.coefficients
     dof = max((system.count if rows is None else rows) - len(free), 1)
     variance = (solution.rss + extra_rss) / dof
+    inverse, null_leverage = _inverses(solution)
+    covariance = variance * inverse
+    covariance[np.diag_indices_from(covariance)] = np.where(null_leverage > NULL_LEVERAGE, np.inf,
+                                                            np.diag(covariance))
+    return _Solved(theta, free, covariance, dict(held), solution, dof, inverse)
+
+
+def _inverses(solution: Solution) -> tuple[np.ndarray, np.ndarray]:
+    """``(X^T X)^-1`` of a solve and each column's weight in the directions it does not see.
+
+    In the raw columns' units; the directions the solve does not see (:data:`NULL_RELATIVE`) left out.
+    """
     singular = solution.singular
     _, _, vt = np.linalg.svd(solution.scaled)
     keep = singular > NULL_RELATIVE * singular[0] if len(singular) else np.zeros(0, dtype=bool)
     inverse = (vt[keep].T / singular[keep] ** 2) @ vt[keep]
-    covariance = variance * inverse / np.outer(solution.norms, solution.norms)
-    null_leverage = np.sum(vt[~keep] ** 2, axis=0)
-    covariance[np.diag_indices_from(covariance)] = np.where(null_leverage > NULL_LEVERAGE, np.inf,
-                                                            np.diag(covariance))
-    inverse = inverse / np.outer(solution.norms, solution.norms)
+    return inverse / np.outer(solution.norms, solution.norms), np.sum(vt[~keep] ** 2, axis=0)
+
+
+def _solve_pool(system: RecordSystem, held: dict[int, float], width: int, *, rows: int | None,
+                extra_rss: float) -> _Solved:
+    """:func:`_solve` of a pool's system: the shared terms from the records' columns absorbed, then each record's.
+
+    The same solution and covariance as one factor of the whole design, in time linear in the records:
+    per record ``u_r = P_r^-1 (q_r - C_r beta)``; its covariance ``P_r^-1 P_r^-T + G_r V G_r^T`` with
+    ``G_r = P_r^-1 C_r`` and ``V`` the shared terms', ``-G_r V`` with them, ``G_r V G_s^T`` between records.
+    """
+    theta = np.zeros(width)
+    for j, value in held.items():
+        theta[j] = value
+    free = [j for j in range(width) if j not in held]
+    pool = system.absorbed(held)
+    solution = solve_factor(pool.factor, max(system.count, 1))
+    theta[pool.shared] = solution.coefficients
+    own = system.columns.own[:, pool.slots]  # (r, k')
+    gain = np.linalg.solve(pool.pivot, pool.coupling) if own.size else np.zeros((len(own), 0, len(pool.shared)))
+    if own.size:
+        theta[own] = np.linalg.solve(pool.pivot, pool.target[:, :, None])[:, :, 0] - gain @ solution.coefficients
+    dof = max((system.count if rows is None else rows) - len(free), 1)
+    variance = (solution.rss + extra_rss) / dof
+    shared_inverse, leverage = _inverses(solution)
+    across = gain.reshape(-1, len(pool.shared))  # (r k', S')
+    pivot_inverse = np.linalg.inv(pool.pivot) if own.size else np.zeros((len(own), 0, 0))
+    inverse = np.zeros((len(free), len(free)))
+    where = {j: i for i, j in enumerate(free)}
+    shared_at = np.array([where[int(j)] for j in pool.shared], dtype=np.int64)
+    own_at = np.array([where[int(j)] for j in own.ravel()], dtype=np.int64)
+    inverse[np.ix_(shared_at, shared_at)] = shared_inverse
+    carried = across @ shared_inverse
+    inverse[np.ix_(own_at, shared_at)] = -carried
+    inverse[np.ix_(shared_at, own_at)] = -carried.T
+    between = carried @ across.T
+    size = own.shape[1]
+    for record, block in enumerate(pivot_inverse @ np.swapaxes(pivot_inverse, 1, 2)):
+        between[record * size:(record + 1) * size, record * size:(record + 1) * size] += block
+    inverse[np.ix_(own_at, own_at)] = between
+    covariance = variance * inverse
+    unseen = np.zeros(len(free), dtype=bool)
+    unseen[shared_at] = leverage > NULL_LEVERAGE
+    covariance[np.diag_indices_from(covariance)] = np.where(unseen, np.inf, np.diag(covariance))
     return _Solved(theta, free, covariance, dict(held), solution, dof, inverse)
 
 
@@ -515,6 +577,26 @@ class _Rests:
         self.mean_row = np.concatenate(means) if means else np.zeros(0, dtype=bool)
         self.remainder = remainder
         self.samples = len(interval)
+        pooled = len(self.layout.turn_on(0)) > 0
+        self.columns = (RecordColumns(np.array([self.layout.turn_on(axis) for axis in range(3)]).T, self.layout.width)
+                        if pooled else None)
+        """A pool's turn-on columns apart (:class:`RecordColumns`), ``None`` for one record."""
+        self.shared_terms = replace(terms, records=1)
+        """The terms without the records' columns: a pool's shared columns, in the layout's order."""
+        self.shared_layout = self.shared_terms.layout()
+
+    def pool_system(self, shared: np.ndarray, slots: np.ndarray, record: np.ndarray) -> RecordSystem:
+        """A pool's :class:`RecordSystem` of rows given apart (``[X_s | y]``, the turn-on slots) and the prior rows.
+
+        The prior rows: a turn-on column's (:meth:`prior_rows`' first part) and a prior's on the curve terms.
+        """
+        assert self.columns is not None
+        system = RecordSystem(self.columns)
+        system.add_split(shared, slots, record)
+        finite = np.isfinite(self.turn_on_sigma)
+        system.add_prior(np.where(finite, 1.0 / np.where(finite, self.turn_on_sigma, 1.0), 0.0))
+        system.add(self.curve_rows, np.full(len(self.curve_rows), -1))  # a prior's rows: no record's
+        return system
 
     @property
     def weights(self) -> np.ndarray:
@@ -552,6 +634,30 @@ class _Rests:
         weights = self.weights if weighted else np.ones((len(self.counts), 3))
         return _joint(designs, self.layout) * weights[:, :, None], self.counts * weights
 
+    def split_design(self, force: np.ndarray, *, weighted: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A pool's :meth:`design` apart: no column per record (linear in the records).
+
+        :returns: ``(m, 3, S)`` the shared columns, ``(m, 3, 3)`` the row's record's turn-on columns (one
+            per axis), the target ``(m, 3)``.
+        """
+        edges = np.cumsum([self.orders, *self.widths])
+        bases = [self.regressors[:, a:b] for a, b in zip(edges[:-1], edges[1:])]
+        designs = self.shared_terms.designs(self.powers, force, self.counts, bases)
+        constant = self.regressors[:, 0]
+        for design in designs:
+            coupling = [c for c, label in enumerate(design.columns) if label.effect == CrossAxis.name]
+            design.matrix[:, coupling] *= constant[:, None]
+        weights = self.weights if weighted else np.ones((len(self.counts), 3))
+        slots = np.zeros((len(constant), 3, 3))
+        slots[:, [0, 1, 2], [0, 1, 2]] = constant[:, None] * weights  # an axis's turn-on offset: constant
+        return _joint(designs, self.shared_layout) * weights[:, :, None], slots, self.counts * weights
+
+    def shared_theta(self, theta: np.ndarray, design: np.ndarray, slots: np.ndarray) -> np.ndarray:
+        """``design @ theta`` of a design apart (:meth:`split_design`): ``(m, 3)``."""
+        assert self.columns is not None
+        own = theta[self.columns.own[self.row_record]]  # (m, 3) each row's record's offsets
+        return design @ theta[self.columns.shared[:-1]] + np.einsum('mab,mb->ma', slots, own)
+
     @property
     def extra_rss(self) -> float:
         """The weighted residual sum of squares the compression left out (no parameter changes it)."""
@@ -559,59 +665,72 @@ class _Rests:
 
 
 class _Reml:
-    """``-2 log REML`` of a pool's variances (:mod:`~tak_thermo_ros.core.fit.random_effects`), fast.
+    """``-2 log REML`` of a pool's variances (:mod:`~tak_thermo_ros.core.fit.random_effects`), on sufficient statistics.
 
     Only the rests' mean rows and the prior rows change with the variances: the other rows'
-    normal matrix is summed once, the mean rows are kept unweighted (and, for the accelerometer,
-    each rest's two direction columns there, eliminated at each evaluation: the one combination
-    of the three axes that the rest's unknown tilt leaves, as the fit's projection does). Each
-    evaluation is then a Cholesky factor of the free terms' normal matrix.
+    statistics (:class:`~tak_thermo_ros.core.fit.random_effects.RecordStatistics`: the shared
+    columns' normal matrix, per record its turn-on columns' blocks) are summed once, the mean rows
+    are kept unweighted, split into their shared part and their record's turn-on part (and, for the
+    accelerometer, each rest's two direction columns there, eliminated at each evaluation: the one
+    combination of the three axes that the rest's unknown tilt leaves, as the fit's projection does).
+    Each evaluation sums the weighted mean rows' statistics, integrates every record's turn-on
+    offsets out (a small block per record,
+    :func:`~tak_thermo_ros.core.fit.random_effects.absorbed`) and takes a Cholesky factor of the
+    free shared terms: linear in the records and the rests.
 
-    :param fixed: ``(W + 1, W + 1)`` the normal matrix of ``[X | y]`` of the rows whose weights stay.
-    :param mean: ``(k, 3, W + 1)`` the rests' mean rows, unweighted.
+    :param fixed: the statistics of the rows whose weights stay (the rests' other rows, the turns).
+    :param mean: ``(k, 3, S + 1)`` the rests' mean rows' shared columns and target, unweighted.
+    :param own: ``(k, 3, 3)`` their turn-on columns (the rest's record's, one per axis).
+    :param record: ``(k,)`` each rest's record.
     :param samples: ``(k,)`` each rest's samples.
     :param directions: ``(k, 3, 2)`` the accelerometer's direction columns in the mean rows, or ``None``.
     """
 
-    def __init__(self, rests: _Rests, fixed: np.ndarray, mean: np.ndarray, samples: np.ndarray,
-                 held: dict[int, float], directions: np.ndarray | None = None) -> None:
+    def __init__(self, rests: _Rests, fixed: RecordStatistics, mean: np.ndarray, own: np.ndarray, record: np.ndarray,
+                 samples: np.ndarray, held: dict[int, float], directions: np.ndarray | None = None) -> None:
         self.rests = rests
+        columns = rests.columns
+        assert columns is not None
+        self.columns = columns
         self.fixed = fixed
-        self.mean = mean
+        self.shared, self.own = mean, own
+        self.record = np.asarray(record, dtype=np.int64)
         self.samples = samples.astype(float)
         self.directions = directions
         layout = rests.layout
         self.determined = _determined(layout, held)
-        self.free = [j for j in range(layout.width) if j not in held]
-        self.values = np.zeros(layout.width + 1)
-        for j, value in held.items():
-            self.values[j] = value
-        self.values[-1] = -1.0  # [X | y] times (theta_held, -1): minus the target the held terms leave
-        self.prior = [(axis, j) for axis in range(3) for j in layout.turn_on(axis) if j not in held]
+        self.free = np.array([i for i, j in enumerate(columns.shared[:-1]) if int(j) not in held], dtype=np.int64)
+        self.values = np.array([held.get(int(j), 0.0) for j in columns.shared[:-1]] + [-1.0])
+        """``[X | y]`` times this: minus the target the held terms leave (held values, -1 on the target)."""
         self.records = len(layout.turn_on(0))
 
     def __call__(self, turn_on: np.ndarray, rest: np.ndarray) -> float:
         sigma = self.rests.sigma
         variance = sigma[None, :] ** 2 + self.samples[:, None] * np.asarray(rest, dtype=float)[None, :] ** 2
         weight = 1.0 / np.sqrt(variance)
-        rows = self.mean * weight[:, :, None]
+        shared = self.shared * weight[:, :, None]
+        own = self.own * weight[:, :, None]
         log_v = float(np.sum(np.log(variance / sigma[None, :] ** 2)))
         if self.directions is None:
-            normal = self.fixed + np.einsum('kai,kaj->ij', rows, rows)
+            record = np.repeat(self.record, 3)
+            shared, own = shared.reshape(-1, shared.shape[2]), own.reshape(-1, own.shape[2])
         else:  # per rest the one combination of the axes that the two direction columns leave
             weighted = self.directions * weight[:, :, None]
             across = np.cross(weighted[:, :, 0], weighted[:, :, 1])
             across /= np.linalg.norm(across, axis=1, keepdims=True)
-            projected = np.einsum('ka,kai->ki', across, rows)
-            normal = self.fixed + projected.T @ projected
+            record = self.record
+            shared, own = np.einsum('ka,kai->ki', across, shared), np.einsum('ka,kai->ki', across, own)
             gram = np.einsum('kai,kaj->kij', weighted, weighted)
             log_v += float(np.sum(np.log(np.maximum(np.linalg.det(gram), 1e-300))))
-        for axis, j in self.prior:
-            normal[j, j] += 1.0 / turn_on[axis] ** 2
-        free = self.free
-        target = self.values
+        statistics = self.fixed + RecordStatistics.of_rows(shared, own, record, self.columns.records)
+        precision = np.where(self.determined, 1.0 / np.asarray(turn_on, dtype=float) ** 2, 0.0)
+        found = absorbed(statistics, self.determined, precision)
+        if found is None:
+            return math.inf
+        normal, log_own = found
+        free, target = self.free, self.values
         # the held terms into the target: [X_f | y - X_h v], v the held values
-        cross = -(normal[np.ix_(free, range(len(target)))] @ target)
+        cross = -(normal[free] @ target)
         total = float(target @ normal @ target)
         try:
             factor = np.linalg.cholesky(normal[np.ix_(free, free)])
@@ -620,7 +739,7 @@ class _Reml:
         solved = np.linalg.solve(factor, cross)
         rss = total - float(solved @ solved)
         prior = sum(2.0 * self.records * math.log(turn_on[axis]) for axis in np.flatnonzero(self.determined))
-        return log_v + prior + float(2.0 * np.sum(np.log(np.diag(factor)))) + rss
+        return log_v + prior + log_own + float(2.0 * np.sum(np.log(np.diag(factor)))) + rss
 
 
 class _AccelProblem(_Rests):
@@ -639,6 +758,11 @@ class _AccelProblem(_Rests):
         And each row's run (of equal intervals, from 0) and each run's interval.
         """
         design, target = self.design(self.gravity * up[self.interval], weighted=weighted)
+        return (design, target, *self.direction_columns(theta, up, weighted=weighted))
+
+    def direction_columns(self, theta: np.ndarray, up: np.ndarray, *, weighted: bool = True
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`rows`' direction columns ``(m, 3, 2)``, each row's run and each run's interval."""
         tangent = tangent_basis(up)[self.interval] * self.gravity  # (m, 3, 2)
         matrix = _matrix(theta, self.layout, self.powers, self.terms.scale_order)
         diagonal = np.einsum('maa->ma', matrix)
@@ -648,13 +772,21 @@ class _AccelProblem(_Rests):
         if weighted:
             directions = directions * self.weights[:, :, None]
         starts, run = _segments(self.interval)
-        return design, target, directions, run, self.interval[starts]
+        return directions, run, self.interval[starts]
 
-    def system(self, theta: np.ndarray, up: np.ndarray) -> _System:
-        design, target, directions, run, _ = self.rows(theta, up)
-        projected = _project(directions, run, design, target)
-        return _System.of_rows([np.column_stack([projected[0].reshape(-1, self.layout.width),
-                                                 projected[1].reshape(-1)]), self.prior_rows()], self.layout.width)
+    def system(self, theta: np.ndarray, up: np.ndarray) -> _System | RecordSystem:
+        if self.columns is None:
+            design, target, directions, run, _ = self.rows(theta, up)
+            projected = _project(directions, run, design, target)
+            return _System.of_rows([np.column_stack([projected[0].reshape(-1, self.layout.width),
+                                                     projected[1].reshape(-1)]), self.prior_rows()], self.layout.width)
+        # a pool: its design apart, the records' turn-on columns projected like the others (linear in the records)
+        shared, slots, target = self.split_design(self.gravity * up[self.interval])
+        directions, run, _ = self.direction_columns(theta, up)
+        size = shared.shape[2]
+        projected, target = _project(directions, run, np.concatenate([shared, slots], axis=2), target)
+        rows = np.concatenate([projected[:, :, :size], target[:, :, None]], axis=2).reshape(-1, size + 1)
+        return self.pool_system(rows, projected[:, :, size:].reshape(-1, 3), np.repeat(self.row_record, 3))
 
     def sensitivity(self, theta: np.ndarray, up: np.ndarray) -> np.ndarray:
         """``(k, 2, W)``: how each interval's best up direction (two tangent angles) moves with the terms."""
@@ -670,8 +802,14 @@ class _AccelProblem(_Rests):
     def directions(self, theta: np.ndarray, up: np.ndarray) -> np.ndarray:
         """The up directions after one Gauss-Newton step given ``theta``."""
         new_up = up.copy()
-        design, target, directions, run, owners = self.rows(theta, up)
-        step = _interval_step(directions, run, target - design @ theta)
+        directions, run, owners = self.direction_columns(theta, up)
+        if self.columns is None:
+            design, target = self.design(self.gravity * up[self.interval])
+            fitted = design @ theta
+        else:
+            design, slots, target = self.split_design(self.gravity * up[self.interval])
+            fitted = self.shared_theta(theta, design, slots)
+        step = _interval_step(directions, run, target - fitted)
         moved = up[owners] + np.einsum('kab,kb->ka', tangent_basis(up[owners]), step)
         new_up[owners] = moved / np.linalg.norm(moved, axis=1, keepdims=True)
         return new_up
@@ -787,12 +925,23 @@ class _GyroProblem:
         self.up_noise = up_noise
         self.latitude = latitude
 
-    def still_system(self) -> _System:
+    def still_system(self) -> _System | RecordSystem:
         """The rests' rows (linear: the rate at rest is known), compressed rest by rest."""
         force = earth_reference(self.up, self.rests.interval, self.latitude)
-        design, target = self.rests.design(force)
-        return _System.of_rows([np.column_stack([design.reshape(-1, self.layout.width), target.reshape(-1)]),
-                                self.rests.prior_rows()], self.layout.width)
+        if self.rests.columns is None:
+            design, target = self.rests.design(force)
+            return _System.of_rows([np.column_stack([design.reshape(-1, self.layout.width), target.reshape(-1)]),
+                                    self.rests.prior_rows()], self.layout.width)
+        shared, slots, target = self.rests.split_design(force)
+        rows = np.concatenate([shared, target[:, :, None]], axis=2).reshape(-1, shared.shape[2] + 1)
+        return self.rests.pool_system(rows, slots.reshape(-1, 3), np.repeat(self.rests.row_record, 3))
+
+    @property
+    def turn_row_record(self) -> np.ndarray:
+        """Each turn row's record (two rows per turn, :meth:`turn_rows`)."""
+        record = np.zeros(len(self.pairs), dtype=np.int64)
+        record[self.turn_index] = self.turn_record
+        return np.repeat(record, 2)
 
     def rates(self, theta: np.ndarray, rows: slice) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], list]:
         """Some turn samples' corrected rates ``(m, 3)``, ``M(T)^-1``, their powers and bases."""
@@ -905,8 +1054,8 @@ def _fit_gyro(problem: _GyroProblem, held: dict[int, float]) -> tuple[_Solved, _
     scale = 1.0
     for _ in range(MAX_ITERATIONS):
         turns = problem.turn_rows(theta, scale)
-        solved = _solve_holding(still.plus(turns.rows), held, layout, 'gyro', rows=rows + len(turns.rows),
-                                extra_rss=extra)
+        solved = _solve_holding(still.plus(turns.rows, problem.turn_row_record), held, layout, 'gyro',
+                                rows=rows + len(turns.rows), extra_rss=extra)
         held = solved.held
         if _converged(solved, theta):
             residual = turns.rows[:, :-1] @ solved.theta - turns.rows[:, -1]
@@ -1283,9 +1432,9 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
     information = {}
     if prior is not None:  # what a fleet's prior is made of, or chooses a unit's group by
         span = (float(temperature.min()), float(temperature.max()))
+        gyro_system = gyro_problem.still_system().plus(turns.rows, gyro_problem.turn_row_record)
         information = {'accel': _information(problem.system(accel.theta, up), problem, gauge, accel, frame, span),
-                       'gyro': _information(gyro_problem.still_system().plus(turns.rows), gyro_problem.rests,
-                                            gyro_orders, gyro, frame, span)}
+                       'gyro': _information(gyro_system, gyro_problem.rests, gyro_orders, gyro, frame, span)}
     return HandheldFit(results=results, lines=tuple(lines), up=up, closure=closure, closure_before=before,
                        plus_minus=table, orders=(bias_order, scale_order), turn_on=turn_on, information=information)
 
@@ -1296,14 +1445,14 @@ def _set_prior(rests: _Rests, prior: CurvePrior | None, sensor: str) -> None:
         rests.curve_rows = prior.rows(sensor, rests.layout.names)
 
 
-def _information(system: _System, rests: _Rests, structural: dict[int, float], solved: _Solved, frame: Frame,
-                 span: tuple[float, float]) -> Information:
+def _information(system: _System | RecordSystem, rests: _Rests, structural: dict[int, float], solved: _Solved,
+                 frame: Frame, span: tuple[float, float]) -> Information:
     """What the records say about every term not held by construction: the system's normal matrix, its prior rows out.
 
     ``structural``: the terms held by construction (the gauge, one orientation, the orders) go in at their values.
     """
     layout = rests.layout
-    normal = system.factor.T @ system.factor - rests.curve_rows.T @ rests.curve_rows
+    normal = system.normal() - rests.curve_rows.T @ rests.curve_rows
     free = [j for j in range(layout.width) if j not in structural]
     carry = np.zeros((layout.width + 1, len(free) + 1))  # [theta; -1] = carry [theta_free; -1]
     carry[free, np.arange(len(free))] = 1.0
@@ -1352,19 +1501,29 @@ def _normal(rows: np.ndarray) -> np.ndarray:
     return rows.T @ rows
 
 
-def _rests_reml(rests: _Rests, design: np.ndarray, target: np.ndarray, held: dict[int, float],
-                extra: np.ndarray | None = None, directions: np.ndarray | None = None) -> _Reml:
-    """The REML of a sensor's rests from its unweighted compressed rows (``extra``: rows already weighted)."""
-    width = rests.layout.width
-    rows = np.concatenate([design, target[:, :, None]], axis=2)  # (m, 3, W + 1)
-    within = rows[~rests.mean_row] / rests.sigma[None, :, None]
-    fixed = _normal(within.reshape(-1, width + 1))
+def _rests_reml(rests: _Rests, design: np.ndarray, slots: np.ndarray, target: np.ndarray, held: dict[int, float],
+                extra: np.ndarray | None = None, extra_record: np.ndarray | None = None,
+                directions: np.ndarray | None = None) -> _Reml:
+    """The REML of a sensor's rests from its unweighted compressed rows apart (:meth:`_Rests.split_design`).
+
+    ``extra``: rows already weighted ``(n, W + 1)``, of records ``extra_record``.
+    """
+    columns = rests.columns
+    assert columns is not None
+    rows = np.concatenate([design, target[:, :, None]], axis=2)  # (m, 3, S + 1)
+    within = (rows[~rests.mean_row] / rests.sigma[None, :, None]).reshape(-1, rows.shape[2])
+    records, size = columns.records, len(columns.shared)
+    # a rest's rows after its first touch no turn-on column (the constant's column of its factor is 0 there);
+    # a prior's rows on the curve terms are fixed rows of no record (shared columns only)
+    curve = columns.split(rests.curve_rows, np.full(len(rests.curve_rows), -1))[0]
+    fixed = RecordStatistics(_normal(within) + _normal(curve), np.zeros((records, size, 3)),
+                             np.zeros((records, 3, 3)))
     if extra is not None and len(extra):
-        fixed = fixed + _normal(extra)
-    fixed = fixed + _normal(rests.curve_rows)
-    mean = rows[rests.mean_row]
-    return _Reml(rests, fixed, mean, rests.row_samples[rests.mean_row], held,
-                 None if directions is None else directions[rests.mean_row])
+        assert extra_record is not None
+        fixed = fixed + RecordStatistics.of_rows(*columns.split(extra, extra_record), extra_record, records)
+    mean = rests.mean_row
+    return _Reml(rests, fixed, rows[mean], slots[mean], rests.row_record[mean], rests.row_samples[mean], held,
+                 None if directions is None else directions[mean])
 
 
 def _pooled_accel(problem: _AccelProblem, up: np.ndarray, gauge: dict[int, float],
@@ -1373,8 +1532,9 @@ def _pooled_accel(problem: _AccelProblem, up: np.ndarray, gauge: dict[int, float
     previous = np.concatenate([problem.turn_on_sigma, np.sqrt(problem.rest_variance)])
     variances = None
     for _ in range(VARIANCE_ROUNDS):
-        design, target, directions, _, _ = problem.rows(accel.theta, up, weighted=False)
-        criterion = _rests_reml(problem, design, target, accel.held, directions=directions)
+        design, slots, target = problem.split_design(problem.gravity * up[problem.interval], weighted=False)
+        directions, _, _ = problem.direction_columns(accel.theta, up, weighted=False)
+        criterion = _rests_reml(problem, design, slots, target, accel.held, directions=directions)
         start = np.sqrt(problem.rest_variance) + 0.1 * problem.sigma
         variances = fit_variances(criterion, problem.turn_on_sigma, start, criterion.determined, problem.sigma)
         problem.turn_on_sigma = np.where(criterion.determined, variances.turn_on, problem.turn_on_sigma)
@@ -1396,8 +1556,9 @@ def _pooled_gyro(problem: _GyroProblem, gyro: _Solved, turns: _TurnRows, turn_sc
     variances = None
     for _ in range(VARIANCE_ROUNDS):
         force = earth_reference(problem.up, rests.interval, problem.latitude)
-        design, target = rests.design(force, weighted=False)
-        criterion = _rests_reml(rests, design, target, gyro.held, extra=turns.rows)
+        design, slots, target = rests.split_design(force, weighted=False)
+        criterion = _rests_reml(rests, design, slots, target, gyro.held, extra=turns.rows,
+                                extra_record=problem.turn_row_record)
         variances = fit_variances(criterion, rests.turn_on_sigma, np.sqrt(rests.rest_variance) + 0.1 * rests.sigma,
                                   criterion.determined, rests.sigma)
         rests.turn_on_sigma = np.where(criterion.determined, variances.turn_on, rests.turn_on_sigma)
@@ -1412,14 +1573,22 @@ def _pooled_gyro(problem: _GyroProblem, gyro: _Solved, turns: _TurnRows, turn_sc
 
 
 def _with_turn_on(calibration: Calibration, fitted: TurnOnFit, records: int) -> Calibration:
-    """The calibration with its ``turn_on`` section when every axis's spread is determined, else a note why not."""
-    from tak_thermo_ros.core.link.model import TurnOn
+    """The calibration with its ``turn_on`` section when every axis's spread is determined, else a note why not.
+
+    From fewer than :data:`~tak_thermo_ros.core.link.model.MIN_TURN_ON_RECORDS` records the section says
+    ``not determined`` (and a note why).
+    """
+    from tak_thermo_ros.core.link.model import MIN_TURN_ON_RECORDS, TurnOn
     variances = fitted.variances
     if not np.all(variances.determined):
         held = ' '.join(name for name, ok in zip(AXES, variances.determined) if not ok)
         note = (f'turn_on not written: the records do not determine the turn-on offset on {held} '
                 f'(its offset is held)')
         return replace(calibration, notes=(*calibration.notes, note))
+    if records < MIN_TURN_ON_RECORDS:  # a spread of so few values is known to orders of magnitude: not written
+        turn_on = TurnOn(repeatability=None, repeatability_error=None, records=records)
+        note = f'turn_on {turn_on.why_not()}'
+        return replace(calibration, turn_on=turn_on, notes=(*calibration.notes, note))
     turn_on = TurnOn(repeatability=tuple(float(v) for v in variances.turn_on),  # type: ignore[arg-type]
                      repeatability_error=tuple(float(e) if np.isfinite(e) else 0.0  # type: ignore[arg-type]
                                                for e in variances.turn_on_error),

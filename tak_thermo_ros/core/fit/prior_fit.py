@@ -112,6 +112,13 @@ class FleetPrior:
         """Whether a sensor's units fall in groups (a unit's group is chosen from its records)."""
         return any(len(fleet.groups) > 1 for fleet in self.sensors.values())
 
+    def gives_turn_on(self, records: int, sensor: str) -> bool:
+        """Whether a pool of ``records`` takes the fleet's turn-on repeatability of ``sensor``.
+
+        It does below :data:`OWN_TURN_ON_RECORDS` records, where the fleet has one.
+        """
+        return records < OWN_TURN_ON_RECORDS and sensor in self.turn_on
+
     def vague(self) -> CurvePrior:
         """The prior's basis, orders and temperatures without its rows (a unit's first fit, its group chosen)."""
         return CurvePrior(self.basis, self.bias_order, self.scale_order, self.low, self.high)
@@ -219,7 +226,7 @@ def fit_with_prior(record: HandheldRecord, settings: HandheldSettings, fleet: Fl
         calibration = result.calibration
         if sensor in uncertainty:
             calibration = replace(calibration, uncertainty=uncertainty[sensor])
-        if given is not None and sensor in fleet.turn_on:
+        if fleet.gives_turn_on(record.records, sensor):
             calibration = _fleet_turn_on(calibration, fleet, sensor)
         results[sensor] = replace(result, calibration=calibration)
     pool = replace(fitted, fit=replace(fitted.fit, results=results))
@@ -234,7 +241,8 @@ def _fleet_turn_on(calibration, fleet: FleetPrior, sensor: str):
     turn_on = TurnOn(repeatability=tuple(float(v) for v in spread),  # type: ignore[arg-type]
                      repeatability_error=(0.0, 0.0, 0.0), records=max(fleet.records, 2))
     note = f'turn_on: the fleet\'s median repeatability over {len(fleet.units)} units ({fleet.records} records)'
-    return replace(calibration, turn_on=turn_on, notes=(*calibration.notes, note))
+    own = tuple(said for said in calibration.notes if not said.startswith('turn_on not'))  # the records' own, replaced
+    return replace(calibration, turn_on=turn_on, notes=(*own, note))
 
 
 def _uncertainty(records: Information, prior: SensorPrior, order: int, label: str) -> CurveUncertainty:
@@ -282,7 +290,7 @@ def unit_with_prior(unit: UnitCalibration, statistics: UnitStatistics, fleet: Fl
         calibration = _rebuilt(calibration, theta, fleet, records.low, records.high)
         uncertainty[sensor] = _uncertainty(records, sensor_prior, fleet.bias_order, fleet.label)
         calibration = replace(calibration, uncertainty=uncertainty[sensor])
-        if statistics.records < OWN_TURN_ON_RECORDS and sensor in fleet.turn_on:
+        if fleet.gives_turn_on(statistics.records, sensor):
             calibration = _fleet_turn_on(calibration, fleet, sensor)
         sensors[sensor] = calibration
     return PriorUnit(replace(unit, **sensors), tuple(lines), uncertainty)

@@ -243,3 +243,257 @@ def screen_offsets(offsets: np.ndarray, precision: np.ndarray) -> Screening:
             if distance > limit and distance > outliers.get(record, (0, 0, 0.0))[2]:
                 outliers[record] = (record, axis, float(distance))
     return Screening(tuple(sorted(outliers.values())))
+
+
+# ----- a pool's least squares, each record's own columns apart: linear in the records --------------------
+
+ROUND_ROWS = 256
+"""A record's rows are folded into its triangular factor this many at a time (every record of a round at once)."""
+
+
+class RecordColumns:
+    """Which columns of a pool's design are a record's own (its turn-on offsets), and the rest (shared).
+
+    A row touches the shared columns and the own columns of at most one record (its rests and
+    turns are its own): a least squares over ``W`` columns, ``k`` per record, is then solved in
+    time linear in the records (each record's columns absorbed record by record) instead of
+    ``W^3``.
+
+    :param own: ``(r, k)`` the columns of each record's ``k`` slots (one per axis).
+    :param width: ``W``, the columns of the design; the target is column ``W`` of a row.
+    """
+
+    def __init__(self, own: np.ndarray, width: int) -> None:
+        self.own = np.asarray(own, dtype=np.int64).reshape(len(own), -1)
+        self.width = width
+        taken = set(self.own.ravel().tolist())
+        self.shared = np.array([j for j in range(width) if j not in taken] + [width], dtype=np.int64)
+        """The shared columns and the target (last)."""
+
+    @property
+    def records(self) -> int:
+        """Records ``r``."""
+        return len(self.own)
+
+    @property
+    def slots(self) -> int:
+        """Own columns per record ``k``."""
+        return self.own.shape[1]
+
+    def split(self, rows: np.ndarray, record: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rows ``(..., W + 1)`` as their shared part ``(..., S + 1)`` and their record's slots ``(..., k)``.
+
+        :param record: ``(...)`` each row's record (rows beside the last axis), ``-1``: no record's.
+        """
+        record = np.asarray(record, dtype=np.int64)
+        slots = np.zeros((*rows.shape[:-1], self.slots))
+        mine = record >= 0
+        if np.any(mine):
+            index = self.own[np.where(mine, record, 0)]  # (..., k)
+            slots = np.take_along_axis(rows, index, axis=-1) * mine[..., None]
+        return rows[..., self.shared], slots
+
+
+def record_sums(values: np.ndarray, record: np.ndarray, count: int) -> np.ndarray:
+    """``(count, ...)``: the sum of ``values`` ``(n, ...)`` over each record's rows (``record`` ``(n,)``; -1: none)."""
+    out = np.zeros((count, *values.shape[1:]))
+    record = np.asarray(record, dtype=np.int64)
+    keep = record >= 0
+    if not np.any(keep):
+        return out
+    order = np.argsort(record[keep], kind='stable')
+    sorted_record = record[keep][order]
+    starts = np.flatnonzero(np.diff(sorted_record, prepend=-1) != 0)
+    out[sorted_record[starts]] = np.add.reduceat(values[keep][order], starts, axis=0)
+    return out
+
+
+@dataclass
+class RecordStatistics:
+    """The sufficient statistics of a pool's rows: their normal matrix in blocks (linear in the records).
+
+    Over rows ``[X_s | Z_r | y]`` (shared columns, the record's own, the target):
+
+    :param shared: ``(S + 1, S + 1)`` ``[X_s | y]^T [X_s | y]`` over every row.
+    :param cross: ``(r, S + 1, k)`` per record ``[X_s | y]^T Z_r`` over its rows.
+    :param own: ``(r, k, k)`` per record ``Z_r^T Z_r`` over its rows.
+
+    A fleet's units are records of this kind too (a unit's own columns): these are what a prior
+    over the shared columns adds to (``shared``) and what :func:`absorbed` reduces.
+    """
+
+    shared: np.ndarray
+    cross: np.ndarray
+    own: np.ndarray
+
+    @classmethod
+    def of_rows(cls, shared: np.ndarray, slots: np.ndarray, record: np.ndarray, records: int) -> RecordStatistics:
+        """The statistics of rows split by :meth:`RecordColumns.split` (``(n, S + 1)``, ``(n, k)``, ``(n,)``)."""
+        return cls(shared.T @ shared, record_sums(shared[:, :, None] * slots[:, None, :], record, records),
+                   record_sums(slots[:, :, None] * slots[:, None, :], record, records))
+
+    def __add__(self, other: RecordStatistics) -> RecordStatistics:
+        return RecordStatistics(self.shared + other.shared, self.cross + other.cross, self.own + other.own)
+
+
+def absorbed(statistics: RecordStatistics, free_slots: np.ndarray, precision: np.ndarray
+             ) -> tuple[np.ndarray, float] | None:
+    """The shared columns' normal matrix with every record's own columns integrated out, and ``log |Z'Z + P|``.
+
+    ``[X_s | y]^T [X_s | y] - sum_r C_r (Z_r^T Z_r + P)^-1 C_r^T`` (the Schur complement, ``C_r`` the
+    record's cross block), over the free slots only (a held slot is 0: it adds nothing).
+
+    :param free_slots: ``(k,)`` which slots are fitted.
+    :param precision: ``(k,)`` the prior's precision per slot (``1 / s_u^2``; 0: none).
+    :returns: ``None`` when a record's block is not positive definite.
+    """
+    free = np.flatnonzero(free_slots)
+    if not len(free) or not len(statistics.own):
+        return statistics.shared, 0.0
+    own = statistics.own[:, free][:, :, free] + np.diag(np.asarray(precision, dtype=float)[free])[None]
+    cross = statistics.cross[:, :, free]
+    try:
+        factor = np.linalg.cholesky(own)
+    except np.linalg.LinAlgError:
+        return None
+    half = np.linalg.solve(factor, np.swapaxes(cross, 1, 2))  # L^-1 C^T: (r, k, S + 1)
+    normal = statistics.shared - np.einsum('rki,rkj->ij', half, half)
+    return normal, float(2.0 * np.sum(np.log(np.diagonal(factor, axis1=1, axis2=2))))
+
+
+@dataclass(frozen=True)
+class Absorbed:
+    """A :class:`RecordSystem` with its held columns taken out and every record's own columns absorbed.
+
+    :param factor: ``(S' + 1, S' + 1)`` the triangular factor of the free shared columns and the target
+        that is left (the records' own columns solved for any shared values).
+    :param shared: the layout's free shared columns; ``slots``: the free slots.
+    :param pivot: ``(r, k', k')`` per record the triangular block of its free own columns.
+    :param coupling: ``(r, k', S')`` its rows' shared part; ``target``: ``(r, k')`` their target.
+    """
+
+    factor: np.ndarray
+    shared: np.ndarray
+    slots: np.ndarray
+    pivot: np.ndarray
+    coupling: np.ndarray
+    target: np.ndarray
+
+
+class RecordSystem:
+    """The triangular factors of a pool's weighted rows, each record's own columns apart (see :class:`RecordColumns`).
+
+    The rows that touch no record's columns go into one factor of ``[X_s | y]``; each record's rows
+    into a factor of ``[Z_r | X_s | y]`` of its own, :data:`ROUND_ROWS` rows of every record at a time.
+    The same least squares as one factor of the whole design (orthogonal steps only), in time linear
+    in the records.
+    """
+
+    def __init__(self, columns: RecordColumns) -> None:
+        from tak_thermo_ros.core.fit.solve import BlockedQR
+        self.columns = columns
+        size = columns.slots + len(columns.shared)
+        self.shared = BlockedQR(len(columns.shared))
+        self.factors = np.zeros((columns.records, size, size))
+        self.count = 0
+
+    def copy(self) -> RecordSystem:
+        """Return an independent duplicate (rows added to it leave this one as it is)."""
+        out = RecordSystem(self.columns)
+        out.shared.factor, out.shared.count = self.shared.factor.copy(), self.shared.count
+        out.factors, out.count = self.factors.copy(), self.count
+        return out
+
+    def plus(self, rows: np.ndarray, record: np.ndarray) -> RecordSystem:
+        """A copy with more rows (:meth:`add`)."""
+        out = self.copy()
+        out.add(rows, record)
+        return out
+
+    def add(self, rows: np.ndarray, record: np.ndarray) -> None:
+        """Rows ``(n, W + 1)`` of ``[X | y]``, each of record ``record`` ``(n,)`` (``-1``: of none)."""
+        if len(rows):
+            self.add_split(*self.columns.split(rows, record), record)
+
+    def add_split(self, shared: np.ndarray, slots: np.ndarray, record: np.ndarray) -> None:
+        """Rows given apart (:meth:`RecordColumns.split`): ``[X_s | y]`` ``(n, S + 1)``, ``Z`` ``(n, k)``."""
+        if not len(shared):
+            return
+        record = np.asarray(record, dtype=np.int64)
+        self.count += len(shared)
+        none = record < 0
+        if np.any(none):
+            self.shared.add(shared[none])
+        if not np.all(none):
+            self._fold(np.hstack([slots[~none], shared[~none]]), record[~none])
+
+    def add_prior(self, precision_root: np.ndarray) -> None:
+        """One row ``u / s_u = 0`` per record and slot (``precision_root``: ``1 / s_u`` per slot; 0: none)."""
+        root = np.asarray(precision_root, dtype=float)
+        slots = np.flatnonzero(root > 0.0)
+        count = self.columns.records
+        if not len(slots) or not count:
+            return
+        rows = np.zeros((count * len(slots), self.factors.shape[2]))
+        rows[np.arange(len(rows)), np.tile(slots, count)] = np.tile(root[slots], count)
+        self._fold(rows, np.repeat(np.arange(count), len(slots)))
+        self.count += len(rows)
+
+    def normal(self) -> np.ndarray:
+        """``(W + 1, W + 1)``: the normal matrix ``[X | y]^T [X | y]`` of every row, in the layout's columns."""
+        columns = self.columns
+        out = np.zeros((columns.width + 1, columns.width + 1))
+        shared = columns.shared
+        out[np.ix_(shared, shared)] = self.shared.factor.T @ self.shared.factor
+        for own, factor in zip(columns.own, self.factors):
+            index = np.concatenate([own, shared])
+            out[np.ix_(index, index)] += factor.T @ factor
+        return out
+
+    def _fold(self, joined: np.ndarray, record: np.ndarray) -> None:
+        """Rows ``[Z_r | X_s | y]`` into their records' factors, a round of at most :data:`ROUND_ROWS` each."""
+        size = self.factors.shape[1]
+        order = np.argsort(record, kind='stable')
+        record, joined = record[order], joined[order]
+        starts = np.flatnonzero(np.diff(record, prepend=-1) != 0)
+        lengths = np.diff(np.append(starts, len(record)))
+        position = np.arange(len(record)) - np.repeat(starts, lengths)
+        step = int(min(ROUND_ROWS, lengths.max()))
+        for first in range(0, int(lengths.max()), step):
+            now = (position >= first) & (position < first + step)
+            ids, local = np.unique(record[now], return_inverse=True)
+            batch = np.zeros((len(ids), size + step, size))
+            batch[:, :size] = self.factors[ids]
+            batch[local, size + position[now] - first] = joined[now]
+            self.factors[ids] = np.linalg.qr(batch, mode='r')
+
+    def absorbed(self, held: dict[int, float]) -> Absorbed:
+        """The held columns' values moved into the target and dropped; each record's free own columns absorbed.
+
+        A slot is held when its column is held in every record (an axis whose offset is held).
+        """
+        from tak_thermo_ros.core.fit.solve import triangular_factor
+        columns = self.columns
+        shared = columns.shared[:-1]
+        kept = np.array([j not in held for j in shared], dtype=bool)
+        values = np.array([held.get(int(j), 0.0) for j in shared])
+        slot_held = np.array([all(int(j) in held for j in columns.own[:, a]) for a in range(columns.slots)])
+        slot_values = np.array([[held.get(int(j), 0.0) for j in row] for row in columns.own]).reshape(
+            columns.records, columns.slots)
+        k = columns.slots
+        # the records' factors: [Z | X | y] -> [Z_free | X_free | y - X_held v - Z_held w]
+        factors = self.factors
+        held_own = np.einsum('rnk,rk->rn', factors[:, :, :k], slot_values * slot_held[None])
+        target = factors[:, :, -1] - factors[:, :, k:-1] @ values - held_own
+        reduced = np.concatenate([factors[:, :, :k][:, :, ~slot_held], factors[:, :, k:-1][:, :, kept],
+                                  target[:, :, None]], axis=2)
+        free_k = int(np.count_nonzero(~slot_held))
+        if len(reduced):
+            reduced = np.linalg.qr(reduced, mode='r')
+        own = self.shared.factor
+        own = np.column_stack([own[:, :-1][:, kept], own[:, -1] - own[:, :-1] @ values])
+        rest = reduced[:, free_k:, free_k:].reshape(-1, own.shape[1])
+        factor = triangular_factor(np.vstack([own, rest]), own.shape[1])
+        return Absorbed(factor=factor, shared=shared[kept], slots=np.flatnonzero(~slot_held),
+                        pivot=reduced[:, :free_k, :free_k], coupling=reduced[:, :free_k, free_k:-1],
+                        target=reduced[:, :free_k, -1])

@@ -63,6 +63,10 @@ class Corrector:
         self._fixed = None if calibration.needs_temperature else self._ref
         # Effects (tak_thermo_ros.core.effects) take their own link; without them, the path below.
         self._effect_link = EffectLink(calibration, clamp=self._clamp) if calibration.effects else None
+        self._held_temperature: float | None = None
+        """The temperature (the object) :attr:`_held` was evaluated at, ``None`` before the first."""
+        self._held: tuple[float, ...] = ()
+        """``(offset_x, gain_x, offset_y, gain_y, offset_z, gain_z)`` at :attr:`_held_temperature`."""
 
     @property
     def signals(self) -> tuple[str, ...]:
@@ -97,7 +101,21 @@ class Corrector:
             temp_code = self._fixed
         if self._effect_link is not None:
             return self._effect_link.correct_sample(counts_x, counts_y, counts_z, temp_code, stamp_s, aux)
-        # code_offset(temp_code) inline (a call less per sensor and message)
+        if temp_code is not self._held_temperature:  # a new temperature: the polynomials once, not per sample
+            self._take_temperature(temp_code)
+        offset_x, gain_x, offset_y, gain_y, offset_z, gain_z = self._held
+        return (counts_x - offset_x) / gain_x, (counts_y - offset_y) / gain_y, (counts_z - offset_z) / gain_z
+
+    def _take_temperature(self, temp_code: float) -> None:
+        """Each axis's offset and gain at ``temp_code``, held until the temperature changes.
+
+        A driver sends a temperature every few to hundreds of samples: the samples in between are
+        corrected with the same offsets and gains (``offset_and_gain``, the same operations as the
+        vectorised path: the same bits). Held by the temperature's identity (the online core hands
+        the same float object over until the next temperature arrives): an equal value of another
+        object is evaluated again, so that 0.0 and -0.0 never share a result.
+        """
+        # code_offset(temp_code) inline
         if self._fixed is not None:
             n = 0.0
         elif self._clamp:
@@ -105,10 +123,8 @@ class Corrector:
         else:
             n = temp_code - self._ref
         x_axis, y_axis, z_axis = self._axes
-        offset_x, gain_x = offset_and_gain(n, *x_axis)
-        offset_y, gain_y = offset_and_gain(n, *y_axis)
-        offset_z, gain_z = offset_and_gain(n, *z_axis)
-        return (counts_x - offset_x) / gain_x, (counts_y - offset_y) / gain_y, (counts_z - offset_z) / gain_z
+        self._held = (*offset_and_gain(n, *x_axis), *offset_and_gain(n, *y_axis), *offset_and_gain(n, *z_axis))
+        self._held_temperature = temp_code
 
     def correct_values(self, values: tuple[float, float, float], temp_code: float, *, stamp_s: float = 0.0,
                        aux: Mapping[str, float] | None = None) -> tuple[float, float, float]:
@@ -278,15 +294,19 @@ class UnitCorrector:
         return accel + self._gyro.correct_sample(values[3], values[4], values[5], temperature, stamp_s=stamp_s,
                                                  aux=aux)
 
-    def out_of_range_count(self, temperature: np.ndarray) -> int:
-        """How many temperatures lie outside the calibrated range of any sensor."""
+    def out_of_range(self, temperature: np.ndarray) -> np.ndarray:
+        """``(k,)`` whether each temperature lies outside the calibrated range of any sensor."""
         temperature = np.asarray(temperature, dtype=float)
         outside = np.zeros(len(temperature), dtype=bool)
         for _, calibration in self.unit.sensors:
             if not calibration.needs_temperature:
                 continue
             outside |= (temperature < calibration.temp_code_min) | (temperature > calibration.temp_code_max)
-        return int(np.count_nonzero(outside))
+        return outside
+
+    def out_of_range_count(self, temperature: np.ndarray) -> int:
+        """How many temperatures lie outside the calibrated range of any sensor."""
+        return int(np.count_nonzero(self.out_of_range(temperature)))
 
 
 def acceleration_variance(calibration: Calibration) -> tuple[float, float, float]:

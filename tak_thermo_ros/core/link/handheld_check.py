@@ -40,6 +40,8 @@ class HandheldCheck:
     :param out_of_range: samples outside the calibrated temperature range.
     :param gravity_floor: the RMS |g| error the noise alone leaves (each rest's mean of white noise), m/s^2.
     :param rate_floor: ``(3,)`` likewise for the rate per axis, rad/s.
+    :param rest_outside: ``(k,)`` per still interval, the share of its samples outside the calibrated
+        temperature range.
     """
 
     gravity_error: np.ndarray
@@ -50,6 +52,7 @@ class HandheldCheck:
     out_of_range: int
     gravity_floor: float = 0.0
     rate_floor: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    rest_outside: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def gravity_rms(self) -> float:
@@ -95,6 +98,9 @@ def check_handheld(record: HandheldRecord, unit: UnitCalibration, *, gravity: fl
     per_rest = 1.0 / np.maximum(kept, 1.0)
     gravity_floor = float(np.sqrt(np.mean(per_rest * (up ** 2 @ noise[:3] ** 2)))) if count else 0.0
     rate_floor = np.sqrt(np.mean(per_rest)) * noise[3:6] if count else np.zeros(3)
+    beyond = UnitCorrector(unit).out_of_range(record.still.temp_code).astype(float)
+    rest_outside = np.bincount(interval, weights=beyond, minlength=count) / np.maximum(kept, 1.0)
     return HandheldCheck(gravity_error=magnitude - gravity, rate_error=means[:, 3:6] - rest,
                          closure=replace(closure, seconds=seconds), up=up, samples=len(still),
-                         out_of_range=outside, gravity_floor=gravity_floor, rate_floor=rate_floor)
+                         out_of_range=outside, gravity_floor=gravity_floor, rate_floor=rate_floor,
+                         rest_outside=rest_outside)

@@ -161,6 +161,51 @@ class AxisModel:
                 + (self.offset + self.offset_drift(n)))
 
 
+MIN_TURN_ON_RECORDS = 5
+"""A turn-on repeatability is determined from this many records (power-ups) or more. From ``n`` records a
+spread's 95 % chi-square interval runs from ``sqrt((n-1) / chi2(0.975, n-1))`` to
+``sqrt((n-1) / chi2(0.025, n-1))`` times the estimate: 0.45..32x from two, 0.52..6.3x from three,
+0.60..2.9x from five. Below, the file says ``not determined`` and nothing judges against it."""
+NOT_DETERMINED = 'not determined'
+"""What a ``turn_on`` section holds in place of a repeatability the records do not determine."""
+
+
+def _chi2_cdf(x: float, dof: int) -> float:
+    """The chi-square distribution function of a whole number of degrees of freedom (closed forms)."""
+    if x <= 0.0:
+        return 0.0
+    half = x / 2.0
+    if dof % 2 == 0:
+        term, total = 1.0, 1.0
+        for k in range(1, dof // 2):
+            term *= half / k
+            total += term
+        return 1.0 - math.exp(-half) * total
+    root = math.sqrt(x)
+    term, total = root, 0.0
+    for k in range(1, (dof - 1) // 2 + 1):
+        total += term
+        term *= x / (2 * k + 1)
+    return math.erf(root / math.sqrt(2.0)) - 2.0 * math.exp(-half) / math.sqrt(2.0 * math.pi) * total
+
+
+def _chi2_quantile(probability: float, dof: int) -> float:
+    """``chi2.ppf(probability, dof)`` by bisection of :func:`_chi2_cdf`."""
+    low, high = 0.0, max(10.0, 10.0 * dof)
+    while _chi2_cdf(high, dof) < probability:
+        high *= 2.0
+    for _ in range(200):
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if _chi2_cdf(middle, dof) < probability else (low, middle)
+    return 0.5 * (low + high)
+
+
+def spread_interval(records: int) -> tuple[float, float]:
+    """The 95 % chi-square interval of a spread estimated from ``records`` values, as factors of the estimate."""
+    dof = max(int(records) - 1, 1)
+    return (math.sqrt(dof / _chi2_quantile(0.975, dof)), math.sqrt(dof / _chi2_quantile(0.025, dof)))
+
+
 @dataclass(frozen=True)
 class TurnOn:
     """A sensor's turn-on offset repeatability: how far its offset moves from one power-up to the next.
@@ -171,24 +216,46 @@ class TurnOn:
     constant at its first rest, judged against this spread.
 
     :param repeatability: per axis x, y, z the standard deviation of the turn-on offset over
-        power-ups, in the sensor's unit (m/s^2, rad/s), >= 0.
-    :param repeatability_error: per axis the standard error of ``repeatability``, >= 0.
+        power-ups, in the sensor's unit (m/s^2, rad/s), >= 0; ``None``: not determined (fewer than
+        :data:`MIN_TURN_ON_RECORDS` records).
+    :param repeatability_error: per axis the standard error of ``repeatability``, >= 0 (``None`` with it).
     :param records: how many records (power-ups) it was estimated from, >= 2.
     """
 
-    repeatability: tuple[float, float, float]
-    repeatability_error: tuple[float, float, float]
+    repeatability: tuple[float, float, float] | None
+    repeatability_error: tuple[float, float, float] | None
     records: int
 
     def __post_init__(self) -> None:
+        if (self.repeatability is None) != (self.repeatability_error is None):
+            msg = 'turn_on: repeatability and repeatability_error are given together (or neither: not determined)'
+            raise CalibrationError(msg)
         for name in ('repeatability', 'repeatability_error'):
             values = getattr(self, name)
+            if values is None:
+                continue
             if len(values) != 3 or not all(math.isfinite(v) and v >= 0.0 for v in values):
                 msg = f'turn_on.{name}: expected three finite numbers >= 0, got {list(values)}'
                 raise CalibrationError(msg)
         if isinstance(self.records, bool) or not isinstance(self.records, int) or self.records < 2:
             msg = f'turn_on.records: expected a whole number >= 2, got {self.records!r}'
             raise CalibrationError(msg)
+
+    @property
+    def determined(self) -> bool:
+        """Whether a reader may judge against it: a repeatability from :data:`MIN_TURN_ON_RECORDS` records or more.
+
+        A file written before the rule may hold numbers from two records: they are not determined either.
+        """
+        return self.repeatability is not None and self.records >= MIN_TURN_ON_RECORDS
+
+    def why_not(self) -> str:
+        """Why it is not determined, in a few words (``''`` when it is)."""
+        if self.determined:
+            return ''
+        low, high = spread_interval(self.records)
+        return (f'{NOT_DETERMINED}: {self.records} records, at least {MIN_TURN_ON_RECORDS} needed; from '
+                f'{self.records} the 95 % interval of a spread is {low:.2g}..{high:.2g}x its estimate')
 
 
 @dataclass(frozen=True)
@@ -275,7 +342,7 @@ class Calibration:
         :data:`THERMAL_HELD` or :data:`THERMAL_NONE` (no temperature terms: every axis has
         ``offset_span`` 0 and flat shapes, and the correction never reads a temperature).
     :param turn_on: the turn-on offset's repeatability over power-ups (:class:`TurnOn`), or ``None``
-        when the calibration was fitted from one power-up.
+        when the calibration was fitted from one power-up (what to judge against: :attr:`known_turn_on`).
     :param uncertainty: the offset curve's own uncertainty (:class:`CurveUncertainty`), or ``None``.
     """
 
@@ -290,6 +357,11 @@ class Calibration:
     thermal: str = THERMAL_FITTED
     turn_on: TurnOn | None = None
     uncertainty: CurveUncertainty | None = None
+
+    @property
+    def known_turn_on(self) -> TurnOn | None:
+        """The turn-on repeatability to judge a run against: ``turn_on`` when determined, else ``None``."""
+        return self.turn_on if self.turn_on is not None and self.turn_on.determined else None
 
     def __post_init__(self) -> None:
         if len(self.axes) != 3:

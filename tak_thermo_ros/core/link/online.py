@@ -149,6 +149,11 @@ NO_SENSOR = 'no_sensor'
 IMU_DROP_REASONS: tuple[str, ...] = (NO_SENSOR,)
 """Why a driver's Imu message is not published besides :data:`ONLINE_DROP_REASONS`: it marks
 both sensors absent (covariance[0] = -1 on both), so it carries nothing to correct."""
+MALFORMED = 'malformed'
+RAW_DROP_REASONS: tuple[str, ...] = (MALFORMED,)
+"""Why a message taken as its serialised bytes (the node's raw path) is not published: the bytes
+are no message of its type (truncated, a bad encapsulation or string length); see
+:meth:`OnlineCompensator.malformed`."""
 SENSORS: tuple[str, str] = ('accel', 'gyro')
 """The sensors of a driver's Imu message, in the order of its six values."""
 
@@ -480,7 +485,8 @@ class OnlineCompensator:
         self._sensors_apart = channel != MAG_CHANNEL and not counts
         """Whether the input is a driver's Imu, whose messages may carry one sensor each."""
         self.dropped: dict[str, int] = dict.fromkeys(
-            (*ONLINE_DROP_REASONS, *SIGNAL_DROP_REASONS, *(IMU_DROP_REASONS if self._sensors_apart else ())), 0)
+            (*ONLINE_DROP_REASONS, *SIGNAL_DROP_REASONS, *(IMU_DROP_REASONS if self._sensors_apart else ()),
+             *RAW_DROP_REASONS), 0)
         self.one_sensor_messages = 0
         """Driver Imu messages received that mark one sensor (or both) absent."""
         self.sensor_dropped: dict[str, int] = {}
@@ -503,7 +509,7 @@ class OnlineCompensator:
         self._throttles = {kind: _Throttle(warn_period_s) for kind in (
             WAITING_FOR_TEMPERATURE, STALE_TEMPERATURE, 'out_of_range', 'temperature_rejected',
             'stamp_order', 'correction', 'message_lost', 'sequence_gap', WAITING_FOR_SIGNAL, STALE_SIGNAL,
-            'signal_rejected')}
+            'signal_rejected', MALFORMED)}
         self._signals: tuple[str, ...] = ()
         self._signal_values: dict[str, float] = {}
         self._signal_arrival_s: dict[str, float] = {}
@@ -752,6 +758,26 @@ class OnlineCompensator:
             self._notice(Level.OK, STALE_TEMPERATURE,
                          f'{self._temperature_word} on {self.temp_topic} fresh again ({temperature:g})')
         return True
+
+    def malformed(self, temperature: bool, detail: str, now_s: float) -> None:
+        """A message whose bytes are no message of its type arrived at ``now_s`` (the node's raw path).
+
+        An input message is received and dropped (``malformed``); a temperature message is received and
+        rejected (the last good one stays). Reported (WARN, throttled) with ``detail``, one line.
+        """
+        if temperature:
+            self.temperature_messages += 1
+            self.temperature_rejected += 1
+            kind, count, outcome = ('temperature_rejected', self.temperature_rejected,
+                                    f'ignored; keeping the last {self._temperature_word}')
+        else:
+            self.received += 1
+            self.dropped[MALFORMED] += 1
+            kind, count, outcome = MALFORMED, self.dropped[MALFORMED], 'dropped'
+        throttle = self._throttles[kind]
+        if throttle.due(now_s):
+            held = throttle.take_held_back()
+            self._notice(Level.WARN, kind, f'{detail}: {outcome} ({count} so far{self._since(held)})')
 
     @property
     def signals(self) -> tuple[str, ...]:

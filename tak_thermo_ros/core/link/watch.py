@@ -89,7 +89,8 @@ SLOPE_SPAN_C = 1.0
 """The slope alternative is tested once the rests span at least this many degrees C."""
 TURN_ON_SIGMAS = 5.0
 """A run's turn-on offset is taken (``turn_on: first_rest``) within this many standard deviations
-of the repeatability (and the rest's own noise); beyond, it is no turn-on offset but a changed curve."""
+of the repeatability (and the rest's own noise); beyond, it is not taken, and the line says by how much
+(what moved it, the watch's tests tell: the offset alone cannot)."""
 OUTLIER_SIGMAS = 4.0
 """Learning leaves out a rest whose innovation lies beyond this many standard deviations."""
 OUTLIERS_IN_A_ROW = 3
@@ -103,6 +104,8 @@ VERTICAL_AXIS_COSINE = math.cos(math.radians(30.0))
 OFFSET_BOUND_SIGMAS = 6.0
 """Learning bounds a gyroscope axis's offset correction to this many turn-on repeatabilities
 (or, without one, to the offset curve's own span over the calibrated range)."""
+VARIANCE_BOUNDS = 1000.0
+"""A learned correction's variance read back is at most the square of this many bounds (a spread, not a value)."""
 SLOPE_PRIOR_SHARE = 0.5
 """The prior of a slope correction: its standard deviation is this share of the curve's largest slope."""
 CHANNELS = ('gyro x', 'gyro y', 'gyro z', 'accel')
@@ -275,7 +278,9 @@ class RestFinder:
         period = int(np.median(np.diff(measured)))
         self.period_ns = period
         self.window_ns = max(int(WINDOW_S * 1e9), MIN_WINDOW_SAMPLES * period)
-        self._min_samples = max(MIN_WINDOW_SAMPLES, int(0.5 * self.window_ns / period))
+        # a window that lost a sample or two (a non-finite message dropped) is still judged: at a low rate
+        # it holds MIN_WINDOW_SAMPLES, and one missing would end every rest it falls in (2 % of them: most)
+        self._min_samples = max(MIN_WINDOW_SAMPLES * 3 // 4, int(0.5 * self.window_ns / period))
         window_s = self.window_ns * 1e-9
         self._sigma2 = np.concatenate([window_variance(noise, period * 1e-9, window_s) for noise in self._noise])
         self._sigma = np.maximum(np.sqrt(self._sigma2), 1e-300)
@@ -571,7 +576,7 @@ class CalibrationWatch:
         self.reference = learner.reference if learner is not None else float(unit.gyro.temp_code_ref)  # type: ignore
         """The temperature the adjustment's slope is counted from."""
         self._pairs: dict[tuple[int, int, int], float] = {}
-        self._turn_on_sd = tuple(unit.sensor(sensor).turn_on for sensor in ('accel', 'gyro'))
+        self._turn_on_sd = tuple(unit.sensor(sensor).known_turn_on for sensor in ('accel', 'gyro'))
         if learner is not None:
             self._set_adjustment(learner.adjustment())
         self._block_adjustment = self.adjustment
@@ -856,7 +861,7 @@ class CalibrationWatch:
                 gyro_taken.append(f'{"xyz"[channel]} {residual * DEG_PER_H:+.3g}')
             else:
                 refused.append(f'gyro {"xyz"[channel]} {residual * DEG_PER_H:+.4g} deg/h ({abs(residual) / sigma:.1f} '
-                               f'sigma)')
+                               f'sigma; repeatability {gyro_sd.repeatability[channel] * DEG_PER_H:.3g})')
         if gyro_taken:
             taken.append(f'gyro {" ".join(gyro_taken)} deg/h')
         if accel_sd is not None and self.gravity_known:
@@ -870,13 +875,14 @@ class CalibrationWatch:
                     offset[axis] = size
                     taken.append(text)
                 else:
-                    refused.append(f'{text} ({abs(size) / sigma:.1f} sigma)')
+                    refused.append(f'{text} ({abs(size) / sigma:.1f} sigma; repeatability '
+                                   f'{accel_sd.repeatability[axis] * MG:.3g})')
         self.turn_on_offset = offset
         if taken:
             self.turn_on_lines.append(f'turn-on offset taken at rest 1: {"; ".join(taken)}')
         if refused:
-            self.turn_on_lines.append(f'turn-on offset not taken, beyond {TURN_ON_SIGMAS:g} sigma of the repeatability '
-                                      f'(a changed curve): {"; ".join(refused)}')
+            self.turn_on_lines.append(f'turn-on offset not taken at rest 1, beyond {TURN_ON_SIGMAS:g} sigma of the '
+                                      f'file\'s repeatability and the rest\'s noise: {"; ".join(refused)}')
         self.notices.extend(self.turn_on_lines)
         self._set_adjustment((tuple(float(v) for v in offset), (0.0,) * 6))
 
@@ -965,6 +971,8 @@ def turn_on_unavailable(unit: UnitCalibration) -> str:
     if unit.gyro is not None and unit.gyro.turn_on is None:
         return ('gyro turn_on section (the turn-on repeatability, fitted from several records: '
                 'tak_calib fit REC REC ...)')
+    if unit.gyro is not None and unit.gyro.known_turn_on is None:
+        return f'gyro turn-on repeatability ({unit.gyro.turn_on.why_not()})'  # type: ignore[union-attr]
     return ''
 
 
@@ -1058,6 +1066,23 @@ def calibration_digest(unit: UnitCalibration) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+def check_learned(unit: UnitCalibration, state: LearnedState, where: str) -> None:
+    """The learned corrections within the bounds learning keeps on ``unit``: bounded where read as where learned.
+
+    Every command reads a learned file's ``learned`` section so (against the file's own curve), the node its
+    ``learned_file`` on its calibration: a correction beyond the bound (a hand-edited file, ``1e300``) is
+    refused in one line naming the bound (:meth:`Learner._check_start`), never applied.
+
+    :raises TakError: ``WHERE: learned.offset[0]: ... lies beyond the bound ...``.
+    """
+    if unit.input_kind is not InputKind.IMU or unit.gyro is None:
+        return
+    try:
+        Learner(unit, replace(state, original=calibration_digest(unit)))
+    except TakError as err:
+        raise TakError(f'{where}: {err}') from None
+
+
 def learned_unit(unit: UnitCalibration, state: LearnedState) -> UnitCalibration:
     """The calibration with the learned corrections folded into the gyroscope's curve (a file ``tak_calib`` reads).
 
@@ -1118,7 +1143,7 @@ class Learner:
         if not self.start.original:
             self.start = replace(self.start, reference=reference, original=calibration_digest(self.unit))
         self.reference = self.start.reference
-        turn_on = gyro.turn_on
+        turn_on = gyro.known_turn_on
         self.repeatability = np.array(turn_on.repeatability) if turn_on is not None else None
         low, high = gyro.temp_code_min, gyro.temp_code_max
         grid = np.linspace(low - gyro.temp_code_ref, high - gyro.temp_code_ref, 201)
@@ -1136,12 +1161,45 @@ class Learner:
             self.offset_bound = np.maximum(self.offset_bound, OFFSET_BOUND_SIGMAS * self.repeatability)
         self.offset_prior = self.offset_bound / 2.0
         """The prior of the persistent offset correction before any run: the curve may have moved by this much."""
+        self._check_start(gyro)
         self._filters = []
         for axis in range(3):
             persistent = self.start.offset_variance[axis] if self.start.runs else self.offset_prior[axis] ** 2
             offset_variance = (self.repeatability[axis] ** 2 if self.repeatability is not None else 0.0) + persistent
             slope_variance = (self.start.slope_variance[axis] if self.start.runs else self.slope_prior[axis] ** 2)
             self._filters.append(_AxisFilter(np.zeros(2), np.diag([offset_variance, slope_variance])))
+
+    @property
+    def total_offset_bound(self) -> np.ndarray:
+        """``(3,)`` the largest offset correction learning keeps (rad/s): the curve's, and a run's own turn-on."""
+        return self.offset_bound + (TURN_ON_SIGMAS * self.repeatability if self.repeatability is not None else 0.0)
+
+    def _check_start(self, gyro: Calibration) -> None:
+        """What earlier runs learned, within the bounds learning keeps on this calibration (as read, as learned).
+
+        :raises TakError: one line naming the value and the bound (a hand-edited or foreign learned file).
+        """
+        start = self.start
+        low, high = gyro.temp_code_min, gyro.temp_code_max
+        if not low - 1e-9 <= start.reference <= high + 1e-9:
+            msg = (f'learned.reference: {start.reference:.6g} C lies outside the calibration\'s range '
+                   f'{low:.4g}..{high:.4g} C: not applied')
+            raise TakError(msg)
+        bounds = (('offset', 'deg/h', self.total_offset_bound), ('slope', 'deg/h/C', self.slope_bound))
+        for name, units, bound in bounds:
+            values, variances = getattr(start, name), getattr(start, f'{name}_variance')
+            for axis in range(3):
+                # the learning clips at the bound itself: a value read back is within it (float for float)
+                limit = float(bound[axis]) * (1.0 + 1e-9)
+                if abs(values[axis]) > limit:
+                    msg = (f'learned.{name}[{axis}]: {values[axis] * DEG_PER_H:+.4g} {units} lies beyond the bound '
+                           f'learning keeps on this calibration, +-{bound[axis] * DEG_PER_H:.4g} {units}: not applied')
+                    raise TakError(msg)
+                if variances[axis] > (VARIANCE_BOUNDS * limit) ** 2:  # no filter's spread grows so: not a value
+                    msg = (f'learned.{name}_variance[{axis}]: a spread of {math.sqrt(variances[axis]) * DEG_PER_H:.4g} '
+                           f'{units} lies beyond {VARIANCE_BOUNDS:g} times the bound learning keeps on this '
+                           f'calibration ({bound[axis] * DEG_PER_H:.4g} {units}): not applied')
+                    raise TakError(msg)
 
     def start_curve(self, temperature: float) -> np.ndarray:
         """``(3,)`` the learned correction in force at the run's start, at a temperature."""
@@ -1192,8 +1250,7 @@ class Learner:
             covariance = keep @ axis_filter.covariance @ keep.T + np.outer(gain, gain) * noise
             axis_filter.covariance = 0.5 * (covariance + covariance.T)
             total_offset = self.start.offset[axis] + axis_filter.state[0]
-            bound = self.offset_bound[axis] + (TURN_ON_SIGMAS * self.repeatability[axis]
-                                               if self.repeatability is not None else 0.0)
+            bound = self.total_offset_bound[axis]
             axis_filter.state[0] = float(np.clip(total_offset, -bound, bound)) - self.start.offset[axis]
             total_slope = self.start.slope[axis] + axis_filter.state[1]
             axis_filter.state[1] = float(np.clip(total_slope, -self.slope_bound[axis], self.slope_bound[axis])) \

@@ -245,9 +245,10 @@ def recognise(fitted_from: Sequence[RecordPrint], seen: RecordPrint | None,
         low, high = max(seen.first_stamp_ns, stored.first_stamp_ns), min(seen.last_stamp_ns, stored.last_stamp_ns)
         if low > high:
             continue
-        # Only the segments this record holds whole: those strictly between its first and last.
-        first = max(seen.first_stamp_ns // stored.segment_ns + 1, stored.segment_first)
-        last = min(seen.last_stamp_ns // stored.segment_ns, stored.segment_first + len(stored.segments))
+        # Only the segments both records hold whole: those strictly inside the stamps they share (a
+        # record that holds the fitted one and more differs from it in the fitted one's edge segments).
+        first = low // stored.segment_ns + 1
+        last = high // stored.segment_ns
         reference = stored.segment_digests()
         inner = [index for index in range(first, last) if index in reference or index in own]
         if any(reference.get(index) != own.get(index) for index in inner):
@@ -272,13 +273,40 @@ IN_SAMPLE_MEANS = {
 """What an in-sample figure does and does not show, per command (the second line)."""
 
 
-def in_sample_lines(found: Recognition | None, *, record: str, params: str, command: str) -> list[str]:
-    """The first lines of ``validate`` and ``diagnose`` of a record a calibration was fitted from (none otherwise)."""
+def pool_in_sample_lines(found: Sequence[tuple[str, Recognition | None]], *, params: str, command: str,
+                         records: int) -> list[str]:
+    """The first lines of ``validate`` of a pool that holds records a calibration was fitted from (none otherwise).
+
+    :param found: each record's name and :func:`recognise` (``None``: not one of them).
+    :param records: how many records the calibration was fitted from.
+    """
+    inside = [(name, recognition) for name, recognition in found if recognition is not None]
+    if len(found) == 1 or not inside:
+        return [] if not inside else in_sample_lines(inside[0][1], record=inside[0][0], params=params,
+                                                     command=command, records=records)
+    if len(inside) == len(found) and all(recognition.kind == IN_SAMPLE_WHOLE for _, recognition in inside):
+        fitted = 'the pool' if len(found) == records else f'{len(found)} of the {records} records'
+        first = f'in-sample: these {len(found)} records are {fitted} {params} was fitted from (the same samples)'
+    else:
+        names = ', '.join(name for name, _ in inside[:3]) + (', ...' if len(inside) > 3 else '')
+        verb = 'holds' if len(inside) == 1 else 'hold'
+        first = (f'in-sample: {len(inside)} of the {len(found)} records {verb} samples {params} was fitted from '
+                 f'({names})')
+    return [first, f'  {IN_SAMPLE_MEANS[command]}']
+
+
+def in_sample_lines(found: Recognition | None, *, record: str, params: str, command: str,
+                    records: int = 1) -> list[str]:
+    """The first lines of ``validate`` and ``diagnose`` of a record a calibration was fitted from (none otherwise).
+
+    :param records: how many records the calibration was fitted from (a pool: one of them).
+    """
     if found is None:
         return []
     fitted = found.fitted.name
     if found.kind == IN_SAMPLE_WHOLE:
-        first = f'in-sample: {record} is the record {params} was fitted from (the same samples)'
+        which = 'the record' if records == 1 else f'one of the {records} records'
+        first = f'in-sample: {record} is {which} {params} was fitted from (the same samples)'
     elif found.kind == IN_SAMPLE_PART:
         start = found.start_s / 60.0
         first = (f'in-sample: {record} is {start:.1f}..{start + found.overlap_s / 60.0:.1f} min of {fitted}, '

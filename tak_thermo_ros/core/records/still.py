@@ -69,6 +69,8 @@ class StillIntervals:
     :param first_ns: the record's first stamp (``None``: no sample).
     :param last_ns: its last stamp.
     :param count: samples read.
+    :param moved_deg: the largest angle between a window's mean specific force and the intervals' mean
+        up direction, degrees (0 without an interval): how far the unit turned away from its rests.
     """
 
     start_ns: np.ndarray
@@ -84,6 +86,7 @@ class StillIntervals:
     first_ns: int | None
     last_ns: int | None
     count: int
+    moved_deg: float = 0.0
 
     def __len__(self) -> int:
         return len(self.start_ns)
@@ -270,6 +273,12 @@ class StillDetector:
                 continue
             intervals.append((first[run[0]], last[run[-1]], len(run) * w, mean[run].mean(axis=0)))
         gaps = np.array(self._gaps, dtype=np.int64).reshape(-1, 2)
+        moved = 0.0
+        if intervals:
+            up = np.mean([i[3][:3] / max(float(np.linalg.norm(i[3][:3])), 1e-300) for i in intervals], axis=0)
+            norms = np.linalg.norm(mean[:, :3], axis=1) * max(float(np.linalg.norm(up)), 1e-300)
+            cosine = np.clip(mean[:, :3] @ up / np.where(norms > 0.0, norms, np.inf), -1.0, 1.0)
+            moved = float(np.degrees(np.arccos(cosine)).max())
         return StillIntervals(
             start_ns=np.array([i[0] for i in intervals], dtype=np.int64),
             end_ns=np.array([i[1] for i in intervals], dtype=np.int64),
@@ -277,7 +286,7 @@ class StillDetector:
             mean=np.array([i[3] for i in intervals]).reshape(-1, channels),
             noise=noise, window_samples=w, period_s=self.period_s, windows=len(rows),
             still_windows=int(np.count_nonzero(still)), gaps=gaps, first_ns=self._first, last_ns=self._last,
-            count=self.count)
+            count=self.count, moved_deg=moved)
 
     def _runs(self, still: np.ndarray, after_gap: np.ndarray, mean: np.ndarray, noise: np.ndarray) -> list[np.ndarray]:
         """Runs of consecutive still windows whose means agree (indices of windows)."""

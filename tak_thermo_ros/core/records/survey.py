@@ -10,9 +10,17 @@ which fit a record gets:
 - reference topics recorded: a **table** run (the references are the truth);
 - none, and the unit rests in two or more orientations: a **hand-held** record
   (:mod:`~tak_thermo_ros.core.fit.handheld`);
+- none, rests in one orientation and the unit moving between them (still less than
+  :data:`STATIC_STILL_FRACTION` of the time, or turned away from them by more than
+  :data:`~tak_thermo_ros.core.records.static_run.STATIC_TOLERANCE_DEG`): an **everyday**
+  record, a pool of one (:mod:`~tak_thermo_ros.passes.pool`: a vehicle at rest near level,
+  moving in between);
 - none, one orientation or none found: a **static** run (gravity along the mean measured
   direction; the static path refuses a unit that moved);
 - none, and the unit never rests: **moving**, nothing to fit.
+
+A reference in one direction only (an imported static log's) makes a **static** run as well: it
+holds one input per axis, so every scale is held, as without one.
 """
 
 from __future__ import annotations
@@ -25,10 +33,16 @@ import numpy as np
 
 from tak_thermo_ros.core.records.plausible import temperature_counts, temperature_counts_problem
 from tak_thermo_ros.core.records.record import REFERENCE_LIMIT, TEMPERATURE_RANGE, ChannelRecord, DriverRecord
+from tak_thermo_ros.core.records.static_run import STATIC_TOLERANCE_DEG
 from tak_thermo_ros.core.records.still import ORIENTATION_DEG, StillDetector, StillIntervals, distinct_directions
 
 MOVING_FRACTION = 0.5
 """A record without a still interval whose windows are still less than this share of the time never rests."""
+STATIC_STILL_FRACTION = 0.8
+"""A static run is still at least this share of its windows (a chamber's: 95-100 %); rests in one
+orientation that take less are an everyday record's (a vehicle's: a third to two thirds)."""
+TURNING_RATE = 1e-3
+"""rad/s: a rate reference beyond this turns the unit (the Earth's rate is 7.3e-5)."""
 
 
 class Plan(str, enum.Enum):
@@ -37,6 +51,7 @@ class Plan(str, enum.Enum):
     TABLE = 'table'
     STATIC = 'static'
     HANDHELD = 'handheld'
+    EVERYDAY = 'everyday'
     MOVING = 'moving'
 
 
@@ -78,6 +93,8 @@ class RecordSurvey:
     shared_stamps: bool = True
     temperature_problem: str | None = None
     """Why a driver's temperatures are not degrees Celsius (:mod:`~.plausible`), or ``None``."""
+    rate_reference_moves: bool = False
+    """A recorded rate reference that turns (a rate table), not zero or the Earth's rate alone."""
 
     @property
     def has_reference(self) -> bool:
@@ -98,10 +115,12 @@ class RecordSurvey:
 def fit_plan(survey: RecordSurvey) -> Plan:
     """The one decision of which fit a record gets (see the module's description)."""
     if survey.has_reference:
-        return Plan.TABLE
+        return Plan.TABLE if survey.reference_directions != 1 or survey.rate_reference_moves else Plan.STATIC
     still = survey.still
     if still.orientations() >= 2:
         return Plan.HANDHELD
+    if len(still) and (still.still_fraction < STATIC_STILL_FRACTION or still.moved_deg > STATIC_TOLERANCE_DEG):
+        return Plan.EVERYDAY
     if not len(still) and still.windows and still.still_fraction < MOVING_FRACTION:
         return Plan.MOVING
     return Plan.STATIC
@@ -120,6 +139,7 @@ class SurveyCollector:
         self.references: list[np.ndarray] = []
         self.reference_count = 0
         self.rate_references = 0
+        self.rate_reference_max = 0.0
         self.mags = 0
         self.total = np.zeros(3)
         self.finite = 0
@@ -135,6 +155,9 @@ class SurveyCollector:
                 stamps, values = block.sensor_stamps('accel'), block.accel
             temperature, reference = block.temperature, block.reference
             self.rate_references += len(block.rate_reference_stamp_ns)
+            rates = block.rate_reference[np.all(np.isfinite(block.rate_reference), axis=1)]
+            if len(rates):
+                self.rate_reference_max = max(self.rate_reference_max, float(np.linalg.norm(rates, axis=1).max()))
             self.mags += len(block.mag_stamp_ns)
         else:
             stamps, values = block.counts_stamp_ns, block.counts
@@ -179,4 +202,5 @@ class SurveyCollector:
             temperature=(self.low, self.high) if self.low <= self.high else None, still=still,
             reference_directions=(len(self.references[0]) if self.references else 0) if self.reference_count else None,
             mean=self.total / self.finite if self.finite else np.zeros(3), samples=self.finite,
-            shared_stamps=self.shared_stamps, temperature_problem=temperature_counts_problem(*self.unit_counts))
+            shared_stamps=self.shared_stamps, temperature_problem=temperature_counts_problem(*self.unit_counts),
+            rate_reference_moves=self.rate_reference_max > TURNING_RATE)
