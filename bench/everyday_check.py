@@ -37,7 +37,12 @@ from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.records.handheld import pooled
 from tak_thermo_ros.core.records.record import align
 from tak_thermo_ros.core.records.still import find_still
-from tak_thermo_ros.core.simulation.everyday import everyday_scenario, everyday_truth, simulate_everyday_record
+from tak_thermo_ros.core.simulation.everyday import (
+    everyday_scenario,
+    everyday_truth,
+    second_everyday,
+    simulate_everyday_record,
+)
 from tak_thermo_ros.core.simulation.imu import RATE_TABLE_POSITIONS, RATE_TABLE_RATES, simulate
 
 ANDROID_BIN_C = 0.75
@@ -46,8 +51,16 @@ EDGE_S = 0.5
 """The judge's rests: the true rests without this much at each end."""
 
 
-def month(seed: int, *, records: int, held_out: int, minutes: float, rate_hz: float):
-    """The scenario and habits of a month of ``records + held_out`` records."""
+SETTINGS = ('first', 'second')
+"""The everyday simulator's settings: the one the pool was built on, and a second one apart from it
+(:func:`~tak_thermo_ros.core.simulation.everyday.second_everyday`: a unit drawn per seed, tilts up to 15
+deg, other habits and noise)."""
+
+
+def month(seed: int, *, records: int, held_out: int, minutes: float, rate_hz: float, setting: str = 'first'):
+    """The scenario and habits of a month of ``records + held_out`` records in one of :data:`SETTINGS`."""
+    if setting == 'second':
+        return second_everyday(seed, records=records + held_out, record_minutes=minutes, rate_hz=rate_hz)
     return everyday_scenario({'sample_rate_hz': rate_hz, 'seed': seed,
                               'everyday': {'records': records + held_out, 'record_minutes': minutes}})
 
@@ -151,17 +164,66 @@ def _corrector(unit: UnitCalibration, sensor: str):
     return lambda values, temperature: corrector.correct(values, temperature)
 
 
+def offset_errors(calibration) -> np.ndarray:
+    """``(3,)`` the accelerometer offsets' standard errors from the file's ``uncertainty``, given its couplings.
+
+    The file's covariance of the offsets at the reference temperature, conditional on the couplings'
+    errors (the Schur complement): near level a coupling into the gravity axis acts as an offset
+    (``g c_zx u_x`` as ``b_x u_x``), so the offsets are stated for the couplings the file holds
+    (the simulated triad is orthogonal: its couplings are 0). ``nan`` without the section.
+    """
+    uncertainty = calibration.uncertainty
+    if uncertainty is None:
+        return np.full(3, np.nan)
+    names = uncertainty.terms
+    offsets = [names.index(f'{axis}.offset') for axis in 'xyz']
+    couplings = [j for j, name in enumerate(names) if name.startswith('c_')]
+    matrix = uncertainty.covariance
+    conditional = matrix[np.ix_(offsets, offsets)]
+    if couplings:
+        across = matrix[np.ix_(offsets, couplings)]
+        conditional = conditional - across @ np.linalg.pinv(matrix[np.ix_(couplings, couplings)]) @ across.T
+    return np.sqrt(np.maximum(np.diag(conditional), 0.0))
+
+
+def offset_coverage(calibration, truth: UnitCalibration) -> dict[str, list]:
+    """The accelerometer offsets x y z at the file's reference temperature: value, standard error, truth (m/s^2)."""
+    reference = calibration.temp_code_ref
+    return {'fitted': [float(axis.offset) for axis in calibration.axes],
+            'error': offset_errors(calibration).tolist(),
+            'truth': [float(axis.offset + axis.offset_drift(reference - truth.accel.temp_code_ref))
+                      for axis in truth.accel.axes]}
+
+
+def _orders(calibration) -> dict[str, list[int]]:
+    """The orders a pool's file notes say were chosen (``offset order ... x y z 3 3 3``)."""
+    found = {}
+    for note in calibration.notes:
+        if 'offset order' in note:
+            sensor = 'gyro' if note.startswith('gyroscope') else 'accel'
+            found[sensor] = [int(word) for word in note.split(',')[0].split()[-3:]]
+    return found
+
+
 def check_seed(seed: int, *, records: int = 16, held_out: int = 4, minutes: float = 30.0, rate_hz: float = 50.0,
-               chamber_rate_hz: float = 10.0) -> dict[str, object]:
-    """One seed's figures (see the module's description)."""
-    scenario, habits = month(seed, records=records, held_out=held_out, minutes=minutes, rate_hz=rate_hz)
+               chamber_rate_hz: float = 10.0, setting: str = 'first', pool_file=None) -> dict[str, object]:
+    """One seed's figures (see the module's description).
+
+    :param pool_file: the pool's calibration file as ``tak_calib fit`` wrote it (``None``: fitted here, in memory).
+    """
+    from tak_thermo_ros.formats.calibration_file import load_unit
+    scenario, habits = month(seed, records=records, held_out=held_out, minutes=minutes, rate_hz=rate_hz,
+                             setting=setting)
     training = [simulate_everyday_record(scenario, habits, index) for index in range(records)]
     record = pool_of(training)
     truth_offsets = np.array([item.turn_on['gyro'] for item in training])
     del training
-    fitted = fit_pool(record, HandheldSettings())
-    ours = UnitCalibration(InputKind.IMU, fitted.fit.results['accel'].calibration,
-                           fitted.fit.results['gyro'].calibration)
+    if pool_file is None:
+        fitted = fit_pool(record, HandheldSettings())
+        ours = UnitCalibration(InputKind.IMU, fitted.fit.results['accel'].calibration,
+                               fitted.fit.results['gyro'].calibration)
+    else:
+        ours = load_unit(pool_file)
     slope, intercept = android_line(record)
     units = {'pool': ours, 'chamber': chamber(scenario, habits, seed, chamber_rate_hz),
              'truth': everyday_truth(scenario, habits)}
@@ -185,19 +247,21 @@ def check_seed(seed: int, *, records: int = 16, held_out: int = 4, minutes: floa
                     gravity[name].append(magnitude)
         total += len(simulated.up)
         outside += len(simulated.up) - len(gyro['pool'][-1][0])
-    variances = fitted.fit.turn_on['gyro'].variances
+    turn_on = ours.gyro.turn_on
+    spread, spread_error = np.array(turn_on.repeatability), np.array(turn_on.repeatability_error)
     true_spread = habits.turn_on('gyro')
-    covered = np.abs(variances.turn_on - true_spread) <= 2.0 * variances.turn_on_error
+    covered = np.abs(spread - true_spread) <= 2.0 * spread_error
     return {
         'seed': seed,
         'gyro_shape_rms': {name: shape_rms(values).tolist() for name, values in gyro.items()},
         'gyro_shape_rms_all_rests': {name: shape_rms(values).tolist() for name, values in gyro_all.items()},
         'rests_outside_pool_range': outside, 'rests': total,
         'gravity_rms': {name: float(np.sqrt(np.mean(np.concatenate(values) ** 2))) for name, values in gravity.items()},
-        'repeatability': variances.turn_on.tolist(), 'repeatability_error': variances.turn_on_error.tolist(),
+        'repeatability': spread.tolist(), 'repeatability_error': spread_error.tolist(),
         'true_repeatability': true_spread.tolist(),
         'sample_spread': truth_offsets.std(axis=0, ddof=1).tolist(),
         'covered': covered.tolist(),
-        'orders': {sensor: list(choice.orders) for sensor, choice in fitted.orders.items()},
-        'left_out': [left.name for left in fitted.left_out],
+        'orders': _orders(ours.gyro),
+        'accel_offsets': offset_coverage(ours.accel, units['truth']),
+        'left_out': [note.split(':')[0] for note in ours.gyro.notes if 'left out' in note],
     }

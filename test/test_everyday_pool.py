@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 from tak_thermo_ros import cli
-from tak_thermo_ros.core.simulation.everyday import everyday_scenario, simulate_everyday_record
+from tak_thermo_ros.core.simulation.everyday import everyday_scenario, everyday_truth, simulate_everyday_record
 from tak_thermo_ros.formats.bag import write_driver_record
 from tak_thermo_ros.formats.calibration_file import load_unit
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'bench'))
-from everyday_check import check_seed  # noqa: E402
+from everyday_check import check_seed, offset_errors  # noqa: E402
 
 MONTH = {'sample_rate_hz': 10.0, 'seed': 21, 'everyday': {'records': 7, 'record_minutes': 10.0}}
 """Seven records of about 10 minutes at 10 Hz (6,000 Imu messages each)."""
@@ -68,7 +68,7 @@ def test_fit_a_directory_of_records_one_line_each_then_the_pool(month, capsys, t
         assert 'rests' in line and 'min at rest' in line and 'orientation' in line
     assert any(line.startswith('pool: 5 of 5 records') for line in lines)
     assert any(line.startswith('pool: heating at') for line in lines)
-    assert any('determine the gravity axis z only' in line for line in lines)
+    assert any('the tilts determine the offsets on x y' in line for line in lines)
     assert any(line.startswith('gyroscope: turn-on repeatability x y z') for line in lines)
     unit = load_unit(params)
     turn_on = unit.gyro.turn_on
@@ -77,8 +77,13 @@ def test_fit_a_directory_of_records_one_line_each_then_the_pool(month, capsys, t
     # five power-ups: the spread is known to about a third; within three of its errors of the draws' own
     assert np.all(np.abs(np.array(turn_on.repeatability) - truth) < 3.0 * np.array(turn_on.repeatability_error)
                   + 2e-5)
-    assert unit.accel.turn_on is None  # near level: x and y undetermined
-    assert any('turn_on not written' in note for note in unit.accel.notes)
+    # within 3 deg of level the tilts tell the x and y offsets (b . u in |f|), to about a mg
+    truth = everyday_truth(*everyday_scenario(MONTH)).accel
+    errors = offset_errors(unit.accel)
+    for axis in range(2):
+        true = truth.axes[axis].offset + truth.axes[axis].offset_drift(unit.accel.temp_code_ref - truth.temp_code_ref)
+        assert errors[axis] < 2e-2 and abs(unit.accel.axes[axis].offset - true) < 4.0 * errors[axis]
+    assert 'x.offset' not in unit.accel.uncertainty.held and 'z.scale' in unit.accel.uncertainty.held
     assert unit.source['format'] == 'pool'
 
 
@@ -261,22 +266,26 @@ def test_a_record_whose_temperatures_are_in_kelvin_is_said_in_one_line_and_not_p
     assert any(line.startswith('pool: 2 of 3 records') for line in lines), lines
 
 
-def test_a_month_against_the_chamber_and_androids_line_short():
+@pytest.mark.parametrize('setting', ['first', 'second'])
+def test_a_month_against_the_chamber_and_androids_line_short(setting):
     """Two seeds of a small month (8 records pooled, 3 held out): the pool's bias shape near the floor and the chamber.
 
-    The long run (20 seeds of 16 records) is bench/bench_everyday.py. Here: the gyroscope's bias
-    shape at the held-out rests within 1.2x the chamber calibration's and 2x the floor, over the
-    seeds; Android's straight line well above; |f| within 1.2x the chamber's or 2x the floor; the
-    repeatability within 2 of its errors on most axes.
+    The long run (20 seeds of 16 records, both settings) is bench/bench_everyday.py. Here, on the
+    setting the pool was built on and on the second one (a unit drawn apart, tilts up to 15 deg):
+    the gyroscope's bias shape at the held-out rests within 1.2x the chamber calibration's and 2x
+    the floor on every axis, over the seeds; Android's straight line above; |f| within 1.2x
+    the chamber's or 2x the floor; the repeatability within 2 of its errors on most axes.
     """
-    rows = [check_seed(seed, records=8, held_out=3, minutes=12.0, rate_hz=10.0, chamber_rate_hz=5.0)
-            for seed in (1, 2)]
+    rows = [check_seed(seed, records=8, held_out=3, minutes=12.0, rate_hz=10.0, chamber_rate_hz=5.0,
+                       setting=setting) for seed in (1, 2)]
 
-    def shape(name: str) -> float:
-        return float(np.sqrt(np.mean([np.mean(np.square(row['gyro_shape_rms'][name])) for row in rows])))
+    def shape(name: str) -> np.ndarray:
+        return np.sqrt(np.mean([np.square(row['gyro_shape_rms'][name]) for row in rows], axis=0))
 
-    assert shape('pool') <= 1.2 * shape('chamber') and shape('pool') <= 2.0 * shape('truth')
-    assert shape('android') > 1.5 * shape('pool')
+    assert np.all(shape('pool') <= 1.2 * shape('chamber')) and np.all(shape('pool') <= 2.0 * shape('truth'))
+    # Android's line takes each power-up's offset for temperature (1.5x on the first setting's unit; the
+    # second's turn-on spread is smaller beside the 10 Hz noise of these short records: above the pool only)
+    assert np.mean(shape('android')) > (1.5 if setting == 'first' else 1.0) * np.mean(shape('pool'))
     gravity = {name: float(np.sqrt(np.mean([row['gravity_rms'][name] ** 2 for row in rows])))
                for name in ('pool', 'chamber', 'truth')}
     assert gravity['pool'] <= 1.2 * gravity['chamber'] or gravity['pool'] <= 2.0 * gravity['truth']

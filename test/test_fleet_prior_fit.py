@@ -25,7 +25,8 @@ from tak_thermo_ros import cli
 from tak_thermo_ros.core.fit.handheld import HandheldSettings
 from tak_thermo_ros.core.fit.pool import fit_pool
 from tak_thermo_ros.core.fit.prior_fit import fit_with_prior, fleet_from_units, unit_statistics
-from tak_thermo_ros.core.link.model import CurveUncertainty, InputKind, UnitCalibration
+from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
+from tak_thermo_ros.core.link.uncertainty import LinkUncertainty
 from tak_thermo_ros.core.simulation.fleet import Fleet, fleet_unit
 from tak_thermo_ros.errors import CalibrationError
 from tak_thermo_ros.formats.calibration_file import (
@@ -106,8 +107,8 @@ def test_a_new_unit_s_first_hour_with_the_prior_holds_its_later_colder_records(f
     for axis in range(3):
         assert uncertainty.offset_variance(axis, outside) > 2.0 * uncertainty.offset_variance(axis, inside)
     # the records gave the slope where they were, the prior the cubic term
-    shares = uncertainty.records_share[0]
-    assert shares[1] > 0.5 and shares[3] < shares[1]
+    share = dict(zip(uncertainty.terms, uncertainty.records_share))
+    assert share['x.offset_T1'] > 0.5 and share['x.offset_T3'] < share['x.offset_T1']
 
 
 def test_the_prior_s_band_holds_the_units_true_curves(fleet):
@@ -150,7 +151,7 @@ def test_with_weeks_of_records_the_prior_falls_away(fleet):
     for axis in range(3):
         sd = np.sqrt(uncertainty.offset_variance(axis, temperatures - borrowed.temp_code_ref))
         assert np.all(np.abs(difference[:, axis]) < 2.0 * sd + 2e-5), (axis, difference[:, axis], sd)
-        assert uncertainty.records_share[axis][1] > 0.9
+        assert dict(zip(uncertainty.terms, uncertainty.records_share))[f'{"xyz"[axis]}.offset_T1'] > 0.9
 
 
 @pytest.fixture(scope='module')
@@ -185,6 +186,7 @@ def test_fit_fleet_everyday_writes_the_prior_and_each_unit_with_it(fleet_dir, ca
         assert '3 records' in line and 'worst +-' in line
         unit = load_unit(out / f'unit{index:02d}.yaml')
         assert unit.gyro.uncertainty is not None and unit.gyro.uncertainty.prior.startswith('prior.yaml: 4 units')
+        assert unit.gyro.noise is not None and unit.accel.noise is not None  # as plain fit finds it: the watch on
         assert (out / 'logs' / f'unit{index:02d}.txt').is_file()
     shown = [line for line in lines if str(out) not in line]  # a path is as long as it is
     assert all(len(line) <= 100 for line in shown), [line for line in shown if len(line) > 100]
@@ -291,28 +293,31 @@ def test_a_worker_lost_mid_run_loses_nothing(fleet_dir):
 
 
 @settings(max_examples=40, deadline=None)
-@given(st.integers(0, 10_000), st.integers(1, 4))
-def test_an_uncertainty_section_round_trips_and_bad_ones_are_one_line(seed, order):
-    """Any covariance of the offset curve and shares: written and read back equal; a bad value names its key."""
+@given(st.integers(0, 10_000), st.integers(1, 4), st.booleans())
+def test_an_uncertainty_section_round_trips_and_bad_ones_are_one_line(seed, order, held):
+    """A prior's keys in the one ``uncertainty`` section: written and read back equal; a bad value names its key."""
     rng = np.random.default_rng(seed)
-    covariances, shares = [], []
-    for _ in range(3):
-        root = rng.standard_normal((order + 1, order + 1))
-        covariances.append(tuple(float(v) for v in (root @ root.T).ravel()))
-        shares.append(tuple(float(v) for v in rng.uniform(0.0, 1.0, order + 1)))
-    uncertainty = CurveUncertainty(tuple(covariances), 10.0, 35.0, 'records and prior', 'p.yaml: 9 units',
-                                   tuple(shares))
+    terms = tuple(f'{axis}.offset' + (f'_T{k}' if k else '') for axis in 'xyz' for k in range(order + 1))
+    root = rng.standard_normal((len(terms), len(terms)))
+    kept = terms[-1:] if held else ()
+    uncertainty = replace(LinkUncertainty.of(terms, root @ root.T, 18.5, kept, ('prior',) * len(kept)),
+                          source='records and prior', prior='p.yaml: 9 units',
+                          records_share=tuple(float(v) for v in rng.uniform(0.0, 1.0, len(terms))),
+                          records_min=10.0, records_max=35.0)
     from tak_thermo_ros.core.link.model import held_link
     calibration = replace(held_link(temperatures=(20.0, 0.0, 40.0)), thermal='fitted', uncertainty=uncertainty)
     mapping = calibration_to_mapping(calibration)
     again = calibration_from_mapping(yaml.safe_load(yaml.safe_dump(mapping)))
     assert again.uncertainty == uncertainty
-    bad = dict(mapping['uncertainty'])
-    bad['offset_covariance_y'] = bad['offset_covariance_y'][:-1] if order else [1.0, 2.0]
-    with pytest.raises(CalibrationError, match='uncertainty.offset_covariance_y: expected a square number'):
-        calibration_from_mapping({**mapping, 'uncertainty': bad})
-    with pytest.raises(CalibrationError, match='uncertainty.records_share_x'):
-        calibration_from_mapping({**mapping, 'uncertainty': {**mapping['uncertainty'], 'records_share_x': [2.0]}})
+    section = mapping['uncertainty']
+    cases = [({'covariance': section['covariance'][:-1]}, 'uncertainty.covariance: expected'),
+             ({'records_share': [2.0] * len(terms)}, 'uncertainty.records_share: expected'),
+             ({'records_min': 36.0}, 'uncertainty.records_min: expected'),
+             ({'held_from': ['chamber'] * len(kept), 'held': list(kept)} if kept else {'records_max': 'warm'},
+              'uncertainty.held' if kept else 'uncertainty.records_max')]
+    for change, said in cases:
+        with pytest.raises(CalibrationError, match=said):
+            calibration_from_mapping({**mapping, 'uncertainty': {**section, **change}})
 
 
 def test_the_prior_file_round_trips_and_a_bad_key_is_one_line(fleet, tmp_path):

@@ -30,7 +30,7 @@ UNITS = {(InputKind.COUNTS, 'accel'): 'counts', (InputKind.IMU, 'accel'): 'm/s^2
 """The unit of a sensor's residuals and offsets, by input kind."""
 
 SOURCE_WORDS = {'file': 'from a file', 'static_run': 'from a run at constant temperature',
-                'residual': 'from a run whose temperature moves'}
+                'residual': 'from a run whose temperature moves', 'fit': "from the fit's own rests"}
 """What each ``source`` of a noise model says (:data:`~tak_thermo_ros.core.noise.model.SOURCES`)."""
 WIDTH = 100
 """The longest line ``tak_calib`` prints (an error, one line by rule, excepted)."""
@@ -422,6 +422,8 @@ def noise_lines(model, unit: str) -> list[str]:
         _, to_sheet, sheet = units[kind]
         return f' ({numbers(values * to_sheet, 3)} {sheet})'
     floor = ' '.join(significant(tau, 3) if math.isfinite(tau) else 'inf' for tau in taus)
+    if any(model.bias_instability_bound) or any(model.random_walk_bound) or any(model.white_noise_density_error):
+        return _noise_lines_with_errors(model, unit, factor, shown, units)
     lines = [f'  white noise density  {numbers(white, 3)} {shown}/sqrt(Hz){beside(white, "density")}',
              f'  bias instability     {numbers(bias, 3)} {shown}{beside(bias, "rate")}',
              f'  its floor at         {floor} s' + (' (inf: still falling at the longest averaging time)'
@@ -431,6 +433,39 @@ def noise_lines(model, unit: str) -> list[str]:
     ramp = units['ramp'] if units else f'{shown}/s'
     for name, term_unit in (('quantization', integrated), ('rate_ramp', ramp)):
         values = np.asarray(getattr(model, name)) * factor
+        if np.any(values > 0.0):
+            lines.append(f'  {name.replace("_", " "):<20} {numbers(values, 3)} {term_unit}')
+    return lines
+
+
+def _noise_lines_with_errors(model, unit: str, factor: float, shown: str, units) -> list[str]:
+    """A model that states its errors and bounds (``source: fit``): each term per axis ``value+-error`` or ``<=bound``.
+
+    The data sheet's units where the sensor has them (deg/h, mg), else the model's.
+    """
+    def terms(name: str, kind: str, si_unit: str) -> str:
+        values, errors = getattr(model, name), getattr(model, f'{name}_error')
+        bounds = getattr(model, f'{name}_bound', (0.0, 0.0, 0.0))
+        scale, sheet = (units[kind][1], units[kind][2]) if units is not None else (1.0, si_unit)
+        scale *= factor
+        tokens = []
+        for value, error, bound in zip(values, errors, bounds):
+            if value == 0.0 and bound > 0.0:
+                tokens.append(f'<={significant(bound * scale, 2)}')
+            elif error > 0.0:
+                tokens.append(f'{significant(value * scale, 2)}+-{significant(error * scale, 2)}')
+            else:
+                tokens.append(significant(value * scale, 3))
+        return f'{" ".join(tokens)} {sheet}'
+
+    lines = [f'  white noise density  {terms("white_noise_density", "density", f"{shown}/sqrt(Hz)")}',
+             f'  bias instability     {terms("bias_instability", "rate", shown)}',
+             f'  random walk          {terms("random_walk", "walk", walk_unit(unit))}']
+    if any(model.bias_instability_bound) or any(model.random_walk_bound):
+        lines.append('  (<=: not seen between the rests, at most that: the watch takes the bound)')
+    integrated = units['angle'] if units else f'{shown}*s'
+    for name, term_unit in (('quantization', integrated), ('filter_time_constant', 's')):
+        values = np.asarray(getattr(model, name)) * (factor if name == 'quantization' else 1.0)
         if np.any(values > 0.0):
             lines.append(f'  {name.replace("_", " "):<20} {numbers(values, 3)} {term_unit}')
     return lines

@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 from pathlib import Path
 from tak_thermo_ros.cli import common, options
+from tak_thermo_ros.core.fit.link_uncertainty import HeldSpreads
 from tak_thermo_ros.core.link.model import AXES
 from tak_thermo_ros.core.link.model import InputKind
 from tak_thermo_ros.core.link.model import UnitCalibration
@@ -62,6 +63,12 @@ def add_parser(commands) -> argparse.ArgumentParser:
                              'hard and soft iron by an ellipsoid fit, after the thermal link (default: not fitted)')
     parser.add_argument('--settle-time', type=options.seconds_not_negative, default=0.0, metavar='SECONDS',
                         help='leave out samples this long after each reference change (turntable settling)')
+    parser.add_argument('--held-spread', type=options.held_spread, action='append', default=[], metavar='NAME=VALUE',
+                        help='the spread a held term is written with where the records do not bound it (the file\'s '
+                             'uncertainty, the calibration watch\'s), as a data sheet gives it: accel_offset=20 (mg), '
+                             'accel_scale=0.5 (%%), accel_coupling=10 (mrad), gyro_offset=3600 (deg/h), '
+                             '..._offset_drift, ..._scale_drift (per C); default a consumer MEMS data sheet\'s '
+                             '(docs/calibration_file.md)')
     noise_group = parser.add_argument_group('noise model written with the calibration (the node\'s Imu covariances)')
     noise_group.add_argument('--noise', metavar='IMU.yaml',
                              help='a Kalibr-style imu.yaml (noise densities, random walks)')
@@ -85,7 +92,7 @@ def fit_settings(args: argparse.Namespace):
     return FitSettings(effects=effects, bias_order=args.bias_order, scale_order=args.scale_order,
                        temp_code_ref=args.temp_code_ref, settle_time_s=args.settle_time,
                        gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
-                       max_effect_samples=args.effect_samples)
+                       max_effect_samples=args.effect_samples, held_spreads=HeldSpreads(**dict(args.held_spread)))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -130,9 +137,10 @@ def run(args: argparse.Namespace) -> int:
                            magnetometer.calibration if magnetometer is not None else None,
                            _source(args, fitted),
                            fitted_from=(fitted.record_print,) if fitted.record_print is not None else ())
-    noise_line = ''
     if args.noise or args.noise_run or args.noise_from_residual:
         unit, noise_line = _with_noise(args, unit)
+    else:
+        unit, noise_line = _with_fitted_noise(unit, _fitted_noise(fitted, unit, settings))
     applied = ', '.join(f'{sensor} {", ".join(e.name for e in calibration.effects)}'
                         for sensor, calibration in unit.sensors if calibration.effects)
     handheld = fitted.handheld
@@ -189,13 +197,8 @@ def run(args: argparse.Namespace) -> int:
         if handheld is None:
             for note in calibration.notes:
                 print(f'note: {prefix}{note}')
-        noise = unit.sensor(sensor).noise
-        if noise is not None:
-            print(f'  noise model ({common.SOURCE_WORDS[noise.source]}), per axis x y z:')
-            for line in common.noise_lines(noise, unit_name):
-                print(f'  {line}')
-    if noise_line:
-        print(f'{noise_line} (written with the calibration: the node\'s Imu covariances come from it)')
+        _print_noise(unit.sensor(sensor).noise, unit_name)
+    _print_noise_source(noise_line)
     if magnetometer is not None:
         _print_magnetometer(magnetometer, args)
     print(f'wrote {args.output}')
@@ -224,6 +227,52 @@ def _with_noise(args: argparse.Namespace, unit: UnitCalibration) -> tuple[UnitCa
     accel = replace(unit.accel, noise=found.models['accel'])
     gyro = replace(unit.gyro, noise=found.models['gyro']) if unit.gyro is not None else None
     return replace(unit, accel=accel, gyro=gyro), found.line
+
+
+def _fitted_noise(fitted, unit: UnitCalibration, settings) -> dict:
+    """Each fitted sensor's noise model from the record's own stretches (:mod:`tak_thermo_ros.passes.rest_noise`)."""
+    from tak_thermo_ros.passes.rest_noise import rests_noise, streamed_noise
+    if fitted.handheld is not None:
+        return rests_noise(fitted.handheld.record, unit, gravity=settings.gravity, latitude=settings.latitude)
+    found = {}
+    for sensor, windows in fitted.noise_windows.items():
+        if sensor not in fitted.held:
+            noise = streamed_noise(windows, unit.sensor(sensor))
+            if noise is not None:
+                found[sensor] = noise
+    return found
+
+
+def _with_fitted_noise(unit: UnitCalibration, found: dict) -> tuple[UnitCalibration, str]:
+    """The unit with the noise models its fit found (``fit`` without ``--noise``), and the line that says so."""
+    if not found:
+        return unit, ''
+    sensors = {sensor: replace(unit.sensor(sensor), noise=noise.model) for sensor, noise in found.items()}
+    unit = replace(unit, **sensors)
+    first = next(iter(found.values()))
+    what = ' and '.join(common.SENSOR_NAMES[sensor] for sensor in found)
+    where = f'{first.means} {first.kind}' + (f' of {first.records} records' if first.records > 1 else '')
+    lines = [f'noise model of the {what}: from the fit\'s {where} (white noise within them, the wander '
+             f'between them; --noise or --noise-run give another)']
+    shared = [common.SENSOR_NAMES[sensor] for sensor, noise in found.items() if noise.shared]
+    for name in shared:
+        lines.append(f'{name}: its wander seen along the vertical at the rests (|f|): written on x y z alike')
+    return unit, '\n'.join(lines)
+
+
+def _print_noise(noise, unit_name: str) -> None:
+    """A sensor's noise model, one term per line (``fit`` prints it under the sensor's link)."""
+    if noise is None:
+        return
+    print(f'  noise model ({common.SOURCE_WORDS[noise.source]}), per axis x y z:')
+    for line in common.noise_lines(noise, unit_name):
+        print(f'  {line}')
+
+
+def _print_noise_source(noise_line: str) -> None:
+    """Where the noise models written came from, and what reads them."""
+    if noise_line:
+        print(f'{noise_line}\nwritten with the calibration: the calibration watch and the Imu covariances use it')
 
 
 def _nominal(args: argparse.Namespace, nominal: tuple[float, float, float] | None
@@ -389,9 +438,12 @@ def _fit_pool(args: argparse.Namespace, settings) -> int:
     handheld = pool.fit
     results = handheld.results
     unit = pool_unit(fitted)
-    noise_line = ''
     if args.noise or args.noise_run:
         unit, noise_line = _with_noise(args, unit)
+    else:
+        from tak_thermo_ros.passes.rest_noise import rests_noise
+        unit, noise_line = _with_fitted_noise(unit, rests_noise(pool.record, unit, gravity=settings.gravity,
+                                                                latitude=settings.latitude))
     label = prior.label if prior is not None else ''
     save_unit(args.output, unit, header=pool_header(pool.record.records, args.output, label))
     for left in pool.left_out:
@@ -419,7 +471,7 @@ def _fit_pool(args: argparse.Namespace, settings) -> int:
         unit_name = common.UNITS[InputKind.IMU, sensor]
         print_axes(common.SENSOR_NAMES[sensor], calibration, [stats.residual_rms for stats in result.axes], unit_name)
         _print_handheld_terms(sensor, calibration, result)
-    if noise_line:
-        print(f'{noise_line} (written with the calibration: the node\'s Imu covariances come from it)')
+        _print_noise(calibration.noise, unit_name)
+    _print_noise_source(noise_line)
     print(f'wrote {args.output}')
     return 0

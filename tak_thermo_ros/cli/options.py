@@ -126,6 +126,30 @@ def effect_specs(text: str) -> str:
     return text
 
 
+HELD_SPREAD_UNITS = {'offset': {'accel': ('mg', 9.80665e-3), 'gyro': ('deg/h', math.pi / 180.0 / 3600.0)},
+                     'offset_drift': {'accel': ('mg/C', 9.80665e-3), 'gyro': ('deg/h/C', math.pi / 180.0 / 3600.0)},
+                     'scale': {'accel': ('%', 1e-2), 'gyro': ('%', 1e-2)},
+                     'scale_drift': {'accel': ('%/C', 1e-2), 'gyro': ('%/C', 1e-2)},
+                     'coupling': {'accel': ('mrad', 1e-3), 'gyro': ('mrad', 1e-3)}}
+"""``fit --held-spread``'s names (``accel_scale``, ``gyro_offset_drift``, ...) and the units a person gives them in."""
+
+
+def held_spread(text: str) -> tuple[str, float]:
+    """``--held-spread NAME=VALUE``: a held term's default spread, in SI.
+
+    ``VALUE`` in the unit :data:`HELD_SPREAD_UNITS` gives the name (mg, deg/h, %, mrad): a field of
+    :class:`~tak_thermo_ros.core.fit.link_uncertainty.HeldSpreads`.
+    """
+    name, _, value = text.partition('=')
+    sensor, _, kind = name.strip().partition('_')
+    units = HELD_SPREAD_UNITS.get(kind, {}).get(sensor)
+    if units is None:
+        msg = f'{text!r}: expected NAME=VALUE, NAME accel_ or gyro_ and {", ".join(HELD_SPREAD_UNITS)}'
+        raise argparse.ArgumentTypeError(msg)
+    number = float_within(0.0, math.inf, units[0], low_open=True)(value.strip())
+    return f'{sensor}_{kind}', number * units[1]
+
+
 def candidates(text: str) -> str:
     """``diagnose --candidates``: as :func:`effect_specs`, ``library`` standing for every library effect."""
     effect_specs(','.join(part for part in text.split(',') if part.strip() != 'library'))

@@ -23,8 +23,9 @@ A sensor may carry its noise model (``noise``: ``white_noise_density``, ``bias_i
 ``bias_instability_tau``, ``random_walk``, ``quantization``, ``rate_ramp``, three floats each,
 SI units of the corrected output; ``update_rate`` Hz; ``source``; when fitted, the driver's
 filter ``filter_time_constant`` and ``filter_share``, the Gauss-Markov processes
-``gauss_markov`` and ``gauss_markov_time`` as three floats per process, and
-``random_walk_bound``); the Imu covariance then comes from it
+``gauss_markov`` and ``gauss_markov_time`` as three floats per process,
+``random_walk_bound`` and ``bias_instability_bound``, and a fit's standard errors
+``*_error``; every ``tak_calib fit`` writes one); the Imu covariance then comes from it
 (:func:`~tak_thermo_ros.core.link.correction.acceleration_variance`).
 
 The node key is :data:`NODE_KEY` (``/**/compensator``): rcl gives the parameters to a node named
@@ -90,7 +91,6 @@ from tak_thermo_ros.core.link.model import (
     UNIT_CALIBRATION_VERSION,
     AxisModel,
     Calibration,
-    CurveUncertainty,
     MAG_SENSOR,
     SOURCE_KEYS,
     THERMAL_FITTED,
@@ -104,6 +104,7 @@ from tak_thermo_ros.core.link.model import (
     check_plausible,
     check_scale_positive,
 )
+from tak_thermo_ros.core.link.uncertainty import LinkUncertainty
 from tak_thermo_ros.core.records.provenance import RecordPrint
 from tak_thermo_ros.core.noise.model import NoiseModel, noise_model_from_mapping
 from tak_thermo_ros.core.values import finite_number
@@ -425,56 +426,37 @@ def _link_to_mapping(calibration: Calibration, input_kind: InputKind) -> dict[st
                                   'repeatability_error': [float(v) for v in turn_on.repeatability_error],
                                   'records': int(turn_on.records)}
     if calibration.uncertainty is not None:
-        mapping['uncertainty'] = uncertainty_to_mapping(calibration.uncertainty)
+        mapping['uncertainty'] = calibration.uncertainty.to_mapping()
     return mapping
 
 
-UNCERTAINTY_KEYS = ('source', 'prior', 'records_min', 'records_max',
-                    *(f'offset_covariance_{name}' for name in AXES), *(f'records_share_{name}' for name in AXES))
+def _strings(value: Any, key: str) -> tuple[str, ...]:
+    if isinstance(value, str) or not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
+        msg = f'{key}: expected a list of strings'
+        raise CalibrationError(msg)
+    return tuple(value)
 
 
-def uncertainty_to_mapping(uncertainty: CurveUncertainty) -> dict[str, Any]:
-    """A sensor's ``uncertainty`` section (an axis without a covariance or a share has no key)."""
-    mapping: dict[str, Any] = {'source': uncertainty.source, 'records_min': float(uncertainty.records_min),
-                               'records_max': float(uncertainty.records_max)}
-    if uncertainty.prior:  # no empty string among a node's parameters
-        mapping['prior'] = uncertainty.prior
-    for name, values in zip(AXES, uncertainty.offset_covariance):
-        if values:
-            mapping[f'offset_covariance_{name}'] = [float(v) for v in values]
-    for name, values in zip(AXES, uncertainty.records_share):
-        if values:
-            mapping[f'records_share_{name}'] = [float(v) for v in values]
-    return mapping
-
-
-def _uncertainty_from_mapping(raw: Any, key: str) -> CurveUncertainty:
-    """A sensor's ``uncertainty`` section (:class:`~tak_thermo_ros.core.link.model.CurveUncertainty`)."""
+def _uncertainty_from_mapping(raw: Any, key: str) -> LinkUncertainty:
+    """A sensor's ``uncertainty`` section (:meth:`LinkUncertainty.to_mapping`)."""
     if not isinstance(raw, Mapping):
         msg = f'{key}: expected a mapping'
         raise CalibrationError(msg)
-    _check_keys(raw, key, ('source', 'records_min', 'records_max'), UNCERTAINTY_KEYS)
-    texts = {}
-    for name in ('source', 'prior'):
-        texts[name] = raw.get(name, '')
-        if not isinstance(texts[name], str):
-            msg = f'{key}.{name}: expected a string'
-            raise CalibrationError(msg)
-
-    def numbers(name: str) -> tuple[float, ...]:
-        values = raw.get(name, ())
-        if isinstance(values, (str, bytes)) or not isinstance(values, (list, tuple)):
-            msg = f'{key}.{name}: expected a list of numbers'
-            raise CalibrationError(msg)
-        return tuple(finite_number(v, f'{key}.{name}') for v in values)
-
+    _check_keys(raw, key, ('terms', 'temperature_scale', 'covariance'),
+                ('held', 'held_from', 'beyond', 'source', 'prior', 'records_share', 'records_min', 'records_max'))
+    terms = _strings(raw['terms'], f'{key}.terms')
+    count = len(terms)
+    upper = _numbers(raw['covariance'], f'{key}.covariance', count * (count + 1) // 2)
+    scale = finite_number(raw['temperature_scale'], f'{key}.temperature_scale')
+    held = _strings(raw.get('held', []), f'{key}.held')
+    held_from = _strings(raw.get('held_from', []), f'{key}.held_from')
+    share = _numbers(raw['records_share'], f'{key}.records_share', count) if 'records_share' in raw else ()
+    beyond = _numbers(raw['beyond'], f'{key}.beyond', 3) if 'beyond' in raw else ()
+    source, prior = (str(raw.get(name, default)) for name, default in (('source', 'records'), ('prior', '')))
+    seen = [finite_number(raw[name], f'{key}.{name}') if name in raw else None
+            for name in ('records_min', 'records_max')]
     try:
-        return CurveUncertainty(
-            offset_covariance=tuple(numbers(f'offset_covariance_{name}') for name in AXES),  # type: ignore[arg-type]
-            records_min=finite_number(raw['records_min'], f'{key}.records_min'),
-            records_max=finite_number(raw['records_max'], f'{key}.records_max'),
-            source=texts['source'], prior=texts['prior'],
-            records_share=tuple(numbers(f'records_share_{name}') for name in AXES))  # type: ignore[arg-type]
+        return LinkUncertainty(terms, upper, scale, held, held_from, beyond, source, prior, share, *seen)
     except CalibrationError as err:
         raise CalibrationError(f'{key}.{str(err).removeprefix("uncertainty.")}') from None
 

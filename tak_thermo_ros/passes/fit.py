@@ -14,6 +14,7 @@ from tak_thermo_ros.core.records.extremes import RunExtremes
 from tak_thermo_ros.core.records.provenance import PrintCollector
 from tak_thermo_ros.core.fit import FitResult, ShortRecord, fit_model
 from tak_thermo_ros.core.link.model import InputKind
+from tak_thermo_ros.core.noise.rests import StretchWindows
 from tak_thermo_ros.core.records.static_run import (
     NotStatic,
 )
@@ -88,11 +89,12 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
 
     passes, fits, subsamples, requirements = [], {}, {}, {}
     extremes = {sensor: RunExtremes() for sensor in sensors}
+    windows = {sensor: StretchWindows(opened.main) for sensor in sensors}
     for sensor in sensors:
         fits[sensor] = StreamingFit(bias_order=settings.bias_order, scale_order=settings.scale_order,
                                     temp_code_ref=settings.temp_code_ref, nominal_scale=nominal.get(sensor))
         requirements[sensor] = required(sensor)
-        consumers = [fits[sensor].add, extremes[sensor]]
+        consumers = [fits[sensor].add, extremes[sensor], windows[sensor]]
         if settings.effects.get(sensor):
             stride = stride_for(opened.main, settings.max_effect_samples)
             subsamples[sensor] = Subsample(stride, expected=opened.main // stride + 1)
@@ -117,6 +119,12 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
             with sensor_errors(kind, sensor):
                 if sensor not in subsamples:
                     results[sensor] = fits[sensor].result(dropped=dropped)
+                    if kind is InputKind.IMU:  # the link's own uncertainty, for the calibration watch
+                        taken = (sensor == 'accel' and opened.static is not None
+                                 and not opened.static.recorded_reference)  # the board's tilt took them
+                        uncertainty = fits[sensor].uncertainty(sensor, settings.held_spreads, direction_taken=taken)
+                        results[sensor] = replace(results[sensor], calibration=replace(
+                            results[sensor].calibration, uncertainty=uncertainty))
                     continue
                 samples = subsamples[sensor].samples(dropped)
                 if not len(samples):
@@ -162,7 +170,7 @@ def fit_bag(path: str | Path, settings: FitSettings, options: StreamOptions,
                        temperature_rate_max=extremes['accel'].temperature_rate_max,
                        rate_max=extremes['gyro'].reference_max if 'gyro' in extremes else 0.0,
                        survey=survey, record_print=prints.finish(path.name),
-                       held=tuple(sensor for sensor in sensors if sensor in short))
+                       held=tuple(sensor for sensor in sensors if sensor in short), noise_windows=windows)
 
 
 def fit_imu(path: str | Path, settings: FitSettings, options: StreamOptions,

@@ -89,7 +89,12 @@ def unit_statistics_task(unit: str, directory: str, settings, options) -> Statis
     except TakError as error:
         return StatisticsOutcome(unit, error=str(error), seconds=time.process_time() - start, worker=worker,
                                  peak_bytes=_peak_bytes())
-    return StatisticsOutcome(unit, statistics, pool_unit(fitted), lines, seconds=time.process_time() - start,
+    # the noise model as plain fit finds it at the pool's rests (--noise gives every unit another, on the client)
+    from tak_thermo_ros.passes.rest_noise import rests_noise
+    own = pool_unit(fitted)
+    found = rests_noise(fitted.fit.record, own, gravity=settings.gravity, latitude=settings.latitude)
+    own = replace(own, **{sensor: replace(own.sensor(sensor), noise=noise.model) for sensor, noise in found.items()})
+    return StatisticsOutcome(unit, statistics, own, lines, seconds=time.process_time() - start,
                              worker=worker, peak_bytes=_peak_bytes())
 
 

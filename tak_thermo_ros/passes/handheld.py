@@ -67,7 +67,7 @@ def handheld_settings(settings: FitSettings) -> HandheldSettings:
     """The hand-held fit's settings of ``tak_calib fit``'s."""
     return HandheldSettings(bias_order=settings.bias_order, scale_order=settings.scale_order,
                             temp_code_ref=settings.temp_code_ref, gravity=settings.gravity,
-                            latitude=settings.latitude,
+                            latitude=settings.latitude, held_spreads=settings.held_spreads,
                             effects={sensor: tuple(specs) for sensor, specs in settings.effects.items()})
 
 

@@ -334,8 +334,10 @@ def noise_models(*, unit: UnitCalibration | None, options: StreamOptions, noise_
     1. ``noise_file``: a Kalibr-style imu.yaml (``source='file'``);
     2. ``noise_run``: a static, constant-temperature run, compensated with ``unit`` when given
        (``source='static_run'``; ``residual`` when its temperature is not constant, and said);
-    3. ``use_stored`` and every sensor of ``unit`` carries a ``noise`` section (written by
-       ``tak_calib fit``): those (their own ``source``);
+    3. ``use_stored`` and every sensor of ``unit`` carries a ``noise`` section that ``tak_calib fit``
+       was given (``--noise``, ``--noise-run``, ``--noise-from-residual``): those (their own ``source``).
+       Not a model the fit estimated from its own rests (``source: fit``): that is the node's yardstick
+       at the rests; a verdict on a run is judged against that run's own noise, as before;
     4. ``calibration_run``: its residual after ``unit``'s correction (``source='residual'``).
 
     A sensor the file does not cover is taken from the next source that can give it.
@@ -361,7 +363,8 @@ def noise_models(*, unit: UnitCalibration | None, options: StreamOptions, noise_
             said.append(f'{", ".join(sorted(new))} from {noise_run}, which is NOT at constant temperature{span}: '
                         f'labelled residual, no independent yardstick')
     if use_stored and unit is not None and any(s not in models for s in sensors):
-        stored = {s: unit.sensor(s).noise for s in sensors if s not in models and unit.sensor(s).noise is not None}
+        stored = {s: unit.sensor(s).noise for s in sensors if s not in models and unit.sensor(s).noise is not None
+                  and unit.sensor(s).noise.source != 'fit'}
         models.update(stored)  # type: ignore[arg-type]
         if stored:
             said.append(f'{", ".join(sorted(stored))} from the calibration file')

@@ -638,13 +638,13 @@ def turn_on_line(sensor: str, fitted, records: int) -> str:
     variances = fitted.variances
     held = [name for name, ok in zip('xyz', variances.determined) if not ok]
     if records < MIN_TURN_ON_RECORDS:
-        written = f'not written ({" ".join(held)}: its offset held)' if held else 'written so'
+        written = f'not written ({" ".join(held)}: not determined by these records)' if held else 'written so'
         return f'{SENSOR_NAMES[sensor]}: turn-on repeatability {TurnOn(None, None, records).why_not()}; {written}'
     small, factor = _reader(sensor)
     values = ' '.join('-' if not ok else numbers(v * factor, 3) + (f'+-{numbers(e * factor, 2)}' if np.isfinite(e)
                                                                    else '')
                       for v, e, ok in zip(variances.turn_on, variances.turn_on_error, variances.determined))
-    tail = f' ({" ".join(held)}: not determined, its offset held)' if held else ''
+    tail = f' ({" ".join(held)}: not determined by these records)' if held else ''
     return f'{SENSOR_NAMES[sensor]}: turn-on repeatability x y z {values} {small}{tail}'
 
 

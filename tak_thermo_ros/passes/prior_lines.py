@@ -28,6 +28,11 @@ def _reader(sensor: str) -> tuple[str, float]:
     return reader_unit(SENSOR_UNITS[sensor])  # type: ignore[return-value]
 
 
+def _with_prior(uncertainty) -> bool:
+    """Whether a calibration's uncertainty came with a prior (it then says which temperatures its records saw)."""
+    return uncertainty is not None and uncertainty.records_min is not None and bool(uncertainty.prior)
+
+
 def source_lines(sensor: str, calibration) -> list[str]:
     """What came from the records and what from the prior: each axis's +- within the records' span, and beyond it.
 
@@ -35,7 +40,7 @@ def source_lines(sensor: str, calibration) -> list[str]:
     the records did not reach (half a degree or more).
     """
     uncertainty = calibration.uncertainty
-    if uncertainty is None:
+    if not _with_prior(uncertainty):
         return []
     small, factor = _reader(sensor)
     low, high = uncertainty.records_min, uncertainty.records_max
@@ -93,7 +98,7 @@ def prior_table(prior) -> list[str]:
 
 
 def band_lines(check, calibration) -> tuple[list[str], dict[str, Any]]:
-    """``validate`` of a pool against a calibration with its uncertainty: whether the rests' shapes lie within its +-.
+    """``validate`` of a pool against a calibration fitted with a prior: whether the rests' shapes lie within its +-.
 
     Per group of rests (within the records' span, beyond it: where the prior told the curve) the
     gyroscope's bias shape (each record's own offset off), beside what the file's +- and the white noise
@@ -104,7 +109,7 @@ def band_lines(check, calibration) -> tuple[list[str], dict[str, Any]]:
     :returns: the lines, and the same for the JSON document.
     """
     uncertainty = calibration.uncertainty
-    if uncertainty is None or not len(check.temperature):
+    if not _with_prior(uncertainty) or not len(check.temperature):
         return [], {}
     small, factor = _reader('gyro')
     low, high = uncertainty.records_min, uncertainty.records_max
@@ -170,7 +175,7 @@ def unit_line(unit: str, path: str, records: int | None) -> str:
     for sensor in ('gyro', 'accel'):
         link = calibration.sensor(sensor)
         uncertainty = link.uncertainty
-        if uncertainty is None:
+        if not _with_prior(uncertainty):
             continue
         small, factor = _reader(sensor)
         grid = np.linspace(link.temp_code_min, link.temp_code_max, 9) - link.temp_code_ref

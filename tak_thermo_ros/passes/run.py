@@ -24,6 +24,7 @@ import numpy as np
 
 from tak_thermo_ros.core.records.blocks import BlockAligner, add_counts
 from tak_thermo_ros.core.fit import FitResult, ShortRecord
+from tak_thermo_ros.core.fit.link_uncertainty import HeldSpreads
 from tak_thermo_ros.core.fit.model import AxisFit
 from tak_thermo_ros.core.link.model import InputKind, held_link
 from tak_thermo_ros.core.records.record import AlignedSamples, ChannelRecord, DriverRecord, require_signals
@@ -359,6 +360,7 @@ class FitSettings:
 
     :param effects: effect specs per sensor.
     :param nominal_scale: the held-axis nominal scale per sensor (``None``: none known).
+    :param held_spreads: a held term's spread where the records do not bound it (the file's ``uncertainty``).
     """
 
     effects: dict[str, list[str]]
@@ -370,6 +372,7 @@ class FitSettings:
     gravity: float = STANDARD_GRAVITY
     latitude: float | None = None
     max_effect_samples: int = EFFECT_FIT_MAX_SAMPLES
+    held_spreads: HeldSpreads = HeldSpreads()
 
 
 @dataclass(frozen=True)
@@ -402,6 +405,9 @@ class StreamedFit:
     held: tuple[str, ...] = ()
     record_print: RecordPrint | None = None
     """What the calibration keeps of the record (:class:`~tak_thermo_ros.core.records.provenance.RecordPrint`)."""
+    noise_windows: dict[str, Any] = field(default_factory=dict)
+    """Per sensor its windows within the run's stretches (:class:`~tak_thermo_ros.core.noise.rests.StretchWindows`):
+    the noise model the fit writes (:mod:`tak_thermo_ros.passes.rest_noise`)."""
 
 
 class ImuLinkUndetermined(FitError):

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import array
 import inspect
+import math
 import os
 import signal
 import sys
@@ -74,7 +75,14 @@ from tak_thermo_ros.core.link.correction import NOT_PROVIDED_COVARIANCE, OutOfRa
 from tak_thermo_ros.core.effects.aux_signal import AUX_FIELDS, signal_field, split_signal_name
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.link.online import SENSORS, Level, OneSensor, OnlineCompensator, StaleTemperature
-from tak_thermo_ros.core.link.watch import LearnedState, WatchSettings, turn_on_unavailable
+from tak_thermo_ros.core.link.watch import (
+    DEG_PER_H,
+    MG,
+    LearnedState,
+    WatchSettings,
+    turn_on_unavailable,
+    watch_unavailable,
+)
 from tak_thermo_ros.formats.files import not_regular
 from tak_thermo_ros.formats.learned_file import LEARNED_KEY, load_learned, save_learned
 from tak_thermo_ros.errors import CalibrationError, CdrError, TakError
@@ -154,6 +162,10 @@ def _tunables() -> dict[str, tuple[Any, str, bool]]:
                          'it, writing learned_file; false returns to the calibration file at once', False),
         'learned_file': ('', 'where learning writes what it learned (a calibration file tak_calib reads), '
                              'read at the next start; never the calibration file itself', True),
+        'gyro_turn_on_repeatability': ('', "deg/h (one value or x y z): the gyroscope's turn-on repeatability "
+                                           "(a data sheet's bias repeatability) when the file holds none; empty: "
+                                           "the first rest is unjudged, until learning has seen 5 runs", True),
+        'accel_turn_on_repeatability': ('', "mg (one value or x y z): the accelerometer's, likewise", True),
     }
 
 
@@ -197,6 +209,20 @@ def _path_value(value: Any, name: str, error: type[Exception] = ValueError) -> s
         msg = f'{name}: expected a path, got {value!r}'
         raise error(msg)
     return value
+
+
+def _repeatability(value: Any, name: str, factor: float) -> tuple[float, float, float] | None:
+    """A ``*_turn_on_repeatability`` parameter (one value or x y z, in ``1 / factor`` of SI) in SI, or ``None``."""
+    if value == '' or value is None:
+        return None
+    items = list(value) if isinstance(value, (list, tuple)) or hasattr(value, 'tolist') else [value]
+    if len(items) == 1:
+        items = items * 3
+    if len(items) != 3 or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
+                              or v <= 0.0 for v in items):
+        msg = f'{name}: expected one positive number or three (x y z), or empty; got {value!r}'
+        raise ValueError(msg)
+    return (items[0] / factor, items[1] / factor, items[2] / factor)
 
 
 def _learning_start(learn: bool, path: str, unit: UnitCalibration) -> LearnedState | None:
@@ -370,6 +396,14 @@ class CompensatorNode(Node):
         if (turn_on or learn) and not enabled:
             msg = 'turn_on and learn need the watch (watch: true)'
             raise ValueError(msg)
+        off = watch_unavailable(unit) if turn_on or learn else ''
+        if off:
+            what = 'learn: true' if learn else 'turn_on: first_rest'
+            msg = f'{what} needs the calibration watch, which cannot run: {off}'
+            raise CalibrationError(msg)
+        repeatabilities = tuple(_repeatability(self._value(f'{sensor}_turn_on_repeatability'),
+                                               f'{sensor}_turn_on_repeatability', factor)
+                                for sensor, factor in (('accel', MG), ('gyro', DEG_PER_H)))
         state = _learning_start(learn, path, unit)
         missing = turn_on_unavailable(unit) if turn_on else ''
         if missing:
@@ -377,7 +411,8 @@ class CompensatorNode(Node):
             raise CalibrationError(msg)
         self._learned_path = path
         """``learned_file`` (read only): where learning, when on, writes."""
-        return WatchSettings(enabled=enabled, latitude=latitude, turn_on=turn_on, learn=state)
+        return WatchSettings(enabled=enabled, latitude=latitude, turn_on=turn_on, learn=state,
+                             turn_on_repeatability=repeatabilities)  # type: ignore[arg-type]
 
     def _watch_words(self) -> str:
         """The start-up line about the watch."""
@@ -387,6 +422,7 @@ class CompensatorNode(Node):
         watch = core.watch
         learner = watch.learner
         words = [f'calibration watch on: false alarms at most {watch.false_alarms_per_hour:g} per hour of rests',
+                 f'first rest {watch.first_rest_words().split(";")[0]}',
                  f'latitude {watch.latitude:g}' if watch.latitude is not None else 'latitude unknown']
         if watch.turn_on_enabled:
             words.append('turn-on offset taken at the first rest')

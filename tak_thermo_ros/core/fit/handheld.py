@@ -59,6 +59,7 @@ from tak_thermo_ros.core.fit.design import (
     axis_design,
     subset,
 )
+from tak_thermo_ros.core.fit.link_uncertainty import HeldSpreads, link_uncertainty
 from tak_thermo_ros.core.fit.model import FitResult, calibration_from, finish_fit, fitted_effects, residual_counts
 from tak_thermo_ros.core.fit.prior import Basis, CurvePrior, Information
 from tak_thermo_ros.core.fit.random_effects import (
@@ -74,6 +75,7 @@ from tak_thermo_ros.core.fit.random_effects import (
 )
 from tak_thermo_ros.core.fit.solve import BlockedQR, Solution, solve_factor, triangular_factor
 from tak_thermo_ros.core.link.model import AXES, Calibration
+from tak_thermo_ros.core.link.uncertainty import LinkUncertainty
 from tak_thermo_ros.core.records.handheld import (
     HandheldRecord,
     TurnClosure,
@@ -124,6 +126,7 @@ class HandheldSettings:
     :param turns: use the turns (``False``: the rests alone).
     :param prior: what units of its kind say about the curve (:mod:`~tak_thermo_ros.core.fit.prior`): its rows
         join the solve, and the fit stands in its basis, at its orders, over its temperatures too.
+    :param held_spreads: a held term's spread where the records do not bound it (the file's uncertainty).
     """
 
     bias_order: int = 3
@@ -136,6 +139,7 @@ class HandheldSettings:
     variances: dict[str, tuple[np.ndarray, np.ndarray]] | None = None
     turns: bool = True
     prior: CurvePrior | None = None
+    held_spreads: HeldSpreads = HeldSpreads()
 
 
 @dataclass(frozen=True)
@@ -385,6 +389,15 @@ class _Solved:
     solution: Solution
     dof: int
     inverse: np.ndarray
+    system: object = field(default=None, repr=False)
+    """The system solved (:class:`_System` or :class:`RecordSystem`): :attr:`normal` from it."""
+    variance: float = 0.0
+    """The residual variance scale of the rows (the free terms' covariance is it times the inverse)."""
+
+    @property
+    def normal(self) -> np.ndarray:
+        """The normal matrix of the whole ``[X | y]`` (held columns too, ``(W + 1, W + 1)``): the link's uncertainty."""
+        return self.system.normal()  # type: ignore[attr-defined]
 
     def errors(self, layout: _Layout) -> dict[str, float]:
         deviations = np.sqrt(np.maximum(np.diag(self.covariance), 0.0))
@@ -408,7 +421,7 @@ def _solve(system: _System, held: dict[int, float], width: int, *, rows: int | N
     if not free:  # everything held: nothing to solve
         nothing = np.zeros((0, 0))
         solution = Solution(np.zeros(0), nothing, np.zeros(0), float(reduced.factor[-1, -1] ** 2), 0, np.zeros(0))
-        return _Solved(theta, free, nothing, dict(held), solution, max(system.count, 1), nothing)
+        return _Solved(theta, free, nothing, dict(held), solution, max(system.count, 1), nothing, system)
     solution = solve_factor(reduced.factor, max(reduced.count, 1))
     theta[free] = solution.coefficients
     dof = max((system.count if rows is None else rows) - len(free), 1)
@@ -417,7 +430,7 @@ def _solve(system: _System, held: dict[int, float], width: int, *, rows: int | N
     covariance = variance * inverse
     covariance[np.diag_indices_from(covariance)] = np.where(null_leverage > NULL_LEVERAGE, np.inf,
                                                             np.diag(covariance))
-    return _Solved(theta, free, covariance, dict(held), solution, dof, inverse)
+    return _Solved(theta, free, covariance, dict(held), solution, dof, inverse, system, variance)
 
 
 def _inverses(solution: Solution) -> tuple[np.ndarray, np.ndarray]:
@@ -473,7 +486,7 @@ def _solve_pool(system: RecordSystem, held: dict[int, float], width: int, *, row
     unseen = np.zeros(len(free), dtype=bool)
     unseen[shared_at] = leverage > NULL_LEVERAGE
     covariance[np.diag_indices_from(covariance)] = np.where(unseen, np.inf, np.diag(covariance))
-    return _Solved(theta, free, covariance, dict(held), solution, dof, inverse)
+    return _Solved(theta, free, covariance, dict(held), solution, dof, inverse, system, variance)
 
 
 def _bound(kind: str, sensor: str) -> float:
@@ -1161,21 +1174,25 @@ def order_holds(layout: _Layout, orders: Sequence[int] | None) -> dict[int, floa
     return held
 
 
-ONE_ORIENTATION_DEG = 15.0
-"""Rests whose up directions all lie within this of their mean are one orientation (near level): |f| tells
-the offset along gravity only."""
+ONE_ORIENTATION_DEG = 30.0
+"""Rests whose up directions all lie within this of their mean are one orientation (near level, on ground
+tilted by up to this at any heading): |f| tells the other axes' offsets through the tilts only, and cannot
+tell them from the couplings with the gravity axis (``g c_zx u_x u_z`` against ``b_x u_x``: at 15 deg they
+differ by 3 %: the fit's bounds would keep a coupling that took up a 10 mg offset)."""
 
 
 def one_orientation(up: np.ndarray, kept: np.ndarray, layout: _Layout) -> tuple[str, dict[int, float]]:
     """When every rest lies in one orientation: the line that says so, and the accelerometer's terms it holds.
 
-    At rest in one orientation ``|f|`` sees the offset along gravity only: the offsets of the other
-    axes (and their temperature terms, and their records' turn-on offsets) are undetermined, and
-    every scale and coupling with them (a coupling into the gravity axis takes up the other axes'
-    offsets over the tilt): said in one line and held (scales at 1, the rest at 0); the gravity
-    axis's offset and its temperature terms carry its scale's drift at 1 g. With up between the
-    axes (no axis within :data:`~tak_thermo_ros.core.records.still.FACE_DEG` of it) every axis's
-    offset is held.
+    At rest near one orientation ``|f| = g + b . u + g u' S u + ...`` (``u`` the up direction,
+    ``S`` the scale errors and the couplings): the tilts of the rests tell the other axes'
+    offsets (``b_x u_x``), with their temperature terms where the span allows, and their scales
+    (``g s_x u_x^2``); what they cannot tell apart is held and said in one line: the gravity
+    axis's scale and its temperature terms (at 1 g they act as its offset, which carries them),
+    the couplings between the gravity axis and the others (``g c_zx u_x u_z`` acts as
+    ``b_x u_x``) and the other axes' scales' temperature terms. What the rests do not determine
+    beyond that is held by the fit's bounds. With up between the axes (no axis within
+    :data:`~tak_thermo_ros.core.records.still.FACE_DEG` of it) every offset, scale and coupling is held.
     """
     from tak_thermo_ros.core.records.still import FACE_DEG
     if not len(up):
@@ -1186,25 +1203,27 @@ def one_orientation(up: np.ndarray, kept: np.ndarray, layout: _Layout) -> tuple[
     if spread > ONE_ORIENTATION_DEG:
         return '', {}
     gravity = int(np.argmax(np.abs(mean)))
-    if abs(mean[gravity]) < math.cos(math.radians(FACE_DEG)):
-        gravity = -1
-    others = [axis for axis in range(3) if axis != gravity]
-    held = {j: (1.0 if kind == 'scale' else 0.0) for j, kind in enumerate(layout.kinds)
-            if kind in ('scale', 'scale_T', 'coupling')}
-    for axis in others:
-        start = layout.starts[axis]
-        for j in range(start, start + len(layout.columns[axis])):
-            if layout.kinds[j] in ('offset', 'offset_T', 'turn_on'):
-                held[j] = 0.0
-    names = ' '.join(AXES[axis] for axis in others)
     where = f'{spread:.1f} deg of one orientation'
-    if gravity < 0:
-        line = (f'accelerometer: every rest within {where}, up between the axes: |f| tells no axis\'s offset; '
-                f'offsets, scales and misalignment held')
-    else:
-        line = (f'accelerometer: every rest within {where} ({"+-"[int(mean[gravity] < 0)]}{AXES[gravity]} up): '
-                f'the rests determine the gravity axis {AXES[gravity]} only; offsets on {names}, scales and '
-                f'misalignment held')
+    if abs(mean[gravity]) < math.cos(math.radians(FACE_DEG)):
+        held = {j: (1.0 if kind == 'scale' else 0.0) for j, kind in enumerate(layout.kinds)
+                if kind in ('scale', 'scale_T', 'coupling', 'offset', 'offset_T', 'turn_on')}
+        return (f'accelerometer: every rest within {where}, up between the axes: |f| tells no axis\'s offset; '
+                f'offsets, scales and misalignment held'), held
+    name = AXES[gravity]
+    held = {}
+    for j, (kind, label) in enumerate(zip(layout.kinds, layout.names)):
+        axis = AXES.index(label[0]) if label[1] == '.' else -1
+        if kind == 'coupling':
+            if name in label[-2:]:
+                held[j] = 0.0
+        elif axis == gravity and kind in ('scale', 'scale_T'):
+            held[j] = 1.0 if kind == 'scale' else 0.0
+        elif axis != gravity and kind == 'scale_T':
+            held[j] = 0.0
+    others = ' '.join(axis for axis in AXES if axis != name)
+    line = (f'accelerometer: every rest within {where} ({"+-"[int(mean[gravity] < 0)]}{name} up): the tilts '
+            f'determine the offsets on {others} (|f| = g + b . u + ...); the scale of {name} and the couplings '
+            f'with {name} held')
     return line, held
 
 
@@ -1284,9 +1303,10 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
     np.add.at(means, interval, accel_counts)
     kept = np.bincount(interval, minlength=count)
     up = means / np.linalg.norm(means, axis=1, keepdims=True)
+    measured = up  # the rests' orientation as recorded: one orientation or not, whatever the fit makes of it
 
     accel_terms = _Terms(frame, bias_order, scale_order, records=pool)
-    level_line, level = one_orientation(up, kept, accel_terms.layout())
+    level_line, level = one_orientation(measured, kept, accel_terms.layout())
     if level_line:
         lines.append(level_line)
         notes.append(level_line)
@@ -1296,7 +1316,7 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
         """The gauge, one orientation's holds and the chosen orders' on a layout of the accelerometer."""
         held = {layout.index(f'cross_axis.{name}'): 0.0 for name in GAUGE}
         if level_line:
-            held.update(one_orientation(up, kept, layout)[1])
+            held.update(one_orientation(measured, kept, layout)[1])
         held.update(order_holds(layout, axis_orders.get('accel')))
         return held
 
@@ -1344,7 +1364,7 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
         accel, up = _fit_accel(problem, up, gauge)
         if pool > 1 and 'accel' not in given:
             accel, up, turn_on['accel'] = _pooled_accel(problem, up, gauge, accel)
-    level = one_orientation(up, kept, problem.layout)[1] if level_line else {}
+    level = one_orientation(measured, kept, problem.layout)[1] if level_line else {}
     accel_layout = problem.layout
     accel_sigma = problem.sigma
 
@@ -1398,10 +1418,13 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
     if level:
         gyro_held.insert(0, 'gyroscope: scales and misalignment held, the motions not integrated: its frame is the '
                             'accelerometer\'s, which one orientation does not fix')
-    said_gauge = [] if level else [gauge_line]  # one orientation holds every coupling: no gauge to say
+    coupled = any(accel_layout.kinds[j] == 'coupling' for j in accel.free)
+    said_gauge = [gauge_line] if coupled or not level else []  # no coupling fitted: no gauge to say
     lines += [*said_gauge, *accel_held, *gyro_held]
     accel_cal = _calibration(accel, accel_layout, accel_terms, tuple(notes + said_gauge + accel_held))
     gyro_cal = _calibration(gyro, gyro_problem.layout, gyro_terms, tuple(notes + gyro_held))
+    accel_cal = replace(accel_cal, uncertainty=_uncertainty(accel, accel_layout, 'accel', frame, settings))
+    gyro_cal = replace(gyro_cal, uncertainty=_uncertainty(gyro, gyro_problem.layout, 'gyro', frame, settings))
     for sensor, solved, layout in (('accel', accel, accel_layout), ('gyro', gyro, gyro_problem.layout)):
         if pool > 1 and sensor not in turn_on:  # the variances were given
             spread, extra = given[sensor]
@@ -1462,6 +1485,25 @@ def _information(system: _System | RecordSystem, rests: _Rests, structural: dict
     held = tuple(layout.names[j] for j in solved.held if j not in structural)
     return Information(tuple(layout.names[j] for j in free), carry.T @ normal @ carry, Basis.of_frame(frame),
                        span[0], span[1], rows=system.count, held=held)
+
+
+def _uncertainty(solved: _Solved, layout: _Layout, sensor: str, frame: Frame,
+                 settings: HandheldSettings) -> LinkUncertainty:
+    """The link's own uncertainty (:mod:`~tak_thermo_ros.core.fit.link_uncertainty`), held terms included.
+
+    The gauge is no error (it defines the corrected frame: ``|f|`` and the rates at rest do not
+    see it); the gyroscope's carries its offsets only (at rest its scales and couplings multiply
+    the Earth rate alone: a few hundredths of a deg/h).
+    """
+    normal = solved.normal[:-1, :-1]
+    gradient = solved.normal[:-1, -1] - normal @ solved.theta
+    names = layout.names
+    held = [j for j in solved.held if names[j].split('.')[-1] not in GAUGE]
+    offsets = [j for j in [*solved.free, *held] if layout.kinds[j] in ('offset', 'offset_T')]
+    carried = None if sensor == 'accel' else offsets
+    return link_uncertainty(names, layout.kinds, normal, gradient, solved.free, solved.covariance,
+                            np.full(layout.width, solved.variance), held, sensor=sensor,
+                            temperature_scale=frame.n_scale, spreads=settings.held_spreads, carried=carried)
 
 
 # ----- a pool of records: the turn-on offsets as random effects ---------------------------------------
@@ -1545,6 +1587,10 @@ def _pooled_accel(problem: _AccelProblem, up: np.ndarray, gauge: dict[int, float
             break
         previous = current
     assert variances is not None
+    # an axis seen through the tilts alone (near level: x and y at a tenth of their size) may leave its
+    # spread within its own error of 0: the records do not tell it (its offsets stay the fit's random effects)
+    told = variances.determined & (variances.turn_on_error < variances.turn_on)
+    variances = replace(variances, turn_on=np.where(told, variances.turn_on, np.nan), determined=told)
     return accel, up, _turn_on_fit(accel, problem.layout, variances, len(problem.layout.turn_on(0)))
 
 
@@ -1582,8 +1628,7 @@ def _with_turn_on(calibration: Calibration, fitted: TurnOnFit, records: int) -> 
     variances = fitted.variances
     if not np.all(variances.determined):
         held = ' '.join(name for name, ok in zip(AXES, variances.determined) if not ok)
-        note = (f'turn_on not written: the records do not determine the turn-on offset on {held} '
-                f'(its offset is held)')
+        note = f'turn_on not written: the records do not determine the turn-on offset\'s spread on {held}'
         return replace(calibration, notes=(*calibration.notes, note))
     if records < MIN_TURN_ON_RECORDS:  # a spread of so few values is known to orders of magnitude: not written
         turn_on = TurnOn(repeatability=None, repeatability_error=None, records=records)

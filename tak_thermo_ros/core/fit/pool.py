@@ -11,8 +11,9 @@ only a pool allows:
   records in :data:`FOLDS` folds; each candidate order is fitted on the other folds (the variances
   of the whole pool's fit held, the rests alone) and judged on the fold's rests, each record's own
   offset taken off (the shape, what a calibration must carry to a record it never saw), as a
-  chi-square against the rests' noise; the lowest order within :data:`ORDER_TOLERANCE` of the
-  best is kept, per gyroscope axis, and one for the accelerometer (its ``|f|`` mixes the axes);
+  chi-square against the rests' noise; the order with the lowest is kept (a lower one only within
+  :data:`ORDER_TOLERANCE` of it), per gyroscope axis, and one for the accelerometer (its ``|f|``
+  mixes the axes);
 - **a pool that is not one unit**: the records' turn-on offsets screened
   (:func:`~tak_thermo_ros.core.fit.random_effects.screen_offsets`): a record far beyond the pool's
   spread is left out and the pool fitted again; offsets in two groups refuse the pool.
@@ -37,8 +38,9 @@ FOLDS = 5
 """The pool's records are held out in this many folds (each record once; fewer with fewer records)."""
 MIN_RECORDS_FOR_ORDERS = 3
 """Fewer records than this: the orders are the span's (no fold to judge them on)."""
-ORDER_TOLERANCE = 2.0
-"""A lower order is kept when its held-out chi-square exceeds the best's by at most this."""
+ORDER_TOLERANCE = 0.0
+"""A lower order is kept when its held-out chi-square exceeds the best's by at most this: none (issue 39: the
+order is not chosen below what the held-out records need; a higher order that misses them scores worse)."""
 MIN_RECORDS_FOR_SCREENING = 3
 """Fewer records than this: no record is screened as another unit's (no spread to judge it by)."""
 
@@ -100,15 +102,15 @@ def shape_residuals(record: HandheldRecord, unit: UnitCalibration, *, gravity: f
     :param within: only the rests whose mean temperature lies within this range (``None``: all).
     :returns: ``gyro``: ``(k, 3)`` the rate error at each rest; ``accel``: ``(k, 1)`` the ``|f|`` error;
         ``record``: ``(k,)`` each rest's record; ``samples``: ``(k,)`` its kept samples;
-        ``temperature``: ``(k,)`` its mean temperature. Each record's mean is the samples-weighted mean
-        of its rests.
+        ``temperature``: ``(k,)`` its mean temperature; ``up``: ``(k, 3)`` its corrected up direction.
+        Each record's mean is the samples-weighted mean of its rests.
     """
     check = check_handheld(record, unit, gravity=gravity, latitude=latitude, out_of_range=out_of_range)
     rest_record, samples, temperature = _rests(record)
     keep = _within(temperature, within)
     rest_record, samples, temperature = rest_record[keep], samples[keep], temperature[keep]
     check = replace(check, rate_error=check.rate_error[keep], gravity_error=check.gravity_error[keep])
-    out = {'record': rest_record, 'samples': samples, 'temperature': temperature}
+    out = {'record': rest_record, 'samples': samples, 'temperature': temperature, 'up': check.up[keep]}
     for sensor, errors in (('gyro', check.rate_error), ('accel', check.gravity_error[:, None])):
         out[sensor] = own_offsets(record, errors, keep)[1]
     return out
@@ -137,9 +139,9 @@ def _variance(sensor: str, residuals: dict[str, np.ndarray], fit: HandheldFit, n
     rest = turn_on.variances.rest if turn_on is not None else np.zeros(3)
     if sensor == 'gyro':
         return noise[3:6][None, :] ** 2 / samples + rest[None, :] ** 2
-    # |f| is about the gravity axis's error: the smallest of the axes' variances stands for it
+    # |f| is the axes' errors along the up direction: their variances weighted by u^2
     per_axis = noise[:3][None, :] ** 2 / samples + np.where(np.isfinite(rest), rest, 0.0)[None, :] ** 2
-    return per_axis.min(axis=1, keepdims=True)
+    return np.sum(per_axis * residuals['up'] ** 2, axis=1, keepdims=True)
 
 
 def choose_orders(record: HandheldRecord, settings: HandheldSettings, full: HandheldFit) -> dict[str, OrderChoice]:
@@ -279,17 +281,20 @@ class PoolFit:
     left_out: tuple[LeftOut, ...] = ()
 
 
-def _own_precision(record: HandheldRecord, sensor: str, rest: np.ndarray) -> np.ndarray:
-    """``(r, 3)`` how well each record's own rests tell its offset: ``1 / sqrt(sum 1 / (s^2 / n + t^2))``.
+def _own_precision(record: HandheldRecord, sensor: str, rest: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """``(r, 3)`` how well each record's own rests tell its offset: ``1 / sqrt(sum w / (s^2 / n + t^2))``.
 
     Not the offsets' errors from the fit, which carry the pool's spread (inflated by the very record
-    that is another unit's).
+    that is another unit's). The gyroscope's rests see each axis whole (``w = 1``); the
+    accelerometer's through ``|f|``, each axis along the rest's up direction (``w = u_a^2``: near
+    level its x and y offsets at a tenth of their size).
     """
     rest_record, samples, _ = _rests(record)
     noise = record.intervals.noise[3:6] if sensor == 'gyro' else record.intervals.noise[:3]
     extra = np.where(np.isfinite(rest), rest, 0.0)
+    seen = np.ones((len(rest_record), 3)) if sensor == 'gyro' else up[:len(rest_record)] ** 2
     information = np.zeros((record.records, 3))
-    np.add.at(information, rest_record, 1.0 / (noise[None, :] ** 2 / samples[:, None] + extra[None, :] ** 2))
+    np.add.at(information, rest_record, seen / (noise[None, :] ** 2 / samples[:, None] + extra[None, :] ** 2))
     return 1.0 / np.sqrt(np.maximum(information, 1e-300))
 
 
@@ -305,7 +310,7 @@ def _another_unit(record: HandheldRecord, fitted: HandheldFit) -> list[LeftOut]:
             continue
         determined = turn_on.variances.determined
         offsets = np.where(determined[None, :], turn_on.offsets, np.nan)
-        screening = screen_offsets(offsets, _own_precision(record, sensor, turn_on.variances.rest))
+        screening = screen_offsets(offsets, _own_precision(record, sensor, turn_on.variances.rest, fitted.up))
         if screening.groups:
             axis = screening.axis
             groups = tuple(tuple(record.record_names[i] for i in group) for group in screening.groups)

@@ -15,9 +15,9 @@ Both directions go through the one pool fit (:func:`~tak_thermo_ros.core.fit.han
 - **What a prior adds** (:class:`CurvePrior`): per sensor a Gaussian on the curve terms, as rows
   ``R (theta_P - mean) = 0`` (``R' R`` the prior's precision) beside the records' rows in the same
   solve; the fit then stands in the prior's basis (its ``ref`` and ``n_scale``) at its orders, over
-  its temperatures as well as the records'. The posterior's covariance of each axis's offset curve
-  (:func:`offset_covariance`) gives the +- of the curve at any temperature: small where the
-  records saw the unit, the prior's spread outside.
+  its temperatures as well as the records'. The posterior's covariance of the curve terms (the
+  calibration's :class:`~tak_thermo_ros.core.link.uncertainty.LinkUncertainty`) gives the +- of the
+  curve at any temperature: small where the records saw the unit, the prior's spread outside.
 
 A basis change (:func:`basis_change`) carries a polynomial's coefficients from one ``u`` to
 another exactly (binomial expansion), and with them the information.
@@ -300,21 +300,3 @@ class CurvePrior:
         if prior is None:
             return np.zeros((0, len(layout_names) + 1))
         return prior.rows(layout_names)
-
-
-def offset_covariance(posterior: Information, axis: str, order: int) -> np.ndarray | None:
-    """``(q + 1, q + 1)``: the covariance of an axis's offset curve in raw powers of ``n = T - ref`` (sensor units).
-
-    The coefficients ``(b0, c1 .. cq)`` of ``b(n) = b0 + c1 n + .. + cq n^q``, what the calibration
-    file's ``offset`` and ``offset_span * offset_shape`` hold; from the posterior's information on
-    the curve terms (records and prior), the other curve terms integrated out. ``None``: the axis's
-    offset is not among its terms (held).
-    """
-    names = [term_name(axis, 'offset', power) for power in range(order + 1)]
-    if not all(name in posterior.names for name in names):
-        return None
-    covariance = _psd_inverse(posterior.hessian)
-    index = [posterior.names.index(name) for name in names]
-    block = covariance[np.ix_(index, index)]
-    raw = 1.0 / posterior.basis.n_scale ** np.arange(order + 1)
-    return block * np.outer(raw, raw)

@@ -11,8 +11,9 @@ A unit (:func:`fit_with_prior`): its pool through the same fit with the prior's 
 prior's temperatures and its own; where the fleet falls in groups, the group its records put it in
 (a first fit without the prior's rows tells). A pool of fewer than :data:`OWN_TURN_ON_RECORDS` records
 takes the fleet's turn-on repeatability. Each sensor's calibration carries its uncertainty
-(:class:`~tak_thermo_ros.core.link.model.CurveUncertainty`): the posterior's covariance of each axis's
-offset curve (records and prior), and the share of each coefficient's precision the records gave.
+(:class:`~tak_thermo_ros.core.link.uncertainty.LinkUncertainty`, the section every fit writes): the
+posterior's covariance of the prior's curve terms (records and prior), the share of each term's precision
+the records gave, and the temperatures the records saw.
 """
 
 from __future__ import annotations
@@ -28,8 +29,9 @@ from tak_thermo_ros.core.fit.design import Frame
 from tak_thermo_ros.core.fit.fleet_prior import FEW_UNITS, MAX_GROUPS, SensorFleet, fleet_prior
 from tak_thermo_ros.core.fit.handheld import HandheldSettings
 from tak_thermo_ros.core.fit.pool import PoolFit, fit_pool
-from tak_thermo_ros.core.fit.prior import Basis, CurvePrior, Information, SensorPrior, offset_covariance
-from tak_thermo_ros.core.link.model import AXES, CurveUncertainty, TurnOn, UnitCalibration
+from tak_thermo_ros.core.fit.prior import Basis, CurvePrior, Information, SensorPrior
+from tak_thermo_ros.core.link.model import AXES, TurnOn, UnitCalibration
+from tak_thermo_ros.core.link.uncertainty import LinkUncertainty
 from tak_thermo_ros.core.records.handheld import HandheldRecord
 from tak_thermo_ros.core.values import SENSOR_NAMES
 from tak_thermo_ros.errors import FitError
@@ -188,13 +190,13 @@ class PriorFit:
 
     :param pool: the pool's fit (its calibrations carry their uncertainty, the notes what came from where).
     :param lines: what a person reads: the group, the turn-on repeatability taken, each axis's +-.
-    :param uncertainty: per sensor the calibration's :class:`~tak_thermo_ros.core.link.model.CurveUncertainty`.
+    :param uncertainty: per sensor the calibration's :class:`~tak_thermo_ros.core.link.uncertainty.LinkUncertainty`.
     """
 
     pool: PoolFit
     prior: CurvePrior
     lines: tuple[str, ...]
-    uncertainty: Mapping[str, CurveUncertainty]
+    uncertainty: Mapping[str, LinkUncertainty]
 
 
 def fit_with_prior(record: HandheldRecord, settings: HandheldSettings, fleet: FleetPrior) -> PriorFit:
@@ -220,7 +222,7 @@ def fit_with_prior(record: HandheldRecord, settings: HandheldSettings, fleet: Fl
             spread = fleet.turn_on[sensor][0]
             records = records.with_level_spread({axis: float(sd) for axis, sd in zip(AXES, spread)
                                                  if np.isfinite(sd)})
-        uncertainty[sensor] = _uncertainty(records, sensor_prior, fleet.bias_order, fleet.label)
+        uncertainty[sensor] = _uncertainty(records, sensor_prior, fleet, result.calibration)
     results = {}
     for sensor, result in fitted.fit.results.items():
         calibration = result.calibration
@@ -245,25 +247,23 @@ def _fleet_turn_on(calibration, fleet: FleetPrior, sensor: str):
     return replace(calibration, turn_on=turn_on, notes=(*own, note))
 
 
-def _uncertainty(records: Information, prior: SensorPrior, order: int, label: str) -> CurveUncertainty:
-    """The posterior's covariance of each axis's offset curve and the records' share of each coefficient's precision."""
+def _uncertainty(records: Information, prior: SensorPrior, fleet: FleetPrior, calibration) -> LinkUncertainty:
+    """The calibration's uncertainty with the prior: the posterior's covariance of the prior's curve terms.
+
+    ``(H + P)^-1`` over the prior's terms in its basis (``temperature_scale`` its ``n_scale``; cross-axis
+    terms kept), the records' share of each term's precision (``1 - posterior variance / prior variance``),
+    the temperatures the records saw; a term the fit held is said held (its spread the prior's); the
+    spread of the offset's slope beyond the calibrated range is the fit's own (``calibration``'s section).
+    """
     posterior_normal = records.aligned(prior.names)[0] + np.linalg.inv(prior.covariance)
-    normal = np.zeros((len(prior.names) + 1,) * 2)
-    normal[:-1, :-1] = posterior_normal
-    posterior = Information(prior.names, normal, records.basis, records.low, records.high)
-    covariances, shares = [], []
-    posterior_covariance = np.linalg.inv(posterior_normal)
-    for axis in AXES:
-        covariance = offset_covariance(posterior, axis, order)
-        covariances.append(tuple(float(v) for v in covariance.ravel()) if covariance is not None else ())
-        index = [i for i, name in enumerate(prior.names) if name.startswith(f'{axis}.offset')]
-        if covariance is None or not index:
-            shares.append(())
-            continue
-        ratio = np.diag(posterior_covariance)[index] / np.diag(prior.covariance)[index]
-        shares.append(tuple(float(v) for v in np.clip(1.0 - ratio, 0.0, 1.0)))
-    return CurveUncertainty(tuple(covariances), records.low, records.high,  # type: ignore[arg-type]
-                            source='records and prior', prior=label, records_share=tuple(shares))  # type: ignore
+    covariance = np.linalg.inv(posterior_normal)
+    share = np.clip(1.0 - np.diag(covariance) / np.diag(prior.covariance), 0.0, 1.0)
+    held = tuple(name for name in prior.names if name in records.held)
+    own = calibration.uncertainty
+    return replace(LinkUncertainty.of(prior.names, covariance, fleet.basis.n_scale, held, ('prior',) * len(held),
+                                      own.beyond if own is not None else ()),
+                   source='records and prior', prior=fleet.label, records_share=tuple(float(v) for v in share),
+                   records_min=float(records.low), records_max=float(records.high))
 
 
 def unit_with_prior(unit: UnitCalibration, statistics: UnitStatistics, fleet: FleetPrior) -> PriorUnit:
@@ -288,7 +288,7 @@ def unit_with_prior(unit: UnitCalibration, statistics: UnitStatistics, fleet: Fl
         records = records.in_basis(fleet.basis)
         theta = _posterior_mean(records, sensor_prior)
         calibration = _rebuilt(calibration, theta, fleet, records.low, records.high)
-        uncertainty[sensor] = _uncertainty(records, sensor_prior, fleet.bias_order, fleet.label)
+        uncertainty[sensor] = _uncertainty(records, sensor_prior, fleet, calibration)
         calibration = replace(calibration, uncertainty=uncertainty[sensor])
         if fleet.gives_turn_on(statistics.records, sensor):
             calibration = _fleet_turn_on(calibration, fleet, sensor)
@@ -302,7 +302,7 @@ class PriorUnit:
 
     unit: UnitCalibration
     lines: tuple[str, ...]
-    uncertainty: Mapping[str, CurveUncertainty]
+    uncertainty: Mapping[str, LinkUncertainty]
 
 
 def _posterior_mean(records: Information, prior: SensorPrior) -> dict[str, float]:

@@ -439,17 +439,6 @@ class RecordSystem:
         self._fold(rows, np.repeat(np.arange(count), len(slots)))
         self.count += len(rows)
 
-    def normal(self) -> np.ndarray:
-        """``(W + 1, W + 1)``: the normal matrix ``[X | y]^T [X | y]`` of every row, in the layout's columns."""
-        columns = self.columns
-        out = np.zeros((columns.width + 1, columns.width + 1))
-        shared = columns.shared
-        out[np.ix_(shared, shared)] = self.shared.factor.T @ self.shared.factor
-        for own, factor in zip(columns.own, self.factors):
-            index = np.concatenate([own, shared])
-            out[np.ix_(index, index)] += factor.T @ factor
-        return out
-
     def _fold(self, joined: np.ndarray, record: np.ndarray) -> None:
         """Rows ``[Z_r | X_s | y]`` into their records' factors, a round of at most :data:`ROUND_ROWS` each."""
         size = self.factors.shape[1]
@@ -466,6 +455,16 @@ class RecordSystem:
             batch[:, :size] = self.factors[ids]
             batch[local, size + position[now] - first] = joined[now]
             self.factors[ids] = np.linalg.qr(batch, mode='r')
+
+    def normal(self) -> np.ndarray:
+        """The normal matrix ``[X | y]^T [X | y]`` ``(W + 1, W + 1)`` of every row, each record's columns in place."""
+        columns = self.columns
+        out = np.zeros((columns.width + 1, columns.width + 1))
+        out[np.ix_(columns.shared, columns.shared)] += self.shared.factor.T @ self.shared.factor
+        for own, factor in zip(columns.own, self.factors):
+            at = np.concatenate([own, columns.shared])
+            out[np.ix_(at, at)] += factor.T @ factor
+        return out
 
     def absorbed(self, held: dict[int, float]) -> Absorbed:
         """The held columns' values moved into the target and dropped; each record's free own columns absorbed.

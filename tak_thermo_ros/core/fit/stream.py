@@ -39,6 +39,7 @@ from tak_thermo_ros.core.fit.design import (
     held_scale,
     not_excited,
 )
+from tak_thermo_ros.core.fit.link_uncertainty import HeldSpreads, block_normal, link_uncertainty
 from tak_thermo_ros.core.fit.model import (
     FitResult,
     amplitude_errors,
@@ -49,6 +50,7 @@ from tak_thermo_ros.core.fit.model import (
 )
 from tak_thermo_ros.core.fit.solve import BlockedQR, Solution, solve_factor
 from tak_thermo_ros.core.link.model import AXES
+from tak_thermo_ros.core.link.uncertainty import LinkUncertainty
 from tak_thermo_ros.core.records.record import AlignedSamples
 
 HEADROOM = 2.0
@@ -193,6 +195,67 @@ class StreamingFit:
                                        notes=held_notes(held, first_input))
         parameters = [len(beta) for beta in coefficients]
         return finish_fit_from_sums(calibration, sums, self.count, parameters, dropped=dict(dropped or {}))
+
+    def uncertainty(self, sensor: str, spreads: HeldSpreads = HeldSpreads(), *,
+                    direction_taken: bool = False) -> LinkUncertainty:
+        """The link's own uncertainty after :meth:`result` (:mod:`~tak_thermo_ros.core.fit.link_uncertainty`).
+
+        Per axis its offset and scale polynomials, the errors of the fitted ones from the residual
+        as white noise, a held scale (an axis that saw one input) through its spread; the
+        gyroscope's offsets only (at rest its scales multiply the Earth rate alone).
+
+        :param direction_taken: the reference is the run's mean measured direction (a static run
+            without reference topics): the offsets across it went into that direction (a tilt of
+            the board), so their constants are undetermined: their spread is the default's.
+        """
+        q, p = self.bias_order, self.scale_order
+        single, first_input = self.single_input_axes(), self.first_input()
+        names, kinds, free, held, theta, blocks = [], [], [], [], [], []
+        for i, name in enumerate(AXES):
+            start = len(names)
+            names += [f'{name}.scale' + (f'_T{j}' if j else '') for j in range(p + 1)]
+            names += [f'{name}.offset' + (f'_T{j}' if j else '') for j in range(q + 1)]
+            kinds += ['scale' if j == 0 else 'scale_T' for j in range(p + 1)]
+            kinds += ['offset' if j == 0 else 'offset_T' for j in range(q + 1)]
+            scale = held_scale(i, single, self.nominal_scale, first_input)
+            factor = self._blocked[i]
+            if scale is None:
+                solution = factor.solution()
+                values, fitted = solution.coefficients, list(range(p + q + 2))
+            else:
+                solution = self._offset_only(self._blocked[i], scale)
+                values = np.concatenate([[scale], np.zeros(p), solution.coefficients])
+                fitted = list(range(p + 1, p + q + 2))
+                held += [start + j for j in range(p + 1)]
+            design = factor.factor[:, :-1]
+            variance = solution.rss / max(self.count - len(fitted), 1)
+            normal = design.T @ design
+            block = np.linalg.pinv(normal[np.ix_(fitted, fitted)]) * variance
+            free += [start + j for j in fitted]
+            theta.append(values)
+            blocks.append((block, variance))
+        normal, gradient = block_normal([blocked.factor for blocked in self._blocked], theta)
+        covariance = np.zeros((len(free), len(free)))
+        variances = np.zeros(len(names))
+        position = 0
+        for i, (block, variance) in enumerate(blocks):
+            covariance[position:position + len(block), position:position + len(block)] = block
+            position += len(block)
+            variances[i * (p + q + 2):(i + 1) * (p + q + 2)] = variance
+        carried = None if sensor == 'accel' else [j for j in [*free, *held] if kinds[j] in ('offset', 'offset_T')]
+        found = link_uncertainty(names, kinds, normal, gradient, free, covariance, variances, held, sensor=sensor,
+                                 temperature_scale=self.frame().n_scale, spreads=spreads, carried=carried)
+        if not direction_taken:
+            return found
+        along = int(np.argmax(np.abs(first_input)))
+        across = [found.terms.index(f'{name}.offset') for i, name in enumerate(AXES) if i != along]
+        matrix = found.covariance.copy()
+        matrix[across, :] = 0.0
+        matrix[:, across] = 0.0
+        matrix[across, across] = spreads.spread(sensor, 'offset', 1.0) ** 2
+        held_names = (*found.held, *(found.terms[j] for j in across))
+        return LinkUncertainty.of(found.terms, matrix, found.temperature_scale, held_names,
+                                  (*found.held_from, *(['default'] * len(across))), found.beyond)
 
     def _offset_only(self, factor: BlockedQR, scale: float) -> Solution:
         """The offset polynomial with the scale held: least squares of ``N - K0 f`` on ``u^0 .. u^q``.

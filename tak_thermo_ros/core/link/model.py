@@ -27,6 +27,7 @@ from typing import Sequence
 import numpy as np
 
 from tak_thermo_ros.core.effects.base import Effect
+from tak_thermo_ros.core.link.uncertainty import LinkUncertainty
 from tak_thermo_ros.core.noise.model import NoiseModel
 from tak_thermo_ros.core.records.provenance import RecordPrint
 from tak_thermo_ros.errors import CalibrationError
@@ -259,72 +260,6 @@ class TurnOn:
 
 
 @dataclass(frozen=True)
-class CurveUncertainty:
-    """The calibration's own uncertainty: per axis the covariance of its offset curve's coefficients.
-
-    The coefficients ``(b0, c1, .., cq)`` of ``b(n) = b0 + c1 n + .. + cq n^q`` with ``n = T - T_ref``
-    (what ``offset`` and ``offset_span * offset_shape`` hold), in the sensor's unit: the +- of the curve
-    at any temperature is ``sqrt(phi(n)' C phi(n))``, ``phi(n) = (1, n, .., n^q)``.
-
-    :param offset_covariance: per axis x y z the ``(q + 1)^2`` covariance, row-major (empty: not given, the
-        axis's offset held).
-    :param records_min: the lowest temperature the unit's own records saw; ``records_max`` the highest
-        (outside them the curve is what a prior gave, if any).
-    :param source: ``records``, or ``records and prior``.
-    :param prior: what the prior was (``''``: none).
-    :param records_share: per axis, per coefficient, the share of its precision that came from the records
-        (0: all from the prior, 1: all from the records; empty without a prior).
-    """
-
-    offset_covariance: tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]
-    records_min: float
-    records_max: float
-    source: str = 'records'
-    prior: str = ''
-    records_share: tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]] = ((), (), ())
-
-    def __post_init__(self) -> None:
-        for name, values in zip(AXES, self.offset_covariance):
-            size = math.isqrt(len(values))
-            if size * size != len(values) or not all(math.isfinite(v) for v in values):
-                msg = f'uncertainty.offset_covariance_{name}: expected a square number of finite floats'
-                raise CalibrationError(msg)
-            if size and not all(values[i * size + i] >= 0.0 for i in range(size)):
-                msg = f'uncertainty.offset_covariance_{name}: a variance below 0'
-                raise CalibrationError(msg)
-        for name, values in zip(AXES, self.records_share):
-            if not all(math.isfinite(v) and -1e-9 <= v <= 1.0 + 1e-9 for v in values):
-                msg = f'uncertainty.records_share_{name}: expected numbers within 0..1'
-                raise CalibrationError(msg)
-        if not (math.isfinite(self.records_min) and math.isfinite(self.records_max)
-                and self.records_min <= self.records_max):
-            msg = 'uncertainty.records_min: expected finite temperatures, records_min <= records_max'
-            raise CalibrationError(msg)
-
-    def covariance(self, axis: int) -> np.ndarray | None:
-        """``(q + 1, q + 1)`` the covariance of an axis's offset coefficients, or ``None`` (not given)."""
-        values = self.offset_covariance[axis]
-        if not values:
-            return None
-        size = math.isqrt(len(values))
-        return np.asarray(values, dtype=float).reshape(size, size)
-
-    def offset_covariance_between(self, axis: int, n_first, n_second):
-        """The covariance of the offset curve's errors at ``n_first`` and ``n_second`` (``n = T - T_ref``; arrays)."""
-        matrix = self.covariance(axis)
-        if matrix is None:
-            return 0.0 * np.asarray(n_first, dtype=float) * np.asarray(n_second, dtype=float)
-        powers = np.arange(len(matrix))
-        first = np.asarray(n_first, dtype=float)[..., None] ** powers
-        second = np.asarray(n_second, dtype=float)[..., None] ** powers
-        return np.einsum('...p,pq,...q->...', first, matrix, second)
-
-    def offset_variance(self, axis: int, n):
-        """The variance of the offset curve's error at ``n = T - T_ref`` (scalar or array)."""
-        return self.offset_covariance_between(axis, n, n)
-
-
-@dataclass(frozen=True)
 class Calibration:
     """The whole correction link: three axes and the calibrated temperature-code range.
 
@@ -343,7 +278,8 @@ class Calibration:
         ``offset_span`` 0 and flat shapes, and the correction never reads a temperature).
     :param turn_on: the turn-on offset's repeatability over power-ups (:class:`TurnOn`), or ``None``
         when the calibration was fitted from one power-up (what to judge against: :attr:`known_turn_on`).
-    :param uncertainty: the offset curve's own uncertainty (:class:`CurveUncertainty`), or ``None``.
+    :param uncertainty: the covariance of the link's own errors, held terms included
+        (:class:`~tak_thermo_ros.core.link.uncertainty.LinkUncertainty`), or ``None`` (not stated).
     """
 
     temp_code_ref: float
@@ -356,7 +292,7 @@ class Calibration:
     noise: NoiseModel | None = None
     thermal: str = THERMAL_FITTED
     turn_on: TurnOn | None = None
-    uncertainty: CurveUncertainty | None = None
+    uncertainty: LinkUncertainty | None = None
 
     @property
     def known_turn_on(self) -> TurnOn | None:

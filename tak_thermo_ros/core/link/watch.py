@@ -108,14 +108,28 @@ VARIANCE_BOUNDS = 1000.0
 """A learned correction's variance read back is at most the square of this many bounds (a spread, not a value)."""
 SLOPE_PRIOR_SHARE = 0.5
 """The prior of a slope correction: its standard deviation is this share of the curve's largest slope."""
+UNDETERMINED_RATIO = 3.0
+"""A rest's ``|f|`` is not judged when the calibration's own uncertainty there (against the run's first
+rest: a tilt its file never determined) exceeds this many times the rest's noise; it is said instead."""
 CHANNELS = ('gyro x', 'gyro y', 'gyro z', 'accel')
 """What the watch judges: each gyroscope axis, and the accelerometer's ``|f|``."""
 ANOTHER_CALIBRATION = 'learned on another calibration'
 """How the watch's notice of a learned state it left (another calibration's) begins."""
+MIN_SPREAD_RUNS = 5
+"""The node takes the spread of its earlier runs' turn-on offsets for a repeatability from this many runs on
+(as a fit takes a pool's: fewer power-ups leave the spread undetermined)."""
 DEG_PER_H = 180.0 / math.pi * 3600.0
 """deg/h per rad/s."""
 MG = 1e3 / STANDARD_GRAVITY
 """mg per m/s^2."""
+
+
+@dataclass(frozen=True)
+class Repeatability:
+    """A turn-on repeatability the calibration file lacks, per axis (SI), and where it came from (a few words)."""
+
+    repeatability: tuple[float, float, float]
+    source: str
 
 
 class WatchUnavailable(TakError):
@@ -189,8 +203,8 @@ def window_variance(noise: NoiseModel, period_s: float, window_s: float) -> np.n
     """
     white = np.asarray(noise.white_noise_density) ** 2 / period_s
     quantization = 3.0 * np.asarray(noise.quantization) ** 2 / period_s ** 2
-    slow = (FLICKER_FLOOR * np.asarray(noise.bias_instability)) ** 2 + np.asarray(noise.random_walk) ** 2 * \
-        window_s / 3.0
+    slow = (FLICKER_FLOOR * np.asarray(noise.bias_instability_upper)) ** 2 + \
+        np.asarray(noise.random_walk_upper) ** 2 * window_s / 3.0
     for sigma, times in zip(noise.gauss_markov, noise.gauss_markov_time):
         slow = slow + np.asarray(sigma) ** 2 * np.minimum(1.0, window_s / np.asarray(times))
     return white + quantization + slow
@@ -387,9 +401,9 @@ class ChannelNoise:
 
     @classmethod
     def axis(cls, noise: NoiseModel, axis: int) -> ChannelNoise:
-        """One axis of a noise model."""
-        return cls(noise.white_noise_density[axis], noise.quantization[axis], noise.bias_instability[axis],
-                   noise.random_walk[axis], noise.rate_ramp[axis],
+        """One axis of a noise model, each wander term at its one-sided 95 % upper limit (never understated)."""
+        return cls(noise.white_noise_density[axis], noise.quantization[axis], noise.bias_instability_upper[axis],
+                   noise.random_walk_upper[axis], noise.rate_ramp[axis],
                    tuple((s[axis], t[axis]) for s, t in zip(noise.gauss_markov, noise.gauss_markov_time)
                          if s[axis] > 0.0))
 
@@ -399,8 +413,8 @@ class ChannelNoise:
         def mix(values: Sequence[float]) -> float:
             return float(math.sqrt(sum(w * v * v for w, v in zip(weights, values))))
         markov = tuple((mix(s), max(t)) for s, t in zip(noise.gauss_markov, noise.gauss_markov_time) if any(s))
-        return cls(mix(noise.white_noise_density), mix(noise.quantization), mix(noise.bias_instability),
-                   mix(noise.random_walk), mix(noise.rate_ramp), markov)
+        return cls(mix(noise.white_noise_density), mix(noise.quantization), mix(noise.bias_instability_upper),
+                   mix(noise.random_walk_upper), mix(noise.rate_ramp), markov)
 
     def independent(self, duration_s: float) -> float:
         """The variance of a rest mean's own noise (white, quantisation): independent from rest to rest."""
@@ -422,13 +436,16 @@ class ChannelNoise:
         """
         return self.independent(duration_s) + self.slow(duration_s)
 
-    def wander(self, separation_s: float, gap_s: float, first_s: float, second_s: float) -> float:
-        """The variance of the bias's wander between two rest means (see the module), without their own noise."""
+    def wander(self, separation_s: Any, gap_s: Any, first_s: Any, second_s: Any) -> Any:
+        """The variance of the bias's wander between two rest means (see the module), without their own noise.
+
+        Numbers, or arrays of them element by element (a fit's noise model judges every pair at once).
+        """
         mean_length = 0.5 * (first_s + second_s)
-        growth = 0.5 * math.log(max(separation_s / mean_length, 1.0))
+        growth = 0.5 * np.log(np.maximum(separation_s / mean_length, 1.0))
         flicker = 4.0 * self.flicker ** 2 / math.pi * (math.log(2.0) + growth)
         walk = self.walk ** 2 * (gap_s + (first_s + second_s) / 3.0)
-        markov = sum(2.0 * s * s * -math.expm1(-separation_s / t) for s, t in self.markov)
+        markov = sum(2.0 * s * s * -np.expm1(-separation_s / t) for s, t in self.markov)
         return flicker + walk + markov + (self.ramp * separation_s) ** 2
 
 
@@ -446,6 +463,7 @@ class Finding:
     :param rest: the rest at which the test fired.
     :param axis: the axis it is named on (``x``, ``y``, ``z``).
     :param turn_on: whether it is the first rest's turn-on offset.
+    :param why: what the test judged it against, in words (the log line's).
     """
 
     channel: str
@@ -455,6 +473,20 @@ class Finding:
     rest: int
     axis: str
     turn_on: bool = False
+    why: str = ''
+
+    @property
+    def sigma(self) -> float:
+        """The standard deviation the change was judged against (its size over its z), SI."""
+        return abs(self.size / self.z) if self.z else math.inf
+
+    def judged(self) -> str:
+        """``gyro x offset +812 deg/h: 12.3 sigma at rest 1 (1 sigma 66 deg/h: turn-on offset beyond ...)``."""
+        if self.channel == 'accel':
+            one = f'{self.sigma * MG:.3g} mg' + (' per C' if self.kind == 'slope' else '')
+        else:
+            one = f'{self.sigma * DEG_PER_H:.3g} deg/h' + ('/C' if self.kind == 'slope' else '')
+        return f'{self.text()}: {abs(self.z):.1f} sigma at rest {self.rest} (1 sigma {one}; {self.why})'
 
     def text(self) -> str:
         """``gyro x offset +812 deg/h``, ``gyro y slope +2.1 deg/h/C``, ``accel z 3.2 mg``."""
@@ -484,6 +516,9 @@ class JudgedRest:
     up: np.ndarray
     noises: tuple[ChannelNoise, ...]
     """Each channel's noise terms at the rest's up direction."""
+    calibration: tuple[np.ndarray, ...] = ()
+    """Per channel how its residual moves with the errors of the calibration's terms (a row over the
+    sensor's :class:`~tak_thermo_ros.core.link.uncertainty.LinkUncertainty` terms; empty: none stated)."""
 
 
 @dataclass(frozen=True)
@@ -495,12 +530,33 @@ class WatchSettings:
     :param turn_on: take each run's turn-on offset at its first rest (``-p turn_on:=first_rest``).
     :param learn: what earlier runs learned (opt-in learning; a fresh :class:`LearnedState` to
         start), or ``None``: no learning.
+    :param turn_on_repeatability: ``(accel, gyro)``: a turn-on repeatability per axis (SI; a data
+        sheet's bias repeatability) for a sensor whose file holds none, or ``None``.
     """
 
     enabled: bool = True
     latitude: float | None = None
     turn_on: bool = False
     learn: LearnedState | None = None
+    turn_on_repeatability: tuple[tuple[float, float, float] | None, tuple[float, float, float] | None] = (None, None)
+
+    def repeatabilities(self) -> tuple[Repeatability | None, Repeatability | None]:
+        """``(accel, gyro)`` what stands in for a file's missing turn-on repeatability.
+
+        The parameter, else the spread of the turn-on offsets learning has seen over
+        :data:`MIN_SPREAD_RUNS` runs or more (the gyroscope's), else ``None``.
+        """
+        learned = self.learn.turn_on_spread() if self.learn is not None else None
+        out = []
+        for sensor, given in zip(('accel', 'gyro'), self.turn_on_repeatability):
+            if given is not None:
+                out.append(Repeatability(tuple(float(v) for v in given), f'{sensor}_turn_on_repeatability'))
+            elif sensor == 'gyro' and learned is not None:
+                out.append(Repeatability(learned, f'the spread of {self.learn.turn_on_runs} earlier runs\' '
+                                                  f'turn-on offsets (learned_file)'))
+            else:
+                out.append(None)
+        return out[0], out[1]
 
     def watch(self, unit: UnitCalibration) -> CalibrationWatch:
         """The watch of a calibration under these settings.
@@ -516,7 +572,8 @@ class WatchSettings:
             start = self.learn
             another = bool(start.original) and start.original != calibration_digest(unit)
             learner = Learner(unit, LearnedState() if another else start)
-        watch = CalibrationWatch(unit, latitude=self.latitude, turn_on=self.turn_on, learner=learner)
+        watch = CalibrationWatch(unit, latitude=self.latitude, turn_on=self.turn_on, learner=learner,
+                                 repeatabilities=self.repeatabilities())
         if another:
             watch.notices.append(f'{ANOTHER_CALIBRATION}: learning starts afresh (the learned file is replaced at '
                                  f'the first write)')
@@ -531,11 +588,14 @@ class CalibrationWatch:
         latitude, else standard gravity).
     :param turn_on: take the run's turn-on offset at its first rest and subtract it (``turn_on: first_rest``).
     :param learner: a :class:`Learner` (opt-in learning), or ``None``.
+    :param repeatabilities: ``(accel, gyro)`` a turn-on repeatability for a sensor whose file holds none
+        (:meth:`WatchSettings.repeatabilities`), or ``None``s: its first rest is then unjudged.
     :raises WatchUnavailable: when the calibration holds no gyroscope or a sensor has no noise model.
     """
 
     def __init__(self, unit: UnitCalibration, *, latitude: float | None = None, turn_on: bool = False,
-                 learner: Learner | None = None) -> None:
+                 learner: Learner | None = None,
+                 repeatabilities: tuple[Repeatability | None, Repeatability | None] = (None, None)) -> None:
         reason = watch_unavailable(unit)
         if reason:
             raise WatchUnavailable(reason)
@@ -577,6 +637,19 @@ class CalibrationWatch:
         """The temperature the adjustment's slope is counted from."""
         self._pairs: dict[tuple[int, int, int], float] = {}
         self._turn_on_sd = tuple(unit.sensor(sensor).known_turn_on for sensor in ('accel', 'gyro'))
+        self.repeatability_source = tuple('the calibration file' if known is not None else
+                                          (given.source if given is not None else '')
+                                          for known, given in zip(self._turn_on_sd, repeatabilities))
+        """Per sensor where the turn-on repeatability the first rest is judged against comes from (``''``: none)."""
+        self._turn_on_share = tuple(2.0 if known is None and given is not None and given.source.endswith(
+            '_turn_on_repeatability') else 1.0 for known, given in zip(self._turn_on_sd, repeatabilities))
+        """Per sensor the turn-on variance's factor: a file of one power-up (no ``turn_on``) judged with a given
+        repeatability carries that power-up's own turn-on offset in its curve: the run's less the file's, twice."""
+        self._turn_on_sd = tuple(known if known is not None else given
+                                 for known, given in zip(self._turn_on_sd, repeatabilities))
+        self._covariances: dict[str, np.ndarray] = {}
+        self.undetermined: list[tuple[int, float, float]] = []
+        """Rests whose ``|f|`` the calibration leaves undetermined: ``(rest, its uncertainty, its noise)`` (SI)."""
         if learner is not None:
             self._set_adjustment(learner.adjustment())
         self._block_adjustment = self.adjustment
@@ -655,7 +728,75 @@ class CalibrationWatch:
         noises = tuple(self.channel_noise(up))
         independent = np.array([noise.independent(rest.duration_s) for noise in noises])
         independent[:3] += self.heading_variance(up)
-        return JudgedRest(rest, np.array([*gyro, accel]), independent, up, noises)
+        return JudgedRest(rest, np.array([*gyro, accel]), independent, up, noises, self._calibration_rows(rest, up))
+
+    def _calibration_rows(self, rest: Rest, up: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Per channel its residual's row over the file's terms (:meth:`LinkUncertainty.rows`); empty: none stated.
+
+        The gyroscope's channels at the rest's rate, ``|f|`` as the accelerometer's axes along the up direction.
+        """
+        rows: list[np.ndarray] = []
+        mean = np.asarray(rest.mean)
+        for sensor, inputs in (('gyro', mean[3:]), ('accel', mean[:3])):
+            calibration = self.unit.sensor(sensor)
+            uncertainty = calibration.uncertainty
+            if uncertainty is None:
+                rows += [np.zeros(0)] * (3 if sensor == 'gyro' else 1)
+                continue
+            low, high = calibration.temp_code_min, calibration.temp_code_max
+            temperature = min(max(rest.temperature, low), high)
+            scales = np.array([axis.scale for axis in calibration.axes])
+            per_axis = uncertainty.rows(temperature, inputs, calibration.temp_code_ref, scales)
+            # beyond the calibrated range the correction holds the edge's value: off by the slope there times
+            # the distance (columns: each axis's slope beyond the low edge, then beyond the high edge)
+            outside = np.zeros((3, 6))
+            below, above = min(rest.temperature - low, 0.0), max(rest.temperature - high, 0.0)
+            outside[:, :3] = -below * np.eye(3)
+            outside[:, 3:] = -above * np.eye(3)
+            per_axis = np.hstack([per_axis, outside])
+            rows += list(per_axis) if sensor == 'gyro' else [up @ per_axis]
+        return tuple(rows)
+
+    def _terms_covariance(self, sensor: str) -> np.ndarray:
+        """The covariance of the errors :meth:`_calibration_rows` runs over: the file's terms, then beyond its range.
+
+        Beyond an edge each axis's slope is the curve's own there (what holding the edge's value
+        misses) beside the file's ``beyond`` spread, as an independent error per side.
+        """
+        cached = self._covariances.get(sensor)
+        if cached is not None:
+            return cached
+        calibration = self.unit.sensor(sensor)
+        uncertainty = calibration.uncertainty
+        assert uncertainty is not None
+        beyond = np.asarray(uncertainty.beyond or (0.0, 0.0, 0.0))
+        sides = []
+        for edge in (calibration.temp_code_min, calibration.temp_code_max):
+            n = edge - calibration.temp_code_ref
+            step = max(1e-3 * (calibration.temp_code_max - calibration.temp_code_min), 1e-6)
+            slope = np.array([(axis.offset_drift(n + step) - axis.offset_drift(n - step)) / (2.0 * step) / axis.scale
+                              for axis in calibration.axes])
+            sides.append(slope ** 2 + beyond ** 2 if calibration.needs_temperature else beyond ** 2)
+        count = len(uncertainty.terms)
+        matrix = np.zeros((count + 6, count + 6))
+        matrix[:count, :count] = uncertainty.covariance
+        matrix[count:, count:] = np.diag(np.concatenate(sides))
+        self._covariances[sensor] = matrix
+        return matrix
+
+    def calibration_covariance(self, rests: Sequence[JudgedRest], channel: int,
+                               first: JudgedRest | None = None) -> np.ndarray:
+        """``(k, k)`` the covariance of the calibration's own error in the rests' residuals on a channel.
+
+        Common to every rest (the same file's errors at each rest's orientation and temperature);
+        with ``first``: of their differences from it. Zero when the file states no uncertainty.
+        """
+        if not rests or not len(rests[0].calibration) or not len(rests[0].calibration[channel]):
+            return np.zeros((len(rests), len(rests)))
+        rows = np.array([rest.calibration[channel] for rest in rests])
+        if first is not None:
+            rows = rows - first.calibration[channel][None, :]
+        return rows @ self._terms_covariance('gyro' if channel < 3 else 'accel') @ rows.T
 
     def wander_variance(self, first: JudgedRest, second: JudgedRest, channel: int) -> float:
         """The variance of the bias's wander between two rests' means on a channel (without their own noise).
@@ -707,13 +848,30 @@ class CalibrationWatch:
             return None
         return float(math.sqrt(sum(u * u * r * r for u, r in zip(up, accel.repeatability))))
 
+    def _turn_on_covariance(self, rests: list[JudgedRest], channel: int) -> np.ndarray:
+        """``(k, k)`` the run's turn-on offset in the rests' residuals: one constant per gyroscope axis.
+
+        ``|f|`` takes the accelerometer's turn-on offset ``t`` along each rest's up direction
+        (``u_i . t``: it changes with the tilt), ``u_i' diag(R^2) u_j``.
+        """
+        accel, gyro = self._turn_on_sd
+        if channel < 3:
+            return np.full((len(rests), len(rests)), self._turn_on_share[1]
+                           * gyro.repeatability[channel] ** 2)  # type: ignore[union-attr]
+        ups = np.array([rest.up for rest in rests])
+        return self._turn_on_share[0] * (ups * np.square(accel.repeatability)) @ ups.T  # type: ignore[union-attr]
+
     def _judge(self, rest: Rest) -> None:
         judged = self.residual(rest)
         self.rests_judged += 1
         self.rest_hours += rest.duration_s / 3600.0
         if self.first is None:
             self.first = judged
+            unjudged = self.first_rest_unjudged()
+            if unjudged:
+                self.notices.append(f'calibration watch: rest 1 {unjudged}')
         else:
+            self._accel_determined(judged)
             self.judged.append(judged)
             if len(self.judged) > MAX_RESTS_JUDGED - 1:
                 gone = self.judged.pop(0).rest.index
@@ -724,6 +882,19 @@ class CalibrationWatch:
             adjustment = self.learner.update(self, judged)
             if adjustment is not None:
                 self._set_adjustment(adjustment)
+
+    def _accel_determined(self, judged: JudgedRest) -> None:
+        """Whether the file determines ``|f|`` here against rest 1 (:data:`UNDETERMINED_RATIO`); said once."""
+        uncertainty = float(math.sqrt(max(self.calibration_covariance([judged], 3, self.first)[0, 0], 0.0)))
+        noise = math.sqrt(self.level_variance(judged, 3) - self._reference_variance(judged.up, 3))
+        if uncertainty <= UNDETERMINED_RATIO * noise:
+            return
+        self.undetermined.append((judged.rest.index, uncertainty, noise))
+        if len(self.undetermined) == 1:
+            tilt = math.degrees(math.acos(min(1.0, float(abs(judged.up @ self.first.up)))))  # type: ignore[union-attr]
+            self.notices.append(f'|f| not judged at rest {judged.rest.index} ({tilt:.0f} deg from rest 1): the '
+                                f'calibration leaves it undetermined there (+-{uncertainty * MG:.2g} mg, noise '
+                                f'{noise * MG:.2g} mg)')
 
     def _test(self, channel: int, judged: JudgedRest) -> None:
         """One channel at a rest: the alternatives tested on the run's residuals by generalised least squares.
@@ -741,6 +912,11 @@ class CalibrationWatch:
         rests = [first, *self.judged]  # type: ignore[list-item]
         state = self.channels[name]
         state.residual = float(judged.residual[channel])
+        if channel == 3 and self.undetermined:
+            left = {index for index, _, _ in self.undetermined}
+            if judged.rest.index in left:
+                return
+            rests = [rest for rest in rests if rest.rest.index not in left]
         repeatability = self._turn_on_repeatability(channel, first.up)  # type: ignore[union-attr]
         count = len(rests)
         wander = self._wander_covariance(rests, channel)
@@ -748,9 +924,10 @@ class CalibrationWatch:
         temperatures = np.array([rest.rest.temperature for rest in rests])
         alternatives: list[tuple[np.ndarray, str, int, float]] = []  # (regressor, kind, since, share)
         if repeatability is not None:
-            constant = repeatability ** 2 + self._constant_variance(first, channel)  # type: ignore[arg-type]
+            constant = (self._turn_on_covariance(rests, channel)
+                        + self._constant_variance(first, channel))  # type: ignore[arg-type]
             y = np.array([rest.residual[channel] for rest in rests])
-            covariance = constant + wander + np.diag(independent)
+            covariance = constant + wander + np.diag(independent) + self.calibration_covariance(rests, channel)
             steps = count - 1
             if count == 1:
                 alternatives.append((np.ones(1), 'offset', 1, 1.0))
@@ -764,7 +941,8 @@ class CalibrationWatch:
                 state.z = 0.0
                 return
             y = np.array([rest.residual[channel] - first.residual[channel] for rest in rests[1:]])  # type: ignore
-            covariance = independent[0] + wander[1:, 1:] + np.diag(independent[1:])
+            covariance = (independent[0] + wander[1:, 1:] + np.diag(independent[1:])
+                          + self.calibration_covariance(rests[1:], channel, first))
             steps = count - 1
             spread = float(np.ptp(temperatures)) >= SLOPE_SPAN_C
             step_share = 0.5 / steps if spread else 1.0 / steps
@@ -774,7 +952,8 @@ class CalibrationWatch:
                               rests[m].rest.index, step_share) for m in range(1, count)]
         share = self.false_alarms_per_hour * judged.rest.duration_s / 3600.0 / len(CHANNELS)
         regressors = np.column_stack([x for x, _, _, _ in alternatives])
-        solved = _solver(covariance)(np.column_stack([y, regressors]))  # C^-1 y and C^-1 x of each, at once
+        floor = float(np.min(independent[1:] if repeatability is None else independent))
+        solved = _solver(covariance, floor)(np.column_stack([y, regressors]))  # C^-1 y and C^-1 x of each
         weighted_y = solved[:, 0]
         informations = np.einsum('ij,ij->j', regressors, solved[:, 1:]).tolist()
         projections = (weighted_y @ regressors).tolist()
@@ -793,11 +972,12 @@ class CalibrationWatch:
         state.z = z
         if ratio >= 1.0:
             turn_on = kind == 'offset' and since == 1 and repeatability is not None
-            where = ('turn-on offset beyond the repeatability ' + self._reader(channel, repeatability)
+            twice = ', the file\'s power-up\'s too' if self._turn_on_share[int(channel < 3)] > 1.0 else ''
+            where = ('turn-on offset beyond the repeatability ' + self._reader(channel, repeatability) + twice
                      if turn_on else f'since rest {since}' if kind == 'offset' else 'against temperature')
             size = size if channel < 3 else self._vertical(size, judged.up)
             self._found(Finding(name, kind, size, z, judged.rest.index, self._axis(channel, judged.up),
-                                turn_on=turn_on), f'{abs(z):.1f} sigma, {where}')
+                                turn_on=turn_on, why=where), f'{abs(z):.1f} sigma, {where}')
 
     def _constant_variance(self, first: JudgedRest, channel: int) -> float:
         """What is constant over a run besides the turn-on offset.
@@ -810,7 +990,7 @@ class CalibrationWatch:
         """``(k, k)`` the covariance of the bias's wander at the rests, counted from the first (zero there).
 
         ``(D_i1 + D_j1 - D_ij) / 2`` from the wander's pairwise variances ``D`` (a process with
-        stationary increments).
+        stationary increments), its negative part left out (:func:`positive_part`).
         """
         count = len(rests)
         to_first = np.array([0.0, *(self.wander_variance(rests[0], rest, channel) for rest in rests[1:])])
@@ -820,7 +1000,7 @@ class CalibrationWatch:
             for k in range(1, i):
                 value = 0.5 * (to_first[i] + to_first[k] - self.wander_variance(rests[i], rests[k], channel))
                 covariance[i, k] = covariance[k, i] = value
-        return covariance
+        return positive_part(covariance)
 
     @staticmethod
     def _axis(channel: int, up: np.ndarray) -> str:
@@ -855,7 +1035,8 @@ class CalibrationWatch:
             if gyro_sd is None:
                 break
             residual = float(judged.residual[channel])
-            sigma = math.sqrt(self.level_variance(judged, channel) + gyro_sd.repeatability[channel] ** 2)
+            own = self.level_variance(judged, channel) + self.calibration_covariance([judged], channel)[0, 0]
+            sigma = math.sqrt(own + self._turn_on_share[1] * gyro_sd.repeatability[channel] ** 2)
             if abs(residual) <= TURN_ON_SIGMAS * sigma:
                 offset[3 + channel] = residual
                 gyro_taken.append(f'{"xyz"[channel]} {residual * DEG_PER_H:+.3g}')
@@ -869,7 +1050,8 @@ class CalibrationWatch:
             axis = int(np.argmax(np.abs(up)))
             if abs(up[axis]) >= VERTICAL_AXIS_COSINE:
                 size = self._vertical(float(judged.residual[3]), up)
-                sigma = math.sqrt(self.level_variance(judged, 3) / up[axis] ** 2 + accel_sd.repeatability[axis] ** 2)
+                sigma = math.sqrt((self.level_variance(judged, 3) + self.calibration_covariance([judged], 3)[0, 0])
+                                  / up[axis] ** 2 + self._turn_on_share[0] * accel_sd.repeatability[axis] ** 2)
                 text = f'accel {"xyz"[axis]} {size * MG:+.3g} mg'
                 if abs(size) <= TURN_ON_SIGMAS * sigma:
                     offset[axis] = size
@@ -895,6 +1077,42 @@ class CalibrationWatch:
             self.on_adjustment(adjustment)
 
     # -- what it says ----------------------------------------------------------------------------
+
+    def first_rest_unjudged(self) -> str:
+        """Why a run's first rest is not judged (no turn-on repeatability for the gyroscope), or ``''``."""
+        if self._turn_on_sd[1] is not None:
+            return ''
+        return ('unjudged: the calibration holds no gyro turn-on repeatability; later rests are judged against '
+                'the first (give gyro_turn_on_repeatability, or learn over 5 runs)')
+
+    def first_rest_words(self) -> str:
+        """What the first rest is judged against (the status's ``first_rest``)."""
+        unjudged = self.first_rest_unjudged()
+        if unjudged:
+            return unjudged
+        gyro = self._turn_on_sd[1].repeatability  # type: ignore[union-attr]
+        return (f'judged against the gyro turn-on repeatability {" ".join(f"{v * DEG_PER_H:.3g}" for v in gyro)} '
+                f'deg/h x y z (from {self.repeatability_source[1]})')
+
+    def what_to_do(self) -> str:
+        """One line: refit, or what learning has done about what the watch found (``''``: nothing found)."""
+        if not self.findings:
+            return ''
+        refit = 'refit from the records the unit made since (tak_calib fit REC... -o NEW.yaml)'
+        learner = self.learner
+        if learner is None:
+            return f'{refit}, or learn it (learn: true); docs/watch.md'
+        words = []
+        for finding in self.findings.values():
+            if finding.channel == 'accel':
+                words.append(f'accel (not learned): {refit}')
+                continue
+            axis = 'xyz'.index(finding.channel[-1])
+            since = learner.accepted_since[axis]
+            words.append(f'learning takes {finding.channel}: its rests follow the learned curve from rest {since} on'
+                         if since is not None else
+                         f'learning is taking {finding.channel} ({learner.rejected} rests left out so far)')
+        return '; '.join(words)
 
     @property
     def stale(self) -> bool:
@@ -928,7 +1146,18 @@ class CalibrationWatch:
             else:
                 values.append(('accel.norm_error_mg', f'{state.residual * MG:.4g}'))
             values.append((f'{key}.sigma', f'{state.z:.3g}'))
-        if self.turn_on_enabled:
+        values.append(('accel.undetermined_rests', str(len(self.undetermined))))
+        values.append(('first_rest', self.first_rest_words()))
+        for finding in self.findings.values():
+            values.append((f'stale.{finding.channel.replace(" ", "_")}', finding.judged()))
+        if self.findings:
+            values.append(('stale.what_to_do', self.what_to_do()))
+        if self.learner is not None:  # learning takes the turn-on offset itself, whatever turn_on says
+            offset = self.learner.adjustment()[0][3:]
+            values.append(('turn_on', 'taken by learning: gyro x y z '
+                                      f'{" ".join(f"{v * DEG_PER_H:+.4g}" for v in offset)} deg/h in force'
+                           if self.learner.rests else 'learning takes it at the first rest'))
+        elif self.turn_on_enabled:
             values.append(('turn_on', '; '.join(self.turn_on_lines) or 'waiting for the first rest'))
         if self.learner is not None:
             values += self.learner.values()
@@ -938,7 +1167,16 @@ class CalibrationWatch:
         """What ``tak_calib validate`` prints: the verdict, what moved, the figures at the last rest (short lines)."""
         out = [self.verdict()]
         for finding in self.findings.values():
-            out.append(f'  {finding.text()}: {abs(finding.z):.1f} sigma at rest {finding.rest}')
+            out.append(f'  {finding.judged()}')
+        if self.findings:
+            out.append(f'  what to do: {self.what_to_do()}')
+        unjudged = self.first_rest_unjudged()
+        if unjudged and self.rests_judged:
+            out.append(f'  rest 1 {unjudged}')
+        if self.undetermined:
+            _, uncertainty, noise = max(self.undetermined, key=lambda item: item[1] / item[2])
+            out.append(f'  |f| not judged at {len(self.undetermined)} rests: the file leaves it undetermined there '
+                       f'(+-{uncertainty * MG:.2g} mg, noise {noise * MG:.2g} mg)')
         last = self.judged[-1] if self.judged else self.first
         if last is not None:
             bias = ' '.join(f'{self.channels[n].residual * DEG_PER_H:+.3g}' for n in CHANNELS[:3])
@@ -976,20 +1214,34 @@ def turn_on_unavailable(unit: UnitCalibration) -> str:
     return ''
 
 
-def _solver(covariance: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
-    """``X -> C^-1 X`` of ``(k, m)`` columns by Cholesky (a covariance of approximations: eigenvalues kept > 0)."""
-    count = len(covariance)
-    scale = float(np.max(np.diag(covariance))) or 1.0
-    try:
-        factor = np.linalg.cholesky(covariance + np.eye(count) * scale * 1e-12)
-    except np.linalg.LinAlgError:
-        values, vectors = np.linalg.eigh(covariance)
-        values = np.maximum(values, scale * 1e-9)
-        return lambda x: vectors @ ((vectors.T @ x) / values[:, None])
+def positive_part(covariance: np.ndarray) -> np.ndarray:
+    """A symmetric matrix with its negative eigenvalues set to 0: the nearest covariance (Frobenius).
 
-    def solve(x: np.ndarray) -> np.ndarray:
-        return np.linalg.solve(factor.T, np.linalg.solve(factor, x))
-    return solve
+    The flicker term's pairwise variance ``(4 B^2 / pi)(ln 2 + ln(S / T) / 2)`` with ``T`` the two
+    rests' mean length is exact for rests of one length only; a short rest between long ones makes
+    the wander's covariance indefinite, and the larger the flicker against a rest's own noise, the
+    nearer the whole covariance comes to singular: a healthy unit's 3-sigma rest then read 7 sigma.
+    Its positive part is a covariance at every flicker (the random walk's is one already).
+    """
+    if not len(covariance):
+        return covariance
+    values, vectors = np.linalg.eigh(0.5 * (covariance + covariance.T))
+    if values.min() >= 0.0:
+        return covariance
+    return (vectors * np.maximum(values, 0.0)) @ vectors.T
+
+
+def _solver(covariance: np.ndarray, floor: float) -> Callable[[np.ndarray], np.ndarray]:
+    """``X -> C^-1 X`` of ``(k, m)`` columns, ``C``'s eigenvalues kept at ``floor`` at least.
+
+    ``C`` is a sum of approximations (the wander's pairwise variances need not make a positive
+    definite matrix; the calibration's part cancels large terms): a direction it puts below the
+    residuals' own noise (``floor``: the smallest of their independent variances, which every
+    direction of the true covariance holds) would be trusted beyond any measurement.
+    """
+    values, vectors = np.linalg.eigh(covariance)
+    values = np.maximum(values, max(floor, 1e-300))
+    return lambda x: vectors @ ((vectors.T @ x) / values[:, None])
 
 
 # -- learning ----------------------------------------------------------------------------------
@@ -1009,6 +1261,8 @@ class LearnedState:
     :param reference: the temperature the slope is counted from (the gyroscope's ``temp_code_ref``).
     :param runs: runs that contributed; ``rests`` rests used, ``rejected`` rests left out as outliers.
     :param original: a digest of the calibration the corrections apply to (:func:`calibration_digest`).
+    :param turn_on_runs: runs whose first rest gave a turn-on offset; ``turn_on_sum`` and ``turn_on_squares``
+        per axis the sum of those offsets and of their squares (rad/s; the spread of :meth:`turn_on_spread`).
     """
 
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -1020,12 +1274,30 @@ class LearnedState:
     rests: int = 0
     rejected: int = 0
     original: str = ''
+    turn_on_runs: int = 0
+    turn_on_sum: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    turn_on_squares: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def turn_on_spread(self) -> tuple[float, float, float] | None:
+        """Per axis the standard deviation of the runs' turn-on offsets (rad/s), from :data:`MIN_SPREAD_RUNS` runs on.
+
+        Each run's first rest against the curve in force at its start: its turn-on offset, and what
+        the rest's noise and the curve's error at that temperature add (a spread on the safe side).
+        """
+        count = self.turn_on_runs
+        if count < MIN_SPREAD_RUNS:
+            return None
+        out = [math.sqrt(max(squares - total * total / count, 0.0) / (count - 1))
+               for total, squares in zip(self.turn_on_sum, self.turn_on_squares)]
+        return out[0], out[1], out[2]
 
     def to_mapping(self) -> dict[str, Any]:
         """Plain numbers and lists (a YAML section)."""
         return {'offset': list(self.offset), 'offset_variance': list(self.offset_variance), 'slope': list(self.slope),
                 'slope_variance': list(self.slope_variance), 'reference': self.reference, 'runs': self.runs,
-                'rests': self.rests, 'rejected': self.rejected, 'original': self.original}
+                'rests': self.rests, 'rejected': self.rejected, 'original': self.original,
+                'turn_on_runs': self.turn_on_runs, 'turn_on_sum': list(self.turn_on_sum),
+                'turn_on_squares': list(self.turn_on_squares)}
 
     @classmethod
     def from_mapping(cls, raw: Mapping[str, Any], where: str) -> LearnedState:
@@ -1037,16 +1309,18 @@ class LearnedState:
             msg = f'{where}: expected a mapping'
             raise TakError(msg)
         values: dict[str, Any] = {}
-        for name in ('offset', 'offset_variance', 'slope', 'slope_variance'):
+        for name in ('offset', 'offset_variance', 'slope', 'slope_variance', 'turn_on_sum', 'turn_on_squares'):
+            if name.startswith('turn_on') and name not in raw:  # a learned file written before it kept them
+                continue
             triple = raw.get(name)
-            bound = ' >= 0' if name.endswith('variance') else ''
+            bound = ' >= 0' if name.endswith(('variance', 'squares')) else ''
             numbers = (tuple(finite_number(v, f'{where}.{name}[{i}]') for i, v in enumerate(triple))
                        if isinstance(triple, (list, tuple)) and len(triple) == 3 else None)
             if numbers is None or (bound and min(numbers) < 0.0):
                 msg = f'{where}.{name}: expected three finite numbers{bound}'
                 raise TakError(msg)
             values[name] = numbers
-        for name in ('runs', 'rests', 'rejected'):
+        for name in ('runs', 'rests', 'rejected', 'turn_on_runs'):
             count = raw.get(name, 0)
             if isinstance(count, bool) or not isinstance(count, int) or count < 0:
                 msg = f'{where}.{name}: expected a whole number >= 0'
@@ -1136,6 +1410,10 @@ class Learner:
     rejected: int = 0
     changed: bool = False
     _filters: list[_AxisFilter] = field(default_factory=list)
+    accepted_since: list[int | None] = field(default_factory=lambda: [None, None, None])
+    """Per axis the first rest of the latest run of rests it took (``None``: its latest rest was left out)."""
+    first_residual: tuple[float, float, float] | None = None
+    """The run's first rest's gyroscope residual against the start's curve (its turn-on offset, for the spread)."""
 
     def __post_init__(self) -> None:
         gyro: Calibration = self.unit.gyro  # type: ignore[assignment]
@@ -1221,6 +1499,8 @@ class Learner:
         """One rest: each axis's filter steps (the wander since the last rest), takes the rest unless an outlier."""
         x = judged.rest.temperature - self.reference
         used = False
+        if self.first_residual is None:
+            self.first_residual = (float(judged.residual[0]), float(judged.residual[1]), float(judged.residual[2]))
         for axis, axis_filter in enumerate(self._filters):
             residual = float(judged.residual[axis])  # against the start's curve
             if axis_filter.last is not None:
@@ -1234,6 +1514,7 @@ class Learner:
                 axis_filter.outliers += 1
                 if axis_filter.outliers < OUTLIERS_IN_A_ROW:
                     self.rejected += 1
+                    self.accepted_since[axis] = None
                     continue
                 # the offset moved: a new level, the slope kept
                 axis_filter.state[0] = residual - (axis_filter.state[1] * x if self.learn_slope else 0.0)
@@ -1241,9 +1522,12 @@ class Learner:
                                                   axis_filter.covariance[1, 1]])
                 axis_filter.outliers = 0
                 axis_filter.last = judged
+                self.accepted_since[axis] = judged.rest.index
                 used = True
                 continue
             axis_filter.outliers = 0
+            if self.accepted_since[axis] is None:
+                self.accepted_since[axis] = judged.rest.index
             gain = axis_filter.covariance @ h / innovation_variance
             axis_filter.state = axis_filter.state + gain * innovation
             keep = np.eye(2) - np.outer(gain, h)  # Joseph's form: stays a covariance
@@ -1294,9 +1578,15 @@ class Learner:
             slope.append(float(self.start.slope[axis] + s))
             slope_variance.append(float(axis_filter.covariance[1, 1]))
         runs = self.start.runs + (1 if self.rests else 0)
-        return replace(self.start, offset=tuple(offset), offset_variance=tuple(offset_variance),  # type: ignore
+        start = self.start
+        first = self.first_residual
+        turn_on = (start.turn_on_runs, start.turn_on_sum, start.turn_on_squares) if first is None else (
+            start.turn_on_runs + 1, tuple(t + v for t, v in zip(start.turn_on_sum, first)),
+            tuple(t + v * v for t, v in zip(start.turn_on_squares, first)))
+        return replace(start, offset=tuple(offset), offset_variance=tuple(offset_variance),  # type: ignore
                        slope=tuple(slope), slope_variance=tuple(slope_variance), runs=runs,  # type: ignore[arg-type]
-                       rests=self.start.rests + self.rests, rejected=self.start.rejected + self.rejected)
+                       rests=start.rests + self.rests, rejected=start.rejected + self.rejected,
+                       turn_on_runs=turn_on[0], turn_on_sum=turn_on[1], turn_on_squares=turn_on[2])  # type: ignore
 
     def values(self) -> list[tuple[str, str]]:
         """The diagnostics' learning figures."""

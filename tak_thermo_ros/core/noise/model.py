@@ -42,9 +42,16 @@ from tak_thermo_ros.errors import NoiseError
 
 FLICKER_FLOOR = math.sqrt(2.0 * math.log(2.0) / math.pi)
 """The flat Allan deviation of a flicker (bias instability) term ``B``: ``0.6643 B``."""
-SOURCES = ('file', 'static_run', 'residual')
+SOURCES = ('file', 'static_run', 'residual', 'fit')
 """Where a model comes from: a user's Kalibr-style file, a static constant-temperature run,
-the calibration run's own residual after the fitted thermal model."""
+the calibration run's own residual after the fitted thermal model, the fit's own rests (white
+noise within them, the wander between them: :mod:`tak_thermo_ros.core.noise.rests`)."""
+OPTIONAL_TERMS = ('filter_time_constant', 'filter_share', 'random_walk_bound', 'bias_instability_bound',
+                  'white_noise_density_error', 'bias_instability_error', 'random_walk_error')
+"""The triples a model writes only when one of their values is not 0."""
+UPPER_SIGMAS = 1.6448536
+"""A wander term's one-sided 95 % upper limit is its value plus this many standard errors (its bound
+where the record did not show it): what the calibration watch counts (never understating the wander)."""
 TERMS = ('quantization', 'white_noise_density', 'bias_instability', 'random_walk', 'rate_ramp')
 """The five IEEE 952 terms, in the order of the Allan variance's slope (-2 to +2)."""
 FLOOR_GRID = 4000
@@ -178,6 +185,11 @@ class NoiseModel:
     :param random_walk_bound: units*sqrt(Hz): where the record shows no random walk
         (``random_walk`` 0), the largest one it allows (from its longest averaging times); 0
         where the walk is measured or nothing is known.
+    :param bias_instability_bound: units: likewise for the bias instability (``bias_instability``
+        0 where the record does not show one: the largest it allows).
+    :param white_noise_density_error: the standard error of ``white_noise_density`` (0: not stated);
+        ``bias_instability_error`` and ``random_walk_error`` likewise (a model estimated from a
+        fit's rests states them, :mod:`tak_thermo_ros.core.noise.rests`).
     """
 
     white_noise_density: Triple
@@ -193,10 +205,15 @@ class NoiseModel:
     gauss_markov: tuple[Triple, ...] = ()
     gauss_markov_time: tuple[Triple, ...] = ()
     random_walk_bound: Triple = ZERO
+    bias_instability_bound: Triple = ZERO
+    white_noise_density_error: Triple = ZERO
+    bias_instability_error: Triple = ZERO
+    random_walk_error: Triple = ZERO
 
     def __post_init__(self) -> None:
         for name in ('white_noise_density', 'bias_instability', 'random_walk', 'quantization', 'rate_ramp',
-                     'filter_time_constant', 'random_walk_bound'):
+                     'filter_time_constant', 'random_walk_bound', 'bias_instability_bound',
+                     'white_noise_density_error', 'bias_instability_error', 'random_walk_error'):
             object.__setattr__(self, name, _triple(getattr(self, name), name))
         object.__setattr__(self, 'filter_share', _triple(self.filter_share, 'filter_share', at_most=1.0))
         object.__setattr__(self, 'bias_instability_tau',
@@ -217,6 +234,20 @@ class NoiseModel:
         if self.source not in SOURCES:
             msg = f'source: expected one of {", ".join(SOURCES)}, got {self.source!r}'
             raise NoiseError(msg)
+
+    @property
+    def bias_instability_upper(self) -> Triple:
+        """Per axis the bias instability at its one-sided 95 % upper limit: what a test must not understate.
+
+        The value plus :data:`UPPER_SIGMAS` of its standard error, or where the record showed none its
+        bound; the value itself where neither is stated (a data sheet's, a static run's fit).
+        """
+        return _upper(self.bias_instability, self.bias_instability_error, self.bias_instability_bound)
+
+    @property
+    def random_walk_upper(self) -> Triple:
+        """Per axis the random walk at its one-sided 95 % upper limit (as :attr:`bias_instability_upper`)."""
+        return _upper(self.random_walk, self.random_walk_error, self.random_walk_bound)
 
     def coefficients(self) -> np.ndarray:
         """``(3, 5)``: per axis the squares of the five IEEE 952 terms, in the order of :data:`TERMS`."""
@@ -298,7 +329,7 @@ class NoiseModel:
 
         The terms beyond the five are written only when present: the filter's two triples, the
         Gauss-Markov processes as flat lists of three numbers per process (x y z, x y z, ...),
-        the random-walk bound.
+        the bounds and the standard errors (:data:`OPTIONAL_TERMS`).
         """
         mapping: dict[str, Any] = {}
         for f in fields(self):
@@ -306,7 +337,7 @@ class NoiseModel:
             if f.name in ('gauss_markov', 'gauss_markov_time'):
                 if value:
                     mapping[f.name] = [v for triple in value for v in triple]
-            elif f.name in ('filter_time_constant', 'filter_share', 'random_walk_bound'):
+            elif f.name in OPTIONAL_TERMS:
                 if any(value):
                     mapping[f.name] = list(value)
             else:
@@ -317,6 +348,11 @@ class NoiseModel:
         """As :meth:`to_mapping`, with a floor time at infinity as ``None`` (strict JSON has no infinity)."""
         return {key: [v if math.isfinite(v) else None for v in value] if isinstance(value, list) else value
                 for key, value in self.to_mapping().items()}
+
+
+def _upper(value: Triple, error: Triple, bound: Triple) -> Triple:
+    out = [max(v + UPPER_SIGMAS * e, b) for v, e, b in zip(value, error, bound)]
+    return (out[0], out[1], out[2])
 
 
 def noise_model_from_mapping(raw: Any, where: str) -> NoiseModel:

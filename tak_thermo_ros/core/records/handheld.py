@@ -397,7 +397,11 @@ def pooled(records: list[HandheldRecord], names: list[str]) -> HandheldRecord:
         period_s=float(np.median([p.period_s for p in parts])), windows=sum(p.windows for p in parts),
         still_windows=sum(p.still_windows for p in parts), gaps=np.vstack([p.gaps for p in parts]),
         first_ns=min(firsts) if firsts else None, last_ns=max(lasts) if lasts else None,
-        count=sum(p.count for p in parts))
+        count=sum(p.count for p in parts),
+        short_allan=None if any(p.short_allan is None for p in parts) else np.concatenate(
+            [p.short_allan[:, :, :6] for p in parts]),  # type: ignore[index]
+        short_terms=None if any(p.short_terms is None for p in parts) else np.concatenate(
+            [p.short_terms for p in parts]))  # type: ignore[misc]
     turn_offsets = np.cumsum([0] + [len(r.turns) for r in records])
     dropped: dict[str, int] = {}
     skipped: dict[str, int] = {}
@@ -438,7 +442,9 @@ def records_subset(record: HandheldRecord, keep: np.ndarray) -> HandheldRecord:
                           samples=parts.samples[intervals], mean=parts.mean[intervals], noise=parts.noise,
                           window_samples=parts.window_samples, period_s=parts.period_s, windows=parts.windows,
                           still_windows=parts.still_windows, gaps=parts.gaps, first_ns=parts.first_ns,
-                          last_ns=parts.last_ns, count=parts.count)
+                          last_ns=parts.last_ns, count=parts.count,
+                          short_allan=None if parts.short_allan is None else parts.short_allan[intervals],
+                          short_terms=None if parts.short_terms is None else parts.short_terms[intervals])
     return replace(record, intervals=kept, still=_rows(record.still, still_rows),
                    still_interval=number[record.still_interval[still_rows]],
                    turn=_rows(record.turn, turn_rows), turn_index=turn_number[record.turn_index[turn_rows]],

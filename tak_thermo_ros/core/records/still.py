@@ -69,6 +69,11 @@ class StillIntervals:
     :param first_ns: the record's first stamp (``None``: no sample).
     :param last_ns: its last stamp.
     :param count: samples read.
+    :param short_allan: ``(k, 2, c)`` per interval and channel the sums of the Allan variance's terms
+        at one sample (half the squared step between successive samples) and at one window (half the
+        squared step between the means of successive windows); ``short_terms``: ``(k, 2)`` how many
+        terms each sum holds. From every sample of the interval (not only those a fit keeps): the
+        white noise within the rests (:mod:`tak_thermo_ros.core.noise.rests`). ``None``: not gathered.
     :param moved_deg: the largest angle between a window's mean specific force and the intervals' mean
         up direction, degrees (0 without an interval): how far the unit turned away from its rests.
     """
@@ -86,6 +91,8 @@ class StillIntervals:
     first_ns: int | None
     last_ns: int | None
     count: int
+    short_allan: np.ndarray | None = None
+    short_terms: np.ndarray | None = None
     moved_deg: float = 0.0
 
     def __len__(self) -> int:
@@ -271,7 +278,11 @@ class StillDetector:
             run = run[1:-1]  # leave the edges of a turn out
             if not len(run) or (last[run[-1]] - first[run[0]]) * 1e-9 < self.min_still_s:
                 continue
-            intervals.append((first[run[0]], last[run[-1]], len(run) * w, mean[run].mean(axis=0)))
+            # The Allan variance's terms at one sample and at one window (successive windows are adjacent)
+            short = np.vstack([differences[run].sum(axis=0) * (w - 1),
+                               0.5 * np.sum(np.diff(mean[run], axis=0) ** 2, axis=0)])
+            intervals.append((first[run[0]], last[run[-1]], len(run) * w, mean[run].mean(axis=0), short,
+                              (len(run) * (w - 1), len(run) - 1)))
         gaps = np.array(self._gaps, dtype=np.int64).reshape(-1, 2)
         moved = 0.0
         if intervals:
@@ -286,7 +297,8 @@ class StillDetector:
             mean=np.array([i[3] for i in intervals]).reshape(-1, channels),
             noise=noise, window_samples=w, period_s=self.period_s, windows=len(rows),
             still_windows=int(np.count_nonzero(still)), gaps=gaps, first_ns=self._first, last_ns=self._last,
-            count=self.count, moved_deg=moved)
+            count=self.count, short_allan=np.array([i[4] for i in intervals]).reshape(-1, 2, channels),
+            short_terms=np.array([i[5] for i in intervals], dtype=np.int64).reshape(-1, 2), moved_deg=moved)
 
     def _runs(self, still: np.ndarray, after_gap: np.ndarray, mean: np.ndarray, noise: np.ndarray) -> list[np.ndarray]:
         """Runs of consecutive still windows whose means agree (indices of windows)."""

@@ -440,3 +440,65 @@ def everyday_truth(scenario: Scenario, habits: Everyday) -> UnitCalibration:
     """The unit's true links (degrees C from ``reference_celsius``) over the temperatures a month can reach."""
     low, high = habits.temperature_span()
     return replace(scenario, start_celsius=low, plateaus_celsius=(high,)).driver_truth()
+
+
+# -- a second everyday setting: a unit drawn per seed, other habits, other noise -------------------
+
+SECOND_HABITS: dict[str, Any] = {
+    'ambient_celsius': [0.0, 35.0], 'ambient_drift_celsius': 4.0, 'start_spread_celsius': 3.0,
+    'self_heating_celsius': 7.0, 'board_tau_s': 450.0, 'motion_heating_celsius': -2.0,
+    'rest_s': [3.0, 90.0], 'motion_s': [15.0, 240.0], 'tilt_deg': 15.0,
+    'vibration_rate': 0.08, 'vibration_accel': 0.8, 'vehicle_accel': 0.5,
+    'turn_on_accel': [0.004, 0.004, 0.005], 'turn_on_gyro': [3.4e-4, 2.4e-4, 4.4e-4]}
+"""The second setting's habits (an ``everyday`` section): rests on ground tilted up to 15 deg at any
+heading, 3 s to 1.5 min; the ambient 0 to 35 C, drifting by up to 4 C over a record, the unit up
+to 3 C apart from it at power-up, warming by 7 C over 7.5 minutes at rest, cooled by the airflow
+while it moves (the first setting: heated while it moves); other turn-on repeatabilities."""
+SECOND_BOUNDS = {'accel_offset': 0.147, 'accel_scale': 0.006, 'accel_slope': 3.0e-3,
+                 'accel_curvature': (0.5e-5, 2.0e-5), 'accel_cubic': (0.5e-7, 2.0e-7),
+                 'gyro_offset': 5.0e-3, 'gyro_scale': 0.006, 'gyro_slope': 4.0e-4,
+                 'gyro_curvature': (1.0e-6, 4.0e-6), 'gyro_cubic': (2.0e-8, 6.0e-8), 'gyro_coupling': 3.0e-3}
+"""Within what the second setting draws its unit, per seed (SI: m/s^2, rad/s, per degree C from 20 C):
+offsets up to 15 mg and 0.29 deg/s, scale errors up to 0.6 %, a slope, and on every axis a curvature
+and a cubic term of either sign whose sizes lie within the pairs; the gyroscope misaligned by up to
+3 mrad (the accelerometer's triad orthogonal: its offsets are the truth the pool's are judged by)."""
+
+
+def drawn_unit(seed: int, bounds: Mapping[str, Any] = SECOND_BOUNDS) -> dict[str, Any]:
+    """The scenario keys of a unit drawn within ``bounds`` (:data:`SECOND_BOUNDS`): its links and its noise.
+
+    The noise is coloured otherwise than the first setting's: beside white noise, bias instability
+    and random walk, a Gauss-Markov process on every axis (5 minutes on the accelerometer, 3 on the
+    gyroscope).
+    """
+    rng = np.random.default_rng([int(seed), 39])
+
+    def sized(pair: tuple[float, float]) -> float:
+        return float(rng.choice((-1.0, 1.0)) * rng.uniform(*pair))
+
+    def axes(sensor: str, noise: dict[str, Any]) -> dict[str, dict[str, Any]]:
+        out = {}
+        for name in 'xyz':
+            offset = (rng.uniform(-1.0, 1.0) * bounds[f'{sensor}_offset'])
+            slope = rng.uniform(-1.0, 1.0) * bounds[f'{sensor}_slope']
+            curve = [slope, sized(bounds[f'{sensor}_curvature']), sized(bounds[f'{sensor}_cubic'])]
+            out[name] = {'scale': 1.0 + rng.uniform(-1.0, 1.0) * bounds[f'{sensor}_scale'], 'offset': offset,
+                         'offset_coeffs': curve,
+                         'scale_coeffs': [rng.uniform(-1.5e-4, 1.5e-4), rng.uniform(-2.0e-6, 2.0e-6)], **noise}
+        return out
+
+    accel = axes('accel', {'noise_counts': 0.003, 'bias_instability': 3.0e-4, 'random_walk': 3.0e-5,
+                           'gauss_markov': [1.0e-4], 'gauss_markov_time': [300.0]})
+    gyro = axes('gyro', {'noise_counts': 0.0007, 'bias_instability': 1.5e-5, 'random_walk': 1.5e-6,
+                         'gauss_markov': [1.0e-5], 'gauss_markov_time': [180.0]})
+    coupling = bounds['gyro_coupling']
+    couplings = {f'c_{a}{b}': float(rng.uniform(-coupling, coupling)) for a in 'xyz' for b in 'xyz' if a != b}
+    return {'accel_unit': accel, 'gyro_unit': gyro, 'gyro_effects': {'cross_axis': couplings}}
+
+
+def second_everyday(seed: int, *, records: int = 16, record_minutes: float = 30.0, rate_hz: float = 50.0
+                    ) -> tuple[Scenario, Everyday]:
+    """The second everyday setting of a seed: a unit drawn by :func:`drawn_unit`, :data:`SECOND_HABITS`."""
+    raw = {'sample_rate_hz': rate_hz, 'seed': int(seed), **drawn_unit(seed),
+           'everyday': {**SECOND_HABITS, 'records': records, 'record_minutes': record_minutes}}
+    return everyday_scenario(raw)
