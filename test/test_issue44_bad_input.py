@@ -397,6 +397,8 @@ def test_the_pools_solve_is_the_whole_designs(records, shared, seed, hold):
     assert np.allclose(found.theta, expected.theta, rtol=1e-9, atol=1e-12)
     assert np.allclose(found.covariance, expected.covariance, rtol=1e-8, atol=1e-12)
     assert found.solution.rss == pytest.approx(expected.solution.rss, rel=1e-9, abs=1e-12)
+    # what a fleet's prior reads of a pool (its information): the whole design's normal matrix
+    assert np.allclose(pooled.normal(), dense.normal(), rtol=1e-9, atol=1e-9)
 
 
 @settings(max_examples=40, deadline=None)

@@ -22,6 +22,9 @@ from tak_thermo_ros.passes.run import EFFECT_FIT_MAX_SAMPLES
 
 NAME = 'fit'
 OUTPUTS = (('output', FILE, '-o'),)
+BIAS_ORDER = 3
+SCALE_ORDER = 2
+"""The orders of the offset and scale polynomials when none is given."""
 """This command's outputs: ``(argument, kind, option)``, checked before any work is done."""
 
 
@@ -33,9 +36,10 @@ def add_parser(commands) -> argparse.ArgumentParser:
                         help='a record; several records, or a directory of them, are a pool of one unit\'s '
                              'everyday records (docs/everyday.md)')
     parser.add_argument('-o', '--output', required=True, metavar='PARAMS.yaml')
-    parser.add_argument('--bias-order', type=options.polynomial_order, default=3, help='order q of F_s (default 3)')
-    parser.add_argument('--scale-order', type=options.polynomial_order, default=2,
-                        help='order p of F_c (default 2; 0 = no scale drift)')
+    parser.add_argument('--bias-order', type=options.polynomial_order, default=BIAS_ORDER,
+                        help=f'order q of F_s (default {BIAS_ORDER})')
+    parser.add_argument('--scale-order', type=options.polynomial_order, default=SCALE_ORDER,
+                        help=f'order p of F_c (default {SCALE_ORDER}; 0 = no scale drift)')
     parser.add_argument('--temp-code-ref', type=options.temp_code,
                         help='N_t,ref (default: middle of the calibrated range)')
     parser.add_argument('--nominal-scale', type=options.nominal_scale, nargs='+', action=options.OneOrThree,
@@ -73,27 +77,35 @@ def add_parser(commands) -> argparse.ArgumentParser:
                                                                 '(compensated with the fitted calibration)')
     noise_group.add_argument('--noise-from-residual', action='store_true',
                              help='the noise model of this run\'s residual after the fit (one more pass over the bag)')
+    parser.add_argument('--prior', metavar='PRIOR.yaml',
+                        help='a fleet\'s prior (tak_calib fit-fleet --everyday writes it): the records, however few, '
+                             'combined with what units of their kind say (docs/fleet.md); the records are a pool')
     options.add_static_options(parser)
     options.add_topic_options(parser)
     parser.set_defaults(handler=run)
     return parser
 
 
+def fit_settings(args: argparse.Namespace):
+    """``fit``'s :class:`~tak_thermo_ros.passes.run.FitSettings` from its options (fit-fleet's too)."""
+    from tak_thermo_ros.passes.run import FitSettings
+    effects = {'accel': common.effect_list(args.effects), 'gyro': common.effect_list(args.gyro_effects)}
+    return FitSettings(effects=effects, bias_order=args.bias_order, scale_order=args.scale_order,
+                       temp_code_ref=args.temp_code_ref, settle_time_s=args.settle_time,
+                       gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
+                       max_effect_samples=args.effect_samples, held_spreads=HeldSpreads(**dict(args.held_spread)))
+
+
 def run(args: argparse.Namespace) -> int:
     """Fit the correction link to a calibration bag (counts, or a driver's Imu: both sensors), block by block."""
     from tak_thermo_ros.formats.records import open_record
     from tak_thermo_ros.passes.fit import fit_imu
-    from tak_thermo_ros.passes.run import FitSettings
     from tak_thermo_ros.passes.magnetometer import has_mag
-    effects = {'accel': common.effect_list(args.effects), 'gyro': common.effect_list(args.gyro_effects)}
-    settings = FitSettings(effects=effects, bias_order=args.bias_order, scale_order=args.scale_order,
-                           temp_code_ref=args.temp_code_ref, settle_time_s=args.settle_time,
-                           gravity=getattr(args, 'gravity', STANDARD_GRAVITY), latitude=getattr(args, 'latitude', None),
-                           max_effect_samples=args.effect_samples,
-                           held_spreads=HeldSpreads(**dict(args.held_spread)))
+    settings = fit_settings(args)
+    effects = settings.effects
     from tak_thermo_ros.passes.pool import is_pool
     from tak_thermo_ros.passes.run import EverydayRecord
-    if is_pool(args.bag):
+    if is_pool(args.bag) or args.prior:
         return _fit_pool(args, settings)
     # A record that determines the magnetometer alone (turned by hand, or without a temperature)
     # holds the accelerometer and gyroscope at nominal, said in one line; else it is refused.
@@ -380,51 +392,60 @@ def _print_handheld_terms(sensor: str, calibration, result) -> None:
                 print(line)
 
 
+def _prior(args: argparse.Namespace):
+    """``--prior``'s fleet prior (``None`` without); orders given beside it must be its own."""
+    if not args.prior:
+        return None
+    from tak_thermo_ros.formats.prior_file import load_prior
+    prior = load_prior(args.prior)
+    for option, given, own in (('--bias-order', args.bias_order, prior.bias_order),
+                               ('--scale-order', args.scale_order, prior.scale_order)):
+        if given != own and given != {'--bias-order': BIAS_ORDER, '--scale-order': SCALE_ORDER}[option]:
+            msg = f'{option} {given}: not with --prior, whose curves are of order {own} (its fleet\'s)'
+            raise TakError(msg)
+    return prior
+
+
 def _fit_pool(args: argparse.Namespace, settings, records=None) -> int:
     """``fit`` of a pool of one unit's everyday records (:mod:`tak_thermo_ros.passes.pool`): a line per record first."""
     from tak_thermo_ros.core.fit.pool import order_line
-    from tak_thermo_ros.passes.pool import coverage_lines, fit_records, left_out_line, turn_on_line
+    from tak_thermo_ros.passes.pool import (coverage_lines, fit_records, left_out_line, pool_header, pool_unit,
+                                            turn_on_line)
     for option, given in (('--iron-run', args.iron_run), ('--mag-effects', args.mag_effects),
                           ('--noise-from-residual', args.noise_from_residual)):
         if given:
             msg = f'{option}: not with a pool of records (fit the pool, then its magnetometer or noise apart)'
             raise TakError(msg)
-    fitted = fit_records(records or args.bag, settings, common.stream_options(args), say=print)
+    prior = _prior(args)
+    fitted = fit_records(records or args.bag, settings, common.stream_options(args), prior=prior, say=print)
     opened, pool = fitted.opened, fitted.fit
     handheld = pool.fit
     results = handheld.results
-    unit = UnitCalibration(InputKind.IMU, accel=results['accel'].calibration, gyro=results['gyro'].calibration,
-                           source=fitted.source, fitted_from=fitted.fitted_from)
+    unit = pool_unit(fitted)
     if args.noise or args.noise_run:
         unit, noise_line = _with_noise(args, unit)
     else:
         from tak_thermo_ros.passes.rest_noise import rests_noise
         unit, noise_line = _with_fitted_noise(unit, rests_noise(pool.record, unit, gravity=settings.gravity,
                                                                 latitude=settings.latitude))
-    names = ', '.join(pool.record.record_names)
-    notes = [f'pooled from {pool.record.records} records: {names}',
-             *(order_line(sensor, choice) for sensor, choice in pool.orders.items()),
-             *(left_out_line(left) for left in pool.left_out)]
-    accel, gyro = (replace(unit.sensor(sensor), notes=(*unit.sensor(sensor).notes, *notes))
-                   for sensor in ('accel', 'gyro'))
-    unit = replace(unit, accel=accel, gyro=gyro)
-    header = (f'tak_thermo_ros calibration fitted from a pool of {pool.record.records} records (everyday records of '
-              f'one unit)\n{len(handheld.results["accel"].calibration.axes)} axes per sensor, a turn-on offset per '
-              f'record\nload with: ros2 run tak_thermo_ros compensator --ros-args --params-file '
-              f'{Path(args.output).name}')
-    save_unit(args.output, unit, header=header)
+    label = prior.label if prior is not None else ''
+    save_unit(args.output, unit, header=pool_header(pool.record.records, args.output, label))
     for left in pool.left_out:
         print(left_out_line(left))
     for line in coverage_lines(opened, left_out=[left.name for left in pool.left_out]):
         print(line)
+    if prior is not None:
+        for line in (*prior.lines(), *fitted.lines):
+            print(line)
     for sensor, choice in pool.orders.items():
         print(order_line(sensor, choice))
     for line in handheld.lines:
         print(line)
-    if pool.record.records < 2:
+    if pool.record.records < 2 and unit.gyro.turn_on is None:
         print('turn-on repeatability: not estimated, one record (it takes two power-ups or more); none written')
     for sensor in handheld.turn_on:
-        print(turn_on_line(sensor, handheld.turn_on[sensor], pool.record.records))
+        if prior is None or not prior.gives_turn_on(opened.record.records, sensor):  # else the fleet's, said above
+            print(turn_on_line(sensor, handheld.turn_on[sensor], pool.record.records))
     for sensor in ('accel', 'gyro'):
         result = results[sensor]
         calibration = unit.sensor(sensor)

@@ -30,10 +30,16 @@ def add_parser(commands: Any, fit_parser: argparse.ArgumentParser, command: Comm
                     'write OUT_DIR/units/<unit>/, OUT_DIR/fleet.json and OUT_DIR/fleet.html (see docs/fleet.md). '
                     'Exit status 0 when at least one unit was calibrated (failed units are listed in fleet.json), '
                     '2 when none was.')
-    fleet.add_argument('bags', nargs='+', metavar='BAG',
+    fleet.add_argument('bags', nargs='*', metavar='BAG',
                        help='one calibration bag per unit (the unit is named after it), or a directory of its '
                             'everyday records (a pool, docs/everyday.md)')
     fleet.add_argument('-o', '--output', required=True, metavar='OUT_DIR')
+    fleet.add_argument('--everyday', metavar='DIR',
+                       help='a folder per unit in DIR, each with its everyday records: a prior of the fleet from '
+                            'them (OUT_DIR/prior.yaml), then each unit fitted with it (OUT_DIR/<unit>.yaml); '
+                            'in place of BAGs (docs/fleet.md)')
+    fleet.add_argument('--groups', type=options.int_within(1, 3), default=3, metavar='K',
+                       help='--everyday: the units may fall in up to K groups of curves (default 3; 1: one)')
     fleet.add_argument('--validate', nargs='+', metavar='BAG',
                        help='one validation bag per unit, in the order of the BAGs (|g| error after correction); '
                             'a directory of records for a pool')
@@ -64,5 +70,19 @@ def add_parser(commands: Any, fit_parser: argparse.ArgumentParser, command: Comm
                    and not taken.intersection(action.option_strings)]
     for action in fit_actions:
         fit_group._add_action(action)
-    fleet.set_defaults(handler=lambda args: cmd_fit_fleet(args, fit_actions, command, common.topics(args)))
+    fleet.set_defaults(handler=lambda args: _run(args, fit_actions, command))
     return fleet
+
+
+def _run(args: argparse.Namespace, fit_actions, command: Command) -> int:
+    """A batch of calibration bags, or with ``--everyday`` a fleet's prior and its units fitted with it."""
+    from tak_thermo_ros.errors import TakError
+    if args.everyday is not None:
+        from tak_thermo_ros.cli.fit import fit_settings
+        from tak_thermo_ros.passes.fleet_prior import run_everyday
+        from tak_thermo_ros.passes.run import StreamOptions
+        return run_everyday(args, fit_settings(args), StreamOptions(topics=common.topics(args), progress=False))
+    if not args.bags:
+        msg = 'give one BAG per unit, or --everyday DIR (a folder per unit)'
+        raise TakError(msg)
+    return cmd_fit_fleet(args, fit_actions, command, common.topics(args))

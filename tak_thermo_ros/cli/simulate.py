@@ -62,8 +62,12 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
     if Path(args.out_bag).suffix.lower() in FLIGHT_LOG_SUFFIXES:
         return _flight_log(args, FLIGHT_LOG_SUFFIXES[Path(args.out_bag).suffix.lower()])
+    from tak_thermo_ros.formats.scenario import load_fleet
+    fleet = load_fleet(args.scenario)  # a fleet needs an everyday section: said first
     everyday = _everyday_scenario(args)
     if everyday is not None:
+        if fleet is not None:
+            return _fleet(args, *everyday, fleet)
         return _everyday(args, *everyday)
     from tak_thermo_ros.formats.bag import write_driver_record, write_record
     scenario = load_scenario(args.scenario) if args.scenario else Scenario()
@@ -131,19 +135,10 @@ def _flight_log(args: argparse.Namespace, kind: str) -> int:
     return 0
 
 
-def _everyday(args: argparse.Namespace, scenario, habits) -> int:
-    """A unit's everyday records (:mod:`tak_thermo_ros.core.simulation.everyday`): one bag per record in a directory.
-
-    The directory may exist when it holds only bags (``--force`` replaces them all); each record
-    is written atomically as ``recNN``.
-    """
+def _write_month(out, scenario, habits, args: argparse.Namespace) -> tuple[float, float, list[int], list[float]]:
+    """A unit's records into the directory ``out``: the month's temperatures, rests and minutes per record."""
     from tak_thermo_ros.core.simulation.everyday import simulate_everyday
     from tak_thermo_ros.formats.bag import write_driver_record
-    from tak_thermo_ros.passes.pool import bag_directory
-    from tak_thermo_ros.units import numbers, reader_unit
-    if args.seed is not None:
-        scenario = replace(scenario, seed=args.seed)
-    out = bag_directory(args.out_bag, force=args.force, option='OUT_BAG')
     low, high, rests, minutes = np.inf, -np.inf, [], []
     for simulated in simulate_everyday(scenario, habits):
         record = simulated.record
@@ -152,6 +147,21 @@ def _everyday(args: argparse.Namespace, scenario, habits) -> int:
         low, high = min(low, float(record.temperature.min())), max(high, float(record.temperature.max()))
         rests.append(len(simulated.up))
         minutes.append(simulated.duration_s / 60.0)
+    return low, high, rests, minutes
+
+
+def _everyday(args: argparse.Namespace, scenario, habits) -> int:
+    """A unit's everyday records (:mod:`tak_thermo_ros.core.simulation.everyday`): one bag per record in a directory.
+
+    The directory may exist when it holds only bags (``--force`` replaces them all); each record
+    is written atomically as ``recNN``.
+    """
+    from tak_thermo_ros.passes.pool import bag_directory
+    from tak_thermo_ros.units import numbers, reader_unit
+    if args.seed is not None:
+        scenario = replace(scenario, seed=args.seed)
+    out = bag_directory(args.out_bag, force=args.force, option='OUT_BAG')
+    low, high, rests, minutes = _write_month(out, scenario, habits, args)
     print(f'wrote {out}: {habits.records} records ({args.storage} bags rec00..rec{habits.records - 1:02d}) over '
           f'{habits.days:g} days, {min(minutes):.0f}..{max(minutes):.0f} min each at {scenario.sample_rate_hz:g} Hz')
     print(f'  temperature {low:.1f}..{high:.1f} C over the month; {min(rests)}..{max(rests)} rests per record as '
@@ -162,4 +172,42 @@ def _everyday(args: argparse.Namespace, scenario, habits) -> int:
     print(f'  turn-on offset per power-up (true repeatability x y z): '
           f'{numbers(habits.turn_on("accel") * accel[1], 3)} {accel[0]}, '
           f'{numbers(habits.turn_on("gyro") * gyro[1], 3)} {gyro[0]}')
+    return 0
+
+
+def _fleet(args: argparse.Namespace, scenario, habits, fleet) -> int:
+    """A fleet's units (:mod:`tak_thermo_ros.core.simulation.fleet`): a folder per unit ``unitNN``, its records in it.
+
+    The directory may exist when it holds only such folders of bags (``--force`` replaces them all).
+    """
+    from pathlib import Path
+    from tak_thermo_ros.core.simulation.fleet import fleet_unit
+    from tak_thermo_ros.errors import OutputError
+    from tak_thermo_ros.passes.pool import bag_directory
+    from tak_thermo_ros.units import reader_unit
+    if args.seed is not None:
+        scenario = replace(scenario, seed=args.seed)
+    out = Path(args.out_bag)
+    if out.is_symlink() or (out.exists() and not out.is_dir()):
+        msg = f'{out} (OUT_BAG): exists and is not a directory; a fleet is written into a directory'
+        raise OutputError(msg)
+    names = [f'unit{index:02d}' for index in range(fleet.units)]
+    if out.exists():
+        others = sorted(entry.name for entry in out.iterdir() if entry.name not in names or not entry.is_dir())
+        if others:
+            msg = f'{out} (OUT_BAG): holds {others[0]}, which is no unit folder of this fleet; refusing to touch it'
+            raise OutputError(msg)
+    out.mkdir(exist_ok=True)
+    low, high = np.inf, -np.inf
+    for index, name in enumerate(names):
+        directory = bag_directory(out / name, force=args.force, option='OUT_BAG')
+        unit_low, unit_high, _, _ = _write_month(directory, fleet_unit(scenario, fleet, index), habits, args)
+        low, high = min(low, unit_low), max(high, unit_high)
+    small, factor = reader_unit('rad/s')  # type: ignore[misc]
+    spread = ' '.join(f'{value * factor:.3g}' for value in fleet.gyro)
+    print(f'wrote {out}: {fleet.units} units (unit00..unit{fleet.units - 1:02d}), {habits.records} records each at '
+          f'{scenario.sample_rate_hz:g} Hz, {low:.1f}..{high:.1f} C')
+    print(f'  gyroscope curves about the part\'s: spread {spread} {small} per C^0..3'
+          + (f'; {fleet.groups} groups of slopes' if fleet.groups > 1 else '')
+          + (f'; units {" ".join(str(i) for i in fleet.other_part)} of another part' if fleet.other_part else ''))
     return 0

@@ -362,6 +362,10 @@ def _validate_pool(args: argparse.Namespace, unit: UnitCalibration, paths=None, 
     else:  # one record: its own offset, not a spread
         print(f'gyroscope: this record\'s turn-on offset {common.numbers(check.own[0] * factor, 3)} {small} x y z '
               f'({said})')
+    from tak_thermo_ros.passes.prior_lines import band_lines
+    lines, band = band_lines(check, unit.gyro)
+    for line in lines:
+        print(line)
     if after.out_of_range and not beyond:  # outside in the motions only, none at a rest
         print(f'warning: {after.out_of_range} samples outside the calibrated temperature range ({args.out_of_range})')
     document = {'records': [entry.name for entry in opened.entries], 'params': str(args.params), 'gravity': g,
@@ -372,6 +376,8 @@ def _validate_pool(args: argparse.Namespace, unit: UnitCalibration, paths=None, 
                 'floor': {'gravity_rms': after.gravity_floor, 'rate_rms': [float(v) for v in after.rate_floor]},
                 'turn_on_offsets': check.own.tolist(), 'out_of_range': after.out_of_range,
                 'in_sample': {entry.name: entry.in_sample.as_dict() for entry in pooled if entry.in_sample}}
+    if band:
+        document['uncertainty'] = band
     if watched is not None:
         for line in watched.lines():
             print(line)

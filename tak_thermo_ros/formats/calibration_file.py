@@ -443,7 +443,7 @@ def _uncertainty_from_mapping(raw: Any, key: str) -> LinkUncertainty:
         msg = f'{key}: expected a mapping'
         raise CalibrationError(msg)
     _check_keys(raw, key, ('terms', 'temperature_scale', 'covariance'),
-                ('held', 'held_from', 'beyond', 'source', 'prior', 'records_share'))
+                ('held', 'held_from', 'beyond', 'source', 'prior', 'records_share', 'records_min', 'records_max'))
     terms = _strings(raw['terms'], f'{key}.terms')
     count = len(terms)
     upper = _numbers(raw['covariance'], f'{key}.covariance', count * (count + 1) // 2)
@@ -453,8 +453,10 @@ def _uncertainty_from_mapping(raw: Any, key: str) -> LinkUncertainty:
     share = _numbers(raw['records_share'], f'{key}.records_share', count) if 'records_share' in raw else ()
     beyond = _numbers(raw['beyond'], f'{key}.beyond', 3) if 'beyond' in raw else ()
     source, prior = (str(raw.get(name, default)) for name, default in (('source', 'records'), ('prior', '')))
+    seen = [finite_number(raw[name], f'{key}.{name}') if name in raw else None
+            for name in ('records_min', 'records_max')]
     try:
-        return LinkUncertainty(terms, upper, scale, held, held_from, beyond, source, prior, share)
+        return LinkUncertainty(terms, upper, scale, held, held_from, beyond, source, prior, share, *seen)
     except CalibrationError as err:
         raise CalibrationError(f'{key}.{str(err).removeprefix("uncertainty.")}') from None
 

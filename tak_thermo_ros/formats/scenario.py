@@ -79,7 +79,28 @@ def load_everyday(path: str | Path | None):
     if not isinstance(raw, dict) or 'everyday' not in raw:
         return None
     try:
-        return everyday_scenario(raw)
+        return everyday_scenario({key: value for key, value in raw.items() if key != 'fleet'})
+    except ScenarioError as err:
+        msg = f'{path}: {err}'
+        raise ScenarioError(msg) from None
+
+
+def load_fleet(path: str | Path | None):
+    """A scenario YAML's ``fleet:`` section (units of one part, each with its everyday records), or ``None``.
+
+    :raises ScenarioError: a ``fleet`` without ``everyday``, or a bad key (naming the file).
+    """
+    from tak_thermo_ros.core.simulation.fleet import fleet_from_mapping
+    if path is None:
+        return None
+    raw = read_yaml(path, 'scenario file', ScenarioError) or {}
+    if not isinstance(raw, dict) or 'fleet' not in raw:
+        return None
+    if 'everyday' not in raw:
+        msg = f'{path}: fleet: needs an everyday: section (each unit lives through its everyday records)'
+        raise ScenarioError(msg)
+    try:
+        return fleet_from_mapping(raw['fleet'] or {})
     except ScenarioError as err:
         msg = f'{path}: {err}'
         raise ScenarioError(msg) from None

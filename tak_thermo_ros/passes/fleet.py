@@ -271,10 +271,11 @@ def _connect(scheduler: str | None, workers: int) -> tuple[Any, Any]:
         except (OSError, TimeoutError, ValueError) as error:
             msg = f'--scheduler {scheduler}: cannot connect ({type(error).__name__}: {error})'
             raise TakError(msg) from None
-    # One thread per process: the fits are numpy/scipy work that holds the GIL in between.
+    # One thread per process: the fits are numpy/scipy work that holds the GIL in between. No dashboard;
+    # the scheduler's HTTP server (it starts one anyway) on a free port: 8787 may be another cluster's.
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host='127.0.0.1',
-                           dashboard_address=None, silence_logs=logging.ERROR,
-                           env={'OPENBLAS_NUM_THREADS': '1'})
+                           dashboard_address='127.0.0.1:0', scheduler_kwargs={'dashboard': False},
+                           silence_logs=logging.ERROR, env={'OPENBLAS_NUM_THREADS': '1'})
     return Client(cluster), cluster
 
 

@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Callable, Iterator, Sequence
 import numpy as np
 
 from tak_thermo_ros.core.fit.pool import own_offsets, record_means
-from tak_thermo_ros.core.link.model import InputKind
+from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.records.extremes import temperature_course
 from tak_thermo_ros.core.records.handheld import HandheldRecord, empty_samples, pooled
 from tak_thermo_ros.core.records.provenance import PrintCollector, Recognition, RecordPrint
@@ -554,23 +554,37 @@ class FittedPool:
     opened: OpenedPool
     fit: object
     source: dict[str, str | int | float]
+    lines: tuple[str, ...] = ()
+    """With a prior: the unit's group, the turn-on repeatability taken, what came from the records and the prior."""
     fitted_from: tuple[RecordPrint, ...] = ()
     """The prints of the records fitted (the pooled ones the fit did not leave out): the file's ``fitted_from``."""
 
 
-def fit_records(paths: Sequence[str | os.PathLike[str]], settings, options: StreamOptions, *,
+def fit_records(paths: Sequence[str | os.PathLike[str]], settings, options: StreamOptions, prior=None, *,
                 say: Callable[[str], None] | None = None) -> FittedPool:
     """Read a pool once and fit it (:func:`~tak_thermo_ros.core.fit.pool.fit_pool`).
 
     :param settings: ``tak_calib fit``'s :class:`~tak_thermo_ros.passes.run.FitSettings`.
+    :param prior: a fleet's prior (:func:`~tak_thermo_ros.core.fit.prior_fit.fit_with_prior`), a
+        :class:`~tak_thermo_ros.core.fit.prior.CurvePrior` that only fixes the orders (a fleet's first pass), or
+        ``None``.
     :param say: each line of reading the pool as soon as it is known (:func:`open_pool`).
     :raises PoolError: as :func:`open_pool`; ``FitError`` as the fit.
     """
     from tak_thermo_ros.core.fit.pool import TwoUnits, fit_pool
+    from tak_thermo_ros.core.fit.prior import CurvePrior
     opened = open_pool(paths, options, say=say)
     assert opened.record is not None
+    lines: tuple[str, ...] = ()
     try:
-        fitted = fit_pool(opened.record, handheld_settings(settings))
+        if prior is None:
+            fitted = fit_pool(opened.record, handheld_settings(settings))
+        elif isinstance(prior, CurvePrior):  # the orders only (a fleet's first pass)
+            fitted = fit_pool(opened.record, replace(handheld_settings(settings), prior=prior))
+        else:
+            from tak_thermo_ros.core.fit.prior_fit import fit_with_prior
+            from tak_thermo_ros.passes.prior_lines import with_source_notes
+            fitted, lines = with_source_notes(fit_with_prior(opened.record, handheld_settings(settings), prior))
     except TwoUnits as err:
         small, factor = _reader(err.sensor)
         sides = [f'{numbers(centre * factor, 3)} {small} ({", ".join(group)})'
@@ -588,7 +602,29 @@ def fit_records(paths: Sequence[str | os.PathLike[str]], settings, options: Stre
             source[key] = int(used[0].source.get(key, 0))  # type: ignore[union-attr]
     left = {left.name for left in fitted.left_out}
     prints = tuple(e.record_print for e in used if e.name not in left and e.record_print is not None)
-    return FittedPool(opened, fitted, source, prints)
+    return FittedPool(opened, fitted, source, lines, prints)
+
+
+def pool_unit(fitted: FittedPool) -> UnitCalibration:
+    """A pool's fit as the calibration file holds it: both sensors, the pool's source, what was pooled in its notes."""
+    from tak_thermo_ros.core.fit.pool import order_line
+    pool = fitted.fit
+    results = pool.fit.results  # type: ignore[attr-defined]
+    names = ', '.join(pool.record.record_names)  # type: ignore[attr-defined]
+    notes = [f'pooled from {pool.record.records} records: {names}',  # type: ignore[attr-defined]
+             *(order_line(sensor, choice) for sensor, choice in pool.orders.items()),  # type: ignore[attr-defined]
+             *(left_out_line(left) for left in pool.left_out)]  # type: ignore[attr-defined]
+    accel, gyro = (replace(results[sensor].calibration, notes=(*results[sensor].calibration.notes, *notes))
+                   for sensor in ('accel', 'gyro'))
+    return UnitCalibration(InputKind.IMU, accel=accel, gyro=gyro, source=fitted.source,
+                           fitted_from=fitted.fitted_from)
+
+
+def pool_header(records: int, output: str, prior: str = '') -> str:
+    """The header of a pool's calibration file (``prior``: its label, when fitted with one)."""
+    return (f'tak_thermo_ros calibration fitted from a pool of {records} records (everyday records of one unit)\n'
+            f'3 axes per sensor, a turn-on offset per record' + (f'\nwith the prior {prior}' if prior else '')
+            + f'\nload with: ros2 run tak_thermo_ros compensator --ros-args --params-file {Path(output).name}')
 
 
 def _reader(sensor: str) -> tuple[str, float]:
@@ -608,7 +644,8 @@ def turn_on_line(sensor: str, fitted, records: int) -> str:
         written = f'not written ({" ".join(held)}: not determined by these records)' if held else 'written so'
         return f'{SENSOR_NAMES[sensor]}: turn-on repeatability {TurnOn(None, None, records).why_not()}; {written}'
     small, factor = _reader(sensor)
-    values = ' '.join('-' if not ok else f'{numbers(v * factor, 3)}+-{numbers(e * factor, 2)}'
+    values = ' '.join('-' if not ok else numbers(v * factor, 3) + (f'+-{numbers(e * factor, 2)}' if np.isfinite(e)
+                                                                   else '')
                       for v, e, ok in zip(variances.turn_on, variances.turn_on_error, variances.determined))
     tail = f' ({" ".join(held)}: not determined by these records)' if held else ''
     return f'{SENSOR_NAMES[sensor]}: turn-on repeatability x y z {values} {small}{tail}'
@@ -628,6 +665,8 @@ class PoolCheck:
 
     :param own: ``(r, 3)`` each record's mean rate error at rest after the calibration (its turn-on offset).
     :param shape: ``(k, 3)`` the rests' rate errors after, each record's own mean taken off.
+    :param temperature: ``(k,)`` each rest's mean temperature; ``record`` its record; ``white`` ``(k, 3)`` the
+        white noise's variance of its mean rate less its record's (what the shape holds of the noise).
     """
 
     opened: OpenedPool
@@ -635,6 +674,9 @@ class PoolCheck:
     after: object
     own: np.ndarray
     shape: np.ndarray
+    temperature: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    record: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    white: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
     @property
     def shape_rms(self) -> np.ndarray:
@@ -653,7 +695,12 @@ def validate_records(paths: Sequence[str | os.PathLike[str]], unit, options: Str
     before = check_handheld(record, nominal_unit(unit), gravity=gravity, latitude=latitude, out_of_range=out_of_range)
     after = check_handheld(record, unit, gravity=gravity, latitude=latitude, out_of_range=out_of_range)
     own, shape = own_offsets(record, after.rate_error)
-    return PoolCheck(opened, before, after, own, shape)
+    from tak_thermo_ros.core.fit.pool import _rests
+    rest_record, samples, temperature = _rests(record)
+    per_record = np.bincount(rest_record, weights=samples, minlength=record.records)
+    # a rest's mean less its record's samples-weighted mean: s^2 / n - s^2 / N of white noise
+    white = record.intervals.noise[3:6][None, :] ** 2 * (1.0 / samples - 1.0 / per_record[rest_record])[:, None]
+    return PoolCheck(opened, before, after, own, shape, temperature, rest_record, white)
 
 
 def outside_lines(check: PoolCheck, unit, policy) -> list[str]:

@@ -61,6 +61,7 @@ from tak_thermo_ros.core.fit.design import (
 )
 from tak_thermo_ros.core.fit.link_uncertainty import HeldSpreads, link_uncertainty
 from tak_thermo_ros.core.fit.model import FitResult, calibration_from, finish_fit, fitted_effects, residual_counts
+from tak_thermo_ros.core.fit.prior import Basis, CurvePrior, Information
 from tak_thermo_ros.core.fit.random_effects import (
     TURN_ON,
     RecordColumns,
@@ -123,6 +124,8 @@ class HandheldSettings:
     :param variances: a pool's variances per sensor, ``(turn-on spread (3,), rests' extra (3,))``, taken as
         given instead of their REML (the folds of the order's choice).
     :param turns: use the turns (``False``: the rests alone).
+    :param prior: what units of its kind say about the curve (:mod:`~tak_thermo_ros.core.fit.prior`): its rows
+        join the solve, and the fit stands in its basis, at its orders, over its temperatures too.
     :param held_spreads: a held term's spread where the records do not bound it (the file's uncertainty).
     """
 
@@ -135,6 +138,7 @@ class HandheldSettings:
     axis_orders: dict[str, tuple[int, int, int]] | None = None
     variances: dict[str, tuple[np.ndarray, np.ndarray]] | None = None
     turns: bool = True
+    prior: CurvePrior | None = None
     held_spreads: HeldSpreads = HeldSpreads()
 
 
@@ -182,6 +186,9 @@ class HandheldFit:
     orders: tuple[int, int]
     turn_on: dict[str, TurnOnFit] = field(default_factory=dict)
     """A pool's records (several power-ups): per sensor the turn-on offsets and their spread."""
+    information: dict[str, Information] = field(default_factory=dict)
+    """With a prior (one without rows too: a fleet's first pass), per sensor what the records say about every
+    term the fit did not hold by construction, the prior's rows left out (:mod:`~tak_thermo_ros.core.fit.prior`)."""
 
 
 @dataclass(frozen=True)
@@ -356,6 +363,10 @@ class _System:
         return _System(triangular_factor(np.vstack([self.factor, rows]), self.factor.shape[0]),
                        self.count + len(rows))
 
+    def normal(self) -> np.ndarray:
+        """``(W + 1, W + 1)``: the normal matrix ``[X | y]^T [X | y]`` of every row."""
+        return self.factor.T @ self.factor
+
     def reduced(self, held: dict[int, float]) -> tuple[_System, list[int]]:
         """The system with the held columns' values moved into the target and the columns taken out."""
         width = self.factor.shape[1] - 1
@@ -386,9 +397,7 @@ class _Solved:
     @property
     def normal(self) -> np.ndarray:
         """The normal matrix of the whole ``[X | y]`` (held columns too, ``(W + 1, W + 1)``): the link's uncertainty."""
-        if isinstance(self.system, RecordSystem):
-            return self.system.normal()
-        return self.system.factor.T @ self.system.factor
+        return self.system.normal()  # type: ignore[attr-defined]
 
     def errors(self, layout: _Layout) -> dict[str, float]:
         deviations = np.sqrt(np.maximum(np.diag(self.covariance), 0.0))
@@ -551,6 +560,8 @@ class _Rests:
         self.turn_on_sigma = np.full(3, np.inf)
         self.rest_variance = np.zeros(3)
         self.layout = terms.layout()
+        self.curve_rows = np.zeros((0, self.layout.width + 1))
+        """A prior's rows on the curve terms (:meth:`~tak_thermo_ros.core.fit.prior.CurvePrior.rows`)."""
         self.count = int(interval.max()) + 1 if len(interval) else 0
         self.orders = max(terms.bias_order, terms.scale_order) + 1
         self.widths = [basis.shape[1] for basis in bases]
@@ -588,12 +599,16 @@ class _Rests:
         self.shared_layout = self.shared_terms.layout()
 
     def pool_system(self, shared: np.ndarray, slots: np.ndarray, record: np.ndarray) -> RecordSystem:
-        """A pool's :class:`RecordSystem` of rows given apart (``[X_s | y]``, the turn-on slots) and the prior rows."""
+        """A pool's :class:`RecordSystem` of rows given apart (``[X_s | y]``, the turn-on slots) and the prior rows.
+
+        The prior rows: a turn-on column's (:meth:`prior_rows`' first part) and a prior's on the curve terms.
+        """
         assert self.columns is not None
         system = RecordSystem(self.columns)
         system.add_split(shared, slots, record)
         finite = np.isfinite(self.turn_on_sigma)
         system.add_prior(np.where(finite, 1.0 / np.where(finite, self.turn_on_sigma, 1.0), 0.0))
+        system.add(self.curve_rows, np.full(len(self.curve_rows), -1))  # a prior's rows: no record's
         return system
 
     @property
@@ -603,7 +618,7 @@ class _Rests:
         return 1.0 / np.sqrt(self.sigma[None, :] ** 2 + extra)
 
     def prior_rows(self) -> np.ndarray:
-        """``(k, W + 1)`` one row ``u_r / s_u = 0`` per turn-on column (none for one record, or held)."""
+        """``(k, W + 1)`` a row ``u_r / s_u = 0`` per turn-on column (none for one record, or held), a prior's rows."""
         rows = []
         for axis in range(3):
             for column in self.layout.turn_on(axis):
@@ -612,7 +627,7 @@ class _Rests:
                 row = np.zeros(self.layout.width + 1)
                 row[column] = 1.0 / self.turn_on_sigma[axis]
                 rows.append(row)
-        return np.array(rows).reshape(-1, self.layout.width + 1)
+        return np.vstack([np.array(rows).reshape(-1, self.layout.width + 1), self.curve_rows])
 
     @property
     def powers(self) -> list[np.ndarray]:
@@ -1252,10 +1267,13 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
         raise FitError(msg)
     temperature = record.still.temp_code
     low, high = float(temperature.min()), float(temperature.max())
+    prior = settings.prior
     bias_order, scale_order = orders_for_span(high - low, settings.bias_order, settings.scale_order)
+    if prior is not None:  # the prior tells what the span cannot: its orders
+        bias_order, scale_order = prior.bias_order, prior.scale_order
     lines: list[str] = []
     notes: list[str] = []
-    if (bias_order, scale_order) != (settings.bias_order, settings.scale_order):
+    if (bias_order, scale_order) != (settings.bias_order, settings.scale_order) and prior is None:
         if bias_order == 0 and scale_order == 0:
             said = (f'temperature span {high - low:.2g} C ({low:.1f}..{high:.1f} C): offsets, scales and '
                     f'misalignment at {0.5 * (low + high):.1f} C, their temperature terms held at 0 (a fit against '
@@ -1269,7 +1287,8 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
     if high - low < 2.0 * ONE_TEMPERATURE_HALF_RANGE_C:
         middle = 0.5 * (low + high)
         low, high = middle - ONE_TEMPERATURE_HALF_RANGE_C, middle + ONE_TEMPERATURE_HALF_RANGE_C
-    frame = Frame.of_range(low, high, settings.temp_code_ref)
+    frame = Frame.of_range(low, high, settings.temp_code_ref) if prior is None else prior.frame(
+        low, high, settings.temp_code_ref)
     effects = {sensor: _offset_effects(settings.effects.get(sensor, ()), sensor) for sensor in ('accel', 'gyro')}
     if any(effects.values()) and bias_order == 0:
         msg = 'effects need a temperature span: this record was taken at one temperature'
@@ -1317,6 +1336,7 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
     problem = _AccelProblem(accel_counts, temperature, interval, accel_terms, [], settings.gravity, noise[:3],
                             still_record)
     problem.turn_on_sigma = np.full(3, BOUNDS['offset', 'accel'])  # weak, until the pool's own spread is known
+    _set_prior(problem, prior, 'accel')
     given = settings.variances or {}
     if 'accel' in given:
         problem.turn_on_sigma, problem.rest_variance = given['accel'][0], np.asarray(given['accel'][1]) ** 2
@@ -1340,6 +1360,7 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
         problem = _AccelProblem(accel_counts, temperature, interval, accel_terms, still_bases, settings.gravity,
                                 problem.sigma, still_record)
         problem.turn_on_sigma, problem.rest_variance = variances
+        _set_prior(problem, prior, 'accel')
         accel, up = _fit_accel(problem, up, gauge)
         if pool > 1 and 'accel' not in given:
             accel, up, turn_on['accel'] = _pooled_accel(problem, up, gauge, accel)
@@ -1357,6 +1378,7 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
     gyro_problem = _GyroProblem(turns_record, interval, gyro_terms, [], [], up, noise[3:6], up_noise, settings.latitude,
                                 records=(still_record, turn_record))
     gyro_problem.rests.turn_on_sigma = np.full(3, BOUNDS['offset', 'gyro'])
+    _set_prior(gyro_problem.rests, prior, 'gyro')
     if 'gyro' in given:
         gyro_problem.rests.turn_on_sigma = given['gyro'][0]
         gyro_problem.rests.rest_variance = np.asarray(given['gyro'][1]) ** 2
@@ -1378,6 +1400,7 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
         gyro_problem = _GyroProblem(turns_record, interval, gyro_terms, still_bases, turn_bases, up, noise[3:6],
                                     up_noise, settings.latitude, records=(still_record, turn_record))
         gyro_problem.rests.turn_on_sigma, gyro_problem.rests.rest_variance = variances
+        _set_prior(gyro_problem.rests, prior, 'gyro')
         gyro_orders = gyro_holds(gyro_problem.layout)
         gyro, turns, turn_scale = _fit_gyro(gyro_problem, gyro_orders)
         if pool > 1 and 'gyro' not in given:
@@ -1429,8 +1452,39 @@ def fit_handheld(record: HandheldRecord, settings: HandheldSettings = HandheldSe
         lines.append(f'gyroscope: the turns close {math.sqrt(turn_scale):.2f}x worse than the noise predicts; '
                      f'their weight is lowered by that much')
     table = plateau_table(record.still, interval, up, accel_cal, settings.gravity)
+    information = {}
+    if prior is not None:  # what a fleet's prior is made of, or chooses a unit's group by
+        span = (float(temperature.min()), float(temperature.max()))
+        gyro_system = gyro_problem.still_system().plus(turns.rows, gyro_problem.turn_row_record)
+        information = {'accel': _information(problem.system(accel.theta, up), problem, gauge, accel, frame, span),
+                       'gyro': _information(gyro_system, gyro_problem.rests, gyro_orders, gyro, frame, span)}
     return HandheldFit(results=results, lines=tuple(lines), up=up, closure=closure, closure_before=before,
-                       plus_minus=table, orders=(bias_order, scale_order), turn_on=turn_on)
+                       plus_minus=table, orders=(bias_order, scale_order), turn_on=turn_on, information=information)
+
+
+def _set_prior(rests: _Rests, prior: CurvePrior | None, sensor: str) -> None:
+    """A sensor's rests take a prior's rows on their curve terms (none without a prior)."""
+    if prior is not None:
+        rests.curve_rows = prior.rows(sensor, rests.layout.names)
+
+
+def _information(system: _System | RecordSystem, rests: _Rests, structural: dict[int, float], solved: _Solved,
+                 frame: Frame, span: tuple[float, float]) -> Information:
+    """What the records say about every term not held by construction: the system's normal matrix, its prior rows out.
+
+    ``structural``: the terms held by construction (the gauge, one orientation, the orders) go in at their values.
+    """
+    layout = rests.layout
+    normal = system.normal() - rests.curve_rows.T @ rests.curve_rows
+    free = [j for j in range(layout.width) if j not in structural]
+    carry = np.zeros((layout.width + 1, len(free) + 1))  # [theta; -1] = carry [theta_free; -1]
+    carry[free, np.arange(len(free))] = 1.0
+    for j, value in structural.items():
+        carry[j, -1] = -value
+    carry[-1, -1] = 1.0
+    held = tuple(layout.names[j] for j in solved.held if j not in structural)
+    return Information(tuple(layout.names[j] for j in free), carry.T @ normal @ carry, Basis.of_frame(frame),
+                       span[0], span[1], rows=system.count, held=held)
 
 
 def _uncertainty(solved: _Solved, layout: _Layout, sensor: str, frame: Frame,
@@ -1501,8 +1555,11 @@ def _rests_reml(rests: _Rests, design: np.ndarray, slots: np.ndarray, target: np
     rows = np.concatenate([design, target[:, :, None]], axis=2)  # (m, 3, S + 1)
     within = (rows[~rests.mean_row] / rests.sigma[None, :, None]).reshape(-1, rows.shape[2])
     records, size = columns.records, len(columns.shared)
-    # a rest's rows after its first touch no turn-on column (the constant's column of its factor is 0 there)
-    fixed = RecordStatistics(_normal(within), np.zeros((records, size, 3)), np.zeros((records, 3, 3)))
+    # a rest's rows after its first touch no turn-on column (the constant's column of its factor is 0 there);
+    # a prior's rows on the curve terms are fixed rows of no record (shared columns only)
+    curve = columns.split(rests.curve_rows, np.full(len(rests.curve_rows), -1))[0]
+    fixed = RecordStatistics(_normal(within) + _normal(curve), np.zeros((records, size, 3)),
+                             np.zeros((records, 3, 3)))
     if extra is not None and len(extra):
         assert extra_record is not None
         fixed = fixed + RecordStatistics.of_rows(*columns.split(extra, extra_record), extra_record, records)

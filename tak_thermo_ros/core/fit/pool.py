@@ -6,7 +6,8 @@ many records, each a power-up. It goes through the hand-held fit
 offset as a random effect (:mod:`~tak_thermo_ros.core.fit.random_effects`). This module adds what
 only a pool allows:
 
-- **the order of each axis's offset polynomial, chosen by leaving whole records out**: the pool's
+- **the order of each axis's offset polynomial, chosen by leaving whole records out** (a prior, when
+  given, gives its orders instead, :mod:`~tak_thermo_ros.core.fit.prior`): the pool's
   records in :data:`FOLDS` folds; each candidate order is fitted on the other folds (the variances
   of the whole pool's fit held, the rests alone) and judged on the fold's rests, each record's own
   offset taken off (the shape, what a calibration must carry to a record it never saw), as a
@@ -228,7 +229,7 @@ def fit_pool(record: HandheldRecord, settings: HandheldSettings = HandheldSettin
 def _fit_orders(record: HandheldRecord, settings: HandheldSettings) -> tuple[HandheldFit, dict[str, OrderChoice]]:
     """The pool's fit at the orders chosen by leaving whole records out (:func:`choose_orders`), and the choice."""
     full = fit_handheld(record, settings)
-    orders = choose_orders(record, settings, full)
+    orders = choose_orders(record, settings, full) if settings.prior is None else {}  # a prior gives its orders
     top = full.orders[0]
     if not orders or (settings.axis_orders is None
                       and all(order == top for choice in orders.values() for order in choice.orders)):

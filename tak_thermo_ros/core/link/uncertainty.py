@@ -33,8 +33,9 @@ import numpy as np
 from tak_thermo_ros.errors import CalibrationError
 
 AXIS_NAMES = ('x', 'y', 'z')
-HELD_FROM = ('records', 'default')
-"""Where a held term's spread comes from: the records bound it, or a stated default (a datasheet's)."""
+HELD_FROM = ('records', 'default', 'prior')
+"""Where a held term's spread comes from: the records bound it, a stated default (a datasheet's), or a fleet's
+prior (``fit --prior``)."""
 
 
 def _term(name: str) -> tuple[int, str, int]:
@@ -67,6 +68,8 @@ class LinkUncertainty:
     :param source: what the covariance comes from: ``records``, or ``records and prior`` (a fleet's prior).
     :param prior: what that prior was (``''``: none).
     :param records_share: per term the share of its precision from the unit's own records (empty: all).
+    :param records_min: with a prior, the lowest temperature the unit's own records saw, C; ``records_max``
+        the highest (outside them the curve is what the prior told; ``None``: the calibrated range is theirs).
     """
 
     terms: tuple[str, ...]
@@ -78,6 +81,8 @@ class LinkUncertainty:
     source: str = 'records'
     prior: str = ''
     records_share: tuple[float, ...] = ()
+    records_min: float | None = None
+    records_max: float | None = None
 
     def __post_init__(self) -> None:
         count = len(self.terms)
@@ -103,6 +108,11 @@ class LinkUncertainty:
         if self.records_share and (len(self.records_share) != count or not all(
                 math.isfinite(v) and 0.0 <= v <= 1.0 for v in self.records_share)):
             msg = f'uncertainty.records_share: expected {count} numbers within 0..1 (one per term)'
+            raise CalibrationError(msg)
+        seen = (self.records_min, self.records_max)
+        if (seen[0] is None) != (seen[1] is None) or (seen[0] is not None and not (
+                math.isfinite(seen[0]) and math.isfinite(seen[1]) and seen[0] <= seen[1])):  # type: ignore[arg-type]
+            msg = 'uncertainty.records_min: expected records_min and records_max, finite, records_min <= records_max'
             raise CalibrationError(msg)
         covariance = np.zeros((count, count))
         covariance[np.triu_indices(count)] = self.upper
@@ -179,7 +189,11 @@ class LinkUncertainty:
             mapping['beyond'] = list(self.beyond)
         if self.source != 'records' or self.prior:
             mapping['source'] = self.source
+        if self.prior:  # no empty string among a node's parameters
             mapping['prior'] = self.prior
+        if self.records_min is not None:
+            mapping['records_min'] = float(self.records_min)
+            mapping['records_max'] = float(self.records_max)  # type: ignore[arg-type]
         if self.records_share:
             mapping['records_share'] = list(self.records_share)
         return mapping

@@ -175,33 +175,46 @@ def everyday_from_mapping(raw: Any) -> Everyday:
 
     :raises ScenarioError: naming the key.
     """
-    known = {f.name: f for f in fields(Everyday)}
+    return section_from_mapping(Everyday, raw, 'everyday')
+
+
+def section_from_mapping(cls: type, raw: Any, section: str, *, whole_lists: tuple[str, ...] = ()) -> Any:
+    """A scenario section's dataclass (every key optional) from its mapping, each value of its default's kind.
+
+    A tuple default takes a list of as many numbers (an empty default: any number of them; ``whole_lists``:
+    whole numbers), an ``int`` a whole number, a ``float`` a number.
+
+    :raises ScenarioError: naming the key.
+    """
+    known = {f.name: f for f in fields(cls)}
     if not isinstance(raw, Mapping):
-        msg = f'everyday: expected a mapping (every key optional: {", ".join(known)})'
+        msg = f'{section}: expected a mapping (every key optional: {", ".join(known)})'
         raise ScenarioError(msg)
     values: dict[str, Any] = {}
     for key, value in raw.items():
         if key not in known:
-            msg = f'everyday.{key}: unknown key (known: {", ".join(known)})'
+            msg = f'{section}.{key}: unknown key (known: {", ".join(known)})'
             raise ScenarioError(msg)
-        default = getattr(Everyday(), key)
+        default = getattr(cls(), key)
         if isinstance(default, tuple):
-            if not isinstance(value, (list, tuple)) or len(value) != len(default) or not all(
-                    isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
-                msg = f'everyday.{key}: expected a list of {len(default)} numbers'
+            kind = int if key in whole_lists else (int, float)
+            if not isinstance(value, (list, tuple)) or (default and len(value) != len(default)) or not all(
+                    isinstance(v, kind) and not isinstance(v, bool) for v in value):
+                what = 'whole numbers' if key in whole_lists else 'numbers'
+                msg = f'{section}.{key}: expected a list of {len(default) if default else "any"} {what}'
                 raise ScenarioError(msg)
-            value = tuple(float(v) for v in value)
+            value = tuple(int(v) if key in whole_lists else float(v) for v in value)
         elif isinstance(default, int):
             if isinstance(value, bool) or not isinstance(value, int):
-                msg = f'everyday.{key}: expected a whole number'
+                msg = f'{section}.{key}: expected a whole number'
                 raise ScenarioError(msg)
         else:
             if isinstance(value, bool) or not isinstance(value, (int, float)):
-                msg = f'everyday.{key}: expected a number'
+                msg = f'{section}.{key}: expected a number'
                 raise ScenarioError(msg)
             value = float(value)
         values[key] = value
-    return Everyday(**values)
+    return cls(**values)
 
 
 def everyday_scenario(raw: Mapping[str, Any] | None = None) -> tuple[Scenario, Everyday]:
