@@ -8,7 +8,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from tak_thermo_ros.core.simulation.imu import Scenario, scenario_from_mapping
+from tak_thermo_ros.core.simulation.imu import Scenario
+from tak_thermo_ros.core.simulation.scenario import scenario_from_mapping
 from tak_thermo_ros.errors import ScenarioError
 from tak_thermo_ros.formats.files import read_yaml
 

@@ -51,7 +51,7 @@ from tak_thermo_ros.core.diagnose.fleet import (
     majority_verdict,
 )
 from tak_thermo_ros.core.link.model import AXES
-from tak_thermo_ros.core.simulation.imu import STANDARD_GRAVITY
+from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import CalibrationError, OutputError, TakError
 from tak_thermo_ros.optional import require
 

@@ -38,8 +38,8 @@ OUTLIER_SIGMAS = 4.0
 OUTLIERS_IN_A_ROW = 3
 """... unless this many in a row: then the offset moved, and the learning takes the new level."""
 OFFSET_BOUND_SIGMAS = 6.0
-"""Learning bounds a gyroscope axis's offset correction to this many turn-on repeatabilities
-(or, without one, to the offset curve's own span over the calibrated range)."""
+"""Learning bounds a gyroscope axis's offset correction to this many turn-on repeatabilities or the
+offset curve's own span over the calibrated range, whichever is larger, on the unit's widest axis."""
 VARIANCE_BOUNDS = 1000.0
 """A learned correction's variance read back is at most the square of this many bounds (a spread, not a value)."""
 SLOPE_PRIOR_SHARE = 0.5
@@ -236,11 +236,14 @@ class Learner:
         self.slope_prior = np.array([max(SLOPE_PRIOR_SHARE * s, 1e-9) for s in slopes])
         self.slope_bound = 2.0 * self.slope_prior
         noise_level = np.asarray(gyro.noise.white_noise_density) if gyro.noise is not None else np.zeros(3)
-        self.offset_bound = np.maximum(np.array(spans), 10.0 * noise_level)
+        own = np.maximum(np.array(spans), 10.0 * noise_level)
         if self.repeatability is not None:
-            self.offset_bound = np.maximum(self.offset_bound, OFFSET_BOUND_SIGMAS * self.repeatability)
-        self.offset_prior = self.offset_bound / 2.0
+            own = np.maximum(own, OFFSET_BOUND_SIGMAS * self.repeatability)
+        self.offset_prior = own / 2.0
         """The prior of the persistent offset correction before any run: the curve may have moved by this much."""
+        # The clip is the unit's, not the axis's: an axis whose curve happens to be flat over the calibrated
+        # range (a few hundred deg/h) can still shift by what its neighbours span (a shock, a new mount).
+        self.offset_bound = np.full(3, float(own.max()))
         self._check_start(gyro)
         self._filters = []
         for axis in range(3):

@@ -82,14 +82,9 @@ from tak_thermo_ros.core.link.online_rules import (
 )
 from tak_thermo_ros.core.link.rests import RestFinder
 from tak_thermo_ros.core.link.watch import CalibrationWatch, WatchSettings, WatchUnavailable
-from tak_thermo_ros.core.records.record import (
-    NANOSECONDS,
-    STAMP_JUMP_NS,
-    counts_problem,
-    seconds,
-    temp_code_problem,
-    values_problem,
-)
+from tak_thermo_ros.core.records.record import NANOSECONDS
+from tak_thermo_ros.core.records.stamps import STAMP_JUMP_NS, seconds
+from tak_thermo_ros.core.records.drops import counts_problem, temp_code_problem, values_problem
 from tak_thermo_ros.core.values import SENSOR_NAMES
 from tak_thermo_ros.errors import CalibrationError
 

@@ -33,7 +33,7 @@ from tak_thermo_ros.core.link.online_rules import (
     channel_sensors,
 )
 from tak_thermo_ros.core.link.watch import ANOTHER_CALIBRATION, CalibrationWatch
-from tak_thermo_ros.core.records.record import STAMP_JUMP_S
+from tak_thermo_ros.core.records.stamps import STAMP_JUMP_S
 from tak_thermo_ros.core.values import SENSOR_NAMES
 
 WARN_PERIOD_S = 5.0

@@ -72,7 +72,9 @@ from typing import Callable, NamedTuple
 
 from tak_thermo_ros.core.link.correction import OutOfRange, UnitCorrector, acceleration_variance, imu_covariances
 from tak_thermo_ros.core.link.model import Calibration, InputKind, UnitCalibration
-from tak_thermo_ros.core.records.record import DROP_REASONS, StampHistory, going_on_step, stamp_problem
+from tak_thermo_ros.core.records.record import StampHistory
+from tak_thermo_ros.core.records.drops import DROP_REASONS
+from tak_thermo_ros.core.records.stamps import going_on_step, stamp_problem
 from tak_thermo_ros.errors import CalibrationError
 
 DUPLICATE_STAMP = 'duplicate_stamp'

@@ -17,28 +17,6 @@ from tak_thermo_ros.core.records.drops import counts_problems, reference_problem
 from tak_thermo_ros.core.records.stamps import NANOSECONDS, StampHistory, seconds_from_ns, stamp_problems
 from tak_thermo_ros.errors import CalibrationError
 
-# issue 41: core/link/online.py (split on issue41-a), formats/csv_log.py (issue41-b) and
-# core/simulation/everyday.py (issue 40) still import these names from here; when their imports
-# name drops.py and stamps.py, these lines go.
-from tak_thermo_ros.core.records.drops import (  # noqa: F401
-    COUNTS_MAX,
-    COUNTS_MIN,
-    DROP_REASONS,
-    TEMP_CODE_LIMIT,
-    TEMPERATURE_RANGE,
-    counts_problem,
-    temp_code_problem,
-    values_problem,
-)
-from tak_thermo_ros.core.records.stamps import (  # noqa: F401
-    STAMP_JUMP_NS,
-    STAMP_JUMP_S,
-    going_on_step,
-    ns_from_seconds,
-    seconds,
-    stamp_problem,
-)
-
 
 def no_orientation(count: int) -> tuple[np.ndarray, np.ndarray]:
     """The orientation of ``count`` Imu messages that give none (REP 145).

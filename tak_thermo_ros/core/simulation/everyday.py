@@ -40,17 +40,11 @@ from typing import Any, Iterator, Mapping
 import numpy as np
 
 from tak_thermo_ros.core.link.model import UnitCalibration
-from tak_thermo_ros.core.records.record import DriverRecord, no_orientation, ns_from_seconds, seconds_from_ns
+from tak_thermo_ros.core.records.record import DriverRecord, no_orientation, seconds_from_ns
+from tak_thermo_ros.core.records.stamps import ns_from_seconds
 from tak_thermo_ros.core.rotation import exp_map, log_map
-from tak_thermo_ros.core.simulation.imu import (
-    DEFAULT_DRIVER_ACCEL,
-    DEFAULT_DRIVER_GYRO,
-    AxisTruth,
-    Scenario,
-    _driver_channels,
-    exact_output,
-    first_order_lag,
-)
+from tak_thermo_ros.core.simulation.imu import AxisTruth, Scenario, _driver_channels, exact_output, first_order_lag
+from tak_thermo_ros.core.simulation.truth import DEFAULT_DRIVER_ACCEL, DEFAULT_DRIVER_GYRO
 from tak_thermo_ros.core.simulation.motion import FACE_UP, _minimum_jerk, _posed
 from tak_thermo_ros.errors import ScenarioError
 
@@ -225,7 +219,7 @@ def everyday_scenario(raw: Mapping[str, Any] | None = None) -> tuple[Scenario, E
 
     :raises ScenarioError: naming the key.
     """
-    from tak_thermo_ros.core.simulation.imu import scenario_from_mapping
+    from tak_thermo_ros.core.simulation.scenario import scenario_from_mapping
     raw = dict(raw or {})
     habits = everyday_from_mapping(raw.pop('everyday', {}) or {})
     for key in ('handheld', 'rotation', 'magnetometer'):

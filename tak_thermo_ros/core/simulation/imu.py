@@ -32,12 +32,6 @@ from tak_thermo_ros.core.simulation.magnetometer import rotation_record, table_f
 from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.core.simulation.truth import AxisTruth, exact_output
 
-# issue 41: core/simulation/everyday.py, formats/scenario.py and passes/fleet.py (issue 40's files
-# now) still import these names from here; when their imports name scenario.py, truth.py and
-# core/values.py, these lines go.
-from tak_thermo_ros.core.simulation.scenario import scenario_from_mapping  # noqa: F401
-from tak_thermo_ros.core.simulation.truth import DEFAULT_DRIVER_ACCEL, DEFAULT_DRIVER_GYRO  # noqa: F401
-from tak_thermo_ros.core.values import STANDARD_GRAVITY  # noqa: F401
 
 SUPPLY_AXIS_WEIGHTS: tuple[float, float, float] = (1.0, -0.7, 0.5)
 """Sensitivity of axes x, y, z to the unobserved supply voltage, relative to x."""

@@ -13,15 +13,8 @@ from typing import Iterable
 
 import numpy as np
 
-from tak_thermo_ros.core.records.record import (
-    COUNTS_MAX,
-    COUNTS_MIN,
-    TEMP_CODE_LIMIT,
-    TEMPERATURE_RANGE,
-    ChannelRecord,
-    DriverRecord,
-    no_orientation,
-)
+from tak_thermo_ros.core.records.record import ChannelRecord, DriverRecord, no_orientation
+from tak_thermo_ros.core.records.drops import COUNTS_MAX, COUNTS_MIN, TEMPERATURE_RANGE, TEMP_CODE_LIMIT
 from tak_thermo_ros.core.records.plausible import temperature_unit_problem
 from tak_thermo_ros.core.records.static_run import STATIC_TOLERANCE_DEG, StaticReference, static_reference
 from tak_thermo_ros.errors import LogError
