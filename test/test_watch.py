@@ -280,3 +280,23 @@ def test_with_learning_off_the_watch_leaves_the_output_as_apply_writes_it(moved_
     stamps, expected, _ = corrected_run(simulated, UNIT)
     assert core.watch.stale and core.watch.rests_judged >= 3
     assert np.array_equal(published, expected)
+
+
+def test_learning_follows_a_shift_beyond_a_flat_axis_own_span():
+    """A unit whose gyro x curve is flat (a few deg/h over its range) still learns an 800 deg/h shift of x.
+
+    Learning bounds its corrections; bounded by the x curve's own span (and 6 turn-on spreads, a few
+    hundred deg/h) it held the shift at that bound and the rests stayed 10-30x the floor (issue 39's
+    second everyday setting). The bound is the unit's widest axis's: from the 5th rest on the rate
+    at rests is within 2.5x the floor again.
+    """
+    flat = replace(SCENARIO, gyro_unit=(replace(SCENARIO.gyro_unit[0], offset_coeffs=(0.0,)),
+                                        *SCENARIO.gyro_unit[1:]))
+    unit = watch_unit(flat)
+    ratios = []
+    for seed in SEEDS[:4]:
+        simulated = everyday_runs(seed, ('offset',), scenario=flat)['offset']
+        _, _, output = watch_run(simulated, unit, WatchSettings(latitude=LATITUDE, learn=LearnedState()))
+        ratios.append(learning_ratios(simulated, output, unit, flat.sample_rate_hz))
+    rms = np.sqrt(np.mean(np.vstack(ratios) ** 2, axis=0))
+    assert len(np.vstack(ratios)) > 15 and np.all(rms <= 2.5), rms
