@@ -61,11 +61,12 @@ def test_the_one_check_names_the_file_and_the_key_and_writes_nothing(tmp_path):
 def test_every_json_and_yaml_writer_goes_through_the_check():
     """A ``json.dumps`` or ``yaml.dump`` in the package is the checked writer's, or its text is checked before writing.
 
-    (calibration YAML: ``save_unit``; the design files: ``write_texts``; Kalibr's rostopic: a string).
+    (calibration YAML: ``save_unit``; a fleet's prior: ``save_prior``; the design files: ``write_texts``;
+    Kalibr's rostopic: a string).
     """
     allowed = {('formats/files.py', 'json.dumps'), ('formats/calibration_file.py', 'yaml.safe_dump'),
                ('core/diagnose/design.py', 'yaml.safe_dump'), ('core/diagnose/design.py', 'json.dumps'),
-               ('formats/kalibr.py', 'json.dumps')}
+               ('formats/kalibr.py', 'json.dumps'), ('formats/prior_file.py', 'yaml.safe_dump')}
     found = set()
     for path in PACKAGE.rglob('*.py'):
         for node in ast.walk(ast.parse(path.read_text())):

@@ -44,7 +44,7 @@ from tak_thermo_ros.core.fit.fleet_prior import FarUnit, Group, SensorFleet
 from tak_thermo_ros.core.fit.prior import Basis, curve_term
 from tak_thermo_ros.core.fit.prior_fit import FleetPrior
 from tak_thermo_ros.errors import CalibrationError
-from tak_thermo_ros.formats.files import read_yaml, write_text_atomic
+from tak_thermo_ros.formats.files import check_finite, read_yaml, write_text_atomic
 
 PRIOR_VERSION = 1
 SENSORS = ('accel', 'gyro')
@@ -80,7 +80,9 @@ def prior_to_mapping(prior: FleetPrior) -> dict[str, Any]:
 
 def save_prior(path: str | os.PathLike[str], prior: FleetPrior, *, header: str = '') -> None:
     """Write the prior file atomically (``header``: comment lines first)."""
-    text = yaml.safe_dump(prior_to_mapping(prior), sort_keys=False, default_flow_style=None, width=120)
+    document = prior_to_mapping(prior)
+    check_finite(document, path)  # an unknown is null in the document, never .nan or .inf
+    text = yaml.safe_dump(document, sort_keys=False, default_flow_style=None, width=120)
     comments = ''.join(f'# {line}\n' for line in header.splitlines())
     write_text_atomic(path, comments + text)
 
