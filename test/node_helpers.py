@@ -211,6 +211,8 @@ class Harness:
         input_type, input_topic, temp_topic, output_topic = (
             (Imu, 'imu/data_raw', 'imu/temperature', 'imu/data_compensated') if driver
             else (Vector3Stamped, 'tak/counts', 'tak/temp_code', 'tak/imu/data_raw'))
+        self.prefix = prefix
+        """The namespace's prefix: /diagnostics is not namespaced, so a status is ours when its name starts so."""
         self.counts = self.node.create_publisher(input_type, prefix + input_topic, input_qos)
         self.temperature = self.node.create_publisher(Temperature, prefix + temp_topic, input_qos)
         self.imu: list[Imu] = []
@@ -312,10 +314,15 @@ class Harness:
         return [response.result] if atomically else list(response.results)
 
     def latest_status(self, name: str = 'temperature compensation') -> Any | None:
-        """The last diagnostics status of the compensator received whose name holds ``name``, or ``None``."""
+        """The last diagnostics status of our compensator received whose name holds ``name``, or ``None``.
+
+        Ours: its name starts with our namespace (two nodes in two namespaces share /diagnostics; one's
+        ``imu_subscribers`` taken for the other's let the test play before the node's Imu writer matched
+        our reader, and the first outputs were lost to it).
+        """
         for array_message in reversed(self.diagnostics):
             for status in array_message.status:
-                if name in status.name:
+                if name in status.name and status.name.startswith(self.prefix):
                     return status
         return None
 
