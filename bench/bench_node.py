@@ -66,6 +66,17 @@ TARGET_MISSED = 3
 NANOSECONDS = 1_000_000_000
 
 
+def close_all(names, drivers: dict, processes: dict) -> dict[str, int]:
+    """Close each name's driver and stop its process (those started); their exit codes by name."""
+    codes = {}
+    for name in names:
+        if name in drivers:
+            drivers[name].close()
+        if name in processes:
+            codes[name] = stop(processes[name])
+    return codes
+
+
 # -- the relay node (run as: bench_node.py relay --ros-args ...) ---------------------------------
 
 def relay_main(input_kind: str = 'counts', depth: int = DEPTH, best_effort: bool = False) -> int:
@@ -622,12 +633,7 @@ def measure_driver_input(params: Path, workdir: Path, *, rates: tuple[float, ...
                           f'(sent at {row["achieved_send_rate_hz"]:6.0f}): {row["lost"]:5d} of {count} lost, '
                           f'{row["cpu_us_per_message"]:6.0f} us CPU per message', flush=True)
         finally:
-            codes = {}
-            for kind in kinds:
-                if kind in drivers:
-                    drivers[kind].close()
-                if kind in processes:
-                    codes[kind] = stop(processes[kind])
+            codes = close_all(kinds, drivers, processes)
         for kind in kinds:
             without_loss = [row['rate_hz'] for row in rows[kind] if row['lost'] == 0]
             results.setdefault(executor, {})[kind] = {
@@ -1543,12 +1549,7 @@ def measure_rates(params: dict[str, Path], workdir: Path, *, rates_khz: tuple[fl
                               f'({row["cpu_us_per_message_sent"]:6.1f} per sent), load '
                               f'{row["load_average_1min"]:.1f}', flush=True)
         finally:
-            codes = {}
-            for subject in RATE_SUBJECTS:
-                if subject in drivers:
-                    drivers[subject].close()
-                if subject in processes:
-                    codes[subject] = stop(processes[subject])
+            codes = close_all(RATE_SUBJECTS, drivers, processes)
         results[input_kind] = {'rows': rows, 'exit_codes': codes, 'summary': rate_summary(rows, rates_khz)}
     return results
 
