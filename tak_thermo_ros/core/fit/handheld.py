@@ -1495,8 +1495,9 @@ def _uncertainty(solved: _Solved, layout: _Layout, sensor: str, frame: Frame,
     see it); the gyroscope's carries its offsets only (at rest its scales and couplings multiply
     the Earth rate alone: a few hundredths of a deg/h).
     """
-    normal = solved.normal[:-1, :-1]
-    gradient = solved.normal[:-1, -1] - normal @ solved.theta
+    whole = solved.normal  # built from the system's factors: once
+    normal = whole[:-1, :-1]
+    gradient = whole[:-1, -1] - normal @ solved.theta
     names = layout.names
     held = [j for j in solved.held if names[j].split('.')[-1] not in GAUGE]
     offsets = [j for j in [*solved.free, *held] if layout.kinds[j] in ('offset', 'offset_T')]
