@@ -26,7 +26,7 @@ from everyday_watch import watch_run, watch_unit
 from node_helpers import domain_id, node_command, ros_environment, run_to_exit
 from tak_thermo_ros import cli
 from tak_thermo_ros.cli.common import unwrap
-from tak_thermo_ros.core.fit.handheld import _solve, _System
+from tak_thermo_ros.core.fit.handheld.system import System, solve
 from tak_thermo_ros.core.fit.random_effects import RecordColumns, RecordStatistics, RecordSystem, absorbed
 from tak_thermo_ros.core.link.model import MIN_TURN_ON_RECORDS, TurnOn, spread_interval
 from tak_thermo_ros.core.link.learning import LearnedState, Learner, calibration_digest
@@ -386,13 +386,13 @@ def test_the_pools_solve_is_the_whole_designs(records, shared, seed, hold):
         owners.append(np.full(count, record))
     prior = np.zeros((records * slots, width + 1))
     prior[np.arange(records * slots), own.ravel()] = 0.7
-    dense = _System.of_rows([np.vstack(rows), prior], width)
+    dense = System.of_rows([np.vstack(rows), prior], width)
     pooled = RecordSystem(RecordColumns(own, width))
     pooled.add(np.vstack(rows), np.concatenate(owners))
     pooled.add_prior(np.full(slots, 0.7))
     held = {0: 0.25, **({int(j): 0.0 for j in own[:, 1]} if hold else {})}
-    expected = _solve(dense, held, width, rows=40)
-    found = _solve(pooled, held, width, rows=40)
+    expected = solve(dense, held, width, rows=40)
+    found = solve(pooled, held, width, rows=40)
     assert found.free == expected.free
     assert np.allclose(found.theta, expected.theta, rtol=1e-9, atol=1e-12)
     assert np.allclose(found.covariance, expected.covariance, rtol=1e-8, atol=1e-12)

@@ -14,7 +14,7 @@ long rest's weight ends. Each rest's mean row (the first row of its compressed s
 along the constant) is weighted by ``1 / sqrt(s^2 + n t^2)`` (in the units of one sample).
 
 ``s_u`` and ``t`` per axis are the restricted maximum likelihood (REML) of the pool (the
-criterion is ``_Reml.__call__`` in :mod:`~tak_thermo_ros.core.fit.handheld`):
+criterion is ``_Reml.__call__`` in :mod:`~tak_thermo_ros.core.fit.handheld.pooled`):
 ``log|V| + log|G| + log|C| + r' V^-1 r`` of the whitened system, minimised over their
 logarithms (:func:`fit_variances`); the standard error of ``s_u`` comes from
 the criterion's curvature (the observed information). With few records it is wide: the spread
