@@ -13,7 +13,6 @@ REASON = 'Over 600 lines because'
 BEING_SPLIT = [
     'core/fit/handheld.py',
     'formats/calibration_file.py',
-    'passes/pool.py',
 ]
 
 
