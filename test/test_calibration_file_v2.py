@@ -21,8 +21,8 @@ from rclpy.context import Context
 from rclpy.node import Node
 
 from node_helpers import domain_id, ros_environment
+from tak_thermo_ros.formats.calibration_checks import LIMITS
 from tak_thermo_ros.formats.calibration_file import (
-    LIMITS,
     flatten_parameters,
     load_calibration,
     load_unit,

@@ -21,13 +21,8 @@ from tak_thermo_ros.core.records.record import align
 from tak_thermo_ros.core.simulation.imu import simulate
 from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.errors import CalibrationError, FitError
-from tak_thermo_ros.formats.calibration_file import (
-    effects_from_mapping,
-    effects_to_mapping,
-    flatten_parameters,
-    load_calibration,
-    nest_parameters,
-)
+from tak_thermo_ros.formats.calibration_file import flatten_parameters, load_calibration, nest_parameters
+from tak_thermo_ros.formats.calibration_link import effects_from_mapping, effects_to_mapping
 
 RUN = Scenario(plateau_hours=0.5, ramp_celsius_per_minute=1.0, board_lag_s=300.0, dwell_s=30.0,
                sample_rate_hz=0.5, temp_code_every=1)

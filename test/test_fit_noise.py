@@ -27,7 +27,8 @@ from tak_thermo_ros.core.noise.white import ShortSums, White, white_noise
 from tak_thermo_ros.core.simulation.everyday import everyday_scenario, simulate_everyday_record
 from tak_thermo_ros.core.simulation.noise import bias_wander, filtered_white
 from tak_thermo_ros.formats.bag import write_driver_record
-from tak_thermo_ros.formats.calibration_file import load_unit, noise_to_mapping
+from tak_thermo_ros.formats.calibration_file import load_unit
+from tak_thermo_ros.formats.calibration_sections import noise_to_mapping
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'bench'))
 from bench_rest_noise import judge_file, unit_yaml  # noqa: E402

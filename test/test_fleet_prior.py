@@ -15,14 +15,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from tak_thermo_ros.core.fit.fleet_prior import (
-    GROUP_BIC,
-    MIN_UNITS,
-    _Stats,
-    fleet_prior,
-    offset_band,
-    reml,
-)
+from tak_thermo_ros.core.fit.fleet_prior import GROUP_BIC, fleet_prior, offset_band
+from tak_thermo_ros.core.fit.fleet_reml import MIN_UNITS, _Stats, reml
 from tak_thermo_ros.core.fit.prior import Basis, Information, SensorPrior, basis_change, term_change
 from tak_thermo_ros.errors import FitError
 

@@ -9,13 +9,6 @@ PACKAGE = Path(__file__).resolve().parents[1] / 'tak_thermo_ros'
 MOST_LINES = 600
 REASON = 'Over 600 lines because'
 
-# issue 41: split on other branches
-BEING_SPLIT = [
-    'core/fit/fleet_prior.py',
-    'formats/calibration_file.py',
-    'passes/pool.py',
-]
-
 
 def _gives_its_reason(path: Path) -> bool:
     """Whether the module docstring holds a paragraph starting with REASON."""
@@ -35,14 +28,7 @@ def _offenders() -> list[str]:
 
 def test_no_module_over_600_lines_without_its_reason():
     """Every module has at most 600 lines, or its docstring says why in a paragraph `Over 600 lines because`."""
-    offenders = [f'{name} ({lines} lines)' for name, lines in _offenders() if name not in BEING_SPLIT]
+    offenders = [f'{name} ({lines} lines)' for name, lines in _offenders()]
     assert not offenders, (f'over {MOST_LINES} lines with no paragraph "{REASON} ..." in the module docstring: '
                            + ', '.join(offenders))
 
-
-def test_the_modules_being_split_are_still_over_600_lines():
-    """BEING_SPLIT names only modules that still offend: empty it as their splits land."""
-    still = {name for name, _ in _offenders()}
-    stale = [name for name in BEING_SPLIT if name not in still]
-    assert not stale, f'BEING_SPLIT names modules that are no longer over {MOST_LINES} lines without a reason ' \
-                      f'(remove them from the list): {", ".join(stale)}'

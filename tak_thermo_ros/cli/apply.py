@@ -16,7 +16,7 @@ NAME = 'apply'
 
 def output_kind(args: argparse.Namespace) -> str | None:
     """A bag; ``None`` for a pool of records (a directory of bags, one per record, checked by :func:`_apply_pool`)."""
-    from tak_thermo_ros.passes.pool import is_pool
+    from tak_thermo_ros.passes.pool_records import is_pool
     return None if is_pool(args.bag) else BAG
 
 
@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
     """Correct a bag's counts or driver Imu and write Imu messages (block by block, bounded memory)."""
     from tak_thermo_ros.formats.records import open_record
     from tak_thermo_ros.passes.apply import TurnOnSettings, apply_bag
-    from tak_thermo_ros.passes.pool import is_pool
+    from tak_thermo_ros.passes.pool_records import is_pool
     unit = load_unit(args.params)
     if is_pool(args.bag):
         return _apply_pool(args, unit)
@@ -100,7 +100,7 @@ def _apply_pool(args: argparse.Namespace, unit) -> int:
     from pathlib import Path
     from tak_thermo_ros.formats.records import open_record
     from tak_thermo_ros.passes.apply import TurnOnSettings, apply_bag
-    from tak_thermo_ros.passes.pool import RECORD_SUFFIXES, bag_directory, record_paths
+    from tak_thermo_ros.passes.pool_records import RECORD_SUFFIXES, bag_directory, record_paths
     records, lines = record_paths(args.bag)
     opened = [open_record(path, topics=common.topics(args)) for path in records]
     for path, record in zip(records, opened):

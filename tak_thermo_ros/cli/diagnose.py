@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
     from tak_thermo_ros.core.diagnose import diagnose
     from tak_thermo_ros.passes.diagnose import bounded_run
     unit = load_unit(args.params)
-    from tak_thermo_ros.passes.pool import is_pool
+    from tak_thermo_ros.passes.pool_records import is_pool
     pool = is_pool(args.bag)
     if not pool:
         from tak_thermo_ros.passes.run import EverydayRecord
@@ -219,7 +219,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _pool_run(args: argparse.Namespace, unit: UnitCalibration):
     """A pool of everyday records for ``diagnose``: one line per record; the samples with each record's offset off."""
-    from tak_thermo_ros.passes.pool import bounded_pool, check_driver_unit
+    from tak_thermo_ros.passes.pool_check import bounded_pool, check_driver_unit
     check_driver_unit(unit, args.params)
     if getattr(args, 'design_run', None):
         msg = '--design-run: not with a pool of records (a chamber run is designed from one record)'

@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
     from tak_thermo_ros.passes.magnetometer import has_mag
     settings = fit_settings(args)
     effects = settings.effects
-    from tak_thermo_ros.passes.pool import is_pool
+    from tak_thermo_ros.passes.pool_records import is_pool
     from tak_thermo_ros.passes.run import EverydayRecord
     if is_pool(args.bag) or args.prior:
         return _fit_pool(args, settings)
@@ -409,8 +409,8 @@ def _prior(args: argparse.Namespace):
 def _fit_pool(args: argparse.Namespace, settings, records=None) -> int:
     """``fit`` of a pool of one unit's everyday records (:mod:`tak_thermo_ros.passes.pool`): a line per record first."""
     from tak_thermo_ros.core.fit.pool import order_line
-    from tak_thermo_ros.passes.pool import (coverage_lines, fit_records, left_out_line, pool_header, pool_unit,
-                                            turn_on_line)
+    from tak_thermo_ros.passes.pool_fit import fit_records, pool_unit
+    from tak_thermo_ros.passes.pool_lines import coverage_lines, left_out_line, pool_header, turn_on_line
     for option, given in (('--iron-run', args.iron_run), ('--mag-effects', args.mag_effects),
                           ('--noise-from-residual', args.noise_from_residual)):
         if given:

@@ -156,7 +156,7 @@ def _everyday(args: argparse.Namespace, scenario, habits) -> int:
     The directory may exist when it holds only bags (``--force`` replaces them all); each record
     is written atomically as ``recNN``.
     """
-    from tak_thermo_ros.passes.pool import bag_directory
+    from tak_thermo_ros.passes.pool_records import bag_directory
     from tak_thermo_ros.units import numbers, reader_unit
     if args.seed is not None:
         scenario = replace(scenario, seed=args.seed)
@@ -183,7 +183,7 @@ def _fleet(args: argparse.Namespace, scenario, habits, fleet) -> int:
     from pathlib import Path
     from tak_thermo_ros.core.simulation.fleet import fleet_unit
     from tak_thermo_ros.errors import OutputError
-    from tak_thermo_ros.passes.pool import bag_directory
+    from tak_thermo_ros.passes.pool_records import bag_directory
     from tak_thermo_ros.units import reader_unit
     if args.seed is not None:
         scenario = replace(scenario, seed=args.seed)

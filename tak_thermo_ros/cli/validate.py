@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     from tak_thermo_ros.passes.validate import validate_bag
     from tak_thermo_ros.passes.magnetometer import has_mag
     unit = load_unit(args.params)
-    from tak_thermo_ros.passes.pool import is_pool
+    from tak_thermo_ros.passes.pool_records import is_pool
     if is_pool(args.bag):
         return _validate_pool(args, unit)
     from tak_thermo_ros.formats.records import open_record
@@ -321,7 +321,7 @@ def _validate_pool(args: argparse.Namespace, unit: UnitCalibration, paths=None, 
         record, said after the rests.
     """
     from tak_thermo_ros.core.records.provenance import pool_in_sample_lines
-    from tak_thermo_ros.passes.pool import check_driver_unit, outside_lines, validate_records
+    from tak_thermo_ros.passes.pool_check import check_driver_unit, outside_lines, validate_records
     check_driver_unit(unit, args.params)
     policy = OutOfRange(args.out_of_range)
     read: list[str] = []  # each record's lines, said after what the reader must know first (in-sample)

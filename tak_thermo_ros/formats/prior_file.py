@@ -40,7 +40,8 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
-from tak_thermo_ros.core.fit.fleet_prior import FarUnit, Group, SensorFleet
+from tak_thermo_ros.core.fit.fleet_outliers import FarUnit
+from tak_thermo_ros.core.fit.fleet_prior import Group, SensorFleet
 from tak_thermo_ros.core.fit.prior import Basis, curve_term
 from tak_thermo_ros.core.fit.prior_fit import FleetPrior
 from tak_thermo_ros.errors import CalibrationError

@@ -388,7 +388,7 @@ def distinct_units(bags: Sequence[str], topics) -> tuple[list[int], list[str]]:
     :returns: the indices of the BAGs kept, and one line per second copy.
     """
     from tak_thermo_ros.formats.records import open_record
-    from tak_thermo_ros.passes.pool import record_paths, same_how
+    from tak_thermo_ros.passes.pool_records import record_paths, same_how
     first: dict[frozenset, int] = {}
     kept, lines = [], []
     for index, bag in enumerate(bags):

@@ -76,7 +76,8 @@ def unit_statistics_task(unit: str, directory: str, settings, options) -> Statis
     """
     from tak_thermo_ros.core.fit.prior import CurvePrior
     from tak_thermo_ros.core.fit.prior_fit import statistics_of
-    from tak_thermo_ros.passes.pool import coverage_lines, fit_records, pool_unit
+    from tak_thermo_ros.passes.pool_fit import fit_records, pool_unit
+    from tak_thermo_ros.passes.pool_lines import coverage_lines
     start = time.process_time()
     worker = f'{socket.gethostname()}:{os.getpid()}'
     read: list[str] = []
@@ -106,7 +107,7 @@ def everyday_units(directory: str | os.PathLike[str]) -> tuple[list[tuple[str, P
 
     :raises TakError: no such directory, or no unit folder in it.
     """
-    from tak_thermo_ros.passes.pool import is_bag
+    from tak_thermo_ros.passes.pool_records import is_bag
     root = Path(directory)
     if not root.is_dir():
         msg = f'{root} (--everyday): no such directory (a folder per unit, each with its records)'
@@ -175,7 +176,7 @@ def _unit_files(out_dir: Path, found: dict[str, StatisticsOutcome], prior, noise
     from tak_thermo_ros.core.fit.prior_fit import unit_with_prior
     from tak_thermo_ros.formats.calibration_file import save_unit
     from tak_thermo_ros.formats.files import write_text_atomic
-    from tak_thermo_ros.passes.pool import pool_header
+    from tak_thermo_ros.passes.pool_lines import pool_header
     far = {f.name for fleet in prior.sensors.values() for f in fleet.left_out}
     written = {}
     for name, outcome in found.items():
