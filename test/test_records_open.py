@@ -149,8 +149,7 @@ def test_a_counts_fit_opens_the_bag_once(chamber, counts, capsys, tmp_path):
 
 @pytest.mark.parametrize(('topic', 'held'), [('/other/reference', '/other/reference, /tak/counts, /tak/temp_code'),
                                              (None, '/tak/counts, /tak/temp_code')])
-def test_a_counts_bag_without_its_reference_is_refused_in_the_bags_words(chamber, counts, capsys, tmp_path, topic,
-                                                                        held):
+def test_a_counts_bag_without_its_reference_is_refused_in_its_words(chamber, counts, capsys, tmp_path, topic, held):
     """A counts bag without its reference topic: the fit refuses it as the bag reader words it (the topics it holds).
 
     Opened once; its index read a second time only to word the refusal.
