@@ -183,3 +183,46 @@ def test_habits_defaults_describe_a_month():
     habits = Everyday()
     assert habits.records == 16 and habits.days == 30.0 and habits.face_share == 0.0
     assert np.all(habits.turn_on('gyro') > 0.0) and np.all(habits.turn_on('accel') > 0.0)
+
+
+EVERYDAY_KEYS = ('records, days, record_minutes, ambient_celsius, ambient_drift_celsius, start_spread_celsius, '
+                 'self_heating_celsius, board_tau_s, motion_heating_celsius, rest_s, motion_s, tilt_deg, face_share, '
+                 'mount_up, vibration_rate, vibration_accel, vehicle_accel, turn_on_accel, turn_on_gyro')
+"""The ``everyday`` section's keys, in the order its messages list them (:class:`Everyday`'s fields)."""
+
+
+@pytest.mark.parametrize('section, message', [
+    (3, f'everyday: expected a mapping (every key optional: {EVERYDAY_KEYS})'),
+    ([1], f'everyday: expected a mapping (every key optional: {EVERYDAY_KEYS})'),
+    ({'bogus': 1}, f'everyday.bogus: unknown key (known: {EVERYDAY_KEYS})'),
+    ({'days': 'a', 'bogus': 1}, 'everyday.days: expected a number'),
+    ({'bogus': 1, 'days': 'a'}, f'everyday.bogus: unknown key (known: {EVERYDAY_KEYS})'),
+    ({'days': True}, 'everyday.days: expected a number'),
+    ({'records': 1.5}, 'everyday.records: expected a whole number'),
+    ({'records': True}, 'everyday.records: expected a whole number'),
+    ({'ambient_celsius': [1]}, 'everyday.ambient_celsius: expected a list of 2 numbers'),
+    ({'ambient_celsius': 5}, 'everyday.ambient_celsius: expected a list of 2 numbers'),
+    ({'mount_up': [0, 0, True]}, 'everyday.mount_up: expected a list of 3 numbers'),
+    ({'turn_on_gyro': [0, 0, 'a']}, 'everyday.turn_on_gyro: expected a list of 3 numbers'),
+    ({'records': 0}, 'everyday.records: must be a whole number >= 1'),
+])
+def test_the_everyday_sections_mistakes_word_for_word(section, message):
+    """Each mistake in the ``everyday`` mapping, word for word: the first bad key in the mapping's order."""
+    with pytest.raises(ScenarioError) as caught:
+        everyday_scenario({'everyday': section})
+    assert str(caught.value) == message
+
+
+def test_an_everyday_sections_values_are_read_as_its_defaults_kinds():
+    """Numbers as floats, whole numbers as ints, lists as tuples of floats."""
+    _, habits = everyday_scenario({'everyday': {'records': 3, 'days': 2, 'rest_s': [5, 60], 'mount_up': [1, 0, 0]}})
+    assert habits == Everyday(records=3, days=2.0, rest_s=(5.0, 60.0), mount_up=(1.0, 0.0, 0.0))
+    assert isinstance(habits.days, float) and all(isinstance(v, float) for v in habits.rest_s)
+
+
+@pytest.mark.parametrize('raw', [3, 'seed', [('seed', 1)], ['seed'], 2.5])
+def test_a_scenario_that_is_no_mapping_is_refused_in_one_line(raw):
+    """``everyday_scenario`` of something that is no mapping: the scenario reader's words, not a TypeError."""
+    with pytest.raises(ScenarioError) as caught:
+        everyday_scenario(raw)
+    assert str(caught.value) == 'scenario: expected a mapping of keys to values'

@@ -4,27 +4,39 @@ Counted per path through the whole command (``tak_calib fit``): the records open
 (:func:`~tak_thermo_ros.formats.records.open_record`, any caller), their format worked out from
 their first bytes, a flight log read, a bag's kind and streams read from its index. Each is
 once per record: in a pooled fit of a directory of everyday records, in a fit of one everyday
-record (a pool of one, that takes the record the command opened) and in a fit of a ULog.
+record (a pool of one, that takes the record the command opened), in a fit of a ULog and in a fit
+of a counts bag. A counts bag without its reference is refused as before, in the bag's words (the
+words read from its index once more: only then).
 """
 
 from __future__ import annotations
 
+import re
 from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from conftest import SHORT
 from tak_thermo_ros import cli
+from tak_thermo_ros.core.simulation.imu import simulate
 from tak_thermo_ros.core.simulation.everyday import everyday_scenario, simulate_everyday_record
 from tak_thermo_ros.core.simulation.powered import PoweredRun, simulate_powered
 from tak_thermo_ros.formats import bag, records, ulog
-from tak_thermo_ros.formats.bag import write_driver_record
+from tak_thermo_ros.formats.bag import Topics, write_driver_record, write_record
+from tak_thermo_ros.passes.fit import fit_bag
+from tak_thermo_ros.passes.run import FitSettings, StreamOptions
+from tak_thermo_ros.errors import BagError
 
 MONTH = {'sample_rate_hz': 10.0, 'seed': 5, 'everyday': {'records': 3, 'record_minutes': 10.0}}
 """Three everyday records of about 10 minutes at 10 Hz."""
 WARM_UP = PoweredRun(duration_s=600.0, accel_rate_hz=2.0, gyro_rate_hz=3.0, gyro_phase_s=0.13, board_tau_s=300.0,
                      self_heating_tau_s=30.0)
 """A short warm-up as a PX4 ULog, each sensor on its own stamps."""
+CHAMBER = replace(SHORT, plateaus_celsius=(10.0, 30.0), plateau_hours=0.05, ramp_celsius_per_minute=20.0, seed=3)
+"""A short counts run (the paper's channel codes) of two plateaus."""
 
 
 class Counts:
@@ -120,3 +132,39 @@ def test_a_ulog_fit_opens_and_reads_the_log_once(counts, capsys, tmp_path):
     write_ulog(log, driver_topics(simulate_powered(WARM_UP).record), info={'sys_name': 'PX4'})
     _fit(capsys, log, '-o', tmp_path / 'p.yaml')
     _once_each(counts, [log], read=('formats', 'logs_read'))
+
+
+@pytest.fixture(scope='module')
+def chamber():
+    """A short counts run (channel codes, its reference recorded)."""
+    return simulate(CHAMBER).record
+
+
+def test_a_counts_fit_opens_the_bag_once(chamber, counts, capsys, tmp_path):
+    """``fit BAG`` of a counts bag: opened once, its format, kind and index read once (the reference there)."""
+    write_record(tmp_path / 'run', chamber)
+    _fit(capsys, tmp_path / 'run', '-o', tmp_path / 'p.yaml')
+    _once_each(counts, [tmp_path / 'run'], read=('formats', 'kinds', 'streams'))
+
+
+@pytest.mark.parametrize(('topic', 'held'), [('/other/reference', '/other/reference, /tak/counts, /tak/temp_code'),
+                                             (None, '/tak/counts, /tak/temp_code')])
+def test_a_counts_bag_without_its_reference_is_refused_in_its_words(chamber, counts, capsys, tmp_path, topic, held):
+    """A counts bag without its reference topic: the fit refuses it as the bag reader words it (the topics it holds).
+
+    Opened once; its index read a second time only to word the refusal.
+    """
+    bag = tmp_path / 'run'
+    if topic is None:
+        chamber = replace(chamber, reference_stamp_ns=np.zeros(0, dtype=np.int64), reference=np.zeros((0, 3)))
+    write_record(bag, chamber, topics=Topics(reference=topic or '/tak/reference'))
+    words = f'{bag}: topic /tak/reference not found (topics in the bag: {held})'
+    status = cli.main(['fit', str(bag), '-o', str(tmp_path / 'p.yaml'), '--no-progress'])
+    out = capsys.readouterr()
+    assert status != 0 and not (tmp_path / 'p.yaml').exists()
+    assert out.err == f'tak_calib: error: {words}\n'
+    assert counts.opened == Counter({_key(bag): 1})
+    assert counts.streams == Counter({_key(bag): 2})
+    with pytest.raises(BagError, match=f'^{re.escape(words)}$'):
+        fit_bag(records.open_record(bag, topics=Topics()), FitSettings(effects={}),
+                StreamOptions(topics=Topics(), progress=False))

@@ -8,7 +8,8 @@ import pytest
 import yaml
 
 from tak_thermo_ros.core.simulation.everyday import everyday_from_mapping
-from tak_thermo_ros.core.simulation.mapping import fields_from_mapping, integer, number, numbers
+from tak_thermo_ros.core.simulation.fleet import fleet_from_mapping
+from tak_thermo_ros.core.simulation.mapping import fields_from_mapping, integer, number, numbers, whole_numbers
 from tak_thermo_ros.core.simulation.motion import motion_from_mapping
 from tak_thermo_ros.core.simulation.powered import PoweredRun, powered_from_mapping
 from tak_thermo_ros.core.simulation.scenario import scenario_from_mapping
@@ -69,6 +70,16 @@ def test_numbers_take_a_list_of_numbers_of_the_length_asked():
         numbers([1, 2], 'k', what='a list of 3 numbers', length=3)
 
 
+def test_whole_numbers_take_a_list_of_ints_not_floats_nor_bools():
+    """``whole_numbers``: a list or tuple of ints (no bools, no floats, not even 1.0), of ``length`` when given."""
+    assert whole_numbers([1, 2], 'k') == (1, 2) and whole_numbers((), 'k') == ()
+    for bad in (3, [1, True], [1, 2.0], ['a']):
+        with pytest.raises(ScenarioError, match='^k: expected a list of whole numbers$'):
+            whole_numbers(bad, 'k')
+    with pytest.raises(ScenarioError, match='^k: expected a list of 2 whole numbers$'):
+        whole_numbers([1], 'k', what='a list of 2 whole numbers', length=2)
+
+
 @pytest.mark.parametrize('read, raw, words', [
     (scenario_from_mapping, 3, 'scenario: expected a mapping of keys to values'),
     (scenario_from_mapping, {'nope': 1}, 'nope: unknown scenario key (known: sample_rate_hz, temp_code_every, '),
@@ -88,6 +99,12 @@ def test_numbers_take_a_list_of_numbers_of_the_length_asked():
     (everyday_from_mapping, {'bogus': 1}, 'everyday.bogus: unknown key (known: records, days, '),
     (everyday_from_mapping, {'ambient_celsius': [1]}, 'everyday.ambient_celsius: expected a list of 2 numbers'),
     (everyday_from_mapping, {'records': 1.5}, 'everyday.records: expected a whole number'),
+    (fleet_from_mapping, [], 'fleet: expected a mapping (every key optional: units, gyro, accel, groups, '),
+    (fleet_from_mapping, {'bogus': 1}, 'fleet.bogus: unknown key (known: units, gyro, accel, groups, group_slope, '),
+    (fleet_from_mapping, {'gyro': [1, 2]}, 'fleet.gyro: expected a list of 4 numbers'),
+    (fleet_from_mapping, {'other_part': [1.0]}, 'fleet.other_part: expected a list of any whole numbers'),
+    (fleet_from_mapping, {'other_part': [True]}, 'fleet.other_part: expected a list of any whole numbers'),
+    (fleet_from_mapping, {'units': 2.0}, 'fleet.units: expected a whole number'),
     (powered_from_mapping, 3, 'powered: expected a mapping of duration_s, start_celsius, '),
     (powered_from_mapping, {'accel_unit': 1}, 'powered.accel_unit: unknown key (known: accel_rate_hz, ambient_knots, '),
     (powered_from_mapping, {'up': 'x'}, "powered.up: 'x' is not what it takes"),

@@ -122,14 +122,24 @@ class Record:
         from tak_thermo_ros.formats.bag import bag_streams
         return bag_streams(self.path, topics=self.topics, kind=self.kind)
 
-    def require_reference(self) -> None:
-        """Refuse a bag without messages on its reference topic (a counts record's fit), in the bag's words.
+    @cached_property
+    def reference_refusal(self) -> str | None:
+        """Why a fit cannot take a counts bag's reference, in the bag's words; ``None``: it can, or needs none.
 
-        :raises BagError: the topic is missing or empty.
+        A counts bag without messages on its reference topic: the topic missing (the bag's topics named)
+        or empty, worded from its index when first asked for (:func:`~tak_thermo_ros.formats.bag.bag_streams`).
+        A driver record and a flight log need no reference topic (the passes take them without): ``None``.
+        A pass that requires the reference raises :class:`~tak_thermo_ros.errors.BagError` with it.
         """
-        if self.log is None and not self.streams.reference:
-            from tak_thermo_ros.formats.bag import bag_streams
-            bag_streams(self.path, topics=self.topics, kind=self.kind, require_reference=True)  # says why
+        if self.log is not None or self.kind is not InputKind.COUNTS or self.streams.reference:
+            return None
+        from tak_thermo_ros.errors import BagError
+        from tak_thermo_ros.formats.bag import bag_streams
+        try:
+            bag_streams(self.path, topics=self.topics, kind=self.kind, require_reference=True)
+        except BagError as err:
+            return str(err)
+        return None  # pragma: no cover - a reference counted 0 is refused by bag_streams
 
     def blocks(self, *, kind: InputKind, **options) -> Iterator[ChannelRecord | DriverRecord]:
         """Its messages in log order, one block per ``block_samples`` main-stream messages (one pass).

@@ -27,43 +27,17 @@ def load_scenario(path: str | Path) -> Scenario:
 def load_powered(path: str | Path | None):
     """The ``powered:`` section of a scenario YAML as a :class:`~tak_thermo_ros.core.simulation.powered.PoweredRun`.
 
-    No file: the defaults (PX4's procedure). A missing key keeps its default.
+    No file: the defaults (PX4's procedure). A missing key keeps its default
+    (:func:`~tak_thermo_ros.core.simulation.powered.powered_from_mapping`, its words after the file's name).
     """
-    from dataclasses import fields
-
-    from tak_thermo_ros.core.simulation.powered import PoweredRun
+    from tak_thermo_ros.core.simulation.powered import PoweredRun, powered_from_mapping
     if path is None:
         return PoweredRun()
     raw = read_yaml(path, 'scenario file', ScenarioError) or {}
-    section = raw.get('powered', {}) if isinstance(raw, dict) else None
-    if not isinstance(section, dict):
-        msg = f'{path}: powered: expected a mapping of {", ".join(f.name for f in fields(PoweredRun))}'
-        raise ScenarioError(msg)
-    known = {f.name for f in fields(PoweredRun)} - {'accel_unit', 'gyro_unit'}
-    values = {}
-    for key, value in section.items():
-        if key not in known:
-            msg = f'{path}: powered.{key}: unknown key (known: {", ".join(sorted(known))})'
-            raise ScenarioError(msg)
-        try:
-            if key == 'ambient_knots':
-                value = tuple((float(t), float(c)) for t, c in value)
-            elif key == 'up':
-                value = tuple(float(v) for v in value)
-            elif key == 'frame_id':
-                value = str(value)
-            elif key == 'seed':
-                value = int(value)
-            else:
-                value = float(value)
-        except (TypeError, ValueError):
-            msg = f'{path}: powered.{key}: {value!r} is not what it takes'
-            raise ScenarioError(msg) from None
-        values[key] = value
     try:
-        return PoweredRun(**values)
+        return powered_from_mapping(raw.get('powered', {}) if isinstance(raw, dict) else None)
     except ScenarioError as err:
-        msg = f'{path}: powered.{err}'
+        msg = f'{path}: {err}'
         raise ScenarioError(msg) from None
 
 

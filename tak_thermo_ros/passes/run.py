@@ -38,7 +38,7 @@ from tak_thermo_ros.core.records.static_run import (
     static_reference,
 )
 from tak_thermo_ros.core.values import SENSOR_NAMES, STANDARD_GRAVITY
-from tak_thermo_ros.errors import FitError, TakError
+from tak_thermo_ros.errors import BagError, FitError, TakError
 
 if TYPE_CHECKING:
     from tak_thermo_ros.formats.bag import Topics
@@ -237,8 +237,8 @@ def open_calibration_run(record: Record, options: StreamOptions, *, gravity: flo
         caller refuses what it cannot take in its own words (``noise``).
     """
     path, streams = record.path, record.streams
-    if require_reference and streams.kind is InputKind.COUNTS:
-        record.require_reference()
+    if require_reference and record.reference_refusal is not None:  # a counts bag's, in the bag's words
+        raise BagError(record.reference_refusal)
     listed = record_streams_listed(record, options.topics)
     static = None
     survey = None

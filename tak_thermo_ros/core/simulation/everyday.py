@@ -44,6 +44,7 @@ from tak_thermo_ros.core.records.record import DriverRecord, no_orientation, sec
 from tak_thermo_ros.core.records.stamps import ns_from_seconds
 from tak_thermo_ros.core.rotation import exp_map, log_map
 from tak_thermo_ros.core.simulation.imu import AxisTruth, Scenario, _driver_channels, exact_output, first_order_lag
+from tak_thermo_ros.core.simulation.mapping import fields_from_mapping, integer, number, numbers, whole_numbers
 from tak_thermo_ros.core.simulation.truth import DEFAULT_DRIVER_ACCEL, DEFAULT_DRIVER_GYRO
 from tak_thermo_ros.core.simulation.motion import FACE_UP, _minimum_jerk, _posed
 from tak_thermo_ros.errors import ScenarioError
@@ -176,39 +177,26 @@ def section_from_mapping(cls: type, raw: Any, section: str, *, whole_lists: tupl
     """A scenario section's dataclass (every key optional) from its mapping, each value of its default's kind.
 
     A tuple default takes a list of as many numbers (an empty default: any number of them; ``whole_lists``:
-    whole numbers), an ``int`` a whole number, a ``float`` a number.
+    whole numbers), an ``int`` a whole number, a ``float`` a number
+    (:func:`~tak_thermo_ros.core.simulation.mapping.fields_from_mapping`).
 
     :raises ScenarioError: naming the key.
     """
-    known = {f.name: f for f in fields(cls)}
-    if not isinstance(raw, Mapping):
-        msg = f'{section}: expected a mapping (every key optional: {", ".join(known)})'
-        raise ScenarioError(msg)
-    values: dict[str, Any] = {}
-    for key, value in raw.items():
-        if key not in known:
-            msg = f'{section}.{key}: unknown key (known: {", ".join(known)})'
-            raise ScenarioError(msg)
-        default = getattr(cls(), key)
+    def read(key: str, value: Any) -> Any:
+        default, where = getattr(cls(), key), f'{section}.{key}'
         if isinstance(default, tuple):
-            kind = int if key in whole_lists else (int, float)
-            if not isinstance(value, (list, tuple)) or (default and len(value) != len(default)) or not all(
-                    isinstance(v, kind) and not isinstance(v, bool) for v in value):
-                what = 'whole numbers' if key in whole_lists else 'numbers'
-                msg = f'{section}.{key}: expected a list of {len(default) if default else "any"} {what}'
-                raise ScenarioError(msg)
-            value = tuple(int(v) if key in whole_lists else float(v) for v in value)
-        elif isinstance(default, int):
-            if isinstance(value, bool) or not isinstance(value, int):
-                msg = f'{section}.{key}: expected a whole number'
-                raise ScenarioError(msg)
-        else:
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                msg = f'{section}.{key}: expected a number'
-                raise ScenarioError(msg)
-            value = float(value)
-        values[key] = value
-    return cls(**values)
+            length = len(default) if default else None
+            what = f'a list of {length or "any"} {"whole numbers" if key in whole_lists else "numbers"}'
+            if key in whole_lists:
+                return whole_numbers(value, where, what=what, length=length)
+            return numbers(value, where, what=what, length=length)
+        if isinstance(default, int):
+            return integer(value, where, what='a whole number')
+        return number(value, where)
+
+    names = ', '.join(f.name for f in fields(cls))
+    return cls(**fields_from_mapping(raw, cls, f'{section}.', read,
+                                     not_a_mapping=f'{section}: expected a mapping (every key optional: {names})'))
 
 
 def everyday_scenario(raw: Mapping[str, Any] | None = None) -> tuple[Scenario, Everyday]:
@@ -217,9 +205,12 @@ def everyday_scenario(raw: Mapping[str, Any] | None = None) -> tuple[Scenario, E
     The other keys override :data:`EVERYDAY_SCENARIO` (``output`` must stay ``imu``; no
     ``handheld``, ``rotation`` or ``magnetometer``).
 
-    :raises ScenarioError: naming the key.
+    :raises ScenarioError: naming the key; a ``raw`` that is no mapping (``scenario: expected a mapping ...``).
     """
     from tak_thermo_ros.core.simulation.scenario import scenario_from_mapping
+    if not isinstance(raw or {}, Mapping):  # the words of scenario_from_mapping
+        msg = 'scenario: expected a mapping of keys to values'
+        raise ScenarioError(msg)
     raw = dict(raw or {})
     habits = everyday_from_mapping(raw.pop('everyday', {}) or {})
     for key in ('handheld', 'rotation', 'magnetometer'):

@@ -1,11 +1,11 @@
 """A scenario mapping's section read into a dataclass's values: the one reader of "unknown key (known: ...)".
 
 Every section of a scenario YAML (the scenario itself, a unit's axis, ``handheld:``, ``powered:``,
-``everyday:``) is a mapping whose keys are a dataclass's fields. :func:`fields_from_mapping`
+``everyday:``, ``fleet:``) is a mapping whose keys are a dataclass's fields. :func:`fields_from_mapping`
 refuses a section that is not a mapping and a key that is not a field, naming it and the
 fields; each value is read by the caller's ``read`` in the mapping's order, so the first bad
 key (unknown or ill-typed) is the one named. The small readers (:func:`number`,
-:func:`integer`, :func:`numbers`, :func:`string`, :func:`flag`) refuse a value of the wrong type
+:func:`integer`, :func:`numbers`, :func:`whole_numbers`, :func:`string`, :func:`flag`) refuse a value of the wrong type
 in one line naming its key (``handheld.lever_arm_m: expected a list of three numbers``).
 """
 
@@ -73,6 +73,19 @@ def numbers(value: Any, key: str, *, what: str = 'a list of numbers', length: in
         msg = f'{key}: expected {what}'
         raise ScenarioError(msg)
     return tuple(float(v) for v in value)
+
+
+def whole_numbers(value: Any, key: str, *, what: str = 'a list of whole numbers',
+                  length: int | None = None) -> tuple[int, ...]:
+    """``value`` as a tuple of ints: a list or tuple of ints (not bools nor floats), ``length`` of them if given.
+
+    :raises ScenarioError: ``{key}: expected {what}``.
+    """
+    if not isinstance(value, (list, tuple)) or (length is not None and len(value) != length) or not all(
+            isinstance(v, int) and not isinstance(v, bool) for v in value):
+        msg = f'{key}: expected {what}'
+        raise ScenarioError(msg)
+    return tuple(int(v) for v in value)
 
 
 def string(value: Any, key: str) -> str:
