@@ -6,7 +6,7 @@ Each of the issue's findings, with the test that would have caught it:
 2. a verdict's sentences against its own numbers (``none`` with "no structure left" under an
    Allan deviation beyond its bound), on a run that shows it and over generated diagnoses;
 3. the ``source`` label of each way a noise model is made;
-4. the drifted docs: ``test/test_docs.py`` runs them;
+4. the drifted docs: ``test/project/test_docs.py`` runs them;
 5. lines a person reads: ``--help`` without markup and within 100 columns, ``validate``'s
    *before* the same whatever calibration is given, details behind ``--verbose``.
 """
@@ -18,12 +18,12 @@ import math
 import os
 import re
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
 from hypothesis import given, strategies as st
 
+from paths import REPO
 from tak_thermo_ros import cli
 from tak_thermo_ros.cli.common import WIDTH, wrap
 from tak_thermo_ros.core.diagnose.values import AxisSummary, Candidate, Driver, LadderStep
@@ -151,7 +151,7 @@ def test_none_under_an_allan_excess_says_both_and_nothing_else(tmp_path):
     that slow structure remains beyond the bound, and the random walk (with its unit) that
     would explain it.
     """
-    from test_noise_verdicts import _diagnose, wandering_run
+    from core.diagnose.test_verdict import _diagnose, wandering_run
     result = _diagnose(wandering_run(seed=4), 'gyro', own_noise=True)
     check = result.allan[0][1]
     assert result.verdict == VERDICT_NONE and not check.consistent
@@ -312,7 +312,7 @@ def test_the_env_of_the_tests_keeps_blas_single_threaded():
 
 def test_nothing_prints_a_tesla_value_or_a_second_spelling_of_a_unit():
     """Across the docs' transcripts: the magnetometer in uT, one spelling of the random walk, no raw floats."""
-    root = Path(__file__).resolve().parents[1]
+    root = REPO
     text = '\n'.join(path.read_text(encoding='utf-8') for path in [root / 'README.md', *(root / 'docs').glob('*.md')])
     blocks = re.findall(r'```console[^\n]*\n(.*?)```', text, flags=re.DOTALL)
     shown = '\n'.join(blocks)

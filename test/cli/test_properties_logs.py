@@ -1,6 +1,6 @@
 """Property tests of ``tak_calib`` on mutated flight logs (PX4 ULog, ArduPilot ``.bin``) and calibration files.
 
-The invariant of ``test_properties_cli.py`` (exit 0 with finite output, or exit 2 with one line
+The invariant of ``test/cli/test_properties.py`` (exit 0 with finite output, or exit 2 with one line
 that is not an internal error; no traceback, no warning, no temporary left behind), and no
 uncounted loss: when ``fit`` of a flight log succeeds, the accelerometer samples it fitted and
 those it left out (counted by reason) add up to the samples the reader said the log holds.
@@ -27,7 +27,7 @@ from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
 from conftest import examples
-from test_properties_cli import _run, check_outcome
+from cli.test_properties import _run, check_outcome
 from tak_thermo_ros.core.simulation.powered import PoweredRun, simulate_powered
 from tak_thermo_ros.formats.bag import read_imu_messages
 from tak_thermo_ros.formats.dataflash import driver_messages, write_dataflash

@@ -1,7 +1,7 @@
-"""Issue 31, item 5: each smaller finding of the walk-through on the real cycle, fixed, with a test.
+"""What the commands say of a record like the real cycle: issue 31's smaller findings (item 5), each with a test.
 
-(The hand-held gyroscope's label: ``test_handheld_cli.py``; a rotation record's |B|:
-``test_magnetometer_bags.py``.)
+(The hand-held gyroscope's label: ``test/passes/test_handheld.py``; a rotation record's |B|:
+``test/passes/test_magnetometer.py``.)
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from paths import REPO
 from tak_thermo_ros import cli
 from tak_thermo_ros.core.diagnose import diagnose
 from tak_thermo_ros.core.simulation.imu import simulate
@@ -28,7 +29,7 @@ from tak_thermo_ros.reports.diagnose_figures import gravity_series
 from tak_thermo_ros.units import with_error
 from tak_thermo_ros.formats.records import open_record
 
-DOCS = Path(__file__).resolve().parents[1] / 'docs'
+DOCS = REPO / 'docs'
 OPTIONS = StreamOptions(topics=Topics(), progress=False)
 STATIC_RAMP = Scenario(output='imu', sample_rate_hz=2.0, plateaus_celsius=(35.0,), start_celsius=5.0,
                        ramp_celsius_per_minute=1.0, plateau_hours=0.05, board_lag_s=60.0, positions=((0.0, 0.0, 1.0),),

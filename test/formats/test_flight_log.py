@@ -14,6 +14,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from firmware import ardupilot_correction, px4_applied_offsets
+from paths import REPO
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.core.records.record import hold_signal, sensor_messages
 from tak_thermo_ros.core.simulation.powered import PoweredRun, simulate_powered
@@ -312,7 +313,7 @@ def test_tclr_records_give_each_sensor_its_own_stamps(tmp_path):
 def test_simulate_writes_the_docs_flight_logs(tmp_path, capsys):
     """tak_calib simulate OUT.ulg / OUT.bin from docs/scenarios/px4_warm_up.yaml: what the docs show."""
     from tak_thermo_ros.cli.common import unwrap
-    scenario = Path(__file__).resolve().parents[1] / 'docs' / 'scenarios' / 'px4_warm_up.yaml'
+    scenario = REPO / 'docs' / 'scenarios' / 'px4_warm_up.yaml'
     for name in ('warm_up.ulg', 'warm_up.bin'):
         assert main(['simulate', str(tmp_path / name), '--scenario', str(scenario)]) == 0
     out = '\n'.join(unwrap(capsys.readouterr().out))

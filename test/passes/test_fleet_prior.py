@@ -14,13 +14,13 @@ import signal
 import sys
 import time
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
 from hypothesis import given, settings, strategies as st
 
+from paths import REPO
 from tak_thermo_ros import cli
 from tak_thermo_ros.core.fit.handheld import HandheldSettings
 from tak_thermo_ros.core.fit.pool import fit_pool
@@ -38,7 +38,7 @@ from tak_thermo_ros.formats.calibration_file import (
 )
 from tak_thermo_ros.formats.prior_file import load_prior, prior_from_mapping, prior_to_mapping, save_prior
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'bench'))
+sys.path.insert(0, str(REPO / 'bench'))
 from fleet_prior_check import fleet_scenario, judge, true_curves, unit_records  # noqa: E402
 from everyday_check import pool_of  # noqa: E402
 

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from paths import REPO
 from tak_thermo_ros import cli
 from tak_thermo_ros.core.diagnose import diagnose
 from tak_thermo_ros.core.fit.handheld import HandheldSettings, fit_handheld
@@ -219,7 +220,7 @@ def test_an_imported_still_board_is_a_static_run_not_a_table_run(tmp_path, capsy
     ``fit`` said "a table run (reference topics): offset and scale against temperature", then held
     every scale: one input per axis. A reference in one direction is a static run's, said so.
     """
-    log = Path(__file__).resolve().parents[1] / 'data' / 'tofupilot-imu-thermal' / 'imu_raw_data.csv'
+    log = REPO / 'data' / 'tofupilot-imu-thermal' / 'imu_raw_data.csv'
     bag, params = tmp_path / 'real', tmp_path / 'base.yaml'
     assert run_cli(capsys, 'import-csv', str(log), '-o', str(bag), '--time-unit', 'us', '--acc-columns', 'imu.acc.x',
                    'imu.acc.y', 'imu.acc.z', '--temp-column', 'imu.temperature')[0] == 0

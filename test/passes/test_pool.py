@@ -11,12 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from paths import REPO
 from tak_thermo_ros import cli
 from tak_thermo_ros.core.simulation.everyday import everyday_scenario, everyday_truth, simulate_everyday_record
 from tak_thermo_ros.formats.bag import write_driver_record
 from tak_thermo_ros.formats.calibration_file import load_unit
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'bench'))
+sys.path.insert(0, str(REPO / 'bench'))
 from everyday_check import check_seed, offset_errors  # noqa: E402
 
 MONTH = {'sample_rate_hz': 10.0, 'seed': 21, 'everyday': {'records': 7, 'record_minutes': 10.0}}

@@ -119,7 +119,7 @@ def test_one_flight_as_ulg_and_bin_is_one_record(month, capsys, tmp_path):
 def test_fit_fleet_counts_a_linked_or_copied_unit_once(month, tmp_path):
     """A unit's folder through a link, or copied, or spelled otherwise, is one unit: named, counted once.
 
-    (``fit-fleet`` says so: test_everyday_pool.py::test_fit_fleet_takes_a_directory_of_records_per_unit.)
+    (``fit-fleet`` says so: test/passes/test_pool.py::test_fit_fleet_takes_a_directory_of_records_per_unit.)
     """
     root, _ = month
     unit = tmp_path / 'unitA'

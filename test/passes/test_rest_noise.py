@@ -10,7 +10,6 @@ from __future__ import annotations
 import math
 import sys
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,6 +17,7 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from paths import REPO
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.core.link.rest_noise import ChannelNoise
 from tak_thermo_ros.core.noise.model import UPPER_SIGMAS, NoiseModel, noise_model_from_mapping
@@ -29,7 +29,7 @@ from tak_thermo_ros.core.simulation.noise import bias_wander, filtered_white
 from tak_thermo_ros.formats.bag import write_driver_record
 from tak_thermo_ros.formats.calibration_file import load_unit, noise_to_mapping
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'bench'))
+sys.path.insert(0, str(REPO / 'bench'))
 from bench_rest_noise import judge_file, unit_yaml  # noqa: E402
 from everyday_check import month, pool_of  # noqa: E402
 
@@ -255,7 +255,7 @@ def test_plain_fit_writes_a_noise_model_for_every_kind_of_record(capsys, tmp_pat
     The line says where it came from; ``validate`` runs the watch with the file; ``--noise`` still overrides.
     """
     from tak_thermo_ros.formats.kalibr import write_kalibr
-    docs = Path(__file__).resolve().parents[1] / 'docs' / 'scenarios'
+    docs = REPO / 'docs' / 'scenarios'
     scenario, habits = everyday_scenario({'sample_rate_hz': 10.0, 'seed': 5,
                                           'everyday': {'records': 3, 'record_minutes': 8.0}})
     (tmp_path / 'pool').mkdir()

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import pytest
 
-from test_noise_verdicts import wandering_run
+from core.diagnose.test_verdict import wandering_run
 from tak_thermo_ros import cli
 from tak_thermo_ros.core.diagnose.excursions import GAIN_SIGMAS
 from tak_thermo_ros.core.noise.constancy import TREND_T, temperature_trend
@@ -36,7 +36,7 @@ from tak_thermo_ros.formats.records import open_record
 
 OPTIONS = StreamOptions(topics=Topics(), progress=False)
 LAG_SLOPE = 3e-5
-"""The small gyroscope lag of ``test_noise_verdicts.py`` (rad/s per C, tau 300 s, on x and -z)."""
+"""The small gyroscope lag of ``test/core/diagnose/test_verdict.py`` (rad/s per C, tau 300 s, on x and -z)."""
 
 
 def self_heating(scenario, seed: int):

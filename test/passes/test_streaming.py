@@ -220,7 +220,7 @@ def test_a_recorded_signal_effect_on_a_long_run_is_fitted_in_two_passes(tmp_path
     slopes recover the simulator's supply drift within 4.5 standard errors, and agree with the
     in-memory fit of the whole run.
     """
-    from test_aux_signal import supply_truth
+    from core.effects.test_aux_signal import supply_truth
     from tak_thermo_ros.core.records.record import require_signals
     run = simulate(replace(SHORT, plateau_hours=0.1, plateaus_celsius=(10.0, 30.0), supply_voltage_drift=3.0,
                            record_supply='/p', record_supply_type='float64', seed=14))

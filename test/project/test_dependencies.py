@@ -11,10 +11,10 @@ from pathlib import Path
 
 import pytest
 
+from paths import REPO
 from tak_thermo_ros.errors import DependencyError
 from tak_thermo_ros.optional import OPTIONAL, require
 
-REPO = Path(__file__).resolve().parent.parent
 OFFLINE = ('scipy', 'matplotlib', 'dask', 'distributed', 'rosbags', 'pandas', 'statsmodels', 'allantools')
 ROS_MESSAGES = ('rclpy', 'rclpy.node', 'rclpy.executors', 'rclpy.experimental', 'rcl_interfaces.msg',
                 'sensor_msgs.msg', 'geometry_msgs.msg', 'diagnostic_msgs.msg')
@@ -69,10 +69,11 @@ def _third_party_imports(directory: Path) -> dict[str, set[str]]:
     """Top-level module -> files importing it, for modules neither stdlib nor the repository's own.
 
     The repository's own: any module of the package, the tests, the benchmarks, the demo or the
-    launch files (a benchmark may import a test's helpers).
+    launch files (a benchmark may import a test's helpers), and the tests' packages (test/core/, ...).
     """
     local = {path.stem for folder in ('tak_thermo_ros', 'test', 'bench', 'demo', 'launch')
              for path in (REPO / folder).rglob('*.py')} | {'tak_thermo_ros'}
+    local |= {path.parent.name for path in (REPO / 'test').rglob('__init__.py')}
     found: dict[str, set[str]] = {}
     for path in directory.rglob('*.py'):
         tree = ast.parse(path.read_text(encoding='utf-8'))

@@ -18,8 +18,9 @@ from pathlib import Path
 import pytest
 
 from node_helpers import domain_id
+from paths import REPO
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 _SPEC = importlib.util.spec_from_file_location('regenerate', ROOT / 'docs' / 'regenerate.py')
 transcripts = importlib.util.module_from_spec(_SPEC)
 sys.modules['regenerate'] = transcripts

@@ -18,13 +18,14 @@ from pathlib import Path
 import pytest
 import yaml
 
+from paths import REPO
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.core.noise.model import NoiseModel
 from tak_thermo_ros.errors import OutputError
 from tak_thermo_ros.formats.files import check_finite, json_text, non_finite_number, write_json, write_texts
 from tak_thermo_ros.formats.kalibr import kalibr_from_mapping, read_kalibr, write_kalibr
 
-PACKAGE = Path(__file__).resolve().parents[1] / 'tak_thermo_ros'
+PACKAGE = REPO / 'tak_thermo_ros'
 
 
 def _one_line(err: str) -> str:

@@ -12,14 +12,13 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-from pathlib import Path
-
 from ament_flake8.main import main_with_errors
+from paths import REPO
 import pytest
 
 # The one change to `ros2 pkg create`'s test: the package's setup.cfg [flake8] as the
 # configuration (ament_flake8.ini with the house line length; see setup.cfg).
-SETUP_CFG = Path(__file__).resolve().parent.parent / 'setup.cfg'
+SETUP_CFG = REPO / 'setup.cfg'
 
 
 @pytest.mark.flake8

@@ -5,7 +5,9 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-PACKAGE = Path(__file__).resolve().parents[1] / 'tak_thermo_ros'
+from paths import REPO
+
+PACKAGE = REPO / 'tak_thermo_ros'
 MOST_LINES = 600
 REASON = 'Over 600 lines because'
 

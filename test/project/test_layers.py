@@ -7,7 +7,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-PACKAGE = Path(__file__).resolve().parents[1] / 'tak_thermo_ros'
+from paths import REPO
+
+PACKAGE = REPO / 'tak_thermo_ros'
 
 BLOCKER = '''
 import importlib.abc, sys

@@ -13,14 +13,14 @@
 # limitations under the License.
 
 import configparser
-from pathlib import Path
 
 from ament_pep257.main import main
+from paths import REPO
 import pytest
 
 # The one change to `ros2 pkg create`'s test: the codes setup.cfg [pydocstyle] add-ignore
 # names (where the house style differs from ament's; see setup.cfg) are passed on.
-SETUP_CFG = Path(__file__).resolve().parent.parent / 'setup.cfg'
+SETUP_CFG = REPO / 'setup.cfg'
 
 
 def house_ignores():

@@ -1,6 +1,6 @@
 """The node in a namespace with the file `tak_calib fit` wrote: what `ros2 launch namespace:=imu0` passes.
 
-The real rclpy, no ros2 command line (test_ros2_cli.py runs those): the node started with
+The real rclpy, no ros2 command line (test/ros/test_ros2_cli.py runs those): the node started with
 ``--ros-args -r __ns:=/imu0 --params-file FILE``, exactly the arguments launch_ros gives it.
 """
 

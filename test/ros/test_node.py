@@ -22,6 +22,7 @@ from node_helpers import (
     status_values,
     wait_until,
 )
+from paths import REPO
 from tak_thermo_ros import cli
 from tak_thermo_ros.formats.bag import read_imu, read_imu_messages, read_record, write_driver_record, write_record
 from tak_thermo_ros.formats.calibration_file import (
@@ -39,7 +40,6 @@ from tak_thermo_ros.core.simulation.imu import simulate
 from tak_thermo_ros.core.simulation.scenario import Scenario
 from tak_thermo_ros.core.simulation.motion import HandheldMotion
 
-REPO = Path(__file__).resolve().parent.parent
 START_NS = 1_700_000_000 * NANOSECONDS
 CALIBRATION = Scenario().truth()  # temperature-code range 7600..8800, reference 8200
 

@@ -2,7 +2,7 @@
 
 A signal at any moment of start-up; two compensators in two namespaces on one /diagnostics; a
 future-stamped Imu; a live parameter and an Imu value that make nonsense. (Losses under a burst
-with the default executor: ``test_node.py``; the pure rules: ``test_online.py``.)
+with the default executor: ``test/ros/test_node.py``; the pure rules: ``test/core/link/test_online.py``.)
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ from node_helpers import (
     status_values,
     wait_until,
 )
+from paths import TEST
 from tak_thermo_ros.core.link.correction import UnitCorrector
 from tak_thermo_ros.core.records.stamps import stamp_problems
 from tak_thermo_ros.core.simulation.scenario import Scenario
@@ -88,7 +89,7 @@ def test_a_signal_at_any_moment_of_start_up_ends_the_node_cleanly(tmp_path, ros_
     Each moment is reached by a condition on the process (its signal mask, its sockets, its log
     line), not by a sleep. Nothing else holds the start: the calibration and the learned file are
     only ever regular files, read at once (a FIFO, which held the node in ``open()`` deaf to both
-    signals, is refused in one line: test_issue44_bad_input.py).
+    signals, is refused in one line: test/passes/test_pool_bad_input.py).
     """
     params = driver_params(tmp_path / 'params.yaml')
     for index, (moment, number) in enumerate(MOMENTS):
@@ -119,7 +120,7 @@ def test_a_node_dies_with_the_test_process_that_started_it(tmp_path, ros_env):
     """
     params = driver_params(tmp_path / 'params.yaml')
     script = (f'import os, signal, sys\n'
-              f'sys.path.insert(0, {str(Path(__file__).parent)!r})\n'
+              f'sys.path.insert(0, {str(TEST)!r})\n'
               f'from pathlib import Path\n'
               f'from node_helpers import NodeProcess\n'
               f'node = NodeProcess({node_command("--params-file", str(params))!r}, dict(os.environ), '

@@ -17,6 +17,7 @@ from sensor_msgs.msg import MagneticField
 
 from conftest import examples
 from node_helpers import RELIABLE, Harness, NodeProcess, header_stamp, node_command, stamp_of, status_values
+from paths import REPO
 from tak_thermo_ros import cli
 from tak_thermo_ros.formats.bag import MAGNETIC_FIELD, iter_topic_arrays, write_driver_record
 from tak_thermo_ros.core.link.online import OnlineCompensator
@@ -168,9 +169,8 @@ def test_the_online_core_corrects_the_magnetometer_as_the_vectorised_path():
 
 def test_the_launch_file_remaps_the_magnetometer_topics():
     import ast
-    from pathlib import Path
     from tak_thermo_ros.ros import node as node_module
-    tree = ast.parse((Path(__file__).resolve().parents[1] / 'launch' / 'compensator.launch.py').read_text())
+    tree = ast.parse((REPO / 'launch' / 'compensator.launch.py').read_text())
     constants = {n.targets[0].id: ast.literal_eval(n.value) for n in tree.body
                  if isinstance(n, ast.Assign) and isinstance(n.targets[0], ast.Name)
                  and n.targets[0].id == 'MAG_TOPICS'}

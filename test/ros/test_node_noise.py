@@ -6,7 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from test_node import DRIVER_RUN, driver_params, node_and_apply
+from ros.test_node import DRIVER_RUN, driver_params, node_and_apply
 from tak_thermo_ros.formats.bag import write_driver_record
 from tak_thermo_ros.core.noise.model import NoiseModel
 from tak_thermo_ros.formats.calibration_file import load_unit

@@ -1,6 +1,6 @@
 """The calibration watch in the real node (rclpy): the verdict validate gives, apply's turn-on, learning across starts.
 
-The statistics over seeds run through the core (``test_watch.py``: the same code); here a few
+The statistics over seeds run through the core (``test/core/link/test_watch.py``: the same code); here a few
 everyday runs go through the real node, its parameters and ``/diagnostics``.
 """
 

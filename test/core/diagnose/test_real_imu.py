@@ -10,18 +10,18 @@ import json
 import math
 import re
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from paths import REPO
 from tak_thermo_ros.formats.csv_log.options import CsvImportOptions
 from tak_thermo_ros.formats.csv_log.reader import read_csv_log
 from tak_thermo_ros.core.diagnose import diagnose
 from tak_thermo_ros.core.fit import fit_calibration, fit_model, residual_counts
 from tak_thermo_ros.core.records.record import align
 
-REAL_LOG = Path(__file__).resolve().parents[1] / 'data' / 'tofupilot-imu-thermal' / 'imu_raw_data.csv'
+REAL_LOG = REPO / 'data' / 'tofupilot-imu-thermal' / 'imu_raw_data.csv'
 OPTIONS = CsvImportOptions(acc_columns=('imu.acc.x', 'imu.acc.y', 'imu.acc.z'), temp_column='imu.temperature',
                            time_unit='us')
 SETTLE_S = 60.0

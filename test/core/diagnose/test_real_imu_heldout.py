@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from paths import REPO
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.core.diagnose import diagnose
 from tak_thermo_ros.core.diagnose.crossval import _with_range
@@ -36,7 +37,7 @@ from tak_thermo_ros.passes.diagnose import bounded_run
 from tak_thermo_ros.passes.run import StreamOptions
 from tak_thermo_ros.formats.records import open_record
 
-REAL_LOG = Path(__file__).resolve().parents[1] / 'data' / 'tofupilot-imu-thermal' / 'imu_raw_data.csv'
+REAL_LOG = REPO / 'data' / 'tofupilot-imu-thermal' / 'imu_raw_data.csv'
 FIRST_ROWS = 2697
 """The first 22.7 min: rows up to the coldest point (-17.6 C), where the heating starts."""
 CANDIDATES = ('thermal_lag', 'hysteresis', 'warmup')

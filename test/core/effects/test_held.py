@@ -31,7 +31,7 @@ from tak_thermo_ros.formats.calibration_file import (
 
 RUN = Scenario(plateau_hours=0.5, ramp_celsius_per_minute=1.0, board_lag_s=300.0, dwell_s=30.0,
                sample_rate_hz=0.5, temp_code_every=1)
-"""As ``test_effects_fit.py``: a chamber cycle with the temperature code on every sample."""
+"""As ``test/core/fit/test_effects.py``: a chamber cycle with the temperature code on every sample."""
 LAG = {'tau_s': 900.0, 'slope_x': 0.02, 'slope_z': -0.03}
 """A lag on x and z only: y has none."""
 STANDARD_ERRORS = 4.5

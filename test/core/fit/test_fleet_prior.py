@@ -3,7 +3,7 @@
 The units here are synthetic at the level of their sufficient statistics: each unit's curve drawn
 around the fleet's, its records a polynomial seen at its own temperatures (some narrow, some wide)
 with its own noise; the statistics are what the pool fit hands on (``H``, ``g``, ``c``). The pool
-fit's own statistics are tested in test_fleet_prior_fit.py.
+fit's own statistics are tested in test/passes/test_fleet_prior.py.
 """
 
 from __future__ import annotations

@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from paths import REPO
 from tak_thermo_ros.core.link.correction import (
     Corrector,
     OutOfRange,
@@ -66,8 +67,7 @@ def test_waiting_for_temperature_publishes_nothing_and_warns_with_topic():
 
 def test_the_docs_state_the_temperature_bounds_the_code_applies():
     """docs/node.md's bad-input table gives the plausible temperatures of each input kind as the code has them."""
-    from pathlib import Path
-    docs = (Path(__file__).resolve().parent.parent / 'docs' / 'node.md').read_text(encoding='utf-8')
+    docs = (REPO / 'docs' / 'node.md').read_text(encoding='utf-8')
     row = next(line for line in docs.splitlines() if line.startswith('| temperature NaN'))
     low, high = TEMPERATURE_RANGE['imu']
     assert f'outside {low:g}..{high:g} C' in row and f'{TEMP_CODE_LIMIT:.0e}'.replace('e+0', 'e') in row

@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import math
 import sys
-from pathlib import Path
 
 import pytest
 
 from everyday_watch import LATITUDE, everyday_runs, watch_run
+from paths import REPO
 from tak_thermo_ros import cli
 from tak_thermo_ros.core.link.watch import FALSE_ALARMS_PER_HOUR, WatchSettings
 from tak_thermo_ros.core.values import DEG_PER_H
@@ -24,7 +24,7 @@ from tak_thermo_ros.core.simulation.everyday import everyday_truth, second_every
 from tak_thermo_ros.formats.bag import write_driver_record
 from tak_thermo_ros.formats.calibration_file import load_unit
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'bench'))
+sys.path.insert(0, str(REPO / 'bench'))
 from everyday_check import offset_errors  # noqa: E402
 
 SEEDS = (3, 4, 5)

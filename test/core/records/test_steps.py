@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from conftest import EXAMPLES, SHORT
+from paths import REPO
 from tak_thermo_ros import cli
 from tak_thermo_ros.core.effects import LIBRARY
 from tak_thermo_ros.core.fit import fit_model, residual_counts
@@ -24,7 +24,7 @@ from tak_thermo_ros.core.records.steps import STEP_SIGMAS, _line_ends, change_at
 from tak_thermo_ros.core.simulation.imu import simulate
 from tak_thermo_ros.core.simulation.noise import bias_wander
 
-REAL = Path(__file__).resolve().parents[1] / 'data' / 'tofupilot-imu-thermal' / 'imu_raw_data.csv'
+REAL = REPO / 'data' / 'tofupilot-imu-thermal' / 'imu_raw_data.csv'
 RATE = 2.0
 WANDERS = {
     'white': (0.0, 0.0),

@@ -1,7 +1,7 @@
 """The node's raw path codec (``FixedReader``, ``FixedWriter``): every field at fixed offsets, bad bytes refused.
 
 References: the block encoder (byte for byte what rosbags' ``serialize_cdr`` gives,
-test_cdr_encoder.py), the plain ``struct`` decoder (``decode_message``, what rosbags reads), and
+test/formats/cdr/test_encoder.py), the plain ``struct`` decoder (``decode_message``, what rosbags reads), and
 rclpy's own serialisation (Fast CDR, whose padding bytes are not zero).
 """
 

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from paths import REPO
 from tak_thermo_ros.formats.bag import read_record
 from tak_thermo_ros.cli import main
 from tak_thermo_ros.formats.csv_log.options import CsvImportOptions
@@ -16,7 +16,7 @@ from tak_thermo_ros.formats.csv_log.reader import parse_csv_log, read_csv_log
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import LogError
 
-REAL_LOG = Path(__file__).resolve().parents[1] / 'data' / 'tofupilot-imu-thermal' / 'imu_raw_data.csv'
+REAL_LOG = REPO / 'data' / 'tofupilot-imu-thermal' / 'imu_raw_data.csv'
 REAL_COLUMNS = ['--time-unit', 'us', '--acc-columns', 'imu.acc.x', 'imu.acc.y', 'imu.acc.z',
                 '--temp-column', 'imu.temperature']
 REAL_OPTIONS = CsvImportOptions(acc_columns=('imu.acc.x', 'imu.acc.y', 'imu.acc.z'),
