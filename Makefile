@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 
 .PHONY: demo test venv bench clean fuzz ros2cli lint
 
-# The real ros2 command line (test/test_ros2_cli.py): a sourced ROS 2 Jazzy, else the build of
+# The real ros2 command line (test/ros/test_ros2_cli.py): a sourced ROS 2 Jazzy, else the build of
 # ../shared/ros2cli/build.sh under ROSCLI_PREFIX, made here when it is missing (2-3 min, cached).
 ROSCLI_PREFIX ?= $(HOME)/.cache/ros2cli-jazzy
 export ROSCLI_PREFIX
@@ -39,19 +39,19 @@ ros2cli:
 	elif [ -f $(ROSCLI_BUILD) ]; then \
 		PYTHON=$(PYTHON) ROSCLI_PREFIX=$(ROSCLI_PREFIX) bash $(ROSCLI_BUILD) --no-verify; \
 	else \
-		echo "no ros2 command line and no $(ROSCLI_BUILD): test/test_ros2_cli.py is skipped"; \
+		echo "no ros2 command line and no $(ROSCLI_BUILD): test/ros/test_ros2_cli.py is skipped"; \
 	fi
 
 # ament_flake8 and ament_pep257 on the whole package, as `make test` runs them.
 lint: $(STAMP)
-	$(BIN)/python -m pytest -q test/test_flake8.py test/test_pep257.py
+	$(BIN)/python -m pytest -q test/project/test_flake8.py test/project/test_pep257.py
 
 # The property tests with a 25x example budget and fresh random examples (minutes, not seconds):
-# bags and CSVs (test_properties_cli.py), 1,000 mutated flight logs and calibration files
-# (test_properties_logs.py); the statistics give each command's exits.
+# bags and CSVs (test/cli/test_properties.py), 1,000 mutated flight logs and calibration files
+# (test/cli/test_properties_logs.py); the statistics give each command's exits.
 fuzz: $(STAMP)
 	TAK_HYPOTHESIS_PROFILE=long $(BIN)/python -m pytest -q --hypothesis-show-statistics \
-		test/test_properties_cli.py test/test_properties_logs.py
+		test/cli/test_properties.py test/cli/test_properties_logs.py
 
 bench: $(STAMP)
 	$(BIN)/python bench/run_all.py

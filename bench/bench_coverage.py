@@ -1,6 +1,6 @@
 """Benchmark (issue 31): whether the fit's 2-sigma intervals cover the truth under coloured noise.
 
-The runs of ``test/test_coverage.py`` over many seeds: a one-orientation chamber run of a
+The runs of ``test/core/fit/test_uncertainty.py`` over many seeds: a one-orientation chamber run of a
 gyroscope that wanders like a consumer MEMS part (white noise, bias instability i.e. flicker, a
 random walk, a Gauss-Markov process), the temperature cycled twice between 5 and 35 C at 2 C/min
 (3.4 h), with a hidden thermal lag, and in a second set a hidden hysteresis. Per parameter of the
@@ -29,7 +29,7 @@ from benchlib import machine
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))
 
-from test_coverage import LAG, TARGET, coverage_band, coverage_run, white_errors  # noqa: E402
+from core.fit.test_uncertainty import LAG, TARGET, coverage_band, coverage_run, white_errors  # noqa: E402
 
 from tak_thermo_ros.core.fit import fit_model  # noqa: E402
 from tak_thermo_ros.core.records.record import align  # noqa: E402

@@ -12,7 +12,7 @@ colcon-built into a temporary workspace, and from its install:
 
 What this machine cannot show: ``rosdep install`` itself (no apt ROS here: the rosdep keys are
 mapped to their pip packages below), and the launch file (``launch``/``launch_ros`` are no
-wheels; test_ros2_cli.py runs it with the ros2cli build). Usage:
+wheels; test/ros/test_ros2_cli.py runs it with the ros2cli build). Usage:
 ``python bench/bench_declared_deps.py``; writes ``bench/results/declared_deps.json``; exits 3
 when a step fails.
 """

@@ -13,7 +13,7 @@ drawn per seed: simulate a run with the effect, fit the base model, diagnose; th
 must name the effect; refit with it: the residual RMS must lie within 1.1x the simulated
 noise floor, and the |g| error of a second run of the same unit (another seed) must fall.
 A run without a hidden effect must give ``none``; one with the unobserved supply-voltage
-drift ``unexplained``. (``test/test_diagnose.py`` runs a representative subset.)
+drift ``unexplained``. (``test/core/diagnose/test_diagnose.py`` runs a representative subset.)
 
 Loop matrix (``--loop``): the user's loop (diagnose, add the named effect or swap in the
 named per-axis form, refit, diagnose again, at most five steps) on runs with two hidden

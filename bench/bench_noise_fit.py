@@ -1,6 +1,6 @@
 """Benchmark: the noise model's fit on simulated real sensors, over many seeds (issue 25).
 
-The sensor of ``test/test_noise_fit.py`` (a gyroscope read by a driver at 10 Hz: a first-order
+The sensor of ``test/core/noise/test_fit.py`` (a gyroscope read by a driver at 10 Hz: a first-order
 low-pass at 4x the output rate then decimation, output rounding, Gauss-Markov processes of
 0.5-3 s, random walk), 3 h static records:
 
@@ -38,7 +38,7 @@ from benchlib import machine
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))
 
-from test_noise_fit import RATE, SENSOR, static_noise  # noqa: E402
+from core.noise.test_fit import RATE, SENSOR, static_noise  # noqa: E402
 
 from tak_thermo_ros.core.noise.allan import (  # noqa: E402
     AllanVariance,

@@ -2,7 +2,7 @@
 
 Simulated driver runs on the rate table (about 1.7 h, 2 C/min ramps, 1 Hz) of a unit whose
 sensors wander like a consumer MEMS part (the simulator's bias instability and random walk, the
-values of ``test/test_noise_verdicts.py``), each diagnosed against its true noise model
+values of ``test/core/diagnose/test_verdict.py``), each diagnosed against its true noise model
 (``Scenario.noise_truth``, as ``--noise FILE`` gives it):
 
 - **false alarms**: bias wander and no thermal effect, with that white noise and with ten times
@@ -46,7 +46,7 @@ from benchlib import machine
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))
 
-from test_noise_verdicts import ACCEL, GYRO, _diagnose, wandering_run  # noqa: E402
+from core.diagnose.test_verdict import ACCEL, GYRO, _diagnose, wandering_run  # noqa: E402
 
 from tak_thermo_ros.core.diagnose import diagnose  # noqa: E402
 from tak_thermo_ros.core.fit import fit_model  # noqa: E402

@@ -1,6 +1,6 @@
 """Benchmark: a self-heating static run, compensated, as the yardstick (issue 31, item 6), over many seeds.
 
-Per seed the story of ``test/test_self_heating.py``: the rate-table run of a wandering unit at 5 Hz
+Per seed the story of ``test/passes/test_self_heating.py``: the rate-table run of a wandering unit at 5 Hz
 (with the small gyroscope lag, and without it), fitted; an hour's static run of the same unit
 warming by itself from 20 to 26 C; ``diagnose --noise-run`` of the fitted run against it:
 
@@ -27,7 +27,7 @@ from benchlib import machine
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))
 
-from test_self_heating import LAG_SLOPE, story  # noqa: E402
+from passes.test_self_heating import LAG_SLOPE, story  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / 'results'
 

@@ -1,7 +1,7 @@
 """Benchmark: the step scan (issue 31) over many seeds of coloured noise: false steps, and steps found.
 
 Per case (white noise of 1 per sample at 2 Hz, plus the simulator's bias instability and random
-walk: the cases of ``test/test_steps.py``), ``--seeds`` runs of 8,400 samples (the real cycle's
+walk: the cases of ``test/core/records/test_steps.py``), ``--seeds`` runs of 8,400 samples (the real cycle's
 length) on three channels:
 
 - **false steps**: the runs on which :func:`~tak_thermo_ros.core.records.steps.find_steps` names
@@ -27,7 +27,7 @@ from benchlib import machine
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))
 
-from test_steps import WANDERS, coloured, with_step  # noqa: E402
+from core.records.test_steps import WANDERS, coloured, with_step  # noqa: E402
 
 from tak_thermo_ros.core.records.steps import find_steps  # noqa: E402
 

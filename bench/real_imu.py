@@ -12,7 +12,7 @@ at nominal: one orientation), and asks which physical effect closes the heating/
   the model (time constants and play widths included) fitted by ``fit_model`` on the other
   nine and scored on the held-out block, for base, + thermal_lag, + hysteresis, + both;
   paired per-block differences with their standard errors (the margin of
-  ``test/test_real_imu.py``);
+  ``test/core/diagnose/test_real_imu.py``);
 - the start-up minute: kept, with and without a ``warmup`` term;
 - a scan of the play width beyond the library's search range (up to the whole range), in
   numpy, to show what a very wide "hysteresis" does on a ramp-only log.

@@ -28,7 +28,7 @@ from benchlib import REAL_LOG, machine, run_tak_calib
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))
 
-from test_coverage import white_errors  # noqa: E402
+from core.fit.test_uncertainty import white_errors  # noqa: E402
 
 from tak_thermo_ros.core.diagnose import diagnose  # noqa: E402
 from tak_thermo_ros.core.diagnose.crossval import _with_range  # noqa: E402

@@ -14,7 +14,7 @@ Per record and axis: the Allan deviation beside ``allantools.oadev`` (LGPL, opti
 install allantools``; its largest relative difference), the fit's goodness (within the 95 %
 band from two samples on, the worst ratio and where), the terms, and the five-term fit of
 ``main`` before issue 25 (``bench_noise_fit.five_term_fit``) on the same curve; every imu.yaml
-checked against Kalibr's own conditions (``test_noise_fit.kalibr_accepts``).
+checked against Kalibr's own conditions (``core.noise.test_fit.kalibr_accepts``).
 
 Run: ``.venv/bin/python bench/real_static_noise.py /work/.mirror/tomisuarez2+ImuCalibration/repo``.
 Writes ``bench/results/real_static_noise.json``.
@@ -38,7 +38,7 @@ from benchlib import import_real_log, machine, run_tak_calib as run
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))
 
 from bench_noise_fit import band_figures, five_term_fit  # noqa: E402
-from test_noise_fit import kalibr_accepts  # noqa: E402
+from core.noise.test_fit import kalibr_accepts  # noqa: E402
 
 from tak_thermo_ros.cli.common import noise_axis_lines  # noqa: E402
 from tak_thermo_ros.core.noise.allan import allan_variance  # noqa: E402

@@ -1,6 +1,6 @@
 r"""Docs that cannot drift: run the ``console`` transcripts of the README and docs/, check them or regenerate them.
 
-The convention (every doc follows it; ``test/test_docs.py`` checks it, this script regenerates):
+The convention (every doc follows it; ``test/project/test_docs.py`` checks it, this script regenerates):
 
 - A transcript is a fenced block whose info string starts with ``console``. Other blocks (``sh``,
   ``yaml``, plain) are never run.

@@ -1,7 +1,7 @@
 """Everyday runs for the calibration watch: a healthy unit, one whose gyro offset moved, one whose slope grew.
 
-Shared by the core's statistics over seeds (``test_watch.py``) and the real node's tests
-(``test_node_watch.py``): the same records, the same calibration file.
+Shared by the core's statistics over seeds (``test/core/link/test_watch.py``) and the real node's tests
+(``test/ros/test_node_watch.py``): the same records, the same calibration file.
 
 The records are the everyday simulator's (power-up at the day's ambient, self-heating, rests on
 uneven ground at any heading, motion with vibration between, a new turn-on offset at every

@@ -1,7 +1,7 @@
 """A driver record whose sensors come at their own stamps, and the node's logic played over its bag.
 
-Shared by the core's test against ``tak_calib apply`` (``test_online.py``, no ROS) and the real
-node's (``test_node.py``): the same record, the same play order.
+Shared by the core's test against ``tak_calib apply`` (``test/core/link/test_online.py``, no ROS) and the real
+node's (``test/ros/test_node.py``): the same record, the same play order.
 """
 
 from __future__ import annotations

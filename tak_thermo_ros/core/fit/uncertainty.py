@@ -35,7 +35,7 @@ The model takes the samples as evenly spaced at their median interval. A run of 
 :data:`MAX_SERIES` samples is averaged over consecutive bins first (the slow noise the errors
 depend on survives the averaging; the white part is carried by each bin's variance).
 
-Checked over seeds (``bench/bench_coverage.py``, ``test/test_coverage.py``): simulated runs with
+Checked over seeds (``bench/bench_coverage.py``, ``test/core/fit/test_uncertainty.py``): simulated runs with
 bias instability (flicker), a random walk and a Gauss-Markov process and a hidden thermal lag;
 the reported 2-sigma intervals of the lag's parameters must cover the truth 90-97 % of the time
 (the white errors covered about 16 %).

@@ -17,7 +17,7 @@ half its size at the scale (a curve, a warm-up, makes ``D_w`` grow as ``w^2``). 
 outliers (one sample far from the samples on both sides) are set to their neighbours' median
 first: a spike is not a level.
 
-On simulated coloured noise (white, bias instability, random walk; ``test_steps.py`` and
+On simulated coloured noise (white, bias instability, random walk; ``test/core/records/test_steps.py`` and
 ``bench/bench_steps.py``) the scan names no step in more than 99 % of runs.
 """
 

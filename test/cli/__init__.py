@@ -1,0 +1,1 @@
+"""Tests of tak_thermo_ros/cli/."""

@@ -1,0 +1,1 @@
+"""Project-wide checks: the layers, the linters, the docs' transcripts, the rooms' size, the dependencies."""
