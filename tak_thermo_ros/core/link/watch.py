@@ -49,7 +49,14 @@ from typing import Callable
 
 import numpy as np
 
-from tak_thermo_ros.core.link.learning import TURN_ON_SIGMAS, LearnedState, Learner, adjust_array, calibration_digest
+from tak_thermo_ros.core.link.learning import (
+    TURN_ON_SIGMAS,
+    Adjustment,
+    LearnedState,
+    Learner,
+    adjust_array,
+    calibration_digest,
+)
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.link.rest_noise import CHANNELS, JudgedRest, RestNoise, positive_part
 from tak_thermo_ros.core.link.rests import Rest, RestFinder
@@ -202,10 +209,10 @@ class CalibrationWatch(RestNoise, WatchWords):
         self.turn_on_offset = np.zeros(6)
         """The run's turn-on offset taken at its first rest (``turn_on``), per value of a message."""
         self.turn_on_lines: list[str] = []
-        self.adjustment: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+        self.adjustment: Adjustment | None = None
         """What the output loses, per value of a message: ``a + b (T - T_ref)`` as ``(a, b)``; ``None``: nothing."""
         self.adjustment_version = 0
-        self.on_adjustment: Callable[[tuple[tuple[float, ...], tuple[float, ...]] | None], None] | None = None
+        self.on_adjustment: Callable[[Adjustment | None], None] | None = None
         """Told every new adjustment (the node's pipeline keeps it at hand)."""
         self.reference = learner.reference if learner is not None else float(unit.gyro.temp_code_ref)  # type: ignore
         """The temperature the adjustment's slope is counted from."""
@@ -519,10 +526,10 @@ class CalibrationWatch(RestNoise, WatchWords):
             self.turn_on_lines.append(f'turn-on offset not taken at rest 1, beyond {TURN_ON_SIGMAS:g} sigma of the '
                                       f'file\'s repeatability and the rest\'s noise: {"; ".join(refused)}')
         self.notices.extend(self.turn_on_lines)
-        self._set_adjustment((tuple(float(v) for v in offset), (0.0,) * 6))
+        self._set_adjustment(Adjustment(tuple(float(v) for v in offset), (0.0,) * 6))
 
-    def _set_adjustment(self, adjustment: tuple[tuple[float, ...], tuple[float, ...]] | None) -> None:
-        if adjustment is not None and not any(adjustment[0]) and not any(adjustment[1]):
+    def _set_adjustment(self, adjustment: Adjustment | None) -> None:
+        if adjustment is not None and not adjustment.any():
             adjustment = None
         self.adjustment = adjustment
         self.adjustment_version += 1
