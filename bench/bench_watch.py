@@ -14,7 +14,10 @@ rotation at their rests (``test/everyday_watch.py``), are watched through the co
   file leaves undetermined (said, not judged);
 - **detection**: the same records with the gyro x offset moved by 800 deg/h, or the gyro y drift
   grown by a quarter: said stale by the end of the 3rd true rest (before the 4th), of the 4th,
-  at all (the judgement 2 s after a rest's end);
+  at all (the judgement 2 s after a rest's end); for the grown slope, beside it, an oracle: how far a
+  test that knew the fault's shape would see it at the 3rd rest and at the run's end, with the watch's
+  own covariance and the whole false-alarm share of a rest (:func:`oracle_z`): the runs where any test
+  of the stated false-alarm rate could say it, and in how many of those the watch did;
 - **learning** (``learn`` on, the faulty runs): from the 5th rest on, the published rate at rests
   less the true Earth rate over the floor of such a mean (the true noise's), RMS per axis;
 - the learned file (the corrections folded into the file) loaded by ``tak_calib validate`` on the
@@ -49,7 +52,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))
 from benchlib import machine  # noqa: E402
 from everyday_check import SETTINGS  # noqa: E402
 from everyday_files import seed_files  # noqa: E402
-from everyday_watch import everyday_runs, learning_ratios, rest_ends_ns, watch_run  # noqa: E402
+from everyday_watch import SLOPE_GROWTH, everyday_runs, learning_ratios, rest_ends_ns, watch_run  # noqa: E402
 
 from tak_thermo_ros import cli  # noqa: E402
 from tak_thermo_ros.core.link.learning import LearnedState  # noqa: E402
@@ -67,6 +70,8 @@ CASES = {'pool': ('pool', False), 'chamber': ('chamber', False), 'chamber+repeat
 parameters ``accel_turn_on_repeatability`` / ``gyro_turn_on_repeatability``: a data sheet's bias
 repeatability; here the simulated unit's true one). A chamber run is one power-up: its file holds none."""
 FAULTS = ('offset', 'slope')
+ORACLE_POWER = 1.645
+"""The oracle's z beyond its threshold by this much: a test that knew the fault's shape would find it in 95 %."""
 
 
 def _floor_unit(unit, scenario):
@@ -74,6 +79,38 @@ def _floor_unit(unit, scenario):
     from dataclasses import replace
     return replace(unit, accel=replace(unit.accel, noise=scenario.noise_truth('accel')),
                    gyro=replace(unit.gyro, noise=scenario.noise_truth('gyro')))
+
+
+def oracle_z(watch, scenario, rests: int = 3) -> tuple[float, float]:
+    """How far a test that knew the grown slope's shape sees it at the ``rests``-th rest: its z and the threshold.
+
+    The gyro y fault at each rest the watch found (a quarter of the curve's drift at the rest's
+    temperature, as ``everyday_watch.everyday_runs`` adds it) against the covariance the watch's own
+    test has there (turn-on, wander, the rests' noise, the file's uncertainty: ``_test``'s), the
+    rest's whole share of the false-alarm rate on one alternative: the most any test of the same
+    false-alarm rate could see. ``nan``: fewer rests found.
+    """
+    from tak_thermo_ros.core.link.watch import two_sided_threshold
+    channel = 1
+    found = [watch.first, *watch.judged][:rests]
+    if len(found) < rests or found[0] is None:
+        return math.nan, math.nan
+    axis = scenario.gyro_unit[1]
+    n = np.array([rest.rest.temperature - scenario.reference_celsius for rest in found])
+    fault = SLOPE_GROWTH * sum(c * n ** (k + 1) for k, c in enumerate(axis.offset_coeffs))
+    wander = watch._wander_covariance(found, channel)
+    independent = np.array([rest.independent[channel] for rest in found])
+    repeatability = watch._turn_on_repeatability(channel, found[0].up)
+    if repeatability is not None:
+        covariance = (watch._turn_on_covariance(found, channel) + watch._constant_variance(found[0], channel)
+                      + wander + np.diag(independent) + watch.calibration_covariance(found, channel))
+    else:
+        fault = fault[1:] - fault[0]
+        covariance = (independent[0] + wander[1:, 1:] + np.diag(independent[1:])
+                      + watch.calibration_covariance(found[1:], channel, found[0]))
+    z = math.sqrt(max(float(fault @ np.linalg.solve(covariance, fault)), 0.0))
+    share = watch.false_alarms_per_hour * found[-1].rest.duration_s / 3600.0 / 4
+    return z, two_sided_threshold(share)
 
 
 def validate_learned(unit, state, simulated, where: Path) -> tuple[int, str]:
@@ -95,7 +132,10 @@ def run_setting(setting: str, seeds: range, *, records: int, held_out: int, minu
     :param healthy: more records of the month, after the held-out ones, watched healthy only (hours of rests).
     """
     figures = {case: {'healthy_runs': 0, 'healthy_stale': [], 'healthy_rest_hours': 0.0, 'undetermined_rests': 0,
-                      'rests': 0, 'detection': {fault: {'runs': 0, 'third': 0, 'fourth': 0, 'ever': 0, 'named': {}}
+                      'rests': 0, 'detection': {fault: {'runs': 0, 'third': 0, 'fourth': 0, 'ever': 0, 'named': {},
+                                                        'seen_by_oracle': 0, 'third_where_seen': 0,
+                                                        'oracle_z_third': [], 'seen_by_oracle_at_end': 0,
+                                                        'ever_where_seen_at_end': 0}
                                                 for fault in FAULTS},
                       'learning': {fault: [] for fault in FAULTS}} for case in CASES}
     validated = {}
@@ -124,6 +164,17 @@ def run_setting(setting: str, seeds: range, *, records: int, held_out: int, minu
                     watch, fired, _ = watch_run(runs[fault], unit, WatchSettings(latitude=LATITUDE, **extra))
                     found = row['detection'][fault]
                     found['runs'] += 1
+                    third = fired is not None and len(ends) > 2 and fired <= ends[2] + 2 * NANOSECONDS
+                    if fault == 'slope':
+                        z, threshold = oracle_z(watch, scenario)
+                        found['oracle_z_third'].append([z, threshold])
+                        if z >= threshold + ORACLE_POWER:  # a test knowing the shape finds it 95 times in 100
+                            found['seen_by_oracle'] += 1
+                            found['third_where_seen'] += int(third)
+                        z, threshold = oracle_z(watch, scenario, rests=1 + len(watch.judged))
+                        if z >= threshold + ORACLE_POWER:
+                            found['seen_by_oracle_at_end'] += 1
+                            found['ever_where_seen_at_end'] += int(fired is not None)
                     if fired is not None:
                         found['ever'] += 1
                         found['third'] += int(len(ends) > 2 and fired <= ends[2] + 2 * NANOSECONDS)
@@ -193,6 +244,11 @@ def main(argv: list[str] | None = None) -> int:
             for fault, found in row['detection'].items():
                 print(f'  {fault}: stale by the end of the 3rd rest in {found["third"]}, of the 4th in '
                       f'{found["fourth"]}, at all in {found["ever"]} of {found["runs"]}; named {found["named"]}')
+                if fault == 'slope':
+                    print(f'  slope: a test knowing its shape sees it by the 3rd rest in {found["seen_by_oracle"]} '
+                          f'of {found["runs"]}; of those the watch said it in {found["third_where_seen"]}')
+                    print(f'  slope: by the run\'s end in {found["seen_by_oracle_at_end"]} of {found["runs"]}; '
+                          f'of those the watch said it in {found["ever_where_seen_at_end"]}')
             for fault, learned in row['learning'].items():
                 print(f'  learning, {fault}: from the 5th rest on, RMS over the floor x y z '
                       f'{" ".join(f"{v:.2f}" for v in learned["rms_over_floor"])} over {learned["rests"]} rests')

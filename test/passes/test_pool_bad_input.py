@@ -282,6 +282,7 @@ def test_learned_corrections_beyond_their_bound_are_refused_where_read(five, cap
     bound = Learner(unit, LearnedState()).total_offset_bound
     for name, value, words in (('offset', [1.0e300, 0.0, 0.0], 'learned.offset[0]: +2.063e+305 deg/h lies beyond '),
                                ('slope', [0.0, 0.5, 0.0], 'learned.slope[1]: +1.031e+05 deg/h/C lies beyond '),
+                               ('above', [0.5, 0.0, 0.0], 'learned.above[0]: +1.031e+05 deg/h/C lies beyond '),
                                ('reference', 1.0e6, 'learned.reference: 1e+06 C lies outside the calibration')):
         bad = _learned(tmp_path / f'{name}.yaml', unit, **{name: value})
         for command in (['validate', str(tmp_path / 'nothing'), '--params', str(bad), '--no-progress'],

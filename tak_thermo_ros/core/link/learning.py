@@ -1,7 +1,10 @@
 """Learning, opt-in: the gyroscope's curve learned at the rests the watch judged, kept from run to run.
 
-Per gyroscope axis an offset and a slope correction to the curve (:class:`Learner`: a Kalman
-filter, the fitted curve its prior, the bias's wander between rests its process noise), the
+Per gyroscope axis an offset and a slope correction to the curve, and a slope beyond each edge of
+the calibrated range (:class:`Learner`: a Kalman filter, the fitted curve its prior, the bias's
+wander between rests its process noise; the file's correction holds the edge's value beyond its
+range, so a unit used hotter or colder than its records were misses the curve's slope there, and
+learning takes it from the rests out there), the
 turn-on offset taken at the first rest, innovations beyond :data:`OUTLIER_SIGMAS` rejected (three
 in a row: a new level), the corrections bounded. The learner takes each rest as the watch judged
 it and the variance of the bias's wander since the rest it took last, as numbers
@@ -20,12 +23,12 @@ from __future__ import annotations
 import math
 import operator
 from dataclasses import dataclass, field, replace
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
 from tak_thermo_ros.core.link.model import AxisModel, Calibration, InputKind, UnitCalibration
-from tak_thermo_ros.core.link.rest_noise import JudgedRest
+from tak_thermo_ros.core.link.rest_noise import JudgedRest, beyond_slope_variances
 from tak_thermo_ros.core.values import DEG_PER_H, finite_number
 from tak_thermo_ros.errors import TakError
 
@@ -44,6 +47,9 @@ VARIANCE_BOUNDS = 1000.0
 """A learned correction's variance read back is at most the square of this many bounds (a spread, not a value)."""
 SLOPE_PRIOR_SHARE = 0.5
 """The prior of a slope correction: its standard deviation is this share of the curve's largest slope."""
+BEYOND_BOUND_SIGMAS = 6.0
+"""Learning bounds a slope beyond an edge of the calibrated range to this many of its prior's standard
+deviations (the curve's own slope at the edge and the file's ``beyond`` spread)."""
 MIN_SPREAD_RUNS = 5
 """The node takes the spread of its earlier runs' turn-on offsets for a repeatability from this many runs on
 (as a fit takes a pool's: fewer power-ups leave the spread undetermined)."""
@@ -65,6 +71,10 @@ class LearnedState:
     :param original: a digest of the calibration the corrections apply to (:func:`calibration_digest`).
     :param turn_on_runs: runs whose first rest gave a turn-on offset; ``turn_on_sum`` and ``turn_on_squares``
         per axis the sum of those offsets and of their squares (rad/s; the spread of :meth:`turn_on_spread`).
+    :param below: ``(3,)`` the slope learned below the calibrated range's low edge (rad/s per degree C: the
+        output loses ``below (T - low)`` under it); ``above`` above its high edge (``above (T - high)``).
+    :param below_variance: ``(3,)`` its variance; empty: not learned yet (a file written before learning kept
+        it), the prior then holds; ``above_variance`` alike.
     """
 
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -79,6 +89,10 @@ class LearnedState:
     turn_on_runs: int = 0
     turn_on_sum: tuple[float, float, float] = (0.0, 0.0, 0.0)
     turn_on_squares: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    below: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    below_variance: tuple[float, ...] = ()
+    above: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    above_variance: tuple[float, ...] = ()
 
     def turn_on_spread(self) -> tuple[float, float, float] | None:
         """Per axis the standard deviation of the runs' turn-on offsets (rad/s), from :data:`MIN_SPREAD_RUNS` runs on.
@@ -99,7 +113,9 @@ class LearnedState:
                 'slope_variance': list(self.slope_variance), 'reference': self.reference, 'runs': self.runs,
                 'rests': self.rests, 'rejected': self.rejected, 'original': self.original,
                 'turn_on_runs': self.turn_on_runs, 'turn_on_sum': list(self.turn_on_sum),
-                'turn_on_squares': list(self.turn_on_squares)}
+                'turn_on_squares': list(self.turn_on_squares), 'below': list(self.below),
+                'below_variance': list(self.below_variance), 'above': list(self.above),
+                'above_variance': list(self.above_variance)}
 
     @classmethod
     def from_mapping(cls, raw: Mapping[str, Any], where: str) -> LearnedState:
@@ -111,8 +127,11 @@ class LearnedState:
             msg = f'{where}: expected a mapping'
             raise TakError(msg)
         values: dict[str, Any] = {}
-        for name in ('offset', 'offset_variance', 'slope', 'slope_variance', 'turn_on_sum', 'turn_on_squares'):
-            if name.startswith('turn_on') and name not in raw:  # a learned file written before it kept them
+        for name in ('offset', 'offset_variance', 'slope', 'slope_variance', 'turn_on_sum', 'turn_on_squares',
+                     'below', 'below_variance', 'above', 'above_variance'):
+            if name.startswith(('turn_on', 'below', 'above')) and name not in raw:  # written before it kept them
+                continue
+            if name in ('below_variance', 'above_variance') and raw.get(name) == []:  # not learned yet
                 continue
             triple = raw.get(name)
             bound = ' >= 0' if name.endswith(('variance', 'squares')) else ''
@@ -184,13 +203,42 @@ def learned_unit(unit: UnitCalibration, state: LearnedState) -> UnitCalibration:
     note = (f'learned by the calibration watch from {state.rests} rests over {state.runs} runs: gyro offset '
             f'{" ".join(f"{v * DEG_PER_H:+.4g}" for v in state.offset)} deg/h, slope '
             f'{" ".join(f"{v * DEG_PER_H:+.3g}" for v in state.slope)} deg/h/C at {state.reference:g} C')
-    learned = replace(gyro, axes=tuple(axes), notes=(*gyro.notes, note))  # type: ignore[arg-type]
+    notes = [note]
+    for side, values, edge in (('below', state.below, gyro.temp_code_min), ('above', state.above, gyro.temp_code_max)):
+        if any(values):  # a polynomial that holds its edge's value cannot carry them: said, and kept in `learned`
+            notes.append(f'learned slope {side} {edge:.4g} C '
+                         f'{" ".join(f"{v * DEG_PER_H:+.3g}" for v in values)} deg/h/C: not in this curve '
+                         f'(it holds the edge\'s value); the node applies it from the learned section')
+    learned = replace(gyro, axes=tuple(axes), notes=(*gyro.notes, *notes))  # type: ignore[arg-type]
     return replace(unit, gyro=learned)
+
+
+class Adjustment(NamedTuple):
+    """What the output loses per message value (six: the accelerometer's, then the gyroscope's).
+
+    ``offset + slope (T - reference) + below min(T - low, 0) + above max(T - high, 0)``: the run's
+    turn-on offset and the learned curve, its slopes beyond the calibrated range ``low .. high``.
+    """
+
+    offset: tuple[float, ...]
+    slope: tuple[float, ...]
+    below: tuple[float, ...] = (0.0,) * 6
+    above: tuple[float, ...] = (0.0,) * 6
+    low: float = -math.inf
+    high: float = math.inf
+
+    def any(self) -> bool:
+        """Whether it changes any value."""
+        return any(self.offset) or any(self.slope) or any(self.below) or any(self.above)
 
 
 @dataclass
 class _AxisFilter:
-    """One gyroscope axis's Kalman filter over the run: state ``(o, s)``, ``r = o + s (T - reference)``."""
+    """One gyroscope axis's Kalman filter over the run: state ``(o, s, b, a)``.
+
+    ``r = o + s (T - reference) + b min(T - low, 0) + a max(T - high, 0)``: an offset, a slope, and
+    the slopes below and above the calibrated range.
+    """
 
     state: np.ndarray
     covariance: np.ndarray
@@ -235,6 +283,11 @@ class Learner:
         self.learn_slope = gyro.needs_temperature
         self.slope_prior = np.array([max(SLOPE_PRIOR_SHARE * s, 1e-9) for s in slopes])
         self.slope_bound = 2.0 * self.slope_prior
+        self.low, self.high = float(low), float(high)
+        below, above = beyond_slope_variances(gyro)
+        self.beyond_prior = np.sqrt(np.vstack([below, above]))
+        """``(2, 3)`` the prior's standard deviation of the slopes below and above the range (the watch's own)."""
+        self.beyond_bound = BEYOND_BOUND_SIGMAS * self.beyond_prior
         noise_level = np.asarray(gyro.noise.white_noise_density) if gyro.noise is not None else np.zeros(3)
         own = np.maximum(np.array(spans), 10.0 * noise_level)
         if self.repeatability is not None:
@@ -250,7 +303,12 @@ class Learner:
             persistent = self.start.offset_variance[axis] if self.start.runs else self.offset_prior[axis] ** 2
             offset_variance = (self.repeatability[axis] ** 2 if self.repeatability is not None else 0.0) + persistent
             slope_variance = (self.start.slope_variance[axis] if self.start.runs else self.slope_prior[axis] ** 2)
-            self._filters.append(_AxisFilter(np.zeros(2), np.diag([offset_variance, slope_variance])))
+            beyond_variances = [start_variance[axis] if self.start.runs and len(start_variance) == 3
+                                else float(self.beyond_prior[side, axis] ** 2)
+                                for side, start_variance in enumerate((self.start.below_variance,
+                                                                       self.start.above_variance))]
+            self._filters.append(_AxisFilter(np.zeros(4), np.diag([offset_variance, slope_variance,
+                                                                   *beyond_variances])))
 
     @property
     def total_offset_bound(self) -> np.ndarray:
@@ -268,9 +326,10 @@ class Learner:
             msg = (f'learned.reference: {start.reference:.6g} C lies outside the calibration\'s range '
                    f'{low:.4g}..{high:.4g} C: not applied')
             raise TakError(msg)
-        bounds = (('offset', 'deg/h', self.total_offset_bound), ('slope', 'deg/h/C', self.slope_bound))
+        bounds = (('offset', 'deg/h', self.total_offset_bound), ('slope', 'deg/h/C', self.slope_bound),
+                  ('below', 'deg/h/C', self.beyond_bound[0]), ('above', 'deg/h/C', self.beyond_bound[1]))
         for name, units, bound in bounds:
-            values, variances = getattr(start, name), getattr(start, f'{name}_variance')
+            values, variances = getattr(start, name), getattr(start, f'{name}_variance') or (0.0, 0.0, 0.0)
             for axis in range(3):
                 # the learning clips at the bound itself: a value read back is within it (float for float)
                 limit = float(bound[axis]) * (1.0 + 1e-9)
@@ -286,32 +345,38 @@ class Learner:
 
     def start_curve(self, temperature: float) -> np.ndarray:
         """``(3,)`` the learned correction in force at the run's start, at a temperature."""
-        return np.asarray(self.start.offset) + np.asarray(self.start.slope) * (temperature - self.reference)
+        return np.asarray(adjustment_at(temperature, self._adjustment(np.zeros((3, 4))), self.reference)[3:])
 
-    def adjustment(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    def _row(self, temperature: float) -> np.ndarray:
+        """``(4,)`` what each state of an axis's filter adds to the correction at a temperature."""
+        return np.array([1.0, temperature - self.reference if self.learn_slope else 0.0,
+                         min(temperature - self.low, 0.0), max(temperature - self.high, 0.0)])
+
+    def _adjustment(self, states: np.ndarray) -> Adjustment:
+        """The start's corrections and ``(3, 4)`` states of this run, per message value."""
+        start = self.start
+        parts = [[0.0] * 6 for _ in range(4)]
+        for axis, state in enumerate(states):
+            for part, (begun, value) in enumerate(zip((start.offset, start.slope, start.below, start.above), state)):
+                parts[part][3 + axis] = float(begun[axis] + value)
+        return Adjustment(*(tuple(part) for part in parts), self.low, self.high)  # type: ignore[arg-type]
+
+    def adjustment(self) -> Adjustment:
         """What the output loses per message value: the start's corrections and this run's estimate."""
-        offset = [0.0] * 6
-        slope = [0.0] * 6
-        for axis, axis_filter in enumerate(self._filters):
-            o, s = axis_filter.state  # zero until the filter takes its first rest
-            total_slope = self.start.slope[axis] + s
-            # a + b (T - T_ref) with the slope counted from the gyroscope's reference temperature
-            offset[3 + axis] = float(self.start.offset[axis] + o)
-            slope[3 + axis] = float(total_slope)
-        return tuple(offset), tuple(slope)
+        return self._adjustment(np.array([axis_filter.state for axis_filter in self._filters]))
 
     def last_rests(self) -> list[JudgedRest | None]:
         """Per axis the rest its filter took last (``None``: none yet): :meth:`update` needs the wander since."""
         return [axis_filter.last for axis_filter in self._filters]
 
-    def update(self, judged: JudgedRest, wander: Sequence[float]) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
+    def update(self, judged: JudgedRest, wander: Sequence[float]) -> Adjustment | None:
         """One rest: each axis's filter steps (the wander since the last rest), takes the rest unless an outlier.
 
         :param judged: the rest as the watch judged it (its residuals against the start's curve, their own noise).
         :param wander: per axis the variance of the bias's wander between :meth:`last_rests` and ``judged``
             (read only where the axis took a rest before).
         """
-        x = judged.rest.temperature - self.reference
+        h = self._row(judged.rest.temperature)
         used = False
         if self.first_residual is None:
             self.first_residual = (float(judged.residual[0]), float(judged.residual[1]), float(judged.residual[2]))
@@ -319,7 +384,6 @@ class Learner:
             residual = float(judged.residual[axis])  # against the start's curve
             if axis_filter.last is not None:
                 axis_filter.covariance[0, 0] += max(wander[axis], 0.0)
-            h = np.array([1.0, x if self.learn_slope else 0.0])
             noise = float(judged.independent[axis])
             predicted = float(h @ axis_filter.state)
             innovation_variance = float(h @ axis_filter.covariance @ h) + noise
@@ -330,10 +394,13 @@ class Learner:
                     self.rejected += 1
                     self.accepted_since[axis] = None
                     continue
-                # the offset moved: a new level, the slope kept
-                axis_filter.state[0] = residual - (axis_filter.state[1] * x if self.learn_slope else 0.0)
-                axis_filter.covariance = np.diag([noise + axis_filter.covariance[1, 1] * x * x,
-                                                  axis_filter.covariance[1, 1]])
+                # the offset moved: a new level, the slopes kept
+                axis_filter.state[0] = residual - float(h[1:] @ axis_filter.state[1:])
+                kept = axis_filter.covariance[1:, 1:]
+                covariance = np.zeros((4, 4))
+                covariance[0, 0] = noise + float(h[1:] @ kept @ h[1:])
+                covariance[1:, 1:] = kept
+                axis_filter.covariance = covariance
                 axis_filter.outliers = 0
                 axis_filter.last = judged
                 self.accepted_since[axis] = judged.rest.index
@@ -344,7 +411,7 @@ class Learner:
                 self.accepted_since[axis] = judged.rest.index
             gain = axis_filter.covariance @ h / innovation_variance
             axis_filter.state = axis_filter.state + gain * innovation
-            keep = np.eye(2) - np.outer(gain, h)  # Joseph's form: stays a covariance
+            keep = np.eye(4) - np.outer(gain, h)  # Joseph's form: stays a covariance
             covariance = keep @ axis_filter.covariance @ keep.T + np.outer(gain, gain) * noise
             axis_filter.covariance = 0.5 * (covariance + covariance.T)
             total_offset = self.start.offset[axis] + axis_filter.state[0]
@@ -353,6 +420,10 @@ class Learner:
             total_slope = self.start.slope[axis] + axis_filter.state[1]
             axis_filter.state[1] = float(np.clip(total_slope, -self.slope_bound[axis], self.slope_bound[axis])) \
                 - self.start.slope[axis]
+            for side, begun in enumerate((self.start.below, self.start.above)):
+                bound = float(self.beyond_bound[side, axis])
+                axis_filter.state[2 + side] = float(np.clip(begun[axis] + axis_filter.state[2 + side], -bound,
+                                                            bound)) - begun[axis]
             axis_filter.last = judged
             used = True
         if not used:
@@ -370,8 +441,13 @@ class Learner:
         turn-on from a moved curve).
         """
         offset, offset_variance, slope, slope_variance = [], [], [], []
+        beyond: list[list[float]] = [[], [], [], []]  # below, its variance, above, its variance
         for axis, axis_filter in enumerate(self._filters):
             start_offset = self.start.offset[axis]
+            for side, (begun, begun_variance) in enumerate(((self.start.below, self.start.below_variance),
+                                                            (self.start.above, self.start.above_variance))):
+                beyond[2 * side].append(float(begun[axis] + axis_filter.state[2 + side]))
+                beyond[2 * side + 1].append(float(axis_filter.covariance[2 + side, 2 + side]))
             if axis_filter.last is None:
                 offset.append(start_offset)
                 offset_variance.append(self.start.offset_variance[axis])
@@ -379,7 +455,7 @@ class Learner:
                 slope_variance.append(self.start.slope_variance[axis] if self.start.runs
                                       else float(self.slope_prior[axis] ** 2))
                 continue
-            o, s = axis_filter.state
+            o, s = axis_filter.state[:2]
             run_variance = float(axis_filter.covariance[0, 0])
             if self.repeatability is not None:
                 prior = self.start.offset_variance[axis] if self.start.runs else float(self.offset_prior[axis] ** 2)
@@ -400,34 +476,48 @@ class Learner:
         return replace(start, offset=tuple(offset), offset_variance=tuple(offset_variance),  # type: ignore
                        slope=tuple(slope), slope_variance=tuple(slope_variance), runs=runs,  # type: ignore[arg-type]
                        rests=start.rests + self.rests, rejected=start.rejected + self.rejected,
-                       turn_on_runs=turn_on[0], turn_on_sum=turn_on[1], turn_on_squares=turn_on[2])  # type: ignore
+                       turn_on_runs=turn_on[0], turn_on_sum=turn_on[1], turn_on_squares=turn_on[2],  # type: ignore
+                       below=tuple(beyond[0]), below_variance=tuple(beyond[1]), above=tuple(beyond[2]),
+                       above_variance=tuple(beyond[3]))
 
     def values(self) -> list[tuple[str, str]]:
         """The diagnostics' learning figures."""
-        offset, slope = self.adjustment()
+        offset, slope, below, above = self.adjustment()[:4]
         return [('learn.rests', str(self.rests)), ('learn.rejected', str(self.rejected)),
                 ('learn.runs_before', str(self.start.runs)),
                 ('learn.gyro_offset_deg_h', ' '.join(f'{v * DEG_PER_H:.4g}' for v in offset[3:])),
-                ('learn.gyro_slope_deg_h_per_c', ' '.join(f'{v * DEG_PER_H:.3g}' for v in slope[3:]))]
+                ('learn.gyro_slope_deg_h_per_c', ' '.join(f'{v * DEG_PER_H:.3g}' for v in slope[3:])),
+                ('learn.gyro_slope_below_deg_h_per_c', ' '.join(f'{v * DEG_PER_H:.3g}' for v in below[3:])),
+                ('learn.gyro_slope_above_deg_h_per_c', ' '.join(f'{v * DEG_PER_H:.3g}' for v in above[3:]))]
 
 
-def adjust(values: tuple[float, ...], temperature: float, adjustment: tuple[tuple[float, ...], tuple[float, ...]],
-           reference: float) -> tuple[float, ...]:
-    """A message's six values less ``a + b (T - T_ref)``: the node's path (``apply``: :func:`adjust_array`)."""
+def adjust(values: tuple[float, ...], temperature: float, adjustment: Adjustment, reference: float
+           ) -> tuple[float, ...]:
+    """A message's six values less :func:`adjustment_at`: the node's path (``apply``: :func:`adjust_array`)."""
     return tuple(map(operator.sub, values, adjustment_at(temperature, adjustment, reference)))
 
 
-def adjustment_at(temperature: float, adjustment: tuple[tuple[float, ...], tuple[float, ...]],
-                  reference: float) -> tuple[float, ...]:
-    """``a + b (T - T_ref)`` per value: what :func:`adjust` subtracts at a temperature (the node keeps it per T)."""
-    offset, slope = adjustment
+def adjustment_at(temperature: float, adjustment: Adjustment, reference: float) -> tuple[float, ...]:
+    """``a + b (T - T_ref)`` per value, plus the slopes beyond the range's edges where learned.
+
+    What :func:`adjust` subtracts at a temperature (the node keeps it per temperature).
+    """
+    offset, slope, below, above, low, high = adjustment
     dt = temperature - reference
-    return tuple(a + b * dt for a, b in zip(offset, slope))
+    if not any(below) and not any(above):
+        return tuple(a + b * dt for a, b in zip(offset, slope))
+    under, over = min(temperature - low, 0.0), max(temperature - high, 0.0)
+    return tuple(a + b * dt + c * under + d * over for a, b, c, d in zip(offset, slope, below, above))
 
 
-def adjust_array(values: np.ndarray, temperature: np.ndarray, adjustment: tuple[tuple[float, ...], tuple[float, ...]],
-                 reference: float) -> np.ndarray:
+def adjust_array(values: np.ndarray, temperature: np.ndarray, adjustment: Adjustment, reference: float) -> np.ndarray:
     """:func:`adjust` of ``(k, 6)`` values at ``(k,)`` temperatures: the same operations, the same floats."""
-    offset, slope = (np.asarray(part, dtype=float) for part in adjustment)
-    dt = np.asarray(temperature, dtype=float) - reference
-    return values - (offset[None, :] + slope[None, :] * dt[:, None])
+    offset, slope, below, above = (np.asarray(part, dtype=float) for part in adjustment[:4])
+    temperature = np.asarray(temperature, dtype=float)
+    dt = temperature - reference
+    if not below.any() and not above.any():
+        return values - (offset[None, :] + slope[None, :] * dt[:, None])
+    under = np.minimum(temperature - adjustment.low, 0.0)
+    over = np.maximum(temperature - adjustment.high, 0.0)
+    return values - (offset[None, :] + slope[None, :] * dt[:, None] + below[None, :] * under[:, None]
+                     + above[None, :] * over[:, None])

@@ -50,7 +50,7 @@ from operator import sub
 from typing import Callable
 
 from tak_thermo_ros.core.link.correction import NOT_PROVIDED, OutOfRange
-from tak_thermo_ros.core.link.learning import adjustment_at
+from tak_thermo_ros.core.link.learning import Adjustment, adjustment_at
 from tak_thermo_ros.core.link.model import Calibration, InputKind, UnitCalibration
 from tak_thermo_ros.core.link.online_reports import WARN_PERIOD_S, CompensatorReports, Level, Notice, _Throttle
 from tak_thermo_ros.core.link.online_rules import (
@@ -179,7 +179,7 @@ class OnlineCompensator(CompensatorReports):
         """Why there is no watch, or ``''``."""
         self._use_settings(watch)
         self._watch_finder: RestFinder | None = None
-        self._adjustment: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+        self._adjustment: Adjustment | None = None
         self._adjusted_at: tuple[float, tuple[float, ...]] | None = None
         """``(T, a + b (T - T_ref))`` of the adjustment in force at the last temperature it was taken at."""
         self.install(self.prepare(calibration=unit, out_of_range=out_of_range,
@@ -289,7 +289,7 @@ class OnlineCompensator(CompensatorReports):
     def _stop_watch(self) -> None:
         self.watch = self._watch_finder = self._adjustment = self._adjusted_at = None
 
-    def _take_adjustment(self, adjustment: tuple[tuple[float, ...], tuple[float, ...]] | None) -> None:
+    def _take_adjustment(self, adjustment: Adjustment | None) -> None:
         self._adjustment = adjustment
         self._adjusted_at = None
 

@@ -26,7 +26,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from tak_thermo_ros.core.link.model import UnitCalibration
+from tak_thermo_ros.core.link.model import Calibration, UnitCalibration
 from tak_thermo_ros.core.link.rests import Rest
 from tak_thermo_ros.core.noise.model import FLICKER_FLOOR, NoiseModel
 from tak_thermo_ros.core.values import EARTH_RATE
@@ -138,6 +138,25 @@ def positive_part(covariance: np.ndarray) -> np.ndarray:
     return (vectors * np.maximum(values, 0.0)) @ vectors.T
 
 
+def beyond_slope_variances(calibration: Calibration) -> tuple[np.ndarray, np.ndarray]:
+    """Per side of the calibrated range (low, high) and axis the variance of the offset's slope beyond it.
+
+    The correction holds the edge's value beyond the range (it clamps): it misses the curve's own
+    slope there, and what the file's ``beyond`` spread says the slope may be besides (sensor units
+    per degree C, squared). Zero where the file states neither.
+    """
+    uncertainty = calibration.uncertainty
+    beyond = np.asarray((uncertainty.beyond if uncertainty is not None else ()) or (0.0, 0.0, 0.0))
+    sides = []
+    for edge in (calibration.temp_code_min, calibration.temp_code_max):
+        n = edge - calibration.temp_code_ref
+        step = max(1e-3 * (calibration.temp_code_max - calibration.temp_code_min), 1e-6)
+        slope = np.array([(axis.offset_drift(n + step) - axis.offset_drift(n - step)) / (2.0 * step) / axis.scale
+                          for axis in calibration.axes])
+        sides.append(slope ** 2 + beyond ** 2 if calibration.needs_temperature else beyond ** 2)
+    return sides[0], sides[1]
+
+
 class RestNoise:
     """The variances of rests' residuals: the Earth rate's unknown part, the wander, the calibration's error.
 
@@ -210,14 +229,7 @@ class RestNoise:
         calibration = self.unit.sensor(sensor)
         uncertainty = calibration.uncertainty
         assert uncertainty is not None
-        beyond = np.asarray(uncertainty.beyond or (0.0, 0.0, 0.0))
-        sides = []
-        for edge in (calibration.temp_code_min, calibration.temp_code_max):
-            n = edge - calibration.temp_code_ref
-            step = max(1e-3 * (calibration.temp_code_max - calibration.temp_code_min), 1e-6)
-            slope = np.array([(axis.offset_drift(n + step) - axis.offset_drift(n - step)) / (2.0 * step) / axis.scale
-                              for axis in calibration.axes])
-            sides.append(slope ** 2 + beyond ** 2 if calibration.needs_temperature else beyond ** 2)
+        sides = beyond_slope_variances(calibration)
         count = len(uncertainty.terms)
         matrix = np.zeros((count + 6, count + 6))
         matrix[:count, :count] = uncertainty.covariance

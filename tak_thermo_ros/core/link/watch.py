@@ -49,10 +49,18 @@ from typing import Callable
 
 import numpy as np
 
-from tak_thermo_ros.core.link.learning import TURN_ON_SIGMAS, LearnedState, Learner, adjust_array, calibration_digest
+from tak_thermo_ros.core.link.learning import (
+    TURN_ON_SIGMAS,
+    Adjustment,
+    LearnedState,
+    Learner,
+    adjust_array,
+    calibration_digest,
+)
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.link.rest_noise import CHANNELS, JudgedRest, RestNoise, positive_part
 from tak_thermo_ros.core.link.rests import Rest, RestFinder
+from tak_thermo_ros.core.link.student import t_two_sided_threshold
 from tak_thermo_ros.core.link.watch_words import ChannelState, Finding, WatchWords
 from tak_thermo_ros.core.noise.model import NoiseModel
 from tak_thermo_ros.core.values import DEG_PER_H, MG, STANDARD_GRAVITY, normal_gravity
@@ -80,10 +88,14 @@ ANOTHER_CALIBRATION = 'learned on another calibration'
 
 @dataclass(frozen=True)
 class Repeatability:
-    """A turn-on repeatability the calibration file lacks, per axis (SI), and where it came from (a few words)."""
+    """A turn-on repeatability the calibration file lacks, per axis (SI), and where it came from (a few words).
+
+    ``runs``: how many power-ups it was estimated from (``None``: given, a data sheet's: taken as known).
+    """
 
     repeatability: tuple[float, float, float]
     source: str
+    runs: int | None = None
 
 
 class WatchUnavailable(TakError):
@@ -127,7 +139,7 @@ class WatchSettings:
                 out.append(Repeatability(tuple(float(v) for v in given), f'{sensor}_turn_on_repeatability'))
             elif sensor == 'gyro' and learned is not None:
                 out.append(Repeatability(learned, f'the spread of {self.learn.turn_on_runs} earlier runs\' '
-                                                  f'turn-on offsets (learned_file)'))
+                                                  f'turn-on offsets (learned_file)', self.learn.turn_on_runs))
             else:
                 out.append(None)
         return out[0], out[1]
@@ -202,10 +214,10 @@ class CalibrationWatch(RestNoise, WatchWords):
         self.turn_on_offset = np.zeros(6)
         """The run's turn-on offset taken at its first rest (``turn_on``), per value of a message."""
         self.turn_on_lines: list[str] = []
-        self.adjustment: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+        self.adjustment: Adjustment | None = None
         """What the output loses, per value of a message: ``a + b (T - T_ref)`` as ``(a, b)``; ``None``: nothing."""
         self.adjustment_version = 0
-        self.on_adjustment: Callable[[tuple[tuple[float, ...], tuple[float, ...]] | None], None] | None = None
+        self.on_adjustment: Callable[[Adjustment | None], None] | None = None
         """Told every new adjustment (the node's pipeline keeps it at hand)."""
         self.reference = learner.reference if learner is not None else float(unit.gyro.temp_code_ref)  # type: ignore
         """The temperature the adjustment's slope is counted from."""
@@ -219,6 +231,9 @@ class CalibrationWatch(RestNoise, WatchWords):
             '_turn_on_repeatability') else 1.0 for known, given in zip(self._turn_on_sd, repeatabilities))
         """Per sensor the turn-on variance's factor: a file of one power-up (no ``turn_on``) judged with a given
         repeatability carries that power-up's own turn-on offset in its curve: the run's less the file's, twice."""
+        self._turn_on_runs = tuple(known.records if known is not None else given.runs if given is not None else None
+                                   for known, given in zip(self._turn_on_sd, repeatabilities))
+        """Per sensor how many power-ups the repeatability was estimated from (``None``: given, taken as known)."""
         self._turn_on_sd = tuple(known if known is not None else given
                                  for known, given in zip(self._turn_on_sd, repeatabilities))
         self._covariances: dict[str, np.ndarray] = {}
@@ -299,18 +314,33 @@ class CalibrationWatch(RestNoise, WatchWords):
             return None
         return float(math.sqrt(sum(u * u * r * r for u, r in zip(up, accel.repeatability))))
 
-    def _turn_on_covariance(self, rests: list[JudgedRest], channel: int) -> np.ndarray:
+    def _turn_on_covariance(self, rests: list[JudgedRest], channel: int, probability: float = 0.0) -> np.ndarray:
         """``(k, k)`` the run's turn-on offset in the rests' residuals: one constant per gyroscope axis.
 
         ``|f|`` takes the accelerometer's turn-on offset ``t`` along each rest's up direction
-        (``u_i . t``: it changes with the tilt), ``u_i' diag(R^2) u_j``.
+        (``u_i . t``: it changes with the tilt), ``u_i' diag(R^2) u_j``; at a test's tail ``probability``
+        a repeatability estimated from a few power-ups as a Student's t (:meth:`_estimated_share`).
         """
         accel, gyro = self._turn_on_sd
+        sensor = int(channel < 3)
+        share = self._turn_on_share[sensor] * self._estimated_share(sensor, probability)
         if channel < 3:
-            return np.full((len(rests), len(rests)), self._turn_on_share[1]
-                           * gyro.repeatability[channel] ** 2)  # type: ignore[union-attr]
+            return np.full((len(rests), len(rests)), share * gyro.repeatability[channel] ** 2)  # type: ignore
         ups = np.array([rest.up for rest in rests])
-        return self._turn_on_share[0] * (ups * np.square(accel.repeatability)) @ ups.T  # type: ignore[union-attr]
+        return share * (ups * np.square(accel.repeatability)) @ ups.T  # type: ignore[union-attr]
+
+    def _estimated_share(self, sensor: int, probability: float) -> float:
+        """The turn-on variance's factor for a repeatability estimated from a few power-ups, at a test's tail.
+
+        A new power-up's offset over a spread estimated from ``N`` of them is Student's t with ``N - 1``
+        degrees of freedom: at the tests' 4-5 sigma, 16 records' spread lies 1.5x short (taken as known it
+        said healthy units stale, issue 39). The variance grows by the t's threshold over the normal's,
+        squared: exact where the turn-on dominates, on the safe side elsewhere; 1 for a given one.
+        """
+        runs = self._turn_on_runs[sensor]
+        if runs is None or not probability > 0.0:
+            return 1.0
+        return (t_two_sided_threshold(probability, max(runs - 1, 1)) / two_sided_threshold(probability)) ** 2
 
     def _judge(self, rest: Rest) -> None:
         judged = self.residual(rest)
@@ -377,7 +407,10 @@ class CalibrationWatch(RestNoise, WatchWords):
         temperatures = np.array([rest.rest.temperature for rest in rests])
         alternatives: list[tuple[np.ndarray, str, int, float]] = []  # (regressor, kind, since, share)
         if repeatability is not None:
-            constant = (self._turn_on_covariance(rests, channel)
+            # the turn-on alternative's tail (the offset since rest 1: all of a first rest's share, else a quarter)
+            tail = self.false_alarms_per_hour * judged.rest.duration_s / 3600.0 / len(CHANNELS) * (
+                1.0 if count == 1 else 0.25)
+            constant = (self._turn_on_covariance(rests, channel, tail)
                         + self._constant_variance(first, channel))  # type: ignore[arg-type]
             y = np.array([rest.residual[channel] for rest in rests])
             covariance = constant + wander + np.diag(independent) + self.calibration_covariance(rests, channel)
@@ -519,10 +552,10 @@ class CalibrationWatch(RestNoise, WatchWords):
             self.turn_on_lines.append(f'turn-on offset not taken at rest 1, beyond {TURN_ON_SIGMAS:g} sigma of the '
                                       f'file\'s repeatability and the rest\'s noise: {"; ".join(refused)}')
         self.notices.extend(self.turn_on_lines)
-        self._set_adjustment((tuple(float(v) for v in offset), (0.0,) * 6))
+        self._set_adjustment(Adjustment(tuple(float(v) for v in offset), (0.0,) * 6))
 
-    def _set_adjustment(self, adjustment: tuple[tuple[float, ...], tuple[float, ...]] | None) -> None:
-        if adjustment is not None and not any(adjustment[0]) and not any(adjustment[1]):
+    def _set_adjustment(self, adjustment: Adjustment | None) -> None:
+        if adjustment is not None and not adjustment.any():
             adjustment = None
         self.adjustment = adjustment
         self.adjustment_version += 1

@@ -28,7 +28,7 @@ from tak_thermo_ros import cli
 from tak_thermo_ros.cli.common import unwrap
 from tak_thermo_ros.core.link.correction import UnitCorrector
 from tak_thermo_ros.core.link.online import OnlineCompensator
-from tak_thermo_ros.core.link.learning import LearnedState, adjust, calibration_digest
+from tak_thermo_ros.core.link.learning import Adjustment, LearnedState, adjust, calibration_digest
 from tak_thermo_ros.core.link.rests import REST_MAX_S, RestFinder, chi2_quantile_ratio
 from tak_thermo_ros.core.link.watch import WatchSettings, WatchUnavailable
 from tak_thermo_ros.core.values import DEG_PER_H
@@ -172,7 +172,7 @@ def test_the_learned_file_is_a_calibration_file_that_goes_on_from_where_it_stopp
     rate = np.zeros((50, 6))
     original = UnitCorrector(UNIT).correct(rate, temperature)
     folded = UnitCorrector(learned).correct(rate, temperature)
-    adjusted = np.array([adjust(tuple(row), t, ((0.0,) * 3 + state.offset, (0.0,) * 3 + state.slope),
+    adjusted = np.array([adjust(tuple(row), t, Adjustment((0.0,) * 3 + state.offset, (0.0,) * 3 + state.slope),
                                 state.reference) for row, t in zip(original, temperature)])
     # the curve's scale drift F_c(n) divides the folded correction: within 2e-3 of it
     assert np.all(np.abs(folded - adjusted) <= 2e-3 * np.abs(original - adjusted) + 1e-15)
@@ -300,3 +300,33 @@ def test_learning_follows_a_shift_beyond_a_flat_axis_own_span():
         ratios.append(learning_ratios(simulated, output, unit, flat.sample_rate_hz))
     rms = np.sqrt(np.mean(np.vstack(ratios) ** 2, axis=0))
     assert len(np.vstack(ratios)) > 15 and np.all(rms <= 2.5), rms
+
+
+def test_learning_takes_the_slope_beyond_the_files_range():
+    """A file calibrated up to 22 C on a unit used up to 33 C: learning takes the curve's slope beyond the edge.
+
+    The correction holds the edge's value beyond the calibrated range (it clamps), so the rests above
+    22 C lie tens of times the floor from the truth; learning's offset and slope alone, one line over
+    the whole range, rejected those rests as outliers and jumped to new levels (issue 39's pool files,
+    whose records span less than the month's: 8-12x the floor). With a slope beyond each edge (its
+    prior the watch's own: the curve's slope there and the file's ``beyond``) the rests from the 5th on
+    lie within 3x the floor (a line beyond the edge leaves the curve's curvature there), 10x better.
+    """
+    narrow = replace(UNIT, gyro=replace(UNIT.gyro, temp_code_max=22.0))
+    learned, plain = [], []
+    for seed in SEEDS[:4]:
+        simulated = everyday_runs(seed, ('healthy',))['healthy']
+        for watching, ratios in ((WatchSettings(latitude=LATITUDE, learn=LearnedState()), learned),
+                                 (WatchSettings(latitude=LATITUDE), plain)):
+            watch, _, output = watch_run(simulated, narrow, watching)
+            ratios.append(learning_ratios(simulated, output, narrow, SCENARIO.sample_rate_hz))
+            if watch.learner is not None:
+                state = watch.learner.state()
+    learned_rms, plain_rms = (np.sqrt(np.mean(np.vstack(r) ** 2, axis=0)) for r in (learned, plain))
+    assert len(np.vstack(learned)) > 15 and np.all(learned_rms <= 3.0), learned_rms
+    assert np.all(plain_rms >= 10.0 * learned_rms) or np.all(plain_rms >= 15.0), (plain_rms, learned_rms)
+    assert any(state.above) and not any(state.below) and len(state.above_variance) == 3
+    again = LearnedState.from_mapping(state.to_mapping(), 'learned')
+    assert again == state
+    older = {key: value for key, value in state.to_mapping().items() if not key.startswith(('below', 'above'))}
+    assert LearnedState.from_mapping(older, 'learned').above_variance == ()
