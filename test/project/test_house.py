@@ -33,4 +33,3 @@ def test_no_module_over_600_lines_without_its_reason():
     offenders = [f'{name} ({lines} lines)' for name, lines in _offenders()]
     assert not offenders, (f'over {MOST_LINES} lines with no paragraph "{REASON} ..." in the module docstring: '
                            + ', '.join(offenders))
-
