@@ -20,6 +20,7 @@ from __future__ import annotations
 import os
 import signal
 import sys
+import time
 from typing import TYPE_CHECKING, Any, Sequence
 
 from tak_thermo_ros.ros.signals import SignalGuard
@@ -31,6 +32,10 @@ if TYPE_CHECKING:
 EXIT_ERROR = 2
 SPIN_PERIOD_S = 0.1
 """Longest wait of one ``spin_once``: how soon the loop notices a shutdown (SIGINT, SIGTERM)."""
+ROSOUT_LINGER_S = 0.5
+"""How long the node waits after its last line (the watch's verdict at shutdown) before its context goes:
+/rosout is a reliable topic whose last sample the middleware sends after ``log`` returns; destroyed at once,
+a loaded machine lost it (a recorder of /rosout missed the verdict)."""
 
 
 def make_executor(kind: str, context: Any) -> Executor:
@@ -153,6 +158,7 @@ def main(args: Sequence[str] | None = None, *, signals: SignalGuard | None = Non
             executor.shutdown()
         if node is not None:
             node.finish()
+            time.sleep(ROSOUT_LINGER_S)
             node.destroy_node()
         rclpy.try_shutdown()
         if not running and signals.received:
