@@ -202,9 +202,13 @@ def oracle_prior(scenario, fleet: Fleet, prior):
         for index, name in enumerate(names):
             axis, power = 'xyz'.index(name[0]), int(name.split('_T')[1]) if '_T' in name else 0
             truth = (scenario.gyro_unit if sensor == 'gyro' else scenario.accel_unit)[axis]
+            scale = [truth.scale - 1.0, *(truth.scale * a for a in truth.scale_coeffs), 0.0, 0.0][:4]
+            if name[1:].startswith('.scale'):  # the accelerometer's x and y scales (the units share the part's)
+                mean[index] = 1.0 + np.polyval(scale[::-1], prior.basis.ref - scenario.reference_celsius)
+                spread[index] = 1e-6
+                continue
             coefficients = [truth.offset, *truth.offset_coeffs, 0.0, 0.0, 0.0][:4]
-            if sensor == 'accel':  # the offset curve at 1 g along the axis: the scale's error and drift in it
-                scale = [truth.scale - 1.0, *(truth.scale * a for a in truth.scale_coeffs), 0.0, 0.0][:4]
+            if sensor == 'accel' and name[0] == 'z':  # z's offset curve at 1 g (true_curves): the scale's in it
                 coefficients = [c + scenario.gravity * k for c, k in zip(coefficients, scale)]
             mean[index] = coefficients[power]
             spread[index] = (fleet.gyro if sensor == 'gyro' else fleet.accel)[power]
