@@ -21,10 +21,11 @@ rests (each rest's mean corrected rate, each record's own mean taken off, RMS ov
 axes) and ``|f| - g`` at the rests (RMS).
 
 **Leaving each unit out** (:func:`leave_one_out`): the prior from the other units; the left-out
-unit's true offset curve (gyroscope x y z, accelerometer z; its level, the mean over power-ups, is
-part of it) checked against the prior's band, mean +- 2 sigma, at temperatures across the fleet's
-span (the coverage: about 95 % if the spread is right); and the left-out unit's own records
-corrected by the prior's mean alone and by the prior with the unit's first record (the bias shape).
+unit's true offset curve on every axis the prior holds (gyroscope x y z, accelerometer x y z: see
+:func:`true_curves`; its level, the mean over power-ups, is part of it) checked against the prior's
+band, mean +- 2 sigma, at temperatures across the fleet's span (the coverage: about 95 % if the
+spread is right); and the left-out unit's own records corrected by the prior's mean alone and by
+the prior with the unit's first record (the bias shape).
 """
 
 from __future__ import annotations
@@ -119,13 +120,17 @@ def judge(units: dict[str, UnitCalibration], later: list) -> dict[str, dict[str,
 
 
 def true_curves(scenario, temperature: np.ndarray) -> dict[str, np.ndarray]:
-    """A unit's true offset curves as the pool fit holds them: gyroscope x y z; accelerometer z at 1 g along z."""
+    """A unit's true offset curves as the pool fit holds them, ``(k, 3)`` per sensor, a column per axis.
+
+    The gyroscope's x y z at rest; the accelerometer's at 1 g along z, the gravity taken off: x and y their
+    offsets (the tilts of the rests tell them apart from their scales), z its offset with its scale's error
+    and drift at 1 g (the rests near level cannot tell them apart).
+    """
     n = np.asarray(temperature, dtype=float) - scenario.reference_celsius
     gyro = exact_output(scenario.gyro_unit, np.zeros((len(n), 3)), n)
     force = np.zeros((len(n), 3))
     force[:, 2] = scenario.gravity
-    accel = exact_output(scenario.accel_unit, force, n)[:, 2] - scenario.gravity
-    return {'gyro': gyro, 'accel': accel[:, None]}
+    return {'gyro': gyro, 'accel': exact_output(scenario.accel_unit, force, n) - force}
 
 
 def fleet_of(seed: int, fleet: Fleet, *, rate_hz: float, minutes: float, records: int, setting: str):
@@ -197,9 +202,13 @@ def oracle_prior(scenario, fleet: Fleet, prior):
         for index, name in enumerate(names):
             axis, power = 'xyz'.index(name[0]), int(name.split('_T')[1]) if '_T' in name else 0
             truth = (scenario.gyro_unit if sensor == 'gyro' else scenario.accel_unit)[axis]
+            scale = [truth.scale - 1.0, *(truth.scale * a for a in truth.scale_coeffs), 0.0, 0.0][:4]
+            if name[1:].startswith('.scale'):  # the accelerometer's x and y scales (the units share the part's)
+                mean[index] = 1.0 + np.polyval(scale[::-1], prior.basis.ref - scenario.reference_celsius)
+                spread[index] = 1e-6
+                continue
             coefficients = [truth.offset, *truth.offset_coeffs, 0.0, 0.0, 0.0][:4]
-            if sensor == 'accel':  # the offset curve at 1 g along the axis: the scale's error and drift in it
-                scale = [truth.scale - 1.0, *(truth.scale * a for a in truth.scale_coeffs), 0.0, 0.0][:4]
+            if sensor == 'accel' and name[0] == 'z':  # z's offset curve at 1 g (true_curves): the scale's in it
                 coefficients = [c + scenario.gravity * k for c, k in zip(coefficients, scale)]
             mean[index] = coefficients[power]
             spread[index] = (fleet.gyro if sensor == 'gyro' else fleet.accel)[power]
@@ -222,10 +231,11 @@ def leave_one_out(drawn: list, habits, *, prior_span: tuple[float, float], grid:
 
     :returns: per sensor the share of (unit, axis, temperature) points covered, the RMS of the
         left-out units' true curve about the prior's mean in units of the band's sigma (1 if right),
-        and how many units were left out as far.
+        the share covered per axis, and how many units were left out as far.
     """
     temperatures = np.linspace(prior_span[0], prior_span[1], grid)
     covered = {'accel': [], 'gyro': []}
+    per_axis = {'accel': {}, 'gyro': {}}
     plain = {'accel': [], 'gyro': []}
     z = {'accel': [], 'gyro': []}
     for index, (scenario, _) in enumerate(drawn):
@@ -236,9 +246,10 @@ def leave_one_out(drawn: list, habits, *, prior_span: tuple[float, float], grid:
             axes = [a for a in 'xyz' if any(n.startswith(f'{a}.offset') for n in fleet.names)]
             for axis in axes:
                 band = offset_band(fleet, axis, temperatures)
-                column = 'xyz'.index(axis) if sensor == 'gyro' else 0
+                column = 'xyz'.index(axis)
                 score = (truth[sensor][:, column] - band.mean) / band.sd
                 covered[sensor] += list(np.abs(score) <= 2.0)
+                per_axis[sensor].setdefault(axis, []).extend(np.abs(score) <= 2.0)
                 z[sensor] += list(score)
                 # the band without the widening for few units (its spread's variance / inflation)
                 index = [i for i, name in enumerate(fleet.names) if name.startswith(f'{axis}.offset')]
@@ -248,6 +259,8 @@ def leave_one_out(drawn: list, habits, *, prior_span: tuple[float, float], grid:
                 plain[sensor] += list(np.abs(truth[sensor][:, column] - band.mean) <= 2.0 * np.sqrt(unwidened))
     return {sensor: {'coverage_2sigma': float(np.mean(covered[sensor])),
                      'coverage_2sigma_unwidened': float(np.mean(plain[sensor])),
+                     'coverage_2sigma_axes': {axis: float(np.mean(inside))
+                                              for axis, inside in per_axis[sensor].items()},
                      'z_rms': float(np.sqrt(np.mean(np.square(z[sensor])))), 'points': len(covered[sensor])}
             for sensor in covered}
 
@@ -265,6 +278,9 @@ def summary(rows: list[dict]) -> dict[str, object]:
     loo = {sensor: {'coverage_2sigma': float(np.mean([r['loo'][sensor]['coverage_2sigma'] for r in rows])),
                     'coverage_2sigma_unwidened': float(np.mean([r['loo'][sensor]['coverage_2sigma_unwidened']
                                                                 for r in rows])),
+                    'coverage_2sigma_axes': {axis: float(np.mean([r['loo'][sensor]['coverage_2sigma_axes'][axis]
+                                                                  for r in rows]))
+                                             for axis in rows[0]['loo'][sensor]['coverage_2sigma_axes']},
                     'z_rms': float(np.sqrt(np.mean([r['loo'][sensor]['z_rms'] ** 2 for r in rows])))}
            for sensor in ('accel', 'gyro')}
     return {'seeds': len(rows), 'pooled': pooled,
@@ -290,4 +306,6 @@ def show(result: dict) -> list[str]:
         lines.append(f'  leave one unit out, {sensor}: true curve within the prior\'s 2-sigma band '
                      f'{100 * values["coverage_2sigma"]:.1f} % '
                      f'(unwidened {100 * values["coverage_2sigma_unwidened"]:.1f} %), z RMS {values["z_rms"]:.2f}')
+        shares = values['coverage_2sigma_axes'].items()
+        lines.append('    per axis: ' + ', '.join(f'{axis} {100 * share:.1f} %' for axis, share in shares))
     return lines

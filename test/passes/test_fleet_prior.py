@@ -39,7 +39,7 @@ from tak_thermo_ros.formats.calibration_file import (
 from tak_thermo_ros.formats.prior_file import load_prior, prior_from_mapping, prior_to_mapping, save_prior
 
 sys.path.insert(0, str(REPO / 'bench'))
-from fleet_prior_check import fleet_scenario, judge, true_curves, unit_records  # noqa: E402
+from fleet_prior_check import fleet_scenario, judge, leave_one_out, true_curves, unit_records  # noqa: E402
 from everyday_check import pool_of  # noqa: E402
 
 RATE_HZ = 10.0
@@ -112,22 +112,45 @@ def test_a_new_unit_s_first_hour_with_the_prior_holds_its_later_colder_records(f
 
 
 def test_the_prior_s_band_holds_the_units_true_curves(fleet):
-    """Each unit's true curve (gyroscope x y z, accelerometer z) within its fleet's 2-sigma band at 9 temperatures.
+    """Each unit's true curve within its fleet's 2-sigma band at 9 temperatures, on every axis the prior holds.
 
-    One fleet of six units: at least 80 % of the points (the bench's 20 seeds of 8 units: about 95 %).
+    The axes are the prior's own (the accelerometer's x and y since the tilts tell them, issue 39), each
+    against the bench's truth of that axis (:func:`fleet_prior_check.true_curves`): the bench compared the
+    accelerometer's x and y bands with the z curve (62.7 % covered). One fleet of six units: at least 80 %
+    of each axis's points (the bench's 20 seeds of 8 units: about 95 %).
     """
     from tak_thermo_ros.core.fit.fleet_prior import offset_band
     _, _, drawn, prior = fleet
     temperatures = np.linspace(prior.low, prior.high, 9)
-    inside = []
-    for scenario, _ in drawn:
-        truth = true_curves(scenario, temperatures)
-        for axis, column in (('x', 0), ('y', 1), ('z', 2)):
-            band = offset_band(prior.sensors['gyro'], axis, temperatures)
-            inside += list(np.abs(truth['gyro'][:, column] - band.mean) <= 2.0 * band.sd)
-        band = offset_band(prior.sensors['accel'], 'z', temperatures)
-        inside += list(np.abs(truth['accel'][:, 0] - band.mean) <= 2.0 * band.sd)
-    assert np.mean(inside) >= 0.8
+    assert {name.split('.')[0] for name in prior.sensors['accel'].names} == set('xyz')
+    for sensor, sensor_fleet in prior.sensors.items():
+        axes = sorted({name[0] for name in sensor_fleet.names if name[1:].startswith('.offset')})
+        inside = {axis: [] for axis in axes}
+        for scenario, _ in drawn:
+            truth = true_curves(scenario, temperatures)[sensor]
+            assert truth.shape == (len(temperatures), 3)
+            for axis in axes:
+                band = offset_band(sensor_fleet, axis, temperatures)
+                inside[axis] += list(np.abs(truth[:, 'xyz'.index(axis)] - band.mean) <= 2.0 * band.sd)
+        for axis, points in inside.items():
+            assert np.mean(points) >= 0.8, (sensor, axis, np.mean(points))
+
+
+def test_leaving_each_unit_out_judges_every_axis_by_its_own_curve(fleet):
+    """The bench's leave-one-out: each of the prior's axes judged, each by the left-out unit's curve on that axis.
+
+    Six units, each left out of a prior of five: at least 80 % of each sensor's points within 2 sigma, at
+    least 70 % of each axis's (a unit of six wholly outside leaves 83 %), the scores' RMS about 1 (the
+    bench's x and y of the accelerometer against its z curve: 62.7 % covered, RMS 3.8).
+    """
+    _, habits, drawn, prior = fleet
+    judged = leave_one_out(drawn, habits, prior_span=(prior.low, prior.high))
+    for sensor, sensor_fleet in prior.sensors.items():
+        axes = {name[0] for name in sensor_fleet.names if name[1:].startswith('.offset')}
+        assert set(judged[sensor]['coverage_2sigma_axes']) == axes == set('xyz')
+        assert judged[sensor]['coverage_2sigma'] >= 0.8, (sensor, judged[sensor])
+        assert min(judged[sensor]['coverage_2sigma_axes'].values()) >= 0.7, (sensor, judged[sensor])
+        assert judged[sensor]['z_rms'] < 1.5, (sensor, judged[sensor])
 
 
 def test_with_weeks_of_records_the_prior_falls_away(fleet):
