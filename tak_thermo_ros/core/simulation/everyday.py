@@ -44,7 +44,14 @@ from tak_thermo_ros.core.records.record import DriverRecord, no_orientation, sec
 from tak_thermo_ros.core.records.stamps import ns_from_seconds
 from tak_thermo_ros.core.rotation import exp_map, log_map
 from tak_thermo_ros.core.simulation.imu import AxisTruth, Scenario, _driver_channels, exact_output, first_order_lag
-from tak_thermo_ros.core.simulation.mapping import fields_from_mapping, integer, number, numbers, whole_numbers
+from tak_thermo_ros.core.simulation.mapping import (
+    fields_from_mapping,
+    first_failed,
+    integer,
+    number,
+    numbers,
+    whole_numbers,
+)
 from tak_thermo_ros.core.simulation.truth import DEFAULT_DRIVER_ACCEL, DEFAULT_DRIVER_GYRO
 from tak_thermo_ros.core.simulation.motion import FACE_UP, _minimum_jerk, _posed
 from tak_thermo_ros.errors import ScenarioError
@@ -148,10 +155,7 @@ class Everyday:
             *((len(getattr(self, key)) == 3 and finite(*getattr(self, key)) and min(getattr(self, key)) >= 0.0,
                key, 'expected three finite numbers >= 0 (x y z)') for key in ('turn_on_accel', 'turn_on_gyro')),
         )
-        for ok, key, problem in checks:
-            if not ok:
-                msg = f'everyday.{key}: {problem}'
-                raise ScenarioError(msg)
+        first_failed(checks, 'everyday')
 
     def turn_on(self, sensor: str) -> np.ndarray:
         """``(3,)`` the standard deviation of a sensor's turn-on offset per axis (its true repeatability)."""

@@ -24,6 +24,7 @@ import numpy as np
 from tak_thermo_ros.core.simulation.everyday import Everyday, everyday_truth, section_from_mapping
 from tak_thermo_ros.core.simulation.imu import AxisTruth, Scenario
 from tak_thermo_ros.core.link.model import UnitCalibration
+from tak_thermo_ros.core.simulation.mapping import first_failed
 from tak_thermo_ros.errors import ScenarioError
 
 
@@ -67,10 +68,7 @@ class Fleet:
             (all(isinstance(i, int) and 0 <= i < self.units for i in self.other_part), 'other_part',
              'expected unit numbers within 0..units-1'),
         )
-        for ok, key, problem in checks:
-            if not ok:
-                msg = f'fleet.{key}: {problem}'
-                raise ScenarioError(msg)
+        first_failed(checks, 'fleet')
 
 
 def fleet_from_mapping(raw: Any) -> Fleet:

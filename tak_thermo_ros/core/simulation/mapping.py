@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import fields
-from typing import Any, Callable, Collection, Mapping
+from typing import Any, Callable, Collection, Iterable, Mapping
 
 from tak_thermo_ros.errors import ScenarioError
 
@@ -108,3 +108,14 @@ def flag(value: Any, key: str) -> bool:
         msg = f'{key}: expected true or false'
         raise ScenarioError(msg)
     return value
+
+
+def first_failed(checks: Iterable[tuple[bool, str, str]], where: str = '') -> None:
+    """Raise on the first ``(ok, key, problem)`` that is not ok, naming ``where.key``: a dataclass's value checks.
+
+    :raises ScenarioError: ``WHERE.KEY: PROBLEM`` (``KEY: PROBLEM`` at a scenario's top level).
+    """
+    for ok, key, problem in checks:
+        if not ok:
+            msg = f'{where}.{key}: {problem}' if where else f'{key}: {problem}'
+            raise ScenarioError(msg)

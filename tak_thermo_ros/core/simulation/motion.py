@@ -25,9 +25,8 @@ from typing import Any
 import numpy as np
 
 from tak_thermo_ros.core.rotation import exp_map, log_map, rotation_between
-from tak_thermo_ros.core.simulation.mapping import fields_from_mapping, integer, number, numbers, string
+from tak_thermo_ros.core.simulation.mapping import fields_from_mapping, first_failed, integer, number, numbers, string
 from tak_thermo_ros.core.values import EARTH_RATE
-from tak_thermo_ros.errors import ScenarioError
 
 PATTERNS = ('random', 'six_faces', 'one_axis')
 TEMPERATURES = ('warmup', 'chamber')
@@ -82,10 +81,7 @@ class HandheldMotion:
             (self.latitude_deg is None or (math.isfinite(self.latitude_deg) and abs(self.latitude_deg) <= 90.0),
              'latitude_deg', 'must lie within -90..90'),
         )
-        for ok, key, problem in checks:
-            if not ok:
-                msg = f'handheld.{key}: {problem}'
-                raise ScenarioError(msg)
+        first_failed(checks, 'handheld')
 
 
 def motion_from_mapping(raw: Any) -> HandheldMotion:

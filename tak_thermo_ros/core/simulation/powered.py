@@ -28,7 +28,7 @@ from tak_thermo_ros.core.link.model import Calibration, InputKind, UnitCalibrati
 from tak_thermo_ros.core.records.record import DriverRecord, no_orientation
 from tak_thermo_ros.core.records.stamps import ns_from_seconds
 from tak_thermo_ros.core.simulation.imu import first_order_lag
-from tak_thermo_ros.core.simulation.mapping import fields_from_mapping
+from tak_thermo_ros.core.simulation.mapping import fields_from_mapping, first_failed
 from tak_thermo_ros.core.simulation.truth import AxisTruth, exact_output
 from tak_thermo_ros.core.values import STANDARD_GRAVITY
 from tak_thermo_ros.errors import ScenarioError
@@ -89,10 +89,7 @@ class PoweredRun:
                   (len(self.ambient_knots) >= 1, 'ambient_knots', 'needs at least one (t, celsius)'),
                   (min(self.board_tau_s, self.self_heating_tau_s, self.element_lag_s) >= 0, 'lags', 'must be >= 0'),
                   (self.temperature_quantum > 0, 'temperature_quantum', 'must be > 0'))
-        for ok, key, problem in checks:
-            if not ok:
-                msg = f'{key}: {problem}'
-                raise ScenarioError(msg)
+        first_failed(checks)
 
     def die_celsius(self, time_s: np.ndarray) -> np.ndarray:
         """The die thermometer's true temperature at ``time_s`` (seconds since power-on)."""

@@ -26,7 +26,15 @@ from tak_thermo_ros.core.link.model import AXES, Calibration, InputKind, UnitCal
 from tak_thermo_ros.core.noise.model import NoiseModel, floor_tau, model_floor_tau
 from tak_thermo_ros.core.simulation.motion import HandheldMotion, motion_from_mapping
 from tak_thermo_ros.core.simulation.magnetometer import MagnetometerTruth, truth_from_mapping
-from tak_thermo_ros.core.simulation.mapping import fields_from_mapping, flag, integer, number, numbers, string
+from tak_thermo_ros.core.simulation.mapping import (
+    fields_from_mapping,
+    first_failed,
+    flag,
+    integer,
+    number,
+    numbers,
+    string,
+)
 from tak_thermo_ros.core.simulation.truth import (
     DEFAULT_DRIVER_ACCEL,
     DEFAULT_DRIVER_GYRO,
@@ -220,10 +228,7 @@ class Scenario:
                '(gauss_markov_time)')
               for name, unit in (('unit', self.unit), ('accel_unit', self.accel_unit), ('gyro_unit', self.gyro_unit))),
         )
-        for ok, key, problem in checks:
-            if not ok:
-                msg = f'{key}: {problem}'
-                raise ScenarioError(msg)
+        first_failed(checks)
 
     def effect_instances(self, key: str = 'effects') -> tuple[Effect, ...]:
         """The hidden effects (``effects`` or ``gyro_effects``) as effect objects with their true parameters.
