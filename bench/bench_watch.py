@@ -86,11 +86,12 @@ def oracle_z(watch, scenario, rests: int = 3) -> tuple[float, float]:
 
     The gyro y fault at each rest the watch found (a quarter of the curve's drift at the rest's
     temperature, as ``everyday_watch.everyday_runs`` adds it) against the covariance the watch's own
-    test has there (turn-on, wander, the rests' noise, the file's uncertainty: ``_test``'s), the
-    rest's whole share of the false-alarm rate on one alternative: the most any test of the same
-    false-alarm rate could see. ``nan``: fewer rests found.
+    test has there (``CalibrationWatch.residual_covariance``: turn-on, wander, the rests' noise, the
+    file's uncertainty; the turn-on spread taken as known), the rest's whole share of the false-alarm
+    rate on one alternative: the most any test of the same false-alarm rate could see. ``nan``: fewer
+    rests found.
     """
-    from tak_thermo_ros.core.link.watch import two_sided_threshold
+    from tak_thermo_ros.core.link.student import two_sided_threshold
     channel = 1
     found = [watch.first, *watch.judged][:rests]
     if len(found) < rests or found[0] is None:
@@ -98,16 +99,9 @@ def oracle_z(watch, scenario, rests: int = 3) -> tuple[float, float]:
     axis = scenario.gyro_unit[1]
     n = np.array([rest.rest.temperature - scenario.reference_celsius for rest in found])
     fault = SLOPE_GROWTH * sum(c * n ** (k + 1) for k, c in enumerate(axis.offset_coeffs))
-    wander = watch._wander_covariance(found, channel)
-    independent = np.array([rest.independent[channel] for rest in found])
-    repeatability = watch._turn_on_repeatability(channel, found[0].up)
-    if repeatability is not None:
-        covariance = (watch._turn_on_covariance(found, channel) + watch._constant_variance(found[0], channel)
-                      + wander + np.diag(independent) + watch.calibration_covariance(found, channel))
-    else:
+    covariance = watch.residual_covariance(found, channel)  # the turn-on spread as known: no test sees more
+    if len(covariance) < len(fault):  # no turn-on repeatability: the differences from the first rest
         fault = fault[1:] - fault[0]
-        covariance = (independent[0] + wander[1:, 1:] + np.diag(independent[1:])
-                      + watch.calibration_covariance(found[1:], channel, found[0]))
     z = math.sqrt(max(float(fault @ np.linalg.solve(covariance, fault)), 0.0))
     share = watch.false_alarms_per_hour * found[-1].rest.duration_s / 3600.0 / 4
     return z, two_sided_threshold(share)

@@ -44,7 +44,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from statistics import NormalDist
 from typing import Callable
 
 import numpy as np
@@ -60,7 +59,7 @@ from tak_thermo_ros.core.link.learning import (
 from tak_thermo_ros.core.link.model import InputKind, UnitCalibration
 from tak_thermo_ros.core.link.rest_noise import CHANNELS, JudgedRest, RestNoise, positive_part
 from tak_thermo_ros.core.link.rests import Rest, RestFinder
-from tak_thermo_ros.core.link.student import t_two_sided_threshold
+from tak_thermo_ros.core.link.student import estimated_spread_factor, two_sided_threshold
 from tak_thermo_ros.core.link.watch_words import ChannelState, Finding, WatchWords
 from tak_thermo_ros.core.noise.model import NoiseModel
 from tak_thermo_ros.core.values import DEG_PER_H, MG, STANDARD_GRAVITY, normal_gravity
@@ -100,11 +99,6 @@ class Repeatability:
 
 class WatchUnavailable(TakError):
     """The calibration gives the watch nothing to judge against (no noise model, no gyroscope)."""
-
-
-def two_sided_threshold(probability: float) -> float:
-    """``|z|`` beyond which a standard normal lies with ``probability``."""
-    return NormalDist().inv_cdf(1.0 - max(probability, 1e-300) / 2.0)
 
 
 @dataclass(frozen=True)
@@ -319,28 +313,15 @@ class CalibrationWatch(RestNoise, WatchWords):
 
         ``|f|`` takes the accelerometer's turn-on offset ``t`` along each rest's up direction
         (``u_i . t``: it changes with the tilt), ``u_i' diag(R^2) u_j``; at a test's tail ``probability``
-        a repeatability estimated from a few power-ups as a Student's t (:meth:`_estimated_share`).
+        a repeatability estimated from a few power-ups as a Student's t (``student.estimated_spread_factor``).
         """
         accel, gyro = self._turn_on_sd
         sensor = int(channel < 3)
-        share = self._turn_on_share[sensor] * self._estimated_share(sensor, probability)
+        share = self._turn_on_share[sensor] * estimated_spread_factor(probability, self._turn_on_runs[sensor])
         if channel < 3:
             return np.full((len(rests), len(rests)), share * gyro.repeatability[channel] ** 2)  # type: ignore
         ups = np.array([rest.up for rest in rests])
         return share * (ups * np.square(accel.repeatability)) @ ups.T  # type: ignore[union-attr]
-
-    def _estimated_share(self, sensor: int, probability: float) -> float:
-        """The turn-on variance's factor for a repeatability estimated from a few power-ups, at a test's tail.
-
-        A new power-up's offset over a spread estimated from ``N`` of them is Student's t with ``N - 1``
-        degrees of freedom: at the tests' 4-5 sigma, 16 records' spread lies 1.5x short (taken as known it
-        said healthy units stale, issue 39). The variance grows by the t's threshold over the normal's,
-        squared: exact where the turn-on dominates, on the safe side elsewhere; 1 for a given one.
-        """
-        runs = self._turn_on_runs[sensor]
-        if runs is None or not probability > 0.0:
-            return 1.0
-        return (t_two_sided_threshold(probability, max(runs - 1, 1)) / two_sided_threshold(probability)) ** 2
 
     def _judge(self, rest: Rest) -> None:
         judged = self.residual(rest)
@@ -402,18 +383,14 @@ class CalibrationWatch(RestNoise, WatchWords):
             rests = [rest for rest in rests if rest.rest.index not in left]
         repeatability = self._turn_on_repeatability(channel, first.up)  # type: ignore[union-attr]
         count = len(rests)
-        wander = self._wander_covariance(rests, channel)
         independent = np.array([rest.independent[channel] for rest in rests])
         temperatures = np.array([rest.rest.temperature for rest in rests])
         alternatives: list[tuple[np.ndarray, str, int, float]] = []  # (regressor, kind, since, share)
+        share = self.false_alarms_per_hour * judged.rest.duration_s / 3600.0 / len(CHANNELS)
         if repeatability is not None:
             # the turn-on alternative's tail (the offset since rest 1: all of a first rest's share, else a quarter)
-            tail = self.false_alarms_per_hour * judged.rest.duration_s / 3600.0 / len(CHANNELS) * (
-                1.0 if count == 1 else 0.25)
-            constant = (self._turn_on_covariance(rests, channel, tail)
-                        + self._constant_variance(first, channel))  # type: ignore[arg-type]
+            covariance = self.residual_covariance(rests, channel, share * (1.0 if count == 1 else 0.25))
             y = np.array([rest.residual[channel] for rest in rests])
-            covariance = constant + wander + np.diag(independent) + self.calibration_covariance(rests, channel)
             steps = count - 1
             if count == 1:
                 alternatives.append((np.ones(1), 'offset', 1, 1.0))
@@ -427,8 +404,7 @@ class CalibrationWatch(RestNoise, WatchWords):
                 state.z = 0.0
                 return
             y = np.array([rest.residual[channel] - first.residual[channel] for rest in rests[1:]])  # type: ignore
-            covariance = (independent[0] + wander[1:, 1:] + np.diag(independent[1:])
-                          + self.calibration_covariance(rests[1:], channel, first))
+            covariance = self.residual_covariance(rests, channel)
             steps = count - 1
             spread = float(np.ptp(temperatures)) >= SLOPE_SPAN_C
             step_share = 0.5 / steps if spread else 1.0 / steps
@@ -436,7 +412,6 @@ class CalibrationWatch(RestNoise, WatchWords):
                 alternatives.append((temperatures[1:] - temperatures[0], 'slope', 0, 0.5))
             alternatives += [(np.array([1.0 if i >= m else 0.0 for i in range(1, count)]), 'offset',
                               rests[m].rest.index, step_share) for m in range(1, count)]
-        share = self.false_alarms_per_hour * judged.rest.duration_s / 3600.0 / len(CHANNELS)
         regressors = np.column_stack([x for x, _, _, _ in alternatives])
         floor = float(np.min(independent[1:] if repeatability is None else independent))
         solved = _solver(covariance, floor)(np.column_stack([y, regressors]))  # C^-1 y and C^-1 x of each
@@ -464,6 +439,21 @@ class CalibrationWatch(RestNoise, WatchWords):
             size = size if channel < 3 else self._vertical(size, judged.up)
             self._found(Finding(name, kind, size, z, judged.rest.index, self._axis(channel, judged.up),
                                 turn_on=turn_on, why=where), f'{abs(z):.1f} sigma, {where}')
+
+    def residual_covariance(self, rests: list[JudgedRest], channel: int, tail: float = 0.0) -> np.ndarray:
+        """The covariance of the rests' residuals on a channel as :meth:`_test` takes them (the first rest first).
+
+        With a turn-on repeatability ``(k, k)``: of the residuals, the turn-on at a test's ``tail``
+        (``student.estimated_spread_factor``; 0: the spread as known); without, ``(k-1, k-1)``: of their differences
+        from the first rest.
+        """
+        first, wander = rests[0], self._wander_covariance(rests, channel)
+        independent = np.array([rest.independent[channel] for rest in rests])
+        if self._turn_on_repeatability(channel, first.up) is None:
+            return (independent[0] + wander[1:, 1:] + np.diag(independent[1:])
+                    + self.calibration_covariance(rests[1:], channel, first))
+        constant = self._turn_on_covariance(rests, channel, tail) + self._constant_variance(first, channel)
+        return constant + wander + np.diag(independent) + self.calibration_covariance(rests, channel)
 
     def _constant_variance(self, first: JudgedRest, channel: int) -> float:
         """What is constant over a run besides the turn-on offset.

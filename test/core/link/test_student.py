@@ -9,8 +9,8 @@ from hypothesis import given, settings, strategies as st
 from scipy import stats
 
 from tak_thermo_ros.core.link.model import TurnOn
-from tak_thermo_ros.core.link.student import t_two_sided_threshold
-from tak_thermo_ros.core.link.watch import WatchSettings, two_sided_threshold
+from tak_thermo_ros.core.link.student import t_two_sided_threshold, two_sided_threshold
+from tak_thermo_ros.core.link.watch import WatchSettings
 from tak_thermo_ros.core.values import DEG_PER_H
 
 from everyday_watch import LATITUDE, everyday_runs, watch_run, watch_unit
