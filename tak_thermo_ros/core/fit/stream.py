@@ -29,6 +29,7 @@ import numpy as np
 
 from tak_thermo_ros.core.effects.base import INPUT, Effect, basis_from, effect_input
 from tak_thermo_ros.core.fit.base import check_separated
+from tak_thermo_ros.core.fit.binned_run import BinnedRun, axis_sandwich
 from tak_thermo_ros.core.fit.design import (
     INPUT_RESOLUTION,
     Column,
@@ -49,6 +50,7 @@ from tak_thermo_ros.core.fit.model import (
     held_notes,
 )
 from tak_thermo_ros.core.fit.solve import BlockedQR, Solution, solve_factor
+from tak_thermo_ros.core.fit.uncertainty import not_below
 from tak_thermo_ros.core.link.model import AXES
 from tak_thermo_ros.core.link.uncertainty import LinkUncertainty
 from tak_thermo_ros.core.records.record import AlignedSamples
@@ -90,6 +92,8 @@ class StreamingFit:
         self._several_inputs = [False, False, False]
         self._frame: Frame | None = None
         self._blocked = [BlockedQR(self.columns) for _ in AXES]
+        self._binned = BinnedRun()
+        """The run's bins in time order, for the link's sandwich (:meth:`uncertainty`): bounded."""
         self.has_reference = True
 
     # ----- accumulation --------------------------------------------------------------------
@@ -120,6 +124,7 @@ class StreamingFit:
         for i in range(3):
             self._blocked[i].add(axis_design(i, powers, samples.reference, samples.counts, bias_order=self.bias_order,
                                              scale_order=self.scale_order, with_target=True).matrix)
+        self._binned.add(samples.stamp_s, codes, samples.reference, samples.counts)
         self.count += len(codes)
 
     def _fit_frame_to_range(self) -> None:
@@ -201,7 +206,8 @@ class StreamingFit:
         """The link's own uncertainty after :meth:`result` (:mod:`~tak_thermo_ros.core.fit.link_uncertainty`).
 
         Per axis its offset and scale polynomials, the errors of the fitted ones from the residual
-        as white noise, a held scale (an axis that saw one input) through its spread; the
+        with its own noise model (:func:`~tak_thermo_ros.core.fit.binned_run.axis_sandwich`: never
+        below the white-noise errors), a held scale (an axis that saw one input) through its spread; the
         gyroscope's offsets only (at rest its scales multiply the Earth rate alone).
 
         :param direction_taken: the reference is the run's mean measured direction (a static run
@@ -231,6 +237,11 @@ class StreamingFit:
             variance = solution.rss / max(self.count - len(fitted), 1)
             normal = design.T @ design
             block = np.linalg.pinv(normal[np.ix_(fitted, fitted)]) * variance
+            sandwich = axis_sandwich(self._binned, self.frame(), i, solution.coefficients,
+                                     normal[np.ix_(fitted, fitted)], variance, bias_order=q, scale_order=p,
+                                     held_scale=scale)
+            if sandwich is not None:  # the residual's wander moves the curve more than white noise would
+                block = not_below(block, sandwich)
             free += [start + j for j in fitted]
             theta.append(values)
             blocks.append((block, variance))

@@ -342,6 +342,17 @@ class Sandwich:
         return ErrorBasis.of(self.noises)
 
 
+def not_below(model: np.ndarray, robust: np.ndarray) -> np.ndarray:
+    """``model`` plus the positive part of ``robust - model``: a covariance never below the model's.
+
+    Raised along the directions where ``robust`` (a sandwich: what the residual's own correlation, or
+    the scatter of independent records, says) is larger; unchanged where it is not.
+    """
+    short = robust - model
+    eigenvalues, vectors = np.linalg.eigh(0.5 * (short + short.T))
+    return model + (vectors * np.maximum(eigenvalues, 0.0)) @ vectors.T
+
+
 def weighted_sum_error(residual: np.ndarray, weights: np.ndarray, period: float = 1.0) -> float:
     """The standard error of ``sum_t w_t e_t`` for a residual ``e`` with its own correlation (its noise model).
 

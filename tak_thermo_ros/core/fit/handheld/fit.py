@@ -404,8 +404,27 @@ def _uncertainty(solved: Solved, layout: Layout, sensor: str, frame: Frame,
     offsets = [j for j in [*solved.free, *held] if layout.kinds[j] in ('offset', 'offset_T')]
     carried = None if sensor == 'accel' else offsets
     return link_uncertainty(names, layout.kinds, normal, gradient, solved.free, solved.covariance,
-                            np.full(layout.width, solved.variance), held, sensor=sensor,
+                            _held_variance(solved, layout), held, sensor=sensor,
                             temperature_scale=frame.n_scale, spreads=settings.held_spreads, carried=carried)
+
+
+def _held_variance(solved: Solved, layout: Layout) -> np.ndarray:
+    """Per column the variance scale a held term's error from the records takes.
+
+    The model's (the solve's residual scale), times per axis how far the records' scatter widened
+    its fitted offset terms' variances (:func:`~tak_thermo_ros.core.fit.handheld.system.record_robust`,
+    their mean ratio; at least 1): a term held beside them is known no better than they are.
+    """
+    variance = np.full(layout.width, solved.variance)
+    if solved.widening is None:
+        return variance
+    for axis in range(3):
+        span = range(layout.starts[axis], layout.starts[axis] + len(layout.columns[axis]))
+        widened = [solved.widening[i] for i, j in enumerate(solved.free)
+                   if j in span and layout.kinds[j] in ('offset', 'offset_T') and np.isfinite(solved.widening[i])]
+        if widened:
+            variance[list(span)] *= max(1.0, float(np.mean(widened)))
+    return variance
 
 
 def _with_turns(record: HandheldRecord, pairs: np.ndarray, used: np.ndarray) -> HandheldRecord:

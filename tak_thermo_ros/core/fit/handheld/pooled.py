@@ -16,7 +16,7 @@ from tak_thermo_ros.core.fit.handheld.accel import AccelProblem, fit_accel
 from tak_thermo_ros.core.fit.handheld.gyro import GyroProblem, TurnRows, fit_gyro
 from tak_thermo_ros.core.fit.handheld.layout import Layout
 from tak_thermo_ros.core.fit.handheld.rests import Rests
-from tak_thermo_ros.core.fit.handheld.system import Solved
+from tak_thermo_ros.core.fit.handheld.system import Solved, record_robust
 from tak_thermo_ros.core.fit.random_effects import RecordStatistics, Variances, absorbed, fit_variances
 from tak_thermo_ros.core.link.model import AXES, Calibration
 from tak_thermo_ros.core.records.handheld import earth_reference
@@ -197,6 +197,7 @@ def pooled_accel(problem: AccelProblem, up: np.ndarray, gauge: dict[int, float],
     # spread within its own error of 0: the records do not tell it (its offsets stay the fit's random effects)
     told = variances.determined & (variances.turn_on_error < variances.turn_on)
     variances = replace(variances, turn_on=np.where(told, variances.turn_on, np.nan), determined=told)
+    accel = record_robust(accel)
     return accel, up, turn_on_fit(accel, problem.layout, variances, len(problem.layout.turn_on(0)))
 
 
@@ -221,6 +222,7 @@ def pooled_gyro(problem: GyroProblem, gyro: Solved, turns: TurnRows, turn_scale:
             break
         previous = current
     assert variances is not None
+    gyro = record_robust(gyro)
     return gyro, turns, turn_scale, turn_on_fit(gyro, problem.layout, variances, len(problem.layout.turn_on(0)))
 
 

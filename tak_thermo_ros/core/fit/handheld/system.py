@@ -11,7 +11,7 @@ loops' stopping rule (:data:`CONVERGED`).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
@@ -19,6 +19,7 @@ import numpy as np
 from tak_thermo_ros.core.fit.handheld.layout import Layout
 from tak_thermo_ros.core.fit.random_effects import RecordSystem
 from tak_thermo_ros.core.fit.solve import BlockedQR, Solution, solve_factor, triangular_factor
+from tak_thermo_ros.core.fit.uncertainty import not_below
 from tak_thermo_ros.core.link.model import AXES
 
 
@@ -89,6 +90,8 @@ class Solved:
     """The system solved (:class:`System` or :class:`RecordSystem`): :attr:`normal` from it."""
     variance: float = 0.0
     """The residual variance scale of the rows (the free terms' covariance is it times the inverse)."""
+    widening: np.ndarray | None = None
+    """Per free term how far :func:`record_robust` widened its variance (``None``: not applied)."""
 
     @property
     def normal(self) -> np.ndarray:
@@ -219,6 +222,66 @@ def solve_holding(system: System, held: dict[int, float], layout: Layout, sensor
         if not more:
             return solved
         held.update(more)
+
+
+MIN_ROBUST_RECORDS = 5
+"""A pool of fewer records keeps the model's covariance alone (a scatter over so few records says little)."""
+
+
+def record_robust(solved: Solved) -> Solved:
+    """A pool's solve with its shared terms' covariance not below what leaving each record out says.
+
+    The model weighs each rest's mean as independent of the record's other rests but for the
+    record's turn-on offset; a bias that wanders within a power-up (its random walk, its
+    instability) moves a record's rests together, and a curve fitted through them is off by more
+    than the model's covariance states (on simulated months 1.6-2.2x in RMS: ``bench/bench_curve_coverage.py``).
+    The records are independent of each other, so how far the shared terms move when one record
+    is left out measures it whatever the correlation within a record (the delete-one-record
+    jackknife; exact one-step for least squares)::
+
+        d_r = (A - S_r)^-1 g_r,   V = (r - 1) / r  sum_r (d_r - mean d)(d_r - mean d)^T
+
+    with ``A`` the shared terms' information (the records' own columns absorbed: the inverse of the
+    solve's :attr:`Solved.inverse` there), ``S_r`` record ``r``'s share of it and ``g_r = X_r^T (y_r - X_r
+    theta)`` its score at the solution, both from its triangular factor (``X_r^T X_r = R_r^T R_r``; its
+    turns and its turn-on prior row included). Unlike the plain cluster sandwich it does not
+    understate the terms a few records carry (a curve's edge that few records reached). The shared
+    terms keep the model's covariance plus the positive part of ``V`` less it: never below the
+    model's, raised along the directions the records say it is short. A system of one record, or
+    of fewer than :data:`MIN_ROBUST_RECORDS`, is returned as it is.
+    """
+    system = solved.system
+    if not isinstance(system, RecordSystem) or system.columns.records < MIN_ROBUST_RECORDS or not solved.free:
+        return solved
+    columns = system.columns
+    records, slots = columns.records, columns.slots
+    where = {j: i for i, j in enumerate(solved.free)}
+    finite = np.isfinite(np.diag(solved.covariance))
+    shared_local = [slots + m for m, j in enumerate(columns.shared[:-1]) if int(j) in where and finite[where[int(j)]]]
+    shared = np.array([where[int(columns.shared[m - slots])] for m in shared_local], dtype=np.int64)
+    if not len(shared):
+        return solved
+    information = np.linalg.pinv(solved.inverse[np.ix_(shared, shared)], hermitian=True)
+    values = np.append(solved.theta, -1.0)
+    moves = np.zeros((records, len(shared)))
+    for record in range(records):
+        factor = system.factors[record]
+        index = np.concatenate([columns.own[record], columns.shared])
+        score = -factor[:, :-1].T @ (factor @ values[index])
+        normal = factor.T @ factor
+        own = [m for m in range(slots) if int(columns.own[record, m]) in where]
+        share = normal[np.ix_(shared_local, shared_local)]
+        if own:  # the record's own offsets absorbed: its share of the shared terms' information
+            across = normal[np.ix_(own, shared_local)]
+            share = share - across.T @ np.linalg.solve(normal[np.ix_(own, own)], across)
+        moves[record] = np.linalg.lstsq(information - share, score[shared_local], rcond=1e-12)[0]
+    moves -= moves.mean(axis=0)
+    robust = (records - 1.0) / records * (moves.T @ moves)
+    covariance = solved.covariance.copy()
+    covariance[np.ix_(shared, shared)] = not_below(covariance[np.ix_(shared, shared)], robust)
+    before = np.diag(solved.covariance)
+    widening = np.where(before > 0.0, np.diag(covariance) / np.where(before > 0.0, before, 1.0), 1.0)
+    return replace(solved, covariance=covariance, widening=widening)
 
 
 def converged(solved: Solved, previous: np.ndarray) -> bool:
