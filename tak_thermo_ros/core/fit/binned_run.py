@@ -3,7 +3,7 @@
 A chamber run's offsets are fitted from every sample (:class:`~tak_thermo_ros.core.fit.stream.StreamingFit`),
 and errors that take the residual as white shrink as one over the root of the samples however slowly
 the bias wanders. In a run whose temperature rises with time a random walk of the bias reads as a
-slope: on simulated chamber runs of 2.3 h the curve was off by 14-20 times the white errors
+slope: on simulated chamber runs of 2.3 h the curve was off by 15-23 times the white errors (RMS)
 (``bench/bench_curve_coverage.py``). The sandwich of :mod:`~tak_thermo_ros.core.fit.uncertainty`
 needs the design and the residual in time order, not every sample: the slow noise that matters
 survives averaging over consecutive bins. :class:`BinnedRun` keeps the means of consecutive bins

@@ -234,7 +234,7 @@ def record_robust(solved: Solved) -> Solved:
     The model weighs each rest's mean as independent of the record's other rests but for the
     record's turn-on offset; a bias that wanders within a power-up (its random walk, its
     instability) moves a record's rests together, and a curve fitted through them is off by more
-    than the model's covariance states (on simulated months 1.6-2.2x in RMS: ``bench/bench_curve_coverage.py``).
+    than the model's covariance states (on simulated months 1.7-2.0x in RMS: ``bench/bench_curve_coverage.py``).
     The records are independent of each other, so how far the shared terms move when one record
     is left out measures it whatever the correlation within a record (the delete-one-record
     jackknife; exact one-step for least squares)::
