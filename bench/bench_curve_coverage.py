@@ -56,9 +56,8 @@ def curve_z(unit, truth) -> tuple[np.ndarray, np.ndarray]:
     uncertainty = gyro.uncertainty
     z = np.full_like(error, np.nan)
     for axis in range(3):
-        n, n_middle = temperatures - gyro.temp_code_ref, middle - gyro.temp_code_ref
-        variance = (uncertainty.offset_variance(axis, n) + uncertainty.offset_variance(axis, n_middle)
-                    - 2.0 * uncertainty.offset_covariance_between(axis, n, n_middle))
+        variance = uncertainty.offset_change_variance(axis, middle - gyro.temp_code_ref,
+                                                      temperatures - gyro.temp_code_ref)
         deviation = np.sqrt(np.maximum(variance, 0.0)) / abs(gyro.axes[axis].scale)
         z[:, axis] = error[:, axis] / np.maximum(deviation, 1e-300)
     return error, z

@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from tak_thermo_ros.core.fit.design import Frame, axis_design
-from tak_thermo_ros.core.fit.uncertainty import MAX_SERIES, noise_product, residual_noise
+from tak_thermo_ros.core.fit.uncertainty import MAX_SERIES, Sandwich
 
 MAX_BINS = 2 * MAX_SERIES
 """Bins kept before neighbours are merged (then at most :data:`~.uncertainty.MAX_SERIES`)."""
@@ -28,64 +28,46 @@ FIELDS = 8
 
 
 class BinnedRun:
-    """Means over consecutive bins of a run's samples, in time order (see the module's description)."""
+    """Means over consecutive bins of a run's samples, in time order (see the module's description).
 
-    def __init__(self, size: int = 1) -> None:
-        self.size = size
-        self._means = np.zeros((0, FIELDS))
-        self._counts = np.zeros(0)
+    Kept as sums and counts: the bins of :attr:`size` samples, then one open bin being filled.
+    """
+
+    def __init__(self) -> None:
+        self.size = 1
+        self._sums = np.zeros((0, FIELDS))
         self._open = np.zeros(FIELDS)
         self._open_count = 0
 
     def add(self, stamp_s: np.ndarray, codes: np.ndarray, reference: np.ndarray, counts: np.ndarray) -> None:
         """A block of samples, after the ones before (``(k,)``, ``(k,)``, ``(k, 3)``, ``(k, 3)``)."""
         values = np.column_stack([stamp_s, codes, reference, counts]).astype(float)
-        if not len(values):
+        take = min(self.size - self._open_count, len(values))  # the open bin first
+        self._open += values[:take].sum(axis=0)
+        self._open_count += take
+        values = values[take:]
+        if self._open_count < self.size:
             return
-        if self._open_count:  # fill the bin left open by the last block
-            take = min(self.size - self._open_count, len(values))
-            self._open += values[:take].sum(axis=0)
-            self._open_count += take
-            values = values[take:]
-            if self._open_count == self.size:
-                self._close()
         whole = len(values) // self.size * self.size
-        if whole:
-            sums = values[:whole].reshape(-1, self.size, FIELDS).sum(axis=1)
-            self._means = np.vstack([self._means, sums / self.size])
-            self._counts = np.append(self._counts, np.full(len(sums), float(self.size)))
-        if whole < len(values):
-            self._open = values[whole:].sum(axis=0)
-            self._open_count = len(values) - whole
-        while len(self._means) > MAX_BINS:
-            self._merge()
-
-    def _close(self) -> None:
-        self._means = np.vstack([self._means, self._open / self._open_count])
-        self._counts = np.append(self._counts, float(self._open_count))
-        self._open, self._open_count = np.zeros(FIELDS), 0
-
-    def _merge(self) -> None:
-        """Neighbouring bins into one: twice the samples per bin."""
-        pairs = len(self._means) // 2 * 2
-        weights = self._counts[:pairs].reshape(-1, 2)
-        sums = (self._means[:pairs] * self._counts[:pairs, None]).reshape(-1, 2, FIELDS).sum(axis=1)
-        merged_counts = weights.sum(axis=1)
-        means, counts = sums / merged_counts[:, None], merged_counts
-        if pairs < len(self._means):  # an odd last bin: it opens again to be filled
-            self._open = self._means[-1] * self._counts[-1] + self._open
-            self._open_count += int(self._counts[-1])
-        self._means, self._counts = means, counts
-        self.size *= 2
-        if self._open_count >= self.size:
-            self._close()
+        closed = [self._open[None, :], values[:whole].reshape(-1, self.size, FIELDS).sum(axis=1)]
+        self._sums = np.vstack([self._sums, *closed])
+        self._open, self._open_count = values[whole:].sum(axis=0), len(values) - whole
+        while len(self._sums) > MAX_BINS:  # neighbours into one: twice the samples per bin
+            if len(self._sums) % 2:  # an odd last bin opens again, to be filled
+                self._open += self._sums[-1]
+                self._open_count += self.size
+                self._sums = self._sums[:-1]
+            self._sums = self._sums[0::2] + self._sums[1::2]
+            self.size *= 2
 
     def bins(self) -> tuple[np.ndarray, np.ndarray]:
         """``(b, FIELDS)`` the bins' means (the open one too) and ``(b,)`` their sample counts."""
-        if not self._open_count:
-            return self._means, self._counts
-        return (np.vstack([self._means, self._open / self._open_count]),
-                np.append(self._counts, float(self._open_count)))
+        counts = np.full(len(self._sums), float(self.size))
+        sums = self._sums
+        if self._open_count:
+            sums = np.vstack([sums, self._open[None, :]])
+            counts = np.append(counts, float(self._open_count))
+        return sums / counts[:, None] if len(counts) else sums, counts
 
     def period(self) -> float:
         """The mean time between the bins' centres, s (``nan`` with fewer than two bins)."""
@@ -99,11 +81,10 @@ def axis_sandwich(run: BinnedRun, frame: Frame, axis: int, coefficients: np.ndar
                   variance: float, *, bias_order: int, scale_order: int, held_scale: float | None) -> np.ndarray | None:
     """The covariance of an axis's fitted columns with the residual's own noise model (the sandwich).
 
-    ``A^-1 (W^T S W) A^-1`` over the bins (:func:`~tak_thermo_ros.core.fit.uncertainty.noise_product`),
-    ``A`` the fit's normal matrix of the fitted columns over the residual variance, ``W`` a bin's design
-    row times its samples over the variance, ``S`` the noise model of the bins' mean residual
-    (:func:`~tak_thermo_ros.core.fit.uncertainty.residual_noise`). ``None``: too few bins to tell, or
-    blocks not given in time order.
+    :class:`~tak_thermo_ros.core.fit.uncertainty.Sandwich` over the bins (``add_means``): ``A`` the fit's
+    normal matrix of the fitted columns over the residual variance, a bin's design row at its mean
+    temperature and input, the noise model of the bins' mean residual. ``None``: too few bins to
+    tell, or blocks not given in time order.
 
     :param coefficients: the fitted columns' values (an axis of one input: its offsets only, ``held_scale`` given).
     :param normal: ``(c, c)`` their normal matrix ``X^T X`` over every sample.
@@ -117,9 +98,7 @@ def axis_sandwich(run: BinnedRun, frame: Frame, axis: int, coefficients: np.ndar
     design = axis_design(axis, powers, means[:, 2:5], means[:, 5:8], bias_order=bias_order, scale_order=scale_order,
                          held_scale=held_scale, with_target=True).matrix
     columns, target = design[:, :-1], design[:, -1]
-    residual = target - columns @ coefficients
-    basis, _ = np.linalg.qr(columns)
-    noise = residual_noise(residual, period, basis)
-    weighted = columns * (counts / variance)[:, None]
-    information = np.linalg.pinv(normal / variance, hermitian=True)
-    return information @ noise_product(weighted, noise) @ information
+    sandwich = Sandwich(len(coefficients), period)
+    sandwich.add_means(columns, target - columns @ coefficients, counts, period, normal / variance, variance,
+                       list(range(len(coefficients))))
+    return sandwich.covariance()

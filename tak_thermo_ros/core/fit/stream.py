@@ -215,6 +215,7 @@ class StreamingFit:
             the board), so their constants are undetermined: their spread is the default's.
         """
         q, p = self.bias_order, self.scale_order
+        frame = self.frame()
         single, first_input = self.single_input_axes(), self.first_input()
         names, kinds, free, held, theta, blocks = [], [], [], [], [], []
         for i, name in enumerate(AXES):
@@ -237,7 +238,7 @@ class StreamingFit:
             variance = solution.rss / max(self.count - len(fitted), 1)
             normal = design.T @ design
             block = np.linalg.pinv(normal[np.ix_(fitted, fitted)]) * variance
-            sandwich = axis_sandwich(self._binned, self.frame(), i, solution.coefficients,
+            sandwich = axis_sandwich(self._binned, frame, i, solution.coefficients,
                                      normal[np.ix_(fitted, fitted)], variance, bias_order=q, scale_order=p,
                                      held_scale=scale)
             if sandwich is not None:  # the residual's wander moves the curve more than white noise would
@@ -255,7 +256,7 @@ class StreamingFit:
             variances[i * (p + q + 2):(i + 1) * (p + q + 2)] = variance
         carried = None if sensor == 'accel' else [j for j in [*free, *held] if kinds[j] in ('offset', 'offset_T')]
         found = link_uncertainty(names, kinds, normal, gradient, free, covariance, variances, held, sensor=sensor,
-                                 temperature_scale=self.frame().n_scale, spreads=spreads, carried=carried)
+                                 temperature_scale=frame.n_scale, spreads=spreads, carried=carried)
         if not direction_taken:
             return found
         along = int(np.argmax(np.abs(first_input)))

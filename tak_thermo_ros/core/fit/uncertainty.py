@@ -315,15 +315,27 @@ class Sandwich:
     def add(self, jacobian: np.ndarray, residual: np.ndarray, variance: float, rows: list[int]) -> None:
         """One axis: its Jacobian ``(k, q)`` over the parameters ``rows``, its residual and variance."""
         variance = max(float(variance), 1e-300)
-        self.information[np.ix_(rows, rows)] += jacobian.T @ jacobian / variance
         size = max(1, math.ceil(len(residual) / MAX_SERIES))
         mean_jacobian = binned(jacobian, size)
-        mean_residual = binned(np.asarray(residual, dtype=float), size)
+        self.add_means(mean_jacobian, binned(np.asarray(residual, dtype=float), size),
+                       np.full(len(mean_jacobian), float(size)), self.period * size,
+                       jacobian.T @ jacobian / variance, variance, rows)
+
+    def add_means(self, mean_jacobian: np.ndarray, mean_residual: np.ndarray, counts: np.ndarray, period: float,
+                  information: np.ndarray, variance: float, rows: list[int]) -> None:
+        """One axis from its means over consecutive bins of samples (a streamed run keeps no more).
+
+        :param mean_jacobian: ``(b, q)`` each bin's mean Jacobian row; ``mean_residual``: ``(b,)`` its mean residual.
+        :param counts: ``(b,)`` the samples in each bin; ``period``: the time between bins, s.
+        :param information: ``(q, q)`` ``J^T J / variance`` over every sample (exact, not from the bins).
+        """
+        variance = max(float(variance), 1e-300)
+        self.information[np.ix_(rows, rows)] += information
         basis, _ = np.linalg.qr(mean_jacobian)
-        noise = residual_noise(mean_residual, self.period * size, basis)
+        noise = residual_noise(mean_residual, period, basis)
         self.noises.append(noise)
-        # sum_t J_t e_t over bins of ``size`` samples is ``size`` times the sum of bin means.
-        weighted = mean_jacobian * (size / variance)
+        # sum_t J_t e_t over a bin of n samples is n times the product of its means.
+        weighted = mean_jacobian * (np.asarray(counts, dtype=float) / variance)[:, None]
         self.middle[np.ix_(rows, rows)] += noise_product(weighted, noise)
         self.white[np.ix_(rows, rows)] += noise.white * (weighted.T @ weighted)
 

@@ -167,6 +167,11 @@ class LinkUncertainty:
         second = (np.asarray(n_second, dtype=float) / self.temperature_scale)[..., None] ** powers
         return np.einsum('...p,pq,...q->...', first, matrix, second)
 
+    def offset_change_variance(self, axis: int, n_from, n_to):
+        """The variance of an axis's offset curve's error change from ``n_from`` to ``n_to`` (constants cancel)."""
+        return (self.offset_variance(axis, n_from) + self.offset_variance(axis, n_to)
+                - 2.0 * self.offset_covariance_between(axis, n_from, n_to))
+
     def offset_variance(self, axis: int, n):
         """The variance of an axis's offset curve's error at ``n = T - T_ref`` (scalar or array)."""
         return self.offset_covariance_between(axis, n, n)

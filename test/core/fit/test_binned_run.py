@@ -83,8 +83,7 @@ def _z(fit: StreamingFit, truth: float) -> float:
     low, high = calibration.temp_code_min - reference, calibration.temp_code_max - reference
     error = (axis.offset_drift(high) - axis.offset_drift(low)) - truth
     section = fit.uncertainty('gyro')
-    variance = (section.offset_variance(0, high) + section.offset_variance(0, low)
-                - 2.0 * section.offset_covariance_between(0, high, low))
+    variance = section.offset_change_variance(0, low, high)
     return float(error / math.sqrt(variance))
 
 
