@@ -365,13 +365,20 @@ def _print_handheld(handheld) -> None:
                   f'link {row.link_offset:+.5f} m/s^2, {row.link_scale:.5f}; faces tilted <= {row.tilt_deg:.1f} deg')
 
 
-def _print_handheld_terms(sensor: str, calibration, result) -> None:
-    """A hand-held fit's scale and offset at the reference temperature and the misalignment, with 1-sigma errors."""
+def _print_handheld_terms(sensor: str, calibration, result, *, records: int = 1) -> None:
+    """A hand-held fit's scale and offset at the reference temperature and the misalignment, with 1-sigma errors.
+
+    :param records: a pool's records: from :data:`~tak_thermo_ros.core.fit.handheld.system.MIN_ROBUST_RECORDS`
+        on its errors are never below what leaving each record out says (``record_robust``).
+    """
     from tak_thermo_ros.core.effects import CrossAxis
+    from tak_thermo_ros.core.fit.handheld.system import MIN_ROBUST_RECORDS
     errors = result.parameter_errors
     unit = common.UNITS[InputKind.IMU, sensor]
     small, factor = common.reader_unit(unit)
-    print(f'  at {calibration.temp_code_ref:g} C, +- 1 sigma (the noise within each rest taken as white):')
+    basis = ('never below what leaving each record out says' if records >= MIN_ROBUST_RECORDS
+             else 'the noise within each rest taken as white')
+    print(f'  at {calibration.temp_code_ref:g} C, +- 1 sigma ({basis}):')
     for name, axis in zip(AXES, calibration.axes):
         scale_error = errors.get(f'{name}.scale', float('nan'))
         offset_error = errors.get(f'{name}.offset', float('nan'))
@@ -454,7 +461,7 @@ def _fit_pool(args: argparse.Namespace, settings, records=None) -> int:
                   f'reference {calibration.temp_code_ref:.3g} C')
         unit_name = common.UNITS[InputKind.IMU, sensor]
         print('\n'.join(axes_lines(common.SENSOR_NAMES[sensor], calibration, result.residual_rms, unit_name)))
-        _print_handheld_terms(sensor, calibration, result)
+        _print_handheld_terms(sensor, calibration, result, records=pool.record.records)
         _print_noise(calibration.noise, unit_name)
     _print_noise_source(noise_line)
     print(f'wrote {args.output}')

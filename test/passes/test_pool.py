@@ -71,6 +71,7 @@ def test_fit_a_directory_of_records_one_line_each_then_the_pool(month, capsys, t
     assert any(line.startswith('pool: heating at') for line in lines)
     assert any('the tilts determine the offsets on x y' in line for line in lines)
     assert any(line.startswith('gyroscope: turn-on repeatability x y z') for line in lines)
+    assert sum('+- 1 sigma (never below what leaving each record out says):' in line for line in lines) == 2
     unit = load_unit(params)
     turn_on = unit.gyro.turn_on
     assert turn_on is not None and turn_on.records == 5
